@@ -1,0 +1,134 @@
+"""Reading and writing a take's audio, keeping the recorded sample rate and sample format.
+
+WAV/FLAC/OGG (and MP3 where libsndfile supports it) are read with soundfile; everything else a phone or
+editor produces (M4A/AAC, the Live Link Face ``.mov``) is decoded with PyAV. Integer PCM stays integer so
+a take's audio round-trips exactly.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import soundfile as sf
+
+from .errors import InputError
+
+_NATIVE = {"PCM_16": "int16", "PCM_24": "int32", "PCM_32": "int32", "FLOAT": "float32"}
+_SCALE = {"int16": 32768.0, "int32": 2147483648.0}
+
+
+@dataclass
+class Audio:
+    """Samples (frames x channels) in their recorded format, and the rate in Hz."""
+
+    samples: np.ndarray
+    sample_rate: int
+    subtype: str = "FLOAT"  # soundfile subtype used to store the samples: PCM_16, PCM_24, PCM_32, FLOAT
+
+    def __post_init__(self) -> None:
+        if self.samples.ndim == 1:
+            self.samples = self.samples[:, None]
+        if self.sample_rate <= 0:
+            raise InputError(f"invalid audio sample rate {self.sample_rate}")
+        self.sample_rate = int(self.sample_rate)
+
+    @property
+    def frames(self) -> int:
+        return int(self.samples.shape[0])
+
+    @property
+    def channels(self) -> int:
+        return int(self.samples.shape[1])
+
+    @property
+    def duration_s(self) -> float:
+        return self.frames / self.sample_rate
+
+    def pcm16(self) -> np.ndarray:
+        """Samples as 16-bit PCM (frames x channels), as the app stores them in its ``.mov``."""
+        x = self.samples
+        if x.dtype == np.int16:
+            return x
+        if x.dtype == np.int32:
+            return (x >> 16).astype(np.int16)
+        return np.clip(np.rint(x.astype(np.float64) * 32768.0), -32768, 32767).astype(np.int16)
+
+    def mono_float(self) -> np.ndarray:
+        """Mono float32 samples in [-1, 1) (channels averaged)."""
+        x = self.samples
+        scale = _SCALE.get(x.dtype.name)
+        y = x.astype(np.float32) / scale if scale else x.astype(np.float32)
+        return y.mean(axis=1) if y.shape[1] > 1 else y[:, 0].copy()
+
+
+def read_audio(path: str | Path) -> Audio:
+    """Decode an audio file (or the audio track of a video) at its own rate and format."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("audio file not found", path)
+    try:
+        info = sf.info(str(path))
+    except (sf.LibsndfileError, RuntimeError, TypeError):
+        info = None
+    if info is not None:
+        dtype = _NATIVE.get(info.subtype, "float32")
+        subtype = info.subtype if info.subtype in _NATIVE else "FLOAT"
+        try:
+            data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
+        except (sf.LibsndfileError, RuntimeError) as exc:
+            raise InputError(f"audio is unreadable: {exc}", path) from None
+        if data.shape[0] == 0:
+            raise InputError("audio file holds no samples", path)
+        return Audio(data, rate, subtype)
+    return decode_with_pyav(path)
+
+
+def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
+    """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...)."""
+    import av  # imported here: only needed for containers soundfile cannot read
+
+    path = Path(path)
+    try:
+        with av.open(str(path)) as container:
+            streams = container.streams.audio
+            if not streams:
+                raise InputError("file has no audio stream", path)
+            stream = streams[stream_index]
+            chunks = []
+            fmt = None
+            for frame in container.decode(stream):
+                fmt = frame.format
+                arr = frame.to_ndarray()
+                if fmt.is_planar:
+                    arr = arr.T
+                else:
+                    arr = arr.reshape(-1, len(frame.layout.channels))
+                chunks.append(arr)
+            rate = stream.rate or stream.codec_context.sample_rate
+    except InputError:
+        raise
+    except (av.FFmpegError, OSError, ValueError) as exc:
+        raise InputError(f"audio could not be decoded: {exc}", path) from None
+    if not chunks:
+        raise InputError("audio stream holds no samples", path)
+    data = np.concatenate(chunks, axis=0)
+    name = fmt.name.rstrip("p") if fmt is not None else "flt"
+    if name == "s16":
+        return Audio(data.astype(np.int16, copy=False), rate, "PCM_16")
+    if name == "s32":
+        return Audio(data.astype(np.int32, copy=False), rate, "PCM_32")
+    if name == "u8":
+        return Audio((data.astype(np.float32) - 128.0) / 128.0, rate, "FLOAT")
+    return Audio(data.astype(np.float32, copy=False), rate, "FLOAT")
+
+
+def write_audio(path: str | Path, audio: Audio) -> None:
+    """Write WAV with the audio's own subtype (RF64 past 4 GB), fsynced."""
+    fmt = "RF64" if audio.samples.nbytes > 0xFFFF0000 else "WAV"
+    with open(path, "wb") as f:
+        sf.write(f, audio.samples, audio.sample_rate, subtype=audio.subtype, format=fmt)
+        f.flush()
+        os.fsync(f.fileno())

@@ -1,0 +1,162 @@
+"""``s2a-capture``: import takes, inspect them, write them back as Live Link Face CSV."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .command import emit_json, progress, run
+from .csv_take import write_livelink_csv
+from .errors import InputError, S2AError
+from .importer import find_sources, import_source
+from .paired import read_paired
+from .take import Take, find_takes, is_take_dir, read_take, write_take
+
+PROG = "s2a-capture"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser(
+        "import",
+        help="Live Link Face CSVs, take folders or generic paired data -> take folders",
+        description="Import Live Link Face CSV files and take folders (folders are searched "
+        "recursively), or one generic paired take (--matrix with --audio, --names, --fps).",
+    )
+    p.add_argument("sources", nargs="*", type=Path, help="CSV files, take folders, or folders of them")
+    p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the takes into")
+    p.add_argument("--audio", type=Path, help="audio recorded elsewhere (WAV/FLAC/MP3/M4A) for one CSV")
+    p.add_argument("--matrix", type=Path, help="generic import: frames x channels weights (.npy or .csv)")
+    p.add_argument("--names", type=Path, help="generic import: channel names (.txt one per line, or .npy)")
+    p.add_argument("--fps", type=float, help="generic import: frame rate of the matrix")
+    p.add_argument("--id", dest="take_id", help="take id (default: from the source's name)")
+    p.add_argument(
+        "--variant",
+        choices=("cal", "raw", "plain"),
+        help="which CSV of a calibrated take folder to import (default cal, else plain, else raw)",
+    )
+    p.add_argument("--swap-lr", action="store_true", help="exchange JawLeft/Right and MouthLeft/Right labels")
+    p.add_argument("--strict", action="store_true", help="refuse files that need any repair")
+    p.add_argument("--json", action="store_true", help="print one JSON summary line per take")
+
+    p = sub.add_parser("info", help="frames, rate, drops, face-lost frames and audio of takes")
+    p.add_argument("takes", nargs="+", type=Path, help="take folders (ours or the app's) or CSV files")
+    p.add_argument("--json", action="store_true", help="one JSON object per take")
+
+    p = sub.add_parser("export-csv", help="write a take in the Live Link Face CSV format")
+    p.add_argument("take", type=Path, help="a take folder")
+    p.add_argument("-o", "--out", type=Path, required=True, help="CSV file to write")
+    p.add_argument(
+        "--count-name",
+        choices=("BlendShapeCount", "BlendshapeCount"),
+        help="spelling of the second header column (default: as in the source)",
+    )
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    return parser
+
+
+def _print_summary(summary: dict, as_json: bool) -> None:
+    if as_json:
+        emit_json(summary)
+        return
+    lines = [f"{summary['id']}:"]
+    for key, value in summary.items():
+        if key != "id" and value is not None:
+            lines.append(f"  {key:18s} {value}")
+    print("\n".join(lines))
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    if args.matrix is not None:
+        if args.sources:
+            raise InputError("give either sources or --matrix, not both")
+        if args.audio is None or args.fps is None:
+            raise InputError("--matrix needs --audio and --fps (and --names unless the CSV has a header)")
+        jobs = [("matrix", args.matrix)]
+    else:
+        if not args.sources:
+            raise InputError("nothing to import: name CSV files or take folders, or use --matrix")
+        for flag in ("names", "fps"):
+            if getattr(args, flag) is not None:
+                raise InputError(f"--{flag} only applies to a generic import with --matrix")
+        sources = find_sources(args.sources)
+        if not sources:
+            raise InputError(
+                f"no Live Link Face CSV or take folder under {', '.join(map(str, args.sources))}"
+            )
+        if args.audio is not None and len(sources) != 1:
+            raise InputError(f"--audio pairs with one source, but {len(sources)} were found")
+        if args.take_id and len(sources) != 1:
+            raise InputError("--id names one take, but several sources were found")
+        jobs = [("source", s) for s in sources]
+    failures = 0
+    for kind, src in jobs:
+        try:
+            if kind == "matrix":
+                take = read_paired(args.audio, args.matrix, args.fps, args.names, args.take_id)
+            else:
+                take = import_source(src, args.audio, args.variant, args.strict, args.swap_lr)
+                if args.take_id:
+                    take.meta.id = args.take_id
+            folder = write_take(take, args.out)
+        except S2AError as exc:
+            failures += 1
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            if args.json:
+                emit_json({"source": str(src), "error": str(exc)})
+            continue
+        summary = take.summary() | {"path": str(folder), "source": str(src)}
+        if args.json:
+            emit_json(summary)
+        else:
+            progress(
+                f"{src} -> {folder}: {summary['frames']} frames at {summary['fps']:g} fps, "
+                f"{summary['dropped_frames']} dropped, {summary['face_lost_frames']} face-lost, "
+                f"{summary['repairs']} repairs"
+            )
+    return 1 if failures else 0
+
+
+def _load_for_info(path: Path) -> list[Take]:
+    if is_take_dir(path):
+        return [read_take(path)]
+    if path.is_dir():
+        takes = find_takes([path])
+        if takes:
+            return [read_take(t) for t in takes]
+    return [import_source(s) for s in find_sources([path])]
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    for path in args.takes:
+        takes = _load_for_info(path)
+        if not takes:
+            raise InputError("no takes found", path)
+        for take in takes:
+            _print_summary(take.summary() | {"path": str(path)}, args.json)
+    return 0
+
+
+def cmd_export_csv(args: argparse.Namespace) -> int:
+    take = read_take(args.take, audio=False)
+    out = write_livelink_csv(take, args.out, count_name=args.count_name)
+    summary = {"id": take.meta.id, "path": str(out), "rows": int((take.frame_status != 2).sum())}
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(f"{take.meta.id} -> {out}")
+    return 0
+
+
+COMMANDS = {"import": cmd_import, "info": cmd_info, "export-csv": cmd_export_csv}
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(PROG, build_parser(), lambda a: COMMANDS[a.command](a), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,43 @@
+"""What every stage's command line shares: one-line errors with exit code 1, JSON lines on stdout,
+progress on stderr. Usage errors exit with 2 (argparse)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from .errors import S2AError
+
+
+def emit_json(obj: dict[str, Any]) -> None:
+    """One JSON object on one line of stdout."""
+    sys.stdout.write(json.dumps(obj, allow_nan=False, default=str) + "\n")
+    sys.stdout.flush()
+
+
+def progress(message: str) -> None:
+    """Human-readable progress on stderr."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def run(
+    prog: str,
+    parser: argparse.ArgumentParser,
+    main: Callable[[argparse.Namespace], int],
+    argv: Sequence[str] | None,
+) -> int:
+    """Parse ``argv`` and run ``main``; the toolkit's own errors become one line and exit code 1."""
+    args = parser.parse_args(argv)
+    try:
+        return main(args)
+    except S2AError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0

@@ -1,0 +1,513 @@
+"""Live Link Face CSV takes: a fast, forgiving reader and a writer in the app's exact format.
+
+Format (formats doc §2): header ``Timecode,BlendShapeCount,<61 names>`` (newer builds spell the second
+column ``BlendshapeCount``), rows ``HH:MM:SS:FF.fff,61,<61 values with 10 decimals>``, face-lost rows
+``<timecode>,0``. Columns are matched by name, case-insensitively; times come from the timecode, never
+from the row index.
+
+Reading has two paths with one result. Clean files (the common case) are parsed by pyarrow's
+multi-threaded CSV engine with fixed column types; anything unusual falls back to a line-by-line
+parser that repairs what it can, records each repair with its line in the take's metadata, and raises
+``InputError`` naming the file and line for what it cannot repair.
+
+Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``):
+
+============== ================================================================================
+kind           what was done
+============== ================================================================================
+bom            a UTF-8 byte-order mark before the header was ignored
+blank_line     an empty line was skipped
+truncated_row  a last line cut short (no line end, too few fields) was dropped
+wrong_fields   a row with the wrong number of fields was dropped; its slot becomes a dropped frame
+bad_timecode   a row whose timecode does not parse was dropped; its slot becomes a dropped frame
+bad_value      non-numeric, NaN or infinite cells were set to NaN and the frame marked BAD_VALUE
+bad_count      the BlendShapeCount cell disagreed with the number of values; the values were kept
+duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
+============== ================================================================================
+
+Errors: missing, empty or binary file; a header that is not a Live Link Face header; no data rows;
+a timecode going backwards (other than across midnight). ``strict=True`` turns every repair into an
+error as well.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import channels as ch
+from .errors import InputError
+from .take import FrameStatus, Take, TakeMeta, safe_id, source_file
+from .timecode import CSV_TIMECODE_RATE, Timecode, parse_fixed_width, unwrap_midnight
+
+COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
+VARIANTS = ("cal", "raw", "neutral")
+_VARIANT_RE = re.compile(r"^(?P<prefix>.*?)(?:_(?P<variant>cal|raw|neutral))?$", re.IGNORECASE)
+_STANDARD_FPS = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+
+
+@dataclass
+class CsvRows:
+    """What a Live Link Face CSV holds, before it becomes a take."""
+
+    path: Path
+    count_name: str
+    columns: list[str]  # value column names as written in the header
+    seconds_of_day: np.ndarray  # float64, continuous across midnight
+    values: np.ndarray  # float32 rows x columns, NaN where no value
+    status: np.ndarray  # uint8 FrameStatus per row
+    repairs: list[dict[str, Any]] = field(default_factory=list)
+    line_ending: str = "\n"
+
+
+def _repair(repairs: list, line: int | None, kind: str, message: str) -> None:
+    repairs.append({"line": line, "kind": kind, "message": message})
+
+
+def _parse_header(text: str, path: Path) -> tuple[str, list[str]]:
+    names = [c.strip() for c in text.rstrip("\r\n").split(",")]
+    if len(names) < 3 or names[0].lower() != "timecode" or names[1].lower() != "blendshapecount":
+        shown = text[:60].encode("unicode_escape").decode("ascii")
+        raise InputError(
+            "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount "
+            f"(found {shown!r})",
+            path,
+            1,
+        )
+    values = names[2:]
+    lowered = [n.lower() for n in values]
+    dupes = sorted({n for n in values if lowered.count(n.lower()) > 1})
+    if dupes or "" in values:
+        raise InputError(f"header names a column twice or leaves one empty: {dupes or ['']}", path, 1)
+    return names[1], values
+
+
+def _read_head(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except FileNotFoundError:
+        raise InputError("file not found", path) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, not a CSV file", path) from None
+    if not head.strip():
+        raise InputError("file is empty", path)
+    if b"\x00" in head:
+        raise InputError("binary data, not a CSV text file", path, 1)
+    return head
+
+
+def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
+    """Parse a Live Link Face CSV into rows (times of day in seconds, values, per-row status)."""
+    path = Path(path)
+    head = _read_head(path)
+    if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head:
+        first = head.split(b"\n", 1)[0]
+        try:
+            count_name, columns = _parse_header(first.decode("utf-8"), path)
+        except UnicodeDecodeError:
+            raise InputError("binary data, not a CSV text file", path, 1) from None
+        rows = _read_fast(path, count_name, columns)
+        if rows is not None:
+            return rows
+    return _read_careful(path, strict)
+
+
+def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | None:
+    """pyarrow path for well-formed files; ``None`` sends the file to the careful parser."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    face_lost: list[str] = []
+    other_invalid = []
+
+    def on_invalid(row: Any) -> str:
+        text = row.text or ""
+        parts = text.split(",")
+        if len(parts) == 2 and parts[1].strip() == "0":
+            face_lost.append(parts[0])
+        else:
+            other_invalid.append(text)
+        return "skip"
+
+    names = ["tc", "count"] + [f"v{i}" for i in range(len(columns))]
+    types = {n: pa.float32() for n in names[2:]}
+    types["tc"] = pa.string()
+    types["count"] = pa.int32()
+    try:
+        table = pacsv.read_csv(
+            path,
+            read_options=pacsv.ReadOptions(
+                column_names=names, skip_rows=1, block_size=1 << 24, encoding="utf8"
+            ),
+            parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
+            convert_options=pacsv.ConvertOptions(column_types=types, strings_can_be_null=False),
+        )
+    except (pa.ArrowInvalid, pa.ArrowException, UnicodeDecodeError):
+        return None
+    if other_invalid or table.num_rows == 0:
+        return None
+    if table.column("count").null_count or table.column("tc").null_count:
+        return None
+    counts = table.column("count").to_numpy()
+    if np.any(counts != len(columns)):
+        return None
+    tc = table.column("tc").combine_chunks()
+    offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + len(tc) + 1]
+    data = np.frombuffer(tc.buffers()[2], dtype=np.uint8)
+    if not np.all(np.diff(offsets) == 15):
+        return None
+    tracked_t = parse_fixed_width(data[offsets[0] : offsets[-1]].reshape(-1, 15))
+    if tracked_t is None:
+        return None
+    values = np.empty((table.num_rows, len(columns)), dtype=np.float32)
+    for i in range(len(columns)):
+        col = table.column(i + 2)
+        if col.null_count:
+            return None
+        values[:, i] = col.to_numpy()
+    if not np.isfinite(values).all():
+        return None
+    status = np.zeros(table.num_rows, dtype=np.uint8)
+    if face_lost:
+        lost_chars = np.frombuffer("".join(face_lost).encode("ascii", "replace"), dtype=np.uint8)
+        if any(len(s) != 15 for s in face_lost):
+            return None
+        lost_t = parse_fixed_width(lost_chars.reshape(-1, 15))
+        if lost_t is None:
+            return None
+        # Rows of either kind interleave in the file; the (unwrapped) timecode restores their order.
+        all_t = np.concatenate([tracked_t, lost_t])
+        is_lost = np.concatenate([np.zeros(tracked_t.size, bool), np.ones(lost_t.size, bool)])
+        order = _file_order(tracked_t, lost_t)
+        if order is None:
+            return None
+        tracked_t = all_t[order]
+        is_lost = is_lost[order]
+        full = np.full((order.size, len(columns)), np.nan, dtype=np.float32)
+        full[~is_lost] = values
+        values = full
+        status = np.where(is_lost, FrameStatus.FACE_LOST, FrameStatus.TRACKED).astype(np.uint8)
+    t = unwrap_midnight(tracked_t)
+    if t.size > 1 and not np.all(np.diff(t) > 0):
+        return None
+    return CsvRows(path, count_name, columns, t, values, status)
+
+
+def _file_order(tracked: np.ndarray, lost: np.ndarray) -> np.ndarray | None:
+    """Merge order of two row kinds by time; ``None`` when a midnight wrap makes it ambiguous."""
+    both = np.concatenate([tracked, lost])
+    if both.size and both.max() - both.min() > 43200:
+        return None
+    return np.argsort(both, kind="stable")
+
+
+def _read_careful(path: Path, strict: bool) -> CsvRows:
+    raw = path.read_bytes()
+    repairs: list[dict[str, Any]] = []
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+        _repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
+    line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
+    text = raw.decode("utf-8", errors="replace")
+    ends_with_newline = text.endswith("\n")
+    lines = text.splitlines()
+    if not lines or "\ufffd" in lines[0]:
+        raise InputError("binary data, not a CSV text file", path, 1)
+    count_name, columns = _parse_header(lines[0], path)
+    ncols = len(columns) + 2
+    times: list[float] = []
+    rows: list[list[float] | None] = []
+    status: list[int] = []
+    line_numbers: list[int] = []
+    last = len(lines)
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            _repair(repairs, number, "blank_line", "empty line skipped")
+            continue
+        fields = line.split(",")
+        lost = len(fields) == 2 and fields[1].strip() == "0"
+        if not lost and len(fields) != ncols:
+            if number == last and not ends_with_newline and len(fields) < ncols:
+                _repair(
+                    repairs,
+                    number,
+                    "truncated_row",
+                    f"last row cut short ({len(fields)} of {ncols} fields) dropped",
+                )
+            else:
+                _repair(
+                    repairs,
+                    number,
+                    "wrong_fields",
+                    f"row has {len(fields)} fields, expected {ncols}: dropped",
+                )
+            continue
+        try:
+            tod = Timecode.parse(fields[0]).seconds_of_day
+        except ValueError as exc:
+            _repair(repairs, number, "bad_timecode", f"{exc}: row dropped")
+            continue
+        if lost:
+            times.append(tod)
+            rows.append(None)
+            status.append(FrameStatus.FACE_LOST)
+            line_numbers.append(number)
+            continue
+        if fields[1].strip() != str(len(columns)):
+            _repair(
+                repairs,
+                number,
+                "bad_count",
+                f"{count_name} is {fields[1].strip()!r} but the row has {len(columns)} values",
+            )
+        row_status = FrameStatus.TRACKED
+        try:
+            vals = [float(x) for x in fields[2:]]
+        except ValueError:
+            vals = []
+            for x in fields[2:]:
+                try:
+                    vals.append(float(x))
+                except ValueError:
+                    vals.append(float("nan"))
+        bad = [columns[i] for i, v in enumerate(vals) if not np.isfinite(v)]
+        if bad:
+            vals = [v if np.isfinite(v) else float("nan") for v in vals]
+            row_status = FrameStatus.BAD_VALUE
+            _repair(
+                repairs,
+                number,
+                "bad_value",
+                f"non-numeric or non-finite value in {', '.join(bad[:5])}"
+                + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+                + ": set to NaN, frame marked invalid",
+            )
+        times.append(tod)
+        rows.append(vals)
+        status.append(row_status)
+        line_numbers.append(number)
+    if strict and repairs:
+        first = repairs[0]
+        raise InputError(f"{first['message']} (strict mode)", path, first["line"])
+    if not times:
+        raise InputError("no data rows after the header", path)
+    t = unwrap_midnight(np.asarray(times))
+    values = np.full((len(rows), len(columns)), np.nan, dtype=np.float32)
+    for i, r in enumerate(rows):
+        if r is not None:
+            values[i] = r
+    st = np.asarray(status, dtype=np.uint8)
+    keep = np.ones(t.size, dtype=bool)
+    for i in np.flatnonzero(np.diff(t) <= 0) + 1:
+        prev = i - 1
+        while not keep[prev]:
+            prev -= 1
+        if t[i] == t[prev]:
+            same = np.array_equal(values[i], values[prev], equal_nan=True)
+            keep[i] = False
+            _repair(
+                repairs,
+                line_numbers[i],
+                "duplicate_row",
+                "row repeats the previous timecode"
+                + (" with the same values" if same else " with different values")
+                + f" (line {line_numbers[prev]}): dropped",
+            )
+            if strict:
+                raise InputError("duplicate timecode (strict mode)", path, line_numbers[i])
+        elif t[i] < t[prev]:
+            raise InputError(
+                f"timecode {fields_tc(t[i])} goes back from {fields_tc(t[prev])} on line "
+                f"{line_numbers[prev]} (a clock jump?); split the file there or fix the timecodes",
+                path,
+                line_numbers[i],
+            )
+    return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
+
+
+def fields_tc(seconds_of_day: float) -> str:
+    return Timecode.from_seconds(seconds_of_day).format()
+
+
+def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[float, float]:
+    """Nominal frame rate and the measured median frame period (s) from row times.
+
+    The nominal rate snaps to a standard rate within 3 % (the app writes 59.90 rows/s for "60").
+    """
+    if times.size < 2:
+        return 60.0, 1 / 60.0
+    steps = np.diff(times)
+    period = float(np.median(steps))
+    rate = 1.0 / period
+    for std in _STANDARD_FPS:
+        if abs(rate - std) / std < 0.03:
+            return std, period
+    return round(rate, 3), period
+
+
+def fill_dropped(
+    times: np.ndarray, values: np.ndarray, status: np.ndarray, period: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Insert DROPPED placeholder frames (NaN values) into gaps longer than 1.5 frame periods.
+
+    Returns the new times, values, status and the number of frames inserted.
+    """
+    if times.size < 2:
+        return times, values, status, 0
+    steps = np.diff(times)
+    missing = np.where(steps > 1.5 * period, np.rint(steps / period).astype(np.int64) - 1, 0)
+    total = int(missing.sum())
+    if total == 0:
+        return times, values, status, 0
+    reps = np.ones(times.size, dtype=np.int64)
+    reps[:-1] += missing
+    start = np.repeat(times, reps)
+    idx = np.repeat(np.arange(times.size), reps)
+    offset = np.arange(start.size) - np.repeat(np.cumsum(reps) - reps, reps)
+    step = np.repeat(np.append(steps / (missing + 1), 0.0), reps)
+    new_t = start + offset * step
+    is_orig = offset == 0
+    new_v = np.full((new_t.size, values.shape[1]), np.nan, dtype=np.float32)
+    new_v[is_orig] = values
+    new_s = np.full(new_t.size, FrameStatus.DROPPED, dtype=np.uint8)
+    new_s[is_orig] = status
+    del idx
+    return new_t, new_v, new_s, total
+
+
+def split_variant(stem: str) -> tuple[str, str | None]:
+    """``MySlate_166_iPhone_cal`` → (``MySlate_166_iPhone``, ``cal``)."""
+    m = _VARIANT_RE.match(stem)
+    assert m is not None
+    variant = m.group("variant")
+    return m.group("prefix"), variant.lower() if variant else None
+
+
+def rows_to_take(rows: CsvRows, take_id: str | None = None, swap_lr: bool = False) -> Take:
+    """Turn parsed rows into a take: canonical channel names, take clock, dropped frames filled in."""
+    known = [c for c in rows.columns if ch.is_known(c)]
+    unknown = [c for c in rows.columns if not ch.is_known(c)]
+    names = [ch.canonical(c) for c in known]
+    if swap_lr:
+        names = ch.swap_left_right(names)
+    order = sorted(range(len(known)), key=lambda i: ch.udp_index(names[i]))
+    col_of = {c: i for i, c in enumerate(rows.columns)}
+    channels = [names[i] for i in order] + unknown
+    take_cols = [col_of[known[i]] for i in order] + [col_of[c] for c in unknown]
+    values = rows.values[:, take_cols]
+    tracked = rows.status == FrameStatus.TRACKED
+    fps, period = detect_fps(rows.seconds_of_day[tracked] if tracked.sum() > 1 else rows.seconds_of_day)
+    t, v, st, dropped = fill_dropped(rows.seconds_of_day, values, rows.status, period)
+    t0 = float(t[0])
+    prefix, variant = split_variant(rows.path.stem)
+    slate, take_number, subject = parse_take_prefix(prefix)
+    repairs = list(rows.repairs)
+    if unknown:
+        _repair(repairs, 1, "unknown_columns", f"columns kept under their own names: {unknown}")
+    meta = TakeMeta(
+        id=safe_id(take_id or rows.path.stem),
+        source_kind="livelink_csv",
+        fps=fps,
+        channels=channels,
+        slate=slate,
+        take_number=take_number,
+        subject=subject,
+        start_timecode=Timecode.from_seconds(t0).format(),
+        timecode_rate=CSV_TIMECODE_RATE,
+        sources=[source_file(rows.path, "blendshapes_csv")],
+        repairs=repairs,
+        csv={
+            "count_name": rows.count_name,
+            "variant": variant,
+            "columns": rows.columns,
+            "swapped_left_right": swap_lr,
+            "line_ending": "crlf" if rows.line_ending == "\r\n" else "lf",
+            "rows": int(rows.seconds_of_day.size),
+            "start_seconds_of_day": t0,
+            "measured_fps": round(1.0 / period, 4),
+        },
+    )
+    meta.extra["dropped_frames_inserted"] = dropped
+    return Take(meta, t - t0, v, st)
+
+
+def parse_take_prefix(prefix: str) -> tuple[str | None, int | None, str | None]:
+    """Slate, take number and subject from the app's ``{slate}_{take}_{subject}`` file prefix."""
+    m = re.match(r"^(?P<slate>.+)_(?P<take>\d+)_(?P<subject>[^_]+)$", prefix)
+    if not m:
+        return None, None, None
+    return m.group("slate"), int(m.group("take")), m.group("subject")
+
+
+def read_livelink_csv(
+    path: str | Path, take_id: str | None = None, strict: bool = False, swap_lr: bool = False
+) -> Take:
+    """Read one Live Link Face CSV (plain, ``_cal``, ``_raw`` or ``_neutral``) as a take."""
+    return rows_to_take(read_csv_rows(path, strict), take_id, swap_lr)
+
+
+def write_livelink_csv(
+    take: Take,
+    path: str | Path,
+    count_name: str | None = None,
+    fill_missing: float | None = 0.0,
+) -> Path:
+    """Write ``take`` as a Live Link Face CSV in the app's exact format.
+
+    61 value columns in the app's CSV order with 10 decimals, ``Timecode`` from the take's start
+    timecode plus frame time, face-lost and other invalid frames as ``<timecode>,0`` rows, dropped frames
+    left out (as the app does). Channels the take lacks are written as ``fill_missing`` (or raise if
+    ``None``). ``count_name`` defaults to the spelling of the source file, else ``BlendShapeCount``.
+    """
+    path = Path(path)
+    csv_info = take.meta.csv or {}
+    count_name = count_name or csv_info.get("count_name") or COUNT_NAMES[0]
+    swapped = bool(csv_info.get("swapped_left_right"))
+    out_names = list(ch.CSV_ORDER)
+    # Undo an import-time label swap so that the written file matches the source column for column.
+    label_names = ch.swap_left_right(ch.ARKIT61) if swapped else list(ch.ARKIT61)
+    canon_to_col = {}
+    for j, name in enumerate(take.meta.channels):
+        if ch.is_known(name):
+            canon_to_col[ch.canonical(name)] = j
+    cols = []
+    missing = []
+    for name in out_names:
+        src = label_names[ch.udp_index(name)]
+        j = canon_to_col.get(ch.canonical(src))
+        if j is None:
+            missing.append(name)
+        cols.append(j)
+    if missing and fill_missing is None:
+        raise InputError(f"take lacks channels for a Live Link Face CSV: {missing}")
+    block = np.full((take.time.size, len(out_names)), fill_missing or 0.0, dtype=np.float32)
+    for k, j in enumerate(cols):
+        if j is not None:
+            block[:, k] = take.values[:, j]
+    if take.meta.start_timecode:
+        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day
+    else:
+        t0 = 0.0
+    t0 = float(csv_info.get("start_seconds_of_day", t0))
+    row_fmt = "%s," + str(len(out_names)) + "," + ",".join(["%.10f"] * len(out_names)) + "\n"
+    lines = ["Timecode," + count_name + "," + ",".join(out_names) + "\n"]
+    status = take.frame_status
+    for i in range(take.time.size):
+        st = status[i]
+        if st == FrameStatus.DROPPED:
+            continue
+        tc = Timecode.from_seconds(t0 + take.time[i]).format()
+        if st != FrameStatus.TRACKED:
+            lines.append(tc + ",0\n")
+        else:
+            lines.append(row_fmt % (tc, *block[i].tolist()))
+    tmp = path.with_name(f".{path.name}.partial")
+    with open(tmp, "w", encoding="ascii", newline="") as f:
+        f.writelines(lines)
+    tmp.replace(path)
+    return path

@@ -1,0 +1,21 @@
+"""Errors a user can cause. The command-line tools print them as one line and exit with code 1."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class S2AError(Exception):
+    """Base of every error the toolkit raises for bad input or a failed check."""
+
+
+class InputError(S2AError):
+    """Input that cannot be used: names the file (and line or field) and says what is wrong."""
+
+    def __init__(self, message: str, path: str | Path | None = None, line: int | None = None):
+        self.path = str(path) if path is not None else None
+        self.line = line
+        where = ""
+        if self.path is not None:
+            where = self.path + (f":{line}" if line is not None else "") + ": "
+        super().__init__(where + message)

@@ -1,0 +1,115 @@
+"""The Live Link Face reference video (``.mov``: JPEG frames, PCM audio, a timecode track).
+
+Reading gives the audio at its own rate, the start timecode and the video timing. Writing produces
+the same kind of file; the simulated iPhone and the tests use it to stand in for the phone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from .audio_io import Audio, decode_with_pyav
+from .errors import InputError
+
+
+@dataclass
+class MovInfo:
+    """What a take's ``.mov`` holds. Times in seconds from the start of the file."""
+
+    path: Path
+    timecode: str | None  # start timecode of the video, HH:MM:SS:FF as in the timecode track
+    video_fps: float | None
+    video_frames: int | None
+    width: int | None
+    height: int | None
+    audio_start_s: float  # presentation time of the first audio sample relative to the video's
+
+
+def probe_mov(path: str | Path) -> MovInfo:
+    """Timecode and stream timing of a ``.mov`` without decoding it."""
+    import av
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("video file not found", path)
+    try:
+        with av.open(str(path)) as c:
+            timecode = c.metadata.get("timecode")
+            fps = frames = width = height = None
+            v_start = a_start = 0.0
+            for s in c.streams:
+                timecode = timecode or s.metadata.get("timecode")
+                if s.type == "video" and fps is None:
+                    rate = s.average_rate or s.guessed_rate
+                    fps = float(rate) if rate else None
+                    frames = s.frames or None
+                    width, height = s.codec_context.width, s.codec_context.height
+                    if s.start_time is not None:
+                        v_start = float(s.start_time * s.time_base)
+                if s.type == "audio" and s.start_time is not None:
+                    a_start = float(s.start_time * s.time_base)
+    except (av.FFmpegError, OSError) as exc:
+        raise InputError(f"video could not be opened: {exc}", path) from None
+    return MovInfo(path, timecode, fps, frames, width, height, a_start - v_start)
+
+
+def read_mov_audio(path: str | Path) -> Audio:
+    """The ``.mov``'s audio track at its own rate and sample format."""
+    return decode_with_pyav(path)
+
+
+def write_reference_mov(
+    path: str | Path,
+    fps: float,
+    n_frames: int,
+    audio: Audio | None = None,
+    timecode: str | None = None,
+    frame_image: Callable[[int], np.ndarray] | None = None,
+    size: tuple[int, int] = (160, 120),
+) -> Path:
+    """Write a ``.mov`` like the app's: MJPEG video, 16-bit PCM audio, a timecode track.
+
+    ``frame_image(i)`` returns an RGB uint8 image (height x width x 3) for video frame ``i``; by default
+    frames are grey.
+    """
+    import av
+
+    path = Path(path)
+    width, height = size
+    rate = Fraction(fps).limit_denominator(1001)
+    with av.open(str(path), "w", format="mov") as c:
+        v = c.add_stream("mjpeg", rate=rate)
+        v.width, v.height, v.pix_fmt = width, height, "yuvj420p"
+        if timecode:
+            v.metadata["timecode"] = timecode
+        a = None
+        if audio is not None:
+            layout = "mono" if audio.channels == 1 else "stereo"
+            a = c.add_stream("pcm_s16le", rate=audio.sample_rate, layout=layout)
+        for i in range(n_frames):
+            img = frame_image(i) if frame_image else np.full((height, width, 3), 128, np.uint8)
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")
+            frame = frame.reformat(format="yuvj420p")
+            frame.pts, frame.time_base = i, 1 / rate
+            for packet in v.encode(frame):
+                c.mux(packet)
+        for packet in v.encode():
+            c.mux(packet)
+        if a is not None and audio is not None:
+            samples = audio.pcm16()
+            block = 1024
+            for pos in range(0, samples.shape[0], block):
+                chunk = np.ascontiguousarray(samples[pos : pos + block].T.reshape(1, -1))
+                frame = av.AudioFrame.from_ndarray(chunk, format="s16", layout=layout)
+                frame.sample_rate, frame.pts = audio.sample_rate, pos
+                frame.time_base = Fraction(1, audio.sample_rate)
+                for packet in a.encode(frame):
+                    c.mux(packet)
+            for packet in a.encode():
+                c.mux(packet)
+    return path

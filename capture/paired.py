@@ -1,0 +1,140 @@
+"""Generic paired data from other rigs: an audio file, a frames x channels matrix, channel names, a rate.
+
+Frame ``i`` covers ``[i/F, (i+1)/F)`` seconds from the start of the audio, so its time is ``i/F``.
+Channel names are kept as given (a rig's own controls, e.g. FACEGOOD's 116); names of Live Link
+channels in any spelling are mapped to the toolkit's canonical ARKit names.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from . import channels as ch
+from .audio_io import read_audio
+from .errors import InputError
+from .take import FrameStatus, Take, TakeMeta, safe_id, source_file
+
+
+def read_names(path: str | Path) -> list[str]:
+    """Channel names: a text file (one per line, or comma-separated) or a ``.npy`` array of strings."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("channel-name file not found", path)
+    if path.suffix.lower() == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except ValueError as exc:
+            raise InputError(f"names array is not a plain string array ({exc})", path) from None
+        if arr.dtype.kind not in "US":
+            raise InputError(f"names array holds {arr.dtype}, not strings", path)
+        names = [str(x.decode() if isinstance(x, bytes) else x).strip() for x in arr.ravel()]
+    else:
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
+        names = [n.strip() for line in text.splitlines() for n in line.split(",")]
+        names = [n for n in names if n]
+    if not names:
+        raise InputError("no channel names", path)
+    seen = set()
+    for n in names:
+        if n.lower() in seen:
+            raise InputError(f"channel name {n!r} appears twice", path)
+        seen.add(n.lower())
+    return names
+
+
+def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None]:
+    """Frames x channels weights from ``.npy`` (never unpickled) or ``.csv`` (optional header row)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("matrix file not found", path)
+    header = None
+    if path.suffix.lower() == ".npy":
+        try:
+            with warnings.catch_warnings():
+                # Python 2 era .npy headers trigger a harmless format warning.
+                warnings.simplefilter("ignore")
+                m = np.load(path, allow_pickle=False)
+        except ValueError as exc:
+            raise InputError(f"not a numeric .npy array ({exc})", path) from None
+    else:
+        rows: list[list[float]] = []
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
+        for number, line in enumerate(text.splitlines(), start=1):
+            if not line.strip():
+                continue
+            cells = [c.strip() for c in line.split(",")]
+            try:
+                rows.append([float(c) for c in cells])
+            except ValueError:
+                if header is None and not rows:
+                    header = cells
+                    continue
+                raise InputError("non-numeric value in the matrix", path, number) from None
+            if len(rows[-1]) != len(rows[0]):
+                raise InputError(
+                    f"row has {len(rows[-1])} values, the first row {len(rows[0])}", path, number
+                )
+        m = np.array(rows, dtype=np.float64).reshape(len(rows), -1)
+    if m.dtype.kind not in "fiu" or m.ndim != 2:
+        raise InputError(f"expected a 2-D numeric frames x channels matrix, got {m.dtype} {m.shape}", path)
+    if m.shape[0] == 0:
+        raise InputError("matrix has no frames", path)
+    return m, header
+
+
+def read_paired(
+    audio_path: str | Path,
+    matrix_path: str | Path,
+    fps: float,
+    names_path: str | Path | None = None,
+    take_id: str | None = None,
+) -> Take:
+    """A take from audio + weight matrix + names at ``fps`` frames per second."""
+    if not fps or fps <= 0:
+        raise InputError(f"--fps must be a positive frame rate, not {fps}")
+    matrix, header = read_matrix(matrix_path)
+    if names_path is not None:
+        names = read_names(names_path)
+    elif header is not None:
+        names = header
+    else:
+        raise InputError("no channel names: give --names or a header row in the matrix CSV", matrix_path)
+    if len(names) != matrix.shape[1]:
+        raise InputError(f"{len(names)} channel names for a matrix of {matrix.shape[1]} columns", matrix_path)
+    names = [ch.canonical(n) if ch.is_known(n) else n for n in names]
+    values = matrix.astype(np.float32)
+    status = np.where(np.isfinite(values).all(axis=1), FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(
+        np.uint8
+    )
+    time = np.arange(matrix.shape[0], dtype=np.float64) / fps
+    meta = TakeMeta(
+        id=safe_id(take_id or Path(audio_path).stem),
+        source_kind="paired_matrix",
+        fps=float(fps),
+        channels=names,
+        sources=[source_file(matrix_path, "matrix")],
+    )
+    if names_path is not None:
+        meta.sources.append(source_file(names_path, "channel_names"))
+    bad = int((status != FrameStatus.TRACKED).sum())
+    if bad:
+        meta.repairs.append(
+            {"line": None, "kind": "bad_value", "message": f"{bad} frames hold NaN/inf: marked invalid"}
+        )
+    take = Take(meta, time, values, status)
+    audio = read_audio(audio_path)
+    take.attach_audio(audio, 0.0, "paired_frame_convention")
+    meta.sources.append(source_file(audio_path, "audio"))
+    mismatch = audio.duration_s - matrix.shape[0] / fps
+    if abs(mismatch) > 1.0:
+        meta.repairs.append(
+            {
+                "line": None,
+                "kind": "length_mismatch",
+                "message": f"audio is {mismatch:+.3f} s longer than the frames: check --fps",
+            }
+        )
+    return take

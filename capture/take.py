@@ -1,0 +1,359 @@
+"""The take container: one folder per take, metadata as JSON, frames as arrays, the audio beside them.
+
+```
+<take id>/
+  meta.json     TakeMeta (format "s2a-take", schema_version)
+  frames.npz    time (float64, s), values (float32, frames x channels), frame_status (uint8)[, neutral]
+  audio.wav     the take's audio at its recorded rate and sample format (optional)
+```
+
+Folders are written under a temporary name and renamed into place, so a reader never sees half a
+take. See docs/take-format.md for the full description.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import zipfile
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field, fields
+from enum import IntEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .audio_io import Audio, read_audio, write_audio
+from .errors import InputError
+
+FORMAT = "s2a-take"
+SCHEMA_VERSION = 1
+META_FILE = "meta.json"
+FRAMES_FILE = "frames.npz"
+AUDIO_FILE = "audio.wav"
+
+
+class FrameStatus(IntEnum):
+    """Why a frame is or is not usable. Only ``TRACKED`` frames are valid."""
+
+    TRACKED = 0
+    FACE_LOST = 1  # the app saw no face: values are NaN
+    DROPPED = 2  # no row/packet arrived for this slot of the frame grid: values are NaN
+    BAD_VALUE = 3  # the row held a non-numeric or non-finite value (repaired to NaN, see meta.repairs)
+
+
+@dataclass
+class AudioInfo:
+    """Where a take's audio is and how it sits on the take's clock."""
+
+    file: str
+    sample_rate: int
+    channels: int
+    samples: int
+    subtype: str
+    start_s: float = 0.0  # take time (s) of the first audio sample; frame times share this clock
+    start_source: str = "assumed"  # what start_s comes from: frame_log_audio, frame_log_video, ...
+
+
+@dataclass
+class SourceFile:
+    """A file the take was made from, with its checksum so provenance can be checked later."""
+
+    path: str
+    role: str
+    sha256: str
+    bytes: int
+
+
+@dataclass
+class TakeMeta:
+    """Everything about a take but its arrays. Times are seconds on the take clock."""
+
+    id: str
+    source_kind: str
+    fps: float
+    channels: list[str]
+    slate: str | None = None
+    take_number: int | None = None
+    subject: str | None = None
+    device: str | None = None
+    start_timecode: str | None = None  # timecode of take time 0, HH:MM:SS:FF.fff
+    timecode_rate: float | None = None
+    audio: AudioInfo | None = None
+    sources: list[SourceFile] = field(default_factory=list)
+    repairs: list[dict[str, Any]] = field(default_factory=list)
+    csv: dict[str, Any] = field(default_factory=dict)  # details needed to write the CSV back
+    extra: dict[str, Any] = field(default_factory=dict)
+    schema_version: int = SCHEMA_VERSION
+    format: str = FORMAT
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], path: Path | None = None) -> TakeMeta:
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise InputError(f'not a take\'s metadata (expected "format": "{FORMAT}")', path)
+        version = data.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise InputError(
+                f"take schema version {version!r}; this toolkit reads version {SCHEMA_VERSION}", path
+            )
+        known = {f.name for f in fields(cls)}
+        missing = [n for n in ("id", "source_kind", "fps", "channels") if n not in data]
+        if missing:
+            raise InputError(f"metadata lacks field(s) {', '.join(missing)}", path)
+        kwargs = {k: v for k, v in data.items() if k in known}
+        try:
+            if kwargs.get("audio") is not None:
+                kwargs["audio"] = AudioInfo(**kwargs["audio"])
+            kwargs["sources"] = [SourceFile(**s) for s in kwargs.get("sources", [])]
+            return cls(**kwargs)
+        except TypeError as exc:
+            raise InputError(f"malformed metadata: {exc}", path) from None
+
+
+@dataclass
+class Take:
+    """One recorded (or simulated) take: frames on the take clock plus optional audio.
+
+    ``time`` is float64 seconds (strictly increasing), ``values`` float32 (frames x channels, never
+    clamped; NaN where a frame has no data), ``frame_status`` uint8 ``FrameStatus`` codes.
+    ``neutral`` is the calibrated rest pose (channels,) when the app recorded one.
+    """
+
+    meta: TakeMeta
+    time: np.ndarray
+    values: np.ndarray
+    frame_status: np.ndarray
+    audio: Audio | None = None
+    neutral: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.time = np.ascontiguousarray(self.time, dtype=np.float64)
+        self.values = np.ascontiguousarray(self.values, dtype=np.float32)
+        self.frame_status = np.ascontiguousarray(self.frame_status, dtype=np.uint8)
+        n = self.time.shape[0]
+        if self.time.ndim != 1 or self.values.shape != (n, len(self.meta.channels)):
+            raise InputError(
+                f"take {self.meta.id}: values {self.values.shape} do not match "
+                f"{n} frames x {len(self.meta.channels)} channels"
+            )
+        if self.frame_status.shape != (n,):
+            raise InputError(f"take {self.meta.id}: frame_status has the wrong length")
+        if n > 1 and not np.all(np.diff(self.time) > 0):
+            raise InputError(f"take {self.meta.id}: frame times are not strictly increasing")
+        if self.neutral is not None:
+            self.neutral = np.asarray(self.neutral, dtype=np.float32)
+
+    def attach_audio(self, audio: Audio, start_s: float = 0.0, start_source: str = "assumed") -> None:
+        """Give the take its audio; ``start_s`` is the take time of the first sample."""
+        self.audio = audio
+        self.meta.audio = AudioInfo(
+            "", audio.sample_rate, audio.channels, audio.frames, audio.subtype, start_s, start_source
+        )
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Per-frame mask: True where the frame was tracked and every value is usable."""
+        return self.frame_status == FrameStatus.TRACKED
+
+    @property
+    def duration_s(self) -> float:
+        """Span of the frames in seconds, counting the last frame's own period."""
+        if self.time.size == 0:
+            return 0.0
+        return float(self.time[-1] - self.time[0]) + 1.0 / self.meta.fps
+
+    def channel_index(self, name: str) -> int:
+        """Column of a channel, case-insensitive."""
+        lowered = [c.lower() for c in self.meta.channels]
+        try:
+            return lowered.index(name.strip().lower())
+        except ValueError:
+            raise InputError(f"take {self.meta.id} has no channel {name!r}") from None
+
+    def channel(self, name: str) -> np.ndarray:
+        """Values of one channel over all frames."""
+        return self.values[:, self.channel_index(name)]
+
+    def count(self, status: FrameStatus) -> int:
+        return int(np.count_nonzero(self.frame_status == status))
+
+    def summary(self) -> dict[str, Any]:
+        """What ``s2a-capture info`` reports (times in seconds)."""
+        m = self.meta
+        out: dict[str, Any] = {
+            "id": m.id,
+            "source_kind": m.source_kind,
+            "frames": int(self.time.size),
+            "fps": m.fps,
+            "duration_s": round(self.duration_s, 6),
+            "valid_frames": int(self.valid.sum()),
+            "dropped_frames": self.count(FrameStatus.DROPPED),
+            "face_lost_frames": self.count(FrameStatus.FACE_LOST),
+            "bad_value_frames": self.count(FrameStatus.BAD_VALUE),
+            "channels": len(m.channels),
+            "start_timecode": m.start_timecode,
+            "slate": m.slate,
+            "take_number": m.take_number,
+            "subject": m.subject,
+            "audio_sample_rate": m.audio.sample_rate if m.audio else None,
+            "audio_duration_s": round(m.audio.samples / m.audio.sample_rate, 6) if m.audio else None,
+            "audio_start_s": m.audio.start_s if m.audio else None,
+            "repairs": len(m.repairs),
+        }
+        return out
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def source_file(path: str | Path, role: str) -> SourceFile:
+    """Provenance record of an input file: absolute path, role, sha256 and size."""
+    p = Path(path)
+    return SourceFile(str(p.resolve()), role, sha256_file(p), p.stat().st_size)
+
+
+def safe_id(text: str) -> str:
+    """A take id usable as a folder name on every platform."""
+    keep = "".join(c if c.isalnum() or c in "-_." else "_" for c in text.strip())
+    return keep.strip(".") or "take"
+
+
+def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
+    """Write ``take`` as ``out_dir/<id>/`` atomically; returns the folder.
+
+    The folder is assembled under a hidden temporary name in ``out_dir`` and renamed into place.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / safe_id(take.meta.id)
+    if target.exists() and not overwrite:
+        raise InputError("take exists already (use overwrite)", target)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=out_dir))
+    try:
+        arrays = {"time": take.time, "values": take.values, "frame_status": take.frame_status}
+        if take.neutral is not None:
+            arrays["neutral"] = take.neutral
+        with open(tmp / FRAMES_FILE, "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        meta = take.meta
+        if take.audio is not None:
+            write_audio(tmp / AUDIO_FILE, take.audio)
+            start = meta.audio.start_s if meta.audio else 0.0
+            source = meta.audio.start_source if meta.audio else "assumed"
+            meta.audio = AudioInfo(
+                AUDIO_FILE,
+                take.audio.sample_rate,
+                take.audio.channels,
+                take.audio.frames,
+                take.audio.subtype,
+                start,
+                source,
+            )
+        else:
+            meta.audio = None
+        write_json_atomic(tmp / META_FILE, meta.to_json())
+        os.chmod(tmp, 0o755)
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=out_dir))
+            os.replace(target, old / "take")
+            os.replace(tmp, target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return target
+
+
+def write_json_atomic(path: str | Path, data: Any) -> None:
+    """Write JSON to a temporary file beside ``path``, fsync, and rename it over ``path``."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(data, f, indent=2, allow_nan=False)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def is_take_dir(path: str | Path) -> bool:
+    return (Path(path) / META_FILE).is_file() and (Path(path) / FRAMES_FILE).is_file()
+
+
+def read_meta(folder: str | Path) -> TakeMeta:
+    """Only the metadata of a take folder (cheap)."""
+    path = Path(folder) / META_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("not a take folder (no meta.json)", folder) from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"metadata is not valid JSON: {exc}", path) from None
+    return TakeMeta.from_json(data, path)
+
+
+def read_take(folder: str | Path, audio: bool = True) -> Take:
+    """Read a take folder written by ``write_take``. Never unpickles anything."""
+    folder = Path(folder)
+    meta = read_meta(folder)
+    frames_path = folder / FRAMES_FILE
+    try:
+        with np.load(frames_path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise InputError("take folder has no frames.npz", folder) from None
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(f"frames are unreadable ({exc})", frames_path) from None
+    for key in ("time", "values", "frame_status"):
+        if key not in arrays:
+            raise InputError(f"frames lack the array {key!r}", frames_path)
+    take_audio = None
+    if audio and meta.audio is not None:
+        take_audio = read_audio(folder / meta.audio.file)
+    return Take(
+        meta,
+        arrays["time"],
+        arrays["values"],
+        arrays["frame_status"],
+        take_audio,
+        arrays.get("neutral"),
+    )
+
+
+def find_takes(paths: Iterable[str | Path]) -> list[Path]:
+    """Take folders named by ``paths``; a folder that is not a take is searched recursively."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if is_take_dir(p):
+            found.append(p)
+        elif p.is_dir():
+            found.extend(
+                sorted(
+                    d.parent
+                    for d in p.rglob(META_FILE)
+                    if is_take_dir(d.parent) and not d.parent.name.startswith(".")
+                )
+            )
+        else:
+            raise InputError("no such take folder", p)
+    return found

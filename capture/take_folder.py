@@ -1,0 +1,255 @@
+"""Live Link Face take folders, as the app writes them to ``Live Link Face/takes/<take>/``.
+
+``take.json``, ``frame_log.csv``, ``audio_metadata.json``, ``video_metadata.json``, the reference
+``<slate>_<take>_<subject>.mov`` (the only place the app keeps audio), and the blendshapes as
+``<prefix>.csv`` or the calibrated trio ``<prefix>_cal.csv``, ``_neutral.csv``, ``_raw.csv``.
+
+The audio's start on the take clock follows Epic's own ingest: the first ``A`` row of
+``frame_log.csv``, else its first ``V`` row, else the ``.mov`` timecode track; the blendshape rows sit
+at their CSV timecodes. Without any of these, audio is assumed to start with the first CSV row.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .audio_io import Audio, read_audio
+from .csv_take import read_csv_rows, read_livelink_csv, split_variant
+from .errors import InputError
+from .mov import probe_mov, read_mov_audio
+from .take import FrameStatus, Take, safe_id, source_file
+from .timecode import DAY_S, Timecode
+
+TAKE_FOLDER_MARKERS = ("take.json", "frame_log.csv")
+_PREFERENCE = ("cal", None, "raw")
+
+
+@dataclass
+class FrameLog:
+    """``frame_log.csv``: one row per video (V), depth (D) or audio (A) frame the phone recorded."""
+
+    kinds: list[str]
+    indices: np.ndarray
+    times_s: np.ndarray  # numerator/denominator, seconds on the phone's media clock
+    timecodes: list[str]
+    dropped: np.ndarray  # bool
+
+    def first(self, kind: str) -> int | None:
+        try:
+            return self.kinds.index(kind)
+        except ValueError:
+            return None
+
+
+def read_frame_log(path: str | Path, repairs: list[dict[str, Any]]) -> FrameLog:
+    """Parse ``frame_log.csv`` (no header): ``type,index,num,den,timecode[,dropped]``."""
+    path = Path(path)
+    kinds, idx, times, tcs, dropped = [], [], [], [], []
+    text = path.read_text(encoding="utf-8", errors="replace")
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        f = [x.strip() for x in line.split(",")]
+        try:
+            if len(f) < 5 or f[0] not in ("V", "D", "A"):
+                raise ValueError("expected type,index,num,den,timecode[,dropped]")
+            num, den = int(f[2]), int(f[3])
+            if den == 0:
+                raise ValueError("zero time denominator")
+            kinds.append(f[0])
+            idx.append(int(f[1]))
+            times.append(num / den)
+            tcs.append(f[4])
+            dropped.append(len(f) > 5 and f[5] not in ("", "0"))
+        except ValueError as exc:
+            repairs.append(
+                {"line": number, "kind": "frame_log_row", "message": f"{path.name}: {exc}: row skipped"}
+            )
+    return FrameLog(kinds, np.asarray(idx), np.asarray(times), tcs, np.asarray(dropped, bool))
+
+
+def is_take_folder(folder: str | Path) -> bool:
+    """A Live Link Face take folder: has take.json or frame_log.csv, or a .mov beside a CSV."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return False
+    if any((folder / m).is_file() for m in TAKE_FOLDER_MARKERS):
+        return True
+    return any(folder.glob("*.mov")) and any(_blendshape_csvs(folder))
+
+
+def _blendshape_csvs(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.glob("*.csv") if p.name.lower() != "frame_log.csv")
+
+
+def _load_json(path: Path, repairs: list[dict[str, Any]]) -> dict[str, Any]:
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict):
+            raise ValueError("not a JSON object")
+        return data
+    except (ValueError, UnicodeDecodeError) as exc:
+        repairs.append({"line": None, "kind": "bad_json", "message": f"{path.name}: {exc}: ignored"})
+        return {}
+
+
+def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
+    """The blendshape CSV to import (``variant`` cal/raw/plain, default cal, then plain, then raw),
+    and the ``_neutral.csv`` beside it if any."""
+    by_variant: dict[str | None, Path] = {}
+    for p in _blendshape_csvs(folder):
+        by_variant.setdefault(split_variant(p.stem)[1], p)
+    neutral = by_variant.pop("neutral", None)
+    if not by_variant:
+        hint = " (a MetaHuman Animator depth take has none)" if (folder / "depth_data.bin").exists() else ""
+        raise InputError(f"take folder holds no blendshape CSV{hint}", folder)
+    if variant is not None:
+        key = None if variant == "plain" else variant
+        if key not in by_variant:
+            raise InputError(
+                f"take folder has no {variant} CSV (has: {[k or 'plain' for k in by_variant]})", folder
+            )
+        return by_variant[key], neutral
+    for key in _PREFERENCE:
+        if key in by_variant:
+            return by_variant[key], neutral
+    raise AssertionError("unreachable")
+
+
+def _signed_day_diff(a: float, b: float) -> float:
+    d = (a - b) % DAY_S
+    return d - DAY_S if d > DAY_S / 2 else d
+
+
+def read_take_folder(
+    folder: str | Path,
+    variant: str | None = None,
+    audio_file: str | Path | None = None,
+    strict: bool = False,
+    swap_lr: bool = False,
+) -> Take:
+    """Import a Live Link Face take folder (blendshapes, audio from the ``.mov``, timing, metadata)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("take folder not found", folder)
+    csv_path, neutral_path = choose_csv(folder, variant)
+    take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr)
+    meta = take.meta
+    repairs = meta.repairs
+    app_take = _load_json(folder / "take.json", repairs)
+    video_meta = _load_json(folder / "video_metadata.json", repairs)
+    audio_meta = _load_json(folder / "audio_metadata.json", repairs)
+    meta.source_kind = "livelink_take_folder"
+    meta.id = safe_id(str(app_take.get("identifier") or folder.name))
+    meta.slate = str(app_take.get("slate", meta.slate)) if app_take.get("slate") else meta.slate
+    if isinstance(app_take.get("take"), int):
+        meta.take_number = app_take["take"]
+    meta.subject = app_take.get("subject") or meta.subject
+    meta.device = app_take.get("deviceModel")
+    meta.extra.update({"take_json": app_take, "video_metadata": video_meta, "audio_metadata": audio_meta})
+    for name in ("take.json", "video_metadata.json", "audio_metadata.json", "frame_log.csv"):
+        if (folder / name).is_file():
+            meta.sources.append(source_file(folder / name, name))
+    if neutral_path is not None:
+        take.neutral = _neutral_pose(neutral_path, take)
+        meta.sources.append(source_file(neutral_path, "neutral_csv"))
+
+    video_rate = float(video_meta.get("FrameRate") or 60)
+    log = None
+    if (folder / "frame_log.csv").is_file():
+        log = read_frame_log(folder / "frame_log.csv", repairs)
+        meta.extra["frame_log"] = {
+            "video_frames": log.kinds.count("V"),
+            "audio_rows": log.kinds.count("A"),
+            "dropped_video_frames": int(log.dropped[[k == "V" for k in log.kinds]].sum()) if log.kinds else 0,
+        }
+    movs = sorted(folder.glob("*.mov"))
+    mov = movs[0] if movs else None
+    if mov is not None:
+        meta.sources.append(source_file(mov, "reference_video"))
+        meta.extra["reference_video"] = mov.name
+    audio: Audio | None = None
+    start_s, start_source = 0.0, "assumed_first_csv_row"
+    if audio_file is not None:
+        audio = read_audio(audio_file)
+        meta.sources.append(source_file(audio_file, "external_audio"))
+    elif mov is not None:
+        audio = read_mov_audio(mov)
+        csv_t0 = meta.csv["start_seconds_of_day"]
+        for kind, source in (("A", "frame_log_audio"), ("V", "frame_log_video")):
+            i = log.first(kind) if log else None
+            if i is None or log is None:
+                continue
+            try:
+                tod = Timecode.parse(log.timecodes[i], video_rate).seconds_of_day
+            except ValueError as exc:
+                repairs.append({"line": i + 1, "kind": "frame_log_row", "message": str(exc)})
+                continue
+            start_s, start_source = _signed_day_diff(tod, csv_t0), source
+            break
+        else:
+            info = probe_mov(mov)
+            if info.timecode:
+                try:
+                    rate = info.video_fps or video_rate
+                    tod = Timecode.parse(info.timecode, round(rate)).seconds_of_day
+                    start_s = _signed_day_diff(tod, csv_t0) + info.audio_start_s
+                    start_source = "mov_timecode"
+                except ValueError:
+                    pass
+        expected = audio_meta.get("SampleRate")
+        if expected and int(expected) != audio.sample_rate:
+            repairs.append(
+                {
+                    "line": None,
+                    "kind": "audio_rate_mismatch",
+                    "message": f"audio_metadata.json says {expected} Hz, the .mov holds "
+                    f"{audio.sample_rate} Hz: the .mov's rate is used",
+                }
+            )
+    if audio is not None:
+        take.attach_audio(audio, start_s, start_source)
+    return take
+
+
+def _neutral_pose(path: Path, take: Take) -> np.ndarray:
+    """The calibrated rest pose: mean of the tracked rows of ``_neutral.csv``, in the take's channels."""
+    neutral = read_livelink_csv(path, swap_lr=bool(take.meta.csv.get("swapped_left_right")))
+    rows = neutral.values[neutral.frame_status == FrameStatus.TRACKED]
+    if rows.size == 0:
+        raise InputError("neutral CSV has no tracked rows", path)
+    mean = rows.mean(axis=0)
+    out = np.full(len(take.meta.channels), np.nan, dtype=np.float32)
+    for j, name in enumerate(take.meta.channels):
+        if name in neutral.meta.channels:
+            out[j] = mean[neutral.meta.channels.index(name)]
+    return out
+
+
+def read_csv_with_audio(
+    csv_path: str | Path, audio_file: str | Path, strict: bool = False, swap_lr: bool = False
+) -> Take:
+    """A CSV paired with audio recorded elsewhere; the audio is assumed to start with the first row
+    (``s2a-align`` measures the real offset)."""
+    take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr)
+    take.attach_audio(read_audio(audio_file), 0.0, "assumed_first_csv_row")
+    take.meta.sources.append(source_file(audio_file, "external_audio"))
+    return take
+
+
+__all__ = [
+    "FrameLog",
+    "choose_csv",
+    "is_take_folder",
+    "read_csv_rows",
+    "read_csv_with_audio",
+    "read_frame_log",
+    "read_take_folder",
+]
