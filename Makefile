@@ -6,10 +6,10 @@ STAMP := $(VENV)/.installed
 # CPU build of PyTorch; this exact version is served locally on the project's machines.
 TORCH := torch==2.13.0
 # Debian packages the toolkit needs at run time (installed when missing and we are root).
-DEB_PACKAGES :=
+DEB_PACKAGES := libportaudio2 libegl1 libgl1-mesa-dri chromium
 SHARED ?= ../shared
 
-.PHONY: demo test bench lint format clean deb
+.PHONY: demo test bench lint format clean deb demo-import demo-simulate demo-live demo-align demo-dataset demo-view
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -30,24 +30,66 @@ test: $(STAMP) deb
 	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest -q
 
-# The whole pipeline on bundled data; it grows with each stage.
+# The whole pipeline on bundled data; it grows with each stage. Each step is a target of its own.
 DEMO := demo-out
 SAMPLES := $(SHARED)/samples
+NS := $(SAMPLES)/paired/neurosync-trainer-lite-testset
+FG := $(SAMPLES)/paired/facegood-audio2face
+HAVE_SAMPLES = test -d $(SAMPLES) || { echo "$(SAMPLES) not found: skipping the real samples"; exit 0; }
+
 demo: $(STAMP) deb
 	@rm -rf $(DEMO) && mkdir -p $(DEMO)
-	@if [ ! -d $(SAMPLES) ]; then echo "$(SAMPLES) not found: skipping the real samples"; exit 0; fi; \
-	set -e; echo "== importing the real Live Link Face CSVs"; \
-	$(BIN)/s2a-capture import $(SAMPLES)/livelinkface -o $(DEMO)/takes; \
-	echo "== importing the NeuroSync test take with its audio"; \
-	$(BIN)/s2a-capture import $(SAMPLES)/paired/neurosync-trainer-lite-testset/testset.csv \
-	  --audio $(SAMPLES)/paired/neurosync-trainer-lite-testset/audio.wav --id neurosync_testset -o $(DEMO)/takes; \
-	echo "== importing the FACEGOOD paired takes (rig weights at 30 fps)"; \
-	fg=$(SAMPLES)/paired/facegood-audio2face; \
-	for npy in $$fg/bs_value/*.npy; do t=$$(basename $$npy .npy); t=$${t#bs_value_}; \
-	  $(BIN)/s2a-capture import --matrix $$npy --audio $$fg/wav/$$t.wav --names $$fg/bs_names.txt \
-	    --fps 30 --id facegood_$$t -o $(DEMO)/takes; done; \
-	echo "== summaries"; $(BIN)/s2a-capture info $(DEMO)/takes; \
-	echo "takes written to $(DEMO)/takes"
+	@$(MAKE) --no-print-directory demo-import demo-simulate demo-live demo-align demo-dataset demo-view
+	@echo "== done: everything is under $(DEMO)/"
+	@ls $(DEMO)
+
+demo-import:
+	@echo "== 1. importing the real Live Link Face CSVs"
+	@$(HAVE_SAMPLES); $(BIN)/s2a-capture import $(SAMPLES)/livelinkface -o $(DEMO)/takes
+	@echo "== 2. importing the NeuroSync take with its 44.1 kHz audio"
+	@$(HAVE_SAMPLES); $(BIN)/s2a-capture import $(NS)/testset.csv --audio $(NS)/audio.wav \
+	  --id neurosync_testset -o $(DEMO)/takes
+	@echo "== 3. importing the seven FACEGOOD paired takes (116 rig controls at 30 fps)"
+	@$(HAVE_SAMPLES); for npy in $(FG)/bs_value/*.npy; do t=$$(basename $$npy .npy); t=$${t#bs_value_}; \
+	  $(BIN)/s2a-capture import --matrix $$npy --audio $(FG)/wav/$$t.wav --names $(FG)/bs_names.txt \
+	    --fps 30 --id facegood_$$t -o $(DEMO)/takes || exit 1; done
+
+demo-simulate:
+	@echo "== 4. simulating a recording session: 3 speakers, 6 takes of 20 s, take folders with .mov"
+	@$(BIN)/s2a-capture simulate -o $(DEMO)/simulated --speakers 3 --takes 6 --seconds 20 --seed 1 --mov
+	@$(BIN)/s2a-capture import $(DEMO)/simulated -o $(DEMO)/takes
+
+demo-live:
+	@echo "== 5. live capture: a simulated iPhone (5% loss, 5% reordering, 1% duplicates, 20 ms jitter)"
+	@echo "      streams a simulated take over UDP on loopback into s2a-capture listen, audio on the same clock"
+	@take=$$(ls -d $(DEMO)/takes/*SimSpk01_1 | head -1); \
+	$(BIN)/s2a-capture listen -o $(DEMO)/live --port 41111 --duration 120 --audio-file $(DEMO)/replay.wav \
+	  --audio-start first-packet --json > $(DEMO)/live.jsonl & pid=$$!; sleep 2; \
+	$(BIN)/s2a-capture replay $$take --to 127.0.0.1:41111 --loss 0.05 --reorder 0.05 --duplicate 0.01 \
+	  --jitter-ms 20 --seed 1 --audio-out $(DEMO)/replay.wav --json; \
+	sleep 1; kill -INT $$pid; wait $$pid; cat $(DEMO)/live.jsonl
+
+demo-align:
+	@echo "== 6. aligning every take with audio: offset, drift, VAD trim, 16 kHz audio, uniform frame grid"
+	@$(BIN)/s2a-align $(DEMO)/takes -o $(DEMO)/aligned --jobs 2 --skip-without-audio
+
+demo-dataset:
+	@echo "== 7. building and validating a dataset of the simulated takes (split by speaker)"
+	@$(BIN)/s2a-dataset build $(DEMO)/aligned/*Sim* -o $(DEMO)/dataset-sim --split-by speaker --jobs 2
+	@$(BIN)/s2a-dataset validate $(DEMO)/dataset-sim --deep
+	@$(BIN)/s2a-dataset stats $(DEMO)/dataset-sim
+	@echo "== 8. building and validating a dataset of the real FACEGOOD takes (rig controls that move)"
+	@$(HAVE_SAMPLES); $(BIN)/s2a-dataset build $(DEMO)/aligned/facegood_* -o $(DEMO)/dataset-facegood \
+	  --channels varying --test facegood_1114_2_05 facegood_1114_3_16 --jobs 2 && \
+	  $(BIN)/s2a-dataset validate $(DEMO)/dataset-facegood --deep
+
+demo-view:
+	@echo "== 9. rendering the NeuroSync take as a face (MP4 with audio) and its curves (PNG)"
+	@$(HAVE_SAMPLES); $(BIN)/s2a-view render $(DEMO)/takes/neurosync_testset -o $(DEMO)/neurosync.mp4 \
+	  --compare $(DEMO)/aligned/neurosync_testset --size 320 && \
+	  $(BIN)/s2a-view plot $(DEMO)/takes/neurosync_testset $(DEMO)/aligned/neurosync_testset --labels recording,aligned \
+	    --channels jawOpen,mouthClose,mouthFunnel -o $(DEMO)/neurosync-curves.png
+	@$(BIN)/s2a-view report $(DEMO)/dataset-sim -o $(DEMO)/dataset-sim.html
 
 bench: $(STAMP) deb
 	$(BIN)/python -m benchmarks

@@ -15,8 +15,15 @@ from .channels import (
 from .csv_take import read_csv_rows, read_livelink_csv, write_livelink_csv
 from .errors import InputError, S2AError
 from .importer import find_sources, import_source
+from .livelink import REJECT_REASONS, LiveLinkFrame, decode_packet, encode_packet
 from .mov import probe_mov, read_mov_audio, write_reference_mov
+from .osc_remote import PhoneRemote
 from .paired import read_paired
+from .recorder import LiveRecorder
+from .replay import Impairment, ReplayReport, replay_take
+from .serial_sync import SerialSync, SyncEvent
+from .session_clock import SessionClock
+from .session_takes import build_takes, find_sessions
 from .take import (
     AudioInfo,
     FrameStatus,
@@ -32,6 +39,20 @@ from .take_folder import is_take_folder, read_csv_with_audio, read_frame_log, re
 from .timecode import Timecode
 
 __all__ = [
+    "REJECT_REASONS",
+    "Impairment",
+    "LiveLinkFrame",
+    "LiveRecorder",
+    "PhoneRemote",
+    "ReplayReport",
+    "SerialSync",
+    "SessionClock",
+    "SyncEvent",
+    "build_takes",
+    "decode_packet",
+    "encode_packet",
+    "find_sessions",
+    "replay_take",
     "ARKIT52",
     "ARKIT61",
     "Audio",

@@ -10,7 +10,9 @@ from .command import emit_json, progress, run
 from .csv_take import write_livelink_csv
 from .errors import InputError, S2AError
 from .importer import find_sources, import_source
+from .live_cli import register as register_live
 from .paired import read_paired
+from .simulate.cli import register as register_simulate
 from .take import Take, find_takes, is_take_dir, read_take, write_take
 
 PROG = "s2a-capture"
@@ -41,10 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--swap-lr", action="store_true", help="exchange JawLeft/Right and MouthLeft/Right labels")
     p.add_argument("--strict", action="store_true", help="refuse files that need any repair")
     p.add_argument("--json", action="store_true", help="print one JSON summary line per take")
+    p.set_defaults(handler=cmd_import)
 
     p = sub.add_parser("info", help="frames, rate, drops, face-lost frames and audio of takes")
     p.add_argument("takes", nargs="+", type=Path, help="take folders (ours or the app's) or CSV files")
     p.add_argument("--json", action="store_true", help="one JSON object per take")
+    p.set_defaults(handler=cmd_info)
 
     p = sub.add_parser("export-csv", help="write a take in the Live Link Face CSV format")
     p.add_argument("take", type=Path, help="a take folder")
@@ -55,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="spelling of the second header column (default: as in the source)",
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_export_csv)
+    # Subcommands of other capture modules register themselves here: module.register(sub).
+    register_live(sub)
+    register_simulate(sub)
     return parser
 
 
@@ -151,11 +159,8 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"import": cmd_import, "info": cmd_info, "export-csv": cmd_export_csv}
-
-
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser(), lambda a: COMMANDS[a.command](a), argv)
+    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``
 kind           what was done
 ============== ================================================================================
 bom            a UTF-8 byte-order mark before the header was ignored
-blank_line     an empty line was skipped
 truncated_row  a last line cut short (no line end, too few fields) was dropped
 wrong_fields   a row with the wrong number of fields was dropped; its slot becomes a dropped frame
 bad_timecode   a row whose timecode does not parse was dropped; its slot becomes a dropped frame
@@ -33,6 +32,8 @@ error as well.
 from __future__ import annotations
 
 import re
+import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,7 +42,7 @@ import numpy as np
 
 from . import channels as ch
 from .errors import InputError
-from .take import FrameStatus, Take, TakeMeta, safe_id, source_file
+from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
 from .timecode import CSV_TIMECODE_RATE, Timecode, parse_fixed_width, unwrap_midnight
 
 COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
@@ -138,16 +139,27 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     types = {n: pa.float32() for n in names[2:]}
     types["tc"] = pa.string()
     types["count"] = pa.int32()
+    undecodable = []
+    previous_hook = sys.unraisablehook
+    # A row that is not UTF-8 makes pyarrow fail inside our handler; that failure only tells us to use
+    # the careful parser, so keep it from being printed.
+    sys.unraisablehook = undecodable.append
     try:
-        table = pacsv.read_csv(
-            path,
-            read_options=pacsv.ReadOptions(
-                column_names=names, skip_rows=1, block_size=1 << 24, encoding="utf8"
-            ),
-            parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
-            convert_options=pacsv.ConvertOptions(column_types=types, strings_can_be_null=False),
-        )
-    except (pa.ArrowInvalid, pa.ArrowException, UnicodeDecodeError):
+        # Memory-mapped, fixed types, no quoting, no UTF-8 re-validation: the least work pyarrow can do.
+        with pa.memory_map(str(path)) as source:
+            table = pacsv.read_csv(
+                source,
+                read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 24),
+                parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
+                convert_options=pacsv.ConvertOptions(
+                    column_types=types, strings_can_be_null=False, check_utf8=False
+                ),
+            )
+    except (pa.ArrowException, UnicodeDecodeError, OSError):
+        return None
+    finally:
+        sys.unraisablehook = previous_hook
+    if undecodable:
         return None
     if other_invalid or table.num_rows == 0:
         return None
@@ -164,12 +176,16 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     tracked_t = parse_fixed_width(data[offsets[0] : offsets[-1]].reshape(-1, 15))
     if tracked_t is None:
         return None
-    values = np.empty((table.num_rows, len(columns)), dtype=np.float32)
+    # Column-major, so that each parsed column lands in one contiguous copy.
+    values = np.empty((table.num_rows, len(columns)), dtype=np.float32, order="F")
     for i in range(len(columns)):
         col = table.column(i + 2)
         if col.null_count:
             return None
-        values[:, i] = col.to_numpy()
+        start = 0
+        for chunk in col.chunks:  # copy chunk by chunk: no concatenated temporary per column
+            values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
+            start += len(chunk)
     if not np.isfinite(values).all():
         return None
     status = np.zeros(table.num_rows, dtype=np.uint8)
@@ -227,8 +243,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     last = len(lines)
     for number, line in enumerate(lines[1:], start=2):
         if not line.strip():
-            _repair(repairs, number, "blank_line", "empty line skipped")
-            continue
+            continue  # empty lines carry nothing (pyarrow's fast path skips them too)
         fields = line.split(",")
         lost = len(fields) == 2 and fields[1].strip() == "0"
         if not lost and len(fields) != ncols:
@@ -388,8 +403,14 @@ def split_variant(stem: str) -> tuple[str, str | None]:
     return m.group("prefix"), variant.lower() if variant else None
 
 
-def rows_to_take(rows: CsvRows, take_id: str | None = None, swap_lr: bool = False) -> Take:
-    """Turn parsed rows into a take: canonical channel names, take clock, dropped frames filled in."""
+def rows_to_take(
+    rows: CsvRows, take_id: str | None = None, swap_lr: bool = False, source: SourceFile | None = None
+) -> Take:
+    """Turn parsed rows into a take: canonical channel names, take clock, dropped frames filled in.
+
+    ``rows`` is consumed (its value array is reordered in place). ``source`` is the file's provenance
+    record, computed here when not given.
+    """
     known = [c for c in rows.columns if ch.is_known(c)]
     unknown = [c for c in rows.columns if not ch.is_known(c)]
     names = [ch.canonical(c) for c in known]
@@ -399,7 +420,13 @@ def rows_to_take(rows: CsvRows, take_id: str | None = None, swap_lr: bool = Fals
     col_of = {c: i for i, c in enumerate(rows.columns)}
     channels = [names[i] for i in order] + unknown
     take_cols = [col_of[known[i]] for i in order] + [col_of[c] for c in unknown]
-    values = rows.values[:, take_cols]
+    # Reorder columns in place: only the few that move are copied (a whole copy of an hour-long take
+    # would cost as much as parsing it).
+    take_cols_arr = np.asarray(take_cols)
+    moved = np.flatnonzero(take_cols_arr != np.arange(take_cols_arr.size))
+    values = rows.values
+    if moved.size:
+        values[:, moved] = values[:, take_cols_arr[moved]]
     tracked = rows.status == FrameStatus.TRACKED
     fps, period = detect_fps(rows.seconds_of_day[tracked] if tracked.sum() > 1 else rows.seconds_of_day)
     t, v, st, dropped = fill_dropped(rows.seconds_of_day, values, rows.status, period)
@@ -419,7 +446,7 @@ def rows_to_take(rows: CsvRows, take_id: str | None = None, swap_lr: bool = Fals
         subject=subject,
         start_timecode=Timecode.from_seconds(t0).format(),
         timecode_rate=CSV_TIMECODE_RATE,
-        sources=[source_file(rows.path, "blendshapes_csv")],
+        sources=[source or source_file(rows.path, "blendshapes_csv")],
         repairs=repairs,
         csv={
             "count_name": rows.count_name,
@@ -448,7 +475,11 @@ def read_livelink_csv(
     path: str | Path, take_id: str | None = None, strict: bool = False, swap_lr: bool = False
 ) -> Take:
     """Read one Live Link Face CSV (plain, ``_cal``, ``_raw`` or ``_neutral``) as a take."""
-    return rows_to_take(read_csv_rows(path, strict), take_id, swap_lr)
+    with ThreadPoolExecutor(1) as pool:
+        # hashlib releases the GIL, so the checksum runs beside the parse.
+        digest = pool.submit(source_file, path, "blendshapes_csv")
+        rows = read_csv_rows(path, strict)
+        return rows_to_take(rows, take_id, swap_lr, digest.result())
 
 
 def write_livelink_csv(
@@ -489,25 +520,22 @@ def write_livelink_csv(
     for k, j in enumerate(cols):
         if j is not None:
             block[:, k] = take.values[:, j]
-    if take.meta.start_timecode:
-        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day
-    else:
-        t0 = 0.0
-    t0 = float(csv_info.get("start_seconds_of_day", t0))
+    t0 = csv_info.get("start_seconds_of_day")
+    if t0 is None:
+        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day if take.meta.start_timecode else 0.0
     row_fmt = "%s," + str(len(out_names)) + "," + ",".join(["%.10f"] * len(out_names)) + "\n"
-    lines = ["Timecode," + count_name + "," + ",".join(out_names) + "\n"]
-    status = take.frame_status
-    for i in range(take.time.size):
-        st = status[i]
-        if st == FrameStatus.DROPPED:
-            continue
-        tc = Timecode.from_seconds(t0 + take.time[i]).format()
-        if st != FrameStatus.TRACKED:
-            lines.append(tc + ",0\n")
-        else:
-            lines.append(row_fmt % (tc, *block[i].tolist()))
+    tracked, dropped = int(FrameStatus.TRACKED), int(FrameStatus.DROPPED)
+    status, times = take.frame_status.tolist(), (t0 + take.time).tolist()
     tmp = path.with_name(f".{path.name}.partial")
     with open(tmp, "w", encoding="ascii", newline="") as f:
-        f.writelines(lines)
+        f.write("Timecode," + count_name + "," + ",".join(out_names) + "\n")
+        for start in range(0, len(times), 4096):  # in blocks: bounded memory for hour-long takes
+            lines = []
+            for i, row in enumerate(block[start : start + 4096].tolist(), start):
+                if status[i] == dropped:
+                    continue
+                tc = Timecode.from_seconds(times[i]).format()
+                lines.append(row_fmt % (tc, *row) if status[i] == tracked else tc + ",0\n")
+            f.writelines(lines)
     tmp.replace(path)
     return path

@@ -18,16 +18,23 @@ from .errors import InputError
 from .take import FrameStatus, Take, TakeMeta, safe_id, source_file
 
 
+def load_npy(path: Path) -> np.ndarray:
+    """A ``.npy`` array, never unpickled (object arrays are refused)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Python 2 era .npy headers are harmless
+            return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise InputError(f"not a numeric or string .npy array ({exc})", path) from None
+
+
 def read_names(path: str | Path) -> list[str]:
     """Channel names: a text file (one per line, or comma-separated) or a ``.npy`` array of strings."""
     path = Path(path)
     if not path.is_file():
         raise InputError("channel-name file not found", path)
     if path.suffix.lower() == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            raise InputError(f"names array is not a plain string array ({exc})", path) from None
+        arr = load_npy(path)
         if arr.dtype.kind not in "US":
             raise InputError(f"names array holds {arr.dtype}, not strings", path)
         names = [str(x.decode() if isinstance(x, bytes) else x).strip() for x in arr.ravel()]
@@ -52,13 +59,7 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None]:
         raise InputError("matrix file not found", path)
     header = None
     if path.suffix.lower() == ".npy":
-        try:
-            with warnings.catch_warnings():
-                # Python 2 era .npy headers trigger a harmless format warning.
-                warnings.simplefilter("ignore")
-                m = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            raise InputError(f"not a numeric .npy array ({exc})", path) from None
+        m = load_npy(path)
     else:
         rows: list[list[float]] = []
         text = path.read_text(encoding="utf-8-sig", errors="replace")

@@ -4,6 +4,7 @@
 <take id>/
   meta.json     TakeMeta (format "s2a-take", schema_version)
   frames.npz    time (float64, s), values (float32, frames x channels), frame_status (uint8)[, neutral]
+                [, arrival_s (float64, s on the recorder's monotonic clock, NaN where no packet; live takes)]
   audio.wav     the take's audio at its recorded rate and sample format (optional)
 ```
 
@@ -44,6 +45,7 @@ class FrameStatus(IntEnum):
     FACE_LOST = 1  # the app saw no face: values are NaN
     DROPPED = 2  # no row/packet arrived for this slot of the frame grid: values are NaN
     BAD_VALUE = 3  # the row held a non-numeric or non-finite value (repaired to NaN, see meta.repairs)
+    INTERPOLATED = 4  # aligned takes: filled by interpolation across a short gap (usable, but not measured)
 
 
 @dataclass
@@ -124,6 +126,8 @@ class Take:
     ``time`` is float64 seconds (strictly increasing), ``values`` float32 (frames x channels, never
     clamped; NaN where a frame has no data), ``frame_status`` uint8 ``FrameStatus`` codes.
     ``neutral`` is the calibrated rest pose (channels,) when the app recorded one.
+    ``arrival_s`` (frames,) float64 is, for live-recorded takes, when each frame's packet arrived in
+    seconds on the recorder's monotonic session clock (NaN for frames no packet arrived for).
     """
 
     meta: TakeMeta
@@ -132,11 +136,12 @@ class Take:
     frame_status: np.ndarray
     audio: Audio | None = None
     neutral: np.ndarray | None = None
+    arrival_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        self.time = np.ascontiguousarray(self.time, dtype=np.float64)
-        self.values = np.ascontiguousarray(self.values, dtype=np.float32)
-        self.frame_status = np.ascontiguousarray(self.frame_status, dtype=np.uint8)
+        self.time = np.asarray(self.time, dtype=np.float64)
+        self.values = np.asarray(self.values, dtype=np.float32)  # row- or column-major, both fine
+        self.frame_status = np.asarray(self.frame_status, dtype=np.uint8)
         n = self.time.shape[0]
         if self.time.ndim != 1 or self.values.shape != (n, len(self.meta.channels)):
             raise InputError(
@@ -149,6 +154,10 @@ class Take:
             raise InputError(f"take {self.meta.id}: frame times are not strictly increasing")
         if self.neutral is not None:
             self.neutral = np.asarray(self.neutral, dtype=np.float32)
+        if self.arrival_s is not None:
+            self.arrival_s = np.ascontiguousarray(self.arrival_s, dtype=np.float64)
+            if self.arrival_s.shape != (n,):
+                raise InputError(f"take {self.meta.id}: arrival_s has the wrong length")
 
     def attach_audio(self, audio: Audio, start_s: float = 0.0, start_source: str = "assumed") -> None:
         """Give the take its audio; ``start_s`` is the take time of the first sample."""
@@ -245,6 +254,8 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
         arrays = {"time": take.time, "values": take.values, "frame_status": take.frame_status}
         if take.neutral is not None:
             arrays["neutral"] = take.neutral
+        if take.arrival_s is not None:
+            arrays["arrival_s"] = take.arrival_s
         with open(tmp / FRAMES_FILE, "wb") as f:
             np.savez(f, **arrays)
             f.flush()
@@ -337,6 +348,7 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
         arrays["frame_status"],
         take_audio,
         arrays.get("neutral"),
+        arrays.get("arrival_s"),
     )
 
 

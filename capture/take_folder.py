@@ -154,6 +154,10 @@ def read_take_folder(
     meta.subject = app_take.get("subject") or meta.subject
     meta.device = app_take.get("deviceModel")
     meta.extra.update({"take_json": app_take, "video_metadata": video_meta, "audio_metadata": audio_meta})
+    # A simulated take (s2a-capture simulate) carries its ground truth beside the app's files.
+    if (folder / "simulation.json").is_file():
+        meta.extra["simulation"] = _load_json(folder / "simulation.json", repairs)
+        meta.sources.append(source_file(folder / "simulation.json", "simulation.json"))
     for name in ("take.json", "video_metadata.json", "audio_metadata.json", "frame_log.csv"):
         if (folder / name).is_file():
             meta.sources.append(source_file(folder / name, name))
@@ -172,6 +176,8 @@ def read_take_folder(
         }
     movs = sorted(folder.glob("*.mov"))
     mov = movs[0] if movs else None
+    wavs = sorted(folder.glob("*.wav"))  # a WAV beside the CSV stands in for a missing .mov
+    wav = wavs[0] if wavs and mov is None else None
     if mov is not None:
         meta.sources.append(source_file(mov, "reference_video"))
         meta.extra["reference_video"] = mov.name
@@ -180,8 +186,12 @@ def read_take_folder(
     if audio_file is not None:
         audio = read_audio(audio_file)
         meta.sources.append(source_file(audio_file, "external_audio"))
-    elif mov is not None:
-        audio = read_mov_audio(mov)
+    elif mov is not None or wav is not None:
+        if mov is not None:
+            audio = read_mov_audio(mov)
+        else:
+            audio = read_audio(wav)
+            meta.sources.append(source_file(wav, "audio"))
         csv_t0 = meta.csv["start_seconds_of_day"]
         for kind, source in (("A", "frame_log_audio"), ("V", "frame_log_video")):
             i = log.first(kind) if log else None
@@ -195,8 +205,8 @@ def read_take_folder(
             start_s, start_source = _signed_day_diff(tod, csv_t0), source
             break
         else:
-            info = probe_mov(mov)
-            if info.timecode:
+            info = probe_mov(mov) if mov is not None else None
+            if info is not None and info.timecode:
                 try:
                     rate = info.video_fps or video_rate
                     tod = Timecode.parse(info.timecode, round(rate)).seconds_of_day
@@ -210,8 +220,8 @@ def read_take_folder(
                 {
                     "line": None,
                     "kind": "audio_rate_mismatch",
-                    "message": f"audio_metadata.json says {expected} Hz, the .mov holds "
-                    f"{audio.sample_rate} Hz: the .mov's rate is used",
+                    "message": f"audio_metadata.json says {expected} Hz, the audio holds "
+                    f"{audio.sample_rate} Hz: the file's own rate is used",
                 }
             )
     if audio is not None:

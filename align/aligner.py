@@ -1,0 +1,333 @@
+"""``align_take``: one raw take in, one aligned take per usable segment out, with the report.
+
+Steps: audio to 16 kHz mono; evidence for the offset (timecode placement, sync events, claps, content);
+drift over long takes; face frames moved onto the audio clock by the chosen offset and drift; speech
+found by VAD and leading/trailing silence trimmed; frames resampled onto a uniform grid, short gaps
+interpolated (``INTERPOLATED``), long gaps splitting the take into segments.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture import Audio, FrameStatus, InputError, Take, TakeMeta
+from capture.timecode import Timecode
+
+from . import content as ct
+from .drift import arrival_drift_ppm, fit_drift, window_lags
+from .evidence import Evidence, clap_evidence, combine, content_evidence, sync_evidence, timecode_evidence
+from .grid import INTERPOLATED, UNCOVERED, cover, frame_period, resample_values, runs, usable_frames
+from .options import AlignOptions
+from .resample import TARGET_RATE, to_16k_mono
+from .transient import audio_claps, step_transients, video_motion, video_transients
+from .vad import speech_segments
+
+ALIGN_VERSION = 1
+MIN_TAKE_S = 1.0
+SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS the track holds no usable sound
+
+
+def _check_audio(take: Take, x: np.ndarray) -> None:
+    tid = take.meta.id
+    dur = x.size / TARGET_RATE
+    if dur < MIN_TAKE_S:
+        raise InputError(f"take {tid}: audio is {dur:.3f} s long, shorter than {MIN_TAKE_S:g} s")
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    if peak < SILENT_PEAK:
+        level = 20 * math.log10(peak) if peak > 0 else float("-inf")
+        raise InputError(f"take {tid}: audio track is silent (peak {level:.1f} dBFS); nothing to align to")
+
+
+def _reference_video(take: Take) -> Path | None:
+    for s in take.meta.sources:
+        if s.role == "reference_video" and Path(s.path).is_file():
+            return Path(s.path)
+    return None
+
+
+def _content(take: Take, x: np.ndarray, s0: float, usable: np.ndarray, period: float, opts: AlignOptions):
+    """Content lag estimate, its evidence, the window lags and the per-frame mouth signal."""
+    picks = ct.mouth_channels(take.meta.channels)
+    t = take.time
+    mouth = ct.mouth_opening(take.values, usable, picks) if picks else np.full(t.size, np.nan)
+    ok = usable & np.isfinite(mouth)
+    if ok.sum() < 10:
+        return None, None, None, mouth, {"note": "no moving mouth-opening channel"}
+    n = int(x.size / TARGET_RATE * ct.ANALYSIS_RATE)
+    grid = s0 + np.arange(n) / ct.ANALYSIS_RATE
+    env = ct.band_pass(ct.energy_envelope(x, TARGET_RATE, s0, grid))
+    weight = (cover(t[ok], period, grid, opts.max_gap_s) != UNCOVERED).astype(np.float64)
+    face = ct.band_pass(np.interp(grid, t[ok], mouth[ok]))
+    est = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s)
+    if est is None:
+        return None, None, None, mouth, {"note": "too little overlap for content evidence"}
+    wl = window_lags(env, face, weight, s0, est.lag_s)
+    if wl.lag_s.size >= 2:
+        agree = float(np.mean(np.abs(wl.lag_s - est.lag_s) <= 1.0 / take.meta.fps))
+        spread = float(np.std(wl.lag_s) / math.sqrt(wl.lag_s.size))
+    else:
+        agree, spread = 1.0, 0.5 / take.meta.fps
+    ev = content_evidence(est, opts.face_lead_ms / 1000.0, agree, spread, take.meta.fps)
+    ev.detail["anchor_s"] = round(float(np.average(grid, weights=weight + 1e-12)), 6)
+    ev.detail["channels"] = [take.meta.channels[c] for c, _ in picks]
+    return est, ev, wl, mouth, {}
+
+
+def _transient_evidence(
+    take: Take, x: np.ndarray, s0: float, usable: np.ndarray, mouth: np.ndarray, opts: AlignOptions
+) -> list[Evidence]:
+    out: list[Evidence] = []
+    claps = audio_claps(x, s0)
+    face_steps = step_transients(take.time[usable], mouth[usable]) if np.isfinite(mouth).any() else []
+    events = take.meta.extra.get("sync_events") or []
+    if events and claps:
+        ev = sync_evidence(events, claps, face_steps, opts.max_offset_s)
+        if ev is not None:
+            out.append(ev)
+    if not claps:
+        return out
+    ev = clap_evidence(claps, face_steps, "blendshapes", opts.max_offset_s)
+    if ev is not None:
+        out.append(ev)
+    video = _reference_video(take) if opts.use_video else None
+    if video is not None:
+        motion = video_motion(video)
+        # The app records one video frame per ARKit frame: video frame j is the j-th frame with a row.
+        frame_t = take.time[take.frame_status != FrameStatus.DROPPED]
+        ev = clap_evidence(claps, video_transients(motion, frame_t), "reference_video", opts.max_offset_s)
+        if ev is not None:
+            ev.source = "video_clap"
+            out.append(ev)
+    return out
+
+
+def _timecode_at(meta: TakeMeta, take_time: float) -> str | None:
+    if not meta.start_timecode:
+        return None
+    try:
+        tod = Timecode.parse(meta.start_timecode).seconds_of_day + take_time
+    except ValueError:
+        return None
+    return Timecode.from_seconds(tod % 86400.0).format()
+
+
+def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[list[Take], dict[str, Any]]:
+    """Align ``take``; returns the aligned segment takes and the take's report (see ``align_take``)."""
+    opts = options or AlignOptions()
+    opts.validate()
+    meta = take.meta
+    tid = meta.id
+    if take.audio is None or meta.audio is None:
+        raise InputError(f"take {tid} has no audio: align needs the speech (import it with --audio)")
+    x = to_16k_mono(take.audio, tid)
+    _check_audio(take, x)
+    s0 = float(meta.audio.start_s)
+    audio_dur = x.size / TARGET_RATE
+    usable = usable_frames(take.frame_status, take.values)
+    if usable.sum() < 2:
+        raise InputError(f"take {tid}: no tracked frames")
+    ft = take.time[usable]
+    period = frame_period(ft, meta.fps)
+    face_dur = float(ft[-1] - ft[0]) + period
+    if face_dur < MIN_TAKE_S:
+        raise InputError(
+            f"take {tid}: the face is tracked for {face_dur:.3f} s, shorter than {MIN_TAKE_S:g} s"
+        )
+    overlap = min(s0 + audio_dur, ft[-1] + period) - max(s0, ft[0])
+    if overlap < MIN_TAKE_S:
+        raise InputError(
+            f"take {tid}: audio ({s0:.3f}..{s0 + audio_dur:.3f} s) and face ({ft[0]:.3f}..{ft[-1]:.3f} s) "
+            f"overlap by {max(overlap, 0):.3f} s, less than {MIN_TAKE_S:g} s"
+        )
+    flags: list[str] = []
+    if abs(audio_dur - face_dur) > max(1.0, 0.1 * max(audio_dur, face_dur)):
+        flags.append("duration_mismatch")
+
+    # Evidence.
+    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, opts)
+    evidence: list[Evidence] = [timecode_evidence(meta.audio.start_source)]
+    if content_ev is not None:
+        evidence.append(content_ev)
+    evidence += _transient_evidence(take, x, s0, usable, mouth, opts)
+    decision = combine(evidence, opts.min_confidence, opts.max_disagreement_s)
+    flags += decision.flags
+    chosen = decision.chosen
+
+    # Drift (content windows over a long take), applied when it is clearly there.
+    drift_info: dict[str, Any] = {"applied": False}
+    drift = 0.0
+    if wl is not None and opts.drift and audio_dur >= opts.min_drift_take_s:
+        fit = fit_drift(wl, s0)
+        if fit is not None:
+            significant = abs(fit.drift) > 3 * fit.drift_se and abs(fit.drift) * audio_dur > 0.25 / meta.fps
+            drift_info = {
+                "applied": bool(significant),
+                "estimate_ppm": round(fit.ppm, 3),
+                "standard_error_ppm": round(fit.drift_se * 1e6, 3) if math.isfinite(fit.drift_se) else None,
+                "windows": fit.windows,
+                "residual_s": round(fit.residual_s, 6),
+            }
+            drift = fit.drift if significant else 0.0
+    arrival_ppm = arrival_drift_ppm(take.time, take.arrival_s)
+    if arrival_ppm is not None:
+        drift_info["phone_vs_recorder_ppm"] = round(arrival_ppm, 3)
+    anchor = chosen.detail.get("anchor_s", chosen.detail.get("audio_time_s", s0))
+    offset_s = chosen.offset_s - drift * (float(anchor) - s0)  # the offset at the first audio sample
+
+    # Face times on the audio clock (s from the first raw audio sample).
+    tau = ft - s0 - (offset_s + drift * (ft - s0))
+    values = take.values[usable]
+
+    # Speech and trim.
+    speech = speech_segments(x, opts.vad)
+    if not speech:
+        raise InputError(
+            f"take {tid}: no speech found by the {opts.vad} VAD in {audio_dur:.2f} s of audio "
+            "(--vad none keeps the take as it is)"
+        )
+    a0 = max(0.0, speech[0][0] - opts.vad_pad_s, float(tau[0]) - period / 2)
+    a1 = min(audio_dur, speech[-1][1] + opts.vad_pad_s, float(tau[-1]) + period / 2)
+    fps = float(opts.fps or meta.fps)
+    a0 = round(a0 * TARGET_RATE) / TARGET_RATE
+    n_all = int(math.floor((a1 - a0) * fps + 1e-9))
+    if n_all < 1:
+        raise InputError(f"take {tid}: no time where both speech and face are present")
+    g = a0 + np.arange(n_all) / fps
+    status_all = cover(tau, period, g, opts.max_gap_s)
+    min_frames = max(1, int(math.ceil(opts.min_segment_s * fps)))
+    spans = [(s, e) for s, e in runs(status_all != UNCOVERED) if e - s >= min_frames]
+    if not spans:
+        raise InputError(
+            f"take {tid}: no stretch of at least {opts.min_segment_s:g} s with both speech and a tracked face"
+        )
+    if len(spans) < len(runs(status_all != UNCOVERED)):
+        flags.append("short_segments_dropped")
+
+    segments_out: list[Take] = []
+    seg_reports = []
+    total_interp = 0
+    n_seg = len(spans)
+    for k, (s, e) in enumerate(spans):
+        n = e - s
+        s_sample = int(round(g[s] * TARGET_RATE))
+        t_local = np.arange(n) / fps
+        seg_tau = s_sample / TARGET_RATE + t_local
+        seg_values = resample_values(tau, values, seg_tau, 1.0 / period, fps)
+        seg_status = status_all[s:e].copy()
+        n_samples = int(math.ceil(n * TARGET_RATE / fps - 1e-6))
+        samples = x[s_sample : s_sample + n_samples]
+        if samples.size < n_samples:
+            samples = np.concatenate([samples, np.zeros(n_samples - samples.size, np.float32)])
+        seg_id = tid if n_seg == 1 else f"{tid}.seg{k + 1:02d}"
+        start_audio = s_sample / TARGET_RATE
+        speech_local = [
+            [
+                round(max(a, start_audio) - start_audio, 4),
+                round(min(b, start_audio + n / fps) - start_audio, 4),
+            ]
+            for a, b in speech
+            if b > start_audio and a < start_audio + n / fps
+        ]
+        interp = int(np.count_nonzero(seg_status == INTERPOLATED))
+        total_interp += interp
+        seg_reports.append(
+            {
+                "id": seg_id,
+                "frames": n,
+                "start_s": round(s0 + start_audio, 6),
+                "duration_s": round(n / fps, 6),
+                "gaps_interpolated": interp,
+                "speech_segments": speech_local,
+            }
+        )
+        seg_meta = TakeMeta(
+            id=seg_id,
+            source_kind="aligned",
+            fps=fps,
+            channels=list(meta.channels),
+            slate=meta.slate,
+            take_number=meta.take_number,
+            subject=meta.subject,
+            device=meta.device,
+            start_timecode=_timecode_at(meta, s0 + start_audio),
+            timecode_rate=meta.timecode_rate,
+            sources=list(meta.sources),
+            repairs=list(meta.repairs),
+            extra={key: meta.extra[key] for key in ("simulation", "take_json") if key in meta.extra},
+        )
+        seg_take = Take(seg_meta, t_local, seg_values, seg_status, None, take.neutral)
+        seg_take.attach_audio(Audio(samples.astype(np.float32), TARGET_RATE, "FLOAT"), 0.0, "aligned")
+        segments_out.append(seg_take)
+
+    report: dict[str, Any] = {
+        "id": tid,
+        "offset_s": round(offset_s, 6),
+        "offset_source": chosen.source,
+        "offset_confidence": round(chosen.confidence, 4),
+        "offset_uncertainty_s": round(chosen.uncertainty_s, 6)
+        if math.isfinite(chosen.uncertainty_s)
+        else None,
+        "content_lag_s": round(est.lag_s, 6) if est is not None else None,
+        "face_lead_s": opts.face_lead_ms / 1000.0,
+        "alternatives": [e.to_json() for e in decision.alternatives],
+        "chosen": chosen.to_json() if math.isfinite(chosen.uncertainty_s) else None,
+        "disagreements": decision.disagreements,
+        "flags": flags,
+        "drift_ppm": round(drift * 1e6, 3),
+        "drift": drift_info,
+        "trim_s": [round(s0 + a0, 6), round(s0 + min(a1, a0 + n_all / fps), 6)],
+        "speech_segments_raw": [[round(s0 + a, 4), round(s0 + b, 4)] for a, b in speech],
+        "frames": int(sum(t.time.size for t in segments_out)),
+        "fps": fps,
+        "gaps_interpolated": total_interp,
+        "segments": n_seg,
+        "segment_list": seg_reports,
+        "audio_s": round(audio_dur, 6),
+        "face_s": round(face_dur, 6),
+        "audio_start_s": s0,
+        "audio_start_source": meta.audio.start_source,
+        "subject": meta.subject,
+        "options": opts.to_json(),
+        "version": ALIGN_VERSION,
+    }
+    if content_note:
+        report["content_note"] = content_note.get("note")
+    for k, seg_take in enumerate(segments_out):
+        seg = seg_reports[k]
+        seg_take.meta.extra["align"] = {
+            key: v for key, v in report.items() if key not in ("segment_list", "speech_segments_raw")
+        } | {
+            "segment": k + 1,
+            "segment_count": n_seg,
+            "segment_start_s": seg["start_s"],
+            "speech_segments": seg["speech_segments"],
+            "gaps_interpolated": seg["gaps_interpolated"],
+            "frames": seg["frames"],
+            "parent": {"id": tid, "source_kind": meta.source_kind},
+        }
+    return segments_out, report
+
+
+def align_take(take: Take, options: AlignOptions | None = None) -> list[Take]:
+    """Align a raw take: audio as 16 kHz mono float32 starting at take time 0, frames on the grid
+    ``time[i] = i / fps`` (s) over the same span, one take per segment (``<id>`` or ``<id>.segNN``).
+
+    The report (offset, evidence, drift, trim, gaps) is in each result's ``meta.extra["align"]``.
+    Raises ``InputError`` for a take that cannot be aligned (no audio, silent, shorter than 1 s, no
+    speech, no overlap of face and audio)."""
+    return align_with_report(take, options)[0]
+
+
+def is_aligned(take: Take) -> bool:
+    """True for a take written by the align stage (16 kHz float audio at 0 s, uniform frame grid)."""
+    m = take.meta
+    if m.source_kind != "aligned" or "align" not in m.extra or m.audio is None:
+        return False
+    if m.audio.sample_rate != TARGET_RATE or m.audio.start_s != 0.0 or m.audio.channels != 1:
+        return False
+    n = take.time.size
+    return bool(np.allclose(take.time, np.arange(n) / m.fps, atol=1e-9))

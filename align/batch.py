@@ -1,0 +1,182 @@
+"""``align_takes``: many takes, in parallel, skipping those whose inputs and options are unchanged.
+
+The fingerprint of a take = sha256 over the align version, the options and the bytes of the raw take's
+``meta.json``, ``frames.npz`` and audio file. It is stored in every output's ``meta.extra["align"]``;
+a later run with the same fingerprint and all outputs present does nothing for that take.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing as mp
+import shutil
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from capture import InputError, S2AError, find_takes, read_meta, read_take, write_take
+from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, safe_id
+
+from .aligner import ALIGN_VERSION, align_with_report
+from .options import AlignOptions
+
+
+def fingerprint(folder: Path, options: AlignOptions) -> str:
+    """sha256 (hex) of the align version, the options and the raw take's files."""
+    h = hashlib.sha256()
+    h.update(json.dumps({"version": ALIGN_VERSION, "options": options.to_json()}, sort_keys=True).encode())
+    for name in (META_FILE, FRAMES_FILE, AUDIO_FILE):
+        p = folder / name
+        if p.is_file():
+            h.update(name.encode())
+            with open(p, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+    return h.hexdigest()
+
+
+def _outputs_of(out_dir: Path, take_id: str) -> list[Path]:
+    """Aligned take folders in ``out_dir`` made from the raw take ``take_id``."""
+    base = safe_id(take_id)
+    found = []
+    for p in [out_dir / base, *sorted(out_dir.glob(f"{base}.seg[0-9][0-9]"))]:
+        if (p / META_FILE).is_file():
+            try:
+                m = read_meta(p)
+            except S2AError:
+                continue
+            if m.source_kind == "aligned" and m.extra.get("align", {}).get("parent", {}).get("id") == take_id:
+                found.append(p)
+    return found
+
+
+def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
+    outs = _outputs_of(out_dir, take_id)
+    if not outs:
+        return None
+    metas = [read_meta(p) for p in outs]
+    reports = [m.extra["align"] for m in metas]
+    count = reports[0].get("segment_count")
+    if any(r.get("fingerprint") != fp for r in reports) or len(reports) != count:
+        return None
+    keep = (
+        "offset_s",
+        "offset_source",
+        "offset_confidence",
+        "offset_uncertainty_s",
+        "content_lag_s",
+        "face_lead_s",
+        "alternatives",
+        "chosen",
+        "disagreements",
+        "flags",
+        "drift_ppm",
+        "drift",
+        "trim_s",
+        "fps",
+        "segments",
+        "audio_s",
+        "face_s",
+        "audio_start_s",
+        "audio_start_source",
+        "subject",
+    )
+    out = {k: reports[0][k] for k in keep if k in reports[0]}
+    out["frames"] = sum(r["frames"] for r in reports)
+    out["gaps_interpolated"] = sum(r["gaps_interpolated"] for r in reports)
+    out["outputs"] = [str(p) for p in outs]
+    return out
+
+
+def align_folder(
+    folder: str | Path,
+    out_dir: str | Path,
+    options: AlignOptions,
+    force: bool = False,
+    skip_without_audio: bool = False,
+) -> dict:
+    """Align one raw take folder into ``out_dir``; returns its report (``skipped`` True when unchanged
+    or, with ``skip_without_audio``, when the take has no audio; ``error`` set when the take could not
+    be aligned)."""
+    folder, out_dir = Path(folder), Path(out_dir)
+    try:
+        meta = read_meta(folder)
+        fp = fingerprint(folder, options)
+        if not force:
+            prev = _previous(out_dir, meta.id, fp)
+            if prev is not None:
+                return {"id": meta.id, "path": str(folder), "skipped": True} | prev
+        if meta.audio is None and skip_without_audio:
+            return {"id": meta.id, "path": str(folder), "skipped": True, "reason": "no audio"}
+        take = read_take(folder)
+        if take.meta.source_kind == "aligned":
+            raise InputError("take is already aligned", folder)
+        segments, report = align_with_report(take, options)
+        stale = _outputs_of(out_dir, meta.id)
+        written = []
+        for seg in segments:
+            seg.meta.extra["align"]["fingerprint"] = fp
+            seg.meta.extra["align"]["parent"]["path"] = str(folder.resolve())
+            written.append(write_take(seg, out_dir))
+        for p in stale:
+            if p not in written:
+                shutil.rmtree(p, ignore_errors=True)
+        report = {"id": meta.id, "path": str(folder), "skipped": False} | report
+        report["outputs"] = [str(p) for p in written]
+        report.pop("options", None)
+        return report
+    except S2AError as exc:
+        return {"id": folder.name, "path": str(folder), "error": str(exc)}
+
+
+def _worker_context(opts: AlignOptions):
+    """Worker processes forked on Linux, with the modules (and torch for silero) imported once in the
+    parent: importing torch costs seconds per process, which a spawned worker would pay each time.
+    Forking after ``import torch`` is safe while the parent has run no torch operation (the model is
+    only loaded in the workers), as PyTorch's own data-loader workers rely on. Elsewhere: spawn."""
+    if sys.platform.startswith("linux") and "fork" in mp.get_all_start_methods():
+        if opts.vad == "silero":
+            import silero_vad  # noqa: F401
+            import torch  # noqa: F401
+        return mp.get_context("fork")
+    return mp.get_context("spawn")
+
+
+def align_takes(
+    paths,
+    out_dir: str | Path,
+    options: AlignOptions | None = None,
+    jobs: int = 1,
+    force: bool = False,
+    on_report=None,
+    skip_without_audio: bool = False,
+) -> list[dict[str, Any]]:
+    """Align every take under ``paths`` (take folders, searched recursively) into ``out_dir`` with
+    ``jobs`` worker processes; returns one report dict per take, in input order. ``on_report`` is
+    called with each report as it is ready."""
+    opts = options or AlignOptions()
+    opts.validate()
+    out_dir = Path(out_dir)
+    folders = [f for f in find_takes(paths) if out_dir.resolve() not in f.resolve().parents]
+    if not folders:
+        raise InputError(f"no takes found under {', '.join(map(str, paths))}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reports: list[dict[str, Any]] = []
+    if jobs <= 1 or len(folders) == 1:
+        for f in folders:
+            r = align_folder(f, out_dir, opts, force, skip_without_audio)
+            reports.append(r)
+            if on_report:
+                on_report(r)
+        return reports
+    ctx = _worker_context(opts)
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+        futures = [pool.submit(align_folder, f, out_dir, opts, force, skip_without_audio) for f in folders]
+        for fut in futures:
+            r = fut.result()
+            reports.append(r)
+            if on_report:
+                on_report(r)
+    return reports

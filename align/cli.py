@@ -1,0 +1,111 @@
+"""``s2a-align``: raw takes -> aligned takes (16 kHz audio, uniform frames, measured offset) + reports."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from capture.command import emit_json, progress, run
+
+from .batch import align_takes
+from .options import VAD_METHODS, AlignOptions
+
+PROG = "s2a-align"
+
+
+def _jobs(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError("must be at least 1")
+    return n
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Put speech and face on one clock: measure the audio/face offset (timecodes, sync "
+        "events, claps, content), correct drift, trim silence by VAD, resample audio to 16 kHz and frames "
+        "onto a uniform grid. Offset sign: offset_s > 0 means the face lags the audio in the raw take.",
+    )
+    p.add_argument("takes", nargs="+", type=Path, help="take folders, or folders holding them (recursive)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the aligned takes into")
+    p.add_argument("--fps", type=float, help="output frame rate (default: each take's own)")
+    p.add_argument(
+        "--face-lead-ms",
+        type=float,
+        default=0.0,
+        help="how far the face moves ahead of the sound, used only when content is the chosen evidence "
+        "(offset = content lag - lead; default 0: no assumption, see docs/align.md)",
+    )
+    p.add_argument("--vad", choices=VAD_METHODS, default="silero", help="speech detector for trimming")
+    p.add_argument("--max-gap-ms", type=float, default=250.0, help="longest gap filled by interpolation")
+    p.add_argument("--max-offset-ms", type=float, default=500.0, help="offset search range (±)")
+    p.add_argument(
+        "--max-disagreement-ms", type=float, default=50.0, help="evidence further apart flags the take"
+    )
+    p.add_argument("--min-segment-s", type=float, default=1.0, help="shorter segments are left out")
+    p.add_argument("--no-drift", action="store_true", help="do not correct clock drift")
+    p.add_argument("--no-video", action="store_true", help="do not look for a clap in the reference video")
+    p.add_argument("--jobs", "-j", type=_jobs, default=1, help="takes aligned in parallel (processes)")
+    p.add_argument("--force", action="store_true", help="re-align takes whose inputs are unchanged")
+    p.add_argument(
+        "--skip-without-audio",
+        action="store_true",
+        help="report takes that have no audio as skipped instead of as errors (mixed folders)",
+    )
+    p.add_argument("--json", action="store_true", help="one JSON report per take on stdout")
+    return p
+
+
+def _main(args: argparse.Namespace) -> int:
+    opts = AlignOptions(
+        fps=args.fps,
+        face_lead_ms=args.face_lead_ms,
+        vad=args.vad,
+        max_gap_s=args.max_gap_ms / 1000.0,
+        max_offset_s=args.max_offset_ms / 1000.0,
+        max_disagreement_s=args.max_disagreement_ms / 1000.0,
+        min_segment_s=args.min_segment_s,
+        drift=not args.no_drift,
+        use_video=not args.no_video,
+    )
+
+    def show(r: dict) -> None:
+        if args.json:
+            emit_json(r)
+        if "error" in r:
+            print(f"{PROG}: error: {r['error']}", file=sys.stderr)
+        elif r.get("reason"):
+            if not args.json:
+                progress(f"{r['id']}: skipped ({r['reason']})")
+        elif not args.json:
+            state = "unchanged, skipped" if r.get("skipped") else f"{r['segments']} segment(s)"
+            flags = f" FLAGS {','.join(r['flags'])}" if r.get("flags") else ""
+            progress(
+                f"{r['id']}: offset {r['offset_s'] * 1000:+.1f} ms ({r['offset_source']}, confidence "
+                f"{r['offset_confidence']:.2f}), drift {r['drift_ppm']:.1f} ppm, trim {r['trim_s'][0]:.3f}.."
+                f"{r['trim_s'][1]:.3f} s, {r['frames']} frames at {r['fps']:g} fps, {state}{flags}"
+            )
+
+    reports = align_takes(
+        args.takes,
+        args.out,
+        opts,
+        jobs=args.jobs,
+        force=args.force,
+        on_report=show,
+        skip_without_audio=args.skip_without_audio,
+    )
+    return 1 if any("error" in r for r in reports) else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(PROG, build_parser(), _main, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,150 @@
+"""Content evidence: the audio's energy envelope against the face's mouth opening.
+
+Both streams become one signal each on a common analysis grid (``ANALYSIS_RATE`` on the take clock):
+the audio's log energy in 20 ms windows, and a mouth-opening composite of the face (jawOpen, minus
+mouthClose, plus the lower lip; rig controls such as ``mouth_stretch_c`` for other rigs). Both pass the
+same zero-phase band-pass filter, so filtering adds no lag to one and not the other. Their
+cross-correlation peaks at the lag by which the face trails the audio (``content_lag_s``); the peak
+is refined below the analysis step by evaluating the correlation's Fourier series on a fine grid
+around it (the matrix-multiply DFT upsampling of Guizar-Sicairos et al. that scikit-image's
+``phase_cross_correlation`` uses, here on the plain cross-power spectrum and only over the pass band).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import butter, sosfiltfilt
+
+ANALYSIS_RATE = 100.0  # Hz: 10 ms steps; the pass band ends at BAND_HZ[1]
+BAND_HZ = (0.5, 5.0)  # syllable-rate modulations; higher bands follow articulation shape more than timing
+UPSAMPLE = 100  # refinement step = 1 / (ANALYSIS_RATE * UPSAMPLE) = 0.1 ms
+
+# Mouth-opening channels and their signs (lower-case names; ARKit first, then other rigs' controls).
+MOUTH_OPENING = {
+    "jawopen": 1.0,
+    "mouthclose": -1.0,
+    "mouthlowerdownleft": 1.0,
+    "mouthlowerdownright": 1.0,
+    "mouth_stretch_c": 1.0,
+    "jaw_open": 1.0,
+    "mouth_lowerlipdepress_l": 0.5,
+    "mouth_lowerlipdepress_r": 0.5,
+}
+
+
+def mouth_channels(channels: list[str]) -> list[tuple[int, float]]:
+    """(column, sign weight) of the mouth-opening channels a take has; empty when it has none."""
+    lowered = [c.lower() for c in channels]
+    found = [(lowered.index(n), w) for n, w in MOUTH_OPENING.items() if n in lowered]
+    if not found:
+        found = [(i, 1.0) for i, c in enumerate(lowered) if "jaw" in c and "open" in c]
+    return found
+
+
+def mouth_opening(values: np.ndarray, valid: np.ndarray, picks: list[tuple[int, float]]) -> np.ndarray:
+    """Per-frame mouth opening: the weighted sum of the picked channels, each scaled to unit spread
+    over the valid frames (channels that do not move are left out). NaN where a frame is not valid."""
+    out = np.zeros(values.shape[0])
+    used = 0
+    for col, weight in picks:
+        x = values[valid, col].astype(np.float64)
+        if x.size < 2:
+            continue
+        spread = float(np.std(x))
+        if not np.isfinite(spread) or spread < 1e-6:
+            continue
+        out += weight * (values[:, col] - np.mean(x)) / spread
+        used += 1
+    out[~valid] = np.nan
+    return out if used else np.full(values.shape[0], np.nan)
+
+
+def energy_envelope(x: np.ndarray, rate: int, start_s: float, grid: np.ndarray) -> np.ndarray:
+    """Log energy (dB) of audio ``x`` (``rate`` Hz, first sample at take time ``start_s``) in 20 ms
+    windows centred on the take times ``grid`` (s), floored 60 dB below the loudest window."""
+    hop = rate / ANALYSIS_RATE
+    n = int(x.size // hop)
+    if n < 2:
+        return np.zeros(grid.size)
+    e = (
+        np.square(x[: int(n * hop)].astype(np.float64)).reshape(n, -1).mean(axis=1)
+        if hop.is_integer()
+        else (np.add.reduceat(np.square(x.astype(np.float64)), (np.arange(n) * hop).astype(np.int64)) / hop)
+    )
+    e = 0.5 * (e + np.concatenate([e[1:], e[-1:]]))  # 20 ms windows, centred between two hops
+    db = 10.0 * np.log10(e + 1e-12)
+    db = np.maximum(db, db.max() - 60.0)
+    centres = start_s + (np.arange(n) + 1.0) / ANALYSIS_RATE
+    return np.interp(grid, centres, db)
+
+
+def band_pass(x: np.ndarray) -> np.ndarray:
+    """The zero-phase band-pass both content signals go through (``BAND_HZ`` at ``ANALYSIS_RATE``)."""
+    sos = butter(2, [BAND_HZ[0], BAND_HZ[1]], btype="band", fs=ANALYSIS_RATE, output="sos")
+    if x.size < 30:
+        return x - x.mean()
+    return sosfiltfilt(sos, x - x.mean())
+
+
+@dataclass
+class LagEstimate:
+    """The lag (s) at which the face best matches the audio, with how clearly it stands out."""
+
+    lag_s: float
+    peak: float  # normalised correlation at the peak (-1..1)
+    runner_up: float  # highest correlation at least ``MAIN_LOBE_S`` away from the peak
+    z: float  # peak over the spread of the correlation across the search range
+    seconds: float  # length of signal the estimate rests on
+    at_edge: bool  # the peak sits at the edge of the search range
+
+
+MAIN_LOBE_S = 0.08
+
+
+def cross_correlation_lag(
+    audio_sig: np.ndarray, face_sig: np.ndarray, weight: np.ndarray, max_lag_s: float, centre_s: float = 0.0
+) -> LagEstimate | None:
+    """Lag (s) that maximises ``sum audio(t) face(t + lag)`` within ``centre_s ± max_lag_s``, refined
+    to 0.1 ms; signals on the analysis grid, ``weight`` (0..1) masks where the face is missing."""
+    a = audio_sig * weight
+    f = face_sig * weight
+    n = a.size
+    norm = float(np.sqrt(np.dot(a, a) * np.dot(f, f)))
+    if n < 20 or norm <= 0:
+        return None
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    spec = np.conj(np.fft.rfft(a, size)) * np.fft.rfft(f, size)
+    corr = np.fft.irfft(spec, size) / norm  # corr[k] = sum a(t) f(t + k), k negative wraps around
+    max_k = int(np.ceil(max_lag_s * ANALYSIS_RATE))
+    c0 = int(round(centre_s * ANALYSIS_RATE))
+    lags = np.arange(c0 - max_k, c0 + max_k + 1)
+    lags = lags[np.abs(lags) < n - 10]
+    if lags.size < 3:
+        return None
+    values = corr[lags % size]
+    best = int(np.argmax(values))
+    at_edge = best in (0, lags.size - 1)
+    k_best = int(lags[best])
+    lobe = int(round(MAIN_LOBE_S * ANALYSIS_RATE))
+    far = np.abs(lags - k_best) > lobe
+    runner_up = float(values[far].max()) if far.any() else float("nan")
+    spread = float(np.std(values)) or 1e-12
+    z = (float(values[best]) - float(np.median(values))) / spread
+    # Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
+    # the integer peak, using only the bins the band-pass lets through.
+    freqs = np.arange(spec.size)
+    keep = freqs <= int(np.ceil(2.0 * BAND_HZ[1] / ANALYSIS_RATE * size)) + 2
+    bins = freqs[keep]
+    sub = spec[keep]
+    fine = k_best + np.arange(-UPSAMPLE, UPSAMPLE + 1) / UPSAMPLE
+    weighted = sub * np.where(bins == 0, 1.0, 2.0)
+    series = np.zeros(fine.size)
+    for lo in range(0, bins.size, 4096):  # blocks keep memory small on hour-long takes
+        kernel = np.exp(2j * np.pi * np.outer(fine, bins[lo : lo + 4096]) / size)
+        series += (kernel * weighted[lo : lo + 4096]).real.sum(axis=1)
+    series /= size * norm
+    refined = float(fine[int(np.argmax(series))]) if not at_edge else float(k_best)
+    peak = float(series.max()) if not at_edge else float(values[best])
+    return LagEstimate(refined / ANALYSIS_RATE, peak, runner_up, z, n / ANALYSIS_RATE, at_edge)

@@ -1,0 +1,57 @@
+"""What the align stage can be told: frame rate, face lead, VAD, gap and evidence thresholds."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from capture import InputError
+
+VAD_METHODS = ("silero", "webrtc", "none")
+
+
+@dataclass(frozen=True)
+class AlignOptions:
+    """Options of ``align_take``. Times are seconds unless a name says ms.
+
+    ``fps``: output frame rate (None: the take's own rate). ``face_lead_ms``: how far the speaker's face
+    is assumed to move ahead of the sound; only used when content is the chosen evidence
+    (``offset_s = content_lag_s - face_lead_ms / 1000``). ``vad``: ``silero`` (default), ``webrtc`` or
+    ``none`` (keep the whole overlap). ``max_gap_s``: longest run of missing face frames filled by
+    interpolation; longer gaps split the take. ``max_offset_s``: search range of the content and
+    transient evidence around the timecode placement. ``max_disagreement_s``: two confident sources
+    further apart than this (plus their own uncertainties) flag the take.
+    """
+
+    fps: float | None = None
+    face_lead_ms: float = 0.0
+    vad: str = "silero"
+    max_gap_s: float = 0.25
+    min_segment_s: float = 1.0
+    vad_pad_s: float = 0.1
+    max_offset_s: float = 0.5
+    max_disagreement_s: float = 0.05
+    min_confidence: float = 0.3
+    drift: bool = True
+    min_drift_take_s: float = 60.0
+    use_video: bool = True
+
+    def validate(self) -> None:
+        if self.fps is not None and not (1.0 <= self.fps <= 1000.0):
+            raise InputError(f"--fps must be between 1 and 1000, not {self.fps:g}")
+        if self.vad not in VAD_METHODS:
+            raise InputError(f"--vad must be one of {', '.join(VAD_METHODS)}, not {self.vad!r}")
+        if not (-500.0 <= self.face_lead_ms <= 500.0):
+            raise InputError(f"--face-lead-ms must be within ±500 ms, not {self.face_lead_ms:g}")
+        for name in ("max_gap_s", "min_segment_s", "vad_pad_s", "max_offset_s", "max_disagreement_s"):
+            if getattr(self, name) < 0:
+                raise InputError(f"{name} must not be negative")
+        if self.max_offset_s < 0.02 or self.max_offset_s > 10.0:
+            raise InputError(
+                f"--max-offset-ms must be between 20 and 10000, not {self.max_offset_s * 1000:g}"
+            )
+        if not (0.0 <= self.min_confidence <= 1.0):
+            raise InputError("--min-confidence must be between 0 and 1")
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)

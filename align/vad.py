@@ -1,0 +1,120 @@
+"""Voice-activity detection: where the speech is, to trim leading and trailing silence (as the paper does).
+
+``silero``: the silero-vad package's bundled model (shipped inside the wheel; nothing is downloaded),
+loaded once per process without torchaudio: its sequence ONNX export under onnxruntime when available,
+else its TorchScript model under torch. ``webrtc``: the lighter WebRTC GMM detector (``webrtcvad``, from
+the optional ``webrtcvad-wheels`` package). ``none``: no detection, the whole audio counts as speech.
+"""
+
+from __future__ import annotations
+
+import warnings
+from importlib import resources
+
+import numpy as np
+
+from capture import InputError
+
+from .resample import TARGET_RATE
+
+_SILERO = None
+SEQUENCE_MODEL = "silero_vad_16k_sequence.onnx"
+
+
+def _silero_model():
+    """The bundled silero model: the sequence ONNX export run by onnxruntime when both are there (it
+    takes up to 512 windows per call, about 8x faster than the TorchScript model stepped window by
+    window), else the TorchScript model. Same network, same speech segments."""
+    global _SILERO
+    if _SILERO is None:
+        try:
+            import silero_vad
+        except ImportError:
+            raise InputError("--vad silero needs the package silero-vad (or use --vad webrtc/none)") from None
+        _SILERO = _sequence_model(silero_vad)
+        if _SILERO is None:
+            import torch
+
+            torch.set_num_threads(1)  # takes run in parallel processes; one thread each is fastest overall
+            with warnings.catch_warnings():  # the package's own deprecation notices (importlib, torch.jit)
+                warnings.simplefilter("ignore", DeprecationWarning)
+                _SILERO = ("torch", silero_vad.load_silero_vad())
+    return _SILERO
+
+
+def _sequence_model(silero_vad):
+    if not hasattr(silero_vad, "SileroVADSequence"):
+        return None
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        return None
+    path = resources.files("silero_vad") / "data" / SEQUENCE_MODEL
+    if not path.is_file():
+        return None
+    return ("onnx", silero_vad.SileroVADSequence(str(path)))
+
+
+def silero_segments(x: np.ndarray, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
+    """Speech segments (start_s, end_s) of 16 kHz mono float32 audio by silero-vad (32 ms windows)."""
+    kind, model = _silero_model()
+    audio = np.ascontiguousarray(x, dtype=np.float32)
+    settings = {
+        "sampling_rate": TARGET_RATE,
+        "min_silence_duration_ms": int(min_silence_s * 1000),
+        "speech_pad_ms": 0,
+    }
+    if kind == "onnx":
+        from silero_vad import get_speech_timestamps_sequence
+
+        stamps = get_speech_timestamps_sequence(audio, model, **settings)
+    else:
+        import torch
+        from silero_vad import get_speech_timestamps
+
+        with torch.inference_mode():
+            stamps = get_speech_timestamps(torch.from_numpy(audio), model, **settings)
+        model.reset_states()
+    return [(s["start"] / TARGET_RATE, s["end"] / TARGET_RATE) for s in stamps]
+
+
+def webrtc_segments(
+    x: np.ndarray, aggressiveness: int = 2, min_silence_s: float = 0.3
+) -> list[tuple[float, float]]:
+    """Speech segments (start_s, end_s) of 16 kHz mono float32 audio by the WebRTC detector (30 ms frames)."""
+    try:
+        import webrtcvad
+    except ImportError:
+        raise InputError("--vad webrtc needs the package webrtcvad (pip install webrtcvad-wheels)") from None
+    vad = webrtcvad.Vad(aggressiveness)
+    hop = TARGET_RATE * 30 // 1000
+    pcm = np.clip(np.rint(x * 32768.0), -32768, 32767).astype("<i2")
+    n = pcm.size // hop
+    flags = np.array([vad.is_speech(pcm[i * hop : (i + 1) * hop].tobytes(), TARGET_RATE) for i in range(n)])
+    return _runs_to_segments(flags, 0.03, min_silence_s, min_speech_s=0.09)
+
+
+def _runs_to_segments(
+    flags: np.ndarray, step_s: float, min_silence_s: float, min_speech_s: float
+) -> list[tuple[float, float]]:
+    """Runs of True in per-step flags as (start_s, end_s), closing silences shorter than ``min_silence_s``."""
+    if flags.size == 0:
+        return []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
+    runs = [[a * step_s, b * step_s] for a, b in zip(edges[::2], edges[1::2])]
+    merged: list[list[float]] = []
+    for r in runs:
+        if merged and r[0] - merged[-1][1] < min_silence_s:
+            merged[-1][1] = r[1]
+        else:
+            merged.append(r)
+    return [(a, b) for a, b in merged if b - a >= min_speech_s]
+
+
+def speech_segments(x: np.ndarray, method: str) -> list[tuple[float, float]]:
+    """Speech segments (start_s, end_s) of 16 kHz mono audio; ``method`` is silero, webrtc or none."""
+    if method == "silero":
+        return silero_segments(x)
+    if method == "webrtc":
+        return webrtc_segments(x)
+    return [(0.0, x.size / TARGET_RATE)]

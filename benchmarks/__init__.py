@@ -1,0 +1,1 @@
+"""Benchmarks: each ``bench_*.py`` module measures figures against a reference run in the same process."""

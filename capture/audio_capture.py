@@ -1,0 +1,249 @@
+"""Audio for a live session, stamped on the session clock and logged crash-safely in chunks.
+
+Two sources feed the same ``AudioLog``:
+
+- ``DeviceAudioSource``: a microphone through PortAudio (``sounddevice``, imported only when used).
+  Each callback's first sample is placed at ``now - (currentTime - inputBufferAdcTime)``: PortAudio's
+  own estimate of how long ago the buffer started being captured, moved onto our monotonic clock.
+- ``FileAudioSource``: a sound file played against the clock in real time, for tests and re-enacted
+  sessions. Its first sample sits exactly at the moment playback starts (when listening starts, or
+  when the first Live Link packet arrives).
+
+Chunks are ~100 ms; each becomes one ``AUDIO`` record: index of its first sample, clock time of that
+sample (ns) and the interleaved samples (little-endian, in the source's sample format).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .audio_io import Audio, read_audio
+from .errors import InputError
+from .record_log import LogReader, LogWriter, RecordType, TornTail, encode_record, json_record
+from .session_clock import SessionClock
+
+CHUNK_S = 0.1
+_AUDIO_HEAD = struct.Struct("<BQq")  # type, first sample index, clock ns of the first sample
+_DTYPES = {
+    "PCM_16": np.dtype("<i2"),
+    "PCM_24": np.dtype("<i4"),
+    "PCM_32": np.dtype("<i4"),
+    "FLOAT": np.dtype("<f4"),
+}
+
+PORTAUDIO_HINT = (
+    "recording from a sound device needs the PortAudio library: install the Debian package "
+    "libportaudio2 (apt-get install libportaudio2), or record with --audio-file"
+)
+
+
+class AudioLog:
+    """Writes one session's audio chunks to ``audio.log`` (thread-safe ``add_chunk``)."""
+
+    def __init__(self, path: str | Path, fsync: bool = True):
+        self.writer = LogWriter(path, fsync=fsync)
+        self.format: dict[str, Any] | None = None
+        self.samples = 0
+
+    def start(self, sample_rate: int, channels: int, subtype: str, source: str) -> None:
+        """Record the sample format; call once before the first chunk."""
+        self.format = {"sample_rate": int(sample_rate), "channels": int(channels), "subtype": subtype}
+        self.writer.put(json_record(RecordType.AUDIO_FORMAT, self.format | {"source": source}))
+
+    def add_chunk(self, first_index: int, first_ns: int, samples: np.ndarray) -> None:
+        """Log samples (frames x channels) whose first sample was captured at ``first_ns``."""
+        assert self.format is not None
+        dtype = _DTYPES[self.format["subtype"]]
+        body = np.ascontiguousarray(samples, dtype=dtype).tobytes()
+        self.writer.put(encode_record(_AUDIO_HEAD.pack(RecordType.AUDIO, first_index, first_ns) + body))
+        self.samples = max(self.samples, first_index + len(samples))
+
+    def note(self, data: dict[str, Any]) -> None:
+        self.writer.put(json_record(RecordType.NOTE, data))
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+class DeviceAudioSource:
+    """A sound-device input (mono or more channels, 16-bit) feeding an ``AudioLog``."""
+
+    def __init__(
+        self,
+        log: AudioLog,
+        clock: SessionClock,
+        device: int | str | None,
+        sample_rate: int,
+        channels: int = 1,
+    ):
+        try:
+            import sounddevice as sd
+        except OSError:  # the Python package is there but libportaudio is not
+            raise InputError(PORTAUDIO_HINT) from None
+        except ImportError:
+            raise InputError("recording from a sound device needs the Python package sounddevice") from None
+        self._sd = sd
+        self.log = log
+        self.clock = clock
+        self.index = 0
+        self.overflows = 0
+        self.error: str | None = None
+        try:
+            self.stream = sd.InputStream(
+                device=device,
+                samplerate=sample_rate,
+                channels=channels,
+                dtype="int16",
+                blocksize=int(sample_rate * CHUNK_S),
+                callback=self._callback,
+            )
+        except (sd.PortAudioError, ValueError) as exc:
+            raise InputError(f"cannot open audio device {device!r}: {exc}") from None
+        log.start(sample_rate, channels, "PCM_16", f"device:{device}")
+
+    def _callback(self, indata, frames, time_info, status) -> None:
+        now = self.clock.now_ns()
+        ago = 0.0
+        if time_info.currentTime and time_info.inputBufferAdcTime:
+            ago = max(0.0, time_info.currentTime - time_info.inputBufferAdcTime)
+        else:
+            ago = frames / self.stream.samplerate
+        if status.input_overflow:
+            self.overflows += 1
+            self.log.note({"kind": "audio_overflow", "at_sample": self.index})
+        self.log.add_chunk(self.index, now - int(ago * 1e9), indata.copy())
+        self.index += frames
+
+    def start(self, at_ns: int | None = None) -> None:
+        self.stream.start()
+
+    def trigger(self, at_ns: int) -> None:
+        """Device audio runs from the start; nothing waits for the first packet."""
+
+    def stop(self) -> None:
+        try:
+            self.stream.stop()
+            self.stream.close()
+        except self._sd.PortAudioError as exc:
+            self.error = str(exc)
+
+
+class FileAudioSource:
+    """Plays a sound file into an ``AudioLog`` in real time against the session clock.
+
+    ``start_on_first_packet``: playback begins when ``trigger`` is called (the recorder calls it at
+    the first Live Link packet), and the file is only opened then, so a replay can write it first.
+    """
+
+    def __init__(
+        self, log: AudioLog, clock: SessionClock, path: str | Path, start_on_first_packet: bool = False
+    ):
+        self.log = log
+        self.clock = clock
+        self.path = Path(path)
+        self.start_on_first_packet = start_on_first_packet
+        self.error: str | None = None
+        self._audio: Audio | None = None
+        self._go = threading.Event()
+        self._stop = threading.Event()
+        self._start_ns = 0
+        self._thread = threading.Thread(target=self._play, name="audio-file", daemon=True)
+        if not start_on_first_packet:
+            self._audio = read_audio(self.path)  # a missing file is an error before recording starts
+
+    def start(self) -> None:
+        self._thread.start()
+        if not self.start_on_first_packet:
+            self.trigger(self.clock.now_ns())
+
+    def trigger(self, at_ns: int) -> None:
+        """Start playback with the first sample at clock time ``at_ns`` (first call only)."""
+        if not self._go.is_set():
+            self._start_ns = at_ns
+            self._go.set()
+
+    def _play(self) -> None:
+        while not self._go.wait(0.05):
+            if self._stop.is_set():
+                return
+        try:
+            audio = self._audio or read_audio(self.path)
+        except InputError as exc:
+            self.error = str(exc)
+            self.log.note({"kind": "audio_error", "message": self.error})
+            return
+        self.log.start(audio.sample_rate, audio.channels, audio.subtype, f"file:{self.path}")
+        chunk = max(1, int(audio.sample_rate * CHUNK_S))
+        rate = audio.sample_rate
+        for first in range(0, audio.frames, chunk):
+            n = min(chunk, audio.frames - first)
+            # A chunk is "captured" once its last sample has been played.
+            due = self._start_ns + int((first + n) * 1e9 / rate)
+            while not self._stop.is_set():
+                wait = (due - self.clock.now_ns()) / 1e9
+                if wait <= 0:
+                    break
+                time.sleep(min(wait, 0.05))
+            if self._stop.is_set():
+                return
+            self.log.add_chunk(
+                first, self._start_ns + int(first * 1e9 / rate), audio.samples[first : first + n]
+            )
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._go.set()
+        if self._thread.is_alive():
+            self._thread.join()
+
+
+def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str, Any]]:
+    """The audio of a session log: samples, clock ns of the first sample, and a report.
+
+    Gaps between chunks (a lost callback, a torn tail) are filled with silence and listed in the
+    report; chunks are placed by their sample index, so order in the file does not matter.
+    """
+    path = Path(path)
+    report: dict[str, Any] = {"chunks": 0, "gaps": [], "notes": []}
+    if not path.is_file():
+        return None, None, report
+    reader = LogReader(path)
+    fmt = None
+    chunks: list[tuple[int, int, bytes]] = []
+    for payload in reader:
+        kind = payload[0]
+        if kind == RecordType.AUDIO_FORMAT:
+            fmt = json.loads(bytes(payload[1:]))
+        elif kind == RecordType.AUDIO and len(payload) >= _AUDIO_HEAD.size:
+            _, first, ns = _AUDIO_HEAD.unpack_from(payload)
+            chunks.append((first, ns, bytes(payload[_AUDIO_HEAD.size :])))
+        elif kind == RecordType.NOTE:
+            report["notes"].append(json.loads(bytes(payload[1:])))
+    tail: TornTail | None = reader.torn_tail
+    if tail is not None:
+        report["torn_tail"] = tail.to_json()
+    if fmt is None or not chunks:
+        return None, None, report
+    dtype = _DTYPES.get(fmt.get("subtype"), np.dtype("<f4"))
+    channels = int(fmt["channels"])
+    chunks.sort()
+    total = max(first + len(body) // (dtype.itemsize * channels) for first, _, body in chunks)
+    samples = np.zeros((total, channels), dtype=dtype.newbyteorder("="))
+    covered = 0
+    for first, _, body in chunks:
+        block = np.frombuffer(body, dtype=dtype).reshape(-1, channels)
+        if first > covered:
+            report["gaps"].append({"at_sample": covered, "samples": first - covered})
+        samples[first : first + len(block)] = block
+        covered = max(covered, first + len(block))
+    report["chunks"] = len(chunks)
+    first_ns = chunks[0][1] - int(chunks[0][0] * 1e9 / fmt["sample_rate"])
+    subtype = fmt["subtype"] if fmt["subtype"] in _DTYPES else "FLOAT"
+    return Audio(samples, int(fmt["sample_rate"]), subtype), first_ns, report

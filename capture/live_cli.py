@@ -1,0 +1,309 @@
+"""``s2a-capture listen / recover / replay / remote``: live capture, crash recovery, the simulated
+iPhone and phone remote control. ``register(sub)`` adds them to the ``s2a-capture`` parser."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import signal
+import sys
+from pathlib import Path
+
+from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource
+from .command import emit_json, progress
+from .errors import InputError, S2AError
+from .importer import find_sources, import_source
+from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote
+from .recorder import AUDIO_LOG, DEFAULT_PORT, LiveRecorder
+from .replay import Impairment, parse_destination, replay_take
+from .serial_sync import SerialSync, open_serial
+from .session_takes import build_takes, find_sessions
+from .take import Take, is_take_dir, read_take
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the live-capture subcommands to the ``s2a-capture`` subparsers."""
+    p = sub.add_parser(
+        "listen",
+        help="record Live Link UDP packets (and audio, sync markers) into takes, crash-safe",
+        description="Record every Live Link device/subject as its own take until --duration, SIGINT or "
+        "SIGTERM. Packets are logged crash-safely under OUT/<session>.recording/ while recording.",
+    )
+    p.add_argument("-o", "--out", type=Path, required=True, help="folder for the takes and the session log")
+    p.add_argument(
+        "--port", type=int, default=DEFAULT_PORT, help="UDP port (default 11111; 0 = any free port)"
+    )
+    p.add_argument(
+        "--bind", default="127.0.0.1", help="address to listen on (a LAN address for a phone on Wi-Fi)"
+    )
+    p.add_argument(
+        "--allow", nargs="+", metavar="ADDR", help="accept packets only from these source addresses"
+    )
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--audio-device", help="record audio from this sound device (index or name)")
+    src.add_argument(
+        "--audio-file", type=Path, help="play this sound file as the session audio (tests, replays)"
+    )
+    p.add_argument(
+        "--audio-start",
+        choices=("listen", "first-packet"),
+        default="listen",
+        help="when --audio-file playback starts (first-packet: at the first Live Link packet)",
+    )
+    p.add_argument("--audio-rate", type=int, default=48000, help="sound-device sample rate in Hz")
+    p.add_argument("--audio-channels", type=int, default=1, help="sound-device channels")
+    p.add_argument(
+        "--serial", metavar="URL", help="sync box: serial device or pyserial URL (socket://, loop://)"
+    )
+    p.add_argument("--baud", type=int, default=115200, help="serial baud rate")
+    p.add_argument("--flush-interval", type=float, default=0.1, help="seconds between log flushes (<= 0.25)")
+    p.add_argument("--max-streams", type=int, default=512, help="most device/subject pairs recorded at once")
+    p.add_argument("--json", action="store_true", help="print one JSON line per take when done")
+    p.set_defaults(handler=cmd_listen)
+
+    p = sub.add_parser(
+        "recover",
+        help="turn the logs a killed listen left behind into takes",
+        description="Rebuild takes from unfinished sessions (*.recording folders) under DIR; a torn log "
+        "tail is reported and everything before it is kept.",
+    )
+    p.add_argument("dir", type=Path, help="a listen output folder or one session folder")
+    p.add_argument("-o", "--out", type=Path, help="where to write the takes (default: beside the session)")
+    p.add_argument("--all", action="store_true", help="also rebuild sessions that finished cleanly")
+    p.add_argument("--json", action="store_true", help="one JSON line per take")
+    p.set_defaults(handler=cmd_recover)
+
+    p = sub.add_parser(
+        "replay",
+        help="the simulated iPhone: send a take as Live Link packets",
+        description="Send a take (take folder or Live Link Face CSV/take folder) as Live Link UDP packets "
+        "in real time, optionally with seeded loss, reordering, duplication and jitter.",
+    )
+    p.add_argument("take", type=Path, help="a take folder, Live Link Face CSV or take folder")
+    p.add_argument("--to", required=True, metavar="HOST:PORT", help="where the listener is")
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = real time)")
+    p.add_argument("--loss", type=float, default=0.0, help="probability a packet is lost")
+    p.add_argument("--reorder", type=float, default=0.0, help="probability a packet is held back")
+    p.add_argument("--duplicate", type=float, default=0.0, help="probability a packet is sent twice")
+    p.add_argument("--jitter-ms", type=float, default=0.0, help="uniform extra delay per packet, 0..MS")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fault generator")
+    p.add_argument("--device", help="device id to send (default: the take's, or one derived from its id)")
+    p.add_argument("--subject", help="subject name to send (default: the take's, or iPhone)")
+    p.add_argument("--audio-out", type=Path, help="write the take's audio here for listen --audio-file")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_replay)
+
+    p = sub.add_parser(
+        "remote",
+        help="control Live Link Face on the phone over OSC",
+        description="Send OSC commands to Live Link Face (formats doc §6) and wait for its replies.",
+    )
+    p.add_argument("phone", help="the phone's address (HOST or HOST:PORT, OSC port default 8000)")
+    p.add_argument("--reply-host", help="local address the phone answers to (default: the route to it)")
+    p.add_argument("--reply-port", type=int, default=0, help="local UDP port for replies (default: any)")
+    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for each reply")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    actions = p.add_subparsers(dest="action", required=True)
+    a = actions.add_parser("record-start", help="start recording a take on the phone")
+    a.add_argument("slate")
+    a.add_argument("take_number", type=int, metavar="take")
+    actions.add_parser("record-stop", help="stop recording; prints the phone's CSV and MOV paths")
+    a = actions.add_parser("target", help="stream Live Link to HOST:PORT (clears other targets)")
+    a.add_argument("address", metavar="HOST:PORT")
+    a.add_argument("--keep", action="store_true", help="add to the existing targets instead")
+    actions.add_parser("battery", help="battery level")
+    actions.add_parser("thermals", help="thermal state")
+    a = actions.add_parser("subject", help="set the Live Link subject name")
+    a.add_argument("name")
+    actions.add_parser("stream-start", help="start Live Link streaming")
+    actions.add_parser("stream-stop", help="stop Live Link streaming")
+    p.set_defaults(handler=cmd_remote)
+
+
+def _report(summaries: list[dict], as_json: bool) -> None:
+    for s in summaries:
+        if as_json:
+            emit_json(s)
+            continue
+        if s.get("path") is None:
+            progress(f"no take recorded; rejected datagrams: {s.get('rejected')}")
+            continue
+        progress(
+            f"{s['device']} / {s['subject']} -> {s['path']}: {s['frames']} frames, "
+            f"{s['dropped_frames']} dropped, {s.get('duplicates', 0)} duplicates, "
+            f"{s.get('out_of_order', 0)} out of order; rejected {s.get('rejected')}"
+        )
+        if "torn_tail" in s:
+            progress(f"  torn log tail discarded: {s['torn_tail']}")
+
+
+def _status_line(counts: dict) -> None:
+    progress(
+        f"{counts['elapsed_s']:.0f} s: {counts['accepted']} packets from {counts['streams']} stream(s), "
+        f"{counts['rejected']} rejected"
+    )
+
+
+def cmd_listen(args: argparse.Namespace) -> int:
+    if args.duration is not None and args.duration <= 0:
+        raise InputError("--duration must be positive (seconds)")
+    if args.audio_file is not None and args.audio_start == "listen" and not args.audio_file.is_file():
+        raise InputError("audio file not found", args.audio_file)
+    serial_port = open_serial(args.serial, args.baud) if args.serial else None
+    recorder = LiveRecorder(
+        args.out,
+        bind=args.bind,
+        port=args.port,
+        allow=args.allow,
+        flush_interval_s=args.flush_interval,
+        max_streams=args.max_streams,
+    )
+    try:
+        host, port = recorder.open()
+    except InputError:
+        if serial_port is not None:
+            serial_port.close()
+        raise
+    source = audio_log = serial_sync = None
+    try:
+        if args.audio_device is not None or args.audio_file is not None:
+            audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
+            if args.audio_device is not None:
+                dev = int(args.audio_device) if args.audio_device.isdigit() else args.audio_device
+                source = DeviceAudioSource(
+                    audio_log, recorder.clock, dev, args.audio_rate, args.audio_channels
+                )
+            else:
+                first = args.audio_start == "first-packet"
+                source = FileAudioSource(
+                    audio_log, recorder.clock, args.audio_file, start_on_first_packet=first
+                )
+                if first:
+                    recorder.on_first_packet = source.trigger
+    except InputError:
+        # Nothing was received yet: leave no half-made session behind.
+        if audio_log is not None:
+            audio_log.close()
+        recorder.close()
+        shutil.rmtree(recorder.session_dir, ignore_errors=True)
+        if serial_port is not None:
+            serial_port.close()
+        raise
+    if serial_port is not None:
+        serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
+    previous = {
+        s: signal.signal(s, lambda *_: recorder.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)
+    }
+    progress(f"listening on udp://{host}:{port} -> {recorder.session_dir}")
+    try:
+        if source is not None:
+            source.start()
+        if serial_sync is not None:
+            serial_sync.start()
+        recorder.run(args.duration, status=_status_line)
+    finally:
+        if serial_sync is not None:
+            serial_sync.stop()
+            if serial_sync.error:
+                recorder.note({"kind": "serial_error", "message": serial_sync.error})
+        if source is not None:
+            source.stop()
+            if source.error:
+                recorder.note({"kind": "audio_error", "message": source.error})
+        if audio_log is not None:
+            audio_log.close()
+        recorder.close()
+    summaries = build_takes(recorder.session_dir, args.out)
+    for s in previous:
+        signal.signal(s, previous[s])
+    _report(summaries, args.json)
+    if recorder.error or (audio_log is not None and audio_log.writer.error):
+        # Takes hold everything that reached the disk; say loudly that something did not.
+        raise InputError(recorder.error or f"writing the audio log failed: {audio_log.writer.error}")
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    sessions = find_sessions(args.dir, include_complete=args.all)
+    if not sessions:
+        raise InputError(
+            "no unfinished recording session here (use --all to rebuild finished ones)", args.dir
+        )
+    failures = 0
+    for session in sessions:
+        progress(f"recovering {session}")
+        try:
+            summaries = build_takes(session, args.out or session.parent, recovered=True)
+        except S2AError as exc:  # one unreadable session must not keep the others from recovering
+            failures += 1
+            print(f"s2a-capture: error: {exc}", file=sys.stderr)
+            if args.json:
+                emit_json({"session": str(session), "error": str(exc)})
+            continue
+        _report(summaries, args.json)
+    return 1 if failures else 0
+
+
+def _load_take(path: Path) -> Take:
+    if is_take_dir(path):
+        return read_take(path)
+    sources = find_sources([path])
+    if len(sources) != 1:
+        raise InputError(f"replay sends one take; found {len(sources)} under it", path)
+    return import_source(sources[0])
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    host, port = parse_destination(args.to)
+    take = _load_take(args.take)
+    imp = Impairment(args.loss, args.reorder, args.duplicate, args.jitter_ms / 1000.0, args.seed)
+    report = replay_take(take, host, port, args.speed, imp, args.device, args.subject, args.audio_out)
+    summary = {"take": take.meta.id, "to": f"{host}:{port}"} | report.to_json()
+    if args.audio_out is not None:
+        summary["audio_out"] = str(args.audio_out)
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(
+            f"{take.meta.id} -> {host}:{port}: {report.frames} frames in {report.packets_sent} packets, "
+            f"{report.lost} lost, {report.duplicated} duplicated, {report.reordered} reordered"
+        )
+    return 0
+
+
+def cmd_remote(args: argparse.Namespace) -> int:
+    host, sep, port_text = args.phone.rpartition(":")
+    if not sep:
+        host, port = args.phone, DEFAULT_OSC_PORT
+    elif port_text.isdigit():
+        port = int(port_text)
+    else:
+        raise InputError(f"phone address must be HOST or HOST:PORT, not {args.phone!r}")
+    result: dict = {"phone": f"{host}:{port}", "action": args.action}
+    with PhoneRemote(host, port, args.reply_host, args.reply_port, args.timeout) as phone:
+        if args.action == "record-start":
+            result["timecode"] = phone.record_start(args.slate, args.take_number)
+            result |= {"slate": args.slate, "take": args.take_number}
+        elif args.action == "record-stop":
+            result |= phone.record_stop()
+        elif args.action == "target":
+            t_host, t_port = parse_destination(args.address)
+            phone.set_livelink_target(t_host, t_port, clear=not args.keep)
+            result["target"] = f"{t_host}:{t_port}"
+        elif args.action == "battery":
+            result["battery"] = phone.battery()
+        elif args.action == "thermals":
+            result["thermals"] = phone.thermals()
+        elif args.action == "subject":
+            phone.set_subject(args.name)
+            result["subject"] = args.name
+        elif args.action == "stream-start":
+            phone.stream(True)
+        elif args.action == "stream-stop":
+            phone.stream(False)
+    if args.json:
+        emit_json(result)
+    else:
+        progress(" ".join(f"{k}={v}" for k, v in result.items()))
+    return 0

@@ -1,0 +1,342 @@
+"""The live Live Link recorder: a UDP socket loop that logs every accepted packet crash-safely.
+
+One ``LiveRecorder`` owns a session folder ``<out>/<session>.recording/`` holding ``frames.log``
+(packets, stream announcements, sync events, rejection counts) and, with audio, ``audio.log``. The
+socket loop does as little as possible per datagram: check the header (a byte comparison against the
+last stream's header in the common case), stamp the arrival on the session clock and append one
+checksummed record with the packet's raw frame block. Decoding into values, duplicate removal,
+ordering and gap filling happen when the takes are built from the log (``session_takes``), so memory
+stays flat however long the session runs. Buffers are handed to the log writer thread at least every
+``flush_interval_s`` (default 0.1 s), which writes and fsyncs them.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import socket
+import struct
+import time
+import zlib
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+from . import livelink as ll
+from .errors import InputError
+from .record_log import RECORD_HEADER, LogWriter, RecordType, json_record
+from .serial_sync import SyncEvent, sync_record
+from .session_clock import SessionClock
+
+FRAMES_LOG = "frames.log"
+AUDIO_LOG = "audio.log"
+COMPLETE_FILE = "complete.json"
+SESSION_SUFFIX = ".recording"
+DEFAULT_PORT = 11111
+FRAME_PREFIX = struct.Struct("<BHq")  # record type, stream id, arrival ns
+FRAME_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_BLOCK_BYTES  # 272
+_RECV_BYTES = 65536  # larger than any UDP datagram, so an oversized one is seen whole and counted
+
+
+def new_session_id() -> str:
+    """``live-YYYYmmddTHHMMSSZ-<pid>``: sortable, unique per process and second."""
+    return time.strftime("live-%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{os.getpid()}"
+
+
+def parse_allow_list(addresses: Iterable[str] | None) -> frozenset[str] | None:
+    """Normalised IP literals of an allow-list (``InputError`` for anything else)."""
+    if not addresses:
+        return None
+    out = set()
+    for a in addresses:
+        try:
+            out.add(str(ipaddress.ip_address(a.strip())))
+        except ValueError:
+            raise InputError(f"--allow takes IP addresses, not {a!r}") from None
+    return frozenset(out)
+
+
+class LiveRecorder:
+    """Receives Live Link packets on a UDP socket and logs them; see the module docstring.
+
+    Use: ``open()`` (binds, returns the address), ``run()`` until ``duration_s`` or ``request_stop()``,
+    then ``close()``; build takes with ``session_takes.build_takes(recorder.session_dir, out_dir)``.
+    """
+
+    def __init__(
+        self,
+        out_dir: str | Path,
+        bind: str = "127.0.0.1",
+        port: int = DEFAULT_PORT,
+        allow: Iterable[str] | None = None,
+        flush_interval_s: float = 0.1,
+        max_streams: int = 512,
+        fsync: bool = True,
+        session_id: str | None = None,
+        clock: SessionClock | None = None,
+    ):
+        if not 0 <= port <= 65535:
+            raise InputError(f"UDP port {port} is not in 0..65535")
+        if not 0 < flush_interval_s <= 0.25:
+            raise InputError("the flush interval must be in (0, 0.25] seconds")
+        self.out_dir = Path(out_dir)
+        self.bind = bind
+        self.port = port
+        self.allow = parse_allow_list(allow)
+        self.flush_interval_s = flush_interval_s
+        self.max_streams = max_streams
+        self.fsync = fsync
+        self.session_id = session_id or new_session_id()
+        self.clock = clock or SessionClock()
+        self.session_dir = self.out_dir / (self.session_id + SESSION_SUFFIX)
+        self.on_first_packet: Callable[[int], None] | None = None
+        self.datagrams = 0
+        self.accepted = 0
+        self.rejected: dict[str, int] = dict.fromkeys(ll.REJECT_REASONS, 0)
+        self.streams: dict[bytes, tuple[int, int, int, int]] = {}  # header -> (id, offset, num, den)
+        self.socket_errors = 0
+        self.error: str | None = None  # set by close() when the log could not be written completely
+        self._stop = False
+        self.sock: socket.socket | None = None
+        self.log: LogWriter | None = None
+
+    # -- set-up -------------------------------------------------------------------------------
+    def open(self) -> tuple[str, int]:
+        """Create the session folder and log, bind the socket; returns the bound (address, port)."""
+        try:
+            family = socket.AF_INET6 if ":" in self.bind else socket.AF_INET
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+        except OSError as exc:
+            raise InputError(f"cannot create a UDP socket: {exc}") from None
+        try:
+            # A deep receive queue rides out disk hiccups and bursts (capped by net.core.rmem_max).
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+            sock.bind((self.bind, self.port))
+        except (OSError, OverflowError) as exc:
+            sock.close()
+            raise InputError(f"cannot listen on UDP {self.bind}:{self.port}: {exc}") from None
+        sock.settimeout(0.05)  # wake up regularly to flush, check the duration and signals
+        self.sock = sock
+        self.session_dir.mkdir(parents=True, exist_ok=True)
+        self.log = LogWriter(self.session_dir / FRAMES_LOG, fsync=self.fsync)
+        host, port = sock.getsockname()[:2]
+        self.log.put(
+            json_record(
+                RecordType.SESSION,
+                {
+                    "session": self.session_id,
+                    "clock": self.clock.to_json(),
+                    "bind": host,
+                    "port": port,
+                    "allow": sorted(self.allow) if self.allow else None,
+                    "pid": os.getpid(),
+                    "host": socket.gethostname(),
+                    "flush_interval_s": self.flush_interval_s,
+                },
+            )
+        )
+        return host, port
+
+    def add_sync(self, event: SyncEvent) -> None:
+        """Log a sync-box event (thread-safe; called from the serial reader)."""
+        assert self.log is not None
+        self.log.put(sync_record(event))
+
+    def note(self, data: dict[str, Any]) -> None:
+        """Log an event worth keeping (thread-safe)."""
+        assert self.log is not None
+        self.log.put(json_record(RecordType.NOTE, data))
+
+    def request_stop(self) -> None:
+        """Ask ``run`` to return (safe from signal handlers and other threads)."""
+        self._stop = True
+
+    # -- the socket loop ----------------------------------------------------------------------
+    def run(
+        self,
+        duration_s: float | None = None,
+        status: Callable[[dict[str, Any]], None] | None = None,
+        status_every_s: float = 10.0,
+    ) -> None:
+        """Receive and log until ``duration_s`` (seconds) has passed or ``request_stop()``.
+
+        ``status`` is called about every ``status_every_s`` seconds with the counts so far.
+        """
+        assert self.sock is not None and self.log is not None, "open() first"
+        sock, log, rejected = self.sock, self.log, self.rejected
+        buf = bytearray(_RECV_BYTES)
+        view = memoryview(buf)
+        out = log.buffer
+        now_ns = time.monotonic_ns
+        crc32 = zlib.crc32
+        pack_prefix = FRAME_PREFIX.pack
+        frame_header = RECORD_HEADER.pack
+        unpack_time = ll._FRAME_TIME.unpack_from
+        unpack_len = ll._LEN.unpack_from
+        streams = self.streams
+        payload_len = FRAME_PAYLOAD_BYTES
+        count = ll.BLENDSHAPE_COUNT
+        block = ll.FRAME_BLOCK_BYTES
+        allow = self.allow
+        recv_into, recvfrom_into = sock.recv_into, sock.recvfrom_into
+        flush_ns = int(self.flush_interval_s * 1e9)
+        start = now_ns()
+        next_flush = start + flush_ns
+        status_ns = int(status_every_s * 1e9)
+        next_status = start + status_ns
+        end = start + int(duration_s * 1e9) if duration_s is not None else None
+        # The stream of the previous packet: most datagrams repeat its header byte for byte.
+        last_hdr, last_size, last_off, last_sid, last_num, last_den = b"\xff", -1, 0, 0, 0, 0
+        datagrams = accepted = 0
+        first_cb = self.on_first_packet
+        last_rejects = dict(rejected)
+        addr: Any = None
+        try:
+            while not self._stop:
+                try:
+                    if allow is None:
+                        n = recv_into(buf)
+                    else:
+                        n, addr = recvfrom_into(buf)
+                except TimeoutError:
+                    n = -1
+                except OSError:
+                    self.socket_errors += 1
+                    n = -1
+                t = now_ns()
+                if n >= 0:
+                    datagrams += 1
+                    if allow is not None and addr[0] not in allow:
+                        rejected["not_allowed"] += 1
+                    else:
+                        sid = -1
+                        if n == last_size and buf.startswith(last_hdr) and buf[last_off + 16] == count:
+                            fn, sf, num, den = unpack_time(buf, last_off)
+                            if num == last_num and den == last_den and fn >= 0 and 0.0 <= sf < 1.0:
+                                sid, off = last_sid, last_off
+                        elif n >= 9 and buf[0] == 6:
+                            # Another known stream (several phones interleave): look its header up.
+                            (n1,) = unpack_len(buf, 1)
+                            if 0 <= n1 <= n - 9:
+                                (n2,) = unpack_len(buf, 5 + n1)
+                                off = 9 + n1 + n2
+                                if n2 >= 0 and off + block == n and buf[off + 16] == count:
+                                    key = bytes(view[:off])
+                                    known = streams.get(key)
+                                    if known is not None:
+                                        fn, sf, num, den = unpack_time(buf, off)
+                                        if (
+                                            num == known[2]
+                                            and den == known[3]
+                                            and fn >= 0
+                                            and 0.0 <= sf < 1.0
+                                        ):
+                                            sid = known[0]
+                                            last_hdr, last_size, last_off, last_sid = key, n, off, sid
+                                            last_num, last_den = num, den
+                        if sid < 0:
+                            found = self._classify(view, n, addr)
+                            if isinstance(found, str):
+                                rejected[found] += 1
+                            else:
+                                sid, off, last_num, last_den = found
+                                last_hdr, last_size, last_off, last_sid = (
+                                    bytes(buf[:off]),
+                                    off + block,
+                                    off,
+                                    sid,
+                                )
+                        if sid >= 0:
+                            body = view[off : off + block]
+                            prefix = pack_prefix(RecordType.FRAME, sid, t)
+                            out += frame_header(payload_len, crc32(body, crc32(prefix)))
+                            out += prefix
+                            out += body
+                            accepted += 1
+                            if first_cb is not None:
+                                first_cb(t)
+                                first_cb = None
+                if t >= next_flush:
+                    if rejected != last_rejects:
+                        out += json_record(RecordType.REJECTS, rejected)
+                        last_rejects = dict(rejected)
+                    log.flush()
+                    next_flush = t + flush_ns
+                    if status is not None and t >= next_status:
+                        next_status = t + status_ns
+                        rejected_now = sum(rejected.values())
+                        status(
+                            {
+                                "elapsed_s": (t - start) / 1e9,
+                                "datagrams": self.datagrams + datagrams,
+                                "accepted": self.accepted + accepted,
+                                "rejected": rejected_now,
+                                "streams": len(streams),
+                            }
+                        )
+                    if end is not None and t >= end:
+                        break
+                elif end is not None and t >= end:
+                    break
+        finally:
+            self.datagrams += datagrams
+            self.accepted += accepted
+            self.on_first_packet = first_cb
+            log.flush()
+
+    def _classify(self, view: memoryview, n: int, addr: Any) -> tuple[int, int, int, int] | str:
+        """Full check of a datagram that does not repeat the last stream's header.
+
+        Returns (stream id, frame-block offset, rate numerator, denominator) or a rejection reason.
+        """
+        off, reason = ll.parse_header(view, n)
+        if reason is not None:
+            return reason
+        reason = ll.check_body(view, off, n)
+        if reason is not None:
+            return reason
+        _, _, num, den = ll._FRAME_TIME.unpack_from(view, off)
+        key = bytes(view[:off])
+        known = self.streams.get(key)
+        if known is not None:
+            if (known[2], known[3]) != (num, den):
+                return "rate_changed"
+            return known
+        names = ll.decode_strings(view, off)
+        if names is None:
+            return "bad_text"
+        if len(self.streams) >= self.max_streams:
+            return "too_many_streams"
+        sid = len(self.streams)
+        entry = (sid, off, num, den)
+        self.streams[key] = entry
+        assert self.log is not None
+        self.log.buffer += json_record(
+            RecordType.STREAM,
+            {
+                "stream": sid,
+                "device": names[0],
+                "subject": names[1],
+                "rate_numerator": num,
+                "rate_denominator": den,
+                "source": addr[0] if addr else None,
+            },
+        )
+        return entry
+
+    # -- shutdown -----------------------------------------------------------------------------
+    def close(self) -> None:
+        """Log the final counts and an END record, close the socket and the log (waits for fsync)."""
+        if self.log is not None:
+            self.log.buffer += json_record(RecordType.REJECTS, self.rejected)
+            self.log.buffer += json_record(
+                RecordType.END,
+                {"datagrams": self.datagrams, "accepted": self.accepted, "socket_errors": self.socket_errors},
+            )
+            self.log.close()
+            if self.log.error is not None:
+                # Kept, not raised: what did reach the disk still becomes takes; the caller reports it.
+                self.error = f"writing the recorder log failed: {self.log.error}"
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None

@@ -1,0 +1,242 @@
+"""The simulated iPhone: sends a take's frames as Live Link packets in real time (or faster).
+
+Network faults come from a seeded generator so a test can ask for the same session twice: packet
+loss, reordering (a packet held back by 1.5 frame periods), duplication (a second copy shortly after)
+and jitter (each packet delayed by a uniform 0..jitter seconds, real time, not scaled by speed).
+The first frame is always sent on time and intact, so a listener that starts its audio file at the
+first packet (``listen --audio-file F --audio-start first-packet``) lines audio up with it.
+
+Frames: TRACKED and BAD_VALUE frames are sent with their values, FACE_LOST frames as no-face packets
+(ending after the frame time, as the app sends them), DROPPED frames not at all. Frame numbers come
+from the take's start timecode plus frame time at the take's rate.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+import uuid
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from . import livelink as ll
+from .audio_io import Audio, write_audio
+from .channels import ARKIT61, canonical, is_known
+from .errors import InputError
+from .take import FrameStatus, Take
+from .timecode import Timecode
+
+
+@dataclass
+class Impairment:
+    """Seeded network faults. Probabilities per packet; ``jitter_s`` in seconds."""
+
+    loss: float = 0.0
+    reorder: float = 0.0
+    duplicate: float = 0.0
+    jitter_s: float = 0.0
+    seed: int = 0
+
+    def check(self) -> None:
+        for name in ("loss", "reorder", "duplicate"):
+            p = getattr(self, name)
+            if not 0.0 <= p < 1.0:
+                raise InputError(f"--{name} must be a probability in [0, 1), not {p}")
+        if not 0.0 <= self.jitter_s <= 10.0:
+            raise InputError(f"jitter must be in 0..10 s, not {self.jitter_s}")
+
+
+@dataclass
+class ReplayReport:
+    """What reached the wire. ``delivered`` holds the distinct frame numbers sent (with values)."""
+
+    frames: int = 0  # distinct frames (with values) that reached the wire
+    packets_sent: int = 0
+    lost: int = 0
+    duplicated: int = 0
+    reordered: int = 0  # packets sent after a packet with a higher frame number
+    no_face: int = 0  # no-face packets sent for FACE_LOST frames
+    skipped: int = 0  # frames that fell on an already used frame number
+    duration_s: float = 0.0
+    device: str = ""
+    subject: str = ""
+    rate: tuple[int, int] = (60, 1)
+    delivered: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def to_json(self) -> dict:
+        return {
+            "frames": self.frames,
+            "packets_sent": self.packets_sent,
+            "lost": self.lost,
+            "duplicated": self.duplicated,
+            "reordered": self.reordered,
+            "no_face": self.no_face,
+            "skipped": self.skipped,
+            "duration_s": round(self.duration_s, 3),
+            "device": self.device,
+            "subject": self.subject,
+            "rate": list(self.rate),
+        }
+
+
+def parse_destination(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[v6]:PORT`` for IPv6) → (host, port); ``InputError`` when malformed."""
+    host, sep, port = text.rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise InputError(f"destination must be HOST:PORT, not {text!r}")
+    return host, int(port)
+
+
+def _rate_of(fps: float) -> tuple[int, int]:
+    if abs(fps - round(fps)) < 1e-6:
+        return int(round(fps)), 1
+    f = Fraction(fps).limit_denominator(1001)
+    return f.numerator, f.denominator
+
+
+def _values_in_engine_order(take: Take) -> np.ndarray:
+    """frames x 61 float32 in Live Link order; channels the take lacks are 0."""
+    out = np.zeros((take.time.size, ll.BLENDSHAPE_COUNT), dtype=np.float32)
+    index = {canonical(c): j for j, c in enumerate(take.meta.channels) if is_known(c)}
+    for i, name in enumerate(ARKIT61):
+        j = index.get(name)
+        if j is not None:
+            out[:, i] = take.values[:, j]
+    return out
+
+
+def default_device(take: Take) -> str:
+    """The take's device id, or a stable upper-case UUID derived from its id (like the app's)."""
+    return take.meta.device or str(uuid.uuid5(uuid.NAMESPACE_URL, "s2a-take:" + take.meta.id)).upper()
+
+
+def rebased_audio(take: Take) -> Audio | None:
+    """The take's audio shifted so that its first sample is take time 0 (pad or trim at the start)."""
+    if take.audio is None:
+        return None
+    a = take.audio
+    start = take.meta.audio.start_s if take.meta.audio else 0.0
+    shift = int(round(start * a.sample_rate))
+    if shift > 0:
+        samples = np.concatenate([np.zeros((shift, a.channels), dtype=a.samples.dtype), a.samples])
+    else:
+        samples = a.samples[-shift:]
+    if samples.shape[0] == 0:
+        return None
+    return Audio(samples, a.sample_rate, a.subtype)
+
+
+def replay_take(
+    take: Take,
+    host: str,
+    port: int,
+    speed: float = 1.0,
+    impairment: Impairment | None = None,
+    device: str | None = None,
+    subject: str | None = None,
+    audio_out: str | Path | None = None,
+) -> ReplayReport:
+    """Send ``take`` to ``host:port`` as Live Link packets; blocks for the take's duration / speed."""
+    imp = impairment or Impairment()
+    imp.check()
+    if not 0.01 <= speed <= 1000:
+        raise InputError(f"--speed must be in 0.01..1000, not {speed}")
+    if audio_out is not None and speed != 1.0:
+        raise InputError("--audio-out re-enacts a session in real time: use it with --speed 1")
+    device = device or default_device(take)
+    subject = subject or take.meta.subject or "iPhone"
+    num, den = _rate_of(take.meta.fps)
+    csv_info = take.meta.csv or {}
+    if "start_seconds_of_day" in csv_info:
+        t0 = float(csv_info["start_seconds_of_day"])
+    elif take.meta.start_timecode:
+        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day
+    else:
+        t0 = 0.0
+    status = take.frame_status
+    send = status != FrameStatus.DROPPED
+    idx = np.flatnonzero(send)
+    x = (t0 + take.time[idx]) * num / den
+    fn = np.floor(x).astype(np.int64)
+    sf = (x - fn).astype(np.float32)
+    carry = sf >= 1.0
+    fn[carry] += 1
+    sf[carry] = 0.0
+    unique = np.concatenate([[True], np.diff(fn) > 0]) if fn.size else np.zeros(0, bool)
+    report = ReplayReport(device=device, subject=subject, rate=(num, den), skipped=int((~unique).sum()))
+    idx, fn, sf = idx[unique], fn[unique], sf[unique]
+    if idx.size == 0:
+        raise InputError(f"take {take.meta.id} has no frames to send")
+    values = _values_in_engine_order(take)
+    header = ll.header_bytes(device, subject)
+    rng = np.random.default_rng(imp.seed)
+    n = idx.size
+    lost = rng.random(n) < imp.loss
+    dup = rng.random(n) < imp.duplicate
+    held = rng.random(n) < imp.reorder
+    jitter = rng.uniform(0.0, imp.jitter_s, n) if imp.jitter_s > 0 else np.zeros(n)
+    jitter_dup = rng.uniform(0.0, imp.jitter_s, n) if imp.jitter_s > 0 else np.zeros(n)
+    lost[0] = dup[0] = held[0] = False
+    jitter[0] = 0.0
+    period = den / num / speed
+    nominal = (take.time[idx] - take.time[idx[0]]) / speed
+    due = nominal + jitter + np.where(held, 1.5 * period, 0.0)
+    schedule: list[tuple[float, int, int]] = []  # (due s, order, position in idx)
+    for k in range(n):
+        if lost[k]:
+            continue
+        schedule.append((due[k], len(schedule), k))
+        if dup[k]:
+            schedule.append((due[k] + 0.25 * period + jitter_dup[k], len(schedule), k))
+    schedule.sort()
+    packets = []
+    for _, _, k in schedule:
+        i = idx[k]
+        if status[i] == FrameStatus.FACE_LOST:
+            packets.append(ll.no_face_packet(device, subject, int(fn[k]), float(sf[k]), num, den))
+        else:
+            packets.append(header + ll.frame_block(int(fn[k]), float(sf[k]), num, den, values[i]))
+    if audio_out is not None:
+        audio = rebased_audio(take)
+        if audio is None:
+            raise InputError(f"take {take.meta.id} has no audio for --audio-out")
+        tmp = Path(audio_out).with_name(f".{Path(audio_out).name}.partial")
+        write_audio(tmp, audio)
+        tmp.replace(audio_out)
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
+    except socket.gaierror as exc:
+        raise InputError(f"cannot resolve {host!r}: {exc}") from None
+    target = infos[0][4]
+    sent_frames: set[int] = set()
+    max_fn = -1
+    with socket.socket(infos[0][0], socket.SOCK_DGRAM) as sock:
+        start = time.monotonic()
+        for (when, _, k), packet in zip(schedule, packets):
+            wait = start + when - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            try:
+                sock.sendto(packet, target)
+            except OSError as exc:
+                raise InputError(f"cannot send to {host}:{port}: {exc}") from None
+            report.packets_sent += 1
+            f = int(fn[k])
+            if f < max_fn:
+                report.reordered += 1
+            max_fn = max(max_fn, f)
+            if status[idx[k]] == FrameStatus.FACE_LOST:
+                report.no_face += 1
+            else:
+                sent_frames.add(f)
+        report.duration_s = time.monotonic() - start
+    report.lost = int(lost.sum())
+    report.duplicated = report.packets_sent - (n - report.lost)
+    report.frames = len(sent_frames)
+    report.delivered = np.array(sorted(sent_frames), dtype=np.int64)
+    return report

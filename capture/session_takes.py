@@ -1,0 +1,339 @@
+"""Takes from a live session's logs: used when ``listen`` stops and by ``recover`` after a crash.
+
+Per device/subject stream, frames are read from ``frames.log`` into arrays, duplicates (same phone
+frame number) are dropped keeping the first arrival, the rest are ordered by frame number and split
+into segments wherever the phone's frame time jumps by more than ``MAX_GAP_S`` (a phone restart, a
+long pause, a corrupt frame number). Each segment with at least ``MIN_TAKE_FRAMES`` frames becomes a
+take; gaps in the frame numbers become DROPPED frames (``csv_take.fill_dropped``, as for CSV takes).
+
+Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
+clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
+fastest), so recorder time ``m`` is take time ``m - offset - frame_time_0``. The audio's first sample,
+stamped on the session clock, lands at ``start_s = audio_first_s - offset - frame_time_0`` and sync
+events likewise.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import livelink as ll
+from .audio_capture import read_audio_log
+from .channels import ARKIT61
+from .csv_take import detect_fps, fill_dropped
+from .errors import InputError
+from .record_log import LogReader, RecordType
+from .recorder import AUDIO_LOG, COMPLETE_FILE, FRAMES_LOG, SESSION_SUFFIX
+from .serial_sync import decode_sync_record
+from .take import FrameStatus, Take, TakeMeta, safe_id, write_json_atomic, write_take
+from .timecode import Timecode
+
+MAX_GAP_S = 5.0
+MIN_TAKE_FRAMES = 10
+SPILL_BYTES = 64 << 20
+# One logged frame: arrival ns (little-endian, ours) + the packet's frame block (big-endian, the app's).
+ROW_DTYPE = np.dtype(
+    [
+        ("arrival_ns", "<i8"),
+        ("frame_number", ">i4"),
+        ("sub_frame", ">f4"),
+        ("rate_numerator", ">i4"),
+        ("rate_denominator", ">i4"),
+        ("count", "u1"),
+        ("values", ">f4", (ll.BLENDSHAPE_COUNT,)),
+    ]
+)
+_STREAM_ID = struct.Struct("<H")
+_FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
+
+
+class SessionLog:
+    """Everything a session's ``frames.log`` holds, with per-stream frame rows as arrays."""
+
+    def __init__(self, session_dir: str | Path):
+        self.dir = Path(session_dir)
+        self.session: dict[str, Any] = {}
+        self.streams: dict[int, dict[str, Any]] = {}
+        self.rejected: dict[str, int] = {}
+        self.sync: list[Any] = []
+        self.notes: list[dict[str, Any]] = []
+        self.end: dict[str, Any] | None = None
+        self.frame_counts: dict[int, int] = {}
+        # Rows wait in memory per stream; past SPILL_BYTES in all they go to files, so that building
+        # the takes of many long streams needs one stream's rows in memory at a time.
+        self._pending: dict[int, bytearray] = {}
+        self._pending_bytes = 0
+        self._spill_dir: Path | None = None
+        first_stamp: int | None = None
+        reader = LogReader(self.dir / FRAMES_LOG)
+        for payload in reader:
+            kind = payload[0]
+            if kind == RecordType.FRAME:
+                if len(payload) == 3 + 8 + ll.FRAME_BLOCK_BYTES:
+                    (sid,) = _STREAM_ID.unpack_from(payload, 1)
+                    if sid not in self.frame_counts:
+                        self.frame_counts[sid] = 0
+                        self._pending[sid] = bytearray()
+                        (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
+                        first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
+                    self.frame_counts[sid] += 1
+                    self._pending[sid] += payload[_FRAME_AT:]
+                    self._pending_bytes += ROW_DTYPE.itemsize
+                    if self._pending_bytes > SPILL_BYTES:
+                        self._spill()
+            elif kind == RecordType.SYNC:
+                self.sync.append(decode_sync_record(payload))
+            elif kind in (
+                RecordType.SESSION,
+                RecordType.STREAM,
+                RecordType.REJECTS,
+                RecordType.END,
+                RecordType.NOTE,
+            ):
+                try:
+                    data = json.loads(bytes(payload[1:]))
+                except (UnicodeDecodeError, json.JSONDecodeError):
+                    continue  # a checksummed record does not go bad; this is a foreign writer's
+                if kind == RecordType.SESSION:
+                    self.session = data
+                elif kind == RecordType.STREAM:
+                    self.streams[int(data["stream"])] = data
+                elif kind == RecordType.REJECTS:
+                    self.rejected = {k: v for k, v in data.items() if v}
+                elif kind == RecordType.END:
+                    self.end = data
+                else:
+                    self.notes.append(data)
+        if self._spill_dir is not None:
+            self._spill()
+        self.torn_tail = reader.torn_tail
+        self.records = reader.records
+        origin = self.session.get("clock", {}).get("origin_ns")
+        if origin is None:
+            # Killed before the session record reached the disk: use the first stamp as the origin.
+            origin = first_stamp or 0
+        self.origin_ns = int(origin)
+
+    def _spill(self) -> None:
+        if self._spill_dir is None:
+            self._spill_dir = Path(tempfile.mkdtemp(prefix=".build-", dir=self.dir))
+        for sid, buf in self._pending.items():
+            if buf:
+                with open(self._spill_dir / f"{sid}.rows", "ab") as f:
+                    f.write(buf)
+                buf.clear()
+        self._pending_bytes = 0
+
+    def stream_ids(self) -> list[int]:
+        return sorted(self.frame_counts)
+
+    def stream_rows(self, sid: int) -> np.ndarray:
+        """The logged frames of one stream, in log (= arrival) order, as ``ROW_DTYPE`` records."""
+        if self._spill_dir is None:
+            return np.frombuffer(self._pending[sid], dtype=ROW_DTYPE)
+        return np.fromfile(self._spill_dir / f"{sid}.rows", dtype=ROW_DTYPE)
+
+    def close(self) -> None:
+        """Remove the spilled rows."""
+        if self._spill_dir is not None:
+            shutil.rmtree(self._spill_dir, ignore_errors=True)
+            self._spill_dir = None
+
+    def seconds(self, ns) -> Any:
+        return (np.asarray(ns, dtype=np.int64) - self.origin_ns) / 1e9
+
+
+def _segments(frame_time: np.ndarray) -> list[slice]:
+    breaks = np.flatnonzero(np.diff(frame_time) > MAX_GAP_S) + 1
+    bounds = [0, *breaks.tolist(), frame_time.size]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def stream_takes(
+    log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
+) -> tuple[list[Take], dict]:
+    """The takes of one stream, and a report (packets, duplicates, out-of-order, stray frames)."""
+    rows = log.stream_rows(sid)
+    info = log.streams.get(sid, {})
+    fn = rows["frame_number"].astype(np.int64)
+    report: dict[str, Any] = {"packets": int(rows.size)}
+    prior_max = np.maximum.accumulate(fn)
+    report["out_of_order"] = int(np.count_nonzero(fn[1:] < prior_max[:-1])) if fn.size > 1 else 0
+    # np.unique gives the first occurrence in log (= arrival) order of each frame number, sorted.
+    _, first = np.unique(fn, return_index=True)
+    report["duplicates"] = int(rows.size - first.size)
+    rows = rows[first]
+    num = rows["rate_numerator"].astype(np.float64)
+    den = rows["rate_denominator"].astype(np.float64)
+    frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
+    # Rows are sorted by frame number; sub-frames cannot reorder them, but guard the take invariant.
+    keep = np.concatenate([[True], np.diff(frame_time) > 0]) if frame_time.size else np.zeros(0, bool)
+    rows, frame_time = rows[keep], frame_time[keep]
+    arrival = log.seconds(rows["arrival_ns"])
+    takes: list[Take] = []
+    stray = 0
+    segments = _segments(frame_time)
+    device = info.get("device")
+    subject = info.get("subject")
+    session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
+    base_id = f"{session}_{subject}_{(device or '')[:8]}"
+    for k, seg in enumerate(segments):
+        r, ft, arr = rows[seg], frame_time[seg], arrival[seg]
+        if r.size < MIN_TAKE_FRAMES:
+            stray += int(r.size)
+            continue
+        values = r["values"].astype(np.float32)
+        finite = np.isfinite(values).all(axis=1)
+        values[~np.isfinite(values)] = np.nan
+        status = np.where(finite, FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(np.uint8)
+        t = ft - ft[0]
+        fps, period = detect_fps(t)
+        t_full, v_full, s_full, inserted = fill_dropped(t, values, status, period)
+        arrival_full = np.full(t_full.size, np.nan)
+        arrival_full[s_full != FrameStatus.DROPPED] = arr
+        offset = float(np.min(arr - ft))
+        latency = arr - ft - offset
+        rate_num, rate_den = int(r["rate_numerator"][0]), int(r["rate_denominator"][0])
+        repairs = []
+        if not finite.all():
+            repairs.append(
+                {
+                    "line": None,
+                    "kind": "bad_value",
+                    "message": f"{int((~finite).sum())} frames held NaN/inf values",
+                }
+            )
+        take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
+        meta = TakeMeta(
+            id=safe_id(take_id),
+            source_kind="livelink_udp",
+            fps=fps,
+            channels=list(ARKIT61),
+            subject=subject,
+            device=device,
+            start_timecode=Timecode.from_seconds(ft[0]).format(),
+            timecode_rate=rate_num / rate_den,
+            repairs=repairs,
+            csv={"count_name": "BlendShapeCount", "start_seconds_of_day": float(ft[0] % 86400.0)},
+        )
+        events = []
+        for ev in log.sync:
+            arrival_s = float(log.seconds(ev.arrival_ns))
+            events.append(ev.to_json() | {"arrival_s": arrival_s, "t": arrival_s - offset - float(ft[0])})
+        meta.extra = {
+            "session": log.session.get("session"),
+            "rate": [rate_num, rate_den],
+            "first_frame_number": int(r["frame_number"][0]),
+            "clock_offset_s": offset,  # recorder clock minus phone frame time, fastest packet
+            "latency_s": {
+                "median": float(np.median(latency)),
+                "p95": float(np.percentile(latency, 95)),
+                "max": float(np.max(latency)),
+            },
+            "dropped_frames_inserted": inserted,
+            "sync_events": events,
+            "source": info.get("source"),
+        }
+        take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
+        if audio is not None and audio_first_s is not None:
+            take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
+        takes.append(take)
+    report["stray_frames"] = stray
+    return takes, report
+
+
+def find_sessions(path: str | Path, include_complete: bool = False) -> list[Path]:
+    """Session folders (``*.recording`` with a frames log) under ``path``, oldest name first."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such folder", path)
+    if path.name.endswith(SESSION_SUFFIX) and (path / FRAMES_LOG).is_file():
+        found = [path]
+    else:
+        found = sorted(p.parent for p in path.rglob(FRAMES_LOG) if p.parent.name.endswith(SESSION_SUFFIX))
+    if not include_complete:
+        found = [p for p in found if not (p / COMPLETE_FILE).is_file()]
+    return found
+
+
+def build_takes(
+    session_dir: str | Path, out_dir: str | Path, recovered: bool = False
+) -> list[dict[str, Any]]:
+    """Write the takes of a session to ``out_dir``; returns one summary dict per take.
+
+    The summary holds ``device``, ``subject``, ``frames``, ``dropped_frames``, ``rejected`` (session
+    datagram counts by reason) and the take's ``info`` figures. With no take, one summary with
+    ``device``/``subject`` None still reports the counts. Marks the session complete afterwards.
+    """
+    session_dir = Path(session_dir)
+    log = SessionLog(session_dir)
+    audio, audio_first_ns, audio_report = read_audio_log(session_dir / AUDIO_LOG)
+    audio_first_s = float(log.seconds(audio_first_ns)) if audio_first_ns is not None else None
+    common: dict[str, Any] = {
+        "session": log.session.get("session", session_dir.name),
+        "rejected": dict(log.rejected),
+        "datagrams": (log.end or {}).get("datagrams"),
+        "accepted": (log.end or {}).get("accepted"),
+        "clean_end": log.end is not None,
+        "recovered": recovered,
+        "sync_events": len(log.sync),
+    }
+    if log.end is None:
+        # Killed: count what reached the disk (rejections as of the last flushed snapshot).
+        common["accepted"] = int(sum(log.frame_counts.values()))
+        common["datagrams"] = common["accepted"] + sum(log.rejected.values())
+    if log.torn_tail is not None:
+        common["torn_tail"] = log.torn_tail.to_json()
+    if "torn_tail" in audio_report:
+        common["audio_torn_tail"] = audio_report["torn_tail"]
+    if audio_report.get("gaps"):
+        common["audio_gaps"] = len(audio_report["gaps"])
+    errors = [
+        n.get("message")
+        for n in audio_report.get("notes", []) + log.notes
+        if n.get("kind", "").endswith("error")
+    ]
+    if errors:
+        common["errors"] = errors
+    summaries: list[dict[str, Any]] = []
+    stray_streams = stray_frames = 0
+    try:
+        for sid in log.stream_ids():
+            takes, report = stream_takes(log, sid, audio, audio_first_s)
+            for take in takes:
+                take.meta.extra["rejected"] = dict(log.rejected)
+                take.meta.extra["recovered"] = recovered
+                take.meta.extra |= {k: report[k] for k in ("packets", "duplicates", "out_of_order")}
+                if log.torn_tail is not None:
+                    take.meta.extra["torn_tail"] = log.torn_tail.to_json()
+                folder = write_take(take, out_dir)
+                summaries.append(
+                    take.summary()
+                    | common
+                    | report
+                    | {"device": take.meta.device, "subject": take.meta.subject, "path": str(folder)}
+                )
+            if not takes:
+                stray_streams += 1
+                stray_frames += report["stray_frames"]
+    finally:
+        log.close()
+    if not summaries:
+        summaries.append(
+            common | {"device": None, "subject": None, "frames": 0, "dropped_frames": 0, "path": None}
+        )
+    for s in summaries:
+        # Streams too short for a take (a stray or corrupt packet) stay in the log and are counted here.
+        s["stray_streams"] = stray_streams
+        s["stray_stream_frames"] = stray_frames
+    write_json_atomic(
+        session_dir / COMPLETE_FILE, {"takes": [s.get("path") for s in summaries], "recovered": recovered}
+    )
+    return summaries

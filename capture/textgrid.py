@@ -1,0 +1,213 @@
+"""Praat TextGrid files: the phone and word alignments forced aligners (MFA, Gentle via converters,
+WebMAUS) write, and the simulated speaker writes as ground truth.
+
+Writing produces Praat's long text format (UTF-8). Reading accepts the long and the short text format
+in UTF-8 or UTF-16 (Praat's choice for non-ASCII text), with interval tiers and point ("TextTier")
+tiers. Both formats are the same sequence of values once labels like ``xmin =`` and indices like
+``intervals [3]:`` are ignored, which is how the reader parses them. Times are seconds.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import InputError
+
+_TOKEN = re.compile(
+    r'"(?P<str>(?:[^"]|"")*)"'  # a string; "" inside is an escaped quote
+    r"|\[[^\]\"]*\]"  # an index such as [3] or []: not a value
+    r"|(?P<flag><exists>|<absent>)"
+    r"|(?P<num>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
+    r"|!.*"  # a comment to the end of the line (short format)
+)
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A labelled stretch of time ``[xmin, xmax)`` in seconds; ``text`` is ``""`` for silence."""
+
+    xmin: float
+    xmax: float
+    text: str
+
+
+@dataclass(frozen=True)
+class Point:
+    """A labelled instant (seconds) of a point tier."""
+
+    time: float
+    mark: str
+
+
+@dataclass
+class Tier:
+    """An interval tier (``IntervalTier``) or a point tier (``TextTier``)."""
+
+    name: str
+    xmin: float
+    xmax: float
+    intervals: list[Interval] = field(default_factory=list)
+    points: list[Point] = field(default_factory=list)
+    kind: str = "IntervalTier"
+
+
+@dataclass
+class TextGrid:
+    """Tiers over a common time span ``[xmin, xmax]`` (seconds)."""
+
+    xmin: float
+    xmax: float
+    tiers: list[Tier] = field(default_factory=list)
+
+    def tier(self, name: str) -> Tier:
+        """The first tier called ``name``."""
+        for t in self.tiers:
+            if t.name == name:
+                return t
+        raise InputError(f"TextGrid has no tier {name!r} (tiers: {[t.name for t in self.tiers]})")
+
+
+def interval_tier(name: str, intervals: list[tuple[float, float, str]], xmin: float, xmax: float) -> Tier:
+    """An interval tier from ``(start s, end s, label)`` triples; gaps are filled with ``""``."""
+    out: list[Interval] = []
+    t = xmin
+    for a, b, text in intervals:
+        if a > t:
+            out.append(Interval(t, a, ""))
+        out.append(Interval(a, b, text))
+        t = b
+    if t < xmax:
+        out.append(Interval(t, xmax, ""))
+    return Tier(name, xmin, xmax, out)
+
+
+def _num(x: float) -> str:
+    # Praat prints integral times without a decimal point; repr keeps every other float exact.
+    return str(int(x)) if float(x).is_integer() else repr(float(x))
+
+
+def _quote(text: str) -> str:
+    return '"' + text.replace('"', '""') + '"'
+
+
+def format_textgrid(tg: TextGrid) -> str:
+    """The long text format Praat writes."""
+    lines = [
+        'File type = "ooTextFile"',
+        'Object class = "TextGrid"',
+        "",
+        f"xmin = {_num(tg.xmin)} ",
+        f"xmax = {_num(tg.xmax)} ",
+        "tiers? <exists> " if tg.tiers else "tiers? <absent> ",
+    ]
+    if tg.tiers:
+        lines.append(f"size = {len(tg.tiers)} ")
+        lines.append("item []: ")
+    for k, tier in enumerate(tg.tiers, start=1):
+        lines += [
+            f"    item [{k}]:",
+            f'        class = "{tier.kind}" ',
+            f"        name = {_quote(tier.name)} ",
+            f"        xmin = {_num(tier.xmin)} ",
+            f"        xmax = {_num(tier.xmax)} ",
+        ]
+        if tier.kind == "IntervalTier":
+            lines.append(f"        intervals: size = {len(tier.intervals)} ")
+            for i, iv in enumerate(tier.intervals, start=1):
+                lines += [
+                    f"        intervals [{i}]:",
+                    f"            xmin = {_num(iv.xmin)} ",
+                    f"            xmax = {_num(iv.xmax)} ",
+                    f"            text = {_quote(iv.text)} ",
+                ]
+        else:
+            lines.append(f"        points: size = {len(tier.points)} ")
+            for i, pt in enumerate(tier.points, start=1):
+                lines += [
+                    f"        points [{i}]:",
+                    f"            number = {_num(pt.time)} ",
+                    f"            mark = {_quote(pt.mark)} ",
+                ]
+    return "\n".join(lines) + "\n"
+
+
+def write_textgrid(tg: TextGrid, path: str | Path) -> Path:
+    """Write ``tg`` in Praat's long text format (UTF-8, LF line ends)."""
+    path = Path(path)
+    with open(path, "w", encoding="utf-8", newline="\n") as f:
+        f.write(format_textgrid(tg))
+    return path
+
+
+def _decode(raw: bytes, path: Path) -> str:
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return raw.decode("utf-16")
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError("TextGrid is neither UTF-8 nor UTF-16 text", path) from None
+
+
+def parse_textgrid(text: str, path: str | Path | None = None) -> TextGrid:
+    """Parse the long or short text format; raises ``InputError`` naming what is malformed."""
+    values: list[object] = []
+    for m in _TOKEN.finditer(text):
+        if m.group("str") is not None:
+            values.append(m.group("str").replace('""', '"'))
+        elif m.group("num") is not None:
+            values.append(float(m.group("num")))
+        elif m.group("flag") is not None:
+            values.append(m.group("flag"))
+    pos = 0
+
+    def take(kind: type, what: str) -> object:
+        nonlocal pos
+        if pos >= len(values):
+            raise InputError(f"TextGrid ends early: expected {what}", path)
+        v = values[pos]
+        if not isinstance(v, kind):
+            raise InputError(f"malformed TextGrid: expected {what}, found {v!r}", path)
+        pos += 1
+        return v
+
+    if take(str, "file type") != "ooTextFile" or take(str, "object class") != "TextGrid":
+        raise InputError(
+            'not a TextGrid (expected File type = "ooTextFile", Object class = "TextGrid")', path
+        )
+    tg = TextGrid(float(take(float, "xmin")), float(take(float, "xmax")))  # type: ignore[arg-type]
+    flag = take(str, "tiers? <exists>")
+    if flag == "<absent>":
+        return tg
+    n_tiers = int(take(float, "number of tiers"))  # type: ignore[arg-type]
+    for _ in range(n_tiers):
+        kind = take(str, "tier class")
+        if kind not in ("IntervalTier", "TextTier"):
+            raise InputError(f"unknown TextGrid tier class {kind!r}", path)
+        name = str(take(str, "tier name"))
+        xmin, xmax = float(take(float, "tier xmin")), float(take(float, "tier xmax"))  # type: ignore[arg-type]
+        count = int(take(float, "item count"))  # type: ignore[arg-type]
+        tier = Tier(name, xmin, xmax, kind=str(kind))
+        for _ in range(count):
+            if kind == "IntervalTier":
+                a, b = float(take(float, "interval xmin")), float(take(float, "interval xmax"))  # type: ignore[arg-type]
+                if b < a:
+                    raise InputError(f"tier {name!r}: interval ends before it starts ({a} > {b})", path)
+                tier.intervals.append(Interval(a, b, str(take(str, "interval text"))))
+            else:
+                tier.points.append(Point(float(take(float, "point time")), str(take(str, "point mark"))))  # type: ignore[arg-type]
+        tg.tiers.append(tier)
+    return tg
+
+
+def read_textgrid(path: str | Path) -> TextGrid:
+    """Read a TextGrid file (long or short text format, UTF-8 or UTF-16)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError("TextGrid file not found", path) from None
+    return parse_textgrid(_decode(raw, path), path)

@@ -1,0 +1,50 @@
+"""dataset: aligned takes → features, normalisation, splits, checksummed WebDataset-layout shards,
+manifest, validation and statistics. ``ShardDataset`` (PyTorch) lives in ``dataset.torch_dataset``
+so that importing this package does not import torch."""
+
+from .build import BuildOptions, build_dataset, collect_takes, plan_shards, take_sha256
+from .features import DEFAULT_FEATURES, FEATURES, FeatureSettings, compute_features, parse_features
+from .manifest import MANIFEST_FILE, read_manifest, write_manifest
+from .normalize import ChannelAccumulator, Normalizer, fit_normalizer
+from .pitch import PitchSettings, track_pitch
+from .ppg import BACKENDS, PPGResult, make_extractor
+from .qa import CHECKS, VALIDATORS, Problem, Report, validate
+from .shards import ShardInfo, ShardReader, ShardWriter
+from .splits import SPLITS, SplitRule, assign_splits
+from .stats import dataset_stats
+
+__all__ = [
+    "BACKENDS",
+    "BuildOptions",
+    "CHECKS",
+    "ChannelAccumulator",
+    "DEFAULT_FEATURES",
+    "FEATURES",
+    "FeatureSettings",
+    "MANIFEST_FILE",
+    "Normalizer",
+    "PPGResult",
+    "PitchSettings",
+    "Problem",
+    "Report",
+    "SPLITS",
+    "ShardInfo",
+    "ShardReader",
+    "ShardWriter",
+    "SplitRule",
+    "VALIDATORS",
+    "assign_splits",
+    "build_dataset",
+    "collect_takes",
+    "compute_features",
+    "dataset_stats",
+    "fit_normalizer",
+    "make_extractor",
+    "parse_features",
+    "plan_shards",
+    "read_manifest",
+    "take_sha256",
+    "track_pitch",
+    "validate",
+    "write_manifest",
+]

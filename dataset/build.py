@@ -1,0 +1,968 @@
+"""``s2a-dataset build``: aligned takes → features, normalisation statistics, splits, shards, manifest.
+
+Stages, each resumable:
+
+1. find takes (folders searched recursively); takes that are not aligned are aligned with ``align``
+   into ``DS/.work/aligned`` (cached by the source take's sha256);
+2. assign splits by take or speaker, resolve the channel selection (``varying`` looks at train only);
+3. per take (``--jobs N`` processes): the one preprocessor computes every feature; the take is cut
+   into samples of at most ``max_sample_s`` seconds, each written as a one-sample tar in
+   ``DS/.work/samples``, then a per-take record with its statistics (written last, so its presence
+   means the take is done; a rerun skips it);
+4. statistics of the training split are merged in take order; shards are planned from sample sizes
+   (size-capped, keys sorted) and written atomically; the manifest is written last.
+
+Everything written depends only on the inputs and options (no clocks, no paths of the output, one
+thread per process), so an interrupted and resumed build equals an uninterrupted one byte for byte.
+Memory is bounded by the largest take, not by the dataset.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+import shutil
+import sys
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture.channels import channel_set
+from capture.errors import InputError, S2AError
+from capture.take import (
+    Take,
+    TakeMeta,
+    find_takes,
+    read_meta,
+    read_take,
+    sha256_file,
+    write_json_atomic,
+    write_take,
+)
+
+from .features import DEFAULT_FEATURES, FeatureSettings, compute_features, parse_features
+from .manifest import MANIFEST_FILE, manifest_path, read_manifest, write_manifest
+from .normalize import KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
+from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
+from .splits import SPLITS, SplitRule, assign_splits
+
+DATASET_VERSION = "1"
+WORK = ".work"
+USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
+METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
+SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
+
+
+@dataclass
+class BuildOptions:
+    """Everything that decides a dataset's content. ``shard_bytes`` caps a shard (a single larger
+    sample gets a shard of its own); ``max_sample_s`` caps one sample's duration in seconds."""
+
+    channels: str = "pronunciation32"
+    features: tuple[str, ...] = DEFAULT_FEATURES
+    ppg: str = "none"
+    ppg_model: str | None = None
+    normalization: str = "zscore"
+    split: SplitRule = field(default_factory=SplitRule)
+    shard_bytes: int = 256 * 1024 * 1024
+    max_sample_s: float = 30.0
+    jobs: int = 1
+    keep_work: bool = False
+    settings: FeatureSettings = field(default_factory=FeatureSettings)
+
+    def __post_init__(self) -> None:
+        self.features = parse_features(self.features)
+        if self.ppg != "none" and "ppg" not in self.features:
+            self.features = parse_features((*self.features, "ppg"))
+        if "ppg" in self.features and self.ppg == "none":
+            raise InputError("feature 'ppg' needs a backend: --ppg bottleneck|torchscript|onnx|pocketsphinx")
+        if self.normalization not in KINDS:
+            raise InputError(f"--normalization must be one of {', '.join(KINDS)}")
+        if self.shard_bytes <= 0 or self.max_sample_s <= 0 or self.jobs < 1:
+            raise InputError("--shard-mb, --max-sample-s and --jobs must be positive")
+
+
+# ------------------------------------------------------------------------------------------ takes
+
+
+@dataclass
+class SourceTake:
+    """An aligned take folder ready for the build, and where it came from."""
+
+    folder: Path
+    id: str
+    key: str
+    sha256: str
+    speaker: str
+    speaker_assumed: bool
+    duration_s: float
+    fps: float
+    channels: list[str]
+    source: dict[str, Any]
+    content_sha256: str
+
+
+def take_sha256(folder: str | Path) -> str:
+    """sha256 of a take folder: of the lines ``"<file name> <sha256 of file>\\n"`` for meta.json,
+    frames.npz and the audio file, in name order."""
+    folder = Path(folder)
+    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    h = hashlib.sha256()
+    for name in names:
+        h.update(f"{name} {sha256_file(folder / name)}\n".encode())
+    return h.hexdigest()
+
+
+def content_sha256(folder: str | Path) -> str:
+    """sha256 of what a take holds, not what it is called: like ``take_sha256`` without meta.json,
+    so a copy of a take under another id is recognised as a duplicate."""
+    folder = Path(folder)
+    names = sorted(
+        p.name
+        for p in folder.iterdir()
+        if p.is_file() and p.name not in ("meta.json",) and not p.name.startswith(".")
+    )
+    h = hashlib.sha256()
+    for name in names:
+        h.update(f"{name} {sha256_file(folder / name)}\n".encode())
+    return h.hexdigest()
+
+
+def sample_key_base(take_id: str) -> str:
+    """A WebDataset-safe key stem for a take id (no dots or slashes)."""
+    return re.sub(r"[^A-Za-z0-9_-]", "_", take_id) or "take"
+
+
+def _align_module():
+    try:
+        import align
+    except ImportError:
+        return None
+    return align
+
+
+def _is_aligned(meta: TakeMeta) -> bool:
+    """The align contract: an aligned take says so in ``meta.source_kind`` (cheap: no arrays read)."""
+    return meta.source_kind == "aligned"
+
+
+def _aligned_folders(folder: Path, meta: TakeMeta, work: Path, say: Callable[[str], None]) -> list[Path]:
+    """Aligned take folders for an unaligned take, made once with ``align.align_take`` and cached."""
+    align = _align_module()
+    if align is None:
+        raise InputError(
+            f"take is not aligned (source_kind {meta.source_kind!r}) and the align stage is not installed; "
+            "align it with s2a-align first",
+            folder,
+        )
+    sha = take_sha256(folder)
+    out = work / "aligned" / sha[:24]
+    done = out / "done.json"
+    if done.is_file():
+        names = json.loads(done.read_text())["takes"]
+        return [out / n for n in names]
+    say(f"aligning {meta.id}")
+    results = align.align_take(read_take(folder), align.AlignOptions())
+    if not results:
+        raise InputError("align produced no usable take (no speech or no tracked frames?)", folder)
+    out.mkdir(parents=True, exist_ok=True)
+    names = [write_take(t, out).name for t in results]
+    write_json_atomic(done, {"source": str(folder), "sha256": sha, "takes": names})
+    return [out / n for n in names]
+
+
+def collect_takes(
+    inputs: list[str | Path], work: Path, say: Callable[[str], None]
+) -> tuple[list[SourceTake], list[str]]:
+    """Aligned takes from ``inputs`` (aligning raw ones), de-duplicated; also returns warnings."""
+    warnings: list[str] = []
+    folders = find_takes(inputs)
+    if not folders:
+        raise InputError(f"no takes found in {', '.join(map(str, inputs))}")
+    seen_paths: set[Path] = set()
+    takes: list[SourceTake] = []
+    by_id: dict[str, SourceTake] = {}
+    by_sha: dict[str, SourceTake] = {}
+    by_key: dict[str, SourceTake] = {}
+    for folder in folders:
+        resolved = folder.resolve()
+        if resolved in seen_paths or (WORK in resolved.parts):
+            continue
+        seen_paths.add(resolved)
+        meta = read_meta(folder)
+        origin: dict[str, Any] = {"path": str(resolved), "source_kind": meta.source_kind}
+        if _is_aligned(meta):
+            aligned = [folder]
+        else:
+            aligned = _aligned_folders(folder, meta, work, say)
+            origin["sha256"] = take_sha256(folder)
+        for af in aligned:
+            m = read_meta(af)
+            if m.audio is None:
+                raise InputError("aligned take has no audio; a dataset needs speech", af)
+            if m.audio.sample_rate != 16000:
+                raise InputError(
+                    f"aligned take audio is {m.audio.sample_rate} Hz; expected 16000 (re-run align)", af
+                )
+            if abs(m.audio.start_s) > 1e-9:
+                raise InputError(
+                    f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af
+                )
+            sha = take_sha256(af)
+            speaker = m.subject or m.id
+            st = SourceTake(
+                af,
+                m.id,
+                sample_key_base(m.id),
+                sha,
+                speaker,
+                not m.subject,
+                m.audio.samples / m.audio.sample_rate,
+                float(m.fps),
+                list(m.channels),
+                origin | {"take": m.id, "sha256": sha},
+                content_sha256(af),
+            )
+            if af != folder:
+                st.source["aligned_from_sha256"] = origin["sha256"]
+            if st.content_sha256 in by_sha:
+                warnings.append(
+                    f"take {m.id} ({origin['path']}) has the same frames and audio as take "
+                    f"{by_sha[st.content_sha256].id}: skipped as a duplicate"
+                )
+                continue
+            if m.id in by_id:
+                raise InputError(f"two different takes share the id {m.id!r} (also {by_id[m.id].folder})", af)
+            if st.key in by_key:
+                raise InputError(f"take ids {m.id!r} and {by_key[st.key].id!r} give the same sample key", af)
+            by_id[m.id] = by_sha[st.content_sha256] = by_key[st.key] = st
+            takes.append(st)
+    takes.sort(key=lambda t: t.id)
+    fps = {round(t.fps, 6) for t in takes}
+    if len(fps) > 1:
+        raise InputError(
+            f"takes have different frame rates ({', '.join(map(str, sorted(fps)))} fps); "
+            "align them to one rate (s2a-align --fps) or build separate datasets"
+        )
+    return takes, warnings
+
+
+def resolve_channels(
+    spec: str, takes: list[SourceTake], splits: dict[str, str]
+) -> tuple[list[str], list[str]]:
+    """Channel names selected by ``spec`` (set name, ``varying``, ``all`` or a comma list), and warnings."""
+    warnings: list[str] = []
+    key = spec.strip().lower()
+    first = takes[0].channels
+    if key in ("varying", "all"):
+        for t in takes:
+            if [c.lower() for c in t.channels] != [c.lower() for c in first]:
+                raise InputError(
+                    f"--channels {key} needs takes with the same channels; {t.id} differs from {takes[0].id}"
+                )
+        if key == "all":
+            names = list(first)
+        else:
+            lo = np.full(len(first), np.inf)
+            hi = np.full(len(first), -np.inf)
+            for t in takes:
+                if splits[t.id] != "train":
+                    continue
+                with np.load(t.folder / "frames.npz", allow_pickle=False) as z:
+                    v, s = z["values"], z["frame_status"]
+                v = v[np.isin(s, USABLE_STATUS)]
+                v = np.where(np.isfinite(v), v, np.nan)
+                if v.size:
+                    lo = np.fmin(lo, np.nanmin(v, 0))
+                    hi = np.fmax(hi, np.nanmax(v, 0))
+            names = [c for c, a, b in zip(first, lo, hi, strict=True) if np.isfinite(a) and b - a > 1e-6]
+            if not names:
+                raise InputError("--channels varying: no channel moves in the training split")
+    else:
+        try:
+            names = list(channel_set(spec))
+        except InputError:
+            # a rig's own names (generic paired import): a comma list matched case-insensitively
+            names = [s.strip() for s in spec.split(",") if s.strip()]
+            lowered = {c.lower() for c in first}
+            unknown = [n for n in names if n.lower() not in lowered]
+            if unknown or not names:
+                raise
+    for t in takes:
+        have = {c.lower(): c for c in t.channels}
+        missing = [n for n in names if n.lower() not in have]
+        if missing:
+            shown = ", ".join(missing[:5]) + (" ..." if len(missing) > 5 else "")
+            raise InputError(
+                f"take {t.id} lacks {len(missing)} selected channel(s) ({shown}); "
+                "choose --channels varying, all, or a list of its channels",
+                t.folder,
+            )
+    lowered = {n.lower() for n in names}
+    lacking = [need for need in METRIC_CHANNELS if need.lower() not in lowered]
+    if lacking:
+        warnings.append(
+            f"the selection lacks {' and '.join(lacking)} (MetaHuman rigs, for one, lack mouthClose): the "
+            "'crucial' RMSE over jawOpen and mouthClose cannot be computed on this dataset"
+        )
+    return names, warnings
+
+
+# ------------------------------------------------------------------------------------------ per take
+
+
+@dataclass
+class TakeJob:
+    """What one worker needs to turn a take into samples (all picklable)."""
+
+    folder: str
+    take_id: str
+    key: str
+    sha256: str
+    content_sha256: str
+    speaker: str
+    split: str
+    channels: list[str]
+    features: tuple[str, ...]
+    ppg: str
+    ppg_model: str | None
+    max_sample_s: float
+    settings: FeatureSettings
+    work: str
+    config_hash: str
+
+    @property
+    def record(self) -> Path:
+        return Path(self.work) / "takes" / f"{self.key}.json"
+
+    @property
+    def stats(self) -> Path:
+        return Path(self.work) / "takes" / f"{self.key}.stats.npz"
+
+
+_EXTRACTORS: dict[tuple[str, str | None], Any] = {}
+
+
+def _extractor(backend: str, model: str | None):
+    if backend == "none":
+        return None
+    if (backend, model) not in _EXTRACTORS:
+        from .ppg import make_extractor
+
+        _EXTRACTORS[(backend, model)] = make_extractor(backend, model)
+    return _EXTRACTORS[(backend, model)]
+
+
+def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
+    try:
+        rec = json.loads(job.record.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+    if (
+        rec.get("config_hash") != job.config_hash
+        or rec.get("sha256") != job.sha256
+        or rec.get("split") != job.split
+    ):
+        return None
+    samples_dir = Path(job.work) / "samples"
+    if not job.stats.is_file() or not all(
+        (samples_dir / f"{s['key']}.tar").is_file() for s in rec["samples"]
+    ):
+        return None
+    return rec
+
+
+def take_transcript(take: Take) -> str | None:
+    """The words spoken in a take, when known: ``meta.extra["transcript"]`` (align may carry it over)."""
+    text = take.meta.extra.get("transcript")
+    return text if isinstance(text, str) and text.strip() else None
+
+
+def process_take(job: TakeJob) -> dict[str, Any]:
+    """Features, samples and statistics of one take; returns its record (cached on disk)."""
+    rec = _record_is_current(job)
+    if rec is not None:
+        return rec | {"cached": True}
+    take = read_take(job.folder)
+    idx = [take.channel_index(c) for c in job.channels]
+    values = take.values[:, idx]
+    n = values.shape[0]
+    fps = float(take.meta.fps)
+    sr = job.settings.sample_rate
+    audio = take.audio.mono_float()
+    audio_len = audio.shape[0]
+    span = int(round(n * sr / fps))
+    padded = np.zeros(max(span, audio_len), np.float32)
+    padded[:audio_len] = audio
+    t = np.arange(n) / fps
+    in_audio = t < audio_len / sr
+    mask = np.isin(take.frame_status, USABLE_STATUS) & np.all(np.isfinite(values), axis=1) & in_audio
+    anim = np.where(mask[:, None], values, 0.0).astype(np.float32)
+    feats, phones = compute_features(
+        padded[:span],
+        n,
+        fps,
+        job.features,
+        job.settings,
+        _extractor(job.ppg, job.ppg_model),
+        take_transcript(take),
+    )
+    neutral = None
+    if take.neutral is not None and take.neutral.shape == (len(take.meta.channels),):
+        nv = take.neutral[idx]
+        if np.all(np.isfinite(nv)):
+            neutral = nv.astype(np.float32)
+
+    # statistics (float64 sums; merged later in take order)
+    chan = ChannelAccumulator(len(job.channels))
+    chan.add(anim[mask], neutral)
+    feat_stats = {}
+    for name, arr in feats.items():
+        if name == "pitch":
+            continue
+        acc = FeatureAccumulator(arr.shape[1])
+        acc.add(arr[in_audio])
+        feat_stats[name] = acc.to_json()
+    pitch_stats = None
+    if "pitch" in feats:
+        voiced = (feats["pitch"][:, 1] > 0.5) & in_audio
+        lf0 = feats["pitch"][voiced, 0].astype(np.float64)
+        pitch_stats = {"count": int(lf0.size), "sum": float(lf0.sum()), "sumsq": float((lf0 * lf0).sum())}
+    phone_counts = None
+    if phones is not None:
+        phone_counts = np.bincount(phones[mask & (phones >= 0)], minlength=1).tolist()
+
+    # samples: equal chunks of at most max_sample_s
+    max_frames = max(1, int(math.floor(job.max_sample_s * fps)))
+    n_chunks = max(1, math.ceil(n / max_frames))
+    bounds = [round(c * n / n_chunks) for c in range(n_chunks + 1)]
+    samples_dir = Path(job.work) / "samples"
+    samples_dir.mkdir(parents=True, exist_ok=True)
+    samples = []
+    for c in range(n_chunks):
+        a, b = bounds[c], bounds[c + 1]
+        s0, s1 = int(round(a * sr / fps)), int(round(b * sr / fps))
+        key = f"{job.key}_c{c:03d}"
+        meta = {
+            "key": key,
+            "take": job.take_id,
+            "take_sha256": job.sha256,
+            "content_sha256": job.content_sha256,
+            "speaker": job.speaker,
+            "split": job.split,
+            "chunk": c,
+            "chunks": n_chunks,
+            "frame_start": a,
+            "frames": b - a,
+            "fps": fps,
+            "t0_s": a / fps,
+            "duration_s": (b - a) / fps,
+            "sample_rate": sr,
+            "audio_start_sample": s0,
+            "audio_samples": s1 - s0,
+            "channels": len(job.channels),
+            "features": {k: int(v.shape[1]) for k, v in feats.items()},
+            "usable_frames": int(mask[a:b].sum()),
+            "neutral": None if neutral is None else [float(v) for v in neutral],
+        }
+        members = {
+            "json": json_bytes(meta),
+            "flac": flac_bytes(padded[s0:s1], sr),
+            "anim.npy": npy_bytes(anim[a:b]),
+            "mask.npy": npy_bytes(mask[a:b]),
+        }
+        for name, arr in feats.items():
+            members[f"{name}.npy"] = npy_bytes(arr[a:b])
+        if phones is not None:
+            members["phones.npy"] = npy_bytes(phones[a:b])
+        w = ShardWriter(samples_dir / f"{key}.tar")
+        w.add(key, members)
+        w.close()
+        samples.append(
+            {
+                "key": key,
+                "bytes": sample_size(members),
+                "frames": b - a,
+                "duration_s": (b - a) / fps,
+                "usable_frames": int(mask[a:b].sum()),
+            }
+        )
+    rec = {
+        "take": job.take_id,
+        "sha256": job.sha256,
+        "split": job.split,
+        "speaker": job.speaker,
+        "config_hash": job.config_hash,
+        "frames": n,
+        "usable_frames": int(mask.sum()),
+        "duration_s": n / fps,
+        "samples": samples,
+        "feature_stats": feat_stats,
+        "pitch_stats": pitch_stats,
+        "phone_counts": phone_counts,
+    }
+    job.record.parent.mkdir(parents=True, exist_ok=True)
+    # the channel histograms go to an .npz beside the record (written first: the record marks done)
+    stats_tmp = job.stats.with_name(f".{job.stats.name}.partial")
+    with open(stats_tmp, "wb") as f:
+        np.savez(f, **chan.to_arrays())
+    os.replace(stats_tmp, job.stats)
+    _write_compact_json(job.record, rec)
+    return rec | {"cached": False}
+
+
+def _write_compact_json(path: Path, data: Any) -> None:
+    """A work record: compact JSON written beside ``path`` and renamed over it (atomic)."""
+    tmp = path.with_name(f".{path.name}.partial")
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(data, f, separators=(",", ":"), allow_nan=False)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+# ------------------------------------------------------------------------------------------ build
+
+
+def _fingerprint(data: Any) -> str:
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _library_versions() -> dict[str, str]:
+    import importlib.metadata as md
+
+    out = {}
+    for name in ("numpy", "soundfile", "praat-parselmouth", "scipy"):
+        try:
+            out[name] = md.version(name)
+        except md.PackageNotFoundError:
+            pass
+    try:
+        out["s2a-toolkit"] = md.version("s2a-toolkit")
+    except md.PackageNotFoundError:
+        pass
+    return out
+
+
+def _prepare_output(out: Path) -> dict[str, Any] | None:
+    """Create ``out`` or check it holds a dataset (or an interrupted build); returns the old manifest."""
+    if out.exists() and not out.is_dir():
+        raise InputError("output exists and is not a folder", out)
+    out.mkdir(parents=True, exist_ok=True)
+    old = None
+    if (out / MANIFEST_FILE).is_file():
+        try:
+            old = read_manifest(out)
+        except InputError:
+            old = None
+    others = [
+        p
+        for p in out.iterdir()
+        if p.name not in (MANIFEST_FILE, WORK) and not SHARD_NAME.match(p.name) and not p.name.startswith(".")
+    ]
+    if others:
+        raise InputError(f"output folder holds other files ({others[0].name}); choose an empty folder", out)
+    for p in out.glob(".*.partial"):
+        p.unlink()
+    return old
+
+
+def _merge_records(records: list[dict[str, Any]], channels: list[str], split: str | None):
+    chan = ChannelAccumulator(len(channels))
+    feats: dict[str, FeatureAccumulator] = {}
+    for r in records:
+        if split is not None and r["split"] != split:
+            continue
+        with np.load(r["stats_file"], allow_pickle=False) as z:
+            chan.merge(ChannelAccumulator.from_arrays(z))
+        for name, fs in r["feature_stats"].items():
+            acc = FeatureAccumulator.from_json(fs)
+            if name in feats:
+                feats[name].merge(acc)
+            else:
+                feats[name] = acc
+    return chan, feats
+
+
+def plan_shards(records: list[dict[str, Any]], shard_bytes: int) -> list[dict[str, Any]]:
+    """Shards per split: samples in key order, a new shard whenever the cap would be exceeded."""
+    plan = []
+    for split in SPLITS:
+        samples = sorted(
+            (s | {"split": split} for r in records if r["split"] == split for s in r["samples"]),
+            key=lambda s: s["key"],
+        )
+        current: list[dict[str, Any]] = []
+        size = 0
+        for s in samples:
+            if current and size + s["bytes"] + 2 * 512 > shard_bytes:
+                plan.append({"split": split, "samples": current})
+                current, size = [], 0
+            current.append(s)
+            size += s["bytes"]
+        if current:
+            plan.append({"split": split, "samples": current})
+    counters = dict.fromkeys(SPLITS, 0)
+    for shard in plan:
+        shard["name"] = f"{shard['split']}-{counters[shard['split']]:06d}.tar"
+        counters[shard["split"]] += 1
+    return plan
+
+
+def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str) -> dict[str, Any]:
+    keys = [s["key"] for s in shard["samples"]]
+    record = work / "shards" / f"{shard['name']}.json"
+    target = out / shard["name"]
+    try:
+        done = json.loads(record.read_text())
+        if (
+            done["keys"] == keys
+            and done["fingerprint"] == fingerprint
+            and target.is_file()
+            and target.stat().st_size == done["bytes"]
+        ):
+            return done
+    except (FileNotFoundError, json.JSONDecodeError, KeyError):
+        pass
+    writer = ShardWriter(target)
+    with writer:
+        for key in keys:
+            for k, members in ShardReader(work / "samples" / f"{key}.tar"):
+                writer.add(k, members)
+        info = writer.close()
+    done = {
+        "name": info.name,
+        "sha256": info.sha256,
+        "bytes": info.bytes,
+        "keys": keys,
+        "fingerprint": fingerprint,
+    }
+    record.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(record, done)
+    return done
+
+
+def _worker_context(options: BuildOptions):
+    """Workers forked from a fork server that imported the heavy modules once (torch, Praat): each
+    worker starts in milliseconds, and no worker inherits thread pools from this process."""
+    if sys.platform == "win32":  # pragma: no cover - no fork server there
+        return get_context("spawn")
+    ctx = get_context("forkserver")
+    preload = ["dataset.build", "dataset.pitch", "parselmouth", "scipy.fft"]
+    if options.ppg in ("bottleneck", "torchscript"):
+        preload += ["torch", "dataset.bottleneck"]
+    ctx.set_forkserver_preload(preload)
+    return ctx
+
+
+def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
+    folders = sorted({str(f.resolve()) for f in find_takes(inputs)})
+    model = options.ppg_model
+    return _fingerprint(
+        {
+            "takes": [(Path(f).name, take_sha256(f)) for f in folders],
+            "channels": options.channels,
+            "features": list(options.features),
+            "ppg": [options.ppg, sha256_file(model) if model and Path(model).is_file() else model],
+            "normalization": options.normalization,
+            "split": options.split.to_json(),
+            "shard_bytes": options.shard_bytes,
+            "max_sample_s": options.max_sample_s,
+            "settings": options.settings.to_json(),
+            "dataset_version": DATASET_VERSION,
+            "versions": _library_versions(),
+        }
+    )
+
+
+def _shards_present(out: Path, manifest: dict[str, Any]) -> bool:
+    return all(
+        (out / s["name"]).is_file() and (out / s["name"]).stat().st_size == s["bytes"]
+        for s in manifest["shards"]
+    )
+
+
+def build_dataset(
+    inputs: list[str | Path],
+    out: str | Path,
+    options: BuildOptions | None = None,
+    say: Callable[[str], None] = lambda m: None,
+) -> dict[str, Any]:
+    """Build (or resume building) the dataset ``out`` from takes in ``inputs``; returns a summary."""
+    options = options or BuildOptions()
+    out = Path(out)
+    old = _prepare_output(out)
+    # Cheap check first: the same input take folders and options as the finished dataset → nothing
+    # to do (without re-aligning raw takes, whose aligned copies went with .work).
+    input_fingerprint = _input_fingerprint(inputs, options)
+    if (
+        old is not None
+        and old.get("build", {}).get("input_fingerprint") == input_fingerprint
+        and _shards_present(out, old)
+    ):
+        say("dataset is up to date")
+        return _summary(out, old, up_to_date=True)
+    work = out / WORK
+    work.mkdir(exist_ok=True)
+    takes, warnings = collect_takes(inputs, work, say)
+    durations = {t.id: (t.speaker, t.duration_s) for t in takes}
+    split_of = assign_splits(durations, options.split)
+    channels, channel_warnings = resolve_channels(options.channels, takes, split_of)
+    warnings += channel_warnings
+    assumed = sorted(t.id for t in takes if t.speaker_assumed)
+    if assumed:
+        warnings.append(
+            f"{len(assumed)} take(s) name no speaker (meta.subject): each counts as its own speaker"
+        )
+    extractor = _extractor(options.ppg, options.ppg_model)
+    ppg_info = extractor.describe() if extractor is not None else None
+    config = {
+        "dataset_version": DATASET_VERSION,
+        "channels": channels,
+        "features": list(options.features),
+        "settings": options.settings.to_json(),
+        "ppg": ppg_info,
+        "max_sample_s": options.max_sample_s,
+        "versions": _library_versions(),
+    }
+    config_hash = _fingerprint(config)
+    fingerprint = _fingerprint(
+        {
+            "config": config_hash,
+            "normalization": options.normalization,
+            "split": options.split.to_json(),
+            "shard_bytes": options.shard_bytes,
+            "takes": [(t.id, t.sha256) for t in takes],
+        }
+    )
+    if (
+        old is not None
+        and old.get("build", {}).get("fingerprint") == fingerprint
+        and _shards_present(out, old)
+    ):
+        say("dataset is up to date")
+        return _summary(out, old, up_to_date=True)
+    if old is not None:
+        manifest_path(out).unlink()  # never leave a manifest describing shards we are replacing
+
+    jobs = [
+        TakeJob(
+            str(t.folder),
+            t.id,
+            t.key,
+            t.sha256,
+            t.content_sha256,
+            t.speaker,
+            split_of[t.id],
+            channels,
+            options.features,
+            options.ppg,
+            options.ppg_model,
+            options.max_sample_s,
+            options.settings,
+            str(work),
+            config_hash,
+        )
+        for t in takes
+    ]
+    records: dict[str, dict[str, Any]] = {}
+    stats_files = {job.take_id: str(job.stats) for job in jobs}
+    total = len(jobs)
+
+    def note(i: int, rec: dict[str, Any]) -> None:
+        state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
+        bar = "#" * round(20 * i / total)
+        say(f"[{bar:<20}] {i}/{total} {rec['take']} ({state})")
+
+    if options.jobs == 1 or total <= 1:
+        for i, job in enumerate(jobs, 1):
+            rec = process_take(job)
+            records[job.take_id] = rec
+            note(i, rec)
+    else:
+        with ProcessPoolExecutor(
+            max_workers=min(options.jobs, total), mp_context=_worker_context(options)
+        ) as pool:
+            try:
+                for i, rec in enumerate(pool.map(process_take, jobs), 1):
+                    records[rec["take"]] = rec
+                    note(i, rec)
+            except BrokenProcessPool:
+                raise S2AError(
+                    "a worker process died (out of memory?); finished takes are kept: rerun to resume"
+                ) from None
+    ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
+
+    # statistics of the training split, merged in take order (deterministic float sums)
+    train_chan, train_feats = _merge_records(ordered, channels, "train")
+    if train_chan.count.sum() == 0:
+        raise InputError("the training split has no usable frames")
+    normalizer = fit_normalizer(options.normalization, channels, train_chan)
+    feature_norm = {}
+    for name, acc in train_feats.items():
+        mean, std = acc.mean_std()
+        feature_norm[name] = {"mean": mean, "std": std, "frames": acc.count}
+    pitch_norm = {}
+    if "pitch" in options.features:
+        for spk in sorted({t.speaker for t in takes}):
+            mine = [r for r in ordered if r["speaker"] == spk]
+            use = [r for r in mine if r["split"] == "train"] or mine
+            cnt = sum(r["pitch_stats"]["count"] for r in use)
+            s = sum(r["pitch_stats"]["sum"] for r in use)
+            ss = sum(r["pitch_stats"]["sumsq"] for r in use)
+            mean = s / cnt if cnt else 0.0
+            std = math.sqrt(max(ss / cnt - mean * mean, 0.0)) if cnt else 1.0
+            pitch_norm[spk] = {
+                "mean": float(np.float32(mean)),
+                "std": float(np.float32(std if std > 1e-6 else 1.0)),
+                "voiced_frames": cnt,
+                "from": "train" if any(r["split"] == "train" for r in mine) else "all (held-out speaker)",
+            }
+
+    plan = plan_shards(ordered, options.shard_bytes)
+    shards = []
+    for i, shard in enumerate(plan, 1):
+        done = _write_shard(out, work, shard, fingerprint)
+        say(f"shard {i}/{len(plan)} {done['name']} ({done['bytes'] / 1e6:.1f} MB)")
+        shards.append(
+            {
+                "name": done["name"],
+                "split": shard["split"],
+                "sha256": done["sha256"],
+                "bytes": done["bytes"],
+                "samples": len(shard["samples"]),
+                "frames": sum(s["frames"] for s in shard["samples"]),
+                "duration_s": round(sum(s["duration_s"] for s in shard["samples"]), 6),
+            }
+        )
+    planned = {s["name"] for s in shards}
+    for p in out.iterdir():
+        if SHARD_NAME.match(p.name) and p.name not in planned:
+            p.unlink()  # left over from an earlier, larger build into this folder
+
+    sample_entries = []
+    for shard in plan:
+        rec_of = {s["key"]: r for r in ordered for s in r["samples"]}
+        for s in shard["samples"]:
+            r = rec_of[s["key"]]
+            sample_entries.append(
+                {
+                    "key": s["key"],
+                    "take": r["take"],
+                    "speaker": r["speaker"],
+                    "split": shard["split"],
+                    "shard": shard["name"],
+                    "frames": s["frames"],
+                    "usable_frames": s["usable_frames"],
+                    "duration_s": s["duration_s"],
+                }
+            )
+    phones = ppg_info.get("phones") if ppg_info else None
+    if phones is None and extractor is not None:
+        phones = getattr(extractor, "phones", None)
+    stats = {}
+    for split in SPLITS:
+        mine = [r for r in ordered if r["split"] == split]
+        if not mine:
+            continue
+        chan, _ = _merge_records(ordered, channels, split)
+        speakers: dict[str, float] = {}
+        for r in mine:
+            speakers[r["speaker"]] = speakers.get(r["speaker"], 0.0) + r["duration_s"]
+        entry: dict[str, Any] = {
+            "takes": len(mine),
+            "samples": sum(len(r["samples"]) for r in mine),
+            "hours": sum(r["duration_s"] for r in mine) / 3600.0,
+            "usable_frames": sum(r["usable_frames"] for r in mine),
+            "hours_per_speaker": {k: v / 3600.0 for k, v in sorted(speakers.items())},
+            "channels": chan.summary(channels),
+        }
+        if phones is not None and all(r["phone_counts"] is not None for r in mine):
+            counts = np.zeros(len(phones), np.int64)
+            for r in mine:
+                c = np.asarray(r["phone_counts"], np.int64)[: len(phones)]
+                counts[: c.size] += c
+            entry["phone_frames"] = {p: int(c) for p, c in zip(phones, counts, strict=True)}
+        stats[split] = entry
+
+    feature_dims = {}
+    if ordered and ordered[0]["samples"]:
+        rec0 = ordered[0]
+        for name in options.features:
+            feature_dims[name] = (
+                len(rec0["feature_stats"][name]["sum"]) if name in rec0["feature_stats"] else 2
+            )
+    manifest = {
+        "fps": takes[0].fps,
+        "sample_rate": options.settings.sample_rate,
+        "channels": channels,
+        "channel_selection": options.channels,
+        "features": {
+            "names": list(options.features),
+            "dims": feature_dims,
+            "settings": options.settings.to_json(),
+            "frame_rate": "interpolated linearly from the 20 ms analysis grid to the animation frames",
+            "ppg": ppg_info,
+            "pitch": "log-F0 (natural log of Hz) interpolated through unvoiced frames, and a voicing flag",
+            "versions": config["versions"],
+        },
+        "members": ["json", "flac", "anim.npy", "mask.npy", *[f"{n}.npy" for n in options.features]]
+        + (["phones.npy"] if "ppg" in options.features and phones is not None else []),
+        "normalization": {
+            "animation": normalizer.to_json(),
+            "features": feature_norm,
+            "pitch": {"kind": "per-speaker z-score of voiced log-F0", "speakers": pitch_norm},
+        },
+        "splits": {
+            "rule": options.split.to_json(),
+            **{
+                s: {
+                    "takes": sorted(t for t, sp in split_of.items() if sp == s),
+                    "speakers": sorted({t.speaker for t in takes if split_of[t.id] == s}),
+                }
+                for s in SPLITS
+            },
+        },
+        "speakers_assumed": assumed,
+        "shards": shards,
+        "samples": sample_entries,
+        "sources": [t.source | {"speaker": t.speaker, "split": split_of[t.id]} for t in takes],
+        "stats": stats,
+        "warnings": warnings,
+        "build": {
+            "fingerprint": fingerprint,
+            "input_fingerprint": input_fingerprint,
+            "config_hash": config_hash,
+            "max_sample_s": options.max_sample_s,
+            "shard_bytes": options.shard_bytes,
+            "dataset_version": DATASET_VERSION,
+        },
+    }
+    write_manifest(out, manifest)
+    if not options.keep_work:
+        shutil.rmtree(work, ignore_errors=True)
+    return _summary(out, read_manifest(out), up_to_date=False)
+
+
+def _summary(out: Path, manifest: dict[str, Any], up_to_date: bool) -> dict[str, Any]:
+    return {
+        "dataset": str(out),
+        "up_to_date": up_to_date,
+        "takes": len(manifest["sources"]),
+        "samples": len(manifest["samples"]),
+        "shards": len(manifest["shards"]),
+        "hours": round(sum(s["duration_s"] for s in manifest["shards"]) / 3600.0, 6),
+        "channels": len(manifest["channels"]),
+        "features": manifest["features"]["names"],
+        "splits": {s: len(manifest["splits"][s]["takes"]) for s in SPLITS},
+        "warnings": manifest.get("warnings", []),
+    }

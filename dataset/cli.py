@@ -1,0 +1,138 @@
+"""``s2a-dataset``: build a dataset from aligned takes, validate it, report its statistics."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from capture.command import emit_json, progress, run
+
+from .build import BuildOptions, build_dataset
+from .features import DEFAULT_FEATURES
+from .normalize import KINDS
+from .ppg import BACKENDS
+from .qa import validate
+from .splits import SplitRule
+from .stats import dataset_stats, format_stats
+
+PROG = "s2a-dataset"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser(
+        "build",
+        help="aligned takes -> features, normalisation, splits, shards, manifest",
+        description="Build (or resume building) a dataset. Folders are searched recursively for takes; "
+        "takes that are not aligned yet are aligned first.",
+    )
+    p.add_argument("takes", nargs="+", type=Path, help="take folders, or folders holding them")
+    p.add_argument("-o", "--out", type=Path, required=True, help="dataset folder to write")
+    p.add_argument(
+        "--channels",
+        default="pronunciation32",
+        help="pronunciation32 (default), arkit52, arkit61, varying (moves in train), all, or a comma list",
+    )
+    p.add_argument(
+        "--features",
+        default=",".join(DEFAULT_FEATURES),
+        help="comma list of pitch, energy, fbank, mfcc, ppg (default: %(default)s; ppg added by --ppg)",
+    )
+    p.add_argument("--ppg", default="none", choices=BACKENDS, help="PPG backend (default: none)")
+    p.add_argument("--ppg-model", help="checkpoint (bottleneck) or model file (torchscript, onnx)")
+    p.add_argument("--normalization", default="zscore", choices=KINDS, help="animation normalisation")
+    p.add_argument("--split-by", default="take", choices=("take", "speaker"), help="unit of the splits")
+    p.add_argument("--val-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
+    p.add_argument("--test-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
+    p.add_argument("--val", nargs="+", default=[], metavar="ID", help="takes or speakers pinned to val")
+    p.add_argument("--test", nargs="+", default=[], metavar="ID", help="takes or speakers pinned to test")
+    p.add_argument("--seed", type=int, default=0, help="seed of the split order")
+    p.add_argument("--shard-mb", type=float, default=256.0, help="size cap of a shard in MB (default 256)")
+    p.add_argument("--max-sample-s", type=float, default=30.0, help="longest sample in seconds (default 30)")
+    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--keep-work", action="store_true", help="keep DS/.work (per-take cache) after success")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_build)
+
+    p = sub.add_parser("validate", help="check a dataset against its manifest; exit 1 when invalid")
+    p.add_argument("dataset", type=Path, help="dataset folder (or its manifest.json)")
+    p.add_argument(
+        "--deep", action="store_true", help="also verify every shard's sha256 and decode all audio"
+    )
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(handler=cmd_validate)
+
+    p = sub.add_parser("stats", help="hours per speaker and split, phone coverage, channel distributions")
+    p.add_argument("dataset", type=Path, help="dataset folder (or its manifest.json)")
+    p.add_argument("--json", action="store_true", help="print the statistics as JSON")
+    p.set_defaults(handler=cmd_stats)
+    return parser
+
+
+def _say(prefix: str):
+    return lambda message: progress(f"{prefix}: {message}")
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    options = BuildOptions(
+        channels=args.channels,
+        features=args.features,
+        ppg=args.ppg,
+        ppg_model=args.ppg_model,
+        normalization=args.normalization,
+        split=SplitRule(
+            args.split_by, args.val_fraction, args.test_fraction, args.seed, tuple(args.val), tuple(args.test)
+        ),
+        shard_bytes=int(args.shard_mb * 1024 * 1024),
+        max_sample_s=args.max_sample_s,
+        jobs=args.jobs,
+        keep_work=args.keep_work,
+    )
+    summary = build_dataset(args.takes, args.out, options, say=_say("build"))
+    if args.json:
+        emit_json(summary)
+    else:
+        print(
+            f"{summary['dataset']}: {summary['takes']} takes, {summary['samples']} samples in "
+            f"{summary['shards']} shards, {summary['hours'] * 60:.2f} min, {summary['channels']} channels, "
+            f"splits {summary['splits']}" + (" (up to date)" if summary["up_to_date"] else "")
+        )
+        for w in summary["warnings"]:
+            print(f"warning: {w}")
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    report = validate(args.dataset, deep=args.deep, progress=_say("validate"))
+    if args.json:
+        emit_json(report.to_json())
+    else:
+        for p in report.problems:
+            print(f"{p.severity}: {p.location}: {p.message} [{p.code}]")
+        verdict = "valid" if report.valid else "INVALID"
+        print(
+            f"{report.dataset}: {verdict} ({report.shards} shards, {report.samples} samples, "
+            f"{len(report.problems)} problems{', deep' if report.deep else ''})"
+        )
+    return 0 if report.valid else 1
+
+
+def cmd_stats(args: argparse.Namespace) -> int:
+    s = dataset_stats(args.dataset)
+    if args.json:
+        emit_json(s)
+    else:
+        print(format_stats(s))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,183 @@
+"""The one preprocessor: every frame-level feature from one analysis setting.
+
+Speech at 16 kHz is cut into 40 ms Hann windows every 20 ms (the paper's setting), centred at
+``k * hop`` seconds (the signal is reflect-padded by half a window). On that grid we compute log energy,
+log-mel filter banks, MFCC, pitch (``pitch.py``) and the phonetic posteriorgram (``ppg.py``, which
+consumes the filter banks), then interpolate every feature linearly to the animation frame times
+``i / fps``. Statistics for normalisation are gathered by the build and stored once in the manifest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import scipy.fft
+
+from capture.errors import InputError
+
+from .pitch import PitchSettings, track_pitch
+
+FEATURES = ("pitch", "energy", "fbank", "mfcc", "ppg")
+DEFAULT_FEATURES = ("pitch", "energy", "fbank")
+
+
+@dataclass(frozen=True)
+class FeatureSettings:
+    """Analysis setting shared by all features: rates in Hz, window and hop in seconds."""
+
+    sample_rate: int = 16000
+    window_s: float = 0.040
+    hop_s: float = 0.020
+    n_fft: int = 1024
+    n_mels: int = 40
+    n_mfcc: int = 13
+    fmin_hz: float = 0.0
+    fmax_hz: float = 8000.0
+    pitch: PitchSettings = field(default_factory=PitchSettings)
+
+    @property
+    def win_length(self) -> int:
+        return int(round(self.window_s * self.sample_rate))
+
+    @property
+    def hop_length(self) -> int:
+        return int(round(self.hop_s * self.sample_rate))
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def parse_features(spec: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """Feature names from a comma list, in canonical order; rejects unknown names."""
+    names = [s.strip().lower() for s in (spec.split(",") if isinstance(spec, str) else spec)]
+    names = [n for n in names if n]
+    bad = [n for n in names if n not in FEATURES]
+    if bad:
+        raise InputError(f"unknown feature(s) {', '.join(bad)} (known: {', '.join(FEATURES)})")
+    return tuple(n for n in FEATURES if n in names)
+
+
+def mel_filters(settings: FeatureSettings) -> np.ndarray:
+    """(n_mels, n_fft // 2 + 1) triangular HTK-mel filters, area-normalised (Slaney style)."""
+
+    def hz_to_mel(f):
+        return 2595.0 * np.log10(1.0 + np.asarray(f, np.float64) / 700.0)
+
+    def mel_to_hz(m):
+        return 700.0 * (10.0 ** (np.asarray(m, np.float64) / 2595.0) - 1.0)
+
+    n_bins = settings.n_fft // 2 + 1
+    freqs = np.linspace(0.0, settings.sample_rate / 2.0, n_bins)
+    edges = mel_to_hz(
+        np.linspace(hz_to_mel(settings.fmin_hz), hz_to_mel(settings.fmax_hz), settings.n_mels + 2)
+    )
+    fb = np.zeros((settings.n_mels, n_bins))
+    for m in range(settings.n_mels):
+        lo, mid, hi = edges[m], edges[m + 1], edges[m + 2]
+        up = (freqs - lo) / max(mid - lo, 1e-9)
+        down = (hi - freqs) / max(hi - mid, 1e-9)
+        fb[m] = np.maximum(0.0, np.minimum(up, down)) * (2.0 / (hi - lo))
+    return fb
+
+
+def dct_matrix(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in) orthonormal DCT-II, the MFCC transform."""
+    k = np.arange(n_out)[:, None]
+    n = np.arange(n_in)[None, :]
+    m = np.cos(np.pi / n_in * (n + 0.5) * k) * np.sqrt(2.0 / n_in)
+    m[0] /= np.sqrt(2.0)
+    return m
+
+
+def n_analysis_frames(n_samples: int, settings: FeatureSettings) -> int:
+    """Frames on the analysis grid for ``n_samples`` of audio (centres 0, hop, 2 hop, ...)."""
+    return 1 + n_samples // settings.hop_length
+
+
+def spectral_features(
+    audio: np.ndarray, settings: FeatureSettings, block: int = 2048
+) -> dict[str, np.ndarray]:
+    """Log energy (frames,), log-mel filter banks (frames, n_mels) and MFCC (frames, n_mfcc) on the
+    analysis grid. Computed block by block so memory stays bounded for long takes."""
+    x = np.asarray(audio, np.float32)
+    win, hop = settings.win_length, settings.hop_length
+    pad = win // 2
+    if x.size <= pad:
+        padded = np.pad(x, (pad, pad))
+    else:
+        padded = np.pad(x, (pad, pad), mode="reflect")
+    n = n_analysis_frames(x.size, settings)
+    padded = np.pad(padded, (0, max(0, (n - 1) * hop + win - padded.size)))
+    window = np.hanning(win + 2)[1:-1].astype(np.float32)  # periodic-ish Hann without zero ends
+    mel = mel_filters(settings).astype(np.float32).T
+    dct = dct_matrix(settings.n_mels, settings.n_mfcc).astype(np.float32).T
+    energy = np.empty(n, np.float32)
+    fbank = np.empty((n, settings.n_mels), np.float32)
+    frames_view = np.lib.stride_tricks.sliding_window_view(padded, win)[::hop][:n]
+    for start in range(0, n, block):
+        frames = frames_view[start : start + block].astype(np.float32)
+        energy[start : start + block] = 0.5 * np.log(np.mean(frames * frames, axis=1) + 1e-10)
+        spec = scipy.fft.rfft(frames * window, n=settings.n_fft, axis=1)  # float32 in, complex64 out
+        power = (spec.real**2 + spec.imag**2).astype(np.float32)
+        fbank[start : start + block] = np.log(np.maximum(power @ mel, 1e-10))
+    return {"energy": energy, "fbank": fbank, "mfcc": fbank @ dct}
+
+
+def to_animation_rate(values: np.ndarray, hop_s: float, n_frames: int, fps: float) -> np.ndarray:
+    """Linear interpolation of analysis-grid ``values`` (frames at ``k * hop_s`` s) to the animation
+    frames at ``i / fps`` s; float32, ``(n_frames, ...)``. Holds the ends flat."""
+    src_t = np.arange(values.shape[0]) * hop_s
+    dst_t = np.arange(n_frames) / fps
+    pos = np.clip(dst_t / hop_s, 0.0, values.shape[0] - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, values.shape[0] - 1)
+    w = (pos - lo).astype(np.float32)
+    del src_t
+    if values.ndim == 1:
+        return (values[lo] * (1 - w) + values[hi] * w).astype(np.float32)
+    return (values[lo] * (1 - w)[:, None] + values[hi] * w[:, None]).astype(np.float32)
+
+
+def compute_features(
+    audio: np.ndarray,
+    n_frames: int,
+    fps: float,
+    names: tuple[str, ...],
+    settings: FeatureSettings,
+    ppg=None,
+    transcript: str | None = None,
+) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    """Every requested feature for one take, at the animation rate.
+
+    ``audio`` is mono float32 at ``settings.sample_rate`` Hz starting at take time 0; ``n_frames`` and
+    ``fps`` (Hz) describe the animation grid. Returns ``{name: (n_frames, dim) float32}`` (pitch is
+    (n_frames, 2): log-F0 and voicing) and the per-frame phone ids (int16, -1 unknown) when the PPG
+    backend knows phones, else None. ``transcript`` (the words spoken) lets a PPG backend that can
+    (pocketsphinx) force-align instead of recognising phones.
+    """
+    spectral = spectral_features(audio, settings)
+    n_an = spectral["energy"].shape[0]
+    out: dict[str, np.ndarray] = {}
+    phones = None
+    for name in names:
+        if name in ("energy", "fbank", "mfcc"):
+            grid = spectral[name]
+            if grid.ndim == 1:
+                grid = grid[:, None]
+        elif name == "pitch":
+            grid = track_pitch(audio, settings.sample_rate, n_an, settings.hop_s, settings.pitch)
+        elif name == "ppg":
+            if ppg is None:
+                raise InputError("feature 'ppg' requested but no PPG backend given (use --ppg)")
+            result = ppg.extract(audio, spectral["fbank"], transcript)
+            grid = result.posteriors
+            if result.phone_ids is not None:
+                pos = np.clip(np.round(np.arange(n_frames) / fps / settings.hop_s), 0, n_an - 1)
+                phones = result.phone_ids[pos.astype(np.int64)].astype(np.int16)
+        else:  # pragma: no cover - parse_features rejects these
+            raise InputError(f"unknown feature {name!r}")
+        out[name] = to_animation_rate(grid, settings.hop_s, n_frames, fps)
+    if "pitch" in out:
+        out["pitch"][:, 1] = (out["pitch"][:, 1] >= 0.5).astype(np.float32)
+    return out, phones

@@ -1,0 +1,265 @@
+"""Normalisation of the animation (the paper calls it vital) and of the input features.
+
+Animation, per channel ``c``, with statistics from the training split only::
+
+    zscore:   y = (x - mean_c) / std_c
+    neutral:  y = (x - n_c) / s_c     n_c = the take's calibrated neutral pose when it has one
+                                      (``_neutral.csv``), else the training split's 5th percentile;
+                                      s_c = root-mean-square of (x - n_c) over the training split
+    inverse:  x = y * scale_c + offset_c
+
+Scales are powers of two (the standard deviation or RMS rounded in log2, so a normalised channel's
+standard deviation lies between 1/sqrt(2) and sqrt(2)) and offsets are float32 values; the arithmetic is
+float64. Dividing and multiplying by a power of two is exact, and so is subtracting two float32 values
+in float64 unless their magnitudes are more than 2^29 apart, so for float32 input ``x`` (zero, or
+|x| >= 2^-29 |offset|) ``inverse(forward(x)) == x`` bit for bit.
+Shards keep the raw values; the reader applies ``forward`` with the manifest's statistics.
+
+Features (energy, filter banks, MFCC, PPG) are z-scored per dimension with training-split statistics;
+log-F0 is z-scored per speaker over voiced frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from capture.errors import InputError
+
+KINDS = ("zscore", "neutral")
+HIST_RANGE = (-2.0, 2.0)
+HIST_BINS = 4000
+MIN_SCALE = 1e-4  # a channel that never moves keeps scale 1 rather than blowing up
+
+
+class ChannelAccumulator:
+    """Streaming per-channel statistics: count, sum, sum of squares, min, max, a fixed histogram
+    (for percentiles) and, for takes with a calibrated neutral, sums around that neutral."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.count = np.zeros(n, np.int64)
+        self.sum = np.zeros(n, np.float64)
+        self.sumsq = np.zeros(n, np.float64)
+        self.min = np.full(n, np.inf)
+        self.max = np.full(n, -np.inf)
+        self.hist = np.zeros((n, HIST_BINS), np.int64)
+        # Frames from takes with their own neutral: count and sum of squares of (x - neutral).
+        self.own_count = np.zeros(n, np.int64)
+        self.own_sumsq = np.zeros(n, np.float64)
+        # Frames from takes without one: needed to centre on the global neutral later.
+        self.rest_count = np.zeros(n, np.int64)
+        self.rest_sum = np.zeros(n, np.float64)
+        self.rest_sumsq = np.zeros(n, np.float64)
+
+    def add(self, values: np.ndarray, neutral: np.ndarray | None = None) -> None:
+        """Add (frames, channels) usable values (no NaN)."""
+        x = np.asarray(values, np.float64)
+        if x.shape[0] == 0:
+            return
+        self.count += x.shape[0]
+        self.sum += x.sum(0)
+        self.sumsq += (x * x).sum(0)
+        self.min = np.minimum(self.min, x.min(0))
+        self.max = np.maximum(self.max, x.max(0))
+        lo, hi = HIST_RANGE
+        bins = np.clip(((x - lo) / (hi - lo) * HIST_BINS).astype(np.int64), 0, HIST_BINS - 1)
+        for c in range(self.n):
+            self.hist[c] += np.bincount(bins[:, c], minlength=HIST_BINS)
+        if neutral is not None:
+            d = x - np.asarray(neutral, np.float64)
+            self.own_count += x.shape[0]
+            self.own_sumsq += (d * d).sum(0)
+        else:
+            self.rest_count += x.shape[0]
+            self.rest_sum += x.sum(0)
+            self.rest_sumsq += (x * x).sum(0)
+
+    def merge(self, other: ChannelAccumulator) -> None:
+        for name in (
+            "count",
+            "sum",
+            "sumsq",
+            "hist",
+            "own_count",
+            "own_sumsq",
+            "rest_count",
+            "rest_sum",
+            "rest_sumsq",
+        ):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        self.min = np.minimum(self.min, other.min)
+        self.max = np.maximum(self.max, other.max)
+
+    FIELDS = (
+        "count",
+        "sum",
+        "sumsq",
+        "min",
+        "max",
+        "hist",
+        "own_count",
+        "own_sumsq",
+        "rest_count",
+        "rest_sum",
+        "rest_sumsq",
+    )
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The statistics as arrays (for ``np.savez``)."""
+        return {k: getattr(self, k) for k in self.FIELDS}
+
+    @classmethod
+    def from_arrays(cls, arrays) -> ChannelAccumulator:
+        acc = cls(len(arrays["count"]))
+        for k in cls.FIELDS:
+            setattr(acc, k, np.array(arrays[k]))
+        return acc
+
+    def mean(self) -> np.ndarray:
+        return self.sum / np.maximum(self.count, 1)
+
+    def std(self) -> np.ndarray:
+        m = self.mean()
+        return np.sqrt(np.maximum(self.sumsq / np.maximum(self.count, 1) - m * m, 0.0))
+
+    def percentile(self, q: float) -> np.ndarray:
+        """Per-channel ``q``-th percentile (0..100) from the histogram (bin centres, 1e-3 resolution)."""
+        lo, hi = HIST_RANGE
+        centres = lo + (np.arange(HIST_BINS) + 0.5) * (hi - lo) / HIST_BINS
+        out = np.zeros(self.n)
+        for c in range(self.n):
+            cum = np.cumsum(self.hist[c])
+            if cum[-1] == 0:
+                continue
+            out[c] = centres[min(np.searchsorted(cum, q / 100.0 * cum[-1]), HIST_BINS - 1)]
+        return np.clip(out, self.min, self.max) if np.all(np.isfinite(self.min)) else out
+
+    def summary(self, channels: list[str]) -> dict[str, dict[str, float]]:
+        """Per-channel distribution: frames, mean, std, min, 5/50/95th percentile, max."""
+        mean, std = self.mean(), self.std()
+        p = {q: self.percentile(q) for q in (5, 50, 95)}
+        out = {}
+        for c, name in enumerate(channels):
+            out[name] = {
+                "frames": int(self.count[c]),
+                "mean": round(float(mean[c]), 6),
+                "std": round(float(std[c]), 6),
+                "min": round(float(self.min[c]), 6) if np.isfinite(self.min[c]) else None,
+                "p05": round(float(p[5][c]), 6),
+                "p50": round(float(p[50][c]), 6),
+                "p95": round(float(p[95][c]), 6),
+                "max": round(float(self.max[c]), 6) if np.isfinite(self.max[c]) else None,
+            }
+        return out
+
+
+@dataclass
+class Normalizer:
+    """Affine, exactly invertible animation normalisation: ``y = (x - offset) / scale``.
+
+    ``offset`` and ``scale`` are per channel (float32-representable, stored as float64).
+    With ``kind == "neutral"``, a sample's own calibrated neutral replaces ``offset``."""
+
+    kind: str
+    channels: list[str]
+    offset: np.ndarray
+    scale: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise InputError(f"unknown normalization {self.kind!r} (known: {', '.join(KINDS)})")
+        self.offset = np.asarray(self.offset, np.float32).astype(np.float64)
+        self.scale = np.asarray(self.scale, np.float32).astype(np.float64)
+        if np.any(self.scale <= 0) or not np.all(np.isfinite(self.scale)):
+            raise InputError("normalization scale must be positive and finite")
+
+    def _offset(self, neutral: np.ndarray | None) -> np.ndarray:
+        if self.kind == "neutral" and neutral is not None:
+            return np.asarray(neutral, np.float32).astype(np.float64)
+        return self.offset
+
+    def forward(self, x: np.ndarray, neutral: np.ndarray | None = None, dtype=np.float64) -> np.ndarray:
+        """Normalised values (frames, channels); float64 by default so that ``inverse`` is exact."""
+        return ((np.asarray(x, np.float64) - self._offset(neutral)) / self.scale).astype(dtype)
+
+    def inverse(self, y: np.ndarray, neutral: np.ndarray | None = None) -> np.ndarray:
+        """Values in the take's own units (0..1 blendshape weights), float32."""
+        return (np.asarray(y, np.float64) * self.scale + self._offset(neutral)).astype(np.float32)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "channels": list(self.channels),
+            "offset": [float(v) for v in self.offset],
+            "scale": [float(v) for v in self.scale],
+            "formula": "y = (x - offset) / scale; x = y * scale + offset",
+            "per_sample_offset": "sample json 'neutral' when present" if self.kind == "neutral" else None,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Normalizer:
+        try:
+            return cls(
+                data["kind"], list(data["channels"]), np.asarray(data["offset"]), np.asarray(data["scale"])
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"malformed normalization statistics: {exc}") from None
+
+
+def fit_normalizer(kind: str, channels: list[str], acc: ChannelAccumulator) -> Normalizer:
+    """Normalizer from training-split statistics ``acc``."""
+    if kind == "zscore":
+        offset = acc.mean()
+        scale = acc.std()
+    elif kind == "neutral":
+        offset = acc.percentile(5.0)
+        # RMS around each take's own neutral (calibrated takes) or around the global neutral (others)
+        rest = acc.rest_sumsq - 2 * offset * acc.rest_sum + acc.rest_count * offset * offset
+        total = np.maximum(acc.own_count + acc.rest_count, 1)
+        scale = np.sqrt(np.maximum(acc.own_sumsq + rest, 0.0) / total)
+    else:
+        raise InputError(f"unknown normalization {kind!r} (known: {', '.join(KINDS)})")
+    scale = np.where(scale < MIN_SCALE, 1.0, scale)
+    scale = np.exp2(np.round(np.log2(scale)))  # a power of two: exact division and multiplication
+    return Normalizer(kind, channels, offset.astype(np.float32), scale.astype(np.float32))
+
+
+class FeatureAccumulator:
+    """Per-dimension count, sum and sum of squares of one feature (float64)."""
+
+    def __init__(self, dim: int):
+        self.count = 0
+        self.sum = np.zeros(dim)
+        self.sumsq = np.zeros(dim)
+
+    def add(self, x: np.ndarray) -> None:
+        x = np.asarray(x, np.float64)
+        self.count += x.shape[0]
+        self.sum += x.sum(0)
+        self.sumsq += (x * x).sum(0)
+
+    def merge(self, other: FeatureAccumulator) -> None:
+        self.count += other.count
+        self.sum = self.sum + other.sum
+        self.sumsq = self.sumsq + other.sumsq
+
+    def to_json(self) -> dict[str, Any]:
+        return {"count": self.count, "sum": self.sum.tolist(), "sumsq": self.sumsq.tolist()}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> FeatureAccumulator:
+        acc = cls(len(data["sum"]))
+        acc.count = int(data["count"])
+        acc.sum = np.asarray(data["sum"], np.float64)
+        acc.sumsq = np.asarray(data["sumsq"], np.float64)
+        return acc
+
+    def mean_std(self) -> tuple[list[float], list[float]]:
+        n = max(self.count, 1)
+        mean = self.sum / n
+        std = np.sqrt(np.maximum(self.sumsq / n - mean * mean, 0.0))
+        std = np.where(std < 1e-6, 1.0, std)
+        return [float(np.float32(v)) for v in mean], [float(np.float32(v)) for v in std]

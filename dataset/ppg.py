@@ -1,0 +1,304 @@
+"""Phonetic posteriorgrams (PPG): one extractor interface, three kinds of backend.
+
+Every backend turns a take's 16 kHz speech into a (frames, dim) float32 matrix on the preprocessor's
+20 ms analysis grid (``features.py`` interpolates it to the animation rate):
+
+- ``bottleneck``: the paper's 64-dim ASR bottleneck. ``BottleneckPPG`` (``bottleneck.py``) is a small
+  network (log-mel filter banks in, convolutions, a 64-dim linear bottleneck, a phone classifier on top for
+  training). ``s2a-train ppg`` trains it; the build loads its checkpoint with
+  ``torch.load(weights_only=True)``, so no pickled code is ever run.
+- ``torchscript`` / ``onnx``: a user's model. Input: log-mel filter banks ``(1, frames, n_mels)``
+  float32 exactly as the preprocessor computes them; output ``(1, frames, dim)``.
+- ``pocketsphinx``: phone posteriors from the English acoustic model bundled with the ``pocketsphinx``
+  wheel: phone-loop recognition, each decoded phone segment turned into one-hot frames.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from capture.errors import InputError
+from capture.take import sha256_file
+
+BACKENDS = ("none", "bottleneck", "torchscript", "onnx", "pocketsphinx")
+
+# The CMU/ARPAbet phones of pocketsphinx's en-us model, silence first.
+ARPABET = (
+    "SIL AA AE AH AO AW AY B CH D DH EH ER EY F G HH IH IY JH K L M N NG OW OY P R S SH T TH UH UW V W Y Z ZH"
+).split()
+
+
+class PPGResult(NamedTuple):
+    """``posteriors`` (frames, dim) float32 on the 20 ms grid; ``phone_ids`` (frames,) int or None."""
+
+    posteriors: np.ndarray
+    phone_ids: np.ndarray | None
+
+
+class PPGExtractor(Protocol):
+    """What the preprocessor needs from a PPG backend."""
+
+    name: str
+    dim: int
+    phones: list[str] | None
+
+    def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
+        """``audio``: mono float32 at 16 kHz; ``fbank``: (frames, n_mels) log-mel on the 20 ms grid;
+        ``transcript``: the words spoken, when known (backends that cannot use it ignore it)."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """Backend, dimension, model checksum and library versions, for the manifest."""
+        ...
+
+
+def _torch():
+    try:
+        import torch
+    except ImportError:  # pragma: no cover - torch is a dependency
+        raise InputError("PyTorch is not installed; this PPG backend needs it") from None
+    return torch
+
+
+class BottleneckExtractor:
+    name = "bottleneck"
+
+    def __init__(self, checkpoint: str | Path):
+        torch = _torch()
+        torch.set_num_threads(1)  # one thread: bit-identical results from run to run
+        self.path = Path(checkpoint)
+        from .bottleneck import load_bottleneck
+
+        self.model = load_bottleneck(self.path)
+        self.dim = self.model.config.bottleneck
+        self.phones = list(self.model.config.phones)
+        self._sha = sha256_file(self.path)
+
+    def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
+        torch = _torch()
+        if fbank.shape[1] != self.model.config.n_mels:
+            raise InputError(
+                f"PPG checkpoint expects {self.model.config.n_mels} mel bins, got {fbank.shape[1]}"
+            )
+        with torch.inference_mode():
+            b, logits = self.model(torch.from_numpy(np.ascontiguousarray(fbank, np.float32))[None])
+        return PPGResult(b[0].numpy().astype(np.float32), logits[0].argmax(-1).numpy().astype(np.int16))
+
+    def describe(self) -> dict[str, Any]:
+        torch = _torch()
+        return {
+            "backend": self.name,
+            "dim": self.dim,
+            "model": self.path.name,
+            "model_sha256": self._sha,
+            "config": asdict(self.model.config),
+            "input": "log-mel filter banks on the 20 ms grid",
+            "versions": {"torch": torch.__version__.split("+")[0]},
+        }
+
+
+# ----------------------------------------------------------------------------------- user models
+
+
+def _check_output(out: np.ndarray, frames: int, path: Path) -> np.ndarray:
+    out = np.asarray(out, np.float32)
+    if out.ndim == 3 and out.shape[0] == 1:
+        out = out[0]
+    if out.ndim != 2 or out.shape[0] != frames:
+        raise InputError(f"PPG model returned shape {tuple(out.shape)}; expected (1, {frames}, dim)", path)
+    return out
+
+
+class TorchScriptExtractor:
+    name = "torchscript"
+
+    def __init__(self, model_path: str | Path):
+        torch = _torch()
+        torch.set_num_threads(1)
+        self.path = Path(model_path)
+        if not self.path.is_file():
+            raise InputError("TorchScript model not found", self.path)
+        try:
+            self.model = torch.jit.load(str(self.path), map_location="cpu").eval()
+        except Exception as exc:
+            raise InputError(f"not a TorchScript model ({str(exc).splitlines()[0]})", self.path) from None
+        self.phones = None
+        self._sha = sha256_file(self.path)
+        self.dim = self.extract(np.zeros(1600, np.float32), np.zeros((5, 40), np.float32)).posteriors.shape[1]
+
+    def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
+        torch = _torch()
+        with torch.inference_mode():
+            out = self.model(torch.from_numpy(np.ascontiguousarray(fbank, np.float32))[None])
+        if isinstance(out, (tuple, list)):
+            out = out[0]
+        return PPGResult(_check_output(out.numpy(), fbank.shape[0], self.path), None)
+
+    def describe(self) -> dict[str, Any]:
+        torch = _torch()
+        return {
+            "backend": self.name,
+            "dim": self.dim,
+            "model": self.path.name,
+            "model_sha256": self._sha,
+            "input": "log-mel filter banks (1, frames, n_mels) on the 20 ms grid",
+            "versions": {"torch": torch.__version__.split("+")[0]},
+        }
+
+
+class OnnxExtractor:
+    name = "onnx"
+
+    def __init__(self, model_path: str | Path):
+        self.path = Path(model_path)
+        if not self.path.is_file():
+            raise InputError("ONNX model not found", self.path)
+        try:
+            import onnxruntime as ort
+        except ImportError:
+            raise InputError("onnxruntime is not installed (pip install onnxruntime)") from None
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:
+            raise InputError(f"not a usable ONNX model ({str(exc).splitlines()[0]})", self.path) from None
+        self._input = self.session.get_inputs()[0].name
+        self._version = ort.__version__
+        self.phones = None
+        self._sha = sha256_file(self.path)
+        self.dim = self.extract(np.zeros(1600, np.float32), np.zeros((5, 40), np.float32)).posteriors.shape[1]
+
+    def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
+        x = np.ascontiguousarray(fbank, np.float32)[None]
+        try:
+            out = self.session.run(None, {self._input: x})[0]
+        except Exception as exc:
+            raise InputError(f"ONNX model failed: {str(exc).splitlines()[0]}", self.path) from None
+        return PPGResult(_check_output(out, fbank.shape[0], self.path), None)
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "backend": self.name,
+            "dim": self.dim,
+            "model": self.path.name,
+            "model_sha256": self._sha,
+            "input": "log-mel filter banks (1, frames, n_mels) on the 20 ms grid",
+            "versions": {"onnxruntime": self._version},
+        }
+
+
+# ----------------------------------------------------------------------------------- pocketsphinx
+
+
+class PocketsphinxExtractor:
+    """Phone-loop recognition with pocketsphinx's bundled en-us acoustic model and phone LM, or
+    forced alignment (word then phone level, the bundled dictionary) when a transcript is given.
+
+    Each recognised phone segment (10 ms decoder frames) becomes one-hot posteriors over ``ARPABET``
+    on the 20 ms grid; noise and filler units count as silence."""
+
+    name = "pocketsphinx"
+
+    def __init__(self):
+        try:
+            import pocketsphinx
+        except ImportError:
+            raise InputError("pocketsphinx is not installed (pip install pocketsphinx)") from None
+        self._ps = pocketsphinx
+        self.phones = list(ARPABET)
+        self.dim = len(self.phones)
+        self._index = {p: i for i, p in enumerate(self.phones)}
+        self._lm = pocketsphinx.get_model_path("en-us/en-us-phone.lm.bin")
+        self._aligner = None
+        self._decoder = pocketsphinx.Decoder(
+            allphone=self._lm, lw=2.0, pip=0.3, beam=1e-10, pbeam=1e-10, cmn="batch", loglevel="FATAL"
+        )
+
+    def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
+        pcm = np.clip(np.rint(np.asarray(audio, np.float64) * 32768.0), -32768, 32767).astype(np.int16)
+        segments = None
+        if transcript:
+            segments = self._align(pcm, transcript)
+        if segments is None:
+            d = self._decoder
+            d.start_utt()
+            d.process_raw(pcm.tobytes(), full_utt=True)
+            d.end_utt()
+            segments = [(seg.word, seg.start_frame, seg.end_frame) for seg in d.seg()]
+        frames = fbank.shape[0]
+        ids = np.zeros(frames, np.int16)  # silence where nothing was decoded
+        for word, start, end in segments:
+            pid = self._index.get(word.strip("+").upper(), 0)
+            # decoder frames are 10 ms; our grid is 20 ms with centres at k * 20 ms
+            a = int(np.ceil(start / 2.0))
+            b = int(np.floor(end / 2.0)) + 1
+            ids[max(a, 0) : min(b, frames)] = pid
+        post = np.zeros((frames, self.dim), np.float32)
+        post[np.arange(frames), ids] = 1.0
+        return PPGResult(post, ids)
+
+    def _align(self, pcm: np.ndarray, transcript: str) -> list[tuple[str, int, int]] | None:
+        """Phone segments (name, first frame, last frame; 10 ms frames) by forced alignment to the
+        words of ``transcript``; None when a word is not in the dictionary or alignment fails."""
+        if self._aligner is None:
+            self._aligner = self._ps.Decoder(loglevel="FATAL", cmn="batch")
+        d = self._aligner
+        words = " ".join(
+            w for w in "".join(c if c.isalnum() or c in "' " else " " for c in transcript.lower()).split()
+        )
+        try:
+            d.set_align_text(words)
+            d.start_utt()
+            d.process_raw(pcm.tobytes(), full_utt=True)
+            d.end_utt()
+            d.set_alignment()  # second pass: phone and state level
+            d.start_utt()
+            d.process_raw(pcm.tobytes(), full_utt=True)
+            d.end_utt()
+            alignment = d.get_alignment()
+        except (RuntimeError, ValueError, KeyError):
+            return None
+        if alignment is None:
+            return None
+        return [(ph.name, ph.start, ph.start + ph.duration - 1) for word in alignment for ph in word]
+
+    def describe(self) -> dict[str, Any]:
+        model = Path(self._lm).parent / "en-us"
+        digest = hashlib.sha256()
+        for p in sorted(model.glob("*")):
+            if p.is_file():
+                digest.update(p.name.encode() + bytes.fromhex(sha256_file(p)))
+        return {
+            "backend": self.name,
+            "dim": self.dim,
+            "phones": self.phones,
+            "model": "en-us (bundled), phone LM en-us-phone.lm.bin",
+            "model_sha256": digest.hexdigest(),
+            "decoder": {"lw": 2.0, "pip": 0.3},
+            "versions": {"pocketsphinx": getattr(self._ps, "__version__", "5")},
+        }
+
+
+def make_extractor(backend: str, model: str | Path | None = None) -> PPGExtractor | None:
+    """The extractor for ``backend`` (one of ``BACKENDS``); ``model`` is the checkpoint or model file."""
+    backend = (backend or "none").strip().lower()
+    if backend == "none":
+        return None
+    if backend not in BACKENDS:
+        raise InputError(f"unknown PPG backend {backend!r} (known: {', '.join(BACKENDS)})")
+    if backend == "pocketsphinx":
+        return PocketsphinxExtractor()
+    if model is None:
+        raise InputError(f"PPG backend {backend!r} needs a model file (--ppg-model PATH)")
+    if backend == "bottleneck":
+        return BottleneckExtractor(model)
+    if backend == "torchscript":
+        return TorchScriptExtractor(model)
+    return OnnxExtractor(model)

@@ -1,0 +1,585 @@
+"""``s2a-dataset validate``: checks as data, one function per kind of object, one ``validate`` on top.
+
+``CHECKS`` lists every check (code, what it applies to, whether it needs ``--deep``, what it means);
+``VALIDATORS`` maps each kind of object (manifest, shard, sample, splits) to its function. Each function
+returns ``Problem`` records naming the location (``manifest.json:shards[2].sha256``,
+``train-000000.tar:KEY.anim.npy``, ...). The default run decodes every sample and reads each FLAC
+header; ``deep`` adds the sha256 of every shard and decodes every FLAC in full.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture.errors import InputError
+
+from .manifest import MANIFEST_FILE, read_manifest
+from .shards import ShardReader, decode_flac, decode_npy
+from .splits import SPLITS
+
+ANIM_LIMIT = 10.0  # |value| above this is no blendshape weight nor angle in radians
+LOG_F0_RANGE = (math.log(20.0), math.log(2000.0))
+
+
+@dataclass(frozen=True)
+class Check:
+    code: str
+    applies_to: str
+    deep: bool
+    description: str
+
+
+CHECKS: tuple[Check, ...] = (
+    Check("manifest_schema", "manifest", False, "required fields present, with the right types and lengths"),
+    Check("shard_missing", "shard", False, "a shard listed in the manifest is not on disk"),
+    Check("shard_size", "shard", False, "a shard's size differs from the manifest (truncated or appended)"),
+    Check("shard_checksum", "shard", True, "a shard's sha256 differs from the manifest"),
+    Check("shard_unreadable", "shard", False, "a shard is not a readable tar"),
+    Check("shard_contents", "shard", False, "samples, frames or keys in a shard differ from the manifest"),
+    Check("shard_unlisted", "shard", False, "a shard file in the folder is not in the manifest (warning)"),
+    Check(
+        "sample_members",
+        "sample",
+        False,
+        "a sample lacks a member the manifest promises, or has unknown ones",
+    ),
+    Check("sample_decode", "sample", False, "a member cannot be decoded (.npy, .json, .flac)"),
+    Check("dtype", "sample", False, "animation, features float32; mask bool"),
+    Check("channel_count", "sample", False, "animation columns differ from the manifest's channels"),
+    Check(
+        "length_mismatch", "sample", False, "mask/features/metadata frame counts differ from the animation"
+    ),
+    Check("feature_dim", "sample", False, "a feature's dimension differs from the manifest"),
+    Check("nonfinite", "sample", False, "NaN or infinity in animation or features"),
+    Check(
+        "value_range",
+        "sample",
+        False,
+        "animation beyond +-10, voicing flag not 0/1, voiced log-F0 outside 20-2000 Hz",
+    ),
+    Check("sample_rate", "sample", False, "audio sample rate differs from the manifest"),
+    Check(
+        "frame_rate",
+        "sample",
+        False,
+        "sample fps differs from the manifest, or audio length from frames / fps",
+    ),
+    Check("duplicate_key", "splits", False, "the same sample key occurs twice"),
+    Check("duplicate_take", "splits", False, "the same take content appears under two take ids"),
+    Check(
+        "split_leakage", "splits", False, "a take (or, split by speaker, a speaker) is in more than one split"
+    ),
+    Check("manifest_mismatch", "splits", False, "samples listed in the manifest and found in shards differ"),
+)
+CHECK_CODES = {c.code for c in CHECKS}
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One finding: which check, where, and what is wrong."""
+
+    code: str
+    location: str
+    message: str
+    severity: str = "error"
+
+    def to_json(self) -> dict[str, str]:
+        return asdict(self)
+
+
+def _p(code: str, location: str, message: str, severity: str = "error") -> Problem:
+    assert code in CHECK_CODES, code
+    return Problem(code, location, message, severity)
+
+
+# ------------------------------------------------------------------------------------------ manifest
+
+
+def validate_manifest(manifest: dict[str, Any], **_: Any) -> list[Problem]:
+    """Types and lengths of the manifest's fields."""
+    out: list[Problem] = []
+    loc = MANIFEST_FILE
+    fps, rate, channels = manifest.get("fps"), manifest.get("sample_rate"), manifest.get("channels")
+    if not isinstance(fps, (int, float)) or not fps > 0:
+        out.append(_p("manifest_schema", f"{loc}:fps", f"fps must be a positive number, not {fps!r}"))
+    if not isinstance(rate, int) or rate <= 0:
+        out.append(
+            _p(
+                "manifest_schema",
+                f"{loc}:sample_rate",
+                f"sample_rate must be a positive integer, not {rate!r}",
+            )
+        )
+    if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
+        out.append(_p("manifest_schema", f"{loc}:channels", "channels must be a non-empty list of names"))
+        channels = []
+    norm = manifest.get("normalization", {}).get("animation", {})
+    for field in ("offset", "scale"):
+        v = norm.get(field)
+        if not isinstance(v, list) or len(v) != len(channels):
+            out.append(
+                _p(
+                    "manifest_schema",
+                    f"{loc}:normalization.animation.{field}",
+                    f"{field} must list one number per channel ({len(channels)})",
+                )
+            )
+        elif not all(isinstance(x, (int, float)) and math.isfinite(x) for x in v) or (
+            field == "scale" and min(v) <= 0
+        ):
+            out.append(
+                _p(
+                    "manifest_schema",
+                    f"{loc}:normalization.animation.{field}",
+                    f"{field} holds invalid values",
+                )
+            )
+    for i, s in enumerate(manifest.get("shards", [])):
+        for field, kind in (("name", str), ("split", str), ("sha256", str), ("bytes", int), ("samples", int)):
+            if not isinstance(s.get(field), kind):
+                out.append(
+                    _p("manifest_schema", f"{loc}:shards[{i}].{field}", f"missing or not {kind.__name__}")
+                )
+        if s.get("split") not in SPLITS:
+            out.append(_p("manifest_schema", f"{loc}:shards[{i}].split", f"unknown split {s.get('split')!r}"))
+        name = s.get("name")
+        if isinstance(name, str) and ("/" in name or name.startswith(".")):
+            out.append(
+                _p(
+                    "manifest_schema",
+                    f"{loc}:shards[{i}].name",
+                    f"shard name {name!r} is not a plain file name",
+                )
+            )
+    return out
+
+
+# ------------------------------------------------------------------------------------------ shard
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def validate_shard(
+    entry: dict[str, Any],
+    ds: Path,
+    manifest: dict[str, Any],
+    deep: bool = False,
+    on_sample: Callable[[str, dict[str, bytes]], None] | None = None,
+    **_: Any,
+) -> list[Problem]:
+    """File, size, checksum (deep) and readability of one shard; hands each sample to ``on_sample``."""
+    out: list[Problem] = []
+    name = entry.get("name", "?")
+    path = ds / name
+    if not path.is_file():
+        return [_p("shard_missing", name, "listed in the manifest but not found")]
+    size = path.stat().st_size
+    if isinstance(entry.get("bytes"), int) and size != entry["bytes"]:
+        out.append(_p("shard_size", name, f"{size} bytes; the manifest says {entry['bytes']}"))
+    if deep:
+        digest = _sha256(path)
+        if digest != entry.get("sha256"):
+            out.append(
+                _p(
+                    "shard_checksum",
+                    name,
+                    f"sha256 {digest[:16]}... differs from the manifest's {str(entry.get('sha256'))[:16]}...",
+                )
+            )
+    count = frames = 0
+    try:
+        for key, members in ShardReader(path):
+            count += 1
+            try:
+                frames += int(json.loads(members.get("json", b"{}")).get("frames", 0))
+            except (json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError):
+                pass
+            if on_sample is not None:
+                on_sample(key, members)
+    except InputError as exc:
+        out.append(_p("shard_unreadable", name, str(exc).split(": ", 1)[-1]))
+        return out
+    if count != entry.get("samples"):
+        out.append(_p("shard_contents", name, f"{count} samples; the manifest says {entry.get('samples')}"))
+    elif "frames" in entry and frames != entry["frames"]:
+        out.append(_p("shard_contents", name, f"{frames} frames; the manifest says {entry['frames']}"))
+    return out
+
+
+# ------------------------------------------------------------------------------------------ sample
+
+
+def validate_sample(
+    key: str, members: dict[str, bytes], shard: str, manifest: dict[str, Any], deep: bool = False, **_: Any
+) -> tuple[list[Problem], dict[str, Any] | None]:
+    """Decode one sample and check members, dtypes, shapes, values and rates; returns its metadata."""
+    out: list[Problem] = []
+    at = f"{shard}:{key}"
+    expected = set(manifest.get("members", ["json", "flac", "anim.npy", "mask.npy"]))
+    missing = sorted(expected - set(members))
+    if missing:
+        out.append(_p("sample_members", at, f"missing member(s) {', '.join(missing)}"))
+    extra = sorted(set(members) - expected - {"phones.npy"})
+    if extra:
+        out.append(_p("sample_members", at, f"unexpected member(s) {', '.join(extra)}", "warning"))
+    meta = None
+    if "json" in members:
+        try:
+            meta = json.loads(members["json"])
+            if not isinstance(meta, dict):
+                raise ValueError("not an object")
+        except (json.JSONDecodeError, UnicodeDecodeError, ValueError) as exc:
+            out.append(_p("sample_decode", f"{at}.json", f"metadata is not a JSON object ({exc})"))
+            meta = None
+    arrays: dict[str, np.ndarray] = {}
+    for ext, data in members.items():
+        if ext.endswith(".npy"):
+            try:
+                arrays[ext[:-4]] = decode_npy(data)
+            except InputError as exc:
+                out.append(_p("sample_decode", f"{at}.{ext}", str(exc)))
+    n_channels = len(manifest.get("channels", []))
+    anim = arrays.get("anim")
+    frames = None
+    if anim is not None:
+        if anim.dtype != np.float32:
+            out.append(_p("dtype", f"{at}.anim.npy", f"animation is {anim.dtype}, expected float32"))
+        if anim.ndim != 2:
+            out.append(
+                _p(
+                    "channel_count",
+                    f"{at}.anim.npy",
+                    f"animation has shape {anim.shape}, expected (frames, channels)",
+                )
+            )
+        else:
+            frames = anim.shape[0]
+            if anim.shape[1] != n_channels:
+                out.append(
+                    _p(
+                        "channel_count",
+                        f"{at}.anim.npy",
+                        f"{anim.shape[1]} channels; the manifest lists {n_channels}",
+                    )
+                )
+            if anim.dtype.kind == "f":
+                bad = ~np.isfinite(anim)
+                if bad.any():
+                    r, c = np.argwhere(bad)[0]
+                    out.append(
+                        _p(
+                            "nonfinite",
+                            f"{at}.anim.npy",
+                            f"{int(bad.sum())} NaN/inf values (first at frame {r}, column {c})",
+                        )
+                    )
+                big = np.abs(np.where(bad, 0, anim)) > ANIM_LIMIT
+                if big.any():
+                    out.append(
+                        _p(
+                            "value_range",
+                            f"{at}.anim.npy",
+                            f"{int(big.sum())} values beyond +-{ANIM_LIMIT:g}",
+                        )
+                    )
+    mask = arrays.get("mask")
+    if mask is not None:
+        if mask.dtype != np.bool_:
+            out.append(_p("dtype", f"{at}.mask.npy", f"mask is {mask.dtype}, expected bool"))
+        if frames is not None and mask.shape != (frames,):
+            out.append(
+                _p(
+                    "length_mismatch",
+                    f"{at}.mask.npy",
+                    f"mask has shape {mask.shape}, animation {frames} frames",
+                )
+            )
+    dims = manifest.get("features", {}).get("dims", {})
+    for name in manifest.get("features", {}).get("names", []):
+        arr = arrays.get(name)
+        if arr is None:
+            continue
+        loc = f"{at}.{name}.npy"
+        if arr.dtype != np.float32:
+            out.append(_p("dtype", loc, f"{name} is {arr.dtype}, expected float32"))
+        if arr.ndim != 2:
+            out.append(_p("feature_dim", loc, f"{name} has shape {arr.shape}, expected (frames, dim)"))
+            continue
+        if frames is not None and arr.shape[0] != frames:
+            out.append(_p("length_mismatch", loc, f"{name} has {arr.shape[0]} frames, animation {frames}"))
+        if name in dims and arr.shape[1] != dims[name]:
+            out.append(
+                _p("feature_dim", loc, f"{name} has dimension {arr.shape[1]}; the manifest says {dims[name]}")
+            )
+        if arr.dtype.kind == "f":
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                out.append(
+                    _p(
+                        "nonfinite",
+                        loc,
+                        f"{int(bad.sum())} NaN/inf values (first at frame {np.argwhere(bad)[0][0]})",
+                    )
+                )
+            elif name == "pitch" and arr.shape[1] == 2:
+                flag = arr[:, 1]
+                if not np.all((flag == 0) | (flag == 1)):
+                    out.append(_p("value_range", loc, "voicing flag holds values other than 0 and 1"))
+                voiced = arr[flag == 1, 0]
+                lo, hi = LOG_F0_RANGE
+                if voiced.size and (voiced.min() < lo or voiced.max() > hi):
+                    out.append(_p("value_range", loc, "voiced log-F0 outside 20-2000 Hz"))
+    phones = arrays.get("phones")
+    if phones is not None and frames is not None and phones.shape != (frames,):
+        out.append(
+            _p(
+                "length_mismatch",
+                f"{at}.phones.npy",
+                f"phones have shape {phones.shape}, animation {frames} frames",
+            )
+        )
+    if meta is not None:
+        fps = manifest.get("fps")
+        if meta.get("key") != key:
+            out.append(_p("sample_members", f"{at}.json", f"metadata names key {meta.get('key')!r}"))
+        if frames is not None and meta.get("frames") != frames:
+            out.append(
+                _p(
+                    "length_mismatch",
+                    f"{at}.json",
+                    f"metadata says {meta.get('frames')} frames, animation has {frames}",
+                )
+            )
+        if isinstance(fps, (int, float)) and meta.get("fps") != fps:
+            out.append(
+                _p("frame_rate", f"{at}.json", f"sample at {meta.get('fps')} fps; the dataset is {fps} fps")
+            )
+        if meta.get("sample_rate") != manifest.get("sample_rate"):
+            out.append(
+                _p(
+                    "sample_rate",
+                    f"{at}.json",
+                    f"metadata says {meta.get('sample_rate')} Hz; the dataset is "
+                    f"{manifest.get('sample_rate')} Hz",
+                )
+            )
+    if "flac" in members:
+        out += _check_audio(members["flac"], f"{at}.flac", meta, manifest, deep)
+    return out, meta
+
+
+def _check_audio(
+    data: bytes, loc: str, meta: dict | None, manifest: dict[str, Any], deep: bool
+) -> list[Problem]:
+    import soundfile as sf
+
+    out: list[Problem] = []
+    try:
+        if deep:
+            x, rate = decode_flac(data)
+            n = x.shape[0]
+            if not np.all(np.isfinite(x)):
+                out.append(_p("nonfinite", loc, "audio holds NaN/inf"))
+        else:
+            info = sf.info(io.BytesIO(data))
+            rate, n = int(info.samplerate), int(info.frames)
+    except (InputError, sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        return [_p("sample_decode", loc, f"audio is not readable FLAC ({str(exc).split(': ', 1)[-1]})")]
+    want = manifest.get("sample_rate")
+    if rate != want:
+        out.append(_p("sample_rate", loc, f"audio at {rate} Hz; the dataset is {want} Hz"))
+    elif meta is not None:
+        if meta.get("audio_samples") != n:
+            out.append(_p("frame_rate", loc, f"{n} audio samples; metadata says {meta.get('audio_samples')}"))
+        fps = manifest.get("fps")
+        frames = meta.get("frames")
+        if isinstance(fps, (int, float)) and isinstance(frames, int) and fps > 0:
+            if abs(n / rate - frames / fps) > 1.0 / fps:
+                out.append(
+                    _p(
+                        "frame_rate",
+                        loc,
+                        f"audio lasts {n / rate:.3f} s but {frames} frames at {fps} fps last "
+                        f"{frames / fps:.3f} s",
+                    )
+                )
+    return out
+
+
+# ------------------------------------------------------------------------------------------ splits
+
+
+def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: Any) -> list[Problem]:
+    """Duplicates and leakage across all samples found in shards, and agreement with the manifest.
+
+    ``seen`` holds, per sample found, ``key``, ``shard``, ``split`` (of its shard) and its metadata."""
+    out: list[Problem] = []
+    keys: dict[str, str] = {}
+    for s in seen:
+        if s["key"] in keys:
+            out.append(_p("duplicate_key", f"{s['shard']}:{s['key']}", f"key also in {keys[s['key']]}"))
+        else:
+            keys[s["key"]] = s["shard"]
+    by = manifest.get("splits", {}).get("rule", {}).get("by", "take")
+    splits_of: dict[str, set[str]] = {}
+    speaker_splits: dict[str, set[str]] = {}
+    take_of_sha: dict[str, str] = {}
+    for s in seen:
+        meta = s.get("meta") or {}
+        take = meta.get("take")
+        if take is None:
+            continue
+        if meta.get("split") not in (None, s["split"]):
+            out.append(
+                _p(
+                    "split_leakage",
+                    f"{s['shard']}:{s['key']}",
+                    f"sample says split {meta.get('split')!r} but sits in a {s['split']} shard",
+                )
+            )
+        splits_of.setdefault(take, set()).add(s["split"])
+        speaker_splits.setdefault(str(meta.get("speaker")), set()).add(s["split"])
+        sha = meta.get("content_sha256", meta.get("take_sha256"))
+        if sha is not None:
+            if take_of_sha.setdefault(sha, take) != take:
+                out.append(
+                    _p(
+                        "duplicate_take",
+                        f"{s['shard']}:{s['key']}",
+                        f"take {take!r} has the same content as take {take_of_sha[sha]!r}",
+                    )
+                )
+    for take, splits in sorted(splits_of.items()):
+        if len(splits) > 1:
+            out.append(_p("split_leakage", f"take {take}", f"take is in splits {', '.join(sorted(splits))}"))
+    if by == "speaker":
+        for spk, splits in sorted(speaker_splits.items()):
+            if len(splits) > 1:
+                out.append(
+                    _p("split_leakage", f"speaker {spk}", f"speaker is in splits {', '.join(sorted(splits))}")
+                )
+    listed: dict[str, set[str]] = {}
+    for split in SPLITS:
+        for take in manifest.get("splits", {}).get(split, {}).get("takes", []):
+            listed.setdefault(take, set()).add(split)
+    for take, splits in sorted(listed.items()):
+        if len(splits) > 1:
+            out.append(
+                _p(
+                    "split_leakage",
+                    f"{MANIFEST_FILE}:splits",
+                    f"take {take} is listed in {', '.join(sorted(splits))}",
+                )
+            )
+    manifest_keys = {m.get("key"): m for m in manifest.get("samples", [])}
+    found = set(keys)
+    for key in sorted(set(manifest_keys) - found):
+        out.append(
+            _p(
+                "manifest_mismatch",
+                f"{manifest_keys[key].get('shard')}:{key}",
+                "listed in the manifest, not found",
+            )
+        )
+    for key in sorted(found - set(manifest_keys)):
+        out.append(
+            _p("manifest_mismatch", f"{keys[key]}:{key}", "found in a shard, not listed in the manifest")
+        )
+    for key in sorted(found & set(manifest_keys)):
+        if manifest_keys[key].get("shard") != keys[key]:
+            out.append(
+                _p(
+                    "manifest_mismatch",
+                    f"{keys[key]}:{key}",
+                    f"manifest puts it in {manifest_keys[key].get('shard')}",
+                )
+            )
+    return out
+
+
+VALIDATORS: dict[str, Callable[..., Any]] = {
+    "manifest": validate_manifest,
+    "shard": validate_shard,
+    "sample": validate_sample,
+    "splits": validate_splits,
+}
+
+
+@dataclass
+class Report:
+    dataset: str
+    deep: bool
+    shards: int
+    samples: int
+    problems: list[Problem]
+
+    @property
+    def valid(self) -> bool:
+        return not any(p.severity == "error" for p in self.problems)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "dataset": self.dataset,
+            "valid": self.valid,
+            "deep": self.deep,
+            "shards": self.shards,
+            "samples": self.samples,
+            "errors": sum(p.severity == "error" for p in self.problems),
+            "warnings": sum(p.severity == "warning" for p in self.problems),
+            "problems": [p.to_json() for p in self.problems],
+        }
+
+
+def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None] | None = None) -> Report:
+    """Check dataset ``ds`` against its manifest; every problem found is in the report.
+
+    Raises ``InputError`` only when there is no manifest at all."""
+    ds = Path(ds)
+    if ds.is_file():
+        ds = ds.parent
+    try:
+        manifest = read_manifest(ds)
+    except InputError as exc:
+        if not (ds / MANIFEST_FILE).is_file():
+            raise
+        # a manifest that is there but unusable is a finding, reported like any other
+        message = str(exc).split(": ", 1)[-1]
+        return Report(str(ds), deep, 0, 0, [_p("manifest_schema", MANIFEST_FILE, message)])
+    problems = list(VALIDATORS["manifest"](manifest))
+    seen: list[dict[str, Any]] = []
+    listed = set()
+    shards = manifest.get("shards", [])
+    for i, entry in enumerate(shards, 1):
+        name = entry.get("name", "?")
+        listed.add(name)
+        split = entry.get("split")
+
+        def on_sample(key: str, members: dict[str, bytes], name=name, split=split) -> None:
+            found, meta = VALIDATORS["sample"](key, members, name, manifest, deep=deep)
+            problems.extend(found)
+            seen.append({"key": key, "shard": name, "split": split, "meta": meta})
+
+        problems.extend(VALIDATORS["shard"](entry, ds, manifest, deep=deep, on_sample=on_sample))
+        if progress:
+            progress(f"[{i}/{len(shards)}] {name}")
+    problems.extend(VALIDATORS["splits"](manifest, seen))
+    for p in sorted(ds.glob("*.tar")):
+        if p.name not in listed:
+            problems.append(_p("shard_unlisted", p.name, "not listed in the manifest", "warning"))
+    return Report(str(ds), deep, len(shards), len(seen), problems)

@@ -1,0 +1,205 @@
+"""Shards: tar files in the WebDataset layout, written deterministically and atomically.
+
+One sample = consecutive members sharing a key (the member name up to its first dot):
+``KEY.json``, ``KEY.flac``, ``KEY.anim.npy``, ``KEY.mask.npy``, ``KEY.<feature>.npy`` [, ``KEY.phones.npy``].
+Samples are sorted by key and members by name within a sample; every header has mtime 0, uid/gid 0,
+empty user/group names and mode 0644, so the same samples always give the same bytes. A shard is
+written under a hidden temporary name, fsynced and renamed into place. Readable with the
+``webdataset`` library and with plain ``tarfile``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import tarfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture.errors import InputError
+
+BLOCK = tarfile.BLOCKSIZE
+RECORD = tarfile.RECORDSIZE
+
+
+def member_size(nbytes: int) -> int:
+    """Bytes a member of ``nbytes`` takes in a tar (header + data padded to 512)."""
+    return BLOCK + (nbytes + BLOCK - 1) // BLOCK * BLOCK
+
+
+def sample_size(members: dict[str, bytes]) -> int:
+    return sum(member_size(len(b)) for b in members.values())
+
+
+def split_key(name: str) -> tuple[str, str]:
+    """``("KEY", "ext")`` of a member name ``KEY.ext`` (WebDataset: key up to the first dot)."""
+    base = name.rsplit("/", 1)[-1]
+    if "." not in base:
+        return base, ""
+    key, ext = base.split(".", 1)
+    prefix = name[: len(name) - len(base)]
+    return prefix + key, ext
+
+
+def npy_bytes(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
+    return buf.getvalue()
+
+
+def json_bytes(data: Any) -> bytes:
+    return (json.dumps(data, sort_keys=True, allow_nan=False, separators=(",", ":")) + "\n").encode()
+
+
+class _HashingFile(io.RawIOBase):
+    """A write-only file that hashes and counts what passes through."""
+
+    def __init__(self, f):
+        self.f = f
+        self.sha = hashlib.sha256()
+        self.bytes = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def tell(self) -> int:
+        return self.bytes
+
+    def write(self, b) -> int:
+        self.f.write(b)
+        self.sha.update(b)
+        self.bytes += len(b)
+        return len(b)
+
+
+@dataclass
+class ShardInfo:
+    """A written shard: file name, sha256, size in bytes and the keys it holds, in order."""
+
+    name: str
+    sha256: str
+    bytes: int
+    keys: list[str]
+
+
+class ShardWriter:
+    """Writes one shard file from samples ``(key, {ext: bytes})`` given in key order."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.name}.partial")
+        self._file = open(self.tmp, "wb")
+        self._hash = _HashingFile(self._file)
+        self._tar = tarfile.open(fileobj=self._hash, mode="w", format=tarfile.PAX_FORMAT)
+        self._keys: list[str] = []
+
+    def add(self, key: str, members: dict[str, bytes]) -> None:
+        if "." in key or "/" in key or not key:
+            raise InputError(f"sample key {key!r} may not be empty or contain '.' or '/'")
+        if self._keys and key <= self._keys[-1]:
+            raise InputError(
+                f"sample keys must be written in increasing order ({key!r} after {self._keys[-1]!r})"
+            )
+        for ext in sorted(members):
+            data = members[ext]
+            info = tarfile.TarInfo(f"{key}.{ext}")
+            info.size = len(data)
+            info.mtime = 0
+            info.mode = 0o644
+            info.uid = info.gid = 0
+            info.uname = info.gname = ""
+            self._tar.addfile(info, io.BytesIO(data))
+        self._keys.append(key)
+
+    def close(self) -> ShardInfo:
+        """Finish the tar, fsync and rename it into place."""
+        self._tar.close()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self.tmp, self.path)
+        return ShardInfo(self.path.name, self._hash.sha.hexdigest(), self._hash.bytes, list(self._keys))
+
+    def abort(self) -> None:
+        try:
+            self._file.close()
+        finally:
+            self.tmp.unlink(missing_ok=True)
+
+    def __enter__(self) -> ShardWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self.abort()
+
+
+class ShardReader:
+    """Iterates the samples of a shard with plain ``tarfile`` (streaming, constant memory).
+
+    Yields ``(key, {ext: bytes})`` for each run of consecutive members sharing a key. Raises
+    ``InputError`` naming the shard when the tar is damaged."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    def __iter__(self) -> Iterator[tuple[str, dict[str, bytes]]]:
+        key: str | None = None
+        members: dict[str, bytes] = {}
+        try:
+            with tarfile.open(self.path, mode="r|") as tar:
+                for info in tar:
+                    if not info.isfile():
+                        continue
+                    k, ext = split_key(info.name)
+                    f = tar.extractfile(info)
+                    data = f.read() if f is not None else b""
+                    if len(data) != info.size:
+                        raise InputError(f"member {info.name} is truncated", self.path)
+                    if k != key:
+                        if key is not None:
+                            yield key, members
+                        key, members = k, {}
+                    if ext in members:
+                        raise InputError(f"member {info.name} appears twice in a row", self.path)
+                    members[ext] = data
+        except FileNotFoundError:
+            raise InputError("shard not found", self.path) from None
+        except (tarfile.TarError, EOFError, OSError) as exc:
+            raise InputError(f"shard is not a readable tar ({exc})", self.path) from None
+        if key is not None:
+            yield key, members
+
+
+def decode_npy(data: bytes, what: str = "array") -> np.ndarray:
+    """An array from ``.npy`` bytes (never unpickles)."""
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise InputError(f"{what} is not a readable .npy ({exc})") from None
+
+
+def decode_flac(data: bytes) -> tuple[np.ndarray, int]:
+    """Mono float32 samples and the sample rate (Hz) of FLAC bytes."""
+    import soundfile as sf
+
+    try:
+        x, rate = sf.read(io.BytesIO(data), dtype="float32", always_2d=False)
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        raise InputError(f"audio is not readable FLAC ({exc})") from None
+    return x, int(rate)
+
+
+def flac_bytes(samples: np.ndarray, sample_rate: int, subtype: str = "PCM_24") -> bytes:
+    """FLAC bytes of mono float samples in [-1, 1) (24-bit by default)."""
+    import soundfile as sf
+
+    buf = io.BytesIO()
+    sf.write(buf, np.clip(samples, -1.0, 1.0 - 2**-23), int(sample_rate), format="FLAC", subtype=subtype)
+    return buf.getvalue()

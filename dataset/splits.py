@@ -1,0 +1,87 @@
+"""Splits by take or by speaker, never by window.
+
+NeuroSync splits overlapping windows at random, so neighbouring windows of one take land in train and
+test; here a whole take (``--split-by take``) or a whole speaker (``--split-by speaker``: the held-out
+speaker split for cross-speaker evaluation) goes to one split. Pinned takes or speakers (``--test``,
+``--val``) go first; the rest are ordered by a seeded hash of their id (stable when takes are added)
+and taken until each split holds its fraction of the total duration. Train always keeps at least one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from capture.errors import InputError
+
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class SplitRule:
+    """How takes are split. Fractions are of total audio duration."""
+
+    by: str = "take"
+    val_fraction: float = 0.1
+    test_fraction: float = 0.1
+    seed: int = 0
+    val: tuple[str, ...] = field(default_factory=tuple)
+    test: tuple[str, ...] = field(default_factory=tuple)
+
+    def __post_init__(self) -> None:
+        if self.by not in ("take", "speaker"):
+            raise InputError(f"--split-by must be take or speaker, not {self.by!r}")
+        for name, f in (("--val-fraction", self.val_fraction), ("--test-fraction", self.test_fraction)):
+            if not 0.0 <= f < 1.0:
+                raise InputError(f"{name} must be in [0, 1), got {f}")
+        if self.val_fraction + self.test_fraction >= 1.0:
+            raise InputError("--val-fraction + --test-fraction must be below 1")
+        both = set(self.val) & set(self.test)
+        if both:
+            raise InputError(f"pinned to both val and test: {', '.join(sorted(both))}")
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["val"], d["test"] = sorted(self.val), sorted(self.test)
+        return d
+
+
+def _order(seed: int, name: str) -> str:
+    return hashlib.sha256(f"{seed}:{name}".encode()).hexdigest()
+
+
+def assign_splits(takes: dict[str, tuple[str, float]], rule: SplitRule) -> dict[str, str]:
+    """``{take id: split}`` for ``takes`` = ``{take id: (speaker id, duration in s)}``."""
+    group_of = {t: (t if rule.by == "take" else spk) for t, (spk, _) in takes.items()}
+    durations: dict[str, float] = {}
+    for t, (_, dur) in takes.items():
+        durations[group_of[t]] = durations.get(group_of[t], 0.0) + dur
+    known_ids = set(takes) | {spk for spk, _ in takes.values()}
+    for pinned in (*rule.val, *rule.test):
+        if pinned not in known_ids:
+            raise InputError(f"pinned take or speaker {pinned!r} is not among the inputs")
+    split_of_group: dict[str, str] = {}
+    for split, pinned in (("test", rule.test), ("val", rule.val)):
+        for t, (spk, _) in takes.items():
+            if t in pinned or spk in pinned:
+                g = group_of[t]
+                if split_of_group.get(g, split) != split:
+                    raise InputError(f"{g!r} is pinned to both val and test (via take or speaker)")
+                split_of_group[g] = split
+    total = sum(durations.values())
+    free = sorted((g for g in durations if g not in split_of_group), key=lambda g: _order(rule.seed, g))
+    for split, fraction in (("test", rule.test_fraction), ("val", rule.val_fraction)):
+        have = sum(durations[g] for g, s in split_of_group.items() if s == split)
+        target = fraction * total
+        while free and len(free) > 1 and have < target and fraction > 0:
+            # take a group only if it brings the split closer to its target (or the split is empty)
+            g = free[0]
+            if have > 0 and abs(have + durations[g] - target) > abs(have - target):
+                break
+            free.pop(0)
+            split_of_group[g] = split
+            have += durations[g]
+    for g in free:
+        split_of_group[g] = "train"
+    return {t: split_of_group[group_of[t]] for t in takes}

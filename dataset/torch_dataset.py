@@ -1,0 +1,162 @@
+"""``ShardDataset``: a PyTorch ``IterableDataset`` over a split's shards.
+
+Shards are divided among DDP ranks (``torch.distributed``, when initialised) and DataLoader workers
+(``get_worker_info``): shard ``i`` goes to consumer ``i % consumers``; with fewer shards than consumers,
+every consumer reads every shard and keeps every ``consumers``-th sample instead. Samples pass through
+a shuffle buffer (seeded by seed, epoch and consumer), are normalised with the manifest's statistics,
+and are cropped or padded to ``window`` frames with a mask (padding frames are masked out).
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from .manifest import read_manifest, shards_of
+from .normalize import Normalizer
+from .shards import ShardReader, decode_flac, decode_npy
+
+
+def _rank_world() -> tuple[int, int]:
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
+
+
+class ShardDataset(IterableDataset):
+    """Samples of one split as dicts of tensors.
+
+    ``window``: frames per item (crop at a random start in training, pad with a zero mask when short);
+    None yields whole samples. ``features``: which features to load (default: all in the manifest).
+    Each item: ``anim`` (window, channels) float32 (normalised when ``normalize``), ``mask`` (window,)
+    bool, one (window, dim) float32 tensor per feature (pitch: per-speaker z-scored log-F0 and voicing;
+    others z-scored), optionally ``audio`` (samples,) float32 at 16 kHz, and ``key``.
+    """
+
+    def __init__(
+        self,
+        ds: str | Path,
+        split: str = "train",
+        window: int | None = None,
+        features: list[str] | None = None,
+        shuffle_buffer: int = 0,
+        seed: int = 0,
+        normalize: bool = True,
+        audio: bool = False,
+        random_crop: bool | None = None,
+    ):
+        super().__init__()
+        self.ds = Path(ds)
+        self.manifest = read_manifest(self.ds)
+        self.split = split
+        self.shards = [s["name"] for s in shards_of(self.manifest, split)]
+        self.window = window
+        self.features = list(features) if features is not None else list(self.manifest["features"]["names"])
+        self.shuffle_buffer = shuffle_buffer
+        self.seed = seed
+        self.epoch = 0
+        self.normalize = normalize
+        self.audio = audio
+        self.random_crop = (split == "train") if random_crop is None else random_crop
+        norm = self.manifest["normalization"]
+        self.normalizer = Normalizer.from_json(norm["animation"])
+        self.feature_norm = {
+            k: (np.asarray(v["mean"], np.float32), np.asarray(v["std"], np.float32))
+            for k, v in norm["features"].items()
+        }
+        self.pitch_norm = norm.get("pitch", {}).get("speakers", {})
+
+    def set_epoch(self, epoch: int) -> None:
+        """Reshuffle differently in each epoch (call before iterating)."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return sum(s["samples"] for s in shards_of(self.manifest, self.split))
+
+    def _assignment(self) -> tuple[list[str], int, int]:
+        rank, world = _rank_world()
+        info = get_worker_info()
+        wid, nworkers = (info.id, info.num_workers) if info is not None else (0, 1)
+        consumer, consumers = rank * nworkers + wid, world * nworkers
+        if len(self.shards) >= consumers:
+            return self.shards[consumer::consumers], 0, 1
+        return self.shards, consumer, consumers
+
+    def _samples(self) -> Iterator[tuple[str, dict[str, bytes]]]:
+        shards, offset, stride = self._assignment()
+        i = 0
+        for name in shards:
+            for key, members in ShardReader(self.ds / name):
+                if i % stride == offset:
+                    yield key, members
+                i += 1
+
+    def _decode(self, key: str, members: dict[str, bytes], rng: random.Random) -> dict[str, Any]:
+        meta = json.loads(members["json"])
+        anim = decode_npy(members["anim.npy"], f"{key}.anim.npy")
+        mask = decode_npy(members["mask.npy"], f"{key}.mask.npy").astype(bool)
+        if self.normalize:
+            neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
+            anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * mask[:, None]
+        item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask}
+        for name in self.features:
+            x = decode_npy(members[f"{name}.npy"], f"{key}.{name}.npy").astype(np.float32)
+            if self.normalize:
+                if name == "pitch":
+                    st = self.pitch_norm.get(meta.get("speaker"), {"mean": 0.0, "std": 1.0})
+                    x = x.copy()
+                    x[:, 0] = np.where(x[:, 1] > 0, (x[:, 0] - st["mean"]) / st["std"], 0.0)
+                elif name in self.feature_norm:
+                    mean, std = self.feature_norm[name]
+                    x = (x - mean) / std
+            item[name] = x
+        n = anim.shape[0]
+        start = 0
+        if self.window is not None:
+            w = self.window
+            if n > w:
+                start = rng.randrange(n - w + 1) if self.random_crop else 0
+            for k in ("anim", "mask", *self.features):
+                v = item[k][start : start + w]
+                if v.shape[0] < w:
+                    pad = np.zeros((w - v.shape[0], *v.shape[1:]), v.dtype)
+                    v = np.concatenate([v, pad])
+                item[k] = v
+        if self.audio:
+            x, rate = decode_flac(members["flac"])
+            if self.window is not None:
+                fps = meta["fps"]
+                s0 = int(round(start * rate / fps))
+                n_s = int(round(self.window * rate / fps))
+                x = np.pad(x[s0 : s0 + n_s], (0, max(0, n_s - x[s0 : s0 + n_s].shape[0])))
+            item["audio"] = x.astype(np.float32)
+        return {
+            k: (torch.from_numpy(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v)
+            for k, v in item.items()
+        }
+
+    def __iter__(self) -> Iterator[dict[str, Any]]:
+        rank, _ = _rank_world()
+        info = get_worker_info()
+        wid = info.id if info is not None else 0
+        rng = random.Random(f"{self.seed}:{self.epoch}:{rank}:{wid}")
+        buffer: list[tuple[str, dict[str, bytes]]] = []
+        for sample in self._samples():
+            if self.shuffle_buffer <= 1:
+                yield self._decode(*sample, rng)
+                continue
+            buffer.append(sample)
+            if len(buffer) >= self.shuffle_buffer:
+                j = rng.randrange(len(buffer))
+                buffer[j], buffer[-1] = buffer[-1], buffer[j]
+                yield self._decode(*buffer.pop(), rng)
+        rng.shuffle(buffer)
+        for sample in buffer:
+            yield self._decode(*sample, rng)

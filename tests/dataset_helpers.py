@@ -1,0 +1,102 @@
+"""Aligned takes for the dataset tests, written with ``capture.write_take`` following the align
+contract: source_kind "aligned", 16 kHz mono float32 audio from take time 0, a uniform frame grid
+``time[i] = i / fps``, TRACKED (0) and INTERPOLATED (4) frames usable, others masked."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from capture import ARKIT52, Audio, Take, TakeMeta, write_take
+
+SR = 16000
+
+
+def speech_like(seconds: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Voiced syllables (harmonics on a gliding F0) with pauses; returns audio and its envelope."""
+    n = int(seconds * SR)
+    t = np.arange(n) / SR
+    f0 = 120 + 30 * np.sin(2 * np.pi * 0.7 * t + rng.uniform(0, 6))
+    phase = 2 * np.pi * np.cumsum(f0) / SR
+    voice = sum(np.sin(k * phase) / k for k in range(1, 8))
+    syll = np.clip(np.sin(2 * np.pi * 3.0 * t + rng.uniform(0, 6)), 0, None) ** 2
+    env = syll * (np.sin(2 * np.pi * 0.25 * t) > -0.6)
+    audio = 0.1 * env * voice + 0.003 * rng.standard_normal(n)
+    return audio.astype(np.float32), env
+
+
+def make_aligned_take(
+    take_id: str,
+    seconds: float = 3.0,
+    fps: float = 60.0,
+    subject: str | None = "spk1",
+    seed: int = 0,
+    channels: tuple[str, ...] = ARKIT52,
+    neutral: bool = False,
+    gap: tuple[int, int] | None = None,
+) -> Take:
+    rng = np.random.default_rng(seed)
+    audio, env = speech_like(seconds, rng)
+    n = int(round(seconds * fps))
+    times = np.arange(n) / fps
+    env_frames = np.interp(times, np.arange(env.size) / SR, env)
+    values = np.abs(rng.normal(0.02, 0.01, (n, len(channels)))).astype(np.float32)
+    lowered = [c.lower() for c in channels]
+    for name, gain in (("jawopen", 0.6), ("mouthclose", 0.2), ("mouthfunnel", 0.3)):
+        if name in lowered:
+            values[:, lowered.index(name)] += (gain * env_frames).astype(np.float32)
+    status = np.zeros(n, np.uint8)
+    status[n // 3 : n // 3 + 3] = 4  # interpolated across a short gap: usable
+    if gap is not None:
+        status[gap[0] : gap[1]] = 1  # face lost: masked
+        values[gap[0] : gap[1]] = np.nan
+    meta = TakeMeta(id=take_id, source_kind="aligned", fps=fps, channels=list(channels), subject=subject)
+    meta.extra["align"] = {"offset_s": 0.0, "speech_segments": [[0.0, seconds]], "parent": take_id + "_raw"}
+    take = Take(meta, times, values, status)
+    take.attach_audio(Audio(audio, SR, "FLOAT"), start_s=0.0, start_source="aligned")
+    if neutral:
+        take.neutral = np.full(len(channels), 0.01, np.float32)
+    return take
+
+
+def write_aligned_set(root: Path, count: int = 6, speakers: int = 2, seconds: float = 3.0, **kw) -> Path:
+    """``count`` aligned takes of ``speakers`` speakers under ``root``; returns ``root``."""
+    for i in range(count):
+        take = make_aligned_take(f"take{i:02d}", seconds, subject=f"spk{i % speakers}", seed=i, **kw)
+        write_take(take, root)
+    return root
+
+
+def minimal_align(take: Take, subject: str | None = None) -> Take:
+    """A stand-in for ``align`` on takes whose audio already shares the frame clock (paired data):
+    audio → 16 kHz mono float32 from take time 0, frames → the uniform grid ``i / fps`` (linear
+    interpolation of each channel), source_kind "aligned"."""
+    from math import gcd
+
+    from scipy.signal import resample_poly
+
+    x = take.audio.mono_float().astype(np.float64)
+    rate = take.audio.sample_rate
+    if rate != SR:
+        g = gcd(rate, SR)
+        x = resample_poly(x, SR // g, rate // g)
+    start = take.meta.audio.start_s if take.meta.audio else 0.0
+    fps = take.meta.fps
+    n = int(np.floor((x.size / SR) * fps))
+    grid = np.arange(n) / fps
+    src_t = take.time - start
+    values = np.stack([np.interp(grid, src_t, take.values[:, c]) for c in range(take.values.shape[1])], 1)
+    inside = (grid >= src_t[0]) & (grid <= src_t[-1])
+    status = np.where(inside, 0, 2).astype(np.uint8)
+    meta = TakeMeta(
+        id=take.meta.id,
+        source_kind="aligned",
+        fps=fps,
+        channels=list(take.meta.channels),
+        subject=subject or take.meta.subject,
+    )
+    meta.extra["align"] = {"offset_s": 0.0, "speech_segments": [[0.0, x.size / SR]], "parent": take.meta.id}
+    out = Take(meta, grid, values.astype(np.float32), status, neutral=take.neutral)
+    out.attach_audio(Audio(x.astype(np.float32), SR, "FLOAT"), start_s=0.0, start_source="aligned")
+    return out

@@ -1,0 +1,75 @@
+"""Shared helpers of the live-capture tests: a synthetic take and a ``listen`` subprocess on loopback."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from capture import ARKIT61, Audio, FrameStatus, Take, TakeMeta
+
+START_S = 10 * 3600 + 0.3 / 60  # 10:00:00 plus 0.3 frames at 60 fps
+
+
+def synthetic_take(n: int = 600, fps: float = 60.0, seed: int = 0, audio: bool = False) -> Take:
+    """``n`` tracked frames of random (unclamped) values on a clean grid starting at 10:00:00."""
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(-0.6, 1.05, (n, len(ARKIT61))).astype(np.float32)
+    meta = TakeMeta(
+        id=f"synthetic{seed}",
+        source_kind="simulated",
+        fps=fps,
+        channels=list(ARKIT61),
+        subject="iPhone",
+        device=f"00000000-0000-0000-0000-00000000000{seed % 10}",
+        csv={"start_seconds_of_day": START_S},
+    )
+    take = Take(meta, np.arange(n) / fps, values, np.full(n, FrameStatus.TRACKED, np.uint8))
+    if audio:
+        sr = 16000
+        t = np.arange(int(sr * n / fps)) / sr
+        take.attach_audio(Audio((0.3 * np.sin(2 * np.pi * 220 * t)).astype(np.float32), sr), 0.0)
+    return take
+
+
+class Listener:
+    """``s2a-capture listen`` in a subprocess on 127.0.0.1, any free port; always bounded in time."""
+
+    def __init__(self, out: Path, *extra: str, duration: float = 60.0):
+        cmd = [sys.executable, "-m", "capture", "listen", "-o", str(out), "--port", "0", "--json"]
+        cmd += ["--duration", str(duration), *extra]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        m = None
+        line = ""
+        for _ in range(50):  # the address line comes first, after any warnings Python prints
+            line = self.proc.stderr.readline()
+            m = re.search(r"udp://([0-9.]+):(\d+) -> (.*)$", line.strip())
+            if m or not line:
+                break
+        if not m:
+            self.proc.kill()
+            raise AssertionError(f"listener did not start: {line}{self.proc.communicate()[1]}")
+        self.port = int(m.group(2))
+        self.session_dir = Path(m.group(3))
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 60.0) -> tuple[list[dict], str, int]:
+        """Signal the listener and return its JSON lines, stderr and exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        out, err = self.proc.communicate(timeout=timeout)
+        return [json.loads(x) for x in out.splitlines() if x.strip()], err, self.proc.returncode
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.communicate(timeout=30)
+
+
+def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "capture", *args], capture_output=True, text=True, timeout=timeout
+    )

@@ -1,0 +1,185 @@
+"""PPG backends: the paper's bottleneck network (checkpoint written here, loaded weights-only), a
+user's TorchScript and ONNX model, and pocketsphinx phone recognition checked against reference
+phone alignments of real English speech."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+from conftest import run_cli
+from dataset_helpers import write_aligned_set
+
+from capture.take import sha256_file
+from dataset import ShardReader, read_manifest
+from dataset.features import FeatureSettings, spectral_features
+
+torch = pytest.importorskip("torch")
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
+
+
+@pytest.fixture(scope="module")
+def takes(tmp_path_factory) -> Path:
+    return write_aligned_set(tmp_path_factory.mktemp("ppg") / "takes", count=3, speakers=1, seconds=2.0)
+
+
+def _ppg_arrays(ds: Path) -> dict[str, np.ndarray]:
+    import io
+
+    out = {}
+    for s in read_manifest(ds)["shards"]:
+        for key, members in ShardReader(ds / s["name"]):
+            out[key] = np.load(io.BytesIO(members["ppg.npy"]))
+    return out
+
+
+def test_bottleneck_checkpoint_round_trip_and_build(takes, tmp_path):
+    from dataset.bottleneck import BottleneckConfig, BottleneckPPG, load_bottleneck, save_bottleneck
+
+    torch.manual_seed(0)
+    model = BottleneckPPG(BottleneckConfig(hidden=64))
+    ckpt = tmp_path / "ppg.pt"
+    save_bottleneck(model, ckpt)
+    loaded = load_bottleneck(ckpt)
+    for (k, a), (k2, b) in zip(model.state_dict().items(), loaded.state_dict().items(), strict=True):
+        assert k == k2 and torch.equal(a, b)
+    ds = tmp_path / "ds"
+    proc = run_cli("dataset", "build", takes, "-o", ds, "--ppg", "bottleneck", "--ppg-model", ckpt, "--json")
+    assert proc.returncode == 0, proc.stderr
+    m = read_manifest(ds)
+    ppg = m["features"]["ppg"]
+    assert ppg["backend"] == "bottleneck" and ppg["dim"] == 64 and ppg["model_sha256"] == sha256_file(ckpt)
+    assert m["features"]["dims"]["ppg"] == 64 and "phones.npy" in m["members"]
+    arrays = _ppg_arrays(ds)
+    assert all(a.shape[1] == 64 and a.dtype == np.float32 and np.isfinite(a).all() for a in arrays.values())
+    # the stored PPG is what the network computes from the preprocessor's filter banks
+    assert run_cli("dataset", "validate", ds, "--deep").returncode == 0
+    stats = json.loads(run_cli("dataset", "stats", ds, "--json").stdout)
+    assert stats["phone_coverage"]["phones"] == 40 and stats["phone_coverage"]["covered"] >= 1
+
+
+def test_checkpoint_with_pickled_code_is_refused(takes, tmp_path):
+    marker = tmp_path / "pwned"
+
+    class Evil:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    ckpt = tmp_path / "evil.pt"
+    torch.save({"format": "s2a-ppg-bottleneck", "config": {}, "state_dict": {}, "x": Evil()}, str(ckpt))
+    proc = run_cli(
+        "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "bottleneck", "--ppg-model", ckpt
+    )
+    assert proc.returncode == 1 and "not a loadable PPG checkpoint" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not marker.exists()
+
+
+class _Tiny(torch.nn.Module):
+    def __init__(self):
+        super().__init__()
+        torch.manual_seed(1)
+        self.proj = torch.nn.Linear(40, 8)
+
+    def forward(self, fbank):
+        return torch.softmax(self.proj(fbank), dim=-1)
+
+
+def test_torchscript_and_onnx_models_agree(takes, tmp_path):
+    model = _Tiny().eval()
+    ts = tmp_path / "ppg.ts"
+    torch.jit.script(model).save(str(ts))
+    ds_ts = tmp_path / "ds_ts"
+    proc = run_cli("dataset", "build", takes, "-o", ds_ts, "--ppg", "torchscript", "--ppg-model", ts)
+    assert proc.returncode == 0, proc.stderr
+    assert read_manifest(ds_ts)["features"]["ppg"]["dim"] == 8
+    ts_arrays = _ppg_arrays(ds_ts)
+    for a in ts_arrays.values():
+        np.testing.assert_allclose(a.sum(1), 1.0, atol=1e-5)  # posteriors, interpolated, still sum to one
+
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    onnx_path = tmp_path / "ppg.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            model,
+            (torch.zeros(1, 10, 40),),
+            str(onnx_path),
+            input_names=["fbank"],
+            output_names=["ppg"],
+            dynamic_axes={"fbank": {1: "frames"}, "ppg": {1: "frames"}},
+            dynamo=False,
+        )
+    ds_onnx = tmp_path / "ds_onnx"
+    proc = run_cli("dataset", "build", takes, "-o", ds_onnx, "--ppg", "onnx", "--ppg-model", onnx_path)
+    assert proc.returncode == 0, proc.stderr
+    onnx_arrays = _ppg_arrays(ds_onnx)
+    assert onnx_arrays.keys() == ts_arrays.keys()
+    for k in ts_arrays:
+        np.testing.assert_allclose(onnx_arrays[k], ts_arrays[k], atol=1e-5)
+
+
+def test_model_with_wrong_output_is_rejected(takes, tmp_path):
+    class Pool(torch.nn.Module):
+        def forward(self, fbank):
+            return fbank[:, ::2]
+
+    ts = tmp_path / "bad.ts"
+    torch.jit.script(Pool()).save(str(ts))
+    proc = run_cli(
+        "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "torchscript", "--ppg-model", ts
+    )
+    assert proc.returncode == 1 and "expected (1, " in proc.stderr and "bad.ts" in proc.stderr
+
+
+def test_pocketsphinx_phones_match_reference_alignments(samples):
+    pytest.importorskip("pocketsphinx")
+    from dataset.ppg import ARPABET, PocketsphinxExtractor
+
+    folder = samples / "speech" / "pocketsphinx-testdata-librivox"
+    ref = json.loads((folder / "alignments_pocketsphinx.json").read_text())
+    extractor = PocketsphinxExtractor()
+    hits = total = 0
+    for name, entry in ref.items():
+        x, rate = sf.read(folder / f"{name}.wav", dtype="float32")
+        assert rate == 16000
+        fbank = spectral_features(x, FeatureSettings())["fbank"]
+        result = extractor.extract(x, fbank)
+        assert result.posteriors.shape == (fbank.shape[0], len(ARPABET))
+        np.testing.assert_array_equal(result.posteriors.sum(1), 1.0)
+        t = np.arange(fbank.shape[0]) * 0.02
+        want = np.full(t.size, -1)
+        for word in entry["words"]:
+            for p in word["phones"]:
+                ph = p["phone"].upper()
+                want[(t >= p["start"]) & (t < p["end"])] = ARPABET.index(ph) if ph in ARPABET else 0
+        ok = want >= 0
+        hits += int((result.phone_ids[ok] == want[ok]).sum())
+        total += int(ok.sum())
+    # phone-loop recognition without a word model: far above the 1-in-40 chance level
+    assert hits / total > 0.35
+
+
+def test_pocketsphinx_forced_alignment_with_transcript(samples):
+    pytest.importorskip("pocketsphinx")
+    from dataset.ppg import ARPABET, PocketsphinxExtractor
+
+    folder = samples / "speech" / "pocketsphinx-testdata-librivox"
+    ref = json.loads((folder / "alignments_pocketsphinx.json").read_text())
+    name, entry = sorted(ref.items())[0]
+    x, _ = sf.read(folder / f"{name}.wav", dtype="float32")
+    fbank = spectral_features(x, FeatureSettings())["fbank"]
+    result = PocketsphinxExtractor().extract(x, fbank, transcript=entry["text"])
+    t = np.arange(fbank.shape[0]) * 0.02
+    want = np.full(t.size, -1)
+    for word in entry["words"]:
+        for p in word["phones"]:
+            want[(t >= p["start"]) & (t < p["end"])] = ARPABET.index(p["phone"].upper())
+    ok = want >= 0
+    # the reference was made by pocketsphinx's aligner: the phones agree almost everywhere
+    assert (result.phone_ids[ok] == want[ok]).mean() > 0.9

@@ -1,0 +1,75 @@
+"""Datasets from the real samples: FACEGOOD's Mandarin speech with rig controls (30 fps, the rig's
+own channel names, ``--channels varying``) and the NeuroSync ARKit take (60 fps, pronunciation32)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from conftest import run_cli
+from dataset_helpers import minimal_align
+
+from capture import read_csv_with_audio, read_paired, write_take
+from dataset import read_manifest
+
+
+def test_facegood_dataset_builds_and_validates(samples, tmp_path):
+    fg = samples / "paired" / "facegood-audio2face"
+    takes = tmp_path / "takes"
+    for name in ("1114_3_15", "1114_3_16", "1114_2_05"):
+        raw = read_paired(
+            fg / "wav" / f"{name}.wav",
+            fg / "bs_value" / f"bs_value_{name}.npy",
+            30.0,
+            fg / "bs_names.txt",
+            take_id=f"facegood_{name}",
+        )
+        write_take(minimal_align(raw, subject="shirley"), takes)
+    ds = tmp_path / "ds"
+    proc = run_cli(
+        "dataset",
+        "build",
+        takes,
+        "-o",
+        ds,
+        "--channels",
+        "varying",
+        "--test",
+        "facegood_1114_3_16",
+        "--val-fraction",
+        "0",
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["takes"] == 3 and summary["samples"] >= 7  # 30 s samples: 112.8 s → 4, 49 s → 2, ...
+    m = read_manifest(ds)
+    names = (fg / "bs_names.txt").read_text().split()
+    assert 10 < len(m["channels"]) < 116 and set(m["channels"]) <= set(names)
+    assert m["fps"] == 30.0 and m["splits"]["test"]["takes"] == ["facegood_1114_3_16"]
+    assert any("mouthClose" in w for w in m["warnings"])  # a rig without ARKit's metric channels
+    # the speech is voiced Mandarin: a plausible share of voiced frames and F0 range
+    stats = json.loads(run_cli("dataset", "stats", ds, "--json").stdout)
+    assert stats["hours"] * 3600 > 200
+    spk = m["normalization"]["pitch"]["speakers"]["shirley"]
+    assert 100 < np.exp(spk["mean"]) < 400 and spk["voiced_frames"] > 1000
+    proc = run_cli("dataset", "validate", ds, "--deep", "--json")
+    assert proc.returncode == 0, proc.stdout
+    assert json.loads(proc.stdout)["valid"]
+
+
+def test_neurosync_arkit_take_builds_and_validates(samples, tmp_path):
+    folder = samples / "paired" / "neurosync-trainer-lite-testset"
+    raw = read_csv_with_audio(folder / "testset.csv", folder / "audio.wav")
+    take = minimal_align(raw)
+    write_take(take, tmp_path / "takes")
+    ds = tmp_path / "ds"
+    proc = run_cli(
+        "dataset", "build", tmp_path / "takes", "-o", ds, "--features", "pitch,energy,mfcc", "--json"
+    )
+    assert proc.returncode == 0, proc.stderr
+    m = read_manifest(ds)
+    assert len(m["channels"]) == 32 and m["fps"] == 60.0 and m["warnings"]  # no speaker named: said so
+    assert m["speakers_assumed"] == [take.meta.id]
+    assert m["splits"]["train"]["takes"] == [take.meta.id]  # one take: train keeps it
+    assert run_cli("dataset", "validate", ds, "--deep").returncode == 0

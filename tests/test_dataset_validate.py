@@ -1,0 +1,177 @@
+"""s2a-dataset validate: ten injected corruptions, each reported with its location and exit code 1."""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import tarfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+from conftest import run_cli
+from dataset_helpers import write_aligned_set
+
+from dataset.qa import CHECKS, VALIDATORS, validate
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("clean")
+    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
+    proc = run_cli("dataset", "build", takes, "-o", root / "ds", "--json")
+    assert proc.returncode == 0, proc.stderr
+    return root / "ds"
+
+
+def _manifest(ds: Path) -> dict:
+    return json.loads((ds / "manifest.json").read_text())
+
+
+def _save_manifest(ds: Path, m: dict) -> None:
+    (ds / "manifest.json").write_text(json.dumps(m, indent=2))
+
+
+def _shard(ds: Path, split: str = "train") -> Path:
+    return ds / next(s["name"] for s in _manifest(ds)["shards"] if s["split"] == split)
+
+
+def _rewrite(shard: Path, edit) -> None:
+    """Rewrite a shard through ``edit(list of [name, bytes]) -> list`` (a user-made damaged shard)."""
+    with tarfile.open(shard) as tar:
+        members = [[m.name, tar.extractfile(m).read()] for m in tar.getmembers()]
+    members = edit(members)
+    with tarfile.open(shard, "w") as tar:
+        for name, data in members:
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+
+
+def _npy(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
+
+
+def _edit_member(suffix: str, change):
+    def edit(members):
+        for m in members:
+            if m[0].endswith(suffix):
+                m[1] = change(m[1])
+                break
+        return members
+
+    return edit
+
+
+def flip_byte(ds):
+    p = _shard(ds)
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    p.write_bytes(bytes(data))
+
+
+def truncate(ds):
+    p = _shard(ds)
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2 + 100])
+
+
+def remove(ds):
+    _shard(ds, "test").unlink()
+
+
+def manifest_checksum(ds):
+    m = _manifest(ds)
+    m["shards"][0]["sha256"] = "0" * 64
+    _save_manifest(ds, m)
+
+
+def nan_feature(ds):
+    def change(b):
+        a = np.load(io.BytesIO(b))
+        a[5, 3] = np.nan
+        return _npy(a)
+
+    _rewrite(_shard(ds), _edit_member(".fbank.npy", change))
+
+
+def channel_count(ds):
+    _rewrite(_shard(ds), _edit_member(".anim.npy", lambda b: _npy(np.load(io.BytesIO(b))[:, :-1])))
+
+
+def length_mismatch(ds):
+    _rewrite(_shard(ds), _edit_member(".energy.npy", lambda b: _npy(np.load(io.BytesIO(b))[:-3])))
+
+
+def take_in_two_splits(ds):
+    # a copy of a train sample under a new key, filed in the test shard
+    with tarfile.open(_shard(ds)) as tar:
+        first = [[m.name, tar.extractfile(m).read()] for m in tar.getmembers()]
+    key = first[0][0].split(".", 1)[0]
+    copy = [[n.replace(key, "zz_leak", 1), d] for n, d in first if n.startswith(key + ".")]
+    for m in copy:
+        if m[0].endswith(".json"):
+            meta = json.loads(m[1])
+            meta.update(key="zz_leak", split="test")
+            m[1] = json.dumps(meta).encode()
+    _rewrite(_shard(ds, "test"), lambda members: members + copy)
+
+
+def duplicate_key(ds):
+    with tarfile.open(_shard(ds)) as tar:
+        first = [[m.name, tar.extractfile(m).read()] for m in tar.getmembers()]
+    key = first[0][0].split(".", 1)[0]
+    again = [m for m in first if m[0].startswith(key + ".")]
+    _rewrite(_shard(ds, "val"), lambda members: members + again)
+
+
+def wrong_sample_rate(ds):
+    def change(b):
+        x, rate = sf.read(io.BytesIO(b))
+        buf = io.BytesIO()
+        sf.write(buf, x, 22050, format="FLAC")
+        return buf.getvalue()
+
+    _rewrite(_shard(ds), _edit_member(".flac", change))
+
+
+CASES = [
+    (flip_byte, True, "shard_checksum"),
+    (truncate, False, "shard_size"),
+    (remove, False, "shard_missing"),
+    (manifest_checksum, True, "shard_checksum"),
+    (nan_feature, False, "nonfinite"),
+    (channel_count, False, "channel_count"),
+    (length_mismatch, False, "length_mismatch"),
+    (take_in_two_splits, False, "split_leakage"),
+    (duplicate_key, False, "duplicate_key"),
+    (wrong_sample_rate, False, "sample_rate"),
+]
+
+
+@pytest.mark.parametrize(("corrupt", "deep", "code"), CASES, ids=[c[0].__name__ for c in CASES])
+def test_each_corruption_is_reported(clean, tmp_path, corrupt, deep, code):
+    ds = tmp_path / "ds"
+    shutil.copytree(clean, ds)
+    corrupt(ds)
+    args = ["dataset", "validate", ds, "--json"] + (["--deep"] if deep else [])
+    proc = run_cli(*args)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    report = json.loads(proc.stdout)
+    assert not report["valid"]
+    codes = {p["code"] for p in report["problems"]}
+    assert code in codes, report["problems"]
+    where = [p["location"] for p in report["problems"] if p["code"] == code]
+    assert all(where) and "Traceback" not in proc.stderr
+    human = run_cli(*args[:-1] if not deep else [a for a in args if a != "--json"])
+    assert human.returncode == 1 and f"[{code}]" in human.stdout
+
+
+def test_clean_dataset_has_no_problems_and_checks_are_data(clean):
+    report = validate(clean, deep=True)
+    assert report.valid and report.problems == []
+    assert set(VALIDATORS) == {"manifest", "shard", "sample", "splits"}
+    assert len({c.code for c in CHECKS}) == len(CHECKS) >= 20

@@ -1,0 +1,114 @@
+"""Transformer-S2A, its MoE layer and the baselines: shapes, masking, routing, learning."""
+
+import pytest
+import torch
+
+from train import BLSTM, NVP, BLSTMConfig, MoELayer, NVPConfig, S2AConfig, TransformerS2A, masked_mse
+from train.moe import expert_loop_reference
+
+SMALL = dict(d_model=32, heads=2, encoder_layers=1, decoder_layers=1, ff_dim=64, expert_hidden=8, dropout=0.0)
+
+
+def models():
+    return {
+        "s2a": TransformerS2A(S2AConfig(**SMALL)),
+        "s2a-nomoe": TransformerS2A(S2AConfig(**SMALL, moe=False)),
+        "s2a-noprosody": TransformerS2A(S2AConfig(**SMALL, prosody_dim=0)),
+        "blstm": BLSTM(BLSTMConfig(hidden=16, layers=2, dropout=0.0)),
+        "nvp3": NVP(NVPConfig(window=3, hidden=32, dropout=0.0)),
+        "nvp9": NVP(NVPConfig(window=9, hidden=32, dropout=0.0)),
+    }
+
+
+@pytest.mark.parametrize("name", sorted(models()))
+def test_shapes_and_padding_does_not_leak(name):
+    torch.manual_seed(0)
+    model = models()[name].eval()
+    prosody_dim = model.config.prosody_dim
+    content = torch.randn(2, 40, 64)
+    prosody = torch.randn(2, 40, prosody_dim) if prosody_dim else None
+    mask = torch.ones(2, 40, dtype=torch.bool)
+    mask[1, 25:] = False
+    with torch.no_grad():
+        out = model(content, prosody, mask)
+        assert out.shape == (2, 40, 32)
+        # The padded sequence's real frames equal the same sequence run alone, unpadded.
+        alone = model(content[1:, :25], prosody[1:, :25] if prosody is not None else None, mask[1:, :25])
+        # Garbage in the padding changes nothing either.
+        content2 = content.clone()
+        content2[1, 25:] = 1e3
+        again = model(content2, prosody, mask)
+    assert torch.allclose(out[1, :25], alone[0], atol=1e-5)
+    assert torch.allclose(out[1, :25], again[1, :25], atol=1e-5)
+
+
+def test_dense_sparse_and_loop_agree():
+    torch.manual_seed(1)
+    layer = MoELayer(24, 8, experts=12, top_k=4, kernel_size=3).eval()
+    h = torch.randn(3, 30, 24)
+    with torch.no_grad():
+        dense = layer(h)
+        layer.mode = "sparse"
+        sparse = layer(h)
+        loop = expert_loop_reference(layer, h)
+    assert torch.allclose(dense, sparse, atol=1e-5)
+    assert torch.allclose(dense, loop, atol=1e-5)
+
+
+def test_gradients_agree_between_paths():
+    torch.manual_seed(2)
+    grads = {}
+    for mode in ("dense", "sparse"):
+        torch.manual_seed(3)
+        layer = MoELayer(16, 8, experts=6, top_k=2, mode=mode)
+        h = torch.randn(2, 20, 16, requires_grad=True)
+        layer(h).square().sum().backward()
+        grads[mode] = (h.grad, layer.conv.weight.grad, layer.linear_weight.grad, layer.gate.weight.grad)
+    for a, b in zip(grads["dense"], grads["sparse"]):
+        assert torch.allclose(a, b, atol=1e-4)
+
+
+def test_top_k_keeps_exactly_k_experts_with_softmax_weights():
+    torch.manual_seed(4)
+    layer = MoELayer(16, 4, experts=48, top_k=16).eval()
+    idx, probs = layer.route(torch.randn(2, 10, 16))
+    assert idx.shape == (2, 10, 16) and probs.shape == (2, 10, 16)
+    assert all(len(set(row.tolist())) == 16 for row in idx.reshape(-1, 16))
+    assert torch.allclose(probs.sum(-1), torch.ones(2, 10))
+    scores = layer.gate(torch.randn(1, 1, 16))
+    kept = scores.topk(16, dim=-1).values
+    assert torch.all(kept.min() >= scores.sort(dim=-1, descending=True).values[..., 16])
+
+
+def test_load_balancing_loss_is_reported_in_training():
+    layer = MoELayer(16, 4, experts=8, top_k=2).train()
+    layer(torch.randn(2, 10, 16))
+    assert layer.aux_loss.item() > 0
+    assert MoELayer(16, 4, experts=4, top_k=4).train()(torch.randn(1, 3, 16)).shape == (1, 3, 16)
+
+
+def test_paper_defaults():
+    c = S2AConfig()
+    assert (c.experts, c.top_k, c.content_dim, c.out_dim) == (48, 16, 64, 32)
+    with pytest.raises(ValueError):
+        MoELayer(16, 4, experts=4, top_k=5)
+
+
+@pytest.mark.parametrize("name", ["s2a", "blstm", "nvp9"])
+def test_a_tiny_model_overfits_a_tiny_dataset(name):
+    torch.manual_seed(5)
+    model = models()[name].train()
+    content = torch.randn(4, 30, 64)
+    prosody = torch.randn(4, 30, 3)
+    mask = torch.ones(4, 30, dtype=torch.bool)
+    target = torch.tanh(content[..., :32] + content.roll(1, dims=1)[..., 32:]) * 0.5
+    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
+    first = None
+    for _ in range(250):
+        loss = masked_mse(model(content, prosody, mask), target, mask)
+        if first is None:
+            first = loss.item()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert loss.item() < first / 10

@@ -1,0 +1,218 @@
+"""Transformer-S2A (Chen et al., ICASSP 2022, Figure 2) and the baselines of its tables.
+
+    PPG (B, T, ppg_dim) at the animation rate
+      → input projection + sinusoidal positional encoding
+      → content encoder (Transformer blocks)
+      → concatenate prosody (pitch, energy) and project
+      → expert decoder (Transformer blocks whose feed-forward is a MoE layer)
+      → linear head → blendshapes (B, T, out_dim)
+
+Sizes live in ``S2AConfig``; the paper's MoE settings (48 experts, top-16, Conv1d+Linear experts) are the
+defaults, the rest (widths, depths) are ours where the paper is silent. Model code does no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .moe import MoELayer
+
+
+@dataclass
+class S2AConfig:
+    """Sizes of Transformer-S2A. ``content_dim`` is the per-frame content input (64 for the PPG
+    bottleneck, or the MFCC count for the MFCC ablation); ``prosody_dim`` 0 removes pitch and energy."""
+
+    content_dim: int = 64
+    prosody_dim: int = 3  # log-F0, voicing flag, energy
+    out_dim: int = 32
+    d_model: int = 256
+    heads: int = 4
+    encoder_layers: int = 3
+    decoder_layers: int = 3
+    ff_dim: int = 1024  # feed-forward width of the encoder and of the no-MoE ablation
+    experts: int = 48
+    top_k: int = 16
+    expert_hidden: int = 64  # 48 experts x 64 = 3072 units; 16 active = the 1024 of a dense FFN
+    expert_kernel: int = 3
+    moe: bool = True
+    moe_mode: str = "dense"  # or "sparse" (same numbers; for large settings)
+    dropout: float = 0.1
+    max_frames: int = 8192
+
+
+class PositionalEncoding(nn.Module):
+    """Sinusoidal positions (Vaswani et al.) added to (B, T, d_model)."""
+
+    def __init__(self, d_model: int, max_frames: int):
+        super().__init__()
+        pos = torch.arange(max_frames).unsqueeze(1)
+        div = torch.exp(torch.arange(0, d_model, 2) * (-math.log(10000.0) / d_model))
+        pe = torch.zeros(max_frames, d_model)
+        pe[:, 0::2] = torch.sin(pos * div)
+        pe[:, 1::2] = torch.cos(pos * div[: d_model // 2])
+        self.register_buffer("pe", pe, persistent=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.shape[1] > self.pe.shape[0]:
+            raise ValueError(f"{x.shape[1]} frames exceed max_frames={self.pe.shape[0]}")
+        return x + self.pe[: x.shape[1]]
+
+
+class FeedForward(nn.Module):
+    def __init__(self, d_model: int, ff_dim: int, dropout: float):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Linear(d_model, ff_dim), nn.GELU(), nn.Dropout(dropout), nn.Linear(ff_dim, d_model)
+        )
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        return self.net(x)
+
+
+class Block(nn.Module):
+    """Pre-norm Transformer block: self-attention, then a feed-forward (plain or MoE)."""
+
+    def __init__(self, d_model: int, heads: int, ff: nn.Module, dropout: float):
+        super().__init__()
+        self.norm1 = nn.LayerNorm(d_model)
+        self.attn = nn.MultiheadAttention(d_model, heads, dropout=dropout, batch_first=True)
+        self.norm2 = nn.LayerNorm(d_model)
+        self.ff = ff
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        y = self.norm1(x)
+        y, _ = self.attn(y, y, y, key_padding_mask=~mask, need_weights=False)
+        x = x + self.drop(y)
+        return x + self.drop(self.ff(self.norm2(x), mask))
+
+
+class TransformerS2A(nn.Module):
+    """The paper's model; ``config.moe = False`` gives the no-MoE ablation."""
+
+    def __init__(self, config: S2AConfig):
+        super().__init__()
+        c = self.config = config
+        self.content_in = nn.Linear(c.content_dim, c.d_model)
+        self.positions = PositionalEncoding(c.d_model, c.max_frames)
+        self.encoder = nn.ModuleList(
+            Block(c.d_model, c.heads, FeedForward(c.d_model, c.ff_dim, c.dropout), c.dropout)
+            for _ in range(c.encoder_layers)
+        )
+        self.prosody_in = nn.Linear(c.d_model + c.prosody_dim, c.d_model)
+        self.decoder = nn.ModuleList(
+            Block(c.d_model, c.heads, self._decoder_ff(), c.dropout) for _ in range(c.decoder_layers)
+        )
+        self.norm = nn.LayerNorm(c.d_model)
+        self.head = nn.Linear(c.d_model, c.out_dim)
+        self.drop = nn.Dropout(c.dropout)
+
+    def _decoder_ff(self) -> nn.Module:
+        c = self.config
+        if not c.moe:
+            return FeedForward(c.d_model, c.ff_dim, c.dropout)
+        return MoELayer(
+            c.d_model, c.expert_hidden, c.experts, c.top_k, c.expert_kernel, c.dropout, c.moe_mode
+        )
+
+    def forward(
+        self, content: torch.Tensor, prosody: torch.Tensor | None, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """``content`` (B, T, content_dim), ``prosody`` (B, T, prosody_dim) or None when
+        prosody_dim is 0, ``mask`` (B, T) bool, True on real frames → (B, T, out_dim)."""
+        x = self.drop(self.positions(self.content_in(content)))
+        for block in self.encoder:
+            x = block(x, mask)
+        if self.config.prosody_dim:
+            x = torch.cat([x, prosody], dim=-1)
+        x = self.prosody_in(x)
+        for block in self.decoder:
+            x = block(x, mask)
+        return self.head(self.norm(x))
+
+    def aux_loss(self) -> torch.Tensor:
+        """Sum of the MoE layers' load-balancing losses from the last forward pass."""
+        losses = [m.aux_loss for m in self.modules() if isinstance(m, MoELayer)]
+        return torch.stack(losses).sum() if losses else torch.zeros(())
+
+
+@dataclass
+class BLSTMConfig:
+    content_dim: int = 64
+    prosody_dim: int = 3
+    out_dim: int = 32
+    hidden: int = 128
+    layers: int = 2
+    dropout: float = 0.1
+
+
+class BLSTM(nn.Module):
+    """Sequence-level bidirectional LSTM baseline (Audio2Face-style, paper Table 1)."""
+
+    def __init__(self, config: BLSTMConfig):
+        super().__init__()
+        c = self.config = config
+        self.lstm = nn.LSTM(
+            c.content_dim + c.prosody_dim,
+            c.hidden,
+            c.layers,
+            batch_first=True,
+            bidirectional=True,
+            dropout=c.dropout if c.layers > 1 else 0.0,
+        )
+        self.head = nn.Linear(2 * c.hidden, c.out_dim)
+
+    def forward(self, content, prosody, mask):
+        x = torch.cat([content, prosody], dim=-1) if self.config.prosody_dim else content
+        lengths = mask.sum(dim=1).clamp(min=1).cpu()
+        packed = nn.utils.rnn.pack_padded_sequence(x, lengths, batch_first=True, enforce_sorted=False)
+        y, _ = self.lstm(packed)
+        y, _ = nn.utils.rnn.pad_packed_sequence(y, batch_first=True, total_length=x.shape[1])
+        return self.head(y)
+
+
+@dataclass
+class NVPConfig:
+    content_dim: int = 64
+    prosody_dim: int = 3
+    out_dim: int = 32
+    window: int = 9  # frames of context, centred (3 or 9 in the paper's table)
+    hidden: int = 256
+    dropout: float = 0.1
+
+
+class NVP(nn.Module):
+    """Frame-level sliding-window network (Audio2ExpressionNet / NVP style): each output frame sees only
+    ``window`` input frames around it, through convolutions over time and a per-frame MLP."""
+
+    def __init__(self, config: NVPConfig):
+        super().__init__()
+        c = self.config = config
+        if c.window % 2 != 1:
+            raise ValueError("window must be odd")
+        dim = c.content_dim + c.prosody_dim
+        self.window_conv = nn.Conv1d(dim, c.hidden, c.window, padding=c.window // 2)
+        self.mlp = nn.Sequential(
+            nn.GELU(),
+            nn.Dropout(c.dropout),
+            nn.Linear(c.hidden, c.hidden),
+            nn.GELU(),
+            nn.Linear(c.hidden, c.out_dim),
+        )
+
+    def forward(self, content, prosody, mask):
+        x = torch.cat([content, prosody], dim=-1) if self.config.prosody_dim else content
+        x = x * mask.unsqueeze(-1).to(x.dtype)
+        return self.mlp(self.window_conv(x.transpose(1, 2)).transpose(1, 2))
+
+
+def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared error over real frames only (``mask`` (B, T) True on real frames)."""
+    m = mask.unsqueeze(-1).to(pred.dtype)
+    return (F.mse_loss(pred, target, reduction="none") * m).sum() / (m.sum() * pred.shape[-1]).clamp(min=1)

@@ -1,0 +1,140 @@
+"""The Mixture-of-Experts feed-forward layer of Transformer-S2A (paper §2.3, equation 3).
+
+Each expert is a stride-1 Conv1d over time followed by a Linear: ``E_i(h) = W_i · act(conv_i(h))``.
+A gating network scores the experts per frame, the top-k scores are kept, a softmax over the kept
+scores gives ``Prob_i(h)``, and the output is ``Σ_i Prob_i(h) · E_i(h)`` (the paper writes ``G_i(h)``
+where the expert output is meant).
+
+No Python loop runs over experts. The dense path computes every expert with one convolution (all
+experts' kernels stacked into one weight) and one grouped matrix product; the sparse path gathers, for
+each expert, only the frames routed to it (im2col patches, padded to the busiest expert) and runs two
+batched matrix products. Both give the same numbers.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class MoELayer(nn.Module):
+    """``experts`` Conv1d+Linear experts of hidden width ``hidden``, ``top_k`` kept per frame.
+
+    Input and output are (batch, frames, d_model). ``mode`` is "dense" or "sparse" (see module doc).
+    After a forward pass, ``aux_loss`` holds the load-balancing loss (Switch Transformer form: experts x
+    Σ fraction-routed · mean-probability), 0 when ``top_k == experts``.
+    """
+
+    def __init__(
+        self,
+        d_model: int,
+        hidden: int,
+        experts: int = 48,
+        top_k: int = 16,
+        kernel_size: int = 3,
+        dropout: float = 0.0,
+        mode: str = "dense",
+    ):
+        super().__init__()
+        if not 1 <= top_k <= experts:
+            raise ValueError(f"top_k must be in 1..{experts}, got {top_k}")
+        if kernel_size % 2 != 1:
+            raise ValueError("kernel_size must be odd so that frames stay aligned")
+        self.d_model, self.hidden, self.experts, self.top_k = d_model, hidden, experts, top_k
+        self.kernel_size = kernel_size
+        self.mode = mode
+        self.gate = nn.Linear(d_model, experts)
+        # All experts' convolutions as one Conv1d: output channels grouped by expert.
+        self.conv = nn.Conv1d(d_model, experts * hidden, kernel_size, padding=kernel_size // 2)
+        # All experts' linears as one grouped weight: (experts, hidden, d_model).
+        self.linear_weight = nn.Parameter(torch.empty(experts, hidden, d_model))
+        self.linear_bias = nn.Parameter(torch.zeros(experts, d_model))
+        nn.init.kaiming_uniform_(self.linear_weight.view(experts * hidden, d_model).T, a=5**0.5)
+        self.dropout = nn.Dropout(dropout)
+        self.aux_loss = torch.zeros(())
+
+    def route(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Top-k expert indices (B, T, k) and their probabilities (softmax over the kept scores)."""
+        scores = self.gate(h)
+        top_scores, top_idx = scores.topk(self.top_k, dim=-1)
+        probs = top_scores.softmax(dim=-1)
+        if self.training and self.top_k < self.experts:
+            routed = F.one_hot(top_idx, self.experts).sum(dim=-2).float()  # (B, T, E)
+            fraction = routed.mean(dim=(0, 1)) / self.top_k
+            mean_prob = scores.softmax(dim=-1).mean(dim=(0, 1))
+            self.aux_loss = self.experts * (fraction * mean_prob).sum()
+        else:
+            self.aux_loss = scores.new_zeros(())
+        return top_idx, probs
+
+    def forward(self, h: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """``h`` (B, T, d_model); ``mask`` (B, T) True where frames are real (padding is zeroed first,
+        so it cannot leak into neighbours through the convolution)."""
+        if mask is not None:
+            h = h * mask.unsqueeze(-1).to(h.dtype)
+        top_idx, probs = self.route(h)
+        if self.mode == "sparse":
+            return self._sparse(h, top_idx, probs)
+        return self._dense(h, top_idx, probs)
+
+    def _dense(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
+        b, t, _ = h.shape
+        weights = torch.zeros(b, t, self.experts, dtype=h.dtype, device=h.device)
+        weights.scatter_(-1, top_idx, probs)  # Prob_i(h), zero outside the top k
+        inner = F.gelu(self.conv(h.transpose(1, 2)))  # every expert's conv at once: (B, E*H, T)
+        inner = self.dropout(inner).view(b, self.experts, self.hidden, t)
+        # Weighting before the linears turns the sum over experts into one matrix product.
+        inner = inner * weights.permute(0, 2, 1).unsqueeze(2)
+        inner = inner.permute(0, 3, 1, 2).reshape(b, t, self.experts * self.hidden)
+        flat_w = self.linear_weight.reshape(self.experts * self.hidden, self.d_model)
+        return inner @ flat_w + weights @ self.linear_bias
+
+    def _sparse(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
+        b, t, d = h.shape
+        k, e = self.kernel_size, self.experts
+        # im2col: each frame's receptive field as one row (B*T, d*k), matching Conv1d's weight layout.
+        padded = F.pad(h.transpose(1, 2), (k // 2, k // 2))  # (B, D, T+k-1)
+        patches = padded.unfold(2, k, 1).permute(0, 2, 1, 3).reshape(b * t, d * k)
+        expert = top_idx.reshape(-1)  # (B*T*k_top,)
+        frame = torch.arange(b * t, device=h.device).repeat_interleave(self.top_k)
+        prob = probs.reshape(-1)
+        order = torch.argsort(expert, stable=True)
+        expert, frame, prob = expert[order], frame[order], prob[order]
+        counts = torch.bincount(expert, minlength=e)
+        capacity = int(counts.max())
+        # Slot of each routed frame inside its expert's batch.
+        starts = torch.cumsum(counts, 0) - counts
+        slot = torch.arange(expert.numel(), device=h.device) - starts[expert]
+        batch = h.new_zeros(e, capacity, d * k)
+        batch[expert, slot] = patches[frame]
+        w_conv = self.conv.weight.view(e, self.hidden, d * k).transpose(1, 2)  # (E, d*k, H)
+        b_conv = self.conv.bias.view(e, 1, self.hidden)
+        inner = self.dropout(F.gelu(torch.bmm(batch, w_conv) + b_conv))  # (E, C, H)
+        out = torch.bmm(inner, self.linear_weight) + self.linear_bias.unsqueeze(1)  # (E, C, D)
+        picked = out[expert, slot] * prob.unsqueeze(-1)
+        result = h.new_zeros(b * t, d).index_add_(0, frame, picked)
+        return result.view(b, t, d)
+
+
+def expert_loop_reference(layer: MoELayer, h: torch.Tensor) -> torch.Tensor:
+    """The MoE output computed the naive way: a Python loop over experts, each run on the frames routed
+    to it (with their convolution context). Only for tests and for the benchmark that shows what fusing
+    saves; the model never calls it."""
+    top_idx, probs = layer.route(h)
+    b, t, d = h.shape
+    k = layer.kernel_size
+    padded = F.pad(h.transpose(1, 2), (k // 2, k // 2))
+    patches = padded.unfold(2, k, 1).permute(0, 2, 1, 3).reshape(b * t, d * k)
+    flat_idx, flat_prob = top_idx.reshape(b * t, -1), probs.reshape(b * t, -1)
+    conv_w = layer.conv.weight.view(layer.experts, layer.hidden, d * k)
+    conv_b = layer.conv.bias.view(layer.experts, layer.hidden)
+    out = h.new_zeros(b * t, d)
+    for i in range(layer.experts):
+        frames, slot = (flat_idx == i).nonzero(as_tuple=True)
+        if frames.numel() == 0:
+            continue
+        inner = F.gelu(patches[frames] @ conv_w[i].T + conv_b[i])
+        expert_out = inner @ layer.linear_weight[i] + layer.linear_bias[i]
+        out.index_add_(0, frames, expert_out * flat_prob[frames, slot].unsqueeze(-1))
+    return out.view(b, t, d)

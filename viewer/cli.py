@@ -1,0 +1,356 @@
+"""``s2a-view``: see a take or a prediction as a face (PNG/MP4), as curves, live in Unreal, and a
+dataset as one HTML page."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from capture.command import emit_json, progress, run
+from capture.errors import InputError
+
+from .plot import VAD_METHODS
+
+PROG = "s2a-view"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser(
+        "render",
+        help="render a take or prediction as a face: one frame (PNG) or the whole take (MP4 with audio)",
+        description="Render a take folder or Live Link Face CSV with the built-in face or a glTF/GLB head "
+        "with ARKit morph targets. .png: one frame; .mp4: every frame at the take's rate with its audio.",
+    )
+    p.add_argument("input", type=Path, help="take folder or Live Link Face CSV (a recording or a prediction)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output .png (one frame) or .mp4 (the take)")
+    p.add_argument(
+        "--compare",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="TAKE_OR_CSV",
+        help="more takes/predictions rendered beside the input, on the same clock",
+    )
+    p.add_argument(
+        "--compare-offset",
+        type=float,
+        nargs="+",
+        metavar="S",
+        help="seconds after the input's first frame at which each --compare input starts (default: 0, "
+        "or an aligned segment's start when it was aligned from the input)",
+    )
+    p.add_argument(
+        "--video",
+        metavar="FILE|auto",
+        help="reference video beside the face: a file, or 'auto' for the take's own .mov",
+    )
+    p.add_argument(
+        "--video-start",
+        type=float,
+        metavar="S",
+        help="take time (s) of the video's first frame (default: the audio's start, else 0)",
+    )
+    p.add_argument(
+        "--face",
+        default="builtin",
+        metavar="builtin|FILE.glb",
+        help="the face: the built-in head (default) or a glTF/GLB file with ARKit morph targets",
+    )
+    p.add_argument("--audio", type=Path, help="speech for a CSV input (a take folder brings its own)")
+    p.add_argument("--size", type=int, default=512, help="panel height and width in pixels (default 512)")
+    p.add_argument("--frame", type=int, help="PNG: frame index of the input (default: widest open jaw)")
+    p.add_argument("--time", type=float, help="PNG: seconds after the input's first frame")
+    p.add_argument("--labels", help="comma list of panel names, one per input (default: take ids)")
+    p.add_argument("--no-labels", action="store_true", help="no panel names in side-by-side output")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_render)
+
+    p = sub.add_parser(
+        "plot",
+        help="channels over time for takes/predictions, waveform and VAD segments beneath (PNG/SVG)",
+    )
+    p.add_argument("inputs", type=Path, nargs="+", help="take folders or Live Link Face CSVs")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output .png or .svg")
+    p.add_argument(
+        "--channels", default="jawOpen", help="comma list of channels or a set name (default jawOpen)"
+    )
+    p.add_argument("--audio", type=Path, help="speech for the first input when it is a CSV")
+    p.add_argument(
+        "--vad",
+        default="auto",
+        choices=VAD_METHODS,
+        help="speech segments: auto = align report, else silero VAD (default)",
+    )
+    p.add_argument("--labels", help="comma list of legend names, one per input")
+    p.add_argument("--start", type=float, help="first second shown")
+    p.add_argument("--end", type=float, help="last second shown")
+    p.add_argument("--title", help="figure title")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_plot)
+
+    p = sub.add_parser(
+        "stream",
+        help="send a take or prediction as Live Link packets to Unreal (v6, 61 channels, real time)",
+    )
+    p.add_argument("input", type=Path, help="take folder or Live Link Face CSV")
+    p.add_argument("--to", required=True, metavar="HOST:PORT", help="where Unreal listens (port 11111)")
+    p.add_argument(
+        "--audio",
+        nargs="?",
+        const="take",
+        metavar="FILE",
+        help="play the speech on this machine on the same clock (the take's, or FILE)",
+    )
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = the phone's timing)")
+    p.add_argument("--subject", help="Live Link subject name (default: the take's, else iPhone)")
+    p.add_argument(
+        "--device", help="device id in the packets (default: the take's, else derived from its id)"
+    )
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_stream)
+
+    p = sub.add_parser("report", help="one self-contained HTML page for a dataset or a folder of takes")
+    p.add_argument("dataset", type=Path, help="dataset folder (manifest.json) or a folder of take folders")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output .html")
+    p.add_argument(
+        "--takes", type=Path, nargs="+", default=[], help="aligned take folders whose align reports to show"
+    )
+    p.add_argument("--limit", type=int, default=500, help="at most this many takes get curve thumbnails")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_report)
+
+    p = sub.add_parser("export-face", help="write the built-in face as GLB with ARKit morph targets")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output .glb")
+    p.add_argument(
+        "--names",
+        choices=("arkit", "pascal", "suffix"),
+        default="arkit",
+        help="target name style: jawOpen, JawOpen, or eyeBlink_L (default arkit)",
+    )
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_export_face)
+
+    p = sub.add_parser("probe", help="check that offscreen rendering works here (and say what to install)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_probe)
+    return parser
+
+
+def _face(spec: str):
+    from .face import builtin_face
+    from .gltf import load_gltf
+
+    return builtin_face() if spec == "builtin" else load_gltf(spec)
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from .probe import probe
+    from .render import (
+        FaceRenderer,
+        ReferenceVideo,
+        audio_for_span,
+        default_frame,
+        distinct_labels,
+        load_animation,
+        place_on_parent_clock,
+        reference_video_of,
+        render_frame,
+        write_image,
+        write_mp4,
+    )
+
+    suffix = args.out.suffix.lower()
+    if suffix not in (".png", ".jpg", ".jpeg", ".mp4"):
+        raise InputError("output must be .png (one frame) or .mp4 (the whole take)", args.out)
+    if not 16 <= args.size <= 4096:
+        raise InputError(f"--size must be in 16..4096, not {args.size}")
+    if suffix == ".mp4" and (args.frame is not None or args.time is not None):
+        raise InputError("--frame/--time pick one frame for a PNG; an MP4 has them all")
+    anims = [load_animation(args.input, args.audio)]
+    anims += [load_animation(c) for c in args.compare]
+    paths = [args.input, *args.compare]
+    if args.labels:
+        names = [s.strip() for s in args.labels.split(",")]
+        if len(names) != len(anims):
+            raise InputError(f"--labels names {len(names)} panels, but there are {len(anims)} inputs")
+        for a, name in zip(anims, names):
+            a.label = name
+    else:
+        distinct_labels(anims, paths)
+    if args.compare_offset is not None and len(args.compare_offset) != len(args.compare):
+        raise InputError(
+            f"--compare-offset gives {len(args.compare_offset)} offsets for {len(args.compare)} inputs"
+        )
+    for i, a in enumerate(anims[1:]):
+        a.offset_s = args.compare_offset[i] if args.compare_offset else place_on_parent_clock(anims[0], a)
+    model = _face(args.face)
+    probe()  # in a subprocess: without GL, say what to install instead of crashing
+    video = None
+    if args.video:
+        vpath = reference_video_of(anims[0].take) if args.video == "auto" else Path(args.video)
+        if vpath is None:
+            raise InputError("the take names no reference video (--video auto); give the file", args.input)
+        start = args.video_start if args.video_start is not None else anims[0].audio_start_s
+        video = ReferenceVideo(vpath, args.size, start)
+    labels = not args.no_labels
+    first = anims[0]
+    size = (args.size, args.size)
+    summary: dict = {
+        "input": str(args.input),
+        "compare": [str(c) for c in args.compare],
+        "compare_offset_s": [round(a.offset_s, 6) for a in anims[1:]],
+        "face": model.name,
+    }
+    with FaceRenderer(model, size) as renderer:
+        if suffix != ".mp4":
+            if args.time is not None:
+                t_rel = args.time
+            else:
+                k = args.frame if args.frame is not None else default_frame(first)
+                if not 0 <= k < first.time.size:
+                    raise InputError(f"--frame {k} is outside 0..{first.time.size - 1}", args.input)
+                t_rel = float(first.time[k] - first.t0)
+            t = time.perf_counter()
+            img = render_frame(renderer, anims, t_rel, video, labels)
+            write_image(args.out, img)
+            summary |= {
+                "output": str(args.out),
+                "time_s": round(t_rel, 6),
+                "width": img.shape[1],
+                "height": img.shape[0],
+                "render_s": round(time.perf_counter() - t, 4),
+            }
+        else:
+            n = first.frames
+            fps = first.fps
+            voice = next((a for a in anims if a.audio is not None), None)
+            audio = audio_for_span(voice, voice.t0, n / fps) if voice is not None else None
+            step = max(1, n // 10)
+            t_start = time.perf_counter()
+
+            def tick(k: int) -> None:
+                if (k + 1) % step == 0 or k + 1 == n:
+                    progress(f"{args.out.name}: {k + 1}/{n} frames ({time.perf_counter() - t_start:.1f} s)")
+
+            timing = write_mp4(
+                args.out, lambda k: render_frame(renderer, anims, k / fps, video, labels), n, fps, audio, tick
+            )
+            total = time.perf_counter() - t_start
+            summary |= {
+                "output": str(args.out),
+                "frames": n,
+                "fps": fps,
+                "duration_s": round(n / fps, 6),
+                "width": timing["width"],
+                "height": timing["height"],
+                "audio": audio is not None,
+                "render_ms_per_frame": round(1000 * timing["render_s"] / n, 2),
+                "encode_ms_per_frame": round(1000 * timing["encode_s"] / n, 2),
+                "frames_per_s": round(n / total, 2),
+                "seconds": round(total, 3),
+            }
+    if video is not None:
+        video.close()
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(f"{args.input} -> {args.out}")
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from .plot import plot_curves
+    from .render import load_animation, place_on_parent_clock
+
+    labels = [s.strip() for s in args.labels.split(",")] if args.labels else []
+    if labels and len(labels) != len(args.inputs):
+        raise InputError(f"--labels names {len(labels)} inputs, but {len(args.inputs)} were given")
+    anims = []
+    for i, path in enumerate(args.inputs):
+        anims.append(load_animation(path, args.audio if i == 0 else None, labels[i] if labels else None))
+    for a in anims[1:]:
+        a.offset_s = place_on_parent_clock(anims[0], a)
+    summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(f"{', '.join(map(str, args.inputs))} -> {args.out}")
+    return 0
+
+
+def cmd_stream(args: argparse.Namespace) -> int:
+    from capture.replay import parse_destination
+
+    from .stream import load_take, stream_take
+
+    parse_destination(args.to)  # a malformed destination is reported before any file is read
+    audio_file = args.audio if args.audio not in (None, "take") else None
+    take = load_take(args.input, audio_file)
+    if not args.json:
+        progress(f"streaming {take.meta.id} to {args.to} ({take.duration_s / args.speed:.1f} s)")
+    summary = stream_take(take, args.to, args.speed, args.audio is not None, args.subject, args.device)
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(f"sent {summary['frames']} frames in {summary['duration_s']:.2f} s")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from .report import write_report
+
+    if args.out.suffix.lower() not in (".html", ".htm"):
+        raise InputError("the report is written as .html", args.out)
+    if not args.dataset.exists():
+        raise InputError("no such dataset or folder", args.dataset)
+    summary = write_report(args.dataset, args.out, args.takes, args.limit)
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(
+            f"{args.dataset} -> {args.out} ({summary['takes']} takes, {len(summary['outliers'])} outliers)"
+        )
+    return 0
+
+
+def cmd_export_face(args: argparse.Namespace) -> int:
+    from .face import builtin_face
+    from .gltf import write_glb
+
+    model = builtin_face()
+    out = write_glb(model, args.out, args.names)
+    summary = {
+        "output": str(out),
+        "parts": len(model.parts),
+        "channels": len(model.channels),
+        "bytes": out.stat().st_size,
+    }
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(f"built-in face -> {out}")
+    return 0
+
+
+def cmd_probe(args: argparse.Namespace) -> int:
+    from .probe import probe
+
+    info = probe()
+    if args.json:
+        emit_json(info)
+    else:
+        progress(f"offscreen rendering works ({info['window']})")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,370 @@
+"""glTF 2.0 / GLB heads with ARKit morph targets → ``FaceModel``; and the built-in head written as GLB.
+
+Read with numpy from the glTF JSON and its binary buffers (GLB chunk, external ``.bin`` or base64 data
+URI): triangle primitives, their POSITION, COLOR_0, indices and morph-target POSITION deltas (dense or
+sparse accessors, any component type, normalised or not), node transforms (matrix or TRS) through the
+default scene. Skins, textures and animations are ignored: the mesh is shown in its bind pose with the
+material's base colour.
+
+Target names come from ``mesh.extras.targetNames`` (the common export convention) or a primitive's
+``extras.targetNames``, and map to ARKit channels whatever the spelling (``arkit_channel``).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from capture.channels import ARKIT52, ARKIT61
+from capture.errors import InputError
+
+from .face import FaceModel, Part
+
+GLB_MAGIC = 0x46546C67  # "glTF"
+CHUNK_JSON = 0x4E4F534A
+CHUNK_BIN = 0x004E4942
+_COMPONENT = {
+    5120: np.int8,
+    5121: np.uint8,
+    5122: np.int16,
+    5123: np.uint16,
+    5125: np.uint32,
+    5126: np.float32,
+}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_NORM = {np.int8: 127.0, np.uint8: 255.0, np.int16: 32767.0, np.uint16: 65535.0}
+_LOOKUP = {n.lower(): n for n in ARKIT52}
+_INDEX = {n: i for i, n in enumerate(ARKIT61)}
+_PREFIXES = ("arkit", "blendshape", "blendshapes", "bs", "shape", "morph", "target")
+
+
+def arkit_channel(name: str) -> str | None:
+    """The ARKit channel (camelCase) a morph target name means, or None.
+
+    Case-insensitive; camelCase or PascalCase; ``_L``/``_R``, ``.L``, ``Left``/``Right`` sides;
+    namespaces (``blendShape1.jawOpen``, ``Face:JawOpen``) and prefixes (``ARKit_``, ``bs_``) dropped.
+    """
+    seg = re.split(r"[.:|/]", name.strip())
+    seg = [s for s in seg if s]
+    if not seg:
+        return None
+    last = seg[-1]
+    side = ""
+    if len(seg) >= 2 and seg[-1].upper() in ("L", "R"):  # "mouthSmile.L"
+        last, side = seg[-2], "left" if seg[-1].upper() == "L" else "right"
+    else:
+        m = re.match(r"^(.*?)[_\- ]([LR])$", last, re.IGNORECASE)
+        if m:
+            last, side = m.group(1), "left" if m.group(2).upper() == "L" else "right"
+    key = re.sub(r"[^a-z0-9]", "", last.lower()) + side
+    candidates = [key] + [key[len(p) :] for p in _PREFIXES if key.startswith(p)]
+    for k in candidates:
+        if k in _LOOKUP:
+            return _LOOKUP[k]
+    for k in candidates:  # eyeBlinkL / eyeBlinkR
+        if k.endswith(("l", "r")):
+            k2 = k[:-1] + ("left" if k.endswith("l") else "right")
+            if k2 in _LOOKUP:
+                return _LOOKUP[k2]
+    return None
+
+
+class _Gltf:
+    def __init__(self, path: Path):
+        self.path = path
+        data = path.read_bytes()
+        self.bin: bytes | None = None
+        if data[:4] == b"glTF":
+            magic, version, length = struct.unpack_from("<III", data, 0)
+            if version != 2:
+                raise InputError(f"GLB version {version}; only glTF 2.0 is read", path)
+            off, doc = 12, None
+            while off + 8 <= min(length, len(data)):
+                clen, ctype = struct.unpack_from("<II", data, off)
+                chunk = data[off + 8 : off + 8 + clen]
+                if ctype == CHUNK_JSON:
+                    doc = chunk
+                elif ctype == CHUNK_BIN and self.bin is None:
+                    self.bin = chunk
+                off += 8 + clen
+            if doc is None:
+                raise InputError("GLB has no JSON chunk", path)
+        else:
+            doc = data
+        try:
+            self.doc = json.loads(doc.decode("utf-8").rstrip("\x00 "))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"not a glTF file ({exc})", path) from None
+        if not str(self.doc.get("asset", {}).get("version", "")).startswith("2"):
+            raise InputError("only glTF 2.0 is read (asset.version)", path)
+        self.buffers: dict[int, bytes] = {}
+
+    def buffer(self, i: int) -> bytes:
+        if i not in self.buffers:
+            b = self.doc["buffers"][i]
+            uri = b.get("uri")
+            if uri is None:
+                if self.bin is None:
+                    raise InputError(f"buffer {i} has no data", self.path)
+                self.buffers[i] = self.bin
+            elif uri.startswith("data:"):
+                self.buffers[i] = base64.b64decode(uri.split(",", 1)[1])
+            else:
+                f = self.path.parent / uri
+                if not f.is_file():
+                    raise InputError(f"buffer file {uri} not found", self.path)
+                self.buffers[i] = f.read_bytes()
+        return self.buffers[i]
+
+    def _view(self, index: int, dtype, width: int, count: int, offset: int) -> np.ndarray:
+        bv = self.doc["bufferViews"][index]
+        buf = self.buffer(bv["buffer"])
+        item = np.dtype(dtype).itemsize * width
+        stride = bv.get("byteStride") or item
+        start = bv.get("byteOffset", 0) + offset
+        if count == 0:
+            return np.zeros((0, width), dtype)
+        need = start + stride * (count - 1) + item
+        if need > len(buf):
+            raise InputError(f"bufferView {index} runs past its buffer", self.path)
+        raw = np.frombuffer(buf, np.uint8, stride * (count - 1) + item, start)
+        if stride == item:
+            return raw.view(dtype).reshape(count, width).copy()
+        rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
+        return np.ascontiguousarray(rows).view(dtype).reshape(count, width)
+
+    def accessor(self, index: int) -> np.ndarray:
+        """Accessor ``index`` as float64 (count, width) (normalised integers scaled to [0, 1]/[-1, 1])."""
+        acc = self.doc["accessors"][index]
+        dtype = _COMPONENT.get(acc["componentType"])
+        if dtype is None:
+            raise InputError(f"accessor {index}: unknown component type {acc['componentType']}", self.path)
+        width = _WIDTH[acc["type"]]
+        count = acc["count"]
+        if "bufferView" in acc:
+            out = self._view(acc["bufferView"], dtype, width, count, acc.get("byteOffset", 0)).astype(
+                np.float64
+            )
+        else:
+            out = np.zeros((count, width))
+        if acc.get("normalized") and dtype in _NORM:
+            out = np.maximum(out / _NORM[dtype], -1.0)
+        sparse = acc.get("sparse")
+        if sparse:
+            n = sparse["count"]
+            ix = sparse["indices"]
+            idx = self._view(ix["bufferView"], _COMPONENT[ix["componentType"]], 1, n, ix.get("byteOffset", 0))
+            vs = sparse["values"]
+            vals = self._view(vs["bufferView"], dtype, width, n, vs.get("byteOffset", 0)).astype(np.float64)
+            if acc.get("normalized") and dtype in _NORM:
+                vals = np.maximum(vals / _NORM[dtype], -1.0)
+            out[idx[:, 0].astype(np.int64)] = vals
+        return out
+
+
+def _node_matrix(node: dict) -> np.ndarray:
+    if "matrix" in node:
+        return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major in glTF
+    t = np.array(node.get("translation", [0, 0, 0]), dtype=np.float64)
+    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+    s = np.array(node.get("scale", [1, 1, 1]), dtype=np.float64)
+    r = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    m = np.eye(4)
+    m[:3, :3] = r * s
+    m[:3, 3] = t
+    return m
+
+
+def load_gltf(path: str | Path) -> FaceModel:
+    """A glTF/GLB head as a ``FaceModel``; its morph targets drive the ARKit channels they name.
+
+    ``InputError`` when the file is not glTF 2.0, or when no morph target maps to an ARKit channel.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such glTF/GLB file", path)
+    g = _Gltf(path)
+    doc = g.doc
+    nodes = doc.get("nodes", [])
+    scenes = doc.get("scenes", [])
+    if scenes:
+        roots = scenes[doc.get("scene", 0)].get("nodes", [])
+    else:
+        children = {c for n in nodes for c in n.get("children", [])}
+        roots = [i for i in range(len(nodes)) if i not in children]
+    parts: list[Part] = []
+    mapped: set[str] = set()
+    unmapped: set[str] = set()
+    stack = [(i, np.eye(4)) for i in roots]
+    seen = 0
+    while stack:
+        i, parent = stack.pop()
+        seen += 1
+        if seen > 100000:
+            raise InputError("node hierarchy has a cycle", path)
+        node = nodes[i]
+        m = parent @ _node_matrix(node)
+        stack += [(c, m) for c in node.get("children", [])]
+        if "mesh" not in node:
+            continue
+        mesh = doc["meshes"][node["mesh"]]
+        names = (mesh.get("extras") or {}).get("targetNames")
+        for k, prim in enumerate(mesh.get("primitives", [])):
+            if prim.get("mode", 4) != 4 or "POSITION" not in prim.get("attributes", {}):
+                continue  # only triangle lists are drawn
+            pos = g.accessor(prim["attributes"]["POSITION"])[:, :3]
+            if "indices" in prim:
+                tris = g.accessor(prim["indices"])[:, 0].astype(np.int64).reshape(-1, 3)
+            else:
+                tris = np.arange(len(pos) - len(pos) % 3).reshape(-1, 3)
+            pnames = names or (prim.get("extras") or {}).get("targetNames") or []
+            deltas: dict[int, np.ndarray] = {}
+            for t, target in enumerate(prim.get("targets", [])):
+                tname = pnames[t] if t < len(pnames) else f"target{t}"
+                ch = arkit_channel(tname)
+                if ch is None or "POSITION" not in target:
+                    unmapped.add(tname)
+                    continue
+                mapped.add(ch)
+                d = g.accessor(target["POSITION"])[:, :3] @ m[:3, :3].T
+                idx = _INDEX[ch]
+                deltas[idx] = deltas.get(idx, 0) + d
+            colors = _part_colors(g, prim, len(pos))
+            world = pos @ m[:3, :3].T + m[:3, 3]
+            if np.linalg.det(m[:3, :3]) < 0:
+                tris = tris[:, ::-1]
+            parts.append(Part(f"{mesh.get('name', 'mesh')}.{k}", world, tris, colors, deltas))
+    if not parts:
+        raise InputError("glTF has no triangle mesh", path)
+    if not mapped:
+        hint = ", ".join(sorted(unmapped)[:5]) or "none"
+        raise InputError(f"no morph target names an ARKit blendshape (targets: {hint})", path)
+    allv = np.vstack([p.vertices for p in parts])
+    lo, hi = allv.min(axis=0), allv.max(axis=0)
+    center = (lo + hi) / 2
+    height = max(hi[1] - lo[1], 1e-9)
+    # Frame the head: 30 degree view, the head's height filling about 80% of the image, from the front.
+    dist = height / 0.8 / (2 * np.tan(np.radians(15))) + (hi[2] - lo[2]) / 2
+    model = FaceModel(
+        name=path.name,
+        parts=parts,
+        pivot=np.array([center[0], lo[1], center[2]]),
+        camera_position=(float(center[0]), float(center[1]), float(center[2] + dist)),
+        camera_focus=tuple(float(c) for c in center),
+        view_angle=30.0,
+    )
+    model.extra = {"mapped": sorted(mapped), "unmapped": sorted(unmapped)}
+    return model
+
+
+def _part_colors(g: _Gltf, prim: dict, n: int) -> np.ndarray:
+    attrs = prim.get("attributes", {})
+    if "COLOR_0" in attrs:
+        c = g.accessor(attrs["COLOR_0"])[:, :3]
+        if c.max() > 1.0:
+            c = c / 255.0
+        return np.clip(np.rint(c * 255), 0, 255).astype(np.uint8)
+    base = [0.85, 0.68, 0.58]
+    if "material" in prim:
+        mat = g.doc.get("materials", [])[prim["material"]]
+        base = (mat.get("pbrMetallicRoughness") or {}).get("baseColorFactor", base + [1])[:3]
+    return np.tile(np.clip(np.rint(np.array(base) * 255), 0, 255).astype(np.uint8), (n, 1))
+
+
+def target_name(channel: str, style: str) -> str:
+    """How an exporter might spell an ARKit channel: ``arkit`` (jawOpen), ``pascal`` (JawOpen),
+    ``suffix`` (eyeBlink_L, as several avatar tools write the sides)."""
+    if style == "pascal":
+        return channel[0].upper() + channel[1:]
+    if style == "suffix":
+        for side, s in (("Left", "_L"), ("Right", "_R")):
+            if channel.endswith(side):
+                return channel[: -len(side)] + s
+    return channel
+
+
+def write_glb(model: FaceModel, path: str | Path, style: str = "arkit") -> Path:
+    """``model`` as a GLB: one mesh per part with POSITION, COLOR_0, indices and one morph target per
+    channel that moves it (names in ``mesh.extras.targetNames``)."""
+    path = Path(path)
+    blob = bytearray()
+    views: list[dict] = []
+    accessors: list[dict] = []
+
+    def add(arr: np.ndarray, ctype: int, atype: str, target: int | None, minmax: bool = False) -> int:
+        while len(blob) % 4:
+            blob.append(0)
+        data = np.ascontiguousarray(arr).tobytes()
+        view = {"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        views.append(view)
+        blob.extend(data)
+        acc = {
+            "bufferView": len(views) - 1,
+            "componentType": ctype,
+            "count": int(arr.shape[0]),
+            "type": atype,
+        }
+        if minmax:
+            acc["min"] = [float(x) for x in arr.min(axis=0)]
+            acc["max"] = [float(x) for x in arr.max(axis=0)]
+        if ctype == 5121:
+            acc["normalized"] = True
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    meshes, nodes = [], []
+    for part in model.parts:
+        attrs = {
+            "POSITION": add(part.vertices.astype(np.float32), 5126, "VEC3", 34962, True),
+            "COLOR_0": add(
+                np.hstack([part.colors, np.full((len(part.colors), 1), 255, np.uint8)]), 5121, "VEC4", 34962
+            ),
+        }
+        idx = add(part.triangles.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)
+        targets, names = [], []
+        for k in sorted(part.deltas):
+            targets.append({"POSITION": add(part.deltas[k].astype(np.float32), 5126, "VEC3", 34962, True)})
+            names.append(target_name(ARKIT61[k], style))
+        prim = {"attributes": attrs, "indices": idx, "mode": 4}
+        mesh = {"name": part.name, "primitives": [prim]}
+        if targets:
+            prim["targets"] = targets
+            mesh["extras"] = {"targetNames": names}
+            mesh["weights"] = [0.0] * len(targets)
+        meshes.append(mesh)
+        nodes.append({"mesh": len(meshes) - 1, "name": part.name})
+    doc = {
+        "asset": {"version": "2.0", "generator": "s2a-toolkit viewer"},
+        "scene": 0,
+        "scenes": [{"nodes": list(range(len(nodes)))}],
+        "nodes": nodes,
+        "meshes": meshes,
+        "buffers": [{"byteLength": len(blob)}],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
+    js = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    js += b" " * (-len(js) % 4)
+    while len(blob) % 4:
+        blob.append(0)
+    out = struct.pack("<III", GLB_MAGIC, 2, 12 + 8 + len(js) + 8 + len(blob))
+    out += (
+        struct.pack("<II", len(js), CHUNK_JSON) + js + struct.pack("<II", len(blob), CHUNK_BIN) + bytes(blob)
+    )
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_bytes(out)
+    tmp.replace(path)
+    return path

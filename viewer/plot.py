@@ -1,0 +1,171 @@
+"""Curves: chosen channels of takes and predictions over time on one axis, the speech waveform and its
+voice-activity segments beneath (the paper's Figure 1). Matplotlib with the Agg backend; PNG or SVG.
+
+Speech segments come from, in order: the take's own align report (aligned takes carry the segments
+VAD found), else align's VAD (silero-vad's bundled model, nothing downloaded), else, only when align's
+VAD cannot run, an energy threshold, which the figure labels as a fallback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from capture.channels import canonical, channel_set
+from capture.errors import InputError
+
+from .render import Animation
+
+VAD_METHODS = ("auto", "silero", "webrtc", "energy", "none")
+
+
+def _index(name: str) -> int:
+    from capture.channels import ARKIT61
+
+    return ARKIT61.index(canonical(name))
+
+
+def energy_segments(x: np.ndarray, rate: int, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
+    """Speech-like stretches by frame energy: 20 ms frames above the 20th-percentile level + 15 dB."""
+    hop = max(1, int(rate * 0.02))
+    n = x.size // hop
+    if n == 0:
+        return []
+    e = 10 * np.log10(np.mean(x[: n * hop].reshape(n, hop).astype(np.float64) ** 2, axis=1) + 1e-10)
+    flags = e > np.percentile(e, 20) + 15.0
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
+    runs = [[a * hop / rate, b * hop / rate] for a, b in zip(edges[::2], edges[1::2])]
+    merged: list[list[float]] = []
+    for r in runs:
+        if merged and r[0] - merged[-1][1] < min_silence_s:
+            merged[-1][1] = r[1]
+        else:
+            merged.append(r)
+    return [(a, b) for a, b in merged if b - a >= 0.1]
+
+
+def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[float, float]], str]:
+    """Speech segments of ``anim``'s audio in take time (s), and where they come from (a label)."""
+    if anim.audio is None or method == "none":
+        return [], ""
+    take = anim.take
+    report = (take.meta.extra.get("align") if take is not None else None) or {}
+    if method == "auto" and report.get("speech_segments") is not None:
+        return [(float(a), float(b)) for a, b in report["speech_segments"]], "speech (align report)"
+    if method in ("auto", "silero", "webrtc"):
+        try:
+            from align.resample import to_16k_mono
+            from align.vad import speech_segments as vad_segments
+
+            x = to_16k_mono(anim.audio)
+            segs = vad_segments(x, "silero" if method == "auto" else method)
+            off = anim.audio_start_s
+            return [
+                (a + off, b + off) for a, b in segs
+            ], f"speech ({'silero' if method == 'auto' else method} VAD)"
+        except (ImportError, InputError) as exc:
+            if method != "auto":
+                raise InputError(f"--vad {method} is not available here: {exc}") from None
+    x = anim.audio.mono_float()
+    segs = energy_segments(x, anim.audio.sample_rate)
+    off = anim.audio_start_s
+    return [(a + off, b + off) for a, b in segs], "loud (energy threshold, fallback: no VAD model)"
+
+
+def plot_curves(
+    anims: Sequence[Animation],
+    out: str | Path,
+    channels: str = "jawOpen",
+    vad: str = "auto",
+    start_s: float | None = None,
+    end_s: float | None = None,
+    width_in: float = 10.0,
+    title: str | None = None,
+) -> dict:
+    """Write the figure to ``out`` (.png or .svg); returns what was drawn.
+
+    Times are seconds after each animation's first frame plus its ``offset_s`` (how predictions line
+    up with the recording they come from; an aligned segment sits at its place in its parent take).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    if out.suffix.lower() not in (".png", ".svg"):
+        raise InputError("the plot is written as .png or .svg", out)
+    names = list(channel_set(channels))
+    if not anims:
+        raise InputError("nothing to plot")
+    voice = next((a for a in anims if a.audio is not None), None)
+    rows = len(names) + (1 if voice is not None else 0)
+    ratios = [2.0] * len(names) + ([1.2] if voice is not None else [])
+    fig, axes = plt.subplots(
+        rows,
+        1,
+        sharex=True,
+        figsize=(width_in, 1.6 * sum(ratios) / 2 + 0.8),
+        gridspec_kw={"height_ratios": ratios},
+        squeeze=False,
+    )
+    axes = axes[:, 0]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    t_max = 0.0
+    for r, name in enumerate(names):
+        ax = axes[r]
+        k = _index(name)
+        for i, a in enumerate(anims):
+            t = a.time - a.t0 + a.offset_s
+            t_max = max(t_max, float(t[-1]))
+            ax.plot(t, a.weights[:, k], color=colors[i % len(colors)], lw=1.2, label=a.label)
+        ax.set_ylabel(name, rotation=0, ha="right", va="center")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize="small", ncol=min(len(anims), 4))
+    segments: list[tuple[float, float]] = []
+    vad_label = ""
+    if voice is not None:
+        ax = axes[-1]
+        x = voice.audio.mono_float()
+        sr = voice.audio.sample_rate
+        step = max(1, x.size // 20000)  # enough points for the envelope, few for the SVG
+        n = x.size // step
+        blocks = x[: n * step].reshape(n, step)
+        tt = voice.audio_start_s - voice.t0 + voice.offset_s + np.arange(n) * step / sr
+        ax.fill_between(tt, blocks.min(axis=1), blocks.max(axis=1), color="0.35", lw=0)
+        t_max = max(t_max, float(tt[-1]) if tt.size else 0.0)
+        segments, vad_label = speech_segments(voice, vad)
+        for j, (a, b) in enumerate(segments):
+            ax.axvspan(
+                a - voice.t0 + voice.offset_s,
+                b - voice.t0 + voice.offset_s,
+                color="tab:green",
+                alpha=0.25,
+                lw=0,
+                label=vad_label if j == 0 else None,
+            )
+        ax.set_ylabel(f"speech\n{voice.label}", rotation=0, ha="right", va="center")
+        if segments:
+            ax.legend(loc="upper right", fontsize="small")
+        lim = float(np.max(np.abs(x))) or 1.0
+        ax.set_ylim(-lim * 1.05, lim * 1.05)
+        ax.set_yticks([])
+    axes[-1].set_xlabel("time (s)")
+    axes[-1].set_xlim(start_s if start_s is not None else 0.0, end_s if end_s is not None else t_max)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    tmp = out.with_name(f".{out.name}.partial{out.suffix}")
+    fig.savefig(tmp, dpi=100, format=out.suffix[1:].lower())
+    plt.close(fig)
+    tmp.replace(out)
+    return {
+        "output": str(out),
+        "inputs": [a.label for a in anims],
+        "channels": names,
+        "duration_s": round(t_max, 6),
+        "speech_segments": [[round(a, 4), round(b, 4)] for a, b in segments],
+        "vad": vad_label or None,
+    }

@@ -1,0 +1,364 @@
+"""Rendering faces offscreen with pyvista (VTK, EGL), frames → MP4 with PyAV, audio muxed in.
+
+``FaceRenderer`` keeps one VTK scene per face model and re-poses its meshes each frame (about 10 ms
+for a 256 px frame here). ``render_video`` renders one or more panels side by side (a recording and a
+prediction, or a face and the take's reference video) at the animation's frame rate on one clock.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from capture import Audio, FrameStatus, InputError, Take, import_source, read_audio, read_take
+from capture.take import is_take_dir
+
+from .face import FaceModel, vertex_normals, weights_from_values
+from .probe import probe
+
+BACKGROUND = (38, 40, 46)
+
+
+@dataclass
+class Animation:
+    """ARKit weights on a take's clock: ``time`` (frames,) seconds, ``weights`` (frames, 61)."""
+
+    label: str
+    fps: float
+    time: np.ndarray
+    weights: np.ndarray
+    audio: Audio | None = None
+    audio_start_s: float = 0.0  # take time of the first audio sample
+    take: Take | None = None
+    offset_s: float = 0.0  # in side-by-side output: when this animation starts, after the first one's start
+
+    @property
+    def t0(self) -> float:
+        return float(self.time[0])
+
+    @property
+    def frames(self) -> int:
+        """Frames on the uniform grid from the first to the last frame time."""
+        return int(round((self.time[-1] - self.time[0]) * self.fps)) + 1
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        """Weights (len(t), 61) at take times ``t`` (s), linear between frames, held at the ends."""
+        out = np.empty((len(t), self.weights.shape[1]))
+        for k in range(self.weights.shape[1]):
+            out[:, k] = np.interp(t, self.time, self.weights[:, k])
+        return out
+
+
+def load_animation(path: str | Path, audio: str | Path | None = None, label: str | None = None) -> Animation:
+    """A take folder or a Live Link Face CSV (a recording or a prediction) as an ``Animation``.
+
+    Frames without data (face lost, dropped) are bridged linearly between the tracked frames around
+    them (held at the ends), so the face does not collapse to neutral. ``audio`` overrides or adds the
+    speech.
+    """
+    path = Path(path)
+    if is_take_dir(path):
+        take = read_take(path)
+    elif path.is_file() or path.is_dir():
+        take = import_source(path, audio)
+        audio = None
+    else:
+        raise InputError("no such take folder or CSV file", path)
+    values = take.values.astype(np.float64)
+    ok = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
+    ok &= np.all(np.isfinite(values), axis=1)
+    if not ok.any():
+        raise InputError(f"take {take.meta.id} has no frame with values", path)
+    weights = weights_from_values(values, take.meta.channels)
+    good = np.flatnonzero(ok)
+    for k in range(weights.shape[1]):
+        weights[:, k] = np.interp(take.time, take.time[good], weights[good, k])
+    anim = Animation(label or take.meta.id, float(take.meta.fps), take.time.copy(), weights, take=take)
+    if audio is not None:
+        anim.audio = read_audio(audio)
+    elif take.audio is not None:
+        anim.audio = take.audio
+        anim.audio_start_s = take.meta.audio.start_s if take.meta.audio else 0.0
+    return anim
+
+
+class FaceRenderer:
+    """Offscreen renders of one face model at ``size`` (width, height) pixels, RGB uint8."""
+
+    def __init__(self, model: FaceModel, size: tuple[int, int] = (256, 256), background=BACKGROUND):
+        probe()  # raises RenderUnavailable with what to install, before VTK can crash this process
+        import pyvista as pv
+
+        self.model = model
+        self.size = size
+        self.plotter = pv.Plotter(off_screen=True, window_size=list(size))
+        # No multisampling: 40% faster here, and the same pixels on every GL driver's sample pattern.
+        self.plotter.ren_win.SetMultiSamples(0)
+        self.plotter.set_background([c / 255 for c in background])
+        self.meshes = []
+        for part in model.parts:
+            faces = np.hstack([np.full((len(part.triangles), 1), 3), part.triangles]).ravel()
+            mesh = pv.PolyData(part.vertices.copy(), faces)
+            mesh.point_data["rgb"] = part.colors
+            if part.smooth:
+                mesh.point_data.active_normals = vertex_normals(part.vertices, part.triangles)
+            actor = self.plotter.add_mesh(
+                mesh, scalars="rgb", rgb=True, smooth_shading=False, specular=0.15, specular_power=12
+            )
+            if part.smooth:
+                actor.prop.interpolation = "gouraud"  # our own normals, kept when the points move
+            self.meshes.append(mesh)
+        cam = self.plotter.camera
+        cam.position = model.camera_position
+        cam.focal_point = model.camera_focus
+        cam.up = (0.0, 1.0, 0.0)
+        cam.view_angle = model.view_angle
+        self.plotter.reset_camera_clipping_range()
+
+    def render(self, weights: np.ndarray) -> np.ndarray:
+        """The face posed by ``weights`` (61,) in ARKIT61 order, as an (H, W, 3) uint8 image."""
+        for mesh, part, verts in zip(self.meshes, self.model.parts, self.model.pose(weights)):
+            mesh.points[:] = verts
+            if part.smooth:
+                mesh.point_data.active_normals = vertex_normals(verts, part.triangles)
+            mesh.Modified()
+        self.plotter.reset_camera_clipping_range()
+        self.plotter.render()
+        return np.ascontiguousarray(self.plotter.screenshot(return_img=True)[:, :, :3])
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Pixel (column, row) of world points (N, 3) in the last rendered image, row 0 at the top."""
+        import vtk
+
+        coord = vtk.vtkCoordinate()
+        coord.SetCoordinateSystemToWorld()
+        out = np.empty((len(points), 2))
+        for i, p in enumerate(np.asarray(points, dtype=np.float64)):
+            coord.SetValue(*p)
+            x, y = coord.GetComputedDoubleDisplayValue(self.plotter.renderer)
+            out[i] = (x, self.size[1] - 1 - y)
+        return out
+
+    def close(self) -> None:
+        self.plotter.close()
+
+    def __enter__(self) -> FaceRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def label_image(img: np.ndarray, text: str) -> np.ndarray:
+    """``text`` in white on a dark box in the top-left corner (OpenCV's Hershey font), a copy."""
+    import cv2
+
+    out = img.copy()
+    scale = max(0.35, img.shape[0] / 640)
+    thick = max(1, int(round(scale * 1.6)))
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    pad = max(3, h // 3)
+    cv2.rectangle(out, (0, 0), (min(w + 2 * pad, img.shape[1] - 1), h + base + 2 * pad), (0, 0, 0), -1)
+    cv2.putText(
+        out, text, (pad, pad + h), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA
+    )
+    return out
+
+
+def place_on_parent_clock(first: Animation, other: Animation) -> float:
+    """Seconds after ``first``'s first frame at which ``other`` starts: an aligned segment of ``first``
+    (align report parent = ``first``'s take) starts at its segment start; anything else with it."""
+    report = (other.take.meta.extra.get("align") if other.take is not None else None) or {}
+    parent = (report.get("parent") or {}).get("id")
+    if first.take is not None and parent == first.take.meta.id and report.get("segment_start_s") is not None:
+        return float(report["segment_start_s"]) - first.t0
+    return 0.0
+
+
+def distinct_labels(anims: Sequence[Animation], paths: Sequence[Path]) -> None:
+    """Make panel names unique: equal take ids get the name of the folder or file they came from."""
+    names = [a.label for a in anims]
+    for i, a in enumerate(anims):
+        if names.count(a.label) > 1:
+            p = Path(paths[i])
+            where = p.parent.name if p.is_dir() else p.name
+            a.label = f"{a.label} ({where})"
+
+
+class ReferenceVideo:
+    """Frames of a video (the take's reference .mov) by time, resized to a panel height (OpenCV)."""
+
+    def __init__(self, path: str | Path, height: int, start_s: float = 0.0):
+        import cv2
+
+        self.cv2 = cv2
+        self.path = Path(path)
+        self.cap = cv2.VideoCapture(str(path))
+        if not self.cap.isOpened():
+            raise InputError("video could not be opened", path)
+        self.fps = self.cap.get(cv2.CAP_PROP_FPS) or 30.0
+        self.height = height
+        self.start_s = start_s
+        self.index = -1
+        self.frame: np.ndarray | None = None
+        w = self.cap.get(cv2.CAP_PROP_FRAME_WIDTH) or height
+        h = self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or height
+        self.width = max(2, int(round(w * height / h / 2)) * 2)
+
+    def at(self, t: float) -> np.ndarray:
+        """RGB frame shown at take time ``t`` (s); black before the start and after the end."""
+        want = int(math.floor((t - self.start_s) * self.fps + 1e-6))
+        if want < 0:
+            return np.zeros((self.height, self.width, 3), np.uint8)
+        while self.index < want:
+            ok, frame = self.cap.read()
+            if not ok:
+                self.frame = np.zeros((self.height, self.width, 3), np.uint8)
+                self.index = want
+                break
+            self.index += 1
+            rgb = self.cv2.cvtColor(frame, self.cv2.COLOR_BGR2RGB)
+            self.frame = self.cv2.resize(rgb, (self.width, self.height), interpolation=self.cv2.INTER_AREA)
+        assert self.frame is not None
+        return self.frame
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+def reference_video_of(take: Take | None) -> Path | None:
+    """The take's reference video (the app's .mov) when its metadata names one that exists."""
+    if take is None:
+        return None
+    for s in take.meta.sources:
+        if s.role == "reference_video" and Path(s.path).is_file():
+            return Path(s.path)
+    return None
+
+
+def default_frame(anim: Animation) -> int:
+    """The frame to show when none is asked for: the widest open jaw (a face mid-speech)."""
+    jaw = anim.weights[:, 17]  # jawOpen in ARKIT61 order
+    return int(np.argmax(jaw)) if np.any(jaw != 0) else 0
+
+
+def render_frame(
+    renderer: FaceRenderer,
+    anims: Sequence[Animation],
+    t_rel: float,
+    video: ReferenceVideo | None = None,
+    labels: bool = True,
+) -> np.ndarray:
+    """One side-by-side image of every animation ``t_rel`` seconds after its own first frame, with the
+    reference video's frame at the first animation's take time after them."""
+    panels = []
+    for a in anims:
+        img = renderer.render(a.at(np.array([a.t0 + t_rel - a.offset_s]))[0])
+        panels.append(label_image(img, a.label) if labels and (len(anims) > 1 or video) else img)
+    if video is not None:
+        frame = video.at(anims[0].t0 + t_rel)
+        panels.append(label_image(frame, "reference video") if labels else frame)
+    return np.hstack(panels)
+
+
+def audio_for_span(anim: Animation, t0: float, duration_s: float) -> tuple[np.ndarray, int] | None:
+    """Mono float32 samples of ``anim``'s audio from take time ``t0`` for ``duration_s`` (zero-padded)."""
+    if anim.audio is None:
+        return None
+    rate = anim.audio.sample_rate
+    x = anim.audio.mono_float()
+    first = int(round((t0 - anim.audio_start_s) * rate))
+    n = int(round(duration_s * rate))
+    out = np.zeros(n, np.float32)
+    lo, hi = max(first, 0), min(first + n, x.size)
+    if hi > lo:
+        out[lo - first : hi - first] = x[lo:hi]
+    return out, rate
+
+
+def _fps_fraction(fps: float) -> Fraction:
+    return Fraction(fps).limit_denominator(1001)
+
+
+def write_mp4(
+    path: str | Path,
+    frames: Callable[[int], np.ndarray],
+    count: int,
+    fps: float,
+    audio: tuple[np.ndarray, int] | None,
+    on_frame: Callable[[int], None] | None = None,
+) -> dict:
+    """Encode ``count`` frames (``frames(k)`` → RGB uint8) as H.264 at ``fps`` with AAC audio.
+
+    Returns timing figures: seconds spent rendering (inside ``frames``) and encoding.
+    """
+    import av
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.partial.mp4")
+    render_s = encode_s = 0.0
+    rate = _fps_fraction(fps)
+    try:
+        with av.open(str(tmp), "w", format="mp4") as out:
+            first = frames(0)
+            h, w = first.shape[:2]
+            vs = out.add_stream("libx264", rate=rate)
+            vs.width, vs.height = w - w % 2, h - h % 2
+            vs.pix_fmt = "yuv420p"
+            vs.options = {"crf": "20", "preset": "veryfast"}
+            astream = None
+            if audio is not None:
+                astream = out.add_stream("aac", rate=audio[1], layout="mono")
+            for k in range(count):
+                t = time.perf_counter()
+                img = first if k == 0 else frames(k)
+                t2 = time.perf_counter()
+                render_s += t2 - t
+                vf = av.VideoFrame.from_ndarray(
+                    np.ascontiguousarray(img[: vs.height, : vs.width]), format="rgb24"
+                )
+                vf.pts = k
+                for packet in vs.encode(vf):
+                    out.mux(packet)
+                encode_s += time.perf_counter() - t2
+                if on_frame is not None:
+                    on_frame(k)
+            t2 = time.perf_counter()
+            for packet in vs.encode():
+                out.mux(packet)
+            if astream is not None:
+                samples, sr = audio
+                chunk = 1024
+                for i in range(0, samples.size, chunk):
+                    block = samples[i : i + chunk][None, :].astype(np.float32)
+                    af = av.AudioFrame.from_ndarray(block, format="flt", layout="mono")
+                    af.sample_rate = sr
+                    af.pts = i
+                    af.time_base = Fraction(1, sr)
+                    for packet in astream.encode(af):
+                        out.mux(packet)
+                for packet in astream.encode():
+                    out.mux(packet)
+            encode_s += time.perf_counter() - t2
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return {"render_s": render_s, "encode_s": encode_s, "width": w - w % 2, "height": h - h % 2}
+
+
+def write_image(path: str | Path, img: np.ndarray) -> None:
+    """PNG/JPEG by extension (OpenCV), written atomically."""
+    import cv2
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.partial{path.suffix}")
+    if not cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
+        raise InputError("image could not be written (unknown extension?)", path)
+    tmp.replace(path)
