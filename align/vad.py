@@ -91,10 +91,10 @@ def webrtc_segments(
     pcm = np.clip(np.rint(x * 32768.0), -32768, 32767).astype("<i2")
     n = pcm.size // hop
     flags = np.array([vad.is_speech(pcm[i * hop : (i + 1) * hop].tobytes(), TARGET_RATE) for i in range(n)])
-    return _runs_to_segments(flags, 0.03, min_silence_s, min_speech_s=0.09)
+    return runs_to_segments(flags, 0.03, min_silence_s, min_speech_s=0.09)
 
 
-def _runs_to_segments(
+def runs_to_segments(
     flags: np.ndarray, step_s: float, min_silence_s: float, min_speech_s: float
 ) -> list[tuple[float, float]]:
     """Runs of True in per-step flags as (start_s, end_s), closing silences shorter than ``min_silence_s``."""

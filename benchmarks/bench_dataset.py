@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import resource
 import shutil
 import subprocess
 import sys
@@ -12,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.figure import Figure, best_time
+from benchmarks.figure import Figure, best_time, peak_measured, read_peak_kb
 from capture import ARKIT52, Audio, Take, TakeMeta, write_take
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,27 +79,17 @@ def _audio_seconds(folder: Path) -> float:
 
 
 def _timed_build(takes: Path, out: Path, ckpt: Path, jobs: int) -> tuple[float, float]:
-    """Wall seconds and peak RSS (MB) of one ``s2a-dataset build`` subprocess."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    """Wall seconds and peak RSS (MB, the build process and its workers' largest) of one
+    ``s2a-dataset build`` subprocess."""
+    peak_file = out.with_name(out.name + ".peak")
+    args = ["dataset", "build", str(takes), "-o", str(out), "--ppg", "bottleneck", "--ppg-model", str(ckpt)]
+    cmd = peak_measured([sys.executable, "-m", *args, "--jobs", str(jobs)], peak_file)
     t0 = time.perf_counter()
-    proc = _run(
-        "dataset",
-        "build",
-        str(takes),
-        "-o",
-        str(out),
-        "--ppg",
-        "bottleneck",
-        "--ppg-model",
-        str(ckpt),
-        "--jobs",
-        str(jobs),
-    )
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=3600)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(proc.stderr)
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return wall, max(peak, before) / 1024.0
+    return wall, read_peak_kb(peak_file) / 1024.0
 
 
 def run(quick: bool = False) -> list[Figure]:
@@ -119,8 +108,7 @@ def run(quick: bool = False) -> list[Figure]:
         small, origin = simulated_aligned_takes(tmp / "small", n_small, seconds)
         large, _ = simulated_aligned_takes(tmp / "large", n_large, seconds)
         small_s, large_s = _audio_seconds(small), _audio_seconds(large)
-        # peak memory: each build in a fresh subprocess (ru_maxrss of children is a running maximum, so
-        # the smaller dataset goes first)
+        # peak memory: each build in a fresh subprocess, measured on its own
         _, peak_small = _timed_build(small, tmp / "ds_small", ckpt, 1)
         cli1, peak_large = _timed_build(large, tmp / "ds_large1", ckpt, 1)
         cli2, _ = _timed_build(large, tmp / "ds_large2", ckpt, 2)

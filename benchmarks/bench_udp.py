@@ -7,7 +7,6 @@ loop) or logged to disk (recorder, fsync on).
 
 from __future__ import annotations
 
-import os
 import signal
 import socket
 import subprocess
@@ -17,7 +16,7 @@ import threading
 import time
 from pathlib import Path
 
-from benchmarks.figure import Figure
+from benchmarks.figure import Figure, peak_measured, read_peak_kb
 from capture.recorder import LiveRecorder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,27 +162,25 @@ def _rss_kb(pid: int, field: str = "VmRSS") -> int:
 def memory_hour(packets: int, rate: float) -> tuple[int, int, int]:
     """RSS (kB) of a ``listen`` subprocess after 10 % and all of ``packets``; its peak with the take build."""
     with tempfile.TemporaryDirectory() as d:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "capture", "listen", "-o", d, "--port", "0", "--duration", "900"],
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-        )
+        peak_file = Path(d) / "peak"
+        cmd = [sys.executable, "-m", "capture", "listen", "-o", d, "--port", "0", "--duration", "900"]
+        proc = subprocess.Popen(peak_measured(cmd, peak_file), stderr=subprocess.PIPE, text=True, cwd=ROOT)
         line = proc.stderr.readline()
         port = int(line.split("udp://", 1)[1].split(" ", 1)[0].rsplit(":", 1)[1])
+        listener = int(Path(str(peak_file) + ".pid").read_text())
         tenth = _sender(port, packets // 10, 1, rate)
         tenth.wait()
         time.sleep(0.5)
-        rss_early = _rss_kb(proc.pid)
+        rss_early = _rss_kb(listener)
         # Continue the same phone's hour: frame numbers go on where the first tenth stopped.
         rest = _sender(port, packets - packets // 10, 1, rate, 1000 + packets // 10)
         rest.wait()
         time.sleep(0.5)
-        rss_end = _rss_kb(proc.pid)
+        rss_end = _rss_kb(listener)
         proc.send_signal(signal.SIGINT)
-        _, _, usage = os.wait4(proc.pid, 0)
+        proc.wait()
         proc.stderr.close()
-        return rss_early, rss_end, usage.ru_maxrss
+        return rss_early, rss_end, read_peak_kb(peak_file)
 
 
 def cpu_per_phone(phones: int, seconds: float) -> tuple[float, float]:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 
@@ -55,3 +57,29 @@ def best_time(fn: Callable[[], Any], repeat: int = 3) -> float:
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+# Runs a command and writes the command's own peak RSS (kB) to argv[1], its pid to argv[1] + ".pid",
+# forwarding SIGINT/SIGTERM. Measuring through this small wrapper matters: Linux carries a process's
+# high-water RSS into the children it forks, so getrusage() in a large benchmark process would report
+# the benchmark's own memory, not the command's.
+_PEAK_WRAPPER = r"""
+import resource, signal, subprocess, sys
+child = subprocess.Popen(sys.argv[2:])
+open(sys.argv[1] + ".pid", "w").write(str(child.pid))
+for s in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(s, lambda n, _f: child.send_signal(n))
+rc = child.wait()
+open(sys.argv[1], "w").write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss))
+sys.exit(rc)
+"""
+
+
+def peak_measured(cmd: list[str], peak_file: str | Path) -> list[str]:
+    """``cmd`` wrapped so that its own peak RSS in kB lands in ``peak_file`` when it exits (and its pid
+    in ``peak_file.pid`` once it starts). The wrapper's own ~10 MB is included."""
+    return [sys.executable, "-c", _PEAK_WRAPPER, str(peak_file), *cmd]
+
+
+def read_peak_kb(peak_file: str | Path) -> int:
+    return int(Path(peak_file).read_text())

@@ -20,7 +20,8 @@ import os
 import shutil
 import tempfile
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from enum import IntEnum
 from pathlib import Path
@@ -249,8 +250,7 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
     target = out_dir / safe_id(take.meta.id)
     if target.exists() and not overwrite:
         raise InputError("take exists already (use overwrite)", target)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=out_dir))
-    try:
+    with folder_in_place(target) as tmp:
         arrays = {"time": take.time, "values": take.values, "frame_status": take.frame_status}
         if take.neutral is not None:
             arrays["neutral"] = take.neutral
@@ -277,9 +277,19 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
         else:
             meta.audio = None
         write_json_atomic(tmp / META_FILE, meta.to_json())
+    return target
+
+
+@contextmanager
+def folder_in_place(target: Path) -> Iterator[Path]:
+    """Yield a hidden temporary folder beside ``target``; on success it replaces ``target`` (renames,
+    so readers never see half a folder), on error it is removed."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+    try:
+        yield tmp
         os.chmod(tmp, 0o755)
         if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=out_dir))
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
             os.replace(target, old / "take")
             os.replace(tmp, target)
             shutil.rmtree(old, ignore_errors=True)
@@ -288,7 +298,6 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return target
 
 
 def write_json_atomic(path: str | Path, data: Any) -> None:

@@ -35,15 +35,9 @@ def energy_segments(x: np.ndarray, rate: int, min_silence_s: float = 0.3) -> lis
         return []
     e = 10 * np.log10(np.mean(x[: n * hop].reshape(n, hop).astype(np.float64) ** 2, axis=1) + 1e-10)
     flags = e > np.percentile(e, 20) + 15.0
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
-    runs = [[a * hop / rate, b * hop / rate] for a, b in zip(edges[::2], edges[1::2])]
-    merged: list[list[float]] = []
-    for r in runs:
-        if merged and r[0] - merged[-1][1] < min_silence_s:
-            merged[-1][1] = r[1]
-        else:
-            merged.append(r)
-    return [(a, b) for a, b in merged if b - a >= 0.1]
+    from align.vad import runs_to_segments
+
+    return runs_to_segments(flags, hop / rate, min_silence_s, 0.1)
 
 
 def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[float, float]], str]:

@@ -17,9 +17,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
-import shutil
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +30,7 @@ from ..channels import ARKIT61, PRONUNCIATION32
 from ..csv_take import write_livelink_csv
 from ..errors import InputError
 from ..mov import write_reference_mov
-from ..take import FrameStatus, Take, TakeMeta
+from ..take import FrameStatus, Take, TakeMeta, folder_in_place
 from ..textgrid import TextGrid, interval_tier, write_textgrid
 from ..timecode import CSV_TIMECODE_RATE, Timecode
 from .articulation import Articulation, articulate
@@ -293,20 +290,8 @@ def write_take_folder(sim: SimulatedTake, out_dir: str | Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / sim.folder_name
     # Assembled under a hidden name and renamed into place: no half-written take, no stale files.
-    folder = Path(tempfile.mkdtemp(prefix=f".{sim.folder_name}.partial-", dir=out_dir))
-    try:
+    with folder_in_place(target) as folder:
         _write_files(sim, folder)
-        os.chmod(folder, 0o755)
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{sim.folder_name}.old-", dir=out_dir))
-            os.replace(target, old / "take")
-            os.replace(folder, target)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(folder, target)
-    except BaseException:
-        shutil.rmtree(folder, ignore_errors=True)
-        raise
     return target
 
 
