@@ -136,7 +136,9 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
         return "skip"
 
     names = ["tc", "count"] + [f"v{i}" for i in range(len(columns))]
-    types = {n: pa.float32() for n in names[2:]}
+    # Parsed as float64 and narrowed on the copy below: pyarrow parses doubles faster than floats, and
+    # the careful parser rounds the same way (decimal -> double -> float32).
+    types = {n: pa.float64() for n in names[2:]}
     types["tc"] = pa.string()
     types["count"] = pa.int32()
     undecodable = []
