@@ -9,7 +9,7 @@ TORCH := torch==2.13.0
 DEB_PACKAGES := libportaudio2 libegl1 libgl1-mesa-dri chromium
 SHARED ?= ../shared
 
-.PHONY: demo test bench lint format clean deb demo-import demo-simulate demo-live demo-align demo-dataset demo-view
+.PHONY: demo test bench lint format clean deb demo-import demo-simulate demo-live demo-align demo-dataset demo-train demo-view
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -40,7 +40,7 @@ HAVE_SAMPLES = test -d $(SAMPLES) || { echo "$(SAMPLES) not found: skipping the 
 
 demo: $(STAMP) deb
 	@rm -rf $(DEMO) && mkdir -p $(DEMO)
-	@$(MAKE) --no-print-directory demo-import demo-simulate demo-live demo-align demo-dataset demo-view
+	@$(MAKE) --no-print-directory demo-import demo-simulate demo-live demo-align demo-dataset demo-train demo-view
 	@echo "== done: everything is under $(DEMO)/"
 	@ls $(DEMO)
 
@@ -84,11 +84,22 @@ demo-dataset:
 	  --channels varying --test facegood_1114_2_05 facegood_1114_3_16 --jobs 2 && \
 	  $(BIN)/s2a-dataset validate $(DEMO)/dataset-facegood --deep
 
+demo-train:
+	@echo "== 9. training a small Transformer-S2A on the simulated dataset (1 minute at most), evaluating it"
+	@rm -rf $(DEMO)/run-s2a
+	@$(BIN)/s2a-train fit --data $(DEMO)/dataset-sim --model s2a -o $(DEMO)/run-s2a --max-steps 300 --max-minutes 1 \
+	  --set window=120 --set batch_size=8 --set warmup_steps=20 --set eval_every=50 --set log_every=50 \
+	  --set lr=1e-3 --set arch.d_model=128 --set arch.ff_dim=512 --set arch.expert_hidden=32 \
+	  --set arch.encoder_layers=2 --set arch.decoder_layers=2
+	@$(BIN)/s2a-train eval $(DEMO)/run-s2a --data $(DEMO)/dataset-sim
+	@echo "== 10. predicting the real NeuroSync speech to a Live Link Face CSV"
+	@$(HAVE_SAMPLES); $(BIN)/s2a-train predict $(DEMO)/run-s2a $(NS)/audio.wav -o $(DEMO)/neurosync-s2a.csv
+
 demo-view:
-	@echo "== 9. rendering the NeuroSync take as a face (MP4 with audio) and its curves (PNG)"
+	@echo "== 11. rendering the NeuroSync take beside the prediction (MP4 with audio), curves (PNG), report (HTML)"
 	@$(HAVE_SAMPLES); $(BIN)/s2a-view render $(DEMO)/takes/neurosync_testset -o $(DEMO)/neurosync.mp4 \
-	  --compare $(DEMO)/aligned/neurosync_testset --size 320 && \
-	  $(BIN)/s2a-view plot $(DEMO)/takes/neurosync_testset $(DEMO)/aligned/neurosync_testset --labels recording,aligned \
+	  --compare $(DEMO)/neurosync-s2a.csv --labels recording,prediction --size 320 && \
+	  $(BIN)/s2a-view plot $(DEMO)/takes/neurosync_testset $(DEMO)/neurosync-s2a.csv --labels recording,prediction \
 	    --channels jawOpen,mouthClose,mouthFunnel -o $(DEMO)/neurosync-curves.png
 	@$(BIN)/s2a-view report $(DEMO)/dataset-sim -o $(DEMO)/dataset-sim.html
 

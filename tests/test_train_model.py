@@ -50,22 +50,26 @@ def test_dense_sparse_and_loop_agree():
         dense = layer(h)
         layer.mode = "sparse"
         sparse = layer(h)
+        layer.mode = "grouped"
+        grouped = layer(h)
         loop = expert_loop_reference(layer, h)
     assert torch.allclose(dense, sparse, atol=1e-5)
+    assert torch.allclose(dense, grouped, atol=1e-5)
     assert torch.allclose(dense, loop, atol=1e-5)
 
 
 def test_gradients_agree_between_paths():
     torch.manual_seed(2)
     grads = {}
-    for mode in ("dense", "sparse"):
+    for mode in ("dense", "sparse", "grouped"):
         torch.manual_seed(3)
         layer = MoELayer(16, 8, experts=6, top_k=2, mode=mode)
         h = torch.randn(2, 20, 16, requires_grad=True)
         layer(h).square().sum().backward()
         grads[mode] = (h.grad, layer.conv.weight.grad, layer.linear_weight.grad, layer.gate.weight.grad)
-    for a, b in zip(grads["dense"], grads["sparse"]):
-        assert torch.allclose(a, b, atol=1e-4)
+    for other in ("sparse", "grouped"):
+        for a, b in zip(grads["dense"], grads[other]):
+            assert torch.allclose(a, b, atol=1e-4)
 
 
 def test_top_k_keeps_exactly_k_experts_with_softmax_weights():

@@ -41,7 +41,7 @@ class S2AConfig:
     expert_hidden: int = 64  # 48 experts x 64 = 3072 units; 16 active = the 1024 of a dense FFN
     expert_kernel: int = 3
     moe: bool = True
-    moe_mode: str = "dense"  # or "sparse" (same numbers; for large settings)
+    moe_mode: str = "dense"  # or "sparse", "grouped" (same numbers; see moe.py)
     dropout: float = 0.1
     max_frames: int = 8192
 

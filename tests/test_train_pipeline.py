@@ -1,0 +1,282 @@
+"""``s2a-train`` end to end on a tiny dataset built with the real pipeline (dataset.build_dataset on
+aligned takes): fit (overfitting, exact resume, DDP), eval, predict, export, ablations, bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from conftest import ROOT, run_cli
+from dataset_helpers import write_aligned_set
+
+from capture import read_livelink_csv
+from dataset import BuildOptions, ShardReader, build_dataset, read_manifest
+from dataset.splits import SplitRule
+from train.checkpoint import load_checkpoint
+from train.config import resolve_config
+from train.fit import fit
+
+TINY = [
+    "arch.d_model=32",
+    "arch.heads=2",
+    "arch.encoder_layers=1",
+    "arch.decoder_layers=1",
+    "arch.ff_dim=64",
+    "arch.experts=8",
+    "arch.top_k=2",
+    "arch.expert_hidden=16",
+    "arch.dropout=0.0",
+    "window=60",
+    "batch_size=4",
+    "warmup_steps=5",
+    "lr=3e-3",
+    "log_every=5",
+    "shuffle_buffer=4",
+]
+
+
+@pytest.fixture(scope="module")
+def ds(tmp_path_factory):
+    root = tmp_path_factory.mktemp("train")
+    takes = write_aligned_set(root / "takes", count=6, speakers=2, seconds=3.0)
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank", "mfcc"),
+        split=SplitRule("take", 0.1, 0.1, 0, ("take05",), ("take04",)),
+        shard_bytes=200_000,
+        max_sample_s=1.5,
+    )
+    build_dataset([takes], root / "ds", options, say=lambda _m: None)
+    return root / "ds"
+
+
+def _cli(*args):
+    return run_cli("train", *map(str, args))
+
+
+def test_fit_cli_overfits_tiny_dataset_and_writes_the_run(ds, tmp_path):
+    run = tmp_path / "run"
+    sets = [a for s in TINY for a in ("--set", s)]
+    proc = _cli(
+        "fit",
+        "--data",
+        ds,
+        "--model",
+        "s2a",
+        "-o",
+        run,
+        "--max-steps",
+        150,
+        *sets,
+        "--set",
+        "eval_every=50",
+        "--set",
+        "aux_weight=0.0",
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["steps"] == 150 and summary["stopped"] == "max_steps"
+    assert "falls back to fbank" in proc.stderr
+    for name in ("config.json", "metrics.jsonl", "last.pt", "best.pt"):
+        assert (run / name).is_file()
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["arch"]["d_model"] == 32 and cfg["inputs"]["content"] == "fbank"
+    losses = [
+        r["mse"] for r in map(json.loads, (run / "metrics.jsonl").read_text().splitlines()) if "mse" in r
+    ]
+    assert len(losses) == 30
+    assert np.mean(losses[-3:]) < 0.9 * np.mean(losses[:2])  # most channels are unpredictable noise
+    # evaluated on the training split itself, the fit is well below the train-mean floor
+    proc = _cli("eval", run, "--data", ds, "--split", "train", "--json")
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(proc.stdout)
+    assert r["rmse_entire"]["mean"] < 0.8 * r["floor"]["rmse_entire"]["mean"]
+    assert r["rmse_crucial"]["mean"] < 0.5 * r["floor"]["rmse_crucial"]["mean"]
+    assert r["rtf"] > 0 and r["device"].startswith("cpu")
+    payload = load_checkpoint(run / "best.pt")
+    assert payload["system"] == "s2a" and payload["inputs"]["out_dim"] == 32
+
+
+def _train_cfg(**over):
+    cfg = resolve_config(sets=TINY + ["arch.dropout=0.2", "eval_every=4", "max_steps=12"])
+    cfg.update(over)
+    return cfg
+
+
+def test_resume_reproduces_an_uninterrupted_run_exactly(ds, tmp_path):
+    quiet = {"say": lambda _m: None}
+    full = fit(ds, tmp_path / "full", _train_cfg(), **quiet)
+    first = fit(ds, tmp_path / "split", _train_cfg(), stop_after_steps=6, **quiet)
+    assert first["stopped"] == "stopped" and first["steps"] == 6
+    second = fit(ds, tmp_path / "split", _train_cfg(), resume=True, **quiet)
+    assert second["steps"] == full["steps"] == 12
+    assert second["best_val"] == full["best_val"]
+    a, b = load_checkpoint(tmp_path / "full" / "last.pt"), load_checkpoint(tmp_path / "split" / "last.pt")
+    assert a["state_dict"].keys() == b["state_dict"].keys()
+    for k in a["state_dict"]:
+        assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k
+    for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values()):
+        assert torch.equal(sa["exp_avg_sq"], sb["exp_avg_sq"])
+    assert (a["epoch"], a["batch"]) == (b["epoch"], b["batch"])
+
+    def losses(run):
+        rows = map(json.loads, (run / "metrics.jsonl").read_text().splitlines())
+        return [(r["step"], r.get("mse"), r.get("val_mse")) for r in rows]
+
+    assert losses(tmp_path / "full") == losses(tmp_path / "split")
+
+
+def test_resume_refuses_to_overwrite_and_needs_a_checkpoint(ds, tmp_path):
+    proc = _cli("fit", "--data", ds, "-o", tmp_path / "none", "--resume")
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "nothing to resume" in proc.stderr
+
+
+def _torchrun(ds, run, *extra):
+    sets = [a for s in TINY + ["warmup_steps=100", "eval_every=3"] for a in ("--set", s)]
+    # --standalone: torchrun picks a free port for its rendezvous itself
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
+    cmd += ["-m", "train", "fit", "--data", str(ds)]
+    cmd += ["--model", "blstm", "-o", str(run), *sets, *map(str, extra), "--json"]
+    env = {"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"}
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=240, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summaries = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+    assert len(summaries) == 1  # rank 0 reports
+    return summaries[0]
+
+
+def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
+    s = _torchrun(ds, tmp_path / "ddp", "--max-steps", 6)
+    assert s["world_size"] == 2 and s["steps"] == 6 and s["stopped"] == "max_steps"
+    # both ranks stepped together: their parameters are bit-identical after training
+    assert len(s["params_checksums"]) == 2 and s["ranks_in_sync"]
+    assert json.loads((tmp_path / "ddp" / "config.json").read_text())["world_size"] == 2
+    # stopped after 3 steps (still in warm-up, so the schedule does not depend on max_steps) and
+    # resumed: every rank continues from its own data position and the result is the same
+    _torchrun(ds, tmp_path / "two", "--max-steps", 3)
+    resumed = _torchrun(ds, tmp_path / "two", "--max-steps", 6, "--resume")
+    assert resumed["params_checksums"] == s["params_checksums"]
+    a, b = load_checkpoint(tmp_path / "ddp" / "last.pt"), load_checkpoint(tmp_path / "two" / "last.pt")
+    assert a["positions"] == b["positions"] and len(a["positions"]) == 2
+
+
+def test_ridge_beats_the_floor_and_eval_matches_a_hand_computation(ds, tmp_path):
+    run = tmp_path / "ridge"
+    assert _cli("fit", "--data", ds, "--model", "ridge", "-o", run).returncode == 0
+    proc = _cli("eval", run, "--data", ds, "--json")
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(proc.stdout)
+    assert r["rmse_crucial"]["mean"] < r["floor"]["rmse_crucial"]["mean"]
+    # the floor by hand: raw animation of the test shards against the training mean, × 100
+    m = read_manifest(ds)
+    mean = np.array([m["stats"]["train"]["channels"][c]["mean"] for c in m["channels"]])
+    per_utt, se, n = [], np.zeros(len(mean)), 0
+    jaw, close = m["channels"].index("jawOpen"), m["channels"].index("mouthClose")
+    crucial = []
+    for s in m["shards"]:
+        if s["split"] != "test":
+            continue
+        for _key, members in ShardReader(ds / s["name"]):
+            anim = np.load(__import__("io").BytesIO(members["anim.npy"])).astype(np.float64)
+            mask = np.load(__import__("io").BytesIO(members["mask.npy"]))
+            d = (anim[mask] - mean) * 100
+            per_utt.append(np.sqrt((d**2).mean()))
+            crucial.append(np.sqrt((d[:, [jaw, close]] ** 2).mean()))
+            se += (d**2).sum(0)
+            n += d.shape[0]
+    assert r["utterances"] == len(per_utt) and r["frames"] == n
+    assert r["floor"]["rmse_entire"]["mean"] == pytest.approx(np.mean(per_utt), rel=1e-9)
+    assert r["floor"]["rmse_entire"]["std"] == pytest.approx(np.std(per_utt), rel=1e-9)
+    assert r["floor"]["rmse_crucial"]["mean"] == pytest.approx(np.mean(crucial), rel=1e-9)
+    assert r["floor"]["per_channel"]["jawOpen"] == pytest.approx(np.sqrt(se[jaw] / n), abs=1e-6)
+
+
+def test_ablations_predict_and_export(ds, tmp_path):
+    run = tmp_path / "mfcc"
+    sets = [a for s in TINY for a in ("--set", s)]
+    proc = _cli(
+        "fit",
+        "--data",
+        ds,
+        "--model",
+        "s2a",
+        "-o",
+        run,
+        "--max-steps",
+        3,
+        *sets,
+        "--set",
+        "input=mfcc",
+        "--set",
+        "prosody=false",
+        "--set",
+        "eval_every=3",
+    )
+    assert proc.returncode == 0, proc.stderr
+    inputs = load_checkpoint(run / "last.pt")["inputs"]
+    assert inputs["content"] == "mfcc" and inputs["content_dim"] == 13 and inputs["prosody_dim"] == 0
+
+    # predict: a take's own audio → a Live Link Face CSV of 61 channels at the dataset's rate
+    wav = next((ds.parent / "takes").rglob("audio.wav"))
+    out = tmp_path / "pred.csv"
+    proc = _cli("predict", run, wav, "-o", out, "--json")
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)
+    take = read_livelink_csv(out)
+    assert len(take.meta.channels) == 61 and take.values.shape[0] == info["frames"] == 180
+    lowered = [c.lower() for c in take.meta.channels]
+    assert np.all(take.values[:, lowered.index("eyeblinkleft")] == 0)  # not a pronunciation channel
+    assert np.ptp(take.values[:, lowered.index("jawopen")]) > 0
+
+    # export: the ONNX graph reproduces the PyTorch model on inputs of another length
+    onnx_path = tmp_path / "m.onnx"
+    proc = _cli("export", run, "-o", onnx_path, "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["max_abs_diff"] < 1e-4
+    import onnxruntime as ort
+
+    from train.checkpoint import load_system
+
+    model, _ = load_system(run)
+    x = torch.randn(1, 333, 13)
+    mask = torch.ones(1, 333, dtype=torch.bool)
+    with torch.no_grad():
+        ref = model(x, None, mask).numpy()
+    got = ort.InferenceSession(str(onnx_path)).run(None, {"content": x.numpy(), "mask": mask.numpy()})[0]
+    np.testing.assert_allclose(got, ref, atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["fit", "--data", "{tmp}/missing", "-o", "{tmp}/r"], "manifest"),
+        (["fit", "--data", "{ds}", "-o", "{tmp}/r", "--set", "colour=blue"], "unknown config key 'colour'"),
+        (["fit", "--data", "{ds}", "-o", "{tmp}/r", "--set", "input=ppg"], "no ppg feature"),
+        (["fit", "--data", "{ds}", "-o", "{tmp}/r", "--set", "arch.wings=2"], "unknown arch keys"),
+        (["eval", "{tmp}/bad.pt", "--data", "{ds}"], "not a readable checkpoint"),
+        (["predict", "{tmp}/nothing", "{tmp}/a.wav", "-o", "{tmp}/o.csv"], "run folder not found"),
+    ],
+)
+def test_cli_bad_input_is_one_line_and_exit_1(ds, tmp_path, args, needle):
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    proc = _cli(*[a.format(tmp=tmp_path, ds=ds) for a in args])
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert needle in proc.stderr
+
+
+def test_fit_without_a_val_split_trains_without_validation(ds, tmp_path):
+    options = BuildOptions(split=SplitRule("take", 0.0, 0.1, 0, (), ("take04",)), max_sample_s=1.5)
+    build_dataset([ds.parent / "takes"], tmp_path / "ds", options, say=lambda _m: None)
+    assert "val" not in {s["split"] for s in read_manifest(tmp_path / "ds")["shards"]}
+    s2a = fit(tmp_path / "ds", tmp_path / "s2a", _train_cfg(max_steps=4), say=lambda _m: None)
+    assert s2a["steps"] == 4 and s2a["best_val"] is None
+    assert (tmp_path / "s2a" / "last.pt").is_file() and not (tmp_path / "s2a" / "best.pt").exists()
+    ridge = fit(tmp_path / "ds", tmp_path / "ridge", _train_cfg(model="ridge"), say=lambda _m: None)
+    assert ridge["best_val"] is None
+    proc = _cli("eval", tmp_path / "s2a", "--data", tmp_path / "ds", "--json")
+    assert proc.returncode == 0, proc.stderr

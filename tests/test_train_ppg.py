@@ -1,0 +1,95 @@
+"""``s2a-train ppg``: the bottleneck PPG learns phones from real aligned speech (LibriVox sample) and
+from Praat TextGrids beside audio, and its checkpoint serves the dataset's bottleneck backend."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import soundfile as sf
+from conftest import run_cli
+from dataset_helpers import speech_like, write_aligned_set
+
+from capture.textgrid import TextGrid, interval_tier, write_textgrid
+from dataset import BuildOptions, build_dataset, make_extractor
+from dataset.bottleneck import ARPABET
+from dataset.features import FeatureSettings, spectral_features
+from train.ppg_train import find_alignments, frame_labels
+
+
+@pytest.fixture(scope="module")
+def trained(samples, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ppg") / "ppg.pt"
+    librivox = samples / "speech" / "pocketsphinx-testdata-librivox"
+    proc = run_cli("train", "ppg", "--data", librivox, "-o", out, "--steps", "100", "--json")
+    assert proc.returncode == 0, proc.stderr
+    return out, json.loads(proc.stdout)
+
+
+def test_ppg_learns_phones_of_real_speech(samples, trained):
+    out, s = trained
+    assert s["utterances"] == 5 and s["steps"] == 100
+    # on an utterance it never saw, well above always answering the most frequent phone
+    assert s["val_accuracy"] > 2 * s["majority_accuracy"]
+    wav = sorted((samples / "speech" / "pocketsphinx-testdata-librivox").glob("*.wav"))[0]
+    audio, rate = sf.read(wav, dtype="float32")
+    assert rate == 16000
+    fbank = spectral_features(audio, FeatureSettings())["fbank"]
+    result = make_extractor("bottleneck", out).extract(audio, fbank)
+    assert result.posteriors.shape == (len(fbank), 64)
+
+
+def test_textgrid_alignments_beside_audio(tmp_path):
+    audio, _ = speech_like(2.0, np.random.default_rng(0))
+    sf.write(tmp_path / "utt.wav", audio, 16000)
+    tier = interval_tier(
+        "phones", [(0.0, 0.5, ""), (0.5, 1.0, "aa1"), (1.0, 1.5, "s"), (1.5, 2.0, "xx")], 0.0, 2.0
+    )
+    write_textgrid(TextGrid(0.0, 2.0, [tier]), tmp_path / "utt.TextGrid")
+    [(wav, segs)] = find_alignments([tmp_path])
+    assert wav == tmp_path / "utt.wav" and len(segs) == 4
+    labels = frame_labels(segs, 101, 0.02)
+    assert labels[10] == 0 and labels[30] == ARPABET.index("AA") and labels[60] == ARPABET.index("S")
+    assert labels[90] == 0 and labels[100] == 0  # unknown label and after the end: SIL
+    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "3", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["utterances"] == 1
+
+
+def test_ppg_without_alignments_is_one_line_error(tmp_path):
+    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt")
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "no phone alignments" in proc.stderr
+
+
+def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_path):
+    ckpt, _ = trained
+    takes = write_aligned_set(tmp_path / "takes", count=4, speakers=2, seconds=2.0)
+    build_dataset(
+        [takes], tmp_path / "ds", BuildOptions(ppg="bottleneck", ppg_model=str(ckpt)), say=lambda _m: None
+    )
+    run = tmp_path / "run"
+    tiny = ["window=60", "batch_size=2", "eval_every=2", "arch.d_model=32", "arch.ff_dim=64"]
+    proc = run_cli(
+        "train",
+        "fit",
+        "--data",
+        tmp_path / "ds",
+        "-o",
+        run,
+        "--max-steps",
+        "2",
+        *[a for t in tiny for a in ("--set", t)],
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "falls back" not in proc.stderr  # the PPG is the content input
+    wav = next(takes.rglob("audio.wav"))
+    proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "p.csv", "--ppg-model", ckpt)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "p.csv").is_file()
+    proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "q.csv")
+    assert proc.returncode == 1 and "--ppg-model" in proc.stderr
+    other = tmp_path / "other.pt"
+    other.write_bytes(ckpt.read_bytes() + b"x")
+    proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "q.csv", "--ppg-model", other)
+    assert proc.returncode == 1 and "differs from the one the dataset was built with" in proc.stderr

@@ -1,0 +1,91 @@
+"""Units of the training stage: config resolution, the metrics on a hand-computed example, the
+learning-rate schedule and the closed-form ridge solution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from capture.errors import InputError
+from train.config import DEFAULTS, parse_set, resolve_config
+from train.evaluate import ErrorTally, crucial_columns
+from train.fit import learning_rate
+from train.ridge import NormalEquations, Ridge, stack_frames
+
+
+def test_config_layers_toml_then_set(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text('model = "blstm"\nlr = 0.002\n[arch]\nhidden = 64\n[arch.s2a]\nd_model = 128\n')
+    cfg = resolve_config(
+        f, ["lr=1e-4", "prosody=false", "arch.layers=3", "arch.blstm.hidden=32", "input=mfcc"]
+    )
+    assert (
+        cfg["model"] == "blstm" and cfg["lr"] == 1e-4 and cfg["prosody"] is False and cfg["input"] == "mfcc"
+    )
+    assert cfg["arch"] == {"hidden": 64, "s2a": {"d_model": 128}, "layers": 3, "blstm": {"hidden": 32}}
+    assert DEFAULTS["arch"] == {}  # defaults are never mutated
+    assert parse_set("note=hello world") == ("note", "hello world")
+
+
+@pytest.mark.parametrize(
+    "text, sets, needle",
+    [
+        ("lr = [", [], "not valid TOML"),
+        ("", ["batch_size=0"], "batch_size must be a positive integer"),
+        ("", ["model=gpt"], "model must be one of"),
+        ("", ["prosody=maybe"], "prosody must be true or false"),
+        ("", ["lr"], "--set expects key=value"),
+        ("speed = 3", [], "unknown config key 'speed'"),
+    ],
+)
+def test_config_errors_name_the_field(tmp_path, text, sets, needle):
+    f = tmp_path / "c.toml"
+    f.write_text(text)
+    with pytest.raises(InputError, match=needle):
+        resolve_config(f, sets)
+
+
+def test_error_tally_matches_hand_computation():
+    channels = ["jawOpen", "mouthClose", "mouthFunnel"]
+    true = np.zeros((4, 3))
+    pred = np.array([[0.01, 0.02, 0.0], [0.01, 0.02, 0.0], [0.0, 0.0, 0.03], [9.0, 9.0, 9.0]])
+    mask = np.array([True, True, True, False])  # the last frame is not usable
+    t = ErrorTally(channels)
+    t.add(pred, true, mask)
+    t.add(true[:2] + 0.04, true[:2], np.ones(2, bool))
+    s = t.summary()
+    # utterance 1: squared errors (×100)² = 1,4,0, 1,4,0, 0,0,9 → mean 19/9; utterance 2: 16 everywhere
+    u1, u2 = np.sqrt(19 / 9), 4.0
+    assert s["rmse_entire"]["mean"] == pytest.approx((u1 + u2) / 2)
+    assert s["rmse_entire"]["std"] == pytest.approx(abs(u1 - u2) / 2)
+    c1 = np.sqrt((1 + 4 + 1 + 4) / 6)
+    assert s["rmse_crucial"]["mean"] == pytest.approx((c1 + 4.0) / 2)
+    assert s["per_channel"]["jawOpen"] == pytest.approx(np.sqrt((1 + 1 + 16 + 16) / 5), abs=1e-6)
+    assert s["frames"] == 5 and s["utterances"] == 2
+    assert crucial_columns(["JawOpen", "x"]) is None
+
+
+def test_learning_rate_warms_up_then_decays():
+    cfg = {"lr": 1.0, "warmup_steps": 10, "max_steps": 110, "min_lr_ratio": 0.1}
+    assert learning_rate(0, cfg) == pytest.approx(0.1)
+    assert learning_rate(9, cfg) == pytest.approx(1.0)
+    assert learning_rate(60, cfg) == pytest.approx(0.55)
+    assert learning_rate(110, cfg) == pytest.approx(0.1) == learning_rate(500, cfg)
+
+
+def test_ridge_closed_form_matches_least_squares():
+    g = torch.Generator().manual_seed(0)
+    content, prosody = torch.randn(2, 50, 3, generator=g), torch.randn(2, 50, 1, generator=g)
+    mask = torch.ones(2, 50, dtype=torch.bool)
+    mask[1, 40:] = False
+    model = Ridge(3, 1, 2, context=1)
+    x = model.inputs(content, prosody, mask)
+    assert x.shape == (2, 50, 12) and torch.equal(stack_frames(content, 1)[0, 0, :3], torch.zeros(3))
+    y = x @ torch.randn(12, 2, generator=g) + 0.5
+    eq = NormalEquations(12, 2)
+    eq.add(x, y, mask)
+    eq.solve(model, alpha=1e-12)
+    with torch.no_grad():
+        pred = model(content, prosody, mask)
+    np.testing.assert_allclose(pred[mask].numpy(), y[mask].numpy(), atol=1e-4)

@@ -1,0 +1,78 @@
+"""Run folders and checkpoints.
+
+A checkpoint is a plain dict of tensors, numbers, strings and lists (no pickled objects), read with
+``torch.load(weights_only=True)``: ``format`` "s2a-train-checkpoint", ``version`` 1, ``system`` (model
+name), ``config`` (resolved training config), ``model_config``, ``inputs`` (InputSpec), ``dataset``
+(channels, fps), ``state_dict``, ``optimizer``, ``step``, ``epoch``, ``batch`` (data position: next batch
+index in ``epoch``), ``positions`` (that pair for every DDP rank), ``rng`` (torch CPU state),
+``best_val``, ``bad_evals``, ``finished``, ``stopped``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from capture.errors import InputError
+
+FORMAT = "s2a-train-checkpoint"
+LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.jsonl"
+
+
+def save_checkpoint(payload: dict[str, Any], path: Path) -> None:
+    """Atomic write (temporary file, fsync, rename)."""
+    tmp = path.with_name("." + path.name + ".partial")
+    with open(tmp, "wb") as f:
+        torch.save({"format": FORMAT, "version": 1, **payload}, f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("checkpoint not found", path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is bad input here
+        raise InputError(f"not a readable checkpoint ({type(exc).__name__})", path) from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise InputError(f'not a training checkpoint (expected "format": "{FORMAT}")', path)
+    return payload
+
+
+def run_checkpoint(run: str | Path) -> Path:
+    """The checkpoint to use for a finished run folder (best on validation, else last), or a file."""
+    run = Path(run)
+    if run.is_file():
+        return run
+    if not run.is_dir():
+        raise InputError("run folder not found", run)
+    for name in (BEST, LAST):
+        if (run / name).is_file():
+            return run / name
+    raise InputError(f"run folder has no {BEST} or {LAST} (train it with s2a-train fit)", run)
+
+
+def load_system(run: str | Path):
+    """(model in eval mode, checkpoint payload) of a run."""
+    from .data import InputSpec
+    from .systems import build_model
+
+    payload = load_checkpoint(run_checkpoint(run))
+    spec = InputSpec.from_json(payload["inputs"])
+    model, _ = build_model(payload["system"], spec, payload["config"])
+    model.load_state_dict(payload["state_dict"])
+    model.eval()
+    return model, payload
+
+
+def write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_name("." + path.name + ".partial")
+    tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    os.replace(tmp, path)

@@ -1,0 +1,177 @@
+"""``s2a-train``: fit, eval, predict, compare, ppg, export."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from capture.command import emit_json, run
+
+from .config import MODELS, resolve_config
+
+PROG = "s2a-train"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("fit", help="train a system on a dataset into a run folder")
+    p.add_argument("--data", type=Path, required=True, help="dataset folder (s2a-dataset build)")
+    p.add_argument("--model", choices=MODELS, help="system to train (default: the config's, else s2a)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="run folder")
+    p.add_argument("--config", type=Path, help="TOML file of config keys (see docs/train.md)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
+    p.add_argument("--max-steps", type=int, help="optimizer steps (overrides max_steps)")
+    p.add_argument("--max-minutes", type=float, help="wall-clock limit in minutes (overrides max_minutes)")
+    p.add_argument("--resume", action="store_true", help="continue the run from its last checkpoint")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_fit)
+
+    p = sub.add_parser("eval", help="RMSE (paper scale), per-channel errors, floor and RTF of a run")
+    p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
+    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("--split", default="test", help="split to evaluate (default: test)")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.set_defaults(handler=cmd_eval)
+
+    p = sub.add_parser("predict", help="speech -> Live Link Face CSV")
+    p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
+    p.add_argument("audio", nargs="+", type=Path, help="audio files (any rate; mixed to mono)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="CSV (one input) or folder")
+    p.add_argument("--ppg-model", type=Path, help="PPG model file when the run's dataset used one")
+    p.add_argument(
+        "--speaker", help="dataset speaker whose pitch statistics to use (default: the utterance's)"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON line per file")
+    p.set_defaults(handler=cmd_predict)
+
+    p = sub.add_parser("compare", help="train and evaluate several systems; Table 1 and Table 2")
+    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("-o", "--out", type=Path, required=True, help="folder for the runs and results")
+    p.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS, help="systems to compare")
+    p.add_argument("--config", type=Path, help="TOML file shared by all systems")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
+    p.add_argument("--max-steps", type=int, help="optimizer steps per system")
+    p.add_argument("--max-minutes", type=float, help="wall-clock limit per system in minutes")
+    p.add_argument("--split", default="test", help="split to evaluate (default: test)")
+    p.add_argument("--json", action="store_true", help="print one JSON line per system")
+    p.set_defaults(handler=cmd_compare)
+
+    p = sub.add_parser("ppg", help="train the 64-dim bottleneck PPG extractor from phone alignments")
+    p.add_argument(
+        "--data",
+        type=Path,
+        nargs="+",
+        required=True,
+        help="takes with TextGrids, or folders of WAV + JSON alignments",
+    )
+    p.add_argument("-o", "--out", type=Path, required=True, help="checkpoint to write (ppg.pt)")
+    p.add_argument("--steps", type=int, default=300, help="optimizer steps (default 300)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_ppg)
+
+    p = sub.add_parser("export", help="ONNX export checked against PyTorch with onnxruntime")
+    p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="ONNX file to write")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_export)
+    return parser
+
+
+def _config(args: argparse.Namespace, model: str | None = None) -> dict:
+    cfg = resolve_config(args.config, args.set)
+    if model is not None:
+        cfg["model"] = model
+    if args.max_steps is not None:
+        cfg["max_steps"] = args.max_steps
+    if args.max_minutes is not None:
+        cfg["max_minutes"] = args.max_minutes
+    return resolve_config(None, None, base=cfg)
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from .fit import fit
+
+    summary = fit(args.data, args.out, _config(args, args.model), resume=args.resume)
+    if summary.get("rank", 0) != 0:  # under torchrun, rank 0 reports for all
+        return 0
+    if args.json:
+        emit_json(summary)
+    else:
+        print(
+            f"{summary['run']}: {summary['model']} {summary['steps']} steps, stopped: {summary['stopped']}, "
+            f"best val mse {summary['best_val']}"
+        )
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .evaluate import evaluate, format_result
+
+    result = evaluate(args.run, args.data, args.split)
+    if args.json:
+        emit_json(result)
+    else:
+        print(format_result(result))
+    return 0
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    from .predict import predict
+
+    for r in predict(args.run, args.audio, args.out, args.ppg_model, args.speaker):
+        if args.json:
+            emit_json(r)
+        else:
+            print(f"{r['csv']}: {r['frames']} frames ({r['duration_s']:.2f} s)")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .compare import compare, format_tables
+
+    rows = compare(args.data, args.out, args.models, lambda m: _config(args, m), args.split)
+    if args.json:
+        for r in rows:
+            emit_json(r)
+    else:
+        print(format_tables(rows))
+    return 0
+
+
+def cmd_ppg(args: argparse.Namespace) -> int:
+    from .ppg_train import train_ppg
+
+    summary = train_ppg(args.data, args.out, steps=args.steps, seed=args.seed)
+    if args.json:
+        emit_json(summary)
+    else:
+        acc = summary["val_accuracy"] if summary["val_accuracy"] is not None else summary["train_accuracy"]
+        print(
+            f"{summary['checkpoint']}: frame phone accuracy {acc:.3f} "
+            f"(chance {summary['majority_accuracy']:.3f})"
+        )
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from .export import export_onnx
+
+    summary = export_onnx(args.run, args.out)
+    if args.json:
+        emit_json(summary)
+    else:
+        print(f"{summary['onnx']}: max |onnxruntime - torch| = {summary['max_abs_diff']:.2e}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""Several systems on one dataset: train each, evaluate each, and tabulate like the paper's Table 1
+(RMSE entire / crucial, paper scale, with the train-mean floor) and Table 2 (RTF, speed-up vs BLSTM)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from capture.command import progress
+
+from .checkpoint import LAST, write_json
+from .evaluate import evaluate
+from .fit import fit
+
+
+def compare(
+    ds: str | Path,
+    out: str | Path,
+    models: list[str],
+    config_for: Callable[[str], dict[str, Any]],
+    split: str = "test",
+    say: Callable[[str], None] = progress,
+) -> list[dict[str, Any]]:
+    """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system."""
+    out = Path(out)
+    rows = []
+    for name in models:
+        run = out / name
+        say(f"compare: {name}")
+        summary = fit(ds, run, config_for(name), resume=(run / LAST).is_file(), say=say)
+        r = evaluate(run, ds, split, say=say)
+        rows.append(
+            {
+                "model": name,
+                "steps": summary["steps"],
+                "rmse_entire": r["rmse_entire"],
+                "rmse_crucial": r["rmse_crucial"],
+                "floor": {
+                    "rmse_entire": r["floor"]["rmse_entire"],
+                    "rmse_crucial": r["floor"]["rmse_crucial"],
+                },
+                "rtf": r.get("rtf"),
+                "device": r["device"],
+            }
+        )
+    blstm = next((r["rtf"] for r in rows if r["model"] == "blstm" and r["rtf"]), None)
+    for r in rows:
+        r["speedup_vs_blstm"] = blstm / r["rtf"] if blstm and r["rtf"] else None
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "compare.json", rows)
+    return rows
+
+
+def _ms(v: dict[str, float] | None) -> str:
+    return "n/a" if v is None else f"{v['mean']:.3f} ± {v['std']:.3f}"
+
+
+def format_tables(rows: list[dict[str, Any]]) -> str:
+    """Table 1 (RMSE ×100 of de-normalised coefficients) and Table 2 (RTF)."""
+    lines = [
+        "Table 1: RMSE (paper scale, mean ± std over utterances)",
+        f"{'system':<12} {'entire':>17} {'crucial':>17}",
+    ]
+    for r in rows:
+        lines.append(f"{r['model']:<12} {_ms(r['rmse_entire']):>17} {_ms(r['rmse_crucial']):>17}")
+    if rows:
+        f = rows[0]["floor"]
+        lines.append(f"{'train mean':<12} {_ms(f['rmse_entire']):>17} {_ms(f['rmse_crucial']):>17}")
+        lines += [
+            "",
+            f"Table 2: real-time factor ({rows[0]['device']})",
+            f"{'system':<12} {'RTF':>10} {'speed-up':>9}",
+        ]
+    for r in rows:
+        rtf = f"{r['rtf']:.5f}" if r["rtf"] is not None else "n/a"
+        sp = f"{r['speedup_vs_blstm']:.2f}x" if r["speedup_vs_blstm"] else "n/a"
+        lines.append(f"{r['model']:<12} {rtf:>10} {sp:>9}")
+    return "\n".join(lines)

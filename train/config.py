@@ -1,0 +1,120 @@
+"""Training configuration: defaults, TOML files and ``--set key=value`` overrides.
+
+Keys are flat (``lr``, ``batch_size``...) plus the table ``arch`` whose keys override the fields of the
+model config dataclasses (``arch.d_model = 128`` applies to S2AConfig, ``arch.hidden`` to BLSTM and NVP,
+``arch.dropout`` to all; ``arch.blstm.hidden = 64`` to one system only). Units: steps
+are optimizer updates, ``window`` is animation frames, ``max_minutes`` wall-clock minutes.
+"""
+
+from __future__ import annotations
+
+import copy
+import sys
+from pathlib import Path
+from typing import Any
+
+from capture.errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+MODELS = ("s2a", "s2a-nomoe", "blstm", "nvp3", "nvp9", "ridge")
+INPUTS = ("auto", "ppg", "fbank", "mfcc")
+
+DEFAULTS: dict[str, Any] = {
+    "model": "s2a",
+    "input": "auto",  # content features: auto = ppg when the dataset has it, else fbank
+    "prosody": True,  # pitch (log-F0, voicing) + energy
+    "seed": 0,
+    "window": 240,  # frames per training window (4 s at 60 fps)
+    "batch_size": 16,
+    "lr": 5e-4,  # peak learning rate (AdamW)
+    "weight_decay": 0.01,
+    "betas": [0.9, 0.98],
+    "warmup_steps": 200,
+    "min_lr_ratio": 0.1,  # cosine decay from lr to lr * min_lr_ratio at max_steps
+    "max_steps": 4000,
+    "max_minutes": 0.0,  # 0 = no wall-clock limit
+    "grad_clip": 1.0,  # max global gradient norm
+    "aux_weight": 0.01,  # MoE load-balancing loss weight
+    "amp": "auto",  # auto (bf16 on CUDA when supported), bf16 (also on CPU), none
+    "shuffle_buffer": 64,
+    "eval_every": 200,  # steps between validations and checkpoints
+    "patience": 10,  # validations without improvement before early stopping (0 = never stop early)
+    "log_every": 20,
+    "ridge_context": 7,  # ridge: ± frames stacked
+    "ridge_alpha": 0.0,  # ridge: L2 penalty per frame on standardised inputs; 0 = best on val of a grid
+    "arch": {},
+}
+
+
+def _merge(base: dict[str, Any], extra: dict[str, Any], where: str) -> None:
+    for key, value in extra.items():
+        if key not in DEFAULTS:
+            raise InputError(f"unknown config key {key!r} (known: {', '.join(sorted(DEFAULTS))})", where)
+        if key == "arch":
+            if not isinstance(value, dict):
+                raise InputError("'arch' must be a table", where)
+            base["arch"].update(value)
+        else:
+            base[key] = value
+
+
+def parse_set(item: str) -> tuple[str, Any]:
+    """``key=value`` → (key, value); value read as a TOML literal, else kept as a string."""
+    if "=" not in item:
+        raise InputError(f"--set expects key=value, got {item!r}")
+    key, raw = (s.strip() for s in item.split("=", 1))
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def resolve_config(
+    file: str | Path | None = None, sets: list[str] | None = None, base: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Defaults (or ``base``) ← TOML ``file`` ← ``--set`` items; checked."""
+    cfg = copy.deepcopy(base if base is not None else DEFAULTS)
+    cfg.setdefault("arch", {})
+    if file is not None:
+        path = Path(file)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise InputError("config file not found", path) from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"not valid TOML: {exc}", path) from None
+        _merge(cfg, data, str(path))
+    for item in sets or []:
+        key, value = parse_set(item)
+        if key.startswith("arch."):
+            table, *rest = key[5:].split(".", 1)
+            if rest:  # arch.<system>.<key>
+                cfg["arch"].setdefault(table, {})[rest[0]] = value
+            else:
+                cfg["arch"][table] = value
+        else:
+            _merge(cfg, {key: value}, "--set")
+    check_config(cfg)
+    return cfg
+
+
+def check_config(cfg: dict[str, Any]) -> None:
+    if cfg["model"] not in MODELS:
+        raise InputError(f"model must be one of {', '.join(MODELS)}, got {cfg['model']!r}", "config:model")
+    if cfg["input"] not in INPUTS:
+        raise InputError(f"input must be one of {', '.join(INPUTS)}, got {cfg['input']!r}", "config:input")
+    if not isinstance(cfg["prosody"], bool):
+        raise InputError(f"prosody must be true or false, got {cfg['prosody']!r}", "config:prosody")
+    if cfg["amp"] not in ("auto", "bf16", "none"):
+        raise InputError(f"amp must be auto, bf16 or none, got {cfg['amp']!r}", "config:amp")
+    for key in ("window", "batch_size", "max_steps", "eval_every", "log_every"):
+        if not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1:
+            raise InputError(f"{key} must be a positive integer, got {cfg[key]!r}", f"config:{key}")
+    for key in ("lr", "weight_decay", "grad_clip", "aux_weight", "max_minutes", "ridge_alpha"):
+        if not isinstance(cfg[key], (int, float)) or isinstance(cfg[key], bool) or cfg[key] < 0:
+            raise InputError(f"{key} must be a non-negative number, got {cfg[key]!r}", f"config:{key}")

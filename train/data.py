@@ -1,0 +1,160 @@
+"""Model inputs from a dataset: which features feed content and prosody, and batches of tensors.
+
+Content is the PPG when the dataset has one (``input = "auto"`` or ``"ppg"``), else log-mel filter banks
+(``fbank``) or MFCC (``mfcc``); prosody is pitch (per-speaker z-scored log-F0, voicing flag) and
+energy. Everything is at the animation frame rate; targets are normalised animation channels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from capture.errors import InputError
+from dataset.manifest import read_manifest
+from dataset.torch_dataset import ShardDataset
+
+PROSODY_FEATURES = ("pitch", "energy")
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """Features feeding the model: ``content`` (a feature name) of ``content_dim`` dims, and the
+    ``prosody`` features concatenated into ``prosody_dim`` dims (empty for the no-prosody ablation)."""
+
+    content: str
+    content_dim: int
+    prosody: tuple[str, ...]
+    prosody_dim: int
+    out_dim: int
+    note: str | None = None
+
+    @property
+    def features(self) -> list[str]:
+        return [self.content, *self.prosody]
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> InputSpec:
+        return cls(**{**d, "prosody": tuple(d["prosody"])})
+
+
+def resolve_inputs(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "manifest.json") -> InputSpec:
+    """The input choice of ``cfg`` (``input``, ``prosody``) checked against the dataset's features."""
+    dims = manifest["features"]["dims"]
+    want, note = cfg["input"], None
+    if want == "auto":
+        for name in ("ppg", "fbank", "mfcc"):
+            if name in dims:
+                want = name
+                break
+        else:
+            raise InputError("dataset has none of ppg, fbank, mfcc for the content input", where)
+        if want != "ppg":
+            note = f"dataset has no PPG: content input falls back to {want}"
+    if want not in dims:
+        raise InputError(
+            f"input={want!r} but the dataset has no {want} feature (it has {', '.join(dims)}); "
+            f"rebuild it with --features ...,{want} or choose another input",
+            where,
+        )
+    prosody: tuple[str, ...] = ()
+    if cfg["prosody"]:
+        missing = [p for p in PROSODY_FEATURES if p not in dims]
+        if missing:
+            raise InputError(
+                f"prosody=true needs features {missing} that the dataset lacks (or use --set prosody=false)",
+                where,
+            )
+        prosody = PROSODY_FEATURES
+    return InputSpec(
+        want, int(dims[want]), prosody, sum(int(dims[p]) for p in prosody), len(manifest["channels"]), note
+    )
+
+
+def to_model_inputs(item: dict[str, Any], spec: InputSpec) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(content, prosody) tensors from a (batched) ShardDataset item; prosody None when not used."""
+    content = item[spec.content]
+    prosody = torch.cat([item[p] for p in spec.prosody], dim=-1) if spec.prosody else None
+    return content, prosody
+
+
+def train_dataset(ds: str | Path, spec: InputSpec, cfg: dict[str, Any]) -> ShardDataset:
+    return ShardDataset(
+        ds,
+        "train",
+        window=cfg["window"],
+        features=spec.features,
+        shuffle_buffer=cfg["shuffle_buffer"],
+        seed=cfg["seed"],
+    )
+
+
+def endless_batches(
+    data: ShardDataset, batch_size: int, epoch: int = 0, skip: int = 0, seed: int = 0
+) -> Iterator[tuple[int, int, dict[str, Any]]]:
+    """(epoch, batch index within the epoch, batch) forever, starting at ``epoch`` after ``skip`` batches
+    of it: the data position a checkpoint records, so that a resumed run sees the same batches. The
+    loader gets its own generator so that starting an epoch leaves the global torch RNG alone."""
+    while True:
+        data.set_epoch(epoch)
+        loader = DataLoader(
+            data, batch_size=batch_size, num_workers=0, generator=torch.Generator().manual_seed(seed + epoch)
+        )
+        n = 0
+        for i, batch in enumerate(loader):
+            n += 1
+            if i < skip:
+                continue
+            yield epoch, i, batch
+        if n == 0:
+            raise InputError(
+                "the training split yields no samples for this process", data.ds / "manifest.json"
+            )
+        epoch, skip = epoch + 1, 0
+
+
+def utterances(ds: str | Path, split: str, spec: InputSpec | None = None) -> Iterator[dict[str, Any]]:
+    """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised)."""
+    manifest = read_manifest(ds)
+    if split not in {s["split"] for s in manifest["shards"]}:
+        raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
+    features = spec.features if spec is not None else None
+    for item in ShardDataset(ds, split, window=None, features=features):
+        yield {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
+
+
+def normalize_features(
+    manifest: dict[str, Any], feats: dict[str, np.ndarray], speaker: str | None = None
+) -> dict[str, np.ndarray]:
+    """The reader's feature normalisation (see ShardDataset) for features computed outside a dataset.
+    Pitch of a speaker the dataset does not know is z-scored with the utterance's own voiced log-F0."""
+    norm = manifest["normalization"]
+    out = {}
+    for name, x in feats.items():
+        x = np.asarray(x, np.float32).copy()
+        if name == "pitch":
+            voiced = x[:, 1] > 0
+            st = norm.get("pitch", {}).get("speakers", {}).get(speaker)
+            if st is None:
+                f0 = x[voiced, 0]
+                st = {
+                    "mean": float(f0.mean()) if f0.size else 0.0,
+                    "std": float(f0.std()) if f0.size > 1 else 1.0,
+                }
+                st["std"] = st["std"] if st["std"] > 1e-6 else 1.0
+            x[:, 0] = np.where(voiced, (x[:, 0] - st["mean"]) / st["std"], 0.0)
+        elif name in norm["features"]:
+            mean = np.asarray(norm["features"][name]["mean"], np.float32)
+            std = np.asarray(norm["features"][name]["std"], np.float32)
+            x = (x - mean) / std
+        out[name] = x.astype(np.float32)
+    return out

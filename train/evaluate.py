@@ -1,0 +1,188 @@
+"""Evaluation on the paper's scale and real-time factor.
+
+``rmse`` = root mean square error of DE-normalised coefficients (0..1 blendshape units) × 100, over the
+usable frames of an utterance: ``entire`` over every channel of the dataset, ``crucial`` over jawOpen
+and mouthClose (paper Table 1). Reported as mean ± std over utterances, plus per-channel RMSE pooled over
+all usable frames of the split. The floor predicts every frame as the training split's per-channel
+mean (from the manifest). ``rtf`` = seconds of model compute per second of animation, on a ~12 s
+utterance, batch 1, no gradient (median of repeated runs).
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from capture.command import progress
+from capture.errors import InputError
+from dataset.manifest import read_manifest
+from dataset.torch_dataset import ShardDataset
+
+from .checkpoint import load_system
+from .data import InputSpec, to_model_inputs
+
+CRUCIAL = ("jawopen", "mouthclose")
+
+
+def crucial_columns(channels: list[str]) -> list[int] | None:
+    """Columns of jawOpen and mouthClose, or None when the rig lacks either."""
+    lowered = [c.lower() for c in channels]
+    cols = [lowered.index(c) for c in CRUCIAL if c in lowered]
+    return cols if len(cols) == len(CRUCIAL) else None
+
+
+class ErrorTally:
+    """Per-utterance and per-channel squared errors (paper scale: values × 100)."""
+
+    def __init__(self, channels: list[str]):
+        self.channels = channels
+        self.crucial = crucial_columns(channels)
+        self.entire: list[float] = []
+        self.crucial_rmse: list[float] = []
+        self.se = np.zeros(len(channels))
+        self.frames = 0
+
+    def add(self, pred: np.ndarray, true: np.ndarray, mask: np.ndarray) -> None:
+        """``pred``, ``true`` (frames, channels) de-normalised; ``mask`` (frames,) usable frames."""
+        if not mask.any():
+            return
+        d = (np.asarray(pred, np.float64)[mask] - np.asarray(true, np.float64)[mask]) * 100.0
+        self.entire.append(float(np.sqrt(np.mean(d**2))))
+        if self.crucial is not None:
+            self.crucial_rmse.append(float(np.sqrt(np.mean(d[:, self.crucial] ** 2))))
+        self.se += (d**2).sum(0)
+        self.frames += d.shape[0]
+
+    def summary(self) -> dict[str, Any]:
+        def ms(v):
+            return {"mean": float(np.mean(v)), "std": float(np.std(v))} if v else None
+
+        per_channel = np.sqrt(self.se / max(self.frames, 1))
+        return {
+            "rmse_entire": ms(self.entire),
+            "rmse_crucial": ms(self.crucial_rmse),
+            "rmse_pooled": float(np.sqrt(self.se.sum() / max(self.frames * len(self.channels), 1))),
+            "per_channel": dict(zip(self.channels, per_channel.round(6).tolist())),
+            "utterances": len(self.entire),
+            "frames": self.frames,
+        }
+
+
+def device_name(device: torch.device) -> str:
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    name = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                name = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"cpu ({name}, {torch.get_num_threads()} threads)"
+
+
+@torch.no_grad()
+def real_time_factor(
+    model, spec: InputSpec, item: dict[str, Any], fps: float, seconds: float = 12.0, repeats: int = 5
+) -> float:
+    """Seconds of compute per second of animation for one ``seconds``-long utterance (batch 1): the
+    utterance ``item``'s inputs tiled or cut to that length."""
+    n = int(round(seconds * fps))
+    content, prosody = to_model_inputs(item, spec)
+    reps = -(-n // content.shape[1])
+    content = content.repeat(1, reps, 1)[:, :n]
+    prosody = None if prosody is None else prosody.repeat(1, reps, 1)[:, :n]
+    mask = torch.ones(1, n, dtype=torch.bool)
+    model(content, prosody, mask)  # warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        model(content, prosody, mask)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)) / seconds
+
+
+@torch.no_grad()
+def evaluate(
+    run: str | Path,
+    ds: str | Path,
+    split: str = "test",
+    rtf_seconds: float = 12.0,
+    say: Callable[[str], None] = progress,
+) -> dict[str, Any]:
+    """Metrics of a run on a dataset split (see module doc)."""
+    model, payload = load_system(run)
+    spec = InputSpec.from_json(payload["inputs"])
+    manifest = read_manifest(ds)
+    channels = manifest["channels"]
+    if channels != payload["dataset"]["channels"]:
+        raise InputError(
+            "dataset channels differ from the channels the run was trained on", Path(ds) / "manifest.json"
+        )
+    if split not in {s["split"] for s in manifest["shards"]}:
+        raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
+    scale = np.asarray(manifest["normalization"]["animation"]["scale"], np.float64)
+    train_mean = np.asarray([manifest["stats"]["train"]["channels"][c]["mean"] for c in channels], np.float64)
+    tally, floor = ErrorTally(channels), ErrorTally(channels)
+    normed = ShardDataset(ds, split, window=None, features=spec.features)
+    raw = ShardDataset(ds, split, window=None, features=[], normalize=False)
+    longest = None
+    for item, raw_item in zip(normed, raw):
+        batch = {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
+        content, prosody = to_model_inputs(batch, spec)
+        mask = item["mask"].numpy()
+        pred_norm = model(content, prosody, batch["mask"])[0].double().numpy()
+        true = raw_item["anim"].numpy().astype(np.float64)
+        # x = y·scale + offset is affine, so the prediction's raw value needs no per-sample offset
+        pred = true + (pred_norm - item["anim"].numpy().astype(np.float64)) * scale
+        tally.add(pred, true, mask)
+        floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
+        if longest is None or item["mask"].shape[0] > longest["mask"].shape[1]:
+            longest = batch
+    result = {
+        "run": str(run),
+        "dataset": str(ds),
+        "split": split,
+        "model": payload["system"],
+        "step": payload["step"],
+    }
+    result.update(tally.summary())
+    fl = floor.summary()
+    result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}
+    if tally.crucial is None:
+        result["note"] = "the dataset lacks jawOpen or mouthClose: no crucial RMSE"
+    if longest is not None:
+        result["rtf"] = real_time_factor(model, spec, longest, manifest["fps"], rtf_seconds)
+        result["rtf_seconds"] = rtf_seconds
+    result["device"] = device_name(torch.device("cpu"))
+    say(
+        f"{payload['system']} on {split}: rmse entire {_fmt(result['rmse_entire'])}, "
+        f"crucial {_fmt(result['rmse_crucial'])}; floor {_fmt(result['floor']['rmse_entire'])}"
+    )
+    return result
+
+
+def _fmt(ms: dict[str, float] | None) -> str:
+    return "n/a" if ms is None else f"{ms['mean']:.3f} ± {ms['std']:.3f}"
+
+
+def format_result(r: dict[str, Any]) -> str:
+    """Human-readable summary of ``evaluate``'s result."""
+    lines = [
+        f"{r['model']} (step {r['step']}) on {r['split']}: "
+        f"{r['utterances']} utterances, {r['frames']} frames",
+        f"  rmse entire  {_fmt(r['rmse_entire'])}   floor (train mean) {_fmt(r['floor']['rmse_entire'])}",
+        f"  rmse crucial {_fmt(r['rmse_crucial'])}   floor (train mean) {_fmt(r['floor']['rmse_crucial'])}",
+    ]
+    if "rtf" in r:
+        lines.append(f"  rtf {r['rtf']:.5f} ({r['rtf_seconds']:g} s utterance, {r['device']})")
+    worst = sorted(r["per_channel"].items(), key=lambda kv: -kv[1])[:5]
+    lines.append("  worst channels: " + ", ".join(f"{k} {v:.2f}" for k, v in worst))
+    return "\n".join(lines)

@@ -1,0 +1,136 @@
+"""ONNX export of a trained run, checked against PyTorch with onnxruntime.
+
+Graph inputs: ``content`` (1, frames, content_dim) float32, ``prosody`` (1, frames, prosody_dim) float32
+(absent for the no-prosody ablation) and ``mask`` (1, frames) bool; output ``animation`` (1, frames,
+channels), normalised (de-normalise with the manifest's ``scale`` and ``offset``). Frames are a dynamic
+axis. The parity check runs both on random inputs of two lengths and reports the largest difference.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from capture.command import progress
+from capture.errors import S2AError
+
+from .checkpoint import load_system
+from .data import InputSpec
+
+
+class ExportFailed(S2AError):
+    """The exported graph does not reproduce the PyTorch model."""
+
+
+class _WithProsody(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, content, prosody, mask):
+        return self.model(content, prosody, mask)
+
+
+class _NoProsody(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, content, mask):
+        return self.model(content, None, mask)
+
+
+class _TraceableAttention(nn.Module):
+    """The same self-attention as an ``nn.MultiheadAttention`` (batch first, shared weights), written with
+    shape-free reshapes: the legacy ONNX tracer freezes the frame count inside the built-in module."""
+
+    def __init__(self, mha: nn.MultiheadAttention):
+        super().__init__()
+        self.mha = mha
+
+    def forward(self, query, key, value, key_padding_mask=None, need_weights=False):
+        m = self.mha
+        b, d, h = query.shape[0], m.embed_dim, m.num_heads
+        q, k, v = nn.functional.linear(query, m.in_proj_weight, m.in_proj_bias).chunk(3, dim=-1)
+        q, k, v = (t.reshape(b, -1, h, d // h).transpose(1, 2) for t in (q, k, v))
+        scores = q @ k.transpose(-1, -2) / (d // h) ** 0.5
+        if key_padding_mask is not None:
+            scores = scores.masked_fill(key_padding_mask[:, None, None, :], float("-inf"))
+        y = (scores.softmax(-1) @ v).transpose(1, 2).reshape(b, -1, d)
+        return m.out_proj(y), None
+
+
+def _traceable(model: nn.Module) -> nn.Module:
+    for name, child in list(model.named_children()):
+        if isinstance(child, nn.MultiheadAttention):
+            setattr(model, name, _TraceableAttention(child))
+        else:
+            _traceable(child)
+    return model
+
+
+def _inputs(spec: InputSpec, frames: int, seed: int) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    x = {"content": torch.randn(1, frames, spec.content_dim, generator=g)}
+    if spec.prosody_dim:
+        x["prosody"] = torch.randn(1, frames, spec.prosody_dim, generator=g)
+    x["mask"] = torch.ones(1, frames, dtype=torch.bool)
+    return x
+
+
+def export_onnx(
+    run: str | Path, out: str | Path, tolerance: float = 1e-4, say: Callable[[str], None] = progress
+) -> dict[str, Any]:
+    """Write ``out`` (.onnx) and check it with onnxruntime; raises ExportFailed beyond ``tolerance``
+    (largest absolute difference, normalised units)."""
+    import onnxruntime as ort
+
+    model, payload = load_system(run)
+    spec = InputSpec.from_json(payload["inputs"])
+    reference = _WithProsody(model) if spec.prosody_dim else _NoProsody(model)
+    traced_model, _ = load_system(run)
+    wrapper = (
+        _WithProsody(_traceable(traced_model)) if spec.prosody_dim else _NoProsody(_traceable(traced_model))
+    )
+    example = _inputs(spec, 200, 0)
+    names = list(example)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            wrapper,
+            tuple(example.values()),
+            str(out),
+            input_names=names,
+            output_names=["animation"],
+            dynamic_axes={**{n: {1: "frames"} for n in names}, "animation": {1: "frames"}},
+            opset_version=17,
+            dynamo=False,
+        )
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    session = ort.InferenceSession(str(out), options, providers=["CPUExecutionProvider"])
+    worst = 0.0
+    for frames, seed in ((200, 1), (457, 2)):
+        x = _inputs(spec, frames, seed)
+        with torch.no_grad():
+            ref = reference(*x.values()).numpy()
+        got = session.run(None, {k: v.numpy() for k, v in x.items()})[0]
+        worst = max(worst, float(np.abs(got - ref).max()))
+    if not worst <= tolerance:
+        raise ExportFailed(f"{out}: onnxruntime differs from PyTorch by {worst:.3g} (> {tolerance:g})")
+    say(f"{out}: exported {payload['system']}, onnxruntime matches PyTorch within {worst:.2e}")
+    return {
+        "run": str(run),
+        "onnx": str(out),
+        "model": payload["system"],
+        "max_abs_diff": worst,
+        "inputs": names,
+    }

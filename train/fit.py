@@ -1,0 +1,354 @@
+"""The training loop of every system: a straight script in one function.
+
+AdamW with linear warm-up and cosine decay, global gradient-norm clipping, optional bf16 autocast,
+validation every ``eval_every`` steps with early stopping, checkpoints that resume exactly (model,
+optimizer, step, RNG state, data position), metrics as JSON lines, DDP when started by ``torchrun``
+(WORLD_SIZE > 1; gloo on CPU, nccl on CUDA). Ridge regression is solved in closed form instead.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.distributed as dist
+
+from capture.command import progress
+from capture.errors import InputError
+from dataset.manifest import read_manifest
+
+from .checkpoint import BEST, CONFIG, LAST, METRICS, load_checkpoint, save_checkpoint, write_json
+from .data import endless_batches, resolve_inputs, to_model_inputs, train_dataset, utterances
+from .model import masked_mse
+from .ridge import NormalEquations
+from .systems import build_model
+
+
+def learning_rate(step: int, cfg: dict[str, Any]) -> float:
+    """Linear warm-up over ``warmup_steps``, then cosine decay to ``lr · min_lr_ratio`` at ``max_steps``."""
+    peak, warm, total = cfg["lr"], cfg["warmup_steps"], cfg["max_steps"]
+    if warm > 0 and step < warm:
+        return peak * (step + 1) / warm
+    progress_ = min(1.0, (step - warm) / max(1, total - warm))
+    floor = peak * cfg["min_lr_ratio"]
+    return floor + (peak - floor) * 0.5 * (1 + math.cos(math.pi * progress_))
+
+
+def _distributed() -> tuple[int, int, torch.device]:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    cuda = torch.cuda.is_available()
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if cuda else "gloo")
+    rank = dist.get_rank() if dist.is_initialized() else 0
+    if cuda:
+        local = int(os.environ.get("LOCAL_RANK", "0"))
+        torch.cuda.set_device(local)
+        return rank, world, torch.device("cuda", local)
+    return rank, world, torch.device("cpu")
+
+
+def _all_sum(values: list[float], device: torch.device) -> list[float]:
+    t = torch.tensor(values, dtype=torch.float64, device=device)
+    if dist.is_initialized():
+        dist.all_reduce(t)
+    return t.tolist()
+
+
+def _autocast(cfg: dict[str, Any], device: torch.device):
+    if device.type == "cuda":
+        on = cfg["amp"] in ("auto", "bf16") and torch.cuda.is_bf16_supported()
+    else:
+        on = cfg["amp"] == "bf16"
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=on)
+
+
+@torch.no_grad()
+def validation_loss(model, ds: Path, spec, device: torch.device) -> float:
+    """Normalised MSE over every usable frame and channel of the validation split (this rank's share,
+    summed over ranks)."""
+    model.eval()
+    se, n = 0.0, 0.0
+    for item in utterances(ds, "val", spec):
+        content, prosody = to_model_inputs(item, spec)
+        mask = item["mask"].to(device)
+        pred = model(content.to(device), None if prosody is None else prosody.to(device), mask)
+        m = mask.unsqueeze(-1).float()
+        se += float((((pred.float() - item["anim"].to(device)) ** 2) * m).sum())
+        n += float(m.sum()) * pred.shape[-1]
+    model.train()
+    se, n = _all_sum([se, n], device)
+    return se / n if n else float("nan")
+
+
+def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
+    model, model_config = build_model("ridge", spec, cfg)
+    eq = NormalEquations(model.linear.in_features, spec.out_dim)
+    t0, frames = time.perf_counter(), 0
+    for item in utterances(ds, "train", spec):
+        content, prosody = to_model_inputs(item, spec)
+        eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
+        frames += int(item["mask"].sum())
+    has_val = any(sh["split"] == "val" for sh in read_manifest(ds)["shards"])
+    alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else [1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
+    if not has_val and len(alphas) > 1:
+        say("note: the dataset has no val split: ridge uses alpha 1")
+        alphas = [1.0]
+    scores = []
+    for alpha in alphas:
+        eq.solve(model, alpha)
+        scores.append(validation_loss(model, ds, spec, torch.device("cpu")) if has_val else math.nan)
+    best = min(range(len(alphas)), key=lambda i: scores[i])
+    cfg = {**cfg, "ridge_alpha": alphas[best]}
+    eq.solve(model, alphas[best])
+    val = scores[best]
+    payload = _payload(model, None, cfg, spec, model_config, ds, step=0, epoch=0, batch=0)
+    payload.update(best_val=None if math.isnan(val) else val, finished=True)
+    save_checkpoint(payload, run / LAST)
+    elapsed = time.perf_counter() - t0
+    say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alphas[best]:g}, val mse {val:.4f}")
+    with open(run / METRICS, "a") as f:
+        f.write(
+            json.dumps({"step": 0, "val_mse": None if math.isnan(val) else val, "train_frames": frames})
+            + "\n"
+        )
+    return {
+        "steps": 0,
+        "best_val": None if math.isnan(val) else val,
+        "stopped": "closed_form",
+        "train_frames_per_s": frames / elapsed,
+    }
+
+
+def _checksum(model) -> str:
+    h = hashlib.sha256()
+    for p in model.parameters():
+        h.update(p.detach().cpu().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _payload(model, optimizer, cfg, spec, model_config, ds, step, epoch, batch) -> dict[str, Any]:
+    manifest = read_manifest(ds)
+    module = model.module if hasattr(model, "module") else model
+    return {
+        "system": cfg["model"],
+        "config": cfg,
+        "model_config": model_config,
+        "inputs": spec.to_json(),
+        "dataset": {
+            "path": str(ds),
+            "channels": manifest["channels"],
+            "fps": manifest["fps"],
+            "features": manifest["features"],  # settings of the feature pipeline, for predict
+            "normalization": manifest["normalization"],
+        },
+        "state_dict": {k: v.detach().cpu() for k, v in module.state_dict().items()},
+        "optimizer": optimizer.state_dict() if optimizer is not None else {},
+        "step": step,
+        "epoch": epoch,
+        "batch": batch,
+        "rng": {"torch": torch.get_rng_state()},
+        "best_val": None,
+        "bad_evals": 0,
+        "finished": False,
+    }
+
+
+def fit(
+    ds: str | Path,
+    run: str | Path,
+    cfg: dict[str, Any],
+    resume: bool = False,
+    say: Callable[[str], None] = progress,
+    stop_after_steps: int | None = None,
+) -> dict[str, Any]:
+    """Train system ``cfg["model"]`` on dataset ``ds`` into run folder ``run``; returns a summary.
+
+    ``resume`` continues from ``run/last.pt`` with the run's saved config (``max_steps`` and
+    ``max_minutes`` from ``cfg``). ``stop_after_steps`` ends this session after that many steps with a
+    checkpoint, as if the process had been stopped (the run is then resumable)."""
+    ds, run = Path(ds), Path(run)
+    manifest = read_manifest(ds)
+    rank, world, device = _distributed()
+    main = rank == 0
+    say = say if main else (lambda _m: None)
+    state = None
+    if resume:
+        if not (run / LAST).is_file():
+            raise InputError(f"nothing to resume: no {LAST}", run)
+        state = load_checkpoint(run / LAST)
+        cfg = {**state["config"], "max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
+    elif (run / LAST).exists():
+        raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
+    run.mkdir(parents=True, exist_ok=True)
+    spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
+    build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
+    if spec.note:
+        say(f"note: {spec.note}")
+    if main:
+        write_json(run / CONFIG, {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
+    if cfg["model"] == "ridge":
+        if world > 1:
+            raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
+        return {"run": str(run), "model": "ridge", **_fit_ridge(ds, run, cfg, spec, say)}
+
+    torch.manual_seed(cfg["seed"])
+    model, model_config = build_model(cfg["model"], spec, cfg)
+    model.to(device)
+    optimizer = torch.optim.AdamW(
+        model.parameters(), lr=cfg["lr"], betas=tuple(cfg["betas"]), weight_decay=cfg["weight_decay"]
+    )
+    step, epoch, batch_pos, best_val, bad_evals = 0, 0, 0, math.inf, 0
+    if state is not None:
+        model.load_state_dict(state["state_dict"])
+        optimizer.load_state_dict(state["optimizer"])
+        step, epoch, batch_pos = state["step"], state["epoch"], state["batch"]
+        positions = state.get("positions") or [[epoch, batch_pos]]
+        if len(positions) != world:
+            raise InputError(
+                f"the run was trained with {len(positions)} process(es): resume it with as many", run / LAST
+            )
+        epoch, batch_pos = positions[rank]
+        best_val = state["best_val"] if state["best_val"] is not None else math.inf
+        bad_evals = state["bad_evals"]
+        torch.set_rng_state(state["rng"]["torch"])
+        if main and (run / METRICS).exists():  # drop lines logged after the checkpoint
+            lines = (run / METRICS).read_text().splitlines(keepends=True)
+            (run / METRICS).write_text("".join(ln for ln in lines if json.loads(ln).get("step", 0) <= step))
+        if state.get("stopped") == "early_stopping":
+            say(f"run stopped early at step {step}; nothing to resume")
+    has_val = any(sh["split"] == "val" for sh in manifest["shards"])
+    if not has_val:
+        say("note: the dataset has no val split: no validation, no early stopping, no best.pt")
+    n_params = sum(p.numel() for p in model.parameters())
+    say(f"{cfg['model']}: {n_params / 1e6:.2f} M parameters, {world} process(es) on {device}")
+    net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    tb = None
+    if main:
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+
+            tb = SummaryWriter(str(run / "tensorboard"))
+        except ImportError:
+            tb = None
+    log = open(run / METRICS, "a") if main else None  # noqa: SIM115 - closed in finally
+
+    def save(name: str) -> None:
+        positions: list[Any] = [[epoch, batch_pos]]
+        if world > 1:  # every rank reads its own shards: keep each one's data position
+            positions = [None] * world
+            dist.all_gather_object(positions, [epoch, batch_pos])
+        if main:
+            p = _payload(model, optimizer, cfg, spec, model_config, ds, step, epoch, batch_pos)
+            p["positions"] = positions
+            p.update(best_val=None if math.isinf(best_val) else best_val, bad_evals=bad_evals)
+            p["finished"] = stopped in ("max_steps", "early_stopping")
+            p["stopped"] = stopped
+            save_checkpoint(p, run / name)
+
+    def emit(record: dict[str, Any]) -> None:
+        if log is not None:
+            log.write(json.dumps(record) + "\n")
+            log.flush()
+            if tb is not None:
+                for k, v in record.items():
+                    if k != "step" and isinstance(v, (int, float)):
+                        tb.add_scalar(k, v, record["step"])
+
+    stopped = None
+    t_start = t_log = time.perf_counter()
+    frames_since, session_steps = 0.0, 0
+    data = train_dataset(ds, spec, cfg)
+    net.train()
+    try:
+        if state is not None and state.get("stopped") == "early_stopping":
+            stopped = "early_stopping"
+        elif step >= cfg["max_steps"]:
+            stopped = "max_steps"
+        batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"])
+        while stopped is None:
+            epoch, i, batch = next(batches)
+            lr = learning_rate(step, cfg)
+            for g in optimizer.param_groups:
+                g["lr"] = lr
+            content, prosody = to_model_inputs(batch, spec)
+            mask = batch["mask"].to(device)
+            target = batch["anim"].to(device)
+            with _autocast(cfg, device):
+                pred = net(content.to(device), None if prosody is None else prosody.to(device), mask)
+            mse = masked_mse(pred.float(), target, mask)
+            aux = (
+                model.aux_loss().to(device) if hasattr(model, "aux_loss") else torch.zeros((), device=device)
+            )
+            loss = mse + cfg["aux_weight"] * aux
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["grad_clip"] or math.inf)
+            optimizer.step()
+            step, batch_pos, session_steps = step + 1, i + 1, session_steps + 1
+            frames_since += float(mask.sum())
+            if step % cfg["log_every"] == 0:
+                fr, ls = _all_sum([frames_since, mse.item()], device)
+                now = time.perf_counter()
+                rec = {"step": step, "epoch": epoch, "lr": lr, "mse": ls / world, "aux": float(aux.detach())}
+                rec.update(grad_norm=float(grad_norm), frames_per_s=fr / (now - t_log))
+                emit(rec)
+                say(f"step {step}: mse {rec['mse']:.4f} lr {lr:.2e} {rec['frames_per_s']:.0f} frames/s")
+                frames_since, t_log = 0.0, now
+            minutes = (time.perf_counter() - t_start) / 60
+            over = cfg["max_minutes"] > 0 and minutes >= cfg["max_minutes"]
+            over = _all_sum([float(over)], device)[0] > 0 if world > 1 else over
+            if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"] or over:
+                val = validation_loss(net, ds, spec, device) if has_val else math.nan
+                improved = has_val and val < best_val
+                if improved:
+                    best_val, bad_evals = val, 0
+                else:
+                    bad_evals += 1
+                if has_val:
+                    emit({"step": step, "epoch": epoch, "val_mse": val, "best_val_mse": best_val})
+                    say(f"step {step}: val mse {val:.4f} (best {best_val:.4f})")
+                if step >= cfg["max_steps"]:
+                    stopped = "max_steps"
+                elif has_val and cfg["patience"] and bad_evals >= cfg["patience"]:
+                    stopped = "early_stopping"
+                elif over:
+                    stopped = "max_minutes"
+                if improved:
+                    save(BEST)
+                save(LAST)
+            if stopped is None and stop_after_steps is not None and session_steps >= stop_after_steps:
+                stopped = "stopped"
+                save(LAST)
+    finally:
+        if log is not None:
+            log.close()
+        if tb is not None:
+            tb.close()
+    elapsed = time.perf_counter() - t_start
+    checksums = [_checksum(model)]
+    if dist.is_initialized():
+        gathered: list[Any] = [None] * world
+        dist.all_gather_object(gathered, checksums[0])
+        checksums = gathered
+        dist.barrier()
+    return {
+        "run": str(run),
+        "model": cfg["model"],
+        "steps": step,
+        "epochs": epoch,
+        "best_val": None if math.isinf(best_val) else best_val,
+        "stopped": stopped,
+        "world_size": world,
+        "rank": rank,
+        "params_checksums": checksums,  # sha256 of every rank's parameters: DDP keeps them identical
+        "ranks_in_sync": len(set(checksums)) == 1,
+        "parameters": n_params,
+        "session_s": elapsed,
+    }

@@ -1,0 +1,101 @@
+"""Speech → animation with a trained run, written as Live Link Face CSV.
+
+Audio goes through the dataset's own feature pipeline (``dataset.features.compute_features``) with the
+settings the dataset recorded (copied into every checkpoint), is normalised as the reader normalises
+it, and the model's output is de-normalised to blendshape weights. The CSV has the app's 61 columns;
+channels the model does not predict are 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from align.resample import to_16k_mono
+from capture import Take, TakeMeta, read_audio, write_livelink_csv
+from capture.command import progress
+from capture.errors import InputError
+from capture.take import sha256_file
+from dataset.features import FeatureSettings, compute_features
+from dataset.normalize import Normalizer
+from dataset.pitch import PitchSettings
+from dataset.ppg import make_extractor
+
+from .checkpoint import load_system
+from .data import InputSpec, normalize_features
+
+
+def feature_settings(features: dict[str, Any]) -> FeatureSettings:
+    s = dict(features["settings"])
+    return FeatureSettings(**{**s, "pitch": PitchSettings(**s["pitch"])})
+
+
+@torch.no_grad()
+def animate(
+    model, payload: dict[str, Any], audio: np.ndarray, ppg=None, speaker: str | None = None
+) -> np.ndarray:
+    """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``."""
+    spec = InputSpec.from_json(payload["inputs"])
+    info = payload["dataset"]
+    fps, settings = info["fps"], feature_settings(info["features"])
+    n = int(np.floor(audio.size / settings.sample_rate * fps))
+    if n < 1:
+        raise InputError("audio is shorter than one animation frame")
+    feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
+    feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
+    content = torch.from_numpy(feats[spec.content]).unsqueeze(0)
+    prosody = (
+        torch.from_numpy(np.concatenate([feats[p] for p in spec.prosody], -1)).unsqueeze(0)
+        if spec.prosody
+        else None
+    )
+    mask = torch.ones(1, n, dtype=torch.bool)
+    y = model(content, prosody, mask)[0].double().numpy()
+    return Normalizer.from_json(info["normalization"]["animation"]).inverse(y)
+
+
+def predict(
+    run: str | Path,
+    audios: list[str | Path],
+    out: str | Path,
+    ppg_model: str | Path | None = None,
+    speaker: str | None = None,
+    say: Callable[[str], None] = progress,
+) -> list[dict[str, Any]]:
+    """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
+    folder receiving ``<audio stem>.csv``. Returns one summary per file."""
+    model, payload = load_system(run)
+    spec = InputSpec.from_json(payload["inputs"])
+    info = payload["dataset"]
+    ppg = None
+    if spec.content == "ppg" or "ppg" in spec.prosody:
+        recorded = info["features"].get("ppg") or {}
+        ppg = make_extractor(recorded.get("backend", "none"), ppg_model)
+        want = recorded.get("model_sha256")
+        if ppg_model is not None and want and sha256_file(ppg_model) != want:
+            raise InputError(
+                f"PPG model differs from the one the dataset was built with ({recorded.get('model')}, "
+                f"sha256 {want[:12]}...): features would not match training",
+                ppg_model,
+            )
+    out = Path(out)
+    single = len(audios) == 1 and out.suffix.lower() == ".csv"
+    if not single:
+        out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for a in audios:
+        a = Path(a)
+        audio = to_16k_mono(read_audio(a), str(a))
+        values = animate(model, payload, audio, ppg, speaker)
+        n, fps = values.shape[0], info["fps"]
+        meta = TakeMeta(id=a.stem, source_kind="predicted", fps=fps, channels=list(info["channels"]))
+        take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
+        path = out if single else out / f"{a.stem}.csv"
+        write_livelink_csv(take, path)
+        say(f"{a}: {n} frames at {fps:g} fps -> {path}")
+        results.append({"audio": str(a), "csv": str(path), "frames": n, "fps": fps, "duration_s": n / fps})
+    return results

@@ -1,0 +1,66 @@
+"""The trainable systems by name: Transformer-S2A (and its no-MoE ablation), BLSTM, NVP (3 or 9
+frames of context) and ridge regression, built from an ``InputSpec`` and ``arch`` overrides."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, fields
+from typing import Any
+
+from torch import nn
+
+from capture.errors import InputError
+
+from .data import InputSpec
+from .model import BLSTM, NVP, BLSTMConfig, NVPConfig, S2AConfig, TransformerS2A
+from .ridge import Ridge
+
+ARCH_TABLES = {
+    "s2a": S2AConfig,
+    "s2a-nomoe": S2AConfig,
+    "blstm": BLSTMConfig,
+    "nvp3": NVPConfig,
+    "nvp9": NVPConfig,
+}
+
+
+def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], name: str):
+    """``arch`` keys apply to every system whose config has them (a key no system has is an error);
+    the sub-table ``arch.<name>`` (``arch.s2a`` also for s2a-nomoe) applies to that system only."""
+    known = {f.name for f in fields(cls)}
+    shared = {k: v for k, v in arch.items() if not isinstance(v, dict)}
+    everywhere = set().union(*({f.name for f in fields(c)} for c in ARCH_TABLES.values()))
+    unknown = sorted(set(shared) - everywhere)
+    tables = [t for t in arch if isinstance(arch[t], dict)]
+    if unknown or set(tables) - set(ARCH_TABLES):
+        raise InputError(
+            f"unknown arch keys {unknown + sorted(set(tables) - set(ARCH_TABLES))} "
+            f"(known: {sorted(everywhere)} and tables {sorted(ARCH_TABLES)})",
+            "config:arch",
+        )
+    own = dict(arch.get("s2a", {})) if name == "s2a-nomoe" else {}
+    own.update(arch.get(name, {}))
+    if set(own) - known:
+        raise InputError(
+            f"unknown arch keys {sorted(set(own) - known)} for {name} (known: {sorted(known)})", "config:arch"
+        )
+    base = {"content_dim": spec.content_dim, "prosody_dim": spec.prosody_dim, "out_dim": spec.out_dim}
+    base.update({k: v for k, v in shared.items() if k in known})
+    return cls(**{**base, **own, **fixed})
+
+
+def build_model(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, dict[str, Any]]:
+    """(module, its config as a dict) for system ``name``."""
+    arch = dict(cfg.get("arch", {}))
+    if name in ("s2a", "s2a-nomoe"):
+        c = _config(S2AConfig, spec, {"moe": name == "s2a"}, arch, name)
+        return TransformerS2A(c), asdict(c)
+    if name == "blstm":
+        c = _config(BLSTMConfig, spec, {}, arch, name)
+        return BLSTM(c), asdict(c)
+    if name in ("nvp3", "nvp9"):
+        c = _config(NVPConfig, spec, {"window": int(name[3:])}, arch, name)
+        return NVP(c), asdict(c)
+    if name == "ridge":
+        context = int(cfg["ridge_context"])
+        return Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, context), {"context": context}
+    raise InputError(f"unknown model {name!r}", "config:model")
