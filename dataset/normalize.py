@@ -263,3 +263,39 @@ class FeatureAccumulator:
         std = np.sqrt(np.maximum(self.sumsq / n - mean * mean, 0.0))
         std = np.where(std < 1e-6, 1.0, std)
         return [float(np.float32(v)) for v in mean], [float(np.float32(v)) for v in std]
+
+
+class FeatureNormalizer:
+    """The manifest's frame-level feature normalisation: each feature z-scored with its training-split
+    mean and std; pitch's log-F0 z-scored with its speaker's voiced statistics (0 on unvoiced frames)."""
+
+    def __init__(self, normalization: dict[str, Any]):
+        self.features = {
+            k: (np.asarray(v["mean"], np.float32), np.asarray(v["std"], np.float32))
+            for k, v in normalization["features"].items()
+        }
+        self.pitch_speakers: dict[str, dict[str, float]] = normalization.get("pitch", {}).get("speakers", {})
+
+    def apply(
+        self, name: str, x: np.ndarray, speaker: str | None = None, unknown_speaker: str = "identity"
+    ) -> np.ndarray:
+        """``x`` (frames, dim) normalised. A speaker the dataset does not know keeps raw log-F0
+        (``unknown_speaker="identity"``) or is z-scored with the utterance's own voiced log-F0
+        (``"utterance"``, for speech from outside the dataset)."""
+        x = np.asarray(x, np.float32)
+        if name == "pitch":
+            voiced = x[:, 1] > 0
+            st = self.pitch_speakers.get(speaker) if speaker is not None else None
+            if st is None:
+                st = {"mean": 0.0, "std": 1.0}
+                if unknown_speaker == "utterance" and voiced.any():
+                    f0 = x[voiced, 0]
+                    std = float(f0.std()) if f0.size > 1 else 1.0
+                    st = {"mean": float(f0.mean()), "std": std if std > 1e-6 else 1.0}
+            x = x.copy()
+            x[:, 0] = np.where(voiced, (x[:, 0] - st["mean"]) / st["std"], 0.0)
+            return x
+        if name in self.features:
+            mean, std = self.features[name]
+            return (x - mean) / std
+        return x

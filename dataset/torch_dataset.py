@@ -20,7 +20,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from .manifest import read_manifest, shards_of
-from .normalize import Normalizer
+from .normalize import FeatureNormalizer, Normalizer
 from .shards import ShardReader, decode_flac, decode_npy
 
 
@@ -67,11 +67,7 @@ class ShardDataset(IterableDataset):
         self.random_crop = (split == "train") if random_crop is None else random_crop
         norm = self.manifest["normalization"]
         self.normalizer = Normalizer.from_json(norm["animation"])
-        self.feature_norm = {
-            k: (np.asarray(v["mean"], np.float32), np.asarray(v["std"], np.float32))
-            for k, v in norm["features"].items()
-        }
-        self.pitch_norm = norm.get("pitch", {}).get("speakers", {})
+        self.feature_normalizer = FeatureNormalizer(norm)
 
     def set_epoch(self, epoch: int) -> None:
         """Reshuffle differently in each epoch (call before iterating)."""
@@ -109,13 +105,7 @@ class ShardDataset(IterableDataset):
         for name in self.features:
             x = decode_npy(members[f"{name}.npy"], f"{key}.{name}.npy").astype(np.float32)
             if self.normalize:
-                if name == "pitch":
-                    st = self.pitch_norm.get(meta.get("speaker"), {"mean": 0.0, "std": 1.0})
-                    x = x.copy()
-                    x[:, 0] = np.where(x[:, 1] > 0, (x[:, 0] - st["mean"]) / st["std"], 0.0)
-                elif name in self.feature_norm:
-                    mean, std = self.feature_norm[name]
-                    x = (x - mean) / std
+                x = self.feature_normalizer.apply(name, x, meta.get("speaker"))
             item[name] = x
         n = anim.shape[0]
         start = 0

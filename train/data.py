@@ -18,6 +18,7 @@ from torch.utils.data import DataLoader
 
 from capture.errors import InputError
 from dataset.manifest import read_manifest
+from dataset.normalize import FeatureNormalizer
 from dataset.torch_dataset import ShardDataset
 
 PROSODY_FEATURES = ("pitch", "energy")
@@ -135,26 +136,11 @@ def utterances(ds: str | Path, split: str, spec: InputSpec | None = None) -> Ite
 def normalize_features(
     manifest: dict[str, Any], feats: dict[str, np.ndarray], speaker: str | None = None
 ) -> dict[str, np.ndarray]:
-    """The reader's feature normalisation (see ShardDataset) for features computed outside a dataset.
-    Pitch of a speaker the dataset does not know is z-scored with the utterance's own voiced log-F0."""
-    norm = manifest["normalization"]
-    out = {}
-    for name, x in feats.items():
-        x = np.asarray(x, np.float32).copy()
-        if name == "pitch":
-            voiced = x[:, 1] > 0
-            st = norm.get("pitch", {}).get("speakers", {}).get(speaker)
-            if st is None:
-                f0 = x[voiced, 0]
-                st = {
-                    "mean": float(f0.mean()) if f0.size else 0.0,
-                    "std": float(f0.std()) if f0.size > 1 else 1.0,
-                }
-                st["std"] = st["std"] if st["std"] > 1e-6 else 1.0
-            x[:, 0] = np.where(voiced, (x[:, 0] - st["mean"]) / st["std"], 0.0)
-        elif name in norm["features"]:
-            mean = np.asarray(norm["features"][name]["mean"], np.float32)
-            std = np.asarray(norm["features"][name]["std"], np.float32)
-            x = (x - mean) / std
-        out[name] = x.astype(np.float32)
-    return out
+    """The reader's feature normalisation (dataset.normalize.FeatureNormalizer, as ShardDataset applies
+    it) for features computed outside a dataset. Pitch of a speaker the dataset does not know is
+    z-scored with the utterance's own voiced log-F0."""
+    normalizer = FeatureNormalizer(manifest["normalization"])
+    return {
+        name: normalizer.apply(name, x, speaker, unknown_speaker="utterance").astype(np.float32)
+        for name, x in feats.items()
+    }
