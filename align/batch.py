@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from capture import InputError, S2AError, find_takes, read_meta, read_take, write_take
-from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, safe_id
+from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, safe_id, sha256_file
 
 from .aligner import ALIGN_VERSION, align_with_report
 from .options import AlignOptions
@@ -30,10 +30,7 @@ def fingerprint(folder: Path, options: AlignOptions) -> str:
     for name in (META_FILE, FRAMES_FILE, AUDIO_FILE):
         p = folder / name
         if p.is_file():
-            h.update(name.encode())
-            with open(p, "rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    h.update(chunk)
+            h.update(f"{name} {sha256_file(p)}\n".encode())
     return h.hexdigest()
 
 

@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.0,
         help="how far the face moves ahead of the sound, used only when content is the chosen evidence "
-        "(offset = content lag - lead; default 0: no assumption, see docs/align.md)",
+        "(offset = content lag + lead; default 0: no assumption, see docs/align.md)",
     )
     p.add_argument("--vad", choices=VAD_METHODS, default="silero", help="speech detector for trimming")
     p.add_argument("--max-gap-ms", type=float, default=250.0, help="longest gap filled by interpolation")

@@ -16,7 +16,7 @@ class AlignOptions:
 
     ``fps``: output frame rate (None: the take's own rate). ``face_lead_ms``: how far the speaker's face
     is assumed to move ahead of the sound; only used when content is the chosen evidence
-    (``offset_s = content_lag_s - face_lead_ms / 1000``). ``vad``: ``silero`` (default), ``webrtc`` or
+    (``offset_s = content_lag_s + face_lead_ms / 1000``). ``vad``: ``silero`` (default), ``webrtc`` or
     ``none`` (keep the whole overlap). ``max_gap_s``: longest run of missing face frames filled by
     interpolation; longer gaps split the take. ``max_offset_s``: search range of the content and
     transient evidence around the timecode placement. ``max_disagreement_s``: two confident sources

@@ -9,10 +9,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from benchmarks.figure import Figure, best_time, peak_measured, read_peak_kb
-from capture import ARKIT52, Audio, Take, TakeMeta, write_take
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,8 +21,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def simulated_aligned_takes(out: Path, takes: int, seconds: float) -> tuple[Path, str]:
-    """Aligned takes from the simulated speaker (``s2a-capture simulate`` → import → ``s2a-align``);
-    if those stages fail here, speech-like synthetic aligned takes. Returns the folder and its origin."""
+    """Aligned takes from the simulated speaker (``s2a-capture simulate`` → import → ``s2a-align``).
+    Returns the folder and its origin."""
     raw, imported, aligned = out / "raw", out / "imported", out / "aligned"
     speakers = str(max(1, takes // 4))
     steps = [
@@ -44,27 +41,11 @@ def simulated_aligned_takes(out: Path, takes: int, seconds: float) -> tuple[Path
         ("capture", "import", str(raw), "-o", str(imported)),
         ("align", str(imported), "-o", str(aligned), "--vad", "none", "--jobs", "2"),
     ]
-    if all(_run(*step).returncode == 0 for step in steps) and any(aligned.rglob("meta.json")):
-        return aligned, "simulated speaker, aligned by s2a-align"
-    rng = np.random.default_rng(0)
-    sr, fps = 16000, 60.0
-    for i in range(takes):
-        n = int(seconds * sr)
-        t = np.arange(n) / sr
-        f0 = 110 + 25 * np.sin(2 * np.pi * 0.5 * t + i)
-        phase = 2 * np.pi * np.cumsum(f0) / sr
-        env = np.clip(np.sin(2 * np.pi * 3 * t + i), 0, None) ** 2
-        audio = 0.1 * env * sum(np.sin(k * phase) / k for k in range(1, 8)) + 0.003 * rng.standard_normal(n)
-        frames = int(seconds * fps)
-        values = np.abs(rng.normal(0.02, 0.01, (frames, 52))).astype(np.float32)
-        values[:, ARKIT52.index("jawOpen")] += np.interp(np.arange(frames) / fps, t, env).astype(np.float32)
-        meta = TakeMeta(
-            id=f"synth{i:03d}", source_kind="aligned", fps=fps, channels=list(ARKIT52), subject=f"spk{i % 4}"
-        )
-        take = Take(meta, np.arange(frames) / fps, values, np.zeros(frames, np.uint8))
-        take.attach_audio(Audio(audio.astype(np.float32), sr, "FLOAT"))
-        write_take(take, aligned)
-    return aligned, "synthetic speech-like aligned takes (simulate/align unavailable)"
+    for step in steps:
+        proc = _run(*step)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(step[:2])} failed: {proc.stderr.strip()}")
+    return aligned, "simulated speaker, aligned by s2a-align"
 
 
 def _audio_seconds(folder: Path) -> float:

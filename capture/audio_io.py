@@ -7,13 +7,13 @@ a take's audio round-trips exactly.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import soundfile as sf
 
+from .atomic import atomic_write
 from .errors import InputError
 
 _NATIVE = {"PCM_16": "int16", "PCM_24": "int32", "PCM_32": "int32", "FLOAT": "float32"}
@@ -126,9 +126,7 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
 
 
 def write_audio(path: str | Path, audio: Audio) -> None:
-    """Write WAV with the audio's own subtype (RF64 past 4 GB), fsynced."""
+    """Write WAV with the audio's own subtype (RF64 past 4 GB), atomically."""
     fmt = "RF64" if audio.samples.nbytes > 0xFFFF0000 else "WAV"
-    with open(path, "wb") as f:
+    with atomic_write(path) as f:
         sf.write(f, audio.samples, audio.sample_rate, subtype=audio.subtype, format=fmt)
-        f.flush()
-        os.fsync(f.fileno())

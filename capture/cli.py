@@ -13,7 +13,7 @@ from .importer import find_sources, import_source
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
-from .take import Take, find_takes, is_take_dir, read_take, write_take
+from .take import FrameStatus, Take, find_takes, is_take_dir, read_take, write_take
 
 PROG = "s2a-capture"
 
@@ -151,7 +151,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_export_csv(args: argparse.Namespace) -> int:
     take = read_take(args.take, audio=False)
     out = write_livelink_csv(take, args.out, count_name=args.count_name)
-    summary = {"id": take.meta.id, "path": str(out), "rows": int((take.frame_status != 2).sum())}
+    rows = int((take.frame_status != FrameStatus.DROPPED).sum())
+    summary = {"id": take.meta.id, "path": str(out), "rows": rows}
     if args.json:
         emit_json(summary)
     else:

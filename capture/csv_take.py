@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from . import channels as ch
+from .atomic import atomic_write
 from .errors import InputError
 from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
 from .timecode import CSV_TIMECODE_RATE, Timecode, parse_fixed_width, unwrap_midnight
@@ -384,7 +385,6 @@ def fill_dropped(
     reps = np.ones(times.size, dtype=np.int64)
     reps[:-1] += missing
     start = np.repeat(times, reps)
-    idx = np.repeat(np.arange(times.size), reps)
     offset = np.arange(start.size) - np.repeat(np.cumsum(reps) - reps, reps)
     step = np.repeat(np.append(steps / (missing + 1), 0.0), reps)
     new_t = start + offset * step
@@ -393,7 +393,6 @@ def fill_dropped(
     new_v[is_orig] = values
     new_s = np.full(new_t.size, FrameStatus.DROPPED, dtype=np.uint8)
     new_s[is_orig] = status
-    del idx
     return new_t, new_v, new_s, total
 
 
@@ -528,8 +527,7 @@ def write_livelink_csv(
     row_fmt = "%s," + str(len(out_names)) + "," + ",".join(["%.10f"] * len(out_names)) + "\n"
     tracked, dropped = int(FrameStatus.TRACKED), int(FrameStatus.DROPPED)
     status, times = take.frame_status.tolist(), (t0 + take.time).tolist()
-    tmp = path.with_name(f".{path.name}.partial")
-    with open(tmp, "w", encoding="ascii", newline="") as f:
+    with atomic_write(path, "w", encoding="ascii", newline="") as f:
         f.write("Timecode," + count_name + "," + ",".join(out_names) + "\n")
         for start in range(0, len(times), 4096):  # in blocks: bounded memory for hour-long takes
             lines = []
@@ -539,5 +537,4 @@ def write_livelink_csv(
                 tc = Timecode.from_seconds(times[i]).format()
                 lines.append(row_fmt % (tc, *row) if status[i] == tracked else tc + ",0\n")
             f.writelines(lines)
-    tmp.replace(path)
     return path

@@ -204,9 +204,7 @@ def replay_take(
         audio = rebased_audio(take)
         if audio is None:
             raise InputError(f"take {take.meta.id} has no audio for --audio-out")
-        tmp = Path(audio_out).with_name(f".{Path(audio_out).name}.partial")
-        write_audio(tmp, audio)
-        tmp.replace(audio_out)
+        write_audio(audio_out, audio)
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from . import livelink as ll
+from .atomic import write_json_atomic
 from .audio_capture import read_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped
@@ -32,7 +33,7 @@ from .errors import InputError
 from .record_log import LogReader, RecordType
 from .recorder import AUDIO_LOG, COMPLETE_FILE, FRAMES_LOG, SESSION_SUFFIX
 from .serial_sync import decode_sync_record
-from .take import FrameStatus, Take, TakeMeta, safe_id, write_json_atomic, write_take
+from .take import FrameStatus, Take, TakeMeta, safe_id, write_take
 from .timecode import Timecode
 
 MAX_GAP_S = 5.0

@@ -22,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import re
 import shutil
 import sys
@@ -36,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from capture.atomic import atomic_write, write_json_atomic
 from capture.channels import channel_set
 from capture.errors import InputError, S2AError
 from capture.take import (
@@ -45,7 +45,6 @@ from capture.take import (
     read_meta,
     read_take,
     sha256_file,
-    write_json_atomic,
     write_take,
 )
 
@@ -111,30 +110,28 @@ class SourceTake:
     content_sha256: str
 
 
+def _file_digests(folder: Path) -> dict[str, str]:
+    """sha256 of each (non-hidden) file of a take folder, by name."""
+    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    return {name: sha256_file(folder / name) for name in names}
+
+
+def _combine(digests: dict[str, str], skip: tuple[str, ...] = ()) -> str:
+    lines = "".join(f"{name} {sha}\n" for name, sha in sorted(digests.items()) if name not in skip)
+    return hashlib.sha256(lines.encode()).hexdigest()
+
+
 def take_sha256(folder: str | Path) -> str:
     """sha256 of a take folder: of the lines ``"<file name> <sha256 of file>\\n"`` for meta.json,
     frames.npz and the audio file, in name order."""
-    folder = Path(folder)
-    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-    h = hashlib.sha256()
-    for name in names:
-        h.update(f"{name} {sha256_file(folder / name)}\n".encode())
-    return h.hexdigest()
+    return _combine(_file_digests(Path(folder)))
 
 
-def content_sha256(folder: str | Path) -> str:
-    """sha256 of what a take holds, not what it is called: like ``take_sha256`` without meta.json,
-    so a copy of a take under another id is recognised as a duplicate."""
-    folder = Path(folder)
-    names = sorted(
-        p.name
-        for p in folder.iterdir()
-        if p.is_file() and p.name not in ("meta.json",) and not p.name.startswith(".")
-    )
-    h = hashlib.sha256()
-    for name in names:
-        h.update(f"{name} {sha256_file(folder / name)}\n".encode())
-    return h.hexdigest()
+def take_and_content_sha256(folder: str | Path) -> tuple[str, str]:
+    """``take_sha256`` and the sha256 of what the take holds, not what it is called (the same without
+    meta.json, so a copy of a take under another id is recognised as a duplicate); files hashed once."""
+    digests = _file_digests(Path(folder))
+    return _combine(digests), _combine(digests, skip=("meta.json",))
 
 
 def sample_key_base(take_id: str) -> str:
@@ -217,7 +214,7 @@ def collect_takes(
                 raise InputError(
                     f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af
                 )
-            sha = take_sha256(af)
+            sha, content_sha = take_and_content_sha256(af)
             speaker = m.subject or m.id
             st = SourceTake(
                 af,
@@ -230,7 +227,7 @@ def collect_takes(
                 float(m.fps),
                 list(m.channels),
                 origin | {"take": m.id, "sha256": sha},
-                content_sha256(af),
+                content_sha,
             )
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
@@ -512,22 +509,10 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     }
     job.record.parent.mkdir(parents=True, exist_ok=True)
     # the channel histograms go to an .npz beside the record (written first: the record marks done)
-    stats_tmp = job.stats.with_name(f".{job.stats.name}.partial")
-    with open(stats_tmp, "wb") as f:
+    with atomic_write(job.stats) as f:
         np.savez(f, **chan.to_arrays())
-    os.replace(stats_tmp, job.stats)
-    _write_compact_json(job.record, rec)
+    write_json_atomic(job.record, rec, compact=True)
     return rec | {"cached": False}
-
-
-def _write_compact_json(path: Path, data: Any) -> None:
-    """A work record: compact JSON written beside ``path`` and renamed over it (atomic)."""
-    tmp = path.with_name(f".{path.name}.partial")
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(data, f, separators=(",", ":"), allow_nan=False)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 # ------------------------------------------------------------------------------------------ build

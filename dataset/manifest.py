@@ -16,8 +16,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from capture.atomic import write_json_atomic
 from capture.errors import InputError
-from capture.take import write_json_atomic
 
 FORMAT = "s2a-dataset"
 SCHEMA_VERSION = 1

@@ -78,20 +78,13 @@ class ChannelAccumulator:
             self.rest_sumsq += (x * x).sum(0)
 
     def merge(self, other: ChannelAccumulator) -> None:
-        for name in (
-            "count",
-            "sum",
-            "sumsq",
-            "hist",
-            "own_count",
-            "own_sumsq",
-            "rest_count",
-            "rest_sum",
-            "rest_sumsq",
-        ):
-            setattr(self, name, getattr(self, name) + getattr(other, name))
-        self.min = np.minimum(self.min, other.min)
-        self.max = np.maximum(self.max, other.max)
+        for name in self.FIELDS:
+            if name == "min":
+                self.min = np.minimum(self.min, other.min)
+            elif name == "max":
+                self.max = np.maximum(self.max, other.max)
+            else:
+                setattr(self, name, getattr(self, name) + getattr(other, name))
 
     FIELDS = (
         "count",

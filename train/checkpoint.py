@@ -10,13 +10,12 @@ index in ``epoch``), ``positions`` (that pair for every DDP rank), ``rng`` (torc
 
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from capture.atomic import atomic_write, write_json_atomic
 from capture.errors import InputError
 
 FORMAT = "s2a-train-checkpoint"
@@ -25,12 +24,8 @@ LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.json
 
 def save_checkpoint(payload: dict[str, Any], path: Path) -> None:
     """Atomic write (temporary file, fsync, rename)."""
-    tmp = path.with_name("." + path.name + ".partial")
-    with open(tmp, "wb") as f:
+    with atomic_write(path) as f:
         torch.save({"format": FORMAT, "version": 1, **payload}, f)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -73,6 +68,4 @@ def load_system(run: str | Path):
 
 
 def write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name("." + path.name + ".partial")
-    tmp.write_text(json.dumps(obj, indent=2) + "\n")
-    os.replace(tmp, path)
+    write_json_atomic(path, obj, allow_nan=True)

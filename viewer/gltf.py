@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.atomic import atomic_write
 from capture.channels import ARKIT52, ARKIT61
 from capture.errors import InputError
 
@@ -364,7 +365,6 @@ def write_glb(model: FaceModel, path: str | Path, style: str = "arkit") -> Path:
     out += (
         struct.pack("<II", len(js), CHUNK_JSON) + js + struct.pack("<II", len(blob), CHUNK_BIN) + bytes(blob)
     )
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_bytes(out)
-    tmp.replace(path)
+    with atomic_write(path) as f:
+        f.write(out)
     return path

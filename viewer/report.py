@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from capture import InputError, find_takes, read_meta, read_take
+from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
 from capture.take import FrameStatus
 
@@ -459,9 +460,8 @@ def write_report(
     """Write the report page of dataset (or take folder) ``path`` to ``out``; returns a summary."""
     data = gather(path, takes, limit)
     out = Path(out)
-    tmp = out.with_name(f".{out.name}.partial")
-    tmp.write_text(render_html(data), encoding="utf-8")
-    tmp.replace(out)
+    with atomic_write(out, "w", encoding="utf-8") as f:
+        f.write(render_html(data))
     return {
         "output": str(out),
         "kind": data["kind"],

@@ -25,12 +25,13 @@ from typing import Any
 import numpy as np
 from scipy.signal import lfilter
 
+from ..atomic import folder_in_place
 from ..audio_io import Audio, write_audio
 from ..channels import ARKIT61, PRONUNCIATION32
 from ..csv_take import write_livelink_csv
 from ..errors import InputError
 from ..mov import write_reference_mov
-from ..take import FrameStatus, Take, TakeMeta, folder_in_place
+from ..take import FrameStatus, Take, TakeMeta
 from ..textgrid import TextGrid, interval_tier, write_textgrid
 from ..timecode import CSV_TIMECODE_RATE, Timecode
 from .articulation import Articulation, articulate
