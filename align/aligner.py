@@ -26,7 +26,7 @@ from .resample import TARGET_RATE, to_16k_mono
 from .transient import audio_claps, step_transients, video_motion, video_transients
 from .vad import speech_segments
 
-ALIGN_VERSION = 1
+ALIGN_VERSION = 2  # 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock
 MIN_TAKE_S = 1.0
 SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS the track holds no usable sound
 
@@ -105,6 +105,33 @@ def _transient_evidence(
     return out
 
 
+# Audio placements that come with a frame-index convention: frame i belongs to audio i / fps.
+INDEX_CONVENTIONS = ("paired_frame_convention",)
+
+
+def frame_clock(take: Take, choice: str) -> tuple[Take, dict[str, Any]]:
+    """The take with its frames on the chosen clock, and what was chosen (see ``AlignOptions``).
+
+    ``index`` puts frame ``i`` (dropped-frame placeholders counted, since they stand for frames the
+    phone captured but did not write) at ``time[0] + i / fps``. The report gives the rate of the take's
+    own times against the nominal rate, in ppm (Live Link Face CSVs: about +1,600, 59.90 rows per
+    second of timecode for "60 fps")."""
+    meta = take.meta
+    n = take.time.size
+    source = meta.audio.start_source if meta.audio is not None else None
+    clock = choice
+    if choice == "auto":
+        clock = "index" if source in INDEX_CONVENTIONS else "timecode"
+    info: dict[str, Any] = {"clock": clock, "choice": choice}
+    if n > 1:
+        period = (float(take.time[-1]) - float(take.time[0])) / (n - 1)
+        info["timecode_vs_nominal_ppm"] = round((period * meta.fps - 1.0) * 1e6, 1)
+    if clock == "index" and n > 1:
+        time = float(take.time[0]) + np.arange(n) / meta.fps
+        take = Take(meta, time, take.values, take.frame_status, take.audio, take.neutral, take.arrival_s)
+    return take, info
+
+
 def _timecode_at(meta: TakeMeta, take_time: float) -> str | None:
     if not meta.start_timecode:
         return None
@@ -125,6 +152,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         raise InputError(f"take {tid} has no audio: align needs the speech (import it with --audio)")
     x = to_16k_mono(take.audio, tid)
     _check_audio(take, x)
+    take, clock_info = frame_clock(take, opts.frame_clock)
     s0 = float(meta.audio.start_s)
     audio_dur = x.size / TARGET_RATE
     usable = usable_frames(take.frame_status, take.values)
@@ -279,6 +307,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         "flags": flags,
         "drift_ppm": round(drift * 1e6, 3),
         "drift": drift_info,
+        "frame_clock": clock_info,
         "trim_s": [round(s0 + a0, 6), round(s0 + min(a1, a0 + n_all / fps), 6)],
         "speech_segments_raw": [[round(s0 + a, 4), round(s0 + b, 4)] for a, b in speech],
         "frames": int(sum(t.time.size for t in segments_out)),

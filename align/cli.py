@@ -9,7 +9,7 @@ from pathlib import Path
 from capture.command import emit_json, progress, run
 
 from .batch import align_takes
-from .options import VAD_METHODS, AlignOptions
+from .options import FRAME_CLOCKS, VAD_METHODS, AlignOptions
 
 PROG = "s2a-align"
 
@@ -48,6 +48,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-disagreement-ms", type=float, default=50.0, help="evidence further apart flags the take"
     )
     p.add_argument("--min-segment-s", type=float, default=1.0, help="shorter segments are left out")
+    p.add_argument(
+        "--frame-clock",
+        choices=FRAME_CLOCKS,
+        default="auto",
+        help="frame times from the timecodes, or frame index / fps; auto: index for paired data sets "
+        "(frame i <-> audio i/fps), timecodes otherwise (see docs/align.md)",
+    )
     p.add_argument("--no-drift", action="store_true", help="do not correct clock drift")
     p.add_argument("--no-video", action="store_true", help="do not look for a clap in the reference video")
     p.add_argument("--jobs", "-j", type=_jobs, default=1, help="takes aligned in parallel (processes)")
@@ -72,6 +79,7 @@ def _main(args: argparse.Namespace) -> int:
         min_segment_s=args.min_segment_s,
         drift=not args.no_drift,
         use_video=not args.no_video,
+        frame_clock=args.frame_clock,
     )
 
     def show(r: dict) -> None:

@@ -1,24 +1,33 @@
 """Content evidence: the audio's energy envelope against the face's mouth opening.
 
 Both streams become one signal each on a common analysis grid (``ANALYSIS_RATE`` on the take clock):
-the audio's log energy in 20 ms windows, and a mouth-opening composite of the face (jawOpen, minus
-mouthClose, plus the lower lip; rig controls such as ``mouth_stretch_c`` for other rigs). Both pass the
-same zero-phase band-pass filter, so filtering adds no lag to one and not the other. Their
-cross-correlation peaks at the lag by which the face trails the audio (``content_lag_s``); the peak
-is refined below the analysis step by evaluating the correlation's Fourier series on a fine grid
-around it (the matrix-multiply DFT upsampling of Guizar-Sicairos et al. that scikit-image's
-``phase_cross_correlation`` uses, here on the plain cross-power spectrum and only over the pass band).
+the audio's log energy in the sonorant band ``AUDIO_BAND_HZ`` (20 ms Hann windows, centred), and a
+mouth-opening composite of the face (jawOpen, minus mouthClose, plus the lower lip; rig controls such
+as ``mouth_stretch_c`` for other rigs). Both pass the same zero-phase band-pass filter (``BAND_HZ``),
+so filtering adds no lag to one and not the other. Their cross-correlation peaks at the lag by which
+the face trails the audio (``content_lag_s``); the peak is refined below the analysis step by
+evaluating the correlation's Fourier series on a fine grid around it (the matrix-multiply DFT
+upsampling of Guizar-Sicairos et al. that scikit-image's ``phase_cross_correlation`` uses, here on the
+plain cross-power spectrum and only over the pass band).
+
+Why these signals and this band: the lag the mouth-energy relation shows depends on the modulation
+rate (the face runs ahead of the sound in the slow, phrase-level modulations and behind it in the fast
+ones), so the band sets the bias; docs/align.md, "Content evidence", gives the measurements.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+import scipy.fft
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy.signal import butter, sosfiltfilt
 
 ANALYSIS_RATE = 100.0  # Hz: 10 ms steps; the pass band ends at BAND_HZ[1]
-BAND_HZ = (0.5, 5.0)  # syllable-rate modulations; higher bands follow articulation shape more than timing
+BAND_HZ = (1.0, 12.0)  # syllable-rate and faster envelope modulations (see docs/align.md, "Content evidence")
+AUDIO_BAND_HZ = (300.0, 3000.0)  # sonorant band of the audio whose energy is correlated
 UPSAMPLE = 100  # refinement step = 1 / (ANALYSIS_RATE * UPSAMPLE) = 0.1 ms
 
 # Mouth-opening channels and their signs (lower-case names; ARKit first, then other rigs' controls).
@@ -62,27 +71,47 @@ def mouth_opening(values: np.ndarray, valid: np.ndarray, picks: list[tuple[int, 
 
 
 def energy_envelope(x: np.ndarray, rate: int, start_s: float, grid: np.ndarray) -> np.ndarray:
-    """Log energy (dB) of audio ``x`` (``rate`` Hz, first sample at take time ``start_s``) in 20 ms
-    windows centred on the take times ``grid`` (s), floored 60 dB below the loudest window."""
-    hop = rate / ANALYSIS_RATE
-    n = int(x.size // hop)
+    """Log energy (dB) of audio ``x`` (``rate`` Hz, first sample at take time ``start_s``) in the
+    sonorant band ``AUDIO_BAND_HZ``, in Hann windows of ``2 / ANALYSIS_RATE`` s centred on the analysis
+    steps, interpolated at the take times ``grid`` (s); floored 60 dB below the loudest window.
+
+    The band keeps the formant region whose level follows the opening of the mouth, and leaves out
+    frication (loud while the jaw is nearly shut), the voice bar of closures and room rumble. The
+    windows are symmetric about their centres, so the envelope has no delay of its own."""
+    hop = int(round(rate / ANALYSIS_RATE))
+    win = 2 * hop
+    n = (x.size - win) // hop + 1
     if n < 2:
         return np.zeros(grid.size)
-    e = (
-        np.square(x[: int(n * hop)].astype(np.float64)).reshape(n, -1).mean(axis=1)
-        if hop.is_integer()
-        else (np.add.reduceat(np.square(x.astype(np.float64)), (np.arange(n) * hop).astype(np.int64)) / hop)
+    freqs = np.fft.rfftfreq(win, 1.0 / rate)
+    band = slice(
+        int(np.searchsorted(freqs, AUDIO_BAND_HZ[0])), int(np.searchsorted(freqs, AUDIO_BAND_HZ[1], "right"))
     )
-    e = 0.5 * (e + np.concatenate([e[1:], e[-1:]]))  # 20 ms windows, centred between two hops
-    db = 10.0 * np.log10(e + 1e-12)
+    window = np.hanning(win + 2)[1:-1].astype(np.float32)  # symmetric, no zero taps
+    x32 = np.asarray(x, dtype=np.float32)
+    e = np.empty(n)
+    block = 4096  # frames per block: bounded memory on hour-long takes
+    for lo in range(0, n, block):
+        hi = min(n, lo + block)
+        frames = sliding_window_view(x32[lo * hop : (hi - 1) * hop + win], win)[::hop] * window
+        spec = scipy.fft.rfft(frames, axis=1)[:, band]  # float32 in, complex64 out: twice numpy's speed
+        e[lo:hi] = np.einsum("ij,ij->i", spec.real, spec.real, dtype=np.float64) + np.einsum(
+            "ij,ij->i", spec.imag, spec.imag, dtype=np.float64
+        )
+    db = 10.0 * np.log10(e / win + 1e-12)
     db = np.maximum(db, db.max() - 60.0)
-    centres = start_s + (np.arange(n) + 1.0) / ANALYSIS_RATE
+    centres = start_s + (np.arange(n) * hop + hop) / rate  # centre of samples [k*hop, k*hop + win)
     return np.interp(grid, centres, db)
+
+
+@lru_cache(maxsize=8)
+def _band_sos(low: float, high: float) -> np.ndarray:
+    return butter(2, [low, high], btype="band", fs=ANALYSIS_RATE, output="sos")
 
 
 def band_pass(x: np.ndarray) -> np.ndarray:
     """The zero-phase band-pass both content signals go through (``BAND_HZ`` at ``ANALYSIS_RATE``)."""
-    sos = butter(2, [BAND_HZ[0], BAND_HZ[1]], btype="band", fs=ANALYSIS_RATE, output="sos")
+    sos = _band_sos(*BAND_HZ)
     if x.size < 30:
         return x - x.mean()
     return sosfiltfilt(sos, x - x.mean())
@@ -133,18 +162,25 @@ def cross_correlation_lag(
     spread = float(np.std(values)) or 1e-12
     z = (float(values[best]) - float(np.median(values))) / spread
     # Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
-    # the integer peak, using only the bins the band-pass lets through.
+    # the integer peak, using only the bins the band-pass lets through; first on a 1 ms grid over
+    # ±1 step, then on the 0.1 ms grid around the best point (the series is smooth at this scale).
     freqs = np.arange(spec.size)
     keep = freqs <= int(np.ceil(2.0 * BAND_HZ[1] / ANALYSIS_RATE * size)) + 2
     bins = freqs[keep]
-    sub = spec[keep]
-    fine = k_best + np.arange(-UPSAMPLE, UPSAMPLE + 1) / UPSAMPLE
-    weighted = sub * np.where(bins == 0, 1.0, 2.0)
-    series = np.zeros(fine.size)
-    for lo in range(0, bins.size, 4096):  # blocks keep memory small on hour-long takes
-        kernel = np.exp(2j * np.pi * np.outer(fine, bins[lo : lo + 4096]) / size)
-        series += (kernel * weighted[lo : lo + 4096]).real.sum(axis=1)
-    series /= size * norm
-    refined = float(fine[int(np.argmax(series))]) if not at_edge else float(k_best)
-    peak = float(series.max()) if not at_edge else float(values[best])
+    weighted = spec[keep] * np.where(bins == 0, 1.0, 2.0) / (size * norm)
+
+    def series(points: np.ndarray) -> np.ndarray:
+        out = np.zeros(points.size)
+        for lo in range(0, bins.size, 4096):  # blocks keep memory small on hour-long takes
+            kernel = np.exp(2j * np.pi * np.outer(points, bins[lo : lo + 4096]) / size)
+            out += kernel.real @ weighted[lo : lo + 4096].real - kernel.imag @ weighted[lo : lo + 4096].imag
+        return out
+
+    coarse_step = 10
+    coarse = k_best + np.arange(-UPSAMPLE, UPSAMPLE + 1, coarse_step) / UPSAMPLE
+    centre = coarse[int(np.argmax(series(coarse)))]
+    fine = centre + np.arange(-coarse_step, coarse_step + 1) / UPSAMPLE
+    fine_values = series(fine)
+    refined = float(fine[int(np.argmax(fine_values))]) if not at_edge else float(k_best)
+    peak = float(fine_values.max()) if not at_edge else float(values[best])
     return LagEstimate(refined / ANALYSIS_RATE, peak, runner_up, z, n / ANALYSIS_RATE, at_edge)

@@ -32,6 +32,10 @@ TIMECODE_TRUST = {
     "paired_frame_convention": (0.4, 0.05),
 }
 SYNC_KINDS = ("CLAP", "MARK", "BUTTON", "SYNC", "SLATE")
+# Content rests on how a speaker's mouth opening relates to the sound (a face lead and a bias of a few
+# ms that differ between speakers), so it never reaches the confidence of a sync-box event (0.85+) and
+# a strong clap seen in both streams outranks it.
+CONTENT_MAX_CONFIDENCE = 0.8
 
 
 @dataclass
@@ -61,14 +65,16 @@ def timecode_evidence(start_source: str | None) -> Evidence:
 
 def content_confidence(est: LagEstimate, window_agreement: float) -> float:
     """0..1: how clearly the correlation peak stands out (against other lags and in absolute terms),
-    how long the signals are, and how well separate windows of the take agree."""
+    how long the signals are, and how well separate windows of the take agree; at most
+    ``CONTENT_MAX_CONFIDENCE``."""
     if est.at_edge or not np.isfinite(est.peak) or est.peak <= 0:
         return 0.0
     runner = est.runner_up if np.isfinite(est.runner_up) else 0.0
     sharp = float(np.clip((est.peak - max(runner, 0.0)) / 0.3, 0.0, 1.0))
     strength = float(np.clip(est.peak / 0.3, 0.0, 1.0))
     length = float(np.clip(est.seconds / 10.0, 0.0, 1.0))
-    return sharp * strength * length * float(np.clip(window_agreement, 0.0, 1.0))
+    agreement = float(np.clip(window_agreement, 0.0, 1.0))
+    return CONTENT_MAX_CONFIDENCE * sharp * strength * length * agreement
 
 
 def content_evidence(

@@ -8,6 +8,7 @@ from typing import Any
 from capture import InputError
 
 VAD_METHODS = ("silero", "webrtc", "none")
+FRAME_CLOCKS = ("auto", "timecode", "index")
 
 
 @dataclass(frozen=True)
@@ -20,7 +21,11 @@ class AlignOptions:
     ``none`` (keep the whole overlap). ``max_gap_s``: longest run of missing face frames filled by
     interpolation; longer gaps split the take. ``max_offset_s``: search range of the content and
     transient evidence around the timecode placement. ``max_disagreement_s``: two confident sources
-    further apart than this (plus their own uncertainties) flag the take.
+    further apart than this (plus their own uncertainties) flag the take. ``frame_clock``: where the
+    frames sit on the take clock before the offset is measured: ``timecode`` (the times the take holds,
+    from the CSV timecodes or frame log), ``index`` (frame ``i`` at ``i / fps`` after the first frame,
+    dropped-frame placeholders counted) or ``auto`` (``index`` when the audio is placed by a paired data
+    set's frame convention, ``timecode`` otherwise; see docs/align.md, "Frame clock").
     """
 
     fps: float | None = None
@@ -35,10 +40,15 @@ class AlignOptions:
     drift: bool = True
     min_drift_take_s: float = 60.0
     use_video: bool = True
+    frame_clock: str = "auto"
 
     def validate(self) -> None:
         if self.fps is not None and not (1.0 <= self.fps <= 1000.0):
             raise InputError(f"--fps must be between 1 and 1000, not {self.fps:g}")
+        if self.frame_clock not in FRAME_CLOCKS:
+            raise InputError(
+                f"--frame-clock must be one of {', '.join(FRAME_CLOCKS)}, not {self.frame_clock!r}"
+            )
         if self.vad not in VAD_METHODS:
             raise InputError(f"--vad must be one of {', '.join(VAD_METHODS)}, not {self.vad!r}")
         if not (-500.0 <= self.face_lead_ms <= 500.0):
