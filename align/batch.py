@@ -21,6 +21,7 @@ from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, safe_id, sha256_fil
 
 from .aligner import ALIGN_VERSION, align_with_report
 from .options import AlignOptions
+from .torch_threads import torch_threads
 
 
 def fingerprint(folder: Path, options: AlignOptions) -> str:
@@ -135,7 +136,8 @@ def _worker_context(opts: AlignOptions):
     only loaded in the workers), as PyTorch's own data-loader workers rely on. Elsewhere: spawn."""
     if sys.platform.startswith("linux") and "fork" in mp.get_all_start_methods():
         if opts.vad == "silero":
-            import silero_vad  # noqa: F401
+            with torch_threads(None):  # silero_vad pins the process to one thread on import
+                import silero_vad  # noqa: F401
             import torch  # noqa: F401
         return mp.get_context("fork")
     return mp.get_context("spawn")

@@ -16,6 +16,7 @@ import numpy as np
 from capture import InputError
 
 from .resample import TARGET_RATE
+from .torch_threads import torch_threads
 
 _SILERO = None
 SEQUENCE_MODEL = "silero_vad_16k_sequence.onnx"
@@ -28,14 +29,12 @@ def _silero_model():
     global _SILERO
     if _SILERO is None:
         try:
-            import silero_vad
+            with torch_threads(None):  # the package sets one torch thread for the process when imported
+                import silero_vad
         except ImportError:
             raise InputError("--vad silero needs the package silero-vad (or use --vad webrtc/none)") from None
         _SILERO = _sequence_model(silero_vad)
         if _SILERO is None:
-            import torch
-
-            torch.set_num_threads(1)  # takes run in parallel processes; one thread each is fastest overall
             with warnings.catch_warnings():  # the package's own deprecation notices (importlib, torch.jit)
                 warnings.simplefilter("ignore", DeprecationWarning)
                 _SILERO = ("torch", silero_vad.load_silero_vad())
@@ -72,7 +71,8 @@ def silero_segments(x: np.ndarray, min_silence_s: float = 0.3) -> list[tuple[flo
         import torch
         from silero_vad import get_speech_timestamps
 
-        with torch.inference_mode():
+        # Takes run in parallel processes; one thread each is fastest overall (the caller keeps its own).
+        with torch.inference_mode(), torch_threads(1):
             stamps = get_speech_timestamps(torch.from_numpy(audio), model, **settings)
         model.reset_states()
     return [(s["start"] / TARGET_RATE, s["end"] / TARGET_RATE) for s in stamps]

@@ -128,5 +128,23 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
 def write_audio(path: str | Path, audio: Audio) -> None:
     """Write WAV with the audio's own subtype (RF64 past 4 GB), atomically."""
     fmt = "RF64" if audio.samples.nbytes > 0xFFFF0000 else "WAV"
+    channels = 1 if audio.samples.ndim == 1 else audio.samples.shape[1]
     with atomic_write(path) as f:
-        sf.write(f, audio.samples, audio.sample_rate, subtype=audio.subtype, format=fmt)
+        with sf.SoundFile(f, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt) as out:
+            _no_peak_chunk(out)
+            out.write(audio.samples)
+
+
+# libsndfile's SFC_SET_ADD_PEAK_CHUNK: float WAVs otherwise carry a PEAK chunk stamped with the wall-clock
+# second of writing, so the same samples written twice would differ in bytes (and in content hashes).
+_SFC_SET_ADD_PEAK_CHUNK = 0x1050
+
+
+def _no_peak_chunk(out: sf.SoundFile) -> None:
+    """Switch the PEAK chunk off before the first sample is written (a documented libsndfile command,
+    reached through soundfile's handle; without that handle the file is written with the chunk)."""
+    try:
+        out._check_if_closed()
+        sf._snd.sf_command(out._file, _SFC_SET_ADD_PEAK_CHUNK, sf._ffi.NULL, 0)
+    except AttributeError:
+        pass

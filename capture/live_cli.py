@@ -131,7 +131,8 @@ def _report(summaries: list[dict], as_json: bool) -> None:
             continue
         progress(
             f"{s['device']} / {s['subject']} -> {s['path']}: {s['frames']} frames, "
-            f"{s['dropped_frames']} dropped, {s.get('duplicates', 0)} duplicates, "
+            f"{s['dropped_frames']} dropped, {s.get('face_lost_frames', 0)} face lost, "
+            f"{s.get('duplicates', 0)} duplicates, "
             f"{s.get('out_of_order', 0)} out of order; rejected {s.get('rejected')}"
         )
         if "torn_tail" in s:

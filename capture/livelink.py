@@ -8,6 +8,10 @@ i32 FrameNumber | f32 SubFrame | i32 RateNumerator | i32 RateDenominator | u8 Co
 A packet is ``270 + n + m`` bytes (312 for the app's 36-character device id and subject "iPhone").
 Frame time in seconds = (FrameNumber + SubFrame) * RateDenominator / RateNumerator.
 
+While the app sees no face it keeps sending packets that end right after the frame time (no count,
+no values; formats doc §5.4). They are frames too: the phone's clock ticked and nobody was tracked, so
+they decode to a ``LiveLinkFrame`` with ``face`` False and NaN values, the FACE_LOST frames of a take.
+
 Decoding never raises for bad input: ``decode_packet`` returns a ``LiveLinkFrame`` or a rejection
 reason (one of ``REJECT_REASONS``), which the listener counts.
 """
@@ -42,7 +46,6 @@ REJECT_REASONS: tuple[str, ...] = (
     "version",  # first byte is not 6
     "bad_length",  # a string length is negative or runs past the datagram
     "bad_text",  # device id or subject is not UTF-8
-    "no_face",  # ends right after the frame time (the app sends these when it sees no face)
     "count",  # BlendShapeCount is not 61
     "size_mismatch",  # count is 61 but the datagram is longer than the packet
     "bad_rate",  # rate numerator or denominator not positive
@@ -54,7 +57,9 @@ REJECT_REASONS: tuple[str, ...] = (
 
 @dataclass
 class LiveLinkFrame:
-    """One decoded packet: who sent it, the phone's frame time, and the 61 values in engine order."""
+    """One decoded packet: who sent it, the phone's frame time, and the 61 values in engine order.
+
+    ``face`` is False for a no-face packet (the app saw no face); its values are then NaN."""
 
     device: str
     subject: str
@@ -63,6 +68,7 @@ class LiveLinkFrame:
     rate_numerator: int
     rate_denominator: int
     values: np.ndarray  # float32 (61,), LIVELINK_ORDER
+    face: bool = True
 
     @property
     def rate(self) -> float:
@@ -76,7 +82,17 @@ class LiveLinkFrame:
 
 
 def encode_packet(frame: LiveLinkFrame) -> bytes:
-    """The version-6 packet of ``frame``, byte for byte as the app sends it."""
+    """The version-6 packet of ``frame``, byte for byte as the app sends it (a no-face packet when
+    ``frame.face`` is False)."""
+    if not frame.face:
+        return no_face_packet(
+            frame.device,
+            frame.subject,
+            frame.frame_number,
+            frame.sub_frame,
+            frame.rate_numerator,
+            frame.rate_denominator,
+        )
     return header_bytes(frame.device, frame.subject) + frame_block(
         frame.frame_number, frame.sub_frame, frame.rate_numerator, frame.rate_denominator, frame.values
     )
@@ -134,18 +150,18 @@ def parse_header(data: bytes | bytearray | memoryview, size: int | None = None) 
 
 
 def check_body(data: bytes | bytearray | memoryview, offset: int, size: int) -> str | None:
-    """Rejection reason for the part after the strings (frame time, count, values), or None."""
+    """Rejection reason for the part after the strings, or None when it is a frame block (frame time,
+    count, values) or, ``FRAME_TIME_BYTES`` long, the frame time of a no-face packet."""
     rest = size - offset
-    if rest == FRAME_TIME_BYTES:
-        return "no_face"
-    if rest < FRAME_TIME_BYTES + 1:
+    if rest < FRAME_TIME_BYTES:
         return "short"
-    if data[offset + FRAME_TIME_BYTES] != BLENDSHAPE_COUNT:
-        return "count"
-    if rest < FRAME_BLOCK_BYTES:
-        return "short"
-    if rest > FRAME_BLOCK_BYTES:
-        return "size_mismatch"
+    if rest > FRAME_TIME_BYTES:
+        if data[offset + FRAME_TIME_BYTES] != BLENDSHAPE_COUNT:
+            return "count"
+        if rest < FRAME_BLOCK_BYTES:
+            return "short"
+        if rest > FRAME_BLOCK_BYTES:
+            return "size_mismatch"
     frame_number, sub_frame, num, den = _FRAME_TIME.unpack_from(data, offset)
     if num <= 0 or den <= 0:
         return "bad_rate"
@@ -177,6 +193,10 @@ def decode_packet(data: bytes | bytearray | memoryview) -> LiveLinkFrame | str:
     names = decode_strings(data, offset)
     if names is None:
         return "bad_text"
+    if size - offset == FRAME_TIME_BYTES:
+        frame_number, sub_frame, num, den = _FRAME_TIME.unpack_from(data, offset)
+        nan = np.full(BLENDSHAPE_COUNT, np.nan, dtype=np.float32)
+        return LiveLinkFrame(names[0], names[1], frame_number, sub_frame, num, den, nan, face=False)
     return decode_frame_block(names[0], names[1], data, offset)
 
 

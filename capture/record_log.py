@@ -48,6 +48,7 @@ class RecordType(IntEnum):
     AUDIO = 7  # u64 index of the first sample, i64 clock ns of that sample, interleaved samples
     END = 8  # JSON: the recorder stopped cleanly (totals)
     NOTE = 9  # JSON: an event worth keeping (audio overflow, serial error, ...)
+    NO_FACE = 10  # u16 stream id, i64 arrival ns, 16-byte frame time of a no-face packet (face lost)
 
 
 def frame_record(payload_prefix: bytes, body) -> bytes:

@@ -4,10 +4,11 @@ One ``LiveRecorder`` owns a session folder ``<out>/<session>.recording/`` holdin
 (packets, stream announcements, sync events, rejection counts) and, with audio, ``audio.log``. The
 socket loop does as little as possible per datagram: check the header (a byte comparison against the
 last stream's header in the common case), stamp the arrival on the session clock and append one
-checksummed record with the packet's raw frame block. Decoding into values, duplicate removal,
-ordering and gap filling happen when the takes are built from the log (``session_takes``), so memory
-stays flat however long the session runs. Buffers are handed to the log writer thread at least every
-``flush_interval_s`` (default 0.1 s), which writes and fsyncs them.
+checksummed record with the packet's raw frame block (FRAME), or with its frame time alone for a
+packet the app sends while it sees no face (NO_FACE: the frame is kept, as FACE_LOST). Decoding into
+values, duplicate removal, ordering and gap filling happen when the takes are built from the log
+(``session_takes``), so memory stays flat however long the session runs. Buffers are handed to the
+log writer thread at least every ``flush_interval_s`` (default 0.1 s), which writes and fsyncs them.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ SESSION_SUFFIX = ".recording"
 DEFAULT_PORT = 11111
 FRAME_PREFIX = struct.Struct("<BHq")  # record type, stream id, arrival ns
 FRAME_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_BLOCK_BYTES  # 272
+NO_FACE_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_TIME_BYTES  # 27
 _RECV_BYTES = 65536  # larger than any UDP datagram, so an oversized one is seen whole and counted
 
 
@@ -247,9 +249,14 @@ class LiveRecorder:
                                     sid,
                                 )
                         if sid >= 0:
-                            body = view[off : off + block]
-                            prefix = pack_prefix(RecordType.FRAME, sid, t)
-                            out += frame_header(payload_len, crc32(body, crc32(prefix)))
+                            if n == off + block:
+                                body = view[off : off + block]
+                                prefix = pack_prefix(RecordType.FRAME, sid, t)
+                                out += frame_header(payload_len, crc32(body, crc32(prefix)))
+                            else:  # a no-face packet (only _classify accepts one): its frame time
+                                body = view[off : off + ll.FRAME_TIME_BYTES]
+                                prefix = pack_prefix(RecordType.NO_FACE, sid, t)
+                                out += frame_header(NO_FACE_PAYLOAD_BYTES, crc32(body, crc32(prefix)))
                             out += prefix
                             out += body
                             accepted += 1
@@ -285,7 +292,8 @@ class LiveRecorder:
             log.flush()
 
     def _classify(self, view: memoryview, n: int, addr: Any) -> tuple[int, int, int, int] | str:
-        """Full check of a datagram that does not repeat the last stream's header.
+        """Full check of a datagram that does not repeat the last stream's header (or is a no-face
+        packet, which a new stream may also start with).
 
         Returns (stream id, frame-block offset, rate numerator, denominator) or a rejection reason.
         """

@@ -2,9 +2,13 @@
 
 Per device/subject stream, frames are read from ``frames.log`` into arrays, duplicates (same phone
 frame number) are dropped keeping the first arrival, the rest are ordered by frame number and split
-into segments wherever the phone's frame time jumps by more than ``MAX_GAP_S`` (a phone restart, a
-long pause, a corrupt frame number). Each segment with at least ``MIN_TAKE_FRAMES`` frames becomes a
-take; gaps in the frame numbers become DROPPED frames (``csv_take.fill_dropped``, as for CSV takes).
+into segments wherever the phone's frame time between two frames with a face jumps by more than
+``MAX_GAP_S`` (a phone restart, a long pause or a long time without a face, a corrupt frame number).
+Each segment with at least ``MIN_TAKE_FRAMES`` frames with a face becomes a take, from its first to its
+last frame with a face; the no-face packets in between become FACE_LOST frames (NaN values, their own
+time and arrival, as the app's face-lost CSV rows), gaps in the frame numbers DROPPED frames
+(``csv_take.fill_dropped``, as for CSV takes). A live stream has no record start or stop, so no-face
+packets before a take's first face or after its last are not part of it (``face_lost_outside_takes``).
 
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
 clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
@@ -53,6 +57,10 @@ ROW_DTYPE = np.dtype(
 )
 _STREAM_ID = struct.Struct("<H")
 _FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
+_FRAME_PAYLOAD = _FRAME_AT + 8 + ll.FRAME_BLOCK_BYTES
+_NO_FACE_PAYLOAD = _FRAME_AT + 8 + ll.FRAME_TIME_BYTES
+# What a no-face record's row gets after its frame time: count 0 and NaN values (big-endian like the rest).
+_NO_FACE_TAIL = bytes([0]) + np.full(ll.BLENDSHAPE_COUNT, np.nan, dtype=">f4").tobytes()
 
 
 class SessionLog:
@@ -76,19 +84,23 @@ class SessionLog:
         reader = LogReader(self.dir / FRAMES_LOG)
         for payload in reader:
             kind = payload[0]
-            if kind == RecordType.FRAME:
-                if len(payload) == 3 + 8 + ll.FRAME_BLOCK_BYTES:
-                    (sid,) = _STREAM_ID.unpack_from(payload, 1)
-                    if sid not in self.frame_counts:
-                        self.frame_counts[sid] = 0
-                        self._pending[sid] = bytearray()
-                        (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
-                        first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
-                    self.frame_counts[sid] += 1
-                    self._pending[sid] += payload[_FRAME_AT:]
-                    self._pending_bytes += ROW_DTYPE.itemsize
-                    if self._pending_bytes > SPILL_BYTES:
-                        self._spill()
+            size = len(payload)
+            if (kind == RecordType.FRAME and size == _FRAME_PAYLOAD) or (
+                kind == RecordType.NO_FACE and size == _NO_FACE_PAYLOAD
+            ):
+                (sid,) = _STREAM_ID.unpack_from(payload, 1)
+                if sid not in self.frame_counts:
+                    self.frame_counts[sid] = 0
+                    self._pending[sid] = bytearray()
+                    (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
+                    first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
+                self.frame_counts[sid] += 1
+                self._pending[sid] += payload[_FRAME_AT:]
+                if kind == RecordType.NO_FACE:
+                    self._pending[sid] += _NO_FACE_TAIL
+                self._pending_bytes += ROW_DTYPE.itemsize
+                if self._pending_bytes > SPILL_BYTES:
+                    self._spill()
             elif kind == RecordType.SYNC:
                 self.sync.append(decode_sync_record(payload))
             elif kind in (
@@ -136,7 +148,8 @@ class SessionLog:
         return sorted(self.frame_counts)
 
     def stream_rows(self, sid: int) -> np.ndarray:
-        """The logged frames of one stream, in log (= arrival) order, as ``ROW_DTYPE`` records."""
+        """The logged frames of one stream, in log (= arrival) order, as ``ROW_DTYPE`` records (no-face
+        packets with ``count`` 0 and NaN values)."""
         if self._spill_dir is None:
             return np.frombuffer(self._pending[sid], dtype=ROW_DTYPE)
         return np.fromfile(self._spill_dir / f"{sid}.rows", dtype=ROW_DTYPE)
@@ -160,7 +173,8 @@ def _segments(frame_time: np.ndarray) -> list[slice]:
 def stream_takes(
     log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
 ) -> tuple[list[Take], dict]:
-    """The takes of one stream, and a report (packets, duplicates, out-of-order, stray frames)."""
+    """The takes of one stream, and a report (packets, duplicates, out-of-order, stray frames, face-lost
+    frames outside the takes)."""
     rows = log.stream_rows(sid)
     info = log.streams.get(sid, {})
     fn = rows["frame_number"].astype(np.int64)
@@ -180,20 +194,31 @@ def stream_takes(
     arrival = log.seconds(rows["arrival_ns"])
     takes: list[Take] = []
     stray = 0
-    segments = _segments(frame_time)
+    # Takes follow the face: segments of the frames with one; the no-face frames between a segment's
+    # first and last face frame belong to it (rows are in frame-time order).
+    face_rows = np.flatnonzero(rows["count"] != 0)
+    segments = [
+        slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
+        for s in (_segments(frame_time[face_rows]) if face_rows.size else [])
+    ]
+    lost_in_takes = 0
     device = info.get("device")
     subject = info.get("subject")
     session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
     base_id = f"{session}_{subject}_{(device or '')[:8]}"
     for k, seg in enumerate(segments):
         r, ft, arr = rows[seg], frame_time[seg], arrival[seg]
-        if r.size < MIN_TAKE_FRAMES:
-            stray += int(r.size)
+        lost = r["count"] == 0
+        if r.size - np.count_nonzero(lost) < MIN_TAKE_FRAMES:
+            stray += int(r.size - np.count_nonzero(lost))
             continue
+        lost_in_takes += int(np.count_nonzero(lost))
         values = r["values"].astype(np.float32)
         finite = np.isfinite(values).all(axis=1)
         values[~np.isfinite(values)] = np.nan
         status = np.where(finite, FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(np.uint8)
+        status[lost] = FrameStatus.FACE_LOST
+        finite |= lost  # NaN is what a face-lost frame holds, not a bad value
         t = ft - ft[0]
         fps, period = detect_fps(t)
         t_full, v_full, s_full, inserted = fill_dropped(t, values, status, period)
@@ -247,6 +272,7 @@ def stream_takes(
             take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
         takes.append(take)
     report["stray_frames"] = stray
+    report["face_lost_outside_takes"] = int(rows.size - face_rows.size - lost_in_takes)
     return takes, report
 
 

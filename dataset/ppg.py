@@ -65,12 +65,19 @@ def _torch():
     return torch
 
 
+def _one_thread():
+    """One torch thread while a model runs (bit-identical results from run to run); the caller's own
+    thread count is given back afterwards."""
+    from align.torch_threads import torch_threads
+
+    return torch_threads(1)
+
+
 class BottleneckExtractor:
     name = "bottleneck"
 
     def __init__(self, checkpoint: str | Path):
-        torch = _torch()
-        torch.set_num_threads(1)  # one thread: bit-identical results from run to run
+        _torch()
         self.path = Path(checkpoint)
         from .bottleneck import load_bottleneck
 
@@ -85,7 +92,7 @@ class BottleneckExtractor:
             raise InputError(
                 f"PPG checkpoint expects {self.model.config.n_mels} mel bins, got {fbank.shape[1]}"
             )
-        with torch.inference_mode():
+        with torch.inference_mode(), _one_thread():
             b, logits = self.model(torch.from_numpy(np.ascontiguousarray(fbank, np.float32))[None])
         return PPGResult(b[0].numpy().astype(np.float32), logits[0].argmax(-1).numpy().astype(np.int16))
 
@@ -119,7 +126,6 @@ class TorchScriptExtractor:
 
     def __init__(self, model_path: str | Path):
         torch = _torch()
-        torch.set_num_threads(1)
         self.path = Path(model_path)
         if not self.path.is_file():
             raise InputError("TorchScript model not found", self.path)
@@ -133,7 +139,7 @@ class TorchScriptExtractor:
 
     def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
         torch = _torch()
-        with torch.inference_mode():
+        with torch.inference_mode(), _one_thread():
             out = self.model(torch.from_numpy(np.ascontiguousarray(fbank, np.float32))[None])
         if isinstance(out, (tuple, list)):
             out = out[0]

@@ -66,37 +66,3 @@ def write_aligned_set(root: Path, count: int = 6, speakers: int = 2, seconds: fl
         take = make_aligned_take(f"take{i:02d}", seconds, subject=f"spk{i % speakers}", seed=i, **kw)
         write_take(take, root)
     return root
-
-
-def minimal_align(take: Take, subject: str | None = None) -> Take:
-    """A stand-in for ``align`` on takes whose audio already shares the frame clock (paired data):
-    audio → 16 kHz mono float32 from take time 0, frames → the uniform grid ``i / fps`` (linear
-    interpolation of each channel), source_kind "aligned"."""
-    from math import gcd
-
-    from scipy.signal import resample_poly
-
-    x = take.audio.mono_float().astype(np.float64)
-    rate = take.audio.sample_rate
-    if rate != SR:
-        g = gcd(rate, SR)
-        x = resample_poly(x, SR // g, rate // g)
-    start = take.meta.audio.start_s if take.meta.audio else 0.0
-    fps = take.meta.fps
-    n = int(np.floor((x.size / SR) * fps))
-    grid = np.arange(n) / fps
-    src_t = take.time - start
-    values = np.stack([np.interp(grid, src_t, take.values[:, c]) for c in range(take.values.shape[1])], 1)
-    inside = (grid >= src_t[0]) & (grid <= src_t[-1])
-    status = np.where(inside, 0, 2).astype(np.uint8)
-    meta = TakeMeta(
-        id=take.meta.id,
-        source_kind="aligned",
-        fps=fps,
-        channels=list(take.meta.channels),
-        subject=subject or take.meta.subject,
-    )
-    meta.extra["align"] = {"offset_s": 0.0, "speech_segments": [[0.0, x.size / SR]], "parent": take.meta.id}
-    out = Take(meta, grid, values.astype(np.float32), status, neutral=take.neutral)
-    out.attach_audio(Audio(x.astype(np.float32), SR, "FLOAT"), start_s=0.0, start_source="aligned")
-    return out

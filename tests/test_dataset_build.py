@@ -20,7 +20,8 @@ import pytest
 from conftest import ROOT, run_cli
 from dataset_helpers import make_aligned_take, write_aligned_set
 
-from capture import PRONUNCIATION32, write_take
+from capture import PRONUNCIATION32, read_meta, write_take
+from capture.atomic import write_json_atomic
 from capture.take import sha256_file
 from dataset import Normalizer, ShardReader, read_manifest
 from dataset.build import take_sha256
@@ -357,9 +358,13 @@ def test_ddp_ranks_read_disjoint_shards(built, tmp_path):
 
 def test_duplicate_take_under_another_id_is_kept_once(tmp_path):
     takes = write_aligned_set(tmp_path / "takes", count=3, seconds=1.5)
-    copy = make_aligned_take("take00", 1.5, subject="spk0", seed=0)
-    copy.meta.id = "take00_copy"
-    write_take(copy, tmp_path / "more")
+    # The folder copied and renamed in its metadata. (Not the take written a second time: libsndfile
+    # stamps float WAV files with the current second in their PEAK chunk, so those bytes may differ.)
+    copy = tmp_path / "more" / "take00_copy"
+    shutil.copytree(takes / "take00", copy)
+    meta = read_meta(copy)
+    meta.id = "take00_copy"
+    write_json_atomic(copy / "meta.json", meta.to_json())
     ds = tmp_path / "ds"
     proc = run_cli("dataset", "build", takes, tmp_path / "more", "-o", ds, "--json")
     assert proc.returncode == 0, proc.stderr

@@ -5,21 +5,27 @@ phone alignments of real English speech."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli
-from dataset_helpers import write_aligned_set
+from conftest import ROOT, run_cli
+from dataset_helpers import speech_like, write_aligned_set
 
 from capture.take import sha256_file
 from dataset import ShardReader, read_manifest
-from dataset.features import FeatureSettings, spectral_features
+from dataset.features import FeatureSettings, compute_features, spectral_features
+from dataset.ppg import make_extractor
 
 torch = pytest.importorskip("torch")
-pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
+pytestmark = [
+    pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning"),
+    pytest.mark.filterwarnings("ignore:`torch.jit.load` is deprecated:DeprecationWarning"),
+]
 
 
 @pytest.fixture(scope="module")
@@ -122,6 +128,53 @@ def test_torchscript_and_onnx_models_agree(takes, tmp_path):
     assert onnx_arrays.keys() == ts_arrays.keys()
     for k in ts_arrays:
         np.testing.assert_allclose(onnx_arrays[k], ts_arrays[k], atol=1e-5)
+
+
+def test_model_inference_leaves_the_callers_thread_count(tmp_path):
+    """PPG models run on one torch thread (bit-identical features) only while they run: the caller's
+    count is back afterwards, as it is after the align stage's silero VAD."""
+    from dataset.bottleneck import BottleneckConfig, BottleneckPPG, save_bottleneck
+
+    torch.manual_seed(0)
+    ckpt = tmp_path / "ppg.pt"
+    save_bottleneck(BottleneckPPG(BottleneckConfig(hidden=64)), ckpt)
+    ts = tmp_path / "ppg.ts"
+    torch.jit.script(_Tiny().eval()).save(str(ts))
+    audio, _ = speech_like(2.0, np.random.default_rng(3))
+    caller = torch.get_num_threads()
+    try:
+        for backend, model in (("bottleneck", ckpt), ("torchscript", ts)):
+            torch.set_num_threads(3)
+            extractor = make_extractor(backend, model)  # the TorchScript one runs its model once here
+            assert torch.get_num_threads() == 3, backend
+            inside: list[int] = []  # the thread count the bottleneck network sees
+            if backend == "bottleneck":
+                extractor.model.register_forward_pre_hook(
+                    lambda *_, seen=inside: seen.append(torch.get_num_threads())
+                )
+            runs = []
+            for threads in (3, 2):
+                torch.set_num_threads(threads)
+                feats, _ = compute_features(
+                    audio, 120, 60.0, ("fbank", "ppg"), FeatureSettings(), ppg=extractor
+                )
+                assert torch.get_num_threads() == threads, backend
+                runs.append(feats["ppg"])
+            assert np.array_equal(runs[0], runs[1]), backend  # bit-identical whatever the caller's count
+            if backend == "bottleneck":
+                assert inside == [1, 1]
+    finally:
+        torch.set_num_threads(caller)
+    # silero-vad pins one thread for the whole process when first imported: in a fresh process.
+    code = (
+        "import numpy as np, torch; torch.set_num_threads(2)\n"
+        "from align.vad import speech_segments\n"
+        "x = (0.3 * np.sin(np.arange(32000) * 0.1) * (np.arange(32000) > 16000)).astype(np.float32)\n"
+        "print(len(speech_segments(x, 'silero')), torch.get_num_threads())\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split()[1] == "2"
 
 
 def test_model_with_wrong_output_is_rejected(takes, tmp_path):

@@ -1,5 +1,6 @@
 """Datasets from the real samples: FACEGOOD's Mandarin speech with rig controls (30 fps, the rig's
-own channel names, ``--channels varying``) and the NeuroSync ARKit take (60 fps, pronunciation32)."""
+own channel names, ``--channels varying``) and the NeuroSync ARKit take (60 fps, pronunciation32),
+each aligned by the align stage first, as ``s2a-align`` would."""
 
 from __future__ import annotations
 
@@ -7,10 +8,21 @@ import json
 
 import numpy as np
 from conftest import run_cli
-from dataset_helpers import minimal_align
 
-from capture import read_csv_with_audio, read_paired, write_take
+from align import align_take, is_aligned
+from capture import Take, read_csv_with_audio, read_paired, write_take
 from dataset import read_manifest
+
+
+def aligned(raw: Take) -> Take:
+    """The one aligned take of a paired take (audio and face already on one clock)."""
+    (take,) = align_take(raw)
+    report = take.meta.extra["align"]
+    assert is_aligned(take) and report["parent"]["id"] == raw.meta.id
+    # paired data shares one clock: what align measures is a small correction (content evidence
+    # lands within tens of ms), not a shift that would misplace speech against the face
+    assert abs(report["offset_s"]) < 0.1
+    return take
 
 
 def test_facegood_dataset_builds_and_validates(samples, tmp_path):
@@ -24,7 +36,8 @@ def test_facegood_dataset_builds_and_validates(samples, tmp_path):
             fg / "bs_names.txt",
             take_id=f"facegood_{name}",
         )
-        write_take(minimal_align(raw, subject="shirley"), takes)
+        raw.meta.subject = "shirley"
+        write_take(aligned(raw), takes)
     ds = tmp_path / "ds"
     proc = run_cli(
         "dataset",
@@ -61,7 +74,7 @@ def test_facegood_dataset_builds_and_validates(samples, tmp_path):
 def test_neurosync_arkit_take_builds_and_validates(samples, tmp_path):
     folder = samples / "paired" / "neurosync-trainer-lite-testset"
     raw = read_csv_with_audio(folder / "testset.csv", folder / "audio.wav")
-    take = minimal_align(raw)
+    take = aligned(raw)
     write_take(take, tmp_path / "takes")
     ds = tmp_path / "ds"
     proc = run_cli(

@@ -6,11 +6,12 @@ import json
 import signal
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 from live_helpers import Listener, run_cli, synthetic_take
 
-from capture import FrameStatus, read_take, write_take
+from capture import FrameStatus, read_livelink_csv, read_take, write_livelink_csv, write_take
 from capture.livelink import REJECT_REASONS, frame_block, header_bytes, no_face_packet
 from capture.replay import Impairment, replay_take
 
@@ -52,6 +53,61 @@ def test_faulty_replay_yields_exactly_the_delivered_frames(tmp_path):
     assert len((tmp_path / "x.csv").read_text().splitlines()) == 1 + delivered.size
 
 
+def test_no_face_packets_become_face_lost_frames(tmp_path):
+    """What the app sends while it sees no face comes back as FACE_LOST frames with their own phone time
+    and arrival, as its CSV's face-lost rows do; malformed no-face packets are still rejected."""
+    take = synthetic_take(600, seed=8)
+    lost = np.zeros(600, bool)
+    lost[:30] = lost[200:260] = lost[570:] = True  # no face before, for a second during, and after
+    take.frame_status[lost] = FrameStatus.FACE_LOST
+    take.values[lost] = np.nan
+    listener = Listener(tmp_path / "out")
+    imp = Impairment(reorder=0.05, duplicate=0.02, seed=5)  # every packet arrives, some twice or late
+    report = replay_take(take, "127.0.0.1", listener.port, speed=3.0, impairment=imp)
+    header = header_bytes(take.meta.device, "iPhone")
+    good = no_face_packet(take.meta.device, "iPhone", 36000 * 60 + 700, 0.3, 60, 1)
+    extra = [
+        no_face_packet(take.meta.device, "iPhone", 36000 * 60 + 700, 0.3, 0, 1),  # bad_rate
+        good[:-1],  # short
+        good + b"\0",  # count
+        header + frame_block(36000 * 60 + 701, 1.5, 60, 1, take.values[0]),  # bad_frame_time
+        no_face_packet("OTHER-PHONE", "iPhone", 5, 0.0, 60, 1),  # a stream without a face: no take
+    ]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for data in extra:
+            s.sendto(data, ("127.0.0.1", listener.port))
+    time.sleep(0.3)
+    lines, err, code = listener.stop()
+    assert code == 0, err
+    assert report.no_face >= 120 and report.lost == 0
+    assert len(lines) == 1
+    line = lines[0]
+    assert line["rejected"] == {"bad_rate": 1, "short": 1, "count": 1, "bad_frame_time": 1}
+    assert line["datagrams"] == report.packets_sent + len(extra)
+    assert line["accepted"] == report.packets_sent + 1
+    assert line["stray_streams"] == 1
+    # The take runs from the first to the last frame with a face; the second without one is inside it.
+    got = read_take(line["path"])
+    assert got.meta.extra["first_frame_number"] == 36000 * 60 + 30
+    assert got.time.size == line["frames"] == 540
+    expected = take.frame_status[30:570]
+    assert np.array_equal(got.frame_status, expected)
+    assert line["face_lost_frames"] == 60 and line["dropped_frames"] == 0
+    assert line["face_lost_outside_takes"] == 60
+    assert got.count(FrameStatus.FACE_LOST) == 60 and got.meta.repairs == []
+    assert np.allclose(got.time, take.time[30:570] - take.time[30], atol=1e-6)
+    assert np.all(np.isfinite(got.arrival_s))
+    assert np.all(np.isnan(got.values[expected == FrameStatus.FACE_LOST]))
+    assert np.array_equal(got.values[expected == FrameStatus.TRACKED], take.values[30:570][~lost[30:570]])
+    # Written as the app's CSV, the face-lost frames are `<timecode>,0` rows, read back as FACE_LOST.
+    csv = write_livelink_csv(got, tmp_path / "live.csv")
+    rows = csv.read_text().splitlines()[1:]
+    assert sum(len(r.split(",")) == 2 for r in rows) == 60
+    back = read_livelink_csv(csv)
+    assert np.array_equal(back.frame_status, got.frame_status)
+    assert np.allclose(back.time, got.time, atol=1e-3)
+
+
 def _garbage(rng: np.random.Generator, valid: list[bytes]) -> bytes:
     kind = rng.integers(0, 10)
     base = valid[int(rng.integers(0, len(valid)))]
@@ -73,6 +129,16 @@ def _garbage(rng: np.random.Generator, valid: list[bytes]) -> bytes:
     return base
 
 
+def _socket_drops(port: int) -> int:
+    """Datagrams the kernel dropped at the full receive queue of the UDP socket bound to ``port``
+    (Linux ``/proc/net/udp``, last column; 0 elsewhere): they never reach the listener to be counted."""
+    try:
+        table = Path("/proc/net/udp").read_text().splitlines()[1:]
+    except OSError:
+        return 0
+    return sum(int(f[-1]) for f in map(str.split, table) if int(f[1].split(":")[1], 16) == port)
+
+
 def test_100k_mutated_and_random_datagrams_are_all_counted(tmp_path):
     rng = np.random.default_rng(11)
     take = synthetic_take(60, seed=1)
@@ -89,13 +155,14 @@ def test_100k_mutated_and_random_datagrams_are_all_counted(tmp_path):
             if i % 500 == 499:
                 time.sleep(0.004)  # pace: loopback drops what the receive queue cannot hold
     time.sleep(0.5)
+    drops = _socket_drops(listener.port)  # on a loaded machine the listener can fall behind the sender
     lines, err, code = listener.stop()
     assert code == 0, err
     assert "Traceback" not in err
     line = lines[0]
-    assert line["datagrams"] == n
+    assert line["datagrams"] + drops == n and drops < n // 100
     assert set(line["rejected"]) <= set(REJECT_REASONS)
-    assert line["accepted"] + sum(line["rejected"].values()) == n
+    assert line["accepted"] + sum(line["rejected"].values()) == line["datagrams"]
     assert line["rejected"]["version"] > 0 and line["rejected"]["oversized"] > 0
 
 

@@ -1,4 +1,5 @@
-"""The recorder in process: several phones, segments at frame-time jumps, bad values, rate changes."""
+"""The recorder in process: several phones, segments at frame-time jumps, bad values, rate changes,
+no-face packets inside and between takes."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import time
 import numpy as np
 
 from capture import FrameStatus, LiveRecorder, build_takes, read_take
-from capture.livelink import frame_block, header_bytes
+from capture.livelink import frame_block, header_bytes, no_face_packet
 
 
 def test_streams_segments_and_rejections(tmp_path):
@@ -50,28 +51,71 @@ def test_streams_segments_and_rejections(tmp_path):
     assert bob.meta.extra["first_frame_number"] == 7000
 
 
-def test_rows_spilled_to_disk_give_the_same_takes(tmp_path, monkeypatch):
-    import capture.session_takes as st
-
-    rec = LiveRecorder(tmp_path, port=0, session_id="s2")
+def _record(tmp_path, session_id: str, packets: list[bytes]):
+    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
     _, port = rec.open()
     runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
     runner.start()
-    vals = np.linspace(-0.5, 1.0, 61).astype(np.float32)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i in range(300):
-            s.sendto(
-                header_bytes(f"P{i % 3}", "iPhone") + frame_block(i, 0.0, 60, 1, vals + i),
-                ("127.0.0.1", port),
-            )
+        for i, p in enumerate(packets):
+            s.sendto(p, ("127.0.0.1", port))
+            if i % 200 == 199:
+                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
     time.sleep(0.5)
     rec.request_stop()
     runner.join()
     rec.close()
+    return rec
+
+
+def test_no_face_packets_inside_and_between_takes(tmp_path):
+    vals = np.linspace(-0.5, 1.0, 61).astype(np.float32)
+    face = header_bytes("PHONE-A", "Alice")
+    kinds = "n" * 20 + "f" * 30 + "n" * 10 + "f" * 30 + "n" * 400 + "f" * 30 + "n" * 5  # 400 = 6.7 s
+    kinds += "n" * 400 + "f" * 5 + "n" * 50  # a glimpse of a face, alone: too short for a take
+    packets = [
+        face + frame_block(100 + i, 0.5, 60, 1, vals)
+        if k == "f"
+        else no_face_packet("PHONE-A", "Alice", 100 + i, 0.5, 60, 1)
+        for i, k in enumerate(kinds)
+    ]
+    packets += [no_face_packet("PHONE-B", "Bob", 7000 + i, 0.0, 60, 1) for i in range(30)]  # never a face
+    rec = _record(tmp_path, "nf", packets)
+    assert rec.accepted == len(packets) and sum(rec.rejected.values()) == 0
+    lines = build_takes(rec.session_dir, tmp_path)
+    assert [line["path"].rsplit("/", 1)[1] for line in lines] == ["nf_Alice_PHONE-A_1", "nf_Alice_PHONE-A_2"]
+    first, second = (read_take(line["path"]) for line in lines)
+    # The first take: face, a sixth of a second without one, face again.
+    assert first.time.size == 70 and first.meta.extra["first_frame_number"] == 120
+    want = np.array([FrameStatus.TRACKED] * 30 + [FrameStatus.FACE_LOST] * 10 + [FrameStatus.TRACKED] * 30)
+    assert np.array_equal(first.frame_status, want) and first.meta.repairs == []
+    assert np.allclose(first.time, np.arange(70) / 60) and np.all(np.isfinite(first.arrival_s))
+    assert np.isnan(first.values[30:40]).all() and np.array_equal(first.values[40], vals)
+    # More than 5 s without a face splits; no-face packets before, between and after are outside.
+    assert second.time.size == 30 and second.count(FrameStatus.FACE_LOST) == 0
+    assert second.meta.extra["first_frame_number"] == 100 + 490
+    assert lines[0]["face_lost_outside_takes"] == 20 + 400 + 5 + 400 + 50
+    assert lines[0]["face_lost_frames"] == 10 and lines[0]["stray_frames"] == 5
+    assert lines[0]["stray_streams"] == 1  # Bob's phone never saw a face
+
+
+def test_rows_spilled_to_disk_give_the_same_takes(tmp_path, monkeypatch):
+    import capture.session_takes as st
+
+    vals = np.linspace(-0.5, 1.0, 61).astype(np.float32)
+    packets = [
+        no_face_packet(f"P{i % 3}", "iPhone", i, 0.0, 60, 1)
+        if i % 7 == 0 and i > 3
+        else header_bytes(f"P{i % 3}", "iPhone") + frame_block(i, 0.0, 60, 1, vals + i)
+        for i in range(300)
+    ]
+    rec = _record(tmp_path, "s2", packets)
     in_memory = build_takes(rec.session_dir, tmp_path / "a")
     monkeypatch.setattr(st, "SPILL_BYTES", 1000)
     spilled = build_takes(rec.session_dir, tmp_path / "b")
     assert [x["frames"] for x in spilled] == [x["frames"] for x in in_memory] == [100, 100, 100]
     for x, y in zip(in_memory, spilled):
-        assert np.array_equal(read_take(x["path"]).values, read_take(y["path"]).values, equal_nan=True)
+        a, b = read_take(x["path"]), read_take(y["path"])
+        assert np.array_equal(a.values, b.values, equal_nan=True)
+        assert np.array_equal(a.frame_status, b.frame_status) and a.count(FrameStatus.FACE_LOST) > 10
     assert not list(rec.session_dir.glob(".build-*"))

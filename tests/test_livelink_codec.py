@@ -1,4 +1,5 @@
-"""The Live Link v6 packet codec: the real app packet, round trips, and rejection by reason."""
+"""The Live Link v6 packet codec: the real app packet, no-face packets, round trips, and rejection by
+reason."""
 
 from __future__ import annotations
 
@@ -59,7 +60,6 @@ def test_rejections_are_counted_by_reason_never_raised():
         "version": bytes([5]) + good[1:],
         "short": good[:3],
         "bad_length": good[:1] + struct.pack(">i", 10_000) + good[5:],
-        "no_face": ll.no_face_packet("dev", "iPhone", 100, 0.5, 60, 1),
         "count": good[: len(good) - 245] + bytes([52]) + good[len(good) - 244 :],
         "size_mismatch": good + b"\x00\x00\x00\x00",
         "oversized": good + bytes(2000),
@@ -73,6 +73,27 @@ def test_rejections_are_counted_by_reason_never_raised():
     assert ll.decode_packet(b"") == "short"
     for reason in cases:
         assert reason in ll.REJECT_REASONS
+
+
+def test_no_face_packet_is_a_frame_without_a_face_and_malformed_ones_are_rejected():
+    data = ll.no_face_packet("dev", "iPhone", 100, 0.5, 60, 1)
+    assert len(data) == len(_packet()) - 1 - 4 * 61  # ends after the frame time
+    frame = ll.decode_packet(data)
+    assert isinstance(frame, ll.LiveLinkFrame) and frame.face is False
+    assert (frame.device, frame.subject, frame.frame_number, frame.sub_frame) == ("dev", "iPhone", 100, 0.5)
+    assert frame.time_s == pytest.approx(100.5 / 60)
+    assert frame.values.shape == (61,) and frame.values.dtype == np.float32 and np.isnan(frame.values).all()
+    assert ll.encode_packet(frame) == data
+    assert ll.decode_packet(_packet()).face is True
+    # A no-face packet is checked like any other: its frame time, and nothing after it but a frame block.
+    for reason, bad in {
+        "bad_rate": ll.no_face_packet("dev", "iPhone", 100, 0.5, 60, 0),
+        "bad_frame_time": ll.no_face_packet("dev", "iPhone", -1, 0.5, 60, 1),
+        "short": data[:-1],
+        "count": data + b"\0",
+        "version": bytes([7]) + data[1:],
+    }.items():
+        assert ll.decode_packet(bad) == reason, reason
 
 
 @settings(max_examples=300, deadline=None)

@@ -152,3 +152,18 @@ def test_inconsistent_arrays_are_refused():
         Take(meta, np.arange(3.0), np.zeros((3, 2)), np.zeros(3))
     with pytest.raises(InputError, match="increasing"):
         Take(meta, np.array([0.0, 0.0, 1.0]), np.zeros((3, 1)), np.zeros(3))
+
+
+def test_float_wav_bytes_do_not_depend_on_when_they_were_written(tmp_path):
+    """libsndfile stamps a float WAV's PEAK chunk with the current second; the same samples must give
+    the same bytes (content hashes find re-imported duplicates), so no PEAK chunk is written."""
+    from capture.audio_io import read_audio, write_audio
+
+    audio = Audio(np.linspace(-0.5, 0.5, 1600, dtype=np.float32), 16000)
+    write_audio(tmp_path / "a.wav", audio)
+    write_audio(tmp_path / "b.wav", audio)
+    a, b = (tmp_path / "a.wav").read_bytes(), (tmp_path / "b.wav").read_bytes()
+    assert b"PEAK" not in a  # the chunk that holds the time stamp
+    assert a == b
+    back = read_audio(tmp_path / "a.wav")
+    assert back.sample_rate == 16000 and np.array_equal(back.samples[:, 0], audio.samples[:, 0])
