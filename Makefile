@@ -9,7 +9,7 @@ TORCH := torch==2.13.0
 DEB_PACKAGES := libportaudio2 libegl1 libgl1-mesa-dri chromium
 SHARED ?= ../shared
 
-.PHONY: demo test bench lint format clean deb demo-import demo-simulate demo-live demo-align demo-dataset demo-train demo-view
+.PHONY: demo test bench results lint format clean deb demo-import demo-simulate demo-live demo-align demo-dataset demo-train demo-view
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -48,7 +48,7 @@ demo-import:
 	@echo "== 1. importing the real Live Link Face CSVs"
 	@$(HAVE_SAMPLES); $(BIN)/s2a-capture import $(SAMPLES)/livelinkface -o $(DEMO)/takes
 	@echo "== 2. importing the NeuroSync take with its 44.1 kHz audio"
-	@$(HAVE_SAMPLES); $(BIN)/s2a-capture import $(NS)/testset.csv --audio $(NS)/audio.wav \
+	@$(HAVE_SAMPLES); $(BIN)/s2a-capture import $(NS)/testset.csv --audio $(NS)/audio.wav --audio-pairing frame-index \
 	  --id neurosync_testset -o $(DEMO)/takes
 	@echo "== 3. importing the seven FACEGOOD paired takes (116 rig controls at 30 fps)"
 	@$(HAVE_SAMPLES); for npy in $(FG)/bs_value/*.npy; do t=$$(basename $$npy .npy); t=$${t#bs_value_}; \
@@ -105,6 +105,11 @@ demo-view:
 
 bench: $(STAMP) deb
 	$(BIN)/python -m benchmarks
+
+# Reproduces the paper's tables (about 35 minutes on 2 cores): work under results-out/, numbers in
+# docs/results.json, the document docs/results.md. RESULTS_ARGS="--quick" for a smoke run.
+results: $(STAMP) deb
+	$(BIN)/python -m benchmarks.paper --samples $(SAMPLES) $(RESULTS_ARGS)
 
 format: $(STAMP)
 	$(BIN)/ruff format .

@@ -9,7 +9,7 @@ from pathlib import Path
 from .command import emit_json, progress, run
 from .csv_take import write_livelink_csv
 from .errors import InputError, S2AError
-from .importer import find_sources, import_source
+from .importer import AUDIO_PAIRINGS, find_sources, import_source
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
@@ -39,6 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--variant",
         choices=("cal", "raw", "plain"),
         help="which CSV of a calibrated take folder to import (default cal, else plain, else raw)",
+    )
+    p.add_argument(
+        "--audio-pairing",
+        choices=AUDIO_PAIRINGS,
+        default="first-row",
+        help="how --audio goes with a CSV's rows: first-row (default: the audio starts with the first row; "
+        "s2a-align measures the real offset and places frames by their timecodes) or frame-index (row i "
+        "goes with audio time i/fps, as in data sets built that way, e.g. NeuroSync's; s2a-align then "
+        "places frames by index)",
     )
     p.add_argument("--swap-lr", action="store_true", help="exchange JawLeft/Right and MouthLeft/Right labels")
     p.add_argument("--strict", action="store_true", help="refuse files that need any repair")
@@ -78,6 +87,8 @@ def _print_summary(summary: dict, as_json: bool) -> None:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
+    if args.audio_pairing != "first-row" and (args.audio is None or args.matrix is not None):
+        raise InputError("--audio-pairing goes with a CSV and its --audio")
     if args.matrix is not None:
         if args.sources:
             raise InputError("give either sources or --matrix, not both")
@@ -106,7 +117,9 @@ def cmd_import(args: argparse.Namespace) -> int:
             if kind == "matrix":
                 take = read_paired(args.audio, args.matrix, args.fps, args.names, args.take_id)
             else:
-                take = import_source(src, args.audio, args.variant, args.strict, args.swap_lr)
+                take = import_source(
+                    src, args.audio, args.variant, args.strict, args.swap_lr, args.audio_pairing
+                )
                 if args.take_id:
                     take.meta.id = args.take_id
             folder = write_take(take, args.out)

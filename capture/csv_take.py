@@ -492,9 +492,11 @@ def write_livelink_csv(
     """Write ``take`` as a Live Link Face CSV in the app's exact format.
 
     61 value columns in the app's CSV order with 10 decimals, ``Timecode`` from the take's start
-    timecode plus frame time, face-lost and other invalid frames as ``<timecode>,0`` rows, dropped frames
-    left out (as the app does). Channels the take lacks are written as ``fill_missing`` (or raise if
-    ``None``). ``count_name`` defaults to the spelling of the source file, else ``BlendShapeCount``.
+    timecode plus frame time, tracked frames and the frames ``s2a-align`` interpolated across short gaps
+    with their values (they are usable, and Epic's importer stops at the first face-lost row), face-lost
+    and other invalid frames as ``<timecode>,0`` rows, dropped frames left out (as the app does).
+    Channels the take lacks are written as ``fill_missing`` (or raise if ``None``). ``count_name``
+    defaults to the spelling of the source file, else ``BlendShapeCount``.
     """
     path = Path(path)
     csv_info = take.meta.csv or {}
@@ -525,7 +527,8 @@ def write_livelink_csv(
     if t0 is None:
         t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day if take.meta.start_timecode else 0.0
     row_fmt = "%s," + str(len(out_names)) + "," + ",".join(["%.10f"] * len(out_names)) + "\n"
-    tracked, dropped = int(FrameStatus.TRACKED), int(FrameStatus.DROPPED)
+    with_values = (int(FrameStatus.TRACKED), int(FrameStatus.INTERPOLATED))
+    dropped = int(FrameStatus.DROPPED)
     status, times = take.frame_status.tolist(), (t0 + take.time).tolist()
     with atomic_write(path, "w", encoding="ascii", newline="") as f:
         f.write("Timecode," + count_name + "," + ",".join(out_names) + "\n")
@@ -535,6 +538,6 @@ def write_livelink_csv(
                 if status[i] == dropped:
                     continue
                 tc = Timecode.from_seconds(times[i]).format()
-                lines.append(row_fmt % (tc, *row) if status[i] == tracked else tc + ",0\n")
+                lines.append(row_fmt % (tc, *row) if status[i] in with_values else tc + ",0\n")
             f.writelines(lines)
     return path

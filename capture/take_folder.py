@@ -244,12 +244,19 @@ def _neutral_pose(path: Path, take: Take) -> np.ndarray:
 
 
 def read_csv_with_audio(
-    csv_path: str | Path, audio_file: str | Path, strict: bool = False, swap_lr: bool = False
+    csv_path: str | Path,
+    audio_file: str | Path,
+    strict: bool = False,
+    swap_lr: bool = False,
+    by_frame_index: bool = False,
 ) -> Take:
     """A CSV paired with audio recorded elsewhere; the audio is assumed to start with the first row
-    (``s2a-align`` measures the real offset)."""
+    (``s2a-align`` measures the real offset). ``by_frame_index``: the pair was made so that row i goes
+    with audio time i/fps whatever the timecodes say (start source ``paired_frame_convention``, which
+    ``s2a-align`` places by frame index)."""
     take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr)
-    take.attach_audio(read_audio(audio_file), 0.0, "assumed_first_csv_row")
+    source = "paired_frame_convention" if by_frame_index else "assumed_first_csv_row"
+    take.attach_audio(read_audio(audio_file), 0.0, source)
     take.meta.sources.append(source_file(audio_file, "external_audio"))
     return take
 

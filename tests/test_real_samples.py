@@ -142,3 +142,16 @@ def test_cli_imports_every_sample_and_reports_info(samples, tmp_path):
     exported = tmp_path / "S07.csv"
     run_cli("capture", "export-csv", out / "S07-001", "-o", exported, check=True)
     assert exported.read_bytes() == (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_bytes()
+
+
+def test_interpolated_frames_are_written_with_their_values(samples, tmp_path):
+    """Frames s2a-align filled across short gaps are usable: the CSV keeps their values (Epic's importer
+    would stop at a face-lost row), while face-lost frames stay ``<timecode>,0`` rows."""
+    take = read_livelink_csv(samples / "paired/neurosync-trainer-lite-testset/testset.csv")
+    filled = np.arange(100, 110)
+    take.frame_status[filled] = FrameStatus.INTERPOLATED
+    take.frame_status[200] = FrameStatus.FACE_LOST
+    back = read_livelink_csv(write_livelink_csv(take, tmp_path / "out.csv"))
+    assert (back.frame_status[filled] == FrameStatus.TRACKED).all()
+    assert np.allclose(back.values[filled], take.values[filled], atol=1e-9)
+    assert back.frame_status[200] == FrameStatus.FACE_LOST and np.isnan(back.values[200]).all()

@@ -188,3 +188,22 @@ def test_missing_audio_file_is_a_clear_error(tmp_path, samples):
         tmp_path / "out",
     )
     assert proc.returncode == 1 and "audio file not found" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_audio_pairing_by_frame_index_is_recorded_for_align(tmp_path, samples):
+    """NeuroSync's pair puts row i with audio i/60 s although its timecodes run at 59.90 rows/s; the
+    import says so, and s2a-align then places the frames by index."""
+    ns = samples / "paired/neurosync-trainer-lite-testset"
+    csv, wav = ns / "testset.csv", ns / "audio.wav"
+    for pairing, source in (
+        ("first-row", "assumed_first_csv_row"),
+        ("frame-index", "paired_frame_convention"),
+    ):
+        out = tmp_path / pairing
+        run_cli("capture", "import", csv, "--audio", wav, "--audio-pairing", pairing, "-o", out, check=True)
+        assert read_take(out / "testset", audio=False).meta.audio.start_source == source
+    for bad in (["--audio-pairing", "frame-index"], ["--audio", wav, "--audio-pairing", "by-ear"]):
+        proc = run_cli("capture", "import", csv, *bad, "-o", tmp_path / "bad")
+        assert (
+            proc.returncode in (1, 2) and "--audio-pairing" in proc.stderr and "Traceback" not in proc.stderr
+        )
