@@ -222,10 +222,6 @@ class PocketsphinxExtractor:
         self.dim = len(self.phones)
         self._index = {p: i for i, p in enumerate(self.phones)}
         self._lm = pocketsphinx.get_model_path("en-us/en-us-phone.lm.bin")
-        self._aligner = None
-        self._decoder = pocketsphinx.Decoder(
-            allphone=self._lm, lw=2.0, pip=0.3, beam=1e-10, pbeam=1e-10, cmn="batch", loglevel="FATAL"
-        )
 
     def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
         pcm = np.clip(np.rint(np.asarray(audio, np.float64) * 32768.0), -32768, 32767).astype(np.int16)
@@ -233,7 +229,11 @@ class PocketsphinxExtractor:
         if transcript:
             segments = self._align(pcm, transcript)
         if segments is None:
-            d = self._decoder
+            # A fresh decoder per utterance (about 0.15 s): a reused one carries state from the
+            # utterances before, so a take's posteriors would depend on which takes a worker saw first.
+            d = self._ps.Decoder(
+                allphone=self._lm, lw=2.0, pip=0.3, beam=1e-10, pbeam=1e-10, cmn="batch", loglevel="FATAL"
+            )
             d.start_utt()
             d.process_raw(pcm.tobytes(), full_utt=True)
             d.end_utt()
@@ -253,9 +253,7 @@ class PocketsphinxExtractor:
     def _align(self, pcm: np.ndarray, transcript: str) -> list[tuple[str, int, int]] | None:
         """Phone segments (name, first frame, last frame; 10 ms frames) by forced alignment to the
         words of ``transcript``; None when a word is not in the dictionary or alignment fails."""
-        if self._aligner is None:
-            self._aligner = self._ps.Decoder(loglevel="FATAL", cmn="batch")
-        d = self._aligner
+        d = self._ps.Decoder(loglevel="FATAL", cmn="batch")  # fresh, as in extract
         words = " ".join(
             w for w in "".join(c if c.isalnum() or c in "' " else " " for c in transcript.lower()).split()
         )
