@@ -42,9 +42,9 @@ def test_shapes_and_padding_does_not_leak(name):
     assert torch.allclose(out[1, :25], again[1, :25], atol=1e-5)
 
 
-def test_dense_sparse_and_loop_agree():
+def test_dense_sparse_grouped_routed_and_loop_agree():
     torch.manual_seed(1)
-    layer = MoELayer(24, 8, experts=12, top_k=4, kernel_size=3).eval()
+    layer = MoELayer(24, 8, experts=12, top_k=4, kernel_size=3, inference="train").eval()
     h = torch.randn(3, 30, 24)
     with torch.no_grad():
         dense = layer(h)
@@ -53,9 +53,42 @@ def test_dense_sparse_and_loop_agree():
         layer.mode = "grouped"
         grouped = layer(h)
         loop = expert_loop_reference(layer, h)
-    assert torch.allclose(dense, sparse, atol=1e-5)
-    assert torch.allclose(dense, grouped, atol=1e-5)
-    assert torch.allclose(dense, loop, atol=1e-5)
+        layer.inference = "routed"  # the inference path (eval, no autograd)
+        routed = layer(h)
+    assert not torch.equal(routed, dense)  # a different computation...
+    for other in (sparse, grouped, loop, routed):
+        assert torch.allclose(dense, other, atol=1e-5)  # ...of the same numbers
+
+
+@pytest.mark.parametrize("kernel", [1, 3, 5])
+def test_routed_inference_path_matches_training_path_in_the_model(kernel):
+    torch.manual_seed(6)
+    model = TransformerS2A(S2AConfig(**SMALL, experts=10, top_k=3, expert_kernel=kernel)).eval()
+    content, prosody = torch.randn(3, 37, 64), torch.randn(3, 37, 3)
+    mask = torch.ones(3, 37, dtype=torch.bool)
+    mask[1, 20:] = False
+    layers = [m for m in model.modules() if isinstance(m, MoELayer)]
+    with torch.inference_mode():
+        fast = model(content, prosody, mask)
+        for m in layers:
+            m.inference = "train"
+        slow = model(content, prosody, mask)
+        for m in layers:
+            m.inference = "routed"
+    assert torch.allclose(fast[mask], slow[mask], atol=1e-5)
+    # the cached expert weights follow an in-place update (an optimizer step)
+    with torch.no_grad():
+        for m in layers:
+            m.conv.weight.mul_(1.5)
+        fast2 = model(content, prosody, mask)
+        for m in layers:
+            m.inference = "train"
+        slow2 = model(content, prosody, mask)
+    assert torch.allclose(fast2[mask], slow2[mask], atol=1e-5)
+    assert not torch.allclose(fast2[mask], fast[mask], atol=1e-3)
+    # in training mode (or with autograd) the routed path is never taken: gradients flow as usual
+    model.train()
+    assert model(content, prosody, mask).requires_grad
 
 
 def test_gradients_agree_between_paths():

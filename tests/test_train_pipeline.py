@@ -14,6 +14,7 @@ from conftest import ROOT, run_cli
 from dataset_helpers import write_aligned_set
 
 from capture import read_livelink_csv
+from capture.errors import InputError
 from dataset import BuildOptions, ShardReader, build_dataset, read_manifest
 from dataset.splits import SplitRule
 from train.checkpoint import load_checkpoint
@@ -107,10 +108,23 @@ def _train_cfg(**over):
     return cfg
 
 
+# Every random augmentation on, channel-weighted loss: resuming must redraw the same masks and noise.
+AUGMENTED = dict(
+    aug_noise=0.1,
+    aug_time_masks=2,
+    aug_time_mask_width=5,
+    aug_feature_masks=1,
+    aug_feature_mask_width=4,
+    aug_mask_prosody=True,
+    aug_mixup=0.4,
+    loss_weights="raw",
+)
+
+
 def test_resume_reproduces_an_uninterrupted_run_exactly(ds, tmp_path):
     quiet = {"say": lambda _m: None}
-    full = fit(ds, tmp_path / "full", _train_cfg(), **quiet)
-    first = fit(ds, tmp_path / "split", _train_cfg(), stop_after_steps=6, **quiet)
+    full = fit(ds, tmp_path / "full", _train_cfg(**AUGMENTED), **quiet)
+    first = fit(ds, tmp_path / "split", _train_cfg(**AUGMENTED), stop_after_steps=6, **quiet)
     assert first["stopped"] == "stopped" and first["steps"] == 6
     second = fit(ds, tmp_path / "split", _train_cfg(), resume=True, **quiet)
     assert second["steps"] == full["steps"] == 12
@@ -142,7 +156,10 @@ def _torchrun(ds, run, *extra):
     cmd += ["-m", "train", "fit", "--data", str(ds)]
     cmd += ["--model", "blstm", "-o", str(run), *sets, *map(str, extra), "--json"]
     env = {"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"}
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=240, env=env)
+    if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
+        env["GLOO_SOCKET_IFNAME"] = "lo"
+    # generous: three of these start 2 processes each on a machine that may be busy with other work
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summaries = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
     assert len(summaries) == 1  # rank 0 reports
@@ -280,3 +297,29 @@ def test_fit_without_a_val_split_trains_without_validation(ds, tmp_path):
     assert ridge["best_val"] is None
     proc = _cli("eval", tmp_path / "s2a", "--data", tmp_path / "ds", "--json")
     assert proc.returncode == 0, proc.stderr
+
+
+def test_val_takes_move_validation_to_chosen_training_takes(ds, tmp_path):
+    from train.data import resolve_inputs, split_keys, train_dataset, utterances
+
+    manifest = read_manifest(ds)
+    take_of = {s["key"]: s["take"] for s in manifest["samples"]}
+    cfg = resolve_config(sets=TINY + ['val_takes=["take01"]'])
+    train_keys, val_keys = split_keys(manifest, cfg)
+    assert {take_of[k] for k in val_keys} == {"take01"}
+    # the dataset's own val take (take05) now trains; the test take never appears
+    assert {take_of[k] for k in train_keys} == {"take00", "take02", "take03", "take05"}
+    spec = resolve_inputs(manifest, cfg)
+    seen = {item["key"] for item in train_dataset(ds, spec, cfg)}
+    assert seen == train_keys
+    assert {item["key"] for item in utterances(ds, "val", spec, cfg)} == val_keys
+    assert {item["key"] for item in utterances(ds, "val", spec)} == {
+        s["key"] for s in manifest["samples"] if s["split"] == "val"
+    }
+    assert split_keys(manifest, resolve_config(sets=TINY)) is None
+    ridge = fit(ds, tmp_path / "ridge", {**cfg, "model": "ridge"}, say=lambda _m: None)
+    plain = fit(ds, tmp_path / "ridge0", resolve_config(sets=TINY + ["model='ridge'"]), say=lambda _m: None)
+    assert ridge["best_val"] is not None and ridge["best_val"] != plain["best_val"]
+    for takes, needle in ((["take04"], "in the test split"), (["take99"], "no take 'take99'")):
+        with pytest.raises(InputError, match=needle):
+            split_keys(manifest, {**cfg, "val_takes": takes})

@@ -66,7 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         nargs="+",
         required=True,
-        help="takes with TextGrids, or folders of WAV + JSON alignments",
+        help="Praat TextGrids with a 'phones' tier beside same-named audio (as s2a-capture simulate writes "
+        "its take folders, or a forced aligner's output), or folders of WAV + JSON alignments; "
+        "folders are searched recursively (imported take folders carry no alignments)",
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="checkpoint to write (ppg.pt)")
     p.add_argument("--steps", type=int, default=300, help="optimizer steps (default 300)")

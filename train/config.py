@@ -46,6 +46,21 @@ DEFAULTS: dict[str, Any] = {
     "log_every": 20,
     "ridge_context": 7,  # ridge: ± frames stacked
     "ridge_alpha": 0.0,  # ridge: L2 penalty per frame on standardised inputs; 0 = best on val of a grid
+    # takes that validate instead of the dataset's val split (they leave training; the val split's
+    # takes then train); [] = the dataset's splits. Test takes are refused.
+    "val_takes": [],
+    # channel weights of the loss (and of the validation score that early stopping and best.pt follow):
+    # "normalised" = every normalised channel alike; "raw" = squared error in 0..1 coefficient units,
+    # what rmse_entire measures (weights scale² of the manifest's normalisation, mean 1)
+    "loss_weights": "normalised",
+    # augmentation of the training batches (train/augment.py); all off by default
+    "aug_noise": 0.0,  # std of Gaussian noise added to the normalised content features
+    "aug_time_masks": 0,  # SpecAugment time masks per window ...
+    "aug_time_mask_width": 0,  # ... each up to this many frames wide (content set to its mean, 0)
+    "aug_feature_masks": 0,  # SpecAugment feature masks per window ...
+    "aug_feature_mask_width": 0,  # ... each up to this many content dims wide
+    "aug_mask_prosody": False,  # time masks also blank pitch and energy
+    "aug_mixup": 0.0,  # mixup Beta(a, a) parameter; 0 = off
     "arch": {},
 }
 
@@ -110,11 +125,36 @@ def check_config(cfg: dict[str, Any]) -> None:
         raise InputError(f"input must be one of {', '.join(INPUTS)}, got {cfg['input']!r}", "config:input")
     if not isinstance(cfg["prosody"], bool):
         raise InputError(f"prosody must be true or false, got {cfg['prosody']!r}", "config:prosody")
+    if not isinstance(cfg["val_takes"], list) or not all(isinstance(t, str) for t in cfg["val_takes"]):
+        raise InputError(
+            f"val_takes must be a list of take ids, got {cfg['val_takes']!r}", "config:val_takes"
+        )
+    if cfg["loss_weights"] not in ("normalised", "raw"):
+        raise InputError(
+            f"loss_weights must be normalised or raw, got {cfg['loss_weights']!r}", "config:loss_weights"
+        )
     if cfg["amp"] not in ("auto", "bf16", "none"):
         raise InputError(f"amp must be auto, bf16 or none, got {cfg['amp']!r}", "config:amp")
     for key in ("window", "batch_size", "max_steps", "eval_every", "log_every"):
         if not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1:
             raise InputError(f"{key} must be a positive integer, got {cfg[key]!r}", f"config:{key}")
-    for key in ("lr", "weight_decay", "grad_clip", "aux_weight", "max_minutes", "ridge_alpha"):
+    for key in ("aug_time_masks", "aug_time_mask_width", "aug_feature_masks", "aug_feature_mask_width"):
+        if not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 0:
+            raise InputError(f"{key} must be a non-negative integer, got {cfg[key]!r}", f"config:{key}")
+    if not isinstance(cfg["aug_mask_prosody"], bool):
+        raise InputError(
+            f"aug_mask_prosody must be true or false, got {cfg['aug_mask_prosody']!r}",
+            "config:aug_mask_prosody",
+        )
+    for key in (
+        "lr",
+        "weight_decay",
+        "grad_clip",
+        "aux_weight",
+        "max_minutes",
+        "ridge_alpha",
+        "aug_noise",
+        "aug_mixup",
+    ):
         if not isinstance(cfg[key], (int, float)) or isinstance(cfg[key], bool) or cfg[key] < 0:
             raise InputError(f"{key} must be a non-negative number, got {cfg[key]!r}", f"config:{key}")

@@ -88,15 +88,54 @@ def to_model_inputs(item: dict[str, Any], spec: InputSpec) -> tuple[torch.Tensor
     return content, prosody
 
 
+class TakeSubset(ShardDataset):
+    """The samples of ``keys`` (sample keys) read from the shards of ``splits``; otherwise a
+    ShardDataset (``random_crop`` as given, default: crop at random)."""
+
+    def __init__(self, ds: str | Path, splits: tuple[str, ...], keys: set[str], **kwargs: Any):
+        kwargs.setdefault("random_crop", True)
+        super().__init__(ds, splits[0], **kwargs)
+        self.shards = [sh["name"] for sh in self.manifest["shards"] if sh["split"] in splits]
+        self.keys = set(keys)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def _samples(self) -> Iterator[tuple[str, dict[str, bytes]]]:
+        for key, members in super()._samples():
+            if key in self.keys:
+                yield key, members
+
+
+def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "config:val_takes"):
+    """(training sample keys, validation sample keys) when ``cfg["val_takes"]`` names takes: those
+    takes' samples validate, every other train- or val-split sample trains; None with no val_takes (the
+    dataset's own train and val splits). Test takes and unknown takes are errors."""
+    takes = list(cfg.get("val_takes") or [])
+    if not takes:
+        return None
+    split_of = {s["take"]: s["split"] for s in manifest["samples"]}
+    for take in takes:
+        if take not in split_of:
+            raise InputError(f"val_takes: no take {take!r} in the dataset (it has {sorted(split_of)})", where)
+        if split_of[take] not in ("train", "val"):
+            raise InputError(f"val_takes: take {take!r} is in the {split_of[take]} split", where)
+    usable = [s for s in manifest["samples"] if s["split"] in ("train", "val")]
+    val = {s["key"] for s in usable if s["take"] in takes}
+    train = {s["key"] for s in usable if s["take"] not in takes}
+    if not train:
+        raise InputError("val_takes leaves no training take", where)
+    return train, val
+
+
 def train_dataset(ds: str | Path, spec: InputSpec, cfg: dict[str, Any]) -> ShardDataset:
-    return ShardDataset(
-        ds,
-        "train",
-        window=cfg["window"],
-        features=spec.features,
-        shuffle_buffer=cfg["shuffle_buffer"],
-        seed=cfg["seed"],
+    kwargs = dict(
+        window=cfg["window"], features=spec.features, shuffle_buffer=cfg["shuffle_buffer"], seed=cfg["seed"]
     )
+    keys = split_keys(read_manifest(ds), cfg)
+    if keys is None:
+        return ShardDataset(ds, "train", **kwargs)
+    return TakeSubset(ds, ("train", "val"), keys[0], **kwargs)
 
 
 def endless_batches(
@@ -123,13 +162,22 @@ def endless_batches(
         epoch, skip = epoch + 1, 0
 
 
-def utterances(ds: str | Path, split: str, spec: InputSpec | None = None) -> Iterator[dict[str, Any]]:
-    """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised)."""
+def utterances(
+    ds: str | Path, split: str, spec: InputSpec | None = None, cfg: dict[str, Any] | None = None
+) -> Iterator[dict[str, Any]]:
+    """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised). With a
+    ``cfg`` that sets ``val_takes``, "train" and "val" mean its training and validation takes."""
     manifest = read_manifest(ds)
-    if split not in {s["split"] for s in manifest["shards"]}:
-        raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
     features = spec.features if spec is not None else None
-    for item in ShardDataset(ds, split, window=None, features=features):
+    keys = split_keys(manifest, cfg) if cfg is not None and split in ("train", "val") else None
+    if keys is not None:
+        chosen = keys[0] if split == "train" else keys[1]
+        reader: ShardDataset = TakeSubset(ds, ("train", "val"), chosen, window=None, features=features)
+    elif split not in {s["split"] for s in manifest["shards"]}:
+        raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
+    else:
+        reader = ShardDataset(ds, split, window=None, features=features)
+    for item in reader:
         yield {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
 
 

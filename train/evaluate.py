@@ -88,7 +88,7 @@ def device_name(device: torch.device) -> str:
     return f"cpu ({name}, {torch.get_num_threads()} threads)"
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def real_time_factor(
     model, spec: InputSpec, item: dict[str, Any], fps: float, seconds: float = 12.0, repeats: int = 5
 ) -> float:

@@ -24,8 +24,11 @@ from capture.command import progress
 from capture.errors import InputError
 from dataset.manifest import read_manifest
 
+from .augment import augment
+from .augment import enabled as augmenting
 from .checkpoint import BEST, CONFIG, LAST, METRICS, load_checkpoint, save_checkpoint, write_json
-from .data import endless_batches, resolve_inputs, to_model_inputs, train_dataset, utterances
+from .config import DEFAULTS
+from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
 from .model import masked_mse
 from .ridge import NormalEquations
 from .systems import build_model
@@ -69,33 +72,60 @@ def _autocast(cfg: dict[str, Any], device: torch.device):
     return torch.autocast(device.type, dtype=torch.bfloat16, enabled=on)
 
 
+def channel_weights(manifest: dict[str, Any], cfg: dict[str, Any]) -> torch.Tensor | None:
+    """Per-channel loss weights: None for ``loss_weights = "normalised"``; for ``"raw"`` the squared
+    normalisation scales divided by their mean, so that the weighted normalised error is proportional to
+    the error in coefficient units (the metric's), at the normalised loss's overall size."""
+    if cfg.get("loss_weights", "normalised") == "normalised":
+        return None
+    scale = torch.tensor(manifest["normalization"]["animation"]["scale"], dtype=torch.float64) ** 2
+    return (scale / scale.mean()).float()
+
+
 @torch.no_grad()
-def validation_loss(model, ds: Path, spec, device: torch.device) -> float:
-    """Normalised MSE over every usable frame and channel of the validation split (this rank's share,
-    summed over ranks)."""
+def validation_loss(
+    model,
+    ds: Path,
+    spec,
+    device: torch.device,
+    weights: torch.Tensor | None = None,
+    cfg: dict[str, Any] | None = None,
+) -> float:
+    """MSE over every usable frame and channel of the validation split (this rank's share, summed over
+    ranks), normalised units, channels weighted by ``weights`` when given."""
+    w = None if weights is None else weights.to(device)
     model.eval()
     se, n = 0.0, 0.0
-    for item in utterances(ds, "val", spec):
+    for item in utterances(ds, "val", spec, cfg):
         content, prosody = to_model_inputs(item, spec)
         mask = item["mask"].to(device)
         pred = model(content.to(device), None if prosody is None else prosody.to(device), mask)
         m = mask.unsqueeze(-1).float()
-        se += float((((pred.float() - item["anim"].to(device)) ** 2) * m).sum())
+        err = (pred.float() - item["anim"].to(device)) ** 2
+        se += float(((err if w is None else err * w) * m).sum())
         n += float(m.sum()) * pred.shape[-1]
     model.train()
     se, n = _all_sum([se, n], device)
     return se / n if n else float("nan")
 
 
+def _has_val(manifest: dict[str, Any], cfg: dict[str, Any]) -> bool:
+    if cfg.get("val_takes"):
+        return True
+    return any(sh["split"] == "val" for sh in manifest["shards"])
+
+
 def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
     model, model_config = build_model("ridge", spec, cfg)
     eq = NormalEquations(model.linear.in_features, spec.out_dim)
     t0, frames = time.perf_counter(), 0
-    for item in utterances(ds, "train", spec):
+    for item in utterances(ds, "train", spec, cfg):
         content, prosody = to_model_inputs(item, spec)
         eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
         frames += int(item["mask"].sum())
-    has_val = any(sh["split"] == "val" for sh in read_manifest(ds)["shards"])
+    manifest = read_manifest(ds)
+    has_val = _has_val(manifest, cfg)
+    weights = channel_weights(manifest, cfg)
     alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else [1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
     if not has_val and len(alphas) > 1:
         say("note: the dataset has no val split: ridge uses alpha 1")
@@ -103,7 +133,8 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
     scores = []
     for alpha in alphas:
         eq.solve(model, alpha)
-        scores.append(validation_loss(model, ds, spec, torch.device("cpu")) if has_val else math.nan)
+        score = validation_loss(model, ds, spec, torch.device("cpu"), weights, cfg) if has_val else math.nan
+        scores.append(score)
     best = min(range(len(alphas)), key=lambda i: scores[i])
     cfg = {**cfg, "ridge_alpha": alphas[best]}
     eq.solve(model, alphas[best])
@@ -183,11 +214,14 @@ def fit(
         if not (run / LAST).is_file():
             raise InputError(f"nothing to resume: no {LAST}", run)
         state = load_checkpoint(run / LAST)
-        cfg = {**state["config"], "max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
+        # keys added after the run was saved take their defaults (augmentation off)
+        limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
+        cfg = {**DEFAULTS, **state["config"], **limits}
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     run.mkdir(parents=True, exist_ok=True)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
+    split_keys(manifest, cfg)  # checks val_takes against the dataset
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     if spec.note:
         say(f"note: {spec.note}")
@@ -223,7 +257,10 @@ def fit(
             (run / METRICS).write_text("".join(ln for ln in lines if json.loads(ln).get("step", 0) <= step))
         if state.get("stopped") == "early_stopping":
             say(f"run stopped early at step {step}; nothing to resume")
-    has_val = any(sh["split"] == "val" for sh in manifest["shards"])
+    weights = channel_weights(manifest, cfg)
+    if weights is not None:
+        weights = weights.to(device)
+    has_val = _has_val(manifest, cfg)
     if not has_val:
         say("note: the dataset has no val split: no validation, no early stopping, no best.pt")
     n_params = sum(p.numel() for p in model.parameters())
@@ -278,11 +315,15 @@ def fit(
             for g in optimizer.param_groups:
                 g["lr"] = lr
             content, prosody = to_model_inputs(batch, spec)
+            content = content.to(device)
+            prosody = None if prosody is None else prosody.to(device)
             mask = batch["mask"].to(device)
             target = batch["anim"].to(device)
+            if augmenting(cfg):
+                content, prosody, target, mask = augment(content, prosody, target, mask, cfg)
             with _autocast(cfg, device):
-                pred = net(content.to(device), None if prosody is None else prosody.to(device), mask)
-            mse = masked_mse(pred.float(), target, mask)
+                pred = net(content, prosody, mask)
+            mse = masked_mse(pred.float(), target, mask, weights)
             aux = (
                 model.aux_loss().to(device) if hasattr(model, "aux_loss") else torch.zeros((), device=device)
             )
@@ -305,7 +346,7 @@ def fit(
             over = cfg["max_minutes"] > 0 and minutes >= cfg["max_minutes"]
             over = _all_sum([float(over)], device)[0] > 0 if world > 1 else over
             if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"] or over:
-                val = validation_loss(net, ds, spec, device) if has_val else math.nan
+                val = validation_loss(net, ds, spec, device, weights, cfg) if has_val else math.nan
                 improved = has_val and val < best_val
                 if improved:
                     best_val, bad_evals = val, 0

@@ -42,6 +42,7 @@ class S2AConfig:
     expert_kernel: int = 3
     moe: bool = True
     moe_mode: str = "dense"  # or "sparse", "grouped" (same numbers; see moe.py)
+    moe_inference: str = "routed"  # MoE path in eval mode without autograd: "routed" or "train"
     dropout: float = 0.1
     max_frames: int = 8192
 
@@ -85,10 +86,15 @@ class Block(nn.Module):
         self.norm2 = nn.LayerNorm(d_model)
         self.ff = ff
         self.drop = nn.Dropout(dropout)
+        self.skip_full_mask = True  # False: always pass the padding mask (the reference path)
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         y = self.norm1(x)
-        y, _ = self.attn(y, y, y, key_padding_mask=~mask, need_weights=False)
+        # No mask when every frame is real (batch-1 inference): the same numbers through the fused
+        # attention kernel. Not while tracing for export, which must keep the mask input.
+        skip = self.skip_full_mask and not torch.jit.is_tracing() and bool(mask.all())
+        padding = None if skip else ~mask
+        y, _ = self.attn(y, y, y, key_padding_mask=padding, need_weights=False)
         x = x + self.drop(y)
         return x + self.drop(self.ff(self.norm2(x), mask))
 
@@ -118,7 +124,14 @@ class TransformerS2A(nn.Module):
         if not c.moe:
             return FeedForward(c.d_model, c.ff_dim, c.dropout)
         return MoELayer(
-            c.d_model, c.expert_hidden, c.experts, c.top_k, c.expert_kernel, c.dropout, c.moe_mode
+            c.d_model,
+            c.expert_hidden,
+            c.experts,
+            c.top_k,
+            c.expert_kernel,
+            c.dropout,
+            c.moe_mode,
+            c.moe_inference,
         )
 
     def forward(
@@ -212,7 +225,13 @@ class NVP(nn.Module):
         return self.mlp(self.window_conv(x.transpose(1, 2)).transpose(1, 2))
 
 
-def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean squared error over real frames only (``mask`` (B, T) True on real frames)."""
+def masked_mse(
+    pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, weights: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Mean squared error over real frames only (``mask`` (B, T) True on real frames); ``weights``
+    (channels,) scales each channel's squared error (mean over channels of the weighted error)."""
     m = mask.unsqueeze(-1).to(pred.dtype)
-    return (F.mse_loss(pred, target, reduction="none") * m).sum() / (m.sum() * pred.shape[-1]).clamp(min=1)
+    se = F.mse_loss(pred, target, reduction="none")
+    if weights is not None:
+        se = se * weights.to(se)
+    return (se * m).sum() / (m.sum() * pred.shape[-1]).clamp(min=1)

@@ -10,6 +10,14 @@ experts' kernels stacked into one weight) and one grouped matrix product; the sp
 each expert, only the frames routed to it (im2col patches, padded to the busiest expert) and runs two
 batched matrix products; the grouped path sorts the routed frames by expert and runs two grouped matrix
 products (``torch._grouped_mm``, no padding). All give the same numbers.
+
+Inference (eval mode, no autograd) takes the ``inference`` path, by default ``"routed"``: the routed
+(frame, expert) pairs are sorted by expert, their convolution patches gathered straight from the input
+rows (one index per tap) into a buffer reused from call to call (fresh 35 MB buffers cost page faults
+that outweigh the saved arithmetic), and two grouped matrix products (``torch._grouped_mm``) run every
+expert on its own frames; the experts' weights are rearranged once and cached until they change. Only
+the routed arithmetic, no padding, no Python loop over experts (on PyTorch without ``_grouped_mm``:
+batched products padded to the busiest expert). ``inference = "train"`` keeps the training path.
 """
 
 from __future__ import annotations
@@ -37,12 +45,15 @@ class MoELayer(nn.Module):
         kernel_size: int = 3,
         dropout: float = 0.0,
         mode: str = "dense",
+        inference: str = "routed",
     ):
         super().__init__()
         if not 1 <= top_k <= experts:
             raise ValueError(f"top_k must be in 1..{experts}, got {top_k}")
         if mode not in ("dense", "sparse", "grouped"):
             raise ValueError(f"mode must be dense, sparse or grouped, got {mode!r}")
+        if inference not in ("routed", "train"):
+            raise ValueError(f"inference must be routed or train, got {inference!r}")
         if mode == "grouped" and not hasattr(torch, "_grouped_mm"):
             raise ValueError("mode 'grouped' needs torch._grouped_mm (PyTorch 2.8 or later)")
         if kernel_size % 2 != 1:
@@ -50,6 +61,9 @@ class MoELayer(nn.Module):
         self.d_model, self.hidden, self.experts, self.top_k = d_model, hidden, experts, top_k
         self.kernel_size = kernel_size
         self.mode = mode
+        self.inference = inference
+        self._cache: dict[str, torch.Tensor] = {}  # inference: rearranged weights, reused buffers
+        self._cache_key: tuple = ()
         self.gate = nn.Linear(d_model, experts)
         # All experts' convolutions as one Conv1d: output channels grouped by expert.
         self.conv = nn.Conv1d(d_model, experts * hidden, kernel_size, padding=kernel_size // 2)
@@ -80,6 +94,13 @@ class MoELayer(nn.Module):
         if mask is not None:
             h = h * mask.unsqueeze(-1).to(h.dtype)
         top_idx, probs = self.route(h)
+        if (
+            self.inference == "routed"
+            and not self.training
+            and not torch.is_grad_enabled()
+            and not torch.jit.is_tracing()
+        ):
+            return self._routed(h, top_idx, probs)
         if self.mode == "sparse":
             return self._sparse(h, top_idx, probs)
         if self.mode == "grouped":
@@ -142,6 +163,116 @@ class MoELayer(nn.Module):
         inner = self.dropout(F.gelu(inner + self.conv.bias.view(e, self.hidden)[expert]))
         out = torch._grouped_mm(inner, self.linear_weight, offs=offsets) + self.linear_bias[expert]
         return h.new_zeros(b * t, d).index_add_(0, frame, out * prob.unsqueeze(-1)).view(b, t, d)
+
+    def _weights(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The convolution as (E, k*d, H) in tap-major order and its bias (E, 1, H), cached while the
+        parameters are unchanged (same storage and version counter)."""
+        w, b = self.conv.weight, self.conv.bias
+        # parameters made under inference_mode have no version counter: rearranged on every call
+        key = (
+            ()
+            if w.is_inference()
+            else (w.data_ptr(), w._version, b.data_ptr(), b._version, w.dtype, w.device)
+        )
+        if not key or key != self._cache_key or "w_conv" not in self._cache:
+            e, hid, d, k = self.experts, self.hidden, self.d_model, self.kernel_size
+            self._cache["w_conv"] = w.detach().view(e, hid, d, k).permute(0, 3, 2, 1).reshape(e, k * d, hid)
+            self._cache["b_conv"] = b.detach().view(e, 1, hid).clone()
+            self._cache_key = key
+        return self._cache["w_conv"], self._cache["b_conv"]
+
+    def _row_width(self) -> int:
+        """d_model plus a column of ones, padded to a multiple of 4 floats (the grouped product wants
+        16-byte strides)."""
+        return self.d_model + 4 - self.d_model % 4
+
+    def _weights_with_bias(self) -> torch.Tensor:
+        """The convolution as (E, k*width, H): per tap the d input weights, then rows for the column of
+        ones (the bias on the centre tap) and the zero padding columns; cached like ``_weights``."""
+        w_conv, b_conv = self._weights()
+        if self._cache.get("wb_key") is not w_conv:
+            e, hid, d, k = self.experts, self.hidden, self.d_model, self.kernel_size
+            width = self._row_width()
+            wb = w_conv.new_zeros(e, k, width, hid)
+            wb[:, :, :d] = w_conv.view(e, k, d, hid)
+            wb[:, k // 2, d] = b_conv.view(e, hid)
+            self._cache["wb"] = wb.view(e, k * width, hid)
+            self._cache["wb_key"] = w_conv
+        return self._cache["wb"]
+
+    def _buffer(self, name: str, shape: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
+        """A reused scratch tensor of at least ``shape``'s size (grown when needed)."""
+        n = 1
+        for s in shape:
+            n *= s
+        buf = self._cache.get(name)
+        if (
+            buf is None
+            or buf.numel() < n
+            or buf.dtype != like.dtype
+            or buf.device != like.device
+            or buf.is_inference() != torch.is_inference_mode_enabled()  # in-place rules differ
+        ):
+            buf = torch.empty(n, dtype=like.dtype, device=like.device)
+            self._cache[name] = buf
+        return buf[:n].view(shape)
+
+    def _routed(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
+        """Inference: each expert on its routed frames only (see module doc)."""
+        b, t, d = h.shape
+        k, e, pad = self.kernel_size, self.experts, self.kernel_size // 2
+        n = b * t
+        # Rows of every utterance with `pad` zero rows on both sides, plus one zero row at the very
+        # end: row of frame (i, j) is i*(t+2p) + j + p.
+        stride = t + 2 * pad
+        rows = self._buffer("rows", (b * stride + 1, d), h)
+        rows.zero_()
+        rows[: b * stride].view(b, stride, d)[:, pad : pad + t] = h
+        zero_row = b * stride
+        expert = top_idx.reshape(-1)
+        order = torch.argsort(expert, stable=True)
+        sorted_expert = expert[order]
+        frame = order // self.top_k
+        prob = probs.reshape(-1)[order].unsqueeze(-1)
+        counts = torch.bincount(sorted_expert, minlength=e)
+        centre = (frame // t) * stride + frame % t + pad  # row of each routed frame
+        taps = torch.arange(-pad, pad + 1, device=h.device)
+        w_conv, b_conv = self._weights()
+        if hasattr(torch, "_grouped_mm"):
+            # routed (frame, expert) pairs sorted by expert: two grouped matrix products, no padding.
+            # The convolution bias rides on a column of ones (its weight row sits on the centre tap),
+            # the linear bias is added per frame as Σ_i Prob_i · b_i: no per-pair bias gathers.
+            m, width = order.numel(), self._row_width()
+            rows1 = self._buffer("rows1", (rows.shape[0], width), h)
+            rows1[:, :d] = rows
+            rows1[:, d:] = 0.0
+            rows1[:, d] = 1.0
+            patches = self._buffer("patches", (m * k, width), h)
+            torch.index_select(rows1, 0, (centre.unsqueeze(-1) + taps).reshape(-1), out=patches)
+            offsets = torch.cumsum(counts, 0).to(torch.int32)
+            w = self._weights_with_bias()
+            inner = F.gelu(torch._grouped_mm(patches.view(m, k * width), w, offs=offsets))
+            out = torch._grouped_mm(inner, self.linear_weight, offs=offsets).mul_(prob)
+            dense_probs = h.new_zeros(n, e).scatter_(1, top_idx.reshape(n, -1), probs.reshape(n, -1))
+            return (dense_probs @ self.linear_bias).index_add_(0, frame, out).view(b, t, d)
+        # older PyTorch: experts' batches padded to the busiest one (slots on the zero row, weight 0)
+        capacity = int(counts.max())
+        slot = (
+            torch.arange(order.numel(), device=h.device) - (torch.cumsum(counts, 0) - counts)[sorted_expert]
+        )
+        index = torch.full((e, capacity), zero_row, dtype=torch.long, device=h.device)
+        index[sorted_expert, slot] = centre
+        weight = h.new_zeros(e, capacity, 1)
+        weight[sorted_expert, slot] = prob
+        tap_index = torch.where((index == zero_row).unsqueeze(-1), zero_row, index.unsqueeze(-1) + taps)
+        patches = self._buffer("patches", (e * capacity * k, d), h)
+        torch.index_select(rows, 0, tap_index.reshape(-1), out=patches)
+        inner = F.gelu(torch.baddbmm(b_conv, patches.view(e, capacity, k * d), w_conv))
+        out = torch.baddbmm(self.linear_bias.unsqueeze(1), inner, self.linear_weight).mul_(weight)
+        target = torch.full((e, capacity), n, dtype=torch.long, device=h.device)  # padding → spare row
+        target[sorted_expert, slot] = frame
+        result = h.new_zeros(n + 1, d).index_add_(0, target.view(-1), out.view(-1, d))
+        return result[:n].view(b, t, d)
 
 
 def expert_loop_reference(layer: MoELayer, h: torch.Tensor) -> torch.Tensor:
