@@ -127,31 +127,14 @@ def run(quick: bool = False) -> list[Figure]:
     threads = torch.get_num_threads()
     note = f"{frames} frames, {threads} threads, {time.strftime('%H:%M')}"
     return [
-        Figure(
-            "MoE layer, fused dense path", fused * 1e3, "ms", "per-expert loop", loop * 1e3, False, 0.2, note
-        ),
-        Figure(
-            "MoE layer, sparse dispatch", sparse * 1e3, "ms", "per-expert loop", loop * 1e3, False, None, note
-        ),
-        Figure(
-            "MoE layer, grouped routed frames",
-            grouped * 1e3,
-            "ms",
-            "per-expert loop",
-            loop * 1e3,
-            False,
-            0.2,
-            note,
-        ),
-        Figure(
-            "MoE layer, routed inference path",
-            routed * 1e3,
-            "ms",
-            "per-expert loop",
-            loop * 1e3,
-            False,
-            0.2,
-            note,
+        *(
+            Figure(f"MoE layer, {label}", t * 1e3, "ms", "per-expert loop", loop * 1e3, False, target, note)
+            for label, t, target in (
+                ("fused dense path", fused, 0.2),
+                ("sparse dispatch", sparse, None),
+                ("grouped routed frames", grouped, 0.2),
+                ("routed inference path", routed, 0.2),
+            )
         ),
         Figure("MoE layer, routed inference path vs dense", routed * 1e3, "ms", "dense", fused * 1e3, False),
         *(
