@@ -1313,7 +1313,8 @@ def discussion(res: dict[str, Any], facts: dict[str, Any]) -> list[str]:
                 "Likely reasons: the baseline's size (ours: 2 layers of 128 units per direction; the "
                 "paper's is not known to us), the hardware (on a GPU an LSTM's 720 sequential steps leave "
                 "the device mostly idle, on a CPU they cost little next to the Transformer's matrix "
-                "products), and our MoE computing every expert densely (3× the routed work, docs/train.md)."
+                "products, about 12 GFLOP per 12 s utterance even with only the routed experts computed; "
+                "docs/train.md)."
                 if sp < 17
                 else "That matches or exceeds the paper's figure."
             )
