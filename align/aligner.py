@@ -227,12 +227,13 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     g = a0 + np.arange(n_all) / fps
     status_all = cover(tau, period, g, opts.max_gap_s)
     min_frames = max(1, int(math.ceil(opts.min_segment_s * fps)))
-    spans = [(s, e) for s, e in runs(status_all != UNCOVERED) if e - s >= min_frames]
+    covered = runs(status_all != UNCOVERED)
+    spans = [(s, e) for s, e in covered if e - s >= min_frames]
     if not spans:
         raise InputError(
             f"take {tid}: no stretch of at least {opts.min_segment_s:g} s with both speech and a tracked face"
         )
-    if len(spans) < len(runs(status_all != UNCOVERED)):
+    if len(spans) < len(covered):
         flags.append("short_segments_dropped")
 
     segments_out: list[Take] = []

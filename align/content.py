@@ -124,7 +124,6 @@ class LagEstimate:
     lag_s: float
     peak: float  # normalised correlation at the peak (-1..1)
     runner_up: float  # highest correlation at least ``MAIN_LOBE_S`` away from the peak
-    z: float  # peak over the spread of the correlation across the search range
     seconds: float  # length of signal the estimate rests on
     at_edge: bool  # the peak sits at the edge of the search range
 
@@ -159,8 +158,6 @@ def cross_correlation_lag(
     lobe = int(round(MAIN_LOBE_S * ANALYSIS_RATE))
     far = np.abs(lags - k_best) > lobe
     runner_up = float(values[far].max()) if far.any() else float("nan")
-    spread = float(np.std(values)) or 1e-12
-    z = (float(values[best]) - float(np.median(values))) / spread
     # Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
     # the integer peak, using only the bins the band-pass lets through; first on a 1 ms grid over
     # ±1 step, then on the 0.1 ms grid around the best point (the series is smooth at this scale).
@@ -183,4 +180,4 @@ def cross_correlation_lag(
     fine_values = series(fine)
     refined = float(fine[int(np.argmax(fine_values))]) if not at_edge else float(k_best)
     peak = float(fine_values.max()) if not at_edge else float(values[best])
-    return LagEstimate(refined / ANALYSIS_RATE, peak, runner_up, z, n / ANALYSIS_RATE, at_edge)
+    return LagEstimate(refined / ANALYSIS_RATE, peak, runner_up, n / ANALYSIS_RATE, at_edge)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from capture import FrameStatus, InputError
+from capture import FrameStatus
 
 INTERPOLATED = FrameStatus.INTERPOLATED  # a frame filled across a short gap
 UNCOVERED = 255  # inside a long gap or outside the measured frames: not part of any segment
@@ -67,8 +67,3 @@ def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index pairs of the runs of True in ``mask``."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
-
-
-def check_times(time: np.ndarray, take_id: str) -> None:
-    if time.size < 2:
-        raise InputError(f"take {take_id}: fewer than two frames")

@@ -15,6 +15,7 @@ import numpy as np
 
 from capture import InputError
 
+from .grid import runs
 from .resample import TARGET_RATE
 from .torch_threads import torch_threads
 
@@ -100,10 +101,9 @@ def runs_to_segments(
     """Runs of True in per-step flags as (start_s, end_s), closing silences shorter than ``min_silence_s``."""
     if flags.size == 0:
         return []
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
-    runs = [[a * step_s, b * step_s] for a, b in zip(edges[::2], edges[1::2])]
+    spans = [[a * step_s, b * step_s] for a, b in runs(flags)]
     merged: list[list[float]] = []
-    for r in runs:
+    for r in spans:
         if merged and r[0] - merged[-1][1] < min_silence_s:
             merged[-1][1] = r[1]
         else:

@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from capture.atomic import write_json_atomic
+
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = Path(__file__).resolve().parent / "configs"
 SIM_CONFIG = CONFIGS / "simulated.toml"
@@ -210,7 +212,8 @@ class Graph:
                     n = running.pop(fut)
                     result, seconds = fut.result()  # a failure ends the run (the state of others stays)
                     self.results[n] = result
-                    self._file(n).write_text(json.dumps({"seconds": seconds, "result": result}, indent=1))
+                    # atomic: a run killed mid-write must not leave a truncated record to resume from
+                    write_json_atomic(self._file(n), {"seconds": seconds, "result": result})
                     say(f"done  {n} ({seconds:.0f} s)")
         return self.results
 

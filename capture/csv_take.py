@@ -483,6 +483,14 @@ def read_livelink_csv(
         return rows_to_take(rows, take_id, swap_lr, digest.result())
 
 
+def start_seconds_of_day(take: Take) -> float:
+    """Time of day (s) of the take's first frame: the source CSV's, else the start timecode's, else 0."""
+    t0 = (take.meta.csv or {}).get("start_seconds_of_day")
+    if t0 is None:
+        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day if take.meta.start_timecode else 0.0
+    return float(t0)
+
+
 def write_livelink_csv(
     take: Take,
     path: str | Path,
@@ -523,9 +531,7 @@ def write_livelink_csv(
     for k, j in enumerate(cols):
         if j is not None:
             block[:, k] = take.values[:, j]
-    t0 = csv_info.get("start_seconds_of_day")
-    if t0 is None:
-        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day if take.meta.start_timecode else 0.0
+    t0 = start_seconds_of_day(take)
     row_fmt = "%s," + str(len(out_names)) + "," + ",".join(["%.10f"] * len(out_names)) + "\n"
     with_values = (int(FrameStatus.TRACKED), int(FrameStatus.INTERPOLATED))
     dropped = int(FrameStatus.DROPPED)

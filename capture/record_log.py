@@ -51,12 +51,6 @@ class RecordType(IntEnum):
     NO_FACE = 10  # u16 stream id, i64 arrival ns, 16-byte frame time of a no-face packet (face lost)
 
 
-def frame_record(payload_prefix: bytes, body) -> bytes:
-    """Length + CRC header for a payload given as a prefix and a body (avoids joining them)."""
-    crc = zlib.crc32(body, zlib.crc32(payload_prefix))
-    return RECORD_HEADER.pack(len(payload_prefix) + len(body), crc)
-
-
 def encode_record(payload: bytes) -> bytes:
     """One complete record (header + payload)."""
     return RECORD_HEADER.pack(len(payload), zlib.crc32(payload)) + payload

@@ -25,9 +25,9 @@ import numpy as np
 from . import livelink as ll
 from .audio_io import Audio, write_audio
 from .channels import ARKIT61, canonical, is_known
+from .csv_take import start_seconds_of_day
 from .errors import InputError
 from .take import FrameStatus, Take
-from .timecode import Timecode
 
 
 @dataclass
@@ -150,13 +150,7 @@ def replay_take(
     device = device or default_device(take)
     subject = subject or take.meta.subject or "iPhone"
     num, den = _rate_of(take.meta.fps)
-    csv_info = take.meta.csv or {}
-    if "start_seconds_of_day" in csv_info:
-        t0 = float(csv_info["start_seconds_of_day"])
-    elif take.meta.start_timecode:
-        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day
-    else:
-        t0 = 0.0
+    t0 = start_seconds_of_day(take)
     status = take.frame_status
     send = status != FrameStatus.DROPPED
     idx = np.flatnonzero(send)
@@ -194,9 +188,10 @@ def replay_take(
             schedule.append((due[k] + 0.25 * period + jitter_dup[k], len(schedule), k))
     schedule.sort()
     packets = []
+    face_lost = status[idx] == FrameStatus.FACE_LOST
     for _, _, k in schedule:
         i = idx[k]
-        if status[i] == FrameStatus.FACE_LOST:
+        if face_lost[k]:
             packets.append(ll.no_face_packet(device, subject, int(fn[k]), float(sf[k]), num, den))
         else:
             packets.append(header + ll.frame_block(int(fn[k]), float(sf[k]), num, den, values[i]))
@@ -228,7 +223,7 @@ def replay_take(
             if f < max_fn:
                 report.reordered += 1
             max_fn = max(max_fn, f)
-            if status[idx[k]] == FrameStatus.FACE_LOST:
+            if face_lost[k]:
                 report.no_face += 1
             else:
                 sent_frames.add(f)

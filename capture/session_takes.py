@@ -35,7 +35,14 @@ from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped
 from .errors import InputError
 from .record_log import LogReader, RecordType
-from .recorder import AUDIO_LOG, COMPLETE_FILE, FRAMES_LOG, SESSION_SUFFIX
+from .recorder import (
+    AUDIO_LOG,
+    COMPLETE_FILE,
+    FRAME_PAYLOAD_BYTES,
+    FRAMES_LOG,
+    NO_FACE_PAYLOAD_BYTES,
+    SESSION_SUFFIX,
+)
 from .serial_sync import decode_sync_record
 from .take import FrameStatus, Take, TakeMeta, safe_id, write_take
 from .timecode import Timecode
@@ -57,8 +64,6 @@ ROW_DTYPE = np.dtype(
 )
 _STREAM_ID = struct.Struct("<H")
 _FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
-_FRAME_PAYLOAD = _FRAME_AT + 8 + ll.FRAME_BLOCK_BYTES
-_NO_FACE_PAYLOAD = _FRAME_AT + 8 + ll.FRAME_TIME_BYTES
 # What a no-face record's row gets after its frame time: count 0 and NaN values (big-endian like the rest).
 _NO_FACE_TAIL = bytes([0]) + np.full(ll.BLENDSHAPE_COUNT, np.nan, dtype=">f4").tobytes()
 
@@ -85,8 +90,8 @@ class SessionLog:
         for payload in reader:
             kind = payload[0]
             size = len(payload)
-            if (kind == RecordType.FRAME and size == _FRAME_PAYLOAD) or (
-                kind == RecordType.NO_FACE and size == _NO_FACE_PAYLOAD
+            if (kind == RecordType.FRAME and size == FRAME_PAYLOAD_BYTES) or (
+                kind == RecordType.NO_FACE and size == NO_FACE_PAYLOAD_BYTES
             ):
                 (sid,) = _STREAM_ID.unpack_from(payload, 1)
                 if sid not in self.frame_counts:
@@ -127,7 +132,6 @@ class SessionLog:
         if self._spill_dir is not None:
             self._spill()
         self.torn_tail = reader.torn_tail
-        self.records = reader.records
         origin = self.session.get("clock", {}).get("origin_ns")
         if origin is None:
             # Killed before the session record reached the disk: use the first stamp as the origin.
@@ -194,6 +198,7 @@ def stream_takes(
     arrival = log.seconds(rows["arrival_ns"])
     takes: list[Take] = []
     stray = 0
+    sync = [(ev.to_json(), float(log.seconds(ev.arrival_ns))) for ev in log.sync]  # the same for every take
     # Takes follow the face: segments of the frames with one; the no-face frames between a segment's
     # first and last face frame belong to it (rows are in frame-time order).
     face_rows = np.flatnonzero(rows["count"] != 0)
@@ -209,10 +214,11 @@ def stream_takes(
     for k, seg in enumerate(segments):
         r, ft, arr = rows[seg], frame_time[seg], arrival[seg]
         lost = r["count"] == 0
-        if r.size - np.count_nonzero(lost) < MIN_TAKE_FRAMES:
-            stray += int(r.size - np.count_nonzero(lost))
+        n_lost = int(np.count_nonzero(lost))
+        if r.size - n_lost < MIN_TAKE_FRAMES:
+            stray += r.size - n_lost
             continue
-        lost_in_takes += int(np.count_nonzero(lost))
+        lost_in_takes += n_lost
         values = r["values"].astype(np.float32)
         finite = np.isfinite(values).all(axis=1)
         values[~np.isfinite(values)] = np.nan
@@ -249,10 +255,7 @@ def stream_takes(
             repairs=repairs,
             csv={"count_name": "BlendShapeCount", "start_seconds_of_day": float(ft[0] % 86400.0)},
         )
-        events = []
-        for ev in log.sync:
-            arrival_s = float(log.seconds(ev.arrival_ns))
-            events.append(ev.to_json() | {"arrival_s": arrival_s, "t": arrival_s - offset - float(ft[0])})
+        events = [j | {"arrival_s": a, "t": a - offset - float(ft[0])} for j, a in sync]
         meta.extra = {
             "session": log.session.get("session"),
             "rate": [rate_num, rate_den],

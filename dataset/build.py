@@ -835,8 +835,8 @@ def build_dataset(
             p.unlink()  # left over from an earlier, larger build into this folder
 
     sample_entries = []
+    rec_of = {s["key"]: r for r in ordered for s in r["samples"]}
     for shard in plan:
-        rec_of = {s["key"]: r for r in ordered for s in r["samples"]}
         for s in shard["samples"]:
             r = rec_of[s["key"]]
             sample_entries.append(
@@ -859,7 +859,7 @@ def build_dataset(
         mine = [r for r in ordered if r["split"] == split]
         if not mine:
             continue
-        chan, _ = _merge_records(ordered, channels, split)
+        chan = train_chan if split == "train" else _merge_records(ordered, channels, split)[0]
         speakers: dict[str, float] = {}
         for r in mine:
             speakers[r["speaker"]] = speakers.get(r["speaker"], 0.0) + r["duration_s"]

@@ -127,13 +127,11 @@ def spectral_features(
 def to_animation_rate(values: np.ndarray, hop_s: float, n_frames: int, fps: float) -> np.ndarray:
     """Linear interpolation of analysis-grid ``values`` (frames at ``k * hop_s`` s) to the animation
     frames at ``i / fps`` s; float32, ``(n_frames, ...)``. Holds the ends flat."""
-    src_t = np.arange(values.shape[0]) * hop_s
     dst_t = np.arange(n_frames) / fps
     pos = np.clip(dst_t / hop_s, 0.0, values.shape[0] - 1)
     lo = np.floor(pos).astype(np.int64)
     hi = np.minimum(lo + 1, values.shape[0] - 1)
     w = (pos - lo).astype(np.float32)
-    del src_t
     if values.ndim == 1:
         return (values[lo] * (1 - w) + values[hi] * w).astype(np.float32)
     return (values[lo] * (1 - w)[:, None] + values[hi] * w[:, None]).astype(np.float32)

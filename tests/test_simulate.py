@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from live_helpers import run_cli
 
 from capture import ARKIT61, PRONUNCIATION32, FrameStatus, read_audio, read_take, read_take_folder
 from capture.errors import InputError
@@ -16,12 +15,6 @@ from capture.simulate import Artifacts, TakeSpec, inventory, simulate_take, vise
 from capture.textgrid import read_textgrid
 
 BILABIALS = {"p", "b", "m"}
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "capture", *args], capture_output=True, text=True, timeout=120
-    )
 
 
 def folder_bytes(root: Path) -> dict[str, bytes]:

@@ -23,16 +23,6 @@ from typing import Any
 
 import torch
 
-KEYS = (
-    "aug_noise",
-    "aug_time_masks",
-    "aug_time_mask_width",
-    "aug_feature_masks",
-    "aug_feature_mask_width",
-    "aug_mask_prosody",
-    "aug_mixup",
-)
-
 
 def enabled(cfg: dict[str, Any]) -> bool:
     return bool(

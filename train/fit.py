@@ -139,19 +139,17 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
     cfg = {**cfg, "ridge_alpha": alphas[best]}
     eq.solve(model, alphas[best])
     val = scores[best]
+    best_val = None if math.isnan(val) else val
     payload = _payload(model, None, cfg, spec, model_config, ds, step=0, epoch=0, batch=0)
-    payload.update(best_val=None if math.isnan(val) else val, finished=True)
+    payload.update(best_val=best_val, finished=True)
     save_checkpoint(payload, run / LAST)
     elapsed = time.perf_counter() - t0
     say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alphas[best]:g}, val mse {val:.4f}")
     with open(run / METRICS, "a") as f:
-        f.write(
-            json.dumps({"step": 0, "val_mse": None if math.isnan(val) else val, "train_frames": frames})
-            + "\n"
-        )
+        f.write(json.dumps({"step": 0, "val_mse": best_val, "train_frames": frames}) + "\n")
     return {
         "steps": 0,
-        "best_val": None if math.isnan(val) else val,
+        "best_val": best_val,
         "stopped": "closed_form",
         "train_frames_per_s": frames / elapsed,
     }

@@ -22,6 +22,8 @@ batched products padded to the busiest expert). ``inference = "train"`` keeps th
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -122,9 +124,7 @@ class MoELayer(nn.Module):
     def _sparse(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
         b, t, d = h.shape
         k, e = self.kernel_size, self.experts
-        # im2col: each frame's receptive field as one row (B*T, d*k), matching Conv1d's weight layout.
-        padded = F.pad(h.transpose(1, 2), (k // 2, k // 2))  # (B, D, T+k-1)
-        patches = padded.unfold(2, k, 1).permute(0, 2, 1, 3).reshape(b * t, d * k)
+        patches = im2col(h, k)
         expert = top_idx.reshape(-1)  # (B*T*k_top,)
         frame = torch.arange(b * t, device=h.device).repeat_interleave(self.top_k)
         prob = probs.reshape(-1)
@@ -150,8 +150,7 @@ class MoELayer(nn.Module):
         each for all experts, no padding): the dense path's FLOPs divided by experts / top_k."""
         b, t, d = h.shape
         k, e = self.kernel_size, self.experts
-        padded = F.pad(h.transpose(1, 2), (k // 2, k // 2))
-        patches = padded.unfold(2, k, 1).permute(0, 2, 1, 3).reshape(b * t, d * k)
+        patches = im2col(h, k)
         expert = top_idx.reshape(-1)
         order = torch.argsort(expert, stable=True)
         expert = expert[order]
@@ -202,9 +201,7 @@ class MoELayer(nn.Module):
 
     def _buffer(self, name: str, shape: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
         """A reused scratch tensor of at least ``shape``'s size (grown when needed)."""
-        n = 1
-        for s in shape:
-            n *= s
+        n = math.prod(shape)
         buf = self._cache.get(name)
         if (
             buf is None
@@ -275,6 +272,14 @@ class MoELayer(nn.Module):
         return result[:n].view(b, t, d)
 
 
+def im2col(h: torch.Tensor, k: int) -> torch.Tensor:
+    """Each frame's receptive field of a centred kernel of ``k`` as one row: (B, T, D) -> (B*T, D*k),
+    in Conv1d's weight layout (channel-major, then tap), zeros past the ends."""
+    b, t, d = h.shape
+    padded = F.pad(h.transpose(1, 2), (k // 2, k // 2))  # (B, D, T+k-1)
+    return padded.unfold(2, k, 1).permute(0, 2, 1, 3).reshape(b * t, d * k)
+
+
 def expert_loop_reference(layer: MoELayer, h: torch.Tensor) -> torch.Tensor:
     """The MoE output computed the naive way: a Python loop over experts, each run on the frames routed
     to it (with their convolution context). Only for tests and for the benchmark that shows what fusing
@@ -282,8 +287,7 @@ def expert_loop_reference(layer: MoELayer, h: torch.Tensor) -> torch.Tensor:
     top_idx, probs = layer.route(h)
     b, t, d = h.shape
     k = layer.kernel_size
-    padded = F.pad(h.transpose(1, 2), (k // 2, k // 2))
-    patches = padded.unfold(2, k, 1).permute(0, 2, 1, 3).reshape(b * t, d * k)
+    patches = im2col(h, k)
     flat_idx, flat_prob = top_idx.reshape(b * t, -1), probs.reshape(b * t, -1)
     conv_w = layer.conv.weight.view(layer.experts, layer.hidden, d * k)
     conv_b = layer.conv.bias.view(layer.experts, layer.hidden)

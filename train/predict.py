@@ -72,7 +72,7 @@ def predict(
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     ppg = None
-    if spec.content == "ppg" or "ppg" in spec.prosody:
+    if spec.content == "ppg":
         recorded = info["features"].get("ppg") or {}
         ppg = make_extractor(recorded.get("backend", "none"), ppg_model)
         want = recorded.get("model_sha256")

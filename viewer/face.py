@@ -213,13 +213,6 @@ def _arc_band(radius, z0, half_angle, y0, y1, n: int = 24) -> tuple[np.ndarray, 
     return v, np.array(tris)
 
 
-def _angles(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(theta, phi) of points, as on the rest ellipsoid."""
-    theta = np.arctan2(v[:, 0] / A, v[:, 2] / C)
-    phi = np.arcsin(np.clip(v[:, 1] / B, -1, 1))
-    return theta, phi
-
-
 def _jaw_target(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Displacement of rotating points about the hinge by JAW_ANGLE * w (opening: chin down and back)."""
     ang = JAW_ANGLE * w
