@@ -1,6 +1,7 @@
 """Transformer-S2A: the MoE layer's fused paths against a per-expert loop (inference at batch 1 on a
 12 s utterance, and a training step at the training shape), and real-time factors of Transformer-S2A,
-BLSTM and NVP on a 12 s utterance (CPU, batch 1).
+BLSTM and NVP on a 12 s utterance (CPU, batch 1), in float32 and, on CPUs with native bfloat16
+arithmetic, in bfloat16 (train/precision.py).
 
 The model's inference path (eval mode, no autograd: the MoE's ``routed`` path, attention without a
 padding mask when every frame is real, ``torch.inference_mode``) is timed against the reference path
@@ -26,6 +27,7 @@ from benchmarks.figure import Figure, best_time
 from train import BLSTM, NVP, BLSTMConfig, NVPConfig, S2AConfig, TransformerS2A
 from train.model import Block
 from train.moe import MoELayer, expert_loop_reference
+from train.precision import bf16_is_native, for_inference, infer
 
 SECONDS = 12.0
 FPS = 60
@@ -71,6 +73,24 @@ def s2a_rtf_paths(c: S2AConfig, frames: int, repeat: int) -> tuple[float, float,
     diff = float((outs[True] - outs[False]).abs().max())
     seconds = frames / FPS
     return best[False] / seconds, best[True] / seconds, diff
+
+
+def s2a_bf16_rtf(c: S2AConfig, frames: int, repeat: int) -> tuple[float, float, float]:
+    """(bf16 RTF, fp32 RTF, largest output difference relative to the output's largest magnitude) of
+    one model's inference path, timed interleaved; None when the CPU has no native bfloat16."""
+    model = TransformerS2A(c).eval()
+    half = for_inference(model, "bf16")
+    content, prosody = torch.randn(1, frames, 64), torch.randn(1, frames, 3)
+    mask = torch.ones(1, frames, dtype=torch.bool)
+    best = {"fp32": float("inf"), "bf16": float("inf")}
+    with torch.inference_mode():
+        outs = {name: infer(m, content, prosody, mask) for name, m in (("fp32", model), ("bf16", half))}
+        for _ in range(repeat):
+            for name, m in (("fp32", model), ("bf16", half)):
+                best[name] = min(best[name], best_time(lambda m=m: infer(m, content, prosody, mask), 1))
+    rel = float((outs["bf16"] - outs["fp32"]).abs().max() / outs["fp32"].abs().max())
+    seconds = frames / FPS
+    return best["bf16"] / seconds, best["fp32"] / seconds, rel
 
 
 TRAIN_BATCH, TRAIN_FRAMES = 16, 240  # the default training batch (fit: batch_size 16, window 240)
@@ -122,6 +142,7 @@ def run(quick: bool = False) -> list[Figure]:
     )
     train_times = training_step_times(c, 3 if quick else 5)
     s2a, s2a_reference, diff = s2a_rtf_paths(c, frames, repeat)
+    half = s2a_bf16_rtf(c, frames, repeat) if bf16_is_native() else None
     blstm = rtf(BLSTM(BLSTMConfig()), frames, repeat)
     nvp = rtf(NVP(NVPConfig(window=9)), frames, repeat)
     threads = torch.get_num_threads()
@@ -160,6 +181,32 @@ def run(quick: bool = False) -> list[Figure]:
             False,
             None,
             f"{note}, max |difference| {diff:.1e}",
+        ),
+        *(
+            [
+                Figure(
+                    "Transformer-S2A RTF, bf16",
+                    half[0],
+                    "s/s",
+                    "paper's P100 figure",
+                    0.005,
+                    False,
+                    1.0,
+                    note,
+                ),
+                Figure(
+                    "Transformer-S2A RTF, bf16 vs fp32",
+                    half[0],
+                    "s/s",
+                    "fp32 RTF",
+                    half[1],
+                    False,
+                    None,
+                    f"{note}, max |bf16 - fp32| = {half[2]:.1%} of max |output|",
+                ),
+            ]
+            if half
+            else []
         ),
         Figure("Transformer-S2A RTF vs BLSTM", s2a, "s/s", "BLSTM RTF", blstm, False, None, note),
         Figure("Transformer-S2A RTF vs NVP-9", s2a, "s/s", "NVP-9 RTF", nvp, False, None, note),

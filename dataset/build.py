@@ -19,12 +19,14 @@ Memory is bounded by the largest take, not by the dataset.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
 import re
 import shutil
 import sys
+import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -112,8 +114,26 @@ class SourceTake:
 
 def _file_digests(folder: Path) -> dict[str, str]:
     """sha256 of each (non-hidden) file of a take folder, by name."""
-    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-    return {name: sha256_file(folder / name) for name in names}
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    digests = {}
+    for p in files:
+        st = p.stat()
+        # a file changed in the last seconds may change again within the clock's granularity: no cache
+        if time.time_ns() - st.st_mtime_ns < RACY_NS:
+            digests[p.name] = sha256_file(p)
+        else:
+            digests[p.name] = _sha256_of(str(p.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
+    return digests
+
+
+RACY_NS = 3_000_000_000
+
+
+@functools.lru_cache(maxsize=4096)
+def _sha256_of(path: str, size: int, mtime_ns: int, inode: int) -> str:
+    """A file's sha256, read once per (path, size, modification time, inode): one build asks for a
+    take's digests up to three times (input fingerprint, align cache, provenance)."""
+    return sha256_file(path)
 
 
 def _combine(digests: dict[str, str], skip: tuple[str, ...] = ()) -> str:

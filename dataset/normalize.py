@@ -59,23 +59,25 @@ class ChannelAccumulator:
         x = np.asarray(values, np.float64)
         if x.shape[0] == 0:
             return
+        total, total_sq = x.sum(0), (x * x).sum(0)
         self.count += x.shape[0]
-        self.sum += x.sum(0)
-        self.sumsq += (x * x).sum(0)
+        self.sum += total
+        self.sumsq += total_sq
         self.min = np.minimum(self.min, x.min(0))
         self.max = np.maximum(self.max, x.max(0))
         lo, hi = HIST_RANGE
         bins = np.clip(((x - lo) / (hi - lo) * HIST_BINS).astype(np.int64), 0, HIST_BINS - 1)
-        for c in range(self.n):
-            self.hist[c] += np.bincount(bins[:, c], minlength=HIST_BINS)
+        # one bincount for every channel: channel c's bins are offset by c * HIST_BINS
+        flat = (bins + np.arange(self.n) * HIST_BINS).ravel()
+        self.hist += np.bincount(flat, minlength=self.n * HIST_BINS).reshape(self.n, HIST_BINS)
         if neutral is not None:
             d = x - np.asarray(neutral, np.float64)
             self.own_count += x.shape[0]
             self.own_sumsq += (d * d).sum(0)
         else:
             self.rest_count += x.shape[0]
-            self.rest_sum += x.sum(0)
-            self.rest_sumsq += (x * x).sum(0)
+            self.rest_sum += total
+            self.rest_sumsq += total_sq
 
     def merge(self, other: ChannelAccumulator) -> None:
         for name in self.FIELDS:

@@ -25,6 +25,12 @@ import numpy as np
 from capture.errors import InputError
 from capture.take import sha256_file
 
+from .features import FeatureSettings
+
+# what a model file is probed with at load: half a second of silence and the build's filter-bank width
+_PROBE_AUDIO = np.zeros(1600, np.float32)
+_PROBE_FBANK = np.zeros((5, FeatureSettings.n_mels), np.float32)
+
 BACKENDS = ("none", "bottleneck", "torchscript", "onnx", "pocketsphinx")
 
 # The CMU/ARPAbet phones of pocketsphinx's en-us model, silence first.
@@ -135,12 +141,19 @@ class TorchScriptExtractor:
             raise InputError(f"not a TorchScript model ({str(exc).splitlines()[0]})", self.path) from None
         self.phones = None
         self._sha = sha256_file(self.path)
-        self.dim = self.extract(np.zeros(1600, np.float32), np.zeros((5, 40), np.float32)).posteriors.shape[1]
+        self.dim = self.extract(_PROBE_AUDIO, _PROBE_FBANK).posteriors.shape[1]
 
     def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
         torch = _torch()
         with torch.inference_mode(), _one_thread():
-            out = self.model(torch.from_numpy(np.ascontiguousarray(fbank, np.float32))[None])
+            try:
+                out = self.model(torch.from_numpy(np.ascontiguousarray(fbank, np.float32))[None])
+            except Exception as exc:  # a user's model: its own shape checks fail inside TorchScript
+                msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+                raise InputError(
+                    f"TorchScript model failed on (1, frames, {fbank.shape[1]}) filter banks: {msg}",
+                    self.path,
+                ) from None
         if isinstance(out, (tuple, list)):
             out = out[0]
         return PPGResult(_check_output(out.numpy(), fbank.shape[0], self.path), None)
@@ -179,7 +192,7 @@ class OnnxExtractor:
         self._version = ort.__version__
         self.phones = None
         self._sha = sha256_file(self.path)
-        self.dim = self.extract(np.zeros(1600, np.float32), np.zeros((5, 40), np.float32)).posteriors.shape[1]
+        self.dim = self.extract(_PROBE_AUDIO, _PROBE_FBANK).posteriors.shape[1]
 
     def extract(self, audio: np.ndarray, fbank: np.ndarray, transcript: str | None = None) -> PPGResult:
         x = np.ascontiguousarray(fbank, np.float32)[None]

@@ -243,3 +243,14 @@ def test_pocketsphinx_forced_alignment_with_transcript(samples):
     ok = want >= 0
     # the reference was made by pocketsphinx's aligner: the phones agree almost everywhere
     assert (result.phone_ids[ok] == want[ok]).mean() > 0.9
+
+
+def test_model_for_another_filter_bank_width_gets_a_clear_error(takes, tmp_path):
+    """A user's model built for 80 mel bins fails inside TorchScript; the build names the width it fed."""
+    ts = tmp_path / "mel80.ts"
+    torch.jit.script(torch.nn.Linear(80, 64)).save(str(ts))
+    proc = run_cli(
+        "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "torchscript", "--ppg-model", ts
+    )
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "(1, frames, 40) filter banks" in proc.stderr and "mel80.ts" in proc.stderr

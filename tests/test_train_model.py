@@ -5,6 +5,7 @@ import torch
 
 from train import BLSTM, NVP, BLSTMConfig, MoELayer, NVPConfig, S2AConfig, TransformerS2A, masked_mse
 from train.moe import expert_loop_reference
+from train.precision import bf16_is_native, for_inference, infer
 
 SMALL = dict(d_model=32, heads=2, encoder_layers=1, decoder_layers=1, ff_dim=64, expert_hidden=8, dropout=0.0)
 
@@ -89,6 +90,30 @@ def test_routed_inference_path_matches_training_path_in_the_model(kernel):
     # in training mode (or with autograd) the routed path is never taken: gradients flow as usual
     model.train()
     assert model(content, prosody, mask).requires_grad
+
+
+@pytest.mark.skipif(not bf16_is_native(), reason="no native bfloat16 on this CPU")
+def test_bf16_inference_follows_fp32_on_every_path():
+    """The bfloat16 copy runs the routed MoE path (rows padded to 16 bytes = 8 bfloat16 values; d_model
+    30 needs the padding) and stays within bfloat16 rounding of the float32 model."""
+    torch.manual_seed(7)
+    model = TransformerS2A(S2AConfig(**{**SMALL, "d_model": 30}, experts=10, top_k=3)).eval()
+    content, prosody = torch.randn(2, 50, 64), torch.randn(2, 50, 3)
+    mask = torch.ones(2, 50, dtype=torch.bool)
+    half = for_inference(model, "bf16")
+    assert next(model.parameters()).dtype == torch.float32  # a copy: the original is untouched
+    layers = [m for m in half.modules() if isinstance(m, MoELayer)]
+    with torch.inference_mode():
+        exact = infer(model, content, prosody, mask)
+        fast = infer(half, content, prosody, mask)
+        for m in layers:
+            m.inference = "train"
+        slow = infer(half, content, prosody, mask)
+    assert fast.dtype == torch.float32
+    scale = float(exact.abs().max())
+    assert float((fast - exact).abs().max()) < 0.05 * scale
+    assert float((fast - slow).abs().max()) < 0.05 * scale
+    assert not torch.equal(fast, exact)  # it really ran in bfloat16
 
 
 def test_gradients_agree_between_paths():

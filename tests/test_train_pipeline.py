@@ -20,6 +20,7 @@ from dataset.splits import SplitRule
 from train.checkpoint import load_checkpoint
 from train.config import resolve_config
 from train.fit import fit
+from train.precision import bf16_is_native
 
 TINY = [
     "arch.d_model=32",
@@ -97,7 +98,14 @@ def test_fit_cli_overfits_tiny_dataset_and_writes_the_run(ds, tmp_path):
     r = json.loads(proc.stdout)
     assert r["rmse_entire"]["mean"] < 0.8 * r["floor"]["rmse_entire"]["mean"]
     assert r["rmse_crucial"]["mean"] < 0.5 * r["floor"]["rmse_crucial"]["mean"]
-    assert r["rtf"] > 0 and r["device"].startswith("cpu")
+    assert r["rtf"] > 0 and r["device"].startswith("cpu") and r["precision"] == "fp32"
+    if bf16_is_native():  # the same evaluation in bfloat16: the same errors to bfloat16's rounding
+        proc = _cli("eval", run, "--data", ds, "--split", "train", "--precision", "bf16", "--json")
+        assert proc.returncode == 0, proc.stderr
+        half = json.loads(proc.stdout)
+        assert half["precision"] == "bf16" and half["rtf"] > 0
+        for key in ("rmse_entire", "rmse_crucial"):
+            assert abs(half[key]["mean"] - r[key]["mean"]) < 0.02 * r[key]["mean"]
     payload = load_checkpoint(run / "best.pt")
     assert payload["system"] == "s2a" and payload["inputs"]["out_dim"] == 32
 
@@ -154,7 +162,7 @@ def _torchrun(ds, run, *extra):
     # --standalone: torchrun picks a free port for its rendezvous itself
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
     cmd += ["-m", "train", "fit", "--data", str(ds)]
-    cmd += ["--model", "blstm", "-o", str(run), *sets, *map(str, extra), "--json"]
+    cmd += ["--model", "s2a", "-o", str(run), *sets, *map(str, extra), "--json"]
     env = {"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"}
     if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
         env["GLOO_SOCKET_IFNAME"] = "lo"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -10,6 +11,7 @@ from pathlib import Path
 from capture.command import emit_json, run
 
 from .config import MODELS, resolve_config
+from .precision import PRECISIONS
 
 PROG = "s2a-train"
 
@@ -34,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
     p.add_argument("--data", type=Path, required=True, help="dataset folder")
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
+    _precision_option(p)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(handler=cmd_eval)
 
@@ -45,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--speaker", help="dataset speaker whose pitch statistics to use (default: the utterance's)"
     )
+    _precision_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON line per file")
     p.set_defaults(handler=cmd_predict)
 
@@ -84,6 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _precision_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--precision",
+        choices=PRECISIONS,
+        default="fp32",
+        help="inference arithmetic: fp32 (default) or bf16 (about 2x faster on CPUs with AVX512-BF16 or AMX)",
+    )
+
+
 def _config(args: argparse.Namespace, model: str | None = None) -> dict:
     cfg = resolve_config(args.config, args.set)
     if model is not None:
@@ -99,22 +112,33 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from .fit import fit
 
     summary = fit(args.data, args.out, _config(args, args.model), resume=args.resume)
-    if summary.get("rank", 0) != 0:  # under torchrun, rank 0 reports for all
-        return 0
-    if args.json:
-        emit_json(summary)
-    else:
-        print(
-            f"{summary['run']}: {summary['model']} {summary['steps']} steps, stopped: {summary['stopped']}, "
-            f"best val mse {summary['best_val']}"
-        )
+    if summary.get("rank", 0) == 0:  # under torchrun, rank 0 reports for all
+        if args.json:
+            emit_json(summary)
+        else:
+            print(
+                f"{summary['run']}: {summary['model']} {summary['steps']} steps, "
+                f"stopped: {summary['stopped']}, best val mse {summary['best_val']}"
+            )
+    if summary.get("world_size", 1) > 1:
+        _leave_distributed_process()
     return 0
+
+
+def _leave_distributed_process() -> None:
+    """End a torchrun worker without interpreter shutdown. Gloo's run-loop threads release the last
+    collective's tensors after ``wait()`` has returned; when that happens while Python is shutting
+    down, the thread cannot take the GIL and the C++ runtime aborts the process (SIGABRT, seen on
+    busy machines). Everything is written and closed by now: flush the streams and leave."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from .evaluate import evaluate, format_result
 
-    result = evaluate(args.run, args.data, args.split)
+    result = evaluate(args.run, args.data, args.split, precision=args.precision)
     if args.json:
         emit_json(result)
     else:
@@ -125,7 +149,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def cmd_predict(args: argparse.Namespace) -> int:
     from .predict import predict
 
-    for r in predict(args.run, args.audio, args.out, args.ppg_model, args.speaker):
+    for r in predict(args.run, args.audio, args.out, args.ppg_model, args.speaker, precision=args.precision):
         if args.json:
             emit_json(r)
         else:

@@ -26,6 +26,7 @@ from dataset.torch_dataset import ShardDataset
 
 from .checkpoint import load_system
 from .data import InputSpec, to_model_inputs
+from .precision import for_inference, infer
 
 CRUCIAL = ("jawopen", "mouthclose")
 
@@ -100,11 +101,11 @@ def real_time_factor(
     content = content.repeat(1, reps, 1)[:, :n]
     prosody = None if prosody is None else prosody.repeat(1, reps, 1)[:, :n]
     mask = torch.ones(1, n, dtype=torch.bool)
-    model(content, prosody, mask)  # warm-up
+    infer(model, content, prosody, mask)  # warm-up
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        model(content, prosody, mask)
+        infer(model, content, prosody, mask)
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) / seconds
 
@@ -116,9 +117,12 @@ def evaluate(
     split: str = "test",
     rtf_seconds: float = 12.0,
     say: Callable[[str], None] = progress,
+    precision: str = "fp32",
 ) -> dict[str, Any]:
-    """Metrics of a run on a dataset split (see module doc)."""
+    """Metrics of a run on a dataset split (see module doc), computed at ``precision``
+    (train/precision.py)."""
     model, payload = load_system(run)
+    model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
     manifest = read_manifest(ds)
     channels = manifest["channels"]
@@ -138,7 +142,7 @@ def evaluate(
         batch = {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
         content, prosody = to_model_inputs(batch, spec)
         mask = item["mask"].numpy()
-        pred_norm = model(content, prosody, batch["mask"])[0].double().numpy()
+        pred_norm = infer(model, content, prosody, batch["mask"])[0].double().numpy()
         true = raw_item["anim"].numpy().astype(np.float64)
         # x = y·scale + offset is affine, so the prediction's raw value needs no per-sample offset
         pred = true + (pred_norm - item["anim"].numpy().astype(np.float64)) * scale
@@ -152,6 +156,7 @@ def evaluate(
         "split": split,
         "model": payload["system"],
         "step": payload["step"],
+        "precision": precision,
     }
     result.update(tally.summary())
     fl = floor.summary()
@@ -182,7 +187,8 @@ def format_result(r: dict[str, Any]) -> str:
         f"  rmse crucial {_fmt(r['rmse_crucial'])}   floor (train mean) {_fmt(r['floor']['rmse_crucial'])}",
     ]
     if "rtf" in r:
-        lines.append(f"  rtf {r['rtf']:.5f} ({r['rtf_seconds']:g} s utterance, {r['device']})")
+        where = f"{r['rtf_seconds']:g} s utterance, {r['device']}, {r.get('precision', 'fp32')}"
+        lines.append(f"  rtf {r['rtf']:.5f} ({where})")
     worst = sorted(r["per_channel"].items(), key=lambda kv: -kv[1])[:5]
     lines.append("  worst channels: " + ", ".join(f"{k} {v:.2f}" for k, v in worst))
     return "\n".join(lines)

@@ -140,7 +140,7 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
     eq.solve(model, alphas[best])
     val = scores[best]
     best_val = None if math.isnan(val) else val
-    payload = _payload(model, None, cfg, spec, model_config, ds, step=0, epoch=0, batch=0)
+    payload = _payload(model, None, cfg, spec, model_config, ds, manifest, step=0, epoch=0, batch=0)
     payload.update(best_val=best_val, finished=True)
     save_checkpoint(payload, run / LAST)
     elapsed = time.perf_counter() - t0
@@ -162,8 +162,7 @@ def _checksum(model) -> str:
     return h.hexdigest()
 
 
-def _payload(model, optimizer, cfg, spec, model_config, ds, step, epoch, batch) -> dict[str, Any]:
-    manifest = read_manifest(ds)
+def _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoch, batch) -> dict[str, Any]:
     module = model.module if hasattr(model, "module") else model
     return {
         "system": cfg["model"],
@@ -201,8 +200,26 @@ def fit(
 
     ``resume`` continues from ``run/last.pt`` with the run's saved config (``max_steps`` and
     ``max_minutes`` from ``cfg``). ``stop_after_steps`` ends this session after that many steps with a
-    checkpoint, as if the process had been stopped (the run is then resumable)."""
-    ds, run = Path(ds), Path(run)
+    checkpoint, as if the process had been stopped (the run is then resumable).
+
+    Under torchrun the process group is created here and destroyed on the way out: a process that
+    exits with gloo's worker threads still alive is aborted by the C++ runtime."""
+    owns_group = int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized()
+    try:
+        return _fit(Path(ds), Path(run), cfg, resume, say, stop_after_steps)
+    finally:
+        if owns_group and dist.is_initialized():
+            dist.destroy_process_group()
+
+
+def _fit(
+    ds: Path,
+    run: Path,
+    cfg: dict[str, Any],
+    resume: bool,
+    say: Callable[[str], None],
+    stop_after_steps: int | None,
+) -> dict[str, Any]:
     manifest = read_manifest(ds)
     rank, world, device = _distributed()
     main = rank == 0
@@ -263,7 +280,10 @@ def fit(
         say("note: the dataset has no val split: no validation, no early stopping, no best.pt")
     n_params = sum(p.numel() for p in model.parameters())
     say(f"{cfg['model']}: {n_params / 1e6:.2f} M parameters, {world} process(es) on {device}")
-    net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    # the only buffers are constant positional encodings: nothing to broadcast before each forward. Validation
+    # runs the bare model: ranks hold different numbers of validation utterances, so a DDP forward there
+    # could wait on a collective the other rank never joins.
+    net = torch.nn.parallel.DistributedDataParallel(model, forward_sync_buffers=False) if world > 1 else model
     tb = None
     if main:
         try:
@@ -280,7 +300,7 @@ def fit(
             positions = [None] * world
             dist.all_gather_object(positions, [epoch, batch_pos])
         if main:
-            p = _payload(model, optimizer, cfg, spec, model_config, ds, step, epoch, batch_pos)
+            p = _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoch, batch_pos)
             p["positions"] = positions
             p.update(best_val=None if math.isinf(best_val) else best_val, bad_evals=bad_evals)
             p["finished"] = stopped in ("max_steps", "early_stopping")
@@ -331,9 +351,9 @@ def fit(
             grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["grad_clip"] or math.inf)
             optimizer.step()
             step, batch_pos, session_steps = step + 1, i + 1, session_steps + 1
-            frames_since += float(mask.sum())
+            frames_since += mask.sum()  # a tensor: no device sync per step
             if step % cfg["log_every"] == 0:
-                fr, ls = _all_sum([frames_since, mse.item()], device)
+                fr, ls = _all_sum([float(frames_since), mse.item()], device)
                 now = time.perf_counter()
                 rec = {"step": step, "epoch": epoch, "lr": lr, "mse": ls / world, "aux": float(aux.detach())}
                 rec.update(grad_norm=float(grad_norm), frames_per_s=fr / (now - t_log))
@@ -342,9 +362,10 @@ def fit(
                 frames_since, t_log = 0.0, now
             minutes = (time.perf_counter() - t_start) / 60
             over = cfg["max_minutes"] > 0 and minutes >= cfg["max_minutes"]
-            over = _all_sum([float(over)], device)[0] > 0 if world > 1 else over
+            if world > 1 and cfg["max_minutes"] > 0:  # ranks stop together on rank-local clocks
+                over = _all_sum([float(over)], device)[0] > 0
             if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"] or over:
-                val = validation_loss(net, ds, spec, device, weights, cfg) if has_val else math.nan
+                val = validation_loss(model, ds, spec, device, weights, cfg) if has_val else math.nan
                 improved = has_val and val < best_val
                 if improved:
                     best_val, bad_evals = val, 0

@@ -16,8 +16,10 @@ Inference (eval mode, no autograd) takes the ``inference`` path, by default ``"r
 rows (one index per tap) into a buffer reused from call to call (fresh 35 MB buffers cost page faults
 that outweigh the saved arithmetic), and two grouped matrix products (``torch._grouped_mm``) run every
 expert on its own frames; the experts' weights are rearranged once and cached until they change. Only
-the routed arithmetic, no padding, no Python loop over experts (on PyTorch without ``_grouped_mm``:
-batched products padded to the busiest expert). ``inference = "train"`` keeps the training path.
+the routed arithmetic, no padding, no Python loop over experts (on PyTorch without ``_grouped_mm``, or
+when d_model or the expert width is not a whole multiple of 16 bytes, which the grouped product needs:
+batched products padded to the busiest expert). ``inference = "train"`` keeps the training path. The
+same code runs in bfloat16 (train/precision.py).
 """
 
 from __future__ import annotations
@@ -180,10 +182,21 @@ class MoELayer(nn.Module):
             self._cache_key = key
         return self._cache["w_conv"], self._cache["b_conv"]
 
-    def _row_width(self) -> int:
-        """d_model plus a column of ones, padded to a multiple of 4 floats (the grouped product wants
-        16-byte strides)."""
-        return self.d_model + 4 - self.d_model % 4
+    def _grouped_fits(self, dtype: torch.dtype) -> bool:
+        """Whether ``torch._grouped_mm`` exists and takes this layer's weights: their rows (hidden and
+        d_model values) must be whole multiples of 16 bytes."""
+        size = torch.empty((), dtype=dtype).element_size()
+        return (
+            hasattr(torch, "_grouped_mm")
+            and (self.hidden * size) % 16 == 0
+            and (self.d_model * size) % 16 == 0
+        )
+
+    def _row_width(self, dtype: torch.dtype) -> int:
+        """d_model plus a column of ones, padded to a multiple of 16 bytes (the grouped product wants
+        16-byte strides): 4 float32 or 8 bfloat16 values."""
+        per = max(1, 16 // torch.empty((), dtype=dtype).element_size())
+        return self.d_model + per - self.d_model % per
 
     def _weights_with_bias(self) -> torch.Tensor:
         """The convolution as (E, k*width, H): per tap the d input weights, then rows for the column of
@@ -191,7 +204,7 @@ class MoELayer(nn.Module):
         w_conv, b_conv = self._weights()
         if self._cache.get("wb_key") is not w_conv:
             e, hid, d, k = self.experts, self.hidden, self.d_model, self.kernel_size
-            width = self._row_width()
+            width = self._row_width(w_conv.dtype)
             wb = w_conv.new_zeros(e, k, width, hid)
             wb[:, :, :d] = w_conv.view(e, k, d, hid)
             wb[:, k // 2, d] = b_conv.view(e, hid)
@@ -235,11 +248,11 @@ class MoELayer(nn.Module):
         centre = (frame // t) * stride + frame % t + pad  # row of each routed frame
         taps = torch.arange(-pad, pad + 1, device=h.device)
         w_conv, b_conv = self._weights()
-        if hasattr(torch, "_grouped_mm"):
+        if self._grouped_fits(h.dtype):
             # routed (frame, expert) pairs sorted by expert: two grouped matrix products, no padding.
             # The convolution bias rides on a column of ones (its weight row sits on the centre tap),
             # the linear bias is added per frame as Σ_i Prob_i · b_i: no per-pair bias gathers.
-            m, width = order.numel(), self._row_width()
+            m, width = order.numel(), self._row_width(h.dtype)
             rows1 = self._buffer("rows1", (rows.shape[0], width), h)
             rows1[:, :d] = rows
             rows1[:, d:] = 0.0
@@ -252,7 +265,8 @@ class MoELayer(nn.Module):
             out = torch._grouped_mm(inner, self.linear_weight, offs=offsets).mul_(prob)
             dense_probs = h.new_zeros(n, e).scatter_(1, top_idx.reshape(n, -1), probs.reshape(n, -1))
             return (dense_probs @ self.linear_bias).index_add_(0, frame, out).view(b, t, d)
-        # older PyTorch: experts' batches padded to the busiest one (slots on the zero row, weight 0)
+        # older PyTorch, or unaligned widths: experts' batches padded to the busiest one (slots on the
+        # zero row, weight 0)
         capacity = int(counts.max())
         slot = (
             torch.arange(order.numel(), device=h.device) - (torch.cumsum(counts, 0) - counts)[sorted_expert]

@@ -26,7 +26,8 @@ from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
 
 from .checkpoint import load_system
-from .data import InputSpec, normalize_features
+from .data import InputSpec, normalize_features, to_model_inputs
+from .precision import for_inference, infer
 
 
 def feature_settings(features: dict[str, Any]) -> FeatureSettings:
@@ -47,14 +48,10 @@ def animate(
         raise InputError("audio is shorter than one animation frame")
     feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
-    content = torch.from_numpy(feats[spec.content]).unsqueeze(0)
-    prosody = (
-        torch.from_numpy(np.concatenate([feats[p] for p in spec.prosody], -1)).unsqueeze(0)
-        if spec.prosody
-        else None
-    )
+    item = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
+    content, prosody = to_model_inputs(item, spec)
     mask = torch.ones(1, n, dtype=torch.bool)
-    y = model(content, prosody, mask)[0].double().numpy()
+    y = infer(model, content, prosody, mask)[0].double().numpy()
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y)
 
 
@@ -65,10 +62,13 @@ def predict(
     ppg_model: str | Path | None = None,
     speaker: str | None = None,
     say: Callable[[str], None] = progress,
+    precision: str = "fp32",
 ) -> list[dict[str, Any]]:
     """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
-    folder receiving ``<audio stem>.csv``. Returns one summary per file."""
+    folder receiving ``<audio stem>.csv``. Returns one summary per file. ``precision``: fp32 or bf16
+    (train/precision.py)."""
     model, payload = load_system(run)
+    model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     ppg = None
