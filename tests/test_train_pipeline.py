@@ -331,3 +331,66 @@ def test_val_takes_move_validation_to_chosen_training_takes(ds, tmp_path):
     for takes, needle in ((["take04"], "in the test split"), (["take99"], "no take 'take99'")):
         with pytest.raises(InputError, match=needle):
             split_keys(manifest, {**cfg, "val_takes": takes})
+
+
+def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
+    """cv_folds = 2: every train/val take validates exactly once; eval, predict and export use the mean
+    of the members; resuming a finished ensemble retrains nothing; a second fit into it is refused."""
+    from train.checkpoint import load_system
+    from train.data import InputSpec, to_model_inputs, utterances
+
+    run = tmp_path / "cv"
+    sets = [a for s in TINY + ["cv_folds=2", "eval_every=4"] for a in ("--set", s)]
+    proc = _cli("fit", "--data", ds, "--model", "s2a", "-o", run, "--max-steps", 8, *sets, "--json")
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    members = s["members"]
+    assert len(members) == 2 and s["steps"] == 16 and s["stopped"] == "cv_folds"
+    folds = [set(m["val_takes"]) for m in members]
+    usable = {x["take"] for x in read_manifest(ds)["samples"] if x["split"] in ("train", "val")}
+    assert folds[0].isdisjoint(folds[1]) and folds[0] | folds[1] == usable and len(usable) == 5
+    for m, takes in zip(members, folds):
+        assert set(json.loads((run / m["folder"] / "config.json").read_text())["val_takes"]) == takes
+    assert s["cv_score"] == pytest.approx(np.mean([m["best_val"] for m in members]))
+    assert (run / "ensemble.json").is_file() and not (run / "last.pt").exists()
+
+    # the ensemble's output is the mean of its members' outputs, on a real test utterance
+    ensemble, payload = load_system(run)
+    singles = [load_system(run / m["folder"])[0] for m in members]
+    spec = InputSpec.from_json(payload["inputs"])
+    item = next(utterances(ds, "test", spec))
+    content, prosody = to_model_inputs(item, spec)
+    with torch.no_grad():
+        mean = sum(m(content, prosody, item["mask"]) for m in singles) / 2
+        got = ensemble(content, prosody, item["mask"])
+    torch.testing.assert_close(got, mean)
+    assert not torch.allclose(got, singles[0](content, prosody, item["mask"]))
+
+    proc = _cli("eval", run, "--data", ds, "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["rmse_entire"]["mean"] > 0
+    wav = next((ds.parent / "takes").rglob("audio.wav"))
+    assert _cli("predict", run, wav, "-o", tmp_path / "p.csv").returncode == 0
+    proc = _cli("export", run, "-o", tmp_path / "e.onnx", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["max_abs_diff"] < 1e-4
+
+    again = _cli("fit", "--data", ds, "--model", "s2a", "-o", run, *sets)
+    assert again.returncode == 1 and "already holds an ensemble" in again.stderr
+    proc = _cli("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 8, "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert [m["steps"] for m in json.loads(proc.stdout)["members"]] == [8, 8]
+
+
+@pytest.mark.parametrize(
+    "sets, needle",
+    [
+        (["cv_folds=6"], "cv_folds = 6 needs as many train/val takes; the dataset has 5"),
+        (["cv_folds=1"], "cv_folds must be 0 (off) or an integer >= 2"),
+        (["cv_folds=2", 'val_takes=["take01"]'], "exclude each other"),
+    ],
+)
+def test_cross_validation_ensemble_bad_settings(ds, tmp_path, sets, needle):
+    proc = _cli("fit", "--data", ds, "-o", tmp_path / "r", *[a for s in sets for a in ("--set", s)])
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert needle in proc.stderr

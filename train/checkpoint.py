@@ -51,14 +51,20 @@ def run_checkpoint(run: str | Path) -> Path:
     for name in (BEST, LAST):
         if (run / name).is_file():
             return run / name
+    if any(run.glob("fold-*")):
+        raise InputError("the ensemble has not finished (no ensemble.json): resume its training", run)
     raise InputError(f"run folder has no {BEST} or {LAST} (train it with s2a-train fit)", run)
 
 
 def load_system(run: str | Path):
-    """(model in eval mode, checkpoint payload) of a run."""
+    """(model in eval mode, checkpoint payload) of a run; of a cross-validation ensemble's run folder,
+    the members' mean (train/ensemble.py)."""
     from .data import InputSpec
+    from .ensemble import ENSEMBLE, load_ensemble
     from .systems import build_model
 
+    if Path(run).is_dir() and (Path(run) / ENSEMBLE).is_file():
+        return load_ensemble(Path(run), load_system)
     payload = load_checkpoint(run_checkpoint(run))
     spec = InputSpec.from_json(payload["inputs"])
     model, _ = build_model(payload["system"], spec, payload["config"])

@@ -10,6 +10,7 @@ from typing import Any
 from capture.command import progress
 
 from .checkpoint import LAST, write_json
+from .ensemble import has_members
 from .evaluate import evaluate
 from .fit import fit
 
@@ -28,7 +29,8 @@ def compare(
     for name in models:
         run = out / name
         say(f"compare: {name}")
-        summary = fit(ds, run, config_for(name), resume=(run / LAST).is_file(), say=say)
+        resumable = (run / LAST).is_file() or has_members(run)
+        summary = fit(ds, run, config_for(name), resume=resumable, say=say)
         r = evaluate(run, ds, split, say=say)
         rows.append(
             {

@@ -49,6 +49,9 @@ DEFAULTS: dict[str, Any] = {
     # takes that validate instead of the dataset's val split (they leave training; the val split's
     # takes then train); [] = the dataset's splits. Test takes are refused.
     "val_takes": [],
+    # > 0: a cross-validation ensemble (train/ensemble.py): the train and val takes dealt into this many
+    # folds, one member per fold validating on it and training on the rest; predictions average them
+    "cv_folds": 0,
     # channel weights of the loss (and of the validation score that early stopping and best.pt follow):
     # "normalised" = every normalised channel alike; "raw" = squared error in 0..1 coefficient units,
     # what rmse_entire measures (weights scale² of the manifest's normalisation, mean 1)
@@ -129,6 +132,11 @@ def check_config(cfg: dict[str, Any]) -> None:
         raise InputError(
             f"val_takes must be a list of take ids, got {cfg['val_takes']!r}", "config:val_takes"
         )
+    folds = cfg["cv_folds"]
+    if not isinstance(folds, int) or isinstance(folds, bool) or folds < 0 or folds == 1:
+        raise InputError(f"cv_folds must be 0 (off) or an integer >= 2, got {folds!r}", "config:cv_folds")
+    if folds and cfg["val_takes"]:
+        raise InputError("cv_folds and val_takes exclude each other: every fold validates in turn", "config")
     if cfg["loss_weights"] not in ("normalised", "raw"):
         raise InputError(
             f"loss_weights must be normalised or raw, got {cfg['loss_weights']!r}", "config:loss_weights"

@@ -29,6 +29,7 @@ from .augment import enabled as augmenting
 from .checkpoint import BEST, CONFIG, LAST, METRICS, load_checkpoint, save_checkpoint, write_json
 from .config import DEFAULTS
 from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
+from .ensemble import check_ensemble_run, fit_ensemble
 from .model import masked_mse
 from .ridge import NormalEquations
 from .systems import build_model
@@ -205,11 +206,57 @@ def fit(
     Under torchrun the process group is created here and destroyed on the way out: a process that
     exits with gloo's worker threads still alive is aborted by the C++ runtime."""
     owns_group = int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized()
+    ds, run = Path(ds), Path(run)
     try:
-        return _fit(Path(ds), Path(run), cfg, resume, say, stop_after_steps)
+        if resume and (run / CONFIG).is_file() and not (run / LAST).is_file():
+            saved = json.loads((run / CONFIG).read_text())
+            if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
+                limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
+                cfg = {**DEFAULTS, **{k: v for k, v in saved.items() if k in DEFAULTS}, **limits}
+        if cfg.get("cv_folds"):
+            return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps)
+        return _fit(ds, run, cfg, resume, say, stop_after_steps)
     finally:
         if owns_group and dist.is_initialized():
             dist.destroy_process_group()
+
+
+def _fit_ensemble(
+    ds: Path,
+    run: Path,
+    cfg: dict[str, Any],
+    resume: bool,
+    say: Callable[[str], None],
+    stop_after_steps: int | None,
+) -> dict[str, Any]:
+    """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold."""
+    manifest = read_manifest(ds)
+    rank, world, _device = _distributed()
+    say = say if rank == 0 else (lambda _m: None)
+    check_ensemble_run(manifest, run, cfg, resume)
+    spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
+    build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
+    run.mkdir(parents=True, exist_ok=True)
+    if rank == 0:
+        write_json(run / CONFIG, {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
+    t0 = time.perf_counter()
+
+    def fit_member(folder: Path, member_cfg: dict[str, Any], member_resume: bool) -> dict[str, Any]:
+        return _fit(ds, folder, member_cfg, member_resume, say, stop_after_steps)
+
+    summary = fit_ensemble(fit_member, manifest, run, cfg, resume, rank == 0, say)
+    checksums = [c for m in summary["members"] for c in m["params_checksums"] or []]
+    return {
+        "run": str(run),
+        "model": cfg["model"],
+        "epochs": None,
+        "world_size": world,
+        "rank": rank,
+        "params_checksums": checksums,
+        "ranks_in_sync": all(m["ranks_in_sync"] is not False for m in summary["members"]),
+        "session_s": time.perf_counter() - t0,
+        **summary,
+    }
 
 
 def _fit(
@@ -372,7 +419,16 @@ def _fit(
                 else:
                     bad_evals += 1
                 if has_val:
-                    emit({"step": step, "epoch": epoch, "val_mse": val, "best_val_mse": best_val})
+                    since = time.perf_counter() - t_start  # seconds into this session
+                    emit(
+                        {
+                            "step": step,
+                            "epoch": epoch,
+                            "val_mse": val,
+                            "best_val_mse": best_val,
+                            "time_s": since,
+                        }
+                    )
                     say(f"step {step}: val mse {val:.4f} (best {best_val:.4f})")
                 if step >= cfg["max_steps"]:
                     stopped = "max_steps"

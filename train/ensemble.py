@@ -1,0 +1,139 @@
+"""Cross-validation ensembles (``cv_folds = K``): the small-data protocol without a chosen val take.
+
+The takes of the dataset's train and val splits are dealt into K folds of about equal duration (longest
+take first, each to the fold with the least audio so far; ties by take id). Member ``i`` trains on every
+other fold and validates on fold ``i``: its early stopping and ``best.pt`` follow takes it never trained
+on, and every take validates exactly once, so nothing has to be chosen by looking at the test takes.
+The ensemble predicts the mean of its members' outputs (their best checkpoints), which also averages
+away much of the variance a network trained on minutes of speech has.
+
+Run folder: ``RUN/config.json`` (the ensemble's config), ``RUN/fold-<i>/`` (ordinary run folders, each
+config naming its ``val_takes``) and ``RUN/ensemble.json`` (members and their takes, written once every
+member has finished). ``s2a-train eval``, ``predict`` and ``export`` take the ensemble's run folder like
+any other; the cross-validation score (``cv_score``) is the mean of the members' best validation losses.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from capture.errors import InputError
+
+from .checkpoint import LAST, write_json
+
+ENSEMBLE = "ensemble.json"
+
+
+def fold_takes(manifest: dict[str, Any], folds: int) -> list[list[str]]:
+    """The train and val takes dealt into ``folds`` groups of about equal duration."""
+    duration: dict[str, float] = {}
+    for s in manifest["samples"]:
+        if s["split"] in ("train", "val"):
+            duration[s["take"]] = duration.get(s["take"], 0.0) + float(s["duration_s"])
+    if folds < 2:
+        raise InputError(f"cv_folds must be 0 (off) or at least 2, got {folds}", "config:cv_folds")
+    if len(duration) < folds:
+        raise InputError(
+            f"cv_folds = {folds} needs as many train/val takes; the dataset has {len(duration)}",
+            "config:cv_folds",
+        )
+    groups: list[list[str]] = [[] for _ in range(folds)]
+    load = [0.0] * folds
+    for take in sorted(duration, key=lambda t: (-duration[t], t)):
+        i = min(range(folds), key=lambda j: (load[j], j))
+        groups[i].append(take)
+        load[i] += duration[take]
+    return [sorted(g) for g in groups]
+
+
+def member_dir(run: Path, i: int) -> Path:
+    return run / f"fold-{i + 1}"
+
+
+def has_members(run: Path) -> bool:
+    """Whether an ensemble run folder holds any member checkpoint (so that it can be resumed)."""
+    return any((p / LAST).is_file() for p in run.glob("fold-*"))
+
+
+class Ensemble(nn.Module):
+    """The mean of several models' outputs (same inputs, same output channels)."""
+
+    def __init__(self, members: list[nn.Module]):
+        super().__init__()
+        self.members = nn.ModuleList(members)
+
+    def forward(self, content: torch.Tensor, prosody: torch.Tensor | None, mask: torch.Tensor):
+        total = self.members[0](content, prosody, mask)
+        for m in self.members[1:]:
+            total = total + m(content, prosody, mask)
+        return total / len(self.members)
+
+
+def check_ensemble_run(manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool) -> None:
+    """Refuse a config or run folder an ensemble cannot use, before anything is written."""
+    if cfg["val_takes"]:
+        raise InputError("cv_folds and val_takes exclude each other: every fold validates in turn", "config")
+    if not resume and (has_members(run) or (run / ENSEMBLE).exists()):
+        raise InputError("run folder already holds an ensemble: use --resume or another -o", run)
+    if resume and not has_members(run):
+        raise InputError(f"nothing to resume: no fold-*/{LAST}", run)
+    fold_takes(manifest, cfg["cv_folds"])
+
+
+def fit_ensemble(
+    fit_member: Callable[[Path, dict[str, Any], bool], dict[str, Any]],
+    manifest: dict[str, Any],
+    run: Path,
+    cfg: dict[str, Any],
+    resume: bool,
+    main: bool,
+    say: Callable[[str], None],
+) -> dict[str, Any]:
+    """Train (or resume) every member with ``fit_member(folder, config, resume)``, then write
+    ``ensemble.json``; returns the ensemble's summary."""
+    folds = fold_takes(manifest, cfg["cv_folds"])
+    members = []
+    for i, takes in enumerate(folds):
+        folder = member_dir(run, i)
+        say(f"fold {i + 1}/{len(folds)}: validating on {', '.join(takes)}")
+        member_cfg = {**cfg, "cv_folds": 0, "val_takes": takes}
+        summary = fit_member(folder, member_cfg, resume and (folder / LAST).is_file())
+        members.append({"folder": folder.name, "val_takes": takes, **_member_summary(summary)})
+    scores = [m["best_val"] for m in members if m["best_val"] is not None]
+    cv_score = sum(scores) / len(scores) if len(scores) == len(members) else None
+    if main:
+        write_json(run / ENSEMBLE, {"members": members, "cv_score": cv_score})
+    return {
+        "steps": sum(m["steps"] for m in members),
+        "best_val": cv_score,
+        "cv_score": cv_score,
+        "stopped": "cv_folds",
+        "members": members,
+    }
+
+
+def _member_summary(s: dict[str, Any]) -> dict[str, Any]:
+    return {k: s.get(k) for k in ("steps", "best_val", "stopped", "params_checksums", "ranks_in_sync")}
+
+
+def load_ensemble(run: Path, load_member: Callable[[Path], tuple[nn.Module, dict[str, Any]]]):
+    """(Ensemble in eval mode, payload of the first member with ``ensemble`` added) of a finished
+    ensemble run folder."""
+    try:
+        record = json.loads((run / ENSEMBLE).read_text())
+        folders = [run / m["folder"] for m in record["members"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"unreadable ensemble record ({type(exc).__name__})", run / ENSEMBLE) from None
+    loaded = [load_member(f) for f in folders]
+    first = loaded[0][1]
+    for folder, (_m, p) in zip(folders, loaded):
+        if p["inputs"] != first["inputs"] or p["dataset"]["channels"] != first["dataset"]["channels"]:
+            raise InputError("ensemble members differ in inputs or channels", folder)
+    payload = {**first, "step": sum(p["step"] for _m, p in loaded), "ensemble": record}
+    return Ensemble([m for m, _p in loaded]).eval(), payload
