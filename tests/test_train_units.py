@@ -89,3 +89,32 @@ def test_ridge_closed_form_matches_least_squares():
     with torch.no_grad():
         pred = model(content, prosody, mask)
     np.testing.assert_allclose(pred[mask].numpy(), y[mask].numpy(), atol=1e-4)
+
+
+def test_precision_refuses_emulated_bf16_and_unknown_names(monkeypatch):
+    import train.precision as precision
+
+    model = torch.nn.Linear(4, 4)
+    assert precision.for_inference(model, "fp32") is model
+    with pytest.raises(InputError, match="must be one of fp32, bf16"):
+        precision.for_inference(model, "fp8")
+    monkeypatch.setattr(precision, "bf16_is_native", lambda: False)
+    with pytest.raises(InputError, match="no native bfloat16"):
+        precision.for_inference(model, "bf16")
+
+
+def test_folds_balance_takes_by_duration():
+    from train.ensemble import fold_takes
+
+    durations = {"a": 50.0, "b": 40.0, "c": 30.0, "d": 20.0, "e": 10.0, "t": 99.0}
+    manifest = {
+        "samples": [
+            {"take": t, "split": "test" if t == "t" else "train", "duration_s": d / 2}
+            for t, d in durations.items()
+            for _half in range(2)
+        ]
+    }
+    folds = fold_takes(manifest, 2)
+    assert folds == [["a", "d", "e"], ["b", "c"]]  # 80 s and 70 s; the test take is in neither
+    with pytest.raises(InputError, match="needs as many train/val takes"):
+        fold_takes(manifest, 6)
