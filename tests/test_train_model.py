@@ -116,6 +116,22 @@ def test_bf16_inference_follows_fp32_on_every_path():
     assert not torch.equal(fast, exact)  # it really ran in bfloat16
 
 
+@pytest.mark.parametrize("d_model", [24, 30])  # 30: rows the grouped product cannot take (sparse instead)
+def test_every_training_path_runs_under_bf16_autocast(d_model):
+    """amp = "bf16" on CPU: each MoE mode trains and stays near its float32 result."""
+    for mode in ("dense", "sparse", "grouped"):
+        torch.manual_seed(4)
+        layer = MoELayer(d_model, 8, experts=6, top_k=2, mode=mode)
+        h = torch.randn(2, 20, d_model, requires_grad=True)
+        exact = layer(h)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = layer(h)
+        out.float().square().mean().backward()
+        assert h.grad is not None and torch.isfinite(h.grad).all()
+        diff, scale = (out.float() - exact).abs().max().item(), exact.abs().max().item()
+        assert diff < 0.05 * scale, mode
+
+
 def test_gradients_agree_between_paths():
     torch.manual_seed(2)
     grads = {}

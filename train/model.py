@@ -105,6 +105,8 @@ class TransformerS2A(nn.Module):
     def __init__(self, config: S2AConfig):
         super().__init__()
         c = self.config = config
+        if c.heads < 1 or c.d_model % c.heads:
+            raise ValueError(f"d_model ({c.d_model}) must be a multiple of heads ({c.heads})")
         self.content_in = nn.Linear(c.content_dim, c.d_model)
         self.positions = PositionalEncoding(c.d_model, c.max_frames)
         self.encoder = nn.ModuleList(

@@ -113,7 +113,7 @@ class MoELayer(nn.Module):
 
     def _dense(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
         b, t, _ = h.shape
-        weights = torch.zeros(b, t, self.experts, dtype=h.dtype, device=h.device)
+        weights = torch.zeros(b, t, self.experts, dtype=probs.dtype, device=h.device)
         weights.scatter_(-1, top_idx, probs)  # Prob_i(h), zero outside the top k
         inner = F.gelu(self.conv(h.transpose(1, 2)))  # every expert's conv at once: (B, E*H, T)
         inner = self.dropout(inner).view(b, self.experts, self.hidden, t)
@@ -144,25 +144,31 @@ class MoELayer(nn.Module):
         inner = self.dropout(F.gelu(torch.bmm(batch, w_conv) + b_conv))  # (E, C, H)
         out = torch.bmm(inner, self.linear_weight) + self.linear_bias.unsqueeze(1)  # (E, C, D)
         picked = out[expert, slot] * prob.unsqueeze(-1)
-        result = h.new_zeros(b * t, d).index_add_(0, frame, picked)
+        result = picked.new_zeros(b * t, d).index_add_(0, frame, picked)  # under autocast: float32
         return result.view(b, t, d)
 
     def _grouped(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
         """Only the routed frames, sorted by expert, through two grouped matrix products (one kernel
-        each for all experts, no padding): the dense path's FLOPs divided by experts / top_k."""
+        each for all experts, no padding): the dense path's FLOPs divided by experts / top_k. Computed
+        in ``h``'s dtype (bfloat16 under autocast); widths the grouped product cannot take (rows not
+        whole multiples of 16 bytes) go through the sparse path, which gives the same numbers."""
+        if not self._grouped_fits(h.dtype):
+            return self._sparse(h, top_idx, probs)
         b, t, d = h.shape
-        k, e = self.kernel_size, self.experts
+        k, e, dt = self.kernel_size, self.experts, h.dtype
         patches = im2col(h, k)
         expert = top_idx.reshape(-1)
         order = torch.argsort(expert, stable=True)
         expert = expert[order]
         frame = order // self.top_k
-        prob = probs.reshape(-1)[order]
+        prob = probs.reshape(-1)[order].to(dt)
         offsets = torch.cumsum(torch.bincount(expert, minlength=e), 0).to(torch.int32)
-        w_conv = self.conv.weight.view(e, self.hidden, d * k).transpose(1, 2)  # (E, d*k, H)
+        w_conv = self.conv.weight.view(e, self.hidden, d * k).transpose(1, 2).to(dt)  # (E, d*k, H)
         inner = torch._grouped_mm(patches[frame], w_conv, offs=offsets)
-        inner = self.dropout(F.gelu(inner + self.conv.bias.view(e, self.hidden)[expert]))
-        out = torch._grouped_mm(inner, self.linear_weight, offs=offsets) + self.linear_bias[expert]
+        inner = self.dropout(F.gelu(inner + self.conv.bias.view(e, self.hidden)[expert].to(dt)))
+        out = torch._grouped_mm(inner, self.linear_weight.to(dt), offs=offsets) + self.linear_bias[expert].to(
+            dt
+        )
         return h.new_zeros(b * t, d).index_add_(0, frame, out * prob.unsqueeze(-1)).view(b, t, d)
 
     def _weights(self) -> tuple[torch.Tensor, torch.Tensor]:

@@ -45,11 +45,27 @@ def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], n
         )
     base = {"content_dim": spec.content_dim, "prosody_dim": spec.prosody_dim, "out_dim": spec.out_dim}
     base.update({k: v for k, v in shared.items() if k in known})
-    return cls(**{**base, **own, **fixed})
+    chosen = {**base, **own, **fixed}
+    for f in fields(cls):  # sizes the modules would divide by or allocate with
+        value = chosen.get(f.name, f.default)
+        if f.name == "dropout":
+            if not isinstance(value, (int, float)) or not 0 <= value < 1:
+                raise InputError(f"arch.dropout must be in [0, 1), got {value!r}", "config:arch")
+        elif f.type in ("int", int) and f.name != "prosody_dim":
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise InputError(f"arch.{f.name} must be a positive integer, got {value!r}", "config:arch")
+    return cls(**chosen)
 
 
 def build_model(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, dict[str, Any]]:
-    """(module, its config as a dict) for system ``name``."""
+    """(module, its config as a dict) for system ``name``; sizes the modules refuse are config errors."""
+    try:
+        return _build(name, spec, cfg)
+    except (ValueError, TypeError) as exc:  # the modules check their own sizes
+        raise InputError(f"arch settings for {name}: {exc}", "config:arch") from None
+
+
+def _build(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, dict[str, Any]]:
     arch = dict(cfg.get("arch", {}))
     if name in ("s2a", "s2a-nomoe"):
         c = _config(S2AConfig, spec, {"moe": name == "s2a"}, arch, name)
