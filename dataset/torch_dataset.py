@@ -76,11 +76,15 @@ class ShardDataset(IterableDataset):
     def __len__(self) -> int:
         return sum(s["samples"] for s in shards_of(self.manifest, self.split))
 
-    def _assignment(self) -> tuple[list[str], int, int]:
+    def _consumer(self) -> tuple[int, int]:
+        """(this reader's index, number of readers) over DDP ranks × DataLoader workers."""
         rank, world = _rank_world()
         info = get_worker_info()
         wid, nworkers = (info.id, info.num_workers) if info is not None else (0, 1)
-        consumer, consumers = rank * nworkers + wid, world * nworkers
+        return rank * nworkers + wid, world * nworkers
+
+    def _assignment(self) -> tuple[list[str], int, int]:
+        consumer, consumers = self._consumer()
         if len(self.shards) >= consumers:
             return self.shards[consumer::consumers], 0, 1
         return self.shards, consumer, consumers

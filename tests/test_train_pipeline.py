@@ -187,6 +187,11 @@ def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
     assert resumed["params_checksums"] == s["params_checksums"]
     a, b = load_checkpoint(tmp_path / "ddp" / "last.pt"), load_checkpoint(tmp_path / "two" / "last.pt")
     assert a["positions"] == b["positions"] and len(a["positions"]) == 2
+    # a cross-validation ensemble under torchrun: each member trains on a subset of the takes, which
+    # both ranks share sample by sample (shards divided between ranks could leave one with none)
+    cv = _torchrun(ds, tmp_path / "cv", "--max-steps", 3, "--set", "cv_folds=2")
+    assert len(cv["members"]) == 2 and all(m["ranks_in_sync"] for m in cv["members"])
+    assert len(cv["params_checksums"]) == 4 and (tmp_path / "cv" / "ensemble.json").is_file()
 
 
 def test_ridge_beats_the_floor_and_eval_matches_a_hand_computation(ds, tmp_path):
