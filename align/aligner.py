@@ -8,6 +8,7 @@ interpolated (``INTERPOLATED``), long gaps splitting the take into segments.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -128,7 +129,7 @@ def frame_clock(take: Take, choice: str) -> tuple[Take, dict[str, Any]]:
         info["timecode_vs_nominal_ppm"] = round((period * meta.fps - 1.0) * 1e6, 1)
     if clock == "index" and n > 1:
         time = float(take.time[0]) + np.arange(n) / meta.fps
-        take = Take(meta, time, take.values, take.frame_status, take.audio, take.neutral, take.arrival_s)
+        take = dataclasses.replace(take, time=time)
     return take, info
 
 

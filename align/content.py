@@ -18,7 +18,6 @@ ones), so the band sets the bias; docs/align.md, "Content evidence", gives the m
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 import scipy.fft
@@ -27,6 +26,7 @@ from scipy.signal import butter, sosfiltfilt
 
 ANALYSIS_RATE = 100.0  # Hz: 10 ms steps; the pass band ends at BAND_HZ[1]
 BAND_HZ = (1.0, 12.0)  # syllable-rate and faster envelope modulations (see docs/align.md, "Content evidence")
+_BAND_SOS = butter(2, BAND_HZ, btype="band", fs=ANALYSIS_RATE, output="sos")
 AUDIO_BAND_HZ = (300.0, 3000.0)  # sonorant band of the audio whose energy is correlated
 UPSAMPLE = 100  # refinement step = 1 / (ANALYSIS_RATE * UPSAMPLE) = 0.1 ms
 
@@ -104,17 +104,11 @@ def energy_envelope(x: np.ndarray, rate: int, start_s: float, grid: np.ndarray) 
     return np.interp(grid, centres, db)
 
 
-@lru_cache(maxsize=8)
-def _band_sos(low: float, high: float) -> np.ndarray:
-    return butter(2, [low, high], btype="band", fs=ANALYSIS_RATE, output="sos")
-
-
 def band_pass(x: np.ndarray) -> np.ndarray:
     """The zero-phase band-pass both content signals go through (``BAND_HZ`` at ``ANALYSIS_RATE``)."""
-    sos = _band_sos(*BAND_HZ)
     if x.size < 30:
         return x - x.mean()
-    return sosfiltfilt(sos, x - x.mean())
+    return sosfiltfilt(_BAND_SOS, x - x.mean())
 
 
 @dataclass
@@ -158,6 +152,8 @@ def cross_correlation_lag(
     lobe = int(round(MAIN_LOBE_S * ANALYSIS_RATE))
     far = np.abs(lags - k_best) > lobe
     runner_up = float(values[far].max()) if far.any() else float("nan")
+    if at_edge:  # the true peak may lie outside the range: no refinement
+        return LagEstimate(k_best / ANALYSIS_RATE, float(values[best]), runner_up, n / ANALYSIS_RATE, True)
     # Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
     # the integer peak, using only the bins the band-pass lets through; first on a 1 ms grid over
     # ±1 step, then on the 0.1 ms grid around the best point (the series is smooth at this scale).
@@ -178,6 +174,5 @@ def cross_correlation_lag(
     centre = coarse[int(np.argmax(series(coarse)))]
     fine = centre + np.arange(-coarse_step, coarse_step + 1) / UPSAMPLE
     fine_values = series(fine)
-    refined = float(fine[int(np.argmax(fine_values))]) if not at_edge else float(k_best)
-    peak = float(fine_values.max()) if not at_edge else float(values[best])
-    return LagEstimate(refined / ANALYSIS_RATE, peak, runner_up, n / ANALYSIS_RATE, at_edge)
+    refined = float(fine[int(np.argmax(fine_values))])
+    return LagEstimate(refined / ANALYSIS_RATE, float(fine_values.max()), runner_up, n / ANALYSIS_RATE, False)

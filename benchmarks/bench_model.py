@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 
 import torch
 
@@ -54,40 +55,45 @@ def reference_path(model: TransformerS2A, on: bool) -> None:
             m.skip_full_mask = not on
 
 
+def interleaved(runs: dict[str, Callable[[], torch.Tensor]], repeat: int):
+    """({name: best seconds}, {name: output}) of several ways to compute one thing, each warmed up once
+    and then timed in turn ``repeat`` times, so that load from other processes hits every way alike."""
+    best = dict.fromkeys(runs, float("inf"))
+    with torch.inference_mode():
+        outs = {name: fn() for name, fn in runs.items()}
+        for _ in range(repeat):
+            for name, fn in runs.items():
+                best[name] = min(best[name], best_time(fn, 1))
+    return best, outs
+
+
 def s2a_rtf_paths(c: S2AConfig, frames: int, repeat: int) -> tuple[float, float, float]:
     """(optimised RTF, reference RTF, largest output difference) of one model, timed interleaved."""
     model = TransformerS2A(c).eval()
     content, prosody = torch.randn(1, frames, 64), torch.randn(1, frames, 3)
     mask = torch.ones(1, frames, dtype=torch.bool)
-    best = {True: float("inf"), False: float("inf")}
-    with torch.inference_mode():
-        outs = {}
-        for ref in (True, False):
-            reference_path(model, ref)
-            outs[ref] = model(content, prosody, mask)  # warm-up
-        for _ in range(repeat):
-            for ref in (True, False):
-                reference_path(model, ref)
-                best[ref] = min(best[ref], best_time(lambda: model(content, prosody, mask), 1))
+
+    def on_path(reference: bool) -> torch.Tensor:
+        reference_path(model, reference)
+        return model(content, prosody, mask)
+
+    best, outs = interleaved({"fast": lambda: on_path(False), "reference": lambda: on_path(True)}, repeat)
     reference_path(model, False)
-    diff = float((outs[True] - outs[False]).abs().max())
     seconds = frames / FPS
-    return best[False] / seconds, best[True] / seconds, diff
+    diff = float((outs["reference"] - outs["fast"]).abs().max())
+    return best["fast"] / seconds, best["reference"] / seconds, diff
 
 
 def s2a_bf16_rtf(c: S2AConfig, frames: int, repeat: int) -> tuple[float, float, float]:
     """(bf16 RTF, fp32 RTF, largest output difference relative to the output's largest magnitude) of
-    one model's inference path, timed interleaved; None when the CPU has no native bfloat16."""
+    one model's inference path, timed interleaved (call it on CPUs with native bfloat16 only)."""
     model = TransformerS2A(c).eval()
     half = for_inference(model, "bf16")
     content, prosody = torch.randn(1, frames, 64), torch.randn(1, frames, 3)
     mask = torch.ones(1, frames, dtype=torch.bool)
-    best = {"fp32": float("inf"), "bf16": float("inf")}
-    with torch.inference_mode():
-        outs = {name: infer(m, content, prosody, mask) for name, m in (("fp32", model), ("bf16", half))}
-        for _ in range(repeat):
-            for name, m in (("fp32", model), ("bf16", half)):
-                best[name] = min(best[name], best_time(lambda m=m: infer(m, content, prosody, mask), 1))
+    models = {"fp32": model, "bf16": half}
+    runs = {name: (lambda m=m: infer(m, content, prosody, mask)) for name, m in models.items()}
+    best, outs = interleaved(runs, repeat)
     rel = float((outs["bf16"] - outs["fp32"]).abs().max() / outs["fp32"].abs().max())
     seconds = frames / FPS
     return best["bf16"] / seconds, best["fp32"] / seconds, rel

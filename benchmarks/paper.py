@@ -37,7 +37,6 @@ import platform
 import shutil
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
@@ -179,7 +178,6 @@ class Graph:
         self.jobs = jobs
         self.tasks: dict[str, Task] = {}
         self.results: dict[str, Any] = {}
-        self.lock = threading.Lock()
 
     def add(
         self, name: str, fn: Callable[[], Any], deps: list[str] | None = None, priority: int = 100
@@ -232,6 +230,15 @@ def speaker_id(i: int) -> str:
     return f"spk{i:02d}"
 
 
+def simulate(
+    run: Runner, name: str, raw: Path, speakers: int, takes_each: int, plan: Plan, language: str, seed: int
+) -> list[dict]:
+    """``s2a-capture simulate`` of ``speakers`` × ``takes_each`` takes into ``raw``; its summaries."""
+    args = ["simulate", "-o", raw, "--speakers", speakers, "--takes", speakers * takes_each]
+    args += ["--seconds", plan.seconds, "--language", language, "--seed", seed, "--json"]
+    return run(name, "capture", args)
+
+
 def simulate_and_align(
     run: Runner,
     out: Path,
@@ -247,26 +254,7 @@ def simulate_and_align(
     raw, takes, aligned = out / "raw" / name, out / "takes" / name, out / "aligned" / name
     for d in (raw, takes, aligned):
         shutil.rmtree(d, ignore_errors=True)
-    summaries = run(
-        f"simulate-{name}",
-        "capture",
-        [
-            "simulate",
-            "-o",
-            raw,
-            "--speakers",
-            speakers,
-            "--takes",
-            speakers * plan.takes_per_speaker,
-            "--seconds",
-            plan.seconds,
-            "--language",
-            language,
-            "--seed",
-            seed,
-            "--json",
-        ],
-    )
+    summaries = simulate(run, f"simulate-{name}", raw, speakers, plan.takes_per_speaker, plan, language, seed)
     keep_names = {speaker_id(i) for i in (keep or range(1, speakers + 1))}
     folders = sorted(s["path"] for s in summaries if s["speaker"] in keep_names)
     run(f"import-{name}", "capture", ["import", *folders, "-o", takes, "--json"])
@@ -287,26 +275,7 @@ def simulate_ppg_corpus(run: Runner, out: Path, plan: Plan, seed: int) -> dict[s
     raw = out / "raw" / "ppg-corpus"
     shutil.rmtree(raw, ignore_errors=True)
     n = plan.ppg_speakers
-    s = run(
-        "simulate-ppg",
-        "capture",
-        [
-            "simulate",
-            "-o",
-            raw,
-            "--speakers",
-            n,
-            "--takes",
-            n * plan.ppg_takes_per_speaker,
-            "--seconds",
-            plan.seconds,
-            "--language",
-            "en",
-            "--seed",
-            seed,
-            "--json",
-        ],
-    )
+    s = simulate(run, "simulate-ppg", raw, n, plan.ppg_takes_per_speaker, plan, "en", seed)
     summary = run(
         "ppg",
         "train",
@@ -621,41 +590,25 @@ def experiment(args: argparse.Namespace) -> dict[str, Any]:
         g.add(
             "ds-rtf", lambda: build_rtf_set(run, out, aligned("data-en"), sim_opts), ["data-en", "data-ppg"]
         )
+
+    def add_speaker_split(
+        name: str, takes: Callable[[], list[str]], test: list[str], val: str, deps: list[str]
+    ):
+        """Dataset task ``ds-<name>``: ``takes`` (read when the task runs) split by speaker."""
+        options = [*sim_opts, "--split-by", "speaker", "--test", *test, "--val", val]
+        g.add(f"ds-{name}", lambda: build(run, out, name, takes(), options), [*deps, "data-ppg"])
+
     if sections & {"xspk", "xlang"}:
-        g.add(
-            "ds-xspk",
-            lambda: build(
-                run,
-                out,
-                "xspk",
-                [aligned("data-en")],
-                [*sim_opts, "--split-by", "speaker", "--test", *en_test, "--val", en_val],
-            ),
-            ["data-en", "data-ppg"],
-        )
+        add_speaker_split("xspk", lambda: [aligned("data-en")], en_test, en_val, ["data-en"])
     if "xlang" in sections:
-        g.add(
-            "ds-xlang",
-            lambda: build(
-                run,
-                out,
-                "xlang",
-                takes_of(aligned("data-en"), en_ids[:-h]) + takes_of(aligned("data-es"), es_test),
-                [*sim_opts, "--split-by", "speaker", "--test", *es_test, "--val", en_val],
-            ),
-            ["data-en", "data-es", "data-ppg"],
+        add_speaker_split(
+            "xlang",
+            lambda: takes_of(aligned("data-en"), en_ids[:-h]) + takes_of(aligned("data-es"), es_test),
+            es_test,
+            en_val,
+            ["data-en", "data-es"],
         )
-        g.add(
-            "ds-es",
-            lambda: build(
-                run,
-                out,
-                "es",
-                [aligned("data-es")],
-                [*sim_opts, "--split-by", "speaker", "--test", *es_test, "--val", es_val],
-            ),
-            ["data-es", "data-ppg"],
-        )
+        add_speaker_split("es", lambda: [aligned("data-es")], es_test, es_val, ["data-es"])
     if "facegood" in sections:
         samples = args.samples
         if not (samples / "paired" / "facegood-audio2face").is_dir():
@@ -829,8 +782,8 @@ def torch_version() -> str:
 # ----------------------------------------------------------------------------------------- rendering
 
 
-def ms(v: dict[str, float] | None, digits: int = 2) -> str:
-    return "n/a" if v is None else f"{v['mean']:.{digits}f} ± {v['std']:.{digits}f}"
+def ms(v: dict[str, float] | None) -> str:
+    return "n/a" if v is None else f"{v['mean']:.2f} ± {v['std']:.2f}"
 
 
 def mean(v: dict[str, float] | None) -> float | None:
@@ -880,10 +833,14 @@ def table1_md(rows: list[dict[str, Any]], crucial: bool) -> list[str]:
     return lines
 
 
+def by_system(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    return {r["system"]: r for r in rows}
+
+
 def table2_md(res: dict[str, Any]) -> list[str]:
-    sim = {r["system"]: r for r in res["table1"].get("sim", [])}
-    fg = {r["system"]: r for r in res["table1"].get("facegood", [])}
-    big = {r["system"]: r for r in res.get("paper_size_rtf", [])}
+    sim = by_system(res["table1"].get("sim", []))
+    fg = by_system(res["table1"].get("facegood", []))
+    big = by_system(res.get("paper_size_rtf", []))
 
     def rtf(table, s):
         r = table.get(s)
@@ -914,7 +871,7 @@ def table2_md(res: dict[str, Any]) -> list[str]:
 
 def cross_md(res: dict[str, Any]) -> tuple[list[str], dict[str, Any]]:
     c = res.get("cross", {})
-    t1 = {r["system"]: r for r in res["table1"].get("sim", [])}
+    t1 = by_system(res["table1"].get("sim", []))
     facts: dict[str, Any] = {}
     lines = [
         "| trained on | tested on | PPG + prosody (S2A) | MFCC + prosody (S2A) | ridge, PPG | ridge, MFCC "
@@ -1022,7 +979,7 @@ def render(res: dict[str, Any]) -> str:
     w("")
     d = res["data"]
     if "data-en" in d:
-        en, ppg = d["data-en"], d.get("data-ppg", {})
+        en = d["data-en"]
         w(
             f"- **Simulated English** (`s2a-capture simulate --language en --seed {st['seed']}`): "
             f"{len(st['en_speakers'])} speakers × {plan['takes_per_speaker']} takes × {plan['seconds']:g} s "
@@ -1216,8 +1173,8 @@ def render(res: dict[str, Any]) -> str:
 def discussion(res: dict[str, Any], facts: dict[str, Any]) -> list[str]:
     """The section "where we disagree": every claim in it is computed from ``res``."""
     out: list[str] = []
-    sim = {r["system"]: r for r in res["table1"].get("sim", [])}
-    fg = {r["system"]: r for r in res["table1"].get("facegood", [])}
+    sim = by_system(res["table1"].get("sim", []))
+    fg = by_system(res["table1"].get("facegood", []))
     plan = res["settings"]["plan"]
 
     def e(table, s):
@@ -1351,7 +1308,8 @@ def discussion(res: dict[str, Any], facts: dict[str, Any]) -> list[str]:
         )
         + "Rankings between systems within about one standard error can change with longer training."
     )
-    big = {r["system"]: r["rtf"] for r in res.get("paper_size_rtf", [])}
+    paper_rows = by_system(res.get("paper_size_rtf", []))
+    big = {system: r["rtf"] for system, r in paper_rows.items()}
     if big.get("s2a") and big.get("blstm"):
         sp = big["blstm"] / big["s2a"]
         out.append(
@@ -1369,7 +1327,7 @@ def discussion(res: dict[str, Any], facts: dict[str, Any]) -> list[str]:
                 else "That matches or exceeds the paper's figure."
             )
         )
-        half = next((r.get("rtf_bf16") for r in res.get("paper_size_rtf", []) if r["system"] == "s2a"), None)
+        half = paper_rows["s2a"].get("rtf_bf16")
         if half:
             out[-1] += (
                 f" In bfloat16 (`--precision bf16`, this CPU's native bf16 products) S2A runs at RTF "

@@ -144,7 +144,6 @@ def _no_peak_chunk(out: sf.SoundFile) -> None:
     """Switch the PEAK chunk off before the first sample is written (a documented libsndfile command,
     reached through soundfile's handle; without that handle the file is written with the chunk)."""
     try:
-        out._check_if_closed()
         sf._snd.sf_command(out._file, _SFC_SET_ADD_PEAK_CHUNK, sf._ffi.NULL, 0)
     except AttributeError:
         pass

@@ -112,6 +112,9 @@ class SourceTake:
     content_sha256: str
 
 
+RACY_NS = 3_000_000_000  # files modified this recently are hashed afresh (see _file_digests)
+
+
 def _file_digests(folder: Path) -> dict[str, str]:
     """sha256 of each (non-hidden) file of a take folder, by name."""
     files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
@@ -126,13 +129,10 @@ def _file_digests(folder: Path) -> dict[str, str]:
     return digests
 
 
-RACY_NS = 3_000_000_000
-
-
 @functools.lru_cache(maxsize=4096)
 def _sha256_of(path: str, size: int, mtime_ns: int, inode: int) -> str:
     """A file's sha256, read once per (path, size, modification time, inode): one build asks for a
-    take's digests up to three times (input fingerprint, align cache, provenance)."""
+    take's digests twice (the input fingerprint, then the takes it collects)."""
     return sha256_file(path)
 
 
@@ -172,8 +172,11 @@ def _is_aligned(meta: TakeMeta) -> bool:
     return meta.source_kind == "aligned"
 
 
-def _aligned_folders(folder: Path, meta: TakeMeta, work: Path, say: Callable[[str], None]) -> list[Path]:
-    """Aligned take folders for an unaligned take, made once with ``align.align_take`` and cached."""
+def _aligned_folders(
+    folder: Path, sha: str, meta: TakeMeta, work: Path, say: Callable[[str], None]
+) -> list[Path]:
+    """Aligned take folders for the unaligned take ``folder`` (``take_sha256`` ``sha``), made once with
+    ``align.align_take`` and cached."""
     align = _align_module()
     if align is None:
         raise InputError(
@@ -181,7 +184,6 @@ def _aligned_folders(folder: Path, meta: TakeMeta, work: Path, say: Callable[[st
             "align it with s2a-align first",
             folder,
         )
-    sha = take_sha256(folder)
     out = work / "aligned" / sha[:24]
     done = out / "done.json"
     if done.is_file():
@@ -220,8 +222,8 @@ def collect_takes(
         if _is_aligned(meta):
             aligned = [folder]
         else:
-            aligned = _aligned_folders(folder, meta, work, say)
             origin["sha256"] = take_sha256(folder)
+            aligned = _aligned_folders(folder, origin["sha256"], meta, work, say)
         for af in aligned:
             m = read_meta(af)
             if m.audio is None:

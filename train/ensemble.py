@@ -75,29 +75,29 @@ class Ensemble(nn.Module):
         return total / len(self.members)
 
 
-def check_ensemble_run(manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool) -> None:
-    """Refuse a config or run folder an ensemble cannot use, before anything is written."""
-    if cfg["val_takes"]:
-        raise InputError("cv_folds and val_takes exclude each other: every fold validates in turn", "config")
+def check_ensemble_run(
+    manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool
+) -> list[list[str]]:
+    """The folds' takes; refuses a dataset or run folder an ensemble cannot use, before anything is
+    written (the config itself is checked by ``train.config.check_config``)."""
     if not resume and (has_members(run) or (run / ENSEMBLE).exists()):
         raise InputError("run folder already holds an ensemble: use --resume or another -o", run)
     if resume and not has_members(run):
         raise InputError(f"nothing to resume: no fold-*/{LAST}", run)
-    fold_takes(manifest, cfg["cv_folds"])
+    return fold_takes(manifest, cfg["cv_folds"])
 
 
 def fit_ensemble(
     fit_member: Callable[[Path, dict[str, Any], bool], dict[str, Any]],
-    manifest: dict[str, Any],
+    folds: list[list[str]],
     run: Path,
     cfg: dict[str, Any],
     resume: bool,
     main: bool,
     say: Callable[[str], None],
 ) -> dict[str, Any]:
-    """Train (or resume) every member with ``fit_member(folder, config, resume)``, then write
+    """Train (or resume) one member per fold with ``fit_member(folder, config, resume)``, then write
     ``ensemble.json``; returns the ensemble's summary."""
-    folds = fold_takes(manifest, cfg["cv_folds"])
     members = []
     for i, takes in enumerate(folds):
         folder = member_dir(run, i)

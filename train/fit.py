@@ -73,14 +73,16 @@ def _autocast(cfg: dict[str, Any], device: torch.device):
     return torch.autocast(device.type, dtype=torch.bfloat16, enabled=on)
 
 
-def channel_weights(manifest: dict[str, Any], cfg: dict[str, Any]) -> torch.Tensor | None:
+def channel_weights(
+    manifest: dict[str, Any], cfg: dict[str, Any], device: torch.device | str = "cpu"
+) -> torch.Tensor | None:
     """Per-channel loss weights: None for ``loss_weights = "normalised"``; for ``"raw"`` the squared
     normalisation scales divided by their mean, so that the weighted normalised error is proportional to
     the error in coefficient units (the metric's), at the normalised loss's overall size."""
     if cfg.get("loss_weights", "normalised") == "normalised":
         return None
     scale = torch.tensor(manifest["normalization"]["animation"]["scale"], dtype=torch.float64) ** 2
-    return (scale / scale.mean()).float()
+    return (scale / scale.mean()).float().to(device)
 
 
 @torch.no_grad()
@@ -94,7 +96,6 @@ def validation_loss(
 ) -> float:
     """MSE over every usable frame and channel of the validation split (this rank's share, summed over
     ranks), normalised units, channels weighted by ``weights`` when given."""
-    w = None if weights is None else weights.to(device)
     model.eval()
     se, n = 0.0, 0.0
     for item in utterances(ds, "val", spec, cfg):
@@ -103,7 +104,7 @@ def validation_loss(
         pred = model(content.to(device), None if prosody is None else prosody.to(device), mask)
         m = mask.unsqueeze(-1).float()
         err = (pred.float() - item["anim"].to(device)) ** 2
-        se += float(((err if w is None else err * w) * m).sum())
+        se += float(((err if weights is None else err * weights) * m).sum())
         n += float(m.sum()) * pred.shape[-1]
     model.train()
     se, n = _all_sum([se, n], device)
@@ -211,14 +212,20 @@ def fit(
         if resume and (run / CONFIG).is_file() and not (run / LAST).is_file():
             saved = json.loads((run / CONFIG).read_text())
             if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
-                limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
-                cfg = {**DEFAULTS, **{k: v for k, v in saved.items() if k in DEFAULTS}, **limits}
+                cfg = _resumed_config(saved, cfg)
         if cfg.get("cv_folds"):
             return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps)
         return _fit(ds, run, cfg, resume, say, stop_after_steps)
     finally:
         if owns_group and dist.is_initialized():
             dist.destroy_process_group()
+
+
+def _resumed_config(saved: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:
+    """A run's saved config with this session's limits (``max_steps``, ``max_minutes``); keys added
+    after the run was saved take their defaults (augmentation off)."""
+    limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
+    return {**DEFAULTS, **{k: v for k, v in saved.items() if k in DEFAULTS}, **limits}
 
 
 def _fit_ensemble(
@@ -233,7 +240,7 @@ def _fit_ensemble(
     manifest = read_manifest(ds)
     rank, world, _device = _distributed()
     say = say if rank == 0 else (lambda _m: None)
-    check_ensemble_run(manifest, run, cfg, resume)
+    folds = check_ensemble_run(manifest, run, cfg, resume)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     run.mkdir(parents=True, exist_ok=True)
@@ -244,7 +251,7 @@ def _fit_ensemble(
     def fit_member(folder: Path, member_cfg: dict[str, Any], member_resume: bool) -> dict[str, Any]:
         return _fit(ds, folder, member_cfg, member_resume, say, stop_after_steps)
 
-    summary = fit_ensemble(fit_member, manifest, run, cfg, resume, rank == 0, say)
+    summary = fit_ensemble(fit_member, folds, run, cfg, resume, rank == 0, say)
     checksums = [c for m in summary["members"] for c in m["params_checksums"] or []]
     return {
         "run": str(run),
@@ -276,9 +283,7 @@ def _fit(
         if not (run / LAST).is_file():
             raise InputError(f"nothing to resume: no {LAST}", run)
         state = load_checkpoint(run / LAST)
-        # keys added after the run was saved take their defaults (augmentation off)
-        limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
-        cfg = {**DEFAULTS, **state["config"], **limits}
+        cfg = _resumed_config(state["config"], cfg)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     run.mkdir(parents=True, exist_ok=True)
@@ -319,9 +324,7 @@ def _fit(
             (run / METRICS).write_text("".join(ln for ln in lines if json.loads(ln).get("step", 0) <= step))
         if state.get("stopped") == "early_stopping":
             say(f"run stopped early at step {step}; nothing to resume")
-    weights = channel_weights(manifest, cfg)
-    if weights is not None:
-        weights = weights.to(device)
+    weights = channel_weights(manifest, cfg, device)
     has_val = _has_val(manifest, cfg)
     if not has_val:
         say("note: the dataset has no val split: no validation, no early stopping, no best.pt")

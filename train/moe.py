@@ -166,9 +166,8 @@ class MoELayer(nn.Module):
         w_conv = self.conv.weight.view(e, self.hidden, d * k).transpose(1, 2).to(dt)  # (E, d*k, H)
         inner = torch._grouped_mm(patches[frame], w_conv, offs=offsets)
         inner = self.dropout(F.gelu(inner + self.conv.bias.view(e, self.hidden)[expert].to(dt)))
-        out = torch._grouped_mm(inner, self.linear_weight.to(dt), offs=offsets) + self.linear_bias[expert].to(
-            dt
-        )
+        out = torch._grouped_mm(inner, self.linear_weight.to(dt), offs=offsets)
+        out = out + self.linear_bias[expert].to(dt)
         return h.new_zeros(b * t, d).index_add_(0, frame, out * prob.unsqueeze(-1)).view(b, t, d)
 
     def _weights(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -191,7 +190,7 @@ class MoELayer(nn.Module):
     def _grouped_fits(self, dtype: torch.dtype) -> bool:
         """Whether ``torch._grouped_mm`` exists and takes this layer's weights: their rows (hidden and
         d_model values) must be whole multiples of 16 bytes."""
-        size = torch.empty((), dtype=dtype).element_size()
+        size = dtype.itemsize
         return (
             hasattr(torch, "_grouped_mm")
             and (self.hidden * size) % 16 == 0
@@ -201,7 +200,7 @@ class MoELayer(nn.Module):
     def _row_width(self, dtype: torch.dtype) -> int:
         """d_model plus a column of ones, padded to a multiple of 16 bytes (the grouped product wants
         16-byte strides): 4 float32 or 8 bfloat16 values."""
-        per = max(1, 16 // torch.empty((), dtype=dtype).element_size())
+        per = max(1, 16 // dtype.itemsize)
         return self.d_model + per - self.d_model % per
 
     def _weights_with_bias(self) -> torch.Tensor:
@@ -253,7 +252,6 @@ class MoELayer(nn.Module):
         counts = torch.bincount(sorted_expert, minlength=e)
         centre = (frame // t) * stride + frame % t + pad  # row of each routed frame
         taps = torch.arange(-pad, pad + 1, device=h.device)
-        w_conv, b_conv = self._weights()
         if self._grouped_fits(h.dtype):
             # routed (frame, expert) pairs sorted by expert: two grouped matrix products, no padding.
             # The convolution bias rides on a column of ones (its weight row sits on the centre tap),
@@ -284,6 +282,7 @@ class MoELayer(nn.Module):
         tap_index = torch.where((index == zero_row).unsqueeze(-1), zero_row, index.unsqueeze(-1) + taps)
         patches = self._buffer("patches", (e * capacity * k, d), h)
         torch.index_select(rows, 0, tap_index.reshape(-1), out=patches)
+        w_conv, b_conv = self._weights()
         inner = F.gelu(torch.baddbmm(b_conv, patches.view(e, capacity, k * d), w_conv))
         out = torch.baddbmm(self.linear_bias.unsqueeze(1), inner, self.linear_weight).mul_(weight)
         target = torch.full((e, capacity), n, dtype=torch.long, device=h.device)  # padding → spare row
