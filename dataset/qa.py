@@ -27,6 +27,14 @@ from .splits import SPLITS
 
 ANIM_LIMIT = 10.0  # |value| above this is no blendshape weight nor angle in radians
 LOG_F0_RANGE = (math.log(20.0), math.log(2000.0))
+# still_channel: a channel counts as animated when the median over takes of its per-take std reaches
+# MOVING_STD (blendshape units); a take whose std is under STILL_RATIO of that median leaves it still
+MOVING_STD = 0.03
+STILL_RATIO = 0.25
+MIN_TAKES = 3  # fewer takes give no majority to compare with
+# shorter takes are not judged: a channel that moves on a few phones only (mouthRollLower on m, b, p) can
+# rest through a short one
+MIN_TAKE_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -78,6 +86,14 @@ CHECKS: tuple[Check, ...] = (
         "split_leakage", "splits", False, "a take (or, split by speaker, a speaker) is in more than one split"
     ),
     Check("manifest_mismatch", "splits", False, "samples listed in the manifest and found in shards differ"),
+    Check(
+        "still_channel",
+        "takes",
+        False,
+        f"a take of at least {MIN_TAKE_S:g} s leaves still a channel that the other takes animate: its "
+        f"std is under {STILL_RATIO:g} x the median of the takes' stds, which is at least {MOVING_STD:g} "
+        "(warning; a tracking or calibration fault, or a rig mapped differently)",
+    ),
 )
 CHECK_CODES = {c.code for c in CHECKS}
 
@@ -226,9 +242,17 @@ def validate_shard(
 
 
 def validate_sample(
-    key: str, members: dict[str, bytes], shard: str, manifest: dict[str, Any], deep: bool = False, **_: Any
+    key: str,
+    members: dict[str, bytes],
+    shard: str,
+    manifest: dict[str, Any],
+    deep: bool = False,
+    on_anim: Callable[[np.ndarray], None] | None = None,
+    **_: Any,
 ) -> tuple[list[Problem], dict[str, Any] | None]:
-    """Decode one sample and check members, dtypes, shapes, values and rates; returns its metadata."""
+    """Decode one sample and check members, dtypes, shapes, values and rates; returns its metadata.
+    ``on_anim`` receives the animation's usable frames (mask true, every value finite), when the
+    animation and mask have the manifest's shape."""
     out: list[Problem] = []
     at = f"{shard}:{key}"
     expected = set(manifest.get("members", ["json", "flac", "anim.npy", "mask.npy"]))
@@ -310,6 +334,14 @@ def validate_sample(
                     f"mask has shape {mask.shape}, animation {frames} frames",
                 )
             )
+        elif (
+            on_anim is not None
+            and frames is not None
+            and anim.dtype.kind == "f"
+            and anim.shape[1] == n_channels
+        ):
+            usable = mask.astype(bool) & np.isfinite(anim).all(axis=1)
+            on_anim(anim[usable])
     dims = manifest.get("features", {}).get("dims", {})
     for name in manifest.get("features", {}).get("names", []):
         arr = arrays.get(name)
@@ -513,11 +545,76 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
     return out
 
 
+# ------------------------------------------------------------------------------------------ takes
+
+
+def still_channels(
+    stds: dict[str, np.ndarray], channels: list[str]
+) -> dict[str, list[tuple[str, float, float]]]:
+    """{take: [(channel, the take's std, median std over the takes)]} of the channels each take leaves
+    still while the takes as a whole animate them (see ``MOVING_STD``, ``STILL_RATIO``); ``stds`` holds
+    each take's per-channel standard deviation. Empty with fewer than ``MIN_TAKES`` takes."""
+    if len(stds) < MIN_TAKES:
+        return {}
+    takes = sorted(stds)
+    table = np.stack([np.asarray(stds[t], np.float64) for t in takes])
+    median = np.median(table, axis=0)
+    out: dict[str, list[tuple[str, float, float]]] = {}
+    for take, row in zip(takes, table):
+        still = np.flatnonzero((median >= MOVING_STD) & (row < STILL_RATIO * median))
+        if still.size:
+            out[take] = [(channels[c], float(row[c]), float(median[c])) for c in still]
+    return out
+
+
+def describe_still(found: list[tuple[str, float, float]]) -> str:
+    listed = ", ".join(f"{name} (std {std:.3f}; median over takes {med:.3f})" for name, std, med in found)
+    return (
+        f"leaves still what the other takes animate: {listed}. A tracking or calibration fault, or a rig "
+        "mapped differently? s2a-train's drop_takes leaves a take out of training"
+    )
+
+
+def validate_takes(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: Any) -> list[Problem]:
+    """Channels a take leaves still, from the usable animation frames of its samples (``seen[i]
+    ["moments"]``: frame count, per-channel sums and sums of squares, or None); takes with less than
+    ``MIN_TAKE_S`` of usable animation are left out."""
+    sums: dict[str, list[np.ndarray]] = {}
+    for s in seen:
+        take = (s.get("meta") or {}).get("take")
+        if take is None or s.get("moments") is None:
+            continue
+        moments = s["moments"]
+        if take in sums:
+            sums[take] = [a + b for a, b in zip(sums[take], moments)]
+        else:
+            sums[take] = list(moments)
+    stds = {}
+    fps = manifest.get("fps")
+    min_frames = MIN_TAKE_S * fps if isinstance(fps, (int, float)) and fps > 0 else math.inf
+    for take, (n, total, total_sq) in sums.items():
+        if n.max() >= min_frames:
+            mean = total / n
+            stds[take] = np.sqrt(np.maximum(total_sq / n - mean * mean, 0.0))
+    channels = list(manifest.get("channels", []))
+    return [
+        _p("still_channel", f"take {take}", describe_still(found), "warning")
+        for take, found in still_channels(stds, channels).items()
+    ]
+
+
+def moments(anim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame count per channel, sums, sums of squares) of (frames, channels) values, float64."""
+    x = np.asarray(anim, np.float64)
+    return np.full(x.shape[1], x.shape[0], np.float64), x.sum(0), (x * x).sum(0)
+
+
 VALIDATORS: dict[str, Callable[..., Any]] = {
     "manifest": validate_manifest,
     "shard": validate_shard,
     "sample": validate_sample,
     "splits": validate_splits,
+    "takes": validate_takes,
 }
 
 
@@ -571,14 +668,17 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
         split = entry.get("split")
 
         def on_sample(key: str, members: dict[str, bytes], name=name, split=split) -> None:
-            found, meta = VALIDATORS["sample"](key, members, name, manifest, deep=deep)
+            usable: list[np.ndarray] = []
+            found, meta = VALIDATORS["sample"](key, members, name, manifest, deep=deep, on_anim=usable.append)
             problems.extend(found)
-            seen.append({"key": key, "shard": name, "split": split, "meta": meta})
+            sums = moments(usable[0]) if usable else None
+            seen.append({"key": key, "shard": name, "split": split, "meta": meta, "moments": sums})
 
         problems.extend(VALIDATORS["shard"](entry, ds, manifest, deep=deep, on_sample=on_sample))
         if progress:
             progress(f"[{i}/{len(shards)}] {name}")
     problems.extend(VALIDATORS["splits"](manifest, seen))
+    problems.extend(VALIDATORS["takes"](manifest, seen))
     for p in sorted(ds.glob("*.tar")):
         if p.name not in listed:
             problems.append(_p("shard_unlisted", p.name, "not listed in the manifest", "warning"))

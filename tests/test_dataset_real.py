@@ -28,7 +28,7 @@ def aligned(raw: Take) -> Take:
 def test_facegood_dataset_builds_and_validates(samples, tmp_path):
     fg = samples / "paired" / "facegood-audio2face"
     takes = tmp_path / "takes"
-    for name in ("1114_3_15", "1114_3_16", "1114_2_05"):
+    for name in ("1114_3_15", "1114_3_16", "1114_2_05", "1114_2_04"):
         raw = read_paired(
             fg / "wav" / f"{name}.wav",
             fg / "bs_value" / f"bs_value_{name}.npy",
@@ -55,7 +55,7 @@ def test_facegood_dataset_builds_and_validates(samples, tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
-    assert summary["takes"] == 3 and summary["samples"] >= 7  # 30 s samples: 112.8 s → 4, 49 s → 2, ...
+    assert summary["takes"] == 4 and summary["samples"] >= 11  # 30 s samples: 112.8 s → 4, 49 s → 2, ...
     m = read_manifest(ds)
     names = (fg / "bs_names.txt").read_text().split()
     assert 10 < len(m["channels"]) < 116 and set(m["channels"]) <= set(names)
@@ -68,7 +68,12 @@ def test_facegood_dataset_builds_and_validates(samples, tmp_path):
     assert 100 < np.exp(spk["mean"]) < 400 and spk["voiced_frames"] > 1000
     proc = run_cli("dataset", "validate", ds, "--deep", "--json")
     assert proc.returncode == 0, proc.stdout
-    assert json.loads(proc.stdout)["valid"]
+    report = json.loads(proc.stdout)
+    assert report["valid"]
+    # 1114_2_04 barely uses mouth_oh_c (std 0.03), which the other takes animate (std 0.20-0.24)
+    still = {p["location"]: p["message"] for p in report["problems"] if p["code"] == "still_channel"}
+    assert "mouth_oh_c" in still["take facegood_1114_2_04"]
+    assert [t for t, message in still.items() if "mouth_oh_c" in message] == ["take facegood_1114_2_04"]
 
 
 def test_neurosync_arkit_take_builds_and_validates(samples, tmp_path):

@@ -14,7 +14,7 @@ import soundfile as sf
 from conftest import run_cli
 from dataset_helpers import write_aligned_set
 
-from dataset.qa import CHECKS, VALIDATORS, validate
+from dataset.qa import CHECKS, VALIDATORS, moments, validate, validate_takes
 
 
 @pytest.fixture(scope="module")
@@ -173,5 +173,38 @@ def test_each_corruption_is_reported(clean, tmp_path, corrupt, deep, code):
 def test_clean_dataset_has_no_problems_and_checks_are_data(clean):
     report = validate(clean, deep=True)
     assert report.valid and report.problems == []
-    assert set(VALIDATORS) == {"manifest", "shard", "sample", "splits"}
+    assert set(VALIDATORS) == {"manifest", "shard", "sample", "splits", "takes"}
     assert len({c.code for c in CHECKS}) == len(CHECKS) >= 20
+
+
+def test_still_channel_flags_a_take_that_leaves_an_animated_channel_still():
+    rng = np.random.default_rng(0)
+    channels = ["jawOpen", "mouthFunnel", "cheekPuff"]
+    fps = 30.0
+
+    def take(seconds: float, still: bool) -> np.ndarray:
+        x = np.abs(rng.normal(0.0, [0.15, 0.1, 0.005], size=(int(seconds * fps), 3)))
+        if still:
+            x[:, 1] = 0.01 + rng.normal(0.0, 0.002, len(x))  # funnel barely moves in this take
+        return x
+
+    def seen(*takes):
+        return [{"meta": {"take": name}, "moments": moments(x)} for name, x in takes]
+
+    manifest = {"channels": channels, "fps": fps}
+    found = validate_takes(manifest, seen(*((f"t{i}", take(40, i == 2)) for i in range(4))))
+    assert [(p.code, p.location, p.severity) for p in found] == [("still_channel", "take t2", "warning")]
+    # the still channel is named with its std; cheekPuff hardly moves anywhere, so it is not
+    assert "mouthFunnel (std 0.002" in found[0].message and "cheekPuff" not in found[0].message
+    # a take's samples add up: t2 in two 20 s samples is judged as one 40 s take
+    halves = [("t0", take(40, False)), ("t1", take(40, False)), ("t3", take(40, False))]
+    parts = [("t2", take(20, True)), ("t2", take(20, True))]
+    assert [p.location for p in validate_takes(manifest, seen(*halves, *parts))] == ["take t2"]
+    # short takes are not judged, and two takes give no majority
+    assert validate_takes(manifest, seen(*halves, ("t2", take(20, True)))) == []
+    assert validate_takes(manifest, seen(("t0", take(40, False)), ("t2", take(40, True)))) == []
+    # samples without usable animation or take metadata are skipped
+    assert (
+        validate_takes(manifest, [{"meta": None, "moments": None}, {"meta": {"take": "x"}, "moments": None}])
+        == []
+    )

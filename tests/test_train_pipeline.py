@@ -342,6 +342,54 @@ def test_val_takes_move_validation_to_chosen_training_takes(ds, tmp_path):
             split_keys(manifest, {**cfg, "val_takes": takes})
 
 
+def test_drop_takes_leave_training_and_validation(ds, tmp_path):
+    from train.data import resolve_inputs, split_keys, train_dataset, utterances
+
+    manifest = read_manifest(ds)
+    take_of = {s["key"]: s["take"] for s in manifest["samples"]}
+    # alone: the dataset's own splits, less the dropped take
+    cfg = resolve_config(sets=TINY + ['drop_takes=["take02"]'])
+    train_keys, val_keys = split_keys(manifest, cfg)
+    assert {take_of[k] for k in train_keys} == {"take00", "take01", "take03"}
+    assert {take_of[k] for k in val_keys} == {"take05"}
+    spec = resolve_inputs(manifest, cfg)
+    assert {item["key"] for item in train_dataset(ds, spec, cfg)} == train_keys
+    # with val_takes: the val split's take trains, the dropped take does neither
+    both = {**cfg, "val_takes": ["take01"]}
+    train_keys, val_keys = split_keys(manifest, both)
+    assert {take_of[k] for k in train_keys} == {"take00", "take03", "take05"}
+    assert {item["key"] for item in utterances(ds, "val", spec, both)} == val_keys
+    # dropping the only val take leaves no validation: training runs without it
+    s2a = fit(ds, tmp_path / "s2a", {**cfg, "drop_takes": ["take05"], "max_steps": 4}, say=lambda _m: None)
+    assert s2a["steps"] == 4 and s2a["best_val"] is None
+    # a cross-validation ensemble deals only the kept takes into folds
+    proc = _cli(
+        "fit",
+        "--data",
+        ds,
+        "-o",
+        tmp_path / "cv",
+        "--max-steps",
+        2,
+        *[a for x in TINY + ["cv_folds=2", 'drop_takes=["take00", "take05"]'] for a in ("--set", x)],
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    folds = [set(m["val_takes"]) for m in json.loads(proc.stdout)["members"]]
+    assert folds[0] | folds[1] == {"take01", "take02", "take03"}
+    for takes, needle in (
+        (["take04"], "drop_takes: take 'take04' is in the test split"),
+        (["take99"], "drop_takes: no take 'take99'"),
+        (["take00", "take01", "take02", "take03", "take05"], "leave no training take"),
+    ):
+        with pytest.raises(InputError, match=needle):
+            split_keys(manifest, {**cfg, "drop_takes": takes})
+    with pytest.raises(InputError, match="both validate and are dropped"):
+        split_keys(manifest, {**both, "drop_takes": ["take01"]})
+    proc = _cli("fit", "--data", ds, "-o", tmp_path / "bad", "--set", "drop_takes='take01'")
+    assert proc.returncode == 1 and "drop_takes must be a list of take ids" in proc.stderr
+
+
 def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
     """cv_folds = 2: every train/val take validates exactly once; eval, predict and export use the mean
     of the members; resuming a finished ensemble retrains nothing; a second fit into it is refused."""

@@ -52,6 +52,9 @@ DEFAULTS: dict[str, Any] = {
     # > 0: a cross-validation ensemble (train/ensemble.py): the train and val takes dealt into this many
     # folds, one member per fold validating on it and training on the rest; predictions average them
     "cv_folds": 0,
+    # takes that neither train nor validate (e.g. takes whose animation uses the rig differently from
+    # the rest); test takes are refused
+    "drop_takes": [],
     # channel weights of the loss (and of the validation score that early stopping and best.pt follow):
     # "normalised" = every normalised channel alike; "raw" = squared error in 0..1 coefficient units,
     # what rmse_entire measures (weights scale² of the manifest's normalisation, mean 1)
@@ -128,10 +131,9 @@ def check_config(cfg: dict[str, Any]) -> None:
         raise InputError(f"input must be one of {', '.join(INPUTS)}, got {cfg['input']!r}", "config:input")
     if not isinstance(cfg["prosody"], bool):
         raise InputError(f"prosody must be true or false, got {cfg['prosody']!r}", "config:prosody")
-    if not isinstance(cfg["val_takes"], list) or not all(isinstance(t, str) for t in cfg["val_takes"]):
-        raise InputError(
-            f"val_takes must be a list of take ids, got {cfg['val_takes']!r}", "config:val_takes"
-        )
+    for key in ("val_takes", "drop_takes"):
+        if not isinstance(cfg[key], list) or not all(isinstance(t, str) for t in cfg[key]):
+            raise InputError(f"{key} must be a list of take ids, got {cfg[key]!r}", f"config:{key}")
     folds = cfg["cv_folds"]
     if not isinstance(folds, int) or isinstance(folds, bool) or folds < 0 or folds == 1:
         raise InputError(f"cv_folds must be 0 (off) or an integer >= 2, got {folds!r}", "config:cv_folds")

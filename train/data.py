@@ -113,23 +113,34 @@ class TakeSubset(ShardDataset):
 
 
 def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "config:val_takes"):
-    """(training sample keys, validation sample keys) when ``cfg["val_takes"]`` names takes: those
-    takes' samples validate, every other train- or val-split sample trains; None with no val_takes (the
-    dataset's own train and val splits). Test takes and unknown takes are errors."""
+    """(training sample keys, validation sample keys) when ``cfg["val_takes"]`` or ``cfg["drop_takes"]``
+    name takes: the val_takes' samples validate, every other train- or val-split sample trains (with no
+    val_takes, the dataset's own train and val splits), and the drop_takes' samples do neither; None
+    with neither set (the dataset's own splits). Test takes and unknown takes are errors."""
     takes = list(cfg.get("val_takes") or [])
-    if not takes:
+    dropped = set(cfg.get("drop_takes") or [])
+    if not takes and not dropped:
         return None
     split_of = {s["take"]: s["split"] for s in manifest["samples"]}
-    for take in takes:
-        if take not in split_of:
-            raise InputError(f"val_takes: no take {take!r} in the dataset (it has {sorted(split_of)})", where)
-        if split_of[take] not in ("train", "val"):
-            raise InputError(f"val_takes: take {take!r} is in the {split_of[take]} split", where)
-    usable = [s for s in manifest["samples"] if s["split"] in ("train", "val")]
-    val = {s["key"] for s in usable if s["take"] in takes}
-    train = {s["key"] for s in usable if s["take"] not in takes}
+    for key, named in (("val_takes", takes), ("drop_takes", sorted(dropped))):
+        for take in named:
+            if take not in split_of:
+                raise InputError(
+                    f"{key}: no take {take!r} in the dataset (it has {sorted(split_of)})", f"config:{key}"
+                )
+            if split_of[take] not in ("train", "val"):
+                raise InputError(f"{key}: take {take!r} is in the {split_of[take]} split", f"config:{key}")
+    if dropped & set(takes):
+        raise InputError(f"takes both validate and are dropped: {sorted(dropped & set(takes))}", "config")
+    usable = [s for s in manifest["samples"] if s["split"] in ("train", "val") and s["take"] not in dropped]
+    if takes:
+        val = {s["key"] for s in usable if s["take"] in takes}
+        train = {s["key"] for s in usable if s["take"] not in takes}
+    else:
+        val = {s["key"] for s in usable if s["split"] == "val"}
+        train = {s["key"] for s in usable if s["split"] == "train"}
     if not train:
-        raise InputError("val_takes leaves no training take", where)
+        raise InputError("val_takes and drop_takes leave no training take", where)
     return train, val
 
 
@@ -171,7 +182,8 @@ def utterances(
     ds: str | Path, split: str, spec: InputSpec | None = None, cfg: dict[str, Any] | None = None
 ) -> Iterator[dict[str, Any]]:
     """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised). With a
-    ``cfg`` that sets ``val_takes``, "train" and "val" mean its training and validation takes."""
+    ``cfg`` that sets ``val_takes`` or ``drop_takes``, "train" and "val" mean its training and
+    validation takes."""
     manifest = read_manifest(ds)
     features = spec.features if spec is not None else None
     keys = split_keys(manifest, cfg) if cfg is not None and split in ("train", "val") else None

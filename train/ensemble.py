@@ -16,7 +16,7 @@ any other; the cross-validation score (``cv_score``) is the mean of the members'
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
@@ -30,11 +30,11 @@ from .checkpoint import LAST, write_json
 ENSEMBLE = "ensemble.json"
 
 
-def fold_takes(manifest: dict[str, Any], folds: int) -> list[list[str]]:
-    """The train and val takes dealt into ``folds`` groups of about equal duration."""
+def fold_takes(manifest: dict[str, Any], folds: int, dropped: Collection[str] = ()) -> list[list[str]]:
+    """The train and val takes, less ``dropped``, dealt into ``folds`` groups of about equal duration."""
     duration: dict[str, float] = {}
     for s in manifest["samples"]:
-        if s["split"] in ("train", "val"):
+        if s["split"] in ("train", "val") and s["take"] not in dropped:
             duration[s["take"]] = duration.get(s["take"], 0.0) + float(s["duration_s"])
     if folds < 2:
         raise InputError(f"cv_folds must be 0 (off) or at least 2, got {folds}", "config:cv_folds")
@@ -84,7 +84,7 @@ def check_ensemble_run(
         raise InputError("run folder already holds an ensemble: use --resume or another -o", run)
     if resume and not has_members(run):
         raise InputError(f"nothing to resume: no fold-*/{LAST}", run)
-    return fold_takes(manifest, cfg["cv_folds"])
+    return fold_takes(manifest, cfg["cv_folds"], cfg["drop_takes"])
 
 
 def fit_ensemble(

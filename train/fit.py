@@ -112,8 +112,9 @@ def validation_loss(
 
 
 def _has_val(manifest: dict[str, Any], cfg: dict[str, Any]) -> bool:
-    if cfg.get("val_takes"):
-        return True
+    keys = split_keys(manifest, cfg)
+    if keys is not None:
+        return bool(keys[1])
     return any(sh["split"] == "val" for sh in manifest["shards"])
 
 
@@ -240,6 +241,7 @@ def _fit_ensemble(
     manifest = read_manifest(ds)
     rank, world, _device = _distributed()
     say = say if rank == 0 else (lambda _m: None)
+    split_keys(manifest, cfg)  # checks drop_takes against the dataset
     folds = check_ensemble_run(manifest, run, cfg, resume)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
@@ -288,7 +290,7 @@ def _fit(
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     run.mkdir(parents=True, exist_ok=True)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
-    split_keys(manifest, cfg)  # checks val_takes against the dataset
+    split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     if spec.note:
         say(f"note: {spec.note}")
