@@ -99,6 +99,40 @@ def s2a_bf16_rtf(c: S2AConfig, frames: int, repeat: int) -> tuple[float, float, 
     return best["bf16"] / seconds, best["fp32"] / seconds, rel
 
 
+def s2a_multiply_adds(c: S2AConfig, frames: int) -> float:
+    """Multiply-adds of one Transformer-S2A forward pass of ``frames`` frames at batch 1 on the inference
+    path: every linear layer and projection, attention's two T x T products, and in the MoE only the
+    top_k routed experts (a kernel_size-tap convolution and a linear each) plus the gate. Normalisation,
+    activations, softmax and gathers are left out: they are not matrix products."""
+    d = c.d_model
+    attention = 4 * d * d  # query, key, value and output projections, per frame
+    expert = c.expert_kernel * d * c.expert_hidden + c.expert_hidden * d
+    per_frame = (
+        c.content_dim * d
+        + c.encoder_layers * (attention + 2 * d * c.ff_dim)
+        + (d + c.prosody_dim) * d
+        + c.decoder_layers * (attention + (d * c.experts + c.top_k * expert if c.moe else 2 * d * c.ff_dim))
+        + d * c.out_dim
+    )
+    scores = (c.encoder_layers + c.decoder_layers) * 2 * frames * frames * d  # Q·Kᵀ and weights·V
+    return float(per_frame * frames + scores)
+
+
+def gemm_rate(c: S2AConfig, frames: int, repeat: int) -> float:
+    """The best float32 multiply-adds per second of this CPU's matrix products at the model's largest
+    shapes (the feed-forward's two products and the attention's input projection)."""
+    best = 0.0
+    for m, k, n in (
+        (frames, c.d_model, c.ff_dim),
+        (frames, c.ff_dim, c.d_model),
+        (frames, c.d_model, 3 * c.d_model),
+    ):
+        a, b = torch.randn(m, k), torch.randn(k, n)
+        a @ b
+        best = max(best, m * k * n / best_time(lambda a=a, b=b: a @ b, repeat))
+    return best
+
+
 TRAIN_BATCH, TRAIN_FRAMES = 16, 240  # the default training batch (fit: batch_size 16, window 240)
 
 
@@ -148,6 +182,8 @@ def run(quick: bool = False) -> list[Figure]:
     )
     train_times = training_step_times(c, 3 if quick else 5)
     s2a, s2a_reference, diff = s2a_rtf_paths(c, frames, repeat)
+    macs, rate = s2a_multiply_adds(c, frames), gemm_rate(c, frames, 5 * repeat)
+    floor = macs / rate / SECONDS
     half = s2a_bf16_rtf(c, frames, repeat) if bf16_is_native() else None
     blstm = rtf(BLSTM(BLSTMConfig()), frames, repeat)
     nvp = rtf(NVP(NVPConfig(window=9)), frames, repeat)
@@ -178,6 +214,18 @@ def run(quick: bool = False) -> list[Figure]:
             for mode in ("dense", "grouped")
         ),
         Figure("Transformer-S2A RTF", s2a, "s/s", "paper's P100 figure", 0.005, False, 1.0, note),
+        Figure(
+            "Transformer-S2A RTF, arithmetic floor",
+            floor,
+            "s/s",
+            "paper's P100 figure",
+            0.005,
+            False,
+            None,
+            f"{macs / 1e9:.2f} G multiply-adds at this CPU's best float32 matrix product rate, "
+            f"{rate / 1e9:.0f} G/s; {note}",
+        ),
+        Figure("Transformer-S2A RTF vs its arithmetic floor", s2a, "s/s", "arithmetic floor", floor, False),
         Figure(
             "Transformer-S2A RTF, inference path",
             s2a,
