@@ -74,6 +74,11 @@ def test_facegood_dataset_builds_and_validates(samples, tmp_path):
     still = {p["location"]: p["message"] for p in report["problems"] if p["code"] == "still_channel"}
     assert "mouth_oh_c" in still["take facegood_1114_2_04"]
     assert [t for t, message in still.items() if "mouth_oh_c" in message] == ["take facegood_1114_2_04"]
+    # and the other takes predict it worst (s2a-train agreement, leave one take out)
+    proc = run_cli("train", "agreement", "--data", ds, "--splits", "train", "test", "--json")
+    assert proc.returncode == 0, proc.stderr
+    loo = json.loads(proc.stdout)["leave_one_out"]
+    assert max(loo, key=lambda t: loo[t]["ratio"]) == "facegood_1114_2_04", loo
 
 
 def test_neurosync_arkit_take_builds_and_validates(samples, tmp_path):

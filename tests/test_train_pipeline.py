@@ -390,6 +390,40 @@ def test_drop_takes_leave_training_and_validation(ds, tmp_path):
     assert proc.returncode == 1 and "drop_takes must be a list of take ids" in proc.stderr
 
 
+def test_agreement_leave_one_take_out_is_the_ridge_fit_trains_without_that_take(ds, tmp_path):
+    """s2a-train agreement's leave-one-take-out score of take01 equals, by hand, the RMSE on take01 of
+    the ridge that fit trains with take01 held out (val_takes), at the same alpha."""
+    from train.checkpoint import load_system
+    from train.data import InputSpec, to_model_inputs, utterances
+
+    proc = _cli("agreement", "--data", ds, "--set", "ridge_alpha=0.5", "--json")
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(proc.stdout)
+    takes = ["take00", "take01", "take02", "take03", "take05"]  # train and val; take04 is the test take
+    assert r["takes"] == takes and r["alpha"] == 0.5 and r["splits"] == ["train", "val"]
+    cfg = resolve_config(sets=["model='ridge'", "ridge_alpha=0.5", 'val_takes=["take01"]'])
+    fit(ds, tmp_path / "ridge", cfg, say=lambda _m: None)
+    model, payload = load_system(tmp_path / "ridge")
+    spec = InputSpec.from_json(payload["inputs"])
+    scale = np.asarray(read_manifest(ds)["normalization"]["animation"]["scale"])
+    se, n = 0.0, 0
+    for item in utterances(ds, "val", spec, cfg):
+        content, prosody = to_model_inputs(item, spec)
+        mask = item["mask"][0].numpy()
+        with torch.no_grad():
+            pred = model(content, prosody, item["mask"])[0].numpy()
+        d = (pred - item["anim"][0].numpy())[mask] * scale
+        se, n = se + float((d.astype(np.float64) ** 2).sum()), n + d.size
+    assert r["leave_one_out"]["take01"]["rmse"] == pytest.approx(100 * (se / n) ** 0.5, rel=1e-4)
+    # a take's own fit (the table's diagonal) beats its floor; every take is scored against every fit
+    assert all(r["matrix"][t][t] < 1 for t in takes)
+    assert all(set(row) == set(takes) for row in r["matrix"].values())
+    human = _cli("agreement", "--data", ds, "--splits", "train", "val", "test")
+    assert human.returncode == 0 and "take04" in human.stdout and "leave one take out" in human.stdout
+    bad = _cli("agreement", "--data", ds, "--splits", "dev")
+    assert bad.returncode == 1 and "unknown split(s) dev" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
     """cv_folds = 2: every train/val take validates exactly once; eval, predict and export use the mean
     of the members; resuming a finished ensemble retrains nothing; a second fit into it is refused."""

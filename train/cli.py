@@ -1,4 +1,4 @@
-"""``s2a-train``: fit, eval, predict, compare, ppg, export."""
+"""``s2a-train``: fit, eval, predict, compare, agreement, ppg, export."""
 
 from __future__ import annotations
 
@@ -63,6 +63,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
     p.add_argument("--json", action="store_true", help="print one JSON line per system")
     p.set_defaults(handler=cmd_compare)
+
+    p = sub.add_parser(
+        "agreement", help="how well the takes predict each other (ridge, leave one take out): odd takes out"
+    )
+    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("--config", type=Path, help="TOML file (input, prosody, ridge_context, ridge_alpha)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
+    p.add_argument(
+        "--splits",
+        nargs="+",
+        default=["train", "val"],
+        help="splits whose takes to compare (default: train val; adding test is for studying a dataset, "
+        "not for choosing a model)",
+    )
+    p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    p.set_defaults(handler=cmd_agreement, max_steps=None, max_minutes=None)
 
     p = sub.add_parser("ppg", help="train the 64-dim bottleneck PPG extractor from phone alignments")
     p.add_argument(
@@ -166,6 +182,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
             emit_json(r)
     else:
         print(format_tables(rows))
+    return 0
+
+
+def cmd_agreement(args: argparse.Namespace) -> int:
+    from .agreement import format_agreement, take_agreement
+
+    result = take_agreement(args.data, _config(args), tuple(args.splits))
+    if args.json:
+        emit_json(result)
+    else:
+        print(format_agreement(result))
     return 0
 
 

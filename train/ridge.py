@@ -55,6 +55,24 @@ class NormalEquations:
         self.xx += x.T @ x
         self.xy += x.T @ y
 
+    FIELDS = ("n", "sx", "sy", "xx", "xy")
+
+    @classmethod
+    def total(cls, parts: list[NormalEquations]) -> NormalEquations:
+        """The sums of several sets of frames (e.g. takes) together."""
+        out = cls(parts[0].sx.numel(), parts[0].sy.numel())
+        for part in parts:
+            for name in cls.FIELDS:
+                setattr(out, name, getattr(out, name) + getattr(part, name))
+        return out
+
+    def minus(self, part: NormalEquations) -> NormalEquations:
+        """These sums without the frames of ``part`` (a subset of them)."""
+        out = NormalEquations(self.sx.numel(), self.sy.numel())
+        for name in self.FIELDS:
+            setattr(out, name, getattr(self, name) - getattr(part, name))
+        return out
+
     def solve(self, model: Ridge, alpha: float) -> None:
         """Set ``model.linear`` to the ridge solution on standardised inputs, intercept not penalised:
         ``(C + alpha·I) w = c_xy`` with C the inputs' correlation matrix (alpha is per frame)."""

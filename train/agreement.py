@@ -1,0 +1,150 @@
+"""Cross-take agreement (``s2a-train agreement``): how well the takes of a dataset predict each other.
+
+A take whose animation was labelled differently from the rest (another animator's style, a rig mapped
+differently, a tracking fault) is predicted badly by a model of the other takes, however good the
+model. The ridge regression of the model table (train/ridge.py, closed form, seconds) measures this:
+
+- **leave one take out**: for each take, a ridge fitted on every other take, scored on it;
+- **take by take** (up to ``MATRIX_TAKES`` takes): a ridge fitted on each single take, scored on
+  every take (the diagonal is the take's fit to itself, an optimistic bound).
+
+Scores are RMSE of de-normalised coefficients × 100 (the paper's scale, pooled over the take's usable
+frames and every channel) and their ratio to the floor of the same fit (its training takes' mean):
+near 1, the other takes tell nothing about this one. The normal equations of each take are summed
+once; leaving a take out subtracts its sums from the total. Only the train and val splits by default:
+scoring the test takes too is for studying a dataset, not for choosing a model.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from capture.command import progress
+from capture.errors import InputError
+from dataset.manifest import read_manifest
+
+from .data import resolve_inputs, to_model_inputs, utterances
+from .ridge import NormalEquations, Ridge
+
+MATRIX_TAKES = 30  # the take-by-take table is takes² scores: skipped above this many takes
+DEFAULT_ALPHA = 0.1  # ridge_alpha 0 means "choose on val" in fit; here there is no val to choose on
+
+
+def _items(ds: Path, splits: tuple[str, ...], spec, take_of: dict[str, str]) -> Iterator[tuple[str, dict]]:
+    for split in splits:
+        for item in utterances(ds, split, spec):
+            yield take_of[item["key"]], item
+
+
+def take_agreement(
+    ds: str | Path,
+    cfg: dict[str, Any],
+    splits: tuple[str, ...] = ("train", "val"),
+    say: Callable[[str], None] = progress,
+) -> dict[str, Any]:
+    """Leave-one-take-out and take-by-take ridge scores of ``ds`` (see module doc); ``cfg`` gives the
+    inputs (``input``, ``prosody``) and the ridge's ``ridge_context`` and ``ridge_alpha``."""
+    ds = Path(ds)
+    manifest = read_manifest(ds)
+    where = ds / "manifest.json"
+    present = {s["split"] for s in manifest["shards"]}
+    unknown = [s for s in splits if s not in ("train", "val", "test")]
+    if unknown:
+        raise InputError(f"unknown split(s) {', '.join(unknown)}: choose from train, val, test", where)
+    splits = tuple(s for s in splits if s in present)
+    spec = resolve_inputs(manifest, cfg, str(where))
+    take_of = {s["key"]: s["take"] for s in manifest["samples"]}
+    alpha = float(cfg["ridge_alpha"]) or DEFAULT_ALPHA
+    model = Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, cfg["ridge_context"])
+    n_in = model.linear.in_features
+
+    sums: dict[str, NormalEquations] = {}
+    for take, item in _items(ds, splits, spec, take_of):
+        content, prosody = to_model_inputs(item, spec)
+        sums.setdefault(take, NormalEquations(n_in, spec.out_dim)).add(
+            model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"]
+        )
+    takes = sorted(t for t, eq in sums.items() if eq.n > 0)
+    if len(takes) < 2:
+        raise InputError(f"agreement needs at least 2 takes with usable frames in {', '.join(splits)}", where)
+    say(f"agreement: {len(takes)} takes, {sum(sums[t].n for t in takes)} frames")
+    total = NormalEquations.total([sums[t] for t in takes])
+
+    def fitted(eq: NormalEquations) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(weight, bias, training mean) of the ridge solved on ``eq``."""
+        eq.solve(model, alpha)
+        mean = (eq.sy / max(eq.n, 1)).float()
+        return model.linear.weight.detach().clone(), model.linear.bias.detach().clone(), mean
+
+    loto = {t: fitted(total.minus(sums[t])) for t in takes}
+    single = {t: fitted(sums[t]) for t in takes} if len(takes) <= MATRIX_TAKES else {}
+    scale = torch.as_tensor(np.asarray(manifest["normalization"]["animation"]["scale"], np.float32))
+    # squared errors (coefficient units) per (fit, scored take), of the fit and of its floor
+    se: dict[tuple[str, str], list[float]] = {}
+    frames: dict[str, int] = {}
+    for take, item in _items(ds, splits, spec, take_of):
+        if take not in loto:
+            continue
+        content, prosody = to_model_inputs(item, spec)
+        mask = item["mask"][0]
+        x = model.inputs(content, prosody, item["mask"])[0][mask]
+        y = item["anim"][0][mask]
+        frames[take] = frames.get(take, 0) + int(mask.sum())
+        fits = {("loo", take): loto[take], **{("single", t): f for t, f in single.items()}}
+        for (kind, source), (w, b, mean) in fits.items():
+            err = float((((x @ w.T + b) - y) * scale).square().sum())
+            floor = float(((mean - y) * scale).square().sum())
+            acc = se.setdefault((f"{kind}:{source}", take), [0.0, 0.0])
+            acc[0] += err
+            acc[1] += floor
+
+    def score(key: str, take: str) -> dict[str, float]:
+        err, floor = se[(key, take)]
+        n = max(frames[take] * spec.out_dim, 1)
+        rmse, floor_rmse = 100.0 * (err / n) ** 0.5, 100.0 * (floor / n) ** 0.5
+        return {"rmse": rmse, "floor": floor_rmse, "ratio": rmse / floor_rmse if floor_rmse else float("nan")}
+
+    return {
+        "dataset": str(ds),
+        "splits": list(splits),
+        "input": spec.content,
+        "prosody": list(spec.prosody),
+        "context": cfg["ridge_context"],
+        "alpha": alpha,
+        "takes": takes,
+        "frames": frames,
+        "leave_one_out": {t: score(f"loo:{t}", t) for t in takes},
+        "matrix": {s: {t: score(f"single:{s}", t)["ratio"] for t in takes} for s in single} or None,
+    }
+
+
+def format_agreement(r: dict[str, Any]) -> str:
+    """Leave-one-take-out scores, the least agreeing take first, then the take-by-take table."""
+    loo = r["leave_one_out"]
+    inputs = " + ".join([r["input"], *r["prosody"]])
+    lines = [
+        f"{r['dataset']}: {len(r['takes'])} takes of {', '.join(r['splits'])}; ridge on {inputs}, "
+        f"±{r['context']} frames, alpha {r['alpha']:g}",
+        "leave one take out (RMSE x 100 of a ridge fitted on the other takes; ratio to their mean):",
+    ]
+    width = max(len(t) for t in r["takes"])
+    for t in sorted(loo, key=lambda t: -loo[t]["ratio"]):
+        s = loo[t]
+        lines.append(f"  {t:{width}s}  {s['rmse']:7.3f}  floor {s['floor']:7.3f}  ratio {s['ratio']:.3f}")
+    if r["matrix"]:
+        lines.append("fitted on one take (rows) and scored on each take (columns), ratio to the floor:")
+        common = len(os.path.commonprefix(r["takes"]))
+        short = [t[common:][-8:] or t[-8:] for t in r["takes"]]
+        lines.append(" " * (width + 2) + " ".join(f"{s:>8s}" for s in short))
+        for src in r["takes"]:
+            row = r["matrix"][src]
+            lines.append(f"  {src:{width}s}" + " ".join(f"{row[t]:8.2f}" for t in r["takes"]))
+    else:
+        lines.append(f"(take-by-take table left out: more than {MATRIX_TAKES} takes)")
+    return "\n".join(lines)
