@@ -232,10 +232,20 @@ def source_file(path: str | Path, role: str) -> SourceFile:
     return SourceFile(str(p.resolve()), role, sha256_file(p), p.stat().st_size)
 
 
+MAX_ID_BYTES = 120  # folder names are limited to 255 bytes; temporary names add a prefix and suffix
+
+
 def safe_id(text: str) -> str:
-    """A take id usable as a folder name on every platform."""
+    """A take id usable as a folder name on every platform: letters, digits, ``-_.``, at most
+    ``MAX_ID_BYTES`` bytes of UTF-8 (a longer id is cut and ends in a hash of the whole, so that two
+    long ids stay apart)."""
     keep = "".join(c if c.isalnum() or c in "-_." else "_" for c in text.strip())
-    return keep.strip(".") or "take"
+    keep = keep.strip(".") or "take"
+    if len(keep.encode()) <= MAX_ID_BYTES:
+        return keep
+    digest = hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()[:12]
+    cut = keep.encode()[: MAX_ID_BYTES - len(digest) - 1].decode("utf-8", "ignore")
+    return f"{cut}-{digest}"
 
 
 def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:

@@ -167,3 +167,12 @@ def test_float_wav_bytes_do_not_depend_on_when_they_were_written(tmp_path):
     assert a == b
     back = read_audio(tmp_path / "a.wav")
     assert back.sample_rate == 16000 and np.array_equal(back.samples[:, 0], audio.samples[:, 0])
+
+
+def test_safe_id_keeps_long_ids_short_and_apart():
+    from capture.take import MAX_ID_BYTES, safe_id
+
+    long_a, long_b = "S" * 300, "S" * 299 + "T"
+    assert len(safe_id(long_a).encode()) <= MAX_ID_BYTES and safe_id(long_a) != safe_id(long_b)
+    assert len(safe_id("é" * 200).encode()) <= MAX_ID_BYTES  # two bytes per letter in UTF-8
+    assert safe_id("Phone A/../x") == "Phone_A_.._x" and safe_id("...") == "take"
