@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from capture import InputError, S2AError, find_takes, read_meta, read_take, write_take
-from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, safe_id, sha256_file
+from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, make_out_dir, safe_id, sha256_file
 
 from .aligner import ALIGN_VERSION, align_with_report
 from .options import AlignOptions
@@ -129,6 +129,27 @@ def align_folder(
         return {"id": folder.name, "path": str(folder), "error": str(exc)}
 
 
+def _id_clashes(folders: list[Path]) -> dict[Path, str]:
+    """Takes whose id an earlier take of the run already has (their aligned takes would overwrite each
+    other in the output folder), with the error to report for each."""
+    seen: dict[str, Path] = {}
+    clashes = {}
+    for f in folders:
+        try:
+            take_id = read_meta(f).id
+        except S2AError:
+            continue  # align_folder reports it
+        key = safe_id(take_id).casefold()
+        if key in seen:
+            clashes[f] = (
+                f"{f}: take id {take_id!r} is also the id of {seen[key]}: their aligned takes would "
+                "overwrite each other; give one another id (s2a-capture import --id) or align them apart"
+            )
+        else:
+            seen[key] = f
+    return clashes
+
+
 def _worker_context(opts: AlignOptions):
     """Worker processes forked on Linux, with the modules (and torch for silero) imported once in the
     parent: importing torch costs seconds per process, which a spawned worker would pay each time.
@@ -159,22 +180,28 @@ def align_takes(
     opts.validate()
     out_dir = Path(out_dir)
     folders = [f for f in find_takes(paths) if out_dir.resolve() not in f.resolve().parents]
+    folders = list({f.resolve(): f for f in folders}.values())  # a take named twice is aligned once
     if not folders:
         raise InputError(f"no takes found under {', '.join(map(str, paths))}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_out_dir(out_dir)
+    clashes = _id_clashes(folders)
     reports: list[dict[str, Any]] = []
     if jobs <= 1 or len(folders) == 1:
         for f in folders:
-            r = align_folder(f, out_dir, opts, force, skip_without_audio)
+            r = {"id": f.name, "path": str(f), "error": clashes[f]} if f in clashes else None
+            r = r or align_folder(f, out_dir, opts, force, skip_without_audio)
             reports.append(r)
             if on_report:
                 on_report(r)
         return reports
     ctx = _worker_context(opts)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = [pool.submit(align_folder, f, out_dir, opts, force, skip_without_audio) for f in folders]
-        for fut in futures:
-            r = fut.result()
+        futures = [
+            None if f in clashes else pool.submit(align_folder, f, out_dir, opts, force, skip_without_audio)
+            for f in folders
+        ]
+        for f, fut in zip(folders, futures):
+            r = {"id": f.name, "path": str(f), "error": clashes[f]} if fut is None else fut.result()
             reports.append(r)
             if on_report:
                 on_report(r)

@@ -7,8 +7,10 @@ a take's audio round-trips exactly.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import soundfile as sf
@@ -64,8 +66,12 @@ class Audio:
         return y.mean(axis=1) if y.shape[1] > 1 else y[:, 0].copy()
 
 
-def read_audio(path: str | Path) -> Audio:
-    """Decode an audio file (or the audio track of a video) at its own rate and format."""
+def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) -> Audio:
+    """Decode an audio file (or the audio track of a video) at its own rate and format.
+
+    With ``repairs`` (a take's repair list), NaN or infinite float samples are set to 0 (repair
+    ``bad_audio``) and a WAV holding fewer samples than its header declares is noted (repair
+    ``truncated_audio``); without it, non-finite samples are an ``InputError``."""
     path = Path(path)
     if not path.is_file():
         raise InputError("audio file not found", path)
@@ -82,8 +88,65 @@ def read_audio(path: str | Path) -> Audio:
             raise InputError(f"audio is unreadable: {exc}", path) from None
         if data.shape[0] == 0:
             raise InputError("audio file holds no samples", path)
-        return Audio(data, rate, subtype)
-    return decode_with_pyav(path)
+        audio = check_samples(Audio(data, rate, subtype), path, repairs)
+        declared = wav_declared_frames(path)
+        if repairs is not None and declared is not None and declared > audio.frames:
+            repairs.append(
+                {
+                    "line": None,
+                    "kind": "truncated_audio",
+                    "message": f"{path.name}: header declares {declared / rate:.3f} s of audio, the file "
+                    f"holds {audio.duration_s:.3f} s (cut short?): the samples present are used",
+                }
+            )
+        return audio
+    return check_samples(decode_with_pyav(path), path, repairs)
+
+
+def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
+    """Float samples that are NaN or infinite: set to 0 and recorded in ``repairs``, or an error."""
+    if audio.samples.dtype.kind != "f":
+        return audio
+    bad = ~np.isfinite(audio.samples)
+    count = int(bad.sum())
+    if count == 0:
+        return audio
+    if repairs is None:
+        raise InputError(f"audio holds {count} NaN or infinite sample(s)", path)
+    audio.samples[bad] = 0.0
+    repairs.append(
+        {
+            "line": None,
+            "kind": "bad_audio",
+            "message": f"{path.name}: {count} NaN or infinite samples set to 0",
+        }
+    )
+    return audio
+
+
+def wav_declared_frames(path: Path) -> int | None:
+    """Sample frames a RIFF WAV's ``data`` chunk header declares; ``None`` for other files, RF64 and
+    streamed WAVs whose header leaves the size open."""
+    try:
+        with open(path, "rb") as f:
+            if f.read(4) != b"RIFF" or f.read(4) == b"" or f.read(4) != b"WAVE":
+                return None
+            block_align = None
+            while True:
+                head = f.read(8)
+                if len(head) < 8:
+                    return None
+                chunk, size = head[:4], struct.unpack("<I", head[4:])[0]
+                if chunk == b"fmt " and size >= 14:
+                    block_align = struct.unpack("<12xH", f.read(14))[0]
+                    size -= 14
+                elif chunk == b"data":
+                    if not block_align or size in (0, 0xFFFFFFFF):
+                        return None
+                    return size // block_align
+                f.seek(size + (size & 1), 1)
+    except OSError:
+        return None
 
 
 def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
@@ -111,7 +174,7 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:
-        raise InputError(f"audio could not be decoded: {exc}", path) from None
+        raise InputError(f"audio could not be decoded (a truncated or damaged file?): {exc}", path) from None
     if not chunks:
         raise InputError("audio stream holds no samples", path)
     data = np.concatenate(chunks, axis=0)

@@ -13,7 +13,7 @@ from .importer import AUDIO_PAIRINGS, find_sources, import_source
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
-from .take import FrameStatus, Take, find_takes, is_take_dir, read_take, write_take
+from .take import FrameStatus, Take, find_takes, is_take_dir, make_out_dir, read_take, safe_id, write_take
 
 PROG = "s2a-capture"
 
@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export-csv", help="write a take in the Live Link Face CSV format")
     p.add_argument("take", type=Path, help="a take folder")
-    p.add_argument("-o", "--out", type=Path, required=True, help="CSV file to write")
+    p.add_argument("-o", "--out", type=Path, required=True, help="CSV file to write (folders are created)")
     p.add_argument(
         "--count-name",
         choices=("BlendShapeCount", "BlendshapeCount"),
@@ -111,6 +111,8 @@ def cmd_import(args: argparse.Namespace) -> int:
         if args.take_id and len(sources) != 1:
             raise InputError("--id names one take, but several sources were found")
         jobs = [("source", s) for s in sources]
+    make_out_dir(args.out)
+    written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
     failures = 0
     for kind, src in jobs:
         try:
@@ -122,6 +124,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 )
                 if args.take_id:
                     take.meta.id = args.take_id
+            _unique_id(take, src, written)
             folder = write_take(take, args.out)
         except S2AError as exc:
             failures += 1
@@ -139,6 +142,23 @@ def cmd_import(args: argparse.Namespace) -> int:
                 f"{summary['repairs']} repairs"
             )
     return 1 if failures else 0
+
+
+def _unique_id(take: Take, src: Path, written: dict[str, Path]) -> None:
+    """Give ``take`` an id no other source of this run has (folder names compared case-insensitively,
+    as on macOS and Windows): ``<id>-2``, ``<id>-3``, ... recorded as repair ``renamed_id``."""
+    base = safe_id(take.meta.id)
+    name, n = base, 1
+    while name.casefold() in written:
+        n += 1
+        name = safe_id(f"{base}-{n}")
+    if name != base:
+        other = written[base.casefold()]
+        message = f"take id {base!r} is also the id of {other} in this import: written as {name!r}"
+        take.meta.repairs.append({"line": None, "kind": "renamed_id", "message": message})
+        print(f"{PROG}: warning: {src}: {message}", file=sys.stderr)
+        take.meta.id = name
+    written[name.casefold()] = src
 
 
 def _load_for_info(path: Path) -> list[Take]:
@@ -162,8 +182,16 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_export_csv(args: argparse.Namespace) -> int:
+    if args.take.is_file():
+        raise InputError("is a file, not a take folder (import it first: s2a-capture import)", args.take)
     take = read_take(args.take, audio=False)
-    out = write_livelink_csv(take, args.out, count_name=args.count_name)
+    if args.out.is_dir():
+        raise InputError("is a folder: give the name of the CSV file to write", args.out)
+    try:
+        make_out_dir(args.out.parent)
+        out = write_livelink_csv(take, args.out, count_name=args.count_name)
+    except OSError as exc:
+        raise InputError(f"cannot write the CSV: {exc.strerror or exc}", args.out) from None
     rows = int((take.frame_status != FrameStatus.DROPPED).sum())
     summary = {"id": take.meta.id, "path": str(out), "rows": rows}
     if args.json:

@@ -19,18 +19,22 @@ bom            a UTF-8 byte-order mark before the header was ignored
 truncated_row  a last line cut short (no line end, too few fields) was dropped
 wrong_fields   a row with the wrong number of fields was dropped; its slot becomes a dropped frame
 bad_timecode   a row whose timecode does not parse was dropped; its slot becomes a dropped frame
-bad_value      non-numeric, NaN or infinite cells were set to NaN and the frame marked BAD_VALUE
+bad_value      non-numeric, NaN, infinite or out-of-float32-range cells were set to NaN and the frame
+               marked BAD_VALUE
 bad_count      the BlendShapeCount cell disagreed with the number of values; the values were kept
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
 ============== ================================================================================
 
-Errors: missing, empty or binary file; a header that is not a Live Link Face header; no data rows;
-a timecode going backwards (other than across midnight). ``strict=True`` turns every repair into an
-error as well.
+Errors: missing, empty or binary file; a header that is not a Live Link Face header; no usable data
+rows (naming the first rejected row); a timecode going backwards (other than across midnight) or
+jumping forward by more than ``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for
+every frame, so such a gap would become thousands of dropped frames). ``strict=True`` turns every
+repair into an error as well.
 """
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -50,6 +54,8 @@ COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
 VARIANTS = ("cal", "raw", "neutral")
 _VARIANT_RE = re.compile(r"^(?P<prefix>.*?)(?:_(?P<variant>cal|raw|neutral))?$", re.IGNORECASE)
 _STANDARD_FPS = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+MAX_GAP_S = 30.0  # a longer forward gap between rows is a clock jump (or joined files), not dropped frames
 
 
 @dataclass
@@ -107,8 +113,10 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     """Parse a Live Link Face CSV into rows (times of day in seconds, values, per-row status)."""
     path = Path(path)
     head = _read_head(path)
-    if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head:
-        first = head.split(b"\n", 1)[0]
+    first, _, rest = head.partition(b"\n")
+    # pyarrow reading no rows can abort the process at exit (apache/arrow#38676): the careful parser
+    # reports a file without data rows.
+    if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head and rest.strip():
         try:
             count_name, columns = _parse_header(first.decode("utf-8"), path)
         except UnicodeDecodeError:
@@ -187,7 +195,8 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
             return None
         start = 0
         for chunk in col.chunks:  # copy chunk by chunk: no concatenated temporary per column
-            values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
+            with np.errstate(over="ignore"):  # beyond float32 becomes inf: the careful parser repairs it
+                values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
             start += len(chunk)
     if not np.isfinite(values).all():
         return None
@@ -212,7 +221,7 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
         values = full
         status = np.where(is_lost, FrameStatus.FACE_LOST, FrameStatus.TRACKED).astype(np.uint8)
     t = unwrap_midnight(tracked_t)
-    if t.size > 1 and not np.all(np.diff(t) > 0):
+    if t.size > 1 and not (np.all(np.diff(t) > 0) and np.diff(t).max() <= MAX_GAP_S):
         return None
     return CsvRows(path, count_name, columns, t, values, status)
 
@@ -285,23 +294,20 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             )
         row_status = FrameStatus.TRACKED
         try:
+            if "_" in line:  # float() reads "1_0" as 10.0; the app never writes such a cell
+                raise ValueError
             vals = [float(x) for x in fields[2:]]
         except ValueError:
-            vals = []
-            for x in fields[2:]:
-                try:
-                    vals.append(float(x))
-                except ValueError:
-                    vals.append(float("nan"))
-        bad = [columns[i] for i, v in enumerate(vals) if not np.isfinite(v)]
+            vals = [_cell_value(x) for x in fields[2:]]
+        bad = [columns[i] for i, v in enumerate(vals) if not abs(v) <= _FLOAT32_MAX]
         if bad:
-            vals = [v if np.isfinite(v) else float("nan") for v in vals]
+            vals = [v if abs(v) <= _FLOAT32_MAX else math.nan for v in vals]
             row_status = FrameStatus.BAD_VALUE
             _repair(
                 repairs,
                 number,
                 "bad_value",
-                f"non-numeric or non-finite value in {', '.join(bad[:5])}"
+                f"non-numeric, non-finite or out-of-range value in {', '.join(bad[:5])}"
                 + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
                 + ": set to NaN, frame marked invalid",
             )
@@ -313,6 +319,10 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         first = repairs[0]
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
     if not times:
+        rejected = [r for r in repairs if r["kind"] != "bom"]
+        if rejected:
+            first = rejected[0]
+            raise InputError(f"no usable data rows; the first: {first['message']}", path, first["line"])
         raise InputError("no data rows after the header", path)
     t = unwrap_midnight(np.asarray(times))
     values = np.full((len(rows), len(columns)), np.nan, dtype=np.float32)
@@ -345,7 +355,26 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
                 path,
                 line_numbers[i],
             )
+    kept = np.flatnonzero(keep)
+    gaps = np.diff(t[kept])
+    if gaps.size and gaps.max() > MAX_GAP_S:
+        a, b = kept[np.argmax(gaps)], kept[np.argmax(gaps) + 1]
+        raise InputError(
+            f"timecode {fields_tc(t[b])} jumps {gaps.max():,.0f} s forward from {fields_tc(t[a])} on line "
+            f"{line_numbers[a]} (a clock jump, or files joined?); gaps over {MAX_GAP_S:g} s are refused: "
+            "split the file there or fix the timecodes",
+            path,
+            line_numbers[b],
+        )
     return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
+
+
+def _cell_value(text: str) -> float:
+    """A value cell as a float; NaN when it is not a plain decimal number."""
+    try:
+        return float(text) if "_" not in text else math.nan
+    except ValueError:
+        return math.nan
 
 
 def fields_tc(seconds_of_day: float) -> str:

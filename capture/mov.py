@@ -10,10 +10,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .audio_io import Audio, decode_with_pyav
+from .audio_io import Audio, check_samples, decode_with_pyav
 from .errors import InputError
 
 
@@ -54,13 +55,14 @@ def probe_mov(path: str | Path) -> MovInfo:
                 if s.type == "audio" and s.start_time is not None:
                     a_start = float(s.start_time * s.time_base)
     except (av.FFmpegError, OSError) as exc:
-        raise InputError(f"video could not be opened: {exc}", path) from None
+        raise InputError(f"video could not be opened (a truncated or damaged file?): {exc}", path) from None
     return MovInfo(path, timecode, fps, frames, width, height, a_start - v_start)
 
 
-def read_mov_audio(path: str | Path) -> Audio:
-    """The ``.mov``'s audio track at its own rate and sample format."""
-    return decode_with_pyav(path)
+def read_mov_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) -> Audio:
+    """The ``.mov``'s audio track at its own rate and sample format (non-finite float samples as in
+    ``read_audio``)."""
+    return check_samples(decode_with_pyav(path), Path(path), repairs)
 
 
 def write_reference_mov(

@@ -7,6 +7,7 @@ channels in any spelling are mapped to the toolkit's canonical ARKit names.
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -94,7 +95,7 @@ def read_paired(
     take_id: str | None = None,
 ) -> Take:
     """A take from audio + weight matrix + names at ``fps`` frames per second."""
-    if not fps or fps <= 0:
+    if fps is None or not 0 < fps < math.inf:  # also NaN
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
     matrix, header = read_matrix(matrix_path)
     if names_path is not None:
@@ -126,7 +127,7 @@ def read_paired(
             {"line": None, "kind": "bad_value", "message": f"{bad} frames hold NaN/inf: marked invalid"}
         )
     take = Take(meta, time, values, status)
-    audio = read_audio(audio_path)
+    audio = read_audio(audio_path, meta.repairs)
     take.attach_audio(audio, 0.0, "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
     mismatch = audio.duration_s - matrix.shape[0] / fps

@@ -248,16 +248,37 @@ def safe_id(text: str) -> str:
     return f"{cut}-{digest}"
 
 
+def make_out_dir(out_dir: str | Path) -> Path:
+    """The output folder ``out_dir``, created with its parents if missing; an ``InputError`` when it
+    is a file or cannot be created."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("output folder is a file", out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from None
+    return out_dir
+
+
 def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
     """Write ``take`` as ``out_dir/<id>/`` atomically; returns the folder.
 
     The folder is assembled under a hidden temporary name in ``out_dir`` and renamed into place.
+    Metadata holding NaN or infinity (not JSON) and folders that cannot be written are ``InputError``s.
     """
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = make_out_dir(out_dir)
     target = out_dir / safe_id(take.meta.id)
     if target.exists() and not overwrite:
         raise InputError("take exists already (use overwrite)", target)
+    try:
+        _write_take_folder(take, target)
+    except OSError as exc:
+        raise InputError(f"cannot write the take: {exc.strerror or exc}", target) from None
+    return target
+
+
+def _write_take_folder(take: Take, target: Path) -> None:
     with folder_in_place(target) as tmp:
         arrays = {"time": take.time, "values": take.values, "frame_status": take.frame_status}
         if take.neutral is not None:
@@ -284,8 +305,10 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
             )
         else:
             meta.audio = None
-        write_json_atomic(tmp / META_FILE, meta.to_json())
-    return target
+        try:
+            write_json_atomic(tmp / META_FILE, meta.to_json())
+        except ValueError as exc:  # NaN or infinity, which JSON cannot hold
+            raise InputError(f"take {meta.id}: metadata cannot be written: {exc}", target) from None
 
 
 def is_take_dir(path: str | Path) -> bool:
@@ -297,7 +320,7 @@ def read_meta(folder: str | Path) -> TakeMeta:
     path = Path(folder) / META_FILE
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         raise InputError("not a take folder (no meta.json)", folder) from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"metadata is not valid JSON: {exc}", path) from None
@@ -319,9 +342,20 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
     for key in ("time", "values", "frame_status"):
         if key not in arrays:
             raise InputError(f"frames lack the array {key!r}", frames_path)
+    status = arrays["frame_status"]
+    if status.dtype.kind not in "iu":
+        raise InputError(f"frame_status is {status.dtype}, not integer codes", frames_path)
+    unknown = np.setdiff1d(status, [int(s) for s in FrameStatus])
+    if unknown.size:
+        raise InputError(f"frame_status holds unknown value(s) {unknown[:5].tolist()}", frames_path)
     take_audio = None
     if audio and meta.audio is not None:
         take_audio = read_audio(folder / meta.audio.file)
+        if take_audio.frames != meta.audio.samples:
+            raise InputError(
+                f"audio holds {take_audio.frames} samples, meta.json says {meta.audio.samples} (damaged?)",
+                folder / meta.audio.file,
+            )
     return Take(
         meta,
         arrays["time"],

@@ -12,6 +12,7 @@ at their CSV timecodes. Without any of these, audio is assumed to start with the
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -80,11 +81,20 @@ def is_take_folder(folder: str | Path) -> bool:
         return False
     if any((folder / m).is_file() for m in TAKE_FOLDER_MARKERS):
         return True
-    return any(folder.glob("*.mov")) and any(_blendshape_csvs(folder))
+    return any(_files_ending(folder, ".mov")) and any(_blendshape_csvs(folder))
+
+
+def _files_ending(folder: Path, suffix: str) -> list[Path]:
+    """Files of ``folder`` with the suffix in any case (``X.MOV`` as well as ``X.mov``), sorted."""
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() == suffix and p.is_file())
 
 
 def _blendshape_csvs(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.glob("*.csv") if p.name.lower() != "frame_log.csv")
+    return [p for p in _files_ending(folder, ".csv") if p.name.lower() != "frame_log.csv"]
+
+
+def _bad_json(repairs: list[dict[str, Any]], message: str) -> None:
+    repairs.append({"line": None, "kind": "bad_json", "message": message})
 
 
 def _load_json(path: Path, repairs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -94,10 +104,53 @@ def _load_json(path: Path, repairs: list[dict[str, Any]]) -> dict[str, Any]:
         data = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(data, dict):
             raise ValueError("not a JSON object")
-        return data
-    except (ValueError, UnicodeDecodeError) as exc:
-        repairs.append({"line": None, "kind": "bad_json", "message": f"{path.name}: {exc}: ignored"})
+        bad: list[str] = []
+        data = _finite_json(data, "", bad)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        _bad_json(repairs, f"{path.name}: {str(exc)[:200]}: ignored")
         return {}
+    if bad:
+        more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+        _bad_json(repairs, f"{path.name}: NaN or infinite number in {', '.join(bad[:5])}{more}: set to null")
+    return data
+
+
+def _finite_json(value: Any, where: str, bad: list[str]) -> Any:
+    """``value`` with the NaN and infinite numbers Python's json accepts replaced by ``None``; the
+    path of each is appended to ``bad``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        bad.append(where)
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_json(v, f"{where}.{k}" if where else k, bad) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_json(v, f"{where}[{i}]", bad) for i, v in enumerate(value)]
+    return value
+
+
+def _json_number(data: dict[str, Any], key: str, file: str, repairs: list[dict[str, Any]]) -> float | None:
+    """A positive number field of the app's JSON; another value is ignored (repair ``bad_json``)."""
+    value = data.get(key)
+    if value is None:
+        return None
+    try:
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < float(value) < math.inf:
+            return float(value)
+    except OverflowError:
+        pass
+    _bad_json(repairs, f"{file}: {key} {repr(value)[:40]} is not a positive number: ignored")
+    return None
+
+
+def _json_text(data: dict[str, Any], key: str, file: str, repairs: list[dict[str, Any]]) -> str | None:
+    """A non-empty text field of the app's JSON; another value is ignored (repair ``bad_json``)."""
+    value = data.get(key)
+    if value is None or value == "":
+        return None
+    if isinstance(value, str):
+        return value
+    _bad_json(repairs, f"{file}: {key} {repr(value)[:40]} is not text: ignored")
+    return None
 
 
 def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
@@ -147,12 +200,12 @@ def read_take_folder(
     video_meta = _load_json(folder / "video_metadata.json", repairs)
     audio_meta = _load_json(folder / "audio_metadata.json", repairs)
     meta.source_kind = "livelink_take_folder"
-    meta.id = safe_id(str(app_take.get("identifier") or folder.name))
-    meta.slate = str(app_take.get("slate", meta.slate)) if app_take.get("slate") else meta.slate
-    if isinstance(app_take.get("take"), int):
+    meta.id = safe_id(_json_text(app_take, "identifier", "take.json", repairs) or folder.name)
+    meta.slate = _json_text(app_take, "slate", "take.json", repairs) or meta.slate
+    if type(app_take.get("take")) is int:
         meta.take_number = app_take["take"]
-    meta.subject = app_take.get("subject") or meta.subject
-    meta.device = app_take.get("deviceModel")
+    meta.subject = _json_text(app_take, "subject", "take.json", repairs) or meta.subject
+    meta.device = _json_text(app_take, "deviceModel", "take.json", repairs)
     meta.extra.update({"take_json": app_take, "video_metadata": video_meta, "audio_metadata": audio_meta})
     # A simulated take (s2a-capture simulate) carries its ground truth beside the app's files.
     if (folder / "simulation.json").is_file():
@@ -165,7 +218,7 @@ def read_take_folder(
         take.neutral = _neutral_pose(neutral_path, take)
         meta.sources.append(source_file(neutral_path, "neutral_csv"))
 
-    video_rate = float(video_meta.get("FrameRate") or 60)
+    video_rate = _json_number(video_meta, "FrameRate", "video_metadata.json", repairs) or 60.0
     log = None
     if (folder / "frame_log.csv").is_file():
         log = read_frame_log(folder / "frame_log.csv", repairs)
@@ -174,9 +227,9 @@ def read_take_folder(
             "audio_rows": log.kinds.count("A"),
             "dropped_video_frames": int(log.dropped[[k == "V" for k in log.kinds]].sum()) if log.kinds else 0,
         }
-    movs = sorted(folder.glob("*.mov"))
+    movs = _files_ending(folder, ".mov")
     mov = movs[0] if movs else None
-    wavs = sorted(folder.glob("*.wav"))  # a WAV beside the CSV stands in for a missing .mov
+    wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov
     wav = wavs[0] if wavs and mov is None else None
     if mov is not None:
         meta.sources.append(source_file(mov, "reference_video"))
@@ -184,13 +237,21 @@ def read_take_folder(
     audio: Audio | None = None
     start_s, start_source = 0.0, "assumed_first_csv_row"
     if audio_file is not None:
-        audio = read_audio(audio_file)
+        audio = read_audio(audio_file, repairs)
         meta.sources.append(source_file(audio_file, "external_audio"))
-    elif mov is not None or wav is not None:
+    elif mov is None and wav is None:
+        repairs.append(
+            {
+                "line": None,
+                "kind": "no_audio",
+                "message": "take folder has no .mov or .wav: imported without audio",
+            }
+        )
+    else:
         if mov is not None:
-            audio = read_mov_audio(mov)
+            audio = read_mov_audio(mov, repairs)
         else:
-            audio = read_audio(wav)
+            audio = read_audio(wav, repairs)
             meta.sources.append(source_file(wav, "audio"))
         csv_t0 = meta.csv["start_seconds_of_day"]
         for kind, source in (("A", "frame_log_audio"), ("V", "frame_log_video")):
@@ -214,13 +275,13 @@ def read_take_folder(
                     start_source = "mov_timecode"
                 except ValueError:
                     pass
-        expected = audio_meta.get("SampleRate")
-        if expected and int(expected) != audio.sample_rate:
+        expected = _json_number(audio_meta, "SampleRate", "audio_metadata.json", repairs)
+        if expected and expected != audio.sample_rate:
             repairs.append(
                 {
                     "line": None,
                     "kind": "audio_rate_mismatch",
-                    "message": f"audio_metadata.json says {expected} Hz, the audio holds "
+                    "message": f"audio_metadata.json says {expected:g} Hz, the audio holds "
                     f"{audio.sample_rate} Hz: the file's own rate is used",
                 }
             )
@@ -256,7 +317,7 @@ def read_csv_with_audio(
     ``s2a-align`` places by frame index)."""
     take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr)
     source = "paired_frame_convention" if by_frame_index else "assumed_first_csv_row"
-    take.attach_audio(read_audio(audio_file), 0.0, source)
+    take.attach_audio(read_audio(audio_file, take.meta.repairs), 0.0, source)
     take.meta.sources.append(source_file(audio_file, "external_audio"))
     return take
 

@@ -1,0 +1,291 @@
+"""Bad input found by testing the importer and s2a-align end to end: every case gets a documented repair
+or a one-line error, never a traceback or silently wrong data."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from capture import FrameStatus, InputError, read_livelink_csv, read_take, read_take_folder, write_take
+from tests.conftest import run_cli
+
+T_ID = "20250106_SimSpk01_1"
+
+
+@pytest.fixture(scope="module")
+def sim_take(tmp_path_factory) -> Path:
+    """A simulated Live Link Face take folder with .mov, .wav and the app's JSON files."""
+    root = tmp_path_factory.mktemp("sim")
+    run_cli("capture", "simulate", "-o", root, "--seconds", 3, "--mov", "--sample-rate", 44100, check=True)
+    (folder,) = [p for p in root.iterdir() if p.is_dir()]
+    return folder
+
+
+@pytest.fixture
+def take_dir(sim_take, tmp_path) -> Path:
+    return Path(shutil.copytree(sim_take, tmp_path / "T"))
+
+
+def one_line_error(proc, fragment: str) -> None:
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "error:" in proc.stderr
+    assert fragment in proc.stderr, proc.stderr
+
+
+def repairs_of(take, kind: str) -> list[str]:
+    return [r["message"] for r in take.meta.repairs if r["kind"] == kind]
+
+
+def float_wav(folder: Path, bad: dict[int, float]) -> Path:
+    """Replace the take's .mov by its WAV as float samples, with ``bad`` samples set."""
+    for mov in folder.glob("*.mov"):
+        mov.unlink()
+    (wav,) = folder.glob("*.wav")
+    data, rate = sf.read(wav, dtype="float32")
+    for i, v in bad.items():
+        data[i] = v
+    sf.write(wav, data, rate, subtype="FLOAT")
+    return wav
+
+
+# 1, 2: the app's JSON files
+
+
+@pytest.mark.parametrize(
+    "name, text, field",
+    [
+        ("audio_metadata.json", '{"BitsPerChannel": "16", "SampleRate": "fast"}', "SampleRate"),
+        ("audio_metadata.json", '{"SampleRate": [44100]}', "SampleRate"),
+        ("audio_metadata.json", '{"SampleRate": true}', "SampleRate"),
+        ("video_metadata.json", '{"FrameRate": "sixty"}', "FrameRate"),
+        ("video_metadata.json", '{"FrameRate": {"num": 60}}', "FrameRate"),
+        ("video_metadata.json", '{"FrameRate": -60}', "FrameRate"),
+        ("take.json", '{"subject": ["a"], "identifier": 7, "take": true}', "subject"),
+    ],
+)
+def test_bad_fields_in_app_json_are_ignored_with_a_repair(take_dir, tmp_path, name, text, field):
+    (take_dir / name).write_text(text)
+    take = read_take_folder(take_dir)
+    messages = repairs_of(take, "bad_json")
+    assert any(m.startswith(f"{name}: {field} ") for m in messages), messages
+    assert take.audio.sample_rate == 44100 and take.meta.audio.start_source == "frame_log_audio"
+    assert type(take.meta.take_number) is int  # a JSON true is not a take number (the file name's is used)
+    proc = run_cli("capture", "info", take_dir)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize(
+    "name, text, where",
+    [
+        ("take.json", '{"frames": NaN, "identifier": "x"}', "frames"),
+        ("video_metadata.json", '{"FrameRate": Infinity}', "FrameRate"),
+        ("audio_metadata.json", '{"SampleRate": 1e999, "x": [1, -Infinity]}', "SampleRate, x[1]"),
+    ],
+)
+def test_non_finite_numbers_in_app_json_never_reach_the_writer(take_dir, tmp_path, name, text, where):
+    (take_dir / name).write_text(text)
+    proc = run_cli("capture", "import", take_dir, "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    (out,) = (tmp_path / "out").iterdir()
+    take = read_take(out)
+    assert f"{name}: NaN or infinite number in {where}: set to null" in repairs_of(take, "bad_json")
+
+
+# 3: non-finite audio samples
+
+
+def test_non_finite_audio_samples_are_repaired_and_align_never_crashes(take_dir, tmp_path):
+    float_wav(take_dir, {100: np.nan, 200: np.inf, 300: -np.inf})
+    take = read_take_folder(take_dir)
+    assert repairs_of(take, "bad_audio") == ["SimSpk01_1_spk01.wav: 3 NaN or infinite samples set to 0"]
+    assert np.isfinite(take.audio.samples).all() and take.audio.samples[100, 0] == 0
+    # A take written before this repair existed: s2a-align reports it in one line.
+    folder = write_take(take, tmp_path / "raw")
+    data, rate = sf.read(folder / "audio.wav", dtype="float32")
+    data[5] = np.nan
+    sf.write(folder / "audio.wav", data, rate, subtype="FLOAT")
+    with pytest.raises(InputError, match="1 NaN or infinite sample"):
+        read_take(folder)
+    proc = run_cli("align", tmp_path / "raw", "-o", tmp_path / "aligned", "--vad", "none")
+    one_line_error(proc, "NaN or infinite sample")
+
+
+# 4, 10: CSV cells
+
+
+def test_csv_values_beyond_float32_and_underscores_are_bad_values(tmp_path, samples):
+    lines = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_text().splitlines()
+    for row, cell in ((3, "1e39"), (4, "-1e308"), (5, "1_0")):
+        fields = lines[row].split(",")
+        fields[20] = cell
+        lines[row] = ",".join(fields)
+    path = tmp_path / "big.csv"
+    path.write_text("\n".join(lines) + "\n")
+    proc = run_cli("capture", "import", path, "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "RuntimeWarning" not in proc.stderr, proc.stderr
+    take = read_take(tmp_path / "out" / "big")
+    assert {r["line"]: r["kind"] for r in take.meta.repairs} == {
+        4: "bad_value",
+        5: "bad_value",
+        6: "bad_value",
+    }
+    assert np.all(take.frame_status[2:5] == FrameStatus.BAD_VALUE)
+    assert np.isfinite(take.values[take.valid]).all()
+
+
+def test_all_rows_rejected_names_the_first_rejected_row(tmp_path, samples):
+    header = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_text().splitlines()[0]
+    path = tmp_path / "bad.csv"
+    path.write_text(header + "\n1,2,3\n4,5\n")
+    with pytest.raises(InputError, match="no usable data rows; the first: row has 3 fields") as exc:
+        read_livelink_csv(path)
+    assert exc.value.line == 2
+
+
+# 5: forward clock jumps
+
+
+def test_implausible_forward_gap_is_an_error_naming_the_line(tmp_path, samples):
+    s07 = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_text()
+    s88 = (samples / "livelinkface/alexdjulin_S88/S88-001.csv").read_text()
+    joined = tmp_path / "joined.csv"
+    joined.write_text(s07 + s88)  # `cat a.csv b.csv`
+    proc = run_cli("capture", "import", joined, "-o", tmp_path / "out")
+    one_line_error(proc, f"{joined}:2031: timecode ")
+    assert "forward" in proc.stderr and not (tmp_path / "out" / "joined").exists()
+    # Rows shifted later by 13 minutes, on the fast path's kind of file (no other repair).
+    lines = s07.splitlines()
+    shifted = lines[:50] + [f"{ln[:3]}{int(ln[3:5]) + 13:02d}{ln[5:]}" for ln in lines[50:]]
+    path = tmp_path / "shifted.csv"
+    path.write_text("\n".join(shifted) + "\n")
+    with pytest.raises(InputError, match="jumps 780 s forward") as exc:
+        read_livelink_csv(path)
+    assert exc.value.line == 51
+    # Ordinary drops keep working: 10 missing seconds become dropped frames.
+    gap = lines[:50] + [f"{ln[:6]}{(int(ln[6:8]) + 10) % 60:02d}{ln[8:]}" for ln in lines[50:60]]
+    path.write_text("\n".join(gap) + "\n")
+    take = read_livelink_csv(path)
+    assert take.count(FrameStatus.DROPPED) == pytest.approx(10 * 30, abs=3)
+
+
+# 6: take ids
+
+
+def test_same_take_id_from_two_sources_is_never_overwritten(tmp_path, samples):
+    src = samples / "livelinkface/alexdjulin_S07/S07-001.csv"
+    for sub in ("a", "b", "c"):
+        (tmp_path / "coll" / sub).mkdir(parents=True)
+        shutil.copy(src, tmp_path / "coll" / sub / ("Take.csv" if sub == "c" else "take.csv"))
+    proc = run_cli("capture", "import", tmp_path / "coll", "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["Take-3", "take", "take-2"]
+    assert proc.stderr.count("warning:") == 2
+    assert repairs_of(read_take(tmp_path / "out" / "take-2"), "renamed_id")
+
+
+def test_align_refuses_two_takes_with_one_id(take_dir, tmp_path):
+    for sub in ("run1", "run2"):
+        run_cli("capture", "import", take_dir, "-o", tmp_path / "raw" / sub, check=True)
+    proc = run_cli("align", tmp_path / "raw", "-o", tmp_path / "aligned", "--vad", "none")
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.count("error:") == 1 and "would overwrite each other" in proc.stderr
+    out = read_take(tmp_path / "aligned" / T_ID)
+    assert out.meta.extra["align"]["parent"]["path"] == str((tmp_path / "raw" / "run1" / T_ID).resolve())
+
+
+# 7, 8: where a take folder's audio is
+
+
+def test_upper_case_mov_is_found_and_a_take_without_audio_is_noted(take_dir):
+    (take_dir / "SimSpk01_1_spk01.wav").unlink()
+    (take_dir / "SimSpk01_1_spk01.mov").rename(take_dir / "X.MOV")
+    take = read_take_folder(take_dir)
+    assert take.audio is not None and take.meta.extra["reference_video"] == "X.MOV"
+    (take_dir / "X.MOV").unlink()
+    take = read_take_folder(take_dir)
+    assert take.audio is None and repairs_of(take, "no_audio")
+
+
+def test_truncated_wav_is_noted_with_both_durations(take_dir):
+    wav = float_wav(take_dir, {})
+    data = wav.read_bytes()
+    wav.write_bytes(data[: len(data) // 2])
+    take = read_take_folder(take_dir)
+    (message,) = repairs_of(take, "truncated_audio")
+    full = (len(data) - 100) / 4 / 44100
+    assert f"header declares {full:.1f}" in message and f"holds {full / 2:.1f}" in message
+
+
+# 9: output paths
+
+
+def test_output_path_errors_are_one_line(take_dir, tmp_path):
+    csv = next(take_dir.glob("*.csv"))
+    proc = run_cli("capture", "import", take_dir, "-o", tmp_path / "out")
+    take = tmp_path / "out" / T_ID
+    proc = run_cli("capture", "export-csv", take, "-o", tmp_path / "new" / "x" / "y.csv")
+    assert proc.returncode == 0 and (tmp_path / "new" / "x" / "y.csv").is_file()
+    one_line_error(run_cli("capture", "export-csv", take, "-o", tmp_path), "is a folder")
+    one_line_error(run_cli("capture", "export-csv", csv, "-o", tmp_path / "x.csv"), "not a take folder")
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    one_line_error(run_cli("capture", "export-csv", take, "-o", afile / "y.csv"), "output folder is a file")
+    one_line_error(run_cli("capture", "import", csv, "-o", afile), "output folder is a file")
+    one_line_error(
+        run_cli("align", tmp_path / "out", "-o", afile, "--vad", "none"), "output folder is a file"
+    )
+
+
+# 10: the rest
+
+
+def test_generic_import_refuses_a_non_finite_fps(tmp_path, sim_take):
+    matrix = tmp_path / "m.npy"
+    np.save(matrix, np.zeros((10, 2), np.float32))
+    (tmp_path / "names.txt").write_text("a\nb\n")
+    for fps in ("nan", "inf"):
+        proc = run_cli(
+            "capture", "import", "--matrix", matrix, "--names", tmp_path / "names.txt", "--fps", fps,
+            "--audio", next(sim_take.glob("*.wav")), "-o", tmp_path / "out",
+        )  # fmt: skip
+        one_line_error(proc, "--fps must be a positive frame rate")
+
+
+def test_unknown_frame_status_in_a_take_is_refused(take_dir, tmp_path):
+    folder = write_take(read_take_folder(take_dir), tmp_path / "out")
+    with np.load(folder / "frames.npz") as z:
+        arrays = dict(z)
+    arrays["frame_status"][3] = 9
+    np.savez(folder / "frames.npz", **arrays)
+    with pytest.raises(InputError, match=r"unknown value\(s\) \[9\]"):
+        read_take(folder)
+    one_line_error(run_cli("capture", "info", folder), "frame_status")
+
+
+def test_meta_json_with_nan_is_a_one_line_error_not_a_traceback(take_dir, tmp_path):
+    take = read_take_folder(take_dir)
+    take.meta.extra["oops"] = float("nan")
+    with pytest.raises(InputError, match="metadata cannot be written"):
+        write_take(take, tmp_path / "out")
+    assert not list((tmp_path / "out").iterdir())
+
+
+def test_json_sidecar_keeps_meaning(take_dir):
+    """The bad_json repair leaves the good fields of the same file in place."""
+    (take_dir / "video_metadata.json").write_text(json.dumps({"FrameRate": "x", "Quality": "high"}))
+    take = read_take_folder(take_dir)
+    assert take.meta.extra["video_metadata"]["Quality"] == "high"
+
+
+def test_header_only_csv_never_aborts_the_process(tmp_path, samples):
+    """pyarrow reading a CSV with no rows could abort at exit (SIGABRT, apache/arrow#38676)."""
+    header = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_text().splitlines()[0]
+    path = tmp_path / "h.csv"
+    path.write_text(header + "\n")
+    for _ in range(6):
+        one_line_error(run_cli("capture", "import", path, "-o", tmp_path / "out"), "no data rows")
