@@ -4,9 +4,11 @@ iPhone and phone remote control. ``register(sub)`` adds them to the ``s2a-captur
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource
@@ -126,6 +128,9 @@ def _report(summaries: list[dict], as_json: bool) -> None:
         if as_json:
             emit_json(s)
             continue
+        if s.get("error"):
+            progress(f"{s.get('device')} / {s.get('subject')}: {s['error']}")
+            continue
         if s.get("path") is None:
             progress(f"no take recorded; rejected datagrams: {s.get('rejected')}")
             continue
@@ -140,17 +145,59 @@ def _report(summaries: list[dict], as_json: bool) -> None:
 
 
 def _status_line(counts: dict) -> None:
+    failed = f", {counts['failed_writes']} failed log writes" if counts.get("failed_writes") else ""
     progress(
         f"{counts['elapsed_s']:.0f} s: {counts['accepted']} packets from {counts['streams']} stream(s), "
-        f"{counts['rejected']} rejected"
+        f"{counts['rejected']} rejected{failed}"
     )
 
 
+def _warn_once(recorder: LiveRecorder, audio_log: AudioLog | None, source) -> Callable[[], None]:
+    """A check for after every log flush: prints each problem as one warning line when it appears."""
+    warned: set[str] = set()
+
+    def check() -> None:
+        problems = {
+            "log": recorder.log is not None and recorder.log.error,
+            "audio log": audio_log is not None and audio_log.writer.error,
+            "audio": source is not None and source.error,
+        }
+        for what, problem in problems.items():
+            if problem and what not in warned:
+                warned.add(what)
+                if isinstance(problem, OSError):
+                    problem = f"cannot write the {what} ({problem.strerror or problem}); recording goes on, "
+                    problem += "holding what cannot be written in memory"
+                progress(f"warning: {problem}")
+
+    return check
+
+
+def _check_audio_file(path: Path, first_packet: bool) -> None:
+    """A missing or unreadable --audio-file is an error before anything is recorded. With
+    first-packet it may still be written (by replay --audio-out) until the first packet: then its
+    folder must exist, and a warning says the file has to be there by then."""
+    if path.is_dir():
+        raise InputError("the audio file is a folder", path)
+    if path.exists():
+        try:
+            with open(path, "rb"):
+                pass
+        except OSError as exc:
+            raise InputError(f"cannot read the audio file: {exc.strerror or exc}", path) from None
+    elif not first_packet:
+        raise InputError("audio file not found", path)
+    elif not path.parent.is_dir():
+        raise InputError("audio file not found (nor its folder)", path)
+    else:
+        progress(f"warning: {path} does not exist yet: it has to be there when the first packet arrives")
+
+
 def cmd_listen(args: argparse.Namespace) -> int:
-    if args.duration is not None and args.duration <= 0:
-        raise InputError("--duration must be positive (seconds)")
-    if args.audio_file is not None and args.audio_start == "listen" and not args.audio_file.is_file():
-        raise InputError("audio file not found", args.audio_file)
+    if args.duration is not None and not (math.isfinite(args.duration) and 0 < args.duration <= 1e9):
+        raise InputError(f"--duration must be a positive number of seconds, not {args.duration}")
+    if args.audio_file is not None:
+        _check_audio_file(args.audio_file, args.audio_start == "first-packet")
     serial_port = open_serial(args.serial, args.baud) if args.serial else None
     recorder = LiveRecorder(
         args.out,
@@ -169,7 +216,12 @@ def cmd_listen(args: argparse.Namespace) -> int:
     source = audio_log = serial_sync = None
     try:
         if args.audio_device is not None or args.audio_file is not None:
-            audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
+            try:
+                audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
+            except OSError as exc:
+                raise InputError(
+                    f"cannot write the audio log: {exc.strerror or exc}", recorder.session_dir
+                ) from None
             if args.audio_device is not None:
                 dev = int(args.audio_device) if args.audio_device.isdigit() else args.audio_device
                 source = DeviceAudioSource(
@@ -202,7 +254,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
             source.start()
         if serial_sync is not None:
             serial_sync.start()
-        recorder.run(args.duration, status=_status_line)
+        recorder.run(args.duration, status=_status_line, on_flush=_warn_once(recorder, audio_log, source))
     finally:
         if serial_sync is not None:
             serial_sync.stop()
@@ -219,9 +271,19 @@ def cmd_listen(args: argparse.Namespace) -> int:
     for s in previous:
         signal.signal(s, previous[s])
     _report(summaries, args.json)
-    if recorder.error or (audio_log is not None and audio_log.writer.error):
-        # Takes hold everything that reached the disk; say loudly that something did not.
-        raise InputError(recorder.error or f"writing the audio log failed: {audio_log.writer.error}")
+    # Takes hold everything that reached the disk; say loudly, in one line, what did not.
+    problems = [recorder.error] if recorder.error else []
+    if audio_log is not None and audio_log.writer.error:
+        problems.append(
+            f"writing the audio log failed: {audio_log.writer.error.strerror or audio_log.writer.error}"
+        )
+    if source is not None and source.error:
+        problems.append(f"no audio was recorded: {source.error}")
+    failed = sum(1 for s in summaries if s.get("error"))
+    if failed:
+        problems.append(f"{failed} take(s) not written (run s2a-capture recover on {args.out} to retry)")
+    if problems:
+        raise InputError("; ".join(problems), recorder.session_dir)
     return 0
 
 
@@ -236,13 +298,19 @@ def cmd_recover(args: argparse.Namespace) -> int:
         progress(f"recovering {session}")
         try:
             summaries = build_takes(session, args.out or session.parent, recovered=True)
-        except S2AError as exc:  # one unreadable session must not keep the others from recovering
+        except (S2AError, OSError) as exc:  # one unreadable session must not keep the others from recovering
             failures += 1
-            print(f"s2a-capture: error: {exc}", file=sys.stderr)
+            message = str(exc) if isinstance(exc, S2AError) else f"{session}: {exc.strerror or exc}"
+            print(f"s2a-capture: error: {message}", file=sys.stderr)
             if args.json:
-                emit_json({"session": str(session), "error": str(exc)})
+                emit_json({"session": str(session), "error": message})
             continue
         _report(summaries, args.json)
+        failed = sum(1 for s in summaries if s.get("error"))
+        if failed:
+            failures += 1
+            out = args.out or session.parent
+            print(f"s2a-capture: error: {session}: {failed} take(s) not written to {out}", file=sys.stderr)
     return 1 if failures else 0
 
 
@@ -273,15 +341,39 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_phone(text: str) -> tuple[str, int]:
+    """``HOST``, ``HOST:PORT``, a bare IPv6 address or ``[IPV6]:PORT`` → (host, OSC port)."""
+    usage = f"phone address must be HOST, HOST:PORT, IPV6 or [IPV6]:PORT, not {text!r}"
+    port_text: str | None = None
+    if text.startswith("["):
+        host, sep, rest = text[1:].partition("]")
+        if not sep or (rest and not rest.startswith(":")):
+            raise InputError(usage)
+        if rest:
+            port_text = rest[1:]
+    elif text.count(":") == 1:
+        host, _, port_text = text.partition(":")
+    else:  # a name, an IPv4 address or a bare IPv6 address (more than one colon)
+        host = text
+    if not host:
+        raise InputError(usage)
+    if port_text is None:
+        return host, DEFAULT_OSC_PORT
+    if not (port_text.isascii() and port_text.isdigit()):
+        raise InputError(usage)
+    if not 1 <= int(port_text) <= 65535:
+        raise InputError(f"phone port {port_text} is out of range (1..65535)")
+    return host, int(port_text)
+
+
 def cmd_remote(args: argparse.Namespace) -> int:
-    host, sep, port_text = args.phone.rpartition(":")
-    if not sep:
-        host, port = args.phone, DEFAULT_OSC_PORT
-    elif port_text.isdigit():
-        port = int(port_text)
-    else:
-        raise InputError(f"phone address must be HOST or HOST:PORT, not {args.phone!r}")
-    result: dict = {"phone": f"{host}:{port}", "action": args.action}
+    host, port = parse_phone(args.phone)
+    if not 0 <= args.reply_port <= 65535:
+        raise InputError(f"--reply-port {args.reply_port} is out of range (0..65535)")
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
+        raise InputError(f"--timeout must be in (0, 3600] seconds, not {args.timeout}")
+    shown = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    result: dict = {"phone": shown, "action": args.action}
     with PhoneRemote(host, port, args.reply_host, args.reply_port, args.timeout) as phone:
         if args.action == "record-start":
             result["timecode"] = phone.record_start(args.slate, args.take_number)

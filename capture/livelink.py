@@ -32,6 +32,9 @@ MAX_PACKET_BYTES = 1024
 # Bytes after the two strings: frame number, sub-frame, rate num/den, count, 61 values.
 FRAME_BLOCK_BYTES = 4 + 4 + 4 + 4 + 1 + 4 * BLENDSHAPE_COUNT  # 261
 FRAME_TIME_BYTES = 16  # frame number, sub-frame, rate numerator, rate denominator
+# Highest frame rate a stream may declare (the app sends 30 or 60 fps): a faster one is "bad_rate", since
+# the take builder allocates a frame per frame period in a gap and a hostile rate would make that unbounded.
+MAX_RATE_FPS = 1000
 
 _LEN = struct.Struct(">i")
 _FRAME_TIME = struct.Struct(">ifii")
@@ -48,7 +51,7 @@ REJECT_REASONS: tuple[str, ...] = (
     "bad_text",  # device id or subject is not UTF-8
     "count",  # BlendShapeCount is not 61
     "size_mismatch",  # count is 61 but the datagram is longer than the packet
-    "bad_rate",  # rate numerator or denominator not positive
+    "bad_rate",  # rate numerator or denominator not positive, or the rate above MAX_RATE_FPS
     "bad_frame_time",  # negative frame number, or sub-frame not in [0, 1)
     "rate_changed",  # a known device/subject suddenly sends another rate
     "too_many_streams",  # more distinct device/subject pairs than the listener keeps
@@ -163,11 +166,17 @@ def check_body(data: bytes | bytearray | memoryview, offset: int, size: int) -> 
         if rest > FRAME_BLOCK_BYTES:
             return "size_mismatch"
     frame_number, sub_frame, num, den = _FRAME_TIME.unpack_from(data, offset)
-    if num <= 0 or den <= 0:
+    if not plausible_rate(num, den):
         return "bad_rate"
     if frame_number < 0 or not (0.0 <= sub_frame < 1.0):
         return "bad_frame_time"
     return None
+
+
+def plausible_rate(num, den):
+    """Whether the rate ``num / den`` is positive and at most MAX_RATE_FPS (ints or integer arrays,
+    compared in integers)."""
+    return (den > 0) & (num > 0) & (num <= MAX_RATE_FPS * den)
 
 
 def decode_strings(data: bytes | bytearray | memoryview, offset: int) -> tuple[str, str] | None:

@@ -7,6 +7,7 @@ answer there, and then sends commands from it and waits for the confirmations.
 
 from __future__ import annotations
 
+import math
 import socket
 import time
 from typing import Any
@@ -25,10 +26,10 @@ def _osc():
     return OscMessage, OscMessageBuilder
 
 
-def local_address_towards(host: str) -> str:
+def local_address_towards(host: str, family: int = socket.AF_INET) -> str:
     """The local IP the OS would use to reach ``host`` (a UDP connect sends nothing)."""
     try:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        with socket.socket(family, socket.SOCK_DGRAM) as s:
             s.connect((host, 9))
             return s.getsockname()[0]
     except OSError as exc:
@@ -48,12 +49,20 @@ class PhoneRemote:
     ):
         self._message, self._builder = _osc()
         self.host, self.port, self.timeout_s = host, port, timeout_s
+        if not 1 <= port <= 65535:
+            raise InputError(f"phone port {port} is out of range (1..65535)")
+        if not 0 <= reply_port <= 65535:
+            raise InputError(f"reply port {reply_port} is out of range (0..65535)")
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise InputError(f"the reply timeout must be a positive number of seconds, not {timeout_s}")
         try:
-            self.target = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)[0][4]
-        except socket.gaierror as exc:
+            found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        except (socket.gaierror, UnicodeError) as exc:
             raise InputError(f"cannot resolve the phone's address {host!r}: {exc}") from None
-        self.reply_host = reply_host or local_address_towards(self.target[0])
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # IPv4 when the name has both (as before IPv6 was supported), else the IPv6 address.
+        family, _, _, _, self.target = min(found, key=lambda f: f[0] != socket.AF_INET)
+        self.reply_host = reply_host or local_address_towards(self.target[0], family)
+        self.sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             self.sock.bind((self.reply_host, reply_port))
         except OSError as exc:
@@ -130,11 +139,24 @@ class PhoneRemote:
 
     def battery(self) -> float:
         """Battery level as the phone reports it (0..1)."""
-        return float((self.request("/BatteryQuery", "/Battery") or [float("nan")])[0])
+        return float(self._number("/BatteryQuery", "/Battery", float))
 
     def thermals(self) -> int:
         """Thermal state (0 nominal, 1 fair, 2 serious, 3 critical)."""
-        return int((self.request("/ThermalsQuery", "/Thermals") or [-1])[0])
+        return int(self._number("/ThermalsQuery", "/Thermals", int))
+
+    def _number(self, query: str, reply: str, kind: type) -> float | int:
+        """The first argument of the reply to ``query`` as a finite ``kind``; anything else (no
+        argument, text, NaN) is an ``InputError`` that shows the reply as received."""
+        args = self.request(query, reply)
+        try:
+            value = kind(args[0])
+            if math.isfinite(value):
+                return value
+        except (IndexError, TypeError, ValueError, OverflowError):
+            pass
+        shown = " ".join(repr(a) for a in args) or "(no value)"
+        raise InputError(f"unexpected reply from the phone at {self.host}:{self.port}: {reply} {shown}")
 
     def set_livelink_target(self, host: str, port: int, clear: bool = True) -> None:
         """Make the phone stream Live Link to ``host:port`` (after clearing other targets)."""

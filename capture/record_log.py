@@ -34,6 +34,7 @@ from .errors import InputError
 MAGIC = b"S2ALOG1\n"
 RECORD_HEADER = struct.Struct("<II")  # payload length, CRC-32 of the payload
 MAX_RECORD_BYTES = 1 << 24  # 16 MiB: anything longer is taken for garbage, not a record
+MAX_UNWRITTEN_BYTES = 256 << 20  # what a writer holds in memory while the disk refuses writes
 
 
 class RecordType(IntEnum):
@@ -151,6 +152,11 @@ class LogWriter:
 
     The owner appends to ``buffer`` (a bytearray) from one thread and calls ``flush()`` at least every
     flush interval; records from other threads go through ``put()``.
+
+    A write that fails (disk full, I/O error) keeps the first error in ``error`` and counts in
+    ``failed_writes``; what did not reach the file stays in memory (``unwritten_bytes``) and goes first
+    at the next write, so the log stays a valid sequence of records once the disk has room again. Past
+    ``MAX_UNWRITTEN_BYTES`` held, newly handed records are dropped and counted (``dropped_bytes``).
     """
 
     def __init__(self, path: str | Path, fsync: bool = True):
@@ -159,12 +165,24 @@ class LogWriter:
         self.buffer = bytearray()
         self._queue: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        if os.fstat(self._fd).st_size == 0:
-            os.write(self._fd, MAGIC)
+        try:
+            if os.fstat(self._fd).st_size == 0:
+                os.write(self._fd, MAGIC)  # a disk that is full already fails here, at the start
+        except OSError:
+            os.close(self._fd)
+            raise
         self.error: OSError | None = None
+        self.failed_writes = 0
+        self.dropped_bytes = 0
         self.bytes_written = 0
+        self._unwritten = b""
         self._thread = threading.Thread(target=self._write_loop, name=f"log-{self.path.name}", daemon=True)
         self._thread.start()
+
+    @property
+    def unwritten_bytes(self) -> int:
+        """Bytes handed over that are not in the file yet (held after a failed write)."""
+        return len(self._unwritten)
 
     def put(self, record: bytes) -> None:
         """Queue one complete record for writing (thread-safe)."""
@@ -177,35 +195,42 @@ class LogWriter:
             self.buffer.clear()
 
     def _write_loop(self) -> None:
-        while True:
+        stop = False
+        while not stop:
             item = self._queue.get()
-            if item is None:
-                return
+            stop = item is None
             # Coalesce what is waiting so a slow disk sees few large writes.
-            parts = [item]
-            stop = False
-            while True:
+            parts = [] if stop else [item]
+            while not stop:
                 try:
                     more = self._queue.get_nowait()
                 except queue.Empty:
                     break
                 if more is None:
                     stop = True
-                    break
-                parts.append(more)
-            data = b"".join(parts)
-            try:
-                view = memoryview(data)
-                while view:
-                    n = os.write(self._fd, view)
-                    view = view[n:]
-                if self.fsync:
-                    os.fdatasync(self._fd)
-                self.bytes_written += len(data)
-            except OSError as exc:  # disk full, I/O error: keep the first, report it at the end
-                self.error = self.error or exc
-            if stop:
-                return
+                else:
+                    parts.append(more)
+            self._write(b"".join(parts))  # at the stop too: a last try of what is held
+
+    def _write(self, new: bytes) -> None:
+        if len(self._unwritten) + len(new) > MAX_UNWRITTEN_BYTES:
+            self.dropped_bytes += len(new)  # whole records: the held bytes stay a valid continuation
+            new = b""
+        data = self._unwritten + new if self._unwritten else new
+        if not data:
+            return
+        view = memoryview(data)
+        try:
+            while view:
+                n = os.write(self._fd, view)
+                view = view[n:]
+            if self.fsync:
+                os.fdatasync(self._fd)
+        except OSError as exc:  # disk full, I/O error: keep the first, report it at the end
+            self.error = self.error or exc
+            self.failed_writes += 1
+        self.bytes_written += len(data) - len(view)
+        self._unwritten = bytes(view)
 
     def close(self) -> None:
         """Flush, wait for the writer thread, fsync and close the file."""

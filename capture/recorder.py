@@ -118,9 +118,15 @@ class LiveRecorder:
             sock.close()
             raise InputError(f"cannot listen on UDP {self.bind}:{self.port}: {exc}") from None
         sock.settimeout(0.05)  # wake up regularly to flush, check the duration and signals
+        try:
+            self.session_dir.mkdir(parents=True, exist_ok=True)
+            self.log = LogWriter(self.session_dir / FRAMES_LOG, fsync=self.fsync)
+        except OSError as exc:  # a read-only or full output folder, a file in the way
+            sock.close()
+            raise InputError(
+                f"cannot write the session log: {exc.strerror or exc}", self.session_dir
+            ) from None
         self.sock = sock
-        self.session_dir.mkdir(parents=True, exist_ok=True)
-        self.log = LogWriter(self.session_dir / FRAMES_LOG, fsync=self.fsync)
         host, port = sock.getsockname()[:2]
         self.log.put(
             json_record(
@@ -159,10 +165,12 @@ class LiveRecorder:
         duration_s: float | None = None,
         status: Callable[[dict[str, Any]], None] | None = None,
         status_every_s: float = 10.0,
+        on_flush: Callable[[], None] | None = None,
     ) -> None:
         """Receive and log until ``duration_s`` (seconds) has passed or ``request_stop()``.
 
-        ``status`` is called about every ``status_every_s`` seconds with the counts so far.
+        ``status`` is called about every ``status_every_s`` seconds with the counts so far;
+        ``on_flush`` after every flush (e.g. to warn at once of a failed log write).
         """
         assert self.sock is not None and self.log is not None, "open() first"
         sock, log, rejected = self.sock, self.log, self.rejected
@@ -269,6 +277,8 @@ class LiveRecorder:
                         last_rejects = dict(rejected)
                     log.flush()
                     next_flush = t + flush_ns
+                    if on_flush is not None:
+                        on_flush()
                     if status is not None and t >= next_status:
                         next_status = t + status_ns
                         rejected_now = sum(rejected.values())
@@ -279,6 +289,7 @@ class LiveRecorder:
                                 "accepted": self.accepted + accepted,
                                 "rejected": rejected_now,
                                 "streams": len(streams),
+                                "failed_writes": log.failed_writes,
                             }
                         )
                     if end is not None and t >= end:
@@ -344,7 +355,11 @@ class LiveRecorder:
             self.log.close()
             if self.log.error is not None:
                 # Kept, not raised: what did reach the disk still becomes takes; the caller reports it.
-                self.error = f"writing the recorder log failed: {self.log.error}"
+                lost = self.log.unwritten_bytes + self.log.dropped_bytes
+                self.error = (
+                    f"writing the recorder log failed ({self.log.failed_writes} failed writes, "
+                    f"{lost} bytes not on disk): {self.log.error.strerror or self.log.error}"
+                )
         if self.sock is not None:
             self.sock.close()
             self.sock = None

@@ -1,13 +1,16 @@
 """Takes from a live session's logs: used when ``listen`` stops and by ``recover`` after a crash.
 
-Per device/subject stream, frames are read from ``frames.log`` into arrays, duplicates (same phone
-frame number) are dropped keeping the first arrival, the rest are ordered by frame number and split
+Per device/subject stream, frames are read from ``frames.log`` into arrays (frames of a rate above
+``livelink.MAX_RATE_FPS`` dropped), cut into recordings where the phone's frame clock
+restarted (``_recordings``); per recording, duplicates (same phone frame number) are dropped keeping
+the first arrival, the rest are ordered by frame number and split
 into segments wherever the phone's frame time between two frames with a face jumps by more than
 ``MAX_GAP_S`` (a phone restart, a long pause or a long time without a face, a corrupt frame number).
 Each segment with at least ``MIN_TAKE_FRAMES`` frames with a face becomes a take, from its first to its
 last frame with a face; the no-face packets in between become FACE_LOST frames (NaN values, their own
 time and arrival, as the app's face-lost CSV rows), gaps in the frame numbers DROPPED frames
-(``csv_take.fill_dropped``, as for CSV takes). A live stream has no record start or stop, so no-face
+(``csv_take.fill_dropped``, as for CSV takes) within a budget (``MAX_DROPPED_PER_FRAME``) that
+bounds what a frame clock can make us allocate. A live stream has no record start or stop, so no-face
 packets before a take's first face or after its last are not part of it (``face_lost_outside_takes``).
 
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
@@ -33,7 +36,7 @@ from .atomic import write_json_atomic
 from .audio_capture import read_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped
-from .errors import InputError
+from .errors import InputError, S2AError
 from .record_log import LogReader, RecordType
 from .recorder import (
     AUDIO_LOG,
@@ -49,6 +52,12 @@ from .timecode import Timecode
 
 MAX_GAP_S = 5.0
 MIN_TAKE_FRAMES = 10
+# A frame time this far behind the newest, followed by another one behind, is a restart of the phone's
+# frame clock (a new recording of the stream), not a late packet.
+RESTART_WINDOW_S = 1.0
+# DROPPED frames a take may get per received frame (plus MAX_GAP_S at the stream's rate): past that,
+# as only a corrupt or hostile frame clock needs, the gaps are left unfilled.
+MAX_DROPPED_PER_FRAME = 4
 SPILL_BYTES = 64 << 20
 # One logged frame: arrival ns (little-endian, ours) + the packet's frame block (big-endian, the app's).
 ROW_DTYPE = np.dtype(
@@ -140,7 +149,10 @@ class SessionLog:
 
     def _spill(self) -> None:
         if self._spill_dir is None:
-            self._spill_dir = Path(tempfile.mkdtemp(prefix=".build-", dir=self.dir))
+            try:
+                self._spill_dir = Path(tempfile.mkdtemp(prefix=".build-", dir=self.dir))
+            except OSError:  # a read-only session folder (recover -o elsewhere): the system's temp
+                self._spill_dir = Path(tempfile.mkdtemp(prefix="s2a-build-"))
         for sid, buf in self._pending.items():
             if buf:
                 with open(self._spill_dir / f"{sid}.rows", "ab") as f:
@@ -174,109 +186,188 @@ def _segments(frame_time: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def _recordings(frame_time: np.ndarray) -> list[slice]:
+    """Slices (in arrival order) of the recordings of one stream: a new one starts where the phone's
+    frame time falls more than ``RESTART_WINDOW_S`` behind the newest so far and the next packet
+    stays behind too (the phone or its timecode restarted). A single late packet is not a restart."""
+    times = frame_time.tolist()
+    starts = [0]
+    newest = -np.inf
+    for i, t in enumerate(times):
+        behind = newest - RESTART_WINDOW_S
+        if t < behind and i + 1 < len(times) and times[i + 1] < behind:
+            starts.append(i)
+            newest = t
+        elif t > newest:
+            newest = t
+    bounds = [*starts, len(times)]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _dropped_needed(t: np.ndarray, period: float) -> float:
+    """How many DROPPED frames ``fill_dropped(t, ..., period)`` would insert (float: never overflows)."""
+    steps = np.diff(t)
+    return float(np.where(steps > 1.5 * period, np.rint(steps / period) - 1, 0.0).sum())
+
+
 def stream_takes(
     log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
 ) -> tuple[list[Take], dict]:
-    """The takes of one stream, and a report (packets, duplicates, out-of-order, stray frames, face-lost
-    frames outside the takes)."""
+    """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, stray frames,
+    face-lost frames outside the takes, frames with an implausible rate, takes that could not be built)."""
     rows = log.stream_rows(sid)
     info = log.streams.get(sid, {})
-    fn = rows["frame_number"].astype(np.int64)
-    report: dict[str, Any] = {"packets": int(rows.size)}
-    prior_max = np.maximum.accumulate(fn)
-    report["out_of_order"] = int(np.count_nonzero(fn[1:] < prior_max[:-1])) if fn.size > 1 else 0
-    # np.unique gives the first occurrence in log (= arrival) order of each frame number, sorted.
-    _, first = np.unique(fn, return_index=True)
-    report["duplicates"] = int(rows.size - first.size)
-    rows = rows[first]
+    report: dict[str, Any] = {"packets": int(rows.size), "duplicates": 0, "out_of_order": 0, "restarts": 0}
+    # Logs written before the recorder bounded the rate may hold any rate: such frames make no take.
+    plausible = ll.plausible_rate(rows["rate_numerator"].astype(np.int64), rows["rate_denominator"])
+    if not plausible.all():
+        report["bad_rate_frames"] = int(np.count_nonzero(~plausible))
+        rows = rows[plausible]
     num = rows["rate_numerator"].astype(np.float64)
     den = rows["rate_denominator"].astype(np.float64)
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
-    # Rows are sorted by frame number; sub-frames cannot reorder them, but guard the take invariant.
-    keep = np.concatenate([[True], np.diff(frame_time) > 0]) if frame_time.size else np.zeros(0, bool)
-    rows, frame_time = rows[keep], frame_time[keep]
-    arrival = log.seconds(rows["arrival_ns"])
+    recordings = _recordings(frame_time)
+    report["restarts"] = len(recordings) - 1
+    # Per recording: duplicates dropped, frames put in frame-number order, cut into segments of the
+    # frames with a face; the no-face frames between a segment's first and last face frame belong to it.
+    segments: list[tuple[np.ndarray, np.ndarray]] = []
+    face_lost = 0
+    for recording in recordings:
+        r, ft = rows[recording], frame_time[recording]
+        fn = r["frame_number"].astype(np.int64)
+        prior_max = np.maximum.accumulate(fn)
+        report["out_of_order"] += int(np.count_nonzero(fn[1:] < prior_max[:-1]))
+        # np.unique gives the first occurrence in arrival order of each frame number, sorted.
+        _, first = np.unique(fn, return_index=True)
+        report["duplicates"] += int(r.size - first.size)
+        r, ft = r[first], ft[first]
+        # Sorted by frame number; sub-frames cannot reorder them, but guard the take invariant.
+        keep = np.concatenate([[True], np.diff(ft) > 0]) if ft.size else np.zeros(0, bool)
+        r, ft = r[keep], ft[keep]
+        face_rows = np.flatnonzero(r["count"] != 0)
+        face_lost += int(r.size - face_rows.size)
+        for s in _segments(ft[face_rows]) if face_rows.size else []:
+            seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
+            segments.append((r[seg], ft[seg]))
     takes: list[Take] = []
-    stray = 0
-    sync = [(ev.to_json(), float(log.seconds(ev.arrival_ns))) for ev in log.sync]  # the same for every take
-    # Takes follow the face: segments of the frames with one; the no-face frames between a segment's
-    # first and last face frame belong to it (rows are in frame-time order).
-    face_rows = np.flatnonzero(rows["count"] != 0)
-    segments = [
-        slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
-        for s in (_segments(frame_time[face_rows]) if face_rows.size else [])
-    ]
-    lost_in_takes = 0
-    device = info.get("device")
-    subject = info.get("subject")
+    stray = lost_in_takes = 0
+    errors = []
     session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
-    base_id = f"{session}_{subject}_{(device or '')[:8]}"
-    for k, seg in enumerate(segments):
-        r, ft, arr = rows[seg], frame_time[seg], arrival[seg]
+    base_id = f"{session}_{info.get('subject')}_{(info.get('device') or '')[:8]}"
+    for k, (r, ft) in enumerate(segments):
         lost = r["count"] == 0
         n_lost = int(np.count_nonzero(lost))
         if r.size - n_lost < MIN_TAKE_FRAMES:
             stray += r.size - n_lost
             continue
-        lost_in_takes += n_lost
-        values = r["values"].astype(np.float32)
-        finite = np.isfinite(values).all(axis=1)
-        values[~np.isfinite(values)] = np.nan
-        status = np.where(finite, FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(np.uint8)
-        status[lost] = FrameStatus.FACE_LOST
-        finite |= lost  # NaN is what a face-lost frame holds, not a bad value
-        t = ft - ft[0]
-        fps, period = detect_fps(t)
-        t_full, v_full, s_full, inserted = fill_dropped(t, values, status, period)
-        arrival_full = np.full(t_full.size, np.nan)
-        arrival_full[s_full != FrameStatus.DROPPED] = arr
-        offset = float(np.min(arr - ft))
-        latency = arr - ft - offset
-        rate_num, rate_den = int(r["rate_numerator"][0]), int(r["rate_denominator"][0])
-        repairs = []
-        if not finite.all():
-            repairs.append(
-                {
-                    "line": None,
-                    "kind": "bad_value",
-                    "message": f"{int((~finite).sum())} frames held NaN/inf values",
-                }
-            )
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
-        meta = TakeMeta(
-            id=safe_id(take_id),
-            source_kind="livelink_udp",
-            fps=fps,
-            channels=list(ARKIT61),
-            subject=subject,
-            device=device,
-            start_timecode=Timecode.from_seconds(ft[0]).format(),
-            timecode_rate=rate_num / rate_den,
-            repairs=repairs,
-            csv={"count_name": "BlendShapeCount", "start_seconds_of_day": float(ft[0] % 86400.0)},
-        )
-        events = [j | {"arrival_s": a, "t": a - offset - float(ft[0])} for j, a in sync]
-        meta.extra = {
-            "session": log.session.get("session"),
-            "rate": [rate_num, rate_den],
-            "first_frame_number": int(r["frame_number"][0]),
-            "clock_offset_s": offset,  # recorder clock minus phone frame time, fastest packet
-            "latency_s": {
-                "median": float(np.median(latency)),
-                "p95": float(np.percentile(latency, 95)),
-                "max": float(np.max(latency)),
-            },
-            "dropped_frames_inserted": inserted,
-            "sync_events": events,
-            "source": info.get("source"),
-        }
-        take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
-        if audio is not None and audio_first_s is not None:
-            take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
-        takes.append(take)
+        try:
+            takes.append(_segment_take(log, info, take_id, r, ft, audio, audio_first_s))
+        except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
+            errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
+            continue
+        lost_in_takes += n_lost
     report["stray_frames"] = stray
-    report["face_lost_outside_takes"] = int(rows.size - face_rows.size - lost_in_takes)
+    report["face_lost_outside_takes"] = face_lost - lost_in_takes
+    if errors:
+        report["errors"] = errors
     return takes, report
+
+
+def _segment_take(
+    log: SessionLog,
+    info: dict[str, Any],
+    take_id: str,
+    r: np.ndarray,
+    ft: np.ndarray,
+    audio=None,
+    audio_first_s: float | None = None,
+) -> Take:
+    """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft``."""
+    arr = log.seconds(r["arrival_ns"])
+    lost = r["count"] == 0
+    values = r["values"].astype(np.float32)
+    finite = np.isfinite(values).all(axis=1)
+    values[~np.isfinite(values)] = np.nan
+    status = np.where(finite, FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(np.uint8)
+    status[lost] = FrameStatus.FACE_LOST
+    finite |= lost  # NaN is what a face-lost frame holds, not a bad value
+    t = ft - ft[0]
+    fps, period = detect_fps(t)
+    rate_num, rate_den = int(r["rate_numerator"][0]), int(r["rate_denominator"][0])
+    repairs = []
+    # Bound what a frame clock can make us allocate: DROPPED frames at most MAX_DROPPED_PER_FRAME per
+    # received frame plus MAX_GAP_S at the stream's rate; past that the gaps stay jumps in time.
+    budget = MAX_DROPPED_PER_FRAME * t.size + MAX_GAP_S * rate_num / rate_den
+    needed = _dropped_needed(t, period)
+    if needed <= budget:
+        t_full, v_full, s_full, inserted = fill_dropped(t, values, status, period)
+    else:
+        t_full, v_full, s_full, inserted = t, values, status, 0
+        repairs.append(
+            {
+                "line": None,
+                "kind": "gaps_not_filled",
+                "message": f"the gaps would need {needed:.0f} dropped frames for {t.size} received; "
+                "left as jumps in time",
+            }
+        )
+    arrival_full = np.full(t_full.size, np.nan)
+    arrival_full[s_full != FrameStatus.DROPPED] = arr
+    offset = float(np.min(arr - ft))
+    latency = arr - ft - offset
+    if not finite.all():
+        repairs.append(
+            {
+                "line": None,
+                "kind": "bad_value",
+                "message": f"{int((~finite).sum())} frames held NaN/inf values",
+            }
+        )
+    meta = TakeMeta(
+        id=safe_id(take_id),
+        source_kind="livelink_udp",
+        fps=fps,
+        channels=list(ARKIT61),
+        subject=info.get("subject"),
+        device=info.get("device"),
+        start_timecode=Timecode.from_seconds(ft[0]).format(),
+        timecode_rate=rate_num / rate_den,
+        repairs=repairs,
+        csv={"count_name": "BlendShapeCount", "start_seconds_of_day": float(ft[0] % 86400.0)},
+    )
+    sync = [(ev.to_json(), float(log.seconds(ev.arrival_ns))) for ev in log.sync]
+    events = [j | {"arrival_s": a, "t": a - offset - float(ft[0])} for j, a in sync]
+    meta.extra = {
+        "session": log.session.get("session"),
+        "rate": [rate_num, rate_den],
+        "first_frame_number": int(r["frame_number"][0]),
+        "clock_offset_s": offset,  # recorder clock minus phone frame time, fastest packet
+        "latency_s": {
+            "median": float(np.median(latency)),
+            "p95": float(np.percentile(latency, 95)),
+            "max": float(np.max(latency)),
+        },
+        "dropped_frames_inserted": inserted,
+        "sync_events": events,
+        "source": info.get("source"),
+    }
+    take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
+    if audio is not None and audio_first_s is not None:
+        take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
+    return take
+
+
+def _unique_id(take_id: str, used: set[str]) -> str:
+    """``take_id`` as a folder name no other take of the session has (``-2``, ``-3``... appended);
+    compared case-folded, as on case-insensitive file systems."""
+    name = safe_id(take_id)
+    n = 1
+    while name.casefold() in used:
+        n += 1
+        name = safe_id(f"{take_id}-{n}")
+    used.add(name.casefold())
+    return name
 
 
 def find_sessions(path: str | Path, include_complete: bool = False) -> list[Path]:
@@ -300,7 +391,10 @@ def build_takes(
 
     The summary holds ``device``, ``subject``, ``frames``, ``dropped_frames``, ``rejected`` (session
     datagram counts by reason) and the take's ``info`` figures. With no take, one summary with
-    ``device``/``subject`` None still reports the counts. Marks the session complete afterwards.
+    ``device``/``subject`` None still reports the counts. Each take is built and written on its own:
+    one that fails (memory, a full disk) adds a summary with ``path`` None and a one-line ``error``,
+    and the others are still written. Marks the session complete afterwards unless a take failed.
+    Take folder names are unique in the session (``-2``, ``-3``... when two streams' names collide).
     """
     session_dir = Path(session_dir)
     log = SessionLog(session_dir)
@@ -333,17 +427,36 @@ def build_takes(
     if errors:
         common["errors"] = errors
     summaries: list[dict[str, Any]] = []
+    failed: list[dict[str, Any]] = []
     stray_streams = stray_frames = 0
+    used: set[str] = set()  # take folder names of this session, case-folded
     try:
         for sid in log.stream_ids():
-            takes, report = stream_takes(log, sid, audio, audio_first_s)
+            info = log.streams.get(sid, {})
+            who = {"device": info.get("device"), "subject": info.get("subject")}
+            try:
+                takes, report = stream_takes(log, sid, audio, audio_first_s)
+            except (MemoryError, ValueError, OverflowError, OSError, S2AError) as exc:
+                message = f"the takes of stream {sid} could not be built: {type(exc).__name__}: {exc}"
+                failed.append(who | {"error": message})
+                continue
+            failed += [who | {"error": e} for e in report.pop("errors", [])]
             for take in takes:
+                take.meta.id = _unique_id(take.meta.id, used)
                 take.meta.extra["rejected"] = dict(log.rejected)
                 take.meta.extra["recovered"] = recovered
-                take.meta.extra |= {k: report[k] for k in ("packets", "duplicates", "out_of_order")}
+                take.meta.extra |= {
+                    k: report[k] for k in ("packets", "duplicates", "out_of_order", "restarts")
+                }
                 if log.torn_tail is not None:
                     take.meta.extra["torn_tail"] = log.torn_tail.to_json()
-                folder = write_take(take, out_dir)
+                try:
+                    folder = write_take(take, out_dir)
+                except (OSError, S2AError) as exc:  # a full disk, a read-only folder: this take only
+                    where = Path(out_dir) / take.meta.id
+                    message = f"{where}: cannot write the take: {getattr(exc, 'strerror', None) or exc}"
+                    failed.append(who | {"error": str(exc) if isinstance(exc, S2AError) else message})
+                    continue
                 summaries.append(
                     take.summary()
                     | common
@@ -355,15 +468,26 @@ def build_takes(
                 stray_frames += report["stray_frames"]
     finally:
         log.close()
-    if not summaries:
+    if not summaries and not failed:
         summaries.append(
             common | {"device": None, "subject": None, "frames": 0, "dropped_frames": 0, "path": None}
         )
+    # A take that failed is reported in its own summary (path None, "error") after the written ones.
+    summaries += [common | {"frames": 0, "dropped_frames": 0, "path": None} | f for f in failed]
     for s in summaries:
         # Streams too short for a take (a stray or corrupt packet) stay in the log and are counted here.
         s["stray_streams"] = stray_streams
         s["stray_stream_frames"] = stray_frames
-    write_json_atomic(
-        session_dir / COMPLETE_FILE, {"takes": [s.get("path") for s in summaries], "recovered": recovered}
-    )
+    if not failed:
+        # Not complete while a take is missing: ``recover`` retries it (e.g. once the disk has room).
+        try:
+            write_json_atomic(
+                session_dir / COMPLETE_FILE,
+                {"takes": [s.get("path") for s in summaries], "recovered": recovered},
+            )
+        except OSError as exc:
+            message = f"{session_dir}: cannot mark the session complete: {exc.strerror or exc}"
+            summaries.append(
+                summaries[-1] | {"device": None, "subject": None, "path": None, "error": message}
+            )
     return summaries

@@ -19,12 +19,13 @@ from capture.osc_remote import PhoneRemote
 class FakePhone:
     """Answers the §6 commands like the app; remembers what it was told."""
 
-    def __init__(self):
+    def __init__(self, host: str = "127.0.0.1", battery=0.75, thermals=1):
         self.received: list[tuple] = []
         self.reply: SimpleUDPClient | None = None
+        self.battery, self.thermals = battery, thermals
         d = Dispatcher()
         d.set_default_handler(self._any)
-        self.server = BlockingOSCUDPServer(("127.0.0.1", 0), d)
+        self.server = BlockingOSCUDPServer((host, 0), d)
         self.port = self.server.server_address[1]
         self.thread = threading.Thread(
             target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True
@@ -45,9 +46,9 @@ class FakePhone:
                 "/RecordStopConfirm", ["00:01:02.500", "/takes/a_1_iPhone.csv", "/takes/a_1_iPhone.mov"]
             )
         elif address == "/BatteryQuery":
-            self.reply.send_message("/Battery", [0.75])
+            self.reply.send_message("/Battery", [self.battery])
         elif address == "/ThermalsQuery":
-            self.reply.send_message("/Thermals", [1])
+            self.reply.send_message("/Thermals", [self.thermals])
 
     def close(self):
         self.server.shutdown()
@@ -109,3 +110,57 @@ def test_silent_phone_is_a_one_line_error():
             remote.battery()
     r = run_cli("remote", "127.0.0.1:9", "--timeout", "0.3", "thermals")
     assert r.returncode == 1 and len(r.stderr.splitlines()) == 1 and "Traceback" not in r.stderr
+
+
+def _one_line_error(r, text: str) -> None:
+    assert r.returncode == 1, r.stderr
+    assert text in r.stderr and "Traceback" not in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+
+
+def test_bad_options_and_addresses_are_one_line_errors():
+    for args, text in [
+        (["127.0.0.1", "--reply-port", "99999", "battery"], "--reply-port 99999 is out of range"),
+        (["127.0.0.1:99999", "battery"], "port 99999 is out of range"),
+        (["127.0.0.1:0", "battery"], "port 0 is out of range"),
+        (["[::1", "battery"], "IPV6"),
+        (["[::1]x", "battery"], "IPV6"),
+        (["127.0.0.1:x", "battery"], "HOST:PORT"),
+        (["127.0.0.1", "--timeout", "nan", "battery"], "--timeout"),
+        (["127.0.0.1", "--timeout", "inf", "battery"], "--timeout"),
+    ]:
+        _one_line_error(run_cli("remote", *args), text)
+    with pytest.raises(InputError, match="out of range"):
+        PhoneRemote("127.0.0.1", 8000, reply_port=70000)
+
+
+def test_ipv6_phone_with_and_without_port():
+    phone = FakePhone("::1")
+    try:
+        r = run_cli("remote", f"[::1]:{phone.port}", "--timeout", "5", "--json", "battery")
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["battery"] == pytest.approx(0.75)
+        assert json.loads(r.stdout)["phone"] == f"[::1]:{phone.port}"
+    finally:
+        phone.close()
+    # A bare IPv6 address takes the default OSC port: nobody answers there, so a timeout, not a parse error.
+    r = run_cli("remote", "::1", "--timeout", "0.3", "battery")
+    _one_line_error(r, "[::1]:8000" if "[::1]" in r.stderr else "::1")
+    assert "OSCSetSendTargetConfirm" in r.stderr
+
+
+@pytest.mark.parametrize(
+    ("action", "battery", "thermals", "shown"),
+    [
+        ("battery", "full", 1, "/Battery 'full'"),
+        ("thermals", 0.5, "hot", "/Thermals 'hot'"),
+        ("battery", float("nan"), 1, "/Battery nan"),
+    ],
+)
+def test_non_numeric_replies_are_unexpected(action, battery, thermals, shown):
+    phone = FakePhone(battery=battery, thermals=thermals)
+    try:
+        r = run_cli("remote", f"127.0.0.1:{phone.port}", "--timeout", "5", action)
+        _one_line_error(r, "unexpected reply")
+        assert shown in r.stderr
+    finally:
+        phone.close()

@@ -1,0 +1,241 @@
+"""Hostile or odd streams and a hostile environment: implausible rates, sub-frame tricks, a take that
+cannot be built, colliding take names, a restarted frame counter, a full disk, an unwritable output
+folder, a missing audio file and bad options. Never a traceback, never the loss of what arrived."""
+
+from __future__ import annotations
+
+import json
+import resource
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from live_helpers import run_cli
+
+import capture.livelink as ll
+import capture.session_takes as st
+from capture import FrameStatus, LiveRecorder, build_takes, read_take
+from capture.livelink import frame_block, header_bytes
+
+VALS = np.linspace(-0.5, 1.0, 61).astype(np.float32)
+
+
+def _record(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecorder:
+    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
+    _, port = rec.open()
+    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
+    runner.start()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i, p in enumerate(packets):
+            s.sendto(p, ("127.0.0.1", port))
+            if i % 200 == 199:
+                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
+    time.sleep(0.5)
+    rec.request_stop()
+    runner.join()
+    rec.close()
+    return rec
+
+
+def _packets(device: str, subject: str, frames, num: int = 60, sub_frames=None, values=VALS) -> list[bytes]:
+    head = header_bytes(device, subject)
+    sub_frames = [0.0] * len(frames) if sub_frames is None else sub_frames
+    return [head + frame_block(int(f), float(s), num, 1, values) for f, s in zip(frames, sub_frames)]
+
+
+def _by_name(lines) -> dict[str, dict]:
+    return {line["path"].rsplit("/", 1)[1]: line for line in lines if line["path"]}
+
+
+# -- 1. what a stream can make the take builder allocate -----------------------------------------------
+HOSTILE_FRAMES = [*range(20), *range(200_000, 200_020)]  # at 20 MHz: 0.01 s apart, 200k frame periods
+
+
+def test_implausible_rate_is_rejected_on_arrival(tmp_path):
+    packets = _packets("HOSTILE", "x", HOSTILE_FRAMES, num=20_000_000)
+    packets += _packets("HOSTILE2", "x", range(20), num=0) + _packets("GOOD", "iPhone", range(100, 130))
+    rec = _record(tmp_path, "r", packets)
+    assert rec.rejected["bad_rate"] == 60 and rec.accepted == 30
+    lines = build_takes(rec.session_dir, tmp_path)
+    assert list(_by_name(lines)) == ["r_iPhone_GOOD"] and lines[0]["frames"] == 30
+
+
+def test_recover_of_an_old_log_with_an_implausible_rate(tmp_path, monkeypatch):
+    # A log written before the recorder bounded the rate: the builder drops those frames itself.
+    monkeypatch.setattr(ll, "MAX_RATE_FPS", 10**9)
+    rec = _record(tmp_path, "old", _packets("HOSTILE", "x", HOSTILE_FRAMES, num=20_000_000))
+    monkeypatch.undo()
+    rec2 = _record(tmp_path, "old2", _packets("GOOD", "iPhone", range(100, 130)))
+    assert rec.accepted == 40 and rec2.accepted == 30
+    r = run_cli("recover", str(tmp_path), "--json")
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(x) for x in r.stdout.splitlines()]
+    assert [line["path"] for line in lines][0] is None and lines[0]["stray_streams"] == 1
+    assert lines[1]["path"].endswith("old2_iPhone_GOOD") and lines[1]["frames"] == 30
+
+
+def test_sub_frames_cannot_make_the_gaps_huge(tmp_path):
+    # Sub-frames 0.999, 0.0, 0.999... make most frame-time steps 0.001 frames: the median frame period
+    # (the fill's step) is then 1/60000 s, and one 2 s gap alone would take 120,000 DROPPED frames.
+    frames = [*range(22), *range(142, 164)]
+    subs = [0.999 if i % 2 == 0 else 0.0 for i in range(len(frames))]
+    rec = _record(tmp_path, "sf", _packets("TRICK", "iPhone", frames, sub_frames=subs))
+    (line,) = build_takes(rec.session_dir, tmp_path)
+    take = read_take(line["path"])
+    assert line["frames"] == 44 and line["dropped_frames"] == 0
+    assert [x["kind"] for x in take.meta.repairs] == ["gaps_not_filled"]
+    # An ordinary lossy stream is still filled.
+    rec = _record(tmp_path, "ok", _packets("LOSSY", "iPhone", [f for f in range(100, 400) if f % 3]))
+    (line,) = build_takes(rec.session_dir, tmp_path)
+    assert line["frames"] == 299 and line["dropped_frames"] == 99
+
+
+def test_a_take_that_cannot_be_built_does_not_lose_the_others(tmp_path, monkeypatch):
+    packets = _packets("BAD", "iPhone", range(100, 130), values=VALS + 7) + _packets(
+        "GOOD", "iPhone", range(30)
+    )
+    rec = _record(tmp_path, "m", packets)
+    fill = st.fill_dropped
+
+    def fill_or_fail(t, values, status, period):
+        if values[0, 0] > 5:
+            raise MemoryError("Unable to allocate 18.2 GiB for an array")
+        return fill(t, values, status, period)
+
+    monkeypatch.setattr(st, "fill_dropped", fill_or_fail)
+    lines = build_takes(rec.session_dir, tmp_path)
+    assert list(_by_name(lines)) == ["m_iPhone_GOOD"]
+    (failed,) = [x for x in lines if x.get("error")]
+    assert failed["device"] == "BAD" and "18.2 GiB" in failed["error"] and "\n" not in failed["error"]
+    assert not (rec.session_dir / "complete.json").exists()  # recover retries the missing take
+
+
+# -- 2. take folder names that collide ------------------------------------------------------------------
+def test_colliding_take_names_never_overwrite(tmp_path):
+    packets = _packets("ABCDEFGH-1111", "Phone A", range(30)) + _packets(
+        "ABCDEFGH-2222", "Phone_A", range(40)
+    )
+    packets += _packets("ABCDEFGH-3333", "Phone A", range(50), values=VALS + 1)
+    lines = build_takes(_record(tmp_path, "c", packets).session_dir, tmp_path)
+    got = {name: read_take(x["path"]) for name, x in _by_name(lines).items()}
+    assert {n: (t.meta.device, t.time.size) for n, t in got.items()} == {
+        "c_Phone_A_ABCDEFGH": ("ABCDEFGH-1111", 30),
+        "c_Phone_A_ABCDEFGH-2": ("ABCDEFGH-2222", 40),
+        "c_Phone_A_ABCDEFGH-3": ("ABCDEFGH-3333", 50),
+    }
+    # Rebuilding the session gives the same names (its own takes are replaced, nobody else's).
+    again = build_takes(tmp_path / "c.recording", tmp_path)
+    assert sorted(_by_name(again)) == sorted(got)
+
+
+# -- 3. a frame counter that restarts lower ---------------------------------------------------------------
+def test_restarted_frame_counter_starts_a_new_take(tmp_path):
+    first = list(range(5000, 5200))
+    first[150], first[151] = first[151], first[150]  # ordinary reordering
+    first.insert(100, 5090)  # an ordinary duplicate
+    late = [5120]  # one packet more than the restart window late: not a restart
+    packets = _packets("DEV", "iPhone", first[:140] + late + first[140:])
+    packets += _packets("DEV", "iPhone", range(10, 310), values=VALS + 1)  # the app restarted
+    lines = build_takes(_record(tmp_path, "rs", packets).session_dir, tmp_path)
+    one, two = (read_take(x["path"]) for x in lines)
+    assert [x["path"].rsplit("/", 1)[1] for x in lines] == ["rs_iPhone_DEV_1", "rs_iPhone_DEV_2"]
+    assert (
+        one.time.size == 200
+        and one.meta.extra["first_frame_number"] == 5000
+        and one.count(FrameStatus.DROPPED) == 0
+    )
+    assert two.time.size == 300 and two.meta.extra["first_frame_number"] == 10
+    assert np.array_equal(two.values[0], VALS + 1) and np.array_equal(one.values[-1], VALS)
+    assert lines[0]["restarts"] == 1 and lines[0]["duplicates"] == 2 and lines[0]["out_of_order"] == 3
+
+
+# -- 4. a full disk, an unwritable output folder ------------------------------------------------------------
+def _limit_file_size(limit: int):
+    # Writes past ``limit`` bytes in any one file fail (EFBIG): a full disk for the files that grow.
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+def test_full_disk_while_recording_is_a_warning_then_one_error(tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "capture", "listen", "-o", str(out), "--port", "0", "--duration", "60"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, preexec_fn=_limit_file_size(30_000))
+    port = int(proc.stderr.readline().split("udp://127.0.0.1:")[1].split(" ")[0])
+    # Steps 1, 1, 9: the take gets 8 DROPPED frames per 3 received, so it is larger than its log.
+    frames = [f for f in range(1000, 1000 + 11 * 200) if f % 11 in (0, 1, 2)]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for p in _packets("FULLDISK", "iPhone", frames):
+            s.sendto(p, ("127.0.0.1", port))
+            time.sleep(0.001)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    lines = err.splitlines()
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    assert sum(x.startswith("warning: cannot write the log") for x in lines) == 1, err
+    session = next(out.glob("*.recording"))
+    assert lines[-1].startswith(f"s2a-capture: error: {session}: writing the recorder log failed"), err
+    assert "1 take(s) not written" in lines[-1]
+    # Once there is room, recover builds the take from everything that reached the log.
+    r = run_cli("recover", str(out), "--json")
+    assert r.returncode == 0, r.stderr
+    (line,) = [json.loads(x) for x in r.stdout.splitlines()]
+    assert 50 < line["valid_frames"] < len(frames) and "torn_tail" in line
+
+
+def test_unwritable_output_folder_is_one_line(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    r = run_cli("listen", "-o", str(blocker), "--port", "0", "--duration", "1")
+    assert r.returncode == 1 and "Traceback" not in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+    assert r.stderr.startswith(f"s2a-capture: error: {blocker}/") and "session log" in r.stderr
+    rec = _record(tmp_path, "w", _packets("A", "iPhone", range(30)) + _packets("B", "iPhone", range(30)))
+    r = run_cli("recover", str(rec.session_dir), "-o", str(blocker / "takes"))
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    takes = [x for x in r.stderr.splitlines() if x.startswith(("A / iPhone: ", "B / iPhone: "))]
+    assert len(takes) == 2 and all(str(blocker) in x for x in takes), r.stderr
+    assert (
+        r.stderr.splitlines()[-1]
+        == f"s2a-capture: error: {rec.session_dir}: 2 take(s) not written to {blocker / 'takes'}"
+    )
+    r = run_cli("recover", str(rec.session_dir), "-o", str(tmp_path / "ok"))  # nothing was lost
+    assert r.returncode == 0 and len(list((tmp_path / "ok").iterdir())) == 2, r.stderr
+
+
+# -- 5. the audio file ---------------------------------------------------------------------------------------
+def test_missing_audio_file_is_never_silent(tmp_path):
+    r = run_cli(
+        "listen", "-o", str(tmp_path), "--audio-file", "/nonexistent/x.wav", "--audio-start", "first-packet"
+    )
+    assert r.returncode == 1 and "not found" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+    assert not list(tmp_path.iterdir())
+    r = run_cli("listen", "-o", str(tmp_path), "--audio-file", str(tmp_path), "--audio-start", "first-packet")
+    assert r.returncode == 1 and "folder" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+    # Still missing when the first packet arrives: a warning then, the take, and one error at the end.
+    wav = tmp_path / "never.wav"
+    cmd = [sys.executable, "-m", "capture", "listen", "-o", str(tmp_path / "out"), "--port", "0"]
+    cmd += ["--duration", "60", "--json", "--audio-file", str(wav), "--audio-start", "first-packet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr.readline().startswith(f"warning: {wav} does not exist yet")
+    port = int(proc.stderr.readline().split("udp://127.0.0.1:")[1].split(" ")[0])
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for p in _packets("A", "iPhone", range(30)):
+            s.sendto(p, ("127.0.0.1", port))
+    assert proc.stderr.readline().startswith("warning: ")  # at the first packet, while recording
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1 and "Traceback" not in err
+    assert err.splitlines()[-1].startswith("s2a-capture: error: ") and "no audio was recorded" in err
+    assert json.loads(out)["frames"] == 30
+
+
+# -- 6. options --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("duration", ["nan", "inf", "-1", "1e300"])
+def test_bad_duration_is_one_line_before_anything_is_made(tmp_path, duration):
+    r = run_cli("listen", "-o", str(tmp_path / "out"), "--port", "0", "--duration", duration)
+    assert r.returncode == 1 and "--duration" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+    assert not (tmp_path / "out").exists()
