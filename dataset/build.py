@@ -61,6 +61,8 @@ WORK = ".work"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
 SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
+MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
+CONTENT_FEATURES = ("fbank", "mfcc", "ppg")  # what a model reads the words from (pitch, energy: prosody)
 
 
 @dataclass
@@ -88,8 +90,13 @@ class BuildOptions:
             raise InputError("feature 'ppg' needs a backend: --ppg bottleneck|torchscript|onnx|pocketsphinx")
         if self.normalization not in KINDS:
             raise InputError(f"--normalization must be one of {', '.join(KINDS)}")
-        if self.shard_bytes <= 0 or self.max_sample_s <= 0 or self.jobs < 1:
-            raise InputError("--shard-mb, --max-sample-s and --jobs must be positive")
+        if not set(self.features) & set(CONTENT_FEATURES):
+            raise InputError(
+                f"--features {','.join(self.features) or '(none)'} holds no content feature: a model needs "
+                f"one of {', '.join(CONTENT_FEATURES)} (--ppg adds ppg)"
+            )
+        if self.shard_bytes <= 0 or not 0 < self.max_sample_s < math.inf or self.jobs < 1:
+            raise InputError("--shard-mb, --max-sample-s and --jobs must be positive (and finite)")
 
 
 # ------------------------------------------------------------------------------------------ takes
@@ -231,6 +238,10 @@ def collect_takes(
             if m.audio.sample_rate != 16000:
                 raise InputError(
                     f"aligned take audio is {m.audio.sample_rate} Hz; expected 16000 (re-run align)", af
+                )
+            if not (isinstance(m.fps, (int, float)) and 0 < m.fps < math.inf):
+                raise InputError(
+                    f"aligned take has frame rate {m.fps!r}; expected a positive number of fps", af
                 )
             if abs(m.audio.start_s) > 1e-9:
                 raise InputError(
@@ -808,6 +819,12 @@ def build_dataset(
                     "a worker process died (out of memory?); finished takes are kept: rerun to resume"
                 ) from None
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
+    for r in ordered:
+        if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:
+            warnings.append(
+                f"take {r['take']}: only {r['usable_frames']} of {r['frames']} frames are usable (face lost, "
+                "or audio shorter than the frames?); check it with s2a-view report"
+            )
 
     # statistics of the training split, merged in take order (deterministic float sums)
     train_chan, train_feats = _merge_records(ordered, channels, "train")

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from capture.command import emit_json, progress, run
+from capture.errors import InputError
 
 from .build import BuildOptions, build_dataset
 from .features import DEFAULT_FEATURES
@@ -78,6 +80,8 @@ def _say(prefix: str):
 
 
 def cmd_build(args: argparse.Namespace) -> int:
+    if not 0 < args.shard_mb < math.inf:
+        raise InputError(f"--shard-mb must be a positive number, not {args.shard_mb}")
     options = BuildOptions(
         channels=args.channels,
         features=args.features,

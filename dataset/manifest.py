@@ -12,26 +12,20 @@ It is written last and atomically, so a manifest always describes finished shard
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from capture.atomic import write_json_atomic
 from capture.errors import InputError
 
+from .splits import SPLITS
+
 FORMAT = "s2a-dataset"
 SCHEMA_VERSION = 1
 MANIFEST_FILE = "manifest.json"
-# field: (type, element type or None, description) - checked on reading, so that nothing downstream
-# trips over a hand-edited manifest; finer checks are qa.validate_manifest's.
-TYPES = {
-    "channels": (list, str, "list of channel names"),
-    "features": (dict, None, "JSON object"),
-    "normalization": (dict, None, "JSON object"),
-    "splits": (dict, None, "JSON object"),
-    "shards": (list, dict, "list of shard objects"),
-    "samples": (list, dict, "list of sample objects"),
-}
 REQUIRED = ("fps", "sample_rate", "channels", "features", "normalization", "splits", "shards", "samples")
 
 
@@ -40,8 +34,155 @@ def manifest_path(ds: str | Path) -> Path:
     return ds if ds.suffix == ".json" else ds / MANIFEST_FILE
 
 
-def read_manifest(ds: str | Path) -> dict[str, Any]:
-    """The manifest of dataset folder ``ds`` (or of a manifest file), format-checked."""
+def dataset_dir(ds: str | Path) -> Path:
+    """The dataset folder of ``ds``, a dataset folder or its manifest file."""
+    return manifest_path(ds).parent
+
+
+# ------------------------------------------------------------------------------------------ schema
+# The types of every field a reader (stats, report, training, validate) relies on, checked on reading so
+# that nothing downstream trips over a hand-edited manifest. One set of checks: read_manifest refuses a
+# manifest that fails any; qa.validate_manifest reports every failure.
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _count(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _fields(obj: dict, at: str, kinds: dict[str, tuple[Callable[[Any], bool], str]], optional=()):
+    """(location, message) for each field of ``obj`` that is missing (unless optional) or fails its test."""
+    for name, (ok, what) in kinds.items():
+        if name not in obj:
+            if name not in optional:
+                yield f"{at}.{name}", f"missing (expected {what})"
+        elif not ok(obj[name]):
+            yield f"{at}.{name}", f"must be {what}, not {obj[name]!r:.40}"
+
+
+def _is_str(v: Any) -> bool:
+    return isinstance(v, str)
+
+
+def _numbers(v: Any) -> bool:
+    return isinstance(v, list) and all(_number(x) for x in v)
+
+
+STR = (_is_str, "a string")
+COUNT = (_count, "a non-negative integer")
+SECONDS = (lambda v: _number(v) and v >= 0, "a non-negative number")
+SHARD = {"name": STR, "split": STR, "sha256": STR, "bytes": COUNT, "samples": COUNT, "frames": COUNT}
+SHARD |= {"duration_s": SECONDS}
+SAMPLE = {"key": STR, "take": STR, "speaker": STR, "split": STR, "shard": STR, "frames": COUNT}
+SAMPLE |= {"usable_frames": COUNT, "duration_s": SECONDS}
+SPLIT_STATS = {"takes": COUNT, "samples": COUNT, "hours": SECONDS, "usable_frames": COUNT}
+SPLIT_STATS |= {
+    "hours_per_speaker": (
+        lambda v: isinstance(v, dict) and all(_number(h) for h in v.values()),
+        "{speaker: hours}",
+    ),
+    "channels": (
+        lambda v: (
+            isinstance(v, dict)
+            and all(
+                isinstance(d, dict) and all(x is None or _number(x) for x in d.values()) for d in v.values()
+            )
+        ),
+        "{channel: {statistic: number}}",
+    ),
+    "phone_frames": (lambda v: isinstance(v, dict) and all(_count(n) for n in v.values()), "{phone: frames}"),
+}
+
+
+def _objects(value: Any, at: str, kinds: dict, optional=()):
+    if not isinstance(value, list):
+        yield at, "must be a list of objects"
+        return
+    for i, obj in enumerate(value):
+        if isinstance(obj, dict):
+            yield from _fields(obj, f"{at}[{i}]", kinds, optional)
+        else:
+            yield f"{at}[{i}]", "must be an object"
+
+
+def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
+    """(field, message) for each field of a manifest that readers rely on and that is missing or has
+    the wrong type or value; empty for a usable manifest."""
+    out = [(k, "missing") for k in REQUIRED if k not in data]
+    if out:
+        return out
+    fps, rate, channels = data["fps"], data["sample_rate"], data["channels"]
+    if not _number(fps) or fps <= 0:
+        out.append(("fps", f"must be a positive number, not {fps!r:.40}"))
+    if not _count(rate) or rate == 0:
+        out.append(("sample_rate", f"must be a positive integer, not {rate!r:.40}"))
+    if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
+        out.append(("channels", "must be a non-empty list of channel names"))
+        channels = []
+    for key in ("features", "normalization", "splits"):
+        if not isinstance(data[key], dict):
+            out.append((key, "must be a JSON object"))
+    features = data["features"] if isinstance(data["features"], dict) else {}
+    names = features.get("names")
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        out.append(("features.names", "must be a list of feature names"))
+    norm = data["normalization"] if isinstance(data["normalization"], dict) else {}
+    anim = norm.get("animation")
+    anim = anim if isinstance(anim, dict) else {}
+    for field in ("offset", "scale"):
+        v = anim.get(field)
+        if not _numbers(v) or len(v) != len(channels) or (field == "scale" and min(v, default=1) <= 0):
+            out.append(
+                (
+                    f"normalization.animation.{field}",
+                    f"must list one finite number per channel ({len(channels)})"
+                    + (", each positive" if field == "scale" else ""),
+                )
+            )
+    feature_norm = norm.get("features", {})
+    for name, st in feature_norm.items() if isinstance(feature_norm, dict) else ():
+        if not isinstance(st, dict) or not _numbers(st.get("mean")) or not _numbers(st.get("std")):
+            out.append((f"normalization.features.{name}", "must hold lists of numbers mean and std"))
+    splits = data["splits"] if isinstance(data["splits"], dict) else {}
+    for split in SPLITS:
+        takes = splits.get(split, {}).get("takes", []) if isinstance(splits.get(split, {}), dict) else None
+        if not isinstance(takes, list) or not all(isinstance(t, str) for t in takes):
+            out.append((f"splits.{split}", "must be an object whose takes are a list of take ids"))
+    if not isinstance(splits.get("rule", {}), dict):
+        out.append(("splits.rule", "must be a JSON object"))
+    out += _objects(data["shards"], "shards", SHARD, optional=("frames",))
+    for i, s in enumerate(data["shards"] if isinstance(data["shards"], list) else []):
+        if isinstance(s, dict) and isinstance(s.get("split"), str) and s["split"] not in SPLITS:
+            out.append((f"shards[{i}].split", f"unknown split {s['split']!r}"))
+        name = s.get("name") if isinstance(s, dict) else None
+        if isinstance(name, str) and ("/" in name or "\\" in name or name.startswith(".")):
+            out.append((f"shards[{i}].name", f"shard name {name!r} is not a plain file name"))
+    out += _objects(data["samples"], "samples", SAMPLE, optional=("usable_frames",))
+    stats = data.get("stats", {})
+    if not isinstance(stats, dict):
+        out.append(("stats", "must be a JSON object"))
+    else:
+        for split, entry in stats.items():
+            if split not in SPLITS or not isinstance(entry, dict):
+                out.append((f"stats.{split}", "must be an object under train, val or test"))
+            else:
+                out += _fields(entry, f"stats.{split}", SPLIT_STATS, optional=("phone_frames",))
+    for key in ("warnings", "speakers_assumed"):
+        v = data.get(key, [])
+        if not isinstance(v, list) or not all(isinstance(w, str) for w in v):
+            out.append((key, "must be a list of strings"))
+    sources = data.get("sources", [])
+    if not isinstance(sources, list) or not all(isinstance(s, dict) for s in sources):
+        out.append(("sources", "must be a list of objects"))
+    return out
+
+
+def load_manifest(ds: str | Path) -> dict[str, Any]:
+    """The JSON of the manifest of dataset folder ``ds`` (or of a manifest file), its format and schema
+    version checked but not its fields (``read_manifest`` checks those)."""
     path = manifest_path(ds)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -55,15 +196,18 @@ def read_manifest(ds: str | Path) -> dict[str, Any]:
         raise InputError(
             f"manifest schema version {data.get('schema_version')!r}; this reads {SCHEMA_VERSION}", path
         )
-    missing = [k for k in REQUIRED if k not in data]
-    if missing:
-        raise InputError(f"manifest lacks field(s) {', '.join(missing)}", path)
-    for key, kind in TYPES.items():
-        value = data[key]
-        if not isinstance(value, kind[0]) or (
-            kind[1] is not None and not all(isinstance(v, kind[1]) for v in value)
-        ):
-            raise InputError(f"manifest field {key!r} must be a {kind[2]}", path)
+    return data
+
+
+def read_manifest(ds: str | Path) -> dict[str, Any]:
+    """The manifest of dataset folder ``ds`` (or of a manifest file), every field readers use checked."""
+    data = load_manifest(ds)
+    problems = manifest_problems(data)
+    if problems:
+        field, message = problems[0]
+        more = len(problems) - 1
+        also = f" (and {more} more problem(s): s2a-dataset validate lists them)" if more else ""
+        raise InputError(f"manifest field {field} {message}{also}", manifest_path(ds))
     return data
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from capture.errors import InputError
 
-from .manifest import MANIFEST_FILE, read_manifest
+from .manifest import MANIFEST_FILE, load_manifest, manifest_problems
 from .shards import ShardReader, decode_flac, decode_npy
 from .splits import SPLITS
 
@@ -120,62 +120,11 @@ def _p(code: str, location: str, message: str, severity: str = "error") -> Probl
 
 
 def validate_manifest(manifest: dict[str, Any], **_: Any) -> list[Problem]:
-    """Types and lengths of the manifest's fields."""
-    out: list[Problem] = []
-    loc = MANIFEST_FILE
-    fps, rate, channels = manifest.get("fps"), manifest.get("sample_rate"), manifest.get("channels")
-    if not isinstance(fps, (int, float)) or not fps > 0:
-        out.append(_p("manifest_schema", f"{loc}:fps", f"fps must be a positive number, not {fps!r}"))
-    if not isinstance(rate, int) or rate <= 0:
-        out.append(
-            _p(
-                "manifest_schema",
-                f"{loc}:sample_rate",
-                f"sample_rate must be a positive integer, not {rate!r}",
-            )
-        )
-    if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
-        out.append(_p("manifest_schema", f"{loc}:channels", "channels must be a non-empty list of names"))
-        channels = []
-    norm = manifest.get("normalization", {}).get("animation", {})
-    for field in ("offset", "scale"):
-        v = norm.get(field)
-        if not isinstance(v, list) or len(v) != len(channels):
-            out.append(
-                _p(
-                    "manifest_schema",
-                    f"{loc}:normalization.animation.{field}",
-                    f"{field} must list one number per channel ({len(channels)})",
-                )
-            )
-        elif not all(isinstance(x, (int, float)) and math.isfinite(x) for x in v) or (
-            field == "scale" and min(v) <= 0
-        ):
-            out.append(
-                _p(
-                    "manifest_schema",
-                    f"{loc}:normalization.animation.{field}",
-                    f"{field} holds invalid values",
-                )
-            )
-    for i, s in enumerate(manifest.get("shards", [])):
-        for field, kind in (("name", str), ("split", str), ("sha256", str), ("bytes", int), ("samples", int)):
-            if not isinstance(s.get(field), kind):
-                out.append(
-                    _p("manifest_schema", f"{loc}:shards[{i}].{field}", f"missing or not {kind.__name__}")
-                )
-        if s.get("split") not in SPLITS:
-            out.append(_p("manifest_schema", f"{loc}:shards[{i}].split", f"unknown split {s.get('split')!r}"))
-        name = s.get("name")
-        if isinstance(name, str) and ("/" in name or name.startswith(".")):
-            out.append(
-                _p(
-                    "manifest_schema",
-                    f"{loc}:shards[{i}].name",
-                    f"shard name {name!r} is not a plain file name",
-                )
-            )
-    return out
+    """Types and values of the manifest's fields: every problem ``read_manifest`` would refuse."""
+    return [
+        _p("manifest_schema", f"{MANIFEST_FILE}:{field}", message)
+        for field, message in manifest_problems(manifest)
+    ]
 
 
 # ------------------------------------------------------------------------------------------ shard
@@ -533,6 +482,9 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
         out.append(
             _p("manifest_mismatch", f"{keys[key]}:{key}", "found in a shard, not listed in the manifest")
         )
+    first = {}
+    for s in seen:
+        first.setdefault(s["key"], s)
     for key in sorted(found & set(manifest_keys)):
         if manifest_keys[key].get("shard") != keys[key]:
             out.append(
@@ -540,6 +492,38 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
                     "manifest_mismatch",
                     f"{keys[key]}:{key}",
                     f"manifest puts it in {manifest_keys[key].get('shard')}",
+                )
+            )
+        out += _entry_mismatch(manifest_keys[key], first[key], manifest.get("fps"))
+    return out
+
+
+def _entry_mismatch(entry: dict[str, Any], found: dict[str, Any], fps: Any) -> list[Problem]:
+    """A manifest sample entry against the sample found in a shard: its split (the shard's), and the
+    take, speaker, frames, usable frames and duration (within a frame) its metadata gives."""
+    meta = found.get("meta") or {}
+    held = {"split": found["split"]} | {
+        k: meta.get(k) for k in ("take", "speaker", "frames", "usable_frames")
+    }
+    out = []
+    for field, value in held.items():
+        if field in entry and value is not None and entry[field] != value:
+            out.append(
+                _p(
+                    "manifest_mismatch",
+                    f"{MANIFEST_FILE}:samples[{entry['key']}].{field}",
+                    f"manifest says {entry[field]!r}; the sample in {found['shard']} has {value!r}",
+                )
+            )
+    duration = meta.get("duration_s")
+    if isinstance(fps, (int, float)) and fps > 0 and isinstance(duration, (int, float)):
+        if abs(entry.get("duration_s", duration) - duration) > 1.0 / fps:
+            out.append(
+                _p(
+                    "manifest_mismatch",
+                    f"{MANIFEST_FILE}:samples[{entry['key']}].duration_s",
+                    f"manifest says {entry['duration_s']} s; the sample in {found['shard']} "
+                    f"lasts {duration} s",
                 )
             )
     return out
@@ -651,7 +635,7 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
     if ds.is_file():
         ds = ds.parent
     try:
-        manifest = read_manifest(ds)
+        manifest = load_manifest(ds)
     except InputError as exc:
         if not (ds / MANIFEST_FILE).is_file():
             raise
@@ -659,6 +643,8 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
         message = str(exc).split(": ", 1)[-1]
         return Report(str(ds), deep, 0, 0, [_p("manifest_schema", MANIFEST_FILE, message)])
     problems = list(VALIDATORS["manifest"](manifest))
+    if problems:  # the shards cannot be checked against fields of the wrong types
+        return Report(str(ds), deep, 0, 0, problems)
     seen: list[dict[str, Any]] = []
     listed = set()
     shards = manifest.get("shards", [])

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .manifest import read_manifest
+from .manifest import dataset_dir, read_manifest
 from .splits import SPLITS
 
 
@@ -15,7 +15,7 @@ def dataset_stats(ds: str | Path) -> dict[str, Any]:
     m = read_manifest(ds)
     stats = m.get("stats", {})
     out: dict[str, Any] = {
-        "dataset": str(ds),
+        "dataset": str(dataset_dir(ds)),
         "fps": m["fps"],
         "channels": len(m["channels"]),
         "features": m["features"]["names"],

@@ -19,7 +19,9 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from .manifest import read_manifest, shards_of
+from capture.errors import InputError
+
+from .manifest import dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
 from .shards import ShardReader, decode_flac, decode_npy
 
@@ -53,10 +55,14 @@ class ShardDataset(IterableDataset):
         random_crop: bool | None = None,
     ):
         super().__init__()
-        self.ds = Path(ds)
+        self.ds = dataset_dir(ds)
         self.manifest = read_manifest(self.ds)
         self.split = split
         self.shards = [s["name"] for s in shards_of(self.manifest, split)]
+        self.check_shards()
+        self.listed: dict[str, set[str]] = {}  # sample keys by shard, as the manifest lists them
+        for sample in self.manifest["samples"]:
+            self.listed.setdefault(sample["shard"], set()).add(sample["key"])
         self.window = window
         self.features = list(features) if features is not None else list(self.manifest["features"]["names"])
         self.shuffle_buffer = shuffle_buffer
@@ -68,6 +74,42 @@ class ShardDataset(IterableDataset):
         norm = self.manifest["normalization"]
         self.normalizer = Normalizer.from_json(norm["animation"])
         self.feature_normalizer = FeatureNormalizer(norm)
+
+    def check_shards(self) -> None:
+        """Each shard to read is there with the manifest's size (a stat per shard): a shard copied from
+        another build, truncated or missing is an error, never silently other samples."""
+        size = {s["name"]: s["bytes"] for s in self.manifest["shards"]}
+        for name in self.shards:
+            path = self.ds / name
+            if not path.is_file():
+                raise InputError(
+                    f"shard listed in the manifest is missing: s2a-dataset validate {self.ds}", path
+                )
+            if path.stat().st_size != size[name]:
+                raise InputError(
+                    f"shard size differs from the manifest: s2a-dataset validate {self.ds}", path
+                )
+
+    def _read(self, name: str) -> Iterator[tuple[str, dict[str, bytes]]]:
+        """The samples of shard ``name``; a key the manifest does not list for it, or a listed key it
+        lacks, is an error."""
+        path = self.ds / name
+        listed = set(self.listed.get(name, ()))
+        for key, members in ShardReader(path):
+            if key not in listed:
+                raise InputError(
+                    f"sample {key} is not listed in the manifest for this shard: "
+                    f"s2a-dataset validate {self.ds}",
+                    path,
+                )
+            listed.discard(key)
+            yield key, members
+        if listed:
+            raise InputError(
+                f"shard lacks {len(listed)} sample(s) the manifest lists ({min(listed)}): "
+                f"s2a-dataset validate {self.ds}",
+                path,
+            )
 
     def set_epoch(self, epoch: int) -> None:
         """Reshuffle differently in each epoch (call before iterating)."""
@@ -93,7 +135,7 @@ class ShardDataset(IterableDataset):
         shards, offset, stride = self._assignment()
         i = 0
         for name in shards:
-            for key, members in ShardReader(self.ds / name):
+            for key, members in self._read(name):
                 if i % stride == offset:
                     yield key, members
                 i += 1
@@ -142,6 +184,7 @@ class ShardDataset(IterableDataset):
         wid = info.id if info is not None else 0
         rng = random.Random(f"{self.seed}:{self.epoch}:{rank}:{wid}")
         buffer: list[tuple[str, dict[str, bytes]]] = []
+        self.check_shards()  # again: a subclass may read other shards, and files change between epochs
         for sample in self._samples():
             if self.shuffle_buffer <= 1:
                 yield self._decode(*sample, rng)

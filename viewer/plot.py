@@ -8,6 +8,7 @@ VAD cannot run, an energy threshold, which the figure labels as a fallback.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -94,6 +95,19 @@ def plot_curves(
     names = list(channel_set(channels))
     if not anims:
         raise InputError("nothing to plot")
+    for flag, v in (("--start", start_s), ("--end", end_s)):
+        if v is not None and not math.isfinite(v):
+            raise InputError(f"{flag} must be a number of seconds, not {v}")
+    if start_s is not None and end_s is not None and start_s >= end_s:
+        raise InputError(f"--start {start_s:g} s must come before --end {end_s:g} s")
+    times = [a.time - a.t0 + a.offset_s for a in anims]
+    lo = start_s if start_s is not None else -math.inf
+    hi = end_s if end_s is not None else math.inf
+    if not any(((t >= lo) & (t <= hi)).any() for t in times):
+        first, last = min(float(t[0]) for t in times), max(float(t[-1]) for t in times)
+        raise InputError(
+            f"--start/--end hold no frame: the inputs span {first:.3f}..{last:.3f} s (after the first frame)"
+        )
     voice = next((a for a in anims if a.audio is not None), None)
     rows = len(names) + (1 if voice is not None else 0)
     ratios = [2.0] * len(names) + ([1.2] if voice is not None else [])
