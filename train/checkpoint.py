@@ -17,6 +17,7 @@ import torch
 
 from capture.atomic import atomic_write, write_json_atomic
 from capture.errors import InputError
+from dataset.normalize import FeatureNormalizer, Normalizer
 
 FORMAT = "s2a-train-checkpoint"
 LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.jsonl"
@@ -65,12 +66,52 @@ def load_system(run: str | Path):
 
     if Path(run).is_dir() and (Path(run) / ENSEMBLE).is_file():
         return load_ensemble(Path(run), load_system)
-    payload = load_checkpoint(run_checkpoint(run))
-    spec = InputSpec.from_json(payload["inputs"])
-    model, _ = build_model(payload["system"], spec, payload["config"])
-    model.load_state_dict(payload["state_dict"])
+    path = run_checkpoint(run)
+    payload = load_checkpoint(path)
+    check_payload(payload, path)
+    try:
+        spec = InputSpec.from_json(payload["inputs"])
+    except (TypeError, KeyError) as exc:
+        raise InputError(f"checkpoint has malformed inputs ({exc})", path) from None
+    try:
+        model, _ = build_model(payload["system"], spec, payload["config"])
+    except InputError as exc:
+        raise InputError(f"checkpoint has a malformed config ({exc})", path) from None
+    try:
+        model.load_state_dict(payload["state_dict"])
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[:2]
+        raise InputError(f"checkpoint has a malformed state_dict ({' '.join(first)})", path) from None
     model.eval()
     return model, payload
+
+
+# what inference reads from a checkpoint, with the types it needs
+NEEDED = {"system": str, "config": dict, "inputs": dict, "dataset": dict, "state_dict": dict, "step": int}
+NEEDED_DATASET = {"channels": list, "features": dict, "normalization": dict}
+
+
+def check_payload(payload: dict[str, Any], path: Path) -> None:
+    """Refuse a checkpoint whose contents inference cannot use, naming the first bad entry."""
+    for key, kind in NEEDED.items():
+        if key not in payload:
+            raise InputError(f"checkpoint lacks {key!r}", path)
+        if not isinstance(payload[key], kind) or isinstance(payload[key], bool):
+            raise InputError(f"checkpoint has malformed {key!r} (not a {kind.__name__})", path)
+    info = payload["dataset"]
+    for key, kind in NEEDED_DATASET.items():
+        if not isinstance(info.get(key), kind):
+            raise InputError(f"checkpoint lacks or has malformed dataset {key!r}", path)
+    fps = info.get("fps")
+    if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not 0 < fps < float("inf"):
+        raise InputError(f"checkpoint has malformed dataset 'fps' ({fps!r}): not a positive number", path)
+    if not all(isinstance(c, str) for c in info["channels"]):
+        raise InputError("checkpoint has malformed dataset 'channels'", path)
+    try:
+        Normalizer.from_json(info["normalization"]["animation"])
+        FeatureNormalizer(info["normalization"])
+    except (KeyError, TypeError, ValueError, AttributeError, InputError) as exc:
+        raise InputError(f"checkpoint has malformed dataset 'normalization' ({exc})", path) from None
 
 
 def write_json(path: Path, obj: Any) -> None:

@@ -127,7 +127,11 @@ def _config(args: argparse.Namespace, model: str | None = None) -> dict:
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fit import fit
 
-    summary = fit(args.data, args.out, _config(args, args.model), resume=args.resume)
+    cfg = _config(args, args.model)
+    given = resolve_config(args.config, args.set, base={}, check=False)  # only the keys the user set
+    if args.model is not None:
+        given["model"] = args.model
+    summary = fit(args.data, args.out, cfg, resume=args.resume, given=given)
     if summary.get("rank", 0) == 0:  # under torchrun, rank 0 reports for all
         if args.json:
             emit_json(summary)

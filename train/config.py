@@ -9,6 +9,7 @@ are optimizer updates, ``window`` is animation frames, ``max_minutes`` wall-cloc
 from __future__ import annotations
 
 import copy
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 MODELS = ("s2a", "s2a-nomoe", "blstm", "nvp3", "nvp9", "ridge")
+MAX_RIDGE_CONTEXT = 60  # ± frames: (2·60 + 1) stacked frames is already far beyond useful
 INPUTS = ("auto", "ppg", "fbank", "mfcc")
 
 DEFAULTS: dict[str, Any] = {
@@ -96,17 +98,25 @@ def parse_set(item: str) -> tuple[str, Any]:
 
 
 def resolve_config(
-    file: str | Path | None = None, sets: list[str] | None = None, base: dict[str, Any] | None = None
+    file: str | Path | None = None,
+    sets: list[str] | None = None,
+    base: dict[str, Any] | None = None,
+    check: bool = True,
 ) -> dict[str, Any]:
-    """Defaults (or ``base``) ← TOML ``file`` ← ``--set`` items; checked."""
+    """Defaults (or ``base``) ← TOML ``file`` ← ``--set`` items; checked unless ``check`` is false
+    (``base={}, check=False`` gives only the keys the user set)."""
     cfg = copy.deepcopy(base if base is not None else DEFAULTS)
     cfg.setdefault("arch", {})
     if file is not None:
         path = Path(file)
+        if path.is_dir():
+            raise InputError("config path is a folder, not a TOML file", path)
         try:
             data = tomllib.loads(path.read_text())
         except FileNotFoundError:
             raise InputError("config file not found", path) from None
+        except OSError as exc:
+            raise InputError(f"cannot read config file: {exc.strerror}", path) from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"not valid TOML: {exc}", path) from None
         _merge(cfg, data, str(path))
@@ -120,8 +130,17 @@ def resolve_config(
                 cfg["arch"][table] = value
         else:
             _merge(cfg, {key: value}, "--set")
-    check_config(cfg)
+    if check:
+        check_config(cfg)
     return cfg
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def check_config(cfg: dict[str, Any]) -> None:
@@ -146,18 +165,34 @@ def check_config(cfg: dict[str, Any]) -> None:
     if cfg["amp"] not in ("auto", "bf16", "none"):
         raise InputError(f"amp must be auto, bf16 or none, got {cfg['amp']!r}", "config:amp")
     for key in ("window", "batch_size", "max_steps", "eval_every", "log_every"):
-        if not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1:
+        if not _is_int(cfg[key]) or cfg[key] < 1:
             raise InputError(f"{key} must be a positive integer, got {cfg[key]!r}", f"config:{key}")
-    for key in ("aug_time_masks", "aug_time_mask_width", "aug_feature_masks", "aug_feature_mask_width"):
-        if not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 0:
+    for key in (
+        "seed",
+        "warmup_steps",
+        "patience",
+        "shuffle_buffer",
+        "aug_time_masks",
+        "aug_time_mask_width",
+        "aug_feature_masks",
+        "aug_feature_mask_width",
+    ):
+        if not _is_int(cfg[key]) or cfg[key] < 0:
             raise InputError(f"{key} must be a non-negative integer, got {cfg[key]!r}", f"config:{key}")
+    context = cfg["ridge_context"]
+    if not _is_int(context) or not 0 <= context <= MAX_RIDGE_CONTEXT:
+        raise InputError(
+            f"ridge_context must be an integer in 0..{MAX_RIDGE_CONTEXT}, got {context!r}",
+            "config:ridge_context",
+        )
     if not isinstance(cfg["aug_mask_prosody"], bool):
         raise InputError(
             f"aug_mask_prosody must be true or false, got {cfg['aug_mask_prosody']!r}",
             "config:aug_mask_prosody",
         )
+    if not _is_number(cfg["lr"]) or cfg["lr"] <= 0:
+        raise InputError(f"lr must be a positive finite number, got {cfg['lr']!r}", "config:lr")
     for key in (
-        "lr",
         "weight_decay",
         "grad_clip",
         "aux_weight",
@@ -166,5 +201,14 @@ def check_config(cfg: dict[str, Any]) -> None:
         "aug_noise",
         "aug_mixup",
     ):
-        if not isinstance(cfg[key], (int, float)) or isinstance(cfg[key], bool) or cfg[key] < 0:
-            raise InputError(f"{key} must be a non-negative number, got {cfg[key]!r}", f"config:{key}")
+        if not _is_number(cfg[key]) or cfg[key] < 0:
+            raise InputError(
+                f"{key} must be a non-negative number (finite), got {cfg[key]!r}", f"config:{key}"
+            )
+    if not _is_number(cfg["min_lr_ratio"]) or not 0 <= cfg["min_lr_ratio"] <= 1:
+        raise InputError(
+            f"min_lr_ratio must be a number in [0, 1], got {cfg['min_lr_ratio']!r}", "config:min_lr_ratio"
+        )
+    betas = cfg["betas"]
+    if not (isinstance(betas, list) and len(betas) == 2 and all(_is_number(b) and 0 <= b < 1 for b in betas)):
+        raise InputError(f"betas must be two numbers in [0, 1), got {betas!r}", "config:betas")

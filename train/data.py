@@ -19,7 +19,6 @@ from torch.utils.data import DataLoader
 from capture.errors import InputError
 from dataset.manifest import read_manifest
 from dataset.normalize import FeatureNormalizer
-from dataset.shards import ShardReader
 from dataset.torch_dataset import ShardDataset
 
 PROSODY_FEATURES = ("pitch", "energy")
@@ -106,7 +105,7 @@ class TakeSubset(ShardDataset):
         # every reader scans all the shards and takes every n-th kept sample: dividing the shards
         # instead could leave a DDP rank with shards that hold none of the kept takes
         consumer, consumers = self._consumer()
-        kept = (item for name in self.shards for item in ShardReader(self.ds / name) if item[0] in self.keys)
+        kept = (item for name in self.shards for item in self._read(name) if item[0] in self.keys)
         for i, (key, members) in enumerate(kept):
             if i % consumers == consumer:
                 yield key, members

@@ -1,15 +1,18 @@
 """Evaluation on the paper's scale and real-time factor.
 
 ``rmse`` = root mean square error of DE-normalised coefficients (0..1 blendshape units) × 100, over the
-usable frames of an utterance: ``entire`` over every channel of the dataset, ``crucial`` over jawOpen
-and mouthClose (paper Table 1). Reported as mean ± std over utterances, plus per-channel RMSE pooled over
-all usable frames of the split. The floor predicts every frame as the training split's per-channel
-mean (from the manifest). ``rtf`` = seconds of model compute per second of animation, on a ~12 s
-utterance, batch 1, no gradient (median of repeated runs).
+usable frames of an utterance (the dataset's raw samples, normalised and de-normalised with the RUN's
+statistics, so that a dataset built with other statistics gives the same numbers): ``entire`` over
+every channel of the dataset, ``crucial`` over jawOpen and mouthClose (paper Table 1). Reported as
+mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
+floor predicts every frame as the training split's per-channel mean (from the manifest). ``rtf`` =
+seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
+of repeated runs).
 """
 
 from __future__ import annotations
 
+import json
 import platform
 import time
 from collections.abc import Callable
@@ -22,11 +25,13 @@ import torch
 from capture.command import progress
 from capture.errors import InputError
 from dataset.manifest import read_manifest
+from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
 
 from .checkpoint import load_system
-from .data import InputSpec, to_model_inputs
+from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference, infer
+from .systems import check_sample_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
 
@@ -110,6 +115,38 @@ def real_time_factor(
     return float(np.median(times)) / seconds
 
 
+class RawSamples(ShardDataset):
+    """Un-normalised samples with their sample json's ``speaker`` and calibrated ``neutral`` (or None)."""
+
+    def _decode(self, key: str, members: dict[str, bytes], rng) -> dict[str, Any]:
+        item = super()._decode(key, members, rng)
+        meta = json.loads(members["json"])
+        neutral = meta.get("neutral")
+        item["speaker"] = meta.get("speaker")
+        item["neutral"] = None if neutral is None else np.asarray(neutral, np.float32)
+        return item
+
+
+def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec: InputSpec, where: Path):
+    """Refuse a dataset whose channels, frame rate or input features are not the run's (``info``: the
+    checkpoint's ``dataset``). Its normalisation may differ: evaluation uses the run's."""
+    if manifest["channels"] != info["channels"]:
+        raise InputError("dataset channels differ from the channels the run was trained on", where)
+    if manifest["fps"] != info["fps"]:
+        raise InputError(f"dataset is at {manifest['fps']!r} fps, the run at {info['fps']:g} fps", where)
+    features = manifest.get("features")
+    dims = features.get("dims") if isinstance(features, dict) else None
+    if not isinstance(dims, dict):
+        raise InputError("manifest lacks the features' dims", where)
+    for name in spec.features:
+        if name not in dims:
+            raise InputError(f"dataset has no {name} feature, the run needs it", where)
+        if dims[name] != info["features"].get("dims", {}).get(name):
+            raise InputError(f"dataset's {name} has {dims[name]!r} dims, not the run's", where)
+    if features.get("settings") != info["features"].get("settings"):
+        raise InputError("dataset's feature settings differ from the run's: features would not match", where)
+
+
 @torch.no_grad()
 def evaluate(
     run: str | Path,
@@ -124,31 +161,38 @@ def evaluate(
     model, payload = load_system(run)
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
+    info = payload["dataset"]
+    ds = Path(ds).parent if Path(ds).is_file() else Path(ds)
     manifest = read_manifest(ds)
     channels = manifest["channels"]
-    if channels != payload["dataset"]["channels"]:
-        raise InputError(
-            "dataset channels differ from the channels the run was trained on", Path(ds) / "manifest.json"
-        )
+    check_dataset_fits_run(manifest, info, spec, ds / "manifest.json")
     if split not in {s["split"] for s in manifest["shards"]}:
-        raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
-    scale = np.asarray(manifest["normalization"]["animation"]["scale"], np.float64)
-    train_mean = np.asarray([manifest["stats"]["train"]["channels"][c]["mean"] for c in channels], np.float64)
+        raise InputError(f"dataset has no {split!r} split", ds / "manifest.json")
+    check_sample_frames(manifest, (split,), payload.get("model_config") or {}, ds / "manifest.json")
+    try:
+        train_mean = np.asarray(
+            [manifest["stats"]["train"]["channels"][c]["mean"] for c in channels], np.float64
+        )
+    except (KeyError, TypeError, ValueError):
+        raise InputError("manifest lacks the training split's channel means", ds / "manifest.json") from None
+    # the run's normalisation, not the dataset's: the model only knows the statistics it trained with
+    animation = Normalizer.from_json(info["normalization"]["animation"])
+    run_norm = {"normalization": info["normalization"]}
     tally, floor = ErrorTally(channels), ErrorTally(channels)
-    normed = ShardDataset(ds, split, window=None, features=spec.features)
-    raw = ShardDataset(ds, split, window=None, features=[], normalize=False)
     longest = None
-    for item, raw_item in zip(normed, raw):
-        batch = {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
+    for item in RawSamples(ds, split, window=None, features=spec.features, normalize=False):
+        raw_feats = {f: item[f].numpy() for f in spec.features}
+        feats = normalize_features(run_norm, raw_feats, item["speaker"])
+        batch = {f: torch.from_numpy(x).unsqueeze(0) for f, x in feats.items()}
+        batch["mask"] = item["mask"].unsqueeze(0)
         content, prosody = to_model_inputs(batch, spec)
         mask = item["mask"].numpy()
         pred_norm = infer(model, content, prosody, batch["mask"])[0].double().numpy()
-        true = raw_item["anim"].numpy().astype(np.float64)
-        # x = y·scale + offset is affine, so the prediction's raw value needs no per-sample offset
-        pred = true + (pred_norm - item["anim"].numpy().astype(np.float64)) * scale
+        true = item["anim"].numpy().astype(np.float64)
+        pred = animation.inverse(pred_norm, item["neutral"])
         tally.add(pred, true, mask)
         floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
-        if longest is None or item["mask"].shape[0] > longest["mask"].shape[1]:
+        if longest is None or mask.shape[0] > longest["mask"].shape[1]:
             longest = batch
     result = {
         "run": str(run),
@@ -164,7 +208,7 @@ def evaluate(
     if tally.crucial is None:
         result["note"] = "the dataset lacks jawOpen or mouthClose: no crucial RMSE"
     if longest is not None:
-        result["rtf"] = real_time_factor(model, spec, longest, manifest["fps"], rtf_seconds)
+        result["rtf"] = real_time_factor(model, spec, longest, info["fps"], rtf_seconds)
         result["rtf_seconds"] = rtf_seconds
     result["device"] = device_name(torch.device("cpu"))
     say(

@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from capture.command import progress
-from capture.errors import S2AError
+from capture.errors import InputError, S2AError
 
 from .checkpoint import load_system
 from .data import InputSpec
@@ -101,7 +101,12 @@ def export_onnx(
     example = _inputs(spec, 200, 0)
     names = list(example)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.is_dir():
+        raise InputError("output path is a folder: give the ONNX file to write", out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder: {exc.strerror}", out.parent) from None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         torch.onnx.export(

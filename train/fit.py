@@ -27,12 +27,12 @@ from dataset.manifest import read_manifest
 from .augment import augment
 from .augment import enabled as augmenting
 from .checkpoint import BEST, CONFIG, LAST, METRICS, load_checkpoint, save_checkpoint, write_json
-from .config import DEFAULTS
+from .config import DEFAULTS, check_config
 from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
 from .ensemble import check_ensemble_run, fit_ensemble
 from .model import masked_mse
 from .ridge import NormalEquations
-from .systems import build_model
+from .systems import build_model, check_sample_frames
 
 
 def learning_rate(step: int, cfg: dict[str, Any]) -> float:
@@ -198,28 +198,88 @@ def fit(
     resume: bool = False,
     say: Callable[[str], None] = progress,
     stop_after_steps: int | None = None,
+    given: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Train system ``cfg["model"]`` on dataset ``ds`` into run folder ``run``; returns a summary.
+    """Train system ``cfg["model"]`` on dataset ``ds`` (a folder or its manifest.json) into run folder
+    ``run``; returns a summary.
 
     ``resume`` continues from ``run/last.pt`` with the run's saved config (``max_steps`` and
-    ``max_minutes`` from ``cfg``). ``stop_after_steps`` ends this session after that many steps with a
-    checkpoint, as if the process had been stopped (the run is then resumable).
+    ``max_minutes`` from ``cfg``) on the dataset it was trained on; ``given`` (the config keys the user
+    set) must then agree with the saved config. ``stop_after_steps`` ends this session after that many
+    steps with a checkpoint, as if the process had been stopped (the run is then resumable).
 
     Under torchrun the process group is created here and destroyed on the way out: a process that
     exits with gloo's worker threads still alive is aborted by the C++ runtime."""
     owns_group = int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized()
     ds, run = Path(ds), Path(run)
+    if ds.is_file():  # the manifest itself, as validate and stats accept it
+        ds = ds.parent
+    if run.exists() and not run.is_dir():
+        raise InputError("run folder path is a file: give a folder with -o", run)
     try:
         if resume and (run / CONFIG).is_file() and not (run / LAST).is_file():
-            saved = json.loads((run / CONFIG).read_text())
+            saved = _saved_config(run / CONFIG)
             if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
+                _refuse_changes(given, saved, run / CONFIG)
                 cfg = _resumed_config(saved, cfg)
         if cfg.get("cv_folds"):
             return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps)
-        return _fit(ds, run, cfg, resume, say, stop_after_steps)
+        return _fit(ds, run, cfg, resume, say, stop_after_steps, given)
     finally:
         if owns_group and dist.is_initialized():
             dist.destroy_process_group()
+
+
+def _saved_config(path: Path) -> dict[str, Any]:
+    """A run's config.json as a dict."""
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"unreadable run config ({type(exc).__name__})", path) from None
+    if not isinstance(saved, dict):
+        raise InputError("run config is not a JSON object", path)
+    return saved
+
+
+def _flat(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"arch": {"s2a": {"d_model": 8}}}`` → ``{"arch.s2a.d_model": 8}``."""
+    out: dict[str, Any] = {}
+    for k, v in cfg.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def _refuse_changes(given: dict[str, Any] | None, saved: dict[str, Any], where: Path) -> None:
+    """Resuming keeps the run's config: a key the user set to another value than the run's is an error
+    (the limits ``max_steps`` and ``max_minutes`` may change)."""
+    old = _flat({**DEFAULTS, **saved})
+    changed = [
+        k for k, v in _flat(given or {}).items() if k not in ("max_steps", "max_minutes") and old.get(k) != v
+    ]
+    if changed:
+        raise InputError(
+            f"--resume keeps the run's config, but {', '.join(changed)} differ(s) from it; "
+            "only --max-steps and --max-minutes may change (train another run with -o)",
+            where,
+        )
+
+
+RUN_DATASET = ("channels", "fps", "features", "normalization")  # what a resumed run's dataset must match
+
+
+def _same_dataset(state: dict[str, Any], manifest: dict[str, Any], ds: Path, where: Path) -> None:
+    trained = state.get("dataset")
+    if not isinstance(trained, dict) or any(trained.get(k) != manifest[k] for k in RUN_DATASET):
+        differ = [k for k in RUN_DATASET if not isinstance(trained, dict) or trained.get(k) != manifest[k]]
+        was = trained.get("path") if isinstance(trained, dict) else None
+        raise InputError(
+            f"the run was trained on another dataset ({was}; {', '.join(differ)} differ from {ds}): "
+            "resume it with its own dataset",
+            where,
+        )
 
 
 def _resumed_config(saved: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:
@@ -227,6 +287,26 @@ def _resumed_config(saved: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any
     after the run was saved take their defaults (augmentation off)."""
     limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
     return {**DEFAULTS, **{k: v for k, v in saved.items() if k in DEFAULTS}, **limits}
+
+
+def _trim_metrics(path: Path, step: int) -> None:
+    """Keep the lines of ``metrics.jsonl`` up to ``step``. A torn last line (a crash while writing it)
+    is dropped; an unreadable line elsewhere is an error."""
+    lines = path.read_text(errors="replace").splitlines(keepends=True)
+    kept = []
+    for i, line in enumerate(lines):
+        try:
+            record = json.loads(line)
+            at = record.get("step", 0) if isinstance(record, dict) else None
+        except json.JSONDecodeError:
+            at = None
+        if at is None and i == len(lines) - 1 and not line.endswith("\n"):
+            break
+        if not isinstance(at, (int, float)):
+            raise InputError("not a metrics record (a JSON object with a step)", path, i + 1)
+        if at <= step:
+            kept.append(line)
+    path.write_text("".join(kept))
 
 
 def _fit_ensemble(
@@ -275,8 +355,9 @@ def _fit(
     resume: bool,
     say: Callable[[str], None],
     stop_after_steps: int | None,
+    given: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    manifest = read_manifest(ds)
+    manifest = read_manifest(ds)  # refuses a manifest whose fps or normalisation is malformed
     rank, world, device = _distributed()
     main = rank == 0
     say = say if main else (lambda _m: None)
@@ -285,13 +366,19 @@ def _fit(
         if not (run / LAST).is_file():
             raise InputError(f"nothing to resume: no {LAST}", run)
         state = load_checkpoint(run / LAST)
+        if not isinstance(state.get("config"), dict):
+            raise InputError("checkpoint lacks its config", run / LAST)
+        _same_dataset(state, manifest, ds, run / LAST)
+        _refuse_changes(given, state["config"], run / LAST)
         cfg = _resumed_config(state["config"], cfg)
+        check_config(cfg)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     run.mkdir(parents=True, exist_ok=True)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
-    build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
+    _, model_config = build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
+    check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
     if spec.note:
         say(f"note: {spec.note}")
     if main:
@@ -322,8 +409,7 @@ def _fit(
         bad_evals = state["bad_evals"]
         torch.set_rng_state(state["rng"]["torch"])
         if main and (run / METRICS).exists():  # drop lines logged after the checkpoint
-            lines = (run / METRICS).read_text().splitlines(keepends=True)
-            (run / METRICS).write_text("".join(ln for ln in lines if json.loads(ln).get("step", 0) <= step))
+            _trim_metrics(run / METRICS, step)
         if state.get("stopped") == "early_stopping":
             say(f"run stopped early at step {step}; nothing to resume")
     weights = channel_weights(manifest, cfg, device)
@@ -401,6 +487,12 @@ def _fit(
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["grad_clip"] or math.inf)
+            if not math.isfinite(float(grad_norm)):  # the same on every rank: gradients are all-reduced
+                raise InputError(
+                    f"training diverged at step {step + 1}: the loss or its gradient is not finite "
+                    f"(lower lr?); {LAST} keeps the last checkpoint before it",
+                    run,
+                )
             optimizer.step()
             step, batch_pos, session_steps = step + 1, i + 1, session_steps + 1
             frames_since += mask.sum()  # a tensor: no device sync per step

@@ -31,21 +31,35 @@ from .precision import for_inference, infer
 
 
 def feature_settings(features: dict[str, Any]) -> FeatureSettings:
-    s = dict(features["settings"])
-    return FeatureSettings(**{**s, "pitch": PitchSettings(**s["pitch"])})
+    try:
+        s = dict(features["settings"])
+        return FeatureSettings(**{**s, "pitch": PitchSettings(**s["pitch"])})
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"checkpoint has malformed dataset feature settings ({exc})") from None
 
 
 @torch.no_grad()
 def animate(
-    model, payload: dict[str, Any], audio: np.ndarray, ppg=None, speaker: str | None = None
+    model,
+    payload: dict[str, Any],
+    audio: np.ndarray,
+    ppg=None,
+    speaker: str | None = None,
+    where: str | Path | None = None,
 ) -> np.ndarray:
-    """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``."""
+    """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``
+    (read from ``where``, for error messages)."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
     n = int(np.floor(audio.size / settings.sample_rate * fps))
     if n < 1:
-        raise InputError("audio is shorter than one animation frame")
+        raise InputError("audio is shorter than one animation frame", where)
+    limit = (payload.get("model_config") or {}).get("max_frames")
+    if isinstance(limit, int) and n > limit:
+        raise InputError(
+            f"audio is {n} frames long; the run's model takes at most {limit} (max_frames)", where
+        )
     feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
     item = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
@@ -82,20 +96,51 @@ def predict(
                 f"sha256 {want[:12]}...): features would not match training",
                 ppg_model,
             )
+    known = sorted(info["normalization"].get("pitch", {}).get("speakers", {}))
+    if speaker is not None and speaker not in known:
+        raise InputError(
+            f"unknown speaker {speaker!r} (the run's dataset has: {', '.join(known) or 'none'})", "--speaker"
+        )
     out = Path(out)
-    single = len(audios) == 1 and out.suffix.lower() == ".csv"
-    if not single:
-        out.mkdir(parents=True, exist_ok=True)
+    single = len(audios) == 1 and out.suffix.lower() == ".csv" and not out.is_dir()
+    folder = out.parent if single else out
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder: {exc.strerror}", folder) from None
+    paths = csv_paths(audios, out, single)
     results = []
-    for a in audios:
-        a = Path(a)
+    for a, path in zip(map(Path, audios), paths):
+        if a.is_dir():
+            raise InputError("is a folder, not an audio file", a)
         audio = to_16k_mono(read_audio(a), str(a))
-        values = animate(model, payload, audio, ppg, speaker)
+        values = animate(model, payload, audio, ppg, speaker, where=a)
         n, fps = values.shape[0], info["fps"]
         meta = TakeMeta(id=a.stem, source_kind="predicted", fps=fps, channels=list(info["channels"]))
         take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
-        path = out if single else out / f"{a.stem}.csv"
-        write_livelink_csv(take, path)
+        if path.is_dir():
+            raise InputError("output CSV path is a folder", path)
+        try:
+            write_livelink_csv(take, path)
+        except OSError as exc:
+            raise InputError(f"cannot write the CSV: {exc.strerror}", path) from None
         say(f"{a}: {n} frames at {fps:g} fps -> {path}")
         results.append({"audio": str(a), "csv": str(path), "frames": n, "fps": fps, "duration_s": n / fps})
     return results
+
+
+def csv_paths(audios: list[str | Path], out: Path, single: bool) -> list[Path]:
+    """``out`` itself for a single CSV, else ``out/<audio stem>.csv``, with ``-2``, ``-3``... added
+    to the stems that several audio files share (``a/x.wav b/x.wav`` → ``x.csv``, ``x-2.csv``)."""
+    if single:
+        return [out]
+    paths: list[Path] = []
+    taken: set[str] = set()
+    for a in audios:
+        stem, name, i = Path(a).stem, f"{Path(a).stem}.csv", 1
+        while name.lower() in taken:
+            i += 1
+            name = f"{stem}-{i}.csv"
+        taken.add(name.lower())
+        paths.append(out / name)
+    return paths

@@ -14,6 +14,8 @@ from .data import InputSpec
 from .model import BLSTM, NVP, BLSTMConfig, NVPConfig, S2AConfig, TransformerS2A
 from .ridge import Ridge
 
+FROM_DATASET = ("content_dim", "prosody_dim", "out_dim")  # sizes the InputSpec gives
+
 ARCH_TABLES = {
     "s2a": S2AConfig,
     "s2a-nomoe": S2AConfig,
@@ -39,6 +41,12 @@ def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], n
         )
     own = dict(arch.get("s2a", {})) if name == "s2a-nomoe" else {}
     own.update(arch.get(name, {}))
+    from_data = sorted((set(shared) | set(own)) & set(FROM_DATASET))
+    if from_data:
+        raise InputError(
+            f"arch.{from_data[0]} is set from the dataset (its features and channels), not in the config",
+            "config:arch",
+        )
     if set(own) - known:
         raise InputError(
             f"unknown arch keys {sorted(set(own) - known)} for {name} (known: {sorted(known)})", "config:arch"
@@ -69,6 +77,11 @@ def _build(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, 
     arch = dict(cfg.get("arch", {}))
     if name in ("s2a", "s2a-nomoe"):
         c = _config(S2AConfig, spec, {"moe": name == "s2a"}, arch, name)
+        window = cfg.get("window", 0)
+        if window > c.max_frames:
+            raise InputError(
+                f"window ({window} frames) exceeds arch.max_frames ({c.max_frames})", "config:window"
+            )
         return TransformerS2A(c), asdict(c)
     if name == "blstm":
         c = _config(BLSTMConfig, spec, {}, arch, name)
@@ -80,3 +93,18 @@ def _build(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, 
         context = int(cfg["ridge_context"])
         return Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, context), {"context": context}
     raise InputError(f"unknown model {name!r}", "config:model")
+
+
+def check_sample_frames(
+    manifest: dict[str, Any], splits: tuple[str, ...], model_config: dict[str, Any], where
+) -> None:
+    """Whole samples of ``splits`` (validation and evaluation read them unwindowed) must fit the model's
+    ``max_frames``."""
+    limit = model_config.get("max_frames")
+    frames = [s.get("frames") for s in manifest["samples"] if s.get("split") in splits]
+    longest = max((f for f in frames if isinstance(f, int)), default=0)
+    if isinstance(limit, int) and longest > limit:
+        raise InputError(
+            f"the longest {'/'.join(splits)} sample has {longest} frames, more than max_frames ({limit})",
+            where,
+        )
