@@ -25,10 +25,11 @@ bad_count      the BlendShapeCount cell disagreed with the number of values; the
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
 ============== ================================================================================
 
-Errors: missing, empty or binary file; a header that is not a Live Link Face header; no usable data
-rows (naming the first rejected row); a timecode going backwards (other than across midnight) or
-jumping forward by more than ``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for
-every frame, so such a gap would become thousands of dropped frames). ``strict=True`` turns every
+Errors: missing, empty or binary file; a header that is not a Live Link Face header; the header again
+further down (two files joined); no usable data rows (naming the first rejected row); a timecode going
+backwards (other than across midnight) or jumping forward by more than ``MAX_GAP_S`` (a clock jump or
+two files joined: the app writes a row for every frame, so such a gap would become thousands of dropped
+frames). ``strict=True`` turns every
 repair into an error as well.
 """
 
@@ -256,6 +257,12 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     for number, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue  # empty lines carry nothing (pyarrow's fast path skips them too)
+        if line.strip() == lines[0].strip():
+            raise InputError(
+                "the header repeats here: two recordings joined into one file? Split it at this line",
+                path,
+                number,
+            )
         fields = line.split(",")
         lost = len(fields) == 2 and fields[1].strip() == "0"
         if not lost and len(fields) != ncols:

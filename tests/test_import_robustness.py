@@ -154,10 +154,20 @@ def test_implausible_forward_gap_is_an_error_naming_the_line(tmp_path, samples):
     s07 = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_text()
     s88 = (samples / "livelinkface/alexdjulin_S88/S88-001.csv").read_text()
     joined = tmp_path / "joined.csv"
-    joined.write_text(s07 + s88)  # `cat a.csv b.csv`
+    joined.write_text(s07 + s88)  # `cat a.csv b.csv`: the second header names the line
     proc = run_cli("capture", "import", joined, "-o", tmp_path / "out")
-    one_line_error(proc, f"{joined}:2031: timecode ")
+    one_line_error(proc, f"{joined}:2030: the header repeats here")
+    assert not (tmp_path / "out" / "joined").exists()
+    # without the second header, the 6-hour jump itself is refused
+    joined.write_text(s07 + s88.split("\n", 1)[1])
+    proc = run_cli("capture", "import", joined, "-o", tmp_path / "out")
+    one_line_error(proc, f"{joined}:2030: timecode ")
     assert "forward" in proc.stderr and not (tmp_path / "out" / "joined").exists()
+    # the same take twice (no jump forward, the clock goes back): the header is what tells
+    joined.write_text(s07 + s07)
+    with pytest.raises(InputError, match="header repeats") as exc:
+        read_livelink_csv(joined)
+    assert exc.value.line == 2030
     # Rows shifted later by 13 minutes, on the fast path's kind of file (no other repair).
     lines = s07.splitlines()
     shifted = lines[:50] + [f"{ln[:3]}{int(ln[3:5]) + 13:02d}{ln[5:]}" for ln in lines[50:]]
