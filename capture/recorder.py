@@ -58,6 +58,13 @@ def parse_allow_list(addresses: Iterable[str] | None) -> frozenset[str] | None:
     return frozenset(out)
 
 
+# When every --max-streams slot is taken, a stream that has sent at most STRAY_PACKETS datagrams and
+# nothing for STRAY_SILENT_S seconds (a stray or spoofed packet) gives its slot to a new stream; its
+# packets stay in the log. Checked at most once per second, on the slow path of a new stream only.
+STRAY_PACKETS = 5
+STRAY_SILENT_S = 10.0
+
+
 class LiveRecorder:
     """Receives Live Link packets on a UDP socket and logs them; see the module docstring.
 
@@ -96,6 +103,11 @@ class LiveRecorder:
         self.accepted = 0
         self.rejected: dict[str, int] = dict.fromkeys(ll.REJECT_REASONS, 0)
         self.streams: dict[bytes, tuple[int, int, int, int]] = {}  # header -> (id, offset, num, den)
+        # per stream id (ids are never reused): datagrams logged and the arrival of the last one
+        self.stream_packets: list[int] = []
+        self.stream_last_ns: list[int] = []
+        self.evicted_streams = 0
+        self._next_eviction_ns = 0
         self.socket_errors = 0
         self.error: str | None = None  # set by close() when the log could not be written completely
         self._stop = False
@@ -184,6 +196,7 @@ class LiveRecorder:
         unpack_time = ll._FRAME_TIME.unpack_from
         unpack_len = ll._LEN.unpack_from
         streams = self.streams
+        packets, last_seen = self.stream_packets, self.stream_last_ns
         payload_len = FRAME_PAYLOAD_BYTES
         count = ll.BLENDSHAPE_COUNT
         block = ll.FRAME_BLOCK_BYTES
@@ -257,6 +270,8 @@ class LiveRecorder:
                                     sid,
                                 )
                         if sid >= 0:
+                            packets[sid] += 1
+                            last_seen[sid] = t
                             if n == off + block:
                                 body = view[off : off + block]
                                 prefix = pack_prefix(RecordType.FRAME, sid, t)
@@ -289,6 +304,7 @@ class LiveRecorder:
                                 "accepted": self.accepted + accepted,
                                 "rejected": rejected_now,
                                 "streams": len(streams),
+                                "evicted_streams": self.evicted_streams,
                                 "failed_writes": log.failed_writes,
                             }
                         )
@@ -324,11 +340,13 @@ class LiveRecorder:
         names = ll.decode_strings(view, off)
         if names is None:
             return "bad_text"
-        if len(self.streams) >= self.max_streams:
+        if len(self.streams) >= self.max_streams and not self._evict_stray_streams():
             return "too_many_streams"
-        sid = len(self.streams)
+        sid = len(self.stream_packets)
         entry = (sid, off, num, den)
         self.streams[key] = entry
+        self.stream_packets.append(0)
+        self.stream_last_ns.append(time.monotonic_ns())
         assert self.log is not None
         self.log.buffer += json_record(
             RecordType.STREAM,
@@ -342,6 +360,24 @@ class LiveRecorder:
             },
         )
         return entry
+
+    def _evict_stray_streams(self) -> bool:
+        """Free the slots of stray streams (see ``STRAY_PACKETS``); whether any was freed. At most once
+        per second, so that a flood of new streams costs no more than a dictionary lookup each."""
+        now = time.monotonic_ns()
+        if now < self._next_eviction_ns:
+            return False
+        self._next_eviction_ns = now + 1_000_000_000
+        silent_ns = int(STRAY_SILENT_S * 1e9)
+        stray = [
+            key
+            for key, (sid, _off, _num, _den) in self.streams.items()
+            if self.stream_packets[sid] <= STRAY_PACKETS and now - self.stream_last_ns[sid] > silent_ns
+        ]
+        for key in stray:
+            del self.streams[key]
+        self.evicted_streams += len(stray)
+        return bool(stray)
 
     # -- shutdown -----------------------------------------------------------------------------
     def close(self) -> None:

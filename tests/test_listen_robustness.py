@@ -239,3 +239,44 @@ def test_bad_duration_is_one_line_before_anything_is_made(tmp_path, duration):
     r = run_cli("listen", "-o", str(tmp_path / "out"), "--port", "0", "--duration", duration)
     assert r.returncode == 1 and "--duration" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
     assert not (tmp_path / "out").exists()
+
+
+# -- 7. stray packets do not lock a phone out -------------------------------------------------------------
+def test_stray_streams_give_their_slots_to_a_real_phone(tmp_path, monkeypatch):
+    import capture.recorder as recorder
+
+    monkeypatch.setattr(recorder, "STRAY_SILENT_S", 0.2)
+    rec = LiveRecorder(tmp_path, port=0, session_id="stray", max_streams=8)
+    _, port = rec.open()
+    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
+    runner.start()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i in range(8):  # eight spoofed devices, one packet each: every slot taken
+            s.sendto(_packets(f"junk-{i}", "x", [1])[0], ("127.0.0.1", port))
+        time.sleep(0.4)  # they fall silent
+        for p in _packets("REALPHONE-0001", "Ana", range(300)):
+            s.sendto(p, ("127.0.0.1", port))
+            time.sleep(0.0005)
+    time.sleep(0.5)
+    rec.request_stop()
+    runner.join()
+    rec.close()
+    assert rec.evicted_streams == 8 and rec.rejected["too_many_streams"] == 0
+    assert rec.stream_packets[-1] == 300  # the phone's stream, after the eight stray ones
+    (line,) = [x for x in build_takes(rec.session_dir, tmp_path / "takes") if x["path"]]
+    assert line["frames"] == 300 and line["subject"] == "Ana"
+    # a stream that keeps sending is never evicted: with every slot busy, a new one is refused
+    rec2 = LiveRecorder(tmp_path / "busy", port=0, session_id="busy", max_streams=1)
+    _, port = rec2.open()
+    runner = threading.Thread(target=rec2.run, kwargs={"duration_s": 30})
+    runner.start()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for f in range(40):
+            s.sendto(_packets("PHONE-A", "a", [f])[0], ("127.0.0.1", port))
+            s.sendto(_packets("PHONE-B", "b", [f])[0], ("127.0.0.1", port))
+            time.sleep(0.01)
+    time.sleep(0.3)
+    rec2.request_stop()
+    runner.join()
+    rec2.close()
+    assert rec2.evicted_streams == 0 and rec2.rejected["too_many_streams"] == 40
