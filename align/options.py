@@ -53,13 +53,18 @@ class AlignOptions:
             raise InputError(f"--vad must be one of {', '.join(VAD_METHODS)}, not {self.vad!r}")
         if not (-500.0 <= self.face_lead_ms <= 500.0):
             raise InputError(f"--face-lead-ms must be within ±500 ms, not {self.face_lead_ms:g}")
-        for name in ("max_gap_s", "min_segment_s", "vad_pad_s", "max_offset_s", "max_disagreement_s"):
-            if getattr(self, name) < 0:
-                raise InputError(f"{name} must not be negative")
-        if self.max_offset_s < 0.02 or self.max_offset_s > 10.0:
-            raise InputError(
-                f"--max-offset-ms must be between 20 and 10000, not {self.max_offset_s * 1000:g}"
-            )
+        # (field, how the command line names it, its unit in seconds, lowest, highest in that unit)
+        for name, option, unit, low, high in (
+            ("max_gap_s", "--max-gap-ms", 1e-3, 0.0, 60_000.0),
+            ("min_segment_s", "--min-segment-s", 1.0, 0.0, 3600.0),
+            ("vad_pad_s", "vad_pad_s", 1.0, 0.0, 10.0),
+            ("max_offset_s", "--max-offset-ms", 1e-3, 20.0, 10_000.0),
+            ("max_disagreement_s", "--max-disagreement-ms", 1e-3, 0.0, 10_000.0),
+            ("min_drift_take_s", "min_drift_take_s", 1.0, 0.0, 86_400.0),
+        ):
+            value = getattr(self, name) / unit
+            if not low <= value <= high:  # also NaN
+                raise InputError(f"{option} must be between {low:g} and {high:g}, not {value:g}")
         if not (0.0 <= self.min_confidence <= 1.0):
             raise InputError("--min-confidence must be between 0 and 1")
 

@@ -35,6 +35,7 @@ SCHEMA_VERSION = 1
 META_FILE = "meta.json"
 FRAMES_FILE = "frames.npz"
 AUDIO_FILE = "audio.wav"
+MAX_FPS = 1000.0  # the highest frame rate a take may declare (the app records 30 or 60)
 
 
 class FrameStatus(IntEnum):
@@ -108,6 +109,9 @@ class TakeMeta:
         missing = [n for n in ("id", "source_kind", "fps", "channels") if n not in data]
         if missing:
             raise InputError(f"metadata lacks field(s) {', '.join(missing)}", path)
+        fps = data["fps"]
+        if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not 0 < fps <= MAX_FPS:
+            raise InputError(f"fps must be a frame rate between 0 and {MAX_FPS:g}, not {fps!r:.40}", path)
         kwargs = {k: v for k, v in data.items() if k in known}
         try:
             if kwargs.get("audio") is not None:
@@ -342,6 +346,8 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
     for key in ("time", "values", "frame_status"):
         if key not in arrays:
             raise InputError(f"frames lack the array {key!r}", frames_path)
+    if arrays["time"].dtype.kind != "f":
+        raise InputError(f"time is {arrays['time'].dtype}, not float seconds", frames_path)
     status = arrays["frame_status"]
     if status.dtype.kind not in "iu":
         raise InputError(f"frame_status is {status.dtype}, not integer codes", frames_path)

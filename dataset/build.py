@@ -383,7 +383,7 @@ _EXTRACTORS: dict[tuple[str, str | None], Any] = {}
 
 
 def _extractor(backend: str, model: str | None):
-    if backend == "none":
+    if backend == "none" and model is None:
         return None
     if (backend, model) not in _EXTRACTORS:
         from .ppg import make_extractor

@@ -118,12 +118,22 @@ class BottleneckExtractor:
 # ----------------------------------------------------------------------------------- user models
 
 
+MAX_PPG_DIM = 4096  # phone posteriors or a bottleneck: tens to hundreds of values per frame
+
+
 def _check_output(out: np.ndarray, frames: int, path: Path) -> np.ndarray:
+    """A user model's output as (frames, dim), checked: shape, 1..MAX_PPG_DIM values per frame, finite."""
     out = np.asarray(out, np.float32)
     if out.ndim == 3 and out.shape[0] == 1:
         out = out[0]
-    if out.ndim != 2 or out.shape[0] != frames:
-        raise InputError(f"PPG model returned shape {tuple(out.shape)}; expected (1, {frames}, dim)", path)
+    if out.ndim != 2 or out.shape[0] != frames or not 1 <= out.shape[1] <= MAX_PPG_DIM:
+        raise InputError(
+            f"PPG model returned shape {tuple(out.shape)}; expected (1, {frames}, dim) with dim in "
+            f"1..{MAX_PPG_DIM}",
+            path,
+        )
+    if not np.isfinite(out).all():
+        raise InputError(f"PPG model returned {int((~np.isfinite(out)).sum())} NaN or infinite values", path)
     return out
 
 
@@ -306,10 +316,15 @@ class PocketsphinxExtractor:
 def make_extractor(backend: str, model: str | Path | None = None) -> PPGExtractor | None:
     """The extractor for ``backend`` (one of ``BACKENDS``); ``model`` is the checkpoint or model file."""
     backend = (backend or "none").strip().lower()
+    if backend not in (*BACKENDS, "none"):
+        raise InputError(f"unknown PPG backend {backend!r} (known: {', '.join(BACKENDS)})")
+    if model is not None and backend in ("none", "pocketsphinx"):
+        raise InputError(
+            f"--ppg-model given, but the PPG backend {backend!r} uses no model file: "
+            "choose --ppg bottleneck, torchscript or onnx"
+        )
     if backend == "none":
         return None
-    if backend not in BACKENDS:
-        raise InputError(f"unknown PPG backend {backend!r} (known: {', '.join(BACKENDS)})")
     if backend == "pocketsphinx":
         return PocketsphinxExtractor()
     if model is None:

@@ -254,3 +254,37 @@ def test_model_for_another_filter_bank_width_gets_a_clear_error(takes, tmp_path)
     )
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert "(1, frames, 40) filter banks" in proc.stderr and "mel80.ts" in proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("forward", "needle"),
+    [
+        ("fbank[:, :, :8] * float('nan')", "NaN or infinite"),
+        ("fbank[:, :, :0]", "dim in 1..4096"),
+    ],
+    ids=["nan", "no-width"],
+)
+def test_model_with_unusable_values_is_rejected(takes, tmp_path, forward, needle):
+    source = tmp_path / "bad_model.py"
+    source.write_text(
+        f"import torch\nclass M(torch.nn.Module):\n    def forward(self, fbank):\n        return {forward}\n"
+    )
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bad_model", source)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    ts = tmp_path / "bad.ts"
+    torch.jit.script(module.M()).save(str(ts))
+    proc = run_cli(
+        "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "torchscript", "--ppg-model", ts
+    )
+    assert proc.returncode == 1 and needle in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("backend", ["none", "pocketsphinx"])
+def test_a_model_file_for_a_backend_without_one_is_an_error(takes, tmp_path, backend):
+    model = tmp_path / "ppg.pt"
+    model.write_bytes(b"x")
+    proc = run_cli("dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", backend, "--ppg-model", model)
+    assert proc.returncode == 1 and "uses no model file" in proc.stderr, proc.stderr

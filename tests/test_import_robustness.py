@@ -299,3 +299,53 @@ def test_header_only_csv_never_aborts_the_process(tmp_path, samples):
     path.write_text(header + "\n")
     for _ in range(6):
         one_line_error(run_cli("capture", "import", path, "-o", tmp_path / "out"), "no data rows")
+
+
+# align: options and hand-edited takes
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--max-offset-ms", "nan"),
+        ("--min-segment-s", "inf"),
+        ("--min-segment-s", "1e308"),
+        ("--max-gap-ms", "nan"),
+        ("--max-disagreement-ms", "inf"),
+        ("--max-gap-ms", "-1"),
+    ],
+)
+def test_align_option_out_of_range_names_the_option(take_dir, tmp_path, option, value):
+    run_cli("capture", "import", take_dir, "-o", tmp_path / "takes", check=True)
+    proc = run_cli("align", tmp_path / "takes", "-o", tmp_path / "al", option, value)
+    one_line_error(proc, f"{option} must be between")
+
+
+@pytest.mark.parametrize("fps", [0, "NaN", None, "sixty", 1e9, -60])
+def test_a_take_with_a_bad_fps_in_meta_json_fails_alone(take_dir, tmp_path, fps):
+    takes = tmp_path / "takes"
+    run_cli("capture", "import", take_dir, "-o", takes, check=True)
+    (good,) = list(takes.iterdir())
+    bad = shutil.copytree(good, takes / "0000_bad")
+    meta = json.loads((bad / "meta.json").read_text())
+    meta["id"] = "0000_bad"
+    meta["fps"] = float("nan") if fps == "NaN" else fps
+    (bad / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="fps must be a frame rate"):
+        read_take(bad)
+    proc = run_cli("align", takes, "-o", tmp_path / "al", "--vad", "none", "--json")
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    reports = {r["id"]: r for r in map(json.loads, proc.stdout.splitlines())}
+    assert "fps must be a frame rate" in reports["0000_bad"]["error"]
+    assert "error" not in reports[good.name]  # the good take beside it is still aligned
+
+
+def test_frame_times_that_are_not_float_seconds_are_refused(take_dir, tmp_path):
+    run_cli("capture", "import", take_dir, "-o", tmp_path / "takes", check=True)
+    (folder,) = list((tmp_path / "takes").iterdir())
+    with np.load(folder / "frames.npz") as z:
+        arrays = dict(z)
+    arrays["time"] = np.round(arrays["time"] * 1000).astype(np.int64)  # milliseconds
+    np.savez(folder / "frames.npz", **arrays)
+    with pytest.raises(InputError, match="not float seconds"):
+        read_take(folder)
