@@ -118,7 +118,7 @@ class LagEstimate:
     lag_s: float
     peak: float  # normalised correlation at the peak (-1..1)
     runner_up: float  # highest correlation at least ``MAIN_LOBE_S`` away from the peak
-    seconds: float  # length of signal the estimate rests on
+    seconds: float  # length of signal the estimate rests on (weighted: where the face is present)
     at_edge: bool  # the peak sits at the edge of the search range
 
 
@@ -136,6 +136,7 @@ def cross_correlation_lag(
     norm = float(np.sqrt(np.dot(a, a) * np.dot(f, f)))
     if n < 20 or norm <= 0:
         return None
+    seconds = float(np.sum(weight)) / ANALYSIS_RATE  # where the face is there to compare, not the audio
     size = 1 << int(np.ceil(np.log2(2 * n)))
     spec = np.conj(np.fft.rfft(a, size)) * np.fft.rfft(f, size)
     corr = np.fft.irfft(spec, size) / norm  # corr[k] = sum a(t) f(t + k), k negative wraps around
@@ -153,7 +154,7 @@ def cross_correlation_lag(
     far = np.abs(lags - k_best) > lobe
     runner_up = float(values[far].max()) if far.any() else float("nan")
     if at_edge:  # the true peak may lie outside the range: no refinement
-        return LagEstimate(k_best / ANALYSIS_RATE, float(values[best]), runner_up, n / ANALYSIS_RATE, True)
+        return LagEstimate(k_best / ANALYSIS_RATE, float(values[best]), runner_up, seconds, True)
     # Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
     # the integer peak, using only the bins the band-pass lets through; first on a 1 ms grid over
     # ±1 step, then on the 0.1 ms grid around the best point (the series is smooth at this scale).
@@ -175,4 +176,4 @@ def cross_correlation_lag(
     fine = centre + np.arange(-coarse_step, coarse_step + 1) / UPSAMPLE
     fine_values = series(fine)
     refined = float(fine[int(np.argmax(fine_values))])
-    return LagEstimate(refined / ANALYSIS_RATE, float(fine_values.max()), runner_up, n / ANALYSIS_RATE, False)
+    return LagEstimate(refined / ANALYSIS_RATE, float(fine_values.max()), runner_up, seconds, False)

@@ -338,6 +338,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
             f"{take.meta.id} -> {host}:{port}: {report.frames} frames in {report.packets_sent} packets, "
             f"{report.lost} lost, {report.duplicated} duplicated, {report.reordered} reordered"
         )
+    if report.bad_values:
+        progress(f"warning: {report.bad_values} frames with NaN/inf values sent as no-face packets")
     return 0
 
 

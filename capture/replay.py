@@ -6,8 +6,9 @@ and jitter (each packet delayed by a uniform 0..jitter seconds, real time, not s
 The first frame is always sent on time and intact, so a listener that starts its audio file at the
 first packet (``listen --audio-file F --audio-start first-packet``) lines audio up with it.
 
-Frames: TRACKED and BAD_VALUE frames are sent with their values, FACE_LOST frames as no-face packets
-(ending after the frame time, as the app sends them), DROPPED frames not at all. Frame numbers come
+Frames: TRACKED frames are sent with their values, FACE_LOST frames as no-face packets (ending after
+the frame time, as the app sends them), DROPPED frames not at all. BAD_VALUE frames (and any frame with
+a NaN or infinite value) are sent as no-face packets too, never as NaN weights, and counted. Frame numbers come
 from the take's start timecode plus frame time at the take's rate.
 """
 
@@ -47,6 +48,8 @@ class Impairment:
                 raise InputError(f"--{name} must be a probability in [0, 1), not {p}")
         if not 0.0 <= self.jitter_s <= 10.0:
             raise InputError(f"jitter must be in 0..10 s, not {self.jitter_s}")
+        if not 0 <= self.seed < 2**63:
+            raise InputError(f"--seed must be a non-negative integer below 2**63, not {self.seed}")
 
 
 @dataclass
@@ -59,6 +62,7 @@ class ReplayReport:
     duplicated: int = 0
     reordered: int = 0  # packets sent after a packet with a higher frame number
     no_face: int = 0  # no-face packets sent for FACE_LOST frames
+    bad_values: int = 0  # frames with NaN/inf values (BAD_VALUE), sent as no-face packets
     skipped: int = 0  # frames that fell on an already used frame number
     duration_s: float = 0.0
     device: str = ""
@@ -74,6 +78,7 @@ class ReplayReport:
             "duplicated": self.duplicated,
             "reordered": self.reordered,
             "no_face": self.no_face,
+            "bad_values": self.bad_values,
             "skipped": self.skipped,
             "duration_s": round(self.duration_s, 3),
             "device": self.device,
@@ -114,6 +119,44 @@ def default_device(take: Take) -> str:
     return take.meta.device or str(uuid.uuid5(uuid.NAMESPACE_URL, "s2a-take:" + take.meta.id)).upper()
 
 
+def check_speed(speed: float) -> None:
+    if not 0.01 <= speed <= 1000:  # also rejects NaN
+        raise InputError(f"--speed must be in 0.01..1000, not {speed}")
+
+
+def packet_names(take: Take, device: str | None = None, subject: str | None = None) -> tuple[str, str]:
+    """The device id and subject to send (defaults from the take); ``InputError`` when a packet with
+    them would be over the datagram limit listeners enforce (``livelink.MAX_PACKET_BYTES``)."""
+    device = device or default_device(take)
+    subject = subject or take.meta.subject or "iPhone"
+    try:
+        size = len(ll.header_bytes(device, subject)) + ll.FRAME_BLOCK_BYTES
+    except UnicodeEncodeError:
+        raise InputError("device id and subject must be valid UTF-8 text") from None
+    if size > ll.MAX_PACKET_BYTES:
+        room = ll.MAX_PACKET_BYTES - ll.FRAME_BLOCK_BYTES - 9  # version byte, two string lengths
+        raise InputError(
+            f"device id and subject are too long: packets would be {size} bytes, over the "
+            f"{ll.MAX_PACKET_BYTES}-byte datagram limit (at most {room} UTF-8 bytes together)"
+        )
+    return device, subject
+
+
+def write_audio_out(path: str | Path, audio: Audio) -> None:
+    """Write ``--audio-out``, creating its folder; ``InputError`` when that cannot be done."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError("is a folder: --audio-out needs a file name", path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output's folder ({exc.strerror})", path.parent) from None
+    try:
+        write_audio(path, audio)
+    except OSError as exc:
+        raise InputError(f"cannot write --audio-out ({exc.strerror or exc})", path) from None
+
+
 def rebased_audio(take: Take) -> Audio | None:
     """The take's audio shifted so that its first sample is take time 0 (pad or trim at the start)."""
     if take.audio is None:
@@ -143,12 +186,10 @@ def replay_take(
     """Send ``take`` to ``host:port`` as Live Link packets; blocks for the take's duration / speed."""
     imp = impairment or Impairment()
     imp.check()
-    if not 0.01 <= speed <= 1000:
-        raise InputError(f"--speed must be in 0.01..1000, not {speed}")
+    check_speed(speed)
     if audio_out is not None and speed != 1.0:
         raise InputError("--audio-out re-enacts a session in real time: use it with --speed 1")
-    device = device or default_device(take)
-    subject = subject or take.meta.subject or "iPhone"
+    device, subject = packet_names(take, device, subject)
     num, den = _rate_of(take.meta.fps)
     t0 = start_seconds_of_day(take)
     status = take.frame_status
@@ -189,9 +230,12 @@ def replay_take(
     schedule.sort()
     packets = []
     face_lost = status[idx] == FrameStatus.FACE_LOST
+    bad = ~face_lost & ((status[idx] == FrameStatus.BAD_VALUE) | ~np.isfinite(values[idx]).all(axis=1))
+    report.bad_values = int(bad.sum())
+    no_face = face_lost | bad
     for _, _, k in schedule:
         i = idx[k]
-        if face_lost[k]:
+        if no_face[k]:
             packets.append(ll.no_face_packet(device, subject, int(fn[k]), float(sf[k]), num, den))
         else:
             packets.append(header + ll.frame_block(int(fn[k]), float(sf[k]), num, den, values[i]))
@@ -199,7 +243,7 @@ def replay_take(
         audio = rebased_audio(take)
         if audio is None:
             raise InputError(f"take {take.meta.id} has no audio for --audio-out")
-        write_audio(audio_out, audio)
+        write_audio_out(audio_out, audio)
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
@@ -225,7 +269,7 @@ def replay_take(
             max_fn = max(max_fn, f)
             if face_lost[k]:
                 report.no_face += 1
-            else:
+            elif not bad[k]:
                 sent_frames.add(f)
         report.duration_s = time.monotonic() - start
     report.lost = int(lost.sum())

@@ -349,3 +349,20 @@ def test_frame_times_that_are_not_float_seconds_are_refused(take_dir, tmp_path):
     np.savez(folder / "frames.npz", **arrays)
     with pytest.raises(InputError, match="not float seconds"):
         read_take(folder)
+
+
+def test_content_confidence_rests_on_the_overlap_not_the_audio(tmp_path):
+    """A face cut to its first 1.5 s against 20 s of audio: the content evidence rests on 1.5 s."""
+    run_cli("capture", "simulate", "-o", tmp_path / "sim", "--seconds", 20, "--seed", 2, check=True)
+    run_cli("capture", "import", tmp_path / "sim", "-o", tmp_path / "takes", check=True)
+    (folder,) = list((tmp_path / "takes").iterdir())
+    with np.load(folder / "frames.npz") as z:
+        arrays = dict(z)
+    keep = arrays["time"] - arrays["time"][0] <= 1.5
+    np.savez(
+        folder / "frames.npz", **{k: v[keep] if v.shape[:1] == keep.shape else v for k, v in arrays.items()}
+    )
+    proc = run_cli("align", tmp_path / "takes", "-o", tmp_path / "al", "--vad", "none", "--json")
+    (report,) = map(json.loads, proc.stdout.splitlines())
+    assert report["chosen"]["detail"]["seconds"] == pytest.approx(1.5, abs=0.1)
+    assert report["offset_confidence"] < 0.3 and "low_confidence" in report["flags"]
