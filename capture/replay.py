@@ -8,8 +8,8 @@ first packet (``listen --audio-file F --audio-start first-packet``) lines audio 
 
 Frames: TRACKED frames are sent with their values, FACE_LOST frames as no-face packets (ending after
 the frame time, as the app sends them), DROPPED frames not at all. BAD_VALUE frames (and any frame with
-a NaN or infinite value) are sent as no-face packets too, never as NaN weights, and counted. Frame numbers come
-from the take's start timecode plus frame time at the take's rate.
+a NaN or infinite value) are sent as no-face packets too, never as NaN weights, and counted. Frame
+numbers come from the take's start timecode plus frame time at the take's rate.
 """
 
 from __future__ import annotations

@@ -325,6 +325,7 @@ def test_speakers_differ_and_visemes_follow_phonetics():
         (["--language", "klingon"], "unknown language"),
         (["--fps", "25"], "--fps"),
         (["--takes", "0"], "--takes"),
+        (["--takes", "100000000"], "between 1 and 10,000"),  # not minutes of silence
         (["--speakers", "3", "--takes", "2"], "--speakers"),
         (["--seconds", "0.5"], "--seconds"),
         (["--sample-rate", "8000"], "--sample-rate"),
@@ -333,6 +334,17 @@ def test_speakers_differ_and_visemes_follow_phonetics():
 )
 def test_bad_arguments_are_one_line_errors(tmp_path, args, message):
     r = run_cli("simulate", "-o", str(tmp_path / "x"), *args)
+    assert r.returncode == 1
+    assert message in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "out, message", [("afile", "not a folder"), ("afile/sub", "cannot create"), ("/proc/x", "cannot create")]
+)
+def test_unusable_output_folder_is_a_one_line_error(tmp_path, out, message):
+    (tmp_path / "afile").write_text("")
+    r = run_cli("simulate", "-o", str(tmp_path / out), "--seconds", "2")
     assert r.returncode == 1
     assert message in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1

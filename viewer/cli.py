@@ -294,13 +294,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 
 def cmd_stream(args: argparse.Namespace) -> int:
-    from capture.replay import parse_destination
+    from capture.replay import check_speed, packet_names, parse_destination
 
     from .stream import load_take, stream_take
 
-    parse_destination(args.to)  # a malformed destination is reported before any file is read
+    parse_destination(args.to)  # a malformed destination or speed is reported before any file is read
+    check_speed(args.speed)
     audio_file = args.audio if args.audio not in (None, "take") else None
     take = load_take(args.input, audio_file)
+    packet_names(take, args.device, args.subject)  # names too long for a datagram: before any output
     if not args.json:
         progress(f"streaming {take.meta.id} to {args.to} ({take.duration_s / args.speed:.1f} s)")
     summary = stream_take(take, args.to, args.speed, args.audio is not None, args.subject, args.device)
@@ -308,6 +310,8 @@ def cmd_stream(args: argparse.Namespace) -> int:
         emit_json(summary)
     else:
         progress(f"sent {summary['frames']} frames in {summary['duration_s']:.2f} s")
+    if summary["bad_values"]:
+        progress(f"warning: {summary['bad_values']} frames with NaN/inf values sent as no-face packets")
     return 0
 
 

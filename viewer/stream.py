@@ -14,7 +14,7 @@ import numpy as np
 
 from capture import Take
 from capture.errors import InputError
-from capture.replay import parse_destination, rebased_audio, replay_take
+from capture.replay import check_speed, packet_names, parse_destination, rebased_audio, replay_take
 
 
 class AudioPlayer:
@@ -50,9 +50,12 @@ def stream_take(
 ) -> dict:
     """Send ``take`` to ``destination`` (``HOST:PORT``); blocks for the take's duration / speed.
 
-    Returns what was sent (frames, packets, duration, device, subject, rate).
+    Returns what was sent (frames, packets, duration, device, subject, rate, ``bad_values``: frames
+    with NaN values sent as no-face packets).
     """
     host, port = parse_destination(destination)
+    check_speed(speed)
+    packet_names(take, device, subject)  # names too long for a datagram: an error before any sound
     player = None
     if audio:
         if speed != 1.0:
@@ -78,7 +81,7 @@ def stream_take(
 
 def load_take(path: str | Path, audio: str | Path | None = None) -> Take:
     """A take folder or a Live Link Face CSV (optionally with its audio) as a take."""
-    from capture import import_source, read_take
+    from capture import find_sources, import_source, read_take
     from capture.take import is_take_dir
 
     path = Path(path)
@@ -91,4 +94,10 @@ def load_take(path: str | Path, audio: str | Path | None = None) -> Take:
         return take
     if not path.exists():
         raise InputError("no such take folder or CSV file", path)
-    return import_source(path, audio)
+    sources = find_sources([path])  # Live Link Face take folders and CSVs, not take folders of ours
+    ours = [p for p in path.iterdir() if is_take_dir(p)] if path.is_dir() else []
+    if len(sources) + len(ours) != 1:
+        raise InputError(f"stream sends one take; found {len(sources) + len(ours)} takes under it", path)
+    if ours:
+        return load_take(ours[0], audio)
+    return import_source(sources[0], audio)

@@ -46,6 +46,7 @@ SIMULATION_SCHEMA = 1
 SAMPLE_RATES = (16000, 22050, 44100, 48000)
 FRAME_RATES = (30, 60)
 MAX_SECONDS = 600.0  # per take; memory grows with take length (about 1 MB per second at 48 kHz)
+MAX_TAKES = 10_000  # per run: a larger number is much more likely a typo than a plan
 _BASE_DATE = dt.date(2025, 1, 6)
 
 
@@ -288,12 +289,24 @@ def write_frame_log(sim: SimulatedTake, path: Path) -> None:
 def write_take_folder(sim: SimulatedTake, out_dir: str | Path) -> Path:
     """Write ``sim`` as a Live Link Face take folder ``out_dir/<YYYYMMDD>_<slate>_<take>/``."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    _make_out_folder(out_dir)
     target = out_dir / sim.folder_name
     # Assembled under a hidden name and renamed into place: no half-written take, no stale files.
-    with folder_in_place(target) as folder:
-        _write_files(sim, folder)
+    try:
+        with folder_in_place(target) as folder:
+            _write_files(sim, folder)
+    except OSError as exc:
+        raise InputError(f"cannot write the take folder ({exc.strerror or exc})", target) from None
     return target
+
+
+def _make_out_folder(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("exists and is not a folder: -o needs a folder", out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder ({exc.strerror or exc})", out_dir) from None
 
 
 def _write_files(sim: SimulatedTake, folder: Path) -> None:
@@ -365,8 +378,8 @@ def plan_session(
     """``takes`` takes spread round-robin over ``speakers`` speakers, numbered per speaker from 1."""
     if speakers < 1:
         raise InputError(f"--speakers must be at least 1, not {speakers}")
-    if takes < 1:
-        raise InputError(f"--takes must be at least 1, not {takes}")
+    if not 1 <= takes <= MAX_TAKES:
+        raise InputError(f"--takes must be between 1 and {MAX_TAKES:,} per run, not {takes}")
     if speakers > takes:
         raise InputError(f"--speakers ({speakers}) exceeds --takes ({takes}): every speaker needs a take")
     specs = [
@@ -407,6 +420,7 @@ def simulate(
     audio rate (Hz). The same arguments and seed give byte-identical folders.
     """
     specs = plan_session(speakers, takes, seconds, fps, language, seed, sample_rate, artifacts, mov)
+    _make_out_folder(Path(out_dir))  # before the first take is simulated
     summaries = []
     for spec in specs:
         sim = simulate_take(spec)
