@@ -60,13 +60,14 @@ class TextGrid:
     xmin: float
     xmax: float
     tiers: list[Tier] = field(default_factory=list)
+    path: str | None = field(default=None, compare=False, repr=False)  # the file it was read from
 
     def tier(self, name: str) -> Tier:
         """The first tier called ``name``."""
         for t in self.tiers:
             if t.name == name:
                 return t
-        raise InputError(f"TextGrid has no tier {name!r} (tiers: {[t.name for t in self.tiers]})")
+        raise InputError(f"TextGrid has no tier {name!r} (tiers: {[t.name for t in self.tiers]})", self.path)
 
 
 def interval_tier(name: str, intervals: list[tuple[float, float, str]], xmin: float, xmax: float) -> Tier:
@@ -179,6 +180,7 @@ def parse_textgrid(text: str, path: str | Path | None = None) -> TextGrid:
             'not a TextGrid (expected File type = "ooTextFile", Object class = "TextGrid")', path
         )
     tg = TextGrid(float(take(float, "xmin")), float(take(float, "xmax")))  # type: ignore[arg-type]
+    tg.path = str(path) if path is not None else None
     flag = take(str, "tiers? <exists>")
     if flag == "<absent>":
         return tg

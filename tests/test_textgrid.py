@@ -131,3 +131,10 @@ def test_malformed_textgrid_is_an_input_error(tmp_path):
         read_textgrid(path)
     with pytest.raises(InputError, match="no tier"):
         TextGrid(0.0, 1.0).tier("words")
+
+
+def test_missing_tier_error_names_the_file(tmp_path):
+    path = write_textgrid(TextGrid(0.0, 1.0, [interval_tier("words", [], 0.0, 1.0)]), tmp_path / "a.TextGrid")
+    with pytest.raises(InputError) as err:
+        read_textgrid(path).tier("phones")
+    assert str(err.value) == f"{path}: TextGrid has no tier 'phones' (tiers: ['words'])"

@@ -4,15 +4,18 @@ phone alignments, written with ``save_bottleneck`` for ``s2a-dataset build --ppg
 Alignments come as Praat TextGrids beside their audio (same stem; the simulator writes them beside its
 takes; tier ``phones``, empty label = silence) or as a JSON file mapping audio stems to
 ``{"words": [{"phones": [{"phone", "start", "end"}]}]}`` (the LibriVox sample). Phone labels are
-ARPAbet in any case, stress digits dropped; labels outside ARPAbet count as SIL. Features are the
-dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre ``k · 20 ms``) takes the
-phone spanning that instant.
+ARPAbet in any case, stress digits dropped; labels outside ARPAbet count as SIL (with a warning).
+Features are the dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre
+``k · 20 ms``) takes the phone spanning that instant.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
+import tempfile
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -29,13 +32,20 @@ from capture.textgrid import read_textgrid
 from dataset.bottleneck import ARPABET, BottleneckConfig, BottleneckPPG, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
 
-AUDIO_SUFFIXES = (".wav", ".flac")
+AUDIO_SUFFIXES = (".wav", ".flac", ".WAV", ".FLAC")
 Segments = list[tuple[float, float, str]]
+MISMATCH_S = 0.5  # alignment and audio lengths may differ by this much without a warning
 
 
 def _phone_id(label: str) -> int:
     p = re.sub(r"\d", "", label.strip()).upper()
     return ARPABET.index(p) if p in ARPABET else 0
+
+
+def _is_silence(label: str) -> bool:
+    """Labels aligners write for silence and noise: empty, SIL, SP, SPN, or fillers like +NSN+ and <sil>."""
+    p = label.strip().upper()
+    return p in ("", "SIL", "SP", "SPN") or p.startswith(("+", "<"))
 
 
 def _audio_beside(path: Path) -> Path:
@@ -45,33 +55,123 @@ def _audio_beside(path: Path) -> Path:
     raise InputError("no audio file (.wav, .flac) with the same name", path)
 
 
-def find_alignments(paths: list[str | Path]) -> list[tuple[Path, Segments]]:
-    """(audio file, phone segments in seconds) for every aligned utterance under ``paths``."""
+def _show(value: object) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _seconds(value: object, where: str, path: Path) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"{where} must be a finite number of seconds, found {_show(value)}", path)
+    return float(value)
+
+
+def _json_segments(words: object, stem: str, path: Path) -> tuple[Segments, list[str]]:
+    """Phone segments of one JSON utterance, and where each comes from (for messages)."""
+    if not isinstance(words, list):
+        raise InputError(f"utterance {stem!r}: 'words' must be a list, found {_show(words)}", path)
+    segs: Segments = []
+    names: list[str] = []
+    for i, word in enumerate(words):
+        where = f"utterance {stem!r} word {i}"
+        if not isinstance(word, dict):
+            raise InputError(f"{where}: expected an object with 'phones', found {_show(word)}", path)
+        phones = word.get("phones", [])
+        if not isinstance(phones, list):
+            raise InputError(f"{where}: 'phones' must be a list, found {_show(phones)}", path)
+        for k, ph in enumerate(phones):
+            at = f"{where} phone {k}"
+            if not isinstance(ph, dict):
+                raise InputError(f"{at}: expected an object with phone, start, end, found {_show(ph)}", path)
+            for key in ("phone", "start", "end"):
+                if key not in ph:
+                    raise InputError(f"{at}: no {key!r}", path)
+            if not isinstance(ph["phone"], str):
+                raise InputError(f"{at}: 'phone' must be a string, found {_show(ph['phone'])}", path)
+            start, end = (
+                _seconds(ph["start"], f"{at}: 'start'", path),
+                _seconds(ph["end"], f"{at}: 'end'", path),
+            )
+            segs.append((start, end, ph["phone"]))
+            names.append(at)
+    return segs, names
+
+
+def _check_segments(segs: Segments, names: list[str], path: Path) -> None:
+    """Refuse negative times, segments ending before they start, and overlapping segments."""
+    reached, previous = 0.0, ""
+    for k in sorted(range(len(segs)), key=lambda k: segs[k][0]):
+        start, end, _ = segs[k]
+        if start < 0:
+            raise InputError(f"{names[k]} starts at a negative time ({start} s)", path)
+        if end < start:
+            raise InputError(f"{names[k]} ends before it starts ({start} > {end} s)", path)
+        if start < reached - 1e-6:
+            raise InputError(
+                f"{names[k]} ({start}-{end} s) overlaps {previous} (to {reached} s); phones must not overlap",
+                path,
+            )
+        if end >= reached:
+            reached, previous = end, names[k]
+
+
+def find_alignments(
+    paths: list[str | Path], warnings: list[str] | None = None
+) -> list[tuple[Path, Segments]]:
+    """(audio file, phone segments in seconds) for every aligned utterance under ``paths``. Files given
+    twice (also through a folder and a file in it) are read once; ``warnings`` collects what is skipped."""
+    warnings = [] if warnings is None else warnings
     found: list[tuple[Path, Segments]] = []
+    seen_files: set[Path] = set()
+    seen_audio: dict[Path, Path] = {}
+    repeated = 0
+
+    def add(audio: Path, segs: Segments, source: Path) -> None:
+        key = audio.resolve()
+        if key in seen_audio:
+            warnings.append(
+                f"{audio}: already aligned by {seen_audio[key]}; the alignment in {source} is skipped"
+            )
+            return
+        seen_audio[key] = source
+        found.append((audio, segs))
+
     for p in map(Path, paths):
         if not p.exists():
             raise InputError("not found", p)
-        grids = (
-            [p] if p.suffix.lower() == ".textgrid" else sorted(p.rglob("*.TextGrid")) if p.is_dir() else []
-        )
-        jsons = [p] if p.suffix.lower() == ".json" else sorted(p.rglob("*.json")) if p.is_dir() else []
-        for g in grids:
-            tier = read_textgrid(g).tier("phones")
-            found.append((_audio_beside(g), [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]))
-        for j in jsons:
+        files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+        for f in files:
+            kind = f.suffix.lower()
+            if kind not in (".textgrid", ".json"):
+                continue
+            if f.resolve() in seen_files:
+                repeated += 1
+                continue
+            seen_files.add(f.resolve())
+            if kind == ".textgrid":
+                tier = read_textgrid(f).tier("phones")
+                if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
+                    warnings.append(f"{f}: tier 'phones' is a point tier ({tier.kind}), not intervals")
+                segs = [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]
+                _check_segments(segs, [f"tier 'phones' interval {k + 1}" for k in range(len(segs))], f)
+                add(_audio_beside(f), segs, f)
+                continue
             try:
-                data = json.loads(j.read_text())
+                data = json.loads(f.read_text())
             except (json.JSONDecodeError, UnicodeDecodeError):
                 continue
             if not isinstance(data, dict):
                 continue
             for stem, utt in data.items():
-                if not (isinstance(utt, dict) and isinstance(utt.get("words"), list)):
+                if not (isinstance(utt, dict) and "words" in utt):
                     continue
-                segs = [
-                    (ph["start"], ph["end"], ph["phone"]) for w in utt["words"] for ph in w.get("phones", [])
-                ]
-                found.append((_audio_beside(j.parent / stem), segs))
+                segs, names = _json_segments(utt["words"], stem, f)
+                _check_segments(segs, names, f)
+                add(_audio_beside(f.parent / stem), segs, f)
+    if repeated:
+        warnings.append(
+            f"--data names {repeated} file(s) more than once (also through their folder): each is read once"
+        )
     if not found:
         raise InputError(
             "no phone alignments found (TextGrid with a 'phones' tier, or alignment JSON)", paths[0]
@@ -99,13 +199,55 @@ def train_ppg(
     say: Callable[[str], None] = progress,
 ) -> dict[str, Any]:
     """Train a BottleneckPPG on every aligned utterance under ``paths`` and save it to ``out``. Every
-    tenth utterance (at least one when there are two or more) is held out for the frame accuracy."""
+    tenth utterance (at least one when there are two or more) is held out for the frame accuracy.
+    Utterances without any phone frame are skipped; this and other doubts about the alignments are
+    said as warnings and listed in the summary."""
+    if steps < 1:
+        raise InputError(f"--steps must be at least 1 (got {steps})")
+    if not 0 <= seed < 2**63:
+        raise InputError(f"--seed must be between 0 and 2**63 - 1 (got {seed})")
+    out = Path(out)
+    _check_writable(out)
     settings = FeatureSettings()
+    warnings: list[str] = []
+    aligned = find_alignments(paths, warnings)
+    unknown = Counter(
+        label.strip()
+        for _, segs in aligned
+        for *_, label in segs
+        if not _is_silence(label) and not _phone_id(label)
+    )
+    if unknown:
+        examples = ", ".join(repr(u) for u, _ in unknown.most_common(5))
+        warnings.append(
+            f"{sum(unknown.values())} phone segments have labels outside ARPAbet and count as silence "
+            f"({len(unknown)} different, e.g. {examples})"
+        )
     utts = []
-    for audio_path, segs in find_alignments(paths):
-        fbank = spectral_features(to_16k_mono(read_audio(audio_path), str(audio_path)), settings)["fbank"]
-        utts.append(
-            (torch.from_numpy(fbank), torch.from_numpy(frame_labels(segs, len(fbank), settings.hop_s)))
+    for audio_path, segs in aligned:
+        audio = to_16k_mono(read_audio(audio_path), str(audio_path))
+        fbank = spectral_features(audio, settings)["fbank"]
+        labels = frame_labels(segs, len(fbank), settings.hop_s)
+        if not labels.any():
+            warnings.append(
+                f"{audio_path}: no phone frames (labels all silence or outside ARPAbet, or no segment "
+                "inside the audio): skipped"
+            )
+            continue
+        seconds, end = len(audio) / 16000, max(b for _, b, _ in segs)
+        if abs(end - seconds) > MISMATCH_S:
+            warnings.append(
+                f"{audio_path}: the alignment ends at {end:.2f} s but the audio is {seconds:.2f} s long "
+                "(is it the audio that was aligned?)"
+            )
+        utts.append((torch.from_numpy(fbank), torch.from_numpy(labels)))
+    for w in warnings:
+        say(f"warning: {w}")
+    if not utts:
+        raise InputError(
+            "no phone frames in the alignments: every label is silence or outside ARPAbet, or lies "
+            "past the end of its audio",
+            paths[0],
         )
     held = set(range(0, len(utts), 10)) if len(utts) > 1 else set()
     train = [u for i, u in enumerate(utts) if i not in held] or utts
@@ -137,9 +279,10 @@ def train_ppg(
         if (step + 1) % 50 == 0:
             say(f"ppg step {step + 1}: cross-entropy {loss.item():.3f}")
     model.eval()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    save_bottleneck(model, out)
+    try:
+        save_bottleneck(model, out)
+    except (OSError, RuntimeError) as exc:
+        raise InputError(f"cannot write the checkpoint: {str(exc).splitlines()[0]}", out) from None
     return {
         "checkpoint": str(out),
         "utterances": len(utts),
@@ -148,7 +291,23 @@ def train_ppg(
         "train_accuracy": _accuracy(model, train),
         "val_accuracy": _accuracy(model, val) if val else None,
         "majority_accuracy": _majority(train, val or train),
+        "warnings": warnings,
     }
+
+
+def _check_writable(out: Path) -> None:
+    """Refuse an output path the checkpoint cannot be written to before training, not after."""
+    if out.is_dir():
+        raise InputError("is a folder; -o names the checkpoint file to write (e.g. ppg.pt)", out)
+    existing = next(p for p in out.parents if p.exists())
+    if not existing.is_dir():
+        raise InputError(f"cannot write the checkpoint: {existing} is a file, not a folder", out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out.parent):
+            pass
+    except OSError as exc:
+        raise InputError(f"cannot write the checkpoint: {exc.strerror or exc}", out) from None
 
 
 @torch.no_grad()
