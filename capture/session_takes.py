@@ -47,7 +47,7 @@ from .recorder import (
     SESSION_SUFFIX,
 )
 from .serial_sync import decode_sync_record
-from .take import FrameStatus, Take, TakeMeta, safe_id, write_take
+from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, write_take
 from .timecode import Timecode
 
 MAX_GAP_S = 5.0
@@ -295,6 +295,8 @@ def _segment_take(
     t = ft - ft[0]
     fps, period = detect_fps(t)
     rate_num, rate_den = int(r["rate_numerator"][0]), int(r["rate_denominator"][0])
+    if not 0 < fps <= MAX_FPS:  # sub-frames that fool the median step: the stream's declared rate
+        fps, period = rate_num / rate_den, rate_den / rate_num
     repairs = []
     # Bound what a frame clock can make us allocate: DROPPED frames at most MAX_DROPPED_PER_FRAME per
     # received frame plus MAX_GAP_S at the stream's rate; past that the gaps stay jumps in time.

@@ -239,10 +239,6 @@ def collect_takes(
                 raise InputError(
                     f"aligned take audio is {m.audio.sample_rate} Hz; expected 16000 (re-run align)", af
                 )
-            if not (isinstance(m.fps, (int, float)) and 0 < m.fps < math.inf):
-                raise InputError(
-                    f"aligned take has frame rate {m.fps!r}; expected a positive number of fps", af
-                )
             if abs(m.audio.start_s) > 1e-9:
                 raise InputError(
                     f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af

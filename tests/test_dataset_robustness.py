@@ -111,7 +111,7 @@ def test_build_refuses_bad_options_and_takes_with_one_line(built, tmp_path):
     meta = json.loads((bad / "take01" / "meta.json").read_text())
     (bad / "take01" / "meta.json").write_text(json.dumps(meta | {"fps": 0}))
     _one_line_error(run_cli("dataset", "build", bad / "take01", "-o", tmp_path / "d"), "take01")
-    _one_line_error(run_cli("dataset", "build", bad, "-o", tmp_path / "e"), "frame rate 0")
+    _one_line_error(run_cli("dataset", "build", bad, "-o", tmp_path / "e"), "fps must be a frame rate")
     cut = tmp_path / "cut"
     shutil.copytree(takes, cut)
     x, rate = sf.read(cut / "take02" / "audio.wav", dtype="float32")

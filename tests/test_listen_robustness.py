@@ -86,9 +86,9 @@ def test_sub_frames_cannot_make_the_gaps_huge(tmp_path):
     subs = [0.999 if i % 2 == 0 else 0.0 for i in range(len(frames))]
     rec = _record(tmp_path, "sf", _packets("TRICK", "iPhone", frames, sub_frames=subs))
     (line,) = build_takes(rec.session_dir, tmp_path)
-    take = read_take(line["path"])
-    assert line["frames"] == 44 and line["dropped_frames"] == 0
-    assert [x["kind"] for x in take.meta.repairs] == ["gaps_not_filled"]
+    take = read_take(line["path"])  # readable: the take keeps the stream's declared 60 fps
+    assert take.meta.fps == 60.0 and line["frames"] - line["dropped_frames"] == 44
+    assert line["dropped_frames"] <= st.MAX_DROPPED_PER_FRAME * 44 + st.MAX_GAP_S * 60
     # An ordinary lossy stream is still filled.
     rec = _record(tmp_path, "ok", _packets("LOSSY", "iPhone", [f for f in range(100, 400) if f % 3]))
     (line,) = build_takes(rec.session_dir, tmp_path)
