@@ -269,10 +269,15 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
     """Write ``take`` as ``out_dir/<id>/`` atomically; returns the folder.
 
     The folder is assembled under a hidden temporary name in ``out_dir`` and renamed into place.
-    Metadata holding NaN or infinity (not JSON) and folders that cannot be written are ``InputError``s.
+    Metadata holding NaN or infinity (not JSON), a frame rate ``read_meta`` would refuse and folders
+    that cannot be written are ``InputError``s.
     """
     out_dir = make_out_dir(out_dir)
     target = out_dir / safe_id(take.meta.id)
+    if not 0 < take.meta.fps <= MAX_FPS:  # also NaN: never write a take that cannot be read back
+        raise InputError(
+            f"take {take.meta.id}: frame rate {take.meta.fps:g} is not in (0, {MAX_FPS:g}]", target
+        )
     if target.exists() and not overwrite:
         raise InputError("take exists already (use overwrite)", target)
     try:

@@ -176,3 +176,16 @@ def test_safe_id_keeps_long_ids_short_and_apart():
     assert len(safe_id(long_a).encode()) <= MAX_ID_BYTES and safe_id(long_a) != safe_id(long_b)
     assert len(safe_id("é" * 200).encode()) <= MAX_ID_BYTES  # two bytes per letter in UTF-8
     assert safe_id("Phone A/../x") == "Phone_A_.._x" and safe_id("...") == "take"
+
+
+def test_a_take_whose_frame_rate_could_not_be_read_back_is_not_written(tmp_path):
+    import math
+
+    from capture.take import MAX_FPS
+
+    take = small_take()
+    for fps in (0.0, -60.0, math.nan, MAX_FPS * 2):
+        take.meta.fps = fps
+        with pytest.raises(InputError, match="frame rate"):
+            write_take(take, tmp_path)
+    assert not any(tmp_path.iterdir())
