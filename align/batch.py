@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from capture import InputError, S2AError, find_takes, read_meta, read_take, write_take
-from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, make_out_dir, safe_id, sha256_file
+from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
 
 from .aligner import ALIGN_VERSION, align_with_report
 from .options import AlignOptions
@@ -179,7 +179,11 @@ def align_takes(
     opts = options or AlignOptions()
     opts.validate()
     out_dir = Path(out_dir)
-    folders = [f for f in find_takes(paths) if out_dir.resolve() not in f.resolve().parents]
+    out = out_dir.resolve()
+    # not into an input folder itself (its takes would be skipped as output) nor into a take folder
+    if any(out == Path(p).resolve() for p in paths) or any(is_take_dir(d) for d in (out, *out.parents)):
+        raise InputError("the output folder is an input folder or inside a take: choose another -o", out_dir)
+    folders = [f for f in find_takes(paths) if out not in f.resolve().parents]
     folders = list({f.resolve(): f for f in folders}.values())  # a take named twice is aligned once
     if not folders:
         raise InputError(f"no takes found under {', '.join(map(str, paths))}")

@@ -366,3 +366,15 @@ def test_content_confidence_rests_on_the_overlap_not_the_audio(tmp_path):
     (report,) = map(json.loads, proc.stdout.splitlines())
     assert report["chosen"]["detail"]["seconds"] == pytest.approx(1.5, abs=0.1)
     assert report["offset_confidence"] < 0.3 and "low_confidence" in report["flags"]
+
+
+def test_align_output_into_an_input_folder_or_a_take_is_refused(take_dir, tmp_path):
+    takes = tmp_path / "takes"
+    run_cli("capture", "import", take_dir, "-o", takes, check=True)
+    (take,) = list(takes.iterdir())
+    for out in (takes, take, take / "aligned"):
+        proc = run_cli("align", takes, "-o", out, "--vad", "none")
+        one_line_error(proc, "the output folder is an input folder or inside a take")
+    assert not (take / "aligned").exists()
+    proc = run_cli("align", takes, "-o", tmp_path / "al", "--vad", "none")
+    assert proc.returncode == 0, proc.stderr
