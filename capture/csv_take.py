@@ -404,6 +404,13 @@ def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[flo
     return round(rate, 3), period
 
 
+def missing_frames(times: np.ndarray, period: float) -> np.ndarray:
+    """The DROPPED frames each gap between consecutive ``times`` needs: gaps longer than 1.5 frame
+    periods, rounded to whole periods (float, so that a corrupt clock's huge gap cannot overflow)."""
+    steps = np.diff(times)
+    return np.where(steps > 1.5 * period, np.rint(steps / period) - 1, 0.0)
+
+
 def fill_dropped(
     times: np.ndarray, values: np.ndarray, status: np.ndarray, period: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -414,7 +421,7 @@ def fill_dropped(
     if times.size < 2:
         return times, values, status, 0
     steps = np.diff(times)
-    missing = np.where(steps > 1.5 * period, np.rint(steps / period).astype(np.int64) - 1, 0)
+    missing = missing_frames(times, period).astype(np.int64)
     total = int(missing.sum())
     if total == 0:
         return times, values, status, 0

@@ -28,7 +28,7 @@ from .audio_io import Audio, write_audio
 from .channels import ARKIT61, canonical, is_known
 from .csv_take import start_seconds_of_day
 from .errors import InputError
-from .take import FrameStatus, Take
+from .take import FrameStatus, Take, make_out_dir
 
 
 @dataclass
@@ -147,10 +147,7 @@ def write_audio_out(path: str | Path, audio: Audio) -> None:
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder: --audio-out needs a file name", path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create the output's folder ({exc.strerror})", path.parent) from None
+    make_out_dir(path.parent)
     try:
         write_audio(path, audio)
     except OSError as exc:

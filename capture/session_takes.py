@@ -35,7 +35,7 @@ from . import livelink as ll
 from .atomic import write_json_atomic
 from .audio_capture import read_audio_log
 from .channels import ARKIT61
-from .csv_take import detect_fps, fill_dropped
+from .csv_take import detect_fps, fill_dropped, missing_frames
 from .errors import InputError, S2AError
 from .record_log import LogReader, RecordType
 from .recorder import (
@@ -204,12 +204,6 @@ def _recordings(frame_time: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
-def _dropped_needed(t: np.ndarray, period: float) -> float:
-    """How many DROPPED frames ``fill_dropped(t, ..., period)`` would insert (float: never overflows)."""
-    steps = np.diff(t)
-    return float(np.where(steps > 1.5 * period, np.rint(steps / period) - 1, 0.0).sum())
-
-
 def stream_takes(
     log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
 ) -> tuple[list[Take], dict]:
@@ -301,7 +295,7 @@ def _segment_take(
     # Bound what a frame clock can make us allocate: DROPPED frames at most MAX_DROPPED_PER_FRAME per
     # received frame plus MAX_GAP_S at the stream's rate; past that the gaps stay jumps in time.
     budget = MAX_DROPPED_PER_FRAME * t.size + MAX_GAP_S * rate_num / rate_den
-    needed = _dropped_needed(t, period)
+    needed = float(missing_frames(t, period).sum())
     if needed <= budget:
         t_full, v_full, s_full, inserted = fill_dropped(t, values, status, period)
     else:

@@ -257,11 +257,13 @@ def make_out_dir(out_dir: str | Path) -> Path:
     is a file or cannot be created."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("output folder is a file", out_dir)
+        raise InputError(
+            "cannot create the output's folder: the output folder is a file, not a folder", out_dir
+        )
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from None
+        raise InputError(f"cannot create the output's folder ({exc.strerror or exc})", out_dir) from None
     return out_dir
 
 

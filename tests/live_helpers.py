@@ -5,13 +5,16 @@ from __future__ import annotations
 import json
 import re
 import signal
+import socket
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 
-from capture import ARKIT61, Audio, FrameStatus, Take, TakeMeta
+from capture import ARKIT61, Audio, FrameStatus, LiveRecorder, Take, TakeMeta
 
 START_S = 10 * 3600 + 0.3 / 60  # 10:00:00 plus 0.3 frames at 60 fps
 
@@ -73,3 +76,21 @@ def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "capture", *args], capture_output=True, text=True, timeout=timeout
     )
+
+
+def record_packets(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecorder:
+    """Run a recorder on loopback, send it ``packets`` (paced), stop it and return it."""
+    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
+    _, port = rec.open()
+    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
+    runner.start()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i, p in enumerate(packets):
+            s.sendto(p, ("127.0.0.1", port))
+            if i % 200 == 199:
+                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
+    time.sleep(0.5)
+    rec.request_stop()
+    runner.join()
+    rec.close()
+    return rec

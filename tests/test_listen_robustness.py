@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import run_cli
+from live_helpers import record_packets, run_cli
 
 import capture.livelink as ll
 import capture.session_takes as st
@@ -23,23 +23,6 @@ from capture import FrameStatus, LiveRecorder, build_takes, read_take
 from capture.livelink import frame_block, header_bytes
 
 VALS = np.linspace(-0.5, 1.0, 61).astype(np.float32)
-
-
-def _record(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecorder:
-    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
-    _, port = rec.open()
-    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
-    runner.start()
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i, p in enumerate(packets):
-            s.sendto(p, ("127.0.0.1", port))
-            if i % 200 == 199:
-                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
-    time.sleep(0.5)
-    rec.request_stop()
-    runner.join()
-    rec.close()
-    return rec
 
 
 def _packets(device: str, subject: str, frames, num: int = 60, sub_frames=None, values=VALS) -> list[bytes]:
@@ -59,7 +42,7 @@ HOSTILE_FRAMES = [*range(20), *range(200_000, 200_020)]  # at 20 MHz: 0.01 s apa
 def test_implausible_rate_is_rejected_on_arrival(tmp_path):
     packets = _packets("HOSTILE", "x", HOSTILE_FRAMES, num=20_000_000)
     packets += _packets("HOSTILE2", "x", range(20), num=0) + _packets("GOOD", "iPhone", range(100, 130))
-    rec = _record(tmp_path, "r", packets)
+    rec = record_packets(tmp_path, "r", packets)
     assert rec.rejected["bad_rate"] == 60 and rec.accepted == 30
     lines = build_takes(rec.session_dir, tmp_path)
     assert list(_by_name(lines)) == ["r_iPhone_GOOD"] and lines[0]["frames"] == 30
@@ -68,9 +51,9 @@ def test_implausible_rate_is_rejected_on_arrival(tmp_path):
 def test_recover_of_an_old_log_with_an_implausible_rate(tmp_path, monkeypatch):
     # A log written before the recorder bounded the rate: the builder drops those frames itself.
     monkeypatch.setattr(ll, "MAX_RATE_FPS", 10**9)
-    rec = _record(tmp_path, "old", _packets("HOSTILE", "x", HOSTILE_FRAMES, num=20_000_000))
+    rec = record_packets(tmp_path, "old", _packets("HOSTILE", "x", HOSTILE_FRAMES, num=20_000_000))
     monkeypatch.undo()
-    rec2 = _record(tmp_path, "old2", _packets("GOOD", "iPhone", range(100, 130)))
+    rec2 = record_packets(tmp_path, "old2", _packets("GOOD", "iPhone", range(100, 130)))
     assert rec.accepted == 40 and rec2.accepted == 30
     r = run_cli("recover", str(tmp_path), "--json")
     assert r.returncode == 0, r.stderr
@@ -84,13 +67,13 @@ def test_sub_frames_cannot_make_the_gaps_huge(tmp_path):
     # (the fill's step) is then 1/60000 s, and one 2 s gap alone would take 120,000 DROPPED frames.
     frames = [*range(22), *range(142, 164)]
     subs = [0.999 if i % 2 == 0 else 0.0 for i in range(len(frames))]
-    rec = _record(tmp_path, "sf", _packets("TRICK", "iPhone", frames, sub_frames=subs))
+    rec = record_packets(tmp_path, "sf", _packets("TRICK", "iPhone", frames, sub_frames=subs))
     (line,) = build_takes(rec.session_dir, tmp_path)
     take = read_take(line["path"])  # readable: the take keeps the stream's declared 60 fps
     assert take.meta.fps == 60.0 and line["frames"] - line["dropped_frames"] == 44
     assert line["dropped_frames"] <= st.MAX_DROPPED_PER_FRAME * 44 + st.MAX_GAP_S * 60
     # An ordinary lossy stream is still filled.
-    rec = _record(tmp_path, "ok", _packets("LOSSY", "iPhone", [f for f in range(100, 400) if f % 3]))
+    rec = record_packets(tmp_path, "ok", _packets("LOSSY", "iPhone", [f for f in range(100, 400) if f % 3]))
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frames"] == 299 and line["dropped_frames"] == 99
 
@@ -99,7 +82,7 @@ def test_a_take_that_cannot_be_built_does_not_lose_the_others(tmp_path, monkeypa
     packets = _packets("BAD", "iPhone", range(100, 130), values=VALS + 7) + _packets(
         "GOOD", "iPhone", range(30)
     )
-    rec = _record(tmp_path, "m", packets)
+    rec = record_packets(tmp_path, "m", packets)
     fill = st.fill_dropped
 
     def fill_or_fail(t, values, status, period):
@@ -121,7 +104,7 @@ def test_colliding_take_names_never_overwrite(tmp_path):
         "ABCDEFGH-2222", "Phone_A", range(40)
     )
     packets += _packets("ABCDEFGH-3333", "Phone A", range(50), values=VALS + 1)
-    lines = build_takes(_record(tmp_path, "c", packets).session_dir, tmp_path)
+    lines = build_takes(record_packets(tmp_path, "c", packets).session_dir, tmp_path)
     got = {name: read_take(x["path"]) for name, x in _by_name(lines).items()}
     assert {n: (t.meta.device, t.time.size) for n, t in got.items()} == {
         "c_Phone_A_ABCDEFGH": ("ABCDEFGH-1111", 30),
@@ -141,7 +124,7 @@ def test_restarted_frame_counter_starts_a_new_take(tmp_path):
     late = [5120]  # one packet more than the restart window late: not a restart
     packets = _packets("DEV", "iPhone", first[:140] + late + first[140:])
     packets += _packets("DEV", "iPhone", range(10, 310), values=VALS + 1)  # the app restarted
-    lines = build_takes(_record(tmp_path, "rs", packets).session_dir, tmp_path)
+    lines = build_takes(record_packets(tmp_path, "rs", packets).session_dir, tmp_path)
     one, two = (read_take(x["path"]) for x in lines)
     assert [x["path"].rsplit("/", 1)[1] for x in lines] == ["rs_iPhone_DEV_1", "rs_iPhone_DEV_2"]
     assert (
@@ -193,7 +176,9 @@ def test_unwritable_output_folder_is_one_line(tmp_path):
     r = run_cli("listen", "-o", str(blocker), "--port", "0", "--duration", "1")
     assert r.returncode == 1 and "Traceback" not in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
     assert r.stderr.startswith(f"s2a-capture: error: {blocker}/") and "session log" in r.stderr
-    rec = _record(tmp_path, "w", _packets("A", "iPhone", range(30)) + _packets("B", "iPhone", range(30)))
+    rec = record_packets(
+        tmp_path, "w", _packets("A", "iPhone", range(30)) + _packets("B", "iPhone", range(30))
+    )
     r = run_cli("recover", str(rec.session_dir), "-o", str(blocker / "takes"))
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
     takes = [x for x in r.stderr.splitlines() if x.startswith(("A / iPhone: ", "B / iPhone: "))]

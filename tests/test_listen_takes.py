@@ -8,6 +8,7 @@ import threading
 import time
 
 import numpy as np
+from live_helpers import record_packets
 
 from capture import FrameStatus, LiveRecorder, build_takes, read_take
 from capture.livelink import frame_block, header_bytes, no_face_packet
@@ -51,23 +52,6 @@ def test_streams_segments_and_rejections(tmp_path):
     assert bob.meta.extra["first_frame_number"] == 7000
 
 
-def _record(tmp_path, session_id: str, packets: list[bytes]):
-    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
-    _, port = rec.open()
-    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
-    runner.start()
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i, p in enumerate(packets):
-            s.sendto(p, ("127.0.0.1", port))
-            if i % 200 == 199:
-                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
-    time.sleep(0.5)
-    rec.request_stop()
-    runner.join()
-    rec.close()
-    return rec
-
-
 def test_no_face_packets_inside_and_between_takes(tmp_path):
     vals = np.linspace(-0.5, 1.0, 61).astype(np.float32)
     face = header_bytes("PHONE-A", "Alice")
@@ -80,7 +64,7 @@ def test_no_face_packets_inside_and_between_takes(tmp_path):
         for i, k in enumerate(kinds)
     ]
     packets += [no_face_packet("PHONE-B", "Bob", 7000 + i, 0.0, 60, 1) for i in range(30)]  # never a face
-    rec = _record(tmp_path, "nf", packets)
+    rec = record_packets(tmp_path, "nf", packets)
     assert rec.accepted == len(packets) and sum(rec.rejected.values()) == 0
     lines = build_takes(rec.session_dir, tmp_path)
     assert [line["path"].rsplit("/", 1)[1] for line in lines] == ["nf_Alice_PHONE-A_1", "nf_Alice_PHONE-A_2"]
@@ -109,7 +93,7 @@ def test_rows_spilled_to_disk_give_the_same_takes(tmp_path, monkeypatch):
         else header_bytes(f"P{i % 3}", "iPhone") + frame_block(i, 0.0, 60, 1, vals + i)
         for i in range(300)
     ]
-    rec = _record(tmp_path, "s2", packets)
+    rec = record_packets(tmp_path, "s2", packets)
     in_memory = build_takes(rec.session_dir, tmp_path / "a")
     monkeypatch.setattr(st, "SPILL_BYTES", 1000)
     spilled = build_takes(rec.session_dir, tmp_path / "b")

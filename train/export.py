@@ -19,6 +19,7 @@ from torch import nn
 
 from capture.command import progress
 from capture.errors import InputError, S2AError
+from capture.take import make_out_dir
 
 from .checkpoint import load_system
 from .data import InputSpec
@@ -103,10 +104,7 @@ def export_onnx(
     out = Path(out)
     if out.is_dir():
         raise InputError("output path is a folder: give the ONNX file to write", out)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create the output folder: {exc.strerror}", out.parent) from None
+    make_out_dir(out.parent)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         torch.onnx.export(

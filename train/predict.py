@@ -19,7 +19,7 @@ from align.resample import to_16k_mono
 from capture import Take, TakeMeta, read_audio, write_livelink_csv
 from capture.command import progress
 from capture.errors import InputError
-from capture.take import sha256_file
+from capture.take import make_out_dir, sha256_file
 from dataset.features import FeatureSettings, compute_features
 from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
@@ -104,10 +104,7 @@ def predict(
     out = Path(out)
     single = len(audios) == 1 and out.suffix.lower() == ".csv" and not out.is_dir()
     folder = out.parent if single else out
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create the output folder: {exc.strerror}", folder) from None
+    make_out_dir(folder)
     paths = csv_paths(audios, out, single)
     results = []
     for a, path in zip(map(Path, audios), paths):

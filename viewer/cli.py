@@ -10,6 +10,7 @@ from pathlib import Path
 
 from capture.command import emit_json, progress, run
 from capture.errors import InputError
+from capture.take import make_out_dir
 
 from .plot import VAD_METHODS
 
@@ -148,14 +149,6 @@ def _face(spec: str):
     return builtin_face() if spec == "builtin" else load_gltf(spec)
 
 
-def _out_folder(out: Path) -> None:
-    """Create the folder an output goes in (as every s2a-view command does)."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create the output's folder ({exc.strerror})", out.parent) from None
-
-
 def cmd_render(args: argparse.Namespace) -> int:
     from .probe import probe
     from .render import (
@@ -179,7 +172,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise InputError(f"--size must be in 16..4096, not {args.size}")
     if suffix == ".mp4" and (args.frame is not None or args.time is not None):
         raise InputError("--frame/--time pick one frame for a PNG; an MP4 has them all")
-    _out_folder(args.out)
+    make_out_dir(args.out.parent)
     anims = [load_animation(args.input, args.audio)]
     anims += [load_animation(c) for c in args.compare]
     paths = [args.input, *args.compare]
@@ -284,7 +277,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         anims.append(load_animation(path, args.audio if i == 0 else None, labels[i] if labels else None))
     for a in anims[1:]:
         a.offset_s = place_on_parent_clock(anims[0], a)
-    _out_folder(args.out)
+    make_out_dir(args.out.parent)
     summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
     if args.json:
         emit_json(summary)
@@ -322,7 +315,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise InputError("the report is written as .html", args.out)
     if not args.dataset.exists():
         raise InputError("no such dataset or folder", args.dataset)
-    _out_folder(args.out)
+    make_out_dir(args.out.parent)
     summary = write_report(args.dataset, args.out, args.takes, args.limit)
     if args.json:
         emit_json(summary)
@@ -337,7 +330,7 @@ def cmd_export_face(args: argparse.Namespace) -> int:
     from .face import builtin_face
     from .gltf import write_glb
 
-    _out_folder(args.out)
+    make_out_dir(args.out.parent)
     model = builtin_face()
     out = write_glb(model, args.out, args.names)
     summary = {

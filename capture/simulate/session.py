@@ -31,7 +31,7 @@ from ..channels import ARKIT61, PRONUNCIATION32
 from ..csv_take import write_livelink_csv
 from ..errors import InputError
 from ..mov import write_reference_mov
-from ..take import FrameStatus, Take, TakeMeta
+from ..take import FrameStatus, Take, TakeMeta, make_out_dir
 from ..textgrid import TextGrid, interval_tier, write_textgrid
 from ..timecode import CSV_TIMECODE_RATE, Timecode
 from .articulation import Articulation, articulate
@@ -289,7 +289,7 @@ def write_frame_log(sim: SimulatedTake, path: Path) -> None:
 def write_take_folder(sim: SimulatedTake, out_dir: str | Path) -> Path:
     """Write ``sim`` as a Live Link Face take folder ``out_dir/<YYYYMMDD>_<slate>_<take>/``."""
     out_dir = Path(out_dir)
-    _make_out_folder(out_dir)
+    make_out_dir(out_dir)
     target = out_dir / sim.folder_name
     # Assembled under a hidden name and renamed into place: no half-written take, no stale files.
     try:
@@ -298,15 +298,6 @@ def write_take_folder(sim: SimulatedTake, out_dir: str | Path) -> Path:
     except OSError as exc:
         raise InputError(f"cannot write the take folder ({exc.strerror or exc})", target) from None
     return target
-
-
-def _make_out_folder(out_dir: Path) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("exists and is not a folder: -o needs a folder", out_dir)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create the output folder ({exc.strerror or exc})", out_dir) from None
 
 
 def _write_files(sim: SimulatedTake, folder: Path) -> None:
@@ -420,7 +411,7 @@ def simulate(
     audio rate (Hz). The same arguments and seed give byte-identical folders.
     """
     specs = plan_session(speakers, takes, seconds, fps, language, seed, sample_rate, artifacts, mov)
-    _make_out_folder(Path(out_dir))  # before the first take is simulated
+    make_out_dir(Path(out_dir))  # before the first take is simulated
     summaries = []
     for spec in specs:
         sim = simulate_take(spec)
