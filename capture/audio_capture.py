@@ -229,6 +229,8 @@ def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str
     tail: TornTail | None = reader.torn_tail
     if tail is not None:
         report["torn_tail"] = tail.to_json()
+    if reader.skipped:
+        report["log_damage"] = [d.to_json() for d in reader.skipped]
     if fmt is None or not chunks:
         return None, None, report
     dtype = _DTYPES.get(fmt.get("subtype"), np.dtype("<f4"))

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .command import emit_json, progress, run
-from .csv_take import write_livelink_csv
+from .csv_take import nonfinite_frames, write_livelink_csv
 from .errors import InputError, S2AError
 from .importer import AUDIO_PAIRINGS, find_sources, import_source
 from .live_cli import register as register_live
@@ -31,9 +31,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("sources", nargs="*", type=Path, help="CSV files, take folders, or folders of them")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the takes into")
     p.add_argument("--audio", type=Path, help="audio recorded elsewhere (WAV/FLAC/MP3/M4A) for one CSV")
-    p.add_argument("--matrix", type=Path, help="generic import: frames x channels weights (.npy or .csv)")
+    p.add_argument(
+        "--matrix",
+        type=Path,
+        help="generic import: frames x channels weights (.npy, .csv, or an Audio2Face blendshape .json)",
+    )
     p.add_argument("--names", type=Path, help="generic import: channel names (.txt one per line, or .npy)")
-    p.add_argument("--fps", type=float, help="generic import: frame rate of the matrix")
+    p.add_argument("--fps", type=float, help="generic import: frame rate (a .json gives its own)")
     p.add_argument("--id", dest="take_id", help="take id (default: from the source's name)")
     p.add_argument(
         "--variant",
@@ -92,8 +96,11 @@ def cmd_import(args: argparse.Namespace) -> int:
     if args.matrix is not None:
         if args.sources:
             raise InputError("give either sources or --matrix, not both")
-        if args.audio is None or args.fps is None:
-            raise InputError("--matrix needs --audio and --fps (and --names unless the CSV has a header)")
+        if args.audio is None or (args.fps is None and args.matrix.suffix.lower() != ".json"):
+            raise InputError(
+                "--matrix needs --audio and --fps (and --names unless the CSV has a header; "
+                "an Audio2Face .json export gives both)"
+            )
         jobs = [("matrix", args.matrix)]
     else:
         if not args.sources:
@@ -193,7 +200,10 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise InputError(f"cannot write the CSV: {exc.strerror or exc}", args.out) from None
     rows = int((take.frame_status != FrameStatus.DROPPED).sum())
-    summary = {"id": take.meta.id, "path": str(out), "rows": rows}
+    bad = int(nonfinite_frames(take).sum())
+    if bad:
+        progress(f"warning: {take.meta.id}: {bad} frames with NaN/inf values written as face-lost rows")
+    summary = {"id": take.meta.id, "path": str(out), "rows": rows, "nonfinite_rows": bad}
     if args.json:
         emit_json(summary)
     else:

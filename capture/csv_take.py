@@ -534,6 +534,30 @@ def start_seconds_of_day(take: Take) -> float:
     return float(t0)
 
 
+def _csv_columns(take: Take) -> tuple[list[str], list[int | None]]:
+    """The CSV's value columns in the app's order, and for each the take's column (None: missing)."""
+    csv_info = take.meta.csv or {}
+    out_names = list(ch.CSV_ORDER)
+    # Undo an import-time label swap so that the written file matches the source column for column.
+    label_names = ch.swap_left_right(ch.ARKIT61) if csv_info.get("swapped_left_right") else list(ch.ARKIT61)
+    canon_to_col = {}
+    for j, name in enumerate(take.meta.channels):
+        if ch.is_known(name):
+            canon_to_col[ch.canonical(name)] = j
+    return out_names, [canon_to_col.get(ch.canonical(label_names[ch.udp_index(n)])) for n in out_names]
+
+
+_WITH_VALUES = (int(FrameStatus.TRACKED), int(FrameStatus.INTERPOLATED))
+
+
+def nonfinite_frames(take: Take) -> np.ndarray:
+    """Frames ``write_livelink_csv`` would write with values but which hold a NaN or infinite value in
+    a written channel: it writes them as ``<timecode>,0`` rows instead (boolean mask)."""
+    cols = [j for j in _csv_columns(take)[1] if j is not None]
+    finite = np.isfinite(take.values[:, cols]).all(axis=1)
+    return np.isin(take.frame_status, _WITH_VALUES) & ~finite
+
+
 def write_livelink_csv(
     take: Take,
     path: str | Path,
@@ -546,28 +570,15 @@ def write_livelink_csv(
     timecode plus frame time, tracked frames and the frames ``s2a-align`` interpolated across short gaps
     with their values (they are usable, and Epic's importer stops at the first face-lost row), face-lost
     and other invalid frames as ``<timecode>,0`` rows, dropped frames left out (as the app does).
+    A frame with a NaN or infinite value in a written channel is a ``<timecode>,0`` row too
+    (``nonfinite_frames``): the app never writes a partial row, and a ``nan`` cell is not its format.
     Channels the take lacks are written as ``fill_missing`` (or raise if ``None``). ``count_name``
     defaults to the spelling of the source file, else ``BlendShapeCount``.
     """
     path = Path(path)
-    csv_info = take.meta.csv or {}
-    count_name = count_name or csv_info.get("count_name") or COUNT_NAMES[0]
-    swapped = bool(csv_info.get("swapped_left_right"))
-    out_names = list(ch.CSV_ORDER)
-    # Undo an import-time label swap so that the written file matches the source column for column.
-    label_names = ch.swap_left_right(ch.ARKIT61) if swapped else list(ch.ARKIT61)
-    canon_to_col = {}
-    for j, name in enumerate(take.meta.channels):
-        if ch.is_known(name):
-            canon_to_col[ch.canonical(name)] = j
-    cols = []
-    missing = []
-    for name in out_names:
-        src = label_names[ch.udp_index(name)]
-        j = canon_to_col.get(ch.canonical(src))
-        if j is None:
-            missing.append(name)
-        cols.append(j)
+    count_name = count_name or (take.meta.csv or {}).get("count_name") or COUNT_NAMES[0]
+    out_names, cols = _csv_columns(take)
+    missing = [name for name, j in zip(out_names, cols) if j is None]
     if missing and fill_missing is None:
         raise InputError(f"take lacks channels for a Live Link Face CSV: {missing}")
     block = np.full((take.time.size, len(out_names)), fill_missing or 0.0, dtype=np.float32)
@@ -576,8 +587,8 @@ def write_livelink_csv(
             block[:, k] = take.values[:, j]
     t0 = start_seconds_of_day(take)
     row_fmt = "%s," + str(len(out_names)) + "," + ",".join(["%.10f"] * len(out_names)) + "\n"
-    with_values = (int(FrameStatus.TRACKED), int(FrameStatus.INTERPOLATED))
     dropped = int(FrameStatus.DROPPED)
+    usable = (np.isin(take.frame_status, _WITH_VALUES) & ~nonfinite_frames(take)).tolist()
     status, times = take.frame_status.tolist(), (t0 + take.time).tolist()
     with atomic_write(path, "w", encoding="ascii", newline="") as f:
         f.write("Timecode," + count_name + "," + ",".join(out_names) + "\n")
@@ -587,6 +598,6 @@ def write_livelink_csv(
                 if status[i] == dropped:
                     continue
                 tc = Timecode.from_seconds(times[i]).format()
-                lines.append(row_fmt % (tc, *row) if status[i] in with_values else tc + ",0\n")
+                lines.append(row_fmt % (tc, *row) if usable[i] else tc + ",0\n")
             f.writelines(lines)
     return path

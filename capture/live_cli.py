@@ -142,6 +142,10 @@ def _report(summaries: list[dict], as_json: bool) -> None:
         )
         if "torn_tail" in s:
             progress(f"  torn log tail discarded: {s['torn_tail']}")
+        for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
+            if s.get(key):
+                lost = sum(d["bytes_discarded"] for d in s[key])
+                progress(f"  warning: {len(s[key])} damaged stretch(es) of the {what} skipped ({lost} bytes)")
 
 
 def _status_line(counts: dict) -> None:

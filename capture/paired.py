@@ -3,10 +3,15 @@
 Frame ``i`` covers ``[i/F, (i+1)/F)`` seconds from the start of the audio, so its time is ``i/F``.
 Channel names are kept as given (a rig's own controls, e.g. FACEGOOD's 116); names of Live Link
 channels in any spelling are mapped to the toolkit's canonical ARKit names.
+
+The matrix is a ``.npy`` array, a CSV (optional header row of names) or the blendshape JSON that
+NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``, ``facsNames``, ``weightMat``;
+its joint tracks are not face weights and are left out), which carries its own names and rate.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 from pathlib import Path
@@ -53,14 +58,45 @@ def read_names(path: str | Path) -> list[str]:
     return names
 
 
-def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None]:
-    """Frames x channels weights from ``.npy`` (never unpickled) or ``.csv`` (optional header row)."""
+def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
+    """Weights, pose names and frame rate of an Audio2Face blendshape export (JSON)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8-sig"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"not a JSON file ({exc})", path) from None
+    if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
+        raise InputError("not an Audio2Face blendshape export (no weightMat and facsNames)", path)
+    names, rows, fps = data["facsNames"], data["weightMat"], data.get("exportFps")
+    if not isinstance(names, list) or not all(isinstance(n, str) and n.strip() for n in names):
+        raise InputError("facsNames must be a list of names", path)
+    if not isinstance(rows, list) or not rows:
+        raise InputError("weightMat must be a non-empty list of frames", path)
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != len(names):
+            got = f"{len(row)} values" if isinstance(row, list) else type(row).__name__
+            raise InputError(f"weightMat[{i}] holds {got}, facsNames {len(names)} names", path)
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row):
+            raise InputError(f"weightMat[{i}] holds a value that is not a number", path)
+    for key, want in (("numFrames", len(rows)), ("numPoses", len(names))):
+        got = data.get(key)
+        if got is not None and got != want:
+            raise InputError(f"{key} is {got!r} but the file holds {want}", path)
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float))):
+        raise InputError(f"exportFps must be a number, not {fps!r}", path)
+    return np.array(rows, dtype=np.float64), [n.strip() for n in names], fps
+
+
+def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
+    """Frames x channels weights from ``.npy`` (never unpickled), ``.csv`` (optional header row) or an
+    Audio2Face ``.json`` export; with the names and frame rate the file gives (else None)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("matrix file not found", path)
-    header = None
+    header = fps = None
     if path.suffix.lower() == ".npy":
         m = load_npy(path)
+    elif path.suffix.lower() == ".json":
+        m, header, fps = read_a2f_json(path)
     else:
         rows: list[list[float]] = []
         text = path.read_text(encoding="utf-8-sig", errors="replace")
@@ -84,20 +120,28 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None]:
         raise InputError(f"expected a 2-D numeric frames x channels matrix, got {m.dtype} {m.shape}", path)
     if m.shape[0] == 0:
         raise InputError("matrix has no frames", path)
-    return m, header
+    return m, header, fps
 
 
 def read_paired(
     audio_path: str | Path,
     matrix_path: str | Path,
-    fps: float,
+    fps: float | None,
     names_path: str | Path | None = None,
     take_id: str | None = None,
 ) -> Take:
-    """A take from audio + weight matrix + names at ``fps`` frames per second."""
-    if fps is None or not 0 < fps < math.inf:  # also NaN
+    """A take from audio + weight matrix + names at ``fps`` frames per second (None: the rate the
+    matrix file gives, as an Audio2Face export does)."""
+    if fps is not None and not 0 < fps < math.inf:  # also NaN
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
-    matrix, header = read_matrix(matrix_path)
+    matrix, header, file_fps = read_matrix(matrix_path)
+    if file_fps is not None and fps is not None and not math.isclose(file_fps, fps, rel_tol=1e-6):
+        raise InputError(f"--fps {fps:g} but the file says {file_fps:g} frames per second", matrix_path)
+    fps = fps if fps is not None else file_fps
+    if fps is None:
+        raise InputError("no frame rate: give --fps", matrix_path)
+    if not 0 < fps < math.inf:
+        raise InputError(f"the file's frame rate must be positive, not {fps}", matrix_path)
     if names_path is not None:
         names = read_names(names_path)
     elif header is not None:

@@ -141,6 +141,7 @@ class SessionLog:
         if self._spill_dir is not None:
             self._spill()
         self.torn_tail = reader.torn_tail
+        self.damage = reader.skipped
         origin = self.session.get("clock", {}).get("origin_ns")
         if origin is None:
             # Killed before the session record reached the disk: use the first stamp as the origin.
@@ -411,8 +412,12 @@ def build_takes(
         common["datagrams"] = common["accepted"] + sum(log.rejected.values())
     if log.torn_tail is not None:
         common["torn_tail"] = log.torn_tail.to_json()
+    if log.damage:
+        common["log_damage"] = [d.to_json() for d in log.damage]
     if "torn_tail" in audio_report:
         common["audio_torn_tail"] = audio_report["torn_tail"]
+    if "log_damage" in audio_report:
+        common["audio_log_damage"] = audio_report["log_damage"]
     if audio_report.get("gaps"):
         common["audio_gaps"] = len(audio_report["gaps"])
     errors = [
@@ -446,6 +451,8 @@ def build_takes(
                 }
                 if log.torn_tail is not None:
                     take.meta.extra["torn_tail"] = log.torn_tail.to_json()
+                if log.damage:
+                    take.meta.extra["log_damage"] = common["log_damage"]
                 try:
                     folder = write_take(take, out_dir)
                 except (OSError, S2AError) as exc:  # a full disk, a read-only folder: this take only

@@ -12,7 +12,7 @@ from live_helpers import Listener, run_cli, synthetic_take
 
 from capture import FrameStatus, read_take
 from capture.livelink import frame_block, header_bytes
-from capture.record_log import LogReader, RecordType
+from capture.record_log import MAGIC, LogReader, RecordType
 
 RUNS = 10
 RATE = 1000.0  # packets per second sent to the listener
@@ -93,3 +93,34 @@ def test_recover_reports_a_torn_tail(tmp_path):
     assert line["torn_tail"]["reason"] == "incomplete_record"
     assert line["torn_tail"]["bytes_discarded"] == 109
     assert line["frames"] == 120
+
+
+def test_recover_skips_a_damaged_record_mid_log(tmp_path):
+    """A flipped bit in one frame record mid-session costs that frame, not the rest of the take."""
+    take = synthetic_take(120, seed=8)
+    listener = Listener(tmp_path / "out")
+    from capture.replay import replay_take
+
+    replay_take(take, "127.0.0.1", listener.port, speed=20)
+    time.sleep(0.3)
+    listener.kill()
+    log = listener.session_dir / "frames.log"
+    data = bytearray(log.read_bytes())
+    at, frames, damaged = len(MAGIC), 0, None
+    while at < len(data):
+        (length,) = struct.unpack_from("<I", data, at)
+        if data[at + 8] == RecordType.FRAME:
+            frames += 1
+            if frames == 60:
+                damaged = at
+                data[at + 8 + 100] ^= 0x10
+        at += 8 + length
+    log.write_bytes(bytes(data))
+    r = run_cli("recover", str(tmp_path / "out"), "--json")
+    assert r.returncode == 0, r.stderr
+    line = json.loads(r.stdout.splitlines()[0])
+    assert line["log_damage"] == [{"offset": damaged, "bytes_discarded": 8 + 272, "reason": "checksum"}]
+    assert "torn_tail" not in line
+    assert line["frames"] == 120 and line["valid_frames"] == 119 and line["dropped_frames"] == 1
+    back = read_take(line["path"])
+    assert back.meta.extra["log_damage"] == line["log_damage"]

@@ -1,10 +1,12 @@
 """Generic paired import: audio + frames x channels matrix + names + fps, from any rig."""
 
+import json
+
 import numpy as np
 import pytest
 import soundfile as sf
 
-from capture import FrameStatus, InputError, read_paired
+from capture import FrameStatus, InputError, read_paired, read_take
 from tests.conftest import run_cli
 
 
@@ -72,3 +74,74 @@ def test_bad_inputs_give_clear_errors(tmp_path, wav):
 def test_cli_generic_import_needs_its_flags(tmp_path, wav):
     proc = run_cli("capture", "import", "--matrix", tmp_path / "m.npy", "-o", tmp_path / "o")
     assert proc.returncode == 1 and "--matrix needs --audio and --fps" in proc.stderr
+
+
+def _a2f_export(path, frames=45, fps=30, **override):
+    """An Audio2Face blendshape export: ARKit pose names as A2F writes them, weights, joint tracks."""
+    from capture.channels import ARKIT52
+
+    rng = np.random.default_rng(2)
+    data = {
+        "exportFps": fps,
+        "trackPath": "/World/audio2face/Player",
+        "numPoses": 52,
+        "numFrames": frames,
+        "facsNames": list(ARKIT52),
+        "weightMat": rng.uniform(0, 1, (frames, 52)).round(6).tolist(),
+        "joints": ["jaw", "eye_L", "eye_R"],
+        "rotations": [[[0, 0, 0, 1]] * 3] * frames,
+        "translations": [[[0, 0, 0]] * 3] * frames,
+    } | override
+    path.write_text(json.dumps(data))
+    return data
+
+
+def test_audio2face_json_import_takes_names_and_rate_from_the_file(tmp_path, wav):
+    data = _a2f_export(tmp_path / "a2f.json", frames=45, fps=30)
+    proc = run_cli(
+        "capture", "import", "--matrix", tmp_path / "a2f.json", "--audio", wav, "-o", tmp_path / "o", "--json"
+    )
+    assert proc.returncode == 0, proc.stderr
+    take = read_take(json.loads(proc.stdout)["path"])
+    assert take.meta.fps == 30 and take.values.shape == (45, 52)
+    assert take.meta.channels[:3] == ["eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft"]
+    np.testing.assert_allclose(take.values, np.array(data["weightMat"]), atol=1e-6)
+    assert take.time[44] == pytest.approx(44 / 30)
+    # --fps must agree with the file; names from a file replace facsNames
+    with pytest.raises(InputError, match="--fps 60 but the file says 30"):
+        read_paired(wav, tmp_path / "a2f.json", 60)
+    assert read_paired(wav, tmp_path / "a2f.json", 30).meta.fps == 30
+
+
+@pytest.mark.parametrize(
+    "override, needle",
+    [
+        ({"numFrames": 44}, "numFrames is 44 but the file holds 45"),
+        ({"numPoses": 51}, "numPoses is 51 but the file holds 52"),
+        ({"weightMat": [[0.1] * 52] * 10 + [[0.1] * 51]}, r"weightMat\[10\] holds 51 values, facsNames 52"),
+        ({"weightMat": [[0.1] * 51 + ["x"]]}, r"weightMat\[0\] holds a value that is not a number"),
+        ({"weightMat": []}, "weightMat must be a non-empty list"),
+        ({"facsNames": "jawOpen"}, "facsNames must be a list of names"),
+        ({"exportFps": "30"}, "exportFps must be a number"),
+        ({"exportFps": 0}, "frame rate must be positive"),
+        ({"exportFps": None}, "no frame rate: give --fps"),
+    ],
+)
+def test_audio2face_json_errors_name_the_field(tmp_path, wav, override, needle):
+    path = tmp_path / "bad.json"
+    data = _a2f_export(path, frames=45)
+    if "weightMat" in override:
+        data["numFrames"] = None  # so that the rows themselves are checked
+    path.write_text(json.dumps(data | override))
+    with pytest.raises(InputError, match=needle):
+        read_paired(wav, path, None)
+
+
+def test_json_that_is_not_an_audio2face_export(tmp_path, wav):
+    path = tmp_path / "x.json"
+    path.write_text('{"frames": [1, 2]}')
+    with pytest.raises(InputError, match="not an Audio2Face blendshape export"):
+        read_paired(wav, path, 30)
+    path.write_text("{not json")
+    proc = run_cli("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
+    assert proc.returncode == 1 and "not a JSON file" in proc.stderr and "Traceback" not in proc.stderr

@@ -40,17 +40,43 @@ def test_round_trip_and_torn_tail_at_every_cut(tmp_path):
             assert reader.torn_tail is not None and reader.torn_tail.offset == ends[whole]
 
 
-def test_corruption_stops_at_the_bad_record(tmp_path):
+def test_reading_resumes_after_a_damaged_record(tmp_path):
     payloads = [bytes([RecordType.NOTE]) + bytes([i]) * 50 for i in range(10)]
     log = tmp_path / "b.log"
     _write_log(log, payloads)
     data = bytearray(log.read_bytes())
-    data[len(MAGIC) + 5 * 59 + 20] ^= 0xFF  # a bit flip inside the 6th record's payload
-    log.write_bytes(bytes(data) + b"\x00" * 100)
-    reader = LogReader(log)
-    assert [bytes(p) for p in reader] == payloads[:5]
-    assert reader.torn_tail.reason == "checksum"
-    assert reader.torn_tail.bytes_discarded == len(data) + 100 - (len(MAGIC) + 5 * 59)
+    sixth = len(MAGIC) + 5 * 59
+    data[sixth + 20] ^= 0xFF  # a bit flip inside the 6th record's payload
+    log.write_bytes(bytes(data) + b"\x00" * 100)  # and a zeroed tail (a power loss)
+    reader = LogReader(log, block_bytes=64)
+    assert [bytes(p) for p in reader] == payloads[:5] + payloads[6:]
+    (damage,) = reader.skipped
+    assert damage.to_json() == {"offset": sixth, "bytes_discarded": 59, "reason": "checksum"}
+    assert reader.torn_tail.to_json() == {"offset": len(data), "bytes_discarded": 100, "reason": "bad_length"}
+
+
+@pytest.mark.parametrize("where", ["length", "zeros", "garbage"])
+def test_damage_mid_file_costs_only_the_records_it_hits(tmp_path, where):
+    rng = np.random.default_rng(7)
+    payloads = [bytes([RecordType.FRAME]) + rng.bytes(271) for _ in range(400)]
+    log = tmp_path / "c.log"
+    _write_log(log, payloads)
+    data = bytearray(log.read_bytes())
+    at = len(MAGIC) + 100 * 280
+    if where == "length":  # a length field claims more than the rest of the file
+        data[at : at + 4] = (len(data)).to_bytes(4, "little")
+        lost = [100]
+    elif where == "zeros":  # a zeroed 4 KiB block, as a failing disk returns
+        data[at + 17 : at + 17 + 4096] = bytes(4096)
+        lost = list(range(100, 100 + (17 + 4096) // 280 + 1))
+    else:  # random bytes spliced in (another writer's data)
+        data[at:at] = rng.bytes(10_000)
+        lost = []
+    log.write_bytes(bytes(data))
+    reader = LogReader(log, block_bytes=1000)
+    got = [bytes(p) for p in reader]
+    assert got == [p for i, p in enumerate(payloads) if i not in lost]
+    assert reader.torn_tail is None and len(reader.skipped) == 1 and reader.skipped[0].offset == at
 
 
 def test_not_a_log(tmp_path):

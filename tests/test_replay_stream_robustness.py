@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import socket
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from conftest import run_cli
 from live_helpers import synthetic_take
 
-from capture import FrameStatus, Take, write_livelink_csv, write_take
+from capture import FrameStatus, Take, read_livelink_csv, write_livelink_csv, write_take
 from capture import livelink as ll
 from capture.errors import InputError
 from capture.replay import Impairment, replay_take
@@ -148,3 +149,24 @@ def test_cli_errors_are_one_line_before_anything_is_sent(tmp_path, tool, args, n
     assert r.returncode == 1
     assert needle in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_export_csv_writes_nonfinite_frames_as_face_lost_rows(tmp_path):
+    """A hand-edited take with NaN/inf in tracked frames: the CSV holds no `nan` cell or partial row."""
+    take = synthetic_take(30, seed=3)
+    take.values[4, 7] = np.nan
+    take.values[9, 60] = np.inf
+    folder = write_take(take, tmp_path / "takes")
+    r = run_cli("capture", "export-csv", folder, "-o", tmp_path / "x.csv", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["nonfinite_rows"] == 2
+    assert "2 frames with NaN/inf values written as face-lost rows" in r.stderr
+    text = (tmp_path / "x.csv").read_text()
+    assert "nan" not in text.lower() and "inf" not in text.lower()
+    rows = text.splitlines()[1:]
+    assert len(rows) == 30 and rows[4].endswith(",0") and rows[9].endswith(",0")
+    back = read_livelink_csv(tmp_path / "x.csv")
+    lost = np.flatnonzero(back.frame_status == FrameStatus.FACE_LOST)
+    assert lost.tolist() == [4, 9]
+    keep = np.setdiff1d(np.arange(30), lost)
+    np.testing.assert_allclose(back.values[keep], take.values[keep], atol=1e-6)
