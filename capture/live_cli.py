@@ -123,6 +123,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_remote)
 
 
+# What the commonest rejections usually mean, for the line printed when no take was recorded.
+REJECT_HINTS = {
+    "version": "packets that are not Live Link Face version 6: set the app to Live Link (ARKit); "
+    "its MetaHuman Animator mode and UE4-era senders use other protocols",
+    "count": "the app's packets carry 61 values; this sender's count differs",
+    "bad_rate": "a frame rate of 0 or below (e.g. PyLiveLinkFace at 30 fps sends denominator 0)",
+    "not_allowed": "the sender's address is not in --allow",
+}
+
+
 def _report(summaries: list[dict], as_json: bool) -> None:
     for s in summaries:
         if as_json:
@@ -133,6 +143,9 @@ def _report(summaries: list[dict], as_json: bool) -> None:
             continue
         if s.get("path") is None:
             progress(f"no take recorded; rejected datagrams: {s.get('rejected')}")
+            for reason in sorted(s.get("rejected") or {}, key=lambda r: -s["rejected"][r]):
+                if reason in REJECT_HINTS:
+                    progress(f"  {reason}: {REJECT_HINTS[reason]}")
             continue
         progress(
             f"{s['device']} / {s['subject']} -> {s['path']}: {s['frames']} frames, "
@@ -142,6 +155,8 @@ def _report(summaries: list[dict], as_json: bool) -> None:
         )
         if "torn_tail" in s:
             progress(f"  torn log tail discarded: {s['torn_tail']}")
+        if "frame_clock" in s:
+            progress(f"  warning: frames placed by arrival time: {s['frame_clock']['reason']}")
         for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
             if s.get(key):
                 lost = sum(d["bytes_discarded"] for d in s[key])

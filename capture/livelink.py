@@ -44,9 +44,9 @@ VALUES_DTYPE = np.dtype(">f4")
 # Why a datagram was not recorded. Order is the order of the checks.
 REJECT_REASONS: tuple[str, ...] = (
     "not_allowed",  # source address not in the listener's allow-list
+    "version",  # first byte is not 6 (or no byte at all: "short")
     "oversized",  # longer than MAX_PACKET_BYTES
     "short",  # ends before the field being read
-    "version",  # first byte is not 6
     "bad_length",  # a string length is negative or runs past the datagram
     "bad_text",  # device id or subject is not UTF-8
     "count",  # BlendShapeCount is not 61
@@ -135,12 +135,14 @@ def parse_header(data: bytes | bytearray | memoryview, size: int | None = None) 
     ``size`` is the datagram length when ``data`` is a larger receive buffer. Never raises.
     """
     n = len(data) if size is None else size
+    if n < 1:
+        return -1, "short"
+    if data[0] != PACKET_VERSION:  # first: says more than the size (MetaHuman Animator packets are 1-2 KB)
+        return -1, "version"
     if n > MAX_PACKET_BYTES:
         return -1, "oversized"
     if n < 5:
         return -1, "short"
-    if data[0] != PACKET_VERSION:
-        return -1, "version"
     (n1,) = _LEN.unpack_from(data, 1)
     if n1 < 0 or 5 + n1 > n:
         return -1, "bad_length"

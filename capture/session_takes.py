@@ -13,6 +13,12 @@ time and arrival, as the app's face-lost CSV rows), gaps in the frame numbers DR
 bounds what a frame clock can make us allocate. A live stream has no record start or stop, so no-face
 packets before a take's first face or after its last are not part of it (``face_lost_outside_takes``).
 
+A stream whose frame clock cannot be trusted (``frame_clock_problem``: most packets repeat the frame
+time before them, or the frame time jumps back far more often than a phone restarts, as senders
+built on PyLiveLinkFace do, whose frame numbers are milliseconds counted as frames) is placed by
+arrival time instead (``arrival_clock``): packets in arrival order on the declared rate's grid,
+gaps as DROPPED frames; the take's ``meta.extra.frame_clock`` and a ``frame_clock`` repair say so.
+
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
 clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
 fastest), so recorder time ``m`` is take time ``m - offset - frame_time_0``. The audio's first sample,
@@ -55,6 +61,12 @@ MIN_TAKE_FRAMES = 10
 # A frame time this far behind the newest, followed by another one behind, is a restart of the phone's
 # frame clock (a new recording of the stream), not a late packet.
 RESTART_WINDOW_S = 1.0
+# A phone's frame clock restarts rarely: a stream whose frame time jumps back by more than
+# RESTART_WINDOW_S at least MIN_CLOCK_JUMPS times and more than once per CLOCK_JUMP_S of arrival time
+# has a frame clock that says nothing about time, and so does one where most packets repeat the
+# frame time before them.
+MIN_CLOCK_JUMPS = 3
+CLOCK_JUMP_S = 10.0
 # DROPPED frames a take may get per received frame (plus MAX_GAP_S at the stream's rate): past that,
 # as only a corrupt or hostile frame clock needs, the gaps are left unfilled.
 MAX_DROPPED_PER_FRAME = 4
@@ -205,6 +217,32 @@ def _recordings(frame_time: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def frame_clock_problem(frame_time: np.ndarray, arrival_s: np.ndarray) -> str | None:
+    """Why a stream's frame times (in arrival order) cannot place its frames, or None."""
+    n = frame_time.size
+    if n < 2 * MIN_TAKE_FRAMES:
+        return None
+    step = np.diff(frame_time)
+    repeats = int(np.count_nonzero(step == 0))
+    if repeats > step.size / 2:
+        return f"{repeats} of {n} packets repeat the frame time of the packet before them"
+    jumps = int(np.count_nonzero(step < -RESTART_WINDOW_S))
+    span = float(arrival_s[-1] - arrival_s[0])
+    if jumps >= MIN_CLOCK_JUMPS and jumps > span / CLOCK_JUMP_S:
+        return f"the frame time jumps back {jumps} times in {span:.1f} s of arrivals"
+    return None
+
+
+def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:
+    """Frame times from arrival times (in arrival order) on a grid of ``period``: frame ``i`` takes the
+    grid slot nearest its arrival, at least one after the frame before (a burst of packets the network
+    held back fills consecutive slots; a pause leaves empty slots, later DROPPED frames)."""
+    slots = np.rint((arrival_s - arrival_s[0]) / period)
+    # k_i = max(k_{i-1} + 1, slot_i): a running maximum of slot_i - i, plus i.
+    index = np.arange(slots.size)
+    return arrival_s[0] + (np.maximum.accumulate(slots - index) + index) * period
+
+
 def stream_takes(
     log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
 ) -> tuple[list[Take], dict]:
@@ -221,6 +259,12 @@ def stream_takes(
     num = rows["rate_numerator"].astype(np.float64)
     den = rows["rate_denominator"].astype(np.float64)
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
+    numbers = rows["frame_number"].astype(np.int64)
+    problem = frame_clock_problem(frame_time, log.seconds(rows["arrival_ns"]))
+    if problem is not None:
+        report["frame_clock"] = {"placed_by": "arrival", "reason": problem}
+        frame_time = arrival_clock(log.seconds(rows["arrival_ns"]), float(den[0] / num[0]))
+        numbers = np.rint((frame_time - frame_time[0]) * num[0] / den[0]).astype(np.int64)
     recordings = _recordings(frame_time)
     report["restarts"] = len(recordings) - 1
     # Per recording: duplicates dropped, frames put in frame-number order, cut into segments of the
@@ -228,8 +272,7 @@ def stream_takes(
     segments: list[tuple[np.ndarray, np.ndarray]] = []
     face_lost = 0
     for recording in recordings:
-        r, ft = rows[recording], frame_time[recording]
-        fn = r["frame_number"].astype(np.int64)
+        r, ft, fn = rows[recording], frame_time[recording], numbers[recording]
         prior_max = np.maximum.accumulate(fn)
         report["out_of_order"] += int(np.count_nonzero(fn[1:] < prior_max[:-1]))
         # np.unique gives the first occurrence in arrival order of each frame number, sorted.
@@ -257,7 +300,17 @@ def stream_takes(
             continue
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
         try:
-            takes.append(_segment_take(log, info, take_id, r, ft, audio, audio_first_s))
+            take = _segment_take(log, info, take_id, r, ft, audio, audio_first_s)
+            if problem is not None:
+                take.meta.extra["frame_clock"] = report["frame_clock"]
+                take.meta.repairs.append(
+                    {
+                        "line": None,
+                        "kind": "frame_clock",
+                        "message": f"frames placed by arrival time: {problem}",
+                    }
+                )
+            takes.append(take)
         except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
             errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
             continue

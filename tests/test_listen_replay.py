@@ -120,12 +120,13 @@ def _garbage(rng: np.random.Generator, valid: list[bytes]) -> bytes:
         return base[: int(rng.integers(0, len(base)))]
     if kind < 8:  # noise of any size, some oversized
         return rng.bytes(int(rng.integers(0, 3000)))
-    if kind < 9:  # other versions, no-face packets, trailing bytes
+    if kind < 9:  # other versions, no-face packets, trailing bytes, oversized
         return [
             bytes([int(rng.integers(0, 6))]) + base[1:],
             no_face_packet("x", "y", 5, 0.5, 60, 1),
             base + b"\0",
-        ][int(rng.integers(0, 3))]
+            base + rng.bytes(int(rng.integers(800, 3000))),
+        ][int(rng.integers(0, 4))]
     return base
 
 

@@ -265,3 +265,78 @@ def test_stray_streams_give_their_slots_to_a_real_phone(tmp_path, monkeypatch):
     runner.join()
     rec2.close()
     assert rec2.evicted_streams == 0 and rec2.rejected["too_many_streams"] == 40
+
+
+# -- frame clocks that say nothing about time (other senders) ---------------------------------------------
+def _pylivelinkface_frame(t: float) -> int:
+    """The frame number PyLiveLinkFace sends at 60 fps for wall time ``t`` (s): its timecode library is
+    fed hours:minutes:seconds:milliseconds, so milliseconds count as frames, 1-based."""
+    whole = int(t)
+    return whole * 60 + int(round((t - whole) * 1000)) + 1
+
+
+def _send_paced(tmp_path, session_id: str, packets: list[bytes], rate: float) -> LiveRecorder:
+    """Like record_packets, but at ``rate`` packets per second in real time (arrival times matter)."""
+    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
+    _, port = rec.open()
+    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
+    runner.start()
+    start = time.perf_counter()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i, p in enumerate(packets):
+            time.sleep(max(0.0, start + i / rate - time.perf_counter()))
+            s.sendto(p, ("127.0.0.1", port))
+    time.sleep(0.3)
+    rec.request_stop()
+    runner.join()
+    rec.close()
+    return rec
+
+
+@pytest.mark.parametrize("sender", ["pylivelinkface", "frozen"])
+def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, sender):
+    n = 240  # 4 s at 60 packets/s
+    if sender == "pylivelinkface":
+        frames = [_pylivelinkface_frame(3600.0 + 0.25 + i / 60) for i in range(n)]
+        subs = [0.4730] * n  # its constant sub-frame
+    else:  # a sender that never sets the frame number
+        frames, subs = [0] * n, [0.0] * n
+    values = [VALS + i / 1000 for i in range(n)]
+    head = header_bytes("$" + "A" * 35, "Player")
+    packets = [head + frame_block(f, s, 60, 1, v) for f, s, v in zip(frames, subs, values)]
+    rec = _send_paced(tmp_path, sender, packets, rate=60.0)
+    (line,) = build_takes(rec.session_dir, tmp_path)
+    assert line["frame_clock"]["placed_by"] == "arrival", line
+    take = read_take(line["path"])
+    assert take.meta.extra["frame_clock"] == line["frame_clock"]
+    assert any(r["kind"] == "frame_clock" for r in take.meta.repairs)
+    assert take.meta.fps == 60 and line["restarts"] == 0 and line["duplicates"] == 0
+    tracked = take.frame_status == FrameStatus.TRACKED
+    assert tracked.sum() == n  # every packet is a frame, in the order sent
+    np.testing.assert_allclose(take.values[tracked, 0], [v[0] for v in values], atol=1e-6)
+    assert 3.5 < take.duration_s < 4.6  # real time, not 16x (milliseconds as frames) or 0
+
+
+def test_a_phone_clock_is_kept_however_fast_the_packets_come(tmp_path):
+    """Replays faster than real time and a restart keep the phone's frame clock."""
+    packets = _packets("DEV", "iPhone", range(1000, 1300)) + _packets("DEV", "iPhone", range(5, 300))
+    lines = build_takes(record_packets(tmp_path, "fast", packets).session_dir, tmp_path)
+    assert len(lines) == 2 and all("frame_clock" not in x for x in lines)
+    assert [read_take(x["path"]).time.size for x in lines] == [300, 295]
+
+
+def test_no_take_line_says_what_the_rejections_mean(tmp_path):
+    """A phone in MetaHuman Animator mode (little-endian u16 version 1 packets, §5.6): no take, and the
+    listener says which app setting to change."""
+    cmd = [sys.executable, "-m", "capture", "listen", "-o", str(tmp_path), "--port", "0", "--duration", "3"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    port = int(proc.stderr.readline().split("udp://127.0.0.1:")[1].split(" ")[0])
+    subject = b"iPhone"
+    mha = (1).to_bytes(2, "little") + len(subject).to_bytes(2, "little") + subject + bytes(1200)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for _ in range(20):
+            s.sendto(mha, ("127.0.0.1", port))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "no take recorded; rejected datagrams: {'version': 20}" in err
+    assert "set the app to Live Link (ARKit)" in err
