@@ -262,6 +262,18 @@ def test_ablations_predict_and_export(ds, tmp_path):
     assert np.all(take.values[:, lowered.index("eyeblinkleft")] == 0)  # not a pronunciation channel
     assert np.ptp(take.values[:, lowered.index("jawopen")]) > 0
 
+    # predict: 70 s of speech, longer than one 30 s window, is run in blended windows
+    import soundfile as sf
+
+    speech, sr = sf.read(wav, dtype="float32")
+    long_wav = tmp_path / "long.wav"
+    sf.write(long_wav, np.tile(speech, int(np.ceil(70 * sr / speech.size)))[: 70 * sr], sr)
+    proc = _cli("predict", run, long_wav, "-o", tmp_path / "long.csv", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["frames"] == 70 * 60
+    jaw = read_livelink_csv(tmp_path / "long.csv").values[:, lowered.index("jawopen")]
+    assert jaw.size == 70 * 60 and np.isfinite(jaw).all() and np.ptp(jaw) > 0
+
     # export: the ONNX graph reproduces the PyTorch model on inputs of another length
     onnx_path = tmp_path / "m.onnx"
     proc = _cli("export", run, "-o", onnx_path, "--json")

@@ -118,3 +118,54 @@ def test_folds_balance_takes_by_duration():
     assert folds == [["a", "d", "e"], ["b", "c"]]  # 80 s and 70 s; the test take is in neither
     with pytest.raises(InputError, match="needs as many train/val takes"):
         fold_takes(manifest, 6)
+
+
+# -- windowed inference (train/windowed.py) ---------------------------------------------------------------
+class _FrameLocal(torch.nn.Module):
+    """Each output frame depends on its own input frame only: windows must change nothing."""
+
+    def __init__(self):
+        super().__init__()
+        self.proj = torch.nn.Linear(5, 3)
+
+    def forward(self, content, prosody, mask):
+        return self.proj(content) + prosody.sum(-1, keepdim=True)
+
+
+@pytest.mark.parametrize("frames, window", [(100, 100), (101, 100), (260, 100), (1799, 240), (5000, 7)])
+def test_windowed_inference_covers_every_frame_with_weights_summing_to_one(frames, window):
+    from train.windowed import infer_windowed, window_starts
+
+    starts = window_starts(frames, window)
+    assert starts[0] == 0 and starts[-1] == max(0, frames - window)
+    assert all(0 < b - a <= max(1, window // 2) for a, b in zip(starts, starts[1:]))
+    torch.manual_seed(0)
+    model = _FrameLocal().eval()
+    content, prosody = torch.randn(1, frames, 5), torch.randn(1, frames, 2)
+    mask = torch.ones(1, frames, dtype=torch.bool)
+    with torch.no_grad():
+        whole = model(content, prosody, mask)
+        got = infer_windowed(model, content, prosody, mask, window)
+    torch.testing.assert_close(got, whole, atol=1e-5, rtol=1e-5)
+
+
+def test_windowed_inference_blends_without_steps():
+    """Windows that disagree (each adds its own offset) meet in ramps, never in a jump."""
+    from train.windowed import infer_windowed
+
+    class Offset(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.zeros(1))
+            self.calls = 0
+
+        def forward(self, content, prosody, mask):
+            self.calls += 1
+            return torch.full((1, content.shape[1], 1), float(self.calls))
+
+    model = Offset()
+    frames = 1000
+    out = infer_windowed(model, torch.zeros(1, frames, 1), None, torch.ones(1, frames, dtype=torch.bool), 200)
+    steps = out[0, 1:, 0] - out[0, :-1, 0]
+    assert model.calls == 9 and out[0, 0, 0] == 1 and out[0, -1, 0] == model.calls
+    assert steps.abs().max() <= 1 / 50 + 1e-6  # at most one offset unit over a 50-frame ramp

@@ -27,7 +27,8 @@ from dataset.ppg import make_extractor
 
 from .checkpoint import load_system
 from .data import InputSpec, normalize_features, to_model_inputs
-from .precision import for_inference, infer
+from .precision import for_inference
+from .windowed import PREDICT_WINDOW_S, infer_windowed
 
 
 def feature_settings(features: dict[str, Any]) -> FeatureSettings:
@@ -55,17 +56,16 @@ def animate(
     n = int(np.floor(audio.size / settings.sample_rate * fps))
     if n < 1:
         raise InputError("audio is shorter than one animation frame", where)
+    window = int(round(PREDICT_WINDOW_S * fps))
     limit = (payload.get("model_config") or {}).get("max_frames")
-    if isinstance(limit, int) and n > limit:
-        raise InputError(
-            f"audio is {n} frames long; the run's model takes at most {limit} (max_frames)", where
-        )
+    if isinstance(limit, int) and limit > 0:
+        window = min(window, limit)
     feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
     item = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
     content, prosody = to_model_inputs(item, spec)
     mask = torch.ones(1, n, dtype=torch.bool)
-    y = infer(model, content, prosody, mask)[0].double().numpy()
+    y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y)
 
 
