@@ -9,7 +9,7 @@ from pathlib import Path
 from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, write_livelink_csv
 from .errors import InputError, S2AError
-from .importer import AUDIO_PAIRINGS, find_sources, import_source
+from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, import_source
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
@@ -31,6 +31,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("sources", nargs="*", type=Path, help="CSV files, take folders, or folders of them")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the takes into")
     p.add_argument("--audio", type=Path, help="audio recorded elsewhere (WAV/FLAC/MP3/M4A) for one CSV")
+    p.add_argument(
+        "--pair-audio",
+        action="store_true",
+        help="pair each CSV found (and each Audio2Face .json export) with the audio beside it: the file "
+        "of the same stem, else the only audio file in its folder (batches of paired data, e.g. NeuroSync's "
+        "folders of audio.wav + CSV; add --audio-pairing frame-index for those)",
+    )
     p.add_argument(
         "--matrix",
         type=Path,
@@ -91,8 +98,14 @@ def _print_summary(summary: dict, as_json: bool) -> None:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    if args.audio_pairing != "first-row" and (args.audio is None or args.matrix is not None):
-        raise InputError("--audio-pairing goes with a CSV and its --audio")
+    if args.pair_audio and (args.audio is not None or args.matrix is not None):
+        raise InputError("--pair-audio finds each source's audio: give neither --audio nor --matrix with it")
+    if (
+        args.audio_pairing != "first-row"
+        and not args.pair_audio
+        and (args.audio is None or args.matrix is not None)
+    ):
+        raise InputError("--audio-pairing goes with a CSV and its --audio (or --pair-audio)")
     if args.matrix is not None:
         if args.sources:
             raise InputError("give either sources or --matrix, not both")
@@ -108,7 +121,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         for flag in ("names", "fps"):
             if getattr(args, flag) is not None:
                 raise InputError(f"--{flag} only applies to a generic import with --matrix")
-        sources = find_sources(args.sources)
+        sources = find_sources(args.sources, exports=args.pair_audio)
         if not sources:
             raise InputError(
                 f"no Live Link Face CSV or take folder under {', '.join(map(str, args.sources))}"
@@ -126,9 +139,13 @@ def cmd_import(args: argparse.Namespace) -> int:
             if kind == "matrix":
                 take = read_paired(args.audio, args.matrix, args.fps, args.names, args.take_id)
             else:
-                take = import_source(
-                    src, args.audio, args.variant, args.strict, args.swap_lr, args.audio_pairing
-                )
+                audio, pairing = args.audio, args.audio_pairing
+                if args.pair_audio:  # loose files get the audio beside them; take folders have their own
+                    audio, why = audio_beside(src) if src.is_file() else (None, None)
+                    pairing = args.audio_pairing if audio is not None else "first-row"
+                    if why:
+                        print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)
+                take = import_source(src, audio, args.variant, args.strict, args.swap_lr, pairing)
                 if args.take_id:
                     take.meta.id = args.take_id
             _unique_id(take, src, written)

@@ -7,27 +7,33 @@ from pathlib import Path
 
 from .csv_take import read_livelink_csv
 from .errors import InputError
+from .paired import read_paired
 from .take import Take, is_take_dir
 from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
 
 # How audio given with --audio goes with a CSV's rows (see read_csv_with_audio).
 AUDIO_PAIRINGS = ("first-row", "frame-index")
+# Audio files ``--pair-audio`` finds beside a CSV or an Audio2Face export.
+AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".aif", ".aiff")
+# An Audio2Face blendshape export names its poses before its weights, near the start of the file.
+_A2F_MARK = b'"facsNames"'
 
 
-def find_sources(paths: list[str | Path]) -> list[Path]:
-    """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively."""
+def find_sources(paths: list[str | Path], exports: bool = False) -> list[Path]:
+    """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively;
+    with ``exports``, Audio2Face blendshape exports (``.json``) too."""
     found: list[Path] = []
     for p in map(Path, paths):
         if p.is_file():
             found.append(p)
         elif p.is_dir():
-            found.extend(_walk(p))
+            found.extend(_walk(p, exports))
         else:
             raise InputError("no such file or folder", p)
     return found
 
 
-def _walk(folder: Path) -> Iterator[Path]:
+def _walk(folder: Path, exports: bool) -> Iterator[Path]:
     if is_take_folder(folder):
         yield folder
         return
@@ -35,9 +41,34 @@ def _walk(folder: Path) -> Iterator[Path]:
         return  # an imported take of ours, or a hidden/temporary folder
     for p in sorted(folder.iterdir()):
         if p.is_dir():
-            yield from _walk(p)
-        elif p.suffix.lower() == ".csv":
+            yield from _walk(p, exports)
+        elif p.suffix.lower() == ".csv" or (exports and p.suffix.lower() == ".json" and is_a2f_export(p)):
             yield p
+
+
+def is_a2f_export(path: Path) -> bool:
+    """Whether a JSON file looks like an Audio2Face blendshape export (its pose names near the start)."""
+    try:
+        with open(path, "rb") as f:
+            return _A2F_MARK in f.read(1 << 16)
+    except OSError:
+        return False
+
+
+def audio_beside(source: Path) -> tuple[Path | None, str | None]:
+    """The audio file that goes with a CSV or export: the one of the same stem, else the only audio
+    file in its folder. Returns (path or None, why none was taken when that is worth a warning)."""
+    audio = [p for p in sorted(source.parent.iterdir()) if p.suffix.lower() in AUDIO_SUFFIXES and p.is_file()]
+    same = [p for p in audio if p.stem == source.stem]
+    if len(same) > 1:
+        return None, f"several audio files named {source.stem}.*: {', '.join(p.name for p in same)}"
+    if same:
+        return same[0], None
+    if len(audio) == 1:
+        return audio[0], None
+    if audio:
+        return None, f"{len(audio)} audio files beside it and none named {source.stem}.*"
+    return None, None
 
 
 def import_source(
@@ -58,6 +89,10 @@ def import_source(
                 "--audio-pairing frame-index applies to a CSV with --audio, not a take folder", source
             )
         return read_take_folder(source, variant, audio, strict, swap_lr)
+    if source.suffix.lower() == ".json" and is_a2f_export(source):
+        if audio is None:
+            raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
+        return read_paired(audio, source, None, take_id=source.stem)
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
     if audio is not None:

@@ -378,3 +378,80 @@ def test_align_output_into_an_input_folder_or_a_take_is_refused(take_dir, tmp_pa
     assert not (take / "aligned").exists()
     proc = run_cli("align", takes, "-o", tmp_path / "al", "--vad", "none")
     assert proc.returncode == 0, proc.stderr
+
+
+# 10: batches of paired data (--pair-audio)
+
+
+def test_pair_audio_imports_a_batch_of_paired_data(samples, tmp_path):
+    """NeuroSync's layout (a folder per take: audio.wav + CSV), Audio2Face exports beside their audio,
+    a CSV without audio and one with ambiguous audio, and a Live Link Face take folder, in one run."""
+    ns = samples / "paired" / "neurosync-trainer-lite-testset"
+    root = tmp_path / "batch"
+    for name in ("take_a", "take_b"):
+        (root / "data" / name).mkdir(parents=True)
+        shutil.copy(ns / "audio.wav", root / "data" / name / "audio.wav")
+        shutil.copy(ns / "testset.csv", root / "data" / name / f"{name}.csv")
+    a2f = root / "a2f"
+    a2f.mkdir()
+    sf.write(a2f / "line1.wav", np.zeros(16000, np.float32), 16000)
+    names = ["jawOpen", "mouthClose", "mouthFunnel"]
+    (a2f / "line1.json").write_text(
+        json.dumps(
+            {
+                "exportFps": 30,
+                "numFrames": 30,
+                "numPoses": 3,
+                "facsNames": names,
+                "weightMat": [[0.1, 0.2, 0.3]] * 30,
+            }
+        )
+    )
+    (a2f / "notes.json").write_text('{"comment": "not an export"}')
+    lone = root / "lone"
+    lone.mkdir()
+    shutil.copy(ns / "testset.csv", lone / "alone.csv")
+    two = root / "two"
+    two.mkdir()
+    shutil.copy(ns / "testset.csv", two / "x.csv")
+    for n in ("a.wav", "b.wav"):
+        shutil.copy(ns / "audio.wav", two / n)
+    proc = run_cli(
+        "capture",
+        "import",
+        root,
+        "-o",
+        tmp_path / "out",
+        "--pair-audio",
+        "--audio-pairing",
+        "frame-index",
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = {Path(x["path"]).name: x for x in map(json.loads, proc.stdout.splitlines())}
+    assert sorted(got) == ["alone", "line1", "take_a", "take_b", "x"]
+    assert "two/x.csv: 2 audio files beside it and none named x.*: imported without audio" in proc.stderr
+    for name in ("take_a", "take_b"):
+        take = read_take(tmp_path / "out" / name)
+        assert take.audio is not None and take.meta.audio.start_source == "paired_frame_convention"
+    a2f_take = read_take(tmp_path / "out" / "line1")
+    assert a2f_take.meta.fps == 30 and a2f_take.meta.channels == names and a2f_take.audio is not None
+    assert (
+        read_take(tmp_path / "out" / "alone").audio is None
+        and read_take(tmp_path / "out" / "x").audio is None
+    )
+
+
+def test_pair_audio_option_errors(tmp_path):
+    (tmp_path / "a.csv").write_text("x")
+    one_line_error(
+        run_cli(
+            "capture", "import", tmp_path, "-o", tmp_path / "o", "--pair-audio", "--audio", tmp_path / "a.wav"
+        ),
+        "--pair-audio finds each source's audio",
+    )
+    a2f = tmp_path / "solo.json"
+    a2f.write_text('{"exportFps": 30, "facsNames": ["jawOpen"], "weightMat": [[0.1]]}')
+    one_line_error(
+        run_cli("capture", "import", a2f, "-o", tmp_path / "o"), "an Audio2Face export needs its audio"
+    )
