@@ -109,10 +109,10 @@ def cmd_import(args: argparse.Namespace) -> int:
     if args.matrix is not None:
         if args.sources:
             raise InputError("give either sources or --matrix, not both")
-        if args.audio is None or (args.fps is None and args.matrix.suffix.lower() != ".json"):
+        if args.audio is None:
             raise InputError(
-                "--matrix needs --audio and --fps (and --names unless the CSV has a header; "
-                "an Audio2Face .json export gives both)"
+                "--matrix needs --audio, and --fps and --names unless the file gives them (a CSV header "
+                "with a time column, an Audio2Face .json export)"
             )
         jobs = [("matrix", args.matrix)]
     else:

@@ -20,8 +20,9 @@ import numpy as np
 
 from . import channels as ch
 from .audio_io import read_audio
+from .csv_take import detect_fps, fill_dropped
 from .errors import InputError
-from .take import FrameStatus, Take, TakeMeta, safe_id, source_file
+from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
 
 def load_npy(path: Path) -> np.ndarray:
@@ -123,6 +124,37 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float |
     return m, header, fps
 
 
+# Header names of a column that holds each frame's time rather than a channel (compared lower-case).
+SECONDS_COLUMNS = ("time", "time_s", "times", "seconds", "timestamp", "timecode", "t")
+FRAME_COLUMNS = ("frame", "frames", "frame_index", "frameindex", "frame_number", "framenumber")
+
+
+def channel_name(name: str) -> str:
+    """A channel's name as the take keeps it: Live Link/ARKit names in canonical spelling, also under a
+    dotted prefix (``blendShapes.JawOpen``); a rig's own names as given."""
+    if ch.is_known(name):
+        return ch.canonical(name)
+    last = name.rsplit(".", 1)[-1]
+    return ch.canonical(last) if "." in name and ch.is_known(last) else name
+
+
+def _frame_clock(names: list[str], matrix: np.ndarray, path) -> tuple[str | None, np.ndarray | None, int]:
+    """The time column, if the header has one: (kind "seconds"/"frames", its values, its index)."""
+    found = [(i, n) for i, n in enumerate(names) if n.strip().lower() in SECONDS_COLUMNS + FRAME_COLUMNS]
+    if not found:
+        return None, None, -1
+    if len(found) > 1:
+        raise InputError(f"several time columns: {', '.join(n for _, n in found)}", path)
+    i, name = found[0]
+    clock = matrix[:, i].astype(np.float64)
+    if not np.isfinite(clock).all() or (clock.size > 1 and not (np.diff(clock) > 0).all()):
+        raise InputError(f"time column {name!r} must be finite and increase from row to row", path)
+    kind = "seconds" if name.strip().lower() in SECONDS_COLUMNS else "frames"
+    if kind == "frames" and not np.array_equal(clock, np.round(clock)):
+        raise InputError(f"frame column {name!r} holds values that are not whole numbers", path)
+    return kind, clock, i
+
+
 def read_paired(
     audio_path: str | Path,
     matrix_path: str | Path,
@@ -131,17 +163,16 @@ def read_paired(
     take_id: str | None = None,
 ) -> Take:
     """A take from audio + weight matrix + names at ``fps`` frames per second (None: the rate the
-    matrix file gives, as an Audio2Face export does)."""
+    matrix file gives, as an Audio2Face export does, or its time column's step).
+
+    A header column named like a time (``time``, ``timestamp``, ... in seconds from the audio's start) or
+    a frame index (``frame``, ``frame_index``, ...) places the frames instead of the row index and is
+    not a channel; gaps in it become DROPPED frames."""
     if fps is not None and not 0 < fps < math.inf:  # also NaN
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
     matrix, header, file_fps = read_matrix(matrix_path)
     if file_fps is not None and fps is not None and not math.isclose(file_fps, fps, rel_tol=1e-6):
         raise InputError(f"--fps {fps:g} but the file says {file_fps:g} frames per second", matrix_path)
-    fps = fps if fps is not None else file_fps
-    if fps is None:
-        raise InputError("no frame rate: give --fps", matrix_path)
-    if not 0 < fps < math.inf:
-        raise InputError(f"the file's frame rate must be positive, not {fps}", matrix_path)
     if names_path is not None:
         names = read_names(names_path)
     elif header is not None:
@@ -150,12 +181,33 @@ def read_paired(
         raise InputError("no channel names: give --names or a header row in the matrix CSV", matrix_path)
     if len(names) != matrix.shape[1]:
         raise InputError(f"{len(names)} channel names for a matrix of {matrix.shape[1]} columns", matrix_path)
-    names = [ch.canonical(n) if ch.is_known(n) else n for n in names]
+    kind, clock, column = _frame_clock(names, matrix, matrix_path)
+    if column >= 0:
+        names = names[:column] + names[column + 1 :]
+        matrix = np.delete(matrix, column, axis=1)
+        if not names:
+            raise InputError("no channel columns besides the time column", matrix_path)
+    fps = fps if fps is not None else file_fps
+    if fps is None and kind == "seconds" and clock.size > 1:
+        fps = detect_fps(clock)[0]
+    if fps is None:
+        raise InputError("no frame rate: give --fps", matrix_path)
+    if not 0 < fps <= MAX_FPS:
+        raise InputError(f"the frame rate must be in (0, {MAX_FPS:g}], not {fps:g}", matrix_path)
+    names = [channel_name(n) for n in names]
     values = matrix.astype(np.float32)
     status = np.where(np.isfinite(values).all(axis=1), FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(
         np.uint8
     )
-    time = np.arange(matrix.shape[0], dtype=np.float64) / fps
+    if kind is None:
+        time = np.arange(matrix.shape[0], dtype=np.float64) / fps
+    else:
+        time = clock if kind == "seconds" else clock / fps
+        step = float(np.median(np.diff(time))) if time.size > 1 else 1 / fps
+        if abs(step * fps - 1) > 0.03:
+            raise InputError(
+                f"the time column's step ({step:.5g} s) does not match {fps:g} frames per second", matrix_path
+            )
     meta = TakeMeta(
         id=safe_id(take_id or Path(audio_path).stem),
         source_kind="paired_matrix",
@@ -170,11 +222,21 @@ def read_paired(
         meta.repairs.append(
             {"line": None, "kind": "bad_value", "message": f"{bad} frames hold NaN/inf: marked invalid"}
         )
+    if kind is not None:
+        time, values, status, inserted = fill_dropped(time, values, status, 1 / fps)
+        if inserted:
+            meta.repairs.append(
+                {
+                    "line": None,
+                    "kind": "dropped_frames",
+                    "message": f"{inserted} frames missing from the time column",
+                }
+            )
     take = Take(meta, time, values, status)
     audio = read_audio(audio_path, meta.repairs)
     take.attach_audio(audio, 0.0, "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
-    mismatch = audio.duration_s - matrix.shape[0] / fps
+    mismatch = audio.duration_s - (time[-1] + 1 / fps)
     if abs(mismatch) > 1.0:
         meta.repairs.append(
             {

@@ -73,7 +73,7 @@ def test_bad_inputs_give_clear_errors(tmp_path, wav):
 
 def test_cli_generic_import_needs_its_flags(tmp_path, wav):
     proc = run_cli("capture", "import", "--matrix", tmp_path / "m.npy", "-o", tmp_path / "o")
-    assert proc.returncode == 1 and "--matrix needs --audio and --fps" in proc.stderr
+    assert proc.returncode == 1 and "--matrix needs --audio" in proc.stderr
 
 
 def _a2f_export(path, frames=45, fps=30, **override):
@@ -123,7 +123,7 @@ def test_audio2face_json_import_takes_names_and_rate_from_the_file(tmp_path, wav
         ({"weightMat": []}, "weightMat must be a non-empty list"),
         ({"facsNames": "jawOpen"}, "facsNames must be a list of names"),
         ({"exportFps": "30"}, "exportFps must be a number"),
-        ({"exportFps": 0}, "frame rate must be positive"),
+        ({"exportFps": 0}, r"frame rate must be in \(0, 1000\], not 0"),
         ({"exportFps": None}, "no frame rate: give --fps"),
     ],
 )
@@ -145,3 +145,30 @@ def test_json_that_is_not_an_audio2face_export(tmp_path, wav):
     path.write_text("{not json")
     proc = run_cli("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
     assert proc.returncode == 1 and "not a JSON file" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_time_and_frame_columns_place_the_frames(tmp_path, wav):
+    """A generator's CSV with a time column (seconds) or a frame index: not a channel, the rate comes from
+    it, gaps become DROPPED frames, and dotted names like blendShapes.JawOpen are ARKit channels."""
+    rows = [i for i in range(30) if i not in (7, 8)]  # two frames missing
+    m = tmp_path / "t.csv"
+    m.write_text("timeCode,blendShapes.JawOpen,custom\n" + "".join(f"{i / 30:.6f},0.5,{i}\n" for i in rows))
+    take = read_paired(wav, m, None)
+    assert take.meta.fps == 30 and take.meta.channels == ["jawOpen", "custom"]
+    assert take.time.size == 30 and take.count(FrameStatus.DROPPED) == 2
+    assert take.time[9] == pytest.approx(9 / 30) and take.values[9, 1] == 9
+    assert any(r["kind"] == "dropped_frames" for r in take.meta.repairs)
+    f = tmp_path / "f.csv"
+    f.write_text("frame,jawOpen\n" + "".join(f"{i},0.25\n" for i in range(1, 31)))
+    with pytest.raises(InputError, match="no frame rate"):
+        read_paired(wav, f, None)
+    take = read_paired(wav, f, 60)
+    assert take.time[0] == pytest.approx(1 / 60) and take.meta.channels == ["jawOpen"]
+    bad = tmp_path / "b.csv"
+    bad.write_text("time,jawOpen\n0.0,0.1\n0.0333,0.1\n0.0333,0.2\n")
+    with pytest.raises(InputError, match="must be finite and increase"):
+        read_paired(wav, bad, None)
+    wrong = tmp_path / "w.csv"
+    wrong.write_text("time,jawOpen\n" + "".join(f"{i / 30:.6f},0.1\n" for i in range(30)))
+    with pytest.raises(InputError, match=r"step \(0.033333 s\) does not match 60 frames per second"):
+        read_paired(wav, wrong, 60)
