@@ -36,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="pair each CSV found (and each Audio2Face .json export) with the audio beside it: the file "
         "of the same stem, else the only audio file in its folder (batches of paired data, e.g. NeuroSync's "
-        "folders of audio.wav + CSV; add --audio-pairing frame-index for those)",
+        "folders of audio.wav + CSV: add --audio-pairing frame-index; CSVs of other generators: their "
+        "header names the channels, a time column or --fps the rate)",
     )
     p.add_argument(
         "--matrix",
@@ -118,9 +119,10 @@ def cmd_import(args: argparse.Namespace) -> int:
     else:
         if not args.sources:
             raise InputError("nothing to import: name CSV files or take folders, or use --matrix")
-        for flag in ("names", "fps"):
-            if getattr(args, flag) is not None:
-                raise InputError(f"--{flag} only applies to a generic import with --matrix")
+        if args.names is not None:
+            raise InputError("--names only applies to a generic import with --matrix")
+        if args.fps is not None and not (args.pair_audio or args.audio is not None):
+            raise InputError("--fps only applies to generic paired data (--matrix, or CSVs with audio)")
         sources = find_sources(args.sources, exports=args.pair_audio)
         if not sources:
             raise InputError(
@@ -145,7 +147,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                     pairing = args.audio_pairing if audio is not None else "first-row"
                     if why:
                         print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)
-                take = import_source(src, audio, args.variant, args.strict, args.swap_lr, pairing)
+                take = import_source(src, audio, args.variant, args.strict, args.swap_lr, pairing, args.fps)
                 if args.take_id:
                     take.meta.id = args.take_id
             _unique_id(take, src, written)

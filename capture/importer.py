@@ -71,6 +71,16 @@ def audio_beside(source: Path) -> tuple[Path | None, str | None]:
     return None, None
 
 
+def is_livelink_csv(path: Path) -> bool:
+    """Whether a CSV's header starts like the app's (``Timecode,BlendShapeCount``, any case)."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(4096).decode("utf-8-sig", "replace").lower().replace(" ", "")
+    except OSError:
+        return True  # let the Live Link Face reader report it
+    return first.startswith("timecode,blendshapecount")
+
+
 def import_source(
     source: Path,
     audio: str | Path | None = None,
@@ -78,9 +88,12 @@ def import_source(
     strict: bool = False,
     swap_lr: bool = False,
     audio_pairing: str = "first-row",
+    fps: float | None = None,
 ) -> Take:
     """One source (take folder or CSV file) as a take. ``audio_pairing`` (one of ``AUDIO_PAIRINGS``)
-    says how external ``audio`` goes with a CSV's rows."""
+    says how external ``audio`` goes with a CSV's rows. A CSV with audio whose header is not the app's
+    is generic paired data (``read_paired``: a header of channel names, perhaps a time column; ``fps``
+    unless the file gives the rate)."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if source.is_dir():
@@ -95,6 +108,8 @@ def import_source(
         return read_paired(audio, source, None, take_id=source.stem)
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
+    if audio is not None and not is_livelink_csv(source):
+        return read_paired(audio, source, fps, take_id=source.stem)
     if audio is not None:
         return read_csv_with_audio(
             source, audio, strict, swap_lr, by_frame_index=audio_pairing == "frame-index"

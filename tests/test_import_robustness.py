@@ -455,3 +455,27 @@ def test_pair_audio_option_errors(tmp_path):
     one_line_error(
         run_cli("capture", "import", a2f, "-o", tmp_path / "o"), "an Audio2Face export needs its audio"
     )
+
+
+def test_pair_audio_takes_generic_csvs_from_other_generators(samples, tmp_path):
+    """A generator's own CSV (time column, its names) beside its audio, in the same batch as an app CSV."""
+    ns = samples / "paired" / "neurosync-trainer-lite-testset"
+    root = tmp_path / "gen"
+    (root / "a").mkdir(parents=True)
+    (root / "b").mkdir()
+    shutil.copy(ns / "audio.wav", root / "a" / "audio.wav")
+    rows = "".join(f"{i / 60:.6f},{0.5 + 0.4 * np.sin(i / 9):.4f},0.1\n" for i in range(1200))
+    (root / "a" / "gen.csv").write_text("time,blendShapes.JawOpen,mouthClose\n" + rows)
+    shutil.copy(ns / "audio.wav", root / "b" / "audio.wav")
+    (root / "b" / "frames.csv").write_text("frame,jawOpen\n" + "".join(f"{i},0.2\n" for i in range(600)))
+    proc = run_cli("capture", "import", root, "-o", tmp_path / "out", "--pair-audio", "--json")
+    assert proc.returncode == 1  # the frame-index CSV needs a rate; the other is imported
+    assert "frames.csv: no frame rate: give --fps" in proc.stderr
+    take = read_take(tmp_path / "out" / "gen")
+    assert take.meta.fps == 60 and take.meta.channels == ["jawOpen", "mouthClose"] and take.audio is not None
+    proc = run_cli("capture", "import", root / "b", "-o", tmp_path / "out2", "--pair-audio", "--fps", "30")
+    assert proc.returncode == 0, proc.stderr
+    assert read_take(tmp_path / "out2" / "frames").meta.fps == 30
+    one_line_error(
+        run_cli("capture", "import", root, "-o", tmp_path / "o3", "--fps", "30"), "--fps only applies"
+    )
