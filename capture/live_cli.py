@@ -128,7 +128,7 @@ REJECT_HINTS = {
     "version": "packets that are not Live Link Face version 6: set the app to Live Link (ARKit); "
     "its MetaHuman Animator mode and UE4-era senders use other protocols",
     "count": "the app's packets carry 61 values; this sender's count differs",
-    "bad_rate": "a frame rate of 0 or below (e.g. PyLiveLinkFace at 30 fps sends denominator 0)",
+    "bad_rate": "a frame rate numerator of 0 or below, a negative denominator, or above 1000 fps",
     "not_allowed": "the sender's address is not in --allow",
 }
 

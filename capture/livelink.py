@@ -51,7 +51,7 @@ REJECT_REASONS: tuple[str, ...] = (
     "bad_text",  # device id or subject is not UTF-8
     "count",  # BlendShapeCount is not 61
     "size_mismatch",  # count is 61 but the datagram is longer than the packet
-    "bad_rate",  # rate numerator or denominator not positive, or the rate above MAX_RATE_FPS
+    "bad_rate",  # rate numerator not positive, denominator negative, or the rate above MAX_RATE_FPS
     "bad_frame_time",  # negative frame number, or sub-frame not in [0, 1)
     "rate_changed",  # a known device/subject suddenly sends another rate
     "too_many_streams",  # more distinct device/subject pairs than the listener keeps
@@ -76,12 +76,16 @@ class LiveLinkFrame:
     @property
     def rate(self) -> float:
         """Frames per second of the frame number."""
-        return self.rate_numerator / self.rate_denominator
+        return self.rate_numerator / rate_denominator(self.rate_denominator)
 
     @property
     def time_s(self) -> float:
         """The phone's frame time in seconds (since its timecode origin)."""
-        return (self.frame_number + self.sub_frame) * self.rate_denominator / self.rate_numerator
+        return (
+            (self.frame_number + self.sub_frame)
+            * rate_denominator(self.rate_denominator)
+            / self.rate_numerator
+        )
 
 
 def encode_packet(frame: LiveLinkFrame) -> bytes:
@@ -175,9 +179,17 @@ def check_body(data: bytes | bytearray | memoryview, offset: int, size: int) -> 
     return None
 
 
+def rate_denominator(den):
+    """The rate denominator to divide by: 0 is read as 1. PyLiveLinkFace, the Python sender many tools
+    build on, sends ``int(fps / 60)``, which is 0 at 30 fps (formats doc §5.5); its numerator is the
+    rate. Ints or integer arrays."""
+    return den + (den == 0)
+
+
 def plausible_rate(num, den):
-    """Whether the rate ``num / den`` is positive and at most MAX_RATE_FPS (ints or integer arrays,
-    compared in integers)."""
+    """Whether the rate ``num / den`` (``rate_denominator``) is positive and at most MAX_RATE_FPS (ints or
+    integer arrays, compared in integers)."""
+    den = rate_denominator(den)
     return (den > 0) & (num > 0) & (num <= MAX_RATE_FPS * den)
 
 

@@ -257,7 +257,7 @@ def stream_takes(
         report["bad_rate_frames"] = int(np.count_nonzero(~plausible))
         rows = rows[plausible]
     num = rows["rate_numerator"].astype(np.float64)
-    den = rows["rate_denominator"].astype(np.float64)
+    den = ll.rate_denominator(rows["rate_denominator"].astype(np.float64))
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
     numbers = rows["frame_number"].astype(np.int64)
     problem = frame_clock_problem(frame_time, log.seconds(rows["arrival_ns"]))
@@ -342,7 +342,7 @@ def _segment_take(
     finite |= lost  # NaN is what a face-lost frame holds, not a bad value
     t = ft - ft[0]
     fps, period = detect_fps(t)
-    rate_num, rate_den = int(r["rate_numerator"][0]), int(r["rate_denominator"][0])
+    rate_num, rate_den = int(r["rate_numerator"][0]), int(ll.rate_denominator(int(r["rate_denominator"][0])))
     if not 0 < fps <= MAX_FPS:  # sub-frames that fool the median step: the stream's declared rate
         fps, period = rate_num / rate_den, rate_den / rate_num
     repairs = []

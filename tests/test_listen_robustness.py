@@ -268,11 +268,11 @@ def test_stray_streams_give_their_slots_to_a_real_phone(tmp_path, monkeypatch):
 
 
 # -- frame clocks that say nothing about time (other senders) ---------------------------------------------
-def _pylivelinkface_frame(t: float) -> int:
-    """The frame number PyLiveLinkFace sends at 60 fps for wall time ``t`` (s): its timecode library is
-    fed hours:minutes:seconds:milliseconds, so milliseconds count as frames, 1-based."""
+def _pylivelinkface_frame(t: float, fps: int = 60) -> int:
+    """The frame number PyLiveLinkFace sends for wall time ``t`` (s): its timecode library is fed
+    hours:minutes:seconds:milliseconds, so milliseconds count as frames, 1-based."""
     whole = int(t)
-    return whole * 60 + int(round((t - whole) * 1000)) + 1
+    return whole * fps + int(round((t - whole) * 1000)) + 1
 
 
 def _send_paced(tmp_path, session_id: str, packets: list[bytes], rate: float) -> LiveRecorder:
@@ -293,24 +293,26 @@ def _send_paced(tmp_path, session_id: str, packets: list[bytes], rate: float) ->
     return rec
 
 
-@pytest.mark.parametrize("sender", ["pylivelinkface", "frozen"])
-def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, sender):
-    n = 240  # 4 s at 60 packets/s
+@pytest.mark.parametrize("sender, fps", [("pylivelinkface", 60), ("pylivelinkface", 30), ("frozen", 60)])
+def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, sender, fps):
+    n = 4 * fps  # 4 s
+    den = fps // 60  # PyLiveLinkFace sends int(fps / 60): 0 at 30 fps
     if sender == "pylivelinkface":
-        frames = [_pylivelinkface_frame(3600.0 + 0.25 + i / 60) for i in range(n)]
+        frames = [_pylivelinkface_frame(3600.0 + 0.25 + i / fps, fps) for i in range(n)]
         subs = [0.4730] * n  # its constant sub-frame
     else:  # a sender that never sets the frame number
         frames, subs = [0] * n, [0.0] * n
     values = [VALS + i / 1000 for i in range(n)]
     head = header_bytes("$" + "A" * 35, "Player")
-    packets = [head + frame_block(f, s, 60, 1, v) for f, s, v in zip(frames, subs, values)]
-    rec = _send_paced(tmp_path, sender, packets, rate=60.0)
+    packets = [head + frame_block(f, s, fps, den, v) for f, s, v in zip(frames, subs, values)]
+    rec = _send_paced(tmp_path, f"{sender}{fps}", packets, rate=float(fps))
+    assert rec.accepted == n
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frame_clock"]["placed_by"] == "arrival", line
     take = read_take(line["path"])
     assert take.meta.extra["frame_clock"] == line["frame_clock"]
     assert any(r["kind"] == "frame_clock" for r in take.meta.repairs)
-    assert take.meta.fps == 60 and line["restarts"] == 0 and line["duplicates"] == 0
+    assert take.meta.fps == fps and line["restarts"] == 0 and line["duplicates"] == 0
     tracked = take.frame_status == FrameStatus.TRACKED
     assert tracked.sum() == n  # every packet is a frame, in the order sent
     np.testing.assert_allclose(take.values[tracked, 0], [v[0] for v in values], atol=1e-6)

@@ -87,13 +87,16 @@ def test_no_face_packet_is_a_frame_without_a_face_and_malformed_ones_are_rejecte
     assert ll.decode_packet(_packet()).face is True
     # A no-face packet is checked like any other: its frame time, and nothing after it but a frame block.
     for reason, bad in {
-        "bad_rate": ll.no_face_packet("dev", "iPhone", 100, 0.5, 60, 0),
+        "bad_rate": ll.no_face_packet("dev", "iPhone", 100, 0.5, 60, -1),
         "bad_frame_time": ll.no_face_packet("dev", "iPhone", -1, 0.5, 60, 1),
         "short": data[:-1],
         "count": data + b"\0",
         "version": bytes([7]) + data[1:],
     }.items():
         assert ll.decode_packet(bad) == reason, reason
+    # PyLiveLinkFace at 30 fps sends denominator int(30 / 60) = 0: read as 30/1.
+    quirk = ll.decode_packet(ll.no_face_packet("dev", "iPhone", 90, 0.0, 30, 0))
+    assert quirk.rate == 30 and quirk.time_s == pytest.approx(3.0)
 
 
 @settings(max_examples=300, deadline=None)
