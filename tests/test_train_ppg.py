@@ -93,3 +93,57 @@ def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_pa
     other.write_bytes(ckpt.read_bytes() + b"x")
     proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "q.csv", "--ppg-model", other)
     assert proc.returncode == 1 and "differs from the one the dataset was built with" in proc.stderr
+
+
+# -- speech without alignments: labels from pocketsphinx phone-loop recognition ---------------------------
+def test_pieces_cut_at_silences_cover_the_audio():
+    from train.ppg_train import pieces_at_silences
+
+    segs = [(0.0, 9.0, "AA"), (9.0, 9.6, "SIL"), (9.6, 21.0, "IY"), (21.0, 21.2, "+NSN+"), (21.2, 47.0, "S")]
+    pieces = pieces_at_silences(segs, 47.0, piece_s=10.0)
+    assert pieces[0] == (0.0, 9.3) and pieces[1] == (9.3, 21.1)  # in the middle of the silences
+    assert pieces[-1][1] == 47.0 and all(a[1] == b[0] for a, b in zip(pieces, pieces[1:]))
+    assert all(5.0 <= b - a <= 15.0 for a, b in pieces[:-1])  # without silence: at the multiple
+    assert pieces_at_silences(segs, 12.0, piece_s=10.0) == [(0.0, 12.0)]
+
+
+def test_ppg_trained_on_unaligned_mandarin_with_pocketsphinx_labels(samples, tmp_path):
+    """Real Mandarin takes without any alignment: pocketsphinx's English phone loop labels them, and the
+    bottleneck learns those labels better than always guessing the commonest."""
+    wav = samples / "paired" / "facegood-audio2face" / "wav"
+    out = tmp_path / "ppg.pt"
+    proc = run_cli(
+        "train",
+        "ppg",
+        "--labels",
+        "pocketsphinx",
+        "--data",
+        wav / "1114_2_01.wav",
+        wav / "1114_2_03.wav",
+        "-o",
+        out,
+        "--steps",
+        "120",
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["utterances"] >= 15  # about 10 s pieces of two 1.5-3 min takes
+    assert summary["val_accuracy"] > summary["majority_accuracy"] + 0.05
+    ppg = make_extractor("bottleneck", out)
+    audio, _ = speech_like(2.0, np.random.default_rng(0))
+    fbank = spectral_features(audio, FeatureSettings())["fbank"]
+    assert ppg.extract(audio, fbank).posteriors.shape == (fbank.shape[0], 64)
+
+
+def test_speech_sources_are_takes_and_loose_audio(tmp_path):
+    from train.ppg_train import find_speech
+
+    write_aligned_set(tmp_path / "takes", count=1, speakers=1)
+    sf.write(tmp_path / "takes" / "extra.wav", np.zeros(1600, np.float32), 16000)
+    found = find_speech([tmp_path / "takes"])
+    assert len(found) == 2 and sum(p.is_dir() for p in found) == 1  # the take's own audio.wav is its take's
+    proc = run_cli(
+        "train", "ppg", "--labels", "pocketsphinx", "--data", tmp_path / "none", "-o", tmp_path / "p.pt"
+    )
+    assert proc.returncode == 1 and "not found" in proc.stderr and "Traceback" not in proc.stderr

@@ -88,7 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="Praat TextGrids with a 'phones' tier beside same-named audio (as s2a-capture simulate writes "
         "its take folders, or a forced aligner's output), or folders of WAV + JSON alignments; "
-        "folders are searched recursively (imported take folders carry no alignments)",
+        "folders are searched recursively (imported take folders carry no alignments). With --labels "
+        "pocketsphinx: take folders and audio files",
+    )
+    p.add_argument(
+        "--labels",
+        choices=("alignments", "pocketsphinx"),
+        default="alignments",
+        help="where the frame phone labels come from: the alignments (default), or phone-loop recognition "
+        "by pocketsphinx's bundled English model, for speech without alignments in any language",
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="checkpoint to write (ppg.pt)")
     p.add_argument("--steps", type=int, default=300, help="optimizer steps (default 300)")
@@ -203,7 +211,7 @@ def cmd_agreement(args: argparse.Namespace) -> int:
 def cmd_ppg(args: argparse.Namespace) -> int:
     from .ppg_train import train_ppg
 
-    summary = train_ppg(args.data, args.out, steps=args.steps, seed=args.seed)
+    summary = train_ppg(args.data, args.out, steps=args.steps, seed=args.seed, labels=args.labels)
     if args.json:
         emit_json(summary)
     else:

@@ -7,6 +7,12 @@ takes; tier ``phones``, empty label = silence) or as a JSON file mapping audio s
 ARPAbet in any case, stress digits dropped; labels outside ARPAbet count as SIL (with a warning).
 Features are the dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre
 ``k · 20 ms``) takes the phone spanning that instant.
+
+Without alignments (``labels="pocketsphinx"``), speech is labelled by phone-loop recognition with the
+English acoustic model bundled in the ``pocketsphinx`` package (``dataset.ppg.PocketsphinxExtractor``):
+take folders and audio files are decoded whole and cut at silences into pieces of about ``PIECE_S``.
+The bottleneck then learns to reproduce a recogniser trained on far more speech than any dataset here,
+on the dataset's own voices and recording conditions, in any language (its labels are English phones).
 """
 
 from __future__ import annotations
@@ -25,16 +31,20 @@ import torch
 import torch.nn.functional as F
 
 from align.resample import to_16k_mono
-from capture import read_audio
+from capture import find_takes, read_audio, read_take
 from capture.command import progress
 from capture.errors import InputError
 from capture.textgrid import read_textgrid
 from dataset.bottleneck import ARPABET, BottleneckConfig, BottleneckPPG, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
+from dataset.ppg import PocketsphinxExtractor
 
 AUDIO_SUFFIXES = (".wav", ".flac", ".WAV", ".FLAC")
 Segments = list[tuple[float, float, str]]
 MISMATCH_S = 0.5  # alignment and audio lengths may differ by this much without a warning
+LABELS = ("alignments", "pocketsphinx")
+PIECE_S = 10.0  # decoded speech is cut into pieces of about this length (at silences) for the held-out split
+SPEECH_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a")  # audio files that --labels pocketsphinx decodes
 
 
 def _phone_id(label: str) -> int:
@@ -179,6 +189,72 @@ def find_alignments(
     return found
 
 
+def find_speech(paths: list[str | Path]) -> list[Path]:
+    """Take folders and audio files under ``paths`` (an audio file inside a take folder is its take's)."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if not p.exists():
+            raise InputError("not found", p)
+        if p.is_file():
+            found.append(p)
+            continue
+        takes = find_takes([p])
+        inside = {t.resolve() for t in takes}
+        loose = [
+            f
+            for f in sorted(p.rglob("*"))
+            if f.suffix.lower() in SPEECH_SUFFIXES
+            and f.is_file()
+            and not any(parent.resolve() in inside for parent in f.parents)
+        ]
+        found += takes + loose
+    unique = list(dict.fromkeys(f.resolve() for f in found))
+    if not unique:
+        raise InputError("no take folders or audio files found", paths[0])
+    return unique
+
+
+def _speech(source: Path) -> np.ndarray:
+    """16 kHz mono samples of an audio file or of a take folder's audio."""
+    if source.is_dir():
+        take = read_take(source)
+        if take.audio is None:
+            raise InputError("take has no audio", source)
+        return to_16k_mono(take.audio, str(source))
+    return to_16k_mono(read_audio(source), str(source))
+
+
+def pieces_at_silences(
+    segments: Segments, duration: float, piece_s: float = PIECE_S
+) -> list[tuple[float, float]]:
+    """(start, end) s of consecutive pieces covering ``duration``, about ``piece_s`` long each, cut in
+    the middle of the silence nearest each multiple (at the multiple itself when none is near)."""
+    middles = [(a + b) / 2 for a, b, label in segments if _is_silence(label)]
+    cuts = [0.0]
+    while duration - cuts[-1] > 1.5 * piece_s:
+        target = cuts[-1] + piece_s
+        near = [m for m in middles if cuts[-1] + 0.5 * piece_s < m < cuts[-1] + 1.5 * piece_s]
+        cuts.append(min(near, key=lambda m: abs(m - target)) if near else target)
+    cuts.append(duration)
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
+def decoded_utterances(paths: list[str | Path], say: Callable[[str], None] = progress):
+    """(name, 16 kHz audio, phone segments) pieces of every take folder and audio file under ``paths``,
+    labelled by pocketsphinx phone-loop recognition."""
+    decoder = PocketsphinxExtractor()
+    out = []
+    for source in find_speech(paths):
+        audio = _speech(source)
+        segs = [(a * 0.01, (b + 1) * 0.01, unit) for unit, a, b in decoder.segments(audio)]
+        for k, (a, b) in enumerate(pieces_at_silences(segs, audio.size / 16000)):
+            piece = audio[int(round(a * 16000)) : int(round(b * 16000))]
+            inside = [(max(s, a) - a, min(e, b) - a, u) for s, e, u in segs if min(e, b) > max(s, a)]
+            out.append((f"{source.name}#{k}", piece, inside))
+        say(f"ppg: {source}: {audio.size / 16000:.1f} s decoded into {len(segs)} segments")
+    return out
+
+
 def frame_labels(segments: Segments, n_frames: int, hop_s: float) -> np.ndarray:
     """Phone id per analysis frame (centre ``k · hop_s`` s); SIL outside every segment."""
     labels = np.zeros(n_frames, np.int64)
@@ -197,11 +273,15 @@ def train_ppg(
     batch_size: int = 8,
     lr: float = 1e-3,
     say: Callable[[str], None] = progress,
+    labels: str = "alignments",
 ) -> dict[str, Any]:
-    """Train a BottleneckPPG on every aligned utterance under ``paths`` and save it to ``out``. Every
+    """Train a BottleneckPPG on every aligned utterance under ``paths`` (``labels="pocketsphinx"``: on
+    every take folder and audio file, labelled by phone-loop recognition) and save it to ``out``. Every
     tenth utterance (at least one when there are two or more) is held out for the frame accuracy.
     Utterances without any phone frame are skipped; this and other doubts about the alignments are
     said as warnings and listed in the summary."""
+    if labels not in LABELS:
+        raise InputError(f"--labels must be one of {', '.join(LABELS)}, not {labels!r}")
     if steps < 1:
         raise InputError(f"--steps must be at least 1 (got {steps})")
     if not 0 <= seed < 2**63:
@@ -210,10 +290,17 @@ def train_ppg(
     _check_writable(out)
     settings = FeatureSettings()
     warnings: list[str] = []
-    aligned = find_alignments(paths, warnings)
+    if labels == "pocketsphinx":
+        sources = decoded_utterances(paths, say)
+        all_segments = [segs for *_, segs in sources]
+    else:
+        aligned = find_alignments(paths, warnings)
+        all_segments = [segs for _, segs in aligned]
+        # read one at a time: a large corpus need not fit in memory as audio
+        sources = ((str(path), to_16k_mono(read_audio(path), str(path)), segs) for path, segs in aligned)
     unknown = Counter(
         label.strip()
-        for _, segs in aligned
+        for segs in all_segments
         for *_, label in segs
         if not _is_silence(label) and not _phone_id(label)
     )
@@ -224,11 +311,10 @@ def train_ppg(
             f"({len(unknown)} different, e.g. {examples})"
         )
     utts = []
-    for audio_path, segs in aligned:
-        audio = to_16k_mono(read_audio(audio_path), str(audio_path))
+    for audio_path, audio, segs in sources:
         fbank = spectral_features(audio, settings)["fbank"]
-        labels = frame_labels(segs, len(fbank), settings.hop_s)
-        if not labels.any():
+        ids = frame_labels(segs, len(fbank), settings.hop_s)
+        if not ids.any():
             warnings.append(
                 f"{audio_path}: no phone frames (labels all silence or outside ARPAbet, or no segment "
                 "inside the audio): skipped"
@@ -240,7 +326,7 @@ def train_ppg(
                 f"{audio_path}: the alignment ends at {end:.2f} s but the audio is {seconds:.2f} s long "
                 "(is it the audio that was aligned?)"
             )
-        utts.append((torch.from_numpy(fbank), torch.from_numpy(labels)))
+        utts.append((torch.from_numpy(fbank), torch.from_numpy(ids)))
     for w in warnings:
         say(f"warning: {w}")
     if not utts:
