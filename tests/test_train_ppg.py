@@ -147,3 +147,38 @@ def test_speech_sources_are_takes_and_loose_audio(tmp_path):
         "train", "ppg", "--labels", "pocketsphinx", "--data", tmp_path / "none", "-o", tmp_path / "p.pt"
     )
     assert proc.returncode == 1 and "not found" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_pocketsphinx_labels_skip_takes_without_audio(samples, tmp_path):
+    from dataset_helpers import make_aligned_take
+
+    from capture import write_take
+
+    take = make_aligned_take("silent", 3.0, subject="s", seed=0)
+    take.audio = None
+    write_take(take, tmp_path / "takes")
+    speech = (
+        samples
+        / "speech"
+        / "pocketsphinx-testdata-librivox"
+        / "sense_and_sensibility_01_austen_64kb-0870.wav"
+    )
+    (tmp_path / "takes" / "read.wav").write_bytes(speech.read_bytes())
+    proc = run_cli(
+        "train",
+        "ppg",
+        "--labels",
+        "pocketsphinx",
+        "--data",
+        tmp_path / "takes",
+        "-o",
+        tmp_path / "p.pt",
+        "--steps",
+        "5",
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["utterances"] == 1 and summary["warnings"] == [
+        f"{tmp_path / 'takes' / 'silent'}: take has no audio: skipped"
+    ]

@@ -214,13 +214,11 @@ def find_speech(paths: list[str | Path]) -> list[Path]:
     return unique
 
 
-def _speech(source: Path) -> np.ndarray:
-    """16 kHz mono samples of an audio file or of a take folder's audio."""
+def _speech(source: Path) -> np.ndarray | None:
+    """16 kHz mono samples of an audio file or of a take folder's audio (None: the take has none)."""
     if source.is_dir():
         take = read_take(source)
-        if take.audio is None:
-            raise InputError("take has no audio", source)
-        return to_16k_mono(take.audio, str(source))
+        return None if take.audio is None else to_16k_mono(take.audio, str(source))
     return to_16k_mono(read_audio(source), str(source))
 
 
@@ -239,13 +237,16 @@ def pieces_at_silences(
     return list(zip(cuts[:-1], cuts[1:]))
 
 
-def decoded_utterances(paths: list[str | Path], say: Callable[[str], None] = progress):
+def decoded_utterances(paths: list[str | Path], warnings: list[str], say: Callable[[str], None] = progress):
     """(name, 16 kHz audio, phone segments) pieces of every take folder and audio file under ``paths``,
-    labelled by pocketsphinx phone-loop recognition."""
+    labelled by pocketsphinx phone-loop recognition; takes without audio are skipped (``warnings``)."""
     decoder = PocketsphinxExtractor()
     out = []
     for source in find_speech(paths):
         audio = _speech(source)
+        if audio is None:
+            warnings.append(f"{source}: take has no audio: skipped")
+            continue
         segs = [(a * 0.01, (b + 1) * 0.01, unit) for unit, a, b in decoder.segments(audio)]
         for k, (a, b) in enumerate(pieces_at_silences(segs, audio.size / 16000)):
             piece = audio[int(round(a * 16000)) : int(round(b * 16000))]
@@ -291,7 +292,7 @@ def train_ppg(
     settings = FeatureSettings()
     warnings: list[str] = []
     if labels == "pocketsphinx":
-        sources = decoded_utterances(paths, say)
+        sources = decoded_utterances(paths, warnings, say)
         all_segments = [segs for *_, segs in sources]
     else:
         aligned = find_alignments(paths, warnings)
