@@ -34,6 +34,7 @@ from align.resample import to_16k_mono
 from capture import find_takes, read_audio, read_take
 from capture.command import progress
 from capture.errors import InputError
+from capture.importer import AUDIO_SUFFIXES as SPEECH_SUFFIXES
 from capture.textgrid import read_textgrid
 from dataset.bottleneck import ARPABET, BottleneckConfig, BottleneckPPG, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
@@ -44,7 +45,6 @@ Segments = list[tuple[float, float, str]]
 MISMATCH_S = 0.5  # alignment and audio lengths may differ by this much without a warning
 LABELS = ("alignments", "pocketsphinx")
 PIECE_S = 10.0  # decoded speech is cut into pieces of about this length (at silences) for the held-out split
-SPEECH_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a")  # audio files that --labels pocketsphinx decodes
 
 
 def _phone_id(label: str) -> int:
@@ -203,7 +203,7 @@ def find_speech(paths: list[str | Path]) -> list[Path]:
         loose = [
             f
             for f in sorted(p.rglob("*"))
-            if f.suffix.lower() in SPEECH_SUFFIXES
+            if f.suffix.lower() in SPEECH_SUFFIXES  # the audio files s2a-capture import --pair-audio pairs
             and f.is_file()
             and not any(parent.resolve() in inside for parent in f.parents)
         ]
