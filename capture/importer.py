@@ -33,7 +33,12 @@ def find_sources(paths: list[str | Path], exports: bool = False) -> list[Path]:
     return found
 
 
-def _walk(folder: Path, exports: bool) -> Iterator[Path]:
+def _walk(folder: Path, exports: bool, seen: set[Path] | None = None) -> Iterator[Path]:
+    seen = set() if seen is None else seen
+    real = folder.resolve()
+    if real in seen:  # a folder reached again through a symbolic link (a loop, or two links to it)
+        return
+    seen.add(real)
     if is_take_folder(folder):
         yield folder
         return
@@ -41,7 +46,7 @@ def _walk(folder: Path, exports: bool) -> Iterator[Path]:
         return  # an imported take of ours, or a hidden/temporary folder
     for p in sorted(folder.iterdir()):
         if p.is_dir():
-            yield from _walk(p, exports)
+            yield from _walk(p, exports, seen)
         elif p.suffix.lower() == ".csv" or (exports and p.suffix.lower() == ".json" and is_a2f_export(p)):
             yield p
 
@@ -58,13 +63,17 @@ def is_a2f_export(path: Path) -> bool:
 def audio_beside(source: Path) -> tuple[Path | None, str | None]:
     """The audio file that goes with a CSV or export: the one of the same stem, else the only audio
     file in its folder. Returns (path or None, why none was taken when that is worth a warning)."""
-    audio = [p for p in sorted(source.parent.iterdir()) if p.suffix.lower() in AUDIO_SUFFIXES and p.is_file()]
+    files = [p for p in sorted(source.parent.iterdir()) if p.is_file()]
+    audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES]
     same = [p for p in audio if p.stem == source.stem]
     if len(same) > 1:
         return None, f"several audio files named {source.stem}.*: {', '.join(p.name for p in same)}"
     if same:
         return same[0], None
     if len(audio) == 1:
+        owner = [p for p in files if p.stem == audio[0].stem and p.suffix.lower() in (".csv", ".json")]
+        if owner:
+            return None, f"the only audio file beside it, {audio[0].name}, is named for {owner[0].name}"
         return audio[0], None
     if audio:
         return None, f"{len(audio)} audio files beside it and none named {source.stem}.*"
@@ -108,7 +117,13 @@ def import_source(
         return read_paired(audio, source, None, take_id=source.stem)
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
-    if audio is not None and not is_livelink_csv(source):
+    if not is_livelink_csv(source):
+        if audio is None:
+            raise InputError(
+                "not a Live Link Face CSV (its header does not start with Timecode,BlendShapeCount), and "
+                "as generic paired data it needs its audio (--audio, or --pair-audio)",
+                source,
+            )
         return read_paired(audio, source, fps, take_id=source.stem)
     if audio is not None:
         return read_csv_with_audio(

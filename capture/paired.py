@@ -20,7 +20,7 @@ import numpy as np
 
 from . import channels as ch
 from .audio_io import read_audio
-from .csv_take import detect_fps, fill_dropped
+from .csv_take import MAX_GAP_S, detect_fps, fill_dropped
 from .errors import InputError
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
@@ -65,11 +65,13 @@ def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
         data = json.loads(path.read_text(encoding="utf-8-sig"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"not a JSON file ({exc})", path) from None
+    except RecursionError:
+        raise InputError("not a JSON file (nested too deeply)", path) from None
     if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
         raise InputError("not an Audio2Face blendshape export (no weightMat and facsNames)", path)
     names, rows, fps = data["facsNames"], data["weightMat"], data.get("exportFps")
-    if not isinstance(names, list) or not all(isinstance(n, str) and n.strip() for n in names):
-        raise InputError("facsNames must be a list of names", path)
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n.strip() for n in names):
+        raise InputError("facsNames must be a non-empty list of names", path)
     if not isinstance(rows, list) or not rows:
         raise InputError("weightMat must be a non-empty list of frames", path)
     for i, row in enumerate(rows):
@@ -80,11 +82,26 @@ def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
             raise InputError(f"weightMat[{i}] holds a value that is not a number", path)
     for key, want in (("numFrames", len(rows)), ("numPoses", len(names))):
         got = data.get(key)
-        if got is not None and got != want:
-            raise InputError(f"{key} is {got!r} but the file holds {want}", path)
-    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float))):
-        raise InputError(f"exportFps must be a number, not {fps!r}", path)
-    return np.array(rows, dtype=np.float64), [n.strip() for n in names], fps
+        if got is not None and (isinstance(got, bool) or got != want):
+            raise InputError(f"{key} is {_show(got)} but the file holds {want}", path)
+    if fps is not None:
+        if isinstance(fps, bool) or not isinstance(fps, (int, float)):
+            raise InputError(f"exportFps must be a number, not {_show(fps)}", path)
+        try:
+            fps = float(fps)
+        except OverflowError:
+            raise InputError(f"exportFps must be a frame rate, not {_show(fps)}", path) from None
+    try:
+        matrix = np.array(rows, dtype=np.float64)
+    except OverflowError:
+        raise InputError("weightMat holds a number too large for a float", path) from None
+    return matrix, [n.strip() for n in names], fps
+
+
+def _show(value: object, limit: int = 40) -> str:
+    """A value for an error message, cut short (a 400-digit number stays readable)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
@@ -106,17 +123,23 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float |
                 continue
             cells = [c.strip() for c in line.split(",")]
             try:
+                if any("_" in c for c in cells):  # Python's float() reads "1_0" as 10
+                    raise ValueError
                 rows.append([float(c) for c in cells])
             except ValueError:
                 if header is None and not rows:
                     header = cells
+                    if not all(header):
+                        raise InputError("the header leaves a column without a name", path, number) from None
                     continue
                 raise InputError("non-numeric value in the matrix", path, number) from None
             if len(rows[-1]) != len(rows[0]):
                 raise InputError(
                     f"row has {len(rows[-1])} values, the first row {len(rows[0])}", path, number
                 )
-        m = np.array(rows, dtype=np.float64).reshape(len(rows), -1)
+        if not rows:
+            raise InputError("matrix has no frames", path)
+        m = np.array(rows, dtype=np.float64)
     if m.dtype.kind not in "fiu" or m.ndim != 2:
         raise InputError(f"expected a 2-D numeric frames x channels matrix, got {m.dtype} {m.shape}", path)
     if m.shape[0] == 0:
@@ -124,6 +147,8 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float |
     return m, header, fps
 
 
+# Paired data below this rate is a misread time column (milliseconds taken for seconds), not a capture.
+MIN_FPS = 1.0
 # Header names of a column that holds each frame's time rather than a channel (compared lower-case).
 SECONDS_COLUMNS = ("time", "time_s", "times", "seconds", "timestamp", "timecode", "t")
 FRAME_COLUMNS = ("frame", "frames", "frame_index", "frameindex", "frame_number", "framenumber")
@@ -192,10 +217,21 @@ def read_paired(
         fps = detect_fps(clock)[0]
     if fps is None:
         raise InputError("no frame rate: give --fps", matrix_path)
-    if not 0 < fps <= MAX_FPS:
-        raise InputError(f"the frame rate must be in (0, {MAX_FPS:g}], not {fps:g}", matrix_path)
+    if not MIN_FPS <= fps <= MAX_FPS:
+        hint = " (is the time column in milliseconds?)" if kind == "seconds" else ""
+        raise InputError(
+            f"the frame rate must be in [{MIN_FPS:g}, {MAX_FPS:g}], not {fps:g}{hint}", matrix_path
+        )
     names = [channel_name(n) for n in names]
-    values = matrix.astype(np.float32)
+    seen: dict[str, str] = {}
+    for n in names:
+        if n.strip().lower() in seen:
+            raise InputError(
+                f"channels {seen[n.strip().lower()]!r} and {n!r} are the same channel", matrix_path
+            )
+        seen[n.strip().lower()] = n
+    with np.errstate(over="ignore"):  # beyond float32: inf, a BAD_VALUE frame
+        values = matrix.astype(np.float32)
     status = np.where(np.isfinite(values).all(axis=1), FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(
         np.uint8
     )
@@ -207,6 +243,13 @@ def read_paired(
         if abs(step * fps - 1) > 0.03:
             raise InputError(
                 f"the time column's step ({step:.5g} s) does not match {fps:g} frames per second", matrix_path
+            )
+        if time.size > 1 and np.diff(time).max() > MAX_GAP_S:
+            at = int(np.argmax(np.diff(time)))
+            raise InputError(
+                f"the time column jumps by {time[at + 1] - time[at]:.6g} s after frame {at + 1} (more than "
+                f"{MAX_GAP_S:g} s: two recordings joined, or a corrupt clock)",
+                matrix_path,
             )
     meta = TakeMeta(
         id=safe_id(take_id or Path(audio_path).stem),
@@ -234,6 +277,12 @@ def read_paired(
             )
     take = Take(meta, time, values, status)
     audio = read_audio(audio_path, meta.repairs)
+    if time[-1] < 0 or time[0] >= audio.duration_s:
+        raise InputError(
+            f"the frames ({time[0]:.6g}..{time[-1]:.6g} s) lie outside the audio "
+            f"(0..{audio.duration_s:.3f} s)",
+            matrix_path,
+        )
     take.attach_audio(audio, 0.0, "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
     mismatch = audio.duration_s - (time[-1] + 1 / fps)

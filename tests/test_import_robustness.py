@@ -479,3 +479,29 @@ def test_pair_audio_takes_generic_csvs_from_other_generators(samples, tmp_path):
     one_line_error(
         run_cli("capture", "import", root, "-o", tmp_path / "o3", "--fps", "30"), "--fps only applies"
     )
+
+
+def test_pair_audio_never_borrows_another_takes_audio_and_survives_link_loops(samples, tmp_path):
+    ns = samples / "paired" / "neurosync-trainer-lite-testset"
+    root = tmp_path / "n"
+    (root / "sub").mkdir(parents=True)
+    for name in ("take1", "take2"):
+        shutil.copy(ns / "testset.csv", root / f"{name}.csv")
+    shutil.copy(ns / "audio.wav", root / "take1.wav")
+    (root / "sub" / "loop").symlink_to(root, target_is_directory=True)  # a folder that contains itself
+    proc = run_cli("capture", "import", root, "-o", tmp_path / "out", "--pair-audio", "--json")
+    assert proc.returncode == 0, proc.stderr
+    names = sorted(Path(json.loads(x)["path"]).name for x in proc.stdout.splitlines())
+    assert names == ["take1", "take2"]  # each once, though the loop reaches them again and again
+    assert "take2.csv: the only audio file beside it, take1.wav, is named for take1.csv" in proc.stderr
+    assert read_take(tmp_path / "out" / "take1").audio is not None
+    assert read_take(tmp_path / "out" / "take2").audio is None
+
+
+def test_a_generic_csv_without_audio_says_what_it_needs(tmp_path):
+    path = tmp_path / "gen.csv"
+    path.write_text("time,jawOpen\n0,0.1\n0.0333,0.2\n")
+    one_line_error(
+        run_cli("capture", "import", path, "-o", tmp_path / "o"),
+        "as generic paired data it needs its audio (--audio, or --pair-audio)",
+    )

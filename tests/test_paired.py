@@ -121,9 +121,9 @@ def test_audio2face_json_import_takes_names_and_rate_from_the_file(tmp_path, wav
         ({"weightMat": [[0.1] * 52] * 10 + [[0.1] * 51]}, r"weightMat\[10\] holds 51 values, facsNames 52"),
         ({"weightMat": [[0.1] * 51 + ["x"]]}, r"weightMat\[0\] holds a value that is not a number"),
         ({"weightMat": []}, "weightMat must be a non-empty list"),
-        ({"facsNames": "jawOpen"}, "facsNames must be a list of names"),
+        ({"facsNames": "jawOpen"}, "facsNames must be a non-empty list of names"),
         ({"exportFps": "30"}, "exportFps must be a number"),
-        ({"exportFps": 0}, r"frame rate must be in \(0, 1000\], not 0"),
+        ({"exportFps": 0}, r"frame rate must be in \[1, 1000\], not 0"),
         ({"exportFps": None}, "no frame rate: give --fps"),
     ],
 )
@@ -172,3 +172,70 @@ def test_time_and_frame_columns_place_the_frames(tmp_path, wav):
     wrong.write_text("time,jawOpen\n" + "".join(f"{i / 30:.6f},0.1\n" for i in range(30)))
     with pytest.raises(InputError, match=r"step \(0.033333 s\) does not match 60 frames per second"):
         read_paired(wav, wrong, 60)
+
+
+@pytest.mark.parametrize(
+    "name, text, needle",
+    [
+        (
+            "gap",
+            "time,jawOpen\n" + "".join(f"{t:.4f},0.1\n" for t in [0, 1 / 30, 2 / 30, 36000.0, 36000.0333]),
+            r"jumps by 35999.9 s after frame 3 \(more than 30 s",
+        ),
+        (
+            "ms",
+            "time,jawOpen\n" + "".join(f"{i * 33.3333:.4f},0.1\n" for i in range(30)),
+            r"frame rate must be in \[1, 1000\], not 0.03 \(is the time column in milliseconds\?\)",
+        ),
+        (
+            "late",
+            "time,jawOpen\n" + "".join(f"{100 + i / 30:.4f},0.1\n" for i in range(30)),
+            r"the frames \(100..100.967 s\) lie outside the audio \(0..1.000 s\)",
+        ),
+        (
+            "dup",
+            "jawOpen,blendShapes.JawOpen,x\n0.1,0.2,0.3\n",
+            "channels 'jawOpen' and 'jawOpen' are the same",
+        ),
+        ("case", "a,A\n0.1,0.2\n", "channels 'a' and 'A' are the same channel"),
+        ("blank", "time,,jawOpen\n0,0.1,0.2\n", "the header leaves a column without a name"),
+        ("header_only", "time,jawOpen\n", "matrix has no frames"),
+        ("underscore", "jawOpen\n1_0\n", "non-numeric value in the matrix"),
+    ],
+)
+def test_generic_csv_mistakes_are_one_line_errors(tmp_path, wav, name, text, needle):
+    path = tmp_path / f"{name}.csv"
+    path.write_text(text)
+    with pytest.raises(InputError, match=needle):
+        read_paired(wav, path, None if name in ("gap", "ms", "late") else 30)
+
+
+@pytest.mark.parametrize(
+    "raw, needle",
+    [
+        (
+            '{"exportFps": 30, "facsNames": ["a"], "weightMat": [[1' + "0" * 400 + "]]}",
+            "too large for a float",
+        ),
+        (
+            '{"exportFps": 1' + "0" * 400 + ', "facsNames": ["a"], "weightMat": [[1]]}',
+            "exportFps must be a frame rate",
+        ),
+        (
+            '{"exportFps": 30, "facsNames": ["a"], "weightMat": ' + "[" * 100_000 + "]" * 100_000 + "}",
+            "nested too deeply",
+        ),
+        ('{"exportFps": 30, "numFrames": true, "facsNames": ["a"], "weightMat": [[1]]}', "numFrames is True"),
+        ('{"exportFps": 30, "facsNames": [], "weightMat": [[]]}', "facsNames must be a non-empty list"),
+        (
+            '{"exportFps": 30, "facsNames": ["jawOpen", "JawOpen"], "weightMat": [[1, 2]]}',
+            "are the same channel",
+        ),
+    ],
+)
+def test_audio2face_json_edge_cases(tmp_path, wav, raw, needle):
+    path = tmp_path / "x.json"
+    path.write_text(raw)
+    proc = run_cli("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
