@@ -135,8 +135,10 @@ REJECT_HINTS = {
 
 def _report(summaries: list[dict], as_json: bool) -> None:
     for s in summaries:
-        if as_json:
+        if as_json:  # stdout stays one JSON object per line; the warnings go to stderr as well
             emit_json(s)
+            for line in _warnings(s):
+                progress(f"{s.get('path')}: {line}")
             continue
         if s.get("error"):
             progress(f"{s.get('device')} / {s.get('subject')}: {s['error']}")
@@ -155,12 +157,20 @@ def _report(summaries: list[dict], as_json: bool) -> None:
         )
         if "torn_tail" in s:
             progress(f"  torn log tail discarded: {s['torn_tail']}")
-        if "frame_clock" in s:
-            progress(f"  warning: frames placed by arrival time: {s['frame_clock']['reason']}")
-        for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
-            if s.get(key):
-                lost = sum(d["bytes_discarded"] for d in s[key])
-                progress(f"  warning: {len(s[key])} damaged stretch(es) of the {what} skipped ({lost} bytes)")
+        for line in _warnings(s):
+            progress(f"  {line}")
+
+
+def _warnings(s: dict) -> list[str]:
+    """What in a take's summary the person recording should hear about even with --json."""
+    lines = []
+    if "frame_clock" in s:
+        lines.append(f"warning: frames placed by arrival time: {s['frame_clock']['reason']}")
+    for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
+        if s.get(key):
+            lost = sum(d["bytes_discarded"] for d in s[key])
+            lines.append(f"warning: {len(s[key])} damaged stretch(es) of the {what} skipped ({lost} bytes)")
+    return lines
 
 
 def _status_line(counts: dict) -> None:

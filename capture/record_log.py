@@ -45,6 +45,12 @@ MAX_UNWRITTEN_BYTES = 256 << 20  # what a writer holds in memory while the disk 
 # 614 KB even at 192 kHz x 8 channels of float32): each candidate is read and checksummed, and in random
 # bytes candidates of up to 16 MiB would cost megabytes of reading every few kilobytes.
 RESYNC_MAX_BYTES = 1 << 20
+# Candidates longer than this must have a length the log has used before, or be followed by a record
+# of the same length (the recorder's long records, audio chunks, come in runs of one size); and once
+# the search has checksummed RESYNC_BUDGET times the bytes it has passed (plus RESYNC_MAX_BYTES), only
+# the first kind. A pattern that mimics headers then costs a bounded multiple of its size.
+RESYNC_FREE_BYTES = 4096
+RESYNC_BUDGET = 8
 
 
 class RecordType(IntEnum):
@@ -93,6 +99,7 @@ class LogReader:
         self.block_bytes = block_bytes
         self.torn_tail: TornTail | None = None
         self.skipped: list[TornTail] = []  # damaged stretches with valid records after them
+        self._lengths: set[int] = set()  # payload lengths of the valid records read so far
         self.records = 0
         self.valid_bytes = 0
 
@@ -116,7 +123,7 @@ class LogReader:
                 offset, bad = yield from self._records(f, offset, size)
                 if bad is None:
                     break
-                resume = _next_record(f, bad.offset + 1, size)
+                resume = _next_record(f, bad.offset + 1, size, self._lengths)
                 if resume is None:
                     self.torn_tail = TornTail(bad.offset, size - bad.offset, bad.reason)
                     break
@@ -165,6 +172,8 @@ class LogReader:
             if zlib.crc32(payload) != crc:
                 return offset, TornTail(offset, size - offset, "checksum")
             self.records += 1
+            if length > RESYNC_FREE_BYTES and len(self._lengths) < 256:
+                self._lengths.add(length)
             at = end
             self.valid_bytes = base + at
             yield payload
@@ -173,14 +182,32 @@ class LogReader:
 _KNOWN_TYPES = frozenset(int(t) for t in RecordType)
 
 
-def _next_record(f, start: int, size: int, block: int = 1 << 20) -> int | None:
+def _plausible_next(f, end: int, size: int, length: int, lengths: set[int]) -> bool:
+    """Whether a candidate record of ``length`` ending at ``end`` is worth checksumming: what follows
+    could be the next record (the end of the file, a header cut short there, or a header of a known
+    type and a plausible length), and a long candidate has a length used before or is followed by
+    one of the same length."""
+    if end + RECORD_HEADER.size + 1 > size:
+        return length <= RESYNC_FREE_BYTES or length in lengths or end == size
+    f.seek(end)
+    head = f.read(RECORD_HEADER.size + 1)
+    (following, _) = RECORD_HEADER.unpack_from(head)
+    if not (0 < following <= MAX_RECORD_BYTES and head[RECORD_HEADER.size] in _KNOWN_TYPES):
+        return False
+    return length <= RESYNC_FREE_BYTES or length in lengths or following == length
+
+
+def _next_record(f, start: int, size: int, lengths: set[int], block: int = 1 << 20) -> int | None:
     """Offset of the first valid record at or after ``start`` (None: there is none).
 
     Candidates are the offsets whose length field is at most ``RESYNC_MAX_BYTES`` and whose first
-    payload byte is a known record type (about one offset in 100,000 of random bytes); only those are
-    read and checksummed."""
+    payload byte is a known record type (about one offset in 100,000 of random bytes), that pass
+    ``_plausible_next`` (``lengths``: the long lengths the log has used) and the budget
+    (``RESYNC_BUDGET``); only those are read and checksummed. (Without them, 4 MB of a repeating pattern
+    that mimics headers took 128 s.)"""
     need = RECORD_HEADER.size + 1
     pos = start
+    spent = 0  # bytes checksummed for long candidates of new lengths
     while pos + need <= size:
         f.seek(pos)
         chunk = np.frombuffer(f.read(block + need - 1), np.uint8)
@@ -196,12 +223,16 @@ def _next_record(f, start: int, size: int, block: int = 1 << 20) -> int | None:
         kind = chunk[RECORD_HEADER.size : RECORD_HEADER.size + n]
         plausible = (length > 0) & (length <= RESYNC_MAX_BYTES) & np.isin(kind, list(_KNOWN_TYPES))
         for i in np.flatnonzero(plausible).tolist():
-            at = pos + i
-            if at + RECORD_HEADER.size + int(length[i]) > size:
+            at, n_bytes = pos + i, int(length[i])
+            end = at + RECORD_HEADER.size + n_bytes
+            if end > size or not _plausible_next(f, end, size, n_bytes, lengths):
                 continue
+            novel = n_bytes > RESYNC_FREE_BYTES and n_bytes not in lengths
+            if novel and spent > RESYNC_BUDGET * (at - start) + RESYNC_MAX_BYTES:
+                continue
+            spent += n_bytes if novel else 0
             f.seek(at)
-            header = f.read(RECORD_HEADER.size)
-            n_bytes, crc = RECORD_HEADER.unpack(header)
+            (_, crc) = RECORD_HEADER.unpack(f.read(RECORD_HEADER.size))
             if zlib.crc32(f.read(n_bytes)) == crc:
                 return at
         pos += n

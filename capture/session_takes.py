@@ -61,11 +61,12 @@ MIN_TAKE_FRAMES = 10
 # A frame time this far behind the newest, followed by another one behind, is a restart of the phone's
 # frame clock (a new recording of the stream), not a late packet.
 RESTART_WINDOW_S = 1.0
-# A phone's frame clock restarts rarely: a stream whose frame time jumps back by more than
-# RESTART_WINDOW_S at least MIN_CLOCK_JUMPS times and more than once per CLOCK_JUMP_S of arrival time
-# has a frame clock that says nothing about time, and so does one where most packets repeat the
-# frame time before them.
-MIN_CLOCK_JUMPS = 3
+# A phone's frame clock moves forward with its packets and restarts rarely: a stream where most packets
+# repeat or go back from the frame time before them, or whose frame time jumps back by more than
+# RESTART_WINDOW_S at least MIN_CLOCK_JUMPS times and more than once per CLOCK_JUMP_S of arrivals, has
+# a frame clock that says nothing about time. (Its speed against the arrivals says nothing: a replay
+# at --speed 50 runs 50 times fast.)
+MIN_CLOCK_JUMPS = 4
 CLOCK_JUMP_S = 10.0
 # DROPPED frames a take may get per received frame (plus MAX_GAP_S at the stream's rate): past that,
 # as only a corrupt or hostile frame clock needs, the gaps are left unfilled.
@@ -226,6 +227,9 @@ def frame_clock_problem(frame_time: np.ndarray, arrival_s: np.ndarray) -> str | 
     repeats = int(np.count_nonzero(step == 0))
     if repeats > step.size / 2:
         return f"{repeats} of {n} packets repeat the frame time of the packet before them"
+    back = int(np.count_nonzero(step < 0))
+    if back > step.size / 2:
+        return f"the frame time goes back from {back} of {n} packets to the next"
     jumps = int(np.count_nonzero(step < -RESTART_WINDOW_S))
     span = float(arrival_s[-1] - arrival_s[0])
     if jumps >= MIN_CLOCK_JUMPS and jumps > span / CLOCK_JUMP_S:

@@ -293,15 +293,19 @@ def _send_paced(tmp_path, session_id: str, packets: list[bytes], rate: float) ->
     return rec
 
 
-@pytest.mark.parametrize("sender, fps", [("pylivelinkface", 60), ("pylivelinkface", 30), ("frozen", 60)])
+@pytest.mark.parametrize(
+    "sender, fps", [("pylivelinkface", 60), ("pylivelinkface", 30), ("frozen", 60), ("countdown", 60)]
+)
 def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, sender, fps):
-    n = 4 * fps  # 4 s
+    n = 5 * fps  # 5 s: PyLiveLinkFace's clock jumps back 5 times
     den = fps // 60  # PyLiveLinkFace sends int(fps / 60): 0 at 30 fps
     if sender == "pylivelinkface":
         frames = [_pylivelinkface_frame(3600.0 + 0.25 + i / fps, fps) for i in range(n)]
         subs = [0.4730] * n  # its constant sub-frame
-    else:  # a sender that never sets the frame number
+    elif sender == "frozen":  # a sender that never sets the frame number
         frames, subs = [0] * n, [0.0] * n
+    else:  # one that counts down
+        frames, subs = list(range(100_000, 100_000 - n, -1)), [0.0] * n
     values = [VALS + i / 1000 for i in range(n)]
     head = header_bytes("$" + "A" * 35, "Player")
     packets = [head + frame_block(f, s, fps, den, v) for f, s, v in zip(frames, subs, values)]
@@ -316,7 +320,7 @@ def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, se
     tracked = take.frame_status == FrameStatus.TRACKED
     assert tracked.sum() == n  # every packet is a frame, in the order sent
     np.testing.assert_allclose(take.values[tracked, 0], [v[0] for v in values], atol=1e-6)
-    assert 3.5 < take.duration_s < 4.6  # real time, not 16x (milliseconds as frames) or 0
+    assert 4.5 < take.duration_s < 5.6  # real time, not 16x (milliseconds as frames) or 0
 
 
 def test_a_phone_clock_is_kept_however_fast_the_packets_come(tmp_path):

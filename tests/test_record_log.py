@@ -98,3 +98,32 @@ def test_take_arrival_times_round_trip(tmp_path):
     assert read_take(write_take(take, tmp_path)).arrival_s is None
     with pytest.raises(InputError, match="arrival_s"):
         type(take)(take.meta, take.time, take.values, take.frame_status, arrival_s=np.zeros(3))
+
+
+def test_a_pattern_that_mimics_headers_is_searched_cheaply(tmp_path, monkeypatch):
+    """4 MB of a repeating pattern whose every 4th offset reads as a long record followed by another:
+    the search checksums within its budget, and still finds every real record after it."""
+    import zlib
+
+    import capture.record_log as rl
+
+    payloads = [bytes([RecordType.FRAME]) + bytes([i]) * 271 for i in range(40)]
+    log = tmp_path / "p.log"
+    _write_log(log, payloads)
+    data = bytearray(log.read_bytes())
+    at = len(MAGIC) + 20 * 280
+    data[at:at] = b"\x03\x00\x08\x00" * (1 << 20)
+    log.write_bytes(bytes(data))
+    checked = []
+
+    class CountingZlib:
+        @staticmethod
+        def crc32(payload, *args):
+            checked.append(len(payload))
+            return zlib.crc32(payload, *args)
+
+    monkeypatch.setattr(rl, "zlib", CountingZlib)
+    reader = LogReader(log)
+    assert [bytes(p) for p in reader] == payloads and len(reader.skipped) == 1
+    # a bounded multiple of the bytes searched, not a megabyte per candidate (196 GB before the budget)
+    assert sum(checked) <= (rl.RESYNC_BUDGET + 1) * len(data) + rl.RESYNC_MAX_BYTES

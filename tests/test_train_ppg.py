@@ -147,6 +147,11 @@ def test_speech_sources_are_takes_and_loose_audio(tmp_path):
         "train", "ppg", "--labels", "pocketsphinx", "--data", tmp_path / "none", "-o", tmp_path / "p.pt"
     )
     assert proc.returncode == 1 and "not found" in proc.stderr and "Traceback" not in proc.stderr
+    sf.write(tmp_path / "quiet.wav", np.zeros(32000, np.float32), 16000)
+    proc = run_cli(
+        "train", "ppg", "--labels", "pocketsphinx", "--data", tmp_path / "quiet.wav", "-o", tmp_path / "p.pt"
+    )
+    assert proc.returncode == 1 and "pocketsphinx recognised no phones in the audio" in proc.stderr
 
 
 def test_pocketsphinx_labels_skip_takes_without_audio(samples, tmp_path):

@@ -331,6 +331,8 @@ def train_ppg(
     for w in warnings:
         say(f"warning: {w}")
     if not utts:
+        if labels == "pocketsphinx":
+            raise InputError("pocketsphinx recognised no phones in the audio (silence or noise?)", paths[0])
         raise InputError(
             "no phone frames in the alignments: every label is silence or outside ARPAbet, or lies "
             "past the end of its audio",
