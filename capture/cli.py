@@ -148,6 +148,11 @@ def cmd_import(args: argparse.Namespace) -> int:
                     if why:
                         print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)
                 take = import_source(src, audio, args.variant, args.strict, args.swap_lr, pairing, args.fps)
+                if args.fps is not None and take.meta.source_kind != "paired_matrix":
+                    print(
+                        f"{PROG}: warning: {src}: --fps ignored: a Live Link Face take has its own timecodes",
+                        file=sys.stderr,
+                    )
                 if args.take_id:
                     take.meta.id = args.take_id
             _unique_id(take, src, written)

@@ -479,6 +479,13 @@ def test_pair_audio_takes_generic_csvs_from_other_generators(samples, tmp_path):
     one_line_error(
         run_cli("capture", "import", root, "-o", tmp_path / "o3", "--fps", "30"), "--fps only applies"
     )
+    app = tmp_path / "app"
+    app.mkdir()
+    shutil.copy(ns / "testset.csv", app / "t.csv")
+    shutil.copy(ns / "audio.wav", app / "t.wav")
+    proc = run_cli("capture", "import", app, "-o", tmp_path / "o4", "--pair-audio", "--fps", "45")
+    assert proc.returncode == 0, proc.stderr
+    assert "t.csv: --fps ignored: a Live Link Face take has its own timecodes" in proc.stderr
 
 
 def test_pair_audio_never_borrows_another_takes_audio_and_survives_link_loops(samples, tmp_path):
