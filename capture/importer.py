@@ -81,13 +81,15 @@ def audio_beside(source: Path) -> tuple[Path | None, str | None]:
 
 
 def is_livelink_csv(path: Path) -> bool:
-    """Whether a CSV's header starts like the app's (``Timecode,BlendShapeCount``, any case)."""
+    """Whether a CSV's first non-blank line starts like the app's header (``Timecode,BlendShapeCount``,
+    any case); the Live Link Face reader then reports whatever else is wrong with it."""
     try:
         with open(path, "rb") as f:
-            first = f.readline(4096).decode("utf-8-sig", "replace").lower().replace(" ", "")
+            head = f.read(4096).decode("utf-8-sig", "replace")
     except OSError:
         return True  # let the Live Link Face reader report it
-    return first.startswith("timecode,blendshapecount")
+    first = next((line for line in head.splitlines() if line.strip()), "")
+    return first.lower().replace(" ", "").startswith("timecode,blendshapecount")
 
 
 def import_source(

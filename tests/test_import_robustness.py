@@ -512,3 +512,11 @@ def test_a_generic_csv_without_audio_says_what_it_needs(tmp_path):
         run_cli("capture", "import", path, "-o", tmp_path / "o"),
         "as generic paired data it needs its audio (--audio, or --pair-audio)",
     )
+
+
+def test_an_app_csv_with_a_leading_blank_line_is_judged_as_the_apps(samples, tmp_path):
+    ns = samples / "paired" / "neurosync-trainer-lite-testset"
+    csv = tmp_path / "blank.csv"
+    csv.write_text("\n" + (ns / "testset.csv").read_text())
+    proc = run_cli("capture", "import", csv, "--audio", ns / "audio.wav", "-o", tmp_path / "o")
+    one_line_error(proc, "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount")
