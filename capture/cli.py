@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
 from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, write_livelink_csv
 from .errors import InputError, S2AError
-from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, import_source
+from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
@@ -135,6 +136,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         jobs = [("source", s) for s in sources]
     make_out_dir(args.out)
     written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
+    listing = functools.cache(folder_files)  # --pair-audio: each folder listed once, however many sources
     failures = 0
     for kind, src in jobs:
         try:
@@ -143,7 +145,7 @@ def cmd_import(args: argparse.Namespace) -> int:
             else:
                 audio, pairing = args.audio, args.audio_pairing
                 if args.pair_audio:  # loose files get the audio beside them; take folders have their own
-                    audio, why = audio_beside(src) if src.is_file() else (None, None)
+                    audio, why = audio_beside(src, listing(src.parent)) if src.is_file() else (None, None)
                     pairing = args.audio_pairing if audio is not None else "first-row"
                     if why:
                         print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)

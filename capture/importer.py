@@ -60,10 +60,16 @@ def is_a2f_export(path: Path) -> bool:
         return False
 
 
-def audio_beside(source: Path) -> tuple[Path | None, str | None]:
+def folder_files(folder: Path) -> list[Path]:
+    """The files of a folder, sorted (what ``audio_beside`` looks among)."""
+    return sorted(p for p in folder.iterdir() if p.is_file())
+
+
+def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
     """The audio file that goes with a CSV or export: the one of the same stem, else the only audio
-    file in its folder. Returns (path or None, why none was taken when that is worth a warning)."""
-    files = [p for p in sorted(source.parent.iterdir()) if p.is_file()]
+    file in its folder (``files``: ``folder_files`` of it, when the caller lists each folder once).
+    Returns (path or None, why none was taken when that is worth a warning)."""
+    files = folder_files(source.parent) if files is None else files
     audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES]
     same = [p for p in audio if p.stem == source.stem]
     if len(same) > 1:

@@ -51,12 +51,21 @@ def read_names(path: str | Path) -> list[str]:
         names = [n for n in names if n]
     if not names:
         raise InputError("no channel names", path)
-    seen = set()
-    for n in names:
-        if n.lower() in seen:
-            raise InputError(f"channel name {n!r} appears twice", path)
-        seen.add(n.lower())
+    twice = repeated_name(names)
+    if twice is not None:
+        raise InputError(f"channel name {twice[1]!r} appears twice", path)
     return names
+
+
+def repeated_name(names: list[str]) -> tuple[str, str] | None:
+    """The first two names that are one name in any case and spacing (first, second), or None."""
+    seen: dict[str, str] = {}
+    for n in names:
+        key = n.strip().lower()
+        if key in seen:
+            return seen[key], n
+        seen[key] = n
+    return None
 
 
 def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
@@ -180,6 +189,28 @@ def _frame_clock(names: list[str], matrix: np.ndarray, path) -> tuple[str | None
     return kind, clock, i
 
 
+def _frame_times(kind: str | None, clock: np.ndarray | None, frames: int, fps: float, path) -> np.ndarray:
+    """Frame times (s from the audio's start): ``i / fps``, or from the time column, whose median step
+    must match ``fps`` and which may not jump by more than ``MAX_GAP_S``."""
+    if kind is None:
+        return np.arange(frames, dtype=np.float64) / fps
+    time = clock if kind == "seconds" else clock / fps
+    step = np.diff(time)
+    median = float(np.median(step)) if step.size else 1 / fps
+    if abs(median * fps - 1) > 0.03:
+        raise InputError(
+            f"the time column's step ({median:.5g} s) does not match {fps:g} frames per second", path
+        )
+    if step.size and step.max() > MAX_GAP_S:
+        at = int(np.argmax(step))
+        raise InputError(
+            f"the time column jumps by {step[at]:.6g} s after frame {at + 1} (more than "
+            f"{MAX_GAP_S:g} s: two recordings joined, or a corrupt clock)",
+            path,
+        )
+    return time
+
+
 def read_paired(
     audio_path: str | Path,
     matrix_path: str | Path,
@@ -223,34 +254,15 @@ def read_paired(
             f"the frame rate must be in [{MIN_FPS:g}, {MAX_FPS:g}], not {fps:g}{hint}", matrix_path
         )
     names = [channel_name(n) for n in names]
-    seen: dict[str, str] = {}
-    for n in names:
-        if n.strip().lower() in seen:
-            raise InputError(
-                f"channels {seen[n.strip().lower()]!r} and {n!r} are the same channel", matrix_path
-            )
-        seen[n.strip().lower()] = n
+    twice = repeated_name(names)
+    if twice is not None:
+        raise InputError(f"channels {twice[0]!r} and {twice[1]!r} are the same channel", matrix_path)
     with np.errstate(over="ignore"):  # beyond float32: inf, a BAD_VALUE frame
         values = matrix.astype(np.float32)
     status = np.where(np.isfinite(values).all(axis=1), FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(
         np.uint8
     )
-    if kind is None:
-        time = np.arange(matrix.shape[0], dtype=np.float64) / fps
-    else:
-        time = clock if kind == "seconds" else clock / fps
-        step = float(np.median(np.diff(time))) if time.size > 1 else 1 / fps
-        if abs(step * fps - 1) > 0.03:
-            raise InputError(
-                f"the time column's step ({step:.5g} s) does not match {fps:g} frames per second", matrix_path
-            )
-        if time.size > 1 and np.diff(time).max() > MAX_GAP_S:
-            at = int(np.argmax(np.diff(time)))
-            raise InputError(
-                f"the time column jumps by {time[at + 1] - time[at]:.6g} s after frame {at + 1} (more than "
-                f"{MAX_GAP_S:g} s: two recordings joined, or a corrupt clock)",
-                matrix_path,
-            )
+    time = _frame_times(kind, clock, matrix.shape[0], fps, matrix_path)
     meta = TakeMeta(
         id=safe_id(take_id or Path(audio_path).stem),
         source_kind="paired_matrix",

@@ -264,10 +264,11 @@ def stream_takes(
     den = ll.rate_denominator(rows["rate_denominator"].astype(np.float64))
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
     numbers = rows["frame_number"].astype(np.int64)
-    problem = frame_clock_problem(frame_time, log.seconds(rows["arrival_ns"]))
+    arrival = log.seconds(rows["arrival_ns"])
+    problem = frame_clock_problem(frame_time, arrival)
     if problem is not None:
         report["frame_clock"] = {"placed_by": "arrival", "reason": problem}
-        frame_time = arrival_clock(log.seconds(rows["arrival_ns"]), float(den[0] / num[0]))
+        frame_time = arrival_clock(arrival, float(den[0] / num[0]))
         numbers = np.rint((frame_time - frame_time[0]) * num[0] / den[0]).astype(np.int64)
     recordings = _recordings(frame_time)
     report["restarts"] = len(recordings) - 1

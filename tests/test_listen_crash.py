@@ -76,15 +76,19 @@ def test_sigkill_at_random_moments_loses_no_flushed_frame(tmp_path):
         )
 
 
-def test_recover_reports_a_torn_tail(tmp_path):
-    take = synthetic_take(120, seed=6)
-    listener = Listener(tmp_path / "out")
+def _killed_session(tmp_path, seed: int):
+    """A listener that recorded 120 replayed frames and was then killed: its frames.log."""
     from capture.replay import replay_take
 
-    replay_take(take, "127.0.0.1", listener.port, speed=20)
+    listener = Listener(tmp_path / "out")
+    replay_take(synthetic_take(120, seed=seed), "127.0.0.1", listener.port, speed=20)
     time.sleep(0.3)
     listener.kill()
-    log = listener.session_dir / "frames.log"
+    return listener.session_dir / "frames.log"
+
+
+def test_recover_reports_a_torn_tail(tmp_path):
+    log = _killed_session(tmp_path, seed=6)
     with open(log, "ab") as f:
         f.write(struct.pack("<II", 272, 12345) + b"\x03" + bytes(100))  # a record cut short by a crash
     r = run_cli("recover", str(tmp_path / "out"), "--json")
@@ -97,14 +101,7 @@ def test_recover_reports_a_torn_tail(tmp_path):
 
 def test_recover_skips_a_damaged_record_mid_log(tmp_path):
     """A flipped bit in one frame record mid-session costs that frame, not the rest of the take."""
-    take = synthetic_take(120, seed=8)
-    listener = Listener(tmp_path / "out")
-    from capture.replay import replay_take
-
-    replay_take(take, "127.0.0.1", listener.port, speed=20)
-    time.sleep(0.3)
-    listener.kill()
-    log = listener.session_dir / "frames.log"
+    log = _killed_session(tmp_path, seed=8)
     data = bytearray(log.read_bytes())
     at, frames, damaged = len(MAGIC), 0, None
     while at < len(data):

@@ -96,6 +96,12 @@ def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_pa
 
 
 # -- speech without alignments: labels from pocketsphinx phone-loop recognition ---------------------------
+def _ppg_from_speech(*data, out, steps: int | None = None):
+    """``s2a-train ppg --labels pocketsphinx`` on ``data`` (with --json when steps are given)."""
+    extra = ["--steps", str(steps), "--json"] if steps is not None else []
+    return run_cli("train", "ppg", "--labels", "pocketsphinx", "--data", *data, "-o", out, *extra)
+
+
 def test_pieces_cut_at_silences_cover_the_audio():
     from train.ppg_train import pieces_at_silences
 
@@ -112,20 +118,7 @@ def test_ppg_trained_on_unaligned_mandarin_with_pocketsphinx_labels(samples, tmp
     bottleneck learns those labels better than always guessing the commonest."""
     wav = samples / "paired" / "facegood-audio2face" / "wav"
     out = tmp_path / "ppg.pt"
-    proc = run_cli(
-        "train",
-        "ppg",
-        "--labels",
-        "pocketsphinx",
-        "--data",
-        wav / "1114_2_01.wav",
-        wav / "1114_2_03.wav",
-        "-o",
-        out,
-        "--steps",
-        "120",
-        "--json",
-    )
+    proc = _ppg_from_speech(wav / "1114_2_01.wav", wav / "1114_2_03.wav", out=out, steps=120)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["utterances"] >= 15  # about 10 s pieces of two 1.5-3 min takes
@@ -143,14 +136,10 @@ def test_speech_sources_are_takes_and_loose_audio(tmp_path):
     sf.write(tmp_path / "takes" / "extra.wav", np.zeros(1600, np.float32), 16000)
     found = find_speech([tmp_path / "takes"])
     assert len(found) == 2 and sum(p.is_dir() for p in found) == 1  # the take's own audio.wav is its take's
-    proc = run_cli(
-        "train", "ppg", "--labels", "pocketsphinx", "--data", tmp_path / "none", "-o", tmp_path / "p.pt"
-    )
+    proc = _ppg_from_speech(tmp_path / "none", out=tmp_path / "p.pt")
     assert proc.returncode == 1 and "not found" in proc.stderr and "Traceback" not in proc.stderr
     sf.write(tmp_path / "quiet.wav", np.zeros(32000, np.float32), 16000)
-    proc = run_cli(
-        "train", "ppg", "--labels", "pocketsphinx", "--data", tmp_path / "quiet.wav", "-o", tmp_path / "p.pt"
-    )
+    proc = _ppg_from_speech(tmp_path / "quiet.wav", out=tmp_path / "p.pt")
     assert proc.returncode == 1 and "pocketsphinx recognised no phones in the audio" in proc.stderr
 
 
@@ -169,19 +158,7 @@ def test_pocketsphinx_labels_skip_takes_without_audio(samples, tmp_path):
         / "sense_and_sensibility_01_austen_64kb-0870.wav"
     )
     (tmp_path / "takes" / "read.wav").write_bytes(speech.read_bytes())
-    proc = run_cli(
-        "train",
-        "ppg",
-        "--labels",
-        "pocketsphinx",
-        "--data",
-        tmp_path / "takes",
-        "-o",
-        tmp_path / "p.pt",
-        "--steps",
-        "5",
-        "--json",
-    )
+    proc = _ppg_from_speech(tmp_path / "takes", out=tmp_path / "p.pt", steps=5)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["utterances"] == 1 and summary["warnings"] == [

@@ -205,7 +205,7 @@ def find_speech(paths: list[str | Path]) -> list[Path]:
             for f in sorted(p.rglob("*"))
             if f.suffix.lower() in SPEECH_SUFFIXES  # the audio files s2a-capture import --pair-audio pairs
             and f.is_file()
-            and not any(parent.resolve() in inside for parent in f.parents)
+            and not inside.intersection(f.resolve().parents)
         ]
         found += takes + loose
     unique = list(dict.fromkeys(f.resolve() for f in found))
