@@ -39,7 +39,8 @@ class ShardDataset(IterableDataset):
     None yields whole samples. ``features``: which features to load (default: all in the manifest).
     Each item: ``anim`` (window, channels) float32 (normalised when ``normalize``), ``mask`` (window,)
     bool, one (window, dim) float32 tensor per feature (pitch: per-speaker z-scored log-F0 and voicing;
-    others z-scored), optionally ``audio`` (samples,) float32 at 16 kHz, and ``key``.
+    others z-scored), optionally ``audio`` (samples,) float32 at 16 kHz, ``key`` and ``speaker`` (the
+    sample's, "" if none).
     """
 
     def __init__(
@@ -148,6 +149,7 @@ class ShardDataset(IterableDataset):
             neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
             anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * mask[:, None]
         item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask}
+        item["speaker"] = str(meta.get("speaker") or "")
         for name in self.features:
             x = decode_npy(members[f"{name}.npy"], f"{key}.{name}.npy").astype(np.float32)
             if self.normalize:

@@ -58,7 +58,8 @@ def take_agreement(
     if unknown:
         raise InputError(f"unknown split(s) {', '.join(unknown)}: choose from train, val, test", where)
     splits = tuple(s for s in splits if s in present)
-    spec = resolve_inputs(manifest, cfg, str(where))
+    # a take left out is a speaker the fit never saw: style columns would only add unfitted weights
+    spec = resolve_inputs(manifest, {**cfg, "speaker_style": False}, str(where))
     take_of = {s["key"]: s["take"] for s in manifest["samples"]}
     alpha = float(cfg["ridge_alpha"]) or DEFAULT_ALPHA
     model = Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, cfg["ridge_context"])

@@ -37,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", type=Path, required=True, help="dataset folder")
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
     _precision_option(p)
+    _style_option(p, "each utterance's own speaker's, the mean style for a speaker the run did not train on")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(handler=cmd_eval)
 
@@ -49,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--speaker", help="dataset speaker whose pitch statistics to use (default: the utterance's)"
     )
     _precision_option(p)
+    _style_option(p, "the --speaker's when the run trained on that speaker, else the mean style")
     p.add_argument("--json", action="store_true", help="print one JSON line per file")
     p.set_defaults(handler=cmd_predict)
 
@@ -121,6 +123,15 @@ def _precision_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _style_option(p: argparse.ArgumentParser, default: str) -> None:
+    p.add_argument(
+        "--style",
+        metavar="SPEAKER",
+        help=f"for runs trained with speaker_style: animate in this training speaker's style, or 'mean' "
+        f"(default: {default})",
+    )
+
+
 def _config(args: argparse.Namespace, model: str | None = None) -> dict:
     cfg = resolve_config(args.config, args.set)
     if model is not None:
@@ -166,7 +177,7 @@ def _leave_distributed_process() -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     from .evaluate import evaluate, format_result
 
-    result = evaluate(args.run, args.data, args.split, precision=args.precision)
+    result = evaluate(args.run, args.data, args.split, precision=args.precision, style=args.style)
     if args.json:
         emit_json(result)
     else:
@@ -177,7 +188,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def cmd_predict(args: argparse.Namespace) -> int:
     from .predict import predict
 
-    for r in predict(args.run, args.audio, args.out, args.ppg_model, args.speaker, precision=args.precision):
+    results = predict(
+        args.run,
+        args.audio,
+        args.out,
+        args.ppg_model,
+        args.speaker,
+        precision=args.precision,
+        style=args.style,
+    )
+    for r in results:
         if args.json:
             emit_json(r)
         else:

@@ -29,6 +29,10 @@ DEFAULTS: dict[str, Any] = {
     "model": "s2a",
     "input": "auto",  # content features: auto = ppg when the dataset has it, else fbank
     "prosody": True,  # pitch (log-F0, voicing) + energy
+    # the speaker's style as a one-hot input (train/style.py): the training samples' speakers, the
+    # mean style for any other speaker
+    "speaker_style": False,
+    "style_dropout": 0.1,  # probability that a training window gets the mean style instead of its own
     "seed": 0,
     "window": 240,  # frames per training window (4 s at 60 fps)
     "batch_size": 16,
@@ -150,6 +154,14 @@ def check_config(cfg: dict[str, Any]) -> None:
         raise InputError(f"input must be one of {', '.join(INPUTS)}, got {cfg['input']!r}", "config:input")
     if not isinstance(cfg["prosody"], bool):
         raise InputError(f"prosody must be true or false, got {cfg['prosody']!r}", "config:prosody")
+    if not isinstance(cfg["speaker_style"], bool):
+        raise InputError(
+            f"speaker_style must be true or false, got {cfg['speaker_style']!r}", "config:speaker_style"
+        )
+    if not _is_number(cfg["style_dropout"]) or not 0 <= cfg["style_dropout"] < 1:
+        raise InputError(
+            f"style_dropout must be a number in [0, 1), got {cfg['style_dropout']!r}", "config:style_dropout"
+        )
     for key in ("val_takes", "drop_takes"):
         if not isinstance(cfg[key], list) or not all(isinstance(t, str) for t in cfg[key]):
             raise InputError(f"{key} must be a list of take ids, got {cfg[key]!r}", f"config:{key}")

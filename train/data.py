@@ -2,7 +2,8 @@
 
 Content is the PPG when the dataset has one (``input = "auto"`` or ``"ppg"``), else log-mel filter banks
 (``fbank``) or MFCC (``mfcc``); prosody is pitch (per-speaker z-scored log-F0, voicing flag) and
-energy. Everything is at the animation frame rate; targets are normalised animation channels.
+energy, followed by the speaker's style vector with ``speaker_style`` (train/style.py). Everything is
+at the animation frame rate; targets are normalised animation channels.
 """
 
 from __future__ import annotations
@@ -21,13 +22,16 @@ from dataset.manifest import read_manifest
 from dataset.normalize import FeatureNormalizer
 from dataset.torch_dataset import ShardDataset
 
+from .style import style_rows
+
 PROSODY_FEATURES = ("pitch", "energy")
 
 
 @dataclass(frozen=True)
 class InputSpec:
     """Features feeding the model: ``content`` (a feature name) of ``content_dim`` dims, and the
-    ``prosody`` features concatenated into ``prosody_dim`` dims (empty for the no-prosody ablation)."""
+    ``prosody`` features (empty for the no-prosody ablation) and one column per speaker of ``styles``
+    (empty without ``speaker_style``) concatenated into ``prosody_dim`` dims."""
 
     content: str
     content_dim: int
@@ -35,6 +39,7 @@ class InputSpec:
     prosody_dim: int
     out_dim: int
     note: str | None = None
+    styles: tuple[str, ...] = ()
 
     @property
     def features(self) -> list[str]:
@@ -45,11 +50,13 @@ class InputSpec:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> InputSpec:
-        return cls(**{**d, "prosody": tuple(d["prosody"])})
+        return cls(**{**d, "prosody": tuple(d["prosody"]), "styles": tuple(d.get("styles", ()))})
 
 
 def resolve_inputs(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "manifest.json") -> InputSpec:
-    """The input choice of ``cfg`` (``input``, ``prosody``) checked against the dataset's features."""
+    """The input choice of ``cfg`` (``input``, ``prosody``, ``speaker_style``) checked against the
+    dataset's features; the styles are the speakers of the training samples (``val_takes`` and
+    ``drop_takes`` applied)."""
     dims = manifest["features"]["dims"]
     want, note = cfg["input"], None
     if want == "auto":
@@ -76,15 +83,35 @@ def resolve_inputs(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "
                 where,
             )
         prosody = PROSODY_FEATURES
-    return InputSpec(
-        want, int(dims[want]), prosody, sum(int(dims[p]) for p in prosody), len(manifest["channels"]), note
-    )
+    styles = training_speakers(manifest, cfg, where) if cfg.get("speaker_style") else ()
+    dim = sum(int(dims[p]) for p in prosody) + len(styles)
+    return InputSpec(want, int(dims[want]), prosody, dim, len(manifest["channels"]), note, styles)
 
 
-def to_model_inputs(item: dict[str, Any], spec: InputSpec) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """(content, prosody) tensors from a (batched) ShardDataset item; prosody None when not used."""
+def training_speakers(manifest: dict[str, Any], cfg: dict[str, Any], where: str) -> tuple[str, ...]:
+    """The speakers of the samples that train under ``cfg`` (sorted)."""
+    keys = split_keys(manifest, cfg)
+    trains = (lambda s: s["key"] in keys[0]) if keys is not None else (lambda s: s["split"] == "train")
+    speakers = sorted({str(s.get("speaker") or "") for s in manifest["samples"] if trains(s)})
+    if not speakers:
+        raise InputError("speaker_style: no training samples to take speakers from", where)
+    return tuple(speakers)
+
+
+def to_model_inputs(
+    item: dict[str, Any], spec: InputSpec, style: str | None = None, style_dropout: float = 0.0
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(content, prosody) tensors from a (batched) ShardDataset item; prosody None when not used. With
+    styles, each row's speaker style follows the features (``style``: a speaker or ``"mean"`` for every
+    row instead of the item's own ``speaker``; ``style_dropout``: see train/style.py)."""
     content = item[spec.content]
-    prosody = torch.cat([item[p] for p in spec.prosody], dim=-1) if spec.prosody else None
+    parts = [item[p] for p in spec.prosody]
+    if spec.styles:
+        speakers = item.get("speaker", "")
+        speakers = [speakers] * content.shape[0] if isinstance(speakers, str) else list(speakers)
+        rows = style_rows(speakers, spec.styles, style, style_dropout).to(content)
+        parts.append(rows.unsqueeze(1).expand(-1, content.shape[1], -1))
+    prosody = torch.cat(parts, dim=-1) if parts else None
     return content, prosody
 
 

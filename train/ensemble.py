@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Collection
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,8 @@ from torch import nn
 from capture.errors import InputError
 
 from .checkpoint import LAST, write_json
+from .data import InputSpec
+from .style import member_style_map
 
 ENSEMBLE = "ensemble.json"
 
@@ -62,16 +65,27 @@ def has_members(run: Path) -> bool:
 
 
 class Ensemble(nn.Module):
-    """The mean of several models' outputs (same inputs, same output channels)."""
+    """The mean of several models' outputs (same inputs, same output channels). With ``style_maps``
+    (members trained on different speakers), the last columns of the prosody input are a style over
+    the union of the members' speakers, taken to each member's own by its map (train/style.py)."""
 
-    def __init__(self, members: list[nn.Module]):
+    def __init__(self, members: list[nn.Module], style_maps: list[torch.Tensor] | None = None):
         super().__init__()
         self.members = nn.ModuleList(members)
+        self.n_styles = 0 if style_maps is None else style_maps[0].shape[0]
+        for i, m in enumerate(style_maps or []):
+            self.register_buffer(f"style_map_{i}", m)
+
+    def _member_prosody(self, prosody: torch.Tensor | None, i: int) -> torch.Tensor | None:
+        if not self.n_styles or prosody is None:
+            return prosody
+        own = prosody[..., -self.n_styles :] @ getattr(self, f"style_map_{i}").to(prosody)
+        return torch.cat([prosody[..., : -self.n_styles], own], dim=-1)
 
     def forward(self, content: torch.Tensor, prosody: torch.Tensor | None, mask: torch.Tensor):
-        total = self.members[0](content, prosody, mask)
-        for m in self.members[1:]:
-            total = total + m(content, prosody, mask)
+        total = self.members[0](content, self._member_prosody(prosody, 0), mask)
+        for i, m in enumerate(self.members[1:], 1):
+            total = total + m(content, self._member_prosody(prosody, i), mask)
         return total / len(self.members)
 
 
@@ -132,8 +146,23 @@ def load_ensemble(run: Path, load_member: Callable[[Path], tuple[nn.Module, dict
         raise InputError(f"unreadable ensemble record ({type(exc).__name__})", run / ENSEMBLE) from None
     loaded = [load_member(f) for f in folders]
     first = loaded[0][1]
-    for folder, (_m, p) in zip(folders, loaded):
-        if p["inputs"] != first["inputs"] or p["dataset"]["channels"] != first["dataset"]["channels"]:
-            raise InputError("ensemble members differ in inputs or channels", folder)
-    payload = {**first, "step": sum(p["step"] for _m, p in loaded), "ensemble": record}
-    return Ensemble([m for m, _p in loaded]).eval(), payload
+    specs = [InputSpec.from_json(p["inputs"]) for _m, p in loaded]
+    union = tuple(sorted({s for spec in specs for s in spec.styles}))
+    for folder, (_m, p), spec in zip(folders, loaded, specs):
+        if replace(spec, styles=(), prosody_dim=0) != replace(specs[0], styles=(), prosody_dim=0):
+            raise InputError("ensemble members differ in inputs", folder)
+        if p["dataset"]["channels"] != first["dataset"]["channels"]:
+            raise InputError("ensemble members differ in channels", folder)
+        if bool(spec.styles) != bool(union):
+            raise InputError("ensemble members differ in speaker styles", folder)
+    maps = [member_style_map(union, spec.styles) for spec in specs] if union else None
+    inputs = replace(
+        specs[0], styles=union, prosody_dim=specs[0].prosody_dim - len(specs[0].styles) + len(union)
+    )
+    payload = {
+        **first,
+        "inputs": inputs.to_json(),
+        "step": sum(p["step"] for _m, p in loaded),
+        "ensemble": record,
+    }
+    return Ensemble([m for m, _p in loaded], maps).eval(), payload

@@ -31,6 +31,7 @@ from dataset.torch_dataset import ShardDataset
 from .checkpoint import load_system
 from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference, infer
+from .style import check_style
 from .systems import check_sample_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
@@ -96,12 +97,18 @@ def device_name(device: torch.device) -> str:
 
 @torch.inference_mode()
 def real_time_factor(
-    model, spec: InputSpec, item: dict[str, Any], fps: float, seconds: float = 12.0, repeats: int = 5
+    model,
+    spec: InputSpec,
+    item: dict[str, Any],
+    fps: float,
+    seconds: float = 12.0,
+    style: str | None = None,
+    repeats: int = 5,
 ) -> float:
     """Seconds of compute per second of animation for one ``seconds``-long utterance (batch 1): the
     utterance ``item``'s inputs tiled or cut to that length."""
     n = int(round(seconds * fps))
-    content, prosody = to_model_inputs(item, spec)
+    content, prosody = to_model_inputs(item, spec, style)
     reps = -(-n // content.shape[1])
     content = content.repeat(1, reps, 1)[:, :n]
     prosody = None if prosody is None else prosody.repeat(1, reps, 1)[:, :n]
@@ -155,12 +162,16 @@ def evaluate(
     rtf_seconds: float = 12.0,
     say: Callable[[str], None] = progress,
     precision: str = "fp32",
+    style: str | None = None,
 ) -> dict[str, Any]:
     """Metrics of a run on a dataset split (see module doc), computed at ``precision``
-    (train/precision.py)."""
+    (train/precision.py). A run with speaker styles animates each utterance in its own speaker's style
+    (the mean style for a speaker it did not train on), or every utterance in ``style`` (a speaker of
+    the run or ``"mean"``)."""
     model, payload = load_system(run)
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
+    check_style(spec.styles, style)
     info = payload["dataset"]
     ds = Path(ds).parent if Path(ds).is_file() else Path(ds)
     manifest = read_manifest(ds)
@@ -179,13 +190,16 @@ def evaluate(
     animation = Normalizer.from_json(info["normalization"]["animation"])
     run_norm = {"normalization": info["normalization"]}
     tally, floor = ErrorTally(channels), ErrorTally(channels)
-    longest = None
+    longest, own_style, seen = None, 0, 0
     for item in RawSamples(ds, split, window=None, features=spec.features, normalize=False):
         raw_feats = {f: item[f].numpy() for f in spec.features}
         feats = normalize_features(run_norm, raw_feats, item["speaker"])
         batch = {f: torch.from_numpy(x).unsqueeze(0) for f, x in feats.items()}
         batch["mask"] = item["mask"].unsqueeze(0)
-        content, prosody = to_model_inputs(batch, spec)
+        batch["speaker"] = item["speaker"] or ""
+        own_style += style is None and batch["speaker"] in spec.styles
+        seen += 1
+        content, prosody = to_model_inputs(batch, spec, style)
         mask = item["mask"].numpy()
         pred_norm = infer(model, content, prosody, batch["mask"])[0].double().numpy()
         true = item["anim"].numpy().astype(np.float64)
@@ -207,8 +221,15 @@ def evaluate(
     result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}
     if tally.crucial is None:
         result["note"] = "the dataset lacks jawOpen or mouthClose: no crucial RMSE"
+    if spec.styles:
+        result["style"] = {
+            "styles": list(spec.styles),
+            "chosen": style or "own",
+            "utterances_in_own_style": own_style,
+            "utterances_in_mean_style": seen - own_style if style is None else 0,
+        }
     if longest is not None:
-        result["rtf"] = real_time_factor(model, spec, longest, info["fps"], rtf_seconds)
+        result["rtf"] = real_time_factor(model, spec, longest, info["fps"], rtf_seconds, style)
         result["rtf_seconds"] = rtf_seconds
     result["device"] = device_name(torch.device("cpu"))
     say(

@@ -136,4 +136,6 @@ def export_onnx(
         "model": payload["system"],
         "max_abs_diff": worst,
         "inputs": names,
+        # the last len(styles) prosody columns: a one-hot of one of these speakers, or 1/n each (mean style)
+        "styles": list(spec.styles),
     }

@@ -470,7 +470,7 @@ def _fit(
             lr = learning_rate(step, cfg)
             for g in optimizer.param_groups:
                 g["lr"] = lr
-            content, prosody = to_model_inputs(batch, spec)
+            content, prosody = to_model_inputs(batch, spec, style_dropout=cfg["style_dropout"])
             content = content.to(device)
             prosody = None if prosody is None else prosody.to(device)
             mask = batch["mask"].to(device)

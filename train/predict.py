@@ -28,6 +28,7 @@ from dataset.ppg import make_extractor
 from .checkpoint import load_system
 from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference
+from .style import MEAN, check_style
 from .windowed import PREDICT_WINDOW_S, infer_windowed
 
 
@@ -47,9 +48,12 @@ def animate(
     ppg=None,
     speaker: str | None = None,
     where: str | Path | None = None,
+    style: str | None = None,
 ) -> np.ndarray:
     """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``
-    (read from ``where``, for error messages)."""
+    (read from ``where``, for error messages); pitch normalised with ``speaker``'s statistics, and a
+    run with speaker styles animates in ``style`` (default: ``speaker``'s style if the run has it, else
+    the mean style)."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
@@ -62,8 +66,9 @@ def animate(
         window = min(window, limit)
     feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
-    item = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
-    content, prosody = to_model_inputs(item, spec)
+    item: dict[str, Any] = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
+    item["speaker"] = speaker or MEAN
+    content, prosody = to_model_inputs(item, spec, style)
     mask = torch.ones(1, n, dtype=torch.bool)
     y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y)
@@ -77,13 +82,15 @@ def predict(
     speaker: str | None = None,
     say: Callable[[str], None] = progress,
     precision: str = "fp32",
+    style: str | None = None,
 ) -> list[dict[str, Any]]:
     """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
     folder receiving ``<audio stem>.csv``. Returns one summary per file. ``precision``: fp32 or bf16
-    (train/precision.py)."""
+    (train/precision.py); ``style``: see ``animate``."""
     model, payload = load_system(run)
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
+    check_style(spec.styles, style)
     info = payload["dataset"]
     ppg = None
     if spec.content == "ppg":
@@ -111,7 +118,7 @@ def predict(
         if a.is_dir():
             raise InputError("is a folder, not an audio file", a)
         audio = to_16k_mono(read_audio(a), str(a))
-        values = animate(model, payload, audio, ppg, speaker, where=a)
+        values = animate(model, payload, audio, ppg, speaker, where=a, style=style)
         n, fps = values.shape[0], info["fps"]
         meta = TakeMeta(id=a.stem, source_kind="predicted", fps=fps, channels=list(info["channels"]))
         take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
@@ -122,7 +129,10 @@ def predict(
         except OSError as exc:
             raise InputError(f"cannot write the CSV: {exc.strerror}", path) from None
         say(f"{a}: {n} frames at {fps:g} fps -> {path}")
-        results.append({"audio": str(a), "csv": str(path), "frames": n, "fps": fps, "duration_s": n / fps})
+        result = {"audio": str(a), "csv": str(path), "frames": n, "fps": fps, "duration_s": n / fps}
+        if spec.styles:
+            result["style"] = style or (speaker if speaker in spec.styles else MEAN)
+        results.append(result)
     return results
 
 
