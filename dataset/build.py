@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.signal
 
 from capture.atomic import atomic_write, write_json_atomic
 from capture.channels import channel_set
@@ -53,6 +54,7 @@ from capture.take import (
 from .features import DEFAULT_FEATURES, FeatureSettings, compute_features, parse_features
 from .manifest import MANIFEST_FILE, manifest_path, read_manifest, write_manifest
 from .normalize import KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
+from .qa import ANIM_LIMIT
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits
 
@@ -62,7 +64,14 @@ USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align f
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
 SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
 MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
-CONTENT_FEATURES = ("fbank", "mfcc", "ppg")  # what a model reads the words from (pitch, energy: prosody)
+CONTENT_FEATURES = ("fbank", "mfcc", "ppg")
+# align's flags that say the audio/face offset must not be trusted blindly (docs/align.md)
+NARROWBAND_HZ = 4500.0  # above the 4 kHz band edge of 8 kHz audio and its resampler's transition band
+UNTRUSTED_FLAGS = (
+    "evidence_disagrees",
+    "low_confidence",
+    "no_evidence",
+)  # what a model reads the words from (pitch, energy: prosody)
 
 
 @dataclass
@@ -81,6 +90,7 @@ class BuildOptions:
     jobs: int = 1
     keep_work: bool = False
     settings: FeatureSettings = field(default_factory=FeatureSettings)
+    skip_flagged: bool = False  # leave out takes whose audio/face offset align did not trust
 
     def __post_init__(self) -> None:
         self.features = parse_features(self.features)
@@ -117,6 +127,7 @@ class SourceTake:
     channels: list[str]
     source: dict[str, Any]
     content_sha256: str
+    recording: str = ""  # the raw take align cut this one from (its own id when not cut)
 
 
 RACY_NS = 3_000_000_000  # files modified this recently are hashed afresh (see _file_digests)
@@ -206,10 +217,27 @@ def _aligned_folders(
     return [out / n for n in names]
 
 
+def recording_of(meta: TakeMeta) -> str:
+    """The id of the raw take an aligned take was cut from (align's ``extra.align.parent.id``), else the
+    take's own id: the unit a take split keeps together."""
+    record = meta.extra.get("align") if isinstance(meta.extra, dict) else None
+    parent = record.get("parent") if isinstance(record, dict) else None
+    parent_id = parent.get("id") if isinstance(parent, dict) else parent
+    return parent_id if isinstance(parent_id, str) and parent_id else meta.id
+
+
+def untrusted_flags(meta: TakeMeta) -> list[str]:
+    """The flags align raised about a take's audio/face offset (``extra.align.flags``)."""
+    record = meta.extra.get("align") if isinstance(meta.extra, dict) else None
+    flags = record.get("flags") if isinstance(record, dict) else None
+    return [f for f in flags if f in UNTRUSTED_FLAGS] if isinstance(flags, list) else []
+
+
 def collect_takes(
-    inputs: list[str | Path], work: Path, say: Callable[[str], None]
+    inputs: list[str | Path], work: Path, say: Callable[[str], None], skip_flagged: bool = False
 ) -> tuple[list[SourceTake], list[str]]:
-    """Aligned takes from ``inputs`` (aligning raw ones), de-duplicated; also returns warnings."""
+    """Aligned takes from ``inputs`` (aligning raw ones), de-duplicated; also returns warnings. Takes
+    whose offset align flagged are warned about, or left out with ``skip_flagged``."""
     warnings: list[str] = []
     folders = find_takes(inputs)
     if not folders:
@@ -243,6 +271,18 @@ def collect_takes(
                 raise InputError(
                     f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af
                 )
+            flags = untrusted_flags(m)
+            if flags:
+                warnings.append(
+                    f"take {m.id}: align flagged its audio/face offset ({', '.join(flags)}): "
+                    + (
+                        "left out (--skip-flagged)"
+                        if skip_flagged
+                        else "check it, or build with --skip-flagged"
+                    )
+                )
+                if skip_flagged:
+                    continue
             sha, content_sha = take_and_content_sha256(af)
             speaker = m.subject or m.id
             st = SourceTake(
@@ -258,6 +298,7 @@ def collect_takes(
                 origin | {"take": m.id, "sha256": sha},
                 content_sha,
             )
+            st.recording = recording_of(m)
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
             if st.content_sha256 in by_sha:
@@ -272,6 +313,8 @@ def collect_takes(
                 raise InputError(f"take ids {m.id!r} and {by_key[st.key].id!r} give the same sample key", af)
             by_id[m.id] = by_sha[st.content_sha256] = by_key[st.key] = st
             takes.append(st)
+    if not takes:
+        raise InputError("no take is left to build from: " + "; ".join(warnings))
     takes.sort(key=lambda t: t.id)
     fps = {round(t.fps, 6) for t in takes}
     if len(fps) > 1:
@@ -388,6 +431,52 @@ def _extractor(backend: str, model: str | None):
     return _EXTRACTORS[(backend, model)]
 
 
+def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
+    """Whether speech ``audio`` carries (almost) no energy between ``NARROWBAND_HZ`` and 7.5 kHz, as
+    audio recorded at 8 kHz and resampled does: under 1e-5 of its power (measured: 3e-7..1.5e-6 for
+    LibriVox speech through 8 kHz, 1e-3..2e-2 for the same speech at 16 kHz)."""
+    if audio.size < 2048 or sample_rate < 16000:
+        return False
+    freqs, power = scipy.signal.welch(audio.astype(np.float64), fs=sample_rate, nperseg=1024)
+    total = float(power.sum())
+    band = (freqs > NARROWBAND_HZ) & (freqs < 7500.0)
+    return total > 0 and float(power[band].sum()) < 1e-5 * total
+
+
+def check_frame_grid(times: np.ndarray, fps: float, folder: str | Path) -> None:
+    """Refuse an aligned take whose frame times are not the uniform grid ``i / fps`` (the align
+    contract): features are computed on that grid, so other times would pair wrong audio and face."""
+    grid = np.arange(times.shape[0]) / fps
+    off = np.abs(np.asarray(times, np.float64) - grid)
+    if times.shape[0] and not np.all(off <= 0.01 / fps):  # also NaN times
+        first = int(np.argmax(~(off <= 0.01 / fps)))
+        raise InputError(
+            f"aligned take's frame times are not the uniform grid i/fps (frame {first} at "
+            f"{float(times[first]):.4f} s, expected {grid[first]:.4f} s): re-run s2a-align on its source",
+            folder,
+        )
+
+
+def split_share_warnings(
+    durations: dict[str, tuple[str, float]], split_of: dict[str, str], rule: SplitRule
+) -> list[str]:
+    """A warning for each val or test split (not pinned) holding more than twice its fraction of the
+    audio (and over 10 points more): the recordings are too few or too long for the fractions."""
+    total = sum(d for _, d in durations.values()) or 1.0
+    out = []
+    for split, fraction, pinned in (
+        ("val", rule.val_fraction, rule.val),
+        ("test", rule.test_fraction, rule.test),
+    ):
+        share = sum(d for t, (_, d) in durations.items() if split_of[t] == split) / total
+        if not pinned and fraction > 0 and share > max(2 * fraction, fraction + 0.1):
+            out.append(
+                f"the {split} split holds {share:.0%} of the audio (asked {fraction:.0%}): the recordings "
+                f"are too few or too long for the fractions; pin takes with --{split} or cut long takes"
+            )
+    return out
+
+
 def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
     try:
         rec = json.loads(job.record.read_text())
@@ -423,15 +512,21 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     values = take.values[:, idx]
     n = values.shape[0]
     fps = float(take.meta.fps)
+    check_frame_grid(take.time, fps, job.folder)
     sr = job.settings.sample_rate
     audio = take.audio.mono_float()
+    narrow = is_narrowband(audio, sr)
+    peak = float(np.max(np.abs(audio), initial=0.0))
+    gain = 1.0 / peak if peak > 1.0 else 1.0  # float audio past full scale: FLAC would clip it
     audio_len = audio.shape[0]
     span = int(round(n * sr / fps))
     padded = np.zeros(max(span, audio_len), np.float32)
-    padded[:audio_len] = audio
+    padded[:audio_len] = audio * gain
     t = np.arange(n) / fps
     in_audio = t < audio_len / sr
-    mask = np.isin(take.frame_status, USABLE_STATUS) & np.all(np.isfinite(values), axis=1) & in_audio
+    finite = np.all(np.isfinite(values), axis=1)
+    in_range = np.all(np.abs(np.where(np.isfinite(values), values, 0.0)) <= ANIM_LIMIT, axis=1)
+    mask = np.isin(take.frame_status, USABLE_STATUS) & finite & in_range & in_audio
     anim = np.where(mask[:, None], values, 0.0).astype(np.float32)
     feats, phones = compute_features(
         padded[:span],
@@ -499,6 +594,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             "features": {k: int(v.shape[1]) for k, v in feats.items()},
             "usable_frames": int(mask[a:b].sum()),
             "neutral": None if neutral is None else [float(v) for v in neutral],
+            "audio_gain": gain,
         }
         members = {
             "json": json_bytes(meta),
@@ -530,6 +626,9 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "config_hash": job.config_hash,
         "frames": n,
         "usable_frames": int(mask.sum()),
+        "out_of_range_frames": int((finite & ~in_range).sum()),
+        "narrowband": narrow,
+        "audio_gain": gain,
         "duration_s": n / fps,
         "samples": samples,
         "feature_stats": feat_stats,
@@ -692,6 +791,7 @@ def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
             "shard_bytes": options.shard_bytes,
             "max_sample_s": options.max_sample_s,
             "settings": options.settings.to_json(),
+            "skip_flagged": options.skip_flagged,
             "dataset_version": DATASET_VERSION,
             "versions": _library_versions(),
         }
@@ -727,9 +827,10 @@ def build_dataset(
         return _summary(out, old, up_to_date=True)
     work = out / WORK
     work.mkdir(exist_ok=True)
-    takes, warnings = collect_takes(inputs, work, say)
+    takes, warnings = collect_takes(inputs, work, say, options.skip_flagged)
     durations = {t.id: (t.speaker, t.duration_s) for t in takes}
-    split_of = assign_splits(durations, options.split)
+    split_of = assign_splits(durations, options.split, {t.id: t.recording for t in takes})
+    warnings += split_share_warnings(durations, split_of, options.split)
     channels, channel_warnings = resolve_channels(options.channels, takes, split_of)
     warnings += channel_warnings
     assumed = sorted(t.id for t in takes if t.speaker_assumed)
@@ -816,6 +917,21 @@ def build_dataset(
                 ) from None
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
     for r in ordered:
+        if r.get("out_of_range_frames"):
+            warnings.append(
+                f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
+                "(no blendshape weight is): masked as unusable"
+            )
+        if r.get("narrowband"):
+            warnings.append(
+                f"take {r['take']}: its audio has no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at "
+                "8 kHz, or through a phone codec?): its filter banks lack the upper bands of the other takes"
+            )
+        if r.get("audio_gain", 1.0) < 1.0:
+            warnings.append(
+                f"take {r['take']}: audio peaks at {1 / r['audio_gain']:.2f} (past full scale): scaled by "
+                f"{r['audio_gain']:.3f} before features and storage (audio_gain in its samples)"
+            )
         if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:
             warnings.append(
                 f"take {r['take']}: only {r['usable_frames']} of {r['frames']} frames are usable (face lost, "
@@ -955,7 +1071,10 @@ def build_dataset(
         "speakers_assumed": assumed,
         "shards": shards,
         "samples": sample_entries,
-        "sources": [t.source | {"speaker": t.speaker, "split": split_of[t.id]} for t in takes],
+        "sources": [
+            t.source | {"speaker": t.speaker, "recording": t.recording, "split": split_of[t.id]}
+            for t in takes
+        ],
         "stats": stats,
         "warnings": warnings,
         "build": {

@@ -50,13 +50,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split-by", default="take", choices=("take", "speaker"), help="unit of the splits")
     p.add_argument("--val-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
     p.add_argument("--test-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
-    p.add_argument("--val", nargs="+", default=[], metavar="ID", help="takes or speakers pinned to val")
-    p.add_argument("--test", nargs="+", default=[], metavar="ID", help="takes or speakers pinned to test")
+    p.add_argument(
+        "--val", nargs="+", default=[], metavar="ID", help="takes, recordings or speakers pinned to val"
+    )
+    p.add_argument(
+        "--test", nargs="+", default=[], metavar="ID", help="takes, recordings or speakers pinned to test"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the split order")
     p.add_argument("--shard-mb", type=float, default=256.0, help="size cap of a shard in MB (default 256)")
     p.add_argument("--max-sample-s", type=float, default=30.0, help="longest sample in seconds (default 30)")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     p.add_argument("--keep-work", action="store_true", help="keep DS/.work (per-take cache) after success")
+    p.add_argument(
+        "--skip-flagged",
+        action="store_true",
+        help="leave out takes whose audio/face offset s2a-align flagged (evidence_disagrees, low_confidence, "
+        "no_evidence); without it they are kept with a warning",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_build)
 
@@ -95,6 +105,7 @@ def cmd_build(args: argparse.Namespace) -> int:
         max_sample_s=args.max_sample_s,
         jobs=args.jobs,
         keep_work=args.keep_work,
+        skip_flagged=args.skip_flagged,
     )
     summary = build_dataset(args.takes, args.out, options, say=_say("build"))
     if args.json:

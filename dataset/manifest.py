@@ -108,6 +108,35 @@ def _objects(value: Any, at: str, kinds: dict, optional=()):
             yield f"{at}[{i}]", "must be an object"
 
 
+def _dicts(value: Any) -> list[dict]:
+    return [v for v in value if isinstance(v, dict)] if isinstance(value, list) else []
+
+
+def _pitch_problems(data: dict[str, Any], norm: dict[str, Any]) -> list[tuple[str, str]]:
+    """With a pitch feature, every sample's speaker needs log-F0 statistics (a positive std): the
+    reader would otherwise pass raw log-F0 through."""
+    names = data["features"].get("names") if isinstance(data["features"], dict) else None
+    if not isinstance(names, list) or "pitch" not in names:
+        return []
+    pitch = norm.get("pitch")
+    speakers = pitch.get("speakers") if isinstance(pitch, dict) else None
+    if not isinstance(speakers, dict):
+        return [("normalization.pitch.speakers", "missing (the dataset has a pitch feature)")]
+    out = []
+    for name, st in speakers.items():
+        if (
+            not isinstance(st, dict)
+            or not _number(st.get("mean"))
+            or not _number(st.get("std"))
+            or st["std"] <= 0
+        ):
+            out.append((f"normalization.pitch.speakers.{name}", "must hold a number mean and a positive std"))
+    needed = sorted({str(s.get("speaker")) for s in _dicts(data["samples"])} - set(speakers))
+    if needed:
+        out.append(("normalization.pitch.speakers", f"lacks the samples' speaker(s) {', '.join(needed[:3])}"))
+    return out
+
+
 def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     """(field, message) for each field of a manifest that readers rely on and that is missing or has
     the wrong type or value; empty for a usable manifest."""
@@ -142,10 +171,19 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
                     + (", each positive" if field == "scale" else ""),
                 )
             )
+    named = anim.get("channels")
+    if named is not None and named != channels:
+        out.append(("normalization.animation.channels", "must equal channels (the columns it normalises)"))
+    dims = features.get("dims") if isinstance(features.get("dims"), dict) else {}
     feature_norm = norm.get("features", {})
     for name, st in feature_norm.items() if isinstance(feature_norm, dict) else ():
         if not isinstance(st, dict) or not _numbers(st.get("mean")) or not _numbers(st.get("std")):
             out.append((f"normalization.features.{name}", "must hold lists of numbers mean and std"))
+        elif len(st["mean"]) != len(st["std"]) or (name in dims and len(st["mean"]) != dims[name]):
+            out.append((f"normalization.features.{name}", f"mean and std must have {dims.get(name)} values"))
+        elif min(st["std"], default=1) <= 0:
+            out.append((f"normalization.features.{name}.std", "must be positive (it divides)"))
+    out += _pitch_problems(data, norm)
     splits = data["splits"] if isinstance(data["splits"], dict) else {}
     for split in SPLITS:
         takes = splits.get(split, {}).get("takes", []) if isinstance(splits.get(split, {}), dict) else None
@@ -165,6 +203,9 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     if not isinstance(stats, dict):
         out.append(("stats", "must be a JSON object"))
     else:
+        for split in sorted({sh.get("split") for sh in _dicts(data["shards"])} & set(SPLITS)):
+            if split not in stats:
+                out.append((f"stats.{split}", "missing (the split has shards)"))
         for split, entry in stats.items():
             if split not in SPLITS or not isinstance(entry, dict):
                 out.append((f"stats.{split}", "must be an object under train, val or test"))
@@ -186,7 +227,7 @@ def load_manifest(ds: str | Path) -> dict[str, Any]:
     path = manifest_path(ds)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError, IsADirectoryError):
         raise InputError("not a dataset (no manifest.json)", path.parent) from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"manifest is not valid JSON: {exc}", path) from None

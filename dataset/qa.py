@@ -173,7 +173,7 @@ def validate_shard(
             count += 1
             try:
                 frames += int(json.loads(members.get("json", b"{}")).get("frames", 0))
-            except (json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError):
+            except (json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError, AttributeError):
                 pass
             if on_sample is not None:
                 on_sample(key, members)
@@ -455,6 +455,20 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
                 out.append(
                     _p("split_leakage", f"speaker {spk}", f"speaker is in splits {', '.join(sorted(splits))}")
                 )
+    if by == "take":  # segments align cut from one recording go to one split (manifest sources)
+        recordings: dict[str, set[str]] = {}
+        for src in manifest.get("sources", []):
+            if isinstance(src, dict) and isinstance(src.get("recording"), str):
+                recordings.setdefault(src["recording"], set()).add(str(src.get("split")))
+        for rec, splits in sorted(recordings.items()):
+            if len(splits) > 1:
+                out.append(
+                    _p(
+                        "split_leakage",
+                        f"recording {rec}",
+                        f"segments of one recording are in splits {', '.join(sorted(splits))}",
+                    )
+                )
     listed: dict[str, set[str]] = {}
     for split in SPLITS:
         for take in manifest.get("splits", {}).get(split, {}).get("takes", []):
@@ -632,8 +646,10 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
 
     Raises ``InputError`` only when there is no manifest at all."""
     ds = Path(ds)
-    if ds.is_file():
+    if ds.is_file() and ds.name == MANIFEST_FILE:
         ds = ds.parent
+    elif ds.exists() and not ds.is_dir():
+        raise InputError("not a dataset (a file, not a dataset folder or its manifest.json)", ds)
     try:
         manifest = load_manifest(ds)
     except InputError as exc:

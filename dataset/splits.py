@@ -1,10 +1,13 @@
 """Splits by take or by speaker, never by window.
 
 NeuroSync splits overlapping windows at random, so neighbouring windows of one take land in train and
-test; here a whole take (``--split-by take``) or a whole speaker (``--split-by speaker``: the held-out
-speaker split for cross-speaker evaluation) goes to one split. Pinned takes or speakers (``--test``,
-``--val``) go first; the rest are ordered by a seeded hash of their id (stable when takes are added)
-and taken until each split holds its fraction of the total duration. Train always keeps at least one.
+test; here a whole recording (``--split-by take``: an aligned take together with the other segments
+align cut from the same raw take) or a whole speaker (``--split-by speaker``: the held-out speaker
+split for cross-speaker evaluation) goes to one split. Pinned takes, recordings or speakers
+(``--test``, ``--val``) go first; the rest are ordered by a seeded hash of their id (stable when takes
+are added) and taken while they bring each split closer to its fraction of the total duration. A split
+with a fraction above 0 that no group brings closer (every free group is over twice its target) gets
+the shortest free group. Train always keeps at least one.
 """
 
 from __future__ import annotations
@@ -51,33 +54,45 @@ def _order(seed: int, name: str) -> str:
     return hashlib.sha256(f"{seed}:{name}".encode()).hexdigest()
 
 
-def assign_splits(takes: dict[str, tuple[str, float]], rule: SplitRule) -> dict[str, str]:
-    """``{take id: split}`` for ``takes`` = ``{take id: (speaker id, duration in s)}``."""
-    group_of = {t: (t if rule.by == "take" else spk) for t, (spk, _) in takes.items()}
+def assign_splits(
+    takes: dict[str, tuple[str, float]], rule: SplitRule, recordings: dict[str, str] | None = None
+) -> dict[str, str]:
+    """``{take id: split}`` for ``takes`` = ``{take id: (speaker id, duration in s)}``; ``recordings``
+    maps a take id to the recording it was cut from (by default each take is its own)."""
+    recording = {t: (recordings or {}).get(t) or t for t in takes}
+    group_of = {t: (recording[t] if rule.by == "take" else spk) for t, (spk, _) in takes.items()}
     durations: dict[str, float] = {}
     for t, (_, dur) in takes.items():
         durations[group_of[t]] = durations.get(group_of[t], 0.0) + dur
-    known_ids = set(takes) | {spk for spk, _ in takes.values()}
+    known_ids = set(takes) | set(recording.values()) | {spk for spk, _ in takes.values()}
     for pinned in (*rule.val, *rule.test):
         if pinned not in known_ids:
             raise InputError(f"pinned take or speaker {pinned!r} is not among the inputs")
     split_of_group: dict[str, str] = {}
     for split, pinned in (("test", rule.test), ("val", rule.val)):
         for t, (spk, _) in takes.items():
-            if t in pinned or spk in pinned:
+            if t in pinned or recording[t] in pinned or spk in pinned:
                 g = group_of[t]
                 if split_of_group.get(g, split) != split:
-                    raise InputError(f"{g!r} is pinned to both val and test (via take or speaker)")
+                    raise InputError(f"{g!r} is pinned to both val and test (via take, recording or speaker)")
                 split_of_group[g] = split
     total = sum(durations.values())
     free = sorted((g for g in durations if g not in split_of_group), key=lambda g: _order(rule.seed, g))
     for split, fraction in (("test", rule.test_fraction), ("val", rule.val_fraction)):
         have = sum(durations[g] for g, s in split_of_group.items() if s == split)
         target = fraction * total
+        if have == 0 and fraction > 0 and len(free) > 1:
+            # the first group (in seeded order) that brings the empty split closer to its target, else
+            # the shortest: one long recording must not turn a 10 % split into most of the data
+            closer = [g for g in free if durations[g] < 2 * target]
+            g = closer[0] if closer else min(free, key=lambda g: durations[g])
+            free.remove(g)
+            split_of_group[g] = split
+            have = durations[g]
         while free and len(free) > 1 and have < target and fraction > 0:
-            # take a group only if it brings the split closer to its target (or the split is empty)
+            # take a group only if it brings the split closer to its target
             g = free[0]
-            if have > 0 and abs(have + durations[g] - target) > abs(have - target):
+            if abs(have + durations[g] - target) > abs(have - target):
                 break
             free.pop(0)
             split_of_group[g] = split
