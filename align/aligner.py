@@ -84,7 +84,8 @@ def _transient_evidence(
     out: list[Evidence] = []
     claps = audio_claps(x, s0)
     face_steps = step_transients(take.time[usable], mouth[usable]) if np.isfinite(mouth).any() else []
-    events = take.meta.extra.get("sync_events") or []
+    events = take.meta.extra.get("sync_events")
+    events = [e for e in events if isinstance(e, dict)] if isinstance(events, list) else []
     if events and claps:
         ev = sync_evidence(events, claps, face_steps, opts.max_offset_s)
         if ev is not None:
@@ -151,7 +152,8 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     tid = meta.id
     if take.audio is None or meta.audio is None:
         raise InputError(f"take {tid} has no audio: align needs the speech (import it with --audio)")
-    x = to_16k_mono(take.audio, tid)
+    mix_notes: list[dict[str, Any]] = []
+    x = to_16k_mono(take.audio, tid, mix_notes)
     _check_audio(take, x)
     take, clock_info = frame_clock(take, opts.frame_clock)
     s0 = float(meta.audio.start_s)
@@ -327,6 +329,9 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     }
     if content_note:
         report["content_note"] = content_note.get("note")
+    if mix_notes:
+        report["audio_mix"] = mix_notes[0]
+        report["warnings"] = [f"take {tid}: {n['message']}" for n in mix_notes]
     for k, seg_take in enumerate(segments_out):
         seg = seg_reports[k]
         seg_take.meta.extra["align"] = {

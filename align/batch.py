@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import multiprocessing as mp
 import shutil
 import sys
@@ -45,20 +46,27 @@ def _outputs_of(out_dir: Path, take_id: str) -> list[Path]:
                 m = read_meta(p)
             except S2AError:
                 continue
-            if m.source_kind == "aligned" and m.extra.get("align", {}).get("parent", {}).get("id") == take_id:
+            report = m.extra.get("align")
+            parent = report.get("parent") if isinstance(report, dict) else None
+            if m.source_kind == "aligned" and isinstance(parent, dict) and parent.get("id") == take_id:
                 found.append(p)
     return found
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
     outs = _outputs_of(out_dir, take_id)
     if not outs:
         return None
-    metas = [read_meta(p) for p in outs]
-    reports = [m.extra["align"] for m in metas]
+    reports = [read_meta(p).extra["align"] for p in outs]
     count = reports[0].get("segment_count")
     if any(r.get("fingerprint") != fp for r in reports) or len(reports) != count:
         return None
+    if not all(_is_count(r.get("frames")) and _is_count(r.get("gaps_interpolated")) for r in reports):
+        return None  # an output edited by hand: aligned again
     keep = (
         "offset_s",
         "offset_source",
@@ -80,6 +88,8 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
         "audio_start_s",
         "audio_start_source",
         "subject",
+        "audio_mix",
+        "warnings",
     )
     out = {k: reports[0][k] for k in keep if k in reports[0]}
     out["frames"] = sum(r["frames"] for r in reports)
@@ -105,7 +115,7 @@ def align_folder(
         if not force:
             prev = _previous(out_dir, meta.id, fp)
             if prev is not None:
-                return {"id": meta.id, "path": str(folder), "skipped": True} | prev
+                return _json_safe({"id": meta.id, "path": str(folder), "skipped": True} | prev)
         if meta.audio is None and skip_without_audio:
             return {"id": meta.id, "path": str(folder), "skipped": True, "reason": "no audio"}
         take = read_take(folder)
@@ -124,9 +134,31 @@ def align_folder(
         report = {"id": meta.id, "path": str(folder), "skipped": False} | report
         report["outputs"] = [str(p) for p in written]
         report.pop("options", None)
-        return report
+        return _json_safe(report)
     except S2AError as exc:
-        return {"id": folder.name, "path": str(folder), "error": str(exc)}
+        return _error(folder, str(exc))
+    except OSError as exc:  # a file of the take or the output folder could not be read or written
+        return _error(folder, f"{exc.filename or folder}: {exc.strerror or exc}")
+    except Exception as exc:  # a fault of this program on this take: reported, the batch goes on
+        return _error(
+            folder, f"{folder}: internal error ({type(exc).__name__}: {str(exc)[:200]}); please report it"
+        )
+
+
+def _error(folder: Path, message: str) -> dict[str, Any]:
+    """The report of a take that could not be aligned (one line: the message holds no line break)."""
+    return {"id": folder.name, "path": str(folder), "error": " ".join(message.split())}
+
+
+def _json_safe(value: Any) -> Any:
+    """``value`` with NaN and infinite numbers as ``None``: a report is one line of strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
 
 
 def _id_clashes(folders: list[Path]) -> dict[Path, str]:
@@ -162,6 +194,14 @@ def _worker_context(opts: AlignOptions):
             import torch  # noqa: F401
         return mp.get_context("fork")
     return mp.get_context("spawn")
+
+
+def _result(folder: Path, future) -> dict[str, Any]:
+    """A worker's report; a worker that died (killed, out of memory) is that take's error."""
+    try:
+        return future.result()
+    except Exception as exc:  # BrokenProcessPool and the like: align_folder itself never raises
+        return _error(folder, f"{folder}: the worker process failed ({type(exc).__name__}: {exc})")
 
 
 def align_takes(
@@ -205,7 +245,7 @@ def align_takes(
             for f in folders
         ]
         for f, fut in zip(folders, futures):
-            r = {"id": f.name, "path": str(f), "error": clashes[f]} if fut is None else fut.result()
+            r = {"id": f.name, "path": str(f), "error": clashes[f]} if fut is None else _result(f, fut)
             reports.append(r)
             if on_report:
                 on_report(r)

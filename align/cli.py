@@ -68,6 +68,28 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _summary(r: dict) -> str:
+    """One line for a take's report; a stored report (an unchanged take) may lack fields."""
+
+    def num(key: str, scale: float = 1.0, fmt: str = ".3f") -> str:
+        value = r.get(key)
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        return format(value * scale, fmt) if ok else "?"
+
+    trim = r.get("trim_s")
+    trim_text = "?"
+    if isinstance(trim, list) and len(trim) == 2 and all(isinstance(t, (int, float)) for t in trim):
+        trim_text = f"{trim[0]:.3f}..{trim[1]:.3f}"
+    state = "unchanged, skipped" if r.get("skipped") else f"{r.get('segments', '?')} segment(s)"
+    flags = r.get("flags")
+    flag_text = f" FLAGS {','.join(map(str, flags))}" if isinstance(flags, list) and flags else ""
+    return (
+        f"{r.get('id')}: offset {num('offset_s', 1000, '+.1f')} ms ({r.get('offset_source')}, confidence "
+        f"{num('offset_confidence', fmt='.2f')}), drift {num('drift_ppm', fmt='.1f')} ppm, "
+        f"trim {trim_text} s, {r.get('frames', '?')} frames at {num('fps', fmt='g')} fps, {state}{flag_text}"
+    )
+
+
 def _main(args: argparse.Namespace) -> int:
     opts = AlignOptions(
         fps=args.fps,
@@ -91,13 +113,9 @@ def _main(args: argparse.Namespace) -> int:
             if not args.json:
                 progress(f"{r['id']}: skipped ({r['reason']})")
         elif not args.json:
-            state = "unchanged, skipped" if r.get("skipped") else f"{r['segments']} segment(s)"
-            flags = f" FLAGS {','.join(r['flags'])}" if r.get("flags") else ""
-            progress(
-                f"{r['id']}: offset {r['offset_s'] * 1000:+.1f} ms ({r['offset_source']}, confidence "
-                f"{r['offset_confidence']:.2f}), drift {r['drift_ppm']:.1f} ppm, trim {r['trim_s'][0]:.3f}.."
-                f"{r['trim_s'][1]:.3f} s, {r['frames']} frames at {r['fps']:g} fps, {state}{flags}"
-            )
+            progress(_summary(r))
+            for warning in r.get("warnings") or []:
+                progress(f"{PROG}: warning: {warning}")
 
     reports = align_takes(
         args.takes,

@@ -15,7 +15,7 @@ many seconds. Sources:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -169,7 +169,12 @@ class Decision:
 
 def combine(evidence: list[Evidence], min_confidence: float, max_disagreement_s: float) -> Decision:
     """Choose the most confident evidence; flag the take when another confident source disagrees by
-    more than ``max_disagreement_s`` plus both sources' uncertainties, or when nothing is confident."""
+    more than ``max_disagreement_s`` plus both sources' uncertainties, or when nothing is confident.
+
+    Evidence below ``min_confidence`` never moves the face: when nothing reaches it, the take keeps
+    its audio placement (the ``timecode`` evidence, offset 0) and is flagged ``low_confidence``; a
+    correlation peak that barely stands out from noise is a guess, and a guess can be wrong by the
+    whole search range."""
     flags: list[str] = []
     usable = [e for e in evidence if e.confidence > 0]
     if not usable:
@@ -178,6 +183,15 @@ def combine(evidence: list[Evidence], min_confidence: float, max_disagreement_s:
     chosen = max(usable, key=lambda e: e.confidence)
     if chosen.confidence < min_confidence:
         flags.append("low_confidence")
+        placement = next((e for e in evidence if e.source == "timecode"), None)
+        if chosen is not placement:
+            note = f"no evidence reached confidence {min_confidence:g}: audio placement kept"
+            if placement is None:
+                kept = Evidence("none", 0.0, 0.0, float("inf"), {"note": note})
+            else:
+                kept = replace(placement, detail=placement.detail | {"note": note})
+            others = [e for e in evidence if e is not placement]
+            return Decision(kept, others, flags, [])
     disagreements = []
     for e in usable:
         if e is chosen or e.confidence < min_confidence:

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import zipfile
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field, fields
 from enum import IntEnum
@@ -112,6 +114,7 @@ class TakeMeta:
         fps = data["fps"]
         if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not 0 < fps <= MAX_FPS:
             raise InputError(f"fps must be a frame rate between 0 and {MAX_FPS:g}, not {fps!r:.40}", path)
+        check_meta_fields(data, path)
         kwargs = {k: v for k, v in data.items() if k in known}
         try:
             if kwargs.get("audio") is not None:
@@ -120,6 +123,97 @@ class TakeMeta:
             return cls(**kwargs)
         except TypeError as exc:
             raise InputError(f"malformed metadata: {exc}", path) from None
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # a whole number beyond float range (JSON allows 1000 digits)
+        return False
+
+
+def _is_text(v: Any) -> bool:
+    return isinstance(v, str) and v.strip() != ""
+
+
+def _is_file_name(v: Any) -> bool:
+    """A plain file name inside the take folder (no folder part: the audio never lies elsewhere)."""
+    return _is_text(v) and "/" not in v and "\\" not in v and v not in (".", "..")
+
+
+# What each meta.json field must hold (docs/take-format.md): (field, test, what the test asks for).
+# ``None`` passes for the optional fields (those whose default is None or empty).
+_META_FIELDS: tuple[tuple[str, Any, str], ...] = (
+    ("id", _is_text, "non-empty text"),
+    ("source_kind", _is_text, "non-empty text"),
+    ("slate", lambda v: v is None or isinstance(v, str), "text or null"),
+    ("take_number", lambda v: v is None or _is_int(v), "a whole number or null"),
+    ("subject", lambda v: v is None or isinstance(v, str), "text or null"),
+    ("device", lambda v: v is None or isinstance(v, str), "text or null"),
+    ("start_timecode", lambda v: v is None or isinstance(v, str), "text or null"),
+    ("timecode_rate", lambda v: v is None or (_is_number(v) and v > 0), "a positive number or null"),
+    ("repairs", lambda v: isinstance(v, list) and all(isinstance(r, dict) for r in v), "a list of objects"),
+    ("csv", lambda v: isinstance(v, dict), "an object"),
+    ("extra", lambda v: isinstance(v, dict), "an object"),
+)
+_AUDIO_FIELDS: tuple[tuple[str, Any, str], ...] = (
+    ("file", _is_file_name, "a file name in the take folder"),
+    ("sample_rate", lambda v: _is_int(v) and v > 0, "a positive whole number (Hz)"),
+    ("channels", lambda v: _is_int(v) and v >= 1, "a whole number of at least 1"),
+    ("samples", lambda v: _is_int(v) and v >= 1, "a positive whole number"),
+    ("subtype", _is_text, "text (PCM_16, PCM_24, PCM_32, FLOAT)"),
+    ("start_s", _is_number, "a finite number of seconds"),
+    ("start_source", lambda v: isinstance(v, str), "text"),
+)
+_SOURCE_FIELDS: tuple[tuple[str, Any, str], ...] = (
+    ("path", lambda v: isinstance(v, str), "text"),
+    ("role", lambda v: isinstance(v, str), "text"),
+    ("sha256", lambda v: isinstance(v, str), "text"),
+    ("bytes", lambda v: _is_int(v) and v >= 0, "a whole number"),
+)
+
+
+def _check_object(data: dict[str, Any], checks, prefix: str, path: Path | None) -> None:
+    for name, test, what in checks:
+        if name in data and not test(data[name]):
+            value = data[name]
+            raise InputError(f"malformed metadata: {prefix}{name} must be {what}, not {value!r:.60}", path)
+
+
+def check_meta_fields(data: dict[str, Any], path: Path | None = None) -> None:
+    """Refuse a meta.json field of the wrong type or range with a one-line ``InputError`` naming it
+    (``fps`` is checked by ``TakeMeta.from_json``; fields left out take their defaults)."""
+    _check_object(data, _META_FIELDS, "", path)
+    channels = data.get("channels")
+    if not isinstance(channels, list):
+        raise InputError(f"malformed metadata: channels must be a list of names, not {channels!r:.60}", path)
+    for i, name in enumerate(channels):
+        if not _is_text(name):
+            what = f"channels[{i}] must be a non-empty name, not {name!r:.60}"
+            raise InputError(f"malformed metadata: {what}", path)
+    counts = Counter(c.lower() for c in channels)
+    twice = sorted(c for c in channels if counts[c.lower()] > 1)
+    if twice:  # channels are looked up case-insensitively: a second jawOpen/JAWOPEN is ambiguous
+        names = ", ".join(twice)[:80]
+        raise InputError(
+            f"malformed metadata: channels name one channel twice ({names}; case is ignored)", path
+        )
+    audio = data.get("audio")
+    if audio is not None:
+        if not isinstance(audio, dict):
+            raise InputError(f"malformed metadata: audio must be an object or null, not {audio!r:.60}", path)
+        _check_object(audio, _AUDIO_FIELDS, "audio.", path)
+    sources = data.get("sources", [])
+    if not isinstance(sources, list) or not all(isinstance(s, dict) for s in sources):
+        raise InputError(f"malformed metadata: sources must be a list of objects, not {sources!r:.60}", path)
+    for i, source in enumerate(sources):
+        _check_object(source, _SOURCE_FIELDS, f"sources[{i}].", path)
 
 
 @dataclass
@@ -157,6 +251,8 @@ class Take:
             raise InputError(f"take {self.meta.id}: frame times are not strictly increasing")
         if self.neutral is not None:
             self.neutral = np.asarray(self.neutral, dtype=np.float32)
+            if self.neutral.shape != (len(self.meta.channels),):
+                raise InputError(f"take {self.meta.id}: neutral has the wrong length")
         if self.arrival_s is not None:
             self.arrival_s = np.ascontiguousarray(self.arrival_s, dtype=np.float64)
             if self.arrival_s.shape != (n,):
@@ -333,8 +429,10 @@ def read_meta(folder: str | Path) -> TakeMeta:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (FileNotFoundError, NotADirectoryError):
         raise InputError("not a take folder (no meta.json)", folder) from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"metadata is not valid JSON: {exc}", path) from None
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"metadata is not valid JSON: {str(exc)[:200]}", path) from None
+    except OSError as exc:  # unreadable (permissions, a folder named meta.json, I/O error)
+        raise InputError(f"metadata cannot be read: {exc.strerror or exc}", path) from None
     return TakeMeta.from_json(data, path)
 
 
@@ -355,6 +453,11 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
             raise InputError(f"frames lack the array {key!r}", frames_path)
     if arrays["time"].dtype.kind != "f":
         raise InputError(f"time is {arrays['time'].dtype}, not float seconds", frames_path)
+    if not np.all(np.isfinite(arrays["time"])):
+        raise InputError("time holds NaN or infinite values", frames_path)
+    for key in ("values", "neutral", "arrival_s"):  # numbers, not text that would convert or fail
+        if key in arrays and arrays[key].dtype.kind not in "fiu":
+            raise InputError(f"{key} is {arrays[key].dtype}, not numbers", frames_path)
     status = arrays["frame_status"]
     if status.dtype.kind not in "iu":
         raise InputError(f"frame_status is {status.dtype}, not integer codes", frames_path)
@@ -364,11 +467,15 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
     take_audio = None
     if audio and meta.audio is not None:
         take_audio = read_audio(folder / meta.audio.file)
-        if take_audio.frames != meta.audio.samples:
-            raise InputError(
-                f"audio holds {take_audio.frames} samples, meta.json says {meta.audio.samples} (damaged?)",
-                folder / meta.audio.file,
-            )
+        for what, held, said in (
+            ("holds {} samples", take_audio.frames, meta.audio.samples),
+            ("has {} channel(s)", take_audio.channels, meta.audio.channels),
+            ("is at {} Hz", take_audio.sample_rate, meta.audio.sample_rate),
+        ):
+            if held != said:
+                raise InputError(
+                    f"audio {what.format(held)}, meta.json says {said} (damaged?)", folder / meta.audio.file
+                )
     return Take(
         meta,
         arrays["time"],

@@ -364,7 +364,10 @@ def test_content_confidence_rests_on_the_overlap_not_the_audio(tmp_path):
     )
     proc = run_cli("align", tmp_path / "takes", "-o", tmp_path / "al", "--vad", "none", "--json")
     (report,) = map(json.loads, proc.stdout.splitlines())
-    assert report["chosen"]["detail"]["seconds"] == pytest.approx(1.5, abs=0.1)
+    # too weak to move the placement (below the minimum confidence): listed among the alternatives
+    content = [a for a in report["alternatives"] if a["source"] == "content"]
+    assert len(content) == 1 and content[0]["detail"]["seconds"] == pytest.approx(1.5, abs=0.1)
+    assert content[0]["confidence"] < 0.3
     assert report["offset_confidence"] < 0.3 and "low_confidence" in report["flags"]
 
 
