@@ -17,16 +17,18 @@ import torch
 
 from capture.atomic import atomic_write, write_json_atomic
 from capture.errors import InputError
+from capture.take import MAX_FPS
 from dataset.normalize import FeatureNormalizer, Normalizer
 
 FORMAT = "s2a-train-checkpoint"
+VERSION = 1
 LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.jsonl"
 
 
 def save_checkpoint(payload: dict[str, Any], path: Path) -> None:
     """Atomic write (temporary file, fsync, rename)."""
     with atomic_write(path) as f:
-        torch.save({"format": FORMAT, "version": 1, **payload}, f)
+        torch.save({"format": FORMAT, "version": VERSION, **payload}, f)
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -39,6 +41,8 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         raise InputError(f"not a readable checkpoint ({type(exc).__name__})", path) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise InputError(f'not a training checkpoint (expected "format": "{FORMAT}")', path)
+    if payload.get("version") != VERSION:
+        raise InputError(f"checkpoint version {payload.get('version')!r}; this reads version {VERSION}", path)
     return payload
 
 
@@ -103,10 +107,19 @@ def check_payload(payload: dict[str, Any], path: Path) -> None:
         if not isinstance(info.get(key), kind):
             raise InputError(f"checkpoint lacks or has malformed dataset {key!r}", path)
     fps = info.get("fps")
-    if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not 0 < fps < float("inf"):
-        raise InputError(f"checkpoint has malformed dataset 'fps' ({fps!r}): not a positive number", path)
+    if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not 0 < fps <= MAX_FPS:
+        raise InputError(
+            f"checkpoint has malformed dataset 'fps' ({fps!r}): not a frame rate up to {MAX_FPS:g}", path
+        )
     if not all(isinstance(c, str) for c in info["channels"]):
         raise InputError("checkpoint has malformed dataset 'channels'", path)
+    out_dim = payload["inputs"].get("out_dim")
+    if out_dim != len(info["channels"]):
+        raise InputError(
+            f"checkpoint has malformed dataset 'channels': {len(info['channels'])} listed, the model "
+            f"outputs {out_dim!r}",
+            path,
+        )
     try:
         Normalizer.from_json(info["normalization"]["animation"])
         FeatureNormalizer(info["normalization"])

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from capture.command import emit_json, run
+from capture.errors import InputError
 
 from .config import MODELS, resolve_config
 from .precision import PRECISIONS
@@ -150,6 +151,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     given = resolve_config(args.config, args.set, base={}, check=False)  # only the keys the user set
     if args.model is not None:
         given["model"] = args.model
+    for key in ("max_steps", "max_minutes"):  # limits given as options count as set by the user
+        if getattr(args, key) is not None:
+            given[key] = getattr(args, key)
     summary = fit(args.data, args.out, cfg, resume=args.resume, given=given)
     if summary.get("rank", 0) == 0:  # under torchrun, rank 0 reports for all
         if args.json:
@@ -197,11 +201,19 @@ def cmd_predict(args: argparse.Namespace) -> int:
         precision=args.precision,
         style=args.style,
     )
+    failed = [r for r in results if "error" in r]
     for r in results:
         if args.json:
             emit_json(r)
-        else:
+        elif "error" not in r:
             print(f"{r['csv']}: {r['frames']} frames ({r['duration_s']:.2f} s)")
+    if len(failed) == 1 and len(results) == 1:
+        raise InputError(failed[0]["error"])
+    if failed:
+        raise InputError(
+            f"{len(failed)} of {len(results)} audio files failed (the others were written); "
+            f"first: {failed[0]['error']}"
+        )
     return 0
 
 

@@ -8,11 +8,14 @@ from pathlib import Path
 from typing import Any
 
 from capture.command import progress
+from dataset.manifest import read_manifest
 
 from .checkpoint import LAST, write_json
+from .data import resolve_inputs
 from .ensemble import has_members
 from .evaluate import evaluate
 from .fit import fit
+from .systems import build_model
 
 
 def compare(
@@ -25,6 +28,10 @@ def compare(
 ) -> list[dict[str, Any]]:
     """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system."""
     out = Path(out)
+    manifest = read_manifest(Path(ds).parent if Path(ds).is_file() else ds)
+    for name in models:  # every system's settings checked before the first one trains
+        cfg = config_for(name)
+        build_model(name, resolve_inputs(manifest, cfg), cfg)
     rows = []
     for name in models:
         run = out / name

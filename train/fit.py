@@ -221,7 +221,7 @@ def fit(
             saved = _saved_config(run / CONFIG)
             if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
                 _refuse_changes(given, saved, run / CONFIG)
-                cfg = _resumed_config(saved, cfg)
+                cfg = _resumed_config(saved, cfg, given)
         if cfg.get("cv_folds"):
             return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps)
         return _fit(ds, run, cfg, resume, say, stop_after_steps, given)
@@ -282,10 +282,14 @@ def _same_dataset(state: dict[str, Any], manifest: dict[str, Any], ds: Path, whe
         )
 
 
-def _resumed_config(saved: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:
-    """A run's saved config with this session's limits (``max_steps``, ``max_minutes``); keys added
-    after the run was saved take their defaults (augmentation off)."""
-    limits = {"max_steps": cfg["max_steps"], "max_minutes": cfg["max_minutes"]}
+def _resumed_config(
+    saved: dict[str, Any], cfg: dict[str, Any], given: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """A run's saved config with this session's limits (``max_steps``, ``max_minutes``): those the user
+    set (``given``, from the command line), else the saved ones; without ``given`` (a call from code),
+    ``cfg``'s. Keys added after the run was saved take their defaults (augmentation off)."""
+    source = cfg if given is None else {**saved, **given}
+    limits = {k: source.get(k, DEFAULTS[k]) for k in ("max_steps", "max_minutes")}
     return {**DEFAULTS, **{k: v for k, v in saved.items() if k in DEFAULTS}, **limits}
 
 
@@ -370,7 +374,7 @@ def _fit(
             raise InputError("checkpoint lacks its config", run / LAST)
         _same_dataset(state, manifest, ds, run / LAST)
         _refuse_changes(given, state["config"], run / LAST)
-        cfg = _resumed_config(state["config"], cfg)
+        cfg = _resumed_config(state["config"], cfg, given)
         check_config(cfg)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
@@ -464,6 +468,7 @@ def _fit(
             stopped = "early_stopping"
         elif step >= cfg["max_steps"]:
             stopped = "max_steps"
+            say(f"run already finished at step {step} (max_steps {cfg['max_steps']}); nothing to train")
         batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"])
         while stopped is None:
             epoch, i, batch = next(batches)

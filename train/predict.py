@@ -2,8 +2,12 @@
 
 Audio goes through the dataset's own feature pipeline (``dataset.features.compute_features``) with the
 settings the dataset recorded (copied into every checkpoint), is normalised as the reader normalises
-it, and the model's output is de-normalised to blendshape weights. The CSV has the app's 61 columns;
-channels the model does not predict are 0.
+it, and the model's output is de-normalised to blendshape weights. ARKit blendshape weights are clipped
+to 0..1 (the app's range; how many were outside is reported). The CSV has the app's 61 columns;
+channels the model does not predict are 0, and channels of the run that are no ARKit name are listed
+in a warning. A run none of whose channels is an ARKit name (a rig's own controls) writes a rig CSV
+instead: a ``time`` column in seconds and one column per channel, as ``s2a-capture import --matrix``
+reads it.
 """
 
 from __future__ import annotations
@@ -15,8 +19,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from align.resample import to_16k_mono
+from align.resample import TARGET_RATE, to_16k_mono
 from capture import Take, TakeMeta, read_audio, write_livelink_csv
+from capture.atomic import atomic_write
+from capture.channels import ARKIT52, ARKIT61
 from capture.command import progress
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
@@ -31,13 +37,22 @@ from .precision import for_inference
 from .style import MEAN, check_style
 from .windowed import PREDICT_WINDOW_S, infer_windowed
 
+ARKIT_LOWER = {c.lower() for c in ARKIT61}
+BLENDSHAPES_LOWER = {c.lower() for c in ARKIT52}  # weights in 0..1 (the other 9 are angles)
+
 
 def feature_settings(features: dict[str, Any]) -> FeatureSettings:
     try:
         s = dict(features["settings"])
-        return FeatureSettings(**{**s, "pitch": PitchSettings(**s["pitch"])})
+        settings = FeatureSettings(**{**s, "pitch": PitchSettings(**s["pitch"])})
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"checkpoint has malformed dataset feature settings ({exc})") from None
+    if settings.sample_rate != TARGET_RATE:
+        raise InputError(
+            f"checkpoint's features were computed at {settings.sample_rate} Hz; datasets and predict use "
+            f"{TARGET_RATE} Hz (a malformed checkpoint?)"
+        )
+    return settings
 
 
 @torch.no_grad()
@@ -71,6 +86,8 @@ def animate(
     content, prosody = to_model_inputs(item, spec, style)
     mask = torch.ones(1, n, dtype=torch.bool)
     y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
+    if not np.all(np.isfinite(y)):
+        raise InputError("the model's output is not finite (NaN or inf): a damaged checkpoint?", where)
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y)
 
 
@@ -103,6 +120,17 @@ def predict(
                 f"sha256 {want[:12]}...): features would not match training",
                 ppg_model,
             )
+    if ppg is None and ppg_model is not None:
+        say(f"note: the run reads {spec.content}, not a PPG: --ppg-model ignored")
+    channels = list(info["channels"])
+    arkit = [c for c in channels if c.lower() in ARKIT_LOWER]
+    blendshapes = [i for i, c in enumerate(channels) if c.lower() in BLENDSHAPES_LOWER]
+    if arkit and len(arkit) < len(channels):
+        others = [c for c in channels if c.lower() not in ARKIT_LOWER]
+        say(
+            f"warning: {len(others)} channel(s) of the run are no ARKit name and are not in the CSV: "
+            f"{others[:5]}"
+        )
     known = sorted(info["normalization"].get("pitch", {}).get("speakers", {}))
     if speaker is not None and speaker not in known:
         raise InputError(
@@ -115,25 +143,64 @@ def predict(
     paths = csv_paths(audios, out, single)
     results = []
     for a, path in zip(map(Path, audios), paths):
-        if a.is_dir():
-            raise InputError("is a folder, not an audio file", a)
-        audio = to_16k_mono(read_audio(a), str(a))
-        values = animate(model, payload, audio, ppg, speaker, where=a, style=style)
-        n, fps = values.shape[0], info["fps"]
-        meta = TakeMeta(id=a.stem, source_kind="predicted", fps=fps, channels=list(info["channels"]))
-        take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
-        if path.is_dir():
-            raise InputError("output CSV path is a folder", path)
-        try:
-            write_livelink_csv(take, path)
-        except OSError as exc:
-            raise InputError(f"cannot write the CSV: {exc.strerror}", path) from None
-        say(f"{a}: {n} frames at {fps:g} fps -> {path}")
-        result = {"audio": str(a), "csv": str(path), "frames": n, "fps": fps, "duration_s": n / fps}
+        try:  # one unreadable file is reported and the others are still predicted
+            result = _predict_one(model, payload, a, path, ppg, speaker, style, arkit, blendshapes)
+        except InputError as exc:
+            if len(audios) > 1:
+                say(f"failed: {exc}")
+            results.append({"audio": str(a), "error": str(exc)})
+            continue
+        say(f"{a}: {result['frames']} frames at {result['fps']:g} fps -> {path}")
+        if result["clipped_values"]:
+            say(f"note: {a}: {result['clipped_values']} blendshape value(s) outside 0..1 clipped")
         if spec.styles:
             result["style"] = style or (speaker if speaker in spec.styles else MEAN)
         results.append(result)
     return results
+
+
+def _predict_one(
+    model, payload, a: Path, path: Path, ppg, speaker, style, arkit, blendshapes
+) -> dict[str, Any]:
+    """Predict audio file ``a`` into CSV ``path``; the summary of ``predict``."""
+    info = payload["dataset"]
+    if a.is_dir():
+        raise InputError("is a folder, not an audio file", a)
+    if path.is_dir():
+        raise InputError("output CSV path is a folder", path)
+    audio = to_16k_mono(read_audio(a), str(a))
+    values = animate(model, payload, audio, ppg, speaker, where=a, style=style)
+    n, fps = values.shape[0], info["fps"]
+    outside = values[:, blendshapes]
+    clipped = int(np.count_nonzero((outside < 0) | (outside > 1)))
+    values[:, blendshapes] = np.clip(outside, 0.0, 1.0)
+    meta = TakeMeta(id=a.stem, source_kind="predicted", fps=fps, channels=list(info["channels"]))
+    take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
+    try:
+        if arkit:
+            write_livelink_csv(take, path)
+        else:
+            write_rig_csv(take, path)
+    except OSError as exc:
+        raise InputError(f"cannot write the CSV: {exc.strerror}", path) from None
+    return {
+        "audio": str(a),
+        "csv": str(path),
+        "format": "livelinkface" if arkit else "rig",
+        "frames": n,
+        "fps": fps,
+        "duration_s": n / fps,
+        "clipped_values": clipped,
+    }
+
+
+def write_rig_csv(take: Take, path: Path) -> None:
+    """A ``time`` column (seconds) and one column per channel, 6 decimals, written atomically: the
+    output for a rig whose controls are no ARKit names (``s2a-capture import --matrix`` reads it)."""
+    header = ",".join(["time", *take.meta.channels])
+    rows = np.column_stack([take.time, take.values])
+    with atomic_write(path) as f:
+        np.savetxt(f, rows, fmt="%.6f", delimiter=",", header=header, comments="")
 
 
 def csv_paths(audios: list[str | Path], out: Path, single: bool) -> list[Path]:

@@ -25,13 +25,12 @@ ARCH_TABLES = {
 }
 
 
-def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], name: str):
-    """``arch`` keys apply to every system whose config has them (a key no system has is an error);
-    the sub-table ``arch.<name>`` (``arch.s2a`` also for s2a-nomoe) applies to that system only."""
-    known = {f.name for f in fields(cls)}
-    shared = {k: v for k, v in arch.items() if not isinstance(v, dict)}
+def check_arch(arch: dict[str, Any]) -> None:
+    """Refuse ``arch`` keys that no system has and keys of a system's table (``arch.blstm``) that
+    system does not have, whichever system is built: a typo shows at once."""
+    shared = {k for k, v in arch.items() if not isinstance(v, dict)}
     everywhere = set().union(*({f.name for f in fields(c)} for c in ARCH_TABLES.values()))
-    unknown = sorted(set(shared) - everywhere)
+    unknown = sorted(shared - everywhere)
     tables = [t for t in arch if isinstance(arch[t], dict)]
     if unknown or set(tables) - set(ARCH_TABLES):
         raise InputError(
@@ -39,6 +38,20 @@ def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], n
             f"(known: {sorted(everywhere)} and tables {sorted(ARCH_TABLES)})",
             "config:arch",
         )
+    for table in tables:
+        known = sorted(f.name for f in fields(ARCH_TABLES[table]))
+        if set(arch[table]) - set(known):
+            raise InputError(
+                f"unknown arch keys {sorted(set(arch[table]) - set(known))} for {table} (known: {known})",
+                "config:arch",
+            )
+
+
+def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], name: str):
+    """``arch`` keys apply to every system whose config has them (a key no system has is an error);
+    the sub-table ``arch.<name>`` (``arch.s2a`` also for s2a-nomoe) applies to that system only."""
+    known = {f.name for f in fields(cls)}
+    shared = {k: v for k, v in arch.items() if not isinstance(v, dict)}
     own = dict(arch.get("s2a", {})) if name == "s2a-nomoe" else {}
     own.update(arch.get(name, {}))
     from_data = sorted((set(shared) | set(own)) & set(FROM_DATASET))
@@ -46,10 +59,6 @@ def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], n
         raise InputError(
             f"arch.{from_data[0]} is set from the dataset (its features and channels), not in the config",
             "config:arch",
-        )
-    if set(own) - known:
-        raise InputError(
-            f"unknown arch keys {sorted(set(own) - known)} for {name} (known: {sorted(known)})", "config:arch"
         )
     base = {"content_dim": spec.content_dim, "prosody_dim": spec.prosody_dim, "out_dim": spec.out_dim}
     base.update({k: v for k, v in shared.items() if k in known})
@@ -75,6 +84,7 @@ def build_model(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Mod
 
 def _build(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, dict[str, Any]]:
     arch = dict(cfg.get("arch", {}))
+    check_arch(arch)
     if name in ("s2a", "s2a-nomoe"):
         c = _config(S2AConfig, spec, {"moe": name == "s2a"}, arch, name)
         window = cfg.get("window", 0)
