@@ -41,7 +41,7 @@ def run(
         return 130
     except BrokenPipeError:
         return 0
-    except OSError as exc:  # the file system refused (read-only, permissions, a file where a folder goes, full)
+    except OSError as exc:  # the file system refused (read-only, no permission, a file in the way, full)
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1

@@ -126,6 +126,8 @@ def import_source(
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
     if not is_livelink_csv(source):
+        if source.is_file() and not source.read_bytes()[: 1 << 16].strip():
+            raise InputError("file is empty", source)
         if audio is None:
             raise InputError(
                 "not a Live Link Face CSV (its header does not start with Timecode,BlendShapeCount), and "

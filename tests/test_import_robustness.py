@@ -523,3 +523,11 @@ def test_an_app_csv_with_a_leading_blank_line_is_judged_as_the_apps(samples, tmp
     csv.write_text("\n" + (ns / "testset.csv").read_text())
     proc = run_cli("capture", "import", csv, "--audio", ns / "audio.wav", "-o", tmp_path / "o")
     one_line_error(proc, "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount")
+
+
+def test_an_empty_csv_is_named_empty_with_or_without_audio(samples, tmp_path):
+    empty = tmp_path / "take.csv"
+    empty.write_text("\n \n")
+    wav = next((samples / "speech").rglob("*.wav"))
+    one_line_error(run_cli("capture", "import", empty, "-o", tmp_path / "a"), "file is empty")
+    one_line_error(run_cli("capture", "import", empty, "--audio", wav, "-o", tmp_path / "b"), "file is empty")

@@ -4,14 +4,15 @@ dataset as one HTML page."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
 
 from capture.command import emit_json, progress, run
 from capture.errors import InputError
-from capture.take import make_out_dir
 
+from .output import prepare_output
 from .plot import VAD_METHODS
 
 PROG = "s2a-view"
@@ -149,6 +150,13 @@ def _face(spec: str):
     return builtin_face() if spec == "builtin" else load_gltf(spec)
 
 
+def _warn(anims) -> None:
+    """What reading, bridging and clamping the inputs changed, one warning line each."""
+    for a in anims:
+        for w in a.warnings:
+            progress(f"warning: {w}")
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from .probe import probe
     from .render import (
@@ -172,10 +180,22 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise InputError(f"--size must be in 16..4096, not {args.size}")
     if suffix == ".mp4" and (args.frame is not None or args.time is not None):
         raise InputError("--frame/--time pick one frame for a PNG; an MP4 has them all")
-    make_out_dir(args.out.parent)
-    anims = [load_animation(args.input, args.audio)]
-    anims += [load_animation(c) for c in args.compare]
+    if args.frame is not None and args.time is not None:
+        raise InputError("--frame and --time both pick the frame: give one of them")
+    if args.time is not None and not math.isfinite(args.time):
+        raise InputError(f"--time must be a number of seconds, not {args.time}")
+    prepare_output(args.out)
+    one = "render shows one take per input"
+    anims = [load_animation(args.input, args.audio, one_take=one)]
+    anims += [load_animation(c, one_take=one, audio_flag=None) for c in args.compare]
     paths = [args.input, *args.compare]
+    first = anims[0]
+    span = float(first.time[-1] - first.t0)
+    if args.time is not None and not 0 <= args.time <= span:
+        raise InputError(f"--time {args.time:g} s is outside the take's 0..{span:.3f} s", args.input)
+    if args.frame is not None and not 0 <= args.frame < first.time.size:
+        raise InputError(f"--frame {args.frame} is outside 0..{first.time.size - 1}", args.input)
+    _warn(anims)
     if args.labels:
         names = [s.strip() for s in args.labels.split(",")]
         if len(names) != len(anims):
@@ -200,13 +220,14 @@ def cmd_render(args: argparse.Namespace) -> int:
         start = args.video_start if args.video_start is not None else anims[0].audio_start_s
         video = ReferenceVideo(vpath, args.size, start)
     labels = not args.no_labels
-    first = anims[0]
     size = (args.size, args.size)
     summary: dict = {
         "input": str(args.input),
         "compare": [str(c) for c in args.compare],
         "compare_offset_s": [round(a.offset_s, 6) for a in anims[1:]],
         "face": model.name,
+        "bad_values": [a.bad_values for a in anims],
+        "clamped_values": [a.clamped for a in anims],
     }
     with FaceRenderer(model, size) as renderer:
         if suffix != ".mp4":
@@ -214,8 +235,6 @@ def cmd_render(args: argparse.Namespace) -> int:
                 t_rel = args.time
             else:
                 k = args.frame if args.frame is not None else default_frame(first)
-                if not 0 <= k < first.time.size:
-                    raise InputError(f"--frame {k} is outside 0..{first.time.size - 1}", args.input)
                 t_rel = float(first.time[k] - first.t0)
             t = time.perf_counter()
             img = render_frame(renderer, anims, t_rel, video, labels)
@@ -272,12 +291,21 @@ def cmd_plot(args: argparse.Namespace) -> int:
     labels = [s.strip() for s in args.labels.split(",")] if args.labels else []
     if labels and len(labels) != len(args.inputs):
         raise InputError(f"--labels names {len(labels)} inputs, but {len(args.inputs)} were given")
+    one = "plot draws one take per input (name each take to compare several)"
     anims = []
     for i, path in enumerate(args.inputs):
-        anims.append(load_animation(path, args.audio if i == 0 else None, labels[i] if labels else None))
+        audio = args.audio if i == 0 else None
+        label = labels[i] if labels else None
+        # The curves show the values as they are (no clamping); bad values are bridged like gaps.
+        anims.append(
+            load_animation(path, audio, label, one, clamp=False, audio_flag="--audio" if i == 0 else None)
+        )
     for a in anims[1:]:
         a.offset_s = place_on_parent_clock(anims[0], a)
-    make_out_dir(args.out.parent)
+    if args.out.suffix.lower() not in (".png", ".svg"):
+        raise InputError("the plot is written as .png or .svg", args.out)
+    prepare_output(args.out)
+    _warn(anims)
     summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
     if args.json:
         emit_json(summary)
@@ -289,22 +317,35 @@ def cmd_plot(args: argparse.Namespace) -> int:
 def cmd_stream(args: argparse.Namespace) -> int:
     from capture.replay import check_speed, packet_names, parse_destination
 
+    from .inputs import ABSURD, prepared_for_stream
     from .stream import load_take, stream_take
 
     parse_destination(args.to)  # a malformed destination or speed is reported before any file is read
     check_speed(args.speed)
     audio_file = args.audio if args.audio not in (None, "take") else None
-    take = load_take(args.input, audio_file)
+    take, warnings = load_take(args.input, audio_file)
     packet_names(take, args.device, args.subject)  # names too long for a datagram: before any output
+    take, outside = prepared_for_stream(take)
+    for w in warnings:
+        progress(f"warning: {w}")
+    if outside:
+        progress(
+            f"warning: {outside} blendshape value(s) outside 0..1 are sent as they are (the phone sends "
+            "up to 1.05; a rig may expect 0..1)"
+        )
     if not args.json:
         progress(f"streaming {take.meta.id} to {args.to} ({take.duration_s / args.speed:.1f} s)")
     summary = stream_take(take, args.to, args.speed, args.audio is not None, args.subject, args.device)
+    summary["outside_0_1"] = outside
     if args.json:
         emit_json(summary)
     else:
         progress(f"sent {summary['frames']} frames in {summary['duration_s']:.2f} s")
     if summary["bad_values"]:
-        progress(f"warning: {summary['bad_values']} frames with NaN/inf values sent as no-face packets")
+        progress(
+            f"warning: {summary['bad_values']} frames with NaN/inf values sent as no-face packets "
+            f"(values beyond ±{ABSURD:g} count as such)"
+        )
     return 0
 
 
@@ -313,10 +354,14 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     if args.out.suffix.lower() not in (".html", ".htm"):
         raise InputError("the report is written as .html", args.out)
+    if args.limit < 0:
+        raise InputError(f"--limit must be 0 or more (0: no curve thumbnails), not {args.limit}")
     if not args.dataset.exists():
         raise InputError("no such dataset or folder", args.dataset)
-    make_out_dir(args.out.parent)
+    prepare_output(args.out)
     summary = write_report(args.dataset, args.out, args.takes, args.limit)
+    if summary["thumbnails"] < summary["takes"] and args.limit < summary["takes"]:
+        progress(f"note: --limit {args.limit}: curve thumbnails for {args.limit} of {summary['takes']} takes")
     if args.json:
         emit_json(summary)
     else:
@@ -330,7 +375,9 @@ def cmd_export_face(args: argparse.Namespace) -> int:
     from .face import builtin_face
     from .gltf import write_glb
 
-    make_out_dir(args.out.parent)
+    if args.out.suffix.lower() != ".glb":
+        raise InputError("the face is written as binary glTF: give a file name ending in .glb", args.out)
+    prepare_output(args.out)
     model = builtin_face()
     out = write_glb(model, args.out, args.names)
     summary = {

@@ -25,6 +25,7 @@ from capture.channels import ARKIT52, ARKIT61
 from capture.errors import InputError
 
 from .face import FaceModel, Part
+from .output import writing
 
 GLB_MAGIC = 0x46546C67  # "glTF"
 CHUNK_JSON = 0x4E4F534A
@@ -297,8 +298,11 @@ def target_name(channel: str, style: str) -> str:
 
 def write_glb(model: FaceModel, path: str | Path, style: str = "arkit") -> Path:
     """``model`` as a GLB: one mesh per part with POSITION, COLOR_0, indices and one morph target per
-    channel that moves it (names in ``mesh.extras.targetNames``)."""
+    channel that moves it (names in ``mesh.extras.targetNames``). ``path`` must end in ``.glb``: the
+    file is binary glTF, which a ``.gltf`` (JSON) or ``.obj`` name would misdescribe."""
     path = Path(path)
+    if path.suffix.lower() != ".glb":
+        raise InputError("the face is written as binary glTF: give a file name ending in .glb", path)
     blob = bytearray()
     views: list[dict] = []
     accessors: list[dict] = []
@@ -365,6 +369,6 @@ def write_glb(model: FaceModel, path: str | Path, style: str = "arkit") -> Path:
     out += (
         struct.pack("<II", len(js), CHUNK_JSON) + js + struct.pack("<II", len(blob), CHUNK_BIN) + bytes(blob)
     )
-    with atomic_write(path) as f:
+    with writing(path, "GLB"), atomic_write(path) as f:
         f.write(out)
     return path

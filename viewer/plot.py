@@ -14,9 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.atomic import atomic_write
 from capture.channels import canonical, channel_set
 from capture.errors import InputError
 
+from .output import writing
 from .render import Animation
 
 VAD_METHODS = ("auto", "silero", "webrtc", "energy", "none")
@@ -165,10 +167,11 @@ def plot_curves(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    tmp = out.with_name(f".{out.name}.partial{out.suffix}")
-    fig.savefig(tmp, dpi=100, format=out.suffix[1:].lower())
-    plt.close(fig)
-    tmp.replace(out)
+    try:
+        with writing(out, "plot"), atomic_write(out) as f:
+            fig.savefig(f, dpi=100, format=out.suffix[1:].lower())
+    finally:
+        plt.close(fig)
     return {
         "output": str(out),
         "inputs": [a.label for a in anims],

@@ -10,16 +10,18 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
-from capture import Audio, FrameStatus, InputError, Take, import_source, read_audio, read_take
-from capture.take import is_take_dir
+from capture import ARKIT61, Audio, FrameStatus, InputError, Take
+from capture.atomic import atomic_write
 
 from .face import FaceModel, vertex_normals, weights_from_values
+from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
+from .output import writing
 from .probe import probe
 
 BACKGROUND = (38, 40, 46)
@@ -37,6 +39,9 @@ class Animation:
     audio_start_s: float = 0.0  # take time of the first audio sample
     take: Take | None = None
     offset_s: float = 0.0  # in side-by-side output: when this animation starts, after the first one's start
+    bad_values: int = 0  # frames with NaN, infinite or absurd values, bridged
+    clamped: int = 0  # blendshape values outside 0..1, clamped
+    warnings: list[str] = field(default_factory=list)  # what reading repaired, bridged or clamped
 
     @property
     def t0(self) -> float:
@@ -55,34 +60,43 @@ class Animation:
         return out
 
 
-def load_animation(path: str | Path, audio: str | Path | None = None, label: str | None = None) -> Animation:
+def load_animation(
+    path: str | Path,
+    audio: str | Path | None = None,
+    label: str | None = None,
+    one_take: str = "the viewer shows one take per input",
+    clamp: bool = True,
+    audio_flag: str | None = "--audio",
+) -> Animation:
     """A take folder or a Live Link Face CSV (a recording or a prediction) as an ``Animation``.
 
-    Frames without data (face lost, dropped) are bridged linearly between the tracked frames around
-    them (held at the ends), so the face does not collapse to neutral. ``audio`` overrides or adds the
-    speech.
+    Frames without data (face lost, dropped) or with bad values (NaN, infinite, beyond ±10) are
+    bridged linearly between the good frames around them (held at the ends), so the face does not
+    collapse to neutral. With ``clamp``, blendshape weights are clamped to 0..1 (angles are not).
+    ``audio`` overrides or adds the speech. What was repaired, bridged or clamped is in ``warnings``.
+    A folder holding several takes is an ``InputError`` that starts with ``one_take``.
     """
-    path = Path(path)
-    if is_take_dir(path):
-        take = read_take(path)
-    elif path.is_file() or path.is_dir():
-        take = import_source(path, audio)
-        audio = None
-    else:
-        raise InputError("no such take folder or CSV file", path)
-    values = take.values.astype(np.float64)
+    take, warnings = read_input(path, one_take, audio, audio_flag)
+    weights = weights_from_values(take.values.astype(np.float64), take.meta.channels)
     ok = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
-    ok &= np.all(np.isfinite(values), axis=1)
+    bad = ok & bad_frames(weights, ARKIT61)
+    ok &= ~bad
     if not ok.any():
-        raise InputError(f"take {take.meta.id} has no frame with values", path)
-    weights = weights_from_values(values, take.meta.channels)
+        raise InputError(f"take {take.meta.id} has no frame with usable values", path)
+    if bad.any():
+        warnings.append(
+            f"{path}: {int(bad.sum())} frame(s) hold NaN, infinite or absurd (beyond ±{ABSURD:g}) values: "
+            "bridged between the frames around them"
+        )
+    clamped = clamp_blendshapes(weights, ARKIT61, ok) if clamp else 0
+    if clamped:
+        warnings.append(f"{path}: {clamped} blendshape value(s) outside 0..1 clamped to 0..1")
     good = np.flatnonzero(ok)
     for k in range(weights.shape[1]):
         weights[:, k] = np.interp(take.time, take.time[good], weights[good, k])
     anim = Animation(label or take.meta.id, float(take.meta.fps), take.time.copy(), weights, take=take)
-    if audio is not None:
-        anim.audio = read_audio(audio)
-    elif take.audio is not None:
+    anim.bad_values, anim.clamped, anim.warnings = int(bad.sum()), clamped, warnings
+    if take.audio is not None:
         anim.audio = take.audio
         anim.audio_start_s = take.meta.audio.start_s if take.meta.audio else 0.0
     return anim
@@ -305,7 +319,7 @@ def write_mp4(
     render_s = encode_s = 0.0
     rate = _fps_fraction(fps)
     try:
-        with av.open(str(tmp), "w", format="mp4") as out:
+        with writing(path, "video"), av.open(str(tmp), "w", format="mp4") as out:
             first = frames(0)
             h, w = first.shape[:2]
             vs = out.add_stream("libx264", rate=rate)
@@ -346,7 +360,8 @@ def write_mp4(
                 for packet in astream.encode():
                     out.mux(packet)
             encode_s += time.perf_counter() - t2
-        tmp.replace(path)
+        with writing(path, "video"):
+            tmp.replace(path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -354,11 +369,16 @@ def write_mp4(
 
 
 def write_image(path: str | Path, img: np.ndarray) -> None:
-    """PNG/JPEG by extension (OpenCV), written atomically."""
+    """PNG/JPEG by extension (OpenCV), written atomically; ``InputError`` naming ``path`` when the
+    extension is not an image format or the file cannot be written."""
     import cv2
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial{path.suffix}")
-    if not cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
-        raise InputError("image could not be written (unknown extension?)", path)
-    tmp.replace(path)
+    try:
+        ok, data = cv2.imencode(path.suffix.lower(), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise InputError(f"OpenCV cannot write {path.suffix or 'a file without extension'} images", path)
+    with writing(path, "image"), atomic_write(path) as f:
+        f.write(data.tobytes())

@@ -28,6 +28,8 @@ from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
 from capture.take import FrameStatus
 
+from .output import writing
+
 THUMB_CHANNELS = ("jawOpen", "mouthClose", "mouthFunnel")
 MIN_CONFIDENCE = 0.5  # align offset confidence below this is flagged
 MAX_OFFSET_S = 0.25  # |audio-face offset| above this is flagged
@@ -133,8 +135,8 @@ def _table(headers: list[str], rows: list[str], sortable: bool = True) -> str:
 
 
 # -- gathering what the report shows ---------------------------------------------------------------
-def _take_entry(folder: Path) -> dict[str, Any]:
-    """Figures, align report and curves of one take folder."""
+def _take_entry(folder: Path, curves: bool = True) -> dict[str, Any]:
+    """Figures, align report and (with ``curves``) the thumbnail curves of one take folder."""
     take = read_take(folder, audio=False)
     ok = (take.frame_status == FrameStatus.TRACKED) | (take.frame_status == 4)
     entry: dict[str, Any] = {
@@ -149,7 +151,7 @@ def _take_entry(folder: Path) -> dict[str, Any]:
         "align": take.meta.extra.get("align"),
         "source_kind": take.meta.source_kind,
     }
-    entry["curves"] = _curves(take.values, take.meta.channels, ok)
+    entry["curves"] = _curves(take.values, take.meta.channels, ok) if curves else {}
     return entry
 
 
@@ -243,7 +245,10 @@ def _outliers(entries: list[dict[str, Any]]) -> None:
 
 
 def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) -> dict[str, Any]:
-    """Everything the page shows, as plain data (also what ``--json`` summarises)."""
+    """Everything the page shows, as plain data (also what ``--json`` summarises). At most ``limit``
+    takes (the first by id in a dataset, by path in a folder of takes) get curve thumbnails; 0: none."""
+    if not (isinstance(limit, int) and limit >= 0):
+        raise InputError(f"--limit must be 0 or more (0: no curve thumbnails), not {limit}")
     path = Path(path)
     extra = list(takes or [])
     if (path / "manifest.json").is_file() or path.suffix == ".json":
@@ -289,7 +294,8 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         if not folders:
             raise InputError("neither a dataset (manifest.json) nor a folder of takes", path)
         stats, manifest = None, None
-        entries = [_take_entry(f) for f in folders[:limit]]
+        # Every take is listed; ``limit`` only bounds the thumbnails, as in dataset mode.
+        entries = [_take_entry(f, i < limit) for i, f in enumerate(folders)]
         kind, title = "takes", path.name
     _outliers(entries)
     return {
@@ -460,13 +466,15 @@ def write_report(
     """Write the report page of dataset (or take folder) ``path`` to ``out``; returns a summary."""
     data = gather(path, takes, limit)
     out = Path(out)
-    with atomic_write(out, "w", encoding="utf-8") as f:
-        f.write(render_html(data))
+    page = render_html(data)
+    with writing(out, "report"), atomic_write(out, "w", encoding="utf-8") as f:
+        f.write(page)
     return {
         "output": str(out),
         "kind": data["kind"],
         "takes": len(data["takes"]),
         "with_align_report": sum(1 for e in data["takes"] if e.get("align")),
+        "thumbnails": sum(1 for e in data["takes"] if e.get("curves")),
         "outliers": [{"take": e["take"], "reasons": e["reasons"]} for e in data["takes"] if e["reasons"]],
         "bytes": out.stat().st_size,
     }

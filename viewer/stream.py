@@ -16,6 +16,8 @@ from capture import Take
 from capture.errors import InputError
 from capture.replay import check_speed, packet_names, parse_destination, rebased_audio, replay_take
 
+from .inputs import read_input
+
 
 class AudioPlayer:
     """Plays mono float32 samples on the default output device (sounddevice), started on demand."""
@@ -79,25 +81,7 @@ def stream_take(
     return out
 
 
-def load_take(path: str | Path, audio: str | Path | None = None) -> Take:
-    """A take folder or a Live Link Face CSV (optionally with its audio) as a take."""
-    from capture import find_sources, import_source, read_take
-    from capture.take import is_take_dir
-
-    path = Path(path)
-    if is_take_dir(path):
-        take = read_take(path)
-        if audio is not None:
-            from capture import read_audio
-
-            take.attach_audio(read_audio(audio))
-        return take
-    if not path.exists():
-        raise InputError("no such take folder or CSV file", path)
-    sources = find_sources([path])  # Live Link Face take folders and CSVs, not take folders of ours
-    ours = [p for p in path.iterdir() if is_take_dir(p)] if path.is_dir() else []
-    if len(sources) + len(ours) != 1:
-        raise InputError(f"stream sends one take; found {len(sources) + len(ours)} takes under it", path)
-    if ours:
-        return load_take(ours[0], audio)
-    return import_source(sources[0], audio)
+def load_take(path: str | Path, audio: str | Path | None = None) -> tuple[Take, list[str]]:
+    """A take folder or a Live Link Face CSV (optionally with its audio) as a take, and warnings about
+    what reading it repaired. A folder holding several takes is an ``InputError``."""
+    return read_input(path, "stream sends one take", audio, "--audio FILE")

@@ -1,0 +1,257 @@
+"""Bad input to ``s2a-view``: one-line errors that name what the user gave, warnings for what was
+repaired, bridged or clamped, and never a silently dropped take or a blank face. Inputs are cut from
+the real Live Link Face samples; commands run as subprocesses."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+from conftest import run_cli
+
+from capture import livelink as ll
+from capture import read_livelink_csv, read_take, write_take
+
+CAL = "livelinkface/neurosync_MySlate_166/MySlate_166_iPhone_cal.csv"  # 60 fps, the app's own naming
+ROWS = 60  # one second: enough for every check, cheap to read, render and stream
+
+
+def _one_line_error(proc, *needles: str) -> str:
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    assert ".partial" not in lines[0]
+    return lines[0]
+
+
+def _json(proc) -> dict:
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _lines(samples: Path) -> list[str]:
+    """The header and the first ``ROWS`` rows of the real calibrated take."""
+    with open(samples / CAL, encoding="utf-8") as f:
+        return [next(f) for _ in range(ROWS + 1)]
+
+
+def _cell(line: str, column: int, value: str) -> str:
+    cells = line.rstrip("\n").split(",")
+    cells[column] = value
+    return ",".join(cells) + "\n"
+
+
+def _column(header: str, name: str) -> int:
+    return [c.strip().lower() for c in header.split(",")].index(name.lower())
+
+
+@pytest.fixture
+def short_csv(samples, tmp_path) -> Path:
+    path = tmp_path / "short" / "MySlate_166_iPhone_cal.csv"
+    path.parent.mkdir()
+    path.write_text("".join(_lines(samples)), encoding="utf-8")
+    return path
+
+
+# -- 5: a folder holding several takes ---------------------------------------------------------------
+def test_render_and_plot_refuse_a_folder_of_several_takes(samples, tmp_path):
+    folder = tmp_path / "two"
+    folder.mkdir()
+    for name in ("alexdjulin_S07/S07-001.csv", "alexdjulin_S88/S88-001.csv"):
+        shutil.copy(samples / "livelinkface" / name, folder)
+    for cmd, out in (("render", "f.png"), ("plot", "p.png")):
+        proc = run_cli("viewer", cmd, folder, "-o", tmp_path / out)
+        line = _one_line_error(proc, "found 2 takes under it", "S07-001.csv", "S88-001.csv")
+        assert line.startswith(f"s2a-view: error: {folder}: {cmd} ")
+        assert not (tmp_path / out).exists()
+
+
+def test_the_variants_of_one_take_in_a_folder_are_one_take(samples, tmp_path):
+    folder = tmp_path / "take"
+    folder.mkdir()
+    text = "".join(_lines(samples))
+    (folder / "MySlate_166_iPhone_cal.csv").write_text(text, encoding="utf-8")
+    (folder / "MySlate_166_iPhone_raw.csv").write_text(text, encoding="utf-8")
+    s = _json(run_cli("viewer", "plot", folder, "-o", tmp_path / "p.png", "--json"))
+    assert len(s["inputs"]) == 1 and (tmp_path / "p.png").is_file()
+
+
+# -- 6: --time is checked like --frame ---------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("option", "value", "needle"),
+    [
+        ("--time", "nan", "--time must be a number of seconds, not nan"),
+        ("--time", "inf", "--time must be a number of seconds, not inf"),
+        ("--time", "-5", "--time -5 s is outside the take's 0..0.98"),
+        ("--time", "1e9", "--time 1e+09 s is outside the take's 0..0.98"),
+        ("--frame", "100000", "--frame 100000 is outside 0..59"),
+    ],
+)
+def test_render_checks_time_and_frame_before_rendering(short_csv, tmp_path, option, value, needle):
+    out = tmp_path / "f.png"
+    _one_line_error(run_cli("viewer", "render", short_csv, "-o", out, option, value, "--json"), needle)
+    assert not out.exists()
+
+
+# -- 9: report --limit -------------------------------------------------------------------------------
+def test_report_limit_bounds_thumbnails_and_refuses_negative_values(short_csv, tmp_path):
+    take = read_livelink_csv(short_csv)
+    for tid in ("take_a", "take_b"):
+        take.meta.id = tid
+        write_take(take, tmp_path / "takes")
+    out = tmp_path / "r.html"
+    _one_line_error(run_cli("viewer", "report", tmp_path / "takes", "-o", out, "--limit", "-1"), "--limit")
+    assert not out.exists()
+    for limit, thumbs in (("0", 0), ("1", 1)):
+        s = _json(run_cli("viewer", "report", tmp_path / "takes", "-o", out, "--limit", limit, "--json"))
+        assert s["takes"] == 2 and s["thumbnails"] == thumbs  # every take listed, never one dropped
+        assert "take_a" in out.read_text() and "take_b" in out.read_text()
+
+
+# -- 10: absurd values -------------------------------------------------------------------------------
+@pytest.fixture
+def absurd_csv(samples, tmp_path) -> Path:
+    """Row 9 holds 1e30 in MouthClose; row 20 a JawOpen of 1.5 and a MouthFunnel of -0.25."""
+    lines = _lines(samples)
+    lines[10] = _cell(lines[10], _column(lines[0], "MouthClose"), "1e30")
+    lines[21] = _cell(lines[21], _column(lines[0], "JawOpen"), "1.5")
+    lines[21] = _cell(lines[21], _column(lines[0], "MouthFunnel"), "-0.25")
+    path = tmp_path / "absurd.csv"
+    path.write_text("".join(lines), encoding="utf-8")
+    return path
+
+
+def test_render_bridges_an_absurd_frame_and_clamps_weights(absurd_csv, tmp_path):
+    out = tmp_path / "f.png"
+    proc = run_cli("viewer", "render", absurd_csv, "-o", out, "--frame", "9", "--size", "96", "--json")
+    s = _json(proc)
+    assert s["bad_values"] == [1] and s["clamped_values"] == [2]
+    assert "1 frame(s) hold NaN, infinite or absurd (beyond ±10) values" in proc.stderr
+    assert "2 blendshape value(s) outside 0..1 clamped" in proc.stderr
+    import cv2
+
+    img = cv2.imread(str(out))
+    assert img is not None and img.std() > 20  # a face, not the blank background of a mesh blown apart
+
+
+def test_bridged_and_clamped_weights(absurd_csv):
+    from viewer.render import load_animation
+
+    anim = load_animation(absurd_csv)
+    jaw, close, funnel = 17, 18, 19  # ARKIT61 order
+    assert anim.bad_values == 1 and anim.clamped == 2
+    assert np.all(np.abs(anim.weights) <= 1.0)
+    assert anim.weights[9, close] == pytest.approx((anim.weights[8, close] + anim.weights[10, close]) / 2)
+    assert anim.weights[20, jaw] == 1.0 and anim.weights[20, funnel] == 0.0
+    raw = load_animation(absurd_csv, clamp=False)  # what plot draws: the values as they are
+    assert raw.clamped == 0 and raw.weights[20, jaw] == pytest.approx(1.5)
+
+
+def _receiver() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    return sock
+
+
+def _datagrams(sock: socket.socket) -> list[bytes]:
+    out = []
+    try:
+        while True:
+            out.append(sock.recv(4096))
+    except TimeoutError:
+        return out
+
+
+def test_stream_sends_an_absurd_frame_as_no_face_and_counts_it(absurd_csv):
+    with _receiver() as sock:
+        to = f"127.0.0.1:{sock.getsockname()[1]}"
+        proc = run_cli("viewer", "stream", absurd_csv, "--to", to, "--speed", "50", "--json")
+        packets = _datagrams(sock)
+    s = _json(proc)
+    assert s["bad_values"] == 1 and s["outside_0_1"] == 2
+    assert "1 frames with NaN/inf values sent as no-face packets" in proc.stderr
+    assert "2 blendshape value(s) outside 0..1 are sent as they are" in proc.stderr
+    values = []
+    for p in packets:
+        offset, reason = ll.parse_header(p)
+        assert reason is None
+        if len(p) > offset + ll.FRAME_TIME_BYTES:
+            values.append(np.frombuffer(p[-4 * ll.BLENDSHAPE_COUNT :], dtype=">f4"))
+    assert len(packets) == ROWS and len(values) == ROWS - 1
+    assert all(np.all(np.abs(v) <= 10) for v in values)
+
+
+# -- 12: errors name the path the user gave ----------------------------------------------------------
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+def test_write_errors_name_the_given_path_and_the_reason(short_csv, tmp_path):
+    takes = tmp_path / "takes"
+    write_take(read_livelink_csv(short_csv), takes)
+    for args, path, what in [
+        (["plot", short_csv, "-o", "/proc/p.png"], "/proc/p.png", "cannot write the plot"),
+        (["report", takes, "-o", "/proc/r.html"], "/proc/r.html", "cannot write the report"),
+        (["render", short_csv, "-o", "/proc/f.png", "--size", "32"], "/proc/f.png", "cannot write the image"),
+    ]:
+        line = _one_line_error(run_cli("viewer", *args), f"{path}: {what}: /proc does not take new files")
+        assert "unknown extension" not in line
+
+
+def test_export_face_refuses_a_folder_and_names_that_are_not_glb(tmp_path):
+    folder = tmp_path / "v.glb"
+    folder.mkdir()
+    _one_line_error(run_cli("viewer", "export-face", "-o", folder), f"{folder}: is a folder")
+    assert list(folder.iterdir()) == [] and [p.name for p in tmp_path.iterdir()] == ["v.glb"]
+    for name in ("face.gltf", "face.obj"):
+        _one_line_error(run_cli("viewer", "export-face", "-o", tmp_path / name), "ending in .glb")
+        assert not (tmp_path / name).exists()
+
+
+def test_an_empty_csv_error_names_no_capture_option(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.touch()
+    other = tmp_path / "matrix.csv"
+    other.write_text("jawOpen,mouthClose\n0.1,0.2\n", encoding="utf-8")
+    for args in (["render", empty, "-o", tmp_path / "f.png"], ["plot", empty, "-o", tmp_path / "p.png"]):
+        line = _one_line_error(run_cli("viewer", *args), f"{empty}: file is empty")
+        assert "--pair-audio" not in line
+    line = _one_line_error(run_cli("viewer", "stream", other, "--to", "127.0.0.1:9"), "--audio FILE")
+    assert "--pair-audio" not in line
+
+
+# -- 13: rows the reader dropped, NaN audio ----------------------------------------------------------
+def test_rows_the_reader_dropped_are_warned_about(samples, tmp_path):
+    lines = _lines(samples)
+    lines[3] = "garbage" + lines[3][lines[3].index(",") :]  # line 4: a bad timecode
+    lines[6] = ",".join(lines[6].split(",")[:10]) + "\n"  # line 7: too few fields
+    lines[8] = ",".join(lines[8].split(",")[:10]) + "\n"  # line 9: too few fields
+    csv = tmp_path / "rows.csv"
+    csv.write_text("".join(lines), encoding="utf-8")
+    proc = run_cli("viewer", "plot", csv, "-o", tmp_path / "p.png", "--json")
+    assert proc.returncode == 0, proc.stderr
+    warnings = [w for w in proc.stderr.splitlines() if w.startswith("warning:")]
+    assert f"warning: {csv}:4: timecode 'garbage'" in proc.stderr
+    assert f"warning: {csv}:7: row has 10 fields" in proc.stderr and "(and 1 more like it)" in proc.stderr
+    assert len(warnings) == 2
+
+
+def test_nan_audio_is_refused(short_csv, tmp_path):
+    x = np.sin(np.arange(16000) * 0.05).astype(np.float32) * 0.3
+    x[4000:4100] = np.nan
+    wav = tmp_path / "nan.wav"
+    sf.write(wav, x, 16000, subtype="FLOAT")
+    for cmd, out in (("plot", "p.png"), ("render", "f.png")):
+        proc = run_cli("viewer", cmd, short_csv, "--audio", wav, "-o", tmp_path / out)
+        _one_line_error(proc, f"{wav}: the audio holds NaN or infinite samples")
+        assert not (tmp_path / out).exists()
+    take = read_take(write_take(read_livelink_csv(short_csv), tmp_path / "takes"))
+    folder = tmp_path / "takes" / take.meta.id
+    proc = run_cli("viewer", "plot", folder, "--audio", wav, "-o", tmp_path / "p.png")
+    _one_line_error(proc, "NaN or infinite sample")

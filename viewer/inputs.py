@@ -1,0 +1,152 @@
+"""What a ``TAKE_OR_CSV`` argument of ``s2a-view`` names: exactly one take, read with what went wrong said.
+
+A folder holding several takes is an error (never one of them picked silently); the Live Link Face CSV
+variants of one take (``_cal``, ``_raw``, ``_neutral``) count as that one take. What the CSV reader
+repaired (rows dropped, cells set to NaN) comes back as warnings. Values no face can take, NaN,
+infinite or beyond ±``ABSURD`` (no blendshape weight nor angle in radians is), are bad values.
+Blendshape weights outside ``0..1`` (ARKit itself reaches 1.05) are clamped for the face and counted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from capture import Take, find_sources, find_takes, import_source, is_take_folder, read_audio, read_take
+from capture.channels import ARKIT52, canonical, is_known
+from capture.csv_take import split_variant
+from capture.errors import InputError
+from capture.importer import is_livelink_csv
+from capture.take import FrameStatus, is_take_dir
+
+ABSURD = 10.0  # |value| above this is no blendshape weight nor angle in radians (as dataset.qa's limit)
+# Repairs that change nothing a viewer shows: not worth a warning.
+_QUIET_REPAIRS = ("bom", "no_audio")
+_BLENDSHAPES = frozenset(ARKIT52)
+
+
+def take_source(path: str | Path, one_take: str) -> Path:
+    """The take folder, Live Link Face take folder, folder of one take's CSVs or CSV file ``path``
+    names. ``one_take`` opens the error for a folder holding several takes (``"render shows one take
+    per input"``), which lists them."""
+    path = Path(path)
+    if is_take_dir(path) or path.is_file():
+        return path
+    if not path.is_dir():
+        raise InputError("no such take folder or CSV file", path)
+    if is_take_folder(path):
+        return path
+    found = [(f"{p.relative_to(path)}/", p) for p in find_takes([path])]
+    groups: dict[tuple[Path, str], tuple[str, Path]] = {}
+    for src in find_sources([path]):  # Live Link Face take folders and CSVs, not take folders of ours
+        if src.is_dir():
+            groups[(src, "")] = (f"{src.relative_to(path)}/", src)
+            continue
+        prefix, variant = split_variant(src.stem)
+        if variant != "neutral":  # a neutral pose goes with its take: no take of its own
+            # The folder, not the file: the take folder reader picks the variant and the audio beside it.
+            groups.setdefault((src.parent, prefix.lower()), (str(src.relative_to(path)), src.parent))
+    found += groups.values()
+    if not found:
+        raise InputError("holds no take folder or Live Link Face CSV", path)
+    if len(found) > 1:
+        names = [name for name, _ in found]
+        shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+        raise InputError(f"{one_take}; found {len(found)} takes under it ({shown}): name one of them", path)
+    return found[0][1]
+
+
+def read_input(
+    path: str | Path, one_take: str, audio: str | Path | None = None, audio_flag: str | None = "--audio"
+) -> tuple[Take, list[str]]:
+    """The one take ``path`` names (see ``take_source``), with ``audio`` as its speech, and warnings
+    about what reading it repaired (one line each). ``audio_flag`` is the option that gives a CSV its
+    audio here (``None``: none does), for the message about a CSV that needs it.
+
+    Audio holding NaN or infinite samples is an ``InputError`` (as ``s2a-train predict`` refuses it),
+    never silence in its place."""
+    src = take_source(path, one_take)
+    if is_take_dir(src):
+        take = read_take(src)
+        if audio is not None:
+            take.attach_audio(read_audio(audio))  # without a repair list, NaN samples are an error
+        return take, []
+    if src.is_file():
+        if src.stat().st_size == 0:
+            raise InputError("file is empty: no Live Link Face CSV", src)
+        if src.suffix.lower() == ".csv" and audio is None and not is_livelink_csv(src):
+            how = f"give its speech with {audio_flag}" if audio_flag else "it cannot be shown here"
+            raise InputError(
+                "not a Live Link Face CSV (its header does not start with Timecode,BlendShapeCount); as "
+                f"other paired data (a column per channel) it needs its audio: {how}",
+                src,
+            )
+    take = import_source(src, audio)
+    for r in take.meta.repairs:
+        if r.get("kind") == "bad_audio":
+            what = r["message"].removesuffix(" set to 0")
+            raise InputError(
+                f"the audio holds NaN or infinite samples ({what}): give clean speech", audio or path
+            )
+    return take, repair_warnings(take, src)
+
+
+def repair_warnings(take: Take, path: Path) -> list[str]:
+    """One line per kind of repair the reader made (rows dropped, cells set to NaN, ...): the first one
+    with its file and line, and how many more of the kind there were."""
+    by_kind: dict[str, list[dict]] = {}
+    for r in take.meta.repairs:
+        if r.get("kind") not in _QUIET_REPAIRS:
+            by_kind.setdefault(str(r.get("kind")), []).append(r)
+    csv = next((s.path for s in take.meta.sources if s.role == "blendshapes_csv"), path)
+    out = []
+    for rs in by_kind.values():
+        first = rs[0]
+        where = f"{csv}:{first['line']}" if first.get("line") is not None else str(path)
+        more = f" (and {len(rs) - 1} more like it)" if len(rs) > 1 else ""
+        out.append(f"{where}: {first['message']}{more}")
+    return out
+
+
+def bad_frames(values: np.ndarray, channels: Sequence[str]) -> np.ndarray:
+    """Frames (boolean mask) where a known channel is NaN, infinite or beyond ±``ABSURD``."""
+    cols = [j for j, c in enumerate(channels) if is_known(c)]
+    v = np.asarray(values, dtype=np.float64)[:, cols]
+    return ~np.all(np.abs(v) <= ABSURD, axis=1)  # NaN compares False
+
+
+def blendshape_columns(channels: Sequence[str]) -> list[int]:
+    """Columns of ``channels`` that are ARKit blendshapes (weights 0..1), not head or eye angles."""
+    return [j for j, c in enumerate(channels) if is_known(c) and canonical(c) in _BLENDSHAPES]
+
+
+def clamp_blendshapes(
+    values: np.ndarray, channels: Sequence[str], rows: np.ndarray | None = None, clamp: bool = True
+) -> int:
+    """How many blendshape weights of ``values`` (frames, channels) lie outside 0..1, in ``rows`` only
+    (a boolean mask; default all); with ``clamp`` they are clamped to 0..1 in place. Angles are left
+    alone."""
+    cols = blendshape_columns(channels)
+    if not cols:
+        return 0
+    sel = np.ix_(np.flatnonzero(rows) if rows is not None else np.arange(values.shape[0]), cols)
+    block = values[sel]
+    count = int(np.count_nonzero((block < 0) | (block > 1)))
+    if count and clamp:
+        values[sel] = np.clip(block, 0.0, 1.0)
+    return count
+
+
+def prepared_for_stream(take: Take) -> tuple[Take, int]:
+    """``take`` as it may be sent to Unreal: frames with bad values marked BAD_VALUE (sent as no-face
+    packets, counted in ``bad_values``). Returns it and how many blendshape weights of the frames sent
+    with values lie outside 0..1: those are sent as they are, as the phone sends them (ARKit reaches
+    1.05), and the caller warns about them."""
+    bad = bad_frames(take.values, take.meta.channels)
+    sent = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
+    status = take.frame_status.copy()
+    status[bad & sent] = FrameStatus.BAD_VALUE
+    take.frame_status = status
+    return take, clamp_blendshapes(take.values, take.meta.channels, sent & ~bad, clamp=False)
