@@ -66,6 +66,7 @@ SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
 MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
 CONTENT_FEATURES = ("fbank", "mfcc", "ppg")
 # align's flags that say the audio/face offset must not be trusted blindly (docs/align.md)
+MAX_AUDIO_PEAK = 1000.0  # float audio this far past full scale (60 dB) is damaged, not loud
 NARROWBAND_HZ = 4500.0  # above the 4 kHz band edge of 8 kHz audio and its resampler's transition band
 UNTRUSTED_FLAGS = (
     "evidence_disagrees",
@@ -472,7 +473,7 @@ def split_share_warnings(
         if not pinned and fraction > 0 and share > max(2 * fraction, fraction + 0.1):
             out.append(
                 f"the {split} split holds {share:.0%} of the audio (asked {fraction:.0%}): the recordings "
-                f"are too few or too long for the fractions; pin takes with --{split} or cut long takes"
+                f"(or speakers) are too few or too long for the fractions; pin some with --{split}"
             )
     return out
 
@@ -517,6 +518,13 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     audio = take.audio.mono_float()
     narrow = is_narrowband(audio, sr)
     peak = float(np.max(np.abs(audio), initial=0.0))
+    if peak > MAX_AUDIO_PEAK:  # no recording chain gets there: damaged samples, not a loud take
+        at = int(np.argmax(np.abs(audio))) / job.settings.sample_rate
+        raise InputError(
+            f"audio holds a sample of {peak:.3g} at {at:.3f} s, over {MAX_AUDIO_PEAK:g} times full scale "
+            "(damaged samples?): repair or re-export the audio",
+            job.folder,
+        )
     gain = 1.0 / peak if peak > 1.0 else 1.0  # float audio past full scale: FLAC would clip it
     audio_len = audio.shape[0]
     span = int(round(n * sr / fps))

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -257,6 +258,29 @@ def write_manifest(ds: str | Path, data: dict[str, Any]) -> Path:
     write_json_atomic(path, {"format": FORMAT, "schema_version": SCHEMA_VERSION} | data)
     os.chmod(path, 0o644)  # readable like the shards (the atomic writer creates 0600 files)
     return path
+
+
+SEGMENT_ID = re.compile(r"^(.+)\.seg\d+$")  # align names the segments it cuts from TAKE TAKE.seg01, ...
+
+
+def take_recordings(manifest: dict[str, Any]) -> dict[str, str]:
+    """``{take id: recording id}`` for every take of the manifest: the build's ``sources[].recording``
+    (the raw take align cut it from), else, in datasets built before that was recorded, the take id
+    less align's ``.segNN`` suffix."""
+
+    def guess(take: str) -> str:
+        m = SEGMENT_ID.match(take)
+        return m.group(1) if m else take
+
+    out: dict[str, str] = {}
+    for src in manifest.get("sources", []):
+        if isinstance(src, dict) and isinstance(src.get("take"), str):
+            rec = src.get("recording")
+            out[src["take"]] = rec if isinstance(rec, str) and rec else guess(src["take"])
+    for sample in manifest.get("samples", []):
+        if isinstance(sample, dict) and isinstance(sample.get("take"), str):
+            out.setdefault(sample["take"], guess(sample["take"]))
+    return out
 
 
 def shards_of(manifest: dict[str, Any], split: str | None = None) -> list[dict[str, Any]]:

@@ -21,7 +21,7 @@ import numpy as np
 
 from capture.errors import InputError
 
-from .manifest import MANIFEST_FILE, load_manifest, manifest_problems
+from .manifest import MANIFEST_FILE, load_manifest, manifest_problems, take_recordings
 from .shards import ShardReader, decode_flac, decode_npy
 from .splits import SPLITS
 
@@ -455,11 +455,11 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
                 out.append(
                     _p("split_leakage", f"speaker {spk}", f"speaker is in splits {', '.join(sorted(splits))}")
                 )
-    if by == "take":  # segments align cut from one recording go to one split (manifest sources)
+    if by == "take":  # segments align cut from one recording go to one split
         recordings: dict[str, set[str]] = {}
-        for src in manifest.get("sources", []):
-            if isinstance(src, dict) and isinstance(src.get("recording"), str):
-                recordings.setdefault(src["recording"], set()).add(str(src.get("split")))
+        recording_of = take_recordings(manifest)
+        for take, splits in splits_of.items():
+            recordings.setdefault(recording_of.get(take, take), set()).update(splits)
         for rec, splits in sorted(recordings.items()):
             if len(splits) > 1:
                 out.append(

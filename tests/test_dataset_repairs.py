@@ -78,11 +78,29 @@ def test_build_keeps_recordings_together_and_validate_finds_a_split_one(tmp_path
     assert {src["recording"] for src in m["sources"]} == {"rec0", "rec1", "rec2", "rec3"}
     assert run_cli("dataset", "validate", tmp_path / "ds").returncode == 0
 
-    m["sources"][0]["split"] = "test" if m["sources"][0]["split"] != "test" else "train"
-    (tmp_path / "ds" / "manifest.json").write_text(json.dumps(m))
-    proc = run_cli("dataset", "validate", tmp_path / "ds", "--json")
-    problems = json.loads(proc.stdout)["problems"]
-    assert any(p["code"] == "split_leakage" and p["location"].startswith("recording ") for p in problems)
+    # a dataset whose segments of one recording sit in two splits (built by a tool that split takes,
+    # or before recordings were kept together): validate finds it from the manifest's recordings, and
+    # from align's .segNN names when the manifest predates them
+    for r in range(2):
+        for s in (1, 2):
+            write_take(
+                _segment(f"x{r}.seg0{s}", f"x{r}-{s}", seed=50 + 10 * r + s, subject="spk"),
+                tmp_path / "loose",
+            )
+    m = _build(tmp_path / "loose", tmp_path / "leaky", "--test", "x0-1", "--val", "x1-1")
+    split = {src["take"]: src["split"] for src in m["sources"]}
+    assert split["x0.seg01"] == "test" and split["x0.seg02"] != "test"
+    for src in m["sources"]:
+        src["recording"] = src["take"].split(".")[0]
+    (tmp_path / "leaky" / "manifest.json").write_text(json.dumps(m))
+    for old in (False, True):
+        if old:
+            for src in m["sources"]:
+                del src["recording"]
+            (tmp_path / "leaky" / "manifest.json").write_text(json.dumps(m))
+        proc = run_cli("dataset", "validate", tmp_path / "leaky", "--json")
+        leaks = [p["location"] for p in json.loads(proc.stdout)["problems"] if p["code"] == "split_leakage"]
+        assert "recording x0" in leaks and "recording x1" in leaks, (old, leaks)
 
 
 def test_build_warns_when_a_split_takes_far_more_than_its_fraction(tmp_path):
@@ -233,3 +251,12 @@ def test_sample_metadata_that_is_a_list_and_paths_that_are_files(small_ds, tmp_p
     _one_line_error(run_cli("dataset", "validate", blocker), "not a dataset")
     _one_line_error(run_cli("dataset", "stats", blocker), "not a dataset")
     _one_line_error(run_cli("dataset", "build", small_ds.parent / "takes", "-o", blocker / "sub"), "afile")
+
+
+def test_a_damaged_float_sample_far_past_full_scale_is_refused(tmp_path):
+    take = make_aligned_take("spike", 2.0, subject="a", seed=1)
+    take.audio.samples[1000, 0] = 1e30  # one damaged sample: scaling would silence the take
+    write_take(take, tmp_path / "takes")
+    _one_line_error(
+        run_cli("dataset", "build", tmp_path / "takes", "-o", tmp_path / "ds"), "over 1000 times full scale"
+    )

@@ -194,6 +194,22 @@ def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
     assert len(cv["params_checksums"]) == 4 and (tmp_path / "cv" / "ensemble.json").is_file()
 
 
+def test_ddp_resume_restores_every_ranks_random_numbers(tmp_path):
+    """3 training samples: one rank's batches hold 2 windows, the other's 1, so dropout and style
+    dropout draw different amounts of random numbers per rank; resuming must restore each rank's own
+    generator for the result to equal an uninterrupted run."""
+    takes = write_aligned_set(tmp_path / "takes", count=5, speakers=2, seconds=1.5)
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank"), split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",))
+    )
+    build_dataset([takes], tmp_path / "ds", options, say=lambda _m: None)
+    drawing = ("--set", "arch.dropout=0.3", "--set", "speaker_style=true", "--set", "style_dropout=0.5")
+    whole = _torchrun(tmp_path / "ds", tmp_path / "whole", "--max-steps", 6, *drawing)
+    _torchrun(tmp_path / "ds", tmp_path / "cut", "--max-steps", 3, *drawing)
+    resumed = _torchrun(tmp_path / "ds", tmp_path / "cut", "--max-steps", 6, "--resume", *drawing)
+    assert resumed["params_checksums"] == whole["params_checksums"]
+
+
 def test_ridge_beats_the_floor_and_eval_matches_a_hand_computation(ds, tmp_path):
     run = tmp_path / "ridge"
     assert _cli("fit", "--data", ds, "--model", "ridge", "-o", run).returncode == 0
@@ -488,7 +504,7 @@ def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
 @pytest.mark.parametrize(
     "sets, needle",
     [
-        (["cv_folds=6"], "cv_folds = 6 needs as many train/val takes; the dataset has 5"),
+        (["cv_folds=6"], "cv_folds = 6 needs as many train/val recordings; the dataset has 5"),
         (["cv_folds=1"], "cv_folds must be 0 (off) or an integer >= 2"),
         (["cv_folds=2", 'val_takes=["take01"]'], "exclude each other"),
     ],

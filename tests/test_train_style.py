@@ -123,8 +123,10 @@ def test_ridge_with_speaker_style_learns_each_speakers_jaw(ds, tmp_path):
 
     r_mean = _eval(styled, ds, "--style", "mean")
     assert r_mean["style"]["chosen"] == "mean"
+    assert r_mean["style"]["utterances_in_mean_style"] == r_mean["utterances"]
     assert r_mean["per_channel"]["jawOpen"] > 1.5 * jaw_own  # the mean style misses half the offset again
     r_wrong = _eval(styled, ds, "--style", "spk1")  # every test utterance with spk1's jaw
+    assert r_wrong["style"]["utterances_in_chosen_style"] == r_wrong["utterances"]
     assert r_wrong["per_channel"]["jawOpen"] > 2 * jaw_own
 
     bad = _cli("eval", styled, "--data", ds, "--style", "spk9")
@@ -191,3 +193,12 @@ def test_network_with_styles_only_trains_evaluates_and_exports(ds, tmp_path):
 def test_bad_style_settings_are_one_line_errors(ds, tmp_path, value, needle):
     proc = _cli("fit", "--data", ds, "--model", "ridge", "-o", tmp_path / "r", "--set", value)
     assert proc.returncode == 1 and needle in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_a_speaker_named_mean_is_refused():
+    from capture.errors import InputError
+    from train.data import training_speakers
+
+    manifest = {"samples": [{"key": "k", "take": "t", "speaker": "mean", "split": "train"}]}
+    with pytest.raises(InputError, match="named 'mean'"):
+        training_speakers(manifest, {}, "manifest.json")

@@ -116,8 +116,30 @@ def test_folds_balance_takes_by_duration():
     }
     folds = fold_takes(manifest, 2)
     assert folds == [["a", "d", "e"], ["b", "c"]]  # 80 s and 70 s; the test take is in neither
-    with pytest.raises(InputError, match="needs as many train/val takes"):
+    with pytest.raises(InputError, match="needs as many train/val recordings"):
         fold_takes(manifest, 6)
+
+
+def test_folds_and_val_takes_keep_the_segments_of_a_recording_together():
+    from train.data import split_keys
+    from train.ensemble import fold_takes
+
+    takes = ["long.seg01", "long.seg02", "long.seg03", "b", "c", "d"]
+    manifest = {
+        "samples": [{"key": t, "take": t, "split": "train", "duration_s": 10.0} for t in takes],
+        "sources": [{"take": t} for t in takes],  # no recording recorded: align's .segNN names are used
+    }
+    for k in (2, 3):
+        folds = fold_takes(manifest, k)
+        home = [i for i, f in enumerate(folds) if "long.seg01" in f]
+        assert len(home) == 1 and {"long.seg02", "long.seg03"} <= set(folds[home[0]])
+    train, val = split_keys(manifest, {"val_takes": ["long.seg02"]})
+    assert val == {"long.seg01", "long.seg02", "long.seg03"} and train == {"b", "c", "d"}
+    manifest["sources"] = [{"take": t, "recording": "rec" if t in ("b", "c") else t} for t in takes]
+    train, val = split_keys(manifest, {"val_takes": ["rec"]})  # a recording id names its takes
+    assert val == {"b", "c"}
+    with pytest.raises(InputError, match="no take 'nope'"):
+        split_keys(manifest, {"val_takes": ["nope"]})
 
 
 # -- windowed inference (train/windowed.py) ---------------------------------------------------------------

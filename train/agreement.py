@@ -27,7 +27,7 @@ import torch
 
 from capture.command import progress
 from capture.errors import InputError
-from dataset.manifest import read_manifest
+from dataset.manifest import read_manifest, take_recordings
 
 from .data import resolve_inputs, to_model_inputs, utterances
 from .ridge import NormalEquations, Ridge
@@ -59,8 +59,17 @@ def take_agreement(
         raise InputError(f"unknown split(s) {', '.join(unknown)}: choose from train, val, test", where)
     splits = tuple(s for s in splits if s in present)
     # a take left out is a speaker the fit never saw: style columns would only add unfitted weights
+    if cfg.get("speaker_style"):
+        say("note: agreement ignores speaker_style (a take left out is a speaker its fit never saw)")
     spec = resolve_inputs(manifest, {**cfg, "speaker_style": False}, str(where))
-    take_of = {s["key"]: s["take"] for s in manifest["samples"]}
+    # the segments align cut from one recording count as one take: left out together, named by the
+    # recording (a recording of one take keeps the take's name)
+    recording_of = take_recordings(manifest)
+    parts: dict[str, set[str]] = {}
+    for sample in manifest["samples"]:
+        parts.setdefault(recording_of.get(sample["take"], sample["take"]), set()).add(sample["take"])
+    name = {rec: next(iter(takes)) if len(takes) == 1 else rec for rec, takes in parts.items()}
+    take_of = {s["key"]: name[recording_of.get(s["take"], s["take"])] for s in manifest["samples"]}
     alpha = float(cfg["ridge_alpha"]) or DEFAULT_ALPHA
     model = Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, cfg["ridge_context"])
     n_in = model.linear.in_features

@@ -207,8 +207,6 @@ def cmd_predict(args: argparse.Namespace) -> int:
             emit_json(r)
         elif "error" not in r:
             print(f"{r['csv']}: {r['frames']} frames ({r['duration_s']:.2f} s)")
-    if len(failed) == 1 and len(results) == 1:
-        raise InputError(failed[0]["error"])
     if failed:
         raise InputError(
             f"{len(failed)} of {len(results)} audio files failed (the others were written); "

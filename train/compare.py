@@ -51,6 +51,7 @@ def compare(
                 },
                 "rtf": r.get("rtf"),
                 "device": r["device"],
+                **({"style": r["style"]} if "style" in r else {}),
             }
         )
     blstm = next((r["rtf"] for r in rows if r["model"] == "blstm" and r["rtf"]), None)

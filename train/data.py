@@ -18,11 +18,11 @@ import torch
 from torch.utils.data import DataLoader
 
 from capture.errors import InputError
-from dataset.manifest import read_manifest
+from dataset.manifest import read_manifest, take_recordings
 from dataset.normalize import FeatureNormalizer
 from dataset.torch_dataset import ShardDataset
 
-from .style import style_rows
+from .style import MEAN, style_rows
 
 PROSODY_FEATURES = ("pitch", "energy")
 
@@ -95,6 +95,12 @@ def training_speakers(manifest: dict[str, Any], cfg: dict[str, Any], where: str)
     speakers = sorted({str(s.get("speaker") or "") for s in manifest["samples"] if trains(s)})
     if not speakers:
         raise InputError("speaker_style: no training samples to take speakers from", where)
+    if MEAN in speakers:
+        raise InputError(
+            f"speaker_style: a training speaker is named {MEAN!r}, the name --style keeps for the mean "
+            "style: rename it (meta.subject) and rebuild",
+            where,
+        )
     return tuple(speakers)
 
 
@@ -142,20 +148,32 @@ def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "conf
     """(training sample keys, validation sample keys) when ``cfg["val_takes"]`` or ``cfg["drop_takes"]``
     name takes: the val_takes' samples validate, every other train- or val-split sample trains (with no
     val_takes, the dataset's own train and val splits), and the drop_takes' samples do neither; None
-    with neither set (the dataset's own splits). Test takes and unknown takes are errors."""
-    takes = list(cfg.get("val_takes") or [])
-    dropped = set(cfg.get("drop_takes") or [])
-    if not takes and not dropped:
+    with neither set (the dataset's own splits). A name may be a take or the recording align cut takes
+    from; either way every take of that recording goes (segments of one recording never end up on both
+    sides). Test takes and unknown takes are errors."""
+    named_val = list(cfg.get("val_takes") or [])
+    named_dropped = list(cfg.get("drop_takes") or [])
+    if not named_val and not named_dropped:
         return None
     split_of = {s["take"]: s["split"] for s in manifest["samples"]}
-    for key, named in (("val_takes", takes), ("drop_takes", sorted(dropped))):
-        for take in named:
-            if take not in split_of:
+    recording_of = take_recordings(manifest)
+    chosen: dict[str, set[str]] = {}
+    for key, named in (("val_takes", named_val), ("drop_takes", named_dropped)):
+        chosen[key] = set()
+        for name in named:  # a take brings the other segments of its recording along
+            recording = recording_of.get(name, name)
+            takes_of = {t for t in split_of if recording_of.get(t, t) == recording}
+            if not takes_of:
                 raise InputError(
-                    f"{key}: no take {take!r} in the dataset (it has {sorted(split_of)})", f"config:{key}"
+                    f"{key}: no take {name!r} in the dataset (it has {sorted(split_of)})", f"config:{key}"
                 )
-            if split_of[take] not in ("train", "val"):
-                raise InputError(f"{key}: take {take!r} is in the {split_of[take]} split", f"config:{key}")
+            for take in sorted(takes_of):
+                if split_of[take] not in ("train", "val"):
+                    raise InputError(
+                        f"{key}: take {take!r} is in the {split_of[take]} split", f"config:{key}"
+                    )
+            chosen[key] |= takes_of
+    takes, dropped = chosen["val_takes"], chosen["drop_takes"]
     if dropped & set(takes):
         raise InputError(f"takes both validate and are dropped: {sorted(dropped & set(takes))}", "config")
     usable = [s for s in manifest["samples"] if s["split"] in ("train", "val") and s["take"] not in dropped]

@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from capture.errors import InputError
+from dataset.manifest import take_recordings
 
 from .checkpoint import LAST, write_json
 from .data import InputSpec
@@ -34,24 +35,31 @@ ENSEMBLE = "ensemble.json"
 
 
 def fold_takes(manifest: dict[str, Any], folds: int, dropped: Collection[str] = ()) -> list[list[str]]:
-    """The train and val takes, less ``dropped``, dealt into ``folds`` groups of about equal duration."""
+    """The train and val takes, less ``dropped`` (and the other segments of their recordings), dealt
+    into ``folds`` groups of about equal duration, a recording at a time: the segments align cut from
+    one recording validate together, never against each other."""
+    recording_of = take_recordings(manifest)
+    gone = {recording_of.get(t, t) for t in dropped}
     duration: dict[str, float] = {}
+    members: dict[str, set[str]] = {}
     for s in manifest["samples"]:
-        if s["split"] in ("train", "val") and s["take"] not in dropped:
-            duration[s["take"]] = duration.get(s["take"], 0.0) + float(s["duration_s"])
+        recording = recording_of.get(s["take"], s["take"])
+        if s["split"] in ("train", "val") and recording not in gone:
+            duration[recording] = duration.get(recording, 0.0) + float(s["duration_s"])
+            members.setdefault(recording, set()).add(s["take"])
     if folds < 2:
         raise InputError(f"cv_folds must be 0 (off) or at least 2, got {folds}", "config:cv_folds")
     if len(duration) < folds:
         raise InputError(
-            f"cv_folds = {folds} needs as many train/val takes; the dataset has {len(duration)}",
+            f"cv_folds = {folds} needs as many train/val recordings; the dataset has {len(duration)}",
             "config:cv_folds",
         )
     groups: list[list[str]] = [[] for _ in range(folds)]
     load = [0.0] * folds
-    for take in sorted(duration, key=lambda t: (-duration[t], t)):
+    for recording in sorted(duration, key=lambda r: (-duration[r], r)):
         i = min(range(folds), key=lambda j: (load[j], j))
-        groups[i].append(take)
-        load[i] += duration[take]
+        groups[i] += members[recording]
+        load[i] += duration[recording]
     return [sorted(g) for g in groups]
 
 

@@ -31,7 +31,7 @@ from dataset.torch_dataset import ShardDataset
 from .checkpoint import load_system
 from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference, infer
-from .style import check_style
+from .style import MEAN, check_style
 from .systems import check_sample_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
@@ -226,7 +226,8 @@ def evaluate(
             "styles": list(spec.styles),
             "chosen": style or "own",
             "utterances_in_own_style": own_style,
-            "utterances_in_mean_style": seen - own_style if style is None else 0,
+            "utterances_in_mean_style": seen - own_style if style in (None, MEAN) else 0,
+            "utterances_in_chosen_style": seen if style not in (None, MEAN) else 0,
         }
     if longest is not None:
         result["rtf"] = real_time_factor(model, spec, longest, info["fps"], rtf_seconds, style)

@@ -385,6 +385,8 @@ def _fit(
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
     if spec.note:
         say(f"note: {spec.note}")
+    if not spec.styles and cfg["style_dropout"] != DEFAULTS["style_dropout"]:
+        say("note: style_dropout applies with speaker_style = true only: ignored")
     if main:
         write_json(run / CONFIG, {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
     if cfg["model"] == "ridge":
@@ -411,7 +413,10 @@ def _fit(
         epoch, batch_pos = positions[rank]
         best_val = state["best_val"] if state["best_val"] is not None else math.inf
         bad_evals = state["bad_evals"]
-        torch.set_rng_state(state["rng"]["torch"])
+        ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
+        torch.set_rng_state(
+            ranks[rank] if isinstance(ranks, list) and len(ranks) == world else state["rng"]["torch"]
+        )
         if main and (run / METRICS).exists():  # drop lines logged after the checkpoint
             _trim_metrics(run / METRICS, step)
         if state.get("stopped") == "early_stopping":
@@ -438,12 +443,15 @@ def _fit(
 
     def save(name: str) -> None:
         positions: list[Any] = [[epoch, batch_pos]]
-        if world > 1:  # every rank reads its own shards: keep each one's data position
-            positions = [None] * world
+        rngs: list[Any] = [torch.get_rng_state()]
+        if world > 1:  # every rank reads its own shards and draws its own masks: keep each one's
+            positions, rngs = [None] * world, [None] * world
             dist.all_gather_object(positions, [epoch, batch_pos])
+            dist.all_gather_object(rngs, torch.get_rng_state())
         if main:
             p = _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoch, batch_pos)
             p["positions"] = positions
+            p["rng"]["ranks"] = rngs
             p.update(best_val=None if math.isinf(best_val) else best_val, bad_evals=bad_evals)
             p["finished"] = stopped in ("max_steps", "early_stopping")
             p["stopped"] = stopped

@@ -102,8 +102,9 @@ def predict(
     style: str | None = None,
 ) -> list[dict[str, Any]]:
     """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
-    folder receiving ``<audio stem>.csv``. Returns one summary per file. ``precision``: fp32 or bf16
-    (train/precision.py); ``style``: see ``animate``."""
+    folder receiving ``<audio stem>.csv``. Returns one summary per file; of several files, one that
+    fails gets ``{"audio", "error"}`` and the others are still written (a single file's failure is
+    raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``."""
     model, payload = load_system(run)
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
@@ -146,8 +147,9 @@ def predict(
         try:  # one unreadable file is reported and the others are still predicted
             result = _predict_one(model, payload, a, path, ppg, speaker, style, arkit, blendshapes)
         except InputError as exc:
-            if len(audios) > 1:
-                say(f"failed: {exc}")
+            if len(audios) == 1:
+                raise
+            say(f"failed: {exc}")
             results.append({"audio": str(a), "error": str(exc)})
             continue
         say(f"{a}: {result['frames']} frames at {result['fps']:g} fps -> {path}")
