@@ -473,7 +473,8 @@ def split_share_warnings(
         if not pinned and fraction > 0 and share > max(2 * fraction, fraction + 0.1):
             out.append(
                 f"the {split} split holds {share:.0%} of the audio (asked {fraction:.0%}): the recordings "
-                f"(or speakers) are too few or too long for the fractions; pin some with --{split}"
+                f"(or speakers) are too few or too long for these fractions: add data, change "
+                f"--{split}-fraction, or pin takes with --{split}"
             )
     return out
 
