@@ -218,19 +218,23 @@ def _aligned_folders(
     return [out / n for n in names]
 
 
+def _align_record(meta: TakeMeta) -> dict[str, Any]:
+    """The report align wrote into an aligned take (``extra.align``), or ``{}``."""
+    record = meta.extra.get("align")
+    return record if isinstance(record, dict) else {}
+
+
 def recording_of(meta: TakeMeta) -> str:
     """The id of the raw take an aligned take was cut from (align's ``extra.align.parent.id``), else the
     take's own id: the unit a take split keeps together."""
-    record = meta.extra.get("align") if isinstance(meta.extra, dict) else None
-    parent = record.get("parent") if isinstance(record, dict) else None
+    parent = _align_record(meta).get("parent")
     parent_id = parent.get("id") if isinstance(parent, dict) else parent
     return parent_id if isinstance(parent_id, str) and parent_id else meta.id
 
 
 def untrusted_flags(meta: TakeMeta) -> list[str]:
     """The flags align raised about a take's audio/face offset (``extra.align.flags``)."""
-    record = meta.extra.get("align") if isinstance(meta.extra, dict) else None
-    flags = record.get("flags") if isinstance(record, dict) else None
+    flags = _align_record(meta).get("flags")
     return [f for f in flags if f in UNTRUSTED_FLAGS] if isinstance(flags, list) else []
 
 

@@ -406,6 +406,17 @@ def _check_audio(
 # ------------------------------------------------------------------------------------------ splits
 
 
+def _in_several(
+    groups: dict[str, set[str]], location: Callable[[str], str], message: Callable[[str, str], str]
+) -> list[Problem]:
+    """A ``split_leakage`` problem for each group (take, speaker, recording) found in several splits."""
+    return [
+        _p("split_leakage", location(name), message(name, ", ".join(sorted(splits))))
+        for name, splits in sorted(groups.items())
+        if len(splits) > 1
+    ]
+
+
 def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: Any) -> list[Problem]:
     """Duplicates and leakage across all samples found in shards, and agreement with the manifest.
 
@@ -446,42 +457,24 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
                         f"take {take!r} has the same content as take {take_of_sha[sha]!r}",
                     )
                 )
-    for take, splits in sorted(splits_of.items()):
-        if len(splits) > 1:
-            out.append(_p("split_leakage", f"take {take}", f"take is in splits {', '.join(sorted(splits))}"))
+    out += _in_several(splits_of, lambda t: f"take {t}", lambda t, s: f"take is in splits {s}")
     if by == "speaker":
-        for spk, splits in sorted(speaker_splits.items()):
-            if len(splits) > 1:
-                out.append(
-                    _p("split_leakage", f"speaker {spk}", f"speaker is in splits {', '.join(sorted(splits))}")
-                )
+        out += _in_several(speaker_splits, lambda k: f"speaker {k}", lambda k, s: f"speaker is in splits {s}")
     if by == "take":  # segments align cut from one recording go to one split
         recordings: dict[str, set[str]] = {}
         recording_of = take_recordings(manifest)
         for take, splits in splits_of.items():
             recordings.setdefault(recording_of.get(take, take), set()).update(splits)
-        for rec, splits in sorted(recordings.items()):
-            if len(splits) > 1:
-                out.append(
-                    _p(
-                        "split_leakage",
-                        f"recording {rec}",
-                        f"segments of one recording are in splits {', '.join(sorted(splits))}",
-                    )
-                )
+        out += _in_several(
+            recordings,
+            lambda r: f"recording {r}",
+            lambda r, s: f"segments of one recording are in splits {s}",
+        )
     listed: dict[str, set[str]] = {}
     for split in SPLITS:
         for take in manifest.get("splits", {}).get(split, {}).get("takes", []):
             listed.setdefault(take, set()).add(split)
-    for take, splits in sorted(listed.items()):
-        if len(splits) > 1:
-            out.append(
-                _p(
-                    "split_leakage",
-                    f"{MANIFEST_FILE}:splits",
-                    f"take {take} is listed in {', '.join(sorted(splits))}",
-                )
-            )
+    out += _in_several(listed, lambda t: f"{MANIFEST_FILE}:splits", lambda t, s: f"take {t} is listed in {s}")
     manifest_keys = {m.get("key"): m for m in manifest.get("samples", [])}
     found = set(keys)
     for key in sorted(set(manifest_keys) - found):

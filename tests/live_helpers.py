@@ -94,3 +94,21 @@ def record_packets(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecor
     runner.join()
     rec.close()
     return rec
+
+
+def udp_receiver() -> socket.socket:
+    """A UDP socket on loopback (a free port the system picks), reads time out after 0.5 s."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.5)
+    return sock
+
+
+def datagrams(sock: socket.socket) -> list[bytes]:
+    """Every datagram that arrives until the socket has been quiet for its timeout."""
+    out = []
+    try:
+        while True:
+            out.append(sock.recv(4096))
+    except TimeoutError:
+        return out

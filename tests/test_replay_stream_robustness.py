@@ -3,39 +3,16 @@
 from __future__ import annotations
 
 import json
-import socket
 
 import numpy as np
 import pytest
 from conftest import run_cli
-from live_helpers import synthetic_take
+from live_helpers import datagrams, synthetic_take, udp_receiver
 
 from capture import FrameStatus, Take, read_livelink_csv, write_livelink_csv, write_take
 from capture import livelink as ll
 from capture.errors import InputError
 from capture.replay import Impairment, replay_take
-
-
-def _receiver() -> socket.socket:
-    """A UDP socket on loopback, on the first free port of 44000..44999."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    for port in range(44000, 45000):
-        try:
-            sock.bind(("127.0.0.1", port))
-            break
-        except OSError:
-            continue
-    sock.settimeout(0.5)
-    return sock
-
-
-def _datagrams(sock: socket.socket) -> list[bytes]:
-    out = []
-    try:
-        while True:
-            out.append(sock.recv(4096))
-    except TimeoutError:
-        return out
 
 
 def _with_bad_values(n: int = 40) -> Take:
@@ -63,9 +40,9 @@ def _values(packets: list[bytes]) -> list[np.ndarray]:
 
 def test_replay_sends_bad_value_frames_as_no_face_packets():
     take = _with_bad_values()
-    with _receiver() as sock:
+    with udp_receiver() as sock:
         report = replay_take(take, "127.0.0.1", sock.getsockname()[1], speed=50.0)
-        packets = _datagrams(sock)
+        packets = datagrams(sock)
     assert report.bad_values == 2 and report.no_face == 1
     assert report.packets_sent == len(packets) == 39  # the dropped frame is not sent
     values = _values(packets)
@@ -83,9 +60,9 @@ def test_stream_warns_about_bad_value_frames(tmp_path):
         cells[5] = cell
         lines[row] = ",".join(cells)
     csv.write_text("\n".join(lines) + "\n")
-    with _receiver() as sock:
+    with udp_receiver() as sock:
         r = run_cli("viewer", "stream", csv, "--to", f"127.0.0.1:{sock.getsockname()[1]}", "--speed", "50")
-        packets = _datagrams(sock)
+        packets = datagrams(sock)
     assert r.returncode == 0, r.stderr
     assert "warning: 2 frames with NaN/inf values sent as no-face packets" in r.stderr
     values = _values(packets)
@@ -101,9 +78,9 @@ def test_replay_seed_and_oversized_names_are_input_errors():
     # The longest names that fit give packets of exactly the limit.
     device = take.meta.device
     subject = "s" * (ll.MAX_PACKET_BYTES - ll.FRAME_BLOCK_BYTES - 9 - len(device))
-    with _receiver() as sock:
+    with udp_receiver() as sock:
         report = replay_take(take, "127.0.0.1", sock.getsockname()[1], speed=50.0, subject=subject)
-        packets = _datagrams(sock)
+        packets = datagrams(sock)
     assert report.packets_sent == 10 and {len(p) for p in packets} == {ll.MAX_PACKET_BYTES}
     with pytest.raises(InputError, match="datagram limit"):
         replay_take(take, "127.0.0.1", 44999, speed=50.0, subject=subject + "s")
@@ -113,7 +90,7 @@ def test_replay_audio_out_folders(tmp_path):
     take = synthetic_take(30, audio=True)
     (tmp_path / "afile.csv").write_text("")
     (tmp_path / "folder").mkdir()
-    with _receiver() as sock:
+    with udp_receiver() as sock:
         port = sock.getsockname()[1]
         replay_take(take, "127.0.0.1", port, audio_out=tmp_path / "new" / "a" / "x.wav")
         assert (tmp_path / "new" / "a" / "x.wav").is_file()
@@ -142,10 +119,10 @@ def test_cli_errors_are_one_line_before_anything_is_sent(tmp_path, tool, args, n
     folder = write_take(synthetic_take(10, audio=True), tmp_path / "takes")
     write_take(synthetic_take(10, seed=1), tmp_path / "takes")
     names = {"TAKE": str(folder), "TMP": str(tmp_path / "takes")}
-    with _receiver() as sock:
+    with udp_receiver() as sock:
         to = f"127.0.0.1:{sock.getsockname()[1]}"
         r = run_cli(tool, *[names.get(a, a) for a in args], "--to", to)
-        assert _datagrams(sock) == []
+        assert datagrams(sock) == []
     assert r.returncode == 1
     assert needle in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1

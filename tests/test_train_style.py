@@ -12,6 +12,7 @@ import pytest
 import torch
 from conftest import run_cli
 from dataset_helpers import make_aligned_take
+from test_train_pipeline import TINY
 
 from capture import read_livelink_csv, write_take
 from dataset import BuildOptions, build_dataset
@@ -162,20 +163,7 @@ def test_ridge_with_speaker_style_learns_each_speakers_jaw(ds, tmp_path):
 def test_network_with_styles_only_trains_evaluates_and_exports(ds, tmp_path):
     """A Transformer-S2A with no prosody but speaker styles: its prosody input is the style alone; the
     ONNX export lists the styles and matches PyTorch; a cross-validation ensemble of it evaluates."""
-    sets = [
-        "speaker_style=true",
-        "prosody=false",
-        "arch.d_model=32",
-        "arch.heads=2",
-        "arch.encoder_layers=1",
-        "arch.decoder_layers=1",
-        "arch.ff_dim=64",
-        "arch.experts=8",
-        "arch.top_k=2",
-        "window=60",
-        "batch_size=4",
-        "eval_every=5",
-    ]
+    sets = ["speaker_style=true", "prosody=false", *TINY, "eval_every=5"]
     args = [a for s in sets for a in ("--set", s)]
     run = tmp_path / "s2a"
     proc = _cli("fit", "--data", ds, "--model", "s2a", "-o", run, "--max-steps", 10, *args)

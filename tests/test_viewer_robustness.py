@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
 from pathlib import Path
 
 import numpy as np
 import pytest
 import soundfile as sf
 from conftest import run_cli
+from live_helpers import datagrams, udp_receiver
 
 from capture import livelink as ll
 from capture import read_livelink_csv, read_take, write_take
@@ -155,27 +155,11 @@ def test_bridged_and_clamped_weights(absurd_csv):
     assert raw.clamped == 0 and raw.weights[20, jaw] == pytest.approx(1.5)
 
 
-def _receiver() -> socket.socket:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.settimeout(0.5)
-    return sock
-
-
-def _datagrams(sock: socket.socket) -> list[bytes]:
-    out = []
-    try:
-        while True:
-            out.append(sock.recv(4096))
-    except TimeoutError:
-        return out
-
-
 def test_stream_sends_an_absurd_frame_as_no_face_and_counts_it(absurd_csv):
-    with _receiver() as sock:
+    with udp_receiver() as sock:
         to = f"127.0.0.1:{sock.getsockname()[1]}"
         proc = run_cli("viewer", "stream", absurd_csv, "--to", to, "--speed", "50", "--json")
-        packets = _datagrams(sock)
+        packets = datagrams(sock)
     s = _json(proc)
     assert s["bad_values"] == 1 and s["outside_0_1"] == 2
     assert "1 frames with NaN/inf values sent as no-face packets" in proc.stderr

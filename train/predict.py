@@ -22,7 +22,7 @@ import torch
 from align.resample import TARGET_RATE, to_16k_mono
 from capture import Take, TakeMeta, read_audio, write_livelink_csv
 from capture.atomic import atomic_write
-from capture.channels import ARKIT52, ARKIT61
+from capture.channels import ARKIT52, is_known
 from capture.command import progress
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
@@ -37,7 +37,6 @@ from .precision import for_inference
 from .style import MEAN, check_style
 from .windowed import PREDICT_WINDOW_S, infer_windowed
 
-ARKIT_LOWER = {c.lower() for c in ARKIT61}
 BLENDSHAPES_LOWER = {c.lower() for c in ARKIT52}  # weights in 0..1 (the other 9 are angles)
 
 
@@ -124,10 +123,10 @@ def predict(
     if ppg is None and ppg_model is not None:
         say(f"note: the run reads {spec.content}, not a PPG: --ppg-model ignored")
     channels = list(info["channels"])
-    arkit = [c for c in channels if c.lower() in ARKIT_LOWER]
+    arkit = [c for c in channels if is_known(c)]
     blendshapes = [i for i, c in enumerate(channels) if c.lower() in BLENDSHAPES_LOWER]
     if arkit and len(arkit) < len(channels):
-        others = [c for c in channels if c.lower() not in ARKIT_LOWER]
+        others = [c for c in channels if not is_known(c)]
         say(
             f"warning: {len(others)} channel(s) of the run are no ARKit name and are not in the CSV: "
             f"{others[:5]}"

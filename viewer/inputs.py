@@ -20,8 +20,9 @@ from capture.csv_take import split_variant
 from capture.errors import InputError
 from capture.importer import is_livelink_csv
 from capture.take import FrameStatus, is_take_dir
+from dataset.qa import ANIM_LIMIT
 
-ABSURD = 10.0  # |value| above this is no blendshape weight nor angle in radians (as dataset.qa's limit)
+ABSURD = ANIM_LIMIT  # |value| above this is no blendshape weight nor angle in radians
 # Repairs that change nothing a viewer shows: not worth a warning.
 _QUIET_REPAIRS = ("bom", "no_audio")
 _BLENDSHAPES = frozenset(ARKIT52)
