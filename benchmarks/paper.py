@@ -45,6 +45,8 @@ from pathlib import Path
 from typing import Any
 
 from capture.atomic import write_json_atomic
+from capture.take import read_meta
+from dataset.build import recording_of
 from train.precision import bf16_is_native
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -328,12 +330,27 @@ def build(run: Runner, out: Path, name: str, inputs: list[str], options: list[st
     }
 
 
+def takes_of_recordings(aligned: str, speaker: str, n: int) -> list[tuple[str, str]]:
+    """``(folder, take id)`` of the first aligned take of each of the first ``n`` recordings of
+    ``speaker``: takes the build can put in different splits (it keeps a recording's segments in one)."""
+    by_recording: dict[str, tuple[str, str]] = {}
+    for folder in takes_of(aligned, [speaker]):
+        meta = read_meta(folder)
+        by_recording.setdefault(recording_of(meta), (folder, meta.id))
+    if len(by_recording) < n:
+        raise RuntimeError(f"{speaker} has {len(by_recording)} recording(s) under {aligned}; {n} are needed")
+    return list(by_recording.values())[:n]
+
+
 def build_rtf_set(run: Runner, out: Path, aligned: str, options: list) -> dict[str, Any]:
-    """A dataset of three takes of the first speaker (one per split) for the speed measurements."""
-    folders = takes_of(aligned, [speaker_id(1)])[:3]
-    ids = [json.loads((Path(f) / "meta.json").read_text())["id"] for f in folders]
+    """A dataset of three recordings of the first speaker (one per split) for the speed measurements."""
+    (train, _), (val, val_id), (test, test_id) = takes_of_recordings(aligned, speaker_id(1), 3)
     return build(
-        run, out, "rtf", folders, [*options, "--split-by", "take", "--val", ids[1], "--test", ids[2]]
+        run,
+        out,
+        "rtf",
+        [train, val, test],
+        [*options, "--split-by", "take", "--val", val_id, "--test", test_id],
     )
 
 

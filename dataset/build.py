@@ -240,10 +240,12 @@ def untrusted_flags(meta: TakeMeta) -> list[str]:
 
 def collect_takes(
     inputs: list[str | Path], work: Path, say: Callable[[str], None], skip_flagged: bool = False
-) -> tuple[list[SourceTake], list[str]]:
-    """Aligned takes from ``inputs`` (aligning raw ones), de-duplicated; also returns warnings. Takes
-    whose offset align flagged are warned about, or left out with ``skip_flagged``."""
+) -> tuple[list[SourceTake], list[str], dict[str, str]]:
+    """Aligned takes from ``inputs`` (aligning raw ones), de-duplicated; also returns warnings and the
+    takes left out (``{take id, recording and speaker: why}``). Takes whose offset align flagged are
+    warned about, or left out with ``skip_flagged``."""
     warnings: list[str] = []
+    left_out: dict[str, str] = {}
     folders = find_takes(inputs)
     if not folders:
         raise InputError(f"no takes found in {', '.join(map(str, inputs))}")
@@ -287,6 +289,8 @@ def collect_takes(
                     )
                 )
                 if skip_flagged:
+                    why = f"left out by --skip-flagged (align flagged {', '.join(flags)})"
+                    left_out.update(dict.fromkeys((m.id, recording_of(m), m.subject or m.id), why))
                     continue
             sha, content_sha = take_and_content_sha256(af)
             speaker = m.subject or m.id
@@ -327,7 +331,7 @@ def collect_takes(
             f"takes have different frame rates ({', '.join(map(str, sorted(fps)))} fps); "
             "align them to one rate (s2a-align --fps) or build separate datasets"
         )
-    return takes, warnings
+    return takes, warnings, left_out
 
 
 def resolve_channels(
@@ -840,7 +844,11 @@ def build_dataset(
         return _summary(out, old, up_to_date=True)
     work = out / WORK
     work.mkdir(exist_ok=True)
-    takes, warnings = collect_takes(inputs, work, say, options.skip_flagged)
+    takes, warnings, left_out = collect_takes(inputs, work, say, options.skip_flagged)
+    kept = {name for t in takes for name in (t.id, t.recording, t.speaker)}
+    for pinned in (*options.split.val, *options.split.test):
+        if pinned in left_out and pinned not in kept:
+            raise InputError(f"pinned take or speaker {pinned!r} was {left_out[pinned]}")
     durations = {t.id: (t.speaker, t.duration_s) for t in takes}
     split_of = assign_splits(durations, options.split, {t.id: t.recording for t in takes})
     warnings += split_share_warnings(durations, split_of, options.split)

@@ -177,6 +177,10 @@ def test_flagged_takes_are_warned_about_or_left_out(tmp_path):
     skipped = _build(tmp_path / "takes", tmp_path / "skipped", "--skip-flagged")
     assert {s["take"] for s in skipped["samples"]} == {"t0", "t2"}
     assert any("left out (--skip-flagged)" in w for w in skipped["warnings"])
+    pinned = run_cli(
+        "dataset", "build", tmp_path / "takes", "-o", tmp_path / "p", "--skip-flagged", "--test", "t1"
+    )
+    _one_line_error(pinned, "'t1' was left out by --skip-flagged (align flagged evidence_disagrees)")
 
 
 @pytest.fixture(scope="module")

@@ -180,3 +180,27 @@ def test_unknown_system_is_a_usage_error(tmp_path):
         paper.main(["--quick", "--systems", "s2a,gpt", "--out", str(tmp_path)])
     assert exc.value.code == 2
     assert not re.search(r"results", " ".join(p.name for p in tmp_path.iterdir()))
+
+
+def test_speed_set_takes_one_segment_per_recording(tmp_path):
+    """The Table 2 dataset pins a val and a test take: they must come from different recordings, since
+    the build keeps a recording's segments in one split (two segments of one would be refused)."""
+    from dataset_helpers import make_aligned_take
+
+    from capture import write_take
+
+    for take_id, parent, subject in [
+        ("a.seg01", "a", "spk01"),
+        ("a.seg02", "a", "spk01"),
+        ("b.seg01", "b", "spk01"),
+        ("c", None, "spk01"),
+        ("d", None, "spk02"),
+    ]:
+        take = make_aligned_take(take_id, 1.0, subject=subject)
+        if parent:
+            take.meta.extra["align"]["parent"] = {"id": parent, "source_kind": "livelinkface_csv"}
+        write_take(take, tmp_path)
+    picked = paper.takes_of_recordings(str(tmp_path), "spk01", 3)
+    assert [take_id for _folder, take_id in picked] == ["a.seg01", "b.seg01", "c"]
+    with pytest.raises(RuntimeError, match="spk01 has 3 recording"):
+        paper.takes_of_recordings(str(tmp_path), "spk01", 4)

@@ -10,6 +10,7 @@ import json
 
 import numpy as np
 import pytest
+import scipy.signal
 import soundfile as sf
 import torch
 from conftest import run_cli
@@ -96,16 +97,23 @@ def test_predict_with_a_rigs_own_controls_writes_a_rig_csv(runs, tmp_path):
     assert proc.returncode == 0, proc.stderr
 
 
-def test_predict_clips_blendshape_weights_and_reports_how_many(runs, tmp_path):
-    out = tmp_path / "p.csv"
-    proc = _cli("predict", runs["ridge"], runs["wav"], "-o", out, "--json")
+def test_predict_clips_weights_and_notes_narrowband_audio(runs, tmp_path):
+    """Weights outside 0..1 are clipped and counted; audio without its upper bands (8 kHz telephone
+    speech resampled to 16 kHz) is predicted with a note."""
+    audio, rate = sf.read(runs["wav"])
+    narrow = tmp_path / "phone.wav"
+    sf.write(narrow, scipy.signal.resample_poly(scipy.signal.resample_poly(audio, 1, 2), 2, 1), rate)
+    proc = _cli("predict", runs["ridge"], runs["wav"], narrow, "-o", tmp_path / "out", "--json")
     assert proc.returncode == 0, proc.stderr
-    r = json.loads(proc.stdout)
-    assert r["format"] == "livelinkface" and r["clipped_values"] >= 0
-    take = read_livelink_csv(out)
-    assert take.values.min() >= 0.0 and take.values.max() <= 1.0
-    if r["clipped_values"]:
-        assert "outside 0..1 clipped" in proc.stderr
+    wide, phone = map(json.loads, proc.stdout.splitlines())
+    assert (wide["narrowband"], phone["narrowband"]) == (False, True)
+    assert sum("no energy above 4.5 kHz" in line for line in proc.stderr.splitlines()) == 1
+    for r in (wide, phone):
+        assert r["format"] == "livelinkface" and r["clipped_values"] >= 0
+        take = read_livelink_csv(r["csv"])
+        assert take.values.min() >= 0.0 and take.values.max() <= 1.0
+    clipped = [r["clipped_values"] for r in (wide, phone) if r["clipped_values"]]
+    assert sum("outside 0..1 clipped" in line for line in proc.stderr.splitlines()) == len(clipped)
 
 
 def _damaged(run, tmp_path, edit, name="last.pt"):

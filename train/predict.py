@@ -26,6 +26,7 @@ from capture.channels import ARKIT52, is_known
 from capture.command import progress
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
+from dataset.build import NARROWBAND_HZ, is_narrowband
 from dataset.features import FeatureSettings, compute_features
 from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
@@ -154,6 +155,11 @@ def predict(
         say(f"{a}: {result['frames']} frames at {result['fps']:g} fps -> {path}")
         if result["clipped_values"]:
             say(f"note: {a}: {result['clipped_values']} blendshape value(s) outside 0..1 clipped")
+        if result["narrowband"]:
+            say(
+                f"note: {a}: no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at 8 kHz, or through a "
+                "phone codec?): its features lack the upper bands the run was trained on"
+            )
         if spec.styles:
             result["style"] = style or (speaker if speaker in spec.styles else MEAN)
         results.append(result)
@@ -170,6 +176,7 @@ def _predict_one(
     if path.is_dir():
         raise InputError("output CSV path is a folder", path)
     audio = to_16k_mono(read_audio(a), str(a))
+    narrow = is_narrowband(audio, TARGET_RATE)
     values = animate(model, payload, audio, ppg, speaker, where=a, style=style)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
@@ -192,6 +199,7 @@ def _predict_one(
         "fps": fps,
         "duration_s": n / fps,
         "clipped_values": clipped,
+        "narrowband": narrow,
     }
 
 
