@@ -334,9 +334,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         report["warnings"] = [f"take {tid}: {n['message']}" for n in mix_notes]
     for k, seg_take in enumerate(segments_out):
         seg = seg_reports[k]
-        seg_take.meta.extra["align"] = {
-            key: v for key, v in report.items() if key not in ("segment_list", "speech_segments_raw")
-        } | {
+        seg_take.meta.extra["align"] = {key: v for key, v in report.items() if key != "segment_list"} | {
             "segment": k + 1,
             "segment_count": n_seg,
             "segment_start_s": seg["start_s"],

@@ -67,33 +67,29 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
         return None
     if not all(_is_count(r.get("frames")) and _is_count(r.get("gaps_interpolated")) for r in reports):
         return None  # an output edited by hand: aligned again
-    keep = (
-        "offset_s",
-        "offset_source",
-        "offset_confidence",
-        "offset_uncertainty_s",
-        "content_lag_s",
-        "face_lead_s",
-        "alternatives",
-        "chosen",
-        "disagreements",
-        "flags",
-        "drift_ppm",
-        "drift",
-        "trim_s",
-        "fps",
-        "segments",
-        "audio_s",
-        "face_s",
-        "audio_start_s",
-        "audio_start_source",
-        "subject",
-        "audio_mix",
-        "warnings",
-    )
-    out = {k: reports[0][k] for k in keep if k in reports[0]}
+    own = {
+        "segment",
+        "segment_count",
+        "segment_start_s",
+        "speech_segments",
+        "parent",
+        "fingerprint",
+        "options",
+    }
+    out = {k: v for k, v in reports[0].items() if k not in own}
     out["frames"] = sum(r["frames"] for r in reports)
     out["gaps_interpolated"] = sum(r["gaps_interpolated"] for r in reports)
+    out["segment_list"] = [
+        {
+            "id": read_meta(p).id,
+            "frames": r["frames"],
+            "start_s": r.get("segment_start_s"),
+            "duration_s": round(r["frames"] / r["fps"], 6) if r.get("fps") else None,
+            "gaps_interpolated": r["gaps_interpolated"],
+            "speech_segments": r.get("speech_segments"),
+        }
+        for p, r in zip(outs, reports)
+    ]
     out["outputs"] = [str(p) for p in outs]
     return out
 

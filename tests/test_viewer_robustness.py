@@ -116,6 +116,27 @@ def test_report_limit_bounds_thumbnails_and_refuses_negative_values(short_csv, t
         assert "take_a" in out.read_text() and "take_b" in out.read_text()
 
 
+def test_report_finds_outliers_among_takes_without_thumbnails(tmp_path):
+    """The mouth-level outliers are computed over every take, not only those shown as thumbnails."""
+    from dataset_helpers import make_aligned_take
+
+    from dataset import BuildOptions, build_dataset
+    from dataset.splits import SplitRule
+    from viewer.report import gather
+
+    for i in range(6):
+        take = make_aligned_take(f"t{i}", 2.0, subject="a", seed=i)
+        if i == 5:  # last by id and by path: beyond --limit 1
+            take.values[:, take.meta.channels.index("jawOpen")] = 0.95
+        write_take(take, tmp_path / "takes")
+    options = BuildOptions(features=("energy", "fbank"), split=SplitRule("take", 0.0, 0.0))
+    build_dataset([tmp_path / "takes"], tmp_path / "ds", options, say=lambda _m: None)
+    for source in (tmp_path / "takes", tmp_path / "ds"):
+        for limit in (0, 1, 500):
+            flagged = {e["take"]: e["reasons"] for e in gather(source, limit=limit)["takes"] if e["reasons"]}
+            assert list(flagged) == ["t5"] and "jawOpen p95 0.950" in flagged["t5"][0], (source, limit)
+
+
 # -- 10: absurd values -------------------------------------------------------------------------------
 @pytest.fixture
 def absurd_csv(samples, tmp_path) -> Path:

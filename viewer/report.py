@@ -151,8 +151,20 @@ def _take_entry(folder: Path, curves: bool = True) -> dict[str, Any]:
         "align": take.meta.extra.get("align"),
         "source_kind": take.meta.source_kind,
     }
-    entry["curves"] = _curves(take.values, take.meta.channels, ok) if curves else {}
+    found = _curves(take.values, take.meta.channels, ok)
+    entry["p95"] = _levels(found)
+    entry["curves"] = found if curves else {}
     return entry
+
+
+def _levels(curves: dict[str, np.ndarray]) -> dict[str, float | None]:
+    """Each thumbnail channel's 95th percentile over the usable frames (what ``_outliers`` compares)."""
+    return {
+        n: float(np.nanpercentile(y, 95))
+        if (y := curves.get(n)) is not None and np.isfinite(y).any()
+        else None
+        for n in THUMB_CHANNELS
+    }
 
 
 def _curves(values: np.ndarray, channels: list[str], ok: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -167,29 +179,31 @@ def _curves(values: np.ndarray, channels: list[str], ok: np.ndarray | None = Non
     return out
 
 
-def _dataset_curves(ds: Path, manifest: dict[str, Any], limit: int) -> dict[str, dict[str, np.ndarray]]:
-    """Thumbnail curves per take, concatenated over its samples, read from the shards."""
+def _dataset_curves(
+    ds: Path, manifest: dict[str, Any], limit: int
+) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, dict[str, float | None]]]:
+    """Per take, concatenated over its samples from the shards: the thumbnail curves of the first
+    ``limit`` takes by id, and the levels (``_levels``) of every take."""
     from dataset import ShardReader
 
     channels = manifest["channels"]
-    wanted = {s["take"] for s in manifest["samples"]}
-    wanted = set(sorted(wanted)[:limit])
-    chunks: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
+    thumbs = set(sorted({s["take"] for s in manifest["samples"]})[:limit])
+    chunks: dict[str, list[tuple[str, dict[str, np.ndarray]]]] = {}
     for shard in manifest["shards"]:
         for key, members in ShardReader(ds / shard["name"]):
             info = json.loads(members["json"])
-            if info["take"] not in wanted:
-                continue
             anim = np.load(io.BytesIO(members["anim.npy"]), allow_pickle=False)
-            mask = np.load(io.BytesIO(members["mask.npy"]), allow_pickle=False)
-            chunks.setdefault(info["take"], []).append((key, anim, mask))
-    out = {}
+            mask = np.load(io.BytesIO(members["mask.npy"]), allow_pickle=False).astype(bool)
+            # only the thumbnail channels are kept, so a large dataset's report stays small
+            chunks.setdefault(info["take"], []).append((key, _curves(anim, channels, mask)))
+    curves, levels = {}, {}
     for tid, parts in chunks.items():
         parts.sort(key=lambda p: p[0])
-        anim = np.concatenate([p[1] for p in parts])
-        mask = np.concatenate([p[2] for p in parts]).astype(bool)
-        out[tid] = _curves(anim, channels, mask)
-    return out
+        joined = {n: np.concatenate([p[1][n] for p in parts]) for n in parts[0][1]}
+        levels[tid] = _levels(joined)
+        if tid in thumbs:
+            curves[tid] = joined
+    return curves, levels
 
 
 def _find_aligned(sources: list[dict[str, Any]], extra: list[Path]) -> dict[str, Path]:
@@ -212,13 +226,9 @@ def _outliers(entries: list[dict[str, Any]]) -> None:
     levels: dict[str, list[float]] = {n: [] for n in THUMB_CHANNELS}
     for e in entries:
         e["reasons"] = []
-        for n in THUMB_CHANNELS:
-            y = e.get("curves", {}).get(n)
-            e.setdefault("p95", {})[n] = (
-                float(np.nanpercentile(y, 95)) if y is not None and np.isfinite(y).any() else None
-            )
-            if e["p95"][n] is not None:
-                levels[n].append(e["p95"][n])
+        for n, v in e["p95"].items():
+            if v is not None:
+                levels[n].append(v)
     for n, vals in levels.items():
         if len(vals) < 4:
             continue
@@ -257,7 +267,7 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         ds = path if path.is_dir() else path.parent
         manifest = read_manifest(ds)
         stats = dataset_stats(ds)
-        curves = _dataset_curves(ds, manifest, limit)
+        curves, levels = _dataset_curves(ds, manifest, limit)
         aligned = _find_aligned(manifest.get("sources", []), extra)
         per_take: dict[str, dict[str, Any]] = {}
         for s in manifest["samples"]:
@@ -281,6 +291,7 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
             e = per_take[tid]
             e["usable"] = e["usable_frames"] / e["frames"] if e["frames"] else 0.0
             e["curves"] = curves.get(tid, {})
+            e["p95"] = levels.get(tid) or _levels({})
             e["align"] = None
             if tid in aligned:
                 try:
