@@ -4,6 +4,7 @@ iPhone and phone remote control. ``register(sub)`` adds them to the ``s2a-captur
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import shutil
 import signal
@@ -228,6 +229,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
     if args.audio_file is not None:
         _check_audio_file(args.audio_file, args.audio_start == "first-packet")
     serial_port = open_serial(args.serial, args.baud) if args.serial else None
+    out_is_new = not Path(args.out).exists()
     recorder = LiveRecorder(
         args.out,
         bind=args.bind,
@@ -269,6 +271,9 @@ def cmd_listen(args: argparse.Namespace) -> int:
             audio_log.close()
         recorder.close()
         shutil.rmtree(recorder.session_dir, ignore_errors=True)
+        if out_is_new:  # nor the output folder this failed start made (rmdir: only when empty)
+            with contextlib.suppress(OSError):
+                Path(args.out).rmdir()
         if serial_port is not None:
             serial_port.close()
         raise

@@ -15,10 +15,9 @@ from torch import nn
 
 from capture.errors import InputError
 
+from .phones import ARPABET
+
 CHECKPOINT_FORMAT = "s2a-ppg-bottleneck"
-ARPABET = (
-    "SIL AA AE AH AO AW AY B CH D DH EH ER EY F G HH IH IY JH K L M N NG OW OY P R S SH T TH UH UW V W Y Z ZH"
-).split()
 
 
 @dataclass

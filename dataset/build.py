@@ -61,13 +61,15 @@ from .splits import SPLITS, SplitRule, assign_splits
 DATASET_VERSION = "1"
 WORK = ".work"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
+INTERPOLATED_STATUS = 4
+MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets are mostly not measured
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
 SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
 MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
 CONTENT_FEATURES = ("fbank", "mfcc", "ppg")
-# align's flags that say the audio/face offset must not be trusted blindly (docs/align.md)
 MAX_AUDIO_PEAK = 1000.0  # float audio this far past full scale (60 dB) is damaged, not loud
 NARROWBAND_HZ = 4500.0  # above the 4 kHz band edge of 8 kHz audio and its resampler's transition band
+# align's flags that say the audio/face offset must not be trusted blindly (docs/align.md)
 UNTRUSTED_FLAGS = (
     "evidence_disagrees",
     "low_confidence",
@@ -178,6 +180,44 @@ def sample_key_base(take_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]", "_", take_id) or "take"
 
 
+def _distinct_keys(takes: list[SourceTake]) -> list[str]:
+    """Give takes whose ids map to one sample key (``take.1`` and ``take_1``) keys of their own: the
+    stem plus 8 hex digits of the id's sha256, for every take of the clash, whatever the input order.
+    Returns a warning per clash."""
+    by_key: dict[str, list[SourceTake]] = {}
+    for t in takes:
+        by_key.setdefault(t.key.casefold(), []).append(t)
+    warnings = []
+    for clash in (group for group in by_key.values() if len(group) > 1):
+        for t in clash:
+            t.key = f"{t.key}-{hashlib.sha256(t.id.encode()).hexdigest()[:8]}"
+        warnings.append(
+            "take ids " + ", ".join(repr(t.id) for t in clash) + " give one sample key: their samples are "
+            "keyed " + ", ".join(t.key for t in clash)
+        )
+    return warnings
+
+
+def _one_spelling_per_speaker(takes: list[SourceTake]) -> list[str]:
+    """Speakers whose names differ only in case or spacing (``Anna`` and ``anna ``, typed on two
+    phones) are one speaker, named by the first spelling in sort order; a speaker split would
+    otherwise put one person in train and test. Returns a warning per merged name."""
+    spellings: dict[str, set[str]] = {}
+    for t in takes:
+        spellings.setdefault(" ".join(t.speaker.split()).casefold(), set()).add(t.speaker)
+    warnings = []
+    for names in (sorted(n) for n in spellings.values() if len(n) > 1):
+        for t in takes:
+            if t.speaker in names:
+                t.speaker = names[0]
+        warnings.append(
+            "speakers "
+            + ", ".join(map(repr, names))
+            + f" differ only in case or spacing: one speaker, {names[0]!r}"
+        )
+    return warnings
+
+
 def _align_module():
     try:
         import align
@@ -253,7 +293,6 @@ def collect_takes(
     takes: list[SourceTake] = []
     by_id: dict[str, SourceTake] = {}
     by_sha: dict[str, SourceTake] = {}
-    by_key: dict[str, SourceTake] = {}
     for folder in folders:
         resolved = folder.resolve()
         if resolved in seen_paths or (WORK in resolved.parts):
@@ -311,20 +350,21 @@ def collect_takes(
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
             if st.content_sha256 in by_sha:
+                twin = by_sha[st.content_sha256].id
                 warnings.append(
-                    f"take {m.id} ({origin['path']}) has the same frames and audio as take "
-                    f"{by_sha[st.content_sha256].id}: skipped as a duplicate"
+                    f"take {m.id} ({origin['path']}) has the same frames and audio as take {twin}: "
+                    "skipped as a duplicate"
                 )
+                left_out.setdefault(m.id, f"skipped as a duplicate of take {twin} (same frames and audio)")
                 continue
             if m.id in by_id:
                 raise InputError(f"two different takes share the id {m.id!r} (also {by_id[m.id].folder})", af)
-            if st.key in by_key:
-                raise InputError(f"take ids {m.id!r} and {by_key[st.key].id!r} give the same sample key", af)
-            by_id[m.id] = by_sha[st.content_sha256] = by_key[st.key] = st
+            by_id[m.id] = by_sha[st.content_sha256] = st
             takes.append(st)
     if not takes:
         raise InputError("no take is left to build from: " + "; ".join(warnings))
     takes.sort(key=lambda t: t.id)
+    warnings += _distinct_keys(takes) + _one_spelling_per_speaker(takes)
     fps = {round(t.fps, 6) for t in takes}
     if len(fps) > 1:
         raise InputError(
@@ -496,6 +536,7 @@ def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
         rec.get("config_hash") != job.config_hash
         or rec.get("sha256") != job.sha256
         or rec.get("split") != job.split
+        or rec.get("speaker") != job.speaker  # another take's spelling may now name it
     ):
         return None
     samples_dir = Path(job.work) / "samples"
@@ -644,6 +685,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "frames": n,
         "usable_frames": int(mask.sum()),
         "out_of_range_frames": int((finite & ~in_range).sum()),
+        "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == INTERPOLATED_STATUS))),
         "narrowband": narrow,
         "audio_gain": gain,
         "duration_s": n / fps,
@@ -943,14 +985,22 @@ def build_dataset(
                 f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
                 "(no blendshape weight is): masked as unusable"
             )
+        interpolated = r.get("interpolated_frames", 0) / max(r.get("usable_frames", 0), 1)
+        if interpolated > MAX_INTERPOLATED_SHARE:
+            warnings.append(
+                f"take {r['take']}: {interpolated:.0%} of its usable frames were interpolated over a lost "
+                "face, not tracked: check the recording (face out of view?)"
+            )
         if r.get("narrowband"):
             warnings.append(
                 f"take {r['take']}: its audio has no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at "
                 "8 kHz, or through a phone codec?): its filter banks lack the upper bands of the other takes"
             )
         if r.get("audio_gain", 1.0) < 1.0:
+            peak = 1 / r["audio_gain"]
+            why = "clipped in the recording, then resampled?" if peak < 2 else "float audio"
             warnings.append(
-                f"take {r['take']}: audio peaks at {1 / r['audio_gain']:.2f} (past full scale): scaled by "
+                f"take {r['take']}: audio peaks at {peak:.2f} (past full scale: {why}): scaled by "
                 f"{r['audio_gain']:.3f} before features and storage (audio_gain in its samples)"
             )
         if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:

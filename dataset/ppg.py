@@ -26,17 +26,13 @@ from capture.errors import InputError
 from capture.take import sha256_file
 
 from .features import FeatureSettings
+from .phones import ARPABET
 
 # what a model file is probed with at load: half a second of silence and the build's filter-bank width
 _PROBE_AUDIO = np.zeros(1600, np.float32)
 _PROBE_FBANK = np.zeros((5, FeatureSettings.n_mels), np.float32)
 
 BACKENDS = ("none", "bottleneck", "torchscript", "onnx", "pocketsphinx")
-
-# The CMU/ARPAbet phones of pocketsphinx's en-us model, silence first.
-ARPABET = (
-    "SIL AA AE AH AO AW AY B CH D DH EH ER EY F G HH IH IY JH K L M N NG OW OY P R S SH T TH UH UW V W Y Z ZH"
-).split()
 
 
 class PPGResult(NamedTuple):

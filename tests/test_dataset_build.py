@@ -371,3 +371,8 @@ def test_duplicate_take_under_another_id_is_kept_once(tmp_path):
     summary = json.loads(proc.stdout)
     assert summary["takes"] == 3 and any("take00_copy" in w and "duplicate" in w for w in summary["warnings"])
     assert run_cli("dataset", "validate", ds).returncode == 0
+    pinned = run_cli(
+        "dataset", "build", takes, tmp_path / "more", "-o", tmp_path / "p", "--test", "take00_copy"
+    )
+    assert pinned.returncode == 1 and "Traceback" not in pinned.stderr
+    assert "'take00_copy' was skipped as a duplicate of take take00" in pinned.stderr

@@ -264,3 +264,35 @@ def test_a_damaged_float_sample_far_past_full_scale_is_refused(tmp_path):
     _one_line_error(
         run_cli("dataset", "build", tmp_path / "takes", "-o", tmp_path / "ds"), "over 1000 times full scale"
     )
+
+
+def test_spellings_of_one_speaker_clashing_keys_and_interpolated_takes(tmp_path):
+    """Material from several phones and tools: a subject typed twice in another case, take ids that map
+    to one sample key, and a take whose face was mostly interpolated over."""
+    for take_id, subject, seed in (("take.1", "Team/Anna", 1), ("take_1", "team/anna ", 2), ("b1", "Bob", 3)):
+        take = make_aligned_take(take_id, 2.0, subject=subject, seed=seed)
+        if take_id == "b1":
+            take.frame_status[:] = 4  # two frames in three interpolated
+            take.frame_status[::3] = 0
+        write_take(take, tmp_path / "takes")
+    m = _build(
+        tmp_path / "takes", tmp_path / "ds", "--split-by", "speaker", "--test", "Bob", "--val-fraction", "0"
+    )
+    warnings = "\n".join(m["warnings"])
+    assert (
+        "speakers 'Team/Anna', 'team/anna ' differ only in case or spacing: one speaker, 'Team/Anna'"
+        in warnings
+    )
+    assert {s["take"]: s["speaker"] for s in m["samples"]} == {
+        "take.1": "Team/Anna",
+        "take_1": "Team/Anna",
+        "b1": "Bob",
+    }
+    keys = {s["take"]: s["key"] for s in m["samples"]}
+    assert keys["take.1"] != keys["take_1"] and all(
+        keys[t].startswith("take_1-") for t in ("take.1", "take_1")
+    )
+    assert "take ids 'take.1', 'take_1' give one sample key" in warnings
+    assert "take b1: 67% of its usable frames were interpolated" in warnings
+    assert not any("take.1" in w and "interpolated" in w for w in m["warnings"])
+    assert run_cli("dataset", "validate", tmp_path / "ds").returncode == 0

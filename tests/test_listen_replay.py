@@ -214,3 +214,7 @@ def test_allow_list_and_bad_arguments(tmp_path):
         r = run_cli(*args)
         assert r.returncode == 1, (args, r.stderr)
         assert text in r.stderr and "Traceback" not in r.stderr and len(r.stderr.splitlines()) == 1
+    # a start that fails leaves no output folder behind (one that existed stays)
+    new = tmp_path / "never-made"
+    r = run_cli("listen", "-o", str(new), "--audio-device", "0", "--duration", "1")
+    assert r.returncode == 1 and not new.exists(), r.stderr

@@ -57,6 +57,33 @@ def test_textgrid_alignments_beside_audio(tmp_path):
     assert json.loads(proc.stdout)["utterances"] == 1
 
 
+def test_timit_phone_labels_fold_onto_the_39_phones(tmp_path):
+    """The simulator and TIMIT-style aligners write phones the 39-phone set folds away (ax, ix, dx,
+    closures): they train as their ARPAbet phone, and no label is reported as outside ARPAbet."""
+    from dataset.phones import phone_index
+
+    assert [ARPABET[phone_index(x)] for x in ("ax", "AX0", "axr", "ix", "ux", "el", "dx", "hv", "h#")] == [
+        "AH", "AH", "ER", "IH", "UW", "L", "T", "HH", "SIL"
+    ]  # fmt: skip
+    assert phone_index("xx") is None and phone_index("") is None
+    audio, _ = speech_like(2.0, np.random.default_rng(1))
+    sf.write(tmp_path / "utt.wav", audio, 16000)
+    tier = interval_tier(
+        "phones", [(0.0, 0.5, "pau"), (0.5, 1.0, "ax"), (1.0, 1.5, "tcl"), (1.5, 2.0, "ix")], 0.0, 2.0
+    )
+    write_textgrid(TextGrid(0.0, 2.0, [tier]), tmp_path / "utt.TextGrid")
+    [(_, segs)] = find_alignments([tmp_path])
+    labels = frame_labels(segs, 100, 0.02)
+    assert (labels[10], labels[30], labels[60], labels[90]) == (
+        0,
+        ARPABET.index("AH"),
+        0,
+        ARPABET.index("IH"),
+    )
+    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "2", "--json")
+    assert proc.returncode == 0 and "outside ARPAbet" not in proc.stderr, proc.stderr
+
+
 def test_ppg_without_alignments_is_one_line_error(tmp_path):
     proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "no phone alignments" in proc.stderr

@@ -4,7 +4,8 @@ phone alignments, written with ``save_bottleneck`` for ``s2a-dataset build --ppg
 Alignments come as Praat TextGrids beside their audio (same stem; the simulator writes them beside its
 takes; tier ``phones``, empty label = silence) or as a JSON file mapping audio stems to
 ``{"words": [{"phones": [{"phone", "start", "end"}]}]}`` (the LibriVox sample). Phone labels are
-ARPAbet in any case, stress digits dropped; labels outside ARPAbet count as SIL (with a warning).
+ARPAbet in any case, stress digits dropped, TIMIT phones folded (dataset/phones.py); labels outside
+ARPAbet count as SIL (with a warning).
 Features are the dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre
 ``k · 20 ms``) takes the phone spanning that instant.
 
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import tempfile
 from collections import Counter
 from collections.abc import Callable
@@ -36,8 +36,9 @@ from capture.command import progress
 from capture.errors import InputError
 from capture.importer import AUDIO_SUFFIXES as SPEECH_SUFFIXES
 from capture.textgrid import read_textgrid
-from dataset.bottleneck import ARPABET, BottleneckConfig, BottleneckPPG, save_bottleneck
+from dataset.bottleneck import BottleneckConfig, BottleneckPPG, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
+from dataset.phones import phone_index
 from dataset.ppg import PocketsphinxExtractor
 
 AUDIO_SUFFIXES = (".wav", ".flac", ".WAV", ".FLAC")
@@ -48,8 +49,7 @@ PIECE_S = 10.0  # decoded speech is cut into pieces of about this length (at sil
 
 
 def _phone_id(label: str) -> int:
-    p = re.sub(r"\d", "", label.strip()).upper()
-    return ARPABET.index(p) if p in ARPABET else 0
+    return phone_index(label) or 0
 
 
 def _is_silence(label: str) -> bool:
@@ -303,7 +303,7 @@ def train_ppg(
         label.strip()
         for segs in all_segments
         for *_, label in segs
-        if not _is_silence(label) and not _phone_id(label)
+        if not _is_silence(label) and phone_index(label) is None
     )
     if unknown:
         examples = ", ".join(repr(u) for u, _ in unknown.most_common(5))
