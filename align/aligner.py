@@ -19,15 +19,26 @@ from capture import Audio, FrameStatus, InputError, Take, TakeMeta
 from capture.timecode import Timecode
 
 from . import content as ct
+from .clipping import CLIPPED_AUDIO_SHARE, clipped_share
 from .drift import arrival_drift_ppm, fit_drift, window_lags
 from .evidence import Evidence, clap_evidence, combine, content_evidence, sync_evidence, timecode_evidence
-from .grid import INTERPOLATED, UNCOVERED, cover, frame_period, resample_values, runs, usable_frames
+from .grid import (
+    INTERPOLATED,
+    MOSTLY_INTERPOLATED_SHARE,
+    UNCOVERED,
+    cover,
+    frame_period,
+    interpolated_share,
+    resample_values,
+    runs,
+    usable_frames,
+)
 from .options import AlignOptions
 from .resample import TARGET_RATE, to_16k_mono
 from .transient import audio_claps, step_transients, video_motion, video_transients
 from .vad import speech_segments
 
-ALIGN_VERSION = 2  # 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock
+ALIGN_VERSION = 3  # 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock; 3: claps, flags
 MIN_TAKE_S = 1.0
 SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS the track holds no usable sound
 
@@ -159,7 +170,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     s0 = float(meta.audio.start_s)
     audio_dur = x.size / TARGET_RATE
     usable = usable_frames(take.frame_status, take.values)
-    if usable.sum() < 2:
+    if not usable.any():
         raise InputError(f"take {tid}: no tracked frames")
     ft = take.time[usable]
     period = frame_period(ft, meta.fps)
@@ -175,8 +186,16 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
             f"overlap by {max(overlap, 0):.3f} s, less than {MIN_TAKE_S:g} s"
         )
     flags: list[str] = []
+    warnings = [f"take {tid}: {n['message']}" for n in mix_notes]
     if abs(audio_dur - face_dur) > max(1.0, 0.1 * max(audio_dur, face_dur)):
         flags.append("duration_mismatch")
+    clipped = clipped_share(take.audio)
+    if clipped > CLIPPED_AUDIO_SHARE:
+        flags.append("clipped_audio")
+        warnings.append(
+            f"take {tid}: {clipped:.2%} of the audio samples are clipped (held flat at full scale): the "
+            "recording was made too loud and its loudest sounds are distorted; record at a lower level"
+        )
 
     # Evidence.
     est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, opts)
@@ -273,6 +292,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
                 "start_s": round(s0 + start_audio, 6),
                 "duration_s": round(n / fps, 6),
                 "gaps_interpolated": interp,
+                "interpolated_share": interpolated_share(interp, n),
                 "speech_segments": speech_local,
             }
         )
@@ -294,6 +314,8 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         seg_take = Take(seg_meta, t_local, seg_values, seg_status, None, take.neutral)
         seg_take.attach_audio(Audio(samples.astype(np.float32), TARGET_RATE, "FLOAT"), 0.0, "aligned")
         segments_out.append(seg_take)
+    if any(r["interpolated_share"] > MOSTLY_INTERPOLATED_SHARE for r in seg_reports):
+        flags.append("mostly_interpolated")
 
     report: dict[str, Any] = {
         "id": tid,
@@ -317,6 +339,8 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         "frames": int(sum(t.time.size for t in segments_out)),
         "fps": fps,
         "gaps_interpolated": total_interp,
+        "interpolated_share": interpolated_share(total_interp, sum(r["frames"] for r in seg_reports)),
+        "clipped_audio": round(clipped, 6),
         "segments": n_seg,
         "segment_list": seg_reports,
         "audio_s": round(audio_dur, 6),
@@ -331,7 +355,8 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         report["content_note"] = content_note.get("note")
     if mix_notes:
         report["audio_mix"] = mix_notes[0]
-        report["warnings"] = [f"take {tid}: {n['message']}" for n in mix_notes]
+    if warnings:
+        report["warnings"] = warnings
     for k, seg_take in enumerate(segments_out):
         seg = seg_reports[k]
         seg_take.meta.extra["align"] = {key: v for key, v in report.items() if key != "segment_list"} | {
@@ -340,6 +365,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
             "segment_start_s": seg["start_s"],
             "speech_segments": seg["speech_segments"],
             "gaps_interpolated": seg["gaps_interpolated"],
+            "interpolated_share": seg["interpolated_share"],
             "frames": seg["frames"],
             "parent": {"id": tid, "source_kind": meta.source_kind},
         }

@@ -21,6 +21,7 @@ from capture import InputError, S2AError, find_takes, read_meta, read_take, writ
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
 
 from .aligner import ALIGN_VERSION, align_with_report
+from .grid import interpolated_share
 from .options import AlignOptions
 from .torch_threads import torch_threads
 
@@ -79,6 +80,7 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
     out = {k: v for k, v in reports[0].items() if k not in own}
     out["frames"] = sum(r["frames"] for r in reports)
     out["gaps_interpolated"] = sum(r["gaps_interpolated"] for r in reports)
+    out["interpolated_share"] = interpolated_share(out["gaps_interpolated"], out["frames"])
     out["segment_list"] = [
         {
             "id": read_meta(p).id,
@@ -86,6 +88,7 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
             "start_s": r.get("segment_start_s"),
             "duration_s": round(r["frames"] / r["fps"], 6) if r.get("fps") else None,
             "gaps_interpolated": r["gaps_interpolated"],
+            "interpolated_share": interpolated_share(r["gaps_interpolated"], r["frames"]),
             "speech_segments": r.get("speech_segments"),
         }
         for p, r in zip(outs, reports)

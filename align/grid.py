@@ -10,6 +10,9 @@ from capture import FrameStatus
 
 INTERPOLATED = FrameStatus.INTERPOLATED  # a frame filled across a short gap
 UNCOVERED = 255  # inside a long gap or outside the measured frames: not part of any segment
+# Above this share of a segment's frames interpolated rather than tracked, its motion is mostly made up
+# (the dataset stage warns at the same share).
+MOSTLY_INTERPOLATED_SHARE = 0.5
 
 
 def frame_period(time: np.ndarray, fps: float) -> float:
@@ -17,6 +20,11 @@ def frame_period(time: np.ndarray, fps: float) -> float:
     if time.size < 2:
         return 1.0 / fps
     return float(np.median(np.diff(time)))
+
+
+def interpolated_share(interpolated: int, frames: int) -> float:
+    """Share (0..1, 4 decimals) of ``frames`` grid frames that are ``interpolated``."""
+    return round(interpolated / frames, 4) if frames else 0.0
 
 
 def usable_frames(status: np.ndarray, values: np.ndarray) -> np.ndarray:
