@@ -14,9 +14,21 @@ from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, 
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
-from .take import FrameStatus, Take, find_takes, is_take_dir, make_out_dir, read_take, safe_id, write_take
+from .take import (
+    FrameStatus,
+    Take,
+    find_takes,
+    is_take_dir,
+    make_out_dir,
+    read_meta,
+    read_take,
+    safe_id,
+    write_take,
+)
+from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 
 PROG = "s2a-capture"
+TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV_TIMECODE_RATE)))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,6 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
         "s2a-align measures the real offset and places frames by their timecodes) or frame-index (row i "
         "goes with audio time i/fps, as in data sets built that way, e.g. NeuroSync's; s2a-align then "
         "places frames by index)",
+    )
+    p.add_argument(
+        "--timecode-rate",
+        choices=TIMECODE_RATE_CHOICES,
+        default="auto",
+        help="the rate a Live Link Face CSV's timecode frames (FF) count at: 60 for the app; auto (default) "
+        "also recognises other writers of the format counting at 24/25/30/48/50 fps (with a warning)",
     )
     p.add_argument("--swap-lr", action="store_true", help="exchange JawLeft/Right and MouthLeft/Right labels")
     p.add_argument("--strict", action="store_true", help="refuse files that need any repair")
@@ -108,9 +127,12 @@ def cmd_import(args: argparse.Namespace) -> int:
         and (args.audio is None or args.matrix is not None)
     ):
         raise InputError("--audio-pairing goes with a CSV and its --audio (or --pair-audio)")
+    timecode_rate = None if args.timecode_rate == "auto" else float(args.timecode_rate)
     if args.matrix is not None:
         if args.sources:
             raise InputError("give either sources or --matrix, not both")
+        if timecode_rate is not None:
+            raise InputError("--timecode-rate applies to Live Link Face CSVs, not to --matrix")
         if args.audio is None:
             raise InputError(
                 "--matrix needs --audio, and --fps and --names unless the file gives them (a CSV header "
@@ -149,7 +171,9 @@ def cmd_import(args: argparse.Namespace) -> int:
                     pairing = args.audio_pairing if audio is not None else "first-row"
                     if why:
                         print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)
-                take = import_source(src, audio, args.variant, args.strict, args.swap_lr, pairing, args.fps)
+                take = import_source(
+                    src, audio, args.variant, args.strict, args.swap_lr, pairing, args.fps, timecode_rate
+                )
                 if args.fps is not None and take.meta.source_kind != "paired_matrix":
                     print(
                         f"{PROG}: warning: {src}: --fps ignored: a Live Link Face take has its own timecodes",
@@ -157,7 +181,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                     )
                 if args.take_id:
                     take.meta.id = args.take_id
-            _unique_id(take, src, written)
+            _unique_id(take, src, written, args.out)
             folder = write_take(take, args.out)
         except S2AError as exc:
             failures += 1
@@ -165,6 +189,9 @@ def cmd_import(args: argparse.Namespace) -> int:
             if args.json:
                 emit_json({"source": str(src), "error": str(exc)})
             continue
+        for repair in take.meta.repairs:
+            if repair["kind"] == "timecode_rate":
+                print(f"{PROG}: warning: {src}: {repair['message']}", file=sys.stderr)
         summary = take.summary() | {"path": str(folder), "source": str(src)}
         if args.json:
             emit_json(summary)
@@ -177,21 +204,43 @@ def cmd_import(args: argparse.Namespace) -> int:
     return 1 if failures else 0
 
 
-def _unique_id(take: Take, src: Path, written: dict[str, Path]) -> None:
+def _unique_id(take: Take, src: Path, written: dict[str, Path], out: Path) -> None:
     """Give ``take`` an id no other source of this run has (folder names compared case-insensitively,
-    as on macOS and Windows): ``<id>-2``, ``<id>-3``, ... recorded as repair ``renamed_id``."""
+    as on macOS and Windows) and no folder in ``out`` holds but an earlier import of the same source
+    (which is replaced): ``<id>-2``, ``<id>-3``, ... recorded as repair ``renamed_id``."""
     base = safe_id(take.meta.id)
     name, n = base, 1
-    while name.casefold() in written:
+    while name.casefold() in written or _occupant(out / name, take):
         n += 1
         name = safe_id(f"{base}-{n}")
     if name != base:
-        other = written[base.casefold()]
-        message = f"take id {base!r} is also the id of {other} in this import: written as {name!r}"
+        other = written.get(base.casefold())
+        holder = (
+            f"the id of {other} in this import"
+            if other
+            else f"taken in {out} by {_occupant(out / base, take)}"
+        )
+        message = f"take id {base!r} is {holder}: written as {name!r}"
         take.meta.repairs.append({"line": None, "kind": "renamed_id", "message": message})
         print(f"{PROG}: warning: {src}: {message}", file=sys.stderr)
         take.meta.id = name
     written[name.casefold()] = src
+
+
+def _occupant(folder: Path, take: Take) -> str | None:
+    """What ``folder`` holds that importing ``take`` must not replace: a take imported from another
+    source, or anything that is not a take. None when ``folder`` is free or holds an earlier import of
+    the same source (compared by their first source file: the CSV or matrix)."""
+    if not folder.exists():
+        return None
+    try:
+        sources = read_meta(folder).sources
+    except S2AError:
+        return "something that is not a take"
+    before = sources[0].path if sources else None
+    if take.meta.sources and take.meta.sources[0].path == before:
+        return None
+    return f"the take imported from {before}" if before else "a take of unknown source"
 
 
 def _load_for_info(path: Path) -> list[Take]:

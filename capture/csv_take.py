@@ -23,6 +23,8 @@ bad_value      non-numeric, NaN, infinite or out-of-float32-range cells were set
                marked BAD_VALUE
 bad_count      the BlendShapeCount cell disagreed with the number of values; the values were kept
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
+timecode_rate  FF counts at a lower rate than the app's 60 (another writer of the format): times were
+               read as FF/rate (``read_timecode_rate``); or FF fits no standard rate (read at 60)
 ============== ================================================================================
 
 Errors: missing, empty or binary file; a header that is not a Live Link Face header; the header again
@@ -49,12 +51,24 @@ from . import channels as ch
 from .atomic import atomic_write
 from .errors import InputError
 from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
-from .timecode import CSV_TIMECODE_RATE, Timecode, parse_fixed_width, unwrap_midnight
+from .timecode import (
+    CSV_TIMECODE_RATE,
+    Timecode,
+    at_timecode_rate,
+    parse_fixed_width,
+    timecode_frames,
+    timecode_rate_of,
+    unwrap_midnight,
+    whole_seconds,
+)
 
 COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
 VARIANTS = ("cal", "raw", "neutral")
 _VARIANT_RE = re.compile(r"^(?P<prefix>.*?)(?:_(?P<variant>cal|raw|neutral))?$", re.IGNORECASE)
 _STANDARD_FPS = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+# NTSC rates (N * 1000/1001), and how close a take's rate must come to one to be it rather than N.
+_NTSC_FPS = {std: std * 1000 / 1001 for std in (24.0, 30.0, 60.0)}
+NTSC_TOLERANCE = 1e-4
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_GAP_S = 30.0  # a longer forward gap between rows is a clock jump (or joined files), not dropped frames
 
@@ -391,7 +405,8 @@ def fields_tc(seconds_of_day: float) -> str:
 def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[float, float]:
     """Nominal frame rate and the measured median frame period (s) from row times.
 
-    The nominal rate snaps to a standard rate within 3 % (the app writes 59.90 rows/s for "60").
+    The nominal rate snaps to a standard rate within 3 % (the app writes 59.90 rows/s for "60"), or to
+    its NTSC rate (29.97 for 30) when the times keep that within ``NTSC_TOLERANCE`` over the take.
     """
     if times.size < 2:
         return 60.0, 1 / 60.0
@@ -400,8 +415,20 @@ def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[flo
     rate = 1.0 / period
     for std in _STANDARD_FPS:
         if abs(rate - std) / std < 0.03:
+            ntsc = _NTSC_FPS.get(std)
+            if ntsc is not None and abs(kept_rate(times, period) / ntsc - 1) < NTSC_TOLERANCE:
+                return ntsc, period
             return std, period
     return round(rate, 3), period
+
+
+def kept_rate(times: np.ndarray, period: float) -> float:
+    """Frames per second the times keep over the whole take: the slope of a least-squares line through
+    them against their frame numbers (a gap counts its missing frames, in whole ``period``s)."""
+    frames = np.concatenate([[0.0], np.cumsum(np.maximum(np.rint(np.diff(times) / period), 1))])
+    if frames[-1] == 0:
+        return 1.0 / period
+    return 1.0 / float(np.polyfit(frames, times - times[0], 1)[0])
 
 
 def missing_frames(times: np.ndarray, period: float) -> np.ndarray:
@@ -447,14 +474,51 @@ def split_variant(stem: str) -> tuple[str, str | None]:
     return m.group("prefix"), variant.lower() if variant else None
 
 
+def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
+    """The rate the CSV's FF field counts at: ``rate`` if given, else the one ``timecode_rate_of``
+    finds. Rows counted at another rate than the app's 60 get their times re-read at it (repair
+    ``timecode_rate``); a rate FF passes is an ``InputError``."""
+    t = rows.seconds_of_day
+    top = float(timecode_frames(t)[1].max())
+    if rate is None:
+        rate = timecode_rate_of(t)
+        seen = f"FF never passes {top:.3f} over {whole_seconds(t)} whole seconds"
+        if rate is None:
+            _repair(
+                rows.repairs,
+                None,
+                "timecode_rate",
+                f"{seen}, which fits no standard timecode rate: read at {CSV_TIMECODE_RATE:g} fps "
+                "(give the writer's rate with --timecode-rate)",
+            )
+            return CSV_TIMECODE_RATE
+    elif top >= rate:
+        raise InputError(
+            f"timecode frames (FF) reach {top:.3f}: they do not count at {rate:g} fps", rows.path
+        )
+    else:
+        seen = "as asked"
+    if rate != CSV_TIMECODE_RATE:
+        rows.seconds_of_day = at_timecode_rate(t, rate)
+        message = f"timecode frames (FF) count at {rate:g} fps, not the app's {CSV_TIMECODE_RATE:g} ({seen})"
+        _repair(rows.repairs, None, "timecode_rate", f"{message}: times read as FF/{rate:g}")
+    return rate
+
+
 def rows_to_take(
-    rows: CsvRows, take_id: str | None = None, swap_lr: bool = False, source: SourceFile | None = None
+    rows: CsvRows,
+    take_id: str | None = None,
+    swap_lr: bool = False,
+    source: SourceFile | None = None,
+    timecode_rate: float | None = None,
 ) -> Take:
     """Turn parsed rows into a take: canonical channel names, take clock, dropped frames filled in.
 
-    ``rows`` is consumed (its value array is reordered in place). ``source`` is the file's provenance
-    record, computed here when not given.
+    ``rows`` is consumed (its value array is reordered in place, its times re-read at the rate its FF
+    counts at: ``timecode_rate``, None to detect it). ``source`` is the file's provenance record,
+    computed here when not given.
     """
+    tc_rate = read_timecode_rate(rows, timecode_rate)
     known = [c for c in rows.columns if ch.is_known(c)]
     unknown = [c for c in rows.columns if not ch.is_known(c)]
     names = [ch.canonical(c) for c in known]
@@ -501,6 +565,7 @@ def rows_to_take(
             "rows": int(rows.seconds_of_day.size),
             "start_seconds_of_day": t0,
             "measured_fps": round(1.0 / period, 4),
+            "timecode_rate": tc_rate,
         },
     )
     meta.extra["dropped_frames_inserted"] = dropped
@@ -516,14 +581,19 @@ def parse_take_prefix(prefix: str) -> tuple[str | None, int | None, str | None]:
 
 
 def read_livelink_csv(
-    path: str | Path, take_id: str | None = None, strict: bool = False, swap_lr: bool = False
+    path: str | Path,
+    take_id: str | None = None,
+    strict: bool = False,
+    swap_lr: bool = False,
+    timecode_rate: float | None = None,
 ) -> Take:
-    """Read one Live Link Face CSV (plain, ``_cal``, ``_raw`` or ``_neutral``) as a take."""
+    """Read one Live Link Face CSV (plain, ``_cal``, ``_raw`` or ``_neutral``) as a take; its FF field
+    counts at ``timecode_rate`` fps (None: detected, see ``read_timecode_rate``)."""
     with ThreadPoolExecutor(1) as pool:
         # hashlib releases the GIL, so the checksum runs beside the parse.
         digest = pool.submit(source_file, path, "blendshapes_csv")
         rows = read_csv_rows(path, strict)
-        return rows_to_take(rows, take_id, swap_lr, digest.result())
+        return rows_to_take(rows, take_id, swap_lr, digest.result(), timecode_rate)
 
 
 def start_seconds_of_day(take: Take) -> float:

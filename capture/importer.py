@@ -106,11 +106,13 @@ def import_source(
     swap_lr: bool = False,
     audio_pairing: str = "first-row",
     fps: float | None = None,
+    timecode_rate: float | None = None,
 ) -> Take:
     """One source (take folder or CSV file) as a take. ``audio_pairing`` (one of ``AUDIO_PAIRINGS``)
-    says how external ``audio`` goes with a CSV's rows. A CSV with audio whose header is not the app's
-    is generic paired data (``read_paired``: a header of channel names, perhaps a time column; ``fps``
-    unless the file gives the rate)."""
+    says how external ``audio`` goes with a CSV's rows. ``timecode_rate``: the rate a Live Link Face
+    CSV's FF field counts at (None: detected, see ``read_livelink_csv``). A CSV with audio whose header
+    is not the app's is generic paired data (``read_paired``: a header of channel names, perhaps a time
+    column; ``fps`` unless the file gives the rate)."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if source.is_dir():
@@ -118,7 +120,7 @@ def import_source(
             raise InputError(
                 "--audio-pairing frame-index applies to a CSV with --audio, not a take folder", source
             )
-        return read_take_folder(source, variant, audio, strict, swap_lr)
+        return read_take_folder(source, variant, audio, strict, swap_lr, timecode_rate)
     if source.suffix.lower() == ".json" and is_a2f_export(source):
         if audio is None:
             raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
@@ -137,6 +139,6 @@ def import_source(
         return read_paired(audio, source, fps, take_id=source.stem)
     if audio is not None:
         return read_csv_with_audio(
-            source, audio, strict, swap_lr, by_frame_index=audio_pairing == "frame-index"
+            source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate
         )
-    return read_livelink_csv(source, strict=strict, swap_lr=swap_lr)
+    return read_livelink_csv(source, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)

@@ -158,6 +158,8 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float |
 
 # Paired data below this rate is a misread time column (milliseconds taken for seconds), not a capture.
 MIN_FPS = 1.0
+# Audio longer or shorter than the frames by more than this (s) is noted as repair ``length_mismatch``.
+LENGTH_MISMATCH_S = 1.0
 # Header names of a column that holds each frame's time rather than a channel (compared lower-case).
 SECONDS_COLUMNS = ("time", "time_s", "times", "seconds", "timestamp", "timecode", "t")
 FRAME_COLUMNS = ("frame", "frames", "frame_index", "frameindex", "frame_number", "framenumber")
@@ -219,7 +221,8 @@ def read_paired(
     take_id: str | None = None,
 ) -> Take:
     """A take from audio + weight matrix + names at ``fps`` frames per second (None: the rate the
-    matrix file gives, as an Audio2Face export does, or its time column's step).
+    matrix file gives, as an Audio2Face export does, or its time column's step), named ``take_id``
+    (default: the matrix file's stem).
 
     A header column named like a time (``time``, ``timestamp``, ... in seconds from the audio's start) or
     a frame index (``frame``, ``frame_index``, ...) places the frames instead of the row index and is
@@ -264,7 +267,7 @@ def read_paired(
     )
     time = _frame_times(kind, clock, matrix.shape[0], fps, matrix_path)
     meta = TakeMeta(
-        id=safe_id(take_id or Path(audio_path).stem),
+        id=safe_id(take_id or Path(matrix_path).stem),
         source_kind="paired_matrix",
         fps=float(fps),
         channels=names,
@@ -297,13 +300,21 @@ def read_paired(
         )
     take.attach_audio(audio, 0.0, "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
-    mismatch = audio.duration_s - (time[-1] + 1 / fps)
-    if abs(mismatch) > 1.0:
-        meta.repairs.append(
+    note_length_mismatch(take, "check --fps")
+    return take
+
+
+def note_length_mismatch(take: Take, hint: str) -> None:
+    """Note audio more than ``LENGTH_MISMATCH_S`` longer or shorter than the frames it was paired with
+    (repair ``length_mismatch``; ``hint`` says what to check). The frames end one frame period after the
+    last; both are measured from the audio's start."""
+    frames_end = float(take.time[-1]) + 1 / take.meta.fps - take.meta.audio.start_s
+    mismatch = take.audio.duration_s - frames_end
+    if abs(mismatch) > LENGTH_MISMATCH_S:
+        take.meta.repairs.append(
             {
                 "line": None,
                 "kind": "length_mismatch",
-                "message": f"audio is {mismatch:+.3f} s longer than the frames: check --fps",
+                "message": f"audio is {mismatch:+.3f} s longer than the frames: {hint}",
             }
         )
-    return take

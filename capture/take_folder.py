@@ -23,6 +23,7 @@ from .audio_io import Audio, read_audio
 from .csv_take import read_csv_rows, read_livelink_csv, split_variant
 from .errors import InputError
 from .mov import probe_mov, read_mov_audio
+from .paired import note_length_mismatch
 from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
 
@@ -187,13 +188,15 @@ def read_take_folder(
     audio_file: str | Path | None = None,
     strict: bool = False,
     swap_lr: bool = False,
+    timecode_rate: float | None = None,
 ) -> Take:
-    """Import a Live Link Face take folder (blendshapes, audio from the ``.mov``, timing, metadata)."""
+    """Import a Live Link Face take folder (blendshapes, audio from the ``.mov``, timing, metadata);
+    ``timecode_rate``: the rate its CSV's FF counts at (None: detected, see ``read_livelink_csv``)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("take folder not found", folder)
     csv_path, neutral_path = choose_csv(folder, variant)
-    take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr)
+    take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
     meta = take.meta
     repairs = meta.repairs
     app_take = _load_json(folder / "take.json", repairs)
@@ -310,15 +313,18 @@ def read_csv_with_audio(
     strict: bool = False,
     swap_lr: bool = False,
     by_frame_index: bool = False,
+    timecode_rate: float | None = None,
 ) -> Take:
     """A CSV paired with audio recorded elsewhere; the audio is assumed to start with the first row
     (``s2a-align`` measures the real offset). ``by_frame_index``: the pair was made so that row i goes
     with audio time i/fps whatever the timecodes say (start source ``paired_frame_convention``, which
-    ``s2a-align`` places by frame index)."""
-    take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr)
+    ``s2a-align`` places by frame index). Audio of another length than the rows is noted
+    (``length_mismatch``); ``timecode_rate`` as for ``read_livelink_csv``."""
+    take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
     source = "paired_frame_convention" if by_frame_index else "assumed_first_csv_row"
     take.attach_audio(read_audio(audio_file, take.meta.repairs), 0.0, source)
     take.meta.sources.append(source_file(audio_file, "external_audio"))
+    note_length_mismatch(take, "check that the audio is this CSV's")
     return take
 
 

@@ -3,6 +3,8 @@
 A timecode cell reads ``HH:MM:SS:FF.fff``: FF is the frame within the second at the timecode rate and
 ``.fff`` the fractional sub-frame (0..1 of a frame), not milliseconds. The app's CSV always uses a
 60 fps timecode rate, also when it writes 30 rows/s, so ``seconds = H*3600 + M*60 + S + FF.fff/60``.
+Other writers of the format count FF at the take's own rate (formats doc §8): ``timecode_rate_of``
+recognises them and ``at_timecode_rate`` re-reads their times.
 ``frame_log.csv`` may also use the drop-frame separator ``;`` (iPhone timecode itself never drops).
 """
 
@@ -15,6 +17,10 @@ import numpy as np
 
 CSV_TIMECODE_RATE = 60.0
 DAY_S = 86400.0
+# Lower rates other writers of the app's CSV format count FF at (the app itself always counts at 60).
+OTHER_TIMECODE_RATES = (24.0, 25.0, 30.0, 48.0, 50.0)
+# Whole seconds a take must cover before its FF values tell the rate they count at.
+MIN_WHOLE_SECONDS = 2
 
 _TIMECODE = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3}(?:\.\d*)?)\s*$")
 
@@ -98,3 +104,49 @@ def unwrap_midnight(seconds_of_day: np.ndarray) -> np.ndarray:
         return t.copy()
     wraps = np.concatenate([[0], np.cumsum(np.diff(t) < -DAY_S / 2)])
     return t + wraps * DAY_S
+
+
+def timecode_frames(seconds_of_day: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Whole seconds and the FF.fff field of times of day read at the app's 60 fps timecode rate."""
+    t = np.asarray(seconds_of_day, dtype=np.float64)
+    whole = np.floor(t)
+    return whole, (t - whole) * CSV_TIMECODE_RATE
+
+
+def at_timecode_rate(seconds_of_day: np.ndarray, rate: float) -> np.ndarray:
+    """Times of day read with FF at 60 fps, re-read with FF counted at ``rate`` frames per second."""
+    whole, frames = timecode_frames(seconds_of_day)
+    return whole + frames / rate
+
+
+def whole_seconds(seconds_of_day: np.ndarray) -> int:
+    """How many timecode seconds the rows cover from start to end: every second but the last, and the
+    first only when it starts at frame 0."""
+    whole, frames = timecode_frames(seconds_of_day)
+    covered = np.unique(whole).size - 1
+    return covered if frames.size and frames[0] < 1 else max(covered - 1, 0)
+
+
+def timecode_rate_of(seconds_of_day: np.ndarray) -> float | None:
+    """The rate a CSV's FF field counts at, from its times of day read at 60 fps (sorted).
+
+    60 when FF reaches what it must at 60 fps (within 1.5 row steps of 60), or when the rows cover
+    fewer than ``MIN_WHOLE_SECONDS`` whole seconds or come less than once a second (too few to tell).
+    Else the lowest of ``OTHER_TIMECODE_RATES`` that FF stays below and reaches (within 1.5 row steps
+    of it, and the median second within 2.5, allowing for dropped rows); None when none fits.
+    """
+    whole, frames = timecode_frames(seconds_of_day)
+    same_second = np.diff(whole) == 0
+    if whole_seconds(seconds_of_day) < MIN_WHOLE_SECONDS or not same_second.any():
+        return CSV_TIMECODE_RATE  # too short, or under a row a second: FF cannot tell
+    step = float(np.median(np.diff(frames)[same_second]))
+    top = float(frames.max())
+    if top >= CSV_TIMECODE_RATE - 1.5 * step:
+        return CSV_TIMECODE_RATE
+    starts = np.flatnonzero(np.diff(whole, prepend=whole[0] - 1))
+    second_tops = np.maximum.reduceat(frames, starts)[1:-1]  # the seconds between the first and last
+    for rate in OTHER_TIMECODE_RATES:
+        if top < rate:
+            reached = top >= rate - 1.5 * step and np.median(second_tops) >= rate - 2.5 * step
+            return rate if reached else None
+    return None
