@@ -274,8 +274,13 @@ def recording_of(meta: TakeMeta) -> str:
 
 def untrusted_flags(meta: TakeMeta) -> list[str]:
     """The flags align raised about a take's audio/face offset (``extra.align.flags``)."""
+    return [f for f in _align_flags(meta) if f in UNTRUSTED_FLAGS]
+
+
+def _align_flags(meta: TakeMeta) -> list[str]:
+    """All the flags align raised about a take (``extra.align.flags``)."""
     flags = _align_record(meta).get("flags")
-    return [f for f in flags if f in UNTRUSTED_FLAGS] if isinstance(flags, list) else []
+    return [f for f in flags if isinstance(f, str)] if isinstance(flags, list) else []
 
 
 def collect_takes(
@@ -331,6 +336,12 @@ def collect_takes(
                     why = f"left out by --skip-flagged (align flagged {', '.join(flags)})"
                     left_out.update(dict.fromkeys((m.id, recording_of(m), m.subject or m.id), why))
                     continue
+            clipped = _align_record(m).get("clipped_audio")
+            if "clipped_audio" in _align_flags(m) and isinstance(clipped, float):
+                warnings.append(
+                    f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
+                    "(its loudest sounds are distorted)"
+                )
             sha, content_sha = take_and_content_sha256(af)
             speaker = m.subject or m.id
             st = SourceTake(

@@ -166,8 +166,13 @@ def test_flagged_takes_are_warned_about_or_left_out(tmp_path):
     for i in range(3):
         take = make_aligned_take(f"t{i}", 2.0, subject="a", seed=i)
         take.meta.extra["align"]["flags"] = ["evidence_disagrees"] if i == 1 else ["duration_mismatch"]
+        if i == 2:
+            take.meta.extra["align"] |= {"flags": ["clipped_audio"], "clipped_audio": 0.0162}
         write_take(take, tmp_path / "takes")
     kept = _build(tmp_path / "takes", tmp_path / "kept")
+    assert "take t2: align found 1.62% of its audio samples clipped at full scale" in "\n".join(
+        kept["warnings"]
+    )
     flagged = [w for w in kept["warnings"] if "align flagged" in w]
     assert flagged == [
         "take t1: align flagged its audio/face offset (evidence_disagrees): check it, or build with "
