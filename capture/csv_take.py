@@ -593,7 +593,11 @@ def read_livelink_csv(
         # hashlib releases the GIL, so the checksum runs beside the parse.
         digest = pool.submit(source_file, path, "blendshapes_csv")
         rows = read_csv_rows(path, strict)
-        return rows_to_take(rows, take_id, swap_lr, digest.result(), timecode_rate)
+        take = rows_to_take(rows, take_id, swap_lr, digest.result(), timecode_rate)
+    detected = [r for r in take.meta.repairs if r["kind"] == "timecode_rate"]
+    if strict and timecode_rate is None and detected:  # a guess, which strict mode does not make
+        raise InputError(f"{detected[0]['message']} (strict mode: give --timecode-rate)", path)
+    return take
 
 
 def start_seconds_of_day(take: Take) -> float:

@@ -315,6 +315,7 @@ def note_length_mismatch(take: Take, hint: str) -> None:
             {
                 "line": None,
                 "kind": "length_mismatch",
-                "message": f"audio is {mismatch:+.3f} s longer than the frames: {hint}",
+                "message": f"audio is {abs(mismatch):.3f} s {'longer' if mismatch > 0 else 'shorter'} than "
+                f"the frames: {hint}",
             }
         )

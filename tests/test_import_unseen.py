@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
+from test_import_robustness import one_line_error, repairs_of
 
 from capture import FrameStatus, Timecode, read_livelink_csv, read_paired, read_take
 from capture.channels import CSV_ORDER
 from tests.conftest import run_cli
-from tests.test_import_robustness import one_line_error, repairs_of
 
 HEADER = "Timecode,BlendshapeCount," + ",".join(CSV_ORDER)
 START_S = 10 * 3600.0  # 10:00:00:00
@@ -87,6 +87,15 @@ def test_timecode_rate_can_be_given(tmp_path):
         run_cli("capture", "import", csv, "-o", tmp_path / "a", "--json", "--timecode-rate", 60)
     )
     assert as_app["fps"] == 60 and as_app["repairs"] == 0  # the app's reading, as asked
+    # --strict makes no guess: the detected rate is refused, a given one is read
+    one_line_error(
+        run_cli("capture", "import", csv, "-o", tmp_path / "s", "--strict"),
+        "count at 30 fps, not the app's 60",
+    )
+    strict = run_cli(
+        "capture", "import", csv, "-o", tmp_path / "t", "--json", "--strict", "--timecode-rate", 30
+    )
+    assert imported(strict)["fps"] == 30
     one_line_error(
         run_cli("capture", "import", csv, "-o", tmp_path / "b", "--timecode-rate", 25),
         "timecode frames (FF) reach 29.000: they do not count at 25 fps",
@@ -224,7 +233,7 @@ def test_csv_with_audio_of_the_wrong_length_is_noted_as_for_a_matrix(tmp_path, p
     np.save(tmp_path / "m.npy", np.zeros((300, 1)))
     (tmp_path / "n.txt").write_text("jawOpen\n")
     (same,) = repairs_of(read_paired(short, tmp_path / "m.npy", 60, tmp_path / "n.txt"), "length_mismatch")
-    pattern = r"audio is -4\.900 s longer than the frames: "
+    pattern = r"audio is 4\.900 s shorter than the frames: "
     assert re.match(pattern, note) and re.match(pattern, same), (note, same)
     fits = run_cli(
         "capture", "import", csv, "--audio", wav(tmp_path / "fits.wav", 5.5), "-o", tmp_path / "p", "--json"

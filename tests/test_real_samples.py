@@ -138,7 +138,8 @@ def test_cli_imports_every_sample_and_reports_info(samples, tmp_path):
     assert by_id["S88-001"]["face_lost_frames"] == 277
     assert by_id["S07-001"]["dropped_frames"] == 2
     assert by_id["testset"]["audio_sample_rate"] == 44100 and by_id["testset"]["frames"] == 1218
-    assert by_id["1114_3_16"]["frames"] == 1429 and by_id["1114_3_16"]["channels"] == 116
+    facegood = by_id["bs_value_1114_3_16"]  # a --matrix take is named after its matrix file
+    assert facegood["frames"] == 1429 and facegood["channels"] == 116
     exported = tmp_path / "S07.csv"
     run_cli("capture", "export-csv", out / "S07-001", "-o", exported, check=True)
     assert exported.read_bytes() == (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_bytes()
