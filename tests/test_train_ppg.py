@@ -40,16 +40,19 @@ def test_ppg_learns_phones_of_real_speech(samples, trained):
     assert result.posteriors.shape == (len(fbank), 64)
 
 
+def _utterance(folder, phones: list[str], seed: int = 0, frames: int = 101) -> np.ndarray:
+    """A 2 s utterance ``utt.wav`` with a TextGrid of four 0.5 s ``phones``; its 20 ms frame labels."""
+    audio, _ = speech_like(2.0, np.random.default_rng(seed))
+    sf.write(folder / "utt.wav", audio, 16000)
+    tier = interval_tier("phones", [(i * 0.5, i * 0.5 + 0.5, p) for i, p in enumerate(phones)], 0.0, 2.0)
+    write_textgrid(TextGrid(0.0, 2.0, [tier]), folder / "utt.TextGrid")
+    [(wav, segs)] = find_alignments([folder])
+    assert wav == folder / "utt.wav" and len(segs) == len(phones)
+    return frame_labels(segs, frames, 0.02)
+
+
 def test_textgrid_alignments_beside_audio(tmp_path):
-    audio, _ = speech_like(2.0, np.random.default_rng(0))
-    sf.write(tmp_path / "utt.wav", audio, 16000)
-    tier = interval_tier(
-        "phones", [(0.0, 0.5, ""), (0.5, 1.0, "aa1"), (1.0, 1.5, "s"), (1.5, 2.0, "xx")], 0.0, 2.0
-    )
-    write_textgrid(TextGrid(0.0, 2.0, [tier]), tmp_path / "utt.TextGrid")
-    [(wav, segs)] = find_alignments([tmp_path])
-    assert wav == tmp_path / "utt.wav" and len(segs) == 4
-    labels = frame_labels(segs, 101, 0.02)
+    labels = _utterance(tmp_path, ["", "aa1", "s", "xx"])
     assert labels[10] == 0 and labels[30] == ARPABET.index("AA") and labels[60] == ARPABET.index("S")
     assert labels[90] == 0 and labels[100] == 0  # unknown label and after the end: SIL
     proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "3", "--json")
@@ -66,14 +69,7 @@ def test_timit_phone_labels_fold_onto_the_39_phones(tmp_path):
         "AH", "AH", "ER", "IH", "UW", "L", "T", "HH", "SIL"
     ]  # fmt: skip
     assert phone_index("xx") is None and phone_index("") is None
-    audio, _ = speech_like(2.0, np.random.default_rng(1))
-    sf.write(tmp_path / "utt.wav", audio, 16000)
-    tier = interval_tier(
-        "phones", [(0.0, 0.5, "pau"), (0.5, 1.0, "ax"), (1.0, 1.5, "tcl"), (1.5, 2.0, "ix")], 0.0, 2.0
-    )
-    write_textgrid(TextGrid(0.0, 2.0, [tier]), tmp_path / "utt.TextGrid")
-    [(_, segs)] = find_alignments([tmp_path])
-    labels = frame_labels(segs, 100, 0.02)
+    labels = _utterance(tmp_path, ["pau", "ax", "tcl", "ix"], seed=1, frames=100)
     assert (labels[10], labels[30], labels[60], labels[90]) == (
         0,
         ARPABET.index("AH"),
