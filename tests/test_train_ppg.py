@@ -4,6 +4,7 @@ from Praat TextGrids beside audio, and its checkpoint serves the dataset's bottl
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -11,10 +12,12 @@ import soundfile as sf
 from conftest import run_cli
 from dataset_helpers import speech_like, write_aligned_set
 
+from capture.errors import InputError
 from capture.textgrid import TextGrid, interval_tier, write_textgrid
 from dataset import BuildOptions, build_dataset, make_extractor
 from dataset.bottleneck import ARPABET
 from dataset.features import FeatureSettings, spectral_features
+from train.evaluate import evaluate
 from train.ppg_train import find_alignments, frame_labels
 
 
@@ -116,6 +119,13 @@ def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_pa
     other.write_bytes(ckpt.read_bytes() + b"x")
     proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "q.csv", "--ppg-model", other)
     assert proc.returncode == 1 and "differs from the one the dataset was built with" in proc.stderr
+    # eval refuses a dataset whose PPG another model computed, as predict does
+    shutil.copytree(tmp_path / "ds", tmp_path / "ds2")
+    manifest = json.loads((tmp_path / "ds2" / "manifest.json").read_text())
+    manifest["features"]["ppg"]["model_sha256"] = "0" * 64
+    (tmp_path / "ds2" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InputError, match="dataset's PPG comes from bottleneck model sha256 000000000000"):
+        evaluate(run, tmp_path / "ds2", say=lambda _m: None)
 
 
 # -- speech without alignments: labels from pocketsphinx phone-loop recognition ---------------------------

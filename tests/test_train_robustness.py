@@ -16,6 +16,7 @@ from conftest import run_cli
 from dataset_helpers import write_aligned_set
 from test_train_pipeline import TINY
 
+from capture import read_take
 from capture.errors import InputError
 from dataset import BuildOptions, build_dataset, read_manifest
 from dataset.splits import SplitRule
@@ -282,8 +283,14 @@ def test_predict_paths_and_messages(data, tmp_path):
         shutil.copy(wav, tmp_path / d / "x.wav")
     rows = predict(data["run"], [tmp_path / "a" / "x.wav", tmp_path / "b" / "x.wav"], tmp_path / "o", **QUIET)
     assert [r["csv"] for r in rows] == [str(tmp_path / "o" / "x.csv"), str(tmp_path / "o" / "x-2.csv")]
+    # a take's frame count comes back from its audio even when that ends inside the last frame
+    frames = read_take(wav.parent).time.size
+    audio, rate = sf.read(wav)
+    sf.write(tmp_path / "trimmed.wav", audio[: int(round((frames - 0.4) * rate / 60.0))], rate)
+    [trimmed] = predict(data["run"], [tmp_path / "trimmed.wav"], tmp_path / "t.csv", **QUIET)
+    assert trimmed["frames"] == frames
     sf.write(tmp_path / "short.wav", np.zeros(10, np.float32), 16000)
-    with pytest.raises(InputError, match="short.wav: audio is shorter than one animation frame"):
+    with pytest.raises(InputError, match="short.wav: audio is shorter than half an animation frame"):
         predict(data["run"], [tmp_path / "short.wav"], tmp_path / "s.csv", **QUIET)
     (tmp_path / "dir.wav").mkdir()
     with pytest.raises(InputError, match="dir.wav: is a folder"):
@@ -306,3 +313,37 @@ def test_cli_resume_with_a_changed_set_is_one_line(data, tmp_path):
     assert "--resume keeps the run's config, but lr differ" in proc.stderr
     proc = run_cli("train", "fit", "--data", data["ds"], "-o", run, "--config", tmp_path)
     assert proc.returncode == 1 and "config path is a folder" in proc.stderr
+
+
+def test_a_val_split_without_usable_frames_counts_as_none(tmp_path):
+    """A val take whose face was lost throughout: fit validates nothing (and says why) instead of scoring
+    NaN; eval of that split is an error, not a perfect score; compare checks its split before training."""
+    from dataset_helpers import make_aligned_take
+
+    from capture import write_take
+    from train.compare import compare
+
+    for i in range(4):
+        write_take(
+            make_aligned_take(f"t{i}", 2.0, subject="a", seed=i, gap=(0, 120) if i == 1 else None), tmp_path
+        )
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank"), split=SplitRule("take", 0, 0, 0, ("t1",), ())
+    )
+    build_dataset([tmp_path], tmp_path / "ds", options, **QUIET)
+    said = []
+    ridge = fit(tmp_path / "ds", tmp_path / "ridge", _cfg("model=ridge"), say=said.append)
+    assert ridge["best_val"] is None and any("note: the val split has no usable frames" in x for x in said)
+    assert "val mse" not in said[-1]
+    tiny = fit(tmp_path / "ds", tmp_path / "s2a", _cfg("max_steps=4", "eval_every=2"), say=said.append)
+    assert tiny["stopped"] == "max_steps" and tiny["best_val"] is None
+    for line in (tmp_path / "s2a" / "metrics.jsonl").read_text().splitlines():
+        json.loads(line, parse_constant=lambda c: pytest.fail(f"{c} in metrics.jsonl"))
+    with pytest.raises(InputError, match="the val split has no usable frames"):
+        evaluate(tmp_path / "ridge", tmp_path / "ds", "val", **QUIET)
+    with pytest.raises(InputError, match="dataset has no 'test' split to compare on"):
+        compare(tmp_path / "ds", tmp_path / "cmp", ["ridge"], lambda _name: _cfg("model=ridge"), **QUIET)
+    assert not (tmp_path / "cmp").exists()
+    with pytest.raises(InputError, match="no take 'nobody'"):  # a refused run leaves no folder
+        fit(tmp_path / "ds", tmp_path / "refused", _cfg('val_takes=["nobody"]'), **QUIET)
+    assert not (tmp_path / "refused").exists()

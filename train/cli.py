@@ -50,6 +50,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--speaker", help="dataset speaker whose pitch statistics to use (default: the utterance's)"
     )
+    p.add_argument(
+        "--neutral",
+        type=Path,
+        help="the speaker's neutral pose (a _neutral.csv or a calibrated take folder), for a run built "
+        "with --normalization neutral",
+    )
     _precision_option(p)
     _style_option(p, "the --speaker's when the run trained on that speaker, else the mean style")
     p.add_argument("--json", action="store_true", help="print one JSON line per file")
@@ -200,6 +206,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
         args.speaker,
         precision=args.precision,
         style=args.style,
+        neutral=args.neutral,
     )
     failed = [r for r in results if "error" in r]
     for r in results:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from capture.command import progress
+from capture.errors import InputError
 from dataset.manifest import read_manifest
 
 from .checkpoint import LAST, write_json
@@ -28,7 +29,10 @@ def compare(
 ) -> list[dict[str, Any]]:
     """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system."""
     out = Path(out)
-    manifest = read_manifest(Path(ds).parent if Path(ds).is_file() else ds)
+    ds = Path(ds).parent if Path(ds).is_file() else Path(ds)
+    manifest = read_manifest(ds)
+    if split not in {s["split"] for s in manifest["shards"]}:  # before hours of training, not after
+        raise InputError(f"dataset has no {split!r} split to compare on", ds / "manifest.json")
     for name in models:  # every system's settings checked before the first one trains
         cfg = config_for(name)
         build_model(name, resolve_inputs(manifest, cfg), cfg)

@@ -140,7 +140,7 @@ def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec:
     if manifest["channels"] != info["channels"]:
         raise InputError("dataset channels differ from the channels the run was trained on", where)
     if manifest["fps"] != info["fps"]:
-        raise InputError(f"dataset is at {manifest['fps']!r} fps, the run at {info['fps']:g} fps", where)
+        raise InputError(f"dataset is at {manifest['fps']:g} fps, the run at {info['fps']:g} fps", where)
     features = manifest.get("features")
     dims = features.get("dims") if isinstance(features, dict) else None
     if not isinstance(dims, dict):
@@ -152,6 +152,25 @@ def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec:
             raise InputError(f"dataset's {name} has {dims[name]!r} dims, not the run's", where)
     if features.get("settings") != info["features"].get("settings"):
         raise InputError("dataset's feature settings differ from the run's: features would not match", where)
+    if "ppg" in spec.features:
+        ours, theirs = (_ppg_model(f) for f in (features, info["features"]))
+        if ours != theirs:
+            raise InputError(
+                f"dataset's PPG comes from {_show_model(ours)}, the run's from {_show_model(theirs)}: "
+                "features would not match (build the dataset with the run's --ppg-model)",
+                where,
+            )
+
+
+def _ppg_model(features: dict[str, Any]) -> tuple[Any, Any]:
+    """The PPG backend and model checksum a dataset's features were computed with."""
+    ppg = features.get("ppg") if isinstance(features.get("ppg"), dict) else {}
+    return ppg.get("backend"), ppg.get("model_sha256")
+
+
+def _show_model(model: tuple[Any, Any]) -> str:
+    backend, sha = model
+    return f"{backend} model sha256 {sha[:12]}..." if isinstance(sha, str) else f"{backend} (no model file)"
 
 
 @torch.no_grad()
@@ -208,6 +227,11 @@ def evaluate(
         floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
         if longest is None or mask.shape[0] > longest["mask"].shape[1]:
             longest = batch
+    if not tally.frames:
+        raise InputError(
+            f"the {split} split has no usable frames (face lost throughout?): nothing to score",
+            ds / "manifest.json",
+        )
     result = {
         "run": str(run),
         "dataset": str(ds),

@@ -111,11 +111,17 @@ def validation_loss(
     return se / n if n else float("nan")
 
 
-def _has_val(manifest: dict[str, Any], cfg: dict[str, Any]) -> bool:
+def _no_validation(manifest: dict[str, Any], cfg: dict[str, Any]) -> str | None:
+    """Why the run cannot validate (no val split, or one whose frames are all unusable), else None."""
     keys = split_keys(manifest, cfg)
-    if keys is not None:
-        return bool(keys[1])
-    return any(sh["split"] == "val" for sh in manifest["shards"])
+    val = [
+        s for s in manifest["samples"] if (s["key"] in keys[1] if keys is not None else s["split"] == "val")
+    ]
+    if not val:
+        return "the dataset has no val split"
+    if not any(s.get("usable_frames", s["frames"]) for s in val):
+        return "the val split has no usable frames (face lost throughout?)"
+    return None
 
 
 def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
@@ -127,11 +133,12 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
         eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
         frames += int(item["mask"].sum())
     manifest = read_manifest(ds)
-    has_val = _has_val(manifest, cfg)
+    no_val = _no_validation(manifest, cfg)
+    has_val = no_val is None
     weights = channel_weights(manifest, cfg)
     alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else [1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
     if not has_val and len(alphas) > 1:
-        say("note: the dataset has no val split: ridge uses alpha 1")
+        say(f"note: {no_val}: ridge uses alpha 1")
         alphas = [1.0]
     scores = []
     for alpha in alphas:
@@ -147,7 +154,8 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
     payload.update(best_val=best_val, finished=True)
     save_checkpoint(payload, run / LAST)
     elapsed = time.perf_counter() - t0
-    say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alphas[best]:g}, val mse {val:.4f}")
+    scored = "" if best_val is None else f", val mse {best_val:.4f}"
+    say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alphas[best]:g}{scored}")
     with open(run / METRICS, "a") as f:
         f.write(json.dumps({"step": 0, "val_mse": best_val, "train_frames": frames}) + "\n")
     return {
@@ -378,11 +386,11 @@ def _fit(
         check_config(cfg)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
-    run.mkdir(parents=True, exist_ok=True)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
     _, model_config = build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
+    run.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder behind
     if spec.note:
         say(f"note: {spec.note}")
     if not spec.styles and cfg["style_dropout"] != DEFAULTS["style_dropout"]:
@@ -422,9 +430,10 @@ def _fit(
         if state.get("stopped") == "early_stopping":
             say(f"run stopped early at step {step}; nothing to resume")
     weights = channel_weights(manifest, cfg, device)
-    has_val = _has_val(manifest, cfg)
+    no_val = _no_validation(manifest, cfg)
+    has_val = no_val is None
     if not has_val:
-        say("note: the dataset has no val split: no validation, no early stopping, no best.pt")
+        say(f"note: {no_val}: no validation, no early stopping, no best.pt")
     n_params = sum(p.numel() for p in model.parameters())
     say(f"{cfg['model']}: {n_params / 1e6:.2f} M parameters, {world} process(es) on {device}")
     # the only buffers are constant positional encodings: nothing to broadcast before each forward. Validation
@@ -459,7 +468,11 @@ def _fit(
 
     def emit(record: dict[str, Any]) -> None:
         if log is not None:
-            log.write(json.dumps(record) + "\n")
+            # strict JSON for jq and browsers: a NaN or infinite figure (a diverged run) is null
+            finite = {
+                k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in record.items()
+            }
+            log.write(json.dumps(finite) + "\n")
             log.flush()
             if tb is not None:
                 for k, v in record.items():

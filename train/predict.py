@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from align.resample import TARGET_RATE, to_16k_mono
-from capture import Take, TakeMeta, read_audio, write_livelink_csv
+from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, read_take, write_livelink_csv
 from capture.atomic import atomic_write
 from capture.channels import ARKIT52, is_known
 from capture.command import progress
@@ -64,17 +64,22 @@ def animate(
     speaker: str | None = None,
     where: str | Path | None = None,
     style: str | None = None,
+    neutral: np.ndarray | None = None,
 ) -> np.ndarray:
     """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``
     (read from ``where``, for error messages); pitch normalised with ``speaker``'s statistics, and a
     run with speaker styles animates in ``style`` (default: ``speaker``'s style if the run has it, else
-    the mean style)."""
+    the mean style). A run normalised to each take's neutral pose is de-normalised on ``neutral`` (the
+    run's channels), else on the training split's offset."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
-    n = int(np.floor(audio.size / settings.sample_rate * fps))
+    # the nearest whole frame, as the dataset pairs a take's frames with its audio (round(n·rate/fps))
+    n = int(round(audio.size / settings.sample_rate * fps))
     if n < 1:
-        raise InputError("audio is shorter than one animation frame", where)
+        raise InputError("audio is shorter than half an animation frame", where)
+    span = int(round(n * settings.sample_rate / fps))
+    audio = np.pad(audio, (0, max(span - audio.size, 0)))[:span]
     window = int(round(PREDICT_WINDOW_S * fps))
     limit = (payload.get("model_config") or {}).get("max_frames")
     if isinstance(limit, int) and limit > 0:
@@ -88,7 +93,31 @@ def animate(
     y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
     if not np.all(np.isfinite(y)):
         raise InputError("the model's output is not finite (NaN or inf): a damaged checkpoint?", where)
-    return Normalizer.from_json(info["normalization"]["animation"]).inverse(y)
+    return Normalizer.from_json(info["normalization"]["animation"]).inverse(y, neutral)
+
+
+def read_neutral(path: str | Path, channels: list[str]) -> np.ndarray:
+    """The neutral pose of ``channels`` (float32): a take folder's calibrated ``neutral``, or the mean of
+    the tracked frames of a Live Link Face CSV (the app's ``_neutral.csv``)."""
+    path = Path(path)
+    if path.is_dir():
+        take = read_take(path, audio=False)
+        if take.neutral is None:
+            raise InputError("take has no neutral pose (import a calibrated take: its _neutral.csv)", path)
+        pose = take.neutral.astype(np.float64)
+    else:
+        take = read_livelink_csv(path)
+        tracked = take.values[take.frame_status == FrameStatus.TRACKED]
+        if not tracked.size:
+            raise InputError("CSV holds no tracked frame to take the neutral pose from", path)
+        pose = tracked.mean(axis=0)
+    try:
+        out = pose[[take.channel_index(c) for c in channels]]
+    except InputError as exc:
+        raise InputError(f"neutral pose: {exc}", path) from None
+    if not np.all(np.isfinite(out)):
+        raise InputError("neutral pose holds NaN or infinite values", path)
+    return out.astype(np.float32)
 
 
 def predict(
@@ -100,11 +129,13 @@ def predict(
     say: Callable[[str], None] = progress,
     precision: str = "fp32",
     style: str | None = None,
+    neutral: str | Path | None = None,
 ) -> list[dict[str, Any]]:
     """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
     folder receiving ``<audio stem>.csv``. Returns one summary per file; of several files, one that
     fails gets ``{"audio", "error"}`` and the others are still written (a single file's failure is
-    raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``."""
+    raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``; ``neutral``:
+    the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral."""
     model, payload = load_system(run)
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
@@ -132,6 +163,7 @@ def predict(
             f"warning: {len(others)} channel(s) of the run are no ARKit name and are not in the CSV: "
             f"{others[:5]}"
         )
+    pose = _neutral_pose(info, neutral, say)
     known = sorted(info["normalization"].get("pitch", {}).get("speakers", {}))
     if speaker is not None and speaker not in known:
         raise InputError(
@@ -145,7 +177,7 @@ def predict(
     results = []
     for a, path in zip(map(Path, audios), paths):
         try:  # one unreadable file is reported and the others are still predicted
-            result = _predict_one(model, payload, a, path, ppg, speaker, style, arkit, blendshapes)
+            result = _predict_one(model, payload, a, path, ppg, speaker, style, arkit, blendshapes, pose)
         except InputError as exc:
             if len(audios) == 1:
                 raise
@@ -166,8 +198,26 @@ def predict(
     return results
 
 
+def _neutral_pose(info: dict[str, Any], neutral: str | Path | None, say) -> np.ndarray | None:
+    """The pose a neutral-normalised run is de-normalised on (``--neutral``); a note when it has none."""
+    kind = info["normalization"]["animation"].get("kind")
+    if neutral is not None:
+        if kind != "neutral":
+            raise InputError(
+                f"the run's animation is normalised by {kind}, not on a neutral pose", "--neutral"
+            )
+        return read_neutral(neutral, list(info["channels"]))
+    if kind == "neutral":
+        say(
+            "note: the run predicts offsets from each take's calibrated neutral pose: without --neutral "
+            "(the speaker's _neutral.csv or calibrated take) they are added to the training split's 5th "
+            "percentile, and a face whose rest pose differs is shifted by the difference"
+        )
+    return None
+
+
 def _predict_one(
-    model, payload, a: Path, path: Path, ppg, speaker, style, arkit, blendshapes
+    model, payload, a: Path, path: Path, ppg, speaker, style, arkit, blendshapes, neutral
 ) -> dict[str, Any]:
     """Predict audio file ``a`` into CSV ``path``; the summary of ``predict``."""
     info = payload["dataset"]
@@ -177,7 +227,7 @@ def _predict_one(
         raise InputError("output CSV path is a folder", path)
     audio = to_16k_mono(read_audio(a), str(a))
     narrow = is_narrowband(audio, TARGET_RATE)
-    values = animate(model, payload, audio, ppg, speaker, where=a, style=style)
+    values = animate(model, payload, audio, ppg, speaker, where=a, style=style, neutral=neutral)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
     clipped = int(np.count_nonzero((outside < 0) | (outside > 1)))
