@@ -402,11 +402,15 @@ def fields_tc(seconds_of_day: float) -> str:
     return Timecode.from_seconds(seconds_of_day).format()
 
 
-def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[float, float]:
+def detect_fps(
+    times: np.ndarray, status: np.ndarray | None = None, ntsc: bool = False
+) -> tuple[float, float]:
     """Nominal frame rate and the measured median frame period (s) from row times.
 
-    The nominal rate snaps to a standard rate within 3 % (the app writes 59.90 rows/s for "60"), or to
-    its NTSC rate (29.97 for 30) when the times keep that within ``NTSC_TOLERANCE`` over the take.
+    The nominal rate snaps to a standard rate within 3 % (the app writes 59.90 rows/s for "60"); with
+    ``ntsc`` (paired data from video tools) to its NTSC rate (29.97 for 30) when the times keep that
+    within ``NTSC_TOLERANCE`` over the take. The phone's own rates are 30 and 60 (formats doc §0.11): a
+    Live Link Face take whose rows come at 59.94/s is a "60" take, as one at 59.90/s is.
     """
     if times.size < 2:
         return 60.0, 1 / 60.0
@@ -415,9 +419,9 @@ def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[flo
     rate = 1.0 / period
     for std in _STANDARD_FPS:
         if abs(rate - std) / std < 0.03:
-            ntsc = _NTSC_FPS.get(std)
-            if ntsc is not None and abs(kept_rate(times, period) / ntsc - 1) < NTSC_TOLERANCE:
-                return ntsc, period
+            rate_ntsc = _NTSC_FPS.get(std) if ntsc else None
+            if rate_ntsc is not None and abs(kept_rate(times, period) / rate_ntsc - 1) < NTSC_TOLERANCE:
+                return rate_ntsc, period
             return std, period
     return round(rate, 3), period
 

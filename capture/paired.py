@@ -248,7 +248,7 @@ def read_paired(
             raise InputError("no channel columns besides the time column", matrix_path)
     fps = fps if fps is not None else file_fps
     if fps is None and kind == "seconds" and clock.size > 1:
-        fps = detect_fps(clock)[0]
+        fps = detect_fps(clock, ntsc=True)[0]
     if fps is None:
         raise InputError("no frame rate: give --fps", matrix_path)
     if not MIN_FPS <= fps <= MAX_FPS:

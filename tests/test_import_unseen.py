@@ -213,10 +213,12 @@ def test_a_time_column_at_an_ntsc_rate_keeps_it(tmp_path, nominal):
     assert read_paired(tmp_path / "a.wav", matrix, None).meta.fps == nominal
 
 
-def test_a_livelink_csv_at_29_97_rows_per_second_is_29_97_fps(tmp_path):
-    tcs = [Timecode.from_seconds(START_S + i * 1001 / 30000).format() for i in range(600)]
+def test_a_livelink_csv_at_59_94_rows_per_second_is_a_60_fps_take(tmp_path):
+    """The phone's rates are 30 and 60 (never NTSC): rows at 59.94/s are a "60" take, as the app's own
+    59.90/s are, so that takes from one session never end up at two rates."""
+    tcs = [Timecode.from_seconds(START_S + i * 1001 / 60000).format() for i in range(600)]
     take = read_livelink_csv(livelink_csv(tmp_path / "ntsc.csv", tcs))
-    assert take.meta.fps == pytest.approx(30000 / 1001, rel=1e-9) and take.count(FrameStatus.DROPPED) == 0
+    assert take.meta.fps == 60.0 and take.count(FrameStatus.DROPPED) == 0
 
 
 # 4: external audio of the wrong length
