@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import multiprocessing as mp
 import shutil
 import sys
@@ -17,7 +16,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from capture import InputError, S2AError, find_takes, read_meta, read_take, write_take
+from capture import InputError, S2AError, TakeMeta, find_takes, read_meta, read_take, write_take
+from capture.command import json_safe
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
 
 from .aligner import ALIGN_VERSION, align_with_report
@@ -37,8 +37,8 @@ def fingerprint(folder: Path, options: AlignOptions) -> str:
     return h.hexdigest()
 
 
-def _outputs_of(out_dir: Path, take_id: str) -> list[Path]:
-    """Aligned take folders in ``out_dir`` made from the raw take ``take_id``."""
+def _outputs_of(out_dir: Path, take_id: str) -> list[tuple[Path, TakeMeta]]:
+    """Aligned take folders in ``out_dir`` made from the raw take ``take_id``, with their metadata."""
     base = safe_id(take_id)
     found = []
     for p in [out_dir / base, *sorted(out_dir.glob(f"{base}.seg[0-9][0-9]"))]:
@@ -50,7 +50,7 @@ def _outputs_of(out_dir: Path, take_id: str) -> list[Path]:
             report = m.extra.get("align")
             parent = report.get("parent") if isinstance(report, dict) else None
             if m.source_kind == "aligned" and isinstance(parent, dict) and parent.get("id") == take_id:
-                found.append(p)
+                found.append((p, m))
     return found
 
 
@@ -62,7 +62,7 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
     outs = _outputs_of(out_dir, take_id)
     if not outs:
         return None
-    reports = [read_meta(p).extra["align"] for p in outs]
+    reports = [m.extra["align"] for _, m in outs]
     count = reports[0].get("segment_count")
     if any(r.get("fingerprint") != fp for r in reports) or len(reports) != count:
         return None
@@ -83,7 +83,7 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
     out["interpolated_share"] = interpolated_share(out["gaps_interpolated"], out["frames"])
     out["segment_list"] = [
         {
-            "id": read_meta(p).id,
+            "id": m.id,
             "frames": r["frames"],
             "start_s": r.get("segment_start_s"),
             "duration_s": round(r["frames"] / r["fps"], 6) if r.get("fps") else None,
@@ -91,9 +91,9 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
             "interpolated_share": interpolated_share(r["gaps_interpolated"], r["frames"]),
             "speech_segments": r.get("speech_segments"),
         }
-        for p, r in zip(outs, reports)
+        for (_, m), r in zip(outs, reports)
     ]
-    out["outputs"] = [str(p) for p in outs]
+    out["outputs"] = [str(p) for p, _ in outs]
     return out
 
 
@@ -114,14 +114,14 @@ def align_folder(
         if not force:
             prev = _previous(out_dir, meta.id, fp)
             if prev is not None:
-                return _json_safe({"id": meta.id, "path": str(folder), "skipped": True} | prev)
+                return json_safe({"id": meta.id, "path": str(folder), "skipped": True} | prev)
         if meta.audio is None and skip_without_audio:
             return {"id": meta.id, "path": str(folder), "skipped": True, "reason": "no audio"}
         take = read_take(folder)
         if take.meta.source_kind == "aligned":
             raise InputError("take is already aligned", folder)
         segments, report = align_with_report(take, options)
-        stale = _outputs_of(out_dir, meta.id)
+        stale = [p for p, _ in _outputs_of(out_dir, meta.id)]
         written = []
         for seg in segments:
             seg.meta.extra["align"]["fingerprint"] = fp
@@ -133,7 +133,7 @@ def align_folder(
         report = {"id": meta.id, "path": str(folder), "skipped": False} | report
         report["outputs"] = [str(p) for p in written]
         report.pop("options", None)
-        return _json_safe(report)
+        return json_safe(report)
     except S2AError as exc:
         return _error(folder, str(exc))
     except OSError as exc:  # a file of the take or the output folder could not be read or written
@@ -147,17 +147,6 @@ def align_folder(
 def _error(folder: Path, message: str) -> dict[str, Any]:
     """The report of a take that could not be aligned (one line: the message holds no line break)."""
     return {"id": folder.name, "path": str(folder), "error": " ".join(message.split())}
-
-
-def _json_safe(value: Any) -> Any:
-    """``value`` with NaN and infinite numbers as ``None``: a report is one line of strict JSON."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
 
 
 def _id_clashes(folders: list[Path]) -> dict[Path, str]:

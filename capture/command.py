@@ -5,11 +5,23 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from .errors import S2AError
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and infinite numbers as ``None`` (nested in dicts and lists): strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
 
 
 def emit_json(obj: dict[str, Any]) -> None:

@@ -41,6 +41,7 @@ from capture.atomic import atomic_write, write_json_atomic
 from capture.channels import channel_set
 from capture.errors import InputError, S2AError
 from capture.take import (
+    FrameStatus,
     Take,
     TakeMeta,
     find_takes,
@@ -60,7 +61,6 @@ from .splits import SPLITS, SplitRule, assign_splits
 DATASET_VERSION = "1"
 WORK = ".work"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
-INTERPOLATED_STATUS = 4
 MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets are mostly not measured
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
 SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
@@ -336,7 +336,7 @@ def collect_takes(
                     left_out.update(dict.fromkeys((m.id, recording_of(m), m.subject or m.id), why))
                     continue
             clipped = _align_record(m).get("clipped_audio")
-            if "clipped_audio" in _align_flags(m) and isinstance(clipped, float):
+            if isinstance(clipped, float) and "clipped_audio" in _align_flags(m):
                 warnings.append(
                     f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
                     "(its loudest sounds are distorted)"
@@ -697,7 +697,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "frames": n,
         "usable_frames": int(mask.sum()),
         "out_of_range_frames": int((finite & ~in_range).sum()),
-        "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == INTERPOLATED_STATUS))),
+        "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == FrameStatus.INTERPOLATED))),
         "narrowband": narrow,
         "audio_gain": gain,
         "duration_s": n / fps,

@@ -283,6 +283,14 @@ def take_recordings(manifest: dict[str, Any]) -> dict[str, str]:
     return out
 
 
+def takes_by_recording(manifest: dict[str, Any]) -> dict[str, list[str]]:
+    """``{recording id: its take ids, sorted}`` (``take_recordings`` turned around)."""
+    groups: dict[str, list[str]] = {}
+    for take, recording in take_recordings(manifest).items():
+        groups.setdefault(recording, []).append(take)
+    return {recording: sorted(takes) for recording, takes in groups.items()}
+
+
 def shards_of(manifest: dict[str, Any], split: str | None = None) -> list[dict[str, Any]]:
     """Shard entries of one split (all when ``split`` is None), in manifest order."""
     return [s for s in manifest["shards"] if split is None or s.get("split") == split]

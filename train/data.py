@@ -18,7 +18,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from capture.errors import InputError
-from dataset.manifest import read_manifest, take_recordings
+from dataset.manifest import read_manifest, take_recordings, takes_by_recording
 from dataset.normalize import FeatureNormalizer
 from dataset.torch_dataset import ShardDataset
 
@@ -156,13 +156,12 @@ def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "conf
     if not named_val and not named_dropped:
         return None
     split_of = {s["take"]: s["split"] for s in manifest["samples"]}
-    recording_of = take_recordings(manifest)
+    recording_of, members = take_recordings(manifest), takes_by_recording(manifest)
     chosen: dict[str, set[str]] = {}
     for key, named in (("val_takes", named_val), ("drop_takes", named_dropped)):
         chosen[key] = set()
         for name in named:  # a take brings the other segments of its recording along
-            recording = recording_of.get(name, name)
-            takes_of = {t for t in split_of if recording_of.get(t, t) == recording}
+            takes_of = {t for t in members.get(recording_of.get(name, name), ()) if t in split_of}
             if not takes_of:
                 raise InputError(
                     f"{key}: no take {name!r} in the dataset (it has {sorted(split_of)})", f"config:{key}"

@@ -20,7 +20,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
-from capture.command import progress
+from capture.command import json_safe, progress
 from capture.errors import InputError
 from dataset.manifest import read_manifest
 
@@ -469,10 +469,7 @@ def _fit(
     def emit(record: dict[str, Any]) -> None:
         if log is not None:
             # strict JSON for jq and browsers: a NaN or infinite figure (a diverged run) is null
-            finite = {
-                k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in record.items()
-            }
-            log.write(json.dumps(finite) + "\n")
+            log.write(json.dumps(json_safe(record)) + "\n")
             log.flush()
             if tb is not None:
                 for k, v in record.items():
