@@ -578,7 +578,7 @@ def _fit(
         "run": str(run),
         "model": cfg["model"],
         "steps": step,
-        "epochs": epoch,
+        "epochs": epoch + 1 if step else 0,  # passes over the training split begun (the last may be partial)
         "best_val": None if math.isinf(best_val) else best_val,
         "stopped": stopped,
         "world_size": world,
