@@ -171,9 +171,11 @@ class FileAudioSource:
 
     def _play(self) -> None:
         while not self._go.wait(0.05):
-            if self._stop.is_set():
+            if self._stop.is_set():  # stopped before the first packet: the file is never opened
                 return
         try:
+            if self.path.exists() and not self.path.is_file():
+                raise InputError("the audio file is not a regular file (a device, pipe or socket)", self.path)
             audio = self._audio or read_audio(self.path)
         except InputError as exc:
             self.error = str(exc)
@@ -198,8 +200,8 @@ class FileAudioSource:
             )
 
     def stop(self) -> None:
+        """Stop playing (within 0.05 s); playback that was never triggered never opens the file."""
         self._stop.set()
-        self._go.set()
         if self._thread.is_alive():
             self._thread.join()
 

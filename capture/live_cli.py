@@ -5,23 +5,61 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
+import glob
+import json
 import math
+import os
 import shutil
 import signal
+import socket
+import stat
 import sys
-from collections.abc import Callable
+import zlib
 from pathlib import Path
+from typing import Any
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource
 from .command import emit_json, progress
 from .errors import InputError, S2AError
 from .importer import find_sources, import_source
-from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote
-from .recorder import AUDIO_LOG, DEFAULT_PORT, LiveRecorder
-from .replay import Impairment, parse_destination, replay_take
+from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, osc_int32, osc_text, resolve_target
+from .record_log import MAGIC, RECORD_HEADER, LogReader, RecordType
+from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, LiveRecorder
+from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
 from .session_takes import build_takes, find_sessions
-from .take import Take, is_take_dir, read_take
+from .take import Take, is_take_dir, read_meta, read_take
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; recover goes by the session record's pid alone
+    fcntl = None  # type: ignore[assignment]
+
+# Held (flock) by ``listen`` in the session folder from before the recorder opens until the takes are
+# built: ``recover`` leaves a session whose lock is held alone.
+SESSION_LOCK = "listen.lock"
+# The recorder's log numbers streams with 16 bits, so at most this many are told apart.
+MAX_STREAMS = 65535
+# A process counts as a session's recorder when it started no later than this after the session did
+# (the tick and boot-time rounding of /proc); one started later got the recorder's pid after it died.
+PID_START_SLACK_S = 2.0
+
+
+def _stream_slots(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if not 1 <= n <= MAX_STREAMS:
+        raise argparse.ArgumentTypeError(f"must be in 1..{MAX_STREAMS}, not {n}")
+    return n
+
+
+def _bind_address(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty address; all interfaces are 0.0.0.0 (IPv4) or :: (IPv6)")
+    return text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,15 +67,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "listen",
         help="record Live Link UDP packets (and audio, sync markers) into takes, crash-safe",
-        description="Record every Live Link device/subject as its own take until --duration, SIGINT or "
-        "SIGTERM. Packets are logged crash-safely under OUT/<session>.recording/ while recording.",
+        description="Record every Live Link device/subject as its own take until --duration, SIGINT, "
+        "SIGTERM or SIGHUP. Packets are logged crash-safely under OUT/<session>.recording/ while recording.",
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for the takes and the session log")
     p.add_argument(
         "--port", type=int, default=DEFAULT_PORT, help="UDP port (default 11111; 0 = any free port)"
     )
     p.add_argument(
-        "--bind", default="127.0.0.1", help="address to listen on (a LAN address for a phone on Wi-Fi)"
+        "--bind",
+        type=_bind_address,
+        default="127.0.0.1",
+        help="address to listen on (a LAN address for a phone on Wi-Fi; 0.0.0.0 or :: for all)",
     )
     p.add_argument(
         "--allow", nargs="+", metavar="ADDR", help="accept packets only from these source addresses"
@@ -61,7 +102,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--baud", type=int, default=115200, help="serial baud rate")
     p.add_argument("--flush-interval", type=float, default=0.1, help="seconds between log flushes (<= 0.25)")
-    p.add_argument("--max-streams", type=int, default=512, help="most device/subject pairs recorded at once")
+    p.add_argument(
+        "--max-streams",
+        type=_stream_slots,
+        default=512,
+        help=f"most device/subject pairs recorded at once (1..{MAX_STREAMS})",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON line per take when done")
     p.set_defaults(handler=cmd_listen)
 
@@ -69,7 +115,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "recover",
         help="turn the logs a killed listen left behind into takes",
         description="Rebuild takes from unfinished sessions (*.recording folders) under DIR; a torn log "
-        "tail is reported and everything before it is kept.",
+        "tail is reported and everything before it is kept. Sessions a running listen is still recording "
+        "are skipped (that listen builds their takes when it stops).",
     )
     p.add_argument("dir", type=Path, help="a listen output folder or one session folder")
     p.add_argument("-o", "--out", type=Path, help="where to write the takes (default: beside the session)")
@@ -164,7 +211,7 @@ def _report(summaries: list[dict], as_json: bool) -> None:
 
 def _warnings(s: dict) -> list[str]:
     """What in a take's summary the person recording should hear about even with --json."""
-    lines = []
+    lines = [f"warning: {e}" for e in s.get("errors") or []]  # audio and sync-box failures
     if "frame_clock" in s:
         lines.append(f"warning: frames placed by arrival time: {s['frame_clock']['reason']}")
     for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
@@ -174,33 +221,48 @@ def _warnings(s: dict) -> list[str]:
     return lines
 
 
+def _say(message: str) -> None:
+    """``progress`` for while recording: stderr that cannot be written (a closed terminal, a full
+    disk) must not stop the recording."""
+    with contextlib.suppress(OSError):
+        progress(message)
+
+
 def _status_line(counts: dict) -> None:
     failed = f", {counts['failed_writes']} failed log writes" if counts.get("failed_writes") else ""
-    progress(
+    _say(
         f"{counts['elapsed_s']:.0f} s: {counts['accepted']} packets from {counts['streams']} stream(s), "
         f"{counts['rejected']} rejected{failed}"
     )
 
 
-def _warn_once(recorder: LiveRecorder, audio_log: AudioLog | None, source) -> Callable[[], None]:
-    """A check for after every log flush: prints each problem as one warning line when it appears."""
-    warned: set[str] = set()
+class _Warnings:
+    """A check for after every log flush (and once more at the stop): prints each problem as one
+    warning line when it appears. A sync-box failure is also noted in the frames log at once, so that
+    ``recover`` reports it after a later crash."""
 
-    def check() -> None:
+    def __init__(self, recorder: LiveRecorder, audio_log: AudioLog | None, source, serial_sync):
+        self.recorder, self.audio_log = recorder, audio_log
+        self.source, self.serial_sync = source, serial_sync
+        self.warned: set[str] = set()
+
+    def __call__(self) -> None:
         problems = {
-            "log": recorder.log is not None and recorder.log.error,
-            "audio log": audio_log is not None and audio_log.writer.error,
-            "audio": source is not None and source.error,
+            "log": self.recorder.log is not None and self.recorder.log.error,
+            "audio log": self.audio_log is not None and self.audio_log.writer.error,
+            "audio": self.source is not None and self.source.error,
+            "serial": self.serial_sync is not None and self.serial_sync.error,
         }
         for what, problem in problems.items():
-            if problem and what not in warned:
-                warned.add(what)
+            if problem and what not in self.warned:
+                self.warned.add(what)
+                if what == "serial":
+                    self.recorder.note({"kind": "serial_error", "message": problem})
+                    problem += "; recording goes on without sync markers (those received are kept)"
                 if isinstance(problem, OSError):
                     problem = f"cannot write the {what} ({problem.strerror or problem}); recording goes on, "
                     problem += "holding what cannot be written in memory"
-                progress(f"warning: {problem}")
-
-    return check
+                _say(f"warning: {problem}")
 
 
 def _check_audio_file(path: Path, first_packet: bool) -> None:
@@ -209,6 +271,8 @@ def _check_audio_file(path: Path, first_packet: bool) -> None:
     folder must exist, and a warning says the file has to be there by then."""
     if path.is_dir():
         raise InputError("the audio file is a folder", path)
+    if path.exists() and not path.is_file():
+        raise InputError("the audio file is not a regular file (a device, pipe or socket)", path)
     if path.exists():
         try:
             with open(path, "rb"):
@@ -223,6 +287,187 @@ def _check_audio_file(path: Path, first_packet: bool) -> None:
         progress(f"warning: {path} does not exist yet: it has to be there when the first packet arrives")
 
 
+def _lock_session(session_dir: Path) -> int | None:
+    """Make the session folder and take its lock (``SESSION_LOCK``) for as long as ``listen`` records
+    and builds the takes: ``recover`` leaves a locked session alone. Returns the lock's descriptor
+    (None without ``fcntl``); the lock goes with the process, however it ends. ``OSError`` when the
+    folder cannot be made."""
+    session_dir.mkdir(parents=True, exist_ok=True)
+    if fcntl is None:
+        return None
+    fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    with contextlib.suppress(OSError):  # a file system without locks: recover goes by the pid then
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def _session_record(session: Path) -> dict[str, Any]:
+    """The SESSION record a recorder writes first in its log (pid, host, clock), or {}."""
+    reader = LogReader(session / FRAMES_LOG)
+    records = iter(reader)
+    try:
+        payload = next(records, None)
+        if payload is not None and payload[0] == RecordType.SESSION:
+            data = json.loads(bytes(payload[1:]))
+            return data if isinstance(data, dict) else {}
+    except (S2AError, OSError, ValueError):
+        pass
+    finally:
+        records.close()
+    return {}
+
+
+def _ended_cleanly(session: Path) -> bool:
+    """Whether the frames log ends in the END record a recorder writes when it closes (read from the
+    last 4 KiB only: the END record is small and always the last one)."""
+    try:
+        with open(session / FRAMES_LOG, "rb") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(len(MAGIC), size - 4096))
+            tail = f.read()
+    except OSError:
+        return False
+    for at in range(len(tail) - RECORD_HEADER.size - 1, -1, -1):
+        length, crc = RECORD_HEADER.unpack_from(tail, at)
+        payload = tail[at + RECORD_HEADER.size :]
+        if len(payload) == length and payload[0] == RecordType.END and zlib.crc32(payload) == crc:
+            return True
+    return False
+
+
+def _is_recorder(pid: int, record: dict[str, Any]) -> bool:
+    """Whether the live process ``pid`` is the one that started the session of ``record`` and not one
+    that got its pid later: it must have started before the session (Linux /proc; elsewhere a live
+    process with the recorder's pid is taken for it)."""
+    if not Path("/proc/self/stat").is_file():
+        return True
+    try:
+        stat_line = Path(f"/proc/{pid}/stat").read_text()
+        fields = stat_line[stat_line.rindex(")") + 2 :].split()
+        with open("/proc/stat") as f:
+            boot_s = next(float(line.split()[1]) for line in f if line.startswith("btime "))
+        started_s = boot_s + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except FileNotFoundError:  # gone since it was looked for
+        return False
+    except (OSError, ValueError, IndexError, StopIteration):
+        return True
+    if fields[0] in ("Z", "X"):  # dead, not yet reaped by its parent
+        return False
+    wall_origin_ns = (record.get("clock") or {}).get("wall_origin_ns")
+    if not isinstance(wall_origin_ns, (int, float)):
+        return True
+    return started_s <= wall_origin_ns / 1e9 + PID_START_SLACK_S
+
+
+def _recorder_running(record: dict[str, Any]) -> bool:
+    """Whether the process that recorded a session (its SESSION record's pid on this host) still runs."""
+    pid, host = record.get("pid"), record.get("host")
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0 or pid == os.getpid():
+        return False
+    if os.name != "posix" or host != socket.gethostname():
+        return False
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: it exists
+        pass
+    except OSError:
+        return False
+    return _is_recorder(pid, record)
+
+
+def _session_in_use(session: Path) -> tuple[str | None, int | None]:
+    """Why ``recover`` must leave ``session`` alone (a listen still records it), or None together
+    with a descriptor holding the session's lock (shared) while recover rebuilds it, if it has one.
+    Sessions of a listen that takes no lock (older versions, ``LiveRecorder`` used directly) go by
+    the pid and host in their SESSION record, unless their log ends in an END record (the recorder
+    closed)."""
+    fd = None
+    locked = False
+    if fcntl is not None:
+        try:
+            fd = os.open(session / SESSION_LOCK, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        except OSError:
+            fd = None
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except OSError as exc:
+                locked = exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+    record = _session_record(session)
+    if locked or (not _ended_cleanly(session) and _recorder_running(record)):
+        if fd is not None:
+            os.close(fd)
+        pid, host = record.get("pid"), record.get("host")
+        who = f"process {pid} on {host}" if pid else "another process"
+        return f"still being recorded by {who}", None
+    return None, fd
+
+
+def _remove_partial_takes(session_id: str, out_dir: Path, summaries: list[dict]) -> list[str]:
+    """Take folders of this session in ``out_dir`` that a ``recover`` wrote (``recovered``) and the
+    complete build just made did not replace (a segment more, a different split): removed, so that
+    no frame is in two takes. Nothing is removed when a take of the complete build failed."""
+    if any(s.get("error") for s in summaries):
+        return []
+    kept = {os.path.normcase(os.path.abspath(s["path"])) for s in summaries if s.get("path")}
+    removed = []
+    try:
+        candidates = sorted(out_dir.glob(glob.escape(session_id) + "_*"))
+    except OSError:
+        return []
+    for folder in candidates:
+        if os.path.normcase(os.path.abspath(folder)) in kept or not is_take_dir(folder):
+            continue
+        try:
+            meta = read_meta(folder)
+        except S2AError:
+            continue
+        extra = meta.extra or {}
+        if meta.source_kind != "livelink_udp" or extra.get("session") != session_id:
+            continue
+        if extra.get("recovered") is not True:
+            continue
+        try:
+            shutil.rmtree(folder)
+        except OSError as exc:
+            _say(f"warning: {folder}: cannot remove this partial take of a recover: {exc.strerror or exc}")
+            continue
+        removed.append(str(folder))
+    return removed
+
+
+def _quiet_terminal(*_) -> None:
+    """After SIGHUP the terminal is gone and writing to it fails (EIO): send what stdout and stderr
+    would print there to /dev/null (files and pipes stay as they are)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        return
+    for fd in (1, 2):
+        with contextlib.suppress(OSError):
+            if stat.S_ISCHR(os.fstat(fd).st_mode):
+                os.dup2(devnull, fd)
+    os.close(devnull)
+
+
+def _stop_signals(recorder: LiveRecorder) -> dict[int, Any]:
+    """SIGINT, SIGTERM and SIGHUP (a closed terminal or ssh session) stop the recording cleanly; the
+    previous handlers, to restore. A SIGHUP that is ignored (``nohup``) stays ignored."""
+    stops = [signal.SIGINT, signal.SIGTERM]
+    hup = getattr(signal, "SIGHUP", None)
+    if hup is not None and signal.getsignal(hup) is not signal.SIG_IGN:
+        stops.append(hup)
+
+    def stop(signum, _frame) -> None:
+        if signum == hup:
+            _quiet_terminal()
+        recorder.request_stop()
+
+    return {s: signal.signal(s, stop) for s in stops}
+
+
 def cmd_listen(args: argparse.Namespace) -> int:
     if args.duration is not None and not (math.isfinite(args.duration) and 0 < args.duration <= 1e9):
         raise InputError(f"--duration must be a positive number of seconds, not {args.duration}")
@@ -230,22 +475,44 @@ def cmd_listen(args: argparse.Namespace) -> int:
         _check_audio_file(args.audio_file, args.audio_start == "first-packet")
     serial_port = open_serial(args.serial, args.baud) if args.serial else None
     out_is_new = not Path(args.out).exists()
-    recorder = LiveRecorder(
-        args.out,
-        bind=args.bind,
-        port=args.port,
-        allow=args.allow,
-        flush_interval_s=args.flush_interval,
-        max_streams=args.max_streams,
-    )
     try:
-        host, port = recorder.open()
+        recorder = LiveRecorder(
+            args.out,
+            bind=args.bind,
+            port=args.port,
+            allow=args.allow,
+            flush_interval_s=args.flush_interval,
+            max_streams=args.max_streams,
+        )
     except InputError:
         if serial_port is not None:
             serial_port.close()
         raise
+    lock: int | None = None
     source = audio_log = serial_sync = None
+
+    def discard() -> None:
+        """A start that failed: nothing was received yet, so leave no half-made session behind."""
+        if audio_log is not None:
+            audio_log.close()
+        recorder.close()
+        if lock is not None:
+            os.close(lock)
+        shutil.rmtree(recorder.session_dir, ignore_errors=True)
+        if out_is_new:  # nor the output folder this failed start made (rmdir: only when empty)
+            with contextlib.suppress(OSError):
+                Path(args.out).rmdir()
+        if serial_port is not None:
+            serial_port.close()
+
     try:
+        try:
+            lock = _lock_session(recorder.session_dir)
+        except OSError as exc:  # a read-only output folder, a file in the way
+            raise InputError(
+                f"cannot write the session log: {exc.strerror or exc}", recorder.session_dir
+            ) from None
+        host, port = recorder.open()
         if args.audio_device is not None or args.audio_file is not None:
             try:
                 audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
@@ -266,46 +533,47 @@ def cmd_listen(args: argparse.Namespace) -> int:
                 if first:
                     recorder.on_first_packet = source.trigger
     except InputError:
-        # Nothing was received yet: leave no half-made session behind.
-        if audio_log is not None:
-            audio_log.close()
-        recorder.close()
-        shutil.rmtree(recorder.session_dir, ignore_errors=True)
-        if out_is_new:  # nor the output folder this failed start made (rmdir: only when empty)
-            with contextlib.suppress(OSError):
-                Path(args.out).rmdir()
-        if serial_port is not None:
-            serial_port.close()
+        discard()
         raise
-    if serial_port is not None:
-        serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
-    previous = {
-        s: signal.signal(s, lambda *_: recorder.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)
-    }
-    progress(f"listening on udp://{host}:{port} -> {recorder.session_dir}")
+    previous: dict[int, Any] = {}
     try:
-        if source is not None:
-            source.start()
-        if serial_sync is not None:
-            serial_sync.start()
-        recorder.run(args.duration, status=_status_line, on_flush=_warn_once(recorder, audio_log, source))
-    finally:
-        if serial_sync is not None:
-            serial_sync.stop()
-            if serial_sync.error:
-                recorder.note({"kind": "serial_error", "message": serial_sync.error})
-        if source is not None:
-            source.stop()
-            if source.error:
+        if serial_port is not None:
+            serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
+        previous = _stop_signals(recorder)
+        progress(f"listening on udp://{format_destination(host, port)} -> {recorder.session_dir}")
+        warnings = _Warnings(recorder, audio_log, source, serial_sync)
+        try:
+            if source is not None:
+                source.start()
+            if serial_sync is not None:
+                serial_sync.start()
+            recorder.run(args.duration, status=_status_line, on_flush=warnings)
+        finally:
+            if serial_sync is not None:
+                serial_sync.stop()
+            if source is not None:
+                source.stop()
+            warnings()  # a failure since the last flush; notes the sync box's in the log
+            if source is not None and source.error:
                 recorder.note({"kind": "audio_error", "message": source.error})
-        if audio_log is not None:
-            audio_log.close()
-        recorder.close()
-    summaries = build_takes(recorder.session_dir, args.out)
-    for s in previous:
-        signal.signal(s, previous[s])
+            if audio_log is not None:
+                audio_log.close()
+            recorder.close()
+        summaries = build_takes(recorder.session_dir, args.out)
+        removed = _remove_partial_takes(recorder.session_id, Path(args.out), summaries)
+    finally:
+        if lock is not None:
+            os.close(lock)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    for folder in removed:
+        progress(f"removed {folder}: a partial take a recover wrote while this session was recording")
+    if removed:
+        for s in summaries:
+            s["removed_partial_takes"] = removed
     _report(summaries, args.json)
-    # Takes hold everything that reached the disk; say loudly, in one line, what did not.
+    # Takes hold everything that reached the disk; say loudly, in one line, what did not. A sync box
+    # that failed is a warning (above, at once and per take): frames and audio are complete.
     problems = [recorder.error] if recorder.error else []
     if audio_log is not None and audio_log.writer.error:
         problems.append(
@@ -329,16 +597,27 @@ def cmd_recover(args: argparse.Namespace) -> int:
         )
     failures = 0
     for session in sessions:
-        progress(f"recovering {session}")
-        try:
-            summaries = build_takes(session, args.out or session.parent, recovered=True)
-        except (S2AError, OSError) as exc:  # one unreadable session must not keep the others from recovering
-            failures += 1
-            message = str(exc) if isinstance(exc, S2AError) else f"{session}: {exc.strerror or exc}"
-            print(f"s2a-capture: error: {message}", file=sys.stderr)
+        busy, lock = _session_in_use(session)
+        if busy is not None:
+            # Not an error: that listen builds the takes itself when it stops (recover it if it dies).
+            progress(f"skipping {session}: {busy}; its listen writes the takes when it stops")
             if args.json:
-                emit_json({"session": str(session), "error": message})
+                emit_json({"session": str(session), "skipped": True, "reason": busy, "path": None})
             continue
+        try:
+            progress(f"recovering {session}")
+            try:
+                summaries = build_takes(session, args.out or session.parent, recovered=True)
+            except (S2AError, OSError) as exc:  # one unreadable session must not stop the others
+                failures += 1
+                message = str(exc) if isinstance(exc, S2AError) else f"{session}: {exc.strerror or exc}"
+                print(f"s2a-capture: error: {message}", file=sys.stderr)
+                if args.json:
+                    emit_json({"session": str(session), "error": message})
+                continue
+        finally:
+            if lock is not None:
+                os.close(lock)
         _report(summaries, args.json)
         failed = sum(1 for s in summaries if s.get("error"))
         if failed:
@@ -362,14 +641,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
     take = _load_take(args.take)
     imp = Impairment(args.loss, args.reorder, args.duplicate, args.jitter_ms / 1000.0, args.seed)
     report = replay_take(take, host, port, args.speed, imp, args.device, args.subject, args.audio_out)
-    summary = {"take": take.meta.id, "to": f"{host}:{port}"} | report.to_json()
+    summary = {"take": take.meta.id, "to": format_destination(host, port)} | report.to_json()
     if args.audio_out is not None:
         summary["audio_out"] = str(args.audio_out)
     if args.json:
         emit_json(summary)
     else:
         progress(
-            f"{take.meta.id} -> {host}:{port}: {report.frames} frames in {report.packets_sent} packets, "
+            f"{take.meta.id} -> {format_destination(host, port)}: {report.frames} frames in "
+            f"{report.packets_sent} packets, "
             f"{report.lost} lost, {report.duplicated} duplicated, {report.reordered} reordered"
         )
     if report.bad_values:
@@ -408,8 +688,19 @@ def cmd_remote(args: argparse.Namespace) -> int:
         raise InputError(f"--reply-port {args.reply_port} is out of range (0..65535)")
     if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
         raise InputError(f"--timeout must be in (0, 3600] seconds, not {args.timeout}")
-    shown = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-    result: dict = {"phone": shown, "action": args.action}
+    result: dict = {"phone": format_destination(host, port), "action": args.action}
+    # Every argument is checked before anything is sent: a bad one must not leave the phone half-told
+    # (target: its Live Link targets cleared and no new one added).
+    if args.action == "record-start":
+        osc_text(args.slate, "the slate")
+        osc_int32(args.take_number, "the take number", low=0)
+    elif args.action == "subject":
+        osc_text(args.name, "the subject name")
+        if not args.name.strip():
+            raise InputError("the subject name is empty")
+    elif args.action == "target":
+        t_host, t_port = parse_destination(args.address)
+        t_ip = resolve_target(t_host, t_port)  # the app takes an IP address, not a name
     with PhoneRemote(host, port, args.reply_host, args.reply_port, args.timeout) as phone:
         if args.action == "record-start":
             result["timecode"] = phone.record_start(args.slate, args.take_number)
@@ -417,9 +708,10 @@ def cmd_remote(args: argparse.Namespace) -> int:
         elif args.action == "record-stop":
             result |= phone.record_stop()
         elif args.action == "target":
-            t_host, t_port = parse_destination(args.address)
-            phone.set_livelink_target(t_host, t_port, clear=not args.keep)
-            result["target"] = f"{t_host}:{t_port}"
+            phone.set_livelink_target(t_ip, t_port, clear=not args.keep)
+            result["target"] = format_destination(t_ip, t_port)
+            if t_ip != t_host:
+                result["target_name"] = t_host
         elif args.action == "battery":
             result["battery"] = phone.battery()
         elif args.action == "thermals":

@@ -53,7 +53,7 @@ REJECT_REASONS: tuple[str, ...] = (
     "size_mismatch",  # count is 61 but the datagram is longer than the packet
     "bad_rate",  # rate numerator not positive, denominator negative, or the rate above MAX_RATE_FPS
     "bad_frame_time",  # negative frame number, or sub-frame not in [0, 1)
-    "rate_changed",  # a known device/subject suddenly sends another rate
+    "rate_changed",  # a packet or two of a known device/subject at another rate (one that holds is a restart)
     "too_many_streams",  # more distinct device/subject pairs than the listener keeps
 )
 

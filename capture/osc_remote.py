@@ -15,6 +15,33 @@ from typing import Any
 from .errors import InputError
 
 DEFAULT_OSC_PORT = 8000
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1  # OSC 'i' arguments are 32-bit (formats doc §6: <take:i>)
+
+
+def osc_text(value: str, what: str) -> str:
+    """``value`` if OSC can send it as a string (UTF-8, no NUL byte); else an ``InputError`` naming
+    ``what``. Arguments read from a command line in another encoding hold undecodable bytes as lone
+    surrogates: they are shown as the bytes given."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        try:
+            shown = repr(value.encode("utf-8", "surrogateescape"))
+        except UnicodeEncodeError:
+            shown = ascii(value)
+        raise InputError(
+            f"{what} {shown} is not UTF-8 text, which OSC strings must be (check the terminal's encoding)"
+        ) from None
+    if "\0" in value:
+        raise InputError(f"{what} {value!r} holds a NUL character, which an OSC string cannot")
+    return value
+
+
+def osc_int32(value: int, what: str, low: int = INT32_MIN) -> int:
+    """``value`` if it is an integer in ``low``..2**31-1 (an OSC 'i' argument); else an ``InputError``."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= INT32_MAX:
+        raise InputError(f"{what} must be an integer in {low}..{INT32_MAX}, not {value!r}")
+    return value
 
 
 def _osc():
@@ -24,6 +51,17 @@ def _osc():
     except ImportError:
         raise InputError("phone remote control needs the Python package python-osc") from None
     return OscMessage, OscMessageBuilder
+
+
+def resolve_target(host: str, port: int) -> str:
+    """The IP address for ``/AddLiveLinkAddress`` (the app takes an address, not a name): ``host``
+    resolved here, IPv4 first as for the phone; ``InputError`` when it does not resolve."""
+    osc_text(host, "the Live Link target")
+    try:
+        found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    except (OSError, UnicodeError) as exc:  # socket.gaierror is an OSError
+        raise InputError(f"cannot resolve the Live Link target {host!r}: {exc}") from None
+    return str(min(found, key=lambda f: f[0] != socket.AF_INET)[4][0])
 
 
 def local_address_towards(host: str, family: int = socket.AF_INET) -> str:
@@ -55,6 +93,8 @@ class PhoneRemote:
             raise InputError(f"reply port {reply_port} is out of range (0..65535)")
         if not (math.isfinite(timeout_s) and timeout_s > 0):
             raise InputError(f"the reply timeout must be a positive number of seconds, not {timeout_s}")
+        if reply_host is not None:  # sent to the phone in /OSCSetSendTarget: checked before anything
+            osc_text(reply_host, "the reply address")
         try:
             found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
         except (socket.gaierror, UnicodeError) as exc:
@@ -65,7 +105,7 @@ class PhoneRemote:
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             self.sock.bind((self.reply_host, reply_port))
-        except OSError as exc:
+        except (OSError, UnicodeError) as exc:
             self.sock.close()
             raise InputError(f"cannot bind the reply port {self.reply_host}:{reply_port}: {exc}") from None
         self.reply_port = self.sock.getsockname()[1]
@@ -80,15 +120,38 @@ class PhoneRemote:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def send(self, address: str, *args: Any) -> None:
-        """Send one OSC message (str, int and float arguments)."""
+    def shown(self) -> str:
+        """The phone's address as HOST:PORT (``[IPV6]:PORT``)."""
+        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
+
+    def message(self, address: str, *args: Any) -> bytes:
+        """One OSC message as a datagram: str arguments as 's' (UTF-8, ``osc_text``), int as 'i' (32-bit),
+        float as 'f'. Anything else, or a value OSC cannot carry, is an ``InputError``: callers build
+        every message of a command before sending the first, so a bad argument sends nothing."""
         b = self._builder(address=address)
         for a in args:
-            b.add_arg(a)
+            if isinstance(a, str):
+                b.add_arg(osc_text(a, f"{address} argument"), "s")
+            elif isinstance(a, int) and not isinstance(a, bool):
+                b.add_arg(osc_int32(a, f"{address} argument"), "i")
+            elif isinstance(a, float) and math.isfinite(a) and abs(a) <= 3.4e38:
+                b.add_arg(a, "f")
+            else:
+                raise InputError(f"{address}: cannot send {a!r} as an OSC string, 32-bit integer or float")
         try:
-            self.sock.sendto(b.build().dgram, self.target)
+            return b.build().dgram
+        except Exception as exc:  # python-osc's BuildError; the checks above should leave none
+            raise InputError(f"cannot build the OSC message {address}: {exc}") from None
+
+    def send_datagram(self, dgram: bytes) -> None:
+        try:
+            self.sock.sendto(dgram, self.target)
         except OSError as exc:
-            raise InputError(f"cannot send OSC to {self.host}:{self.port}: {exc}") from None
+            raise InputError(f"cannot send OSC to {self.shown()}: {exc}") from None
+
+    def send(self, address: str, *args: Any) -> None:
+        """Send one OSC message (str, int and float arguments, see ``message``)."""
+        self.send_datagram(self.message(address, *args))
 
     def wait_for(self, address: str) -> list[Any]:
         """Arguments of the next message with ``address``; ``InputError`` after the timeout."""
@@ -97,7 +160,7 @@ class PhoneRemote:
             left = deadline - time.monotonic()
             if left <= 0:
                 raise InputError(
-                    f"no {address} from the phone at {self.host}:{self.port} within {self.timeout_s:g} s "
+                    f"no {address} from the phone at {self.shown()} within {self.timeout_s:g} s "
                     "(is Live Link Face running with OSC enabled on that port?)"
                 )
             self.sock.settimeout(left)
@@ -115,10 +178,23 @@ class PhoneRemote:
                 return list(msg.params)
 
     def request(self, address: str, reply: str, *args: Any) -> list[Any]:
-        """Send a command and wait for its reply (setting the reply target first)."""
+        """Send a command and wait for its reply (setting the reply target first; the command is built,
+        and so its arguments checked, before anything is sent)."""
+        dgram = self.message(address, *args)
         self.ensure_target()
-        self.send(address, *args)
+        self.send_datagram(dgram)
         return self.wait_for(reply)
+
+    def unexpected(self, reply: str, args: list[Any], note: str = "") -> InputError:
+        """The error for a reply whose arguments are not what formats doc §6 says, shown as received."""
+        shown = " ".join(repr(a) for a in args) or "(no value)"
+        return InputError(f"unexpected reply from the phone at {self.shown()}: {reply} {shown}{note}")
+
+    def _texts(self, reply: str, args: list[Any], n: int, note: str = "") -> list[str]:
+        """The first ``n`` arguments of a reply that must be strings ('' for missing ones)."""
+        if any(not isinstance(a, str) for a in args[:n]):
+            raise self.unexpected(reply, args, note)
+        return [*args[:n], *[""] * (n - len(args[:n]))]
 
     def ensure_target(self) -> None:
         """``/OSCSetSendTarget`` to our reply socket, once, confirmed."""
@@ -130,41 +206,54 @@ class PhoneRemote:
     # -- commands (formats doc §6) ----------------------------------------------------------
     def record_start(self, slate: str, take: int) -> str:
         """Start recording a take; returns the timecode the phone confirms."""
-        return str((self.request("/RecordStart", "/RecordStartConfirm", slate, int(take)) or [""])[0])
+        osc_text(slate, "the slate")
+        osc_int32(take, "the take number", low=0)
+        args = self.request("/RecordStart", "/RecordStartConfirm", slate, take)
+        note = " (the phone did confirm the start)"
+        return self._texts("/RecordStartConfirm", args, 1, note)[0]
 
     def record_stop(self) -> dict[str, str]:
         """Stop recording; returns the timecode and the phone-side paths of the CSV and MOV."""
-        args = self.request("/RecordStop", "/RecordStopConfirm") + ["", "", ""]
-        return {"timecode": str(args[0]), "csv": str(args[1]), "mov": str(args[2])}
+        args = self.request("/RecordStop", "/RecordStopConfirm")
+        note = " (the phone did confirm the stop)"
+        timecode, csv, mov = self._texts("/RecordStopConfirm", args, 3, note)
+        return {"timecode": timecode, "csv": csv, "mov": mov}
 
     def battery(self) -> float:
-        """Battery level as the phone reports it (0..1)."""
-        return float(self._number("/BatteryQuery", "/Battery", float))
+        """Battery level as the phone reports it (0..1): an OSC float (an integer is taken too)."""
+        args = self.request("/BatteryQuery", "/Battery")
+        value = args[0] if args else None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            return float(value)
+        raise self.unexpected("/Battery", args)
 
     def thermals(self) -> int:
-        """Thermal state (0 nominal, 1 fair, 2 serious, 3 critical)."""
-        return int(self._number("/ThermalsQuery", "/Thermals", int))
-
-    def _number(self, query: str, reply: str, kind: type) -> float | int:
-        """The first argument of the reply to ``query`` as a finite ``kind``; anything else (no
-        argument, text, NaN) is an ``InputError`` that shows the reply as received."""
-        args = self.request(query, reply)
-        try:
-            value = kind(args[0])
-            if math.isfinite(value):
-                return value
-        except (IndexError, TypeError, ValueError, OverflowError):
-            pass
-        shown = " ".join(repr(a) for a in args) or "(no value)"
-        raise InputError(f"unexpected reply from the phone at {self.host}:{self.port}: {reply} {shown}")
+        """Thermal state (0 nominal, 1 fair, 2 serious, 3 critical): an OSC integer (a float only
+        when whole; 2.7 is no thermal state)."""
+        args = self.request("/ThermalsQuery", "/Thermals")
+        value = args[0] if args else None
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise self.unexpected("/Thermals", args)
 
     def set_livelink_target(self, host: str, port: int, clear: bool = True) -> None:
-        """Make the phone stream Live Link to ``host:port`` (after clearing other targets)."""
+        """Make the phone stream Live Link to ``host:port`` (after clearing other targets). ``host``
+        is sent as given (the app wants an IP address: ``resolve_target`` gives one); both messages
+        are built before the first is sent, so a bad target does not leave the phone without one."""
+        osc_int32(port, "the Live Link target port", low=1)
+        if port > 65535:
+            raise InputError(f"the Live Link target port {port} is out of range (1..65535)")
+        add = self.message("/AddLiveLinkAddress", osc_text(host, "the Live Link target"), port)
         if clear:
             self.send("/ClearAllLiveLinkAddresses")
-        self.send("/AddLiveLinkAddress", host, int(port))
+        self.send_datagram(add)
 
     def set_subject(self, name: str) -> None:
+        osc_text(name, "the subject name")
+        if not name.strip():
+            raise InputError("the subject name is empty")
         self.send("/LiveLinkSubject", name)
 
     def stream(self, on: bool) -> None:

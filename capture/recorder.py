@@ -13,6 +13,7 @@ log writer thread at least every ``flush_interval_s`` (default 0.1 s), which wri
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import os
 import socket
@@ -35,6 +36,7 @@ COMPLETE_FILE = "complete.json"
 SESSION_SUFFIX = ".recording"
 DEFAULT_PORT = 11111
 FRAME_PREFIX = struct.Struct("<BHq")  # record type, stream id, arrival ns
+MAX_STREAM_ID = 0xFFFF  # stream ids are 16-bit in the frame records
 FRAME_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_BLOCK_BYTES  # 272
 NO_FACE_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_TIME_BYTES  # 27
 _RECV_BYTES = 65536  # larger than any UDP datagram, so an oversized one is seen whole and counted
@@ -45,18 +47,86 @@ def new_session_id() -> str:
     return time.strftime("live-%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{os.getpid()}"
 
 
-def parse_allow_list(addresses: Iterable[str] | None) -> frozenset[str] | None:
-    """Normalised IP literals of an allow-list (``InputError`` for anything else)."""
+class AllowList:
+    """The source addresses ``listen --allow`` accepts: IP addresses and networks (``192.168.1.0/24``).
+
+    On a dual-stack socket (``--bind ::``) an IPv4 sender shows as ``::ffff:a.b.c.d``: it matches its IPv4
+    address or network as well (and an IPv4-mapped entry matches the IPv4 sender); a link-local source's
+    ``%scope`` is ignored. ``host in allow`` is a set lookup for the listed addresses; other sources are
+    matched once and remembered.
+    """
+
+    _MEMO = 4096  # sources remembered; a flood of spoofed sources only costs a rematch
+
+    def __init__(self, addresses: Iterable[str]):
+        exact: set[str] = set()
+        networks: list[ipaddress.IPv4Network | ipaddress.IPv6Network] = []
+        for a in addresses:
+            text = a.strip()
+            try:
+                if "/" in text:
+                    net = ipaddress.ip_network(text, strict=False)
+                    if net.num_addresses == 1:
+                        exact.add(str(net.network_address))
+                    else:
+                        networks.append(net)
+                else:
+                    ip = ipaddress.ip_address(text)
+                    exact.add(str(ip.ipv4_mapped or ip) if ip.version == 6 else str(ip))
+            except ValueError:
+                raise InputError(f"--allow takes IP addresses or networks (a.b.c.d/n), not {a!r}") from None
+        self.entries = sorted(exact) + sorted({str(n) for n in networks})
+        # Each IPv4 address also as a dual-stack socket reports it (IPv4-mapped entries were made IPv4).
+        self.exact = frozenset(exact | {f"::ffff:{e}" for e in exact if ":" not in e})
+        self.networks = tuple(networks)
+        self._memo: dict[str, bool] = {}
+
+    def __contains__(self, host: str) -> bool:
+        if host in self.exact:
+            return True
+        found = self._memo.get(host)
+        if found is None:
+            found = self._match(host)
+            if len(self._memo) >= self._MEMO:
+                self._memo.clear()
+            self._memo[host] = found
+        return found
+
+    def _match(self, host: str) -> bool:
+        try:
+            ip = ipaddress.ip_address(host.split("%", 1)[0])
+        except ValueError:
+            return False
+        forms: list[ipaddress.IPv4Address | ipaddress.IPv6Address] = [ip]
+        if ip.version == 6 and ip.ipv4_mapped is not None:
+            forms.append(ip.ipv4_mapped)
+        elif ip.version == 4:
+            forms.append(ipaddress.IPv6Address(f"::ffff:{ip}"))
+        return any(
+            str(f) in self.exact or any(f.version == n.version and f in n for n in self.networks)
+            for f in forms
+        )
+
+
+def parse_allow_list(addresses: Iterable[str] | None) -> AllowList | None:
+    """The allow-list of ``--allow`` (``InputError`` for anything but IP addresses and networks)."""
     if not addresses:
         return None
-    out = set()
-    for a in addresses:
-        try:
-            out.add(str(ipaddress.ip_address(a.strip())))
-        except ValueError:
-            raise InputError(f"--allow takes IP addresses, not {a!r}") from None
-    return frozenset(out)
+    return AllowList(addresses)
 
+
+def _unspecified(host: str) -> bool:
+    """Whether ``host`` is the all-interfaces address (``0.0.0.0``, ``::``)."""
+    try:
+        return ipaddress.ip_address(host.split("%", 1)[0]).is_unspecified
+    except ValueError:
+        return False
+
+
+# A known stream that sends another rate (the app restarted with another frame-rate setting) goes on as a
+# new recording once this many packets in a row carry the new rate; until then they are held back, and
+# if the old rate comes back first they are rejected (``rate_changed``: a corrupt or spoofed packet).
+RATE_CHANGE_PACKETS = 3
 
 # When every --max-streams slot is taken, a stream that has sent at most STRAY_PACKETS datagrams and
 # nothing for STRAY_SILENT_S seconds (a stray or spoofed packet) gives its slot to a new stream; its
@@ -88,6 +158,8 @@ class LiveRecorder:
             raise InputError(f"UDP port {port} is not in 0..65535")
         if not 0 < flush_interval_s <= 0.25:
             raise InputError("the flush interval must be in (0, 0.25] seconds")
+        if not 1 <= max_streams <= MAX_STREAM_ID + 1:
+            raise InputError(f"max_streams must be in 1..{MAX_STREAM_ID + 1}, got {max_streams}")
         self.out_dir = Path(out_dir)
         self.bind = bind
         self.port = port
@@ -107,6 +179,8 @@ class LiveRecorder:
         self.stream_packets: list[int] = []
         self.stream_last_ns: list[int] = []
         self.evicted_streams = 0
+        # stream header -> (new rate, records of the packets held back at it); see RATE_CHANGE_PACKETS
+        self._rate_pending: dict[bytes, tuple[tuple[int, int], list[bytes]]] = {}
         self._next_eviction_ns = 0
         self.socket_errors = 0
         self.error: str | None = None  # set by close() when the log could not be written completely
@@ -125,6 +199,10 @@ class LiveRecorder:
         try:
             # A deep receive queue rides out disk hiccups and bursts (capped by net.core.rmem_max).
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+            if family == socket.AF_INET6 and _unspecified(self.bind):
+                # ``::`` takes IPv4 senders too (as ::ffff:a.b.c.d), whatever the system's default.
+                with contextlib.suppress(OSError, AttributeError):
+                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
             sock.bind((self.bind, self.port))
         except (OSError, OverflowError) as exc:
             sock.close()
@@ -148,7 +226,7 @@ class LiveRecorder:
                     "clock": self.clock.to_json(),
                     "bind": host,
                     "port": port,
-                    "allow": sorted(self.allow) if self.allow else None,
+                    "allow": self.allow.entries if self.allow else None,
                     "pid": os.getpid(),
                     "host": socket.gethostname(),
                     "flush_interval_s": self.flush_interval_s,
@@ -201,6 +279,8 @@ class LiveRecorder:
         count = ll.BLENDSHAPE_COUNT
         block = ll.FRAME_BLOCK_BYTES
         allow = self.allow
+        allow_exact = allow.exact if allow is not None else frozenset()
+        pending_rates = self._rate_pending
         recv_into, recvfrom_into = sock.recv_into, sock.recvfrom_into
         flush_ns = int(self.flush_interval_s * 1e9)
         start = now_ns()
@@ -229,7 +309,7 @@ class LiveRecorder:
                 t = now_ns()
                 if n >= 0:
                     datagrams += 1
-                    if allow is not None and addr[0] not in allow:
+                    if allow is not None and addr[0] not in allow_exact and addr[0] not in allow:
                         rejected["not_allowed"] += 1
                     else:
                         sid = -1
@@ -257,9 +337,13 @@ class LiveRecorder:
                                             sid = known[0]
                                             last_hdr, last_size, last_off, last_sid = key, n, off, sid
                                             last_num, last_den = num, den
+                                            if pending_rates and key in pending_rates:
+                                                self._drop_rate_change(key)
                         if sid < 0:
-                            found = self._classify(view, n, addr)
-                            if isinstance(found, str):
+                            found = self._classify(view, n, addr, t)
+                            if found is None:  # held back (a rate change not yet confirmed)
+                                last_hdr, last_size = b"\xff", -1  # its stream's next packet: looked up
+                            elif isinstance(found, str):
                                 rejected[found] += 1
                             else:
                                 sid, off, last_num, last_den = found
@@ -318,11 +402,14 @@ class LiveRecorder:
             self.on_first_packet = first_cb
             log.flush()
 
-    def _classify(self, view: memoryview, n: int, addr: Any) -> tuple[int, int, int, int] | str:
+    def _classify(
+        self, view: memoryview, n: int, addr: Any, t: int
+    ) -> tuple[int, int, int, int] | str | None:
         """Full check of a datagram that does not repeat the last stream's header (or is a no-face
-        packet, which a new stream may also start with).
+        packet, which a new stream may also start with), arrived at ``t`` (ns).
 
-        Returns (stream id, frame-block offset, rate numerator, denominator) or a rejection reason.
+        Returns (stream id, frame-block offset, rate numerator, denominator), a rejection reason, or None
+        for a packet held back (a known stream at another rate, see ``RATE_CHANGE_PACKETS``).
         """
         off, reason = ll.parse_header(view, n)
         if reason is not None:
@@ -335,12 +422,16 @@ class LiveRecorder:
         known = self.streams.get(key)
         if known is not None:
             if (known[2], known[3]) != (num, den):
-                return "rate_changed"
+                return self._rate_change(key, known, view, n, num, den, t)
+            if key in self._rate_pending:
+                self._drop_rate_change(key)
             return known
         names = ll.decode_strings(view, off)
         if names is None:
             return "bad_text"
         if len(self.streams) >= self.max_streams and not self._evict_stray_streams():
+            return "too_many_streams"
+        if len(self.stream_packets) > MAX_STREAM_ID:  # ids are never reused: evicted streams keep theirs
             return "too_many_streams"
         sid = len(self.stream_packets)
         entry = (sid, off, num, den)
@@ -361,6 +452,64 @@ class LiveRecorder:
         )
         return entry
 
+    def _rate_change(
+        self,
+        key: bytes,
+        known: tuple[int, int, int, int],
+        view: memoryview,
+        n: int,
+        num: int,
+        den: int,
+        t: int,
+    ) -> tuple[int, int, int, int] | None:
+        """A packet of a known stream at another rate: held back until ``RATE_CHANGE_PACKETS`` in a row
+        carry that rate; then the held packets are logged (the take builder starts a new recording where
+        the rate changes), the stream goes on at the new rate, and its entry is returned for this packet."""
+        sid, off, old_num, old_den = known
+        held = self._rate_pending.get(key)
+        if held is not None and held[0] != (num, den):  # yet another rate: the held packets were strays
+            self._drop_rate_change(key)
+            held = None
+        if held is None:
+            held = ((num, den), [])
+            self._rate_pending[key] = held
+        if len(held[1]) + 1 < RATE_CHANGE_PACKETS:
+            held[1].append(self._frame_record(sid, view, off, n, t))
+            return None
+        del self._rate_pending[key]
+        assert self.log is not None
+        self.log.buffer += json_record(
+            RecordType.NOTE,
+            {"kind": "rate_change", "stream": sid, "from": [old_num, old_den], "rate": [num, den]},
+        )
+        for record in held[1]:
+            self.log.buffer += record
+        self.accepted += len(held[1])
+        self.stream_packets[sid] += len(held[1])
+        entry = (sid, off, num, den)
+        self.streams[key] = entry
+        return entry
+
+    def _drop_rate_change(self, key: bytes) -> None:
+        """Reject the packets held back at another rate for stream ``key`` (``rate_changed``)."""
+        held = self._rate_pending.pop(key, None)
+        if held is not None:
+            self.rejected["rate_changed"] += len(held[1])
+
+    @staticmethod
+    def _frame_record(sid: int, view: memoryview, off: int, n: int, t: int) -> bytes:
+        """The log record of a packet (FRAME, or NO_FACE for one that ends after the frame time)."""
+        if n - off == ll.FRAME_TIME_BYTES:
+            kind, size, body = RecordType.NO_FACE, NO_FACE_PAYLOAD_BYTES, bytes(view[off:n])
+        else:
+            kind, size, body = (
+                RecordType.FRAME,
+                FRAME_PAYLOAD_BYTES,
+                bytes(view[off : off + ll.FRAME_BLOCK_BYTES]),
+            )
+        prefix = FRAME_PREFIX.pack(kind, sid, t)
+        return RECORD_HEADER.pack(size, zlib.crc32(body, zlib.crc32(prefix))) + prefix + body
+
     def _evict_stray_streams(self) -> bool:
         """Free the slots of stray streams (see ``STRAY_PACKETS``); whether any was freed. At most once
         per second, so that a flood of new streams costs no more than a dictionary lookup each."""
@@ -376,12 +525,15 @@ class LiveRecorder:
         ]
         for key in stray:
             del self.streams[key]
+            self._drop_rate_change(key)
         self.evicted_streams += len(stray)
         return bool(stray)
 
     # -- shutdown -----------------------------------------------------------------------------
     def close(self) -> None:
         """Log the final counts and an END record, close the socket and the log (waits for fsync)."""
+        for key in list(self._rate_pending):  # a rate change that never got RATE_CHANGE_PACKETS in a row
+            self._drop_rate_change(key)
         if self.log is not None:
             self.log.buffer += json_record(RecordType.REJECTS, self.rejected)
             self.log.buffer += json_record(

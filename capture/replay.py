@@ -87,6 +87,11 @@ class ReplayReport:
         }
 
 
+def format_destination(host: str, port: int) -> str:
+    """``HOST:PORT``, IPv6 addresses in brackets (``[::1]:11111``): what ``parse_destination`` reads."""
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
 def parse_destination(text: str) -> tuple[str, int]:
     """``HOST:PORT`` (``[v6]:PORT`` for IPv6) → (host, port); ``InputError`` when malformed."""
     host, sep, port = text.rpartition(":")
@@ -236,17 +241,17 @@ def replay_take(
             packets.append(ll.no_face_packet(device, subject, int(fn[k]), float(sf[k]), num, den))
         else:
             packets.append(header + ll.frame_block(int(fn[k]), float(sf[k]), num, den, values[i]))
+    try:  # before --audio-out is written: a destination that does not resolve writes nothing
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
+    except (OSError, UnicodeError) as exc:  # socket.gaierror; a name that is no text (non-UTF-8 argv)
+        raise InputError(f"cannot resolve {host!r}: {exc}") from None
+    target = infos[0][4]
     if audio_out is not None:
         audio = rebased_audio(take)
         if audio is None:
             raise InputError(f"take {take.meta.id} has no audio for --audio-out")
         write_audio_out(audio_out, audio)
-    try:
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
-    except socket.gaierror as exc:
-        raise InputError(f"cannot resolve {host!r}: {exc}") from None
-    target = infos[0][4]
     sent_frames: set[int] = set()
     max_fn = -1
     with socket.socket(infos[0][0], socket.SOCK_DGRAM) as sock:
@@ -258,7 +263,7 @@ def replay_take(
             try:
                 sock.sendto(packet, target)
             except OSError as exc:
-                raise InputError(f"cannot send to {host}:{port}: {exc}") from None
+                raise InputError(f"cannot send to {format_destination(host, port)}: {exc}") from None
             report.packets_sent += 1
             f = int(fn[k])
             if f < max_fn:

@@ -83,7 +83,11 @@ def open_serial(url: str, baudrate: int = 115200):
 
 
 class SerialSync:
-    """Reads sync lines from an open serial port in a thread and hands each event to ``sink``."""
+    """Reads sync lines from an open serial port in a thread and hands each event to ``sink``.
+
+    A port that fails (unplugged, the socket closed) ends the reading: ``error`` then says when and
+    why, and a line received up to then but not ended is still handed over (flagged ``truncated``).
+    """
 
     def __init__(self, port, clock: SessionClock, sink: Callable[[SyncEvent], None]):
         self.port = port
@@ -101,12 +105,14 @@ class SerialSync:
         import serial
 
         pending = b""
+        now = self.clock.now_ns()
         while not self._stop.is_set():
             try:
                 data = self.port.read(max(1, self.port.in_waiting))
             except (serial.SerialException, OSError) as exc:
-                self.error = f"serial port failed: {exc}"
-                return
+                at = self.clock.seconds(self.clock.now_ns())
+                self.error = f"serial port failed {at:.1f} s into the session: {exc}"
+                break
             if not data:
                 continue
             now = self.clock.now_ns()
@@ -125,6 +131,12 @@ class SerialSync:
                     event.truncated = True
                     self.events += 1
                     self.sink(event)
+        # What came after the last line end (a box cut off mid-line): kept, flagged, stamped at its arrival.
+        event = parse_sync_line(pending, now) if pending else None
+        if event is not None:
+            event.truncated = True
+            self.events += 1
+            self.sink(event)
 
     def stop(self) -> None:
         self._stop.set()

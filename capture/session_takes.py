@@ -1,23 +1,28 @@
 """Takes from a live session's logs: used when ``listen`` stops and by ``recover`` after a crash.
 
 Per device/subject stream, frames are read from ``frames.log`` into arrays (frames of a rate above
-``livelink.MAX_RATE_FPS`` dropped), cut into recordings where the phone's frame clock
-restarted (``_recordings``); per recording, duplicates (same phone frame number) are dropped keeping
-the first arrival, the rest are ordered by frame number and split
+``livelink.MAX_RATE_FPS`` dropped). Each stretch of one declared rate (the recorder logs a change of
+rate once it holds, see ``recorder.RATE_CHANGE_PACKETS``) is read as the phone's frame clock by
+``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
+there), the late packets that belong to them, and stray packets (a corrupt or spoofed frame number)
+that belong to none. Per recording, duplicates (same phone frame time, frame number plus sub-frame)
+are dropped keeping the first arrival, the rest are ordered by frame time and split
 into segments wherever the phone's frame time between two frames with a face jumps by more than
-``MAX_GAP_S`` (a phone restart, a long pause or a long time without a face, a corrupt frame number).
+``MAX_GAP_S`` (a long pause or a long time without a face).
 Each segment with at least ``MIN_TAKE_FRAMES`` frames with a face becomes a take, from its first to its
 last frame with a face; the no-face packets in between become FACE_LOST frames (NaN values, their own
-time and arrival, as the app's face-lost CSV rows), gaps in the frame numbers DROPPED frames
-(``csv_take.fill_dropped``, as for CSV takes) within a budget (``MAX_DROPPED_PER_FRAME``) that
-bounds what a frame clock can make us allocate. A live stream has no record start or stop, so no-face
-packets before a take's first face or after its last are not part of it (``face_lost_outside_takes``).
+time and arrival, as the app's face-lost CSV rows), gaps in the frame times DROPPED frames
+(``csv_take.fill_dropped``, as for CSV takes, on the grid of the packets' own rate, ``detect_fps``)
+within a budget (``MAX_DROPPED_PER_FRAME``) that bounds what a frame clock can make us allocate. A live
+stream has no record start or stop, so no-face packets before a take's first face or after its last are
+not part of it (``face_lost_outside_takes``).
 
-A stream whose frame clock cannot be trusted (``frame_clock_problem``: most packets repeat the frame
-time before them, or the frame time jumps back far more often than a phone restarts, as senders
-built on PyLiveLinkFace do, whose frame numbers are milliseconds counted as frames) is placed by
-arrival time instead (``arrival_clock``): packets in arrival order on the declared rate's grid,
-gaps as DROPPED frames; the take's ``meta.extra.frame_clock`` and a ``frame_clock`` repair say so.
+A stream whose frame clock cannot be trusted (``follow_clock``'s ``problem``: most packets repeat the
+frame time of an earlier one with another frame, the clock runs backwards, jumps back far more often
+than a phone restarts, as senders built on PyLiveLinkFace do, whose frame numbers are milliseconds
+counted as frames, or is no clock at all) is placed by arrival time instead (``arrival_clock``):
+packets in arrival order on the declared rate's grid, gaps as DROPPED frames; the take's
+``meta.extra.frame_clock`` and a ``frame_clock`` repair say so.
 
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
 clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
@@ -28,6 +33,7 @@ events likewise.
 
 from __future__ import annotations
 
+import bisect
 import json
 import shutil
 import struct
@@ -58,14 +64,26 @@ from .timecode import Timecode
 
 MAX_GAP_S = 5.0
 MIN_TAKE_FRAMES = 10
-# A frame time this far behind the newest, followed by another one behind, is a restart of the phone's
-# frame clock (a new recording of the stream), not a late packet.
+# The phone's frame clock, as ``follow_clock`` reads it: the running median of the frame times over
+# 2 * CLOCK_HALF_WINDOW + 1 packets (arrival order), which a minority of late or stray packets cannot move.
+CLOCK_HALF_WINDOW = MIN_TAKE_FRAMES
+# Packets within this of the clock follow it, and the clock jumps (back: a restart or a burst of late
+# packets; forward: a pause) where it moves by more. Under heavy jitter the tolerance is JITTER_TOLERANCE
+# times the packets' lateness (``_lateness``), if that is more.
 RESTART_WINDOW_S = 1.0
+JITTER_TOLERANCE = 3.0
+LATENESS_WINDOW = 9
+LATENESS_QUANTILE = 0.75
+# A lateness above this is no network's: the frame times are not a clock (random frame numbers).
+MAX_LATENESS_S = 10.0
+# A frame this close to one a recording already has (in frame steps) fills no gap of it: it is not a late
+# frame of that recording but a frame of another one at the same time.
+SLOT_FRACTION = 0.45
 # A phone's frame clock moves forward with its packets and restarts rarely: a stream where most packets
-# repeat or go back from the frame time before them, or whose frame time jumps back by more than
-# RESTART_WINDOW_S at least MIN_CLOCK_JUMPS times and more than once per CLOCK_JUMP_S of arrivals, has
-# a frame clock that says nothing about time. (Its speed against the arrivals says nothing: a replay
-# at --speed 50 runs 50 times fast.)
+# repeat the frame time of an earlier one with another frame, whose clock runs backwards, whose frame
+# times mostly follow no clock, or whose clock jumps back at least MIN_CLOCK_JUMPS times and more than
+# once per CLOCK_JUMP_S of arrivals, has a frame clock that says nothing about time. (Its speed against
+# the arrivals says nothing: a replay at --speed 50 runs 50 times fast.)
 MIN_CLOCK_JUMPS = 4
 CLOCK_JUMP_S = 10.0
 # DROPPED frames a take may get per received frame (plus MAX_GAP_S at the stream's rate): past that,
@@ -200,41 +218,325 @@ def _segments(frame_time: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
-def _recordings(frame_time: np.ndarray) -> list[slice]:
-    """Slices (in arrival order) of the recordings of one stream: a new one starts where the phone's
-    frame time falls more than ``RESTART_WINDOW_S`` behind the newest so far and the next packet
-    stays behind too (the phone or its timecode restarted). A single late packet is not a restart."""
-    times = frame_time.tolist()
-    starts = [0]
-    newest = -np.inf
-    for i, t in enumerate(times):
-        behind = newest - RESTART_WINDOW_S
-        if t < behind and i + 1 < len(times) and times[i + 1] < behind:
-            starts.append(i)
-            newest = t
-        elif t > newest:
-            newest = t
-    bounds = [*starts, len(times)]
-    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+def _running_median(values: np.ndarray, half: int) -> np.ndarray:
+    """The median of ``values[i - half : i + half + 1]`` at each ``i`` (the window held inside the array
+    at its ends: the first and last ``half`` get the median of the first and last full window)."""
+    n = values.size
+    width = 2 * half + 1
+    if n <= width:
+        return np.full(n, np.sort(values)[(n - 1) // 2] if n else 0.0)
+    kth = half
+    out = np.empty(n)
+    for a in range(half, n - half, 1 << 15):  # in chunks: the windows are copied to be partitioned
+        b = min(a + (1 << 15), n - half)
+        windows = np.lib.stride_tricks.sliding_window_view(values[a - half : b + half], width)
+        out[a:b] = np.partition(windows, kth, axis=1)[:, kth]
+    out[:half] = out[half]
+    out[n - half :] = out[n - half - 1]
+    return out
 
 
-def frame_clock_problem(frame_time: np.ndarray, arrival_s: np.ndarray) -> str | None:
-    """Why a stream's frame times (in arrival order) cannot place its frames, or None."""
+def _lateness(frame_time: np.ndarray) -> float:
+    """How late packets typically are: the ``LATENESS_QUANTILE`` quantile of how far each packet's frame
+    time is behind the median of the ``LATENESS_WINDOW`` packets before it (0 when ahead). In seconds of
+    frame time; 0 for a clock in order however fast it runs; a stray packet now and then does not move it."""
     n = frame_time.size
-    if n < 2 * MIN_TAKE_FRAMES:
-        return None
-    step = np.diff(frame_time)
-    repeats = int(np.count_nonzero(step == 0))
-    if repeats > step.size / 2:
-        return f"{repeats} of {n} packets repeat the frame time of the packet before them"
-    back = int(np.count_nonzero(step < 0))
-    if back > step.size / 2:
-        return f"the frame time goes back from {back} of {n} packets to the next"
-    jumps = int(np.count_nonzero(step < -RESTART_WINDOW_S))
+    if n <= LATENESS_WINDOW:
+        return 0.0
+    late = np.empty(n - LATENESS_WINDOW)
+    kth = LATENESS_WINDOW // 2
+    for a in range(0, late.size, 1 << 15):  # in chunks: the windows are copied to be partitioned
+        b = min(a + (1 << 15), late.size)
+        before = np.lib.stride_tricks.sliding_window_view(
+            frame_time[a : b + LATENESS_WINDOW - 1], LATENESS_WINDOW
+        )
+        late[a:b] = (
+            np.partition(before, kth, axis=1)[:, kth] - frame_time[a + LATENESS_WINDOW : b + LATENESS_WINDOW]
+        )
+    return float(np.quantile(np.maximum(late, 0.0), LATENESS_QUANTILE))
+
+
+def _pieces(level: np.ndarray, tol: float) -> tuple[list[int], list[int]]:
+    """Where the clock ``level`` (in arrival order) jumps: starts of the stretches between jumps and how
+    each begins (0 the first, -1 a jump back of more than ``tol`` below the highest level of the stretch
+    before, +1 a jump forward of more than ``tol``)."""
+    starts, kinds = [0], [0]
+    values = level.tolist()
+    top = prev = values[0]
+    for i, v in enumerate(values):
+        if v < top - tol:
+            starts.append(i)
+            kinds.append(-1)
+            top = v
+        elif v > prev + tol:
+            starts.append(i)
+            kinds.append(1)
+            top = v
+        elif v > top:
+            top = v
+        prev = v
+    return starts, kinds
+
+
+def _identical(rows: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether rows ``a[k]`` and ``b[k]`` carry the same frame byte for byte (a datagram that arrived
+    twice), frame time aside."""
+    same = rows["count"][a] == rows["count"][b]
+    va = rows["values"][a].view(np.uint32).reshape(a.size, -1)
+    vb = rows["values"][b].view(np.uint32).reshape(b.size, -1)
+    return same & (va == vb).all(axis=1)
+
+
+def _repeated_times(rows: np.ndarray, frame_time: np.ndarray) -> int:
+    """Packets whose frame time an earlier packet already had, with another frame (copies of a datagram
+    are duplicates, not a frozen clock)."""
+    order = np.argsort(frame_time, kind="stable")
+    ordered = frame_time[order]
+    new = np.concatenate([[True], ordered[1:] != ordered[:-1]])
+    repeat = np.flatnonzero(~new)
+    if not repeat.size:
+        return 0
+    first = np.maximum.accumulate(np.where(new, np.arange(ordered.size), 0))
+    return int(np.count_nonzero(~_identical(rows, order[repeat], order[first[repeat]])))
+
+
+class _Recording:
+    """Rows of one recording of a stream being collected: parts (row indices and their frame times, in
+    frame-time order) and the frame-time range."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple[np.ndarray, np.ndarray]] = []
+        self.bounds: list[tuple[float, float]] = []
+        self.lo = np.inf
+        self.hi = -np.inf
+
+    def add(self, idx: np.ndarray, frame_time: np.ndarray) -> None:
+        if idx.size:
+            idx = idx[np.argsort(frame_time[idx], kind="stable")]
+            times = frame_time[idx]
+            self.parts.append((idx, times))
+            self.bounds.append((float(times[0]), float(times[-1])))
+            self.lo = min(self.lo, self.bounds[-1][0])
+            self.hi = max(self.hi, self.bounds[-1][1])
+
+    def rows(self) -> np.ndarray:
+        return np.concatenate([idx for idx, _ in self.parts]) if self.parts else np.zeros(0, np.int64)
+
+    def around(self, lo: float, hi: float) -> np.ndarray:
+        """The rows with a frame time in [lo, hi] (touching only the parts there)."""
+        if not self.parts:
+            return np.zeros(0, np.int64)
+        bounds = np.asarray(self.bounds)
+        found = [
+            self.parts[k][0][
+                np.searchsorted(self.parts[k][1], lo) : np.searchsorted(self.parts[k][1], hi, "right")
+            ]
+            for k in np.flatnonzero((bounds[:, 1] >= lo) & (bounds[:, 0] <= hi)).tolist()
+        ]
+        return np.concatenate(found) if found else np.zeros(0, np.int64)
+
+
+def _late_frames_of(
+    rec: _Recording,
+    idx: np.ndarray,
+    rows: np.ndarray,
+    frame_time: np.ndarray,
+    arrival_s: np.ndarray,
+    tol: float,
+    resumes: bool,
+) -> bool:
+    """Whether the frames ``idx`` (a stretch the clock jumped back to) are late frames of ``rec``: they lie
+    in its frame-time range (or next to it, when the clock then resumes where ``rec`` was) and mostly fill
+    its gaps: a frame on a slot ``rec`` already has (``_taken_slots``) is a frame of another recording at
+    the same time (a restart), not a late packet."""
+    ft = frame_time[idx]
+    if not ft.size:
+        return True
+    near = (ft >= rec.lo - tol) & (ft <= rec.hi + tol)
+    if 2 * np.count_nonzero(near) < ft.size:
+        return False
+    if not resumes and 2 * np.count_nonzero((ft >= rec.lo) & (ft <= rec.hi)) < ft.size:
+        return False
+    have = rec.around(float(ft.min()) - tol, float(ft.max()) + tol)
+    taken = _taken_slots(idx[near], have, rows, frame_time, arrival_s)
+    return 2 * np.count_nonzero(taken) < ft.size
+
+
+def _taken_slots(
+    idx: np.ndarray, have: np.ndarray, rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
+) -> np.ndarray:
+    """Which frames ``idx`` land closer than ``SLOT_FRACTION`` of a frame step (the median step of the
+    frames ``have``) to one of the frames ``have``, and are not a copy of it that the network delivered
+    twice (byte for byte, within ``MAX_GAP_S``; a sender that sends the same frames again later, as a
+    replay run twice does, restarted)."""
+    have = have[np.argsort(frame_time[have], kind="stable")]
+    times = frame_time[have]
+    steps = np.diff(times)
+    steps = steps[steps > 0]
+    if not steps.size:
+        return np.zeros(idx.size, bool)
+    ft = frame_time[idx]
+    right = np.clip(np.searchsorted(times, ft), 0, times.size - 1)
+    left = np.clip(right - 1, 0, times.size - 1)
+    nearest = np.where(np.abs(times[left] - ft) < np.abs(times[right] - ft), left, right)
+    dist = np.abs(times[nearest] - ft)
+    taken = dist < SLOT_FRACTION * float(np.median(steps))
+    copy = dist == 0
+    if copy.any():
+        a, b = idx[copy], have[nearest[copy]]
+        copy[copy] = _identical(rows, a, b) & (np.abs(arrival_s[a] - arrival_s[b]) <= MAX_GAP_S)
+    return taken & ~copy
+
+
+class _Slots:
+    """The frames of a recording by frame time, to tell whether another frame takes a free slot of it
+    (as ``_taken_slots``, one frame at a time)."""
+
+    def __init__(self, idx: np.ndarray, frame_time: np.ndarray):
+        self.idx = idx[np.argsort(frame_time[idx], kind="stable")]
+        times = frame_time[self.idx]
+        steps = np.diff(times)
+        steps = steps[steps > 0]
+        self.step = float(np.median(steps)) if steps.size else 0.0
+        self.times = times.tolist()
+
+    def free(self, i: int, f: float, rows: np.ndarray, arrival_s: np.ndarray) -> bool:
+        """Whether frame ``i`` (frame time ``f``) lands on a free slot, or is a copy of the frame there."""
+        k = bisect.bisect_left(self.times, f)
+        near = [j for j in (k - 1, k) if 0 <= j < len(self.times)]
+        if not near or not self.step:
+            return True
+        j = min(near, key=lambda j: abs(self.times[j] - f))
+        dist = abs(self.times[j] - f)
+        if dist >= SLOT_FRACTION * self.step:
+            return True
+        other = self.idx[j : j + 1]
+        return bool(
+            dist == 0
+            and _identical(rows, np.array([i]), other)[0]
+            and abs(arrival_s[i] - arrival_s[other[0]]) <= MAX_GAP_S
+        )
+
+
+class _Clock:
+    """How a stream's packets (one declared rate, arrival order) follow the phone's frame clock: its
+    recordings (row indices, arrival order), the packets that fit none (``stray``), the jumps back, and
+    ``problem`` when the frame times cannot place the frames."""
+
+    def __init__(self, recordings: list[np.ndarray], stray: np.ndarray, restarts: int, problem: str | None):
+        self.recordings = recordings
+        self.stray = stray
+        self.restarts = restarts
+        self.problem = problem
+
+
+def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray) -> _Clock:
+    """Read the phone's frame clock from a stream's packets of one rate (in arrival order).
+
+    The clock is the running median of the frame times over ``2 * CLOCK_HALF_WINDOW + 1`` packets: late,
+    reordered, duplicated or stray packets, a minority in any window, do not move it. Packets within a
+    tolerance of it (``RESTART_WINDOW_S``, more under heavy jitter) follow it; where it jumps back, the
+    packets after the jump are either late frames of a recording (they fill its gaps, see
+    ``_late_frames_of``) or a new recording (a restart: the phone's clock went back and went on from
+    there); a jump forward (a pause) stays in the recording. A packet off the clock joins a recording
+    whose frame-time range holds it on a free slot (a late packet, or a straggler of the recording before
+    a restart), or is stray (a corrupt or spoofed frame number). ``problem`` says why a stream's frame
+    times are no clock (see ``MIN_CLOCK_JUMPS``), judged for streams of ``2 * MIN_TAKE_FRAMES`` packets
+    or more.
+    """
+    n = frame_time.size
+    empty = np.zeros(0, np.int64)
+    if not n:
+        return _Clock([], empty, 0, None)
+    judge = n >= 2 * MIN_TAKE_FRAMES
+    repeats = _repeated_times(rows, frame_time)
+    if judge and repeats > n / 2:
+        return _Clock([], empty, 0, f"{repeats} of {n} packets repeat the frame time of an earlier packet")
+    level = _running_median(frame_time, CLOCK_HALF_WINDOW)
+    lateness = _lateness(frame_time)
+    if judge and lateness > MAX_LATENESS_S:
+        problem = f"the frame time of a packet is typically {lateness:.0f} s behind the packets before it"
+        return _Clock([], empty, 0, problem)
+    tol = max(RESTART_WINDOW_S, JITTER_TOLERANCE * lateness)
+    follows = np.abs(frame_time - level) <= tol
+    starts, kinds = _pieces(level, tol)
+    bounds = [*starts, n]
     span = float(arrival_s[-1] - arrival_s[0])
-    if jumps >= MIN_CLOCK_JUMPS and jumps > span / CLOCK_JUMP_S:
-        return f"the frame time jumps back {jumps} times in {span:.1f} s of arrivals"
-    return None
+    recs: list[_Recording] = []
+    piece_current: list[int] = []
+    current = -1
+    restarts = 0
+    net = 0.0
+    for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        net += float(level[b - 1] - level[a])
+        idx = a + np.flatnonzero(follows[a:b])
+        if idx.size < MIN_TAKE_FRAMES and n > 2 * CLOCK_HALF_WINDOW + 1:
+            # Too few packets follow the clock here to be a recording (a burst of strays held it): they
+            # are placed one by one below, as the packets off the clock are.
+            follows[idx] = False
+            piece_current.append(current)
+            continue
+        target = None
+        # A jump back (not after a burst of strays that held the clock, back to where the recording was):
+        # late frames of the current or an earlier recording, else a restart. A jump forward: on with the
+        # current recording, unless these are late frames of an earlier one (stragglers of a restart).
+        back = kinds[k] < 0 and current >= 0 and level[a] < recs[current].hi - tol
+        first = current if back else current - 1
+        resumes = (
+            back
+            and k + 1 < len(kinds)
+            and kinds[k + 1] > 0
+            and level[bounds[k + 1]] >= recs[current].hi - tol
+        )
+        for c in range(first, max(current - 3, -1), -1) if kinds[k] else ():
+            if _late_frames_of(recs[c], idx, rows, frame_time, arrival_s, tol, resumes and c == current):
+                target = c
+                break
+        if target is None and (current < 0 or back):
+            if current >= 0:
+                restarts += 1
+                if judge and restarts >= MIN_CLOCK_JUMPS and restarts > span / CLOCK_JUMP_S:
+                    problem = (
+                        f"the frame time jumps back {restarts} times or more in {span:.1f} s of arrivals"
+                    )
+                    return _Clock([], empty, restarts, problem)
+            recs.append(_Recording())
+            current = target = len(recs) - 1
+        elif target is None:
+            target = current
+        recs[target].add(idx, frame_time)
+        piece_current.append(current)
+    if judge and net < 0:
+        return _Clock([], empty, restarts, f"the frame time runs backwards ({-net:.1f} s over {n} packets)")
+    # Packets off the clock: late packets of a recording (in its frame-time range, on a free slot of it),
+    # or stray.
+    piece_of = np.repeat(np.arange(len(kinds)), np.diff(bounds))
+    extra: list[list[int]] = [[] for _ in recs]
+    stray = []
+    times, levels = frame_time.tolist(), level.tolist()
+    slots = [_Slots(rec.rows(), frame_time) for rec in recs]
+    for i in np.flatnonzero(~follows).tolist():
+        f, cur = times[i], piece_current[piece_of[i]]
+        if f <= levels[i] + tol:  # behind the clock of its moment: a late packet, most likely of its own
+            order = (cur, cur + 1, cur - 1, cur - 2, cur - 3)
+        else:  # ahead of it: a straggler of a recording before a restart, else an early one of its own
+            order = (cur - 1, cur - 2, cur - 3, cur, cur + 1)
+        for c in order:
+            if 0 <= c < len(recs) and recs[c].lo - tol <= f <= recs[c].hi + tol:
+                if slots[c].free(i, f, rows, arrival_s):
+                    extra[c].append(i)
+                    break
+        else:
+            stray.append(i)
+    if judge and 2 * len(stray) > n:
+        problem = f"the frame times of {len(stray)} of {n} packets follow no steady clock"
+        return _Clock([], empty, restarts, problem)
+    recordings = []
+    for rec, more in zip(recs, extra):
+        idx = np.sort(np.concatenate([rec.rows(), np.asarray(more, np.int64)]))
+        if idx.size:
+            recordings.append(idx)
+    return _Clock(recordings, np.asarray(stray, np.int64), restarts, None)
 
 
 def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:
@@ -247,72 +549,99 @@ def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:
     return arrival_s[0] + (np.maximum.accumulate(slots - index) + index) * period
 
 
+def _rate_runs(num: np.ndarray, den: np.ndarray) -> list[slice]:
+    """Stretches (arrival order) of one declared rate: the recorder logs a stream's change of rate (the app
+    restarted with another frame-rate setting) once it holds, so each stretch is a recording of its own."""
+    change = np.flatnonzero((num[1:] != num[:-1]) | (den[1:] != den[:-1])) + 1
+    bounds = [0, *change.tolist(), num.size]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
 def stream_takes(
     log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
 ) -> tuple[list[Take], dict]:
-    """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, stray frames,
-    face-lost frames outside the takes, frames with an implausible rate, takes that could not be built)."""
+    """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, rate changes,
+    stray packets and frames, face-lost frames outside the takes, frames with an implausible rate, takes
+    that could not be built)."""
     rows = log.stream_rows(sid)
     info = log.streams.get(sid, {})
-    report: dict[str, Any] = {"packets": int(rows.size), "duplicates": 0, "out_of_order": 0, "restarts": 0}
+    report: dict[str, Any] = {
+        "packets": int(rows.size),
+        "duplicates": 0,
+        "out_of_order": 0,
+        "restarts": 0,
+        "rate_changes": 0,
+        "stray_packets": 0,
+    }
     # Logs written before the recorder bounded the rate may hold any rate: such frames make no take.
     plausible = ll.plausible_rate(rows["rate_numerator"].astype(np.int64), rows["rate_denominator"])
     if not plausible.all():
         report["bad_rate_frames"] = int(np.count_nonzero(~plausible))
         rows = rows[plausible]
-    num = rows["rate_numerator"].astype(np.float64)
-    den = ll.rate_denominator(rows["rate_denominator"].astype(np.float64))
+    num = rows["rate_numerator"].astype(np.int64)
+    den = ll.rate_denominator(rows["rate_denominator"].astype(np.int64))
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
-    numbers = rows["frame_number"].astype(np.int64)
     arrival = log.seconds(rows["arrival_ns"])
-    problem = frame_clock_problem(frame_time, arrival)
+    # Recordings: (row indices in arrival order, their frame times, why placed by arrival or None).
+    recordings: list[tuple[np.ndarray, np.ndarray, str | None]] = []
+    problem = None
+    stray = []
+    runs = _rate_runs(num, den)
+    report["rate_changes"] = len(runs) - 1
+    for run in runs:
+        base = run.start
+        clock = follow_clock(rows[run], frame_time[run], arrival[run])
+        if clock.problem is not None:
+            problem = clock.problem
+            placed = arrival_clock(arrival[run], float(den[base] / num[base]))
+            recordings.append((np.arange(run.start, run.stop), placed, problem))
+            continue
+        recordings += [(base + idx, frame_time[base + idx], None) for idx in clock.recordings]
+        stray.append(base + clock.stray)
     if problem is not None:
         report["frame_clock"] = {"placed_by": "arrival", "reason": problem}
-        frame_time = arrival_clock(arrival, float(den[0] / num[0]))
-        numbers = np.rint((frame_time - frame_time[0]) * num[0] / den[0]).astype(np.int64)
-    recordings = _recordings(frame_time)
-    report["restarts"] = len(recordings) - 1
-    # Per recording: duplicates dropped, frames put in frame-number order, cut into segments of the
-    # frames with a face; the no-face frames between a segment's first and last face frame belong to it.
-    segments: list[tuple[np.ndarray, np.ndarray]] = []
-    face_lost = 0
-    for recording in recordings:
-        r, ft, fn = rows[recording], frame_time[recording], numbers[recording]
-        prior_max = np.maximum.accumulate(fn)
-        report["out_of_order"] += int(np.count_nonzero(fn[1:] < prior_max[:-1]))
-        # np.unique gives the first occurrence in arrival order of each frame number, sorted.
-        _, first = np.unique(fn, return_index=True)
+    report["restarts"] = max(len(recordings) - 1, 0)
+    stray_rows = np.concatenate(stray) if stray else np.zeros(0, np.int64)
+    report["stray_packets"] = int(stray_rows.size)
+    stray_faces = int(np.count_nonzero(rows["count"][stray_rows] != 0))
+    # Per recording: duplicates dropped, frames put in frame-time order, cut into segments of the frames
+    # with a face; the no-face frames between a segment's first and last face frame belong to it.
+    segments: list[tuple[np.ndarray, np.ndarray, str | None]] = []
+    face_lost = int(stray_rows.size) - stray_faces
+    for idx, ft, placed_by_arrival in recordings:
+        r = rows[idx]
+        prior_max = np.maximum.accumulate(ft)
+        report["out_of_order"] += int(np.count_nonzero(ft[1:] < prior_max[:-1]))
+        # np.unique gives the first occurrence in arrival order of each frame time, sorted.
+        _, first = np.unique(ft, return_index=True)
         report["duplicates"] += int(r.size - first.size)
         r, ft = r[first], ft[first]
-        # Sorted by frame number; sub-frames cannot reorder them, but guard the take invariant.
-        keep = np.concatenate([[True], np.diff(ft) > 0]) if ft.size else np.zeros(0, bool)
-        r, ft = r[keep], ft[keep]
         face_rows = np.flatnonzero(r["count"] != 0)
         face_lost += int(r.size - face_rows.size)
         for s in _segments(ft[face_rows]) if face_rows.size else []:
             seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
-            segments.append((r[seg], ft[seg]))
+            segments.append((r[seg], ft[seg], placed_by_arrival))
     takes: list[Take] = []
-    stray = lost_in_takes = 0
+    stray_frames, lost_in_takes = stray_faces, 0
     errors = []
     session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
     base_id = f"{session}_{info.get('subject')}_{(info.get('device') or '')[:8]}"
-    for k, (r, ft) in enumerate(segments):
+    for k, (r, ft, placed_by_arrival) in enumerate(segments):
         lost = r["count"] == 0
         n_lost = int(np.count_nonzero(lost))
         if r.size - n_lost < MIN_TAKE_FRAMES:
-            stray += r.size - n_lost
+            stray_frames += r.size - n_lost
             continue
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
         try:
             take = _segment_take(log, info, take_id, r, ft, audio, audio_first_s)
-            if problem is not None:
-                take.meta.extra["frame_clock"] = report["frame_clock"]
+            if placed_by_arrival is not None:
+                take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": placed_by_arrival}
                 take.meta.repairs.append(
                     {
                         "line": None,
                         "kind": "frame_clock",
-                        "message": f"frames placed by arrival time: {problem}",
+                        "message": f"frames placed by arrival time: {placed_by_arrival}",
                     }
                 )
             takes.append(take)
@@ -320,7 +649,7 @@ def stream_takes(
             errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
             continue
         lost_in_takes += n_lost
-    report["stray_frames"] = stray
+    report["stray_frames"] = stray_frames
     report["face_lost_outside_takes"] = face_lost - lost_in_takes
     if errors:
         report["errors"] = errors
@@ -505,7 +834,15 @@ def build_takes(
                 take.meta.extra["rejected"] = dict(log.rejected)
                 take.meta.extra["recovered"] = recovered
                 take.meta.extra |= {
-                    k: report[k] for k in ("packets", "duplicates", "out_of_order", "restarts")
+                    k: report[k]
+                    for k in (
+                        "packets",
+                        "duplicates",
+                        "out_of_order",
+                        "restarts",
+                        "rate_changes",
+                        "stray_packets",
+                    )
                 }
                 if log.torn_tail is not None:
                     take.meta.extra["torn_tail"] = log.torn_tail.to_json()

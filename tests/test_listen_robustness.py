@@ -20,6 +20,7 @@ from live_helpers import record_packets, run_cli
 import capture.livelink as ll
 import capture.session_takes as st
 from capture import FrameStatus, LiveRecorder, build_takes, read_take
+from capture.errors import InputError
 from capture.livelink import frame_block, header_bytes
 
 VALS = np.linspace(-0.5, 1.0, 61).astype(np.float32)
@@ -265,6 +266,31 @@ def test_stray_streams_give_their_slots_to_a_real_phone(tmp_path, monkeypatch):
     runner.join()
     rec2.close()
     assert rec2.evicted_streams == 0 and rec2.rejected["too_many_streams"] == 40
+
+
+def test_stream_ids_running_out_refuse_new_streams_instead_of_crashing(tmp_path, monkeypatch):
+    import capture.recorder as recorder
+
+    with pytest.raises(InputError, match="max_streams"):
+        LiveRecorder(tmp_path, port=0, max_streams=0)
+    # ids are 16-bit and never reused; make them scarce: 3 ids. The fourth stream evicts the three
+    # stray ones, which frees slots but no ids.
+    monkeypatch.setattr(recorder, "MAX_STREAM_ID", 2)
+    monkeypatch.setattr(recorder, "STRAY_SILENT_S", 0.0)
+    rec = LiveRecorder(tmp_path, port=0, session_id="ids", max_streams=3)
+    _, port = rec.open()
+    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
+    runner.start()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i in range(5):
+            s.sendto(_packets(f"junk-{i}", "x", [1])[0], ("127.0.0.1", port))
+            time.sleep(0.02)
+    time.sleep(0.3)
+    rec.request_stop()
+    runner.join()
+    rec.close()
+    assert len(rec.stream_packets) == 3 and rec.rejected["too_many_streams"] == 2
+    build_takes(rec.session_dir, tmp_path / "takes")  # the log stays readable
 
 
 # -- frame clocks that say nothing about time (other senders) ---------------------------------------------
