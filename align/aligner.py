@@ -21,7 +21,16 @@ from capture.timecode import Timecode
 from . import content as ct
 from .clipping import CLIPPED_AUDIO_SHARE, clipped_share
 from .drift import arrival_drift_ppm, fit_drift, window_lags
-from .evidence import Evidence, clap_evidence, combine, content_evidence, sync_evidence, timecode_evidence
+from .evidence import (
+    Decision,
+    Evidence,
+    clap_evidence,
+    combine,
+    content_confidence,
+    content_evidence,
+    sync_evidence,
+    timecode_evidence,
+)
 from .grid import (
     INTERPOLATED,
     MOSTLY_INTERPOLATED_SHARE,
@@ -36,11 +45,20 @@ from .grid import (
 from .options import AlignOptions
 from .resample import TARGET_RATE, to_16k_mono
 from .transient import audio_claps, step_transients, video_motion, video_transients
-from .vad import speech_segments
+from .vad import speech_level_dbfs, speech_segments, vad_gain
 
-ALIGN_VERSION = 3  # 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock; 3: claps, flags
+# 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock; 3: claps, flags; 4: DC/rumble high-pass,
+# idle and timecode channels left out of the mix, clipping only at loud extremes, VAD on a level-raised
+# copy (flag quiet_audio), content peaks outside the search range not trusted
+ALIGN_VERSION = 4
 MIN_TAKE_S = 1.0
 SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS the track holds no usable sound
+# Speech quieter than this (``vad.speech_level_dbfs``; real recordings speak at -12..-22 dBFS) is
+# flagged ``quiet_audio``: 25 dB and more below an ordinary level, most of the converter's range unused.
+QUIET_SPEECH_DBFS = -45.0
+# How far beyond the search range (s) the content correlation is looked at, at least, to tell whether the
+# peak found inside is the real one or the flank of a higher peak outside (see ``_content``).
+BEYOND_RANGE_S = 0.25
 
 
 def _check_audio(take: Take, x: np.ndarray) -> None:
@@ -77,13 +95,41 @@ def _content(take: Take, x: np.ndarray, s0: float, usable: np.ndarray, period: f
     est = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s)
     if est is None:
         return None, None, None, mouth, {"note": "too little overlap for content evidence"}
+    # The peak inside the search range is only the offset when no higher peak lies beyond it: look at
+    # least BEYOND_RANGE_S further (a peak near the edge may be the flank of a higher one outside). When
+    # the audio's placement is no evidence (assumed: a CSV with audio recorded elsewhere), the offset
+    # can be anything the audio and face lengths leave room for (audio recorded with pre-roll): look
+    # that far, and judge the peak against the highest correlation at any of those lags (its
+    # runner-up), so that a peak barely beating one a second away (speech rhythm repeats) gets the low
+    # confidence it deserves. A real placement (frame log, timecode) bounds the offset by itself.
+    audio_s = x.size / TARGET_RATE
+    face_s = float(t[usable][-1] - t[usable][0]) + period
+    placed = timecode_evidence(take.meta.audio.start_source).confidence >= opts.min_confidence
+    longer = 0.0 if placed else abs(audio_s - face_s)
+    wide = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s + max(longer, BEYOND_RANGE_S))
+    outside = wide is not None and abs(wide.lag_s) > opts.max_offset_s and wide.peak > est.peak
+    judged = est
+    if wide is not None and not outside and longer > opts.max_offset_s:
+        if np.isfinite(wide.runner_up) and not wide.runner_up <= est.runner_up:
+            judged = dataclasses.replace(est, runner_up=wide.runner_up)
     wl = window_lags(env, face, weight, s0, est.lag_s)
     if wl.lag_s.size >= 2:
         agree = float(np.mean(np.abs(wl.lag_s - est.lag_s) <= 1.0 / take.meta.fps))
         spread = float(np.std(wl.lag_s) / math.sqrt(wl.lag_s.size))
     else:
         agree, spread = 1.0, 0.5 / take.meta.fps
-    ev = content_evidence(est, opts.face_lead_ms / 1000.0, agree, spread, take.meta.fps)
+    ev = content_evidence(judged, opts.face_lead_ms / 1000.0, agree, spread, take.meta.fps)
+    if judged is not est:
+        ev.detail["runner_up_searched_s"] = round(opts.max_offset_s + longer, 6)
+    if outside:
+        ev.confidence = 0.0
+        ev.detail["best_lag_outside_range_s"] = round(wide.lag_s, 6)
+        ev.detail["outside_peak_correlation"] = round(wide.peak, 4)
+        ev.detail["outside_confidence"] = round(content_confidence(wide, 1.0), 4)
+        ev.detail["note"] = (
+            f"the correlation is higher at {wide.lag_s:+.3f} s, outside the search range "
+            f"±{opts.max_offset_s:g} s: the peak inside it is not the offset"
+        )
     ev.detail["anchor_s"] = round(float(np.average(grid, weights=weight + 1e-12)), 6)
     ev.detail["channels"] = [take.meta.channels[c] for c, _ in picks]
     return est, ev, wl, mouth, {}
@@ -116,6 +162,67 @@ def _transient_evidence(
             ev.source = "video_clap"
             out.append(ev)
     return out
+
+
+def _suggest_ms(seconds: float) -> int:
+    """A --max-offset-ms that covers ``seconds`` with room to spare (whole 100 ms)."""
+    return int(math.ceil((abs(seconds) + BEYOND_RANGE_S) * 10.0)) * 100
+
+
+def _check_range(
+    tid: str,
+    content_ev: Evidence | None,
+    decision: Decision,
+    longer_s: float,
+    opts: AlignOptions,
+    flags: list[str],
+    warnings: list[str],
+) -> None:
+    """Flags and warnings for an offset that may lie outside the search range ``--max-offset-ms``.
+
+    When the content correlation peaks beyond the range (``_content``), the peak inside is not the offset
+    (audio with pre-roll matched its speech to the face at a wrong lag inside the range before): the
+    take keeps what else is confident, else its placement with ``low_confidence``; a placement that a
+    confident content peak outside the range contradicts is flagged ``evidence_disagrees``. Audio and
+    face lengths that differ by far more than the range (``longer_s``, audio minus face) are named when
+    the offset was not measured."""
+    chosen = decision.chosen
+    outside = content_ev.detail.get("best_lag_outside_range_s") if content_ev is not None else None
+    span = f"±{opts.max_offset_s * 1000:.0f} ms"
+    lengths = (
+        f"; the audio is {abs(longer_s):.2f} s {'longer' if longer_s > 0 else 'shorter'} than the face"
+        if abs(longer_s) > opts.max_offset_s
+        else ""
+    )
+    if outside is not None:
+        credible = content_ev.detail.get("outside_confidence", 0.0) >= opts.min_confidence
+        if chosen.confidence < opts.min_confidence:
+            if "no_evidence" in flags:  # something was measured: a peak where the offset was not looked for
+                flags.remove("no_evidence")
+            if "low_confidence" not in flags:
+                flags.append("low_confidence")
+        elif chosen.source in ("timecode", "none") and credible:
+            flags.append("evidence_disagrees")
+            decision.disagreements.append(
+                {
+                    "source": "content",
+                    "difference_s": round(abs(outside - chosen.offset_s), 6),
+                    "allowed_s": round(opts.max_offset_s, 6),
+                    "note": "content peak outside the search range",
+                }
+            )
+        else:
+            return
+        warnings.append(
+            f"take {tid}: the speech matches the face best at an offset of {outside:+.3f} s, outside the "
+            f"{span} searched{lengths}: the speech could not confirm the offset; if the audio really started "
+            f"that far apart from the face, align again with --max-offset-ms {_suggest_ms(outside)}"
+        )
+    elif lengths and chosen.confidence < opts.min_confidence:
+        warnings.append(
+            f"take {tid}: the offset was not measured{lengths}, more than the {span} searched; if the audio "
+            f"started that far apart from the face, align again with --max-offset-ms {_suggest_ms(longer_s)}"
+        )
 
 
 # Audio placements that come with a frame-index convention: frame i belongs to audio i / fps.
@@ -163,8 +270,10 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     tid = meta.id
     if take.audio is None or meta.audio is None:
         raise InputError(f"take {tid} has no audio: align needs the speech (import it with --audio)")
-    mix_notes: list[dict[str, Any]] = []
-    x = to_16k_mono(take.audio, tid, mix_notes)
+    notes: list[dict[str, Any]] = []
+    x = to_16k_mono(take.audio, tid, notes)
+    mix_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_mix"]
+    dc_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_dc"]
     _check_audio(take, x)
     take, clock_info = frame_clock(take, opts.frame_clock)
     s0 = float(meta.audio.start_s)
@@ -186,7 +295,8 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
             f"overlap by {max(overlap, 0):.3f} s, less than {MIN_TAKE_S:g} s"
         )
     flags: list[str] = []
-    warnings = [f"take {tid}: {n['message']}" for n in mix_notes]
+    # Channels that cancel are a fault of the recording; idle or timecode channels left out are not.
+    warnings = [f"take {tid}: {n['message']}" for n in mix_notes if n["method"] == "louder_channel"]
     if abs(audio_dur - face_dur) > max(1.0, 0.1 * max(audio_dur, face_dur)):
         flags.append("duration_mismatch")
     clipped = clipped_share(take.audio)
@@ -195,6 +305,20 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         warnings.append(
             f"take {tid}: {clipped:.2%} of the audio samples are clipped (held flat at full scale): the "
             "recording was made too loud and its loudest sounds are distorted; record at a lower level"
+        )
+    speech_db = speech_level_dbfs(x)
+    peak = float(np.max(np.abs(x)))
+    level = {
+        "speech_dbfs": round(speech_db, 1) if math.isfinite(speech_db) else None,
+        "peak_dbfs": round(20 * math.log10(peak), 1),
+        "vad_gain_db": round(20 * math.log10(vad_gain(x)), 1) if opts.vad != "none" else 0.0,
+    }
+    if speech_db < QUIET_SPEECH_DBFS:
+        flags.append("quiet_audio")
+        warnings.append(
+            f"take {tid}: the audio is very quiet (speech at {speech_db:.1f} dBFS, peak "
+            f"{level['peak_dbfs']:.1f} dBFS; ordinary recordings speak at about -25..-12 dBFS): the speech "
+            "was found on a raised copy and the audio keeps its level; record at a higher level"
         )
 
     # Evidence.
@@ -206,6 +330,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     decision = combine(evidence, opts.min_confidence, opts.max_disagreement_s)
     flags += decision.flags
     chosen = decision.chosen
+    _check_range(tid, content_ev, decision, audio_dur - face_dur, opts, flags, warnings)
 
     # Drift (content windows over a long take), applied when it is clearly there.
     drift_info: dict[str, Any] = {"applied": False}
@@ -341,6 +466,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         "gaps_interpolated": total_interp,
         "interpolated_share": interpolated_share(total_interp, sum(r["frames"] for r in seg_reports)),
         "clipped_audio": round(clipped, 6),
+        "audio_level": level,
         "segments": n_seg,
         "segment_list": seg_reports,
         "audio_s": round(audio_dur, 6),
@@ -355,6 +481,8 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         report["content_note"] = content_note.get("note")
     if mix_notes:
         report["audio_mix"] = mix_notes[0]
+    if dc_notes:
+        report["audio_dc"] = dc_notes[0]
     if warnings:
         report["warnings"] = warnings
     for k, seg_take in enumerate(segments_out):

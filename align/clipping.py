@@ -7,25 +7,50 @@ peak in one or two samples (the real samples checked never hold it for three), s
 integer PCM clipped by the converter, 1.0 for float audio clipped on export, and the flat top of audio
 clipped first and scaled down afterwards. Resampling smears the flat tops into overshoots (a clipped
 int16 take peaks at 1.21 after the 16 kHz resampler), so the raw samples are the place to look.
+
+Only an extreme that is a loud sound can be a clipped one: it must lie at least ``CLIP_MIN_LEVEL``
+(-30 dBFS) from the channel's resting value (its median). An idle channel holding ±1 LSB of noise, a
+channel holding a constant (a DC offset, -1 LSB of digital "silence") or nothing at all sits at its own
+extremes most of the time and is not clipped; neither is a channel holding a timecode signal (LTC, a
+square wave that lives at its two levels).
 """
 
 from __future__ import annotations
 
+import numpy as np
+
 from capture import Audio
 
 from .grid import runs
+from .resample import looks_like_timecode
 
 CLIP_RUN = 3  # consecutive samples at the extreme value
 CLIPPED_AUDIO_SHARE = 0.001  # of a channel's samples; above it the take is flagged ``clipped_audio``
+CLIP_MIN_LEVEL = 10 ** (-30 / 20)  # flat tops nearer than this to the resting value are not clipping
+
+
+def _full_scale(channel: np.ndarray) -> float:
+    if channel.dtype == np.int16:
+        return 32768.0
+    if channel.dtype == np.int32:
+        return 2147483648.0
+    return 1.0
 
 
 def clipped_share(audio: Audio) -> float:
     """Share (0..1) of samples in runs of at least ``CLIP_RUN`` at their channel's highest or lowest
-    value, for the most clipped channel (a silent channel does not dilute a clipped one)."""
+    value, for the most clipped channel (a silent channel does not dilute a clipped one). Extremes
+    within ``CLIP_MIN_LEVEL`` of the channel's median and channels holding timecode do not count."""
     worst = 0
     for channel in audio.samples.T:
+        scale = _full_scale(channel)
+        high, low = channel.max(), channel.min()
+        centre = float(np.median(channel)) / scale
+        loud = [e for e in {high, low} if abs(float(e) / scale - centre) >= CLIP_MIN_LEVEL]
+        if not loud or looks_like_timecode(channel, audio.sample_rate, scale):
+            continue
         flat = 0
-        for extreme in {channel.max(), channel.min()} - {0}:
+        for extreme in loud:
             flat += sum(stop - start for start, stop in runs(channel == extreme) if stop - start >= CLIP_RUN)
         worst = max(worst, flat)
     return worst / max(audio.frames, 1)

@@ -1,4 +1,4 @@
-"""Audio to the stage's working format: 16 kHz mono float32.
+"""Audio to the stage's working format: 16 kHz mono float32, without DC offset or sub-audible rumble.
 
 The rate conversion uses python-soxr (libsoxr's "very high quality" polyphase resampler): it is a
 well-kept C library, handles any ratio (44.1 kHz -> 16 kHz is 160/441, awkward for polyphase filters
@@ -6,6 +6,18 @@ built from the reduced fraction), keeps the passband flat to 0.9 of Nyquist with
 runs at thousands of times real time, so resampling never dominates an align run. ``scipy.signal.
 resample_poly`` would do for the same ratio, but needs a 441-phase filter designed per call and is
 slower; soxr is also what the other speech toolkits use.
+
+Several channels become one (``mono_mix``): the channels that carry sound at a level comparable to the
+loudest are averaged (a stereo microphone pair); a channel far below the loudest (an idle input, a
+second channel holding only hiss or a constant) and a channel holding a timecode signal (LTC recorded on
+the second channel, docs/livelinkface-formats.md §7) are left out, since averaging them in only
+scales the speech down (6 dB for one idle channel of two, 15.6 dB for dialogue on the centre of 5.1).
+
+A DC offset (a converter's or a cheap interface's bias) and rumble below ``HIGHPASS_HZ`` (handling
+noise, wind, building vibration) carry nothing of speech but enter every level-based feature (log
+energy, filterbank energies of the low bands): a DC of 0.005 in the leading silence moved a model's
+predicted jawOpen from 0.061 to 0.089. They are removed by a zero-phase high-pass at 16 kHz
+(``remove_rumble``), which ``s2a-train predict`` uses through ``to_16k_mono`` as well.
 """
 
 from __future__ import annotations
@@ -14,6 +26,7 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.signal import butter, sosfilt, sosfilt_zi
 
 from capture import Audio, InputError
 
@@ -22,54 +35,216 @@ TARGET_RATE = 16000
 
 # A mix this far (dB) below its loudest channel has cancelled: the channels hold the same sound with
 # opposite polarity (a miswired or phase-inverted stereo pair). Two independent channels mix to about
-# 3 dB below the louder, one live channel and one silent to 6 dB below, so normal audio never comes
-# near it.
+# 3 dB below the louder, so normal audio never comes near it.
 CANCELLED_MIX_DB = 20.0
+# A channel this far (dB) below the loudest carries no speech of its own (an idle input holding hiss, a
+# constant or digital silence): it is left out of the mix. A second microphone of a pair, even one
+# turned away from the speaker, stays within about 12 dB.
+IDLE_CHANNEL_DB = 25.0
+# Zero-phase high-pass (2nd-order Butterworth run forward and backward: 4th-order magnitude, -6 dB at the
+# corner): DC and rumble out; -0.3 dB at 60 Hz, the lowest fundamental of a deep voice.
+HIGHPASS_HZ = 25.0
+_HIGHPASS_SOS = butter(2, HIGHPASS_HZ, btype="highpass", fs=TARGET_RATE, output="sos")
+DC_NOTE_LEVEL = 1e-3  # a DC offset from -60 dBFS up is recorded in the report (``audio_dc``)
+_CHUNK = 1 << 20  # samples per filtering block: bounded memory on hour-long takes
+
+# Linear timecode (SMPTE LTC) is a two-level square wave: 80 bits per frame in biphase-mark code, so
+# 1,920-4,800 level changes per second at 24-30 fps, with (almost) every sample at one of its two levels.
+# Speech never holds 80 % of its samples near its peaks, and heavily clipped vowels, which come closest,
+# change sign a few hundred times per second.
+TIMECODE_MIN_CROSSINGS_PER_S = 1000.0
+TIMECODE_TWO_LEVEL_SHARE = 0.8
+_TIMECODE_BLOCK_S = 0.1
+_TIMECODE_MAX_BLOCKS = 600  # spread over the take: bounded work on hour-long takes
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.einsum("i,i->", x, x, dtype=np.float64) / max(x.size, 1)))
+def _scale(x: np.ndarray) -> float:
+    """Full scale of an array of samples (int16, int32 or float)."""
+    if x.dtype == np.int16:
+        return 32768.0
+    if x.dtype == np.int32:
+        return 2147483648.0
+    return 1.0
+
+
+def channel_float(audio: Audio, k: int) -> np.ndarray:
+    """Channel ``k`` (from 0) of ``audio`` as float32 samples in [-1, 1)."""
+    return Audio(audio.samples[:, k : k + 1], audio.sample_rate, audio.subtype).mono_float()
+
+
+def _level(x: np.ndarray) -> float:
+    """RMS about the mean (a DC offset is no sound)."""
+    n = max(x.size, 1)
+    mean = float(np.sum(x, dtype=np.float64)) / n
+    square = float(np.einsum("i,i->", x, x, dtype=np.float64)) / n
+    return math.sqrt(max(square - mean * mean, 0.0))
+
+
+def looks_like_timecode(x: np.ndarray, rate: int, scale: float = 1.0) -> bool:
+    """True when the samples ``x`` (one channel at ``rate`` Hz, full scale ``scale``) hold a timecode
+    signal (LTC) rather than sound: in most of the 0.1 s blocks that are not silent, at least
+    ``TIMECODE_TWO_LEVEL_SHARE`` of the samples sit near one of two levels, evenly split between them,
+    and the signal changes level at least ``TIMECODE_MIN_CROSSINGS_PER_S`` times a second."""
+    block = max(int(rate * _TIMECODE_BLOCK_S), 64)
+    nb = x.size // block
+    if nb == 0:
+        return False
+    pick = np.unique(np.linspace(0, nb - 1, min(nb, _TIMECODE_MAX_BLOCKS)).astype(np.int64))
+    b = x[: nb * block].reshape(nb, block)[pick].astype(np.float64) / scale
+    lo, hi = np.percentile(b, [1.0, 99.0], axis=1)
+    half = (hi - lo) / 2.0
+    d = b - ((hi + lo) / 2.0)[:, None]
+    active = half > 1e-3  # above -60 dBFS: a timecode signal is recorded far louder
+    if not active.any():
+        return False
+    near = np.mean(np.abs(d) >= 0.6 * half[:, None], axis=1)
+    up = np.mean(d > 0, axis=1)
+    crossings = np.count_nonzero(np.diff(np.signbit(d), axis=1), axis=1) / (block / rate)
+    two_level = (
+        active
+        & (near >= TIMECODE_TWO_LEVEL_SHARE)
+        & (up > 0.3)
+        & (up < 0.7)
+        & (crossings >= TIMECODE_MIN_CROSSINGS_PER_S)
+    )
+    return bool(np.count_nonzero(two_level) >= 0.5 * np.count_nonzero(active))
+
+
+def _channels_text(ks: list[int]) -> str:
+    """'channel 2' or 'channels 1, 3 and 4' (``ks`` count from 0)."""
+    names = [str(k + 1) for k in ks]
+    if len(names) == 1:
+        return f"channel {names[0]}"
+    return f"channels {', '.join(names[:-1])} and {names[-1]}"
 
 
 def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
-    """Mono float32 samples of ``audio`` (channels averaged) and ``None``; when the average is more
-    than ``CANCELLED_MIX_DB`` below the loudest channel (phase-inverted copies cancel to silence),
-    that channel alone, with a note saying so (``channel`` counts from 1)."""
-    x = audio.mono_float()
-    if audio.channels < 2:
+    """Mono float32 samples of ``audio`` and ``None`` when all its channels are averaged; otherwise the
+    samples and a note (``audio_mix`` of the align report; channels count from 1) saying what was done:
+
+    - ``channels_left_out``: channels holding a timecode signal, and channels more than
+      ``IDLE_CHANNEL_DB`` below the loudest (idle), are left out; the others are averaged;
+    - ``louder_channel``: the average of the channels kept is more than ``CANCELLED_MIX_DB`` below the
+      loudest of them (phase-inverted copies cancel to silence): that channel alone is used."""
+    n = audio.channels
+    if n < 2:
+        return audio.mono_float(), None
+    channels = [channel_float(audio, k) for k in range(n)]
+    timecode = [looks_like_timecode(c, audio.sample_rate) for c in channels]
+    levels = [_level(c) for c in channels]
+    sound = [k for k in range(n) if not timecode[k]]
+    if not sound:  # nothing but timecode: nothing to hear, the speech check reports it
+        return audio.mono_float(), None
+    loud = max(sound, key=lambda k: levels[k])
+    if levels[loud] <= 0:  # all silent: the silence check reports it
+        return audio.mono_float(), None
+    left_out: list[dict[str, Any]] = []
+    used: list[int] = []
+    for k in range(n):
+        if timecode[k]:
+            left_out.append({"channel": k + 1, "reason": "timecode"})
+        elif levels[k] < levels[loud] * 10 ** (-IDLE_CHANNEL_DB / 20):
+            below = 20.0 * math.log10(levels[loud] / levels[k]) if levels[k] > 0 else None
+            left_out.append(
+                {
+                    "channel": k + 1,
+                    "reason": "idle",
+                    "below_loudest_db": None if below is None else round(below, 1),
+                }
+            )
+        else:
+            used.append(k)
+    if len(used) == 1:
+        x = channels[used[0]]
+    else:
+        x = channels[used[0]].copy()
+        for k in used[1:]:
+            x += channels[k]
+        x /= len(used)
+    dropped = ""
+    if left_out:
+        parts = [
+            f"channel {d['channel']} ("
+            + (
+                "a timecode signal (LTC), not sound"
+                if d["reason"] == "timecode"
+                else "idle: "
+                + (
+                    "silent"
+                    if d["below_loudest_db"] is None
+                    else f"{d['below_loudest_db']:.1f} dB below channel {loud + 1}"
+                )
+            )
+            + ")"
+            for d in left_out
+        ]
+        dropped = f"{', '.join(parts)} left out of the mix"
+    if len(used) > 1:
+        mix = _level(x)
+        below_db = 20.0 * math.log10(levels[loud] / mix) if mix > 0 else None  # None: the mix is silent
+        if below_db is None or below_db > CANCELLED_MIX_DB:
+            how = (
+                "the mix is silent"
+                if below_db is None
+                else f"the mix is {below_db:.1f} dB below channel {loud + 1}"
+            )
+            which = f"{n} audio channels" if len(used) == n else f"audio {_channels_text(used)}"
+            note: dict[str, Any] = {
+                "kind": "audio_mix",
+                "method": "louder_channel",
+                "channel": loud + 1,
+                "channels": n,
+                "used_channels": [loud + 1],
+                "mix_below_channel_db": None if below_db is None else round(below_db, 1),
+                "message": f"the {which} cancel when mixed ({how}; phase-inverted copies?): channel "
+                f"{loud + 1} alone is used" + (f"; {dropped}" if dropped else ""),
+            }
+            if left_out:
+                note["left_out"] = left_out
+            return channels[loud], note
+    if not left_out:
         return x, None
-    channels = [
-        Audio(audio.samples[:, k : k + 1], audio.sample_rate, audio.subtype).mono_float()
-        for k in range(audio.channels)
-    ]
-    levels = [_rms(c) for c in channels]
-    loud = int(np.argmax(levels))
-    if levels[loud] <= 0:
-        return x, None
-    mix = _rms(x)
-    below_db = 20.0 * math.log10(levels[loud] / mix) if mix > 0 else None  # None: the mix is silent
-    if below_db is not None and below_db <= CANCELLED_MIX_DB:
-        return x, None
-    how = (
-        "the mix is silent" if below_db is None else f"the mix is {below_db:.1f} dB below channel {loud + 1}"
-    )
+    kept = _channels_text(used) + (" alone is" if len(used) == 1 else " are averaged and")
     note = {
-        "method": "louder_channel",
-        "channel": loud + 1,
-        "channels": audio.channels,
-        "mix_below_channel_db": None if below_db is None else round(below_db, 1),
-        "message": f"the {audio.channels} audio channels cancel when mixed ({how}; phase-inverted "
-        f"copies?): channel {loud + 1} alone is used",
+        "kind": "audio_mix",
+        "method": "channels_left_out",
+        "channels": n,
+        "used_channels": [k + 1 for k in used],
+        "left_out": left_out,
+        "message": f"{dropped}: {kept} used",
     }
-    return channels[loud], note
+    if len(used) == 1:
+        note["channel"] = used[0] + 1
+    return x, note
+
+
+def remove_rumble(x: np.ndarray) -> np.ndarray:
+    """``x`` (16 kHz float samples) through the zero-phase high-pass at ``HIGHPASS_HZ``: its DC offset and
+    sub-audible rumble removed, as float32. Run forward from the steady state of the first sample (a DC
+    offset leaves no transient at the start), then backward from rest, in blocks of ``_CHUNK``."""
+    n = x.size
+    if n < 64:
+        return np.ascontiguousarray(x - np.mean(x, dtype=np.float64), dtype=np.float32)
+    y = np.empty(n, np.float32)
+    zi = sosfilt_zi(_HIGHPASS_SOS) * float(x[0])
+    for lo in range(0, n, _CHUNK):
+        part, zi = sosfilt(_HIGHPASS_SOS, np.asarray(x[lo : lo + _CHUNK], dtype=np.float64), zi=zi)
+        y[lo : lo + _CHUNK] = part
+    zi = np.zeros_like(zi)
+    for hi in range(n, 0, -_CHUNK):
+        lo = max(0, hi - _CHUNK)
+        part, zi = sosfilt(_HIGHPASS_SOS, y[lo:hi][::-1].astype(np.float64), zi=zi)
+        y[lo:hi] = part[::-1]
+    return y
 
 
 def to_16k_mono(
     audio: Audio, path: str | None = None, notes: list[dict[str, Any]] | None = None
 ) -> np.ndarray:
-    """The audio as mono float32 samples at 16 kHz (values in [-1, 1)): channels averaged, or the
-    loudest channel alone when they cancel in the average (``mono_mix``; its note is appended to
-    ``notes`` when given)."""
+    """The audio as mono float32 samples at 16 kHz (values in [-1, 1)), the channels mixed by
+    ``mono_mix`` and the DC offset and rumble removed by ``remove_rumble``. With ``notes``, the mix's
+    note (``kind`` ``audio_mix``) and, when the mix held a DC offset of at least ``DC_NOTE_LEVEL``, a note
+    on it (``kind`` ``audio_dc``) are appended."""
     import soxr
 
     x, note = mono_mix(audio)
@@ -79,7 +254,22 @@ def to_16k_mono(
         raise InputError(
             f"audio sample rate {audio.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
         )
-    if audio.sample_rate == TARGET_RATE:
-        return np.ascontiguousarray(x, dtype=np.float32)
-    y = soxr.resample(x.astype(np.float32), audio.sample_rate, TARGET_RATE, quality="VHQ")
-    return np.ascontiguousarray(y, dtype=np.float32)
+    dc = float(np.sum(x, dtype=np.float64)) / max(x.size, 1)
+    if dc != 0.0:  # off before resampling: the resampler would ring on the step from 0 at the start
+        x = x - np.float32(dc)
+    if audio.sample_rate != TARGET_RATE:
+        x = soxr.resample(x.astype(np.float32), audio.sample_rate, TARGET_RATE, quality="VHQ")
+    y = remove_rumble(x)
+    if notes is not None and abs(dc) >= DC_NOTE_LEVEL:
+        db = 20.0 * math.log10(abs(dc))
+        notes.append(
+            {
+                "kind": "audio_dc",
+                "dc_offset": round(dc, 6),
+                "dc_offset_dbfs": round(db, 1),
+                "highpass_hz": HIGHPASS_HZ,
+                "message": f"the audio holds a DC offset of {dc:+.4f} ({db:.1f} dBFS): removed, with any "
+                f"rumble below {HIGHPASS_HZ:g} Hz, by a zero-phase high-pass",
+            }
+        )
+    return y

@@ -29,6 +29,7 @@ class MovInfo:
     width: int | None
     height: int | None
     audio_start_s: float  # presentation time of the first audio sample relative to the video's
+    audio_tracks: int = 0  # audio streams in the file (the app writes one; 0: a video-only file)
 
 
 def probe_mov(path: str | Path) -> MovInfo:
@@ -43,6 +44,7 @@ def probe_mov(path: str | Path) -> MovInfo:
             timecode = c.metadata.get("timecode")
             fps = frames = width = height = None
             v_start = a_start = 0.0
+            tracks = 0
             for s in c.streams:
                 timecode = timecode or s.metadata.get("timecode")
                 if s.type == "video" and fps is None:
@@ -52,17 +54,76 @@ def probe_mov(path: str | Path) -> MovInfo:
                     width, height = s.codec_context.width, s.codec_context.height
                     if s.start_time is not None:
                         v_start = float(s.start_time * s.time_base)
-                if s.type == "audio" and s.start_time is not None:
+                if s.type == "audio":
+                    tracks += 1
+                if s.type == "audio" and s.start_time is not None and tracks == 1:
                     a_start = float(s.start_time * s.time_base)
     except (av.FFmpegError, OSError) as exc:
         raise InputError(f"video could not be opened (a truncated or damaged file?): {exc}", path) from None
-    return MovInfo(path, timecode, fps, frames, width, height, a_start - v_start)
+    return MovInfo(path, timecode, fps, frames, width, height, a_start - v_start, tracks)
+
+
+SILENT_PEAK = 10 ** (-70 / 20)  # a track peaking below -70 dBFS holds no usable sound (as s2a-align says)
 
 
 def read_mov_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) -> Audio:
     """The ``.mov``'s audio track at its own rate and sample format (non-finite float samples as in
-    ``read_audio``)."""
-    return check_samples(decode_with_pyav(path), Path(path), repairs)
+    ``read_audio``); of several tracks, the first that is not silent (``choose_mov_audio``)."""
+    return choose_mov_audio(path, repairs)[0]
+
+
+def choose_mov_audio(
+    path: str | Path, repairs: list[dict[str, Any]] | None = None
+) -> tuple[Audio, dict[str, Any] | None]:
+    """The ``.mov``'s audio and, for a file of several audio tracks, which one was used: the first that
+    is not silent (peak at or above -70 dBFS; the first track when all are), with repair ``audio_track``
+    naming every track's peak. The second value is ``{"track", "tracks", "peaks_dbfs"}`` (tracks
+    counted from 1) or None for a file of one track."""
+    path = Path(path)
+    try:
+        count = probe_mov(path).audio_tracks
+    except InputError:
+        count = 1  # a damaged file: decoding says what is wrong with it
+    if count <= 1:
+        return check_samples(decode_with_pyav(path), path, repairs), None
+    tracks = [decode_with_pyav(path, i) for i in range(count)]
+    peaks = [_peak(t) for t in tracks]
+    chosen = next((i for i, p in enumerate(peaks) if p >= SILENT_PEAK), 0)
+    described = ", ".join(f"{i + 1}: {_describe_peak(p)}" for i, p in enumerate(peaks))
+    if peaks[chosen] >= SILENT_PEAK:
+        why = "the first that is not silent" if chosen else "the first, which carries sound"
+    else:
+        why = "all are silent: the first"
+    if repairs is not None:
+        repairs.append(
+            {
+                "line": None,
+                "kind": "audio_track",
+                "message": f"{path.name} holds {len(tracks)} audio tracks ({described}): track {chosen + 1} "
+                f"is used ({why})",
+            }
+        )
+    choice = {
+        "track": chosen + 1,
+        "tracks": len(tracks),
+        "peaks_dbfs": [round(20 * np.log10(p), 1) if p > 0 else None for p in peaks],
+    }
+    return check_samples(tracks[chosen], path, repairs), choice
+
+
+def _peak(audio: Audio) -> float:
+    """Largest finite sample magnitude, full scale 1 whatever the sample format."""
+    x = audio.samples
+    scale = {"int16": 32768.0, "int32": 2147483648.0}.get(x.dtype.name, 1.0)
+    finite = np.abs(x[np.isfinite(x)]) if x.dtype.kind == "f" else np.abs(x.astype(np.float64))
+    return float(finite.max(initial=0.0)) / scale
+
+
+def _describe_peak(peak: float) -> str:
+    if peak <= 0:
+        return "silent (all zero)"
+    level = f"peak {20 * np.log10(peak):.1f} dBFS"
+    return f"silent ({level})" if peak < SILENT_PEAK else level
 
 
 def write_reference_mov(

@@ -22,7 +22,7 @@ import numpy as np
 from .audio_io import Audio, read_audio
 from .csv_take import read_csv_rows, read_livelink_csv, split_variant
 from .errors import InputError
-from .mov import probe_mov, read_mov_audio
+from .mov import MovInfo, choose_mov_audio, probe_mov
 from .paired import note_length_mismatch
 from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
@@ -232,8 +232,10 @@ def read_take_folder(
         }
     movs = _files_ending(folder, ".mov")
     mov = movs[0] if movs else None
-    wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov
-    wav = wavs[0] if wavs and mov is None else None
+    info = _probe(mov)
+    mov_audio = mov is not None and (info is None or info.audio_tracks > 0)  # unknown: decoding tells
+    wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov (or its audio)
+    wav = wavs[0] if wavs and not mov_audio else None
     if mov is not None:
         meta.sources.append(source_file(mov, "reference_video"))
         meta.extra["reference_video"] = mov.name
@@ -242,20 +244,27 @@ def read_take_folder(
     if audio_file is not None:
         audio = read_audio(audio_file, repairs)
         meta.sources.append(source_file(audio_file, "external_audio"))
-    elif mov is None and wav is None:
+    elif not mov_audio and wav is None:
+        why = "has no .mov or .wav" if mov is None else f"has no .wav, and {mov.name} holds no audio track"
         repairs.append(
-            {
-                "line": None,
-                "kind": "no_audio",
-                "message": "take folder has no .mov or .wav: imported without audio",
-            }
+            {"line": None, "kind": "no_audio", "message": f"take folder {why}: imported without audio"}
         )
     else:
-        if mov is not None:
-            audio = read_mov_audio(mov, repairs)
+        if mov_audio:
+            audio, track = choose_mov_audio(mov, repairs)
+            if track is not None:
+                meta.extra["mov_audio_track"] = track
         else:
             audio = read_audio(wav, repairs)
             meta.sources.append(source_file(wav, "audio"))
+            if mov is not None:
+                repairs.append(
+                    {
+                        "line": None,
+                        "kind": "audio_track",
+                        "message": f"{mov.name} holds no audio track: the audio is {wav.name} beside it",
+                    }
+                )
         csv_t0 = meta.csv["start_seconds_of_day"]
         for kind, source in (("A", "frame_log_audio"), ("V", "frame_log_video")):
             i = log.first(kind) if log else None
@@ -269,12 +278,14 @@ def read_take_folder(
             start_s, start_source = _signed_day_diff(tod, csv_t0), source
             break
         else:
-            info = probe_mov(mov) if mov is not None else None
+            if info is None and mov is not None:
+                info = probe_mov(mov)
             if info is not None and info.timecode:
                 try:
                     rate = info.video_fps or video_rate
                     tod = Timecode.parse(info.timecode, round(rate)).seconds_of_day
-                    start_s = _signed_day_diff(tod, csv_t0) + info.audio_start_s
+                    # a stand-in .wav starts with the video, as the .mov's audio would
+                    start_s = _signed_day_diff(tod, csv_t0) + (info.audio_start_s if mov_audio else 0.0)
                     start_source = "mov_timecode"
                 except ValueError:
                     pass
@@ -291,6 +302,17 @@ def read_take_folder(
     if audio is not None:
         take.attach_audio(audio, start_s, start_source)
     return take
+
+
+def _probe(mov: Path | None) -> MovInfo | None:
+    """The ``.mov``'s facts, or None without one or for a file that does not open (reading its audio
+    then says what is wrong with it)."""
+    if mov is None:
+        return None
+    try:
+        return probe_mov(mov)
+    except InputError:
+        return None
 
 
 def _neutral_pose(path: Path, take: Take) -> np.ndarray:

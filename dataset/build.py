@@ -23,13 +23,17 @@ import functools
 import hashlib
 import json
 import math
+import os
 import re
 import shutil
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
@@ -51,7 +55,15 @@ from capture.take import (
     write_take,
 )
 
-from .features import DEFAULT_FEATURES, FeatureSettings, compute_features, parse_features
+from .features import (
+    DEFAULT_FEATURES,
+    DEFAULT_LEVEL,
+    FeatureSettings,
+    compute_features,
+    level_gain,
+    parse_features,
+    speech_level,
+)
 from .manifest import MANIFEST_FILE, manifest_path, read_manifest, write_manifest
 from .normalize import KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
 from .qa import ANIM_LIMIT
@@ -60,6 +72,7 @@ from .splits import SPLITS, SplitRule, assign_splits
 
 DATASET_VERSION = "1"
 WORK = ".work"
+LOCK_FILE = ".build.lock"  # held (flock) by the one build writing into a dataset folder
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
 MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets are mostly not measured
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
@@ -67,6 +80,8 @@ SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
 MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
 CONTENT_FEATURES = ("fbank", "mfcc", "ppg")
 MAX_AUDIO_PEAK = 1000.0  # float audio this far past full scale (60 dB) is damaged, not loud
+STRAY_FACTOR = 10.0  # 10 ms frames past full scale this far above the take's loud-frame RMS are stray
+QUIET_GAIN = 10 ** (40 / 20)  # the level normalisation raising a take by more than 40 dB is warned about
 NARROWBAND_HZ = 4500.0  # above the 4 kHz band edge of 8 kHz audio and its resampler's transition band
 # align's flags that say the audio/face offset must not be trusted blindly (docs/align.md)
 UNTRUSTED_FLAGS = (
@@ -91,7 +106,7 @@ class BuildOptions:
     max_sample_s: float = 30.0
     jobs: int = 1
     keep_work: bool = False
-    settings: FeatureSettings = field(default_factory=FeatureSettings)
+    settings: FeatureSettings = field(default_factory=lambda: FeatureSettings(level=DEFAULT_LEVEL))
     skip_flagged: bool = False  # leave out takes whose audio/face offset align did not trust
 
     def __post_init__(self) -> None:
@@ -295,6 +310,7 @@ def collect_takes(
         raise InputError(f"no takes found in {', '.join(map(str, inputs))}")
     seen_paths: set[Path] = set()
     takes: list[SourceTake] = []
+    candidates: list[SourceTake] = []
     by_id: dict[str, SourceTake] = {}
     by_sha: dict[str, SourceTake] = {}
     for folder in folders:
@@ -359,18 +375,23 @@ def collect_takes(
             st.recording = recording_of(m)
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
-            if st.content_sha256 in by_sha:
-                twin = by_sha[st.content_sha256].id
-                warnings.append(
-                    f"take {m.id} ({origin['path']}) has the same frames and audio as take {twin}: "
-                    "skipped as a duplicate"
-                )
-                left_out.setdefault(m.id, f"skipped as a duplicate of take {twin} (same frames and audio)")
-                continue
-            if m.id in by_id:
-                raise InputError(f"two different takes share the id {m.id!r} (also {by_id[m.id].folder})", af)
-            by_id[m.id] = by_sha[st.content_sha256] = st
-            takes.append(st)
+            candidates.append(st)
+    # duplicates in id order (the first id is kept), whatever the order of the inputs
+    for st in sorted(candidates, key=lambda t: (t.id, t.source["path"])):
+        if st.content_sha256 in by_sha:
+            twin = by_sha[st.content_sha256].id
+            warnings.append(
+                f"take {st.id} ({st.source['path']}) has the same frames and audio as take {twin}: "
+                "skipped as a duplicate"
+            )
+            left_out.setdefault(st.id, f"skipped as a duplicate of take {twin} (same frames and audio)")
+            continue
+        if st.id in by_id:
+            raise InputError(
+                f"two different takes share the id {st.id!r} (also {by_id[st.id].folder})", st.folder
+            )
+        by_id[st.id] = by_sha[st.content_sha256] = st
+        takes.append(st)
     if not takes:
         raise InputError("no take is left to build from: " + "; ".join(warnings))
     takes.sort(key=lambda t: t.id)
@@ -504,6 +525,28 @@ def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
     return total > 0 and float(power[band].sum()) < 1e-5 * total
 
 
+def audio_gain(audio: np.ndarray, sample_rate: int) -> tuple[float, np.ndarray]:
+    """The factor that brings float audio past full scale back to a peak of 1 (FLAC would clip it),
+    and the stray samples left out of that peak (a bool mask): the 10 ms frames (and the frames either
+    side) that hold a sample past full scale and whose RMS is over ``STRAY_FACTOR`` times the take's
+    loud-frame level (the 99th percentile of frame RMS; real speech peaks at 2.6-4.6 times it), such as
+    one damaged sample that the resampler spread over its neighbours. A stray burst must not scale the
+    whole take's speech down: it is muted instead (set to 0, as NaN samples are on import)."""
+    mag = np.abs(np.asarray(audio, np.float32))
+    if float(mag.max(initial=0.0)) <= 1.0:
+        return 1.0, np.zeros(mag.size, bool)
+    step = max(1, sample_rate // 100)
+    n = -(-mag.size // step)
+    frames = np.pad(mag, (0, n * step - mag.size)).astype(np.float64).reshape(n, step)
+    rms = np.sqrt(np.mean(frames * frames, axis=1))
+    burst = (rms > STRAY_FACTOR * float(np.percentile(rms, 99))) & (frames.max(axis=1) > 1.0)
+    burst[1:] |= burst[:-1].copy()
+    burst[:-1] |= burst[1:].copy()  # and the frames either side, where the damage rings
+    stray = np.repeat(burst, step)[: mag.size]
+    kept = float(np.max(mag[~stray], initial=0.0))
+    return (1.0 / kept if kept > 1.0 else 1.0), stray
+
+
 def check_frame_grid(times: np.ndarray, fps: float, folder: str | Path) -> None:
     """Refuse an aligned take whose frame times are not the uniform grid ``i / fps`` (the align
     contract): features are computed on that grid, so other times would pair wrong audio and face."""
@@ -545,18 +588,54 @@ def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
     except (FileNotFoundError, json.JSONDecodeError):
         return None
     if (
-        rec.get("config_hash") != job.config_hash
+        not isinstance(rec, dict)
+        or rec.get("config_hash") != job.config_hash
+        or rec.get("take") != job.take_id
         or rec.get("sha256") != job.sha256
         or rec.get("split") != job.split
         or rec.get("speaker") != job.speaker  # another take's spelling may now name it
     ):
         return None
+    # each sample tar as the record wrote it (sha256): a build with other options that was stopped while
+    # rewriting this take's samples must not lend them to this one (it drops the record first, too)
     samples_dir = Path(job.work) / "samples"
     if not job.stats.is_file() or not all(
-        (samples_dir / f"{s['key']}.tar").is_file() for s in rec["samples"]
+        isinstance(s.get("sha256"), str) and _file_sha256(samples_dir / f"{s['key']}.tar") == s["sha256"]
+        for s in rec.get("samples", [])
     ):
         return None
     return rec
+
+
+def _file_sha256(path: Path) -> str | None:
+    """sha256 of a file, or None when it cannot be read."""
+    try:
+        return sha256_file(path)
+    except OSError:
+        return None
+
+
+def _invalidate(record: Path) -> None:
+    """Remove a record that marks work as done, durably, before that work is redone: a build stopped
+    halfway then finds no record, never a record vouching for files another build rewrote."""
+    try:
+        record.unlink()
+    except FileNotFoundError:
+        return
+    _fsync_dir(record.parent)
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # pragma: no cover - not on every platform
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
 
 
 def take_transcript(take: Take) -> str | None:
@@ -570,6 +649,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     rec = _record_is_current(job)
     if rec is not None:
         return rec | {"cached": True}
+    _invalidate(job.record)  # before its samples are rewritten (see _record_is_current)
     take = read_take(job.folder)
     idx = [take.channel_index(c) for c in job.channels]
     values = take.values[:, idx]
@@ -584,14 +664,17 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         at = int(np.argmax(np.abs(audio))) / job.settings.sample_rate
         raise InputError(
             f"audio holds a sample of {peak:.3g} at {at:.3f} s, over {MAX_AUDIO_PEAK:g} times full scale "
-            "(damaged samples?): repair or re-export the audio",
+            "(damaged samples?): repair or re-export the audio (s2a-capture import repairs isolated ones)",
             job.folder,
         )
-    gain = 1.0 / peak if peak > 1.0 else 1.0  # float audio past full scale: FLAC would clip it
+    gain, stray = audio_gain(audio, sr)
     audio_len = audio.shape[0]
     span = int(round(n * sr / fps))
     padded = np.zeros(max(span, audio_len), np.float32)
     padded[:audio_len] = audio * gain
+    padded[:audio_len][stray] = 0.0  # a stray burst (a damaged sample, spread by the resampler): muted
+    speech_db = speech_level(padded[:span], sr)  # what compute_features measures for its level_gain
+    level = level_gain(padded[:span], job.settings)
     t = np.arange(n) / fps
     in_audio = t < audio_len / sr
     finite = np.all(np.isfinite(values), axis=1)
@@ -666,6 +749,8 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             "neutral": None if neutral is None else [float(v) for v in neutral],
             "audio_gain": gain,
         }
+        if job.settings.level_target_db is not None:
+            meta["level_gain"] = level  # features only: the stored audio keeps the recorded level
         members = {
             "json": json_bytes(meta),
             "flac": flac_bytes(padded[s0:s1], sr),
@@ -676,9 +761,9 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             members[f"{name}.npy"] = npy_bytes(arr[a:b])
         if phones is not None:
             members["phones.npy"] = npy_bytes(phones[a:b])
-        w = ShardWriter(samples_dir / f"{key}.tar")
-        w.add(key, members)
-        w.close()
+        with ShardWriter(samples_dir / f"{key}.tar") as w:
+            w.add(key, members)
+            written = w.close()
         samples.append(
             {
                 "key": key,
@@ -686,6 +771,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
                 "frames": b - a,
                 "duration_s": (b - a) / fps,
                 "usable_frames": int(mask[a:b].sum()),
+                "sha256": written.sha256,  # of the one-sample tar: checked before it is reused
             }
         )
     rec = {
@@ -700,6 +786,9 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == FrameStatus.INTERPOLATED))),
         "narrowband": narrow,
         "audio_gain": gain,
+        "stray_samples": int(stray.sum()),
+        "speech_level_dbfs": speech_db,
+        "level_gain": level,
         "duration_s": n / fps,
         "samples": samples,
         "feature_stats": feat_stats,
@@ -777,6 +866,15 @@ def _merge_records(records: list[dict[str, Any]], channels: list[str], split: st
     return chan, feats
 
 
+def _distribution(summary: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per-channel statistics with null, not 0, for a channel without usable frames (a split whose
+    takes lost the face throughout): no statistic is measured there."""
+    return {
+        name: d if d.get("frames") else {k: (v if k == "frames" else None) for k, v in d.items()}
+        for name, d in summary.items()
+    }
+
+
 def plan_shards(records: list[dict[str, Any]], shard_bytes: int) -> list[dict[str, Any]]:
     """Shards per split: samples in key order, a new shard whenever the cap would be exceeded."""
     plan = []
@@ -813,10 +911,12 @@ def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str)
             and done["fingerprint"] == fingerprint
             and target.is_file()
             and target.stat().st_size == done["bytes"]
+            and _file_sha256(target) == done["sha256"]  # not damaged, nor rewritten by another build
         ):
             return done
-    except (FileNotFoundError, json.JSONDecodeError, KeyError):
+    except (FileNotFoundError, json.JSONDecodeError, KeyError, TypeError):
         pass
+    _invalidate(record)
     writer = ShardWriter(target)
     with writer:
         for key in keys:
@@ -848,6 +948,129 @@ def _worker_context(options: BuildOptions):
     return ctx
 
 
+def _exit_with_build(build_pid: int) -> None:
+    """Worker initializer: a watcher thread ends this worker as soon as the build process that started
+    it is gone (SIGKILL, a crash), instead of computing on for nobody while it holds the build's
+    stdout and stderr open. A pidfd (Linux 5.3) says so at once; elsewhere the pid is polled."""
+    try:
+        pidfd = os.pidfd_open(build_pid)
+    except ProcessLookupError:
+        os._exit(1)
+    except (AttributeError, OSError):
+        pidfd = None
+
+    def watch() -> None:
+        if pidfd is not None:
+            import select
+
+            select.select([pidfd], [], [])
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(build_pid, 0)
+                except ProcessLookupError:
+                    break
+                except OSError:
+                    pass
+        os._exit(1)
+
+    threading.Thread(target=watch, name="s2a-build-watch", daemon=True).start()
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """End a pool's workers now: pending takes cancelled, running ones terminated. A build that stops
+    (an error, Ctrl-C, SIGTERM) leaves no worker computing on and holding its output open."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        if p.is_alive():
+            p.terminate()
+    for p in processes:
+        p.join(5)
+        if p.is_alive():  # pragma: no cover - SIGTERM ignored
+            p.kill()
+            p.join(1)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM reached the build (``timeout``, systemd, a batch scheduler): it stops as on Ctrl-C,
+    finished takes kept for a rerun."""
+
+
+@contextmanager
+def _sigterm_stops_the_build() -> Iterator[None]:
+    """SIGTERM raises ``Terminated`` in the main thread (once; a second SIGTERM ends the process at
+    once), so that the build shuts its workers down. Left alone when the caller handles SIGTERM."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        raise Terminated()
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _lock_holder(path: Path) -> str:
+    try:
+        pid = path.read_text().strip()
+    except OSError:
+        return ""
+    return f" (pid {pid})" if pid.isdigit() else ""
+
+
+@contextmanager
+def output_lock(out: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the dataset folder ``out`` (``flock`` on ``out/.build.lock``) for a
+    whole build; another build into it is refused at once. The kernel releases the lock when the
+    process ends, however it ends, so a killed build never blocks the next one. The file is removed
+    when the build ends."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no flock
+        yield
+        return
+    path = out / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise InputError(
+                f"another build{_lock_holder(path)} is writing into this folder: wait for it to finish, "
+                "or build into another -o",
+                out,
+            ) from None
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # its holder removed the file as we opened it: lock the file now at that path
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        try:
+            path.unlink()  # while still holding it: a build waiting on this file sees it went, retries
+        except FileNotFoundError:  # pragma: no cover
+            pass
+        os.close(fd)
+
+
 def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
     folders = sorted({str(f.resolve()) for f in find_takes(inputs)})
     model = options.ppg_model
@@ -869,11 +1092,15 @@ def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
     )
 
 
-def _shards_present(out: Path, manifest: dict[str, Any]) -> bool:
-    return all(
-        (out / s["name"]).is_file() and (out / s["name"]).stat().st_size == s["bytes"]
-        for s in manifest["shards"]
-    )
+def damaged_shards(out: Path, manifest: dict[str, Any]) -> list[str]:
+    """Names of the manifest's shards that are missing or whose size or sha256 differ from it (one
+    read of every shard: a flipped byte keeps the size)."""
+    damaged = []
+    for s in manifest["shards"]:
+        path = out / s["name"]
+        if not path.is_file() or path.stat().st_size != s["bytes"] or _file_sha256(path) != s["sha256"]:
+            damaged.append(s["name"])
+    return damaged
 
 
 def build_dataset(
@@ -882,18 +1109,138 @@ def build_dataset(
     options: BuildOptions | None = None,
     say: Callable[[str], None] = lambda m: None,
 ) -> dict[str, Any]:
-    """Build (or resume building) the dataset ``out`` from takes in ``inputs``; returns a summary."""
+    """Build (or resume building) the dataset ``out`` from takes in ``inputs``; returns a summary.
+    One build at a time writes into ``out`` (``output_lock``); SIGTERM stops it like Ctrl-C."""
     options = options or BuildOptions()
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("output exists and is not a folder", out)
+    out.mkdir(parents=True, exist_ok=True)
+    with output_lock(out), _sigterm_stops_the_build():
+        return _build(inputs, out, options, say)
+
+
+PREVIOUS_SPLITS = "previous_splits.json"  # in .work: the splits of the manifest a rebuild replaces
+
+
+def _previous_splits(old: dict[str, Any] | None, work: Path) -> dict[str, str]:
+    """``{take: split}`` of the dataset this build replaces: its manifest, or, when an interrupted
+    rebuild already removed that, what the rebuild saved of it in ``.work``."""
+    if old is not None:
+        return {t: s for s in SPLITS for t in old["splits"][s]["takes"]}
+    try:
+        saved = json.loads((work / PREVIOUS_SPLITS).read_text())
+    except (OSError, ValueError):
+        return {}
+    ok = isinstance(saved, dict) and all(isinstance(v, str) for v in saved.values())
+    return saved if ok else {}
+
+
+def empty_split_warnings(split_of: dict[str, str], rule: SplitRule, speakers: int) -> list[str]:
+    """A warning for each val or test split that a fraction above 0 asked for and that got no take
+    (one take, or one speaker split by speaker, leaves nothing to hold out)."""
+    out = []
+    for split, fraction in (("val", rule.val_fraction), ("test", rule.test_fraction)):
+        if fraction > 0 and split not in split_of.values():
+            what = f"{speakers} speaker(s)" if rule.by == "speaker" else f"{len(split_of)} take(s)"
+            out.append(
+                f"the {split} split is empty though --{split}-fraction {fraction:g} asked for "
+                f"{fraction:.0%} of the audio: {what} are too few to hold some out"
+                + (" by speaker" if rule.by == "speaker" else "")
+                + f"; add data or pin with --{split}"
+            )
+    return out
+
+
+def _process_takes(jobs: list[TakeJob], options: BuildOptions, say: Callable[[str], None]):
+    """Records of ``jobs`` by take id, ``--jobs`` processes at once. A build that stops (an error in a
+    take, Ctrl-C, SIGTERM) stops its workers too; finished takes stay cached."""
+    records: dict[str, dict[str, Any]] = {}
+    total = len(jobs)
+
+    def note(i: int, rec: dict[str, Any]) -> None:
+        state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
+        bar = "#" * round(20 * i / total)
+        say(f"[{bar:<20}] {i}/{total} {rec['take']} ({state})")
+
+    if options.jobs == 1 or total <= 1:
+        for i, job in enumerate(jobs, 1):
+            rec = process_take(job)
+            records[job.take_id] = rec
+            note(i, rec)
+        return records
+    pool = ProcessPoolExecutor(
+        max_workers=min(options.jobs, total),
+        mp_context=_worker_context(options),
+        initializer=_exit_with_build,
+        initargs=(os.getpid(),),
+    )
+    try:
+        for i, rec in enumerate(pool.map(process_take, jobs), 1):
+            records[rec["take"]] = rec
+            note(i, rec)
+    except BrokenProcessPool:
+        _stop_pool(pool)
+        raise S2AError(
+            "a worker process died (out of memory?); finished takes are kept: rerun to resume"
+        ) from None
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown()
+    return records
+
+
+def _repair_shards(
+    out: Path,
+    work: Path,
+    old: dict[str, Any],
+    damaged: list[str],
+    jobs: list[TakeJob],
+    fingerprint: str,
+    options: BuildOptions,
+    say: Callable[[str], None],
+) -> bool:
+    """Rewrite the ``damaged`` shards of a dataset whose inputs and options are unchanged, from their
+    takes alone (the build is deterministic). True when every rewritten shard has the manifest's
+    sha256 and size again; False sends the caller to a full rebuild."""
+    names = set(damaged)
+    takes = {s["take"] for s in old["samples"] if s["shard"] in names}
+    mine = [j for j in jobs if j.take_id in takes]
+    if {j.take_id for j in mine} != takes:
+        return False
+    say(f"repairing {len(names)} damaged shard(s) ({', '.join(sorted(names))}) from {len(mine)} take(s)")
+    _process_takes(mine, options, say)
+    for entry in old["shards"]:
+        if entry["name"] not in names:
+            continue
+        keys = [{"key": s["key"]} for s in old["samples"] if s["shard"] == entry["name"]]
+        done = _write_shard(out, work, {"name": entry["name"], "samples": keys}, fingerprint)
+        if done["sha256"] != entry["sha256"] or done["bytes"] != entry["bytes"]:
+            say(f"{entry['name']} rebuilt differs from the manifest: rebuilding the dataset")
+            return False
+    return True
+
+
+def _build(
+    inputs: list[str | Path], out: Path, options: BuildOptions, say: Callable[[str], None]
+) -> dict[str, Any]:
     old = _prepare_output(out)
+    damaged: list[str] | None = None
+
+    def intact() -> bool:
+        """The old dataset's shards as its manifest says (checked once, when its inputs match)."""
+        nonlocal damaged
+        if damaged is None:
+            damaged = damaged_shards(out, old)
+            if damaged:
+                say(f"{len(damaged)} shard(s) differ from the manifest: {', '.join(damaged)}")
+        return not damaged
+
     # Cheap check first: the same input take folders and options as the finished dataset → nothing
     # to do (without re-aligning raw takes, whose aligned copies went with .work).
     input_fingerprint = _input_fingerprint(inputs, options)
-    if (
-        old is not None
-        and old.get("build", {}).get("input_fingerprint") == input_fingerprint
-        and _shards_present(out, old)
-    ):
+    if old is not None and old.get("build", {}).get("input_fingerprint") == input_fingerprint and intact():
         say("dataset is up to date")
         return _summary(out, old, up_to_date=True)
     work = out / WORK
@@ -906,6 +1253,9 @@ def build_dataset(
     durations = {t.id: (t.speaker, t.duration_s) for t in takes}
     split_of = assign_splits(durations, options.split, {t.id: t.recording for t in takes})
     warnings += split_share_warnings(durations, split_of, options.split)
+    warnings += empty_split_warnings(split_of, options.split, len({t.speaker for t in takes}))
+    previous = _previous_splits(old, work)
+    moved = {t: {"from": previous[t], "to": s} for t, s in split_of.items() if previous.get(t, s) != s}
     channels, channel_warnings = resolve_channels(options.channels, takes, split_of)
     warnings += channel_warnings
     assumed = sorted(t.id for t in takes if t.speaker_assumed)
@@ -934,16 +1284,6 @@ def build_dataset(
             "takes": [(t.id, t.sha256) for t in takes],
         }
     )
-    if (
-        old is not None
-        and old.get("build", {}).get("fingerprint") == fingerprint
-        and _shards_present(out, old)
-    ):
-        say("dataset is up to date")
-        return _summary(out, old, up_to_date=True)
-    if old is not None:
-        manifest_path(out).unlink()  # never leave a manifest describing shards we are replacing
-
     jobs = [
         TakeJob(
             str(t.folder),
@@ -964,32 +1304,22 @@ def build_dataset(
         )
         for t in takes
     ]
-    records: dict[str, dict[str, Any]] = {}
+    if old is not None and old.get("build", {}).get("fingerprint") == fingerprint:
+        if intact():
+            say("dataset is up to date")
+            return _summary(out, old, up_to_date=True)
+        if _repair_shards(out, work, old, damaged or [], jobs, fingerprint, options, say):
+            if not options.keep_work:
+                shutil.rmtree(work, ignore_errors=True)
+            return _summary(out, old, up_to_date=False) | {"repaired": sorted(damaged or [])}
+    if old is not None:
+        # what the old manifest said of the splits outlives it (an interrupted rebuild still reports
+        # moved takes when rerun); then never leave a manifest describing shards we are replacing
+        write_json_atomic(work / PREVIOUS_SPLITS, previous)
+    manifest_path(out).unlink(missing_ok=True)
+
+    records = _process_takes(jobs, options, say)
     stats_files = {job.take_id: str(job.stats) for job in jobs}
-    total = len(jobs)
-
-    def note(i: int, rec: dict[str, Any]) -> None:
-        state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
-        bar = "#" * round(20 * i / total)
-        say(f"[{bar:<20}] {i}/{total} {rec['take']} ({state})")
-
-    if options.jobs == 1 or total <= 1:
-        for i, job in enumerate(jobs, 1):
-            rec = process_take(job)
-            records[job.take_id] = rec
-            note(i, rec)
-    else:
-        with ProcessPoolExecutor(
-            max_workers=min(options.jobs, total), mp_context=_worker_context(options)
-        ) as pool:
-            try:
-                for i, rec in enumerate(pool.map(process_take, jobs), 1):
-                    records[rec["take"]] = rec
-                    note(i, rec)
-            except BrokenProcessPool:
-                raise S2AError(
-                    "a worker process died (out of memory?); finished takes are kept: rerun to resume"
-                ) from None
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
     for r in ordered:
         if r.get("out_of_range_frames"):
@@ -1014,6 +1344,17 @@ def build_dataset(
             warnings.append(
                 f"take {r['take']}: audio peaks at {peak:.2f} (past full scale: {why}): scaled by "
                 f"{r['audio_gain']:.3f} before features and storage (audio_gain in its samples)"
+            )
+        if r.get("stray_samples"):
+            warnings.append(
+                f"take {r['take']}: a burst past full scale over {STRAY_FACTOR:g} times the take's level (a "
+                f"damaged sample, or a click) muted ({r['stray_samples']} samples): not used for audio_gain"
+            )
+        if options.settings.level_target_db is not None and r.get("level_gain", 1.0) > QUIET_GAIN:
+            warnings.append(
+                f"take {r['take']}: speech at {r['speech_level_dbfs']:.1f} dBFS active level, raised by "
+                f"{20 * math.log10(r['level_gain']):.1f} dB for its features (a very quiet recording: check "
+                "the microphone)"
             )
         if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:
             warnings.append(
@@ -1103,7 +1444,7 @@ def build_dataset(
             "hours": sum(r["duration_s"] for r in mine) / 3600.0,
             "usable_frames": sum(r["usable_frames"] for r in mine),
             "hours_per_speaker": {k: v / 3600.0 for k, v in sorted(speakers.items())},
-            "channels": chan.summary(channels),
+            "channels": _distribution(chan.summary(channels)),
         }
         if phones is not None and all(r["phone_counts"] is not None for r in mine):
             counts = np.zeros(len(phones), np.int64)
@@ -1112,6 +1453,11 @@ def build_dataset(
                 counts[: c.size] += c
             entry["phone_frames"] = {p: int(c) for p, c in zip(phones, counts, strict=True)}
         stats[split] = entry
+        if not entry["usable_frames"]:  # train has some (checked above)
+            warnings.append(
+                f"the {split} split has no usable frame (its {len(mine)} take(s) lost the face, or their "
+                "audio, throughout): nothing can be evaluated on it"
+            )
 
     feature_dims = {}
     if ordered and ordered[0]["samples"]:
@@ -1159,7 +1505,7 @@ def build_dataset(
             for t in takes
         ],
         "stats": stats,
-        "warnings": warnings,
+        "warnings": sorted(warnings),  # the same whatever the order of the inputs
         "build": {
             "fingerprint": fingerprint,
             "input_fingerprint": input_fingerprint,
@@ -1172,19 +1518,34 @@ def build_dataset(
     write_manifest(out, manifest)
     if not options.keep_work:
         shutil.rmtree(work, ignore_errors=True)
-    return _summary(out, read_manifest(out), up_to_date=False)
+    return _summary(out, read_manifest(out), up_to_date=False, moved=moved)
 
 
-def _summary(out: Path, manifest: dict[str, Any], up_to_date: bool) -> dict[str, Any]:
+def _summary(
+    out: Path, manifest: dict[str, Any], up_to_date: bool, moved: dict[str, dict[str, str]] | None = None
+) -> dict[str, Any]:
+    """What a build did, for ``--json``. ``split_changes``: takes of the dataset this build replaced
+    that changed split (``{take: {"from", "to"}}``), also said in a warning (not in the manifest: it
+    depends on the folder's history, not on the inputs)."""
+    moved = moved or {}
+    warnings = list(manifest.get("warnings", []))
+    if moved:
+        listed = ", ".join(f"{t} ({c['from']} -> {c['to']})" for t, c in sorted(moved.items()))
+        warnings.append(
+            f"{len(moved)} take(s) of the dataset this build replaced changed split: {listed}; pin "
+            "splits with --val/--test to keep a release's splits"
+        )
+    splits = manifest.get("splits", {})
     return {
         "dataset": str(out),
         "up_to_date": up_to_date,
-        "takes": len(manifest["sources"]),
+        "takes": len(manifest.get("sources", [])),
         "samples": len(manifest["samples"]),
         "shards": len(manifest["shards"]),
         "hours": round(sum(s["duration_s"] for s in manifest["shards"]) / 3600.0, 6),
         "channels": len(manifest["channels"]),
         "features": manifest["features"]["names"],
-        "splits": {s: len(manifest["splits"][s]["takes"]) for s in SPLITS},
-        "warnings": manifest.get("warnings", []),
+        "splits": {s: len(splits.get(s, {}).get("takes", [])) for s in SPLITS},
+        "split_changes": moved,
+        "warnings": warnings,
     }

@@ -11,8 +11,8 @@ from pathlib import Path
 from capture.command import emit_json, progress, run
 from capture.errors import InputError
 
-from .build import BuildOptions, build_dataset
-from .features import DEFAULT_FEATURES
+from .build import BuildOptions, Terminated, build_dataset
+from .features import DEFAULT_FEATURES, FeatureSettings, parse_level
 from .normalize import KINDS
 from .ppg import BACKENDS
 from .qa import validate
@@ -47,6 +47,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ppg", default="none", choices=BACKENDS, help="PPG backend (default: none)")
     p.add_argument("--ppg-model", help="checkpoint (bottleneck) or model file (torchscript, onnx)")
     p.add_argument("--normalization", default="zscore", choices=KINDS, help="animation normalisation")
+    p.add_argument(
+        "--level",
+        default="speech",
+        help="speech-level normalisation before features: speech (active speech level -26 dBFS, the "
+        "default), a target in dBFS (-23), or none (features at the recorded level)",
+    )
     p.add_argument("--split-by", default="take", choices=("take", "speaker"), help="unit of the splits")
     p.add_argument("--val-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
     p.add_argument("--test-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
@@ -92,6 +98,12 @@ def _say(prefix: str):
 def cmd_build(args: argparse.Namespace) -> int:
     if not 0 < args.shard_mb < math.inf:
         raise InputError(f"--shard-mb must be a positive number, not {args.shard_mb}")
+    try:
+        level = parse_level(args.level)
+    except ValueError:
+        raise InputError(
+            f"--level must be speech, none or a target in dBFS between -80 and 0, not {args.level!r}"
+        ) from None
     options = BuildOptions(
         channels=args.channels,
         features=args.features,
@@ -106,15 +118,22 @@ def cmd_build(args: argparse.Namespace) -> int:
         jobs=args.jobs,
         keep_work=args.keep_work,
         skip_flagged=args.skip_flagged,
+        settings=FeatureSettings(level=level),
     )
-    summary = build_dataset(args.takes, args.out, options, say=_say("build"))
+    try:
+        summary = build_dataset(args.takes, args.out, options, say=_say("build"))
+    except Terminated:
+        print(f"{PROG}: terminated (SIGTERM); finished takes are kept: rerun to resume", file=sys.stderr)
+        return 143
     if args.json:
         emit_json(summary)
     else:
         print(
             f"{summary['dataset']}: {summary['takes']} takes, {summary['samples']} samples in "
             f"{summary['shards']} shards, {summary['hours'] * 60:.2f} min, {summary['channels']} channels, "
-            f"splits {summary['splits']}" + (" (up to date)" if summary["up_to_date"] else "")
+            f"splits {summary['splits']}"
+            + (" (up to date)" if summary["up_to_date"] else "")
+            + (f" (repaired {', '.join(summary['repaired'])})" if summary.get("repaired") else "")
         )
         for w in summary["warnings"]:
             print(f"warning: {w}")

@@ -5,10 +5,15 @@ Speech at 16 kHz is cut into 40 ms Hann windows every 20 ms (the paper's setting
 log-mel filter banks, MFCC, pitch (``pitch.py``) and the phonetic posteriorgram (``ppg.py``, which
 consumes the filter banks), then interpolate every feature linearly to the animation frame times
 ``i / fps``. Statistics for normalisation are gathered by the build and stored once in the manifest.
+
+With a speech level in the settings (``level="speech -26 dBFS"``, the default of new builds) the take's
+audio is first scaled so that its active speech level (``speech_level``, in the spirit of ITU-T P.56) is
+that target: the microphone's gain is arbitrary, the face does not depend on it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -20,6 +25,12 @@ from .pitch import PitchSettings, track_pitch
 
 FEATURES = ("pitch", "energy", "fbank", "mfcc", "ppg")
 DEFAULT_FEATURES = ("pitch", "energy", "fbank")
+DEFAULT_LEVEL = "speech -26 dBFS"  # new builds; settings without a level (older datasets) are "none"
+LEVEL_MARGIN_DB = 15.9  # P.56's margin: frames within it of the active level are speech
+LEVEL_HANGOVER_S = 0.2  # P.56's hangover: a pause shorter than this stays active
+LEVEL_FRAME_S = 0.010
+MAX_LEVEL_GAIN_DB = 60.0  # a take at -86 dBFS active level is raised no further than to -26
+SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS peak the audio holds no speech (s2a-align's test too)
 
 
 @dataclass(frozen=True)
@@ -35,6 +46,15 @@ class FeatureSettings:
     fmin_hz: float = 0.0
     fmax_hz: float = 8000.0
     pitch: PitchSettings = field(default_factory=PitchSettings)
+    level: str = "none"  # "none" or "speech <dB> dBFS" (parse_level): speech-level normalisation
+
+    def __post_init__(self) -> None:
+        parse_level(self.level)  # ValueError for another text
+
+    @property
+    def level_target_db(self) -> float | None:
+        """The active speech level the audio is scaled to before features, or None (as recorded)."""
+        return _level_target(self.level)
 
     @property
     def win_length(self) -> int:
@@ -56,6 +76,82 @@ def parse_features(spec: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     if bad:
         raise InputError(f"unknown feature(s) {', '.join(bad)} (known: {', '.join(FEATURES)})")
     return tuple(n for n in FEATURES if n in names)
+
+
+def _level_target(text: str) -> float | None:
+    if text == "none":
+        return None
+    parts = text.split()
+    if len(parts) == 3 and parts[0] == "speech" and parts[2] == "dBFS":
+        try:
+            target = float(parts[1])
+        except ValueError:
+            target = math.nan
+        if -80.0 <= target <= 0.0:
+            return target
+    raise ValueError(f"level {text!r} is not 'none' or 'speech <dB between -80 and 0> dBFS'")
+
+
+def parse_level(spec: str) -> str:
+    """The settings' ``level`` from ``none``, ``speech`` (-26 dBFS), a target in dBFS (``-23``) or the
+    stored form ``speech -23 dBFS``; a ``ValueError`` for anything else."""
+    spec = " ".join(str(spec).split())
+    if spec.lower() == "none":
+        return "none"
+    if spec.lower() == "speech":
+        return DEFAULT_LEVEL
+    try:
+        spec = f"speech {float(spec):g} dBFS"
+    except ValueError:
+        pass
+    _level_target(spec)
+    return spec
+
+
+def speech_level(audio: np.ndarray, sample_rate: int) -> float | None:
+    """Active speech level of ``audio`` in dBFS (RMS over the frames where speech is active), or None for
+    silent audio (peak under -70 dBFS).
+
+    In the spirit of ITU-T P.56: 10 ms frames are active when their level is within 15.9 dB of the
+    active level (with a 200 ms hangover), found as the fixed point of that rule reached from the level
+    of the whole take upward, so a click or a loud stretch does not set it and pauses do not lower it."""
+    x = np.asarray(audio, np.float64).ravel()
+    if x.size == 0:
+        return None
+    x = x - x.mean()  # a DC offset is no speech
+    if float(np.max(np.abs(x))) < SILENT_PEAK:
+        return None
+    step = max(1, int(round(LEVEL_FRAME_S * sample_rate)))
+    n = max(1, x.size // step)
+    frames = np.pad(x, (0, max(0, n * step - x.size)))[: n * step].reshape(n, step)
+    power = np.mean(frames * frames, axis=1)
+    db = 10.0 * np.log10(np.maximum(power, 1e-20))
+    hang = int(round(LEVEL_HANGOVER_S / LEVEL_FRAME_S))
+    level = 10.0 * np.log10(max(float(power.mean()), 1e-20))
+    for _ in range(100):
+        onset = (db >= level - LEVEL_MARGIN_DB).astype(np.int64)
+        counts = np.cumsum(onset)
+        behind = np.concatenate([np.zeros(hang + 1, np.int64), counts[: -hang - 1]])[:n]
+        active = counts - behind > 0  # an active frame within the last `hang` frames (or this one)
+        new = 10.0 * np.log10(max(float(power[active].mean()), 1e-20))
+        if new - level < 0.01:
+            level = max(level, new)
+            break
+        level = new
+    return level
+
+
+def level_gain(audio: np.ndarray, settings: FeatureSettings) -> float:
+    """Factor that brings ``audio``'s active speech level to the settings' target (1 without a target
+    or for silent audio; at most +-60 dB)."""
+    target = settings.level_target_db
+    if target is None:
+        return 1.0
+    level = speech_level(audio, settings.sample_rate)
+    if level is None:
+        return 1.0
+    gain_db = float(np.clip(target - level, -MAX_LEVEL_GAIN_DB, MAX_LEVEL_GAIN_DB))
+    return 10.0 ** (gain_db / 20.0)
 
 
 def mel_filters(settings: FeatureSettings) -> np.ndarray:
@@ -152,8 +248,12 @@ def compute_features(
     ``fps`` (Hz) describe the animation grid. Returns ``{name: (n_frames, dim) float32}`` (pitch is
     (n_frames, 2): log-F0 and voicing) and the per-frame phone ids (int16, -1 unknown) when the PPG
     backend knows phones, else None. ``transcript`` (the words spoken) lets a PPG backend that can
-    (pocketsphinx) force-align instead of recognising phones.
+    (pocketsphinx) force-align instead of recognising phones. With a speech level in the settings the
+    audio is scaled by ``level_gain`` first.
     """
+    gain = level_gain(audio, settings)
+    if gain != 1.0:
+        audio = (np.asarray(audio, np.float32) * np.float32(gain)).astype(np.float32)
     spectral = spectral_features(audio, settings)
     n_an = spectral["energy"].shape[0]
     out: dict[str, np.ndarray] = {}

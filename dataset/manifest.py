@@ -186,9 +186,11 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
             out.append((f"normalization.features.{name}.std", "must be positive (it divides)"))
     out += _pitch_problems(data, norm)
     splits = data["splits"] if isinstance(data["splits"], dict) else {}
-    for split in SPLITS:
-        takes = splits.get(split, {}).get("takes", []) if isinstance(splits.get(split, {}), dict) else None
-        if not isinstance(takes, list) or not all(isinstance(t, str) for t in takes):
+    for split in SPLITS:  # every split, empty or not: readers look each one up
+        takes = splits[split].get("takes") if isinstance(splits.get(split), dict) else None
+        if split not in splits and isinstance(data["splits"], dict):
+            out.append((f"splits.{split}", "missing (expected an object whose takes list take ids)"))
+        elif not isinstance(takes, list) or not all(isinstance(t, str) for t in takes):
             out.append((f"splits.{split}", "must be an object whose takes are a list of take ids"))
     if not isinstance(splits.get("rule", {}), dict):
         out.append(("splits.rule", "must be a JSON object"))

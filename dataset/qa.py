@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -86,6 +87,40 @@ CHECKS: tuple[Check, ...] = (
         "split_leakage", "splits", False, "a take (or, split by speaker, a speaker) is in more than one split"
     ),
     Check("manifest_mismatch", "splits", False, "samples listed in the manifest and found in shards differ"),
+    Check(
+        "split_listing",
+        "manifest",
+        False,
+        "a take's samples sit in another split than splits.SPLIT.takes (or sources[].split) lists it under, "
+        "or in no split's list",
+    ),
+    Check(
+        "stats_mismatch",
+        "manifest",
+        False,
+        "stats.SPLIT (takes, samples, hours, usable frames, hours per speaker) or a shard's duration_s "
+        "differ from the takes and samples the manifest lists",
+    ),
+    Check(
+        "feature_names",
+        "manifest",
+        False,
+        "features.names, features.dims, members and normalization.features name different features",
+    ),
+    Check(
+        "split_empty",
+        "manifest",
+        False,
+        "a val or test split that its fraction asked for holds no take, or a split holds no usable frame "
+        "(warning)",
+    ),
+    Check(
+        "build_leftover",
+        "dataset",
+        False,
+        "a build's .work folder, lock or .partial files in the dataset folder: a build is running or was "
+        "interrupted (warning)",
+    ),
     Check(
         "still_channel",
         "takes",
@@ -475,6 +510,7 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
         for take in manifest.get("splits", {}).get(split, {}).get("takes", []):
             listed.setdefault(take, set()).add(split)
     out += _in_several(listed, lambda t: f"{MANIFEST_FILE}:splits", lambda t, s: f"take {t} is listed in {s}")
+    out += manifest_consistency(manifest)
     manifest_keys = {m.get("key"): m for m in manifest.get("samples", [])}
     found = set(keys)
     for key in sorted(set(manifest_keys) - found):
@@ -503,6 +539,193 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
             )
         out += _entry_mismatch(manifest_keys[key], first[key], manifest.get("fps"))
     return out
+
+
+def _listing_problems(manifest: dict[str, Any]) -> list[Problem]:
+    """splits.SPLIT.takes and sources[].split against the split of each take's samples."""
+    out: list[Problem] = []
+    sample_splits: dict[str, set[str]] = {}
+    for s in manifest["samples"]:
+        sample_splits.setdefault(s["take"], set()).add(s["split"])
+    listed = {t: split for split in SPLITS for t in manifest["splits"][split]["takes"]}
+    for take, splits in sorted(sample_splits.items()):
+        if take not in listed:
+            out.append(
+                _p(
+                    "split_listing",
+                    f"{MANIFEST_FILE}:splits",
+                    f"take {take} has samples but no split lists it",
+                )
+            )
+        elif splits != {listed[take]}:
+            out.append(
+                _p(
+                    "split_listing",
+                    f"{MANIFEST_FILE}:splits.{listed[take]}.takes",
+                    f"take {take} is listed under {listed[take]}; its samples are in "
+                    + ", ".join(sorted(splits)),
+                )
+            )
+    for i, src in enumerate(manifest.get("sources", [])):
+        take, split = src.get("take"), src.get("split")
+        if isinstance(take, str) and isinstance(split, str) and take in listed and listed[take] != split:
+            out.append(
+                _p(
+                    "split_listing",
+                    f"{MANIFEST_FILE}:sources[{i}].split",
+                    f"says {split}; splits.{listed[take]}.takes lists take {take}",
+                )
+            )
+    return out
+
+
+def _close(a: float, b: float, tolerance: float) -> bool:
+    return abs(a - b) <= tolerance + 1e-9 * max(abs(a), abs(b))
+
+
+def _stats_problems(manifest: dict[str, Any]) -> list[Problem]:
+    """What ``s2a-dataset stats`` shows (stats.SPLIT, shards[i].duration_s) against the manifest's own
+    takes and samples; durations agree within a frame."""
+    out: list[Problem] = []
+    fps = manifest["fps"]
+    frame = 1.0 / fps
+    stats = manifest.get("stats", {})
+    for split in SPLITS:
+        takes = manifest["splits"][split]["takes"]
+        samples = [s for s in manifest["samples"] if s["split"] == split]
+        entry = stats.get(split)
+        at = f"{MANIFEST_FILE}:stats.{split}"
+        if entry is None:
+            if takes:
+                out.append(_p("stats_mismatch", at, f"missing; the split lists {len(takes)} take(s)"))
+            continue
+        seconds = sum(s["duration_s"] for s in samples)
+        usable = sum(s.get("usable_frames", 0) for s in samples)
+        per_speaker: dict[str, float] = {}
+        for s in samples:
+            per_speaker[s["speaker"]] = per_speaker.get(s["speaker"], 0.0) + s["duration_s"]
+        found = {
+            "takes": (entry["takes"], len(takes)),
+            "samples": (entry["samples"], len(samples)),
+        }
+        if all("usable_frames" in s for s in samples):
+            found["usable_frames"] = (entry["usable_frames"], usable)
+        for name, (says, has) in found.items():
+            if says != has:
+                out.append(_p("stats_mismatch", f"{at}.{name}", f"says {says}; the manifest lists {has}"))
+        tolerance = frame * max(1, len(samples))
+        if not _close(entry["hours"] * 3600.0, seconds, tolerance):
+            out.append(
+                _p(
+                    "stats_mismatch",
+                    f"{at}.hours",
+                    f"says {entry['hours'] * 3600.0:.3f} s; the split's samples last {seconds:.3f} s",
+                )
+            )
+        hours = entry["hours_per_speaker"]
+        if set(hours) != set(per_speaker) or not all(
+            _close(hours[k] * 3600.0, v, tolerance) for k, v in per_speaker.items()
+        ):
+            out.append(
+                _p(
+                    "stats_mismatch",
+                    f"{at}.hours_per_speaker",
+                    "differs from the durations of the split's samples by speaker",
+                )
+            )
+    for i, shard in enumerate(manifest["shards"]):
+        mine = [s["duration_s"] for s in manifest["samples"] if s["shard"] == shard["name"]]
+        if not _close(shard["duration_s"], sum(mine), frame):
+            out.append(
+                _p(
+                    "stats_mismatch",
+                    f"{MANIFEST_FILE}:shards[{i}].duration_s",
+                    f"says {shard['duration_s']} s; its {len(mine)} sample(s) last {sum(mine):.6f} s",
+                )
+            )
+    return out
+
+
+BASE_MEMBERS = ("json", "flac", "anim.npy", "mask.npy")
+OPTIONAL_MEMBERS = ("phones.npy",)  # with a phone-aware PPG
+
+
+def _feature_problems(manifest: dict[str, Any]) -> list[Problem]:
+    """The features the manifest names, in each place it names them."""
+    features = manifest["features"]
+    names = features["names"]
+    out: list[Problem] = []
+    at = f"{MANIFEST_FILE}:features"
+
+    def differ(where: str, theirs: set[str], ours: set[str]) -> None:
+        if theirs != ours:
+            gone, extra = sorted(ours - theirs), sorted(theirs - ours)
+            said = (f"lacks {', '.join(gone)}" if gone else "") + ("; " if gone and extra else "")
+            said += f"names {', '.join(extra)} that features.names does not" if extra else ""
+            out.append(_p("feature_names", where, f"{said} (features.names: {', '.join(names) or 'none'})"))
+
+    if len(set(names)) != len(names):
+        out.append(_p("feature_names", f"{at}.names", "names a feature twice"))
+    dims = features.get("dims")
+    if isinstance(dims, dict):
+        differ(f"{at}.dims", set(dims), set(names))
+    members = manifest.get("members")
+    if isinstance(members, list):
+        named = {m[:-4] for m in members if isinstance(m, str) and m.endswith(".npy")}
+        named -= {m[:-4] for m in BASE_MEMBERS + OPTIONAL_MEMBERS if m.endswith(".npy")}
+        differ(f"{MANIFEST_FILE}:members", named, set(names))
+        lacking = sorted(set(BASE_MEMBERS) - set(members))
+        if lacking:
+            out.append(_p("feature_names", f"{MANIFEST_FILE}:members", f"lacks {', '.join(lacking)}"))
+    norm = manifest["normalization"].get("features")
+    if isinstance(norm, dict):
+        differ(f"{MANIFEST_FILE}:normalization.features", set(norm), set(names) - {"pitch"})
+    return out
+
+
+def _empty_split_problems(manifest: dict[str, Any]) -> list[Problem]:
+    """Warnings: a val or test split its fraction asked for that holds no take; a split with takes but
+    no usable frame (nothing to train or evaluate on)."""
+    out: list[Problem] = []
+    rule = manifest["splits"].get("rule", {})
+    for split in ("val", "test"):
+        fraction = rule.get(f"{split}_fraction")
+        if _is_fraction(fraction) and fraction > 0 and not manifest["splits"][split]["takes"]:
+            out.append(
+                _p(
+                    "split_empty",
+                    f"{MANIFEST_FILE}:splits.{split}",
+                    f"no take, though the build asked for {fraction:.0%} of the audio (too few takes or "
+                    "speakers)",
+                    "warning",
+                )
+            )
+    for split, entry in manifest.get("stats", {}).items():
+        if entry.get("takes") and entry.get("usable_frames") == 0:
+            out.append(
+                _p(
+                    "split_empty",
+                    f"{MANIFEST_FILE}:stats.{split}",
+                    f"its {entry['takes']} take(s) have no usable frame",
+                    "warning",
+                )
+            )
+    return out
+
+
+def _is_fraction(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def manifest_consistency(manifest: dict[str, Any]) -> list[Problem]:
+    """Fields of a manifest (that passed ``manifest_schema``) that contradict each other: splits against
+    samples, stats against samples, feature names against members and normalisation, empty splits."""
+    return (
+        _listing_problems(manifest)
+        + _stats_problems(manifest)
+        + _feature_problems(manifest)
+        + _empty_split_problems(manifest)
+    )
 
 
 def _entry_mismatch(entry: dict[str, Any], found: dict[str, Any], fps: Any) -> list[Problem]:
@@ -677,4 +900,41 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
     for p in sorted(ds.glob("*.tar")):
         if p.name not in listed:
             problems.append(_p("shard_unlisted", p.name, "not listed in the manifest", "warning"))
+    problems.extend(leftover_problems(ds))
     return Report(str(ds), deep, len(shards), len(seen), problems)
+
+
+def _build_running(lock: Path) -> bool:
+    """Whether a build holds the lock of its dataset folder right now."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover
+        return False
+    try:
+        fd = os.open(lock, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)
+    return False
+
+
+LEFTOVERS = (".work", ".build.lock")  # dataset.build's WORK and LOCK_FILE
+
+
+def leftover_problems(ds: Path) -> list[Problem]:
+    """Warnings for what a build leaves only while it runs or when it was stopped: ``.work/``, its
+    lock, hidden ``.NAME.partial`` files. A finished dataset to share has none."""
+    found = sorted(p.name for p in ds.iterdir() if p.name in LEFTOVERS or p.name.endswith(".partial"))
+    if not found:
+        return []
+    state = (
+        "a build is writing into this folder right now"
+        if _build_running(ds / LEFTOVERS[1])
+        else "left by a build that was stopped: rerun the build to finish it, or remove them before sharing"
+    )
+    return [_p("build_leftover", ", ".join(found[:4]) + (" ..." if len(found) > 4 else ""), state, "warning")]

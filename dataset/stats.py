@@ -41,7 +41,7 @@ def dataset_stats(ds: str | Path) -> dict[str, Any]:
         }
         for spk, h in s["hours_per_speaker"].items():
             out["hours_per_speaker"].setdefault(spk, {})[split] = round(h, 6)
-        out["channel_distributions"][split] = s["channels"]
+        out["channel_distributions"][split] = {name: _measured(d) for name, d in s["channels"].items()}
         for p, n in s.get("phone_frames", {}).items():
             all_phones[p] = all_phones.get(p, 0) + n
     if all_phones:
@@ -55,6 +55,18 @@ def dataset_stats(ds: str | Path) -> dict[str, Any]:
             "share": {p: round(n / total, 6) for p, n in all_phones.items()} if total else {},
         }
     return out
+
+
+def _measured(d: dict[str, Any]) -> dict[str, Any]:
+    """A channel's distribution, its statistics null when no frame was measured (a split whose takes
+    lost the face throughout: older builds stored 0 there, which reads as a still channel)."""
+    if d.get("frames") == 0:
+        return {k: (v if k == "frames" else None) for k, v in d.items()}
+    return dict(d)
+
+
+def _num(v: Any) -> str:
+    return f"{v:7.3f}" if isinstance(v, (int, float)) else f"{'-':>7s}"
 
 
 def format_stats(s: dict[str, Any]) -> str:
@@ -81,10 +93,8 @@ def format_stats(s: dict[str, Any]) -> str:
     if train:
         lines.append("  train channel distributions (mean / std / p05 / p95 / max):")
         for name, d in train.items():
-            lines.append(
-                f"    {name:22s} {d['mean']:7.3f} {d['std']:7.3f} {d['p05']:7.3f} {d['p95']:7.3f} "
-                f"{d['max'] if d['max'] is not None else float('nan'):7.3f}"
-            )
+            values = " ".join(_num(d.get(k)) for k in ("mean", "std", "p05", "p95", "max"))
+            lines.append(f"    {name:22s} {values}")
     for w in s["warnings"]:
         lines.append(f"  warning: {w}")
     return "\n".join(lines)

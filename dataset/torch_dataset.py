@@ -24,6 +24,7 @@ from capture.errors import InputError
 from .manifest import dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
 from .shards import ShardReader, decode_flac, decode_npy
+from .splits import SPLITS
 
 
 def _rank_world() -> tuple[int, int]:
@@ -58,6 +59,18 @@ class ShardDataset(IterableDataset):
         super().__init__()
         self.ds = dataset_dir(ds)
         self.manifest = read_manifest(self.ds)
+        if split not in SPLITS:
+            raise InputError(f"split must be one of {', '.join(SPLITS)}, not {split!r}", self.ds)
+        if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
+            raise InputError(f"window must be a positive number of frames or None, not {window!r}", self.ds)
+        names = list(self.manifest["features"]["names"])
+        unknown = [f for f in features or () if f not in names]
+        if unknown:
+            raise InputError(
+                f"feature(s) {', '.join(map(repr, unknown))} not in this dataset (it has "
+                f"{', '.join(names) or 'none'})",
+                self.ds,
+            )
         self.split = split
         self.shards = [s["name"] for s in shards_of(self.manifest, split)]
         self.check_shards()
@@ -65,10 +78,12 @@ class ShardDataset(IterableDataset):
         for sample in self.manifest["samples"]:
             self.listed.setdefault(sample["shard"], set()).add(sample["key"])
         self.window = window
-        self.features = list(features) if features is not None else list(self.manifest["features"]["names"])
+        self.features = list(features) if features is not None else names
         self.shuffle_buffer = shuffle_buffer
         self.seed = seed
-        self.epoch = 0
+        # the epoch in shared memory: DataLoader workers (persistent ones too, forked or spawned) hold
+        # copies of this object but read the one value, at the start of each pass
+        self._epoch = torch.zeros(1, dtype=torch.int64).share_memory_()
         self.normalize = normalize
         self.audio = audio
         self.random_crop = (split == "train") if random_crop is None else random_crop
@@ -112,8 +127,17 @@ class ShardDataset(IterableDataset):
                 path,
             )
 
+    @property
+    def epoch(self) -> int:
+        return int(self._epoch[0])
+
+    @epoch.setter
+    def epoch(self, epoch: int) -> None:
+        self._epoch[0] = int(epoch)
+
     def set_epoch(self, epoch: int) -> None:
-        """Reshuffle differently in each epoch (call before iterating)."""
+        """Reshuffle differently in each epoch (call before iterating the DataLoader; its workers,
+        persistent or not, see the new epoch)."""
         self.epoch = epoch
 
     def __len__(self) -> int:
@@ -184,7 +208,8 @@ class ShardDataset(IterableDataset):
         rank, _ = _rank_world()
         info = get_worker_info()
         wid = info.id if info is not None else 0
-        rng = random.Random(f"{self.seed}:{self.epoch}:{rank}:{wid}")
+        epoch = self.epoch  # read once per pass: set_epoch of the main process, even in a worker
+        rng = random.Random(f"{self.seed}:{epoch}:{rank}:{wid}")
         buffer: list[tuple[str, dict[str, bytes]]] = []
         self.check_shards()  # again: a subclass may read other shards, and files change between epochs
         for sample in self._samples():

@@ -12,6 +12,7 @@ reads it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ from capture.command import progress
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
 from dataset.build import NARROWBAND_HZ, is_narrowband
-from dataset.features import FeatureSettings, compute_features
+from dataset.features import SILENT_PEAK, FeatureSettings, compute_features, speech_level
 from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
@@ -192,6 +193,14 @@ def predict(
                 f"note: {a}: no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at 8 kHz, or through a "
                 "phone codec?): its features lack the upper bands the run was trained on"
             )
+        for r in result["repairs"]:
+            say(f"warning: {a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
+        if result["silent"]:
+            level = "all zero" if result["peak_dbfs"] is None else f"peak {result['peak_dbfs']:.1f} dBFS"
+            say(
+                f"warning: {a}: the audio is silent ({level}, under -70 dBFS): there is no speech to "
+                "animate, the face stays still"
+            )
         if spec.styles:
             result["style"] = style or (speaker if speaker in spec.styles else MEAN)
         results.append(result)
@@ -225,8 +234,14 @@ def _predict_one(
         raise InputError("is a folder, not an audio file", a)
     if path.is_dir():
         raise InputError("output CSV path is a folder", path)
-    audio = to_16k_mono(read_audio(a), str(a))
+    repairs: list[dict[str, Any]] = []  # damaged samples are repaired as s2a-capture import repairs them
+    raw = read_audio(a, repairs)
+    if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
+        raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
+    audio = to_16k_mono(raw, str(a))
     narrow = is_narrowband(audio, TARGET_RATE)
+    peak = float(np.max(np.abs(audio), initial=0.0))
+    level = speech_level(audio, TARGET_RATE)
     values = animate(model, payload, audio, ppg, speaker, where=a, style=style, neutral=neutral)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
@@ -250,6 +265,10 @@ def _predict_one(
         "duration_s": n / fps,
         "clipped_values": clipped,
         "narrowband": narrow,
+        "silent": peak < SILENT_PEAK,
+        "peak_dbfs": round(20 * math.log10(peak), 1) if peak > 0 else None,
+        "speech_level_dbfs": None if level is None else round(level, 1),
+        "repairs": [{"kind": r["kind"], "message": r["message"]} for r in repairs],
     }
 
 
