@@ -511,6 +511,9 @@ def _extractor(backend: str, model: str | None):
     return _EXTRACTORS[(backend, model)]
 
 
+NARROWBAND_BLOCK = 1 << 20  # samples per block of the narrowband check's spectrum
+
+
 def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
     """Whether speech ``audio`` carries (almost) no energy between ``NARROWBAND_HZ`` and 7.5 kHz, as
     audio recorded at 8 kHz and resampled does: under 1e-5 of its power (measured: 3e-7..1.5e-6 for
@@ -519,8 +522,14 @@ def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
         return False
     import scipy.signal  # here, not at the top: scipy.signal costs 0.6 s of every command's start
 
-    freqs, power = scipy.signal.welch(audio.astype(np.float64), fs=sample_rate, nperseg=1024)
-    total = float(power.sum())
+    power = 0.0
+    block = NARROWBAND_BLOCK
+    for start in range(0, audio.size, block):  # a block at a time: memory stays small for long audio
+        part = audio[start : start + block]
+        if part.size >= 1024:
+            freqs, p = scipy.signal.welch(part.astype(np.float64), fs=sample_rate, nperseg=1024)
+            power = power + p * part.size
+    total = float(np.sum(power))
     band = (freqs > NARROWBAND_HZ) & (freqs < 7500.0)
     return total > 0 and float(power[band].sum()) < 1e-5 * total
 

@@ -115,16 +115,21 @@ def speech_level(audio: np.ndarray, sample_rate: int) -> float | None:
     In the spirit of ITU-T P.56: 10 ms frames are active when their level is within 15.9 dB of the
     active level (with a 200 ms hangover), found as the fixed point of that rule reached from the level
     of the whole take upward, so a click or a loud stretch does not set it and pauses do not lower it."""
-    x = np.asarray(audio, np.float64).ravel()
+    x = np.asarray(audio).ravel()
     if x.size == 0:
         return None
-    x = x - x.mean()  # a DC offset is no speech
-    if float(np.max(np.abs(x))) < SILENT_PEAK:
+    dc = float(x.mean(dtype=np.float64))  # a DC offset is no speech
+    if max(abs(float(x.max()) - dc), abs(float(x.min()) - dc)) < SILENT_PEAK:
         return None
     step = max(1, int(round(LEVEL_FRAME_S * sample_rate)))
     n = max(1, x.size // step)
-    frames = np.pad(x, (0, max(0, n * step - x.size)))[: n * step].reshape(n, step)
-    power = np.mean(frames * frames, axis=1)
+    power = np.zeros(n)
+    rows = max(1, (1 << 20) // step)  # a block of frames at a time: memory stays small for long audio
+    for r in range(0, n, rows):
+        block = np.zeros((min(rows, n - r), step))
+        part = x[r * step : (r + block.shape[0]) * step]
+        block.ravel()[: part.size] = part - dc
+        power[r : r + block.shape[0]] = np.mean(block * block, axis=1)
     db = 10.0 * np.log10(np.maximum(power, 1e-20))
     hang = int(round(LEVEL_HANGOVER_S / LEVEL_FRAME_S))
     level = 10.0 * np.log10(max(float(power.mean()), 1e-20))
@@ -199,12 +204,14 @@ def spectral_features(
     x = np.asarray(audio, np.float32)
     win, hop = settings.win_length, settings.hop_length
     pad = win // 2
-    if x.size <= pad:
-        padded = np.pad(x, (pad, pad))
-    else:
-        padded = np.pad(x, (pad, pad), mode="reflect")
     n = n_analysis_frames(x.size, settings)
-    padded = np.pad(padded, (0, max(0, (n - 1) * hop + win - padded.size)))
+    # x reflected at both ends by half a window (zeros when too short to reflect), then zeros up to the
+    # last frame's end: one copy of the audio, not one per step
+    padded = np.zeros(max(x.size + 2 * pad, (n - 1) * hop + win), np.float32)
+    padded[pad : pad + x.size] = x
+    if x.size > pad:
+        padded[:pad] = x[pad:0:-1]
+        padded[pad + x.size : 2 * pad + x.size] = x[-2 : -pad - 2 : -1]
     window = np.hanning(win + 2)[1:-1].astype(np.float32)  # periodic-ish Hann without zero ends
     mel = mel_filters(settings).astype(np.float32).T
     dct = dct_matrix(settings.n_mels, settings.n_mfcc).astype(np.float32).T

@@ -14,6 +14,10 @@ import numpy as np
 
 from capture.errors import InputError
 
+CHUNK_S = 60.0  # longer audio is tracked a minute at a time ...
+MARGIN_S = 2.0  # ... with this much context either side
+PRAAT_SILENCE = 0.03  # Praat's default silence threshold, a fraction of the sound's peak
+
 
 @dataclass(frozen=True)
 class PitchSettings:
@@ -34,15 +38,23 @@ def track_pitch(
     out = np.zeros((n_frames, 2), np.float32)
     if audio.size < int(3 * sample_rate / settings.floor_hz) + 1:
         return out  # too short for one analysis window: all unvoiced, log-F0 0
-    sound = parselmouth.Sound(audio.astype(np.float64), sampling_frequency=float(sample_rate))
-    try:
-        pitch = sound.to_pitch_ac(
-            time_step=hop_s, pitch_floor=settings.floor_hz, pitch_ceiling=settings.ceiling_hz
-        )
-    except parselmouth.PraatError as exc:  # pragma: no cover - Praat rejects only odd inputs
-        raise InputError(f"pitch tracking failed: {exc}") from None
-    f0 = pitch.selected_array["frequency"].astype(np.float64)
-    times = np.asarray(pitch.xs(), np.float64)
+    # Long audio is tracked in pieces of CHUNK_S seconds, each with MARGIN_S of context either side
+    # whose frames are dropped, so that Praat's memory (about 16 bytes per sample) stays bounded; audio
+    # up to CHUNK_S + 2 MARGIN_S is tracked in one piece, as before.
+    chunk, margin, total = int(CHUNK_S * sample_rate), int(MARGIN_S * sample_rate), audio.size
+    starts = [0] if total <= chunk + 2 * margin else list(range(0, total, chunk))
+    peak = float(np.max(np.abs(audio)))
+    pieces = []
+    for start in starts:
+        end = total if len(starts) == 1 else min(total, start + chunk)
+        lo, hi = max(0, start - margin), min(total, end + margin)
+        if hi - lo < int(3 * sample_rate / settings.floor_hz) + 1:
+            continue  # a last sliver shorter than one analysis window: its frames come from the margin
+        t, f = _praat_pitch(parselmouth, audio[lo:hi], lo / sample_rate, sample_rate, hop_s, settings, peak)
+        keep = (t >= start / sample_rate) & (t < end / sample_rate) if len(starts) > 1 else slice(None)
+        pieces.append((t[keep], f[keep]))
+    times = np.concatenate([t for t, _ in pieces])
+    f0 = np.concatenate([f for _, f in pieces])
     centres = np.arange(n_frames) * hop_s
     voiced_src = f0 > 0
     # Nearest tracker frame decides voicing; log-F0 is interpolated over voiced tracker frames only.
@@ -54,3 +66,25 @@ def track_pitch(
         out[:, 0] = np.interp(centres, times[voiced_src], np.log(f0[voiced_src]))
     out[:, 1] = voiced
     return out
+
+
+def _praat_pitch(parselmouth, audio, start_s: float, sample_rate: int, hop_s: float, settings, peak: float):
+    """(frame times in s, F0 in Hz, 0 unvoiced) of Praat's autocorrelation tracker on ``audio``, a piece
+    of a longer signal whose absolute peak is ``peak``, starting at ``start_s``. Praat judges silence
+    against the peak of the sound it is given: the threshold is scaled so that a piece is judged
+    against the whole signal's peak."""
+    sound = parselmouth.Sound(
+        audio.astype(np.float64), sampling_frequency=float(sample_rate), start_time=float(start_s)
+    )
+    own = float(np.max(np.abs(audio)))
+    silence = PRAAT_SILENCE * (peak / own if own > 0 else 1.0)
+    try:
+        pitch = sound.to_pitch_ac(
+            time_step=hop_s,
+            pitch_floor=settings.floor_hz,
+            pitch_ceiling=settings.ceiling_hz,
+            silence_threshold=silence,
+        )
+    except parselmouth.PraatError as exc:  # pragma: no cover - Praat rejects only odd inputs
+        raise InputError(f"pitch tracking failed: {exc}") from None
+    return np.asarray(pitch.xs(), np.float64), pitch.selected_array["frequency"].astype(np.float64)

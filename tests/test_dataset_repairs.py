@@ -13,6 +13,7 @@ import pytest
 from conftest import run_cli
 from dataset_helpers import make_aligned_take
 
+import dataset.build
 from capture import write_take
 from dataset import ShardReader, assign_splits
 from dataset.build import is_narrowband
@@ -111,7 +112,7 @@ def test_build_warns_when_a_split_takes_far_more_than_its_fraction(tmp_path):
     assert len(shares) == 1 and shares[0].startswith("the test split holds 25% of the audio (asked 10%)")
 
 
-def test_narrowband_speech_is_recognised(samples):
+def test_narrowband_speech_is_recognised(samples, monkeypatch):
     import scipy.signal
     import soundfile as sf
 
@@ -121,6 +122,31 @@ def test_narrowband_speech_is_recognised(samples):
         phone = scipy.signal.resample_poly(scipy.signal.resample_poly(x, 8000, rate), 2, 1)
         assert not is_narrowband(wide.astype(np.float32), 16000), wav
         assert is_narrowband(phone.astype(np.float32), 16000), wav
+        # long audio is measured a block at a time (memory): blocks of 4096 samples judge alike
+        monkeypatch.setattr(dataset.build, "NARROWBAND_BLOCK", 4096)
+        assert not is_narrowband(wide.astype(np.float32), 16000), wav
+        assert is_narrowband(phone.astype(np.float32), 16000), wav
+        monkeypatch.undo()
+
+
+def test_long_audio_is_pitch_tracked_in_pieces_that_agree_with_one_piece(monkeypatch):
+    import dataset.pitch
+
+    rate, hop = 16000, 0.02
+    t = np.arange(24 * rate) / rate
+    f0 = 120 + 40 * np.sin(2 * np.pi * 0.3 * t)  # a voice gliding 80..160 Hz ...
+    voiced = (t % 3) < 2  # ... in 2 s phrases with 1 s pauses; the first ones under Praat's silence
+    level = np.where(t < 8, 0.005, 0.3)  # threshold (3 % of the peak), which only the whole audio has
+    x = (np.sin(2 * np.pi * np.cumsum(f0) / rate) * voiced * level).astype(np.float32)
+    x += np.random.default_rng(0).normal(0, 1e-3, x.size).astype(np.float32)
+    n = 1 + x.size // int(hop * rate)
+    whole = dataset.pitch.track_pitch(x, rate, n, hop, dataset.pitch.PitchSettings())
+    monkeypatch.setattr(dataset.pitch, "CHUNK_S", 5.0)
+    monkeypatch.setattr(dataset.pitch, "MARGIN_S", 1.0)
+    pieces = dataset.pitch.track_pitch(x, rate, n, hop, dataset.pitch.PitchSettings())
+    # Praat judges silence against the sound's own peak: each piece is judged against the whole's
+    assert np.array_equal(whole[:, 1], pieces[:, 1]) and 0.35 < whole[:, 1].mean() < 0.55
+    assert np.abs(whole[:, 0] - pieces[:, 0]).max() < 0.01
 
 
 def test_out_of_range_values_loud_float_audio_and_narrowband_audio(tmp_path):
