@@ -10,6 +10,12 @@ index in ``epoch``), ``positions`` (that pair for every DDP rank), ``rng`` (torc
 
 from __future__ import annotations
 
+import errno
+import fcntl
+import os
+import shutil
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -23,12 +29,99 @@ from dataset.normalize import FeatureNormalizer, Normalizer
 FORMAT = "s2a-train-checkpoint"
 VERSION = 1
 LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.jsonl"
+LOCK = ".lock"  # held (fcntl.flock) by the fit writing the run folder
+FULL_BYTES = 1 << 20  # a file system with less than this free after a failed write counts as full
+
+
+def disk_full(exc: BaseException, folder: Path) -> bool:
+    """Whether a failed write failed because the file system is full: ENOSPC, its message (torch's
+    writer raises a RuntimeError with the C library's text, or none at all), or no space left."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    if "no space left" in str(exc).lower() or "quota exceeded" in str(exc).lower():
+        return True
+    try:
+        return shutil.disk_usage(folder).free < FULL_BYTES
+    except OSError:
+        return False
+
+
+def write_error(exc: BaseException, path: Path, what: str = "") -> InputError:
+    """A one-line error naming ``path`` for a write that failed with ``exc`` (an OSError, or the
+    RuntimeError torch.save raises: "[enforce fail at inline_container.cc:...]"). Call it while the
+    partial file still exists, so that a full disk is still seen as full."""
+    what = what or path.name
+    if disk_full(exc, path.parent):
+        return InputError(f"cannot write {what}: no space left on device", path)
+    if isinstance(exc, OSError) and exc.strerror:
+        reason = exc.strerror
+    else:
+        lines = str(exc).strip().splitlines()
+        reason = lines[0] if lines else type(exc).__name__
+    return InputError(f"cannot write {what}: {reason}", path)
+
+
+def partial_path(path: Path) -> Path:
+    """The hidden name a file is assembled under beside ``path`` (as capture.atomic does)."""
+    return path.with_name(f".{path.name}.partial")
+
+
+def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") -> None:
+    """``write(tmp)`` a file beside ``path``, fsync it and rename it over ``path``: a reader (or a
+    full disk) never sees half a file, and an existing ``path`` stays as it was when writing fails.
+    Failures become one-line errors naming ``path``."""
+    tmp = partial_path(path)
+    try:
+        write(tmp)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:
+        error = write_error(exc, path, what)
+        tmp.unlink(missing_ok=True)
+        raise error from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def save_checkpoint(payload: dict[str, Any], path: Path) -> None:
-    """Atomic write (temporary file, fsync, rename)."""
-    with atomic_write(path) as f:
-        torch.save({"format": FORMAT, "version": VERSION, **payload}, f)
+    """Atomic write (temporary file, fsync, rename); a failure (a full disk) is a one-line error naming
+    the checkpoint, and the previous checkpoint of that name stays."""
+    try:
+        with atomic_write(path) as f:
+            try:
+                torch.save({"format": FORMAT, "version": VERSION, **payload}, f)
+                f.flush()
+            except (OSError, RuntimeError) as exc:  # seen while the partial file still fills the disk
+                raise write_error(exc, path) from None
+    except OSError as exc:  # the fsync or the rename
+        raise write_error(exc, path) from None
+
+
+@contextmanager
+def run_lock(run: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``run/.lock`` (created if needed) while the block runs: a second
+    ``fit`` into the same run folder is refused instead of interleaving its checkpoints and metrics."""
+    try:
+        fd = os.open(run / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise write_error(exc, run / LOCK, "the run folder's lock file") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(
+                "another s2a-train fit is writing this run folder (it holds its .lock): wait for it to "
+                "finish, or train into another -o",
+                run,
+            ) from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -128,4 +221,7 @@ def check_payload(payload: dict[str, Any], path: Path) -> None:
 
 
 def write_json(path: Path, obj: Any) -> None:
-    write_json_atomic(path, obj, allow_nan=True)
+    try:
+        write_json_atomic(path, obj, allow_nan=True)
+    except OSError as exc:
+        raise write_error(exc, path) from None

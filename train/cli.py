@@ -150,17 +150,23 @@ def _config(args: argparse.Namespace, model: str | None = None) -> dict:
     return resolve_config(None, None, base=cfg)
 
 
+def _given(args: argparse.Namespace, model: str | None) -> dict:
+    """Only the config keys the user set (``--config``, ``--set``, ``--model``, the limit options):
+    what a resumed run checks against its own config."""
+    given = resolve_config(args.config, args.set, base={}, check=False)
+    if model is not None:
+        given["model"] = model
+    for key in ("max_steps", "max_minutes"):  # limits given as options count as set by the user
+        if getattr(args, key) is not None:
+            given[key] = getattr(args, key)
+    return given
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from .fit import fit
 
     cfg = _config(args, args.model)
-    given = resolve_config(args.config, args.set, base={}, check=False)  # only the keys the user set
-    if args.model is not None:
-        given["model"] = args.model
-    for key in ("max_steps", "max_minutes"):  # limits given as options count as set by the user
-        if getattr(args, key) is not None:
-            given[key] = getattr(args, key)
-    summary = fit(args.data, args.out, cfg, resume=args.resume, given=given)
+    summary = fit(args.data, args.out, cfg, resume=args.resume, given=_given(args, args.model))
     if summary.get("rank", 0) == 0:  # under torchrun, rank 0 reports for all
         if args.json:
             emit_json(summary)
@@ -225,7 +231,14 @@ def cmd_predict(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     from .compare import compare, format_tables
 
-    rows = compare(args.data, args.out, args.models, lambda m: _config(args, m), args.split)
+    rows = compare(
+        args.data,
+        args.out,
+        args.models,
+        lambda m: _config(args, m),
+        args.split,
+        given_for=lambda m: _given(args, m),
+    )
     if args.json:
         for r in rows:
             emit_json(r)

@@ -15,7 +15,7 @@ from .checkpoint import LAST, write_json
 from .data import resolve_inputs
 from .ensemble import has_members
 from .evaluate import evaluate
-from .fit import fit
+from .fit import check_resumable, fit
 from .systems import build_model
 
 
@@ -26,8 +26,14 @@ def compare(
     config_for: Callable[[str], dict[str, Any]],
     split: str = "test",
     say: Callable[[str], None] = progress,
+    given_for: Callable[[str], dict[str, Any]] | None = None,
 ) -> list[dict[str, Any]]:
-    """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system."""
+    """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system.
+
+    ``given_for(model)``: the config keys the user set (command line); a run that already exists is
+    resumed with its own config and limits, and a given key whose value differs from the run's is
+    refused, as ``fit --resume`` refuses it (``max_steps`` and ``max_minutes`` may change). Without
+    ``given_for`` (a call from code), ``config_for``'s limits apply to the resumed runs."""
     out = Path(out)
     ds = Path(ds).parent if Path(ds).is_file() else Path(ds)
     manifest = read_manifest(ds)
@@ -36,12 +42,18 @@ def compare(
     for name in models:  # every system's settings checked before the first one trains
         cfg = config_for(name)
         build_model(name, resolve_inputs(manifest, cfg), cfg)
+        run = out / name
+        if given_for is not None and _resumable(run):
+            check_resumable(run, given_for(name), f"compare resumes {run}, which")
     rows = []
     for name in models:
         run = out / name
         say(f"compare: {name}")
-        resumable = (run / LAST).is_file() or has_members(run)
-        summary = fit(ds, run, config_for(name), resume=resumable, say=say)
+        resumable = _resumable(run)
+        if resumable:
+            say(f"compare: {run} exists: resuming it with its own config")
+        given = given_for(name) if given_for is not None else None
+        summary = fit(ds, run, config_for(name), resume=resumable, say=say, given=given)
         r = evaluate(run, ds, split, say=say)
         rows.append(
             {
@@ -64,6 +76,10 @@ def compare(
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "compare.json", rows)
     return rows
+
+
+def _resumable(run: Path) -> bool:
+    return (run / LAST).is_file() or has_members(run)
 
 
 def _ms(v: dict[str, float] | None) -> str:

@@ -9,6 +9,8 @@ are optimizer updates, ``window`` is animation frames, ``max_minutes`` wall-cloc
 from __future__ import annotations
 
 import copy
+import difflib
+import json
 import math
 import sys
 from pathlib import Path
@@ -77,10 +79,26 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
+# what a run's config.json holds besides its config (fit writes them): ignored when it is read as a config
+RUN_RECORD_KEYS = ("data", "world_size", "inputs")
+
+
+def _hint(key: str) -> str:
+    """`` (did you mean 'lr'?)`` for the closest known key; an arch field's name points to ``arch.``."""
+    from .systems import ARCH_TABLES  # only on this error path: it imports the models (torch)
+
+    if any(key in cls.__dataclass_fields__ for cls in ARCH_TABLES.values()):
+        return f" (did you mean 'arch.{key}'? model settings are arch keys)"
+    close = difflib.get_close_matches(key, sorted(DEFAULTS), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def _merge(base: dict[str, Any], extra: dict[str, Any], where: str) -> None:
     for key, value in extra.items():
         if key not in DEFAULTS:
-            raise InputError(f"unknown config key {key!r} (known: {', '.join(sorted(DEFAULTS))})", where)
+            raise InputError(
+                f"unknown config key {key!r}{_hint(key)} (known: {', '.join(sorted(DEFAULTS))})", where
+            )
         if key == "arch":
             if not isinstance(value, dict):
                 raise InputError("'arch' must be a table", where)
@@ -113,17 +131,12 @@ def resolve_config(
     cfg.setdefault("arch", {})
     if file is not None:
         path = Path(file)
-        if path.is_dir():
-            raise InputError("config path is a folder, not a TOML file", path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError("config file not found", path) from None
-        except OSError as exc:
-            raise InputError(f"cannot read config file: {exc.strerror}", path) from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"not valid TOML: {exc}", path) from None
+        data = read_config_file(path)
         _merge(cfg, data, str(path))
+        if check and isinstance(data.get("arch"), dict):  # name the file, not config:arch, for its typos
+            from .systems import check_arch
+
+            check_arch(data["arch"], f"{path}: [arch]")
     for item in sets or []:
         key, value = parse_set(item)
         if key.startswith("arch."):
@@ -137,6 +150,33 @@ def resolve_config(
     if check:
         check_config(cfg)
     return cfg
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """The keys of a TOML config file, or of a JSON one such as a run's ``config.json`` (whose
+    ``data``, ``world_size`` and ``inputs`` records are not config keys and are ignored)."""
+    if path.is_dir():
+        raise InputError("config path is a folder, not a TOML file (or a run's config.json)", path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise InputError("config file not found", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read config file: {exc.strerror}", path) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path) from None
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"not valid JSON: {exc}", path) from None
+        if not isinstance(data, dict):
+            raise InputError("a JSON config must be an object of config keys (as config.json is)", path)
+        return {k: v for k, v in data.items() if k not in RUN_RECORD_KEYS}
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path) from None
 
 
 def _is_int(value: Any) -> bool:

@@ -141,7 +141,8 @@ def fit_ensemble(
 
 
 def _member_summary(s: dict[str, Any]) -> dict[str, Any]:
-    return {k: s.get(k) for k in ("steps", "best_val", "stopped", "params_checksums", "ranks_in_sync")}
+    keys = ("steps", "best_val", "stopped", "params_checksums", "ranks_in_sync", "parameters")
+    return {k: s.get(k) for k in keys}
 
 
 def load_ensemble(run: Path, load_member: Callable[[Path], tuple[nn.Module, dict[str, Any]]]):

@@ -29,7 +29,7 @@ from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
 
 from .checkpoint import load_system
-from .data import InputSpec, normalize_features, to_model_inputs
+from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
 from .precision import for_inference, infer
 from .style import MEAN, check_style
 from .systems import check_sample_frames
@@ -104,10 +104,12 @@ def real_time_factor(
     seconds: float = 12.0,
     style: str | None = None,
     repeats: int = 5,
+    frames: int | None = None,
 ) -> float:
-    """Seconds of compute per second of animation for one ``seconds``-long utterance (batch 1): the
-    utterance ``item``'s inputs tiled or cut to that length."""
-    n = int(round(seconds * fps))
+    """Seconds of compute per second of animation for one ``seconds``-long utterance (batch 1), or one
+    of ``frames`` frames when given: the utterance ``item``'s inputs tiled or cut to that length."""
+    n = int(round(seconds * fps)) if frames is None else int(frames)
+    seconds = n / fps
     content, prosody = to_model_inputs(item, spec, style)
     reps = -(-n // content.shape[1])
     content = content.repeat(1, reps, 1)[:, :n]
@@ -132,6 +134,39 @@ class RawSamples(ShardDataset):
         item["speaker"] = meta.get("speaker")
         item["neutral"] = None if neutral is None else np.asarray(neutral, np.float32)
         return item
+
+
+class RawTakeSubset(TakeSubset, RawSamples):
+    """``RawSamples`` of chosen sample keys from the train and val shards (a run's own train or
+    validation takes when it trained with ``val_takes`` or ``drop_takes``)."""
+
+
+def run_split_keys(payload: dict[str, Any], manifest: dict[str, Any], split: str, where: Path):
+    """The sample keys that ``split`` means for this run, or None for the dataset's own split. A run
+    trained with ``val_takes`` or ``drop_takes`` validated on its own takes and trained on the others
+    (the dataset's val split may have trained it): its "train" and "val" are those."""
+    if split not in ("train", "val"):
+        return None
+    if "ensemble" in payload:  # every train/val take trained some member
+        if split == "val":
+            raise InputError(
+                "a cross-validation ensemble trained on every train and val take (each member validates on "
+                "its own fold; ensemble.json's cv_score): evaluate the test split, or one member's folder "
+                "(RUN/fold-i) on its val split",
+                where,
+            )
+        return None
+    cfg = payload.get("config") or {}
+    try:
+        keys = split_keys(manifest, cfg)
+    except InputError as exc:
+        raise InputError(f"the run's val_takes/drop_takes do not fit this dataset ({exc})", where) from None
+    if keys is None:
+        return None
+    chosen = keys[0] if split == "train" else keys[1]
+    if not chosen:
+        raise InputError(f"the run has no {split} takes (its drop_takes leave none)", where)
+    return chosen
 
 
 def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec: InputSpec, where: Path):
@@ -196,9 +231,11 @@ def evaluate(
     manifest = read_manifest(ds)
     channels = manifest["channels"]
     check_dataset_fits_run(manifest, info, spec, ds / "manifest.json")
-    if split not in {s["split"] for s in manifest["shards"]}:
+    own_keys = run_split_keys(payload, manifest, split, ds / "manifest.json")
+    if own_keys is None and split not in {s["split"] for s in manifest["shards"]}:
         raise InputError(f"dataset has no {split!r} split", ds / "manifest.json")
-    check_sample_frames(manifest, (split,), payload.get("model_config") or {}, ds / "manifest.json")
+    model_config = payload.get("model_config") or {}
+    check_sample_frames(manifest, (split,), model_config, ds / "manifest.json", own_keys)
     try:
         train_mean = np.asarray(
             [manifest["stats"]["train"]["channels"][c]["mean"] for c in channels], np.float64
@@ -210,7 +247,19 @@ def evaluate(
     run_norm = {"normalization": info["normalization"]}
     tally, floor = ErrorTally(channels), ErrorTally(channels)
     longest, own_style, seen = None, 0, 0
-    for item in RawSamples(ds, split, window=None, features=spec.features, normalize=False):
+    if own_keys is None:
+        samples = RawSamples(ds, split, window=None, features=spec.features, normalize=False)
+    else:
+        samples = RawTakeSubset(
+            ds,
+            ("train", "val"),
+            own_keys,
+            window=None,
+            features=spec.features,
+            normalize=False,
+            random_crop=False,
+        )
+    for item in samples:
         raw_feats = {f: item[f].numpy() for f in spec.features}
         feats = normalize_features(run_norm, raw_feats, item["speaker"])
         batch = {f: torch.from_numpy(x).unsqueeze(0) for f, x in feats.items()}
@@ -240,6 +289,17 @@ def evaluate(
         "step": payload["step"],
         "precision": precision,
     }
+    if own_keys is not None:
+        takes = sorted({s["take"] for s in manifest["samples"] if s["key"] in own_keys})
+        result["split_source"] = "run"  # the dataset's split otherwise
+        result["split_takes"] = takes
+        cfg = payload.get("config") or {}
+        given = "val_takes" if cfg.get("val_takes") else "drop_takes"
+        result["split_note"] = (
+            f"{split}: the run's own {'validation' if split == 'val' else 'training'} takes "
+            f"(it trained with {given}), not the dataset's {split} split"
+        )
+        say(f"note: {result['split_note']}: {', '.join(takes)}")
     result.update(tally.summary())
     fl = floor.summary()
     result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}
@@ -254,8 +314,18 @@ def evaluate(
             "utterances_in_chosen_style": seen if style not in (None, MEAN) else 0,
         }
     if longest is not None:
-        result["rtf"] = real_time_factor(model, spec, longest, info["fps"], rtf_seconds, style)
-        result["rtf_seconds"] = rtf_seconds
+        frames = int(round(rtf_seconds * info["fps"]))
+        limit = model_config.get("max_frames")
+        if isinstance(limit, int) and not isinstance(limit, bool) and 0 < limit < frames:
+            frames = limit  # the model takes no more in one pass
+            result["rtf_note"] = (
+                f"rtf timed on {limit} frames ({limit / info['fps']:g} s, the model's max_frames), "
+                f"not {rtf_seconds:g} s"
+            )
+            say(f"note: {result['rtf_note']}")
+        result["rtf"] = real_time_factor(model, spec, longest, info["fps"], style=style, frames=frames)
+        result["rtf_seconds"] = frames / info["fps"]
+        result["rtf_frames"] = frames
     result["device"] = device_name(torch.device("cpu"))
     say(
         f"{payload['system']} on {split}: rmse entire {_fmt(result['rmse_entire'])}, "
@@ -276,9 +346,13 @@ def format_result(r: dict[str, Any]) -> str:
         f"  rmse entire  {_fmt(r['rmse_entire'])}   floor (train mean) {_fmt(r['floor']['rmse_entire'])}",
         f"  rmse crucial {_fmt(r['rmse_crucial'])}   floor (train mean) {_fmt(r['floor']['rmse_crucial'])}",
     ]
+    if "split_note" in r:
+        lines.append(f"  {r['split_note']}: {', '.join(r['split_takes'])}")
     if "rtf" in r:
         where = f"{r['rtf_seconds']:g} s utterance, {r['device']}, {r.get('precision', 'fp32')}"
         lines.append(f"  rtf {r['rtf']:.5f} ({where})")
+        if "rtf_note" in r:
+            lines.append(f"  {r['rtf_note']}")
     worst = sorted(r["per_channel"].items(), key=lambda kv: -kv[1])[:5]
     lines.append("  worst channels: " + ", ".join(f"{k} {v:.2f}" for k, v in worst))
     return "\n".join(lines)

@@ -3,11 +3,15 @@
 Graph inputs: ``content`` (1, frames, content_dim) float32, ``prosody`` (1, frames, prosody_dim) float32
 (absent for the no-prosody ablation) and ``mask`` (1, frames) bool; output ``animation`` (1, frames,
 channels), normalised (de-normalise with the manifest's ``scale`` and ``offset``). Frames are a dynamic
-axis. The parity check runs both on random inputs of two lengths and reports the largest difference.
+axis, up to the model's ``max_frames`` (Transformer-S2A's positional table; longer inputs fail in
+onnxruntime, so run them in windows as ``predict`` does). The parity check runs both on random inputs of
+two lengths and reports the largest difference. The graph is written beside ``out`` under a hidden name
+and renamed over ``out`` only once the parity check has passed.
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -21,7 +25,7 @@ from capture.command import progress
 from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
 
-from .checkpoint import load_system
+from .checkpoint import disk_full, load_system, partial_path, write_error
 from .data import InputSpec
 
 
@@ -99,43 +103,75 @@ def export_onnx(
     wrapper = (
         _WithProsody(_traceable(traced_model)) if spec.prosody_dim else _NoProsody(_traceable(traced_model))
     )
-    example = _inputs(spec, 200, 0)
+    limit = (payload.get("model_config") or {}).get("max_frames")
+    limit = limit if isinstance(limit, int) and not isinstance(limit, bool) and limit > 0 else None
+    lengths = _check_lengths(limit)
+    example = _inputs(spec, lengths[0], 0)
     names = list(example)
     out = Path(out)
     if out.is_dir():
         raise InputError("output path is a folder: give the ONNX file to write", out)
     make_out_dir(out.parent)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(
-            wrapper,
-            tuple(example.values()),
-            str(out),
-            input_names=names,
-            output_names=["animation"],
-            dynamic_axes={**{n: {1: "frames"} for n in names}, "animation": {1: "frames"}},
-            opset_version=17,
-            dynamo=False,
-        )
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = 1
-    session = ort.InferenceSession(str(out), options, providers=["CPUExecutionProvider"])
-    worst = 0.0
-    for frames, seed in ((200, 1), (457, 2)):
-        x = _inputs(spec, frames, seed)
-        with torch.no_grad():
-            ref = reference(*x.values()).numpy()
-        got = session.run(None, {k: v.numpy() for k, v in x.items()})[0]
-        worst = max(worst, float(np.abs(got - ref).max()))
-    if not worst <= tolerance:
-        raise ExportFailed(f"{out}: onnxruntime differs from PyTorch by {worst:.3g} (> {tolerance:g})")
-    say(f"{out}: exported {payload['system']}, onnxruntime matches PyTorch within {worst:.2e}")
+    tmp = partial_path(out)  # renamed over out once the parity check passes; removed otherwise
+    try:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                torch.onnx.export(
+                    wrapper,
+                    tuple(example.values()),
+                    str(tmp),
+                    input_names=names,
+                    output_names=["animation"],
+                    dynamic_axes={**{n: {1: "frames"} for n in names}, "animation": {1: "frames"}},
+                    opset_version=17,
+                    dynamo=False,
+                )
+        except OSError as exc:
+            raise write_error(exc, out, "the ONNX file") from None
+        except RuntimeError as exc:  # torch's writer: a full disk shows as a RuntimeError
+            if disk_full(exc, out.parent):
+                raise write_error(exc, out, "the ONNX file") from None
+            raise
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = 1
+        session = ort.InferenceSession(str(tmp), options, providers=["CPUExecutionProvider"])
+        worst = 0.0
+        for seed, frames in enumerate(lengths, 1):
+            x = _inputs(spec, frames, seed)
+            with torch.no_grad():
+                ref = reference(*x.values()).numpy()
+            got = session.run(None, {k: v.numpy() for k, v in x.items()})[0]
+            worst = max(worst, float(np.abs(got - ref).max()))
+        if not worst <= tolerance:
+            raise ExportFailed(
+                f"{out}: onnxruntime differs from PyTorch by {worst:.3g} (> {tolerance:g}); nothing written"
+            )
+        os.replace(tmp, out)
+    except OSError as exc:
+        raise write_error(exc, out, "the ONNX file") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    longest = f"; at most {limit} frames per call (max_frames)" if limit else ""
+    say(f"{out}: exported {payload['system']}, onnxruntime matches PyTorch within {worst:.2e}{longest}")
     return {
         "run": str(run),
         "onnx": str(out),
         "model": payload["system"],
         "max_abs_diff": worst,
+        "checked_frames": list(lengths),
         "inputs": names,
+        # the longest input the graph takes (Transformer-S2A's positional table); null: no limit
+        "max_frames": limit,
         # the last len(styles) prosody columns: a one-hot of one of these speakers, or 1/n each (mean style)
         "styles": list(spec.styles),
     }
+
+
+def _check_lengths(limit: int | None) -> tuple[int, int]:
+    """Frame counts the graph is traced with and checked on: 200 and 457, within ``max_frames``."""
+    short, long = 200, 457
+    if limit is not None and limit < long:
+        long = limit
+        short = min(short, max(1, limit // 2))
+    return short, long

@@ -14,6 +14,7 @@ import math
 import os
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +27,17 @@ from dataset.manifest import read_manifest
 
 from .augment import augment
 from .augment import enabled as augmenting
-from .checkpoint import BEST, CONFIG, LAST, METRICS, load_checkpoint, save_checkpoint, write_json
+from .checkpoint import (
+    BEST,
+    CONFIG,
+    LAST,
+    METRICS,
+    load_checkpoint,
+    run_lock,
+    save_checkpoint,
+    write_error,
+    write_json,
+)
 from .config import DEFAULTS, check_config
 from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
 from .ensemble import check_ensemble_run, fit_ensemble
@@ -124,7 +135,8 @@ def _no_validation(manifest: dict[str, Any], cfg: dict[str, Any]) -> str | None:
     return None
 
 
-def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
+def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> tuple[dict[str, Any], torch.nn.Module]:
+    """Solve the ridge regression; (summary entries, the fitted model)."""
     model, model_config = build_model("ridge", spec, cfg)
     eq = NormalEquations(model.linear.in_features, spec.out_dim)
     t0, frames = time.perf_counter(), 0
@@ -156,14 +168,74 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> dict[str, Any]:
     elapsed = time.perf_counter() - t0
     scored = "" if best_val is None else f", val mse {best_val:.4f}"
     say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alphas[best]:g}{scored}")
-    with open(run / METRICS, "a") as f:
-        f.write(json.dumps({"step": 0, "val_mse": best_val, "train_frames": frames}) + "\n")
+    try:  # a new file: the run is solved once (a resumed ridge run is not solved again)
+        with open(run / METRICS, "w") as f:
+            f.write(json.dumps({"step": 0, "val_mse": best_val, "train_frames": frames}) + "\n")
+    except OSError as exc:
+        raise write_error(exc, run / METRICS) from None
     return {
         "steps": 0,
         "best_val": best_val,
         "stopped": "closed_form",
         "train_frames_per_s": frames / elapsed,
+    }, model
+
+
+def _summary(
+    run: Path,
+    cfg: dict[str, Any],
+    steps: int,
+    epochs: int | None,
+    best_val: float | None,
+    stopped: str | None,
+    world: int,
+    rank: int,
+    checksums: list[Any],
+    parameters: int | None,
+    session_s: float,
+    **extra: Any,
+) -> dict[str, Any]:
+    """``fit``'s summary: the same keys for every system (ridge and ensembles add their own)."""
+    return {
+        "run": str(run),
+        "model": cfg["model"],
+        "steps": steps,
+        "epochs": epochs,  # passes over the training split begun (the last may be partial)
+        "best_val": best_val,
+        "stopped": stopped,
+        "world_size": world,
+        "rank": rank,
+        "params_checksums": checksums,  # sha256 of every rank's parameters: DDP keeps them identical
+        "ranks_in_sync": len(set(checksums)) <= 1,
+        "parameters": parameters,
+        "session_s": session_s,
+        **extra,
     }
+
+
+def _solved_ridge(run: Path, cfg, state, spec, say) -> dict[str, Any]:
+    """A resumed ridge run: solved in closed form already, nothing to train (nor to append)."""
+    t0 = time.perf_counter()
+    model, _ = build_model("ridge", spec, cfg)
+    try:
+        model.load_state_dict(state["state_dict"])
+    except (RuntimeError, TypeError, KeyError) as exc:
+        reason = type(exc).__name__
+        raise InputError(f"checkpoint has a malformed state_dict ({reason})", run / LAST) from None
+    say(f"ridge is solved in closed form, and this run is (alpha {cfg['ridge_alpha']:g}): nothing to do")
+    return _summary(
+        run,
+        cfg,
+        0,
+        0,
+        state.get("best_val"),
+        "closed_form",
+        1,
+        0,
+        [_checksum(model)],
+        sum(p.numel() for p in model.parameters()),
+        time.perf_counter() - t0,
+    )
 
 
 def _checksum(model) -> str:
@@ -224,16 +296,29 @@ def fit(
         ds = ds.parent
     if run.exists() and not run.is_dir():
         raise InputError("run folder path is a file: give a folder with -o", run)
+    locks = ExitStack()
+    writer = int(os.environ.get("RANK", "0")) == 0  # under torchrun, rank 0 writes and holds the lock
+    held: list[bool] = []
+
+    def claim() -> None:
+        """Lock the run folder (once it exists) for the rest of this fit."""
+        if writer and not held:
+            locks.enter_context(run_lock(run))
+            held.append(True)
+
     try:
+        if run.is_dir():  # before reading its checkpoint: another fit may be about to rewrite it
+            claim()
         if resume and (run / CONFIG).is_file() and not (run / LAST).is_file():
             saved = _saved_config(run / CONFIG)
             if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
                 _refuse_changes(given, saved, run / CONFIG)
                 cfg = _resumed_config(saved, cfg, given)
         if cfg.get("cv_folds"):
-            return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps)
-        return _fit(ds, run, cfg, resume, say, stop_after_steps, given)
+            return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps, claim)
+        return _fit(ds, run, cfg, resume, say, stop_after_steps, given, claim)
     finally:
+        locks.close()
         if owns_group and dist.is_initialized():
             dist.destroy_process_group()
 
@@ -260,7 +345,9 @@ def _flat(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def _refuse_changes(given: dict[str, Any] | None, saved: dict[str, Any], where: Path) -> None:
+def _refuse_changes(
+    given: dict[str, Any] | None, saved: dict[str, Any], where: Path, who: str = "--resume"
+) -> None:
     """Resuming keeps the run's config: a key the user set to another value than the run's is an error
     (the limits ``max_steps`` and ``max_minutes`` may change)."""
     old = _flat({**DEFAULTS, **saved})
@@ -268,11 +355,19 @@ def _refuse_changes(given: dict[str, Any] | None, saved: dict[str, Any], where: 
         k for k, v in _flat(given or {}).items() if k not in ("max_steps", "max_minutes") and old.get(k) != v
     ]
     if changed:
+        runs = ", ".join(f"{k} = {json.dumps(old.get(k))}" for k in changed)
         raise InputError(
-            f"--resume keeps the run's config, but {', '.join(changed)} differ(s) from it; "
+            f"{who} keeps the run's config, but {', '.join(changed)} differ(s) from it (the run's: {runs}); "
             "only --max-steps and --max-minutes may change (train another run with -o)",
             where,
         )
+
+
+def check_resumable(run: Path, given: dict[str, Any] | None, who: str = "--resume") -> None:
+    """Refuse, before anything trains, to resume ``run`` (a run or ensemble folder with a saved
+    config.json) with ``given`` config keys other than the run's."""
+    if (run / CONFIG).is_file():
+        _refuse_changes(given, _saved_config(run / CONFIG), run / CONFIG, who)
 
 
 RUN_DATASET = ("channels", "fps", "features", "normalization")  # what a resumed run's dataset must match
@@ -328,6 +423,7 @@ def _fit_ensemble(
     resume: bool,
     say: Callable[[str], None],
     stop_after_steps: int | None,
+    claim: Callable[[], None] = lambda: None,
 ) -> dict[str, Any]:
     """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold."""
     manifest = read_manifest(ds)
@@ -338,6 +434,7 @@ def _fit_ensemble(
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     run.mkdir(parents=True, exist_ok=True)
+    claim()
     if rank == 0:
         write_json(run / CONFIG, {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
     t0 = time.perf_counter()
@@ -347,6 +444,7 @@ def _fit_ensemble(
 
     summary = fit_ensemble(fit_member, folds, run, cfg, resume, rank == 0, say)
     checksums = [c for m in summary["members"] for c in m["params_checksums"] or []]
+    sizes = [m.get("parameters") for m in summary["members"]]
     return {
         "run": str(run),
         "model": cfg["model"],
@@ -354,10 +452,21 @@ def _fit_ensemble(
         "world_size": world,
         "rank": rank,
         "params_checksums": checksums,
-        "ranks_in_sync": all(m["ranks_in_sync"] is not False for m in summary["members"]),
+        "parameters": sum(sizes) if all(isinstance(n, int) for n in sizes) else None,  # all members'
         "session_s": time.perf_counter() - t0,
         **summary,
+        "ranks_in_sync": all(m["ranks_in_sync"] is not False for m in summary["members"]),
     }
+
+
+def _start_afresh(run: Path) -> None:
+    """A run folder without ``last.pt`` holds at most what an attempt stopped before its first
+    checkpoint left (Ctrl-C, a crash): its metrics lines, a ``best.pt`` written just before the
+    ``last.pt`` that never came, its tensorboard events. A new run starts without them."""
+    (run / BEST).unlink(missing_ok=True)
+    (run / METRICS).unlink(missing_ok=True)
+    for events in (run / "tensorboard").glob("events.out.tfevents.*"):
+        events.unlink(missing_ok=True)
 
 
 def _fit(
@@ -368,12 +477,14 @@ def _fit(
     say: Callable[[str], None],
     stop_after_steps: int | None,
     given: dict[str, Any] | None = None,
+    claim: Callable[[], None] = lambda: None,
 ) -> dict[str, Any]:
     manifest = read_manifest(ds)  # refuses a manifest whose fps or normalisation is malformed
     rank, world, device = _distributed()
     main = rank == 0
     say = say if main else (lambda _m: None)
     state = None
+    # every check before anything is written: a refused run leaves its folder (and config.json) as it was
     if resume:
         if not (run / LAST).is_file():
             raise InputError(f"nothing to resume: no {LAST}", run)
@@ -384,23 +495,47 @@ def _fit(
         _refuse_changes(given, state["config"], run / LAST)
         cfg = _resumed_config(state["config"], cfg, given)
         check_config(cfg)
+        positions = state.get("positions") or [[state.get("epoch"), state.get("batch")]]
+        if len(positions) != world:
+            raise InputError(
+                f"the run was trained with {len(positions)} process(es): resume it with as many", run / LAST
+            )
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
     _, model_config = build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
+    if cfg["model"] == "ridge" and world > 1:
+        raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
     run.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder behind
+    claim()
     if spec.note:
         say(f"note: {spec.note}")
     if not spec.styles and cfg["style_dropout"] != DEFAULTS["style_dropout"]:
         say("note: style_dropout applies with speaker_style = true only: ignored")
-    if main:
-        write_json(run / CONFIG, {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
+    config_record = {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg}
     if cfg["model"] == "ridge":
-        if world > 1:
-            raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
-        return {"run": str(run), "model": "ridge", **_fit_ridge(ds, run, cfg, spec, say)}
+        if state is not None:
+            return _solved_ridge(run, cfg, state, spec, say)
+        write_json(run / CONFIG, config_record)
+        _start_afresh(run)
+        t0 = time.perf_counter()
+        solved, ridge = _fit_ridge(ds, run, cfg, spec, say)
+        return _summary(
+            run,
+            cfg,
+            steps=solved.pop("steps"),
+            epochs=0,
+            best_val=solved.pop("best_val"),
+            stopped=solved.pop("stopped"),
+            world=1,
+            rank=0,
+            checksums=[_checksum(ridge)],
+            parameters=sum(p.numel() for p in ridge.parameters()),
+            session_s=time.perf_counter() - t0,
+            **solved,
+        )
 
     torch.manual_seed(cfg["seed"])
     model, model_config = build_model(cfg["model"], spec, cfg)
@@ -410,25 +545,29 @@ def _fit(
     )
     step, epoch, batch_pos, best_val, bad_evals = 0, 0, 0, math.inf, 0
     if state is not None:
-        model.load_state_dict(state["state_dict"])
-        optimizer.load_state_dict(state["optimizer"])
-        step, epoch, batch_pos = state["step"], state["epoch"], state["batch"]
-        positions = state.get("positions") or [[epoch, batch_pos]]
-        if len(positions) != world:
-            raise InputError(
-                f"the run was trained with {len(positions)} process(es): resume it with as many", run / LAST
+        try:
+            model.load_state_dict(state["state_dict"])
+            optimizer.load_state_dict(state["optimizer"])
+            step, epoch, batch_pos = state["step"], state["epoch"], state["batch"]
+            positions = state.get("positions") or [[epoch, batch_pos]]
+            epoch, batch_pos = positions[rank]
+            best_val = state["best_val"] if state["best_val"] is not None else math.inf
+            bad_evals = state["bad_evals"]
+            ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
+            torch.set_rng_state(
+                ranks[rank] if isinstance(ranks, list) and len(ranks) == world else state["rng"]["torch"]
             )
-        epoch, batch_pos = positions[rank]
-        best_val = state["best_val"] if state["best_val"] is not None else math.inf
-        bad_evals = state["bad_evals"]
-        ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
-        torch.set_rng_state(
-            ranks[rank] if isinstance(ranks, list) and len(ranks) == world else state["rng"]["torch"]
-        )
-        if main and (run / METRICS).exists():  # drop lines logged after the checkpoint
+        except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+            first = " ".join(str(exc).strip().splitlines()[:1]) or type(exc).__name__
+            raise InputError(f"checkpoint cannot be resumed ({first})", run / LAST) from None
+    if main:  # written only now that every check has passed
+        write_json(run / CONFIG, config_record)
+        if state is None:
+            _start_afresh(run)
+        elif (run / METRICS).exists():  # drop lines logged after the checkpoint
             _trim_metrics(run / METRICS, step)
-        if state.get("stopped") == "early_stopping":
-            say(f"run stopped early at step {step}; nothing to resume")
+    if state is not None and state.get("stopped") == "early_stopping":
+        say(f"run stopped early at step {step}; nothing to resume")
     weights = channel_weights(manifest, cfg, device)
     no_val = _no_validation(manifest, cfg)
     has_val = no_val is None
@@ -448,7 +587,10 @@ def _fit(
             tb = SummaryWriter(str(run / "tensorboard"))
         except ImportError:
             tb = None
-    log = open(run / METRICS, "a") if main else None  # noqa: SIM115 - closed in finally
+    try:
+        log = open(run / METRICS, "a") if main else None  # noqa: SIM115 - closed in finally
+    except OSError as exc:
+        raise write_error(exc, run / METRICS) from None
 
     def save(name: str) -> None:
         positions: list[Any] = [[epoch, batch_pos]]
@@ -469,8 +611,11 @@ def _fit(
     def emit(record: dict[str, Any]) -> None:
         if log is not None:
             # strict JSON for jq and browsers: a NaN or infinite figure (a diverged run) is null
-            log.write(json.dumps(json_safe(record)) + "\n")
-            log.flush()
+            try:
+                log.write(json.dumps(json_safe(record)) + "\n")
+                log.flush()
+            except OSError as exc:
+                raise write_error(exc, run / METRICS) from None
             if tb is not None:
                 for k, v in record.items():
                     if k != "step" and isinstance(v, (int, float)):
@@ -531,7 +676,11 @@ def _fit(
             over = cfg["max_minutes"] > 0 and minutes >= cfg["max_minutes"]
             if world > 1 and cfg["max_minutes"] > 0:  # ranks stop together on rank-local clocks
                 over = _all_sum([float(over)], device)[0] > 0
-            if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"] or over:
+            # Validation only on the run's own schedule: a session cut short by the clock (or by
+            # stop_after_steps) saves last.pt and nothing else, so that sessions reproduce one
+            # uninterrupted run (no extra validations counting toward patience, writing best.pt or
+            # adding metrics lines at steps the uninterrupted run never validates at).
+            if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"]:
                 val = validation_loss(model, ds, spec, device, weights, cfg) if has_val else math.nan
                 improved = has_val and val < best_val
                 if improved:
@@ -559,6 +708,11 @@ def _fit(
                 if improved:
                     save(BEST)
                 save(LAST)
+            elif over:
+                stopped = "max_minutes"
+                save(LAST)
+            if stopped == "max_minutes":
+                say(f"step {step}: max_minutes ({cfg['max_minutes']:g}) reached; --resume continues the run")
             if stopped is None and stop_after_steps is not None and session_steps >= stop_after_steps:
                 stopped = "stopped"
                 save(LAST)
@@ -574,17 +728,16 @@ def _fit(
         dist.all_gather_object(gathered, checksums[0])
         checksums = gathered
         dist.barrier()
-    return {
-        "run": str(run),
-        "model": cfg["model"],
-        "steps": step,
-        "epochs": epoch + 1 if step else 0,  # passes over the training split begun (the last may be partial)
-        "best_val": None if math.isinf(best_val) else best_val,
-        "stopped": stopped,
-        "world_size": world,
-        "rank": rank,
-        "params_checksums": checksums,  # sha256 of every rank's parameters: DDP keeps them identical
-        "ranks_in_sync": len(set(checksums)) == 1,
-        "parameters": n_params,
-        "session_s": elapsed,
-    }
+    return _summary(
+        run,
+        cfg,
+        step,
+        epoch + 1 if step else 0,
+        None if math.isinf(best_val) else best_val,
+        stopped,
+        world,
+        rank,
+        checksums,
+        n_params,
+        elapsed,
+    )

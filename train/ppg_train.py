@@ -41,6 +41,8 @@ from dataset.features import FeatureSettings, spectral_features
 from dataset.phones import phone_index
 from dataset.ppg import PocketsphinxExtractor
 
+from .checkpoint import write_atomically
+
 AUDIO_SUFFIXES = (".wav", ".flac", ".WAV", ".FLAC")
 Segments = list[tuple[float, float, str]]
 MISMATCH_S = 0.5  # alignment and audio lengths may differ by this much without a warning
@@ -368,10 +370,9 @@ def train_ppg(
         if (step + 1) % 50 == 0:
             say(f"ppg step {step + 1}: cross-entropy {loss.item():.3f}")
     model.eval()
-    try:
-        save_bottleneck(model, out)
-    except (OSError, RuntimeError) as exc:
-        raise InputError(f"cannot write the checkpoint: {str(exc).splitlines()[0]}", out) from None
+    # beside -o under a hidden name, renamed over it once complete: a full disk leaves no truncated
+    # checkpoint, and an existing one at -o stays as it was (a one-line error names the file)
+    write_atomically(out, lambda tmp: save_bottleneck(model, tmp), "the checkpoint")
     return {
         "checkpoint": str(out),
         "utterances": len(utts),

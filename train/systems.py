@@ -3,6 +3,7 @@ frames of context) and ridge regression, built from an ``InputSpec`` and ``arch`
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import asdict, fields
 from typing import Any
 
@@ -25,25 +26,43 @@ ARCH_TABLES = {
 }
 
 
-def check_arch(arch: dict[str, Any]) -> None:
+# settings a system's name fixes: (system, arch key) -> what to say instead of ignoring the key
+FIXED = {
+    ("nvp3", "window"): "nvp3's window is fixed at 3 frames: train nvp9 for 9 frames, and drop arch.window",
+    ("nvp9", "window"): "nvp9's window is fixed at 9 frames: train nvp3 for 3 frames, and drop arch.window",
+    ("s2a", "moe"): "s2a always decodes with the MoE experts: train s2a-nomoe for the dense decoder, "
+    "and drop arch.moe",
+    ("s2a-nomoe", "moe"): "s2a-nomoe never has MoE experts: train s2a for them, and drop arch.moe",
+}
+
+
+def did_you_mean(word: str, known) -> str:
+    """`` (did you mean 'x'?)`` for the known name closest to a mistyped one, else ``""``."""
+    close = difflib.get_close_matches(word, sorted(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def check_arch(arch: dict[str, Any], where: str = "config:arch") -> None:
     """Refuse ``arch`` keys that no system has and keys of a system's table (``arch.blstm``) that
-    system does not have, whichever system is built: a typo shows at once."""
+    system does not have, whichever system is built: a typo shows at once, with the closest key."""
     shared = {k for k, v in arch.items() if not isinstance(v, dict)}
     everywhere = set().union(*({f.name for f in fields(c)} for c in ARCH_TABLES.values()))
     unknown = sorted(shared - everywhere)
     tables = [t for t in arch if isinstance(arch[t], dict)]
-    if unknown or set(tables) - set(ARCH_TABLES):
+    bad = unknown + sorted(set(tables) - set(ARCH_TABLES))
+    if bad:
+        hint = did_you_mean(bad[0], everywhere if bad[0] in unknown else ARCH_TABLES)
         raise InputError(
-            f"unknown arch keys {unknown + sorted(set(tables) - set(ARCH_TABLES))} "
-            f"(known: {sorted(everywhere)} and tables {sorted(ARCH_TABLES)})",
-            "config:arch",
+            f"unknown arch keys {bad}{hint} (known: {sorted(everywhere)} and tables {sorted(ARCH_TABLES)})",
+            where,
         )
     for table in tables:
         known = sorted(f.name for f in fields(ARCH_TABLES[table]))
         if set(arch[table]) - set(known):
+            wrong = sorted(set(arch[table]) - set(known))
             raise InputError(
-                f"unknown arch keys {sorted(set(arch[table]) - set(known))} for {table} (known: {known})",
-                "config:arch",
+                f"unknown arch keys {wrong} for {table}{did_you_mean(wrong[0], known)} (known: {known})",
+                where,
             )
 
 
@@ -60,6 +79,10 @@ def _config(cls, spec: InputSpec, fixed: dict[str, Any], arch: dict[str, Any], n
             f"arch.{from_data[0]} is set from the dataset (its features and channels), not in the config",
             "config:arch",
         )
+    for key, value in fixed.items():  # set by the system's name: a different value would be ignored
+        for given in (shared.get(key, value), own.get(key, value)):
+            if given != value:
+                raise InputError(f"arch.{key} = {given!r}: {FIXED[name, key]}", "config:arch")
     base = {"content_dim": spec.content_dim, "prosody_dim": spec.prosody_dim, "out_dim": spec.out_dim}
     base.update({k: v for k, v in shared.items() if k in known})
     chosen = {**base, **own, **fixed}
@@ -106,12 +129,17 @@ def _build(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, 
 
 
 def check_sample_frames(
-    manifest: dict[str, Any], splits: tuple[str, ...], model_config: dict[str, Any], where
+    manifest: dict[str, Any],
+    splits: tuple[str, ...],
+    model_config: dict[str, Any],
+    where,
+    keys: set[str] | None = None,
 ) -> None:
-    """Whole samples of ``splits`` (validation and evaluation read them unwindowed) must fit the model's
-    ``max_frames``."""
+    """Whole samples of ``splits`` (validation and evaluation read them unwindowed), or those of the
+    sample ``keys`` when given, must fit the model's ``max_frames``."""
     limit = model_config.get("max_frames")
-    frames = [s.get("frames") for s in manifest["samples"] if s.get("split") in splits]
+    chosen = (lambda s: s.get("key") in keys) if keys is not None else (lambda s: s.get("split") in splits)
+    frames = [s.get("frames") for s in manifest["samples"] if chosen(s)]
     longest = max((f for f in frames if isinstance(f, int)), default=0)
     if isinstance(limit, int) and longest > limit:
         raise InputError(

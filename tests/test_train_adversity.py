@@ -1,0 +1,368 @@
+"""``s2a-train`` under adversity: a run trained in time-limited sessions, ``compare`` re-run into its own
+folder with other settings, a restart after a first session that died before its first checkpoint, a
+full disk under fit / ppg / export, a refused resume, ``eval --split val`` of a run with its own
+validation takes, the RTF of a model whose max_frames is below 12 s, and the smaller repairs (arch keys a
+system's name fixes, ridge resumed, summary keys, config hints and JSON configs, the run-folder lock)."""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import soundfile as sf
+import torch
+from conftest import ROOT, run_cli
+from dataset_helpers import speech_like, write_aligned_set
+from test_train_pipeline import TINY
+
+from capture.errors import InputError
+from capture.textgrid import TextGrid, interval_tier, write_textgrid
+from dataset import BuildOptions, build_dataset, read_manifest
+from dataset.splits import SplitRule
+from train.checkpoint import load_checkpoint, run_lock, write_atomically, write_error
+from train.config import DEFAULTS, resolve_config
+from train.data import resolve_inputs
+from train.evaluate import evaluate, run_split_keys
+from train.export import ExportFailed, export_onnx
+from train.fit import fit
+from train.systems import build_model
+
+QUIET = {"say": lambda _m: None}
+
+
+def _cfg(*sets):
+    return resolve_config(sets=TINY + list(sets))
+
+
+def _sets(*extra):
+    return [a for s in [*TINY, *extra] for a in ("--set", s)]
+
+
+def _cli(*args, timeout=300):
+    if timeout == 300:
+        return run_cli("train", *map(str, args))
+    return subprocess.run(
+        [sys.executable, "-m", "train", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def _one_line_error(proc, needle: str) -> None:
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr and needle in proc.stderr, proc.stderr
+    assert sum(": error: " in line for line in proc.stderr.splitlines()) == 1, proc.stderr
+
+
+def _metrics(run):
+    """metrics.jsonl without the timings, which differ from session to session."""
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k not in ("frames_per_s", "time_s")} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def ds(tmp_path_factory):
+    """Five 2 s takes of two speakers: take03 validates, take04 tests, take00-02 train."""
+    root = tmp_path_factory.mktemp("adversity")
+    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank"),
+        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
+        max_sample_s=1.0,
+    )
+    build_dataset([takes], root / "ds", options, say=lambda _m: None)
+    return root / "ds"
+
+
+@pytest.fixture(scope="module")
+def s2a(ds, tmp_path_factory):
+    """A Transformer-S2A run of 4 steps whose max_frames (200) holds less than 12 s at 60 fps."""
+    run = tmp_path_factory.mktemp("s2a") / "run"
+    summary = fit(ds, run, _cfg("arch.max_frames=200", "max_steps=4", "eval_every=2"), **QUIET)
+    return run, summary
+
+
+# 1. sessions cut by --max-minutes reproduce the uninterrupted run
+
+
+def test_time_limited_sessions_reproduce_an_uninterrupted_run(ds, tmp_path):
+    cfg = _cfg("arch.dropout=0.2", "eval_every=4", "patience=1", "max_steps=12")
+    full = fit(ds, tmp_path / "full", cfg, **QUIET)
+    sliced, run = {**cfg, "max_minutes": 1e-9}, tmp_path / "sliced"  # every session ends after one step
+    summary, sessions = fit(ds, run, sliced, **QUIET), 1
+    while summary["stopped"] == "max_minutes":
+        summary, sessions = fit(ds, run, sliced, resume=True, **QUIET), sessions + 1
+    assert sessions == full["steps"] > 4
+    assert (summary["steps"], summary["stopped"], summary["best_val"]) == (
+        full["steps"],
+        full["stopped"],
+        full["best_val"],
+    )
+    for name in ("last.pt", "best.pt"):
+        a, b = load_checkpoint(tmp_path / "full" / name), load_checkpoint(run / name)
+        assert (a["step"], a["best_val"], a["bad_evals"], a["positions"]) == (
+            b["step"],
+            b["best_val"],
+            b["bad_evals"],
+            b["positions"],
+        ), name
+        for k in a["state_dict"]:
+            assert torch.equal(a["state_dict"][k], b["state_dict"][k]), (name, k)
+        for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values()):
+            assert torch.equal(sa["exp_avg"], sb["exp_avg"]), name
+    assert _metrics(tmp_path / "full") == _metrics(run)  # no validation lines at odd steps
+
+
+# 2. compare re-run into its own folder
+
+
+def test_compare_rerun_refuses_changed_settings_and_keeps_each_runs_limits(ds, tmp_path):
+    out = tmp_path / "cmp"
+    base = ["compare", "--data", ds, "-o", out, "--models", "blstm", *_sets("eval_every=2"), "--json"]
+    proc = _cli(*base, "--set", "arch.hidden=8", "--max-steps", 4)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["steps"] == 4
+    before = {p: (out / p).read_bytes() for p in ("compare.json", "blstm/config.json", "blstm/last.pt")}
+    proc = _cli(*base, "--set", "arch.hidden=16", "--set", "lr=0.01", "--max-steps", 4)
+    _one_line_error(proc, "keeps the run's config, but arch.hidden, lr differ")
+    assert "blstm/config.json" in proc.stderr and "arch.hidden = 8" in proc.stderr
+    assert {p: (out / p).read_bytes() for p in before} == before
+    # the same settings again, without --max-steps: the run's own 4 steps hold (not the default 4000)
+    proc = _cli(*base, "--set", "arch.hidden=8", "--max-minutes", 0.2, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["steps"] == 4 and "already finished at step 4" in proc.stderr
+
+
+# 3. a restart after a first session that died before its first checkpoint
+
+
+def test_a_fresh_run_starts_without_what_an_aborted_first_session_left(ds, tmp_path):
+    run = tmp_path / "r"
+    (run / "tensorboard").mkdir(parents=True)
+    # the dead session's lines, the last one torn; a best.pt written just before a last.pt that never came
+    (run / "metrics.jsonl").write_text('{"step": 5, "mse": 1.0}\n{"step": 10, "mse": 0.9}\n{"step": 1')
+    (run / "best.pt").write_bytes(b"stale")
+    (run / "tensorboard" / "events.out.tfevents.1.stale").write_bytes(b"stale")
+    cfg = _cfg("eval_every=4", "max_steps=8")
+    assert fit(ds, run, cfg, stop_after_steps=6, **QUIET)["stopped"] == "stopped"
+    assert fit(ds, run, cfg, resume=True, **QUIET)["steps"] == 8  # no torn line mid-file
+    rows = [(r["step"], "val_mse" in r) for r in _metrics(run)]
+    assert rows == [(4, True), (5, False), (8, True)]
+    assert load_checkpoint(run / "best.pt")["step"] in (4, 8)
+    assert not (run / "tensorboard" / "events.out.tfevents.1.stale").exists()
+
+
+# 4. a full disk
+
+
+def test_write_failures_name_the_file_and_leave_the_old_one(tmp_path):
+    target = tmp_path / "ppg.pt"
+    target.write_bytes(b"old")
+    full = OSError(28, "No space left on device")
+
+    def fails(tmp):
+        tmp.write_bytes(b"half")
+        raise full
+
+    with pytest.raises(InputError, match=r"ppg\.pt: cannot write the checkpoint: no space left on device"):
+        write_atomically(target, fails, "the checkpoint")
+    assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["ppg.pt"]
+    write_atomically(target, lambda tmp: tmp.write_bytes(b"new"))
+    assert target.read_bytes() == b"new" and sorted(p.name for p in tmp_path.iterdir()) == ["ppg.pt"]
+    # torch's writer on a full disk: a RuntimeError; elsewhere its first line is the reason
+    err = write_error(
+        RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos\nmore"), target
+    )
+    reason = "[enforce fail at inline_container.cc:672] . unexpected pos"
+    assert str(err) == f"{target}: cannot write ppg.pt: {reason}"
+
+
+FULL_DISK = r"""
+set -u
+mount -t tmpfs -o size=${SIZE_KB}k tmpfs "$SMALL" || exit 99
+cp -r "$RUN" "$SMALL/run"
+printf old > "$SMALL/ppg.pt"; printf old > "$SMALL/m.onnx"
+digest() { sha256sum "$1" | cut -c1-16; }
+before=$(digest "$SMALL/run/last.pt")
+avail=$(df -k --output=avail "$SMALL" | tail -1)
+head -c $(( (avail - 48) * 1024 )) /dev/zero > "$SMALL/filler"
+"$PY" -m train fit --data "$DS" -o "$SMALL/run" --resume --max-steps 8 2> "$OUT/fit.err"; echo "fit=$?"
+[ "$(digest "$SMALL/run/last.pt")" = "$before" ] && echo "last_kept=yes"
+"$PY" -m train ppg --data "$ALIGNED" -o "$SMALL/ppg.pt" --steps 1 2> "$OUT/ppg.err"; echo "ppg=$?"
+"$PY" -m train export "$RUN" -o "$SMALL/m.onnx" 2> "$OUT/export.err"; echo "export=$?"
+[ "$(head -c 4 "$SMALL/ppg.pt")" = old ] && echo "ppg_kept=yes"
+[ "$(head -c 4 "$SMALL/m.onnx")" = old ] && echo "onnx_kept=yes"
+echo "files=$(ls -A "$SMALL" "$SMALL/run" | tr '\n' ' ')"
+"""
+
+
+def test_a_full_disk_is_one_line_naming_the_file_and_keeps_the_old_files(s2a, ds, tmp_path):
+    if subprocess.run(["unshare", "-r", "-m", "true"], capture_output=True).returncode != 0:
+        pytest.skip("needs unshare -r -m (user and mount namespaces) for a small tmpfs")
+    run, _ = s2a
+    aligned = tmp_path / "aligned"
+    aligned.mkdir()
+    audio, _ = speech_like(2.0, np.random.default_rng(0))
+    sf.write(aligned / "utt.wav", audio, 16000)
+    tier = interval_tier("phones", [(0.0, 0.5, ""), (0.5, 1.5, "aa"), (1.5, 2.0, "s")], 0.0, 2.0)
+    write_textgrid(TextGrid(0.0, 2.0, [tier]), aligned / "utt.TextGrid")
+    (tmp_path / "small").mkdir()
+    size_kb = sum(p.stat().st_size for p in run.iterdir() if p.is_file()) // 1024 + 1024
+    env = dict(
+        os.environ,
+        SIZE_KB=str(size_kb),
+        SMALL=str(tmp_path / "small"),
+        RUN=str(run),
+        DS=str(ds),
+        ALIGNED=str(aligned),
+        OUT=str(tmp_path),
+        PY=sys.executable,
+    )
+    proc = subprocess.run(
+        ["unshare", "-r", "-m", "bash", "-c", FULL_DISK], capture_output=True, text=True, env=env, cwd=ROOT
+    )
+    if proc.returncode == 99:
+        pytest.skip("cannot mount a tmpfs here")
+    said = dict(w.split("=", 1) for w in proc.stdout.split() if "=" in w and not w.startswith("files"))
+    assert (said["fit"], said["ppg"], said["export"]) == ("1", "1", "1"), proc.stdout
+    assert [said.get(k) for k in ("last_kept", "ppg_kept", "onnx_kept")] == ["yes"] * 3, proc.stdout
+    assert ".partial" not in proc.stdout, proc.stdout  # no half-written file left behind
+    for name, needle in (
+        ("fit", ".pt: cannot write "),
+        ("ppg", "ppg.pt: cannot write the checkpoint: "),
+        ("export", "m.onnx: cannot write the ONNX file: "),
+    ):
+        err = (tmp_path / f"{name}.err").read_text()
+        assert "Traceback" not in err and needle in err and "no space left on device" in err, (name, err)
+        assert sum(": error: " in line for line in err.splitlines()) == 1, err
+
+
+def test_export_replaces_the_onnx_file_only_once_parity_holds(s2a, tmp_path):
+    run, _ = s2a
+    out = tmp_path / "m.onnx"
+    out.write_bytes(b"old")
+    with pytest.raises(ExportFailed, match="nothing written"):
+        export_onnx(run, out, tolerance=-1.0, **QUIET)
+    assert out.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["m.onnx"]
+    summary = export_onnx(run, out, **QUIET)  # max_frames 200: checked within it, and said
+    assert summary["max_frames"] == 200 and max(summary["checked_frames"]) == 200
+    assert out.read_bytes()[:3] != b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["m.onnx"]
+
+
+# 5. a refused resume leaves config.json alone
+
+
+def test_a_refused_resume_leaves_the_runs_config_json(s2a, ds, tmp_path):
+    run = tmp_path / "ddp"
+    shutil.copytree(s2a[0], run)
+    state = load_checkpoint(run / "last.pt")  # as if two DDP processes had trained it
+    state["positions"] = [state["positions"][0]] * 2
+    torch.save(state, run / "last.pt")
+    record = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**record, "world_size": 2}, indent=2))
+    before = (run / "config.json").read_bytes()
+    with pytest.raises(InputError, match=r"trained with 2 process\(es\)"):
+        fit(ds, run, _cfg(), resume=True, given={"max_steps": 8}, **QUIET)
+    assert (run / "config.json").read_bytes() == before
+
+
+# 7. eval --split val of a run with its own validation takes
+
+
+def test_eval_val_of_a_run_with_val_takes_scores_its_own_validation_takes(ds, tmp_path):
+    run = tmp_path / "ridge"
+    fit(ds, run, _cfg("model='ridge'", 'val_takes=["take01"]', "ridge_alpha=0.01"), **QUIET)
+    said = []
+    r = evaluate(run, ds, "val", say=said.append)
+    assert r["split"] == "val" and r["split_source"] == "run" and r["split_takes"] == ["take01"]
+    assert "not the dataset's val split" in r["split_note"] and any("take01" in m for m in said)
+    samples = read_manifest(ds)["samples"]
+    assert r["utterances"] == sum(s["take"] == "take01" for s in samples)
+    # the dataset's val take (take03) trained this run: its "train" includes it, its "val" never does
+    assert "take03" in evaluate(run, ds, "train", **QUIET)["split_takes"]
+    plain = tmp_path / "plain"
+    fit(ds, plain, _cfg("model='ridge'", "ridge_alpha=0.01"), **QUIET)
+    assert "split_takes" not in evaluate(plain, ds, "val", **QUIET)  # the dataset's own split
+    with pytest.raises(InputError, match="cross-validation ensemble trained on every train and val take"):
+        run_split_keys({"ensemble": {}, "config": {}}, read_manifest(ds), "val", ds / "manifest.json")
+
+
+# 8. RTF of a model whose max_frames is below 12 s of frames
+
+
+def test_eval_times_the_rtf_within_max_frames(s2a, ds):
+    proc = _cli("eval", s2a[0], "--data", ds, "--json")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    r = json.loads(proc.stdout)
+    assert r["rtf"] > 0 and r["rtf_frames"] == 200 and r["rtf_seconds"] == pytest.approx(200 / 60)
+    assert "max_frames" in r["rtf_note"] and "max_frames" in proc.stderr
+
+
+# minor repairs
+
+
+def test_arch_keys_a_systems_name_fixes_are_refused_not_ignored(ds):
+    manifest = read_manifest(ds)
+    spec = resolve_inputs(manifest, _cfg())
+    for name, item, needle in (
+        ("nvp3", "arch.window=5", "nvp3's window is fixed at 3 frames: train nvp9"),
+        ("nvp9", "arch.nvp9.window=3", "nvp9's window is fixed at 9 frames"),
+        ("s2a", "arch.moe=false", "train s2a-nomoe"),
+        ("s2a-nomoe", "arch.moe=true", "s2a-nomoe never has MoE experts"),
+    ):
+        with pytest.raises(InputError, match="config:arch: arch.*" + needle):
+            build_model(name, spec, _cfg(item))
+    build_model("nvp3", spec, _cfg("arch.window=3"))  # the system's own value is harmless
+    build_model("s2a-nomoe", spec, _cfg("arch.moe=false"))
+
+
+def test_ridge_resumed_is_not_solved_again_and_summaries_share_their_keys(s2a, ds, tmp_path):
+    run = tmp_path / "ridge"
+    first = fit(ds, run, _cfg("model='ridge'", "ridge_alpha=0.01"), **QUIET)
+    keys = set(s2a[1]) - {"train_frames_per_s"}
+    assert keys <= set(first), keys - set(first)
+    assert first["world_size"] == 1 and first["parameters"] > 0 and len(first["params_checksums"]) == 1
+    before = (run / "last.pt").read_bytes(), (run / "metrics.jsonl").read_text()
+    said = []
+    again = fit(ds, run, _cfg("model='ridge'", "ridge_alpha=0.01"), resume=True, say=said.append)
+    assert any("nothing to do" in m for m in said)
+    assert ((run / "last.pt").read_bytes(), (run / "metrics.jsonl").read_text()) == before
+    assert again["params_checksums"] == first["params_checksums"] and set(again) >= keys
+
+
+def test_config_hints_toml_arch_errors_and_a_runs_config_json(s2a, tmp_path):
+    with pytest.raises(InputError, match=r"unknown config key 'patiense' \(did you mean 'patience'\?\)"):
+        resolve_config(sets=["patiense=3"])
+    with pytest.raises(InputError, match=r"'d_model' \(did you mean 'arch.d_model'\?"):
+        resolve_config(sets=["d_model=64"])
+    toml = tmp_path / "small.toml"
+    toml.write_text("lr = 1e-3\n[arch]\nd_modle = 64\n")
+    needle = r"small\.toml: \[arch\]: unknown arch keys \['d_modle'\] \(did you mean 'd_model'"
+    with pytest.raises(InputError, match=needle):
+        resolve_config(toml)
+    # a run's config.json is a config: its data, world_size and inputs records are not keys
+    saved = json.loads((s2a[0] / "config.json").read_text())
+    assert resolve_config(s2a[0] / "config.json") == {k: saved[k] for k in DEFAULTS}
+
+
+def test_a_second_fit_into_a_run_folder_in_use_is_refused(s2a, ds, tmp_path):
+    run = tmp_path / "busy"
+    shutil.copytree(s2a[0], run)
+    before = (run / "last.pt").read_bytes()
+    with run_lock(run):  # a fit in progress (another process holds it)
+        proc = _cli("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 6, timeout=120)
+    _one_line_error(proc, "another s2a-train fit is writing this run folder")
+    assert (run / "last.pt").read_bytes() == before
+    fd = os.open(run / ".lock", os.O_RDWR)  # released when the holder ends
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    finally:
+        os.close(fd)
