@@ -58,15 +58,6 @@ _TIMECODE_BLOCK_S = 0.1
 _TIMECODE_MAX_BLOCKS = 600  # spread over the take: bounded work on hour-long takes
 
 
-def _scale(x: np.ndarray) -> float:
-    """Full scale of an array of samples (int16, int32 or float)."""
-    if x.dtype == np.int16:
-        return 32768.0
-    if x.dtype == np.int32:
-        return 2147483648.0
-    return 1.0
-
-
 def channel_float(audio: Audio, k: int) -> np.ndarray:
     """Channel ``k`` (from 0) of ``audio`` as float32 samples in [-1, 1)."""
     return Audio(audio.samples[:, k : k + 1], audio.sample_rate, audio.subtype).mono_float()

@@ -520,18 +520,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
                 raise InputError(
                     f"cannot write the audio log: {exc.strerror or exc}", recorder.session_dir
                 ) from None
-            if args.audio_device is not None:
-                dev = int(args.audio_device) if args.audio_device.isdigit() else args.audio_device
-                source = DeviceAudioSource(
-                    audio_log, recorder.clock, dev, args.audio_rate, args.audio_channels
-                )
-            else:
-                first = args.audio_start == "first-packet"
-                source = FileAudioSource(
-                    audio_log, recorder.clock, args.audio_file, start_on_first_packet=first
-                )
-                if first:
-                    recorder.on_first_packet = source.trigger
+            source = _audio_source(args, recorder, audio_log)
     except InputError:
         discard()
         raise
@@ -572,8 +561,28 @@ def cmd_listen(args: argparse.Namespace) -> int:
         for s in summaries:
             s["removed_partial_takes"] = removed
     _report(summaries, args.json)
-    # Takes hold everything that reached the disk; say loudly, in one line, what did not. A sync box
-    # that failed is a warning (above, at once and per take): frames and audio are complete.
+    problems = _listen_problems(recorder, audio_log, source, summaries, args.out)
+    if problems:
+        raise InputError("; ".join(problems), recorder.session_dir)
+    return 0
+
+
+def _audio_source(args: argparse.Namespace, recorder: LiveRecorder, audio_log: AudioLog):
+    """The audio source ``listen`` records into ``audio_log``: a device, or a file played from the start
+    or from the first packet."""
+    if args.audio_device is not None:
+        dev = int(args.audio_device) if args.audio_device.isdigit() else args.audio_device
+        return DeviceAudioSource(audio_log, recorder.clock, dev, args.audio_rate, args.audio_channels)
+    first = args.audio_start == "first-packet"
+    source = FileAudioSource(audio_log, recorder.clock, args.audio_file, start_on_first_packet=first)
+    if first:
+        recorder.on_first_packet = source.trigger
+    return source
+
+
+def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[dict], out) -> list[str]:
+    """What did not reach the takes, one phrase each (the takes hold everything that reached the disk). A
+    sync box that failed is only a warning (given at once and per take): frames and audio are complete."""
     problems = [recorder.error] if recorder.error else []
     if audio_log is not None and audio_log.writer.error:
         problems.append(
@@ -583,10 +592,8 @@ def cmd_listen(args: argparse.Namespace) -> int:
         problems.append(f"no audio was recorded: {source.error}")
     failed = sum(1 for s in summaries if s.get("error"))
     if failed:
-        problems.append(f"{failed} take(s) not written (run s2a-capture recover on {args.out} to retry)")
-    if problems:
-        raise InputError("; ".join(problems), recorder.session_dir)
-    return 0
+        problems.append(f"{failed} take(s) not written (run s2a-capture recover on {out} to retry)")
+    return problems
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
