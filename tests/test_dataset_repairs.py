@@ -156,15 +156,18 @@ def test_out_of_range_values_loud_float_audio_and_narrowband_audio(tmp_path):
     wild.values[30:40, wild.meta.channels.index("jawOpen")] = 1e30
     loud = make_aligned_take("loud", 2.0, subject="a", seed=2)
     loud.audio.samples[:] *= 40.0  # float WAV peaking far past full scale
+    hot = make_aligned_take("hot", 2.0, subject="a", seed=4)
+    hot.audio.samples[:] *= 1.01 / np.abs(hot.audio.samples).max()  # full scale, lifted 0.09 dB by filtering
     calm = make_aligned_take("calm", 2.0, subject="a", seed=3)
     x = calm.audio.samples[:, 0]
     calm.audio.samples[:, 0] = scipy.signal.resample_poly(scipy.signal.resample_poly(x, 1, 2), 2, 1)[: x.size]
-    for t in (wild, loud, calm):
+    for t in (wild, loud, calm, hot):
         write_take(t, tmp_path / "takes")
     m = _build(tmp_path / "takes", tmp_path / "ds", "--test", "wild", "--val", "calm")
     warnings = " | ".join(m["warnings"])
     assert "take wild: 10 frame(s) hold values beyond +-10" in warnings
     assert "take loud: audio peaks at" in warnings and "audio_gain" in warnings
+    assert "take hot:" not in warnings  # scaled back (audio_gain, below) without a word
     narrow = [w for w in m["warnings"] if "no energy above" in w]
     assert len(narrow) == 1 and narrow[0].startswith("take calm: its audio has no energy above 4.5 kHz")
     wild_entry = next(s for s in m["samples"] if s["take"] == "wild")
@@ -172,11 +175,13 @@ def test_out_of_range_values_loud_float_audio_and_narrowband_audio(tmp_path):
     proc = run_cli("dataset", "validate", tmp_path / "ds", "--deep")
     assert proc.returncode == 0, proc.stdout + proc.stderr  # no value_range problem: the frames are masked
     loud_shard = next(s["shard"] for s in m["samples"] if s["take"] == "loud")
+    gains = {}
     for _key, members in ShardReader(tmp_path / "ds" / loud_shard):
         meta = json.loads(members["json"])
+        gains[meta["take"]] = meta["audio_gain"]
         audio, _rate = decode_flac(members["flac"])
-        assert 0 < meta["audio_gain"] < 0.5
         assert np.abs(audio).max() <= 1.0 and np.mean(np.abs(audio) >= 0.999) < 1e-4  # scaled, not clipped
+    assert 0 < gains["loud"] < 0.5 and 0.98 < gains["hot"] < 1.0
 
 
 def test_aligned_take_off_its_frame_grid_is_refused(tmp_path):
