@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture import Audio
+from capture.audio_io import full_scale
 
 from .grid import runs
 from .resample import looks_like_timecode
@@ -29,21 +30,13 @@ CLIPPED_AUDIO_SHARE = 0.001  # of a channel's samples; above it the take is flag
 CLIP_MIN_LEVEL = 10 ** (-30 / 20)  # flat tops nearer than this to the resting value are not clipping
 
 
-def _full_scale(channel: np.ndarray) -> float:
-    if channel.dtype == np.int16:
-        return 32768.0
-    if channel.dtype == np.int32:
-        return 2147483648.0
-    return 1.0
-
-
 def clipped_share(audio: Audio) -> float:
     """Share (0..1) of samples in runs of at least ``CLIP_RUN`` at their channel's highest or lowest
     value, for the most clipped channel (a silent channel does not dilute a clipped one). Extremes
     within ``CLIP_MIN_LEVEL`` of the channel's median and channels holding timecode do not count."""
     worst = 0
     for channel in audio.samples.T:
-        scale = _full_scale(channel)
+        scale = full_scale(channel)
         high, low = channel.max(), channel.min()
         centre = float(np.median(channel)) / scale
         loud = [e for e in {high, low} if abs(float(e) / scale - centre) >= CLIP_MIN_LEVEL]

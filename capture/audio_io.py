@@ -22,6 +22,11 @@ _NATIVE = {"PCM_16": "int16", "PCM_24": "int32", "PCM_32": "int32", "FLOAT": "fl
 _SCALE = {"int16": 32768.0, "int32": 2147483648.0}
 
 
+def full_scale(samples: np.ndarray) -> float:
+    """The value that is full scale for ``samples``' type: 32768 for int16, 2^31 for int32, 1 for float."""
+    return _SCALE.get(samples.dtype.name, 1.0)
+
+
 @dataclass
 class Audio:
     """Samples (frames x channels) in their recorded format, and the rate in Hz."""

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import errno
 import glob
 import json
 import math
@@ -22,25 +21,21 @@ from typing import Any
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource
 from .command import emit_json, progress
 from .errors import InputError, S2AError
+from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
 from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, osc_int32, osc_text, resolve_target
 from .record_log import MAGIC, RECORD_HEADER, LogReader, RecordType
-from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, LiveRecorder
+from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_STREAM_ID, LiveRecorder
 from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
 from .session_takes import build_takes, find_sessions
 from .take import Take, is_take_dir, read_meta, read_take
 
-try:
-    import fcntl
-except ImportError:  # Windows: no advisory locks; recover goes by the session record's pid alone
-    fcntl = None  # type: ignore[assignment]
-
 # Held (flock) by ``listen`` in the session folder from before the recorder opens until the takes are
 # built: ``recover`` leaves a session whose lock is held alone.
 SESSION_LOCK = "listen.lock"
 # The recorder's log numbers streams with 16 bits, so at most this many are told apart.
-MAX_STREAMS = 65535
+MAX_STREAMS = MAX_STREAM_ID  # stream ids are 16-bit (the recorder also counts its first as one)
 # A process counts as a session's recorder when it started no later than this after the session did
 # (the tick and boot-time rounding of /proc); one started later got the recorder's pid after it died.
 PID_START_SLACK_S = 2.0
@@ -293,11 +288,11 @@ def _lock_session(session_dir: Path) -> int | None:
     (None without ``fcntl``); the lock goes with the process, however it ends. ``OSError`` when the
     folder cannot be made."""
     session_dir.mkdir(parents=True, exist_ok=True)
-    if fcntl is None:
+    if fcntl is None:  # pragma: no cover - Windows: recover goes by the session record's pid alone
         return None
     fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
     with contextlib.suppress(OSError):  # a file system without locks: recover goes by the pid then
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        try_lock(fd)
     return fd
 
 
@@ -391,10 +386,8 @@ def _session_in_use(session: Path) -> tuple[str | None, int | None]:
         except OSError:
             fd = None
         if fd is not None:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-            except OSError as exc:
-                locked = exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+            with contextlib.suppress(OSError):  # a file system without locks: go by the pid
+                locked = not try_lock(fd, shared=True)
     record = _session_record(session)
     if locked or (not _ended_cleanly(session) and _recorder_running(record)):
         if fd is not None:

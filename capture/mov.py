@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .audio_io import Audio, check_samples, decode_with_pyav
+from .audio_io import Audio, check_samples, decode_with_pyav, full_scale
 from .errors import InputError
 
 
@@ -73,17 +73,20 @@ def read_mov_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None
 
 
 def choose_mov_audio(
-    path: str | Path, repairs: list[dict[str, Any]] | None = None
+    path: str | Path, repairs: list[dict[str, Any]] | None = None, tracks: int | None = None
 ) -> tuple[Audio, dict[str, Any] | None]:
     """The ``.mov``'s audio and, for a file of several audio tracks, which one was used: the first that
     is not silent (peak at or above -70 dBFS; the first track when all are), with repair ``audio_track``
     naming every track's peak. The second value is ``{"track", "tracks", "peaks_dbfs"}`` (tracks
-    counted from 1) or None for a file of one track."""
+    counted from 1) or None for a file of one track. ``tracks``: the number of audio tracks, when the
+    caller has probed the file already."""
     path = Path(path)
-    try:
-        count = probe_mov(path).audio_tracks
-    except InputError:
-        count = 1  # a damaged file: decoding says what is wrong with it
+    count = tracks
+    if count is None:
+        try:
+            count = probe_mov(path).audio_tracks
+        except InputError:
+            count = 1  # a damaged file: decoding says what is wrong with it
     if count <= 1:
         return check_samples(decode_with_pyav(path), path, repairs), None
     tracks = [decode_with_pyav(path, i) for i in range(count)]
@@ -114,7 +117,7 @@ def choose_mov_audio(
 def _peak(audio: Audio) -> float:
     """Largest finite sample magnitude, full scale 1 whatever the sample format."""
     x = audio.samples
-    scale = {"int16": 32768.0, "int32": 2147483648.0}.get(x.dtype.name, 1.0)
+    scale = full_scale(x)
     finite = np.abs(x[np.isfinite(x)]) if x.dtype.kind == "f" else np.abs(x.astype(np.float64))
     return float(finite.max(initial=0.0)) / scale
 

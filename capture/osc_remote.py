@@ -122,7 +122,9 @@ class PhoneRemote:
 
     def shown(self) -> str:
         """The phone's address as HOST:PORT (``[IPV6]:PORT``)."""
-        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
+        from .replay import format_destination
+
+        return format_destination(self.host, self.port)
 
     def message(self, address: str, *args: Any) -> bytes:
         """One OSC message as a datagram: str arguments as 's' (UTF-8, ``osc_text``), int as 'i' (32-bit),

@@ -420,13 +420,12 @@ class _Slots:
 
 class _Clock:
     """How a stream's packets (one declared rate, arrival order) follow the phone's frame clock: its
-    recordings (row indices, arrival order), the packets that fit none (``stray``), the jumps back, and
-    ``problem`` when the frame times cannot place the frames."""
+    recordings (row indices, arrival order), the packets that fit none (``stray``), and ``problem`` when
+    the frame times cannot place the frames."""
 
-    def __init__(self, recordings: list[np.ndarray], stray: np.ndarray, restarts: int, problem: str | None):
+    def __init__(self, recordings: list[np.ndarray], stray: np.ndarray, problem: str | None):
         self.recordings = recordings
         self.stray = stray
-        self.restarts = restarts
         self.problem = problem
 
 
@@ -447,16 +446,16 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
     n = frame_time.size
     empty = np.zeros(0, np.int64)
     if not n:
-        return _Clock([], empty, 0, None)
+        return _Clock([], empty, None)
     judge = n >= 2 * MIN_TAKE_FRAMES
     repeats = _repeated_times(rows, frame_time)
     if judge and repeats > n / 2:
-        return _Clock([], empty, 0, f"{repeats} of {n} packets repeat the frame time of an earlier packet")
+        return _Clock([], empty, f"{repeats} of {n} packets repeat the frame time of an earlier packet")
     level = _running_median(frame_time, CLOCK_HALF_WINDOW)
     lateness = _lateness(frame_time)
     if judge and lateness > MAX_LATENESS_S:
         problem = f"the frame time of a packet is typically {lateness:.0f} s behind the packets before it"
-        return _Clock([], empty, 0, problem)
+        return _Clock([], empty, problem)
     tol = max(RESTART_WINDOW_S, JITTER_TOLERANCE * lateness)
     follows = np.abs(frame_time - level) <= tol
     starts, kinds = _pieces(level, tol)
@@ -499,7 +498,7 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
                     problem = (
                         f"the frame time jumps back {restarts} times or more in {span:.1f} s of arrivals"
                     )
-                    return _Clock([], empty, restarts, problem)
+                    return _Clock([], empty, problem)
             recs.append(_Recording())
             current = target = len(recs) - 1
         elif target is None:
@@ -507,7 +506,7 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
         recs[target].add(idx, frame_time)
         piece_current.append(current)
     if judge and net < 0:
-        return _Clock([], empty, restarts, f"the frame time runs backwards ({-net:.1f} s over {n} packets)")
+        return _Clock([], empty, f"the frame time runs backwards ({-net:.1f} s over {n} packets)")
     # Packets off the clock: late packets of a recording (in its frame-time range, on a free slot of it),
     # or stray.
     piece_of = np.repeat(np.arange(len(kinds)), np.diff(bounds))
@@ -530,13 +529,13 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
             stray.append(i)
     if judge and 2 * len(stray) > n:
         problem = f"the frame times of {len(stray)} of {n} packets follow no steady clock"
-        return _Clock([], empty, restarts, problem)
+        return _Clock([], empty, problem)
     recordings = []
     for rec, more in zip(recs, extra):
         idx = np.sort(np.concatenate([rec.rows(), np.asarray(more, np.int64)]))
         if idx.size:
             recordings.append(idx)
-    return _Clock(recordings, np.asarray(stray, np.int64), restarts, None)
+    return _Clock(recordings, np.asarray(stray, np.int64), None)
 
 
 def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:

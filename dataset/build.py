@@ -44,6 +44,7 @@ import numpy as np
 from capture.atomic import atomic_write, write_json_atomic
 from capture.channels import channel_set
 from capture.errors import InputError, S2AError
+from capture.file_lock import fcntl, try_lock
 from capture.take import (
     FrameStatus,
     Take,
@@ -60,19 +61,17 @@ from .features import (
     DEFAULT_LEVEL,
     FeatureSettings,
     compute_features,
-    level_gain,
+    gain_for_level,
     parse_features,
     speech_level,
 )
-from .manifest import MANIFEST_FILE, manifest_path, read_manifest, write_manifest
+from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, manifest_path, read_manifest, write_manifest
 from .normalize import KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
-from .qa import ANIM_LIMIT
+from .qa import ANIM_LIMIT, BASE_MEMBERS
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits
 
 DATASET_VERSION = "1"
-WORK = ".work"
-LOCK_FILE = ".build.lock"  # held (flock) by the one build writing into a dataset folder
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
 MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets are mostly not measured
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
@@ -685,8 +684,8 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     padded = np.zeros(max(span, audio_len), np.float32)
     padded[:audio_len] = audio * gain
     padded[:audio_len][stray] = 0.0  # a stray burst (a damaged sample, spread by the resampler): muted
-    speech_db = speech_level(padded[:span], sr)  # what compute_features measures for its level_gain
-    level = level_gain(padded[:span], job.settings)
+    speech_db = speech_level(padded[:span], sr)
+    level = gain_for_level(speech_db, job.settings)
     t = np.arange(n) / fps
     in_audio = t < audio_len / sr
     finite = np.all(np.isfinite(values), axis=1)
@@ -701,6 +700,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         job.settings,
         _extractor(job.ppg, job.ppg_model),
         take_transcript(take),
+        gain=level,
     )
     neutral = None
     if take.neutral is not None and take.neutral.shape == (len(take.meta.channels),):
@@ -1047,17 +1047,13 @@ def output_lock(out: Path) -> Iterator[None]:
     whole build; another build into it is refused at once. The kernel releases the lock when the
     process ends, however it ends, so a killed build never blocks the next one. The file is removed
     when the build ends."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows: no flock
+    if fcntl is None:  # pragma: no cover - Windows: no flock
         yield
         return
     path = out / LOCK_FILE
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not try_lock(fd):
             os.close(fd)
             raise InputError(
                 f"another build{_lock_holder(path)} is writing into this folder: wait for it to finish, "
@@ -1492,7 +1488,7 @@ def _build(
             "pitch": "log-F0 (natural log of Hz) interpolated through unvoiced frames, and a voicing flag",
             "versions": config["versions"],
         },
-        "members": ["json", "flac", "anim.npy", "mask.npy", *[f"{n}.npy" for n in options.features]]
+        "members": [*BASE_MEMBERS, *[f"{n}.npy" for n in options.features]]
         + (["phones.npy"] if "ppg" in options.features and phones is not None else []),
         "normalization": {
             "animation": normalizer.to_json(),

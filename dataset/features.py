@@ -149,11 +149,15 @@ def speech_level(audio: np.ndarray, sample_rate: int) -> float | None:
 def level_gain(audio: np.ndarray, settings: FeatureSettings) -> float:
     """Factor that brings ``audio``'s active speech level to the settings' target (1 without a target
     or for silent audio; at most +-60 dB)."""
-    target = settings.level_target_db
-    if target is None:
+    if settings.level_target_db is None:
         return 1.0
-    level = speech_level(audio, settings.sample_rate)
-    if level is None:
+    return gain_for_level(speech_level(audio, settings.sample_rate), settings)
+
+
+def gain_for_level(level: float | None, settings: FeatureSettings) -> float:
+    """``level_gain`` for audio whose active speech level (``speech_level``) is ``level`` dBFS."""
+    target = settings.level_target_db
+    if target is None or level is None:
         return 1.0
     gain_db = float(np.clip(target - level, -MAX_LEVEL_GAIN_DB, MAX_LEVEL_GAIN_DB))
     return 10.0 ** (gain_db / 20.0)
@@ -248,6 +252,7 @@ def compute_features(
     settings: FeatureSettings,
     ppg=None,
     transcript: str | None = None,
+    gain: float | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """Every requested feature for one take, at the animation rate.
 
@@ -256,9 +261,9 @@ def compute_features(
     (n_frames, 2): log-F0 and voicing) and the per-frame phone ids (int16, -1 unknown) when the PPG
     backend knows phones, else None. ``transcript`` (the words spoken) lets a PPG backend that can
     (pocketsphinx) force-align instead of recognising phones. With a speech level in the settings the
-    audio is scaled by ``level_gain`` first.
+    audio is scaled by ``level_gain`` first (``gain``, when the caller has measured it already).
     """
-    gain = level_gain(audio, settings)
+    gain = level_gain(audio, settings) if gain is None else gain
     if gain != 1.0:
         audio = (np.asarray(audio, np.float32) * np.float32(gain)).astype(np.float32)
     spectral = spectral_features(audio, settings)

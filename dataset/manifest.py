@@ -27,6 +27,8 @@ from .splits import SPLITS
 FORMAT = "s2a-dataset"
 SCHEMA_VERSION = 1
 MANIFEST_FILE = "manifest.json"
+WORK = ".work"  # a build's working folder inside the dataset folder
+LOCK_FILE = ".build.lock"  # held (flock) by the one build writing into a dataset folder
 REQUIRED = ("fps", "sample_rate", "channels", "features", "normalization", "splits", "shards", "samples")
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -21,8 +20,9 @@ from typing import Any
 import numpy as np
 
 from capture.errors import InputError
+from capture.file_lock import held_elsewhere
 
-from .manifest import MANIFEST_FILE, load_manifest, manifest_problems, take_recordings
+from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, load_manifest, manifest_problems, take_recordings
 from .shards import ShardReader, decode_flac, decode_npy
 from .splits import SPLITS
 
@@ -239,7 +239,7 @@ def validate_sample(
     animation and mask have the manifest's shape."""
     out: list[Problem] = []
     at = f"{shard}:{key}"
-    expected = set(manifest.get("members", ["json", "flac", "anim.npy", "mask.npy"]))
+    expected = set(manifest.get("members", BASE_MEMBERS))
     missing = sorted(expected - set(members))
     if missing:
         out.append(_p("sample_members", at, f"missing member(s) {', '.join(missing)}"))
@@ -904,26 +904,7 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
     return Report(str(ds), deep, len(shards), len(seen), problems)
 
 
-def _build_running(lock: Path) -> bool:
-    """Whether a build holds the lock of its dataset folder right now."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover
-        return False
-    try:
-        fd = os.open(lock, os.O_RDONLY)
-    except OSError:
-        return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except OSError:
-        return True
-    finally:
-        os.close(fd)
-    return False
-
-
-LEFTOVERS = (".work", ".build.lock")  # dataset.build's WORK and LOCK_FILE
+LEFTOVERS = (WORK, LOCK_FILE)
 
 
 def leftover_problems(ds: Path) -> list[Problem]:
@@ -934,7 +915,7 @@ def leftover_problems(ds: Path) -> list[Problem]:
         return []
     state = (
         "a build is writing into this folder right now"
-        if _build_running(ds / LEFTOVERS[1])
+        if held_elsewhere(ds / LOCK_FILE)
         else "left by a build that was stopped: rerun the build to finish it, or remove them before sharing"
     )
     return [_p("build_leftover", ", ".join(found[:4]) + (" ..." if len(found) > 4 else ""), state, "warning")]

@@ -11,7 +11,6 @@ index in ``epoch``), ``positions`` (that pair for every DDP rank), ``rng`` (torc
 from __future__ import annotations
 
 import errno
-import fcntl
 import os
 import shutil
 from collections.abc import Callable, Iterator
@@ -21,8 +20,9 @@ from typing import Any
 
 import torch
 
-from capture.atomic import atomic_write, write_json_atomic
+from capture.atomic import write_json_atomic
 from capture.errors import InputError
+from capture.file_lock import try_lock
 from capture.take import MAX_FPS
 from dataset.normalize import FeatureNormalizer, Normalizer
 
@@ -91,15 +91,7 @@ def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") 
 def save_checkpoint(payload: dict[str, Any], path: Path) -> None:
     """Atomic write (temporary file, fsync, rename); a failure (a full disk) is a one-line error naming
     the checkpoint, and the previous checkpoint of that name stays."""
-    try:
-        with atomic_write(path) as f:
-            try:
-                torch.save({"format": FORMAT, "version": VERSION, **payload}, f)
-                f.flush()
-            except (OSError, RuntimeError) as exc:  # seen while the partial file still fills the disk
-                raise write_error(exc, path) from None
-    except OSError as exc:  # the fsync or the rename
-        raise write_error(exc, path) from None
+    write_atomically(path, lambda tmp: torch.save({"format": FORMAT, "version": VERSION, **payload}, tmp))
 
 
 @contextmanager
@@ -111,14 +103,12 @@ def run_lock(run: Path) -> Iterator[None]:
     except OSError as exc:
         raise write_error(exc, run / LOCK, "the run folder's lock file") from None
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not try_lock(fd):
             raise InputError(
                 "another s2a-train fit is writing this run folder (it holds its .lock): wait for it to "
                 "finish, or train into another -o",
                 run,
-            ) from None
+            )
         yield
     finally:
         os.close(fd)  # releases the lock

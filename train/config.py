@@ -9,7 +9,6 @@ are optimizer updates, ``window`` is animation frames, ``max_minutes`` wall-cloc
 from __future__ import annotations
 
 import copy
-import difflib
 import json
 import math
 import sys
@@ -85,12 +84,11 @@ RUN_RECORD_KEYS = ("data", "world_size", "inputs")
 
 def _hint(key: str) -> str:
     """`` (did you mean 'lr'?)`` for the closest known key; an arch field's name points to ``arch.``."""
-    from .systems import ARCH_TABLES  # only on this error path: it imports the models (torch)
+    from .systems import ARCH_TABLES, did_you_mean  # only on this error path: it imports the models (torch)
 
     if any(key in cls.__dataclass_fields__ for cls in ARCH_TABLES.values()):
         return f" (did you mean 'arch.{key}'? model settings are arch keys)"
-    close = difflib.get_close_matches(key, sorted(DEFAULTS), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return did_you_mean(key, DEFAULTS)
 
 
 def _merge(base: dict[str, Any], extra: dict[str, Any], where: str) -> None:

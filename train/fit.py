@@ -135,7 +135,7 @@ def _no_validation(manifest: dict[str, Any], cfg: dict[str, Any]) -> str | None:
     return None
 
 
-def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> tuple[dict[str, Any], torch.nn.Module]:
+def _fit_ridge(ds: Path, run: Path, cfg, spec, manifest, say) -> tuple[dict[str, Any], torch.nn.Module]:
     """Solve the ridge regression; (summary entries, the fitted model)."""
     model, model_config = build_model("ridge", spec, cfg)
     eq = NormalEquations(model.linear.in_features, spec.out_dim)
@@ -144,7 +144,6 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, say) -> tuple[dict[str, Any], tor
         content, prosody = to_model_inputs(item, spec)
         eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
         frames += int(item["mask"].sum())
-    manifest = read_manifest(ds)
     no_val = _no_validation(manifest, cfg)
     has_val = no_val is None
     weights = channel_weights(manifest, cfg)
@@ -521,7 +520,7 @@ def _fit(
         write_json(run / CONFIG, config_record)
         _start_afresh(run)
         t0 = time.perf_counter()
-        solved, ridge = _fit_ridge(ds, run, cfg, spec, say)
+        solved, ridge = _fit_ridge(ds, run, cfg, spec, manifest, say)
         return _summary(
             run,
             cfg,
@@ -549,8 +548,7 @@ def _fit(
             model.load_state_dict(state["state_dict"])
             optimizer.load_state_dict(state["optimizer"])
             step, epoch, batch_pos = state["step"], state["epoch"], state["batch"]
-            positions = state.get("positions") or [[epoch, batch_pos]]
-            epoch, batch_pos = positions[rank]
+            epoch, batch_pos = positions[rank]  # checked against the world size above
             best_val = state["best_val"] if state["best_val"] is not None else math.inf
             bad_evals = state["bad_evals"]
             ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
