@@ -23,7 +23,7 @@ from .command import emit_json, progress
 from .errors import InputError, S2AError
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
-from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, osc_int32, osc_text, resolve_target
+from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, check_record_start, check_subject, resolve_target
 from .record_log import MAGIC, RECORD_HEADER, LogReader, RecordType
 from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_STREAM_ID, LiveRecorder
 from .replay import Impairment, format_destination, parse_destination, replay_take
@@ -692,12 +692,9 @@ def cmd_remote(args: argparse.Namespace) -> int:
     # Every argument is checked before anything is sent: a bad one must not leave the phone half-told
     # (target: its Live Link targets cleared and no new one added).
     if args.action == "record-start":
-        osc_text(args.slate, "the slate")
-        osc_int32(args.take_number, "the take number", low=0)
+        check_record_start(args.slate, args.take_number)
     elif args.action == "subject":
-        osc_text(args.name, "the subject name")
-        if not args.name.strip():
-            raise InputError("the subject name is empty")
+        check_subject(args.name)
     elif args.action == "target":
         t_host, t_port = parse_destination(args.address)
         t_ip = resolve_target(t_host, t_port)  # the app takes an IP address, not a name

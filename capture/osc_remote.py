@@ -74,6 +74,19 @@ def local_address_towards(host: str, family: int = socket.AF_INET) -> str:
         raise InputError(f"no route to the phone at {host}: {exc}") from None
 
 
+def check_record_start(slate: str, take: int) -> None:
+    """``InputError`` unless ``/RecordStart`` can carry this slate (UTF-8 text) and take (int32, >= 0)."""
+    osc_text(slate, "the slate")
+    osc_int32(take, "the take number", low=0)
+
+
+def check_subject(name: str) -> None:
+    """``InputError`` unless ``name`` is a subject name ``/LiveLinkSubject`` can carry (UTF-8, not blank)."""
+    osc_text(name, "the subject name")
+    if not name.strip():
+        raise InputError("the subject name is empty")
+
+
 class PhoneRemote:
     """OSC client for one phone. ``timeout_s`` bounds every wait for a reply (seconds)."""
 
@@ -208,8 +221,7 @@ class PhoneRemote:
     # -- commands (formats doc §6) ----------------------------------------------------------
     def record_start(self, slate: str, take: int) -> str:
         """Start recording a take; returns the timecode the phone confirms."""
-        osc_text(slate, "the slate")
-        osc_int32(take, "the take number", low=0)
+        check_record_start(slate, take)
         args = self.request("/RecordStart", "/RecordStartConfirm", slate, take)
         note = " (the phone did confirm the start)"
         return self._texts("/RecordStartConfirm", args, 1, note)[0]
@@ -253,9 +265,7 @@ class PhoneRemote:
         self.send_datagram(add)
 
     def set_subject(self, name: str) -> None:
-        osc_text(name, "the subject name")
-        if not name.strip():
-            raise InputError("the subject name is empty")
+        check_subject(name)
         self.send("/LiveLinkSubject", name)
 
     def stream(self, on: bool) -> None:

@@ -218,6 +218,18 @@ def _segments(frame_time: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def _window_medians(values: np.ndarray, width: int) -> np.ndarray:
+    """Element ``width // 2`` in sorted order of every full window ``values[k : k + width]`` (the median
+    for odd widths): ``values.size - width + 1`` of them."""
+    kth = width // 2
+    out = np.empty(values.size - width + 1)
+    for a in range(0, out.size, 1 << 15):  # in chunks: the windows are copied to be partitioned
+        b = min(a + (1 << 15), out.size)
+        windows = np.lib.stride_tricks.sliding_window_view(values[a : b + width - 1], width)
+        out[a:b] = np.partition(windows, kth, axis=1)[:, kth]
+    return out
+
+
 def _running_median(values: np.ndarray, half: int) -> np.ndarray:
     """The median of ``values[i - half : i + half + 1]`` at each ``i`` (the window held inside the array
     at its ends: the first and last ``half`` get the median of the first and last full window)."""
@@ -225,12 +237,8 @@ def _running_median(values: np.ndarray, half: int) -> np.ndarray:
     width = 2 * half + 1
     if n <= width:
         return np.full(n, np.sort(values)[(n - 1) // 2] if n else 0.0)
-    kth = half
     out = np.empty(n)
-    for a in range(half, n - half, 1 << 15):  # in chunks: the windows are copied to be partitioned
-        b = min(a + (1 << 15), n - half)
-        windows = np.lib.stride_tricks.sliding_window_view(values[a - half : b + half], width)
-        out[a:b] = np.partition(windows, kth, axis=1)[:, kth]
+    out[half : n - half] = _window_medians(values, width)
     out[:half] = out[half]
     out[n - half :] = out[n - half - 1]
     return out
@@ -243,16 +251,7 @@ def _lateness(frame_time: np.ndarray) -> float:
     n = frame_time.size
     if n <= LATENESS_WINDOW:
         return 0.0
-    late = np.empty(n - LATENESS_WINDOW)
-    kth = LATENESS_WINDOW // 2
-    for a in range(0, late.size, 1 << 15):  # in chunks: the windows are copied to be partitioned
-        b = min(a + (1 << 15), late.size)
-        before = np.lib.stride_tricks.sliding_window_view(
-            frame_time[a : b + LATENESS_WINDOW - 1], LATENESS_WINDOW
-        )
-        late[a:b] = (
-            np.partition(before, kth, axis=1)[:, kth] - frame_time[a + LATENESS_WINDOW : b + LATENESS_WINDOW]
-        )
+    late = _window_medians(frame_time[:-1], LATENESS_WINDOW) - frame_time[LATENESS_WINDOW:]
     return float(np.quantile(np.maximum(late, 0.0), LATENESS_QUANTILE))
 
 
