@@ -22,11 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.signal import butter, sosfiltfilt
 
 ANALYSIS_RATE = 100.0  # Hz: 10 ms steps; the pass band ends at BAND_HZ[1]
 BAND_HZ = (1.0, 12.0)  # syllable-rate and faster envelope modulations (see docs/align.md, "Content evidence")
-_BAND_SOS = butter(2, BAND_HZ, btype="band", fs=ANALYSIS_RATE, output="sos")
 AUDIO_BAND_HZ = (300.0, 3000.0)  # sonorant band of the audio whose energy is correlated
 UPSAMPLE = 100  # refinement step = 1 / (ANALYSIS_RATE * UPSAMPLE) = 0.1 ms
 
@@ -108,7 +106,9 @@ def band_pass(x: np.ndarray) -> np.ndarray:
     """The zero-phase band-pass both content signals go through (``BAND_HZ`` at ``ANALYSIS_RATE``)."""
     if x.size < 30:
         return x - x.mean()
-    return sosfiltfilt(_BAND_SOS, x - x.mean())
+    from scipy.signal import butter, sosfiltfilt  # here: scipy.signal adds 0.5 s to every command's start
+
+    return sosfiltfilt(butter(2, BAND_HZ, btype="band", fs=ANALYSIS_RATE, output="sos"), x - x.mean())
 
 
 @dataclass

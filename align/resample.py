@@ -26,7 +26,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, sosfilt, sosfilt_zi
 
 from capture import Audio, InputError
 
@@ -44,7 +43,6 @@ IDLE_CHANNEL_DB = 25.0
 # Zero-phase high-pass (2nd-order Butterworth run forward and backward: 4th-order magnitude, -6 dB at the
 # corner): DC and rumble out; -0.3 dB at 60 Hz, the lowest fundamental of a deep voice.
 HIGHPASS_HZ = 25.0
-_HIGHPASS_SOS = butter(2, HIGHPASS_HZ, btype="highpass", fs=TARGET_RATE, output="sos")
 DC_NOTE_LEVEL = 1e-3  # a DC offset from -60 dBFS up is recorded in the report (``audio_dc``)
 _CHUNK = 1 << 20  # samples per filtering block: bounded memory on hour-long takes
 
@@ -216,15 +214,22 @@ def remove_rumble(x: np.ndarray) -> np.ndarray:
     n = x.size
     if n < 64:
         return np.ascontiguousarray(x - np.mean(x, dtype=np.float64), dtype=np.float32)
+    from scipy.signal import (
+        butter,
+        sosfilt,
+        sosfilt_zi,
+    )  # here: scipy.signal adds 0.5 s to every command's start
+
+    sos = butter(2, HIGHPASS_HZ, btype="highpass", fs=TARGET_RATE, output="sos")
     y = np.empty(n, np.float32)
-    zi = sosfilt_zi(_HIGHPASS_SOS) * float(x[0])
+    zi = sosfilt_zi(sos) * float(x[0])
     for lo in range(0, n, _CHUNK):
-        part, zi = sosfilt(_HIGHPASS_SOS, np.asarray(x[lo : lo + _CHUNK], dtype=np.float64), zi=zi)
+        part, zi = sosfilt(sos, np.asarray(x[lo : lo + _CHUNK], dtype=np.float64), zi=zi)
         y[lo : lo + _CHUNK] = part
     zi = np.zeros_like(zi)
     for hi in range(n, 0, -_CHUNK):
         lo = max(0, hi - _CHUNK)
-        part, zi = sosfilt(_HIGHPASS_SOS, y[lo:hi][::-1].astype(np.float64), zi=zi)
+        part, zi = sosfilt(sos, y[lo:hi][::-1].astype(np.float64), zi=zi)
         y[lo:hi] = part[::-1]
     return y
 

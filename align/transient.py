@@ -18,12 +18,11 @@ from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d
-from scipy.signal import butter, sosfilt
 
 from .resample import TARGET_RATE
 
 # Above 2 kHz; causal, but its group delay there is a fraction of a millisecond (onsets stay put).
-_CLAP_HIGH_PASS = butter(4, 2000.0, btype="high", fs=TARGET_RATE, output="sos")
+CLAP_HIGH_PASS_HZ = 2000.0
 # How far (dB) a clap stands above the loudest other sound within CLAP_SURROUNDINGS_S of it, and how far
 # that reaches: a speech burst is at most 12 dB above the speech around it (see above).
 CLAP_ABOVE_SURROUNDINGS_DB = 20.0
@@ -41,7 +40,11 @@ class Transient:
 def audio_claps(x: np.ndarray, start_s: float, min_jump_db: float = 30.0) -> list[Transient]:
     """Clap-like impulses in 16 kHz mono audio whose first sample is at take time ``start_s`` (s); the
     strength is how far (dB) an impulse stands above the sound around it, over ``min_jump_db``."""
-    hp = sosfilt(_CLAP_HIGH_PASS, x.astype(np.float64))
+    from scipy.signal import butter, sosfilt  # here: scipy.signal adds 0.5 s to every command's start
+
+    hp = sosfilt(
+        butter(4, CLAP_HIGH_PASS_HZ, btype="high", fs=TARGET_RATE, output="sos"), x.astype(np.float64)
+    )
     hop = 32  # 2 ms
     n = hp.size // hop
     if n < 100:

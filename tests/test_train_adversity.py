@@ -10,8 +10,10 @@ import fcntl
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -19,7 +21,10 @@ import soundfile as sf
 import torch
 from conftest import ROOT, run_cli
 from dataset_helpers import speech_like, write_aligned_set
+from tensorboard.compat.proto.event_pb2 import Event
+from tensorboard.summary.writer.record_writer import RecordWriter
 from test_train_pipeline import TINY
+from torch.utils.tensorboard.summary import scalar
 
 from capture.errors import InputError
 from capture.textgrid import TextGrid, interval_tier, write_textgrid
@@ -66,6 +71,16 @@ def _metrics(run):
     """metrics.jsonl without the timings, which differ from session to session."""
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     return [{k: v for k, v in r.items() if k not in ("frames_per_s", "time_s")} for r in rows]
+
+
+def _curves(run):
+    """{tag: [(step, value), ...]} of a run's TensorBoard events, as TensorBoard itself reads them."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(run / "tensorboard"))
+    events.Reload()
+    tags = [t for t in events.Tags()["scalars"] if t not in ("frames_per_s", "time_s")]  # timings differ
+    return {t: [(e.step, e.value) for e in events.Scalars(t)] for t in tags}
 
 
 @pytest.fixture(scope="module")
@@ -119,6 +134,26 @@ def test_time_limited_sessions_reproduce_an_uninterrupted_run(ds, tmp_path):
         for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values()):
             assert torch.equal(sa["exp_avg"], sb["exp_avg"]), name
     assert _metrics(tmp_path / "full") == _metrics(run)  # no validation lines at odd steps
+
+
+def test_a_resumed_run_drops_the_tensorboard_events_logged_after_its_checkpoint(ds, tmp_path):
+    """A session checkpointed at step 4, logged steps 5-12 and died: TensorBoard shows the resumed
+    session's steps 5-12 once, not the dead session's beside them."""
+    cfg = _cfg("eval_every=4", "max_steps=12")
+    full = tmp_path / "full"
+    fit(ds, full, cfg, **QUIET)
+    cut = tmp_path / "cut"
+    fit(ds, cut, cfg, stop_after_steps=4, **QUIET)
+    (events,) = (cut / "tensorboard").iterdir()
+    with open(events, "ab") as f:  # what the dead session logged after its checkpoint
+        records = RecordWriter(f)
+        for step in range(5, 13):
+            records.write(
+                Event(wall_time=time.time(), step=step, summary=scalar("mse", 99.0)).SerializeToString()
+            )
+    time.sleep(1.05)  # event files sort by their creation second: the resumed session's comes after
+    fit(ds, cut, cfg, resume=True, **QUIET)
+    assert _curves(cut) == _curves(full) and [s for s, _v in _curves(cut)["mse"]] == [5, 10]
 
 
 # 2. compare re-run into its own folder
@@ -366,3 +401,21 @@ def test_a_second_fit_into_a_run_folder_in_use_is_refused(s2a, ds, tmp_path):
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     finally:
         os.close(fd)
+
+
+def test_ctrl_c_while_pytorch_loads_stops_without_a_traceback(tmp_path):
+    """The first 2-3 s of every s2a-train command import PyTorch, numpy and scipy: Ctrl-C there used to
+    print a KeyboardInterrupt traceback, or a RecursionError from a half-imported numpy."""
+    for delay in (0.2, 0.5, 0.9):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "train", "fit", "--data", tmp_path / "none", "-o", tmp_path / "run"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=60)
+        assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (delay, err)
+        assert not (tmp_path / "run").exists()

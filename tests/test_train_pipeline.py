@@ -196,6 +196,11 @@ def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
     cv = _torchrun(ds, tmp_path / "cv", "--max-steps", 3, "--set", "cv_folds=2")
     assert len(cv["members"]) == 2 and all(m["ranks_in_sync"] for m in cv["members"])
     assert len(cv["params_checksums"]) == 4 and (tmp_path / "cv" / "ensemble.json").is_file()
+    # resumed by one process, it is refused before anything is written, its own config.json included
+    before = (tmp_path / "cv" / "config.json").read_bytes()
+    proc = _cli("fit", "--data", ds, "-o", tmp_path / "cv", "--resume", "--max-steps", 6)
+    assert proc.returncode == 1 and "trained with 2 process(es)" in proc.stderr, proc.stderr
+    assert (tmp_path / "cv" / "config.json").read_bytes() == before
 
 
 def test_ddp_resume_restores_every_ranks_random_numbers(tmp_path):

@@ -27,7 +27,7 @@ from torch import nn
 from capture.errors import InputError
 from dataset.manifest import take_recordings
 
-from .checkpoint import LAST, write_json
+from .checkpoint import CONFIG, LAST, write_json
 from .data import InputSpec
 from .style import member_style_map
 
@@ -98,14 +98,25 @@ class Ensemble(nn.Module):
 
 
 def check_ensemble_run(
-    manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool
+    manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool, world: int = 1
 ) -> list[list[str]]:
     """The folds' takes; refuses a dataset or run folder an ensemble cannot use, before anything is
-    written (the config itself is checked by ``train.config.check_config``)."""
+    written (the config itself is checked by ``train.config.check_config``): ``world`` processes resume
+    only members trained with as many."""
     if not resume and (has_members(run) or (run / ENSEMBLE).exists()):
         raise InputError("run folder already holds an ensemble: use --resume or another -o", run)
     if resume and not has_members(run):
         raise InputError(f"nothing to resume: no fold-*/{LAST}", run)
+    for member in sorted(run.glob("fold-*")) if resume else ():
+        try:
+            trained = json.loads((member / CONFIG).read_text()).get("world_size", 1)
+        except (OSError, ValueError, AttributeError):
+            continue  # the member's own resume names what is wrong with it
+        if trained != world:
+            raise InputError(
+                f"the ensemble was trained with {trained} process(es): resume it with as many",
+                member / CONFIG,
+            )
     return fold_takes(manifest, cfg["cv_folds"], cfg["drop_takes"])
 
 

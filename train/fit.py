@@ -429,7 +429,7 @@ def _fit_ensemble(
     rank, world, _device = _distributed()
     say = say if rank == 0 else (lambda _m: None)
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
-    folds = check_ensemble_run(manifest, run, cfg, resume)
+    folds = check_ensemble_run(manifest, run, cfg, resume, world)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     run.mkdir(parents=True, exist_ok=True)
@@ -582,8 +582,9 @@ def _fit(
         try:
             from torch.utils.tensorboard import SummaryWriter
 
-            tb = SummaryWriter(str(run / "tensorboard"))
-        except ImportError:
+            # a resumed run purges what an interrupted session logged after its checkpoint
+            tb = SummaryWriter(str(run / "tensorboard"), purge_step=None if state is None else step + 1)
+        except ImportError:  # installed without its dependencies: metrics.jsonl only
             tb = None
     try:
         log = open(run / METRICS, "a") if main else None  # noqa: SIM115 - closed in finally
