@@ -1230,6 +1230,137 @@ def _repair_shards(
     return True
 
 
+def take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
+    """What the build warns about one processed take (its record from ``process_take``)."""
+    notes: list[str] = []
+    if r.get("out_of_range_frames"):
+        notes.append(
+            f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
+            "(no blendshape weight is): masked as unusable"
+        )
+    interpolated = r.get("interpolated_frames", 0) / max(r.get("usable_frames", 0), 1)
+    if interpolated > MAX_INTERPOLATED_SHARE:
+        notes.append(
+            f"take {r['take']}: {interpolated:.0%} of its usable frames were interpolated over a lost "
+            "face, not tracked: check the recording (face out of view?)"
+        )
+    if r.get("narrowband"):
+        notes.append(
+            f"take {r['take']}: its audio has no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at "
+            "8 kHz, or through a phone codec?): its filter banks lack the upper bands of the other takes"
+        )
+    if r.get("audio_gain", 1.0) < 1.0 / FILTER_OVERSHOOT:  # a smaller gain is scaled without a word
+        peak = 1 / r["audio_gain"]
+        why = "clipped in the recording, then resampled?" if peak < 2 else "float audio"
+        notes.append(
+            f"take {r['take']}: audio peaks at {peak:.2f} (past full scale: {why}): scaled by "
+            f"{r['audio_gain']:.3f} before features and storage (audio_gain in its samples)"
+        )
+    if r.get("stray_samples"):
+        notes.append(
+            f"take {r['take']}: a burst past full scale over {STRAY_FACTOR:g} times the take's level (a "
+            f"damaged sample, or a click) muted ({r['stray_samples']} samples): not used for audio_gain"
+        )
+    if options.settings.level_target_db is not None and r.get("level_gain", 1.0) > QUIET_GAIN:
+        notes.append(
+            f"take {r['take']}: speech at {r['speech_level_dbfs']:.1f} dBFS active level, raised by "
+            f"{20 * math.log10(r['level_gain']):.1f} dB for its features (a very quiet recording: check "
+            "the microphone)"
+        )
+    if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:
+        notes.append(
+            f"take {r['take']}: only {r['usable_frames']} of {r['frames']} frames are usable (face lost, "
+            "or audio shorter than the frames?); check it with s2a-view report"
+        )
+    return notes
+
+
+def pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> dict[str, Any]:
+    """Per speaker, the mean and std of voiced log-F0 over the training split's takes (over all of the
+    speaker's takes for a held-out speaker)."""
+    pitch_norm = {}
+    for spk in speakers:
+        mine = [r for r in ordered if r["speaker"] == spk]
+        use = [r for r in mine if r["split"] == "train"] or mine
+        cnt = sum(r["pitch_stats"]["count"] for r in use)
+        s = sum(r["pitch_stats"]["sum"] for r in use)
+        ss = sum(r["pitch_stats"]["sumsq"] for r in use)
+        mean = s / cnt if cnt else 0.0
+        std = math.sqrt(max(ss / cnt - mean * mean, 0.0)) if cnt else 1.0
+        pitch_norm[spk] = {
+            "mean": float(np.float32(mean)),
+            "std": float(np.float32(std if std > 1e-6 else 1.0)),
+            "voiced_frames": cnt,
+            "from": "train" if any(r["split"] == "train" for r in mine) else "all (held-out speaker)",
+        }
+    return pitch_norm
+
+
+def _write_shards(
+    out: Path, work: Path, plan: list[dict[str, Any]], fingerprint: str, say: Callable[[str], None]
+) -> list[dict[str, Any]]:
+    """Write the planned shards (reusing intact ones), remove shards of an earlier, larger build; their
+    manifest entries."""
+    shards = []
+    for i, shard in enumerate(plan, 1):
+        done = _write_shard(out, work, shard, fingerprint)
+        say(f"shard {i}/{len(plan)} {done['name']} ({done['bytes'] / 1e6:.1f} MB)")
+        shards.append(
+            {
+                "name": done["name"],
+                "split": shard["split"],
+                "sha256": done["sha256"],
+                "bytes": done["bytes"],
+                "samples": len(shard["samples"]),
+                "frames": sum(s["frames"] for s in shard["samples"]),
+                "duration_s": round(sum(s["duration_s"] for s in shard["samples"]), 6),
+            }
+        )
+    planned = {s["name"] for s in shards}
+    for p in out.iterdir():
+        if SHARD_NAME.match(p.name) and p.name not in planned:
+            p.unlink()  # left over from an earlier, larger build into this folder
+    return shards
+
+
+def _split_stats(
+    ordered: list[dict[str, Any]], channels: list[str], train_chan, phones: list[str] | None
+) -> tuple[dict[str, Any], list[str]]:
+    """Per split: takes, samples, hours (per speaker), usable frames, channel distributions and, with
+    phones, frames per phone; and the warnings about splits with no usable frame."""
+    stats: dict[str, Any] = {}
+    notes: list[str] = []
+    for split in SPLITS:
+        mine = [r for r in ordered if r["split"] == split]
+        if not mine:
+            continue
+        chan = train_chan if split == "train" else _merge_records(ordered, channels, split)[0]
+        speakers: dict[str, float] = {}
+        for r in mine:
+            speakers[r["speaker"]] = speakers.get(r["speaker"], 0.0) + r["duration_s"]
+        entry: dict[str, Any] = {
+            "takes": len(mine),
+            "samples": sum(len(r["samples"]) for r in mine),
+            "hours": sum(r["duration_s"] for r in mine) / 3600.0,
+            "usable_frames": sum(r["usable_frames"] for r in mine),
+            "hours_per_speaker": {k: v / 3600.0 for k, v in sorted(speakers.items())},
+            "channels": _distribution(chan.summary(channels)),
+        }
+        if phones is not None and all(r["phone_counts"] is not None for r in mine):
+            counts = np.zeros(len(phones), np.int64)
+            for r in mine:
+                c = np.asarray(r["phone_counts"], np.int64)[: len(phones)]
+                counts[: c.size] += c
+            entry["phone_frames"] = {p: int(c) for p, c in zip(phones, counts, strict=True)}
+        stats[split] = entry
+        if not entry["usable_frames"]:  # never train: _build refuses a training split without any
+            notes.append(
+                f"the {split} split has no usable frame (its {len(mine)} take(s) lost the face, or their "
+                "audio, throughout): nothing can be evaluated on it"
+            )
+    return stats, notes
+
+
 def _build(
     inputs: list[str | Path], out: Path, options: BuildOptions, say: Callable[[str], None]
 ) -> dict[str, Any]:
@@ -1330,45 +1461,7 @@ def _build(
     stats_files = {job.take_id: str(job.stats) for job in jobs}
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
     for r in ordered:
-        if r.get("out_of_range_frames"):
-            warnings.append(
-                f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
-                "(no blendshape weight is): masked as unusable"
-            )
-        interpolated = r.get("interpolated_frames", 0) / max(r.get("usable_frames", 0), 1)
-        if interpolated > MAX_INTERPOLATED_SHARE:
-            warnings.append(
-                f"take {r['take']}: {interpolated:.0%} of its usable frames were interpolated over a lost "
-                "face, not tracked: check the recording (face out of view?)"
-            )
-        if r.get("narrowband"):
-            warnings.append(
-                f"take {r['take']}: its audio has no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at "
-                "8 kHz, or through a phone codec?): its filter banks lack the upper bands of the other takes"
-            )
-        if r.get("audio_gain", 1.0) < 1.0 / FILTER_OVERSHOOT:  # a smaller gain is scaled without a word
-            peak = 1 / r["audio_gain"]
-            why = "clipped in the recording, then resampled?" if peak < 2 else "float audio"
-            warnings.append(
-                f"take {r['take']}: audio peaks at {peak:.2f} (past full scale: {why}): scaled by "
-                f"{r['audio_gain']:.3f} before features and storage (audio_gain in its samples)"
-            )
-        if r.get("stray_samples"):
-            warnings.append(
-                f"take {r['take']}: a burst past full scale over {STRAY_FACTOR:g} times the take's level (a "
-                f"damaged sample, or a click) muted ({r['stray_samples']} samples): not used for audio_gain"
-            )
-        if options.settings.level_target_db is not None and r.get("level_gain", 1.0) > QUIET_GAIN:
-            warnings.append(
-                f"take {r['take']}: speech at {r['speech_level_dbfs']:.1f} dBFS active level, raised by "
-                f"{20 * math.log10(r['level_gain']):.1f} dB for its features (a very quiet recording: check "
-                "the microphone)"
-            )
-        if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:
-            warnings.append(
-                f"take {r['take']}: only {r['usable_frames']} of {r['frames']} frames are usable (face lost, "
-                "or audio shorter than the frames?); check it with s2a-view report"
-            )
+        warnings += take_warnings(r, options)
 
     # statistics of the training split, merged in take order (deterministic float sums)
     train_chan, train_feats = _merge_records(ordered, channels, "train")
@@ -1381,41 +1474,10 @@ def _build(
         feature_norm[name] = {"mean": mean, "std": std, "frames": acc.count}
     pitch_norm = {}
     if "pitch" in options.features:
-        for spk in sorted({t.speaker for t in takes}):
-            mine = [r for r in ordered if r["speaker"] == spk]
-            use = [r for r in mine if r["split"] == "train"] or mine
-            cnt = sum(r["pitch_stats"]["count"] for r in use)
-            s = sum(r["pitch_stats"]["sum"] for r in use)
-            ss = sum(r["pitch_stats"]["sumsq"] for r in use)
-            mean = s / cnt if cnt else 0.0
-            std = math.sqrt(max(ss / cnt - mean * mean, 0.0)) if cnt else 1.0
-            pitch_norm[spk] = {
-                "mean": float(np.float32(mean)),
-                "std": float(np.float32(std if std > 1e-6 else 1.0)),
-                "voiced_frames": cnt,
-                "from": "train" if any(r["split"] == "train" for r in mine) else "all (held-out speaker)",
-            }
+        pitch_norm = pitch_normalization(ordered, sorted({t.speaker for t in takes}))
 
     plan = plan_shards(ordered, options.shard_bytes)
-    shards = []
-    for i, shard in enumerate(plan, 1):
-        done = _write_shard(out, work, shard, fingerprint)
-        say(f"shard {i}/{len(plan)} {done['name']} ({done['bytes'] / 1e6:.1f} MB)")
-        shards.append(
-            {
-                "name": done["name"],
-                "split": shard["split"],
-                "sha256": done["sha256"],
-                "bytes": done["bytes"],
-                "samples": len(shard["samples"]),
-                "frames": sum(s["frames"] for s in shard["samples"]),
-                "duration_s": round(sum(s["duration_s"] for s in shard["samples"]), 6),
-            }
-        )
-    planned = {s["name"] for s in shards}
-    for p in out.iterdir():
-        if SHARD_NAME.match(p.name) and p.name not in planned:
-            p.unlink()  # left over from an earlier, larger build into this folder
+    shards = _write_shards(out, work, plan, fingerprint, say)
 
     sample_entries = []
     rec_of = {s["key"]: r for r in ordered for s in r["samples"]}
@@ -1437,35 +1499,8 @@ def _build(
     phones = ppg_info.get("phones") if ppg_info else None
     if phones is None and extractor is not None:
         phones = getattr(extractor, "phones", None)
-    stats = {}
-    for split in SPLITS:
-        mine = [r for r in ordered if r["split"] == split]
-        if not mine:
-            continue
-        chan = train_chan if split == "train" else _merge_records(ordered, channels, split)[0]
-        speakers: dict[str, float] = {}
-        for r in mine:
-            speakers[r["speaker"]] = speakers.get(r["speaker"], 0.0) + r["duration_s"]
-        entry: dict[str, Any] = {
-            "takes": len(mine),
-            "samples": sum(len(r["samples"]) for r in mine),
-            "hours": sum(r["duration_s"] for r in mine) / 3600.0,
-            "usable_frames": sum(r["usable_frames"] for r in mine),
-            "hours_per_speaker": {k: v / 3600.0 for k, v in sorted(speakers.items())},
-            "channels": _distribution(chan.summary(channels)),
-        }
-        if phones is not None and all(r["phone_counts"] is not None for r in mine):
-            counts = np.zeros(len(phones), np.int64)
-            for r in mine:
-                c = np.asarray(r["phone_counts"], np.int64)[: len(phones)]
-                counts[: c.size] += c
-            entry["phone_frames"] = {p: int(c) for p, c in zip(phones, counts, strict=True)}
-        stats[split] = entry
-        if not entry["usable_frames"]:  # train has some (checked above)
-            warnings.append(
-                f"the {split} split has no usable frame (its {len(mine)} take(s) lost the face, or their "
-                "audio, throughout): nothing can be evaluated on it"
-            )
+    stats, split_notes = _split_stats(ordered, channels, train_chan, phones)
+    warnings += split_notes
 
     feature_dims = {}
     if ordered and ordered[0]["samples"]:

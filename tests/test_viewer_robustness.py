@@ -16,6 +16,7 @@ from live_helpers import datagrams, udp_receiver
 
 from capture import livelink as ll
 from capture import read_livelink_csv, read_take, write_take
+from capture.paired import load_npy
 
 CAL = "livelinkface/neurosync_MySlate_166/MySlate_166_iPhone_cal.csv"  # 60 fps, the app's own naming
 ROWS = 60  # one second: enough for every check, cheap to read, render and stream
@@ -260,3 +261,39 @@ def test_nan_audio_is_refused(short_csv, tmp_path):
     folder = tmp_path / "takes" / take.meta.id
     proc = run_cli("viewer", "plot", folder, "--audio", wav, "-o", tmp_path / "p.png")
     _one_line_error(proc, "NaN or infinite sample")
+
+
+FACEGOOD = "paired/facegood-audio2face"
+
+
+@pytest.fixture
+def rig_take(samples, tmp_path) -> Path:
+    """Two seconds of a real FACEGOOD take: 116 rig controls at 30 fps, none a Live Link channel."""
+    fg = samples / FACEGOOD
+    np.save(
+        tmp_path / "rig.npy", load_npy(fg / "bs_value" / "bs_value_1114_2_05.npy")[:60]
+    )  # a Python 2 .npy
+    audio, rate = sf.read(fg / "wav" / "1114_2_05.wav")
+    sf.write(tmp_path / "rig.wav", audio[: 2 * rate], rate)
+    args = ["--matrix", tmp_path / "rig.npy", "--audio", tmp_path / "rig.wav", "--names", fg / "bs_names.txt"]
+    run_cli("capture", "import", *args, "--fps", 30, "--id", "rig", "-o", tmp_path / "takes", check=True)
+    return tmp_path / "takes" / "rig"
+
+
+def test_a_rigs_own_controls_are_plotted_by_name_and_not_rendered_as_a_still_face(rig_take, tmp_path):
+    """A FACEGOOD take (or a prediction of a run trained on one) holds no Live Link channel: render and
+    stream used to show a neutral face and send zeros, and plot refused its channel names."""
+    out = tmp_path / "rig.png"
+    summary = _json(
+        run_cli("viewer", "plot", rig_take, "-o", out, "--channels", "mouth_oh_c,jaw_thrust_c", "--json")
+    )
+    assert summary["channels"] == ["mouth_oh_c", "jaw_thrust_c"] and out.stat().st_size > 0
+    _one_line_error(
+        run_cli("viewer", "plot", rig_take, "-o", out, "--channels", "jawOpen"),
+        "no input holds channel 'jawOpen'",
+        "116 rig controls",
+    )
+    line = _one_line_error(run_cli("viewer", "render", rig_take, "-o", tmp_path / "face.png"))
+    assert "holds none of the 61 Live Link Face channels" in line and "s2a-view plot --channels" in line
+    assert not (tmp_path / "face.png").exists()
+    _one_line_error(run_cli("viewer", "stream", rig_take, "--to", "127.0.0.1:9"), "stream shows Live Link")

@@ -1,4 +1,5 @@
-"""The training loop of every system: a straight script in one function.
+"""The training loop of every system: one straight loop (``_fit``) over the pieces below it (the resume
+checks, the restore, one training step, the metrics log).
 
 AdamW with linear warm-up and cosine decay, global gradient-norm clipping, optional bf16 autocast,
 validation every ``eval_every`` steps with early stopping, checkpoints that resume exactly (model,
@@ -468,6 +469,154 @@ def _start_afresh(run: Path) -> None:
         events.unlink(missing_ok=True)
 
 
+def _resumable(
+    run: Path,
+    manifest: dict[str, Any],
+    ds: Path,
+    cfg: dict[str, Any],
+    given: dict[str, Any] | None,
+    world: int,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(checkpoint, config) of a run to resume, after every check that it can be: its checkpoint, its
+    dataset, the config keys the user set, its number of processes."""
+    if not (run / LAST).is_file():
+        raise InputError(f"nothing to resume: no {LAST}", run)
+    state = load_checkpoint(run / LAST)
+    if not isinstance(state.get("config"), dict):
+        raise InputError("checkpoint lacks its config", run / LAST)
+    _same_dataset(state, manifest, ds, run / LAST)
+    _refuse_changes(given, state["config"], run / LAST)
+    cfg = _resumed_config(state["config"], cfg, given)
+    check_config(cfg)
+    trained = len(_positions(state))
+    if trained != world:
+        raise InputError(
+            f"the run was trained with {trained} process(es): resume it with as many", run / LAST
+        )
+    return state, cfg
+
+
+def _positions(state: dict[str, Any]) -> list[Any]:
+    """Every rank's data position ``[epoch, next batch]`` in a checkpoint (older ones hold one)."""
+    return state.get("positions") or [[state.get("epoch"), state.get("batch")]]
+
+
+def _restore(
+    state: dict[str, Any], model, optimizer, rank: int, world: int, where: Path
+) -> tuple[int, int, int, float, int]:
+    """Load a checkpoint into the model, the optimizer and this rank's random generator; returns where
+    training stands: (step, this rank's epoch and next batch, best validation loss, bad evaluations)."""
+    try:
+        model.load_state_dict(state["state_dict"])
+        optimizer.load_state_dict(state["optimizer"])
+        epoch, batch = _positions(state)[rank]  # checked against the world size by _resumable
+        ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
+        torch.set_rng_state(
+            ranks[rank] if isinstance(ranks, list) and len(ranks) == world else state["rng"]["torch"]
+        )
+        best_val = state["best_val"] if state["best_val"] is not None else math.inf
+        return state["step"], epoch, batch, best_val, state["bad_evals"]
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        first = " ".join(str(exc).strip().splitlines()[:1]) or type(exc).__name__
+        raise InputError(f"checkpoint cannot be resumed ({first})", where) from None
+
+
+class MetricsLog:
+    """``metrics.jsonl`` and, with the tensorboard package, the same figures as TensorBoard events; only
+    the main process ``writes``. ``resumed_at``: the step of the checkpoint a resumed session starts
+    from, after which TensorBoard drops what an interrupted session logged."""
+
+    def __init__(self, run: Path, writes: bool, resumed_at: int | None):
+        self.path, self.lines, self.tb = run / METRICS, None, None
+        if not writes:
+            return
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+
+            purge = None if resumed_at is None else resumed_at + 1
+            self.tb = SummaryWriter(str(run / "tensorboard"), purge_step=purge)
+        except ImportError:  # installed without its dependencies: metrics.jsonl only
+            self.tb = None
+        try:
+            self.lines = open(self.path, "a")  # noqa: SIM115 - closed by close()
+        except OSError as exc:
+            self.close()
+            raise write_error(exc, self.path) from None
+
+    def emit(self, record: dict[str, Any]) -> None:
+        if self.lines is None:
+            return
+        try:  # strict JSON for jq and browsers: a NaN or infinite figure (a diverged run) is null
+            self.lines.write(json.dumps(json_safe(record)) + "\n")
+            self.lines.flush()
+        except OSError as exc:
+            raise write_error(exc, self.path) from None
+        if self.tb is not None:
+            for k, v in record.items():
+                if k != "step" and isinstance(v, (int, float)):
+                    self.tb.add_scalar(k, v, record["step"])
+
+    def close(self) -> None:
+        if self.lines is not None:
+            self.lines.close()
+        if self.tb is not None:
+            self.tb.close()
+
+
+def _stop_reason(step: int, cfg: dict[str, Any], early: bool, over: bool) -> str | None:
+    """Why training stops after a validation at ``step`` (None: it goes on); ``early``: patience has run
+    out, ``over``: the session's minutes have."""
+    if step >= cfg["max_steps"]:
+        return "max_steps"
+    if early:
+        return "early_stopping"
+    return "max_minutes" if over else None
+
+
+def _train_step(net, model, batch, spec, cfg, weights, device):
+    """Forward and backward of one batch (augmented as configured), gradients clipped; (mse, aux loss,
+    gradient norm before clipping, frame mask). The caller steps the optimizer once the norm is finite."""
+    content, prosody = to_model_inputs(batch, spec, style_dropout=cfg["style_dropout"])
+    content = content.to(device)
+    prosody = None if prosody is None else prosody.to(device)
+    mask = batch["mask"].to(device)
+    target = batch["anim"].to(device)
+    if augmenting(cfg):
+        content, prosody, target, mask = augment(content, prosody, target, mask, cfg)
+    with _autocast(cfg, device):
+        pred = net(content, prosody, mask)
+    mse = masked_mse(pred.float(), target, mask, weights)
+    aux = model.aux_loss().to(device) if hasattr(model, "aux_loss") else torch.zeros((), device=device)
+    model.zero_grad(set_to_none=True)
+    (mse + cfg["aux_weight"] * aux).backward()
+    grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["grad_clip"] or math.inf)
+    return mse, aux, grad_norm, mask
+
+
+def _ridge_run(ds: Path, run: Path, cfg, spec, manifest, state, config_record, say) -> dict[str, Any]:
+    """A ridge run: solved in closed form (a resumed one was solved already)."""
+    if state is not None:
+        return _solved_ridge(run, cfg, state, spec, say)
+    write_json(run / CONFIG, config_record)
+    _start_afresh(run)
+    t0 = time.perf_counter()
+    solved, ridge = _fit_ridge(ds, run, cfg, spec, manifest, say)
+    return _summary(
+        run,
+        cfg,
+        steps=solved.pop("steps"),
+        epochs=0,
+        best_val=solved.pop("best_val"),
+        stopped=solved.pop("stopped"),
+        world=1,
+        rank=0,
+        checksums=[_checksum(ridge)],
+        parameters=sum(p.numel() for p in ridge.parameters()),
+        session_s=time.perf_counter() - t0,
+        **solved,
+    )
+
+
 def _fit(
     ds: Path,
     run: Path,
@@ -485,20 +634,7 @@ def _fit(
     state = None
     # every check before anything is written: a refused run leaves its folder (and config.json) as it was
     if resume:
-        if not (run / LAST).is_file():
-            raise InputError(f"nothing to resume: no {LAST}", run)
-        state = load_checkpoint(run / LAST)
-        if not isinstance(state.get("config"), dict):
-            raise InputError("checkpoint lacks its config", run / LAST)
-        _same_dataset(state, manifest, ds, run / LAST)
-        _refuse_changes(given, state["config"], run / LAST)
-        cfg = _resumed_config(state["config"], cfg, given)
-        check_config(cfg)
-        positions = state.get("positions") or [[state.get("epoch"), state.get("batch")]]
-        if len(positions) != world:
-            raise InputError(
-                f"the run was trained with {len(positions)} process(es): resume it with as many", run / LAST
-            )
+        state, cfg = _resumable(run, manifest, ds, cfg, given, world)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
@@ -515,26 +651,7 @@ def _fit(
         say("note: style_dropout applies with speaker_style = true only: ignored")
     config_record = {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg}
     if cfg["model"] == "ridge":
-        if state is not None:
-            return _solved_ridge(run, cfg, state, spec, say)
-        write_json(run / CONFIG, config_record)
-        _start_afresh(run)
-        t0 = time.perf_counter()
-        solved, ridge = _fit_ridge(ds, run, cfg, spec, manifest, say)
-        return _summary(
-            run,
-            cfg,
-            steps=solved.pop("steps"),
-            epochs=0,
-            best_val=solved.pop("best_val"),
-            stopped=solved.pop("stopped"),
-            world=1,
-            rank=0,
-            checksums=[_checksum(ridge)],
-            parameters=sum(p.numel() for p in ridge.parameters()),
-            session_s=time.perf_counter() - t0,
-            **solved,
-        )
+        return _ridge_run(ds, run, cfg, spec, manifest, state, config_record, say)
 
     torch.manual_seed(cfg["seed"])
     model, model_config = build_model(cfg["model"], spec, cfg)
@@ -544,20 +661,9 @@ def _fit(
     )
     step, epoch, batch_pos, best_val, bad_evals = 0, 0, 0, math.inf, 0
     if state is not None:
-        try:
-            model.load_state_dict(state["state_dict"])
-            optimizer.load_state_dict(state["optimizer"])
-            step, epoch, batch_pos = state["step"], state["epoch"], state["batch"]
-            epoch, batch_pos = positions[rank]  # checked against the world size above
-            best_val = state["best_val"] if state["best_val"] is not None else math.inf
-            bad_evals = state["bad_evals"]
-            ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
-            torch.set_rng_state(
-                ranks[rank] if isinstance(ranks, list) and len(ranks) == world else state["rng"]["torch"]
-            )
-        except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as exc:
-            first = " ".join(str(exc).strip().splitlines()[:1]) or type(exc).__name__
-            raise InputError(f"checkpoint cannot be resumed ({first})", run / LAST) from None
+        step, epoch, batch_pos, best_val, bad_evals = _restore(
+            state, model, optimizer, rank, world, run / LAST
+        )
     if main:  # written only now that every check has passed
         write_json(run / CONFIG, config_record)
         if state is None:
@@ -577,19 +683,7 @@ def _fit(
     # runs the bare model: ranks hold different numbers of validation utterances, so a DDP forward there
     # could wait on a collective the other rank never joins.
     net = torch.nn.parallel.DistributedDataParallel(model, forward_sync_buffers=False) if world > 1 else model
-    tb = None
-    if main:
-        try:
-            from torch.utils.tensorboard import SummaryWriter
-
-            # a resumed run purges what an interrupted session logged after its checkpoint
-            tb = SummaryWriter(str(run / "tensorboard"), purge_step=None if state is None else step + 1)
-        except ImportError:  # installed without its dependencies: metrics.jsonl only
-            tb = None
-    try:
-        log = open(run / METRICS, "a") if main else None  # noqa: SIM115 - closed in finally
-    except OSError as exc:
-        raise write_error(exc, run / METRICS) from None
+    log = MetricsLog(run, main, None if state is None else step)
 
     def save(name: str) -> None:
         positions: list[Any] = [[epoch, batch_pos]]
@@ -606,19 +700,6 @@ def _fit(
             p["finished"] = stopped in ("max_steps", "early_stopping")
             p["stopped"] = stopped
             save_checkpoint(p, run / name)
-
-    def emit(record: dict[str, Any]) -> None:
-        if log is not None:
-            # strict JSON for jq and browsers: a NaN or infinite figure (a diverged run) is null
-            try:
-                log.write(json.dumps(json_safe(record)) + "\n")
-                log.flush()
-            except OSError as exc:
-                raise write_error(exc, run / METRICS) from None
-            if tb is not None:
-                for k, v in record.items():
-                    if k != "step" and isinstance(v, (int, float)):
-                        tb.add_scalar(k, v, record["step"])
 
     stopped = None
     t_start = t_log = time.perf_counter()
@@ -637,23 +718,7 @@ def _fit(
             lr = learning_rate(step, cfg)
             for g in optimizer.param_groups:
                 g["lr"] = lr
-            content, prosody = to_model_inputs(batch, spec, style_dropout=cfg["style_dropout"])
-            content = content.to(device)
-            prosody = None if prosody is None else prosody.to(device)
-            mask = batch["mask"].to(device)
-            target = batch["anim"].to(device)
-            if augmenting(cfg):
-                content, prosody, target, mask = augment(content, prosody, target, mask, cfg)
-            with _autocast(cfg, device):
-                pred = net(content, prosody, mask)
-            mse = masked_mse(pred.float(), target, mask, weights)
-            aux = (
-                model.aux_loss().to(device) if hasattr(model, "aux_loss") else torch.zeros((), device=device)
-            )
-            loss = mse + cfg["aux_weight"] * aux
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["grad_clip"] or math.inf)
+            mse, aux, grad_norm, mask = _train_step(net, model, batch, spec, cfg, weights, device)
             if not math.isfinite(float(grad_norm)):  # the same on every rank: gradients are all-reduced
                 raise InputError(
                     f"training diverged at step {step + 1}: the loss or its gradient is not finite "
@@ -668,7 +733,7 @@ def _fit(
                 now = time.perf_counter()
                 rec = {"step": step, "epoch": epoch, "lr": lr, "mse": ls / world, "aux": float(aux.detach())}
                 rec.update(grad_norm=float(grad_norm), frames_per_s=fr / (now - t_log))
-                emit(rec)
+                log.emit(rec)
                 say(f"step {step}: mse {rec['mse']:.4f} lr {lr:.2e} {rec['frames_per_s']:.0f} frames/s")
                 frames_since, t_log = 0.0, now
             minutes = (time.perf_counter() - t_start) / 60
@@ -688,7 +753,7 @@ def _fit(
                     bad_evals += 1
                 if has_val:
                     since = time.perf_counter() - t_start  # seconds into this session
-                    emit(
+                    log.emit(
                         {
                             "step": step,
                             "epoch": epoch,
@@ -698,12 +763,8 @@ def _fit(
                         }
                     )
                     say(f"step {step}: val mse {val:.4f} (best {best_val:.4f})")
-                if step >= cfg["max_steps"]:
-                    stopped = "max_steps"
-                elif has_val and cfg["patience"] and bad_evals >= cfg["patience"]:
-                    stopped = "early_stopping"
-                elif over:
-                    stopped = "max_minutes"
+                early = has_val and cfg["patience"] and bad_evals >= cfg["patience"]
+                stopped = _stop_reason(step, cfg, early, over)
                 if improved:
                     save(BEST)
                 save(LAST)
@@ -716,10 +777,7 @@ def _fit(
                 stopped = "stopped"
                 save(LAST)
     finally:
-        if log is not None:
-            log.close()
-        if tb is not None:
-            tb.close()
+        log.close()
     elapsed = time.perf_counter() - t_start
     checksums = [_checksum(model)]
     if dist.is_initialized():

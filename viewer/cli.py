@@ -158,6 +158,7 @@ def _warn(anims) -> None:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    from .inputs import livelink_coverage
     from .probe import probe
     from .render import (
         FaceRenderer,
@@ -189,6 +190,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     anims = [load_animation(args.input, args.audio, one_take=one)]
     anims += [load_animation(c, one_take=one, audio_flag=None) for c in args.compare]
     paths = [args.input, *args.compare]
+    for a, path in zip(anims, paths):
+        a.warnings += livelink_coverage(a.take, path, "render")
     first = anims[0]
     span = float(first.time[-1] - first.t0)
     if args.time is not None and not 0 <= args.time <= span:
@@ -317,13 +320,14 @@ def cmd_plot(args: argparse.Namespace) -> int:
 def cmd_stream(args: argparse.Namespace) -> int:
     from capture.replay import check_speed, packet_names, parse_destination
 
-    from .inputs import ABSURD, prepared_for_stream
+    from .inputs import ABSURD, livelink_coverage, prepared_for_stream
     from .stream import load_take, stream_take
 
     parse_destination(args.to)  # a malformed destination or speed is reported before any file is read
     check_speed(args.speed)
     audio_file = args.audio if args.audio not in (None, "take") else None
     take, warnings = load_take(args.input, audio_file)
+    warnings += livelink_coverage(take, args.input, "stream")
     packet_names(take, args.device, args.subject)  # names too long for a datagram: before any output
     take, outside = prepared_for_stream(take)
     for w in warnings:

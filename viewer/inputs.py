@@ -118,6 +118,25 @@ def bad_frames(values: np.ndarray, channels: Sequence[str]) -> np.ndarray:
     return ~np.all(np.abs(v) <= ABSURD, axis=1)  # NaN compares False
 
 
+def livelink_coverage(take: Take, path: str | Path, what: str) -> list[str]:
+    """``what`` (a render, a stream) shows the 61 Live Link Face channels only: a take holding none of
+    them (a rig's own controls, as FACEGOOD's takes and predictions of runs trained on them) is an
+    ``InputError`` that says how to look at it instead; for a take holding some others, a warning that
+    those are left out."""
+    other = [c for c in take.meta.channels if not is_known(c)]
+    if not other:
+        return []
+    shown = ", ".join(other[:3]) + (", ..." if len(other) > 3 else "")
+    if len(other) == len(take.meta.channels):
+        raise InputError(
+            f"take {take.meta.id} holds none of the 61 Live Link Face channels (its {len(other)} channels "
+            f"are a rig's own controls: {shown}): {what} shows Live Link channels only; draw its curves "
+            f"with s2a-view plot --channels {other[0]}",
+            path,
+        )
+    return [f"{path}: {len(other)} channel(s) not of Live Link Face ({shown}) are left out of the {what}"]
+
+
 def blendshape_columns(channels: Sequence[str]) -> list[int]:
     """Columns of ``channels`` that are ARKit blendshapes (weights 0..1), not head or eye angles."""
     return [j for j, c in enumerate(channels) if is_known(c) and canonical(c) in _BLENDSHAPES]

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from capture.atomic import atomic_write
-from capture.channels import canonical, channel_set
+from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError
 
 from .output import writing
@@ -28,6 +28,48 @@ def _index(name: str) -> int:
     from capture.channels import ARKIT61
 
     return ARKIT61.index(canonical(name))
+
+
+def _holds(anim: Animation, name: str) -> bool:
+    """Whether ``anim``'s take has channel ``name`` (a Live Link channel in any spelling, or another)."""
+    if name in anim.others:
+        return True
+    channels = anim.take.meta.channels if anim.take is not None else []
+    return any(is_known(c) and canonical(c) == name for c in channels)
+
+
+def curve(anim: Animation, name: str) -> np.ndarray | None:
+    """Values of channel ``name`` (canonical when a Live Link channel) over ``anim``'s frames; None when
+    its take has no such channel."""
+    if not _holds(anim, name):
+        return None
+    return anim.others[name] if name in anim.others else anim.weights[:, _index(name)]
+
+
+def selected_channels(spec: str, anims: Sequence[Animation]) -> list[str]:
+    """The channels ``--channels`` names that the inputs hold: a set name (those of the set any input
+    holds) or a comma list of Live Link channels (any spelling) and of the inputs' other channels (a
+    rig's own controls, by their exact names), each held by at least one input."""
+    is_set = spec.strip().lower() in CHANNEL_SETS
+    if is_set:
+        names = [n for n in channel_set(spec) if any(_holds(a, n) for a in anims)]
+        missing = [] if names else [spec.strip()]
+    else:
+        names = [canonical(n) if is_known(n) else n for n in (p.strip() for p in spec.split(",")) if n]
+        if not names:
+            raise InputError(f"empty channel selection {spec!r}")
+        missing = [n for n in names if not any(_holds(a, n) for a in anims)]
+    if missing:
+        what = f"a channel of set {missing[0]!r}" if is_set else f"channel {missing[0]!r}"
+        others = sorted({n for a in anims for n in a.others})
+        held = ""
+        if others:
+            more = ", ..." if len(others) > 5 else ""
+            held = f" (they hold {len(others)} rig controls: {', '.join(others[:5])}{more})"
+        raise InputError(
+            f"no input holds {what}{held}; name channels of the inputs, or a set ({', '.join(CHANNEL_SETS)})"
+        )
+    return names
 
 
 def energy_segments(x: np.ndarray, rate: int, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
@@ -94,9 +136,9 @@ def plot_curves(
     out = Path(out)
     if out.suffix.lower() not in (".png", ".svg"):
         raise InputError("the plot is written as .png or .svg", out)
-    names = list(channel_set(channels))
     if not anims:
         raise InputError("nothing to plot")
+    names = selected_channels(channels, anims)
     for flag, v in (("--start", start_s), ("--end", end_s)):
         if v is not None and not math.isfinite(v):
             raise InputError(f"{flag} must be a number of seconds, not {v}")
@@ -126,11 +168,12 @@ def plot_curves(
     t_max = 0.0
     for r, name in enumerate(names):
         ax = axes[r]
-        k = _index(name)
         for i, a in enumerate(anims):
             t = a.time - a.t0 + a.offset_s
             t_max = max(t_max, float(t[-1]))
-            ax.plot(t, a.weights[:, k], color=colors[i % len(colors)], lw=1.2, label=a.label)
+            values = curve(a, name)
+            if values is not None:
+                ax.plot(t, values, color=colors[i % len(colors)], lw=1.2, label=a.label)
         ax.set_ylabel(name, rotation=0, ha="right", va="center")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize="small", ncol=min(len(anims), 4))

@@ -18,6 +18,7 @@ import numpy as np
 
 from capture import ARKIT61, Audio, FrameStatus, InputError, Take
 from capture.atomic import atomic_write
+from capture.channels import is_known
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
@@ -29,7 +30,8 @@ BACKGROUND = (38, 40, 46)
 
 @dataclass
 class Animation:
-    """ARKit weights on a take's clock: ``time`` (frames,) seconds, ``weights`` (frames, 61)."""
+    """ARKit weights on a take's clock: ``time`` (frames,) seconds, ``weights`` (frames, 61); a take's
+    channels that are not Live Link channels (a rig's own controls) in ``others``, by name."""
 
     label: str
     fps: float
@@ -42,6 +44,7 @@ class Animation:
     bad_values: int = 0  # frames with NaN, infinite or absurd values, bridged
     clamped: int = 0  # blendshape values outside 0..1, clamped
     warnings: list[str] = field(default_factory=list)  # what reading repaired, bridged or clamped
+    others: dict[str, np.ndarray] = field(default_factory=dict)  # (frames,) values of other channels
 
     @property
     def t0(self) -> float:
@@ -78,8 +81,10 @@ def load_animation(
     """
     take, warnings = read_input(path, one_take, audio, audio_flag)
     weights = weights_from_values(take.values.astype(np.float64), take.meta.channels)
+    other_cols = [j for j, c in enumerate(take.meta.channels) if not is_known(c)]
+    others = take.values[:, other_cols].astype(np.float64)
     ok = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
-    bad = ok & bad_frames(weights, ARKIT61)
+    bad = ok & (bad_frames(weights, ARKIT61) | ~np.all(np.abs(others) <= ABSURD, axis=1))
     ok &= ~bad
     if not ok.any():
         raise InputError(f"take {take.meta.id} has no frame with usable values", path)
@@ -94,7 +99,10 @@ def load_animation(
     good = np.flatnonzero(ok)
     for k in range(weights.shape[1]):
         weights[:, k] = np.interp(take.time, take.time[good], weights[good, k])
+    for k in range(others.shape[1]):
+        others[:, k] = np.interp(take.time, take.time[good], others[good, k])
     anim = Animation(label or take.meta.id, float(take.meta.fps), take.time.copy(), weights, take=take)
+    anim.others = {take.meta.channels[j]: others[:, k] for k, j in enumerate(other_cols)}
     anim.bad_values, anim.clamped, anim.warnings = int(bad.sum()), clamped, warnings
     if take.audio is not None:
         anim.audio = take.audio
