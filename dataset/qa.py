@@ -225,6 +225,130 @@ def validate_shard(
 # ------------------------------------------------------------------------------------------ sample
 
 
+def _check_anim(anim: np.ndarray, at: str, n_channels: int) -> tuple[list[Problem], int | None]:
+    """Problems of a sample's animation (dtype, shape, values) and its number of frames (None when it
+    is not a (frames, channels) array)."""
+    out: list[Problem] = []
+    frames = None
+    if anim.dtype != np.float32:
+        out.append(_p("dtype", f"{at}.anim.npy", f"animation is {anim.dtype}, expected float32"))
+    if anim.ndim != 2:
+        out.append(
+            _p(
+                "channel_count",
+                f"{at}.anim.npy",
+                f"animation has shape {anim.shape}, expected (frames, channels)",
+            )
+        )
+    else:
+        frames = anim.shape[0]
+        if anim.shape[1] != n_channels:
+            out.append(
+                _p(
+                    "channel_count",
+                    f"{at}.anim.npy",
+                    f"{anim.shape[1]} channels; the manifest lists {n_channels}",
+                )
+            )
+        if anim.dtype.kind == "f":
+            bad = ~np.isfinite(anim)
+            if bad.any():
+                r, c = np.argwhere(bad)[0]
+                out.append(
+                    _p(
+                        "nonfinite",
+                        f"{at}.anim.npy",
+                        f"{int(bad.sum())} NaN/inf values (first at frame {r}, column {c})",
+                    )
+                )
+            big = np.abs(np.where(bad, 0, anim)) > ANIM_LIMIT
+            if big.any():
+                out.append(
+                    _p(
+                        "value_range",
+                        f"{at}.anim.npy",
+                        f"{int(big.sum())} values beyond +-{ANIM_LIMIT:g}",
+                    )
+                )
+    return out, frames
+
+
+def _check_features(
+    arrays: dict[str, np.ndarray], at: str, manifest: dict[str, Any], frames: int | None
+) -> list[Problem]:
+    """Problems of a sample's feature arrays: dtype, shape, length against the animation's, dimension
+    against the manifest's, values (finite; the voicing flag and log-F0 of pitch in range)."""
+    out: list[Problem] = []
+    dims = manifest.get("features", {}).get("dims", {})
+    for name in manifest.get("features", {}).get("names", []):
+        arr = arrays.get(name)
+        if arr is None:
+            continue
+        loc = f"{at}.{name}.npy"
+        if arr.dtype != np.float32:
+            out.append(_p("dtype", loc, f"{name} is {arr.dtype}, expected float32"))
+        if arr.ndim != 2:
+            out.append(_p("feature_dim", loc, f"{name} has shape {arr.shape}, expected (frames, dim)"))
+            continue
+        if frames is not None and arr.shape[0] != frames:
+            out.append(_p("length_mismatch", loc, f"{name} has {arr.shape[0]} frames, animation {frames}"))
+        if name in dims and arr.shape[1] != dims[name]:
+            out.append(
+                _p("feature_dim", loc, f"{name} has dimension {arr.shape[1]}; the manifest says {dims[name]}")
+            )
+        if arr.dtype.kind == "f":
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                out.append(
+                    _p(
+                        "nonfinite",
+                        loc,
+                        f"{int(bad.sum())} NaN/inf values (first at frame {np.argwhere(bad)[0][0]})",
+                    )
+                )
+            elif name == "pitch" and arr.shape[1] == 2:
+                flag = arr[:, 1]
+                if not np.all((flag == 0) | (flag == 1)):
+                    out.append(_p("value_range", loc, "voicing flag holds values other than 0 and 1"))
+                voiced = arr[flag == 1, 0]
+                lo, hi = LOG_F0_RANGE
+                if voiced.size and (voiced.min() < lo or voiced.max() > hi):
+                    out.append(_p("value_range", loc, "voiced log-F0 outside 20-2000 Hz"))
+    return out
+
+
+def _check_metadata(
+    meta: dict[str, Any], key: str, at: str, manifest: dict[str, Any], frames: int | None
+) -> list[Problem]:
+    """Problems of a sample's metadata against its key, its animation and the manifest's rates."""
+    out: list[Problem] = []
+    fps = manifest.get("fps")
+    if meta.get("key") != key:
+        out.append(_p("sample_members", f"{at}.json", f"metadata names key {meta.get('key')!r}"))
+    if frames is not None and meta.get("frames") != frames:
+        out.append(
+            _p(
+                "length_mismatch",
+                f"{at}.json",
+                f"metadata says {meta.get('frames')} frames, animation has {frames}",
+            )
+        )
+    if isinstance(fps, (int, float)) and meta.get("fps") != fps:
+        out.append(
+            _p("frame_rate", f"{at}.json", f"sample at {meta.get('fps')} fps; the dataset is {fps} fps")
+        )
+    if meta.get("sample_rate") != manifest.get("sample_rate"):
+        out.append(
+            _p(
+                "sample_rate",
+                f"{at}.json",
+                f"metadata says {meta.get('sample_rate')} Hz; the dataset is "
+                f"{manifest.get('sample_rate')} Hz",
+            )
+        )
+    return out
+
+
 def validate_sample(
     key: str,
     members: dict[str, bytes],
@@ -266,46 +390,8 @@ def validate_sample(
     anim = arrays.get("anim")
     frames = None
     if anim is not None:
-        if anim.dtype != np.float32:
-            out.append(_p("dtype", f"{at}.anim.npy", f"animation is {anim.dtype}, expected float32"))
-        if anim.ndim != 2:
-            out.append(
-                _p(
-                    "channel_count",
-                    f"{at}.anim.npy",
-                    f"animation has shape {anim.shape}, expected (frames, channels)",
-                )
-            )
-        else:
-            frames = anim.shape[0]
-            if anim.shape[1] != n_channels:
-                out.append(
-                    _p(
-                        "channel_count",
-                        f"{at}.anim.npy",
-                        f"{anim.shape[1]} channels; the manifest lists {n_channels}",
-                    )
-                )
-            if anim.dtype.kind == "f":
-                bad = ~np.isfinite(anim)
-                if bad.any():
-                    r, c = np.argwhere(bad)[0]
-                    out.append(
-                        _p(
-                            "nonfinite",
-                            f"{at}.anim.npy",
-                            f"{int(bad.sum())} NaN/inf values (first at frame {r}, column {c})",
-                        )
-                    )
-                big = np.abs(np.where(bad, 0, anim)) > ANIM_LIMIT
-                if big.any():
-                    out.append(
-                        _p(
-                            "value_range",
-                            f"{at}.anim.npy",
-                            f"{int(big.sum())} values beyond +-{ANIM_LIMIT:g}",
-                        )
-                    )
+        problems, frames = _check_anim(anim, at, n_channels)
+        out += problems
     mask = arrays.get("mask")
     if mask is not None:
         if mask.dtype != np.bool_:
@@ -326,41 +412,7 @@ def validate_sample(
         ):
             usable = mask.astype(bool) & np.isfinite(anim).all(axis=1)
             on_anim(anim[usable])
-    dims = manifest.get("features", {}).get("dims", {})
-    for name in manifest.get("features", {}).get("names", []):
-        arr = arrays.get(name)
-        if arr is None:
-            continue
-        loc = f"{at}.{name}.npy"
-        if arr.dtype != np.float32:
-            out.append(_p("dtype", loc, f"{name} is {arr.dtype}, expected float32"))
-        if arr.ndim != 2:
-            out.append(_p("feature_dim", loc, f"{name} has shape {arr.shape}, expected (frames, dim)"))
-            continue
-        if frames is not None and arr.shape[0] != frames:
-            out.append(_p("length_mismatch", loc, f"{name} has {arr.shape[0]} frames, animation {frames}"))
-        if name in dims and arr.shape[1] != dims[name]:
-            out.append(
-                _p("feature_dim", loc, f"{name} has dimension {arr.shape[1]}; the manifest says {dims[name]}")
-            )
-        if arr.dtype.kind == "f":
-            bad = ~np.isfinite(arr)
-            if bad.any():
-                out.append(
-                    _p(
-                        "nonfinite",
-                        loc,
-                        f"{int(bad.sum())} NaN/inf values (first at frame {np.argwhere(bad)[0][0]})",
-                    )
-                )
-            elif name == "pitch" and arr.shape[1] == 2:
-                flag = arr[:, 1]
-                if not np.all((flag == 0) | (flag == 1)):
-                    out.append(_p("value_range", loc, "voicing flag holds values other than 0 and 1"))
-                voiced = arr[flag == 1, 0]
-                lo, hi = LOG_F0_RANGE
-                if voiced.size and (voiced.min() < lo or voiced.max() > hi):
-                    out.append(_p("value_range", loc, "voiced log-F0 outside 20-2000 Hz"))
+    out += _check_features(arrays, at, manifest, frames)
     phones = arrays.get("phones")
     if phones is not None and frames is not None and phones.shape != (frames,):
         out.append(
@@ -371,30 +423,7 @@ def validate_sample(
             )
         )
     if meta is not None:
-        fps = manifest.get("fps")
-        if meta.get("key") != key:
-            out.append(_p("sample_members", f"{at}.json", f"metadata names key {meta.get('key')!r}"))
-        if frames is not None and meta.get("frames") != frames:
-            out.append(
-                _p(
-                    "length_mismatch",
-                    f"{at}.json",
-                    f"metadata says {meta.get('frames')} frames, animation has {frames}",
-                )
-            )
-        if isinstance(fps, (int, float)) and meta.get("fps") != fps:
-            out.append(
-                _p("frame_rate", f"{at}.json", f"sample at {meta.get('fps')} fps; the dataset is {fps} fps")
-            )
-        if meta.get("sample_rate") != manifest.get("sample_rate"):
-            out.append(
-                _p(
-                    "sample_rate",
-                    f"{at}.json",
-                    f"metadata says {meta.get('sample_rate')} Hz; the dataset is "
-                    f"{manifest.get('sample_rate')} Hz",
-                )
-            )
+        out += _check_metadata(meta, key, at, manifest, frames)
     if "flac" in members:
         out += _check_audio(members["flac"], f"{at}.flac", meta, manifest, deep)
     return out, meta
