@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from capture.atomic import atomic_write, write_json_atomic
-from capture.channels import channel_set
+from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError, S2AError
 from capture.file_lock import fcntl, try_lock
 from capture.take import (
@@ -412,10 +412,13 @@ def resolve_channels(
     key = spec.strip().lower()
     first = takes[0].channels
     if key in ("varying", "all"):
-        for t in takes:
-            if [c.lower() for c in t.channels] != [c.lower() for c in first]:
+        for t in takes:  # the same channels, in any order (each take's are picked by name)
+            if sorted(c.lower() for c in t.channels) != sorted(c.lower() for c in first):
+                theirs, ours = {c.lower() for c in t.channels}, {c.lower() for c in first}
+                odd = sorted(theirs ^ ours)
                 raise InputError(
-                    f"--channels {key} needs takes with the same channels; {t.id} differs from {takes[0].id}"
+                    f"--channels {key} needs takes with the same channels; {t.id} differs from "
+                    f"{takes[0].id} ({len(odd)} channel(s) in one only: {', '.join(odd[:5])})"
                 )
         if key == "all":
             names = list(first)
@@ -427,6 +430,8 @@ def resolve_channels(
                     continue
                 with np.load(t.folder / "frames.npz", allow_pickle=False) as z:
                     v, s = z["values"], z["frame_status"]
+                column = {c.lower(): j for j, c in enumerate(t.channels)}
+                v = v[:, [column[c.lower()] for c in first]]  # in the first take's order
                 v = v[np.isin(s, USABLE_STATUS)]
                 v = np.where(np.isfinite(v), v, np.nan)
                 if v.size:
@@ -435,16 +440,21 @@ def resolve_channels(
             names = [c for c, a, b in zip(first, lo, hi, strict=True) if np.isfinite(a) and b - a > 1e-6]
             if not names:
                 raise InputError("--channels varying: no channel moves in the training split")
+    elif key in CHANNEL_SETS:
+        names = list(channel_set(spec))
     else:
-        try:
-            names = list(channel_set(spec))
-        except InputError:
-            # a rig's own names (generic paired import): a comma list matched case-insensitively
-            names = [s.strip() for s in spec.split(",") if s.strip()]
-            lowered = {c.lower() for c in first}
-            unknown = [n for n in names if n.lower() not in lowered]
-            if unknown or not names:
-                raise
+        # Live Link channels in any spelling and a rig's own names (generic paired import), the latter
+        # matched case-insensitively against the takes' channels
+        names = [canonical(n) if is_known(n) else n for n in (p.strip() for p in spec.split(",")) if n]
+        if not names:
+            raise InputError(f"empty channel selection {spec!r}")
+        held = {c.lower() for t in takes for c in t.channels}
+        unknown = [n for n in names if not is_known(n) and n.lower() not in held]
+        if unknown:
+            raise InputError(
+                f"unknown channel {unknown[0]!r}: neither a Live Link channel nor a channel of the takes "
+                f"(sets: {', '.join(CHANNEL_SETS)}, varying, all)"
+            )
     for t in takes:
         have = {c.lower(): c for c in t.channels}
         missing = [n for n in names if n.lower() not in have]
@@ -1234,9 +1244,15 @@ def take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     """What the build warns about one processed take (its record from ``process_take``)."""
     notes: list[str] = []
     if r.get("out_of_range_frames"):
+        scale = r["out_of_range_frames"] > 0.1 * r["frames"]  # not a glitch: the values' scale is wrong
         notes.append(
             f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
             "(no blendshape weight is): masked as unusable"
+            + (
+                "; weights on a 0-100 or 0-255 scale? They are 0..1: divide the matrix before importing it"
+                if scale
+                else ""
+            )
         )
     interpolated = r.get("interpolated_frames", 0) / max(r.get("usable_frames", 0), 1)
     if interpolated > MAX_INTERPOLATED_SHARE:
@@ -1270,7 +1286,8 @@ def take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     if r["usable_frames"] < MIN_USABLE_SHARE * r["frames"]:
         notes.append(
             f"take {r['take']}: only {r['usable_frames']} of {r['frames']} frames are usable (face lost, "
-            "or audio shorter than the frames?); check it with s2a-view report"
+            + ("values out of range, " if r.get("out_of_range_frames") else "")
+            + "or audio shorter than the frames?); check it with s2a-view report"
         )
     return notes
 

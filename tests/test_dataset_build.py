@@ -289,6 +289,38 @@ def test_channel_selection_and_metric_warning(tmp_path):
     assert len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr
 
 
+def test_rig_takes_with_their_channels_in_another_order_build_by_name(tmp_path):
+    """Two writers of the same rig order its controls differently: --channels all/varying used to refuse
+    them; a typo in a list of rig names used to blame the first, valid, name."""
+    rig = ("JawOpen_ctl", "LipPress_ctl", "Unused_ctl")
+    takes = tmp_path / "takes"
+    for i in range(3):
+        take = make_aligned_take(f"r{i}", 2.0, seed=i, channels=rig)
+        take.values[:, 1] = 0.25  # LipPress_ctl: a constant that tells the columns apart
+        take.values[:, 2] = 0.0
+        if i == 2:  # the same controls, written in reverse order
+            take.meta.channels = list(reversed(rig))
+            take.values = take.values[:, ::-1].copy()
+        write_take(take, takes)
+    for spec in ("all", "varying"):
+        ds = tmp_path / f"ds-{spec}"
+        proc = run_cli("dataset", "build", takes, "-o", ds, "--channels", spec, "--json")
+        assert proc.returncode == 0, proc.stderr
+        m = read_manifest(ds)
+        want = list(rig) if spec == "all" else ["JawOpen_ctl"]  # LipPress_ctl is constant too
+        assert m["channels"] == want
+        lip = m["channels"].index("LipPress_ctl") if spec == "all" else None
+        for shard in m["shards"]:
+            for _key, members in ShardReader(ds / shard["name"]):
+                anim = np.load(io.BytesIO(members["anim.npy"]))
+                if lip is not None:
+                    assert np.allclose(anim[:, lip], 0.25)  # every take's own column, by name
+    typo = run_cli(
+        "dataset", "build", takes, "-o", tmp_path / "ds3", "--channels", "JawOpen_ctl,LipPres_ctl,jawOpen"
+    )
+    assert typo.returncode == 1 and "unknown channel 'LipPres_ctl'" in typo.stderr, typo.stderr
+
+
 def test_bad_input_and_usage_errors(tmp_path):
     missing = run_cli("dataset", "build", tmp_path / "nope", "-o", tmp_path / "ds")
     assert missing.returncode == 1 and "no such take folder" in missing.stderr

@@ -154,6 +154,8 @@ def test_out_of_range_values_loud_float_audio_and_narrowband_audio(tmp_path):
 
     wild = make_aligned_take("wild", 2.0, subject="a", seed=1)
     wild.values[30:40, wild.meta.channels.index("jawOpen")] = 1e30
+    percent = make_aligned_take("percent", 2.0, subject="a", seed=5)
+    percent.values *= 100.0  # weights on a 0-100 scale, as some tools export them
     loud = make_aligned_take("loud", 2.0, subject="a", seed=2)
     loud.audio.samples[:] *= 40.0  # float WAV peaking far past full scale
     hot = make_aligned_take("hot", 2.0, subject="a", seed=4)
@@ -161,11 +163,15 @@ def test_out_of_range_values_loud_float_audio_and_narrowband_audio(tmp_path):
     calm = make_aligned_take("calm", 2.0, subject="a", seed=3)
     x = calm.audio.samples[:, 0]
     calm.audio.samples[:, 0] = scipy.signal.resample_poly(scipy.signal.resample_poly(x, 1, 2), 2, 1)[: x.size]
-    for t in (wild, loud, calm, hot):
+    for t in (wild, loud, calm, hot, percent):
         write_take(t, tmp_path / "takes")
     m = _build(tmp_path / "takes", tmp_path / "ds", "--test", "wild", "--val", "calm")
     warnings = " | ".join(m["warnings"])
-    assert "take wild: 10 frame(s) hold values beyond +-10" in warnings
+    assert (
+        "take wild: 10 frame(s) hold values beyond +-10" in warnings
+        and "0-100" not in warnings.split("take wild")[1].split("|")[0]
+    )
+    assert "0-100 or 0-255 scale?" in next(w for w in m["warnings"] if w.startswith("take percent: "))
     assert "take loud: audio peaks at" in warnings and "audio_gain" in warnings
     assert "take hot:" not in warnings  # scaled back (audio_gain, below) without a word
     narrow = [w for w in m["warnings"] if "no energy above" in w]

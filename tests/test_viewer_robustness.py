@@ -297,3 +297,13 @@ def test_a_rigs_own_controls_are_plotted_by_name_and_not_rendered_as_a_still_fac
     assert "holds none of the 61 Live Link Face channels" in line and "s2a-view plot --channels" in line
     assert not (tmp_path / "face.png").exists()
     _one_line_error(run_cli("viewer", "stream", rig_take, "--to", "127.0.0.1:9"), "stream shows Live Link")
+
+
+def test_a_matrix_csv_without_a_rate_is_sent_to_import(samples, tmp_path):
+    """A generic paired CSV without a time column has no frame rate, and the viewer has no --fps: the
+    error used to say "give --fps", which the viewer refuses."""
+    matrix = tmp_path / "weights.csv"
+    matrix.write_text("jawOpen,mouthClose\n" + "".join(f"{i / 60:.3f},0.1\n" for i in range(60)))
+    wav = samples / "paired" / "neurosync-trainer-lite-testset" / "audio.wav"
+    line = _one_line_error(run_cli("viewer", "plot", matrix, "--audio", wav, "-o", tmp_path / "p.png"))
+    assert "import it first (s2a-capture import --matrix weights.csv" in line

@@ -84,7 +84,16 @@ def read_input(
                 f"other paired data (a column per channel) it needs its audio: {how}",
                 src,
             )
-    take = import_source(src, audio)
+    try:
+        take = import_source(src, audio)
+    except InputError as exc:
+        if "--fps" not in str(exc):
+            raise
+        # the viewer has no --fps: a matrix without a rate is imported first, with one
+        raise InputError(
+            f"{exc}; the viewer takes no --fps: import it first (s2a-capture import --matrix {src.name} "
+            "--audio AUDIO --fps RATE -o takes) and view the take folder"
+        ) from None
     for r in take.meta.repairs:
         if r.get("kind") == "bad_audio":
             what = r["message"].removesuffix(" set to 0")
