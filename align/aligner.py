@@ -22,6 +22,7 @@ from . import content as ct
 from .clipping import CLIPPED_AUDIO_SHARE, clipped_share
 from .drift import arrival_drift_ppm, fit_drift, window_lags
 from .evidence import (
+    PAIRED_SOURCES,
     Decision,
     Evidence,
     clap_evidence,
@@ -49,8 +50,10 @@ from .vad import speech_level_dbfs, speech_segments, vad_gain
 
 # 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock; 3: claps, flags; 4: DC/rumble high-pass,
 # idle and timecode channels left out of the mix, clipping only at loud extremes, VAD on a level-raised
-# copy (flag quiet_audio), content peaks outside the search range not trusted
-ALIGN_VERSION = 4
+# copy (flag quiet_audio), content peaks outside the search range not trusted; 5: paired data placed by a
+# time column on the timecode clock, paired audio not cut to its frames no placement, paired
+# duration_mismatch from 1 s
+ALIGN_VERSION = 5
 MIN_TAKE_S = 1.0
 SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS the track holds no usable sound
 # Speech quieter than this (``vad.speech_level_dbfs``; real recordings speak at -12..-22 dBFS) is
@@ -59,6 +62,11 @@ QUIET_SPEECH_DBFS = -45.0
 # How far beyond the search range (s) the content correlation is looked at, at least, to tell whether the
 # peak found inside is the real one or the flank of a higher peak outside (see ``_content``).
 BEYOND_RANGE_S = 0.25
+# Paired audio and frames (``evidence.PAIRED_SOURCES``: audio cut to the frames) whose lengths differ by
+# more than this (s) are flagged ``duration_mismatch``, as the importer notes them (``length_mismatch``).
+# The real pairs differ by 0.03-0.08 s; 30 fps frames imported with --fps 29 or 31, by 3-4 s on a take of
+# two minutes, which the general rule (10 % of the duration) let pass.
+PAIRED_MISMATCH_S = 1.0
 
 
 def _check_audio(take: Take, x: np.ndarray) -> None:
@@ -79,8 +87,17 @@ def _reference_video(take: Take) -> Path | None:
     return None
 
 
-def _content(take: Take, x: np.ndarray, s0: float, usable: np.ndarray, period: float, opts: AlignOptions):
-    """Content lag estimate, its evidence, the window lags and the per-frame mouth signal."""
+def _content(
+    take: Take,
+    x: np.ndarray,
+    s0: float,
+    usable: np.ndarray,
+    period: float,
+    placement: Evidence,
+    opts: AlignOptions,
+):
+    """Content lag estimate, its evidence, the window lags and the per-frame mouth signal; ``placement``
+    is the audio placement's evidence (``timecode_evidence``)."""
     picks = ct.mouth_channels(take.meta.channels)
     t = take.time
     mouth = ct.mouth_opening(take.values, usable, picks) if picks else np.full(t.size, np.nan)
@@ -101,10 +118,12 @@ def _content(take: Take, x: np.ndarray, s0: float, usable: np.ndarray, period: f
     # can be anything the audio and face lengths leave room for (audio recorded with pre-roll): look
     # that far, and judge the peak against the highest correlation at any of those lags (its
     # runner-up), so that a peak barely beating one a second away (speech rhythm repeats) gets the low
-    # confidence it deserves. A real placement (frame log, timecode) bounds the offset by itself.
+    # confidence it deserves. A real placement (frame log, timecode, paired data whose audio was cut to
+    # its frames) bounds the offset by itself; paired audio that was not cut to the frames is no
+    # placement (``timecode_evidence``: its lengths differ by more than ``PAIRED_SLACK_S``).
     audio_s = x.size / TARGET_RATE
     face_s = float(t[usable][-1] - t[usable][0]) + period
-    placed = timecode_evidence(take.meta.audio.start_source).confidence >= opts.min_confidence
+    placed = placement.confidence >= opts.min_confidence
     longer = 0.0 if placed else abs(audio_s - face_s)
     wide = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s + max(longer, BEYOND_RANGE_S))
     outside = wide is not None and abs(wide.lag_s) > opts.max_offset_s and wide.peak > est.peak
@@ -225,7 +244,9 @@ def _check_range(
         )
 
 
-# Audio placements that come with a frame-index convention: frame i belongs to audio i / fps.
+# Audio placements that come with a frame-index convention: frame i belongs to audio i / fps. Paired
+# data placed by a time column (``paired_time_column``: a generator's or a webcam's own frame times, which
+# may jitter or run at 30.8 fps for "30") keeps those times: the timecode clock.
 INDEX_CONVENTIONS = ("paired_frame_convention",)
 
 
@@ -297,7 +318,23 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     flags: list[str] = []
     # Channels that cancel are a fault of the recording; idle or timecode channels left out are not.
     warnings = [f"take {tid}: {n['message']}" for n in mix_notes if n["method"] == "louder_channel"]
-    if abs(audio_dur - face_dur) > max(1.0, 0.1 * max(audio_dur, face_dur)):
+    longer = audio_dur - face_dur
+    # Paired audio was cut to its frames: how much longer it is than they reach, from its start (as the
+    # importer's length_mismatch note measures it; a time column may start after the audio does).
+    paired = meta.audio.start_source in PAIRED_SOURCES
+    frames_end = float(take.time[-1]) + 1.0 / meta.fps - s0
+    uncut = audio_dur - frames_end if paired else 0.0
+    if abs(uncut) > PAIRED_MISMATCH_S:
+        # A wrong frame rate at import, or audio that was cut differently (the offset may then be off by
+        # as much; see the evidence).
+        flags.append("duration_mismatch")
+        warnings.append(
+            f"take {tid}: the audio is {abs(uncut):.2f} s {'longer' if uncut > 0 else 'shorter'} than the "
+            f"frames it was paired with ({audio_dur:.2f} s against {frames_end:.2f} s): check the frame "
+            "rate it was imported with (--fps), and whether the audio was cut to these frames (silence "
+            "before the speech, or its start cut away)"
+        )
+    elif not paired and abs(longer) > max(1.0, 0.1 * max(audio_dur, face_dur)):
         flags.append("duration_mismatch")
     clipped = clipped_share(take.audio)
     if clipped > CLIPPED_AUDIO_SHARE:
@@ -322,15 +359,16 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         )
 
     # Evidence.
-    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, opts)
-    evidence: list[Evidence] = [timecode_evidence(meta.audio.start_source)]
+    placement = timecode_evidence(meta.audio.start_source, uncut)
+    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, opts)
+    evidence: list[Evidence] = [placement]
     if content_ev is not None:
         evidence.append(content_ev)
     evidence += _transient_evidence(take, x, s0, usable, mouth, opts)
     decision = combine(evidence, opts.min_confidence, opts.max_disagreement_s)
     flags += decision.flags
     chosen = decision.chosen
-    _check_range(tid, content_ev, decision, audio_dur - face_dur, opts, flags, warnings)
+    _check_range(tid, content_ev, decision, longer, opts, flags, warnings)
 
     # Drift (content windows over a long take), applied when it is clearly there.
     drift_info: dict[str, Any] = {"applied": False}

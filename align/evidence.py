@@ -30,7 +30,15 @@ TIMECODE_TRUST = {
     "mov_timecode": (0.4, 0.1),
     "frame_log_video": (0.3, 0.15),
     "paired_frame_convention": (0.4, 0.05),
+    "paired_time_column": (0.4, 0.05),
 }
+# Placements of paired data, whose audio was cut to the frames: frame i at audio time i / fps
+# (``paired_frame_convention``), or at the time its time column gives (``paired_time_column``).
+PAIRED_SOURCES = ("paired_frame_convention", "paired_time_column")
+# Paired audio and frames whose lengths differ by more than this (s) were not cut to each other (the
+# real pairs differ by 0.03-0.08 s): the pairing then says nothing about where the audio starts (audio
+# with a second of silence before the speech, or its first second cut away, differs by about that much).
+PAIRED_SLACK_S = 0.5
 SYNC_KINDS = ("CLAP", "MARK", "BUTTON", "SYNC", "SLATE")
 # Content rests on how a speaker's mouth opening relates to the sound (a face lead and a bias of a few
 # ms that differ between speakers), so it never reaches the confidence of a sync-box event (0.85+) and
@@ -56,11 +64,19 @@ class Evidence:
         return d
 
 
-def timecode_evidence(start_source: str | None) -> Evidence:
-    """What the take's audio placement (``meta.audio.start_source``) is worth as evidence."""
+def timecode_evidence(start_source: str | None, longer_s: float = 0.0) -> Evidence:
+    """What the take's audio placement (``meta.audio.start_source``) is worth as evidence; ``longer_s``
+    (audio minus face length, s) makes a paired placement worthless when it exceeds ``PAIRED_SLACK_S``."""
     source = start_source or "assumed"
     confidence, tolerance = TIMECODE_TRUST.get(source, (0.0, 1.0))
-    return Evidence("timecode", 0.0, confidence, tolerance, {"start_source": source})
+    detail: dict[str, Any] = {"start_source": source}
+    if source in PAIRED_SOURCES and abs(longer_s) > PAIRED_SLACK_S:
+        confidence = 0.0
+        detail["pairing"] = (
+            f"the audio is {abs(longer_s):.2f} s {'longer' if longer_s > 0 else 'shorter'} than the frames "
+            "it was paired with: not cut to them, so the pairing does not say where the audio starts"
+        )
+    return Evidence("timecode", 0.0, confidence, tolerance, detail)
 
 
 def content_confidence(est: LagEstimate, window_agreement: float) -> float:

@@ -3,10 +3,16 @@
 Channels are addressed by name, never by position: the Live Link UDP stream (engine order,
 ``EARFaceBlendShape``) and the app's CSV export order JawLeft/JawRight and MouthLeft/MouthRight
 differently. Canonical names inside the toolkit are ARKit's camelCase (``jawOpen``); the CSV and Unreal
-use PascalCase (``JawOpen``). Lookup is case-insensitive, so both spellings resolve to one channel.
+use PascalCase (``JawOpen``). Lookup is case-insensitive, so both spellings resolve to one channel, and
+it accepts the spellings other tools write (listed at ``_spellings``): snake_case (``jaw_open``,
+``mouth_smile_left``), a side written ``_L``/``_R`` or ``_Left``/``_Right`` (``eyeBlink_L``, ARKit's own
+raw names; ``MouthSmile_L``, ``Eye_Blink_L``), and a namespace or path before the name (``Maya:jawOpen``,
+``/World/Face/jawOpen``, ``blendShapes.jawOpen``).
 """
 
 from __future__ import annotations
+
+import re
 
 from .errors import InputError
 
@@ -115,20 +121,69 @@ CHANNEL_SETS: dict[str, tuple[str, ...]] = {
     "pronunciation32": PRONUNCIATION32,
 }
 
-_INDEX = {n.lower(): i for i, n in enumerate(LIVELINK_ORDER)}
+# Spellings of the Live Link channels other tools write, besides ARKit's and Live Link's own, compared
+# ignoring case except where said:
+# - snake_case, one ARKit word between underscores: ``jaw_open``, ``mouth_smile_left``, ``left_eye_yaw``;
+# - the side of a left/right channel as ``_Left``/``_Right`` after the rest in camelCase or snake_case
+#   (``mouthSmile_Left``, ``Eye_Blink_Right``), or as ``_L``/``_R`` (``eyeBlink_L``, ARKit's own raw names;
+#   ``MouthSmile_L``, ``Eye_Blink_L``, ``jaw_L``) when the name is not all lower case: all lower case, a
+#   one-letter side (``mouth_press_l``) is how rigs name their own controls, and FACEGOOD's
+#   ``mouth_dimple_l`` and ``mouth_press_l`` would have become ``mouthDimpleLeft`` and ``mouthPressLeft``;
+# - a namespace, path or dotted prefix before any of these: ``Maya:jawOpen``, ``/World/Face/jawOpen``,
+#   ``Face|jawOpen``, ``blendShapes.jawOpen``.
+# No spelling names two channels (checked when the tables are built).
+_PREFIX = re.compile(r"^.*[.:/|\\]")
+
+
+def _spellings() -> tuple[dict[str, int], dict[str, int]]:
+    """Lower-case spellings -> engine index: those accepted in any case, and those with a one-letter
+    side (``eyeBlink_L``), accepted when the name is not all lower case."""
+    any_case: dict[str, int] = {}
+    not_lower: dict[str, int] = {}
+
+    def add(table: dict[str, int], key: str, index: int) -> None:
+        if table.setdefault(key, index) != index or any_case.get(key, index) != index:
+            raise RuntimeError(f"channel spelling {key!r} would name two channels")
+
+    for i, pascal in enumerate(LIVELINK_ORDER):
+        words = [w.lower() for w in re.findall(r"[A-Z][a-z]*", pascal)]
+        add(any_case, "".join(words), i)
+        add(any_case, "_".join(words), i)
+        if len(words) > 1 and words[-1] in ("left", "right"):
+            side = words[-1]
+            for base in ("".join(words[:-1]), "_".join(words[:-1])):
+                add(any_case, f"{base}_{side}", i)
+                add(not_lower, f"{base}_{side[0]}", i)
+    if set(not_lower) & set(any_case):
+        raise RuntimeError("a one-letter side spelling is also another spelling")
+    return any_case, not_lower
+
+
+_INDEX, _ONE_LETTER_SIDE = _spellings()
+
+
+def _lookup(name: str) -> int | None:
+    """Engine index of ``name`` in any spelling the module accepts, or None."""
+    bare = _PREFIX.sub("", name.strip()).strip()
+    key = bare.lower()
+    index = _INDEX.get(key)
+    if index is None and key != bare:  # not all lower case
+        index = _ONE_LETTER_SIDE.get(key)
+    return index
 
 
 def is_known(name: str) -> bool:
-    """Whether ``name`` (any case) is one of the 61 Live Link channels."""
-    return name.strip().lower() in _INDEX
+    """Whether ``name`` is one of the 61 Live Link channels, in any case and in the spellings other tools
+    write (``jaw_open``, ``eyeBlink_L``, ``Maya:jawOpen``; see ``_spellings``)."""
+    return _lookup(name) is not None
 
 
 def udp_index(name: str) -> int:
     """Index of a channel in the UDP packet / engine enum, from any spelling of its name."""
-    try:
-        return _INDEX[name.strip().lower()]
-    except KeyError:
-        raise InputError(f"unknown Live Link channel {name!r}") from None
+    index = _lookup(name)
+    if index is None:
+        raise InputError(f"unknown Live Link channel {name!r}")
+    return index
 
 
 def canonical(name: str) -> str:

@@ -7,6 +7,7 @@ import functools
 import sys
 from pathlib import Path
 
+from .channels import is_known
 from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, write_livelink_csv
 from .errors import InputError, S2AError
@@ -29,6 +30,11 @@ from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 
 PROG = "s2a-capture"
 TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV_TIMECODE_RATE)))
+# Repairs and notes that ask the user to act, printed as warnings by import (the others are counted in
+# the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
+# lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
+# time column read as frame numbers.
+WARN_REPAIRS = ("timecode_rate", "length_mismatch", "truncated_audio", "no_audio", "frame_numbers")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,7 +97,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="one JSON object per take")
     p.set_defaults(handler=cmd_info)
 
-    p = sub.add_parser("export-csv", help="write a take in the Live Link Face CSV format")
+    p = sub.add_parser(
+        "export-csv",
+        help="write a take's Live Link channels in the Live Link Face CSV format (a rig's own controls are "
+        "left out, with a warning; a take holding none of the 61 channels is refused)",
+    )
     p.add_argument("take", type=Path, help="a take folder")
     p.add_argument("-o", "--out", type=Path, required=True, help="CSV file to write (folders are created)")
     p.add_argument(
@@ -190,7 +200,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                 emit_json({"source": str(src), "error": str(exc)})
             continue
         for repair in take.meta.repairs:
-            if repair["kind"] == "timecode_rate":
+            if repair["kind"] in WARN_REPAIRS:
                 print(f"{PROG}: warning: {src}: {repair['message']}", file=sys.stderr)
         summary = take.summary() | {"path": str(folder), "source": str(src)}
         if args.json:
@@ -269,6 +279,14 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     take = read_take(args.take, audio=False)
     if args.out.is_dir():
         raise InputError("is a folder: give the name of the CSV file to write", args.out)
+    others = [c for c in take.meta.channels if not is_known(c)]
+    shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+    if len(others) == len(take.meta.channels):
+        raise InputError(
+            f"take {take.meta.id} holds none of the 61 Live Link Face channels (its {len(others)} channels "
+            f"are a rig's own controls: {shown}): a Live Link Face CSV of it would hold only zeros",
+            args.take,
+        )
     try:
         make_out_dir(args.out.parent)
         out = write_livelink_csv(take, args.out, count_name=args.count_name)
@@ -278,7 +296,18 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     bad = int(nonfinite_frames(take).sum())
     if bad:
         progress(f"warning: {take.meta.id}: {bad} frames with NaN/inf values written as face-lost rows")
-    summary = {"id": take.meta.id, "path": str(out), "rows": rows, "nonfinite_rows": bad}
+    if others:
+        progress(
+            f"warning: {take.meta.id}: {len(others)} of its {len(take.meta.channels)} channels are not Live "
+            f"Link Face channels and are left out of the CSV ({shown})"
+        )
+    summary = {
+        "id": take.meta.id,
+        "path": str(out),
+        "rows": rows,
+        "nonfinite_rows": bad,
+        "channels_left_out": len(others),
+    }
     if args.json:
         emit_json(summary)
     else:

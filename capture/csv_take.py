@@ -102,8 +102,9 @@ def _parse_header(text: str, path: Path) -> tuple[str, list[str]]:
             1,
         )
     values = names[2:]
-    lowered = [n.lower() for n in values]
-    dupes = sorted({n for n in values if lowered.count(n.lower()) > 1})
+    # one channel under two spellings (JawOpen and jaw_open) is a column named twice too
+    keys = [ch.canonical(n) if ch.is_known(n) else n.lower() for n in values]
+    dupes = sorted({n for n, key in zip(values, keys) if keys.count(key) > 1})
     if dupes or "" in values:
         raise InputError(f"header names a column twice or leaves one empty: {dupes or ['']}", path, 1)
     return names[1], values

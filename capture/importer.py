@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from .csv_take import read_livelink_csv
 from .errors import InputError
-from .paired import read_paired
+from .paired import bom_codec, read_paired
 from .take import Take, is_take_dir
 from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
 
@@ -15,25 +16,36 @@ from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
 AUDIO_PAIRINGS = ("first-row", "frame-index")
 # Audio files ``--pair-audio`` finds beside a CSV or an Audio2Face export.
 AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".aif", ".aiff")
-# An Audio2Face blendshape export names its poses before its weights, near the start of the file.
-_A2F_MARK = b'"facsNames"'
+# The keys of an Audio2Face blendshape export, looked for anywhere in a .json (their order is not fixed:
+# a writer that puts "facsNames" after the weights has it megabytes in).
+_A2F_MARKS = (b'"facsNames"', b'"weightMat"')
 
 
-def find_sources(paths: list[str | Path], exports: bool = False) -> list[Path]:
+def warn_skipped(path: Path, why: str) -> None:
+    """Say on stderr that a file found in a folder is left out, and why."""
+    print(f"s2a-capture: warning: {path}: {why}: skipped", file=sys.stderr)
+
+
+def find_sources(
+    paths: list[str | Path], exports: bool = False, skipped: Callable[[Path, str], None] = warn_skipped
+) -> list[Path]:
     """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively;
-    with ``exports``, Audio2Face blendshape exports (``.json``) too."""
+    with ``exports``, Audio2Face blendshape exports (``.json``) too, and every other ``.json`` found in a
+    folder is reported to ``skipped`` (path, why) rather than left out silently."""
     found: list[Path] = []
     for p in map(Path, paths):
         if p.is_file():
             found.append(p)
         elif p.is_dir():
-            found.extend(_walk(p, exports))
+            found.extend(_walk(p, exports, skipped))
         else:
             raise InputError("no such file or folder", p)
     return found
 
 
-def _walk(folder: Path, exports: bool, seen: set[Path] | None = None) -> Iterator[Path]:
+def _walk(
+    folder: Path, exports: bool, skipped: Callable[[Path, str], None], seen: set[Path] | None = None
+) -> Iterator[Path]:
     seen = set() if seen is None else seen
     real = folder.resolve()
     if real in seen:  # a folder reached again through a symbolic link (a loop, or two links to it)
@@ -46,18 +58,31 @@ def _walk(folder: Path, exports: bool, seen: set[Path] | None = None) -> Iterato
         return  # an imported take of ours, or a hidden/temporary folder
     for p in sorted(folder.iterdir()):
         if p.is_dir():
-            yield from _walk(p, exports, seen)
-        elif p.suffix.lower() == ".csv" or (exports and p.suffix.lower() == ".json" and is_a2f_export(p)):
+            yield from _walk(p, exports, skipped, seen)
+        elif p.suffix.lower() == ".csv":
             yield p
+        elif exports and p.suffix.lower() == ".json":
+            if is_a2f_export(p):
+                yield p
+            else:
+                skipped(p, 'not an Audio2Face blendshape export (no "facsNames" or "weightMat" key)')
 
 
 def is_a2f_export(path: Path) -> bool:
-    """Whether a JSON file looks like an Audio2Face blendshape export (its pose names near the start)."""
+    """Whether a JSON file looks like an Audio2Face blendshape export: it holds the key ``"facsNames"``
+    or ``"weightMat"`` anywhere (reading it as an export then says what else is wrong with it)."""
+    keep = max(map(len, _A2F_MARKS)) - 1  # a key split across two reads
     try:
         with open(path, "rb") as f:
-            return _A2F_MARK in f.read(1 << 16)
+            tail = b""
+            while chunk := f.read(1 << 20):
+                block = tail + chunk
+                if any(mark in block for mark in _A2F_MARKS):
+                    return True
+                tail = block[-keep:]
     except OSError:
         return False
+    return False
 
 
 def folder_files(folder: Path) -> list[Path]:
@@ -88,14 +113,23 @@ def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | 
 
 def is_livelink_csv(path: Path) -> bool:
     """Whether a CSV's first non-blank line starts like the app's header (``Timecode,BlendShapeCount``,
-    any case); the Live Link Face reader then reports whatever else is wrong with it."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(4096).decode("utf-8-sig", "replace")
-    except OSError:
+    any case; in UTF-8, or UTF-16 with its byte-order mark); the Live Link Face reader then reports
+    whatever else is wrong with it."""
+    raw = _head(path)
+    if raw is None:
         return True  # let the Live Link Face reader report it
+    head = raw.decode(bom_codec(raw) or "utf-8-sig", "replace")
     first = next((line for line in head.splitlines() if line.strip()), "")
     return first.lower().replace(" ", "").startswith("timecode,blendshapecount")
+
+
+def _head(path: Path, size: int = 4096) -> bytes | None:
+    """The first ``size`` bytes of a file, or None when it cannot be read."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(size)
+    except OSError:
+        return None
 
 
 def import_source(
@@ -124,9 +158,13 @@ def import_source(
     if source.suffix.lower() == ".json" and is_a2f_export(source):
         if audio is None:
             raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
-        return read_paired(audio, source, None, take_id=source.stem)
+        return read_paired(audio, source, None, take_id=source.stem, names_option=False)
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
+    if bom_codec(_head(source, 4) or b"") and is_livelink_csv(source):
+        raise InputError(
+            "a Live Link Face CSV saved as UTF-16 text: save it as UTF-8 (as the app writes it)", source
+        )
     if not is_livelink_csv(source):
         if source.is_file() and not source.read_bytes()[: 1 << 16].strip():
             raise InputError("file is empty", source)
@@ -136,7 +174,7 @@ def import_source(
                 "as generic paired data it needs its audio (--audio, or --pair-audio)",
                 source,
             )
-        return read_paired(audio, source, fps, take_id=source.stem)
+        return read_paired(audio, source, fps, take_id=source.stem, names_option=False)
     if audio is not None:
         return read_csv_with_audio(
             source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate

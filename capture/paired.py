@@ -4,15 +4,19 @@ Frame ``i`` covers ``[i/F, (i+1)/F)`` seconds from the start of the audio, so it
 Channel names are kept as given (a rig's own controls, e.g. FACEGOOD's 116); names of Live Link
 channels in any spelling are mapped to the toolkit's canonical ARKit names.
 
-The matrix is a ``.npy`` array, a CSV (optional header row of names) or the blendshape JSON that
-NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``, ``facsNames``, ``weightMat``;
-its joint tracks are not face weights and are left out), which carries its own names and rate.
+The matrix is a ``.npy`` array, a CSV (optional header row of names; comma, semicolon or tab separated)
+or the blendshape JSON that NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``,
+``facsNames``, ``weightMat``; its joint tracks are not face weights and are left out), which carries its
+own names and rate.
 """
 
 from __future__ import annotations
 
+import codecs
+import csv
 import json
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -20,7 +24,7 @@ import numpy as np
 
 from . import channels as ch
 from .audio_io import read_audio
-from .csv_take import MAX_GAP_S, detect_fps, fill_dropped
+from .csv_take import _NTSC_FPS, _STANDARD_FPS, MAX_GAP_S, NTSC_TOLERANCE, fill_dropped
 from .errors import InputError
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
@@ -35,8 +39,47 @@ def load_npy(path: Path) -> np.ndarray:
         raise InputError(f"not a numeric or string .npy array ({exc})", path) from None
 
 
+# Byte-order marks of the "Unicode" text Windows tools save, and the codec that reads each.
+_BOMS = (
+    (codecs.BOM_UTF32_LE, "utf-32"),  # before UTF-16 LE, whose mark begins it
+    (codecs.BOM_UTF32_BE, "utf-32"),
+    (codecs.BOM_UTF16_LE, "utf-16"),
+    (codecs.BOM_UTF16_BE, "utf-16"),
+)
+
+
+def bom_codec(raw: bytes) -> str | None:
+    """The codec of text starting with a UTF-16 or UTF-32 byte-order mark (``raw``: its first bytes)."""
+    return next((codec for bom, codec in _BOMS if raw.startswith(bom)), None)
+
+
+def read_text(path: Path) -> str:
+    """A text file's contents: UTF-8 (a byte-order mark is skipped), or UTF-16/UTF-32 with a byte-order
+    mark (Windows' "Unicode" text). Other text is a one-line error naming the file and line."""
+    raw = path.read_bytes()
+    codec = bom_codec(raw)
+    if codec is not None:
+        try:
+            return raw.decode(codec)
+        except UnicodeDecodeError:
+            raise InputError(f"not {codec.upper()} text, although it starts like it", path) from None
+    if b"\x00" in raw:
+        raise InputError("holds NUL bytes: UTF-16 text without a byte-order mark? (save it as UTF-8)", path)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputError("not UTF-8 text (save it as UTF-8)", path, line) from None
+
+
+# A names file line that numbers its name ("0 jawOpen", "1<TAB>jawLeft"), as printed lists often do.
+_NUMBERED_NAME = re.compile(r"(\d+)[ \t]+(\S.*)")
+
+
 def read_names(path: str | Path) -> list[str]:
-    """Channel names: a text file (one per line, or comma-separated) or a ``.npy`` array of strings."""
+    """Channel names: a text file (one per line, or comma-separated; quotes as in a CSV; blank lines and
+    a comma ending a line are skipped) or a ``.npy`` array of strings (text, or UTF-8 bytes). An empty
+    name is refused, as is a name twice."""
     path = Path(path)
     if not path.is_file():
         raise InputError("channel-name file not found", path)
@@ -44,17 +87,58 @@ def read_names(path: str | Path) -> list[str]:
         arr = load_npy(path)
         if arr.dtype.kind not in "US":
             raise InputError(f"names array holds {arr.dtype}, not strings", path)
-        names = [str(x.decode() if isinstance(x, bytes) else x).strip() for x in arr.ravel()]
+        names = []
+        for i, x in enumerate(arr.ravel()):
+            if isinstance(x, bytes):
+                try:
+                    x = x.decode("utf-8")
+                except UnicodeDecodeError:
+                    raise InputError(
+                        f"name {i} ({_show(bytes(x))}) is not UTF-8 text: save the names as a str array "
+                        "(dtype U), or as UTF-8 bytes",
+                        path,
+                    ) from None
+            names.append(str(x).strip())
+        if "" in names:
+            raise InputError(f"name {names.index('')} of the array is empty", path)
     else:
-        text = path.read_text(encoding="utf-8-sig", errors="replace")
-        names = [n.strip() for line in text.splitlines() for n in line.split(",")]
-        names = [n for n in names if n]
+        names = []
+        for number, line in enumerate(read_text(path).splitlines(), start=1):
+            if not line.strip():
+                continue
+            cells = [c.strip() for c in next(csv.reader([line], skipinitialspace=True), [])]
+            if len(cells) > 1 and not cells[-1]:
+                cells.pop()  # a comma ending the line
+            if not all(cells):
+                raise InputError("an empty channel name (two commas in a row?)", path, number)
+            names.extend(cells)
+        numbered = [_NUMBERED_NAME.fullmatch(n) for n in names]
+        if names and all(numbered):
+            index = [int(m[1]) for m in numbered]
+            if index in (list(range(len(names))), list(range(1, len(names) + 1))):
+                names = [m[2].strip() for m in numbered]
     if not names:
         raise InputError("no channel names", path)
     twice = repeated_name(names)
     if twice is not None:
         raise InputError(f"channel name {twice[1]!r} appears twice", path)
     return names
+
+
+# First lines of a names file that are a header, not a channel (compared as in ``_column_key``).
+NAMES_HEADERS = (
+    "name", "names", "channel", "channels", "channelname", "channelnames", "blendshape", "blendshapes",
+    "blendshapename", "blendshapenames", "bsname", "bsnames", "shape", "shapes", "pose", "poses",
+    "posename", "facsnames", "label", "labels", "control", "controls",
+)  # fmt: skip
+
+
+def _names_mismatch(names: list[str], columns: int, matrix_path) -> str:
+    """What is wrong when a names file gives another number of names than the matrix has columns."""
+    text = f"{len(names)} channel names for a matrix of {columns} columns ({Path(matrix_path).name})"
+    if len(names) == columns + 1 and _column_key(names[0]) in NAMES_HEADERS:
+        text += f": is the first line, {names[0]!r}, a header? remove it"
+    return text
 
 
 def repeated_name(names: list[str]) -> tuple[str, str] | None:
@@ -66,6 +150,17 @@ def repeated_name(names: list[str]) -> tuple[str, str] | None:
             return seen[key], n
         seen[key] = n
     return None
+
+
+def exact_rate(fps: float | None) -> float | None:
+    """A frame rate within ``NTSC_TOLERANCE`` of an NTSC rate (29.97, 59.94, 23.976: what tools write for
+    30000/1001, ...) as that rate exactly, so that takes of two writers are at one rate; others as given."""
+    if fps is None:
+        return None
+    for ntsc in _NTSC_FPS.values():
+        if abs(fps / ntsc - 1) < NTSC_TOLERANCE:
+            return ntsc
+    return fps
 
 
 def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
@@ -97,7 +192,7 @@ def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
         if isinstance(fps, bool) or not isinstance(fps, (int, float)):
             raise InputError(f"exportFps must be a number, not {_show(fps)}", path)
         try:
-            fps = float(fps)
+            fps = exact_rate(float(fps))
         except OverflowError:
             raise InputError(f"exportFps must be a frame rate, not {_show(fps)}", path) from None
     try:
@@ -107,62 +202,187 @@ def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
     return matrix, [n.strip() for n in names], fps
 
 
+def _rate(fps: float) -> str:
+    """A frame rate for a message: an NTSC rate as written (29.97, 59.94, 23.976)."""
+    return f"{round(fps, 3):g}"
+
+
 def _show(value: object, limit: int = 40) -> str:
     """A value for an error message, cut short (a 400-digit number stays readable)."""
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
-    """Frames x channels weights from ``.npy`` (never unpickled), ``.csv`` (optional header row) or an
-    Audio2Face ``.json`` export; with the names and frame rate the file gives (else None)."""
+# A cell holding an SMPTE timecode (HH:MM:SS:FF, drop-frame HH:MM:SS;FF), and one holding a number written
+# with a decimal comma (0,5).
+_SMPTE = re.compile(r"\d{1,2}:\d{2}:\d{2}[:;.]\d{2}(\.\d+)?")
+_DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+([eE][+-]?\d+)?")
+
+
+def _delimiter(line: str) -> str:
+    """A CSV's separator, from its first line: a tab or a semicolon where the line holds one (spreadsheets
+    in locales with a decimal comma write ``;``), else a comma."""
+    for sep in ("\t", ";"):
+        if sep in line:
+            return sep
+    return ","
+
+
+def _numbers(cells: list[str], decimal_comma: bool) -> list[float]:
+    """A row's values; an empty cell (how pandas writes NaN) is NaN. ValueError for any other cell that
+    is not a number, also ``1_0``, which Python's float() alone would read as 10."""
+    if any("_" in c for c in cells):
+        raise ValueError
+    if decimal_comma:
+        cells = [c.replace(",", ".") for c in cells]
+    return [float(c) if c else math.nan for c in cells]
+
+
+def _is_number(cell: str, decimal_comma: bool) -> bool:
+    try:
+        _numbers([cell], decimal_comma)
+    except ValueError:
+        return False
+    return True
+
+
+def _column_numbers(cells: list[str]) -> int:
+    """How many columns a first row numbers 0, 1, ..., N-1 (pandas' default header, perhaps after the
+    index column's empty cell), or 0 when it is not such a row (it takes 3 to tell it from data)."""
+    numbers = cells[1:] if cells and cells[0] == "" else cells
+    return len(numbers) if len(numbers) >= 3 and numbers == _counting(0, len(numbers)) else 0
+
+
+def _counting(start: int, count: int) -> list[str]:
+    """Cells counting ``start``, ``start + 1``, ... (``count`` of them), as an index column writes them."""
+    return [str(i) for i in range(start, start + count)]
+
+
+def _non_numeric(cell: str, column: int, header: list[str] | None, sep: str) -> str:
+    """The one-line error for a cell that is not a number: the cell, its column and what it looks like."""
+    where = f"column {header[column]!r}" if header else f"column {column + 1}"
+    hint = ""
+    if _SMPTE.fullmatch(cell):
+        hint = (
+            ": an SMPTE timecode, not seconds (give the times in seconds, or frame numbers in a "
+            "`frame` column)"
+        )
+    elif sep == "," and _DECIMAL_COMMA.fullmatch(cell):
+        hint = " (a decimal comma? write numbers with a point, or separate the cells with ';')"
+    elif sep == "," and (";" in cell or "\t" in cell):
+        hint = f" (separated by {'semicolons' if ';' in cell else 'tabs'} below a comma-separated header?)"
+    elif "_" in cell:
+        hint = " (digits grouped with '_' are not read)"
+    return f"non-numeric value in the matrix: {_show(cell)} in {where}{hint}"
+
+
+def _read_csv(path: Path) -> tuple[np.ndarray, list[str] | None, int]:
+    """Values, header names (None without a header row) and, for a header of column numbers
+    (0..N-1, pandas' default), N (else 0) of a CSV matrix. See ``read_matrix``."""
+    text = read_text(path)
+    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    if not lines:
+        raise InputError("matrix has no frames", path)
+    sep = _delimiter(lines[0][1])
+    decimal_comma = sep != ","
+    rows = []  # (line number, cells): quotes as a CSV has them (R quotes every name)
+    reader = csv.reader((line for _, line in lines), delimiter=sep, skipinitialspace=True)
+    try:
+        for cells in reader:
+            rows.append((lines[reader.line_num - 1][0], [c.strip() for c in cells]))
+    except csv.Error as exc:
+        raise InputError(f"not a CSV row ({exc})", path, lines[reader.line_num - 1][0]) from None
+    header, numbered = None, _column_numbers(rows[0][1])
+    if numbered or not all(_is_number(c, decimal_comma) for c in rows[0][1]):
+        header = rows.pop(0)[1]
+    if not rows:
+        raise InputError("matrix has no frames", path)
+    width = len(rows[0][1])
+    for number, cells in rows:
+        if len(cells) != width:
+            raise InputError(f"row has {len(cells)} values, the first row {width}", path, number)
+    if header is not None and len(header) == width + 1 and header[-1] == "":
+        header.pop()  # a comma ending the header line only
+    if all(cells[-1] == "" for _, cells in rows) and width > 1 and (header is None or len(header) == width):
+        if header is None or header[-1] == "":  # a comma ending every line: no column
+            rows = [(n, cells[:-1]) for n, cells in rows]
+            header = header[:-1] if header is not None else None
+            width -= 1
+    if header is not None and header[0] == "" and len(header) == width > 1:
+        index = [cells[0] for _, cells in rows]
+        if index in (_counting(0, len(rows)), _counting(1, len(rows))):  # pandas' index, R's row names
+            rows = [(n, cells[1:]) for n, cells in rows]
+            header = header[1:]
+            width -= 1
+    if header is not None and not all(header):
+        column = header.index("") + 1
+        raise InputError(f"the header leaves a column without a name (column {column})", path, lines[0][0])
+    values = np.empty((len(rows), width), dtype=np.float64)
+    for r, (number, cells) in enumerate(rows):
+        try:
+            values[r] = _numbers(cells, decimal_comma)
+        except ValueError:
+            j = next(j for j, c in enumerate(cells) if not _is_number(c, decimal_comma))
+            raise InputError(
+                _non_numeric(cells[j], j, None if numbered else header, sep), path, number
+            ) from None
+    return values, None if numbered else header, numbered
+
+
+def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None, int]:
+    """``read_matrix``, and for a CSV whose header row numbers its columns the number of them (else 0)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("matrix file not found", path)
     header = fps = None
+    numbered = 0
     if path.suffix.lower() == ".npy":
         m = load_npy(path)
     elif path.suffix.lower() == ".json":
         m, header, fps = read_a2f_json(path)
     else:
-        rows: list[list[float]] = []
-        text = path.read_text(encoding="utf-8-sig", errors="replace")
-        for number, line in enumerate(text.splitlines(), start=1):
-            if not line.strip():
-                continue
-            cells = [c.strip() for c in line.split(",")]
-            try:
-                if any("_" in c for c in cells):  # Python's float() reads "1_0" as 10
-                    raise ValueError
-                rows.append([float(c) for c in cells])
-            except ValueError:
-                if header is None and not rows:
-                    header = cells
-                    if not all(header):
-                        raise InputError("the header leaves a column without a name", path, number) from None
-                    continue
-                raise InputError("non-numeric value in the matrix", path, number) from None
-            if len(rows[-1]) != len(rows[0]):
-                raise InputError(
-                    f"row has {len(rows[-1])} values, the first row {len(rows[0])}", path, number
-                )
-        if not rows:
-            raise InputError("matrix has no frames", path)
-        m = np.array(rows, dtype=np.float64)
+        m, header, numbered = _read_csv(path)
     if m.dtype.kind not in "fiu" or m.ndim != 2:
         raise InputError(f"expected a 2-D numeric frames x channels matrix, got {m.dtype} {m.shape}", path)
     if m.shape[0] == 0:
         raise InputError("matrix has no frames", path)
+    return m, header, fps, numbered
+
+
+def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
+    """Frames x channels weights from ``.npy`` (never unpickled), ``.csv`` (optional header row; comma,
+    semicolon or tab separated, a decimal comma with the last two; empty cells are NaN) or an Audio2Face
+    ``.json`` export; with the names and frame rate the file gives (else None)."""
+    m, header, fps, _ = _read_matrix(Path(path))
     return m, header, fps
 
 
 # Paired data below this rate is a misread time column (milliseconds taken for seconds), not a capture.
 MIN_FPS = 1.0
+# No face capture runs slower: a time column giving a lower rate holds something other than seconds.
+MIN_CAPTURE_FPS = 10.0
+# A rate given with a time column must agree with the rate the column keeps within this (relative).
+RATE_TOLERANCE = 0.03
 # Audio longer or shorter than the frames by more than this (s) is noted as repair ``length_mismatch``.
 LENGTH_MISMATCH_S = 1.0
-# Header names of a column that holds each frame's time rather than a channel (compared lower-case).
-SECONDS_COLUMNS = ("time", "time_s", "times", "seconds", "timestamp", "timecode", "t")
-FRAME_COLUMNS = ("frame", "frames", "frame_index", "frameindex", "frame_number", "framenumber")
+# Header names of a column that holds each frame's time rather than a channel, compared by
+# ``_column_key`` (lower case, letters and digits only: `Time (s)` is `times`, `time_ms` is `timems`).
+SECONDS_COLUMNS = (
+    "time", "times", "timesec", "timeseconds", "seconds", "secs", "sec", "timestamp", "timestamps",
+    "timestampsec", "timestampseconds", "timecode", "t", "ts",
+)  # fmt: skip
+MILLISECONDS_COLUMNS = (
+    "timems", "timemsec", "timemillis", "timemilliseconds", "timestampms", "timestampmillis", "milliseconds",
+    "millis", "msec", "ms", "tms",
+)  # fmt: skip
+FRAME_COLUMNS = (
+    "frame", "frames", "frameindex", "framenumber", "frameno", "framenum", "frameidx", "framecount",
+)  # fmt: skip
+
+
+def _column_key(name: str) -> str:
+    """A header name as time and frame columns are looked up: lower case, letters and digits only."""
+    return re.sub(r"[^0-9a-z]", "", name.lower())
 
 
 def channel_name(name: str) -> str:
@@ -174,35 +394,77 @@ def channel_name(name: str) -> str:
     return ch.canonical(last) if "." in name and ch.is_known(last) else name
 
 
-def _frame_clock(names: list[str], matrix: np.ndarray, path) -> tuple[str | None, np.ndarray | None, int]:
-    """The time column, if the header has one: (kind "seconds"/"frames", its values, its index)."""
-    found = [(i, n) for i, n in enumerate(names) if n.strip().lower() in SECONDS_COLUMNS + FRAME_COLUMNS]
+def _frame_clock(
+    names: list[str], matrix: np.ndarray, path
+) -> tuple[str | None, np.ndarray | None, int, str | None]:
+    """The time column, if the header has one: (kind "seconds"/"frames", its values in seconds or frame
+    numbers (milliseconds converted), its index, its name)."""
+    kinds = {**dict.fromkeys(SECONDS_COLUMNS, "seconds"), **dict.fromkeys(FRAME_COLUMNS, "frames")}
+    kinds |= dict.fromkeys(MILLISECONDS_COLUMNS, "milliseconds")
+    found = [(i, n) for i, n in enumerate(names) if _column_key(n) in kinds]
     if not found:
-        return None, None, -1
+        return None, None, -1, None
     if len(found) > 1:
         raise InputError(f"several time columns: {', '.join(n for _, n in found)}", path)
     i, name = found[0]
     clock = matrix[:, i].astype(np.float64)
     if not np.isfinite(clock).all() or (clock.size > 1 and not (np.diff(clock) > 0).all()):
         raise InputError(f"time column {name!r} must be finite and increase from row to row", path)
-    kind = "seconds" if name.strip().lower() in SECONDS_COLUMNS else "frames"
+    kind = kinds[_column_key(name)]
     if kind == "frames" and not np.array_equal(clock, np.round(clock)):
         raise InputError(f"frame column {name!r} holds values that are not whole numbers", path)
-    return kind, clock, i
+    if kind == "milliseconds":
+        kind, clock = "seconds", clock / 1000
+    return kind, clock, i, name
+
+
+def counts_frames(clock: np.ndarray) -> bool:
+    """Whether a time column holds frame numbers rather than seconds: whole numbers stepping by 1."""
+    return clock.size > 1 and np.array_equal(clock, np.round(clock)) and float(np.median(np.diff(clock))) == 1
+
+
+def column_rate(times: np.ndarray) -> tuple[float, float]:
+    """Frames per second a time column keeps over the whole take, and its relative standard error: the
+    slope of a least-squares line through the times against their frame numbers (a gap counts its missing
+    frames). Unlike the median step it survives rounding: 30 fps written to 2 decimals steps by 0.03 and
+    0.04 s (a median of 0.03: 33.3 fps), 60 fps by 0.01 and 0.02 s."""
+    steps = np.diff(times)
+    period = float(np.median(steps))
+    frames = None
+    for _ in range(5):  # frame numbers from the period, the period from the frame numbers, until they agree
+        counted = np.concatenate([[0.0], np.cumsum(np.maximum(np.rint(steps / period), 1))])
+        if frames is not None and np.array_equal(counted, frames):
+            break
+        frames = counted
+        f, t = frames - frames.mean(), times - times.mean()
+        period = float(f @ t / (f @ f))
+    residual = t - period * f
+    spread = math.sqrt(float(residual @ residual) / (f.size - 2) / float(f @ f)) if f.size > 2 else 0.0
+    return 1 / period, spread / period
+
+
+def nominal_rate(rate: float, spread: float = 0.0) -> float:
+    """The frame rate a time column keeping ``rate`` (relative standard error ``spread``) was written at:
+    a standard rate within 3 % (as ``detect_fps``), its NTSC rate when the column keeps that within
+    ``NTSC_TOLERANCE`` (or 3 standard errors of a short or coarsely rounded column, at most half way to the
+    nominal rate), else ``rate`` to 3 decimals."""
+    for std in _STANDARD_FPS:
+        if abs(rate / std - 1) < RATE_TOLERANCE:
+            ntsc = _NTSC_FPS.get(std)
+            near = min(max(NTSC_TOLERANCE, 3 * spread), 5e-4)
+            if ntsc is not None and abs(rate / ntsc - 1) < near:
+                return ntsc
+            return std
+    return round(rate, 3)
 
 
 def _frame_times(kind: str | None, clock: np.ndarray | None, frames: int, fps: float, path) -> np.ndarray:
-    """Frame times (s from the audio's start): ``i / fps``, or from the time column, whose median step
-    must match ``fps`` and which may not jump by more than ``MAX_GAP_S``."""
+    """Frame times (s from the audio's start): ``i / fps``, or from the time column, which may not jump
+    by more than ``MAX_GAP_S``."""
     if kind is None:
         return np.arange(frames, dtype=np.float64) / fps
     time = clock if kind == "seconds" else clock / fps
     step = np.diff(time)
-    median = float(np.median(step)) if step.size else 1 / fps
-    if abs(median * fps - 1) > 0.03:
-        raise InputError(
-            f"the time column's step ({median:.5g} s) does not match {fps:g} frames per second", path
-        )
     if step.size and step.max() > MAX_GAP_S:
         at = int(np.argmax(step))
         raise InputError(
@@ -219,42 +481,102 @@ def read_paired(
     fps: float | None,
     names_path: str | Path | None = None,
     take_id: str | None = None,
+    names_option: bool = True,
 ) -> Take:
     """A take from audio + weight matrix + names at ``fps`` frames per second (None: the rate the
-    matrix file gives, as an Audio2Face export does, or its time column's step), named ``take_id``
-    (default: the matrix file's stem).
+    matrix file gives, as an Audio2Face export does, or its time column's), named ``take_id``
+    (default: the matrix file's stem). ``names_option``: whether the caller can give ``names_path``
+    (``--names``), which the error for a matrix without names then suggests.
 
-    A header column named like a time (``time``, ``timestamp``, ... in seconds from the audio's start) or
-    a frame index (``frame``, ``frame_index``, ...) places the frames instead of the row index and is
-    not a channel; gaps in it become DROPPED frames."""
+    A header column named like a time (``time``, ``timestamp``, ``Time (s)``, ... in seconds from the
+    audio's start; ``time_ms``, ``milliseconds``, ... in milliseconds) or a frame index (``frame``,
+    ``frame_index``, ...) places the frames instead of the row index and is not a channel; gaps in it
+    become DROPPED frames. A take placed by seconds gets its audio with start source
+    ``paired_time_column`` (align keeps the times), others ``paired_frame_convention``."""
     if fps is not None and not 0 < fps < math.inf:  # also NaN
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
-    matrix, header, file_fps = read_matrix(matrix_path)
+    matrix, header, file_fps, numbered = _read_matrix(Path(matrix_path))
+    fps, file_fps = exact_rate(fps), exact_rate(file_fps)
     if file_fps is not None and fps is not None and not math.isclose(file_fps, fps, rel_tol=1e-6):
-        raise InputError(f"--fps {fps:g} but the file says {file_fps:g} frames per second", matrix_path)
+        raise InputError(
+            f"--fps {_rate(fps)} but the file says {_rate(file_fps)} frames per second", matrix_path
+        )
     if names_path is not None:
         names = read_names(names_path)
+        if len(names) != matrix.shape[1]:
+            raise InputError(_names_mismatch(names, matrix.shape[1], matrix_path), names_path)
     elif header is not None:
         names = header
     else:
-        raise InputError("no channel names: give --names or a header row in the matrix CSV", matrix_path)
+        alone = "import the file alone with --matrix, --names and --audio (--names applies only there)"
+        if numbered:
+            remedy = (
+                "give --names, or write the names in it"
+                if names_option
+                else f"write the names in it, or {alone}"
+            )
+            raise InputError(
+                f"the header row numbers the columns 0..{numbered - 1} (pandas' default) instead of naming "
+                f"them: {remedy}",
+                matrix_path,
+            )
+        remedy = (
+            "give --names or a header row in the matrix CSV"
+            if names_option
+            else f"write a header row of channel names in the CSV, or {alone}"
+        )
+        raise InputError(f"no channel names: {remedy}", matrix_path)
     if len(names) != matrix.shape[1]:
         raise InputError(f"{len(names)} channel names for a matrix of {matrix.shape[1]} columns", matrix_path)
-    kind, clock, column = _frame_clock(names, matrix, matrix_path)
+    kind, clock, column, clock_name = _frame_clock(names, matrix, matrix_path)
     if column >= 0:
         names = names[:column] + names[column + 1 :]
         matrix = np.delete(matrix, column, axis=1)
         if not names:
             raise InputError("no channel columns besides the time column", matrix_path)
+    notes = []
+    if kind == "seconds" and counts_frames(clock) and fps != 1:
+        if fps is None:
+            raise InputError(
+                f"time column {clock_name!r} steps by exactly 1 (frame numbers, not seconds?): name the "
+                "column `frame`, or give --fps",
+                matrix_path,
+            )
+        kind = "frames"
+        notes.append(
+            {
+                "line": None,
+                "kind": "frame_numbers",
+                "message": f"time column {clock_name!r} holds whole frame numbers (steps of 1), not seconds: "
+                f"read as frame numbers at {_rate(fps)} fps",
+            }
+        )
+    detected = fps is None and file_fps is None
+    rate = spread = None
+    if kind == "seconds" and clock.size > 1:
+        rate, spread = column_rate(clock)
     fps = fps if fps is not None else file_fps
-    if fps is None and kind == "seconds" and clock.size > 1:
-        fps = detect_fps(clock, ntsc=True)[0]
+    if fps is None and rate is not None:
+        fps = nominal_rate(rate, spread)
     if fps is None:
         raise InputError("no frame rate: give --fps", matrix_path)
     if not MIN_FPS <= fps <= MAX_FPS:
         hint = " (is the time column in milliseconds?)" if kind == "seconds" else ""
         raise InputError(
             f"the frame rate must be in [{MIN_FPS:g}, {MAX_FPS:g}], not {fps:g}{hint}", matrix_path
+        )
+    if detected and rate is not None and fps < MIN_CAPTURE_FPS:
+        raise InputError(
+            f"time column {clock_name!r} gives {fps:g} frames per second, slower than any face capture "
+            f"(below {MIN_CAPTURE_FPS:g}): is it in milliseconds (name it time_ms), or frame numbers (name "
+            "it frame)? else give --fps",
+            matrix_path,
+        )
+    if rate is not None and abs(rate / fps - 1) > RATE_TOLERANCE + 3 * spread:
+        raise InputError(
+            f"the time column's step ({1 / rate:.5g} s) does not match {_rate(fps)} frames per second (its "
+            f"times keep {rate:.4g} frames per second)",
+            matrix_path,
         )
     names = [channel_name(n) for n in names]
     twice = repeated_name(names)
@@ -275,6 +597,7 @@ def read_paired(
     )
     if names_path is not None:
         meta.sources.append(source_file(names_path, "channel_names"))
+    meta.repairs.extend(notes)
     bad = int((status != FrameStatus.TRACKED).sum())
     if bad:
         meta.repairs.append(
@@ -298,7 +621,7 @@ def read_paired(
             f"(0..{audio.duration_s:.3f} s)",
             matrix_path,
         )
-    take.attach_audio(audio, 0.0, "paired_frame_convention")
+    take.attach_audio(audio, 0.0, "paired_time_column" if kind == "seconds" else "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
     note_length_mismatch(take, "check --fps")
     return take
