@@ -31,3 +31,21 @@ def run_cli(module: str, *args: str, check: bool = False) -> subprocess.Complete
     if check and proc.returncode != 0:
         raise AssertionError(f"{module} {args} failed ({proc.returncode}):\n{proc.stderr}")
     return proc
+
+
+def import_rig_take(samples: Path, folder: Path) -> Path:
+    """The first two seconds of a real FACEGOOD take (116 rig controls at 30 fps, none a Live Link
+    channel), imported with ``s2a-capture import`` as a user would; the take folder."""
+    import numpy as np
+    import soundfile as sf
+
+    from capture.paired import load_npy
+
+    fg = samples / "paired" / "facegood-audio2face"
+    folder.mkdir(parents=True, exist_ok=True)
+    np.save(folder / "rig.npy", load_npy(fg / "bs_value" / "bs_value_1114_2_05.npy")[:60])  # a Python 2 .npy
+    audio, rate = sf.read(fg / "wav" / "1114_2_05.wav")
+    sf.write(folder / "rig.wav", audio[: 2 * rate], rate)
+    args = ["--matrix", folder / "rig.npy", "--audio", folder / "rig.wav", "--names", fg / "bs_names.txt"]
+    run_cli("capture", "import", *args, "--fps", 30, "--id", "rig", "-o", folder / "takes", check=True)
+    return folder / "takes" / "rig"

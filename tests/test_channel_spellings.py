@@ -4,13 +4,11 @@ path prefixes), never a rig's own controls; and ``export-csv`` of a take that ha
 from __future__ import annotations
 
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
-import soundfile as sf
-from conftest import run_cli
+from conftest import import_rig_take, run_cli
 
 from capture import FrameStatus, Take, TakeMeta, read_take, write_take
 from capture import channels as ch
@@ -149,15 +147,7 @@ def test_a_paired_csv_in_other_spellings_imports_and_exports_as_live_link(sample
 
 def _rig_take(samples: Path, tmp_path: Path) -> Path:
     """Two seconds of a real FACEGOOD take, imported as a user would."""
-    fg = samples / FACEGOOD
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a Python 2 .npy header
-        np.save(tmp_path / "rig.npy", np.load(fg / "bs_value" / "bs_value_1114_2_05.npy")[:60])
-    audio, rate = sf.read(fg / "wav" / "1114_2_05.wav")
-    sf.write(tmp_path / "rig.wav", audio[: 2 * rate], rate)
-    args = ["--matrix", tmp_path / "rig.npy", "--audio", tmp_path / "rig.wav", "--names", fg / "bs_names.txt"]
-    run_cli("capture", "import", *args, "--fps", 30, "--id", "rig", "-o", tmp_path / "takes", check=True)
-    return tmp_path / "takes" / "rig"
+    return import_rig_take(samples, tmp_path)
 
 
 def test_export_csv_refuses_a_take_without_live_link_channels(samples, tmp_path):

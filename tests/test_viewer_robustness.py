@@ -11,12 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli
+from conftest import import_rig_take, run_cli
 from live_helpers import datagrams, udp_receiver
 
 from capture import livelink as ll
 from capture import read_livelink_csv, read_take, write_take
-from capture.paired import load_npy
 
 CAL = "livelinkface/neurosync_MySlate_166/MySlate_166_iPhone_cal.csv"  # 60 fps, the app's own naming
 ROWS = 60  # one second: enough for every check, cheap to read, render and stream
@@ -263,21 +262,9 @@ def test_nan_audio_is_refused(short_csv, tmp_path):
     _one_line_error(proc, "NaN or infinite sample")
 
 
-FACEGOOD = "paired/facegood-audio2face"
-
-
 @pytest.fixture
 def rig_take(samples, tmp_path) -> Path:
-    """Two seconds of a real FACEGOOD take: 116 rig controls at 30 fps, none a Live Link channel."""
-    fg = samples / FACEGOOD
-    np.save(
-        tmp_path / "rig.npy", load_npy(fg / "bs_value" / "bs_value_1114_2_05.npy")[:60]
-    )  # a Python 2 .npy
-    audio, rate = sf.read(fg / "wav" / "1114_2_05.wav")
-    sf.write(tmp_path / "rig.wav", audio[: 2 * rate], rate)
-    args = ["--matrix", tmp_path / "rig.npy", "--audio", tmp_path / "rig.wav", "--names", fg / "bs_names.txt"]
-    run_cli("capture", "import", *args, "--fps", 30, "--id", "rig", "-o", tmp_path / "takes", check=True)
-    return tmp_path / "takes" / "rig"
+    return import_rig_take(samples, tmp_path)
 
 
 def test_a_rigs_own_controls_are_plotted_by_name_and_not_rendered_as_a_still_face(rig_take, tmp_path):
