@@ -367,8 +367,8 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
     """Write ``take`` as ``out_dir/<id>/`` atomically; returns the folder.
 
     The folder is assembled under a hidden temporary name in ``out_dir`` and renamed into place.
-    Metadata holding NaN or infinity (not JSON), a frame rate ``read_meta`` would refuse and folders
-    that cannot be written are ``InputError``s.
+    Metadata holding NaN or infinity (not JSON), fields or a frame rate ``read_meta`` would refuse and
+    folders that cannot be written are ``InputError``s.
     """
     out_dir = make_out_dir(out_dir)
     target = out_dir / safe_id(take.meta.id)
@@ -376,6 +376,7 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
         raise InputError(
             f"take {take.meta.id}: frame rate {take.meta.fps:g} is not in (0, {MAX_FPS:g}]", target
         )
+    _check_object(take.meta.to_json(), _META_FIELDS, "", target)  # never a field read_take would refuse
     if target.exists() and not overwrite:
         raise InputError("take exists already (use overwrite)", target)
     try:

@@ -99,6 +99,16 @@ def test_failed_write_leaves_no_partial_take(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
+def test_a_take_read_take_would_refuse_is_never_written(tmp_path):
+    """Code that set a meta field to a value of the wrong type (csv = None) used to write a take that
+    every command then refused to read."""
+    take = small_take()
+    take.meta.csv = None
+    with pytest.raises(InputError, match="csv must be an object"):
+        write_take(take, tmp_path)
+    assert os.listdir(tmp_path) == []
+
+
 def test_overwrite_replaces_whole_take(tmp_path):
     a = small_take()
     a.attach_audio(Audio(np.zeros((10, 1), np.int16), 16000, "PCM_16"))
