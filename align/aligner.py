@@ -51,7 +51,7 @@ from .vad import speech_level_dbfs, speech_segments, vad_gain
 # 2: sonorant-band envelope, 0.5-12 Hz content band, frame clock; 3: claps, flags; 4: DC/rumble high-pass,
 # idle and timecode channels left out of the mix, clipping only at loud extremes, VAD on a level-raised
 # copy (flag quiet_audio), content peaks outside the search range not trusted; 5: paired data placed by a
-# time column on the timecode clock, paired audio not cut to its frames no placement, paired
+# time column on the timecode clock, paired audio not cut to its frames not taken as placed, paired
 # duration_mismatch from 1 s
 ALIGN_VERSION = 5
 MIN_TAKE_S = 1.0
@@ -323,15 +323,16 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     # importer's length_mismatch note measures it; a time column may start after the audio does).
     paired = meta.audio.start_source in PAIRED_SOURCES
     frames_end = float(take.time[-1]) + 1.0 / meta.fps - s0
-    uncut = audio_dur - frames_end if paired else 0.0
-    if abs(uncut) > PAIRED_MISMATCH_S:
+    paired_excess_s = audio_dur - frames_end if paired else 0.0
+    if abs(paired_excess_s) > PAIRED_MISMATCH_S:
         # A wrong frame rate at import, or audio that was cut differently (the offset may then be off by
         # as much; see the evidence).
         flags.append("duration_mismatch")
         warnings.append(
-            f"take {tid}: the audio is {abs(uncut):.2f} s {'longer' if uncut > 0 else 'shorter'} than the "
-            f"frames it was paired with ({audio_dur:.2f} s against {frames_end:.2f} s): check the frame "
-            "rate it was imported with (--fps), and whether the audio was cut to these frames (silence "
+            f"take {tid}: the audio is {abs(paired_excess_s):.2f} s "
+            f"{'longer' if paired_excess_s > 0 else 'shorter'} than the frames it was paired with "
+            f"({audio_dur:.2f} s against {frames_end:.2f} s): check the frame rate it was imported with "
+            "(--fps for a matrix), and whether the audio was cut to these frames (silence "
             "before the speech, or its start cut away)"
         )
     elif not paired and abs(longer) > max(1.0, 0.1 * max(audio_dur, face_dur)):
@@ -359,7 +360,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         )
 
     # Evidence.
-    placement = timecode_evidence(meta.audio.start_source, uncut)
+    placement = timecode_evidence(meta.audio.start_source, paired_excess_s)
     est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, opts)
     evidence: list[Evidence] = [placement]
     if content_ev is not None:

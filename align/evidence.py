@@ -66,7 +66,8 @@ class Evidence:
 
 def timecode_evidence(start_source: str | None, longer_s: float = 0.0) -> Evidence:
     """What the take's audio placement (``meta.audio.start_source``) is worth as evidence; ``longer_s``
-    (audio minus face length, s) makes a paired placement worthless when it exceeds ``PAIRED_SLACK_S``."""
+    (how much longer the audio is than the paired frames reach from its start, s) makes a paired
+    placement worthless when its size exceeds ``PAIRED_SLACK_S``."""
     source = start_source or "assumed"
     confidence, tolerance = TIMECODE_TRUST.get(source, (0.0, 1.0))
     detail: dict[str, Any] = {"start_source": source}

@@ -65,9 +65,9 @@ from .timecode import (
 COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
 VARIANTS = ("cal", "raw", "neutral")
 _VARIANT_RE = re.compile(r"^(?P<prefix>.*?)(?:_(?P<variant>cal|raw|neutral))?$", re.IGNORECASE)
-_STANDARD_FPS = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+STANDARD_FPS = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
 # NTSC rates (N * 1000/1001), and how close a take's rate must come to one to be it rather than N.
-_NTSC_FPS = {std: std * 1000 / 1001 for std in (24.0, 30.0, 60.0)}
+NTSC_FPS = {std: std * 1000 / 1001 for std in (24.0, 30.0, 60.0)}
 NTSC_TOLERANCE = 1e-4
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_GAP_S = 30.0  # a longer forward gap between rows is a clock jump (or joined files), not dropped frames
@@ -403,37 +403,20 @@ def fields_tc(seconds_of_day: float) -> str:
     return Timecode.from_seconds(seconds_of_day).format()
 
 
-def detect_fps(
-    times: np.ndarray, status: np.ndarray | None = None, ntsc: bool = False
-) -> tuple[float, float]:
+def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[float, float]:
     """Nominal frame rate and the measured median frame period (s) from row times.
 
-    The nominal rate snaps to a standard rate within 3 % (the app writes 59.90 rows/s for "60"); with
-    ``ntsc`` (paired data from video tools) to its NTSC rate (29.97 for 30) when the times keep that
-    within ``NTSC_TOLERANCE`` over the take. The phone's own rates are 30 and 60 (formats doc §0.11): a
-    Live Link Face take whose rows come at 59.94/s is a "60" take, as one at 59.90/s is.
+    The nominal rate snaps to the nearest standard rate when within 3 % (the app writes 59.90 rows/s for
+    "60"). The phone's own rates are 30 and 60 (formats doc §0.11): a Live Link Face take whose rows come
+    at 59.94/s is a "60" take, as one at 59.90/s is. (Paired data from video tools, whose times may keep
+    an NTSC rate, is measured by ``paired.column_rate``.)
     """
     if times.size < 2:
         return 60.0, 1 / 60.0
-    steps = np.diff(times)
-    period = float(np.median(steps))
+    period = float(np.median(np.diff(times)))
     rate = 1.0 / period
-    for std in _STANDARD_FPS:
-        if abs(rate - std) / std < 0.03:
-            rate_ntsc = _NTSC_FPS.get(std) if ntsc else None
-            if rate_ntsc is not None and abs(kept_rate(times, period) / rate_ntsc - 1) < NTSC_TOLERANCE:
-                return rate_ntsc, period
-            return std, period
-    return round(rate, 3), period
-
-
-def kept_rate(times: np.ndarray, period: float) -> float:
-    """Frames per second the times keep over the whole take: the slope of a least-squares line through
-    them against their frame numbers (a gap counts its missing frames, in whole ``period``s)."""
-    frames = np.concatenate([[0.0], np.cumsum(np.maximum(np.rint(np.diff(times) / period), 1))])
-    if frames[-1] == 0:
-        return 1.0 / period
-    return 1.0 / float(np.polyfit(frames, times - times[0], 1)[0])
+    std = min(STANDARD_FPS, key=lambda s: abs(rate / s - 1))  # the nearest: 24 and 25 are 4 % apart
+    return (std if abs(rate - std) / std < 0.03 else round(rate, 3)), period
 
 
 def missing_frames(times: np.ndarray, period: float) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import channels as ch
 from .audio_io import read_audio
-from .csv_take import _NTSC_FPS, _STANDARD_FPS, MAX_GAP_S, NTSC_TOLERANCE, fill_dropped
+from .csv_take import MAX_GAP_S, NTSC_FPS, NTSC_TOLERANCE, STANDARD_FPS, fill_dropped
 from .errors import InputError
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
@@ -157,7 +157,7 @@ def exact_rate(fps: float | None) -> float | None:
     30000/1001, ...) as that rate exactly, so that takes of two writers are at one rate; others as given."""
     if fps is None:
         return None
-    for ntsc in _NTSC_FPS.values():
+    for ntsc in NTSC_FPS.values():
         if abs(fps / ntsc - 1) < NTSC_TOLERANCE:
             return ntsc
     return fps
@@ -219,13 +219,18 @@ _SMPTE = re.compile(r"\d{1,2}:\d{2}:\d{2}[:;.]\d{2}(\.\d+)?")
 _DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+([eE][+-]?\d+)?")
 
 
-def _delimiter(line: str) -> str:
-    """A CSV's separator, from its first line: a tab or a semicolon where the line holds one (spreadsheets
-    in locales with a decimal comma write ``;``), else a comma."""
-    for sep in ("\t", ";"):
-        if sep in line:
-            return sep
-    return ","
+def _delimiter(first: list[str]) -> str:
+    """A CSV's separator, from its first lines: the one of comma, semicolon (spreadsheets in locales with a
+    decimal comma write ``;``) and tab that splits them, outside quotes, into the same number of cells,
+    the most; a comma when none does."""
+
+    def cells(line: str, sep: str) -> int:
+        row = next(csv.reader([line], delimiter=sep), [])
+        return len([c for c in row if c.strip()] if sep == "\t" else row)  # a stray tab ending a line
+
+    counts = {sep: {cells(line, sep) for line in first} for sep in (",", ";", "\t")}
+    agreeing = [sep for sep, n in counts.items() if len(n) == 1 and min(n) > 1]
+    return max(agreeing, key=lambda sep: min(counts[sep]), default=",")
 
 
 def _numbers(cells: list[str], decimal_comma: bool) -> list[float]:
@@ -283,7 +288,7 @@ def _read_csv(path: Path) -> tuple[np.ndarray, list[str] | None, int]:
     lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not lines:
         raise InputError("matrix has no frames", path)
-    sep = _delimiter(lines[0][1])
+    sep = _delimiter([line for _, line in lines[:2]])
     decimal_comma = sep != ","
     rows = []  # (line number, cells): quotes as a CSV has them (R quotes every name)
     reader = csv.reader((line for _, line in lines), delimiter=sep, skipinitialspace=True)
@@ -314,6 +319,8 @@ def _read_csv(path: Path) -> tuple[np.ndarray, list[str] | None, int]:
             rows = [(n, cells[1:]) for n, cells in rows]
             header = header[1:]
             width -= 1
+    if header is not None and len(header) != width:
+        raise InputError(f"the header names {len(header)} columns, the rows hold {width}", path, lines[0][0])
     if header is not None and not all(header):
         column = header.index("") + 1
         raise InputError(f"the header leaves a column without a name (column {column})", path, lines[0][0])
@@ -386,12 +393,9 @@ def _column_key(name: str) -> str:
 
 
 def channel_name(name: str) -> str:
-    """A channel's name as the take keeps it: Live Link/ARKit names in canonical spelling, also under a
-    dotted prefix (``blendShapes.JawOpen``); a rig's own names as given."""
-    if ch.is_known(name):
-        return ch.canonical(name)
-    last = name.rsplit(".", 1)[-1]
-    return ch.canonical(last) if "." in name and ch.is_known(last) else name
+    """A channel's name as the take keeps it: Live Link/ARKit names in canonical spelling (any spelling
+    ``capture.channels`` accepts, also under a prefix: ``blendShapes.JawOpen``); a rig's own as given."""
+    return ch.canonical(name) if ch.is_known(name) else name
 
 
 def _frame_clock(
@@ -445,16 +449,16 @@ def column_rate(times: np.ndarray) -> tuple[float, float]:
 
 def nominal_rate(rate: float, spread: float = 0.0) -> float:
     """The frame rate a time column keeping ``rate`` (relative standard error ``spread``) was written at:
-    a standard rate within 3 % (as ``detect_fps``), its NTSC rate when the column keeps that within
-    ``NTSC_TOLERANCE`` (or 3 standard errors of a short or coarsely rounded column, at most half way to the
-    nominal rate), else ``rate`` to 3 decimals."""
-    for std in _STANDARD_FPS:
-        if abs(rate / std - 1) < RATE_TOLERANCE:
-            ntsc = _NTSC_FPS.get(std)
-            near = min(max(NTSC_TOLERANCE, 3 * spread), 5e-4)
-            if ntsc is not None and abs(rate / ntsc - 1) < near:
-                return ntsc
-            return std
+    the nearest standard rate when within 3 % (as ``detect_fps``), its NTSC rate when the column keeps
+    that within ``NTSC_TOLERANCE`` (or 3 standard errors of a short or coarsely rounded column, at most
+    half way to the nominal rate), else ``rate`` to 3 decimals."""
+    std = min(STANDARD_FPS, key=lambda s: abs(rate / s - 1))  # the nearest: 24 and 25 are 4 % apart
+    if abs(rate / std - 1) < RATE_TOLERANCE:
+        ntsc = NTSC_FPS.get(std)
+        near = min(max(NTSC_TOLERANCE, 3 * spread), 5e-4)
+        if ntsc is not None and abs(rate / ntsc - 1) < near:
+            return ntsc
+        return std
     return round(rate, 3)
 
 
@@ -578,10 +582,12 @@ def read_paired(
             f"times keep {rate:.4g} frames per second)",
             matrix_path,
         )
-    names = [channel_name(n) for n in names]
+    given, names = names, [channel_name(n) for n in names]
     twice = repeated_name(names)
-    if twice is not None:
-        raise InputError(f"channels {twice[0]!r} and {twice[1]!r} are the same channel", matrix_path)
+    if twice is not None:  # named as the file names them: jaw_open and blendShapes.JawOpen
+        key = twice[0].strip().lower()
+        first, second = [g for g, n in zip(given, names) if n.strip().lower() == key][:2]
+        raise InputError(f"channels {first!r} and {second!r} are the same channel", matrix_path)
     with np.errstate(over="ignore"):  # beyond float32: inf, a BAD_VALUE frame
         values = matrix.astype(np.float32)
     status = np.where(np.isfinite(values).all(axis=1), FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(
@@ -630,8 +636,12 @@ def read_paired(
 def note_length_mismatch(take: Take, hint: str) -> None:
     """Note audio more than ``LENGTH_MISMATCH_S`` longer or shorter than the frames it was paired with
     (repair ``length_mismatch``; ``hint`` says what to check). The frames end one frame period after the
-    last; both are measured from the audio's start."""
-    frames_end = float(take.time[-1]) + 1 / take.meta.fps - take.meta.audio.start_s
+    last, on the clock align places them by (frame i at i / fps under the frame-index convention, a Live
+    Link CSV's timecodes running 0.16 % slow against it); both are measured from the audio's start."""
+    if take.meta.audio.start_source == "paired_frame_convention":
+        frames_end = float(take.time[0]) + take.time.size / take.meta.fps - take.meta.audio.start_s
+    else:
+        frames_end = float(take.time[-1]) + 1 / take.meta.fps - take.meta.audio.start_s
     mismatch = take.audio.duration_s - frames_end
     if abs(mismatch) > LENGTH_MISMATCH_S:
         take.meta.repairs.append(

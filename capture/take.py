@@ -376,7 +376,8 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
         raise InputError(
             f"take {take.meta.id}: frame rate {take.meta.fps:g} is not in (0, {MAX_FPS:g}]", target
         )
-    _check_object(take.meta.to_json(), _META_FIELDS, "", target)  # never a field read_take would refuse
+    # never a field read_take would refuse (the audio record is completed when its file is written)
+    check_meta_fields({k: v for k, v in take.meta.to_json().items() if k != "audio"}, target)
     if target.exists() and not overwrite:
         raise InputError("take exists already (use overwrite)", target)
     try:

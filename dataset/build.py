@@ -30,6 +30,7 @@ import signal
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -413,12 +414,12 @@ def resolve_channels(
     first = takes[0].channels
     if key in ("varying", "all"):
         for t in takes:  # the same channels, in any order (each take's are picked by name)
-            if sorted(c.lower() for c in t.channels) != sorted(c.lower() for c in first):
-                theirs, ours = {c.lower() for c in t.channels}, {c.lower() for c in first}
-                odd = sorted(theirs ^ ours)
+            theirs, ours = Counter(c.lower() for c in t.channels), Counter(c.lower() for c in first)
+            if theirs != ours:
+                odd = sorted(((theirs - ours) + (ours - theirs)).elements())
                 raise InputError(
                     f"--channels {key} needs takes with the same channels; {t.id} differs from "
-                    f"{takes[0].id} ({len(odd)} channel(s) in one only: {', '.join(odd[:5])})"
+                    f"{takes[0].id} (they differ in {', '.join(odd[:5])})"
                 )
         if key == "all":
             names = list(first)
@@ -1240,7 +1241,7 @@ def _repair_shards(
     return True
 
 
-def take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
+def _take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     """What the build warns about one processed take (its record from ``process_take``)."""
     notes: list[str] = []
     if r.get("out_of_range_frames"):
@@ -1292,7 +1293,7 @@ def take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     return notes
 
 
-def pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> dict[str, Any]:
+def _pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> dict[str, Any]:
     """Per speaker, the mean and std of voiced log-F0 over the training split's takes (over all of the
     speaker's takes for a held-out speaker)."""
     pitch_norm = {}
@@ -1478,7 +1479,7 @@ def _build(
     stats_files = {job.take_id: str(job.stats) for job in jobs}
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
     for r in ordered:
-        warnings += take_warnings(r, options)
+        warnings += _take_warnings(r, options)
 
     # statistics of the training split, merged in take order (deterministic float sums)
     train_chan, train_feats = _merge_records(ordered, channels, "train")
@@ -1491,7 +1492,7 @@ def _build(
         feature_norm[name] = {"mean": mean, "std": std, "frames": acc.count}
     pitch_norm = {}
     if "pitch" in options.features:
-        pitch_norm = pitch_normalization(ordered, sorted({t.speaker for t in takes}))
+        pitch_norm = _pitch_normalization(ordered, sorted({t.speaker for t in takes}))
 
     plan = plan_shards(ordered, options.shard_bytes)
     shards = _write_shards(out, work, plan, fingerprint, say)

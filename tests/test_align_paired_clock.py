@@ -135,9 +135,8 @@ def test_paired_audio_not_cut_to_its_frames_is_flagged(samples, tmp_path, name, 
     sf.write(wav, y, rate, subtype="PCM_16")
     csv = samples / NEUROSYNC / "testset.csv"
     takes = tmp_path / "takes"
-    run_cli(
-        "capture", "import", csv, "--audio", wav, "--audio-pairing", "frame-index", "-o", takes, "--id", name
-    )
+    args = [csv, "--audio", wav, "--audio-pairing", "frame-index", "-o", takes, "--id", name]
+    run_cli("capture", "import", *args, check=True)
     proc = run_cli("align", takes / name, "-o", tmp_path / "aligned", "--json", "--vad", "none")
     rep = json.loads(proc.stdout)
     assert rep["audio_start_source"] == "paired_frame_convention"

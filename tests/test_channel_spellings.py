@@ -4,7 +4,6 @@ path prefixes), never a rig's own controls; and ``export-csv`` of a take that ha
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -145,15 +144,10 @@ def test_a_paired_csv_in_other_spellings_imports_and_exports_as_live_link(sample
     assert np.allclose(jaw, truth.channel("jawOpen"), atol=1e-6) and jaw.max() > 0.3
 
 
-def _rig_take(samples: Path, tmp_path: Path) -> Path:
-    """Two seconds of a real FACEGOOD take, imported as a user would."""
-    return import_rig_take(samples, tmp_path)
-
-
 def test_export_csv_refuses_a_take_without_live_link_channels(samples, tmp_path):
     """A FACEGOOD take used to give a 61-column CSV of zeros and exit 0."""
     out = tmp_path / "rig.csv"
-    proc = run_cli("capture", "export-csv", _rig_take(samples, tmp_path), "-o", out)
+    proc = run_cli("capture", "export-csv", import_rig_take(samples, tmp_path), "-o", out)
     assert proc.returncode == 1 and not out.exists()
     (line,) = proc.stderr.splitlines()
     assert line.startswith("s2a-capture: error: ") and "takes/rig" in line

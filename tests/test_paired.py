@@ -195,7 +195,7 @@ def test_time_and_frame_columns_place_the_frames(tmp_path, wav):
         (
             "dup",
             "jawOpen,blendShapes.JawOpen,x\n0.1,0.2,0.3\n",
-            "channels 'jawOpen' and 'jawOpen' are the same",
+            "channels 'jawOpen' and 'blendShapes.JawOpen' are the same",
         ),
         ("case", "a,A\n0.1,0.2\n", "channels 'a' and 'A' are the same channel"),
         ("blank", "time,,jawOpen\n0,0.1,0.2\n", "the header leaves a column without a name"),

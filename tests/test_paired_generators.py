@@ -63,7 +63,7 @@ def one_line_error(tmp_path: Path, *args) -> str:
     return proc.stderr
 
 
-# 1: a time column in seconds places the frames, and align keeps them there
+# a time column in seconds places the frames, and align keeps them there
 
 
 def test_a_seconds_time_column_keeps_its_times_and_says_so_to_align(ns, tmp_path):
@@ -81,7 +81,7 @@ def test_a_seconds_time_column_keeps_its_times_and_says_so_to_align(ns, tmp_path
         assert take.meta.audio.start_source == "paired_frame_convention"
 
 
-# 2: a time column rounded to 2 decimals
+# a time column rounded to 2 decimals
 
 
 @pytest.mark.parametrize("fps", [30, 60])
@@ -100,7 +100,7 @@ def test_a_time_column_rounded_to_two_decimals_gives_its_rate(ns, tmp_path, fps)
     assert "does not match" in one_line_error(tmp_path, "--matrix", path, "--audio", audio, "--fps", other)
 
 
-# 5: a `time` column of frame numbers
+# a `time` column of frame numbers
 
 
 def test_a_time_column_of_frame_numbers_is_not_a_one_fps_take(ns, tmp_path):
@@ -119,7 +119,7 @@ def test_a_time_column_of_frame_numbers_is_not_a_one_fps_take(ns, tmp_path):
         read_paired(audio, slow, None)
 
 
-# 7: quoted header cells (R's write.csv, with its row names)
+# quoted header cells (R's write.csv, with its row names)
 
 
 def test_quoted_header_and_r_row_names_are_read_as_a_csv(ns, tmp_path):
@@ -132,7 +132,7 @@ def test_quoted_header_and_r_row_names_are_read_as_a_csv(ns, tmp_path):
     assert np.allclose(take.values, values, atol=1e-6)
 
 
-# 8: time columns in seconds and milliseconds under other names
+# time columns in seconds and milliseconds under other names
 
 
 @pytest.mark.parametrize(
@@ -155,7 +155,7 @@ def test_a_milliseconds_column_through_the_cli(ns, tmp_path):
     assert "time_ms" not in take.meta.channels and np.allclose(take.time, seconds, atol=1e-6)
 
 
-# 9: pandas' default header of column numbers
+# pandas' default header of column numbers
 
 
 @pytest.mark.parametrize("index", [False, True])
@@ -176,7 +176,7 @@ def test_a_header_of_column_numbers_is_not_frame_zero(ns, tmp_path, index):
     assert take.values.shape == values.shape and np.allclose(take.values, values, atol=1e-6)
 
 
-# 10, 11: names in a .npy: bytes in another encoding, an empty name
+# names in a .npy: bytes in another encoding, an empty name
 
 
 def test_names_npy_of_gbk_bytes_or_with_an_empty_name_is_a_clear_error(samples, tmp_path):
@@ -205,7 +205,7 @@ def test_names_npy_of_gbk_bytes_or_with_an_empty_name_is_a_clear_error(samples, 
         )
 
 
-# 16: Audio2Face at NTSC rates
+# Audio2Face at NTSC rates
 
 
 @pytest.mark.parametrize(
@@ -220,7 +220,7 @@ def test_audio2face_ntsc_export_rate_is_the_exact_ntsc_rate(ns, tmp_path, writte
     assert read_paired(audio, tmp_path / "a2f.json", written).meta.fps == exact  # --fps as written agrees
 
 
-# 17: semicolons, tabs, decimal commas, UTF-16, empty cells, SMPTE timecode
+# semicolons, tabs, decimal commas, UTF-16, empty cells, SMPTE timecode
 
 
 @pytest.mark.parametrize(
@@ -259,7 +259,7 @@ def test_empty_cells_are_bad_value_frames_and_a_timecode_column_is_named(ns, tmp
     assert "SMPTE timecode" in err
 
 
-# 18, 20: --pair-audio: Audio2Face exports wherever their keys are, headerless CSVs
+# --pair-audio: Audio2Face exports wherever their keys are, headerless CSVs
 
 
 def test_pair_audio_finds_an_export_whose_names_come_last_and_says_what_it_skips(ns, tmp_path):
@@ -293,7 +293,7 @@ def test_a_headerless_csv_under_pair_audio_says_what_works_there(ns, tmp_path):
     assert take.meta.channels == names  # the way it names: imported alone with --names
 
 
-# 21: problems in the names file are the names file's
+# problems in the names file are the names file's
 
 
 def test_names_file_problems_name_the_names_file(samples, tmp_path):

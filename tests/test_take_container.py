@@ -106,6 +106,10 @@ def test_a_take_read_take_would_refuse_is_never_written(tmp_path):
     take.meta.csv = None
     with pytest.raises(InputError, match="csv must be an object"):
         write_take(take, tmp_path)
+    take = small_take()
+    take.meta.channels = ["jawOpen", "JAWOPEN"]
+    with pytest.raises(InputError, match="twice"):
+        write_take(take, tmp_path)
     assert os.listdir(tmp_path) == []
 
 

@@ -139,6 +139,7 @@ def test_time_limited_sessions_reproduce_an_uninterrupted_run(ds, tmp_path):
 def test_a_resumed_run_drops_the_tensorboard_events_logged_after_its_checkpoint(ds, tmp_path):
     """A session checkpointed at step 4, logged steps 5-12 and died: TensorBoard shows the resumed
     session's steps 5-12 once, not the dead session's beside them."""
+
     cfg = _cfg("eval_every=4", "max_steps=12")
     full = tmp_path / "full"
     fit(ds, full, cfg, **QUIET)
@@ -418,4 +419,15 @@ def test_ctrl_c_while_pytorch_loads_stops_without_a_traceback(tmp_path):
         proc.send_signal(signal.SIGINT)
         _out, err = proc.communicate(timeout=60)
         assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (delay, err)
-        assert not (tmp_path / "run").exists()
+    # a program that imports the package, directly or under `python -m`, keeps Python's own Ctrl-C
+    check = (
+        "import signal, train; "
+        "print(train._guard, signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    )
+    (tmp_path / "usrpkg").mkdir()
+    (tmp_path / "usrpkg" / "__init__.py").write_text(check + "\n")
+    (tmp_path / "usrpkg" / "__main__.py").write_text("")
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}
+    for args in (["-c", check], ["-m", "usrpkg"]):
+        proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=ROOT, env=env)
+        assert proc.stdout.split() == ["False", "True"], proc.stdout + proc.stderr

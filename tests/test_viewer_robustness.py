@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import import_rig_take, run_cli
+from dataset_helpers import make_aligned_take
 from live_helpers import datagrams, udp_receiver
 
 from capture import livelink as ll
@@ -293,4 +294,21 @@ def test_a_matrix_csv_without_a_rate_is_sent_to_import(samples, tmp_path):
     matrix.write_text("jawOpen,mouthClose\n" + "".join(f"{i / 60:.3f},0.1\n" for i in range(60)))
     wav = samples / "paired" / "neurosync-trainer-lite-testset" / "audio.wav"
     line = _one_line_error(run_cli("viewer", "plot", matrix, "--audio", wav, "-o", tmp_path / "p.png"))
-    assert "import it first (s2a-capture import --matrix weights.csv" in line
+    assert f"import it first (s2a-capture import --matrix {matrix} " in line
+
+
+def test_a_take_with_rig_controls_beside_live_link_channels_is_plotted_and_rendered(rig_take, tmp_path):
+    """A rig control that is NaN throughout (or on another scale) used to make every frame unusable for
+    the face; a plot of inputs of which one holds none of the channels named it nowhere."""
+    from capture import ARKIT52
+
+    take = make_aligned_take("mixed", 1.0, channels=(*ARKIT52, "extra_ctl"))
+    take.values[:, -1] = np.nan
+    mixed = write_take(take, tmp_path / "takes")
+    out = tmp_path / "both.png"
+    proc = run_cli("viewer", "plot", mixed, rig_take, "-o", out, "--channels", "jawOpen", "--json")
+    summary = _json(proc)
+    assert summary["inputs_without_these_channels"] == ["rig"]
+    assert "rig holds none of the channels" in proc.stderr
+    proc = run_cli("viewer", "render", mixed, "-o", tmp_path / "face.png", "--json")
+    assert _json(proc)["bad_values"] == [0] and "extra_ctl" in proc.stderr  # left out, with a warning

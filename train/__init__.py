@@ -12,12 +12,23 @@ def _stop_quietly(_signum, _frame) -> None:
     os._exit(130)  # nothing has been written yet
 
 
+def _run_as_the_command() -> bool:
+    """Whether this process is the ``s2a-train`` command (its console script, or ``python -m train``),
+    not a program that imports the package."""
+    argv = getattr(sys, "argv", None) or [""]
+    if os.path.basename(argv[0]) == "s2a-train":
+        return True
+    orig = getattr(sys, "orig_argv", None) or []  # the interpreter's own arguments (Python 3.10+)
+    if "-m" in orig[:-1]:
+        return orig[orig.index("-m") + 1].split(".")[0] == "train"
+    return False
+
+
 # PyTorch, numpy and scipy load below, in the first 2-3 s of every s2a-train command. Ctrl-C in the middle
 # of them leaves a half-imported library whose errors follow (a RecursionError inside numpy, say), so the
-# command (`s2a-train`, `python -m train`) stops at once instead; code that imports the package keeps its
-# own Ctrl-C.
+# command stops at once instead; a program that imports the package keeps its own Ctrl-C.
 _guard = (
-    os.path.basename(getattr(sys, "argv", [""])[0]) in ("s2a-train", "-m")
+    _run_as_the_command()
     and threading.current_thread() is threading.main_thread()
     and signal.getsignal(signal.SIGINT) is signal.default_int_handler
 )
@@ -38,7 +49,7 @@ try:
     from .ridge import Ridge
     from .systems import build_model
 finally:
-    if _guard:
+    if _guard and signal.getsignal(signal.SIGINT) is _stop_quietly:  # unless an import installed its own
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 __all__ = [

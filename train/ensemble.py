@@ -98,7 +98,7 @@ class Ensemble(nn.Module):
 
 
 def check_ensemble_run(
-    manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool, world: int = 1
+    manifest: dict[str, Any], run: Path, cfg: dict[str, Any], resume: bool, *, world: int
 ) -> list[list[str]]:
     """The folds' takes; refuses a dataset or run folder an ensemble cannot use, before anything is
     written (the config itself is checked by ``train.config.check_config``): ``world`` processes resume
@@ -108,6 +108,8 @@ def check_ensemble_run(
     if resume and not has_members(run):
         raise InputError(f"nothing to resume: no fold-*/{LAST}", run)
     for member in sorted(run.glob("fold-*")) if resume else ():
+        if not (member / LAST).is_file():
+            continue  # trained afresh on resume, under any number of processes
         try:
             trained = json.loads((member / CONFIG).read_text()).get("world_size", 1)
         except (OSError, ValueError, AttributeError):

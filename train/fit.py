@@ -1,10 +1,11 @@
-"""The training loop of every system: one straight loop (``_fit``) over the pieces below it (the resume
+"""The training loop of every system: one straight loop (``_fit``) over the pieces above it (the resume
 checks, the restore, one training step, the metrics log).
 
 AdamW with linear warm-up and cosine decay, global gradient-norm clipping, optional bf16 autocast,
 validation every ``eval_every`` steps with early stopping, checkpoints that resume exactly (model,
-optimizer, step, RNG state, data position), metrics as JSON lines, DDP when started by ``torchrun``
-(WORLD_SIZE > 1; gloo on CPU, nccl on CUDA). Ridge regression is solved in closed form instead.
+optimizer, step, RNG state, data position), metrics as JSON lines and TensorBoard events, DDP when
+started by ``torchrun`` (WORLD_SIZE > 1; gloo on CPU, nccl on CUDA). Ridge regression is solved in closed
+form instead.
 """
 
 from __future__ import annotations
@@ -430,7 +431,7 @@ def _fit_ensemble(
     rank, world, _device = _distributed()
     say = say if rank == 0 else (lambda _m: None)
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
-    folds = check_ensemble_run(manifest, run, cfg, resume, world)
+    folds = check_ensemble_run(manifest, run, cfg, resume, world=world)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
     run.mkdir(parents=True, exist_ok=True)
@@ -469,7 +470,7 @@ def _start_afresh(run: Path) -> None:
         events.unlink(missing_ok=True)
 
 
-def _resumable(
+def _load_resume_state(
     run: Path,
     manifest: dict[str, Any],
     ds: Path,
@@ -509,7 +510,7 @@ def _restore(
     try:
         model.load_state_dict(state["state_dict"])
         optimizer.load_state_dict(state["optimizer"])
-        epoch, batch = _positions(state)[rank]  # checked against the world size by _resumable
+        epoch, batch = _positions(state)[rank]  # checked against the world size by _load_resume_state
         ranks = state["rng"].get("ranks")  # each rank's generator (absent in older checkpoints)
         torch.set_rng_state(
             ranks[rank] if isinstance(ranks, list) and len(ranks) == world else state["rng"]["torch"]
@@ -522,7 +523,8 @@ def _restore(
 
 
 class MetricsLog:
-    """``metrics.jsonl`` and, with the tensorboard package, the same figures as TensorBoard events; only
+    """``metrics.jsonl`` and the same figures as TensorBoard events (unless the tensorboard package is
+    missing: a dependency, but an install without dependencies runs without it); only
     the main process ``writes``. ``resumed_at``: the step of the checkpoint a resumed session starts
     from, after which TensorBoard drops what an interrupted session logged."""
 
@@ -634,7 +636,7 @@ def _fit(
     state = None
     # every check before anything is written: a refused run leaves its folder (and config.json) as it was
     if resume:
-        state, cfg = _resumable(run, manifest, ds, cfg, given, world)
+        state, cfg = _load_resume_state(run, manifest, ds, cfg, given, world)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
@@ -763,7 +765,7 @@ def _fit(
                         }
                     )
                     say(f"step {step}: val mse {val:.4f} (best {best_val:.4f})")
-                early = has_val and cfg["patience"] and bad_evals >= cfg["patience"]
+                early = bool(has_val and cfg["patience"] and bad_evals >= cfg["patience"])
                 stopped = _stop_reason(step, cfg, early, over)
                 if improved:
                     save(BEST)

@@ -310,6 +310,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     prepare_output(args.out)
     _warn(anims)
     summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
+    for label in summary["inputs_without_these_channels"]:
+        progress(f"warning: {label} holds none of the channels plotted ({', '.join(summary['channels'])})")
     if args.json:
         emit_json(summary)
     else:

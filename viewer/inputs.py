@@ -91,7 +91,7 @@ def read_input(
             raise
         # the viewer has no --fps: a matrix without a rate is imported first, with one
         raise InputError(
-            f"{exc}; the viewer takes no --fps: import it first (s2a-capture import --matrix {src.name} "
+            f"{exc}; the viewer takes no --fps: import it first (s2a-capture import --matrix {src} "
             "--audio AUDIO --fps RATE -o takes) and view the take folder"
         ) from None
     for r in take.meta.repairs:

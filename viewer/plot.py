@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -166,6 +167,7 @@ def plot_curves(
     axes = axes[:, 0]
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     t_max = 0.0
+    handles: dict[int, Any] = {}  # one legend entry per input, from whichever row draws it
     for r, name in enumerate(names):
         ax = axes[r]
         for i, a in enumerate(anims):
@@ -173,10 +175,13 @@ def plot_curves(
             t_max = max(t_max, float(t[-1]))
             values = curve(a, name)
             if values is not None:
-                ax.plot(t, values, color=colors[i % len(colors)], lw=1.2, label=a.label)
+                (line,) = ax.plot(t, values, color=colors[i % len(colors)], lw=1.2, label=a.label)
+                handles.setdefault(i, line)
         ax.set_ylabel(name, rotation=0, ha="right", va="center")
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize="small", ncol=min(len(anims), 4))
+    shown = [handles[i] for i in sorted(handles)]
+    axes[0].legend(handles=shown, loc="upper right", fontsize="small", ncol=min(len(shown), 4))
+    silent = [a.label for i, a in enumerate(anims) if i not in handles]
     segments: list[tuple[float, float]] = []
     vad_label = ""
     if voice is not None:
@@ -218,6 +223,7 @@ def plot_curves(
     return {
         "output": str(out),
         "inputs": [a.label for a in anims],
+        "inputs_without_these_channels": silent,  # drawn nowhere: they hold none of the channels
         "channels": names,
         "duration_s": round(t_max, 6),
         "speech_segments": [[round(a, 4), round(b, 4)] for a, b in segments],

@@ -84,7 +84,7 @@ def load_animation(
     other_cols = [j for j, c in enumerate(take.meta.channels) if not is_known(c)]
     others = take.values[:, other_cols].astype(np.float64)
     ok = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
-    bad = ok & (bad_frames(weights, ARKIT61) | ~np.all(np.abs(others) <= ABSURD, axis=1))
+    bad = ok & bad_frames(weights, ARKIT61)  # by the face's channels: the others are only plotted
     ok &= ~bad
     if not ok.any():
         raise InputError(f"take {take.meta.id} has no frame with usable values", path)
@@ -99,8 +99,9 @@ def load_animation(
     good = np.flatnonzero(ok)
     for k in range(weights.shape[1]):
         weights[:, k] = np.interp(take.time, take.time[good], weights[good, k])
-    for k in range(others.shape[1]):
-        others[:, k] = np.interp(take.time, take.time[good], others[good, k])
+    for k in range(others.shape[1]):  # each bridged over its own lost, dropped and unusable frames
+        own = ok & (np.abs(others[:, k]) <= ABSURD)
+        others[:, k] = np.interp(take.time, take.time[own], others[own, k]) if own.any() else np.nan
     anim = Animation(label or take.meta.id, float(take.meta.fps), take.time.copy(), weights, take=take)
     anim.others = {take.meta.channels[j]: others[:, k] for k, j in enumerate(other_cols)}
     anim.bad_values, anim.clamped, anim.warnings = int(bad.sum()), clamped, warnings
