@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from capture import Audio, FrameStatus, InputError, Take, TakeMeta
+from capture.audio_io import SILENT_PEAK
 from capture.timecode import Timecode
 
 from . import content as ct
@@ -55,7 +56,6 @@ from .vad import speech_level_dbfs, speech_segments, vad_gain
 # duration_mismatch from 1 s
 ALIGN_VERSION = 5
 MIN_TAKE_S = 1.0
-SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS the track holds no usable sound
 # Speech quieter than this (``vad.speech_level_dbfs``; real recordings speak at -12..-22 dBFS) is
 # flagged ``quiet_audio``: 25 dB and more below an ordinary level, most of the converter's range unused.
 QUIET_SPEECH_DBFS = -45.0
@@ -69,7 +69,8 @@ BEYOND_RANGE_S = 0.25
 PAIRED_MISMATCH_S = 1.0
 
 
-def _check_audio(take: Take, x: np.ndarray) -> None:
+def _check_audio(take: Take, x: np.ndarray) -> float:
+    """The peak of ``x`` (16 kHz mono), after refusing audio too short or silent to align to."""
     tid = take.meta.id
     dur = x.size / TARGET_RATE
     if dur < MIN_TAKE_S:
@@ -78,6 +79,7 @@ def _check_audio(take: Take, x: np.ndarray) -> None:
     if peak < SILENT_PEAK:
         level = 20 * math.log10(peak) if peak > 0 else float("-inf")
         raise InputError(f"take {tid}: audio track is silent (peak {level:.1f} dBFS); nothing to align to")
+    return peak
 
 
 def _reference_video(take: Take) -> Path | None:
@@ -94,10 +96,12 @@ def _content(
     usable: np.ndarray,
     period: float,
     placement: Evidence,
+    length_gap_s: float,
     opts: AlignOptions,
 ):
     """Content lag estimate, its evidence, the window lags and the per-frame mouth signal; ``placement``
-    is the audio placement's evidence (``timecode_evidence``)."""
+    is the audio placement's evidence (``timecode_evidence``), ``length_gap_s`` how much the audio and
+    the tracked face differ in length (s)."""
     picks = ct.mouth_channels(take.meta.channels)
     t = take.time
     mouth = ct.mouth_opening(take.values, usable, picks) if picks else np.full(t.size, np.nan)
@@ -121,10 +125,8 @@ def _content(
     # confidence it deserves. A real placement (frame log, timecode, paired data whose audio was cut to
     # its frames) bounds the offset by itself; paired audio that was not cut to the frames is no
     # placement (``timecode_evidence``: its lengths differ by more than ``PAIRED_SLACK_S``).
-    audio_s = x.size / TARGET_RATE
-    face_s = float(t[usable][-1] - t[usable][0]) + period
     placed = placement.confidence >= opts.min_confidence
-    longer = 0.0 if placed else abs(audio_s - face_s)
+    longer = 0.0 if placed else abs(length_gap_s)
     wide = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s + max(longer, BEYOND_RANGE_S))
     outside = wide is not None and abs(wide.lag_s) > opts.max_offset_s and wide.peak > est.peak
     judged = est
@@ -295,7 +297,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     x = to_16k_mono(take.audio, tid, notes)
     mix_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_mix"]
     dc_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_dc"]
-    _check_audio(take, x)
+    peak = _check_audio(take, x)
     take, clock_info = frame_clock(take, opts.frame_clock)
     s0 = float(meta.audio.start_s)
     audio_dur = x.size / TARGET_RATE
@@ -345,11 +347,11 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
             "recording was made too loud and its loudest sounds are distorted; record at a lower level"
         )
     speech_db = speech_level_dbfs(x)
-    peak = float(np.max(np.abs(x)))
+    detector_gain = vad_gain(x, speech_db)  # measured once for the report and the detector
     level = {
         "speech_dbfs": round(speech_db, 1) if math.isfinite(speech_db) else None,
         "peak_dbfs": round(20 * math.log10(peak), 1),
-        "vad_gain_db": round(20 * math.log10(vad_gain(x)), 1) if opts.vad != "none" else 0.0,
+        "vad_gain_db": round(20 * math.log10(detector_gain), 1) if opts.vad != "none" else 0.0,
     }
     if speech_db < QUIET_SPEECH_DBFS:
         flags.append("quiet_audio")
@@ -361,7 +363,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
 
     # Evidence.
     placement = timecode_evidence(meta.audio.start_source, paired_excess_s)
-    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, opts)
+    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, longer, opts)
     evidence: list[Evidence] = [placement]
     if content_ev is not None:
         evidence.append(content_ev)
@@ -397,7 +399,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     values = take.values[usable]
 
     # Speech and trim.
-    speech = speech_segments(x, opts.vad)
+    speech = speech_segments(x, opts.vad, detector_gain)
     if not speech:
         raise InputError(
             f"take {tid}: no speech found by the {opts.vad} VAD in {audio_dur:.2f} s of audio "

@@ -141,21 +141,23 @@ def speech_level_dbfs(x: np.ndarray) -> float:
     return 20.0 * float(np.log10(level)) if level > 0 else float("-inf")
 
 
-def vad_gain(x: np.ndarray) -> float:
+def vad_gain(x: np.ndarray, level_dbfs: float | None = None) -> float:
     """Gain (linear, >= 1) that raises audio whose speech is quieter than ``VAD_LEVEL_DBFS`` to that
-    level (at most ``MAX_VAD_GAIN_DB``); 1 for audio at an ordinary level."""
-    level = speech_level_dbfs(x)
+    level (at most ``MAX_VAD_GAIN_DB``); 1 for audio at an ordinary level. ``level_dbfs``: the speech
+    level (``speech_level_dbfs``) when the caller has measured it already."""
+    level = speech_level_dbfs(x) if level_dbfs is None else level_dbfs
     if not np.isfinite(level) or level >= VAD_LEVEL_DBFS:
         return 1.0
     return float(10 ** (min(VAD_LEVEL_DBFS - level, MAX_VAD_GAIN_DB) / 20))
 
 
-def speech_segments(x: np.ndarray, method: str) -> list[tuple[float, float]]:
+def speech_segments(x: np.ndarray, method: str, gain: float | None = None) -> list[tuple[float, float]]:
     """Speech segments (start_s, end_s) of 16 kHz mono audio; ``method`` is silero, webrtc or none.
-    Quiet audio is raised for the detector (``vad_gain``); ``x`` itself is not changed."""
+    Quiet audio is raised for the detector by ``gain`` (default ``vad_gain(x)``); ``x`` itself is not
+    changed."""
     if method == "none":
         return [(0.0, x.size / TARGET_RATE)]
-    gain = vad_gain(x)
+    gain = vad_gain(x) if gain is None else gain
     if gain != 1.0:
         x = np.clip(x * np.float32(gain), -1.0, 1.0).astype(np.float32)
     if method == "silero":

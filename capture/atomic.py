@@ -17,12 +17,18 @@ from pathlib import Path
 from typing import IO, Any
 
 
+def partial_path(path: Path) -> Path:
+    """The hidden name a file is assembled under beside ``path`` before it is renamed into place
+    (``.NAME.partial``: readers and ``find_takes`` skip hidden files)."""
+    return path.with_name(f".{path.name}.partial")
+
+
 @contextmanager
 def atomic_write(path: str | Path, mode: str = "wb", **open_kwargs: Any) -> Iterator[IO]:
     """Open ``.NAME.partial`` beside ``path`` for writing; on success fsync it and rename it over
     ``path``."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial")
+    tmp = partial_path(path)
     try:
         with open(tmp, mode, **open_kwargs) as f:
             yield f

@@ -44,6 +44,13 @@ PORTAUDIO_HINT = (
 )
 
 
+def check_regular_file(path: Path) -> None:
+    """An --audio-file that exists must be a regular file, not a device, pipe or socket (checked when
+    listen starts, and again when the file is opened at the first packet)."""
+    if path.exists() and not path.is_file():
+        raise InputError("the audio file is not a regular file (a device, pipe or socket)", path)
+
+
 class AudioLog:
     """Writes one session's audio chunks to ``audio.log`` (thread-safe ``add_chunk``)."""
 
@@ -174,8 +181,7 @@ class FileAudioSource:
             if self._stop.is_set():  # stopped before the first packet: the file is never opened
                 return
         try:
-            if self.path.exists() and not self.path.is_file():
-                raise InputError("the audio file is not a regular file (a device, pipe or socket)", self.path)
+            check_regular_file(self.path)
             audio = self._audio or read_audio(self.path)
         except InputError as exc:
             self.error = str(exc)

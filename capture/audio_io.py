@@ -22,6 +22,11 @@ _NATIVE = {"PCM_16": "int16", "PCM_24": "int32", "PCM_32": "int32", "FLOAT": "fl
 _SCALE = {"int16": 32768.0, "int32": 2147483648.0}
 
 
+# A recording peaking below -70 dBFS (of full scale) holds no usable sound: no speech to align or featurise,
+# a silent track of a .mov.
+SILENT_PEAK = 10 ** (-70 / 20)
+
+
 def full_scale(samples: np.ndarray) -> float:
     """The value that is full scale for ``samples``' type: 32768 for int16, 2^31 for int32, 1 for float."""
     return _SCALE.get(samples.dtype.name, 1.0)

@@ -403,7 +403,18 @@ def fields_tc(seconds_of_day: float) -> str:
     return Timecode.from_seconds(seconds_of_day).format()
 
 
-def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[float, float]:
+# A measured rate this close (relative) to a standard rate is that rate: the app writes 59.90 rows/s for 60.
+STANDARD_TOLERANCE = 0.03
+
+
+def nearest_standard(rate: float) -> float | None:
+    """The standard frame rate nearest ``rate`` when within ``STANDARD_TOLERANCE`` of it (24 and 25 are
+    4 % apart: the nearest, not the first), else None."""
+    std = min(STANDARD_FPS, key=lambda s: abs(rate / s - 1))
+    return std if abs(rate - std) / std < STANDARD_TOLERANCE else None
+
+
+def detect_fps(times: np.ndarray) -> tuple[float, float]:
     """Nominal frame rate and the measured median frame period (s) from row times.
 
     The nominal rate snaps to the nearest standard rate when within 3 % (the app writes 59.90 rows/s for
@@ -415,8 +426,7 @@ def detect_fps(times: np.ndarray, status: np.ndarray | None = None) -> tuple[flo
         return 60.0, 1 / 60.0
     period = float(np.median(np.diff(times)))
     rate = 1.0 / period
-    std = min(STANDARD_FPS, key=lambda s: abs(rate / s - 1))  # the nearest: 24 and 25 are 4 % apart
-    return (std if abs(rate - std) / std < 0.03 else round(rate, 3)), period
+    return nearest_standard(rate) or round(rate, 3), period
 
 
 def missing_frames(times: np.ndarray, period: float) -> np.ndarray:

@@ -161,11 +161,12 @@ def import_source(
         return read_paired(audio, source, None, take_id=source.stem, names_option=False)
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
-    if bom_codec(_head(source, 4) or b"") and is_livelink_csv(source):
+    livelink = is_livelink_csv(source)
+    if livelink and bom_codec(_head(source, 4) or b""):
         raise InputError(
             "a Live Link Face CSV saved as UTF-16 text: save it as UTF-8 (as the app writes it)", source
         )
-    if not is_livelink_csv(source):
+    if not livelink:
         if source.is_file() and not source.read_bytes()[: 1 << 16].strip():
             raise InputError("file is empty", source)
         if audio is None:

@@ -18,7 +18,7 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource
+from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource, check_regular_file
 from .command import emit_json, progress
 from .errors import InputError, S2AError
 from .file_lock import fcntl, try_lock
@@ -266,8 +266,7 @@ def _check_audio_file(path: Path, first_packet: bool) -> None:
     folder must exist, and a warning says the file has to be there by then."""
     if path.is_dir():
         raise InputError("the audio file is a folder", path)
-    if path.exists() and not path.is_file():
-        raise InputError("the audio file is not a regular file (a device, pipe or socket)", path)
+    check_regular_file(path)
     if path.exists():
         try:
             with open(path, "rb"):

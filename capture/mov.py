@@ -6,7 +6,7 @@ the same kind of file; the simulated iPhone and the tests use it to stand in for
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .audio_io import Audio, check_samples, decode_with_pyav, full_scale
+from .audio_io import SILENT_PEAK, Audio, check_samples, decode_with_pyav, full_scale
 from .errors import InputError
 
 
@@ -61,9 +61,6 @@ def probe_mov(path: str | Path) -> MovInfo:
     except (av.FFmpegError, OSError) as exc:
         raise InputError(f"video could not be opened (a truncated or damaged file?): {exc}", path) from None
     return MovInfo(path, timecode, fps, frames, width, height, a_start - v_start, tracks)
-
-
-SILENT_PEAK = 10 ** (-70 / 20)  # a track peaking below -70 dBFS holds no usable sound (as s2a-align says)
 
 
 def read_mov_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) -> Audio:
@@ -133,12 +130,13 @@ def write_reference_mov(
     path: str | Path,
     fps: float,
     n_frames: int,
-    audio: Audio | None = None,
+    audio: Audio | Sequence[Audio] | None = None,
     timecode: str | None = None,
     frame_image: Callable[[int], np.ndarray] | None = None,
     size: tuple[int, int] = (160, 120),
 ) -> Path:
-    """Write a ``.mov`` like the app's: MJPEG video, 16-bit PCM audio, a timecode track.
+    """Write a ``.mov`` like the app's: MJPEG video, 16-bit PCM audio, a timecode track. ``audio`` may be
+    several tracks (a camera's second microphone, an editor's extra track), written in that order.
 
     ``frame_image(i)`` returns an RGB uint8 image (height x width x 3) for video frame ``i``; by default
     frames are grey.
@@ -153,10 +151,11 @@ def write_reference_mov(
         v.width, v.height, v.pix_fmt = width, height, "yuvj420p"
         if timecode:
             v.metadata["timecode"] = timecode
-        a = None
-        if audio is not None:
-            layout = "mono" if audio.channels == 1 else "stereo"
-            a = c.add_stream("pcm_s16le", rate=audio.sample_rate, layout=layout)
+        tracks = [] if audio is None else [audio] if isinstance(audio, Audio) else list(audio)
+        layouts = ["mono" if t.channels == 1 else "stereo" for t in tracks]
+        streams = [
+            c.add_stream("pcm_s16le", rate=t.sample_rate, layout=lay) for t, lay in zip(tracks, layouts)
+        ]
         for i in range(n_frames):
             img = frame_image(i) if frame_image else np.full((height, width, 3), 128, np.uint8)
             frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")
@@ -166,14 +165,14 @@ def write_reference_mov(
                 c.mux(packet)
         for packet in v.encode():
             c.mux(packet)
-        if a is not None and audio is not None:
-            samples = audio.pcm16()
+        for a, track, layout in zip(streams, tracks, layouts):
+            samples = track.pcm16()
             block = 1024
             for pos in range(0, samples.shape[0], block):
                 chunk = np.ascontiguousarray(samples[pos : pos + block].T.reshape(1, -1))
                 frame = av.AudioFrame.from_ndarray(chunk, format="s16", layout=layout)
-                frame.sample_rate, frame.pts = audio.sample_rate, pos
-                frame.time_base = Fraction(1, audio.sample_rate)
+                frame.sample_rate, frame.pts = track.sample_rate, pos
+                frame.time_base = Fraction(1, track.sample_rate)
                 for packet in a.encode(frame):
                     c.mux(packet)
             for packet in a.encode():

@@ -24,9 +24,13 @@ import numpy as np
 
 from . import channels as ch
 from .audio_io import read_audio
-from .csv_take import MAX_GAP_S, NTSC_FPS, NTSC_TOLERANCE, STANDARD_FPS, fill_dropped
+from .csv_take import MAX_GAP_S, NTSC_FPS, NTSC_TOLERANCE, STANDARD_TOLERANCE, fill_dropped, nearest_standard
 from .errors import InputError
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
+
+
+class NoFrameRate(InputError):
+    """Paired data whose rate the file does not give (nor a usable time column): ``--fps`` is needed."""
 
 
 def load_npy(path: Path) -> np.ndarray:
@@ -368,8 +372,6 @@ def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float |
 MIN_FPS = 1.0
 # No face capture runs slower: a time column giving a lower rate holds something other than seconds.
 MIN_CAPTURE_FPS = 10.0
-# A rate given with a time column must agree with the rate the column keeps within this (relative).
-RATE_TOLERANCE = 0.03
 # Audio longer or shorter than the frames by more than this (s) is noted as repair ``length_mismatch``.
 LENGTH_MISMATCH_S = 1.0
 # Header names of a column that holds each frame's time rather than a channel, compared by
@@ -385,6 +387,11 @@ MILLISECONDS_COLUMNS = (
 FRAME_COLUMNS = (
     "frame", "frames", "frameindex", "framenumber", "frameno", "framenum", "frameidx", "framecount",
 )  # fmt: skip
+_CLOCK_KINDS = {
+    **dict.fromkeys(SECONDS_COLUMNS, "seconds"),
+    **dict.fromkeys(FRAME_COLUMNS, "frames"),
+    **dict.fromkeys(MILLISECONDS_COLUMNS, "milliseconds"),
+}
 
 
 def _column_key(name: str) -> str:
@@ -403,9 +410,7 @@ def _frame_clock(
 ) -> tuple[str | None, np.ndarray | None, int, str | None]:
     """The time column, if the header has one: (kind "seconds"/"frames", its values in seconds or frame
     numbers (milliseconds converted), its index, its name)."""
-    kinds = {**dict.fromkeys(SECONDS_COLUMNS, "seconds"), **dict.fromkeys(FRAME_COLUMNS, "frames")}
-    kinds |= dict.fromkeys(MILLISECONDS_COLUMNS, "milliseconds")
-    found = [(i, n) for i, n in enumerate(names) if _column_key(n) in kinds]
+    found = [(i, n) for i, n in enumerate(names) if _column_key(n) in _CLOCK_KINDS]
     if not found:
         return None, None, -1, None
     if len(found) > 1:
@@ -414,7 +419,7 @@ def _frame_clock(
     clock = matrix[:, i].astype(np.float64)
     if not np.isfinite(clock).all() or (clock.size > 1 and not (np.diff(clock) > 0).all()):
         raise InputError(f"time column {name!r} must be finite and increase from row to row", path)
-    kind = kinds[_column_key(name)]
+    kind = _CLOCK_KINDS[_column_key(name)]
     if kind == "frames" and not np.array_equal(clock, np.round(clock)):
         raise InputError(f"frame column {name!r} holds values that are not whole numbers", path)
     if kind == "milliseconds":
@@ -452,14 +457,12 @@ def nominal_rate(rate: float, spread: float = 0.0) -> float:
     the nearest standard rate when within 3 % (as ``detect_fps``), its NTSC rate when the column keeps
     that within ``NTSC_TOLERANCE`` (or 3 standard errors of a short or coarsely rounded column, at most
     half way to the nominal rate), else ``rate`` to 3 decimals."""
-    std = min(STANDARD_FPS, key=lambda s: abs(rate / s - 1))  # the nearest: 24 and 25 are 4 % apart
-    if abs(rate / std - 1) < RATE_TOLERANCE:
-        ntsc = NTSC_FPS.get(std)
-        near = min(max(NTSC_TOLERANCE, 3 * spread), 5e-4)
-        if ntsc is not None and abs(rate / ntsc - 1) < near:
-            return ntsc
-        return std
-    return round(rate, 3)
+    std = nearest_standard(rate)
+    if std is None:
+        return round(rate, 3)
+    ntsc = NTSC_FPS.get(std)
+    near = min(max(NTSC_TOLERANCE, 3 * spread), 5e-4)
+    return ntsc if ntsc is not None and abs(rate / ntsc - 1) < near else std
 
 
 def _frame_times(kind: str | None, clock: np.ndarray | None, frames: int, fps: float, path) -> np.ndarray:
@@ -541,7 +544,7 @@ def read_paired(
     notes = []
     if kind == "seconds" and counts_frames(clock) and fps != 1:
         if fps is None:
-            raise InputError(
+            raise NoFrameRate(
                 f"time column {clock_name!r} steps by exactly 1 (frame numbers, not seconds?): name the "
                 "column `frame`, or give --fps",
                 matrix_path,
@@ -563,20 +566,20 @@ def read_paired(
     if fps is None and rate is not None:
         fps = nominal_rate(rate, spread)
     if fps is None:
-        raise InputError("no frame rate: give --fps", matrix_path)
+        raise NoFrameRate("no frame rate: give --fps", matrix_path)
     if not MIN_FPS <= fps <= MAX_FPS:
         hint = " (is the time column in milliseconds?)" if kind == "seconds" else ""
         raise InputError(
             f"the frame rate must be in [{MIN_FPS:g}, {MAX_FPS:g}], not {fps:g}{hint}", matrix_path
         )
     if detected and rate is not None and fps < MIN_CAPTURE_FPS:
-        raise InputError(
+        raise NoFrameRate(
             f"time column {clock_name!r} gives {fps:g} frames per second, slower than any face capture "
             f"(below {MIN_CAPTURE_FPS:g}): is it in milliseconds (name it time_ms), or frame numbers (name "
             "it frame)? else give --fps",
             matrix_path,
         )
-    if rate is not None and abs(rate / fps - 1) > RATE_TOLERANCE + 3 * spread:
+    if rate is not None and abs(rate / fps - 1) > STANDARD_TOLERANCE + 3 * spread:
         raise InputError(
             f"the time column's step ({1 / rate:.5g} s) does not match {_rate(fps)} frames per second (its "
             f"times keep {rate:.4g} frames per second)",

@@ -119,22 +119,19 @@ class SerialSync:
             pending += data
             while b"\n" in pending:
                 line, pending = pending.split(b"\n", 1)
-                event = parse_sync_line(line, now)
-                if event is not None:
-                    self.events += 1
-                    self.sink(event)
+                self._emit(parse_sync_line(line, now))
             if len(pending) > 4 * MAX_LINE_BYTES:
                 # A box that never ends its lines: keep what we have as one flagged event.
-                event = parse_sync_line(pending, now)
+                self._emit(parse_sync_line(pending, now), truncated=True)
                 pending = b""
-                if event is not None:
-                    event.truncated = True
-                    self.events += 1
-                    self.sink(event)
         # What came after the last line end (a box cut off mid-line): kept, flagged, stamped at its arrival.
-        event = parse_sync_line(pending, now) if pending else None
+        if pending:
+            self._emit(parse_sync_line(pending, now), truncated=True)
+
+    def _emit(self, event: SyncEvent | None, truncated: bool = False) -> None:
+        """Count and hand on a parsed line (None: not an event); ``truncated`` flags a line cut short."""
         if event is not None:
-            event.truncated = True
+            event.truncated = truncated or event.truncated
             self.events += 1
             self.sink(event)
 

@@ -251,7 +251,7 @@ def read_take_folder(
         )
     else:
         if mov_audio:
-            audio, track = choose_mov_audio(mov, repairs, info.audio_tracks if info else None)
+            audio, track = choose_mov_audio(mov, repairs, info.audio_tracks if info else 1)  # probed once
             if track is not None:
                 meta.extra["mov_audio_track"] = track
         else:

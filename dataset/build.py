@@ -413,8 +413,9 @@ def resolve_channels(
     key = spec.strip().lower()
     first = takes[0].channels
     if key in ("varying", "all"):
+        ours = Counter(c.lower() for c in first)
         for t in takes:  # the same channels, in any order (each take's are picked by name)
-            theirs, ours = Counter(c.lower() for c in t.channels), Counter(c.lower() for c in first)
+            theirs = Counter(c.lower() for c in t.channels)
             if theirs != ours:
                 odd = sorted(((theirs - ours) + (ours - theirs)).elements())
                 raise InputError(
@@ -547,13 +548,16 @@ def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
     return total > 0 and float(power[band].sum()) < 1e-5 * total
 
 
-def audio_gain(audio: np.ndarray, sample_rate: int) -> tuple[float, np.ndarray]:
+def audio_gain(audio: np.ndarray, sample_rate: int, peak: float | None = None) -> tuple[float, np.ndarray]:
     """The factor that brings float audio past full scale back to a peak of 1 (FLAC would clip it),
     and the stray samples left out of that peak (a bool mask): the 10 ms frames (and the frames either
     side) that hold a sample past full scale and whose RMS is over ``STRAY_FACTOR`` times the take's
     loud-frame level (the 99th percentile of frame RMS; real speech peaks at 2.6-4.6 times it), such as
     one damaged sample that the resampler spread over its neighbours. A stray burst must not scale the
-    whole take's speech down: it is muted instead (set to 0, as NaN samples are on import)."""
+    whole take's speech down: it is muted instead (set to 0, as NaN samples are on import). ``peak``:
+    the audio's largest magnitude, when the caller has it."""
+    if peak is not None and peak <= 1.0:
+        return 1.0, np.zeros(np.size(audio), bool)
     mag = np.abs(np.asarray(audio, np.float32))
     if float(mag.max(initial=0.0)) <= 1.0:
         return 1.0, np.zeros(mag.size, bool)
@@ -689,7 +693,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             "(damaged samples?): repair or re-export the audio (s2a-capture import repairs isolated ones)",
             job.folder,
         )
-    gain, stray = audio_gain(audio, sr)
+    gain, stray = audio_gain(audio, sr, peak)
     audio_len = audio.shape[0]
     span = int(round(n * sr / fps))
     padded = np.zeros(max(span, audio_len), np.float32)

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.fft
 
+from capture.audio_io import SILENT_PEAK
 from capture.errors import InputError
 
 from .pitch import PitchSettings, track_pitch
@@ -30,7 +31,6 @@ LEVEL_MARGIN_DB = 15.9  # P.56's margin: frames within it of the active level ar
 LEVEL_HANGOVER_S = 0.2  # P.56's hangover: a pause shorter than this stays active
 LEVEL_FRAME_S = 0.010
 MAX_LEVEL_GAIN_DB = 60.0  # a take at -86 dBFS active level is raised no further than to -26
-SILENT_PEAK = 10 ** (-70 / 20)  # below -70 dBFS peak the audio holds no speech (s2a-align's test too)
 
 
 @dataclass(frozen=True)
@@ -265,7 +265,7 @@ def compute_features(
     """
     gain = level_gain(audio, settings) if gain is None else gain
     if gain != 1.0:
-        audio = (np.asarray(audio, np.float32) * np.float32(gain)).astype(np.float32)
+        audio = np.asarray(audio, np.float32) * np.float32(gain)  # float32 already: one copy
     spectral = spectral_features(audio, settings)
     n_an = spectral["energy"].shape[0]
     out: dict[str, np.ndarray] = {}

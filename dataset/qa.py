@@ -22,7 +22,15 @@ import numpy as np
 from capture.errors import InputError
 from capture.file_lock import held_elsewhere
 
-from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, load_manifest, manifest_problems, take_recordings
+from .manifest import (
+    LOCK_FILE,
+    MANIFEST_FILE,
+    WORK,
+    _number,
+    load_manifest,
+    manifest_problems,
+    take_recordings,
+)
 from .shards import ShardReader, decode_flac, decode_npy
 from .splits import SPLITS
 
@@ -719,7 +727,7 @@ def _empty_split_problems(manifest: dict[str, Any]) -> list[Problem]:
     rule = manifest["splits"].get("rule", {})
     for split in ("val", "test"):
         fraction = rule.get(f"{split}_fraction")
-        if _is_fraction(fraction) and fraction > 0 and not manifest["splits"][split]["takes"]:
+        if _number(fraction) and fraction > 0 and not manifest["splits"][split]["takes"]:
             out.append(
                 _p(
                     "split_empty",
@@ -740,10 +748,6 @@ def _empty_split_problems(manifest: dict[str, Any]) -> list[Problem]:
                 )
             )
     return out
-
-
-def _is_fraction(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def manifest_consistency(manifest: dict[str, Any]) -> list[Problem]:

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from capture.atomic import partial_path
 from capture.errors import InputError
 
 BLOCK = tarfile.BLOCKSIZE
@@ -93,7 +94,7 @@ class ShardWriter:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.name}.partial")
+        self.tmp = partial_path(self.path)
         self._file = open(self.tmp, "wb")
         self._hash = _HashingFile(self._file)
         self._tar = tarfile.open(fileobj=self._hash, mode="w", format=tarfile.PAX_FORMAT)

@@ -78,12 +78,18 @@ def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
     )
 
 
-def record_packets(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecorder:
-    """Run a recorder on loopback, send it ``packets`` (paced), stop it and return it."""
-    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
+def start_recorder(tmp_path, session_id: str, **options) -> tuple[LiveRecorder, int, threading.Thread]:
+    """A recorder running on loopback (a free port, at most 30 s): (recorder, its port, its thread)."""
+    rec = LiveRecorder(tmp_path, port=0, session_id=session_id, **options)
     _, port = rec.open()
     runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
     runner.start()
+    return rec, port, runner
+
+
+def record_packets(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecorder:
+    """Run a recorder on loopback, send it ``packets`` (paced), stop it and return it."""
+    rec, port, runner = start_recorder(tmp_path, session_id)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         for i, p in enumerate(packets):
             s.sendto(p, ("127.0.0.1", port))

@@ -6,10 +6,8 @@ from __future__ import annotations
 
 import json
 import shutil
-from fractions import Fraction
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 import soundfile as sf
@@ -122,31 +120,13 @@ def test_a_stray_sample_does_not_set_the_builds_audio_gain(tmp_path):
 # ------------------------------------------------------------------------------------ take folder .mov
 
 
-def _write_mov(path: Path, tracks: list[np.ndarray], rate: int, fps: int = 60, frames: int = 10) -> Path:
+def _write_mov(path: Path, tracks: list[np.ndarray], rate: int) -> Path:
     """An app-like .mov (MJPEG video with a timecode) holding one 16-bit audio stream per track."""
-    with av.open(str(path), "w", format="mov") as c:
-        v = c.add_stream("mjpeg", rate=fps)
-        v.width, v.height, v.pix_fmt = 64, 48, "yuvj420p"
-        v.metadata["timecode"] = "19:18:11:20"
-        streams = [c.add_stream("pcm_s16le", rate=rate, layout="mono") for _ in tracks]
-        for i in range(frames):
-            img = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 128, np.uint8), format="rgb24")
-            img = img.reformat(format="yuvj420p")
-            img.pts, img.time_base = i, Fraction(1, fps)
-            for packet in v.encode(img):
-                c.mux(packet)
-        for packet in v.encode():
-            c.mux(packet)
-        for stream, x in zip(streams, tracks, strict=True):
-            pcm = np.clip(np.rint(x * 32767), -32768, 32767).astype(np.int16)
-            for pos in range(0, pcm.size, 1024):
-                frame = av.AudioFrame.from_ndarray(pcm[None, pos : pos + 1024], format="s16", layout="mono")
-                frame.sample_rate, frame.pts, frame.time_base = rate, pos, Fraction(1, rate)
-                for packet in stream.encode(frame):
-                    c.mux(packet)
-            for packet in stream.encode():
-                c.mux(packet)
-    return path
+    audio = [
+        Audio((np.clip(np.rint(x * 32767), -32768, 32767)).astype(np.int16)[:, None], rate, "PCM_16")
+        for x in tracks
+    ]
+    return write_reference_mov(path, 60.0, 10, audio, timecode="19:18:11:20", size=(64, 48))
 
 
 def _folder(root: Path, samples: Path, name: str) -> Path:

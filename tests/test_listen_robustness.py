@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import record_packets, run_cli
+from live_helpers import record_packets, run_cli, start_recorder
 
 import capture.livelink as ll
 import capture.session_takes as st
@@ -232,10 +232,7 @@ def test_stray_streams_give_their_slots_to_a_real_phone(tmp_path, monkeypatch):
     import capture.recorder as recorder
 
     monkeypatch.setattr(recorder, "STRAY_SILENT_S", 0.2)
-    rec = LiveRecorder(tmp_path, port=0, session_id="stray", max_streams=8)
-    _, port = rec.open()
-    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
-    runner.start()
+    rec, port, runner = start_recorder(tmp_path, "stray", max_streams=8)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         for i in range(8):  # eight spoofed devices, one packet each: every slot taken
             s.sendto(_packets(f"junk-{i}", "x", [1])[0], ("127.0.0.1", port))
@@ -277,10 +274,7 @@ def test_stream_ids_running_out_refuse_new_streams_instead_of_crashing(tmp_path,
     # stray ones, which frees slots but no ids.
     monkeypatch.setattr(recorder, "MAX_STREAM_ID", 2)
     monkeypatch.setattr(recorder, "STRAY_SILENT_S", 0.0)
-    rec = LiveRecorder(tmp_path, port=0, session_id="ids", max_streams=3)
-    _, port = rec.open()
-    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
-    runner.start()
+    rec, port, runner = start_recorder(tmp_path, "ids", max_streams=3)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         for i in range(5):
             s.sendto(_packets(f"junk-{i}", "x", [1])[0], ("127.0.0.1", port))
@@ -303,10 +297,7 @@ def _pylivelinkface_frame(t: float, fps: int = 60) -> int:
 
 def _send_paced(tmp_path, session_id: str, packets: list[bytes], rate: float) -> LiveRecorder:
     """Like record_packets, but at ``rate`` packets per second in real time (arrival times matter)."""
-    rec = LiveRecorder(tmp_path, port=0, session_id=session_id)
-    _, port = rec.open()
-    runner = threading.Thread(target=rec.run, kwargs={"duration_s": 30})
-    runner.start()
+    rec, port, runner = start_recorder(tmp_path, session_id)
     start = time.perf_counter()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         for i, p in enumerate(packets):

@@ -11,6 +11,7 @@ index in ``epoch``), ``positions`` (that pair for every DDP rank), ``rng`` (torc
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 from collections.abc import Callable, Iterator
@@ -20,7 +21,7 @@ from typing import Any
 
 import torch
 
-from capture.atomic import write_json_atomic
+from capture.atomic import partial_path, write_json_atomic
 from capture.errors import InputError
 from capture.file_lock import try_lock
 from capture.take import MAX_FPS
@@ -61,11 +62,6 @@ def write_error(exc: BaseException, path: Path, what: str = "") -> InputError:
     return InputError(f"cannot write {what}: {reason}", path)
 
 
-def partial_path(path: Path) -> Path:
-    """The hidden name a file is assembled under beside ``path`` (as capture.atomic does)."""
-    return path.with_name(f".{path.name}.partial")
-
-
 def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") -> None:
     """``write(tmp)`` a file beside ``path``, fsync it and rename it over ``path``: a reader (or a
     full disk) never sees half a file, and an existing ``path`` stays as it was when writing fails.
@@ -86,6 +82,17 @@ def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") 
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def read_run_config(path: Path) -> dict[str, Any]:
+    """A run's (or an ensemble's) config.json as a dict."""
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"unreadable run config ({type(exc).__name__})", path) from None
+    if not isinstance(saved, dict):
+        raise InputError("run config is not a JSON object", path)
+    return saved
 
 
 def save_checkpoint(payload: dict[str, Any], path: Path) -> None:

@@ -27,7 +27,7 @@ from torch import nn
 from capture.errors import InputError
 from dataset.manifest import take_recordings
 
-from .checkpoint import CONFIG, LAST, write_json
+from .checkpoint import CONFIG, LAST, read_run_config, write_json
 from .data import InputSpec
 from .style import member_style_map
 
@@ -111,8 +111,8 @@ def check_ensemble_run(
         if not (member / LAST).is_file():
             continue  # trained afresh on resume, under any number of processes
         try:
-            trained = json.loads((member / CONFIG).read_text()).get("world_size", 1)
-        except (OSError, ValueError, AttributeError):
+            trained = read_run_config(member / CONFIG).get("world_size", 1)
+        except InputError:
             continue  # the member's own resume names what is wrong with it
         if trained != world:
             raise InputError(

@@ -32,7 +32,7 @@ from .checkpoint import load_system
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
 from .precision import for_inference, infer
 from .style import MEAN, check_style
-from .systems import check_sample_frames
+from .systems import check_sample_frames, max_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
 
@@ -101,14 +101,13 @@ def real_time_factor(
     spec: InputSpec,
     item: dict[str, Any],
     fps: float,
-    seconds: float = 12.0,
+    frames: int,
     style: str | None = None,
     repeats: int = 5,
-    frames: int | None = None,
 ) -> float:
-    """Seconds of compute per second of animation for one ``seconds``-long utterance (batch 1), or one
-    of ``frames`` frames when given: the utterance ``item``'s inputs tiled or cut to that length."""
-    n = int(round(seconds * fps)) if frames is None else int(frames)
+    """Seconds of compute per second of animation for one utterance of ``frames`` frames (batch 1): the
+    utterance ``item``'s inputs tiled or cut to that length."""
+    n = int(frames)
     seconds = n / fps
     content, prosody = to_model_inputs(item, spec, style)
     reps = -(-n // content.shape[1])
@@ -315,8 +314,8 @@ def evaluate(
         }
     if longest is not None:
         frames = int(round(rtf_seconds * info["fps"]))
-        limit = model_config.get("max_frames")
-        if isinstance(limit, int) and not isinstance(limit, bool) and 0 < limit < frames:
+        limit = max_frames(model_config)
+        if limit is not None and limit < frames:
             frames = limit  # the model takes no more in one pass
             result["rtf_note"] = (
                 f"rtf timed on {limit} frames ({limit / info['fps']:g} s, the model's max_frames), "

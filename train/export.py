@@ -21,12 +21,14 @@ import numpy as np
 import torch
 from torch import nn
 
+from capture.atomic import partial_path
 from capture.command import progress
 from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
 
-from .checkpoint import disk_full, load_system, partial_path, write_error
+from .checkpoint import disk_full, load_system, write_error
 from .data import InputSpec
+from .systems import max_frames
 
 
 class ExportFailed(S2AError):
@@ -103,8 +105,7 @@ def export_onnx(
     wrapper = (
         _WithProsody(_traceable(traced_model)) if spec.prosody_dim else _NoProsody(_traceable(traced_model))
     )
-    limit = (payload.get("model_config") or {}).get("max_frames")
-    limit = limit if isinstance(limit, int) and not isinstance(limit, bool) and limit > 0 else None
+    limit = max_frames(payload.get("model_config"))
     lengths = _check_lengths(limit)
     example = _inputs(spec, lengths[0], 0)
     names = list(example)
@@ -127,8 +128,6 @@ def export_onnx(
                     opset_version=17,
                     dynamo=False,
                 )
-        except OSError as exc:
-            raise write_error(exc, out, "the ONNX file") from None
         except RuntimeError as exc:  # torch's writer: a full disk shows as a RuntimeError
             if disk_full(exc, out.parent):
                 raise write_error(exc, out, "the ONNX file") from None

@@ -35,6 +35,7 @@ from .checkpoint import (
     LAST,
     METRICS,
     load_checkpoint,
+    read_run_config,
     run_lock,
     save_checkpoint,
     write_error,
@@ -214,31 +215,6 @@ def _summary(
     }
 
 
-def _solved_ridge(run: Path, cfg, state, spec, say) -> dict[str, Any]:
-    """A resumed ridge run: solved in closed form already, nothing to train (nor to append)."""
-    t0 = time.perf_counter()
-    model, _ = build_model("ridge", spec, cfg)
-    try:
-        model.load_state_dict(state["state_dict"])
-    except (RuntimeError, TypeError, KeyError) as exc:
-        reason = type(exc).__name__
-        raise InputError(f"checkpoint has a malformed state_dict ({reason})", run / LAST) from None
-    say(f"ridge is solved in closed form, and this run is (alpha {cfg['ridge_alpha']:g}): nothing to do")
-    return _summary(
-        run,
-        cfg,
-        0,
-        0,
-        state.get("best_val"),
-        "closed_form",
-        1,
-        0,
-        [_checksum(model)],
-        sum(p.numel() for p in model.parameters()),
-        time.perf_counter() - t0,
-    )
-
-
 def _checksum(model) -> str:
     h = hashlib.sha256()
     for p in model.parameters():
@@ -299,19 +275,20 @@ def fit(
         raise InputError("run folder path is a file: give a folder with -o", run)
     locks = ExitStack()
     writer = int(os.environ.get("RANK", "0")) == 0  # under torchrun, rank 0 writes and holds the lock
-    held: list[bool] = []
+    held = False
 
     def claim() -> None:
         """Lock the run folder (once it exists) for the rest of this fit."""
+        nonlocal held
         if writer and not held:
             locks.enter_context(run_lock(run))
-            held.append(True)
+            held = True
 
     try:
         if run.is_dir():  # before reading its checkpoint: another fit may be about to rewrite it
             claim()
         if resume and (run / CONFIG).is_file() and not (run / LAST).is_file():
-            saved = _saved_config(run / CONFIG)
+            saved = read_run_config(run / CONFIG)
             if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
                 _refuse_changes(given, saved, run / CONFIG)
                 cfg = _resumed_config(saved, cfg, given)
@@ -322,17 +299,6 @@ def fit(
         locks.close()
         if owns_group and dist.is_initialized():
             dist.destroy_process_group()
-
-
-def _saved_config(path: Path) -> dict[str, Any]:
-    """A run's config.json as a dict."""
-    try:
-        saved = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"unreadable run config ({type(exc).__name__})", path) from None
-    if not isinstance(saved, dict):
-        raise InputError("run config is not a JSON object", path)
-    return saved
 
 
 def _flat(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -368,7 +334,7 @@ def check_resumable(run: Path, given: dict[str, Any] | None, who: str = "--resum
     """Refuse, before anything trains, to resume ``run`` (a run or ensemble folder with a saved
     config.json) with ``given`` config keys other than the run's."""
     if (run / CONFIG).is_file():
-        _refuse_changes(given, _saved_config(run / CONFIG), run / CONFIG, who)
+        _refuse_changes(given, read_run_config(run / CONFIG), run / CONFIG, who)
 
 
 RUN_DATASET = ("channels", "fps", "features", "normalization")  # what a resumed run's dataset must match
@@ -596,13 +562,21 @@ def _train_step(net, model, batch, spec, cfg, weights, device):
 
 
 def _ridge_run(ds: Path, run: Path, cfg, spec, manifest, state, config_record, say) -> dict[str, Any]:
-    """A ridge run: solved in closed form (a resumed one was solved already)."""
-    if state is not None:
-        return _solved_ridge(run, cfg, state, spec, say)
-    write_json(run / CONFIG, config_record)
-    _start_afresh(run)
+    """A ridge run: solved in closed form; resumed, solved already (nothing to train, nor to append)."""
     t0 = time.perf_counter()
-    solved, ridge = _fit_ridge(ds, run, cfg, spec, manifest, say)
+    if state is None:
+        write_json(run / CONFIG, config_record)
+        _start_afresh(run)
+        solved, ridge = _fit_ridge(ds, run, cfg, spec, manifest, say)
+    else:
+        ridge, _ = build_model("ridge", spec, cfg)
+        try:
+            ridge.load_state_dict(state["state_dict"])
+        except (RuntimeError, TypeError, KeyError) as exc:
+            reason = type(exc).__name__
+            raise InputError(f"checkpoint has a malformed state_dict ({reason})", run / LAST) from None
+        say(f"ridge is solved in closed form, and this run is (alpha {cfg['ridge_alpha']:g}): nothing to do")
+        solved = {"steps": 0, "best_val": state.get("best_val"), "stopped": "closed_form"}
     return _summary(
         run,
         cfg,

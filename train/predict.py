@@ -23,12 +23,13 @@ import torch
 from align.resample import TARGET_RATE, to_16k_mono
 from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, read_take, write_livelink_csv
 from capture.atomic import atomic_write
+from capture.audio_io import SILENT_PEAK
 from capture.channels import ARKIT52, is_known
 from capture.command import progress
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
 from dataset.build import NARROWBAND_HZ, is_narrowband
-from dataset.features import SILENT_PEAK, FeatureSettings, compute_features, speech_level
+from dataset.features import FeatureSettings, compute_features, speech_level
 from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
@@ -37,6 +38,7 @@ from .checkpoint import load_system
 from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference
 from .style import MEAN, check_style
+from .systems import max_frames
 from .windowed import PREDICT_WINDOW_S, infer_windowed
 
 BLENDSHAPES_LOWER = {c.lower() for c in ARKIT52}  # weights in 0..1 (the other 9 are angles)
@@ -82,8 +84,8 @@ def animate(
     span = int(round(n * settings.sample_rate / fps))
     audio = np.pad(audio, (0, max(span - audio.size, 0)))[:span]
     window = int(round(PREDICT_WINDOW_S * fps))
-    limit = (payload.get("model_config") or {}).get("max_frames")
-    if isinstance(limit, int) and limit > 0:
+    limit = max_frames(payload.get("model_config"))
+    if limit is not None:
         window = min(window, limit)
     feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)

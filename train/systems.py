@@ -128,6 +128,12 @@ def _build(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Module, 
     raise InputError(f"unknown model {name!r}", "config:model")
 
 
+def max_frames(model_config: dict[str, Any] | None) -> int | None:
+    """The most frames the model takes in one pass (Transformer-S2A's ``max_frames``), None without one."""
+    limit = (model_config or {}).get("max_frames")
+    return limit if isinstance(limit, int) and not isinstance(limit, bool) and limit > 0 else None
+
+
 def check_sample_frames(
     manifest: dict[str, Any],
     splits: tuple[str, ...],
@@ -137,11 +143,11 @@ def check_sample_frames(
 ) -> None:
     """Whole samples of ``splits`` (validation and evaluation read them unwindowed), or those of the
     sample ``keys`` when given, must fit the model's ``max_frames``."""
-    limit = model_config.get("max_frames")
+    limit = max_frames(model_config)
     chosen = (lambda s: s.get("key") in keys) if keys is not None else (lambda s: s.get("split") in splits)
     frames = [s.get("frames") for s in manifest["samples"] if chosen(s)]
     longest = max((f for f in frames if isinstance(f, int)), default=0)
-    if isinstance(limit, int) and longest > limit:
+    if limit is not None and longest > limit:
         raise InputError(
             f"the longest {'/'.join(splits)} sample has {longest} frames, more than max_frames ({limit})",
             where,

@@ -19,6 +19,7 @@ from capture.channels import ARKIT52, canonical, is_known
 from capture.csv_take import split_variant
 from capture.errors import InputError
 from capture.importer import is_livelink_csv
+from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
 from dataset.qa import ANIM_LIMIT
 
@@ -86,10 +87,7 @@ def read_input(
             )
     try:
         take = import_source(src, audio)
-    except InputError as exc:
-        if "--fps" not in str(exc):
-            raise
-        # the viewer has no --fps: a matrix without a rate is imported first, with one
+    except NoFrameRate as exc:  # the viewer has no --fps: such a matrix is imported first, with one
         raise InputError(
             f"{exc}; the viewer takes no --fps: import it first (s2a-capture import --matrix {src} "
             "--audio AUDIO --fps RATE -o takes) and view the take folder"
