@@ -893,15 +893,6 @@ def _merge_records(records: list[dict[str, Any]], channels: list[str], split: st
     return chan, feats
 
 
-def _distribution(summary: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Per-channel statistics with null, not 0, for a channel without usable frames (a split whose
-    takes lost the face throughout): no statistic is measured there."""
-    return {
-        name: d if d.get("frames") else {k: (v if k == "frames" else None) for k, v in d.items()}
-        for name, d in summary.items()
-    }
-
-
 def plan_shards(records: list[dict[str, Any]], shard_bytes: int) -> list[dict[str, Any]]:
     """Shards per split: samples in key order, a new shard whenever the cap would be exceeded."""
     plan = []
@@ -1366,7 +1357,7 @@ def _split_stats(
             "hours": sum(r["duration_s"] for r in mine) / 3600.0,
             "usable_frames": sum(r["usable_frames"] for r in mine),
             "hours_per_speaker": {k: v / 3600.0 for k, v in sorted(speakers.items())},
-            "channels": _distribution(chan.summary(channels)),
+            "channels": chan.summary(channels),
         }
         if phones is not None and all(r["phone_counts"] is not None for r in mine):
             counts = np.zeros(len(phones), np.int64)

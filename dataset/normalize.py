@@ -132,12 +132,16 @@ class ChannelAccumulator:
             out[c] = centres[min(np.searchsorted(cum, q / 100.0 * cum[-1]), HIST_BINS - 1)]
         return np.clip(out, self.min, self.max) if np.all(np.isfinite(self.min)) else out
 
-    def summary(self, channels: list[str]) -> dict[str, dict[str, float]]:
-        """Per-channel distribution: frames, mean, std, min, 5/50/95th percentile, max."""
+    def summary(self, channels: list[str]) -> dict[str, dict[str, Any]]:
+        """Per-channel distribution: frames, mean, std, min, 5/50/95th percentile, max; null statistics,
+        not 0, for a channel without frames (a split whose takes lost the face throughout)."""
         mean, std = self.mean(), self.std()
         p = {q: self.percentile(q) for q in (5, 50, 95)}
-        out = {}
+        out: dict[str, dict[str, Any]] = {}
         for c, name in enumerate(channels):
+            if not self.count[c]:  # nothing measured
+                out[name] = {"frames": 0, **dict.fromkeys(("mean", "std", "min", "p05", "p50", "p95", "max"))}
+                continue
             out[name] = {
                 "frames": int(self.count[c]),
                 "mean": round(float(mean[c]), 6),
