@@ -67,7 +67,7 @@ from .features import (
     speech_level,
 )
 from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, manifest_path, read_manifest, write_manifest
-from .normalize import KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
+from .normalize import HIST_LAYOUT, KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
 from .qa import ANIM_LIMIT, BASE_MEMBERS
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits
@@ -823,9 +823,10 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "phone_counts": phone_counts,
     }
     job.record.parent.mkdir(parents=True, exist_ok=True)
-    # the channel histograms go to an .npz beside the record (written first: the record marks done)
+    # the channel histograms go to an .npz beside the record (written first: the record marks done);
+    # compressed, as most of their bins are empty
     with atomic_write(job.stats) as f:
-        np.savez(f, **chan.to_arrays())
+        np.savez_compressed(f, **chan.to_arrays())
     write_json_atomic(job.record, rec, compact=True)
     return rec | {"cached": False}
 
@@ -1101,6 +1102,7 @@ def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
             "settings": options.settings.to_json(),
             "skip_flagged": options.skip_flagged,
             "dataset_version": DATASET_VERSION,
+            "histogram": HIST_LAYOUT,
             "versions": _library_versions(),
         }
     )
@@ -1426,7 +1428,7 @@ def _build(
         "max_sample_s": options.max_sample_s,
         "versions": _library_versions(),
     }
-    config_hash = _fingerprint(config)
+    config_hash = _fingerprint(config | {"histogram": HIST_LAYOUT})
     fingerprint = _fingerprint(
         {
             "config": config_hash,

@@ -29,8 +29,14 @@ import numpy as np
 from capture.errors import InputError
 
 KINDS = ("zscore", "neutral")
-HIST_RANGE = (-2.0, 2.0)
-HIST_BINS = 4000
+# The percentile histogram: bins 1e-3 wide over [-2, 2] (blendshape weights, normalised controls), then
+# bins 1 % wide out to ±2e6 (rigs on a 0-100 scale, controls in degrees or centimetres).
+HIST_INNER = 2.0
+HIST_INNER_BINS = 4000
+HIST_RATIO = 1.01
+HIST_OUTER_BINS = int(np.ceil(np.log(1e6) / np.log(HIST_RATIO)))  # 1389: 2 * 1.01**1389 > 2e6
+HIST_BINS = HIST_INNER_BINS + 2 * HIST_OUTER_BINS
+HIST_LAYOUT = f"linear ±{HIST_INNER} × {HIST_INNER_BINS}, ratio {HIST_RATIO} × {HIST_OUTER_BINS} each side"
 MIN_SCALE = 1e-4  # a channel that never moves keeps scale 1 rather than blowing up
 
 
@@ -65,8 +71,7 @@ class ChannelAccumulator:
         self.sumsq += total_sq
         self.min = np.minimum(self.min, x.min(0))
         self.max = np.maximum(self.max, x.max(0))
-        lo, hi = HIST_RANGE
-        bins = np.clip(((x - lo) / (hi - lo) * HIST_BINS).astype(np.int64), 0, HIST_BINS - 1)
+        bins = histogram_bins(x)
         # one bincount for every channel: channel c's bins are offset by c * HIST_BINS
         flat = (bins + np.arange(self.n) * HIST_BINS).ravel()
         self.hist += np.bincount(flat, minlength=self.n * HIST_BINS).reshape(self.n, HIST_BINS)
@@ -121,9 +126,9 @@ class ChannelAccumulator:
         return np.sqrt(np.maximum(self.sumsq / np.maximum(self.count, 1) - m * m, 0.0))
 
     def percentile(self, q: float) -> np.ndarray:
-        """Per-channel ``q``-th percentile (0..100) from the histogram (bin centres, 1e-3 resolution)."""
-        lo, hi = HIST_RANGE
-        centres = lo + (np.arange(HIST_BINS) + 0.5) * (hi - lo) / HIST_BINS
+        """Per-channel ``q``-th percentile (0..100) from the histogram: the bin's centre, within 5e-4 of
+        the value inside ±2 and within 0.5 % of it beyond."""
+        centres = histogram_centres()
         out = np.zeros(self.n)
         for c in range(self.n):
             cum = np.cumsum(self.hist[c])
@@ -153,6 +158,30 @@ class ChannelAccumulator:
                 "max": round(float(self.max[c]), 6) if np.isfinite(self.max[c]) else None,
             }
         return out
+
+
+def histogram_bins(x: np.ndarray) -> np.ndarray:
+    """The histogram bin of each value (int64, same shape): linear inside ±HIST_INNER, geometric outside,
+    values beyond ±2e6 in the outermost bins."""
+    x = np.asarray(x, np.float64)
+    inner = np.minimum(np.floor((x + HIST_INNER) * (HIST_INNER_BINS / (2 * HIST_INNER))), HIST_INNER_BINS - 1)
+    with np.errstate(divide="ignore"):
+        steps = np.floor(np.log(np.maximum(np.abs(x), HIST_INNER) / HIST_INNER) / np.log(HIST_RATIO))
+    steps = np.minimum(steps, HIST_OUTER_BINS - 1)
+    last_inner = HIST_OUTER_BINS + HIST_INNER_BINS
+    bins = np.where(
+        x >= HIST_INNER,
+        last_inner + steps,
+        np.where(x < -HIST_INNER, HIST_OUTER_BINS - 1 - steps, HIST_OUTER_BINS + inner),
+    )
+    return bins.astype(np.int64)
+
+
+def histogram_centres() -> np.ndarray:
+    """The value each histogram bin stands for: its middle (inside ±2), its geometric middle (beyond)."""
+    inner = -HIST_INNER + (np.arange(HIST_INNER_BINS) + 0.5) * (2 * HIST_INNER / HIST_INNER_BINS)
+    outer = HIST_INNER * HIST_RATIO ** (np.arange(HIST_OUTER_BINS) + 0.5)
+    return np.concatenate([-outer[::-1], inner, outer])
 
 
 @dataclass

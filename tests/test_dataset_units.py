@@ -67,6 +67,24 @@ def test_fitted_normalizers_from_statistics():
         Normalizer("minmax", ["a"], [0.0], [1.0])
 
 
+def test_percentiles_of_channels_beyond_blendshape_range():
+    # a rig on a 0-100 scale, one in degrees (-180..180) and blendshape weights: every percentile within
+    # the histogram's resolution (0.5 % beyond ±2, 5e-4 inside)
+    rng = np.random.default_rng(1)
+    x = np.stack([rng.uniform(0, 100, 5000), rng.normal(0, 60, 5000), rng.beta(2, 5, 5000)], 1)
+    acc = ChannelAccumulator(3)
+    acc.add(x[:2000])
+    rest = ChannelAccumulator(3)
+    rest.add(x[2000:])
+    acc.merge(rest)
+    for q in (5, 50, 95):
+        got, want = acc.percentile(q), np.percentile(x, q, axis=0)
+        np.testing.assert_allclose(got[:2], want[:2], rtol=0.01, atol=0.05)
+        np.testing.assert_allclose(got[2], want[2], atol=1e-3)
+    n = fit_normalizer("neutral", ["a", "b", "c"], acc)
+    np.testing.assert_allclose(n.offset, np.percentile(x, 5, axis=0), rtol=0.01, atol=1e-3)
+
+
 def test_splits_by_take_and_speaker():
     takes = {f"t{i}": (f"s{i % 4}", 10.0) for i in range(20)}
     by_take = assign_splits(takes, SplitRule("take", 0.1, 0.2, seed=3))
