@@ -25,7 +25,7 @@ from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
 from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, check_record_start, check_subject, resolve_target
 from .record_log import MAGIC, RECORD_HEADER, LogReader, RecordType
-from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_STREAM_ID, LiveRecorder
+from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_STREAMS, LiveRecorder
 from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
 from .session_takes import build_takes, find_sessions
@@ -34,8 +34,6 @@ from .take import Take, is_take_dir, read_meta, read_take
 # Held (flock) by ``listen`` in the session folder from before the recorder opens until the takes are
 # built: ``recover`` leaves a session whose lock is held alone.
 SESSION_LOCK = "listen.lock"
-# The recorder's log numbers streams with 16 bits, so at most this many are told apart.
-MAX_STREAMS = MAX_STREAM_ID  # stream ids are 16-bit (the recorder also counts its first as one)
 # A process counts as a session's recorder when it started no later than this after the session did
 # (the tick and boot-time rounding of /proc); one started later got the recorder's pid after it died.
 PID_START_SLACK_S = 2.0

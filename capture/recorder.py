@@ -37,6 +37,7 @@ SESSION_SUFFIX = ".recording"
 DEFAULT_PORT = 11111
 FRAME_PREFIX = struct.Struct("<BHq")  # record type, stream id, arrival ns
 MAX_STREAM_ID = 0xFFFF  # stream ids are 16-bit in the frame records
+MAX_STREAMS = MAX_STREAM_ID + 1  # ids 0..0xFFFF: the most streams a session tells apart
 FRAME_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_BLOCK_BYTES  # 272
 NO_FACE_PAYLOAD_BYTES = FRAME_PREFIX.size + ll.FRAME_TIME_BYTES  # 27
 _RECV_BYTES = 65536  # larger than any UDP datagram, so an oversized one is seen whole and counted
@@ -158,8 +159,8 @@ class LiveRecorder:
             raise InputError(f"UDP port {port} is not in 0..65535")
         if not 0 < flush_interval_s <= 0.25:
             raise InputError("the flush interval must be in (0, 0.25] seconds")
-        if not 1 <= max_streams <= MAX_STREAM_ID + 1:
-            raise InputError(f"max_streams must be in 1..{MAX_STREAM_ID + 1}, got {max_streams}")
+        if not 1 <= max_streams <= MAX_STREAMS:
+            raise InputError(f"max_streams must be in 1..{MAX_STREAMS}, got {max_streams}")
         self.out_dir = Path(out_dir)
         self.bind = bind
         self.port = port
@@ -431,7 +432,7 @@ class LiveRecorder:
             return "bad_text"
         if len(self.streams) >= self.max_streams and not self._evict_stray_streams():
             return "too_many_streams"
-        if len(self.stream_packets) > MAX_STREAM_ID:  # ids are never reused: evicted streams keep theirs
+        if len(self.stream_packets) >= MAX_STREAMS:  # ids are never reused: evicted streams keep theirs
             return "too_many_streams"
         sid = len(self.stream_packets)
         entry = (sid, off, num, den)

@@ -247,7 +247,14 @@ def test_an_unplugged_sync_box_is_a_warning_at_once_and_keeps_its_events(tmp_pat
 
 # -- options ------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
-    ("option", "value"), [("--max-streams", "0"), ("--max-streams", "-1"), ("--bind", ""), ("--bind", " ")]
+    ("option", "value"),
+    [
+        ("--max-streams", "0"),
+        ("--max-streams", "-1"),
+        ("--max-streams", "65537"),
+        ("--bind", ""),
+        ("--bind", " "),
+    ],
 )
 def test_options_that_make_no_sense_are_usage_errors(tmp_path, capsys, option, value):
     with pytest.raises(SystemExit) as exit_:
