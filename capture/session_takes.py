@@ -33,7 +33,6 @@ events likewise.
 
 from __future__ import annotations
 
-import bisect
 import json
 import shutil
 import struct
@@ -387,34 +386,35 @@ def _taken_slots(
     return taken & ~copy
 
 
-class _Slots:
-    """The frames of a recording by frame time, to tell whether another frame takes a free slot of it
-    (as ``_taken_slots``, one frame at a time)."""
+# Where a packet off the clock may belong, in the order tried (recordings by index relative to the one
+# current at its moment): behind that clock, a late packet, most likely of its own recording; ahead of
+# it, a straggler of a recording before a restart, else an early packet of its own.
+BEHIND_ORDER = (0, 1, -1, -2, -3)
+AHEAD_ORDER = (-1, -2, -3, 0, 1)
 
-    def __init__(self, idx: np.ndarray, frame_time: np.ndarray):
-        self.idx = idx[np.argsort(frame_time[idx], kind="stable")]
-        times = frame_time[self.idx]
-        steps = np.diff(times)
-        steps = steps[steps > 0]
-        self.step = float(np.median(steps)) if steps.size else 0.0
-        self.times = times.tolist()
 
-    def free(self, i: int, f: float, rows: np.ndarray, arrival_s: np.ndarray) -> bool:
-        """Whether frame ``i`` (frame time ``f``) lands on a free slot, or is a copy of the frame there."""
-        k = bisect.bisect_left(self.times, f)
-        near = [j for j in (k - 1, k) if 0 <= j < len(self.times)]
-        if not near or not self.step:
-            return True
-        j = min(near, key=lambda j: abs(self.times[j] - f))
-        dist = abs(self.times[j] - f)
-        if dist >= SLOT_FRACTION * self.step:
-            return True
-        other = self.idx[j : j + 1]
-        return bool(
-            dist == 0
-            and _identical(rows, np.array([i]), other)[0]
-            and abs(arrival_s[i] - arrival_s[other[0]]) <= MAX_GAP_S
-        )
+def _place_off_clock(
+    off: np.ndarray,
+    current: np.ndarray,
+    recs: list[_Recording],
+    level: np.ndarray,
+    tol: float,
+    rows: np.ndarray,
+    frame_time: np.ndarray,
+    arrival_s: np.ndarray,
+) -> np.ndarray:
+    """The recording each packet ``off`` joins (-1: stray): the first of its candidates whose frame-time
+    range holds it on a free slot (``_taken_slots``); ``current`` is the recording current at its moment."""
+    ft = frame_time[off]
+    order = np.where((ft <= level[off] + tol)[:, None], BEHIND_ORDER, AHEAD_ORDER) + current[:, None]
+    fits = np.zeros(order.shape, bool)
+    for c, rec in enumerate(recs):
+        who, rank = np.nonzero(order == c)
+        inside = (ft[who] >= rec.lo - tol) & (ft[who] <= rec.hi + tol)
+        who, rank = who[inside], rank[inside]
+        free = ~_taken_slots(off[who], rec.rows(), rows, frame_time, arrival_s)
+        fits[who[free], rank[free]] = True
+    return np.where(fits.any(1), np.take_along_axis(order, fits.argmax(1)[:, None], 1)[:, 0], -1)
 
 
 class _Clock:
@@ -509,32 +509,21 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
     # Packets off the clock: late packets of a recording (in its frame-time range, on a free slot of it),
     # or stray.
     piece_of = np.repeat(np.arange(len(kinds)), np.diff(bounds))
-    extra: list[list[int]] = [[] for _ in recs]
-    stray = []
-    times, levels = frame_time.tolist(), level.tolist()
-    slots = [_Slots(rec.rows(), frame_time) for rec in recs]
-    for i in np.flatnonzero(~follows).tolist():
-        f, cur = times[i], piece_current[piece_of[i]]
-        if f <= levels[i] + tol:  # behind the clock of its moment: a late packet, most likely of its own
-            order = (cur, cur + 1, cur - 1, cur - 2, cur - 3)
-        else:  # ahead of it: a straggler of a recording before a restart, else an early one of its own
-            order = (cur - 1, cur - 2, cur - 3, cur, cur + 1)
-        for c in order:
-            if 0 <= c < len(recs) and recs[c].lo - tol <= f <= recs[c].hi + tol:
-                if slots[c].free(i, f, rows, arrival_s):
-                    extra[c].append(i)
-                    break
-        else:
-            stray.append(i)
-    if judge and 2 * len(stray) > n:
-        problem = f"the frame times of {len(stray)} of {n} packets follow no steady clock"
+    off = np.flatnonzero(~follows)
+    choice = _place_off_clock(
+        off, np.asarray(piece_current)[piece_of[off]], recs, level, tol, rows, frame_time, arrival_s
+    )
+    extra = [off[choice == c] for c in range(len(recs))]
+    stray = off[choice < 0]
+    if judge and 2 * stray.size > n:
+        problem = f"the frame times of {stray.size} of {n} packets follow no steady clock"
         return _Clock([], empty, problem)
     recordings = []
     for rec, more in zip(recs, extra):
-        idx = np.sort(np.concatenate([rec.rows(), np.asarray(more, np.int64)]))
+        idx = np.sort(np.concatenate([rec.rows(), more]))
         if idx.size:
             recordings.append(idx)
-    return _Clock(recordings, np.asarray(stray, np.int64), None)
+    return _Clock(recordings, stray, None)
 
 
 def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:

@@ -272,7 +272,7 @@ def test_stream_ids_running_out_refuse_new_streams_instead_of_crashing(tmp_path,
         LiveRecorder(tmp_path, port=0, max_streams=0)
     # ids are 16-bit and never reused; make them scarce: 3 ids. The fourth stream evicts the three
     # stray ones, which frees slots but no ids.
-    monkeypatch.setattr(recorder, "MAX_STREAM_ID", 2)
+    monkeypatch.setattr(recorder, "MAX_STREAMS", 3)
     monkeypatch.setattr(recorder, "STRAY_SILENT_S", 0.0)
     rec, port, runner = start_recorder(tmp_path, "ids", max_streams=3)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
