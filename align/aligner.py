@@ -113,7 +113,8 @@ def _content(
     env = ct.band_pass(ct.energy_envelope(x, TARGET_RATE, s0, grid))
     weight = (cover(t[ok], period, grid, opts.max_gap_s) != UNCOVERED).astype(np.float64)
     face = ct.band_pass(np.interp(grid, t[ok], mouth[ok]))
-    est = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s)
+    correlation = ct.CrossCorrelation(env, face, weight)
+    est = correlation.peak(opts.max_offset_s)
     if est is None:
         return None, None, None, mouth, {"note": "too little overlap for content evidence"}
     # The peak inside the search range is only the offset when no higher peak lies beyond it: look at
@@ -127,7 +128,7 @@ def _content(
     # placement (``timecode_evidence``: its lengths differ by more than ``PAIRED_SLACK_S``).
     placed = placement.confidence >= opts.min_confidence
     longer = 0.0 if placed else abs(length_gap_s)
-    wide = ct.cross_correlation_lag(env, face, weight, opts.max_offset_s + max(longer, BEYOND_RANGE_S))
+    wide = correlation.peak(opts.max_offset_s + max(longer, BEYOND_RANGE_S))
     outside = wide is not None and abs(wide.lag_s) > opts.max_offset_s and wide.peak > est.peak
     judged = est
     if wide is not None and not outside and longer > opts.max_offset_s:

@@ -125,55 +125,75 @@ class LagEstimate:
 MAIN_LOBE_S = 0.08
 
 
+class CrossCorrelation:
+    """``sum audio(t) face(t + k)`` at every lag ``k`` of the analysis grid, computed once (one FFT) for
+    the peaks of several search ranges; signals on the analysis grid, ``weight`` (0..1) masks where the
+    face is missing."""
+
+    def __init__(self, audio_sig: np.ndarray, face_sig: np.ndarray, weight: np.ndarray):
+        a = audio_sig * weight
+        f = face_sig * weight
+        self.n = a.size
+        self.norm = float(np.sqrt(np.dot(a, a) * np.dot(f, f)))
+        self.seconds = float(np.sum(weight)) / ANALYSIS_RATE  # where the face is there to compare
+        self.size = 1 << int(np.ceil(np.log2(2 * max(self.n, 1))))
+        self.spec = np.conj(np.fft.rfft(a, self.size)) * np.fft.rfft(f, self.size)
+        # corr[k] = sum a(t) f(t + k), k negative wraps around
+        self.corr = np.fft.irfft(self.spec, self.size) / self.norm if self.norm > 0 else None
+
+    def peak(self, max_lag_s: float, centre_s: float = 0.0) -> LagEstimate | None:
+        """Lag (s) that maximises the correlation within ``centre_s ± max_lag_s``, refined to 0.1 ms."""
+        n, size = self.n, self.size
+        if n < 20 or self.corr is None:
+            return None
+        max_k = int(np.ceil(max_lag_s * ANALYSIS_RATE))
+        c0 = int(round(centre_s * ANALYSIS_RATE))
+        lags = np.arange(c0 - max_k, c0 + max_k + 1)
+        lags = lags[np.abs(lags) < n - 10]
+        if lags.size < 3:
+            return None
+        values = self.corr[lags % size]
+        best = int(np.argmax(values))
+        at_edge = best in (0, lags.size - 1)
+        k_best = int(lags[best])
+        lobe = int(round(MAIN_LOBE_S * ANALYSIS_RATE))
+        far = np.abs(lags - k_best) > lobe
+        runner_up = float(values[far].max()) if far.any() else float("nan")
+        if at_edge:  # the true peak may lie outside the range: no refinement
+            return LagEstimate(k_best / ANALYSIS_RATE, float(values[best]), runner_up, self.seconds, True)
+        refined, value = self._refine(k_best)
+        return LagEstimate(refined / ANALYSIS_RATE, value, runner_up, self.seconds, False)
+
+    def _refine(self, k_best: int) -> tuple[float, float]:
+        """Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
+        the integer peak, using only the bins the band-pass lets through; first on a 1 ms grid over ±1
+        step, then on the 0.1 ms grid around the best point (the series is smooth at this scale)."""
+        size = self.size
+        freqs = np.arange(self.spec.size)
+        keep = freqs <= int(np.ceil(2.0 * BAND_HZ[1] / ANALYSIS_RATE * size)) + 2
+        bins = freqs[keep]
+        weighted = self.spec[keep] * np.where(bins == 0, 1.0, 2.0) / (size * self.norm)
+
+        def series(points: np.ndarray) -> np.ndarray:
+            out = np.zeros(points.size)
+            for lo in range(0, bins.size, 4096):  # blocks keep memory small on hour-long takes
+                kernel = np.exp(2j * np.pi * np.outer(points, bins[lo : lo + 4096]) / size)
+                out += (
+                    kernel.real @ weighted[lo : lo + 4096].real - kernel.imag @ weighted[lo : lo + 4096].imag
+                )
+            return out
+
+        coarse_step = 10
+        coarse = k_best + np.arange(-UPSAMPLE, UPSAMPLE + 1, coarse_step) / UPSAMPLE
+        centre = coarse[int(np.argmax(series(coarse)))]
+        fine = centre + np.arange(-coarse_step, coarse_step + 1) / UPSAMPLE
+        fine_values = series(fine)
+        return float(fine[int(np.argmax(fine_values))]), float(fine_values.max())
+
+
 def cross_correlation_lag(
     audio_sig: np.ndarray, face_sig: np.ndarray, weight: np.ndarray, max_lag_s: float, centre_s: float = 0.0
 ) -> LagEstimate | None:
     """Lag (s) that maximises ``sum audio(t) face(t + lag)`` within ``centre_s ± max_lag_s``, refined
-    to 0.1 ms; signals on the analysis grid, ``weight`` (0..1) masks where the face is missing."""
-    a = audio_sig * weight
-    f = face_sig * weight
-    n = a.size
-    norm = float(np.sqrt(np.dot(a, a) * np.dot(f, f)))
-    if n < 20 or norm <= 0:
-        return None
-    seconds = float(np.sum(weight)) / ANALYSIS_RATE  # where the face is there to compare, not the audio
-    size = 1 << int(np.ceil(np.log2(2 * n)))
-    spec = np.conj(np.fft.rfft(a, size)) * np.fft.rfft(f, size)
-    corr = np.fft.irfft(spec, size) / norm  # corr[k] = sum a(t) f(t + k), k negative wraps around
-    max_k = int(np.ceil(max_lag_s * ANALYSIS_RATE))
-    c0 = int(round(centre_s * ANALYSIS_RATE))
-    lags = np.arange(c0 - max_k, c0 + max_k + 1)
-    lags = lags[np.abs(lags) < n - 10]
-    if lags.size < 3:
-        return None
-    values = corr[lags % size]
-    best = int(np.argmax(values))
-    at_edge = best in (0, lags.size - 1)
-    k_best = int(lags[best])
-    lobe = int(round(MAIN_LOBE_S * ANALYSIS_RATE))
-    far = np.abs(lags - k_best) > lobe
-    runner_up = float(values[far].max()) if far.any() else float("nan")
-    if at_edge:  # the true peak may lie outside the range: no refinement
-        return LagEstimate(k_best / ANALYSIS_RATE, float(values[best]), runner_up, seconds, True)
-    # Band-limited refinement: evaluate the correlation's Fourier series at fractional lags around
-    # the integer peak, using only the bins the band-pass lets through; first on a 1 ms grid over
-    # ±1 step, then on the 0.1 ms grid around the best point (the series is smooth at this scale).
-    freqs = np.arange(spec.size)
-    keep = freqs <= int(np.ceil(2.0 * BAND_HZ[1] / ANALYSIS_RATE * size)) + 2
-    bins = freqs[keep]
-    weighted = spec[keep] * np.where(bins == 0, 1.0, 2.0) / (size * norm)
-
-    def series(points: np.ndarray) -> np.ndarray:
-        out = np.zeros(points.size)
-        for lo in range(0, bins.size, 4096):  # blocks keep memory small on hour-long takes
-            kernel = np.exp(2j * np.pi * np.outer(points, bins[lo : lo + 4096]) / size)
-            out += kernel.real @ weighted[lo : lo + 4096].real - kernel.imag @ weighted[lo : lo + 4096].imag
-        return out
-
-    coarse_step = 10
-    coarse = k_best + np.arange(-UPSAMPLE, UPSAMPLE + 1, coarse_step) / UPSAMPLE
-    centre = coarse[int(np.argmax(series(coarse)))]
-    fine = centre + np.arange(-coarse_step, coarse_step + 1) / UPSAMPLE
-    fine_values = series(fine)
-    refined = float(fine[int(np.argmax(fine_values))])
-    return LagEstimate(refined / ANALYSIS_RATE, float(fine_values.max()), runner_up, seconds, False)
+    to 0.1 ms (``CrossCorrelation.peak`` of one range)."""
+    return CrossCorrelation(audio_sig, face_sig, weight).peak(max_lag_s, centre_s)
