@@ -29,7 +29,7 @@ from capture.command import progress
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
 from dataset.build import NARROWBAND_HZ, is_narrowband
-from dataset.features import FeatureSettings, compute_features, speech_level
+from dataset.features import FeatureSettings, compute_features, gain_for_level, speech_level
 from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
@@ -68,12 +68,14 @@ def animate(
     where: str | Path | None = None,
     style: str | None = None,
     neutral: np.ndarray | None = None,
+    level: float | None = None,
 ) -> np.ndarray:
     """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``
     (read from ``where``, for error messages); pitch normalised with ``speaker``'s statistics, and a
     run with speaker styles animates in ``style`` (default: ``speaker``'s style if the run has it, else
     the mean style). A run normalised to each take's neutral pose is de-normalised on ``neutral`` (the
-    run's channels), else on the training split's offset."""
+    run's channels), else on the training split's offset. ``level``: the audio's active speech level
+    (``speech_level``) when the caller has measured it (None: measured here)."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
@@ -87,7 +89,8 @@ def animate(
     limit = max_frames(payload.get("model_config"))
     if limit is not None:
         window = min(window, limit)
-    feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg)
+    gain = None if level is None else gain_for_level(level, settings)
+    feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg, gain=gain)
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
     item: dict[str, Any] = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
     item["speaker"] = speaker or MEAN
@@ -244,7 +247,7 @@ def _predict_one(
     narrow = is_narrowband(audio, TARGET_RATE)
     peak = float(np.max(np.abs(audio), initial=0.0))
     level = speech_level(audio, TARGET_RATE)
-    values = animate(model, payload, audio, ppg, speaker, where=a, style=style, neutral=neutral)
+    values = animate(model, payload, audio, ppg, speaker, where=a, style=style, neutral=neutral, level=level)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
     clipped = int(np.count_nonzero((outside < 0) | (outside > 1)))
