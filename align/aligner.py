@@ -247,6 +247,22 @@ def _check_range(
         )
 
 
+def _name_best_guess(tid: str, decision: Decision, opts: AlignOptions, warnings: list[str]) -> None:
+    """A warning for a take whose evidence all fell short of ``--min-confidence``: what the most
+    confident of it says, and how to use that offset when the user can confirm it."""
+    guesses = [e for e in decision.alternatives if e.confidence > 0 and e.source != "timecode"]
+    if not guesses:
+        return
+    best = max(guesses, key=lambda e: e.confidence)
+    ms = best.offset_s * 1000.0
+    warnings.append(
+        f"take {tid}: no evidence reached confidence {opts.min_confidence:g}, so the audio stays where it "
+        f"was placed; the best, {best.source}, puts the offset at {ms:+.0f} ms (confidence "
+        f"{best.confidence:.2f}): check the take (s2a-view render), and if that offset is right, align it "
+        f"again with --offset-ms {ms:.0f}"
+    )
+
+
 # Audio placements that come with a frame-index convention: frame i belongs to audio i / fps. Paired
 # data placed by a time column (``paired_time_column``: a generator's or a webcam's own frame times, which
 # may jitter or run at 30.8 fps for "30") keeps those times: the timecode clock.
@@ -369,10 +385,19 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     if content_ev is not None:
         evidence.append(content_ev)
     evidence += _transient_evidence(take, x, s0, usable, mouth, opts)
-    decision = combine(evidence, opts.min_confidence, opts.max_disagreement_s)
+    if opts.offset_s is not None:
+        given = Evidence("given", opts.offset_s, 1.0, 0.0, {"note": "given with --offset-ms"})
+        decision = combine([given, *evidence], opts.min_confidence, opts.max_disagreement_s)
+        # the user's own offset: measured evidence further off is reported (disagreements), not flagged
+        decision.flags = [f for f in decision.flags if f != "evidence_disagrees"]
+    else:
+        decision = combine(evidence, opts.min_confidence, opts.max_disagreement_s)
     flags += decision.flags
     chosen = decision.chosen
+    warned = len(warnings)
     _check_range(tid, content_ev, decision, longer, opts, flags, warnings)
+    if "low_confidence" in flags and len(warnings) == warned:
+        _name_best_guess(tid, decision, opts, warnings)
 
     # Drift (content windows over a long take), applied when it is clearly there.
     drift_info: dict[str, Any] = {"applied": False}

@@ -45,6 +45,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-gap-ms", type=float, default=250.0, help="longest gap filled by interpolation")
     p.add_argument("--max-offset-ms", type=float, default=500.0, help="offset search range (±)")
     p.add_argument(
+        "--offset-ms",
+        type=float,
+        help="use this audio/face offset (ms, > 0: the face lags the audio, as reports give it) for the "
+        "takes given, instead of the measured one; the evidence is still measured and reported",
+    )
+    p.add_argument(
         "--max-disagreement-ms", type=float, default=50.0, help="evidence further apart flags the take"
     )
     p.add_argument("--min-segment-s", type=float, default=1.0, help="shorter segments are left out")
@@ -102,6 +108,7 @@ def _main(args: argparse.Namespace) -> int:
         drift=not args.no_drift,
         use_video=not args.no_video,
         frame_clock=args.frame_clock,
+        offset_s=None if args.offset_ms is None else args.offset_ms / 1000.0,
     )
 
     def show(r: dict) -> None:

@@ -25,7 +25,9 @@ class AlignOptions:
     frames sit on the take clock before the offset is measured: ``timecode`` (the times the take holds,
     from the CSV timecodes or frame log), ``index`` (frame ``i`` at ``i / fps`` after the first frame,
     dropped-frame placeholders counted) or ``auto`` (``index`` when the audio is placed by a paired data
-    set's frame convention, ``timecode`` otherwise; see docs/align.md, "Frame clock").
+    set's frame convention, ``timecode`` otherwise; see docs/align.md, "Frame clock"). ``offset_s``: an
+    offset the user knows (``--offset-ms``), used instead of the one the evidence would choose (the
+    evidence is still measured and reported); None: measured.
     """
 
     fps: float | None = None
@@ -41,6 +43,7 @@ class AlignOptions:
     min_drift_take_s: float = 60.0
     use_video: bool = True
     frame_clock: str = "auto"
+    offset_s: float | None = None
 
     def validate(self) -> None:
         if self.fps is not None and not (1.0 <= self.fps <= 1000.0):
@@ -65,8 +68,14 @@ class AlignOptions:
             value = getattr(self, name) / unit
             if not low <= value <= high:  # also NaN
                 raise InputError(f"{option} must be between {low:g} and {high:g}, not {value:g}")
+        if self.offset_s is not None and not abs(self.offset_s) <= 3600.0:  # also NaN
+            raise InputError(f"--offset-ms must be within ±3600000 ms, not {self.offset_s * 1000:g}")
         if not (0.0 <= self.min_confidence <= 1.0):
             raise InputError("--min-confidence must be between 0 and 1")
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        # without a given offset, the options read as before it existed: takes aligned then stay unchanged
+        d = asdict(self)
+        if d["offset_s"] is None:
+            del d["offset_s"]
+        return d

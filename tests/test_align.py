@@ -187,6 +187,13 @@ def test_frame_clock_follows_the_pairing_convention(neurosync, simulated):
     assert sim["frame_clock"]["clock"] == "timecode"
     with pytest.raises(InputError, match="frame-clock"):
         AlignOptions(frame_clock="sometimes").validate()
+    for bad in (float("nan"), 7200.0):
+        with pytest.raises(InputError, match="--offset-ms"):
+            AlignOptions(offset_s=bad).validate()
+    # without a given offset the options read as before it existed: takes aligned then stay unchanged
+    assert (
+        "offset_s" not in AlignOptions().to_json() and AlignOptions(offset_s=0.0).to_json()["offset_s"] == 0
+    )
 
 
 def test_unrelated_audio_gives_content_no_confidence(neurosync):

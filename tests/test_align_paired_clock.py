@@ -157,5 +157,16 @@ def test_paired_audio_not_cut_to_its_frames_is_flagged(samples, tmp_path, name, 
     rep = json.loads(again.stdout)
     if abs(lead_s) == 1.0:  # a second of speech moved: content finds it
         assert rep["offset_source"] == "content" and rep["offset_s"] == pytest.approx(-lead_s, abs=0.02)
-    else:  # two: the correlation peaks there, barely above a lag a syllable away: kept, flagged
+    else:  # two: the correlation peaks there, barely above a lag a syllable away: kept, flagged, and
+        # the warning names that offset and how to use it once the user has checked it
         assert rep["offset_s"] == 0.0 and "low_confidence" in rep["flags"]
+        (guess,) = [w for w in rep["warnings"] if "--offset-ms" in w]
+        assert "the best, content, puts the offset at" in guess
+        ms = guess.rsplit(" ", 1)[1]
+        assert float(ms) / 1000 == pytest.approx(-lead_s, abs=0.02)
+        given = run_cli(
+            "align", takes / name, "-o", tmp_path / "given", "--json", "--vad", "none", "--offset-ms", ms
+        )
+        rep = json.loads(given.stdout)
+        assert rep["offset_source"] == "given" and rep["offset_s"] == float(ms) / 1000
+        assert "low_confidence" not in rep["flags"] and rep["alternatives"][0]["source"] == "timecode"
