@@ -210,7 +210,11 @@ def wav_declared_frames(path: Path) -> int | None:
 
 
 def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
-    """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...)."""
+    """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...).
+
+    FFmpeg drops the encoder's priming samples at the start (the edit list); the padding that fills the
+    last coded frame (AAC: up to 1023 samples) is cut here, where the container's stream duration ends
+    inside that frame (a duration further off, as an MP3's estimate can be, is left alone)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     path = Path(path)
@@ -222,8 +226,9 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
             stream = streams[stream_index]
             chunks = []
             fmt = None
+            last_frame = 0
             for frame in container.decode(stream):
-                fmt = frame.format
+                fmt, last_frame = frame.format, frame.samples
                 arr = frame.to_ndarray()
                 if fmt.is_planar:
                     arr = arr.T
@@ -231,6 +236,9 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
                     arr = arr.reshape(-1, len(frame.layout.channels))
                 chunks.append(arr)
             rate = stream.rate or stream.codec_context.sample_rate
+            declared = (
+                round(float(stream.duration * stream.time_base) * rate) if stream.duration and rate else None
+            )
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:
@@ -238,6 +246,8 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
     if not chunks:
         raise InputError("audio stream holds no samples", path)
     data = np.concatenate(chunks, axis=0)
+    if declared is not None and 0 < data.shape[0] - declared < last_frame:
+        data = data[:declared]  # the last frame's padding
     name = fmt.name.rstrip("p") if fmt is not None else "flt"
     if name == "s16":
         return Audio(data.astype(np.int16, copy=False), rate, "PCM_16")
