@@ -380,7 +380,10 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
 
     # Evidence.
     placement = timecode_evidence(meta.audio.start_source, paired_excess_s)
-    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, longer, opts)
+    # how far off an unconfirmed placement may be: the length difference, or for paired audio how far it
+    # overshoots or falls short of its frames (a time column may start a second after the audio does)
+    gap = paired_excess_s if abs(paired_excess_s) > abs(longer) else longer
+    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, gap, opts)
     evidence: list[Evidence] = [placement]
     if content_ev is not None:
         evidence.append(content_ev)
@@ -395,7 +398,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     flags += decision.flags
     chosen = decision.chosen
     warned = len(warnings)
-    _check_range(tid, content_ev, decision, longer, opts, flags, warnings)
+    _check_range(tid, content_ev, decision, gap, opts, flags, warnings)
     if "low_confidence" in flags and len(warnings) == warned:
         _name_best_guess(tid, decision, opts, warnings)
 

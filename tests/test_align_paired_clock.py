@@ -170,3 +170,32 @@ def test_paired_audio_not_cut_to_its_frames_is_flagged(samples, tmp_path, name, 
         rep = json.loads(given.stdout)
         assert rep["offset_source"] == "given" and rep["offset_s"] == float(ms) / 1000
         assert "low_confidence" not in rep["flags"] and rep["alternatives"][0]["source"] == "timecode"
+
+
+def test_a_time_column_that_starts_late_is_named_and_found(samples, tmp_path):
+    """A time column starting 1.03 s into the audio (the face really starts with it): the audio falls
+    0.95 s short of where the frames end, so the pairing is no evidence and the search must reach that
+    far. Before, content looked only ±0.75 s, found a wrong peak at +408 ms (confidence 0.08) and the
+    take was flagged without a word; now the warning names +1.030 s and its range finds it."""
+    take = _timed_take(samples, "late", np.arange(1218) / 60.0, "paired_time_column")
+    take.time, take.meta.fps = take.time + 1.03, 60.0  # NeuroSync's frames, their times 1.03 s late
+    write_take(take, tmp_path / "takes")
+    proc = run_cli("align", tmp_path / "takes" / "late", "-o", tmp_path / "a", "--json", "--vad", "none")
+    rep = json.loads(proc.stdout)
+    assert rep["offset_s"] == 0.0 and "low_confidence" in rep["flags"], rep
+    (hint,) = [w for w in rep["warnings"] if "--max-offset-ms" in w]
+    assert float(hint.split("at an offset of ")[1].split(" s,")[0]) == pytest.approx(1.03, abs=0.02)
+    again = run_cli(
+        "align",
+        tmp_path / "takes" / "late",
+        "-o",
+        tmp_path / "b",
+        "--json",
+        "--vad",
+        "none",
+        "--max-offset-ms",
+        hint.rsplit(" ", 1)[1],
+    )
+    rep = json.loads(again.stdout)
+    assert rep["offset_source"] == "content" and rep["offset_s"] == pytest.approx(1.03, abs=0.02), rep
+    assert _jaw_error(samples, tmp_path / "b" / "late") < 0.02
