@@ -48,6 +48,22 @@ def _jaw_error(samples: Path, aligned: Path) -> float:
     return float(np.mean(np.abs(take.channel("jawOpen") - np.interp(at, np.arange(jaw.size) / 60.0, jaw))))
 
 
+def _align_as_hinted(take: Path, out: Path, offset_s: float) -> tuple[dict, dict]:
+    """Align ``take`` with the default range: kept at 0, flagged, with a warning naming ``offset_s``
+    outside the range; then again into ``out`` with the ``--max-offset-ms`` the warning gives. Returns
+    both reports."""
+    first = json.loads(
+        run_cli("align", take, "-o", out.with_name(out.name + "-first"), "--json", "--vad", "none").stdout
+    )
+    assert first["offset_s"] == 0.0 and "low_confidence" in first["flags"], first
+    (hint,) = [w for w in first["warnings"] if "--max-offset-ms" in w]
+    assert float(hint.split("at an offset of ")[1].split(" s,")[0]) == pytest.approx(offset_s, abs=0.02)
+    again = run_cli(
+        "align", take, "-o", out, "--json", "--vad", "none", "--max-offset-ms", hint.rsplit(" ", 1)[1]
+    )
+    return first, json.loads(again.stdout)
+
+
 def test_frames_placed_by_a_time_column_keep_their_times(samples, tmp_path):
     """A webcam-like clock (steps of 30-37.8 ms, 29.5 fps on average, for "30 fps") and one running at
     30.8 fps: placed by index (as align did with every paired take) the face drifts by 0.3-0.5 s over
@@ -137,24 +153,8 @@ def test_paired_audio_not_cut_to_its_frames_is_flagged(samples, tmp_path, name, 
     takes = tmp_path / "takes"
     args = [csv, "--audio", wav, "--audio-pairing", "frame-index", "-o", takes, "--id", name]
     run_cli("capture", "import", *args, check=True)
-    proc = run_cli("align", takes / name, "-o", tmp_path / "aligned", "--json", "--vad", "none")
-    rep = json.loads(proc.stdout)
-    assert rep["audio_start_source"] == "paired_frame_convention"
-    assert rep["offset_s"] == 0.0 and "low_confidence" in rep["flags"], rep
-    (hint,) = [w for w in rep["warnings"] if "--max-offset-ms" in w]
-    assert float(hint.split("at an offset of ")[1].split(" s,")[0]) == pytest.approx(-lead_s, abs=0.02)
-    again = run_cli(
-        "align",
-        takes / name,
-        "-o",
-        tmp_path / "wide",
-        "--json",
-        "--vad",
-        "none",
-        "--max-offset-ms",
-        hint.rsplit(" ", 1)[1],
-    )
-    rep = json.loads(again.stdout)
+    first, rep = _align_as_hinted(takes / name, tmp_path / "wide", -lead_s)
+    assert first["audio_start_source"] == "paired_frame_convention"
     if abs(lead_s) == 1.0:  # a second of speech moved: content finds it
         assert rep["offset_source"] == "content" and rep["offset_s"] == pytest.approx(-lead_s, abs=0.02)
     else:  # two: the correlation peaks there, barely above a lag a syllable away: kept, flagged, and
@@ -180,22 +180,6 @@ def test_a_time_column_that_starts_late_is_named_and_found(samples, tmp_path):
     take = _timed_take(samples, "late", np.arange(1218) / 60.0, "paired_time_column")
     take.time, take.meta.fps = take.time + 1.03, 60.0  # NeuroSync's frames, their times 1.03 s late
     write_take(take, tmp_path / "takes")
-    proc = run_cli("align", tmp_path / "takes" / "late", "-o", tmp_path / "a", "--json", "--vad", "none")
-    rep = json.loads(proc.stdout)
-    assert rep["offset_s"] == 0.0 and "low_confidence" in rep["flags"], rep
-    (hint,) = [w for w in rep["warnings"] if "--max-offset-ms" in w]
-    assert float(hint.split("at an offset of ")[1].split(" s,")[0]) == pytest.approx(1.03, abs=0.02)
-    again = run_cli(
-        "align",
-        tmp_path / "takes" / "late",
-        "-o",
-        tmp_path / "b",
-        "--json",
-        "--vad",
-        "none",
-        "--max-offset-ms",
-        hint.rsplit(" ", 1)[1],
-    )
-    rep = json.loads(again.stdout)
+    _, rep = _align_as_hinted(tmp_path / "takes" / "late", tmp_path / "b", 1.03)
     assert rep["offset_source"] == "content" and rep["offset_s"] == pytest.approx(1.03, abs=0.02), rep
     assert _jaw_error(samples, tmp_path / "b" / "late") < 0.02
