@@ -7,8 +7,11 @@ Checkpoints are plain dicts of config and tensors, read with ``torch.load(weight
 
 from __future__ import annotations
 
+import pickle
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -67,16 +70,43 @@ def save_bottleneck(model: BottleneckPPG, path: str | Path) -> None:
     torch.save(payload, str(path))
 
 
+ZIP_MAGIC = b"PK\x03\x04"  # torch.save writes zip archives (since PyTorch 1.6)
+
+
+def load_plain(path: str | Path, what: str) -> Any:
+    """What ``torch.save`` wrote to ``path``, read with ``weights_only=True``: tensors and plain data
+    only, never pickled code. ``what`` names the file in errors ("PPG checkpoint"): a file that is not a
+    torch.save archive, one that holds other Python objects, or a damaged one is a one-line error, and
+    torch's warnings about the file's pickle protocol are not printed."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise InputError(f"cannot read the {what}: {exc.strerror or exc}", path) from None
+    if head != ZIP_MAGIC:
+        raise InputError(f"not a {what} (not an archive torch.save writes)", path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return torch.load(str(path), map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise InputError(
+            f"not a {what}: it holds Python objects other than tensors and plain data (refused; nothing "
+            "in it was run)",
+            path,
+        ) from None
+    except Exception as exc:  # noqa: BLE001 - torch raises many kinds of error for a damaged file
+        msg = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"not a readable {what}, damaged or truncated? ({msg})", path) from None
+
+
 def load_bottleneck(path: str | Path) -> BottleneckPPG:
     """The ``BottleneckPPG`` of a checkpoint, in eval mode. Never unpickles code (``weights_only``)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("PPG checkpoint not found", path)
-    try:
-        payload = torch.load(str(path), map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds of error for a bad file
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"not a loadable PPG checkpoint ({msg})", path) from None
+    payload = load_plain(path, "PPG checkpoint")
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f'not a bottleneck PPG checkpoint (expected "format": "{CHECKPOINT_FORMAT}")', path)
     try:

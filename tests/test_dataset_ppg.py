@@ -80,8 +80,23 @@ def test_checkpoint_with_pickled_code_is_refused(takes, tmp_path):
     proc = run_cli(
         "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "bottleneck", "--ppg-model", ckpt
     )
-    assert proc.returncode == 1 and "not a loadable PPG checkpoint" in proc.stderr
+    assert proc.returncode == 1 and "holds Python objects other than tensors" in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+    assert not marker.exists()
+    # a plain pickle (not a torch.save archive) with the same payload, and a WAV given by mistake
+    import pickle
+
+    ckpt.write_bytes(pickle.dumps(Evil(), protocol=4))
+    wav = next(Path(takes).rglob("*.wav"))
+    for model, needle in (
+        (ckpt, "not an archive torch.save writes"),
+        (wav, "not an archive torch.save writes"),
+    ):
+        proc = run_cli(
+            "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "bottleneck", "--ppg-model", model
+        )
+        assert proc.returncode == 1 and needle in proc.stderr and "PPG checkpoint" in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1
     assert not marker.exists()
 
 

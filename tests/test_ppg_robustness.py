@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
+import torch
 from conftest import run_cli
 from dataset_helpers import speech_like
 
@@ -92,6 +93,39 @@ def test_bad_json_alignment_names_file_and_field(tmp_path, words, message):
     with pytest.raises(InputError) as err:
         find_alignments([tmp_path])
     assert str(err.value).startswith(f"{path}: utterance 'utt'") and message in str(err.value)
+
+
+def test_alignment_json_in_other_encodings_or_unreadable_is_never_dropped_silently(tmp_path):
+    """A BOM or UTF-16 (Windows editors) is read; a truncated file, one nested too deeply and numbers
+    too large for a float are named, never skipped without a word or a traceback."""
+    good = json.dumps({"utt": {"words": _phone()}})
+    for name, raw in (("bom", b"\xef\xbb\xbf" + good.encode()), ("u16", good.encode("utf-16"))):
+        _wav(tmp_path / name / "utt.wav")
+        (tmp_path / name / "align.json").write_bytes(raw)
+        assert [w.name for w, _ in find_alignments([tmp_path / name])] == ["utt.wav"]
+    _grid(tmp_path / "mixed", "other")
+    _wav(tmp_path / "mixed" / "utt.wav")
+    (tmp_path / "mixed" / "align.json").write_text(good[:-9])
+    (tmp_path / "mixed" / "deep.json").write_text("[" * 100_000)
+    warnings: list[str] = []
+    assert [w.name for w, _ in find_alignments([tmp_path / "mixed"], warnings)] == ["other.wav"]
+    assert any("align.json: not valid JSON" in w for w in warnings), warnings
+    assert any("deep.json: nested too deeply" in w for w in warnings), warnings
+    path = _json(tmp_path / "big", _phone())
+    path.write_text(path.read_text().replace('"end": 0.5', '"end": 1' + "0" * 400))
+    with pytest.raises(InputError, match="'end' must be a finite number of seconds"):
+        find_alignments([path])
+
+
+def test_ppg_never_overwrites_a_file_that_is_not_a_ppg_checkpoint(tmp_path):
+    _grid(tmp_path / "d", "utt")
+    (tmp_path / "run").mkdir()
+    best = tmp_path / "run" / "best.pt"
+    torch.save({"format": "s2a-train-checkpoint", "version": 1}, best)
+    before = best.read_bytes()
+    proc = run_cli("train", "ppg", "--data", tmp_path / "d", "-o", best, "--steps", "1")
+    _one_line_error(proc, str(best), "exists and is not a PPG checkpoint")
+    assert best.read_bytes() == before
 
 
 def test_bad_json_is_one_line_error_on_the_command_line(tmp_path):

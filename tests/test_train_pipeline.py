@@ -328,7 +328,7 @@ def test_ablations_predict_and_export(ds, tmp_path):
         (["fit", "--data", "{ds}", "-o", "{tmp}/r", "--set", "arch.heads=3"], "must be a multiple of heads"),
         (["fit", "--data", "{ds}", "-o", "{tmp}/r", "--set", "arch.d_model=0"], "must be a positive"),
         (["fit", "--data", "{ds}", "-o", "{tmp}/r", "--set", "arch.dropout=1"], "must be in [0, 1)"),
-        (["eval", "{tmp}/bad.pt", "--data", "{ds}"], "not a readable checkpoint"),
+        (["eval", "{tmp}/bad.pt", "--data", "{ds}"], "not a training checkpoint"),
         (["predict", "{tmp}/nothing", "{tmp}/a.wav", "-o", "{tmp}/o.csv"], "run folder not found"),
     ],
 )

@@ -25,6 +25,7 @@ from capture.atomic import partial_path, write_json_atomic
 from capture.errors import InputError
 from capture.file_lock import try_lock
 from capture.take import MAX_FPS
+from dataset.bottleneck import load_plain
 from dataset.normalize import FeatureNormalizer, Normalizer
 
 FORMAT = "s2a-train-checkpoint"
@@ -125,10 +126,7 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise InputError("checkpoint not found", path)
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is bad input here
-        raise InputError(f"not a readable checkpoint ({type(exc).__name__})", path) from None
+    payload = load_plain(path, "training checkpoint")
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise InputError(f'not a training checkpoint (expected "format": "{FORMAT}")', path)
     if payload.get("version") != VERSION:

@@ -35,8 +35,9 @@ from capture import find_takes, read_audio, read_take
 from capture.command import progress
 from capture.errors import InputError
 from capture.importer import AUDIO_SUFFIXES as SPEECH_SUFFIXES
+from capture.paired import read_text
 from capture.textgrid import read_textgrid
-from dataset.bottleneck import BottleneckConfig, BottleneckPPG, save_bottleneck
+from dataset.bottleneck import CHECKPOINT_FORMAT, BottleneckConfig, BottleneckPPG, load_plain, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
 from dataset.phones import phone_index
 from dataset.ppg import PocketsphinxExtractor
@@ -73,9 +74,28 @@ def _show(value: object) -> str:
 
 
 def _seconds(value: object, where: str, path: Path) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    seconds = math.nan
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        try:
+            seconds = float(value)
+        except OverflowError:  # an integer literal too long for a float (1e400 written out)
+            pass
+    if not math.isfinite(seconds):
         raise InputError(f"{where} must be a finite number of seconds, found {_show(value)}", path)
-    return float(value)
+    return seconds
+
+
+def _read_json(path: Path) -> tuple[object, str | None]:
+    """The JSON document in ``path`` (UTF-8, UTF-16 or UTF-32 text as ``capture.paired.read_text``
+    reads it), or None and why it could not be read."""
+    try:
+        return json.loads(read_text(path)), None
+    except InputError as exc:
+        return None, str(exc).removeprefix(f"{path}: ")
+    except json.JSONDecodeError as exc:
+        return None, f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})"
+    except RecursionError:
+        return None, "nested too deeply to read"
 
 
 def _json_segments(words: object, stem: str, path: Path) -> tuple[Segments, list[str]]:
@@ -168,9 +188,9 @@ def find_alignments(
                 _check_segments(segs, [f"tier 'phones' interval {k + 1}" for k in range(len(segs))], f)
                 add(_audio_beside(f), segs, f)
                 continue
-            try:
-                data = json.loads(f.read_text())
-            except (json.JSONDecodeError, UnicodeDecodeError):
+            data, problem = _read_json(f)
+            if problem is not None:  # an alignment or not, a file the user gave is never dropped silently
+                warnings.append(f"{f}: {problem}: skipped")
                 continue
             if not isinstance(data, dict):
                 continue
@@ -389,6 +409,13 @@ def _check_writable(out: Path) -> None:
     """Refuse an output path the checkpoint cannot be written to before training, not after."""
     if out.is_dir():
         raise InputError("is a folder; -o names the checkpoint file to write (e.g. ppg.pt)", out)
+    if out.exists():  # replaced only when it is an earlier PPG checkpoint (never a run's best.pt, say)
+        try:
+            payload = load_plain(out, "PPG checkpoint")
+        except InputError:
+            payload = None
+        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+            raise InputError("exists and is not a PPG checkpoint: choose another -o, or remove it first", out)
     existing = next(p for p in out.parents if p.exists())
     if not existing.is_dir():
         raise InputError(f"cannot write the checkpoint: {existing} is a file, not a folder", out)
