@@ -80,8 +80,10 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     """Decode an audio file (or the audio track of a video) at its own rate and format.
 
     With ``repairs`` (a take's repair list), NaN or infinite float samples are set to 0 (repair
-    ``bad_audio``) and a WAV holding fewer samples than its header declares is noted (repair
-    ``truncated_audio``); without it, non-finite samples are an ``InputError``."""
+    ``bad_audio``), a WAV holding fewer samples than its header declares is noted (repair
+    ``truncated_audio``) and one whose header declares none although samples follow is read to its end
+    (repair ``unfinished_audio``); without it, non-finite samples and unfinished WAVs are an
+    ``InputError``."""
     path = Path(path)
     if not path.is_file():
         raise InputError("audio file not found", path)
@@ -97,7 +99,7 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
         except (sf.LibsndfileError, RuntimeError) as exc:
             raise InputError(f"audio is unreadable: {exc}", path) from None
         if data.shape[0] == 0:
-            raise InputError("audio file holds no samples", path)
+            return _read_unfinished_wav(path, repairs)
         audio = check_samples(Audio(data, rate, subtype), path, repairs)
         declared = wav_declared_frames(path)
         if repairs is not None and declared is not None and declared > audio.frames:
@@ -111,6 +113,31 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
             )
         return audio
     return check_samples(decode_with_pyav(path), path, repairs)
+
+
+def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
+    """A WAV whose header declares no samples: an error, unless samples follow the header (a recorder
+    that crashed before it wrote the sizes) and ``repairs`` is given: then they are read (FFmpeg reads
+    to the end of the file) and the repair ``unfinished_audio`` says so."""
+    extra = wav_unfinished_bytes(path)
+    if not extra:
+        raise InputError("audio file holds no samples", path)
+    if repairs is None:
+        raise InputError(
+            f"the WAV header declares no samples, but {extra} bytes follow it (a recording that was not "
+            "finished?)",
+            path,
+        )
+    audio = check_samples(decode_with_pyav(path), path, repairs)
+    repairs.append(
+        {
+            "line": None,
+            "kind": "unfinished_audio",
+            "message": f"{path.name}: the WAV header declares no samples (a recorder that did not finish the "
+            f"file?): the {audio.duration_s:.3f} s of samples after it are used",
+        }
+    )
+    return audio
 
 
 def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
@@ -184,9 +211,9 @@ def damaged_samples(x: np.ndarray) -> np.ndarray:
     return cand[a[cand] > SPIKE_FACTOR * neighbours.max(axis=1)]
 
 
-def wav_declared_frames(path: Path) -> int | None:
-    """Sample frames a RIFF WAV's ``data`` chunk header declares; ``None`` for other files, RF64 and
-    streamed WAVs whose header leaves the size open."""
+def _wav_data_chunk(path: Path) -> tuple[int, int, int | None] | None:
+    """Where a RIFF WAV's ``data`` chunk starts (byte offset of its samples), the size its header
+    declares, and the block alignment of its ``fmt`` chunk; ``None`` for other files."""
     try:
         with open(path, "rb") as f:
             if f.read(4) != b"RIFF" or f.read(4) == b"" or f.read(4) != b"WAVE":
@@ -201,12 +228,29 @@ def wav_declared_frames(path: Path) -> int | None:
                     block_align = struct.unpack("<12xH", f.read(14))[0]
                     size -= 14
                 elif chunk == b"data":
-                    if not block_align or size in (0, 0xFFFFFFFF):
-                        return None
-                    return size // block_align
+                    return f.tell(), size, block_align
                 f.seek(size + (size & 1), 1)
     except OSError:
         return None
+
+
+def wav_declared_frames(path: Path) -> int | None:
+    """Sample frames a RIFF WAV's ``data`` chunk header declares; ``None`` for other files, RF64 and
+    streamed or unfinished WAVs whose header leaves the size open (0 or 0xFFFFFFFF)."""
+    found = _wav_data_chunk(path)
+    if found is None:
+        return None
+    _, size, block_align = found
+    return None if not block_align or size in (0, 0xFFFFFFFF) else size // block_align
+
+
+def wav_unfinished_bytes(path: Path) -> int:
+    """Bytes of samples after a WAV ``data`` chunk whose header declares none: what a recorder that
+    stopped before it wrote the sizes leaves (0 for other files)."""
+    found = _wav_data_chunk(path)
+    if found is None or found[1] != 0:
+        return 0
+    return max(path.stat().st_size - found[0], 0)
 
 
 def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:

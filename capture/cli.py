@@ -34,7 +34,14 @@ TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV
 # the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
 # lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
 # time column read as frame numbers.
-WARN_REPAIRS = ("timecode_rate", "length_mismatch", "truncated_audio", "no_audio", "frame_numbers")
+WARN_REPAIRS = (
+    "timecode_rate",
+    "length_mismatch",
+    "truncated_audio",
+    "unfinished_audio",
+    "no_audio",
+    "frame_numbers",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -12,6 +12,7 @@ import pytest
 import soundfile as sf
 
 from capture import FrameStatus, InputError, read_livelink_csv, read_take, read_take_folder, write_take
+from capture.audio_io import read_audio
 from tests.conftest import run_cli
 
 T_ID = "20250106_SimSpk01_1"
@@ -229,6 +230,26 @@ def test_truncated_wav_is_noted_with_both_durations(take_dir):
     (message,) = repairs_of(take, "truncated_audio")
     full = (len(data) - 100) / 4 / 44100
     assert f"header declares {full:.1f}" in message and f"holds {full / 2:.1f}" in message
+
+
+def test_unfinished_wav_is_read_to_its_end(take_dir, tmp_path):
+    """A recorder that crashed before it wrote the sizes leaves RIFF and data sizes at 0: libsndfile
+    reads no samples; the samples after the header are used, with a repair that says so, and the
+    strict reader (no repair list) names what it found."""
+    wav = float_wav(take_dir, {})
+    data, rate = sf.read(wav, dtype="float32")
+    raw = bytearray(wav.read_bytes())
+    at = raw.index(b"data")
+    raw[4:8] = raw[at + 4 : at + 8] = bytes(4)
+    wav.write_bytes(raw)
+    take = read_take_folder(take_dir)
+    (message,) = repairs_of(take, "unfinished_audio")
+    assert f"the {data.shape[0] / rate:.3f} s of samples after it are used" in message
+    np.testing.assert_array_equal(take.audio.samples[:, 0], data)
+    with pytest.raises(InputError, match="declares no samples, but .* bytes follow it"):
+        read_audio(wav)
+    proc = run_cli("capture", "import", take_dir, "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "unfinished_audio" not in proc.stderr and "did not finish" in proc.stderr
 
 
 # 9: output paths
