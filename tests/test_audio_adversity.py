@@ -199,11 +199,10 @@ def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp
     voice[5000:5011] = np.nan
     sf.write(tmp_path / "nan.wav", voice, 16000, subtype="FLOAT")
     sf.write(tmp_path / "silent.wav", np.zeros(32000, np.float32), 16000, subtype="FLOAT")
+    sf.write(tmp_path / "dc.wav", np.full(32000, 0.5, np.float32), 16000, subtype="FLOAT")
     said: list[str] = []
-    rows = predict(
-        ridge_run / "run", [tmp_path / "nan.wav", tmp_path / "silent.wav"], tmp_path / "o", say=said.append
-    )
-    nan, silent = rows
+    audio = [tmp_path / "nan.wav", tmp_path / "silent.wav", tmp_path / "dc.wav"]
+    nan, silent, dc = predict(ridge_run / "run", audio, tmp_path / "o", say=said.append)
     assert "error" not in nan and nan["repairs"] == [
         {"kind": "bad_audio", "message": "nan.wav: 11 NaN or infinite samples set to 0"}
     ]
@@ -212,6 +211,9 @@ def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp
     text = "\n".join(said)
     assert "warning: " in text and "nan.wav: 11 NaN or infinite samples set to 0 (bad_audio" in text
     assert "silent.wav: the audio is silent (all zero, under -70 dBFS)" in text
+    # a constant offset is no sound either, but not "all zero"
+    assert dc["silent"] and dc["peak_dbfs"] is None and dc["dc_offset_dbfs"] == -6.0
+    assert "dc.wav: the audio is silent (a constant offset of -6.0 dBFS and nothing else" in text
     # the command line exits 0 with the repair in its JSON
     proc = run_cli(
         "train", "predict", ridge_run / "run", tmp_path / "nan.wav", "-o", tmp_path / "x.csv", "--json"

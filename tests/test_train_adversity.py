@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -219,6 +220,9 @@ def test_write_failures_name_the_file_and_leave_the_old_one(tmp_path):
     )
     reason = "[enforce fail at inline_container.cc:672] . unexpected pos"
     assert str(err) == f"{target}: cannot write ppg.pt: {reason}"
+    # a file system with no free space that is not full: /proc (0 bytes free) names its own cause
+    err = write_error(FileNotFoundError(2, "No such file or directory"), Path("/proc/m.onnx"))
+    assert str(err) == "/proc/m.onnx: cannot write m.onnx: No such file or directory"
 
 
 FULL_DISK = r"""

@@ -46,6 +46,17 @@ def test_config_errors_name_the_field(tmp_path, text, sets, needle):
         resolve_config(f, sets)
 
 
+def test_config_files_saved_by_windows_editors_are_read(tmp_path):
+    """Notepad's UTF-8 with a byte-order mark, and "Unicode" (UTF-16), for TOML and a JSON config."""
+    for name, raw in (
+        ("bom.toml", "\ufefflr = 0.002\n".encode("utf-8")),
+        ("u16.toml", "lr = 0.002\n".encode("utf-16")),
+        ("bom.json", '\ufeff{"lr": 0.002}'.encode("utf-8")),
+    ):
+        (tmp_path / name).write_bytes(raw)
+        assert resolve_config(tmp_path / name, [])["lr"] == 0.002, name
+
+
 def test_error_tally_matches_hand_computation():
     channels = ["jawOpen", "mouthClose", "mouthFunnel"]
     true = np.zeros((4, 3))

@@ -37,11 +37,14 @@ FULL_BYTES = 1 << 20  # a file system with less than this free after a failed wr
 
 def disk_full(exc: BaseException, folder: Path) -> bool:
     """Whether a failed write failed because the file system is full: ENOSPC, its message (torch's
-    writer raises a RuntimeError with the C library's text, or none at all), or no space left."""
+    writer raises a RuntimeError with the C library's text, or none at all), or, for an error that
+    names no cause, no space left on the folder's file system."""
     if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return True
     if "no space left" in str(exc).lower() or "quota exceeded" in str(exc).lower():
         return True
+    if isinstance(exc, OSError) and exc.errno is not None:  # another cause the system named (ENOENT, EROFS)
+        return False
     try:
         return shutil.disk_usage(folder).free < FULL_BYTES
     except OSError:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from capture.errors import InputError
+from capture.paired import read_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -156,13 +157,11 @@ def read_config_file(path: Path) -> dict[str, Any]:
     if path.is_dir():
         raise InputError("config path is a folder, not a TOML file (or a run's config.json)", path)
     try:
-        text = path.read_text()
+        text = read_text(path)  # UTF-8 with or without a byte-order mark (Notepad), UTF-16/32 with one
     except FileNotFoundError:
         raise InputError("config file not found", path) from None
     except OSError as exc:
         raise InputError(f"cannot read config file: {exc.strerror}", path) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", path) from None
     if path.suffix.lower() == ".json":
         try:
             data = json.loads(text)

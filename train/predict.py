@@ -201,7 +201,10 @@ def predict(
         for r in result["repairs"]:
             say(f"warning: {a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
         if result["silent"]:
-            level = "all zero" if result["peak_dbfs"] is None else f"peak {result['peak_dbfs']:.1f} dBFS"
+            level = f"peak {result['peak_dbfs']:.1f} dBFS"
+            if result["peak_dbfs"] is None:
+                dc = result["dc_offset_dbfs"]
+                level = "all zero" if dc is None else f"a constant offset of {dc:.1f} dBFS and nothing else"
             say(
                 f"warning: {a}: the audio is silent ({level}, under -70 dBFS): there is no speech to "
                 "animate, the face stays still"
@@ -243,7 +246,9 @@ def _predict_one(
     raw = read_audio(a, repairs)
     if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
         raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
-    audio = to_16k_mono(raw, str(a))
+    notes: list[dict[str, Any]] = []
+    audio = to_16k_mono(raw, str(a), notes)
+    dc = next((n["dc_offset_dbfs"] for n in notes if n["kind"] == "audio_dc"), None)
     narrow = is_narrowband(audio, TARGET_RATE)
     peak = float(np.max(np.abs(audio), initial=0.0))
     level = speech_level(audio, TARGET_RATE)
@@ -272,6 +277,7 @@ def _predict_one(
         "narrowband": narrow,
         "silent": peak < SILENT_PEAK,
         "peak_dbfs": round(20 * math.log10(peak), 1) if peak > 0 else None,
+        "dc_offset_dbfs": dc,
         "speech_level_dbfs": None if level is None else round(level, 1),
         "repairs": [{"kind": r["kind"], "message": r["message"]} for r in repairs],
     }
