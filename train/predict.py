@@ -201,10 +201,10 @@ def predict(
         for r in result["repairs"]:
             say(f"warning: {a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
         if result["silent"]:
-            level = f"peak {result['peak_dbfs']:.1f} dBFS"
-            if result["peak_dbfs"] is None:
-                dc = result["dc_offset_dbfs"]
-                level = "all zero" if dc is None else f"a constant offset of {dc:.1f} dBFS and nothing else"
+            peak, dc = result["peak_dbfs"], result["dc_offset_dbfs"]
+            level = "all zero" if dc is None else f"a constant offset of {dc:.1f} dBFS and nothing else"
+            if peak is not None:
+                level = f"peak {peak:.1f} dBFS"
             say(
                 f"warning: {a}: the audio is silent ({level}, under -70 dBFS): there is no speech to "
                 "animate, the face stays still"
