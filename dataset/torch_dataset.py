@@ -5,6 +5,13 @@ Shards are divided among DDP ranks (``torch.distributed``, when initialised) and
 every consumer reads every shard and keeps every ``consumers``-th sample instead. Samples pass through
 a shuffle buffer (seeded by seed, epoch and consumer), are normalised with the manifest's statistics,
 and are cropped or padded to ``window`` frames with a mask (padding frames are masked out).
+
+Each sample is checked as it is decoded (cheaply: on the arrays already in memory), since the readers
+compare only a shard's size with the manifest, not its sha256: its members are there, its json is an
+object with a usable ``neutral`` and ``speaker``, the animation is (frames, channels) float, the mask
+(frames,) bool and each feature (frames, dim) float, with the manifest's frames, channels and dims, and
+every value is finite (the build writes 0, never NaN, at masked frames). A damaged sample is an
+``InputError`` naming the shard and the sample key.
 """
 
 from __future__ import annotations
@@ -75,8 +82,12 @@ class ShardDataset(IterableDataset):
         self.shards = [s["name"] for s in shards_of(self.manifest, split)]
         self.check_shards()
         self.listed: dict[str, set[str]] = {}  # sample keys by shard, as the manifest lists them
+        self.frames: dict[str, int] = {}  # frames of each sample, as the manifest lists them
+        self.shard_of: dict[str, str] = {}
         for sample in self.manifest["samples"]:
             self.listed.setdefault(sample["shard"], set()).add(sample["key"])
+            self.frames[sample["key"]] = sample["frames"]
+            self.shard_of[sample["key"]] = sample["shard"]
         self.window = window
         self.features = list(features) if features is not None else names
         self.shuffle_buffer = shuffle_buffer
@@ -165,17 +176,85 @@ class ShardDataset(IterableDataset):
                     yield key, members
                 i += 1
 
+    def damaged(self, key: str, what: str) -> InputError:
+        """The error for sample ``key`` whose contents are not what the manifest promises."""
+        shard = self.shard_of.get(key)
+        return InputError(
+            f"sample {key}: {what} (a damaged shard? s2a-dataset validate {self.ds})",
+            self.ds / shard if shard is not None else self.ds,
+        )
+
+    def check_sample(
+        self, key: str, members: dict[str, bytes]
+    ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """(metadata, animation, mask, {feature: array}) of a sample, checked (see the module doc): a
+        shard damaged without changing its size is an error here, never NaN losses, crashes deep in
+        training or silently wrong scores."""
+        need = ["json", "anim.npy", "mask.npy", *(f"{name}.npy" for name in self.features)]
+        missing = [m for m in need + (["flac"] if self.audio else []) if m not in members]
+        if missing:
+            raise self.damaged(key, f"lacks the member(s) {', '.join(missing)}")
+        try:
+            meta = json.loads(members["json"])
+        except (ValueError, RecursionError):  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            raise self.damaged(key, "its json member is not valid JSON") from None
+        if not isinstance(meta, dict):
+            raise self.damaged(key, "its json member is not a JSON object")
+        n_channels = len(self.manifest["channels"])
+        neutral = meta.get("neutral")
+        if neutral is not None and not (
+            isinstance(neutral, list)
+            and len(neutral) == n_channels
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in neutral)
+            and np.all(np.isfinite(np.asarray(neutral, np.float64)))
+        ):
+            raise self.damaged(key, f"its json's neutral is not null or {n_channels} finite numbers")
+        if meta.get("speaker") is not None and not isinstance(meta["speaker"], str):
+            raise self.damaged(key, "its json's speaker is not a string")
+        frames = self.frames.get(key)
+        dims = self.manifest["features"]["dims"]
+        arrays = {}
+        for name, shape in (
+            ("anim", (frames, n_channels)),
+            ("mask", (frames,)),
+            *((name, (frames, dims[name])) for name in self.features),
+        ):
+            x = self._array(key, members, name)
+            kind = "b" if name == "mask" else "f"
+            if x.dtype.kind != kind or x.shape != shape:
+                want = "bool" if kind == "b" else "float"
+                raise self.damaged(
+                    key,
+                    f"{name}.npy is {x.dtype} of shape {_shape(x.shape)}, "
+                    f"expected {want} of shape {_shape(shape)}",
+                )
+            if kind == "f":
+                bad = ~np.isfinite(x)
+                if bad.any():
+                    raise self.damaged(
+                        key,
+                        f"{name}.npy holds {int(bad.sum())} NaN or infinite value(s) "
+                        f"(first at frame {int(np.argwhere(bad)[0][0])})",
+                    )
+            arrays[name] = x
+        anim, mask = arrays.pop("anim"), arrays.pop("mask")
+        return meta, anim, mask, arrays
+
+    def _array(self, key: str, members: dict[str, bytes], name: str) -> np.ndarray:
+        try:
+            return decode_npy(members[f"{name}.npy"], f"{name}.npy")
+        except InputError as exc:
+            raise self.damaged(key, str(exc)) from None
+
     def _decode(self, key: str, members: dict[str, bytes], rng: random.Random) -> dict[str, Any]:
-        meta = json.loads(members["json"])
-        anim = decode_npy(members["anim.npy"], f"{key}.anim.npy")
-        mask = decode_npy(members["mask.npy"], f"{key}.mask.npy").astype(bool)
+        meta, anim, mask, feats = self.check_sample(key, members)
         if self.normalize:
             neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
             anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * mask[:, None]
         item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask}
         item["speaker"] = str(meta.get("speaker") or "")
         for name in self.features:
-            x = decode_npy(members[f"{name}.npy"], f"{key}.{name}.npy").astype(np.float32)
+            x = feats[name].astype(np.float32)
             if self.normalize:
                 x = self.feature_normalizer.apply(name, x, meta.get("speaker"))
             item[name] = x
@@ -192,9 +271,12 @@ class ShardDataset(IterableDataset):
                     v = np.concatenate([v, pad])
                 item[k] = v
         if self.audio:
-            x, rate = decode_flac(members["flac"])
+            try:
+                x, rate = decode_flac(members["flac"])
+            except InputError as exc:
+                raise self.damaged(key, str(exc)) from None
             if self.window is not None:
-                fps = meta["fps"]
+                fps = self.manifest["fps"]  # every sample's (s2a-dataset validate checks)
                 s0 = int(round(start * rate / fps))
                 n_s = int(round(self.window * rate / fps))
                 x = np.pad(x[s0 : s0 + n_s], (0, max(0, n_s - x[s0 : s0 + n_s].shape[0])))
@@ -224,3 +306,7 @@ class ShardDataset(IterableDataset):
         rng.shuffle(buffer)
         for sample in buffer:
             yield self._decode(*sample, rng)
+
+
+def _shape(shape: tuple[Any, ...]) -> str:
+    return "(" + ", ".join(map(str, shape)) + ")"

@@ -30,6 +30,7 @@ from torch.utils.tensorboard.summary import scalar
 from capture.errors import InputError
 from capture.textgrid import TextGrid, interval_tier, write_textgrid
 from dataset import BuildOptions, build_dataset, read_manifest
+from dataset.bottleneck import BottleneckConfig, BottleneckPPG, save_bottleneck
 from dataset.splits import SplitRule
 from train.checkpoint import load_checkpoint, run_lock, write_atomically, write_error
 from train.config import DEFAULTS, resolve_config
@@ -229,16 +230,16 @@ FULL_DISK = r"""
 set -u
 mount -t tmpfs -o size=${SIZE_KB}k tmpfs "$SMALL" || exit 99
 cp -r "$RUN" "$SMALL/run"
-printf old > "$SMALL/ppg.pt"; printf old > "$SMALL/m.onnx"
+cp "$OLD_PPG" "$SMALL/ppg.pt"; printf old > "$SMALL/m.onnx"
 digest() { sha256sum "$1" | cut -c1-16; }
-before=$(digest "$SMALL/run/last.pt")
+before=$(digest "$SMALL/run/last.pt"); ppg_before=$(digest "$SMALL/ppg.pt")
 avail=$(df -k --output=avail "$SMALL" | tail -1)
 head -c $(( (avail - 48) * 1024 )) /dev/zero > "$SMALL/filler"
 "$PY" -m train fit --data "$DS" -o "$SMALL/run" --resume --max-steps 8 2> "$OUT/fit.err"; echo "fit=$?"
 [ "$(digest "$SMALL/run/last.pt")" = "$before" ] && echo "last_kept=yes"
 "$PY" -m train ppg --data "$ALIGNED" -o "$SMALL/ppg.pt" --steps 1 2> "$OUT/ppg.err"; echo "ppg=$?"
 "$PY" -m train export "$RUN" -o "$SMALL/m.onnx" 2> "$OUT/export.err"; echo "export=$?"
-[ "$(head -c 4 "$SMALL/ppg.pt")" = old ] && echo "ppg_kept=yes"
+[ "$(digest "$SMALL/ppg.pt")" = "$ppg_before" ] && echo "ppg_kept=yes"
 [ "$(head -c 4 "$SMALL/m.onnx")" = old ] && echo "onnx_kept=yes"
 echo "files=$(ls -A "$SMALL" "$SMALL/run" | tr '\n' ' ')"
 """
@@ -255,6 +256,8 @@ def test_a_full_disk_is_one_line_naming_the_file_and_keeps_the_old_files(s2a, ds
     tier = interval_tier("phones", [(0.0, 0.5, ""), (0.5, 1.5, "aa"), (1.5, 2.0, "s")], 0.0, 2.0)
     write_textgrid(TextGrid(0.0, 2.0, [tier]), aligned / "utt.TextGrid")
     (tmp_path / "small").mkdir()
+    old_ppg = tmp_path / "old-ppg.pt"  # an earlier PPG checkpoint: -o may replace only such a file
+    save_bottleneck(BottleneckPPG(BottleneckConfig(hidden=8, layers=1)), old_ppg)
     size_kb = sum(p.stat().st_size for p in run.iterdir() if p.is_file()) // 1024 + 1024
     env = dict(
         os.environ,
@@ -263,6 +266,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_keeps_the_old_files(s2a, ds
         RUN=str(run),
         DS=str(ds),
         ALIGNED=str(aligned),
+        OLD_PPG=str(old_ppg),
         OUT=str(tmp_path),
         PY=sys.executable,
     )

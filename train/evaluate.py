@@ -13,6 +13,7 @@ of repeated runs).
 from __future__ import annotations
 
 import json
+import math
 import platform
 import time
 from collections.abc import Callable
@@ -28,13 +29,36 @@ from dataset.manifest import read_manifest
 from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
 
-from .checkpoint import load_system
+from .checkpoint import load_system, run_checkpoint
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
 from .precision import for_inference, infer
 from .style import MEAN, check_style
 from .systems import check_sample_frames, max_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
+# predict's words for a model whose output is NaN or infinite
+NOT_FINITE = "the model's output is not finite (NaN or inf): a damaged checkpoint?"
+
+
+def check_finite(result: Any, where: str | Path, field: str = "") -> None:
+    """Refuse a result holding a NaN or infinite number (nested dicts and lists): a metric that is not a
+    number is an error, never a score (nor NaN in --json)."""
+    if isinstance(result, dict):
+        for k, v in result.items():
+            check_finite(v, where, f"{field}.{k}" if field else str(k))
+    elif isinstance(result, (list, tuple)):
+        for i, v in enumerate(result):
+            check_finite(v, where, f"{field}[{i}]")
+    elif isinstance(result, float) and not math.isfinite(result):
+        raise InputError(f"metric {field} is not finite ({result}): a damaged checkpoint or dataset?", where)
+
+
+def checkpoint_path(run: str | Path) -> Path:
+    """The checkpoint file a run folder (or file) loads, for messages; an ensemble's folder itself."""
+    try:
+        return run_checkpoint(run)
+    except InputError:
+        return Path(run)
 
 
 def crucial_columns(channels: list[str]) -> list[int] | None:
@@ -128,7 +152,7 @@ class RawSamples(ShardDataset):
 
     def _decode(self, key: str, members: dict[str, bytes], rng) -> dict[str, Any]:
         item = super()._decode(key, members, rng)
-        meta = json.loads(members["json"])
+        meta = json.loads(members["json"])  # an object with a usable neutral: ShardDataset checked it
         neutral = meta.get("neutral")
         item["speaker"] = meta.get("speaker")
         item["neutral"] = None if neutral is None else np.asarray(neutral, np.float32)
@@ -269,6 +293,8 @@ def evaluate(
         content, prosody = to_model_inputs(batch, spec, style)
         mask = item["mask"].numpy()
         pred_norm = infer(model, content, prosody, batch["mask"])[0].double().numpy()
+        if not np.all(np.isfinite(pred_norm)):
+            raise InputError(NOT_FINITE, checkpoint_path(run))
         true = item["anim"].numpy().astype(np.float64)
         pred = animation.inverse(pred_norm, item["neutral"])
         tally.add(pred, true, mask)
@@ -326,6 +352,7 @@ def evaluate(
         result["rtf_seconds"] = frames / info["fps"]
         result["rtf_frames"] = frames
     result["device"] = device_name(torch.device("cpu"))
+    check_finite(result, checkpoint_path(run))
     say(
         f"{payload['system']} on {split}: rmse entire {_fmt(result['rmse_entire'])}, "
         f"crucial {_fmt(result['rmse_crucial'])}; floor {_fmt(result['floor']['rmse_entire'])}"

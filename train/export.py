@@ -5,12 +5,14 @@ Graph inputs: ``content`` (1, frames, content_dim) float32, ``prosody`` (1, fram
 channels), normalised (de-normalise with the manifest's ``scale`` and ``offset``). Frames are a dynamic
 axis, up to the model's ``max_frames`` (Transformer-S2A's positional table; longer inputs fail in
 onnxruntime, so run them in windows as ``predict`` does). The parity check runs both on random inputs of
-two lengths and reports the largest difference. The graph is written beside ``out`` under a hidden name
-and renamed over ``out`` only once the parity check has passed.
+two lengths and reports the largest difference; an output that is not finite (NaN or inf, from either)
+fails it. The graph is written beside ``out`` under a hidden name and renamed over ``out`` only once the
+parity check has passed. ``out`` may not be the checkpoint exported, nor any other PyTorch checkpoint.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from collections.abc import Callable
@@ -25,9 +27,11 @@ from capture.atomic import partial_path
 from capture.command import progress
 from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
+from dataset.bottleneck import ZIP_MAGIC
 
 from .checkpoint import disk_full, load_system, write_error
 from .data import InputSpec
+from .evaluate import NOT_FINITE, checkpoint_path
 from .systems import max_frames
 
 
@@ -98,6 +102,8 @@ def export_onnx(
     (largest absolute difference, normalised units)."""
     import onnxruntime as ort
 
+    out = Path(out)
+    check_out(run, out)
     model, payload = load_system(run)
     spec = InputSpec.from_json(payload["inputs"])
     reference = _WithProsody(model) if spec.prosody_dim else _NoProsody(model)
@@ -109,9 +115,6 @@ def export_onnx(
     lengths = _check_lengths(limit)
     example = _inputs(spec, lengths[0], 0)
     names = list(example)
-    out = Path(out)
-    if out.is_dir():
-        raise InputError("output path is a folder: give the ONNX file to write", out)
     make_out_dir(out.parent)
     tmp = partial_path(out)  # renamed over out once the parity check passes; removed otherwise
     try:
@@ -140,8 +143,10 @@ def export_onnx(
             x = _inputs(spec, frames, seed)
             with torch.no_grad():
                 ref = reference(*x.values()).numpy()
+            if not np.all(np.isfinite(ref)):
+                raise InputError(f"{NOT_FINITE} (nothing written)", checkpoint_path(run))
             got = session.run(None, {k: v.numpy() for k, v in x.items()})[0]
-            worst = max(worst, float(np.abs(got - ref).max()))
+            worst = max(worst, largest_difference(got, ref))
         if not worst <= tolerance:
             raise ExportFailed(
                 f"{out}: onnxruntime differs from PyTorch by {worst:.3g} (> {tolerance:g}); nothing written"
@@ -165,6 +170,41 @@ def export_onnx(
         # the last len(styles) prosody columns: a one-hot of one of these speakers, or 1/n each (mean style)
         "styles": list(spec.styles),
     }
+
+
+def largest_difference(got: np.ndarray, ref: np.ndarray) -> float:
+    """The largest absolute difference of two outputs; inf when either is not finite or their shapes
+    differ (NaN against NaN is no match)."""
+    got, ref = np.asarray(got, np.float64), np.asarray(ref, np.float64)
+    if got.shape != ref.shape or not (np.all(np.isfinite(got)) and np.all(np.isfinite(ref))):
+        return math.inf
+    return float(np.abs(got - ref).max(initial=0.0))
+
+
+def check_out(run: str | Path, out: Path) -> None:
+    """Refuse an ONNX path that is a folder, the checkpoint being exported (symbolic links resolved) or
+    any other PyTorch checkpoint (``torch.save`` writes zip archives; ONNX files are protobuf)."""
+    if out.is_dir():
+        raise InputError("output path is a folder: give the ONNX file to write", out)
+    if not out.exists():
+        return
+    source = checkpoint_path(run)
+    try:
+        same = source.is_file() and os.path.samefile(source, out)
+        with open(out, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        return  # unreadable: writing it fails with its own error
+    if same:
+        raise InputError(
+            "output path is the checkpoint being exported: give another -o (e.g. model.onnx)", out
+        )
+    if head == ZIP_MAGIC:
+        raise InputError(
+            "output path is a PyTorch checkpoint (or another zip archive), not an ONNX file: "
+            "give another -o (e.g. model.onnx)",
+            out,
+        )
 
 
 def _check_lengths(limit: int | None) -> tuple[int, int]:
