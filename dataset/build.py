@@ -588,16 +588,32 @@ def check_frame_grid(times: np.ndarray, fps: float, folder: str | Path) -> None:
 
 
 def split_share_warnings(
-    durations: dict[str, tuple[str, float]], split_of: dict[str, str], rule: SplitRule
+    durations: dict[str, tuple[str, float]],
+    split_of: dict[str, str],
+    rule: SplitRule,
+    recordings: dict[str, str] | None = None,
 ) -> list[str]:
     """A warning for each val or test split (not pinned) holding more than twice its fraction of the
-    audio (and over 10 points more): the recordings are too few or too long for the fractions."""
+    audio (and over 10 points more): the recordings are too few or too long for the fractions; and for
+    each pinned split that its fraction topped up with takes nobody named (``recordings``: the recording
+    each take was cut from)."""
     total = sum(d for _, d in durations.values()) or 1.0
     out = []
     for split, fraction, pinned in (
         ("val", rule.val_fraction, rule.val),
         ("test", rule.test_fraction, rule.test),
     ):
+        added = sorted(
+            t
+            for t, (spk, _) in durations.items()
+            if split_of[t] == split and not {t, (recordings or {}).get(t) or t, spk} & set(pinned)
+        )
+        if pinned and added:
+            out.append(
+                f"the {split} split holds {len(added)} take(s) besides those pinned with --{split} "
+                f"({', '.join(added[:3])}{', ...' if len(added) > 3 else ''}), added to reach "
+                f"--{split}-fraction {fraction:g}: give --{split}-fraction 0 to keep only the pinned ones"
+            )
         share = sum(d for t, (_, d) in durations.items() if split_of[t] == split) / total
         if not pinned and fraction > 0 and share > max(2 * fraction, fraction + 0.1):
             out.append(
@@ -1405,8 +1421,9 @@ def _build(
         if pinned in left_out and pinned not in kept:
             raise InputError(f"pinned take or speaker {pinned!r} was {left_out[pinned]}")
     durations = {t.id: (t.speaker, t.duration_s) for t in takes}
-    split_of = assign_splits(durations, options.split, {t.id: t.recording for t in takes})
-    warnings += split_share_warnings(durations, split_of, options.split)
+    recordings = {t.id: t.recording for t in takes}
+    split_of = assign_splits(durations, options.split, recordings)
+    warnings += split_share_warnings(durations, split_of, options.split, recordings)
     warnings += empty_split_warnings(split_of, options.split, len({t.speaker for t in takes}))
     previous = _previous_splits(old, work)
     moved = {t: {"from": previous[t], "to": s} for t, s in split_of.items() if previous.get(t, s) != s}

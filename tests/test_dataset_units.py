@@ -85,6 +85,24 @@ def test_percentiles_of_channels_beyond_blendshape_range():
     np.testing.assert_allclose(n.offset, np.percentile(x, 5, axis=0), rtol=0.01, atol=1e-3)
 
 
+def test_a_pinned_split_topped_up_by_its_fraction_is_warned_about():
+    from dataset.build import split_share_warnings
+
+    takes = {f"t{i}": (f"s{i % 4}", 10.0) for i in range(20)}
+    rule = SplitRule("take", 0.1, 0.2, seed=3, test=("t1",))
+    split_of = assign_splits(takes, rule)
+    (warning,) = split_share_warnings(takes, split_of, rule)
+    added = sorted(t for t, s in split_of.items() if s == "test" and t != "t1")
+    assert (
+        len(added) == 3
+        and f"the test split holds 3 take(s) besides those pinned with --test ({', '.join(added)})" in warning
+    )
+    assert "give --test-fraction 0 to keep only the pinned ones" in warning
+    exact = SplitRule("take", 0.1, 0.0, seed=3, test=("t1",))
+    assert [t for t, s in assign_splits(takes, exact).items() if s == "test"] == ["t1"]
+    assert not split_share_warnings(takes, assign_splits(takes, exact), exact)
+
+
 def test_splits_by_take_and_speaker():
     takes = {f"t{i}": (f"s{i % 4}", 10.0) for i in range(20)}
     by_take = assign_splits(takes, SplitRule("take", 0.1, 0.2, seed=3))
