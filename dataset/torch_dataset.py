@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import random
+import tarfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from capture.errors import InputError
 
 from .manifest import dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
-from .shards import ShardReader, decode_flac, decode_npy
+from .shards import ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
 
 
@@ -105,17 +106,7 @@ class ShardDataset(IterableDataset):
     def check_shards(self) -> None:
         """Each shard to read is there with the manifest's size (a stat per shard): a shard copied from
         another build, truncated or missing is an error, never silently other samples."""
-        size = {s["name"]: s["bytes"] for s in self.manifest["shards"]}
-        for name in self.shards:
-            path = self.ds / name
-            if not path.is_file():
-                raise InputError(
-                    f"shard listed in the manifest is missing: s2a-dataset validate {self.ds}", path
-                )
-            if path.stat().st_size != size[name]:
-                raise InputError(
-                    f"shard size differs from the manifest: s2a-dataset validate {self.ds}", path
-                )
+        check_shard_files(self.ds, self.manifest, self.shards)
 
     def _read(self, name: str) -> Iterator[tuple[str, dict[str, bytes]]]:
         """The samples of shard ``name``; a key the manifest does not list for it, or a listed key it
@@ -124,19 +115,11 @@ class ShardDataset(IterableDataset):
         listed = set(self.listed.get(name, ()))
         for key, members in ShardReader(path):
             if key not in listed:
-                raise InputError(
-                    f"sample {key} is not listed in the manifest for this shard: "
-                    f"s2a-dataset validate {self.ds}",
-                    path,
-                )
+                raise _unlisted(self.ds, path, {key})
             listed.discard(key)
             yield key, members
         if listed:
-            raise InputError(
-                f"shard lacks {len(listed)} sample(s) the manifest lists ({min(listed)}): "
-                f"s2a-dataset validate {self.ds}",
-                path,
-            )
+            raise _lacking(self.ds, path, listed)
 
     @property
     def epoch(self) -> int:
@@ -306,6 +289,54 @@ class ShardDataset(IterableDataset):
         rng.shuffle(buffer)
         for sample in buffer:
             yield self._decode(*sample, rng)
+
+
+def check_shard_files(ds: Path, manifest: dict[str, Any], names: list[str]) -> None:
+    """Each of the shards ``names`` is there with the manifest's size (a stat per shard)."""
+    size = {s["name"]: s["bytes"] for s in manifest["shards"]}
+    for name in names:
+        path = ds / name
+        if not path.is_file():
+            raise InputError(f"shard listed in the manifest is missing: s2a-dataset validate {ds}", path)
+        if path.stat().st_size != size[name]:
+            raise InputError(f"shard size differs from the manifest: s2a-dataset validate {ds}", path)
+
+
+def check_shards(ds: Path, manifest: dict[str, Any], splits: tuple[str, ...]) -> None:
+    """The shards of ``splits`` are there with the manifest's size and hold the samples it lists for
+    them, from their tar headers alone (the members' data are skipped): what the reader would find at
+    the first batch or validation, found before a run writes anything."""
+    names = [s["name"] for split in splits for s in shards_of(manifest, split)]
+    check_shard_files(ds, manifest, names)
+    listed: dict[str, set[str]] = {}
+    for sample in manifest["samples"]:
+        listed.setdefault(sample["shard"], set()).add(sample["key"])
+    for name in names:
+        path = ds / name
+        try:
+            with tarfile.open(path, mode="r:") as tar:
+                found = {split_key(member.name)[0] for member in tar if member.isfile()}
+        except (tarfile.TarError, EOFError, OSError) as exc:
+            raise InputError(
+                f"shard is not a readable tar ({exc}): s2a-dataset validate {ds}", path
+            ) from None
+        wanted = listed.get(name, set())
+        if found - wanted:
+            raise _unlisted(ds, path, found - wanted)
+        if wanted - found:
+            raise _lacking(ds, path, wanted - found)
+
+
+def _unlisted(ds: Path, path: Path, keys: set[str]) -> InputError:
+    return InputError(
+        f"sample {min(keys)} is not listed in the manifest for this shard: s2a-dataset validate {ds}", path
+    )
+
+
+def _lacking(ds: Path, path: Path, keys: set[str]) -> InputError:
+    return InputError(
+        f"shard lacks {len(keys)} sample(s) the manifest lists ({min(keys)}): s2a-dataset validate {ds}", path
+    )
 
 
 def _shape(shape: tuple[Any, ...]) -> str:

@@ -17,14 +17,22 @@ from .precision import PRECISIONS
 PROG = "s2a-train"
 
 
+def _path(text: str) -> Path:
+    """A path option's value: an empty (or all-blank) one is a usage error, not the current folder
+    (``Path("")`` is ``.``: ``-o ''`` would write there)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path: name a file or folder")
+    return Path(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("fit", help="train a system on a dataset into a run folder")
-    p.add_argument("--data", type=Path, required=True, help="dataset folder (s2a-dataset build)")
+    p.add_argument("--data", type=_path, required=True, help="dataset folder (s2a-dataset build)")
     p.add_argument("--model", choices=MODELS, help="system to train (default: the config's, else s2a)")
-    p.add_argument("-o", "--out", type=Path, required=True, help="run folder")
+    p.add_argument("-o", "--out", type=_path, required=True, help="run folder")
     p.add_argument("--config", type=Path, help="TOML file of config keys (see docs/train.md)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
     p.add_argument("--max-steps", type=int, help="optimizer steps (overrides max_steps)")
@@ -34,8 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_fit)
 
     p = sub.add_parser("eval", help="RMSE (paper scale), per-channel errors, floor and RTF of a run")
-    p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
-    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("run", type=_path, help="run folder (or a checkpoint file)")
+    p.add_argument("--data", type=_path, required=True, help="dataset folder")
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
     _precision_option(p)
     _style_option(p, "each utterance's own speaker's, the mean style for a speaker the run did not train on")
@@ -43,9 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_eval)
 
     p = sub.add_parser("predict", help="speech -> Live Link Face CSV")
-    p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
+    p.add_argument("run", type=_path, help="run folder (or a checkpoint file)")
     p.add_argument("audio", nargs="+", type=Path, help="audio files (any rate; mixed to mono)")
-    p.add_argument("-o", "--out", type=Path, required=True, help="CSV (one input) or folder")
+    p.add_argument("-o", "--out", type=_path, required=True, help="CSV (one input) or folder")
     p.add_argument("--ppg-model", type=Path, help="PPG model file when the run's dataset used one")
     p.add_argument(
         "--speaker", help="dataset speaker whose pitch statistics to use (default: the utterance's)"
@@ -62,8 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_predict)
 
     p = sub.add_parser("compare", help="train and evaluate several systems; Table 1 and Table 2")
-    p.add_argument("--data", type=Path, required=True, help="dataset folder")
-    p.add_argument("-o", "--out", type=Path, required=True, help="folder for the runs and results")
+    p.add_argument("--data", type=_path, required=True, help="dataset folder")
+    p.add_argument("-o", "--out", type=_path, required=True, help="folder for the runs and results")
     p.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS, help="systems to compare")
     p.add_argument("--config", type=Path, help="TOML file shared by all systems")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
@@ -76,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "agreement", help="how well the takes predict each other (ridge, leave one take out): odd takes out"
     )
-    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("--data", type=_path, required=True, help="dataset folder")
     p.add_argument("--config", type=Path, help="TOML file (input, prosody, ridge_context, ridge_alpha)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
     p.add_argument(
@@ -92,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("ppg", help="train the 64-dim bottleneck PPG extractor from phone alignments")
     p.add_argument(
         "--data",
-        type=Path,
+        type=_path,
         nargs="+",
         required=True,
         help="Praat TextGrids with a 'phones' tier beside same-named audio (as s2a-capture simulate writes "
@@ -107,15 +115,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the frame phone labels come from: the alignments (default), or phone-loop recognition "
         "by pocketsphinx's bundled English model, for speech without alignments in any language",
     )
-    p.add_argument("-o", "--out", type=Path, required=True, help="checkpoint to write (ppg.pt)")
+    p.add_argument("-o", "--out", type=_path, required=True, help="checkpoint to write (ppg.pt)")
     p.add_argument("--steps", type=int, default=300, help="optimizer steps (default 300)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_ppg)
 
     p = sub.add_parser("export", help="ONNX export checked against PyTorch with onnxruntime")
-    p.add_argument("run", type=Path, help="run folder (or a checkpoint file)")
-    p.add_argument("-o", "--out", type=Path, required=True, help="ONNX file to write")
+    p.add_argument("run", type=_path, help="run folder (or a checkpoint file)")
+    p.add_argument("-o", "--out", type=_path, required=True, help="ONNX file to write")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_export)
     return parser
@@ -192,8 +200,10 @@ def _leave_distributed_process() -> None:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from .evaluate import evaluate, format_result
+    from .fit import dataset_folder
 
-    result = evaluate(args.run, args.data, args.split, precision=args.precision, style=args.style)
+    data = dataset_folder(args.data)  # a file inside a dataset is no dataset: named, not taken for its folder
+    result = evaluate(args.run, data, args.split, precision=args.precision, style=args.style)
     if args.json:
         emit_json(result)
     else:
@@ -249,8 +259,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_agreement(args: argparse.Namespace) -> int:
     from .agreement import format_agreement, take_agreement
+    from .fit import dataset_folder
 
-    result = take_agreement(args.data, _config(args), tuple(args.splits))
+    result = take_agreement(dataset_folder(args.data), _config(args), tuple(args.splits))
     if args.json:
         emit_json(result)
     else:

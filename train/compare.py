@@ -10,12 +10,13 @@ from typing import Any
 from capture.command import progress
 from capture.errors import InputError
 from dataset.manifest import read_manifest
+from dataset.torch_dataset import check_shards
 
 from .checkpoint import LAST, write_json
 from .data import resolve_inputs
 from .ensemble import has_members
 from .evaluate import evaluate
-from .fit import check_resumable, fit
+from .fit import check_outside_dataset, check_resumable, dataset_folder, fit
 from .systems import build_model
 
 
@@ -35,10 +36,18 @@ def compare(
     refused, as ``fit --resume`` refuses it (``max_steps`` and ``max_minutes`` may change). Without
     ``given_for`` (a call from code), ``config_for``'s limits apply to the resumed runs."""
     out = Path(out)
-    ds = Path(ds).parent if Path(ds).is_file() else Path(ds)
+    ds = dataset_folder(ds)  # the folder, or its manifest.json
+    repeated = sorted({name for name in models if models.count(name) > 1})
+    if repeated:  # trained once, tabulated twice: never what was meant
+        raise InputError(f"--models names {', '.join(repeated)} more than once: give each system once")
+    if out.exists() and not out.is_dir():
+        raise InputError("output folder path is a file: give a folder with -o", out)
+    check_outside_dataset(out, ds, "output folder")
     manifest = read_manifest(ds)
     if split not in {s["split"] for s in manifest["shards"]}:  # before hours of training, not after
         raise InputError(f"dataset has no {split!r} split to compare on", ds / "manifest.json")
+    # training reads train and val, evaluation then the split compared on
+    check_shards(ds, manifest, tuple(dict.fromkeys(("train", "val", split))))
     for name in models:  # every system's settings checked before the first one trains
         cfg = config_for(name)
         build_model(name, resolve_inputs(manifest, cfg), cfg)

@@ -72,6 +72,15 @@ def has_members(run: Path) -> bool:
     return any((p / LAST).is_file() for p in run.glob("fold-*"))
 
 
+def refuse_beside_ensemble(run: Path, resume: bool) -> None:
+    """Refuse a fit without ``--resume`` into a folder holding a cross-validation ensemble (its
+    ensemble.json, or a member checkpoint), whatever the fit's own config."""
+    if not resume and ((run / ENSEMBLE).exists() or has_members(run)):
+        raise InputError(
+            "run folder already holds an ensemble (ensemble.json, fold-*): use --resume or another -o", run
+        )
+
+
 class Ensemble(nn.Module):
     """The mean of several models' outputs (same inputs, same output channels). With ``style_maps``
     (members trained on different speakers), the last columns of the prosody input are a style over
@@ -103,8 +112,13 @@ def check_ensemble_run(
     """The folds' takes; refuses a dataset or run folder an ensemble cannot use, before anything is
     written (the config itself is checked by ``train.config.check_config``): ``world`` processes resume
     only members trained with as many."""
-    if not resume and (has_members(run) or (run / ENSEMBLE).exists()):
-        raise InputError("run folder already holds an ensemble: use --resume or another -o", run)
+    if (run / LAST).exists():  # a single run's folder (its resume keeps cv_folds 0)
+        raise InputError(
+            f"run folder already holds a single run ({LAST}), not an ensemble: train the ensemble into "
+            "another -o",
+            run,
+        )
+    refuse_beside_ensemble(run, resume)
     if resume and not has_members(run):
         raise InputError(f"nothing to resume: no fold-*/{LAST}", run)
     for member in sorted(run.glob("fold-*")) if resume else ():

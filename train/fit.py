@@ -25,7 +25,8 @@ import torch.distributed as dist
 
 from capture.command import json_safe, progress
 from capture.errors import InputError
-from dataset.manifest import read_manifest
+from dataset.manifest import MANIFEST_FILE, read_manifest
+from dataset.torch_dataset import check_shards
 
 from .augment import augment
 from .augment import enabled as augmenting
@@ -43,7 +44,7 @@ from .checkpoint import (
 )
 from .config import DEFAULTS, check_config
 from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
-from .ensemble import check_ensemble_run, fit_ensemble
+from .ensemble import check_ensemble_run, fit_ensemble, refuse_beside_ensemble
 from .model import masked_mse
 from .ridge import NormalEquations
 from .systems import build_model, check_sample_frames
@@ -248,6 +249,38 @@ def _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoc
     }
 
 
+def dataset_folder(ds: str | Path) -> Path:
+    """The dataset folder ``ds`` (``--data``) names: the folder itself or its manifest.json. Any other
+    file is refused, naming it: taking its folder instead would quietly read the whole dataset a shard
+    lies in (``eval --data DS/train-000000.tar`` scored the test split) or name ``.`` for a file in the
+    current folder."""
+    ds = Path(ds)
+    if not ds.exists() or ds.is_dir():
+        return ds  # a folder, or nothing: read_manifest says it is not a dataset
+    if ds.name == MANIFEST_FILE:
+        return ds.parent
+    if (ds.parent / MANIFEST_FILE).is_file():
+        folder = ds.parent if str(ds.parent) != "." else Path.cwd()
+        raise InputError(
+            f"--data takes the dataset folder, not a file in it: give the dataset folder {folder}", ds
+        )
+    raise InputError("--data takes a dataset folder (as s2a-dataset build writes it), not a file", ds)
+
+
+def check_outside_dataset(out: Path, ds: Path, what: str = "run folder") -> None:
+    """Refuse an output folder ``out`` that is the dataset folder ``ds`` or lies inside it: run files
+    would be mixed into the dataset (and a dataset rebuilt or copied would carry them along)."""
+    if not (ds / MANIFEST_FILE).is_file():
+        return  # not a dataset: reading it says so
+    try:
+        inside, folder = out.resolve(), ds.resolve()
+    except (OSError, RuntimeError):  # a symlink loop: the write names it
+        return
+    if inside == folder or folder in inside.parents:
+        where = "is the dataset folder" if inside == folder else f"is inside the dataset folder {ds}"
+        raise InputError(f"{what} {where}: give -o outside the dataset", out)
+
+
 def fit(
     ds: str | Path,
     run: str | Path,
@@ -268,11 +301,10 @@ def fit(
     Under torchrun the process group is created here and destroyed on the way out: a process that
     exits with gloo's worker threads still alive is aborted by the C++ runtime."""
     owns_group = int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized()
-    ds, run = Path(ds), Path(run)
-    if ds.is_file():  # the manifest itself, as validate and stats accept it
-        ds = ds.parent
+    ds, run = dataset_folder(ds), Path(run)  # the folder, or its manifest as validate and stats accept it
     if run.exists() and not run.is_dir():
         raise InputError("run folder path is a file: give a folder with -o", run)
+    check_outside_dataset(run, ds)
     locks = ExitStack()
     writer = int(os.environ.get("RANK", "0")) == 0  # under torchrun, rank 0 writes and holds the lock
     held = False
@@ -292,8 +324,10 @@ def fit(
             if saved.get("cv_folds"):  # an ensemble: its own config, this session's limits
                 _refuse_changes(given, saved, run / CONFIG)
                 cfg = _resumed_config(saved, cfg, given)
-        if cfg.get("cv_folds"):
+        if cfg.get("cv_folds") and not (resume and (run / LAST).is_file()):
             return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps, claim)
+        # (a resumed single run given cv_folds is refused by its resume: its config keeps cv_folds 0)
+        refuse_beside_ensemble(run, resume)  # whatever this fit's config: never beside an ensemble
         return _fit(ds, run, cfg, resume, say, stop_after_steps, given, claim)
     finally:
         locks.close()
@@ -399,7 +433,12 @@ def _fit_ensemble(
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
     folds = check_ensemble_run(manifest, run, cfg, resume, world=world)
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
-    build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
+    _, model_config = build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
+    # the members' own checks, before the ensemble's folder and config.json are written
+    check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
+    if cfg["model"] == "ridge" and world > 1:
+        raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
+    check_shards(ds, manifest, ("train", "val"))
     run.mkdir(parents=True, exist_ok=True)
     claim()
     if rank == 0:
@@ -619,6 +658,7 @@ def _fit(
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
     if cfg["model"] == "ridge" and world > 1:
         raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
+    check_shards(ds, manifest, ("train", "val"))  # a bad shard: refused before anything is written
     run.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder behind
     claim()
     if spec.note:
