@@ -66,3 +66,19 @@ def write_aligned_set(root: Path, count: int = 6, speakers: int = 2, seconds: fl
         take = make_aligned_take(f"take{i:02d}", seconds, subject=f"spk{i % speakers}", seed=i, **kw)
         write_take(take, root)
     return root
+
+
+def build_five_take_dataset(root: Path) -> Path:
+    """``root/ds``: five aligned 2 s takes of two speakers, pitch, energy and filter banks, 1 s samples;
+    take03 validates, take04 tests, take00-02 train (the train stage's small adversity datasets)."""
+    from dataset import BuildOptions, build_dataset
+    from dataset.splits import SplitRule
+
+    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank"),
+        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
+        max_sample_s=1.0,
+    )
+    build_dataset([takes], root / "ds", options, say=lambda _m: None)
+    return root / "ds"

@@ -21,7 +21,7 @@ import pytest
 import soundfile as sf
 import torch
 from conftest import ROOT, run_cli
-from dataset_helpers import speech_like, write_aligned_set
+from dataset_helpers import build_five_take_dataset, speech_like
 from tensorboard.compat.proto.event_pb2 import Event
 from tensorboard.summary.writer.record_writer import RecordWriter
 from test_train_pipeline import TINY
@@ -29,9 +29,8 @@ from torch.utils.tensorboard.summary import scalar
 
 from capture.errors import InputError
 from capture.textgrid import TextGrid, interval_tier, write_textgrid
-from dataset import BuildOptions, build_dataset, read_manifest
+from dataset import read_manifest
 from dataset.bottleneck import BottleneckConfig, BottleneckPPG, save_bottleneck
-from dataset.splits import SplitRule
 from train.checkpoint import load_checkpoint, run_lock, write_atomically, write_error
 from train.config import DEFAULTS, resolve_config
 from train.data import resolve_inputs
@@ -88,15 +87,7 @@ def _curves(run):
 @pytest.fixture(scope="module")
 def ds(tmp_path_factory):
     """Five 2 s takes of two speakers: take03 validates, take04 tests, take00-02 train."""
-    root = tmp_path_factory.mktemp("adversity")
-    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"),
-        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
-        max_sample_s=1.0,
-    )
-    build_dataset([takes], root / "ds", options, say=lambda _m: None)
-    return root / "ds"
+    return build_five_take_dataset(tmp_path_factory.mktemp("adversity"))
 
 
 @pytest.fixture(scope="module")

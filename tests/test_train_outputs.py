@@ -10,11 +10,9 @@ import shutil
 from pathlib import Path
 
 import pytest
-from dataset_helpers import write_aligned_set
+from dataset_helpers import build_five_take_dataset
 from test_train_pipeline import TINY
 
-from dataset import BuildOptions, build_dataset
-from dataset.splits import SplitRule
 from train.cli import main
 from train.config import resolve_config
 from train.fit import fit
@@ -26,15 +24,7 @@ SETS = [a for s in [*TINY, "eval_every=1"] for a in ("--set", s)]
 @pytest.fixture(scope="module")
 def ds(tmp_path_factory):
     """Five 2 s takes of two speakers: take03 validates, take04 tests, take00-02 train."""
-    root = tmp_path_factory.mktemp("outputs")
-    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"),
-        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
-        max_sample_s=1.0,
-    )
-    build_dataset([takes], root / "ds", options, say=lambda _m: None)
-    return root / "ds"
+    return build_five_take_dataset(tmp_path_factory.mktemp("outputs"))
 
 
 @pytest.fixture(scope="module")
