@@ -53,8 +53,8 @@ from .vad import speech_level_dbfs, speech_segments, vad_gain
 # idle and timecode channels left out of the mix, clipping only at loud extremes, VAD on a level-raised
 # copy (flag quiet_audio), content peaks outside the search range not trusted; 5: paired data placed by a
 # time column on the timecode clock, paired audio not cut to its frames not taken as placed, paired
-# duration_mismatch from 1 s
-ALIGN_VERSION = 5
+# duration_mismatch from 1 s; 6: paired audio searched as far as its gap to the frames, --offset-ms
+ALIGN_VERSION = 6
 MIN_TAKE_S = 1.0
 # Speech quieter than this (``vad.speech_level_dbfs``; real recordings speak at -12..-22 dBFS) is
 # flagged ``quiet_audio``: 25 dB and more below an ordinary level, most of the converter's range unused.
@@ -140,6 +140,8 @@ def _content(
         spread = float(np.std(wl.lag_s) / math.sqrt(wl.lag_s.size))
     else:
         agree, spread = 1.0, 0.5 / take.meta.fps
+    if opts.offset_s is not None:  # drift is measured around the offset the take gets (--offset-ms)
+        wl = window_lags(env, face, weight, s0, opts.offset_s - opts.face_lead_ms / 1000.0)
     ev = content_evidence(judged, opts.face_lead_ms / 1000.0, agree, spread, take.meta.fps)
     if judged is not est:
         ev.detail["runner_up_searched_s"] = round(opts.max_offset_s + longer, 6)

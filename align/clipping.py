@@ -22,7 +22,6 @@ import numpy as np
 from capture import Audio
 from capture.audio_io import full_scale
 
-from .grid import runs
 from .resample import looks_like_timecode
 
 CLIP_RUN = 3  # consecutive samples at the extreme value
@@ -41,12 +40,18 @@ def clipped_share(audio: Audio) -> float:
         # the resting value from 64k samples spread over the channel: a median, not a precise one
         centre = float(np.median(channel[:: max(1, channel.size // 65536)])) / scale
         loud = [e for e in {high, low} if abs(float(e) / scale - centre) >= CLIP_MIN_LEVEL]
-        flat = 0
-        for extreme in loud:
-            flat += sum(stop - start for start, stop in runs(channel == extreme) if stop - start >= CLIP_RUN)
+        flat = sum(_flat_samples(channel == extreme) for extreme in loud)
         # the timecode test (the costlier one) only where flat tops would flag the take: a timecode
         # signal lives at its two levels, far more than CLIPPED_AUDIO_SHARE of the time
         few = flat <= CLIPPED_AUDIO_SHARE * channel.size
         if flat > worst and (few or not looks_like_timecode(channel, audio.sample_rate, scale)):
             worst = flat
     return worst / max(audio.frames, 1)
+
+
+def _flat_samples(at_extreme: np.ndarray) -> int:
+    """Samples in runs of at least ``CLIP_RUN`` consecutive True values (counted with numpy: a timecode
+    channel, a square wave, holds millions of runs)."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], at_extreme.view(np.int8), [0]))))
+    lengths = edges[1::2] - edges[::2]
+    return int(lengths[lengths >= CLIP_RUN].sum())

@@ -26,8 +26,9 @@ class AlignOptions:
     from the CSV timecodes or frame log), ``index`` (frame ``i`` at ``i / fps`` after the first frame,
     dropped-frame placeholders counted) or ``auto`` (``index`` when the audio is placed by a paired data
     set's frame convention, ``timecode`` otherwise; see docs/align.md, "Frame clock"). ``offset_s``: an
-    offset the user knows (``--offset-ms``), used instead of the one the evidence would choose (the
-    evidence is still measured and reported); None: measured.
+    offset the user knows (``--offset-ms``; at the first audio sample, as the report's ``offset_s``),
+    used instead of the one the evidence would choose (the evidence is still measured and reported, and
+    drift is measured around it); None: measured.
     """
 
     fps: float | None = None

@@ -250,7 +250,18 @@ def wav_unfinished_bytes(path: Path) -> int:
     found = _wav_data_chunk(path)
     if found is None or found[1] != 0:
         return 0
-    return max(path.stat().st_size - found[0], 0)
+    start, size = found[0], path.stat().st_size
+    try:
+        with open(path, "rb") as f:
+            f.seek(start)
+            head = f.read(8)
+    except OSError:
+        return 0
+    # an empty data chunk followed by another chunk (LIST, id3 ...) that ends the file holds no samples
+    if len(head) == 8 and head[:4].isascii() and head[:4].strip().isalnum():
+        if start + 8 + struct.unpack("<I", head[4:])[0] + 1 >= size:
+            return 0
+    return max(size - start, 0)
 
 
 def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
@@ -258,7 +269,8 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
 
     FFmpeg drops the encoder's priming samples at the start (the edit list); the padding that fills the
     last coded frame (AAC: up to 1023 samples) is cut here, where the container's stream duration ends
-    inside that frame (a duration further off, as an MP3's estimate can be, is left alone)."""
+    inside that frame (AAC only: other codecs trim their own padding, and an MP3's duration may be an
+    estimate)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     path = Path(path)
@@ -280,8 +292,12 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
                     arr = arr.reshape(-1, len(frame.layout.channels))
                 chunks.append(arr)
             rate = stream.rate or stream.codec_context.sample_rate
+            # AAC only: an MP3's duration may be an estimate from its bit rate
+            aac = stream.codec_context.name == "aac"
             declared = (
-                round(float(stream.duration * stream.time_base) * rate) if stream.duration and rate else None
+                round(float(stream.duration * stream.time_base) * rate)
+                if aac and stream.duration and rate
+                else None
             )
     except InputError:
         raise

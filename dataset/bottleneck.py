@@ -92,8 +92,8 @@ def load_plain(path: str | Path, what: str) -> Any:
             return torch.load(str(path), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
         raise InputError(
-            f"not a {what}: it holds Python objects other than tensors and plain data (refused; nothing "
-            "in it was run)",
+            f"not a {what}: it holds Python objects other than tensors and plain data, or is damaged "
+            "(refused; nothing in it was run)",
             path,
         ) from None
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds of error for a damaged file

@@ -70,7 +70,7 @@ from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, manifest_path, read_manife
 from .normalize import HIST_LAYOUT, KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
 from .qa import ANIM_LIMIT, BASE_MEMBERS
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
-from .splits import SPLITS, SplitRule, assign_splits
+from .splits import SPLITS, SplitRule, assign_splits, pinned_groups
 
 DATASET_VERSION = "1"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
@@ -598,17 +598,14 @@ def split_share_warnings(
     each pinned split that its fraction topped up with takes nobody named (``recordings``: the recording
     each take was cut from)."""
     total = sum(d for _, d in durations.values()) or 1.0
+    group_of, pinned_to = pinned_groups(durations, rule, recordings)
     out = []
     for split, fraction, pinned in (
         ("val", rule.val_fraction, rule.val),
         ("test", rule.test_fraction, rule.test),
     ):
-        added = sorted(
-            t
-            for t, (spk, _) in durations.items()
-            if split_of[t] == split and not {t, (recordings or {}).get(t) or t, spk} & set(pinned)
-        )
-        if pinned and added:
+        added = sorted(t for t in durations if split_of[t] == split and group_of[t] not in pinned_to)
+        if pinned and added and fraction > 0:
             out.append(
                 f"the {split} split holds {len(added)} take(s) besides those pinned with --{split} "
                 f"({', '.join(added[:3])}{', ...' if len(added) > 3 else ''}), added to reach "

@@ -28,13 +28,15 @@ import numpy as np
 
 from capture.errors import InputError
 
+from .qa import ANIM_LIMIT
+
 KINDS = ("zscore", "neutral")
-# The percentile histogram: bins 1e-3 wide over [-2, 2] (blendshape weights, normalised controls), then
-# bins 1 % wide out to ±2e6 (rigs on a 0-100 scale, controls in degrees or centimetres).
+# The percentile histogram: bins 1e-3 wide over [-2, 2] (blendshape weights), then bins 1 % wide out to
+# the build's ANIM_LIMIT, ±10 (controls beyond 2, angles in radians); frames beyond it are masked out.
 HIST_INNER = 2.0
 HIST_INNER_BINS = 4000
 HIST_RATIO = 1.01
-HIST_OUTER_BINS = int(np.ceil(np.log(1e6) / np.log(HIST_RATIO)))  # 1389: 2 * 1.01**1389 > 2e6
+HIST_OUTER_BINS = int(np.ceil(np.log(ANIM_LIMIT / HIST_INNER) / np.log(HIST_RATIO)))  # 162
 HIST_BINS = HIST_INNER_BINS + 2 * HIST_OUTER_BINS
 HIST_LAYOUT = f"linear ±{HIST_INNER} × {HIST_INNER_BINS}, ratio {HIST_RATIO} × {HIST_OUTER_BINS} each side"
 MIN_SCALE = 1e-4  # a channel that never moves keeps scale 1 rather than blowing up
@@ -162,7 +164,7 @@ class ChannelAccumulator:
 
 def histogram_bins(x: np.ndarray) -> np.ndarray:
     """The histogram bin of each value (int64, same shape): linear inside ±HIST_INNER, geometric outside,
-    values beyond ±2e6 in the outermost bins."""
+    values beyond ±ANIM_LIMIT in the outermost bins."""
     x = np.asarray(x, np.float64)
     inner = np.minimum(np.floor((x + HIST_INNER) * (HIST_INNER_BINS / (2 * HIST_INNER))), HIST_INNER_BINS - 1)
     with np.errstate(divide="ignore"):

@@ -54,16 +54,13 @@ def _order(seed: int, name: str) -> str:
     return hashlib.sha256(f"{seed}:{name}".encode()).hexdigest()
 
 
-def assign_splits(
+def pinned_groups(
     takes: dict[str, tuple[str, float]], rule: SplitRule, recordings: dict[str, str] | None = None
-) -> dict[str, str]:
-    """``{take id: split}`` for ``takes`` = ``{take id: (speaker id, duration in s)}``; ``recordings``
-    maps a take id to the recording it was cut from (by default each take is its own)."""
+) -> tuple[dict[str, str], dict[str, str]]:
+    """``({take id: its group}, {pinned group: split})``: the groups a split keeps together (a
+    recording's takes by take, a speaker's by speaker) and those that ``--val``/``--test`` pin."""
     recording = {t: (recordings or {}).get(t) or t for t in takes}
     group_of = {t: (recording[t] if rule.by == "take" else spk) for t, (spk, _) in takes.items()}
-    durations: dict[str, float] = {}
-    for t, (_, dur) in takes.items():
-        durations[group_of[t]] = durations.get(group_of[t], 0.0) + dur
     known_ids = set(takes) | set(recording.values()) | {spk for spk, _ in takes.values()}
     for pinned in (*rule.val, *rule.test):
         if pinned not in known_ids:
@@ -76,6 +73,18 @@ def assign_splits(
                 if split_of_group.get(g, split) != split:
                     raise InputError(f"{g!r} is pinned to both val and test (via take, recording or speaker)")
                 split_of_group[g] = split
+    return group_of, split_of_group
+
+
+def assign_splits(
+    takes: dict[str, tuple[str, float]], rule: SplitRule, recordings: dict[str, str] | None = None
+) -> dict[str, str]:
+    """``{take id: split}`` for ``takes`` = ``{take id: (speaker id, duration in s)}``; ``recordings``
+    maps a take id to the recording it was cut from (by default each take is its own)."""
+    group_of, split_of_group = pinned_groups(takes, rule, recordings)
+    durations: dict[str, float] = {}
+    for t, (_, dur) in takes.items():
+        durations[group_of[t]] = durations.get(group_of[t], 0.0) + dur
     total = sum(durations.values())
     free = sorted((g for g in durations if g not in split_of_group), key=lambda g: _order(rule.seed, g))
     for split, fraction in (("test", rule.test_fraction), ("val", rule.val_fraction)):
