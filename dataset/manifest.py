@@ -42,6 +42,24 @@ def dataset_dir(ds: str | Path) -> Path:
     return manifest_path(ds).parent
 
 
+def dataset_folder(ds: str | Path) -> Path:
+    """The dataset folder ``ds`` (``--data``) names: the folder itself or its manifest.json. Any other
+    file is refused, naming it: taking its folder instead would quietly read the whole dataset a shard
+    lies in (``eval --data DS/train-000000.tar`` scored the test split) or name ``.`` for a file in the
+    current folder."""
+    ds = Path(ds)
+    if not ds.exists() or ds.is_dir():
+        return ds  # a folder, or nothing: read_manifest says it is not a dataset
+    if ds.name == MANIFEST_FILE:
+        return ds.parent
+    if (ds.parent / MANIFEST_FILE).is_file():
+        folder = ds.parent if str(ds.parent) != "." else Path.cwd()
+        raise InputError(
+            f"--data takes the dataset folder, not a file in it: give the dataset folder {folder}", ds
+        )
+    raise InputError("--data takes a dataset folder (as s2a-dataset build writes it), not a file", ds)
+
+
 # ------------------------------------------------------------------------------------------ schema
 # The types of every field a reader (stats, report, training, validate) relies on, checked on reading so
 # that nothing downstream trips over a hand-edited manifest. One set of checks: read_manifest refuses a

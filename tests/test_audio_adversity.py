@@ -210,10 +210,10 @@ def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp
     assert silent["silent"] and silent["peak_dbfs"] is None and silent["repairs"] == []
     text = "\n".join(said)
     assert "warning: " in text and "nan.wav: 11 NaN or infinite samples set to 0 (bad_audio" in text
-    assert "silent.wav: the audio is silent (all zero, under -70 dBFS)" in text
+    assert "silent.wav: the audio is silent (all zero): no speech to animate, the face stays still" in text
     # a constant offset is no sound either, but not "all zero"
     assert dc["silent"] and dc["peak_dbfs"] is None and dc["dc_offset_dbfs"] == -6.0
-    assert "dc.wav: the audio is silent (a constant offset of -6.0 dBFS and nothing else" in text
+    assert "dc.wav: the audio is silent once its constant offset of -6.0 dBFS is removed: no speech" in text
     # the command line exits 0 with the repair in its JSON
     proc = run_cli(
         "train", "predict", ridge_run / "run", tmp_path / "nan.wav", "-o", tmp_path / "x.csv", "--json"

@@ -111,6 +111,12 @@ def test_alignment_json_in_other_encodings_or_unreadable_is_never_dropped_silent
     assert [w.name for w, _ in find_alignments([tmp_path / "mixed"], warnings)] == ["other.wav"]
     assert any("align.json: not valid JSON" in w for w in warnings), warnings
     assert any("deep.json: nested too deeply" in w for w in warnings), warnings
+    assert all(w.count(str(tmp_path)) == 1 for w in warnings), warnings  # the file named once
+    # an integer of more digits than Python converts, and a lone unreadable file: named in the error
+    (tmp_path / "huge").mkdir()
+    (tmp_path / "huge" / "align.json").write_text('{"utt": {"words": ' + "1" * 5000 + "}}")
+    with pytest.raises(InputError, match=r"no phone alignments found .*align.json: not readable JSON"):
+        find_alignments([tmp_path / "huge"])
     path = _json(tmp_path / "big", _phone())
     path.write_text(path.read_text().replace('"end": 0.5', '"end": 1' + "0" * 400))
     with pytest.raises(InputError, match="'end' must be a finite number of seconds"):

@@ -37,6 +37,7 @@ def test_config_layers_toml_then_set(tmp_path):
         ("", ["prosody=maybe"], "prosody must be true or false"),
         ("", ["lr"], "--set expects key=value"),
         ("speed = 3", [], "unknown config key 'speed'"),
+        ("lr = 1" + "0" * 5000, [], "not valid TOML: Exceeds the limit"),
     ],
 )
 def test_config_errors_name_the_field(tmp_path, text, sets, needle):

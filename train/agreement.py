@@ -27,7 +27,7 @@ import torch
 
 from capture.command import progress
 from capture.errors import InputError
-from dataset.manifest import read_manifest, take_recordings
+from dataset.manifest import dataset_folder, read_manifest, take_recordings
 
 from .data import resolve_inputs, to_model_inputs, utterances
 from .ridge import NormalEquations, Ridge
@@ -50,7 +50,7 @@ def take_agreement(
 ) -> dict[str, Any]:
     """Leave-one-take-out and take-by-take ridge scores of ``ds`` (see module doc); ``cfg`` gives the
     inputs (``input``, ``prosody``) and the ridge's ``ridge_context`` and ``ridge_alpha``."""
-    ds = Path(ds)
+    ds = dataset_folder(ds)
     manifest = read_manifest(ds)
     where = ds / "manifest.json"
     present = {s["split"] for s in manifest["shards"]}

@@ -137,6 +137,18 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return payload
 
 
+# a model whose output is NaN or infinite: refused by eval, predict and export alike
+NOT_FINITE = "the model's output is not finite (NaN or inf): a damaged checkpoint?"
+
+
+def checkpoint_path(run: str | Path) -> Path:
+    """The checkpoint file a run folder (or file) loads, for messages; an ensemble's folder itself."""
+    try:
+        return run_checkpoint(run)
+    except InputError:
+        return Path(run)
+
+
 def run_checkpoint(run: str | Path) -> Path:
     """The checkpoint to use for a finished run folder (best on validation, else last), or a file."""
     run = Path(run)

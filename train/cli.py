@@ -200,10 +200,8 @@ def _leave_distributed_process() -> None:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from .evaluate import evaluate, format_result
-    from .fit import dataset_folder
 
-    data = dataset_folder(args.data)  # a file inside a dataset is no dataset: named, not taken for its folder
-    result = evaluate(args.run, data, args.split, precision=args.precision, style=args.style)
+    result = evaluate(args.run, args.data, args.split, precision=args.precision, style=args.style)
     if args.json:
         emit_json(result)
     else:
@@ -259,9 +257,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_agreement(args: argparse.Namespace) -> int:
     from .agreement import format_agreement, take_agreement
-    from .fit import dataset_folder
 
-    result = take_agreement(dataset_folder(args.data), _config(args), tuple(args.splits))
+    result = take_agreement(args.data, _config(args), tuple(args.splits))
     if args.json:
         emit_json(result)
     else:

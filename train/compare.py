@@ -9,14 +9,14 @@ from typing import Any
 
 from capture.command import progress
 from capture.errors import InputError
-from dataset.manifest import read_manifest
+from dataset.manifest import dataset_folder, read_manifest
 from dataset.torch_dataset import check_shards
 
 from .checkpoint import LAST, write_json
 from .data import resolve_inputs
 from .ensemble import has_members
 from .evaluate import evaluate
-from .fit import check_outside_dataset, check_resumable, dataset_folder, fit
+from .fit import check_outside_dataset, check_resumable, fit
 from .systems import build_model
 
 

@@ -113,7 +113,7 @@ def parse_set(item: str) -> tuple[str, Any]:
     key, raw = (s.strip() for s in item.split("=", 1))
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except ValueError:  # TOMLDecodeError, or an integer of more digits than Python converts
         value = raw
     return key, value
 
@@ -165,14 +165,14 @@ def read_config_file(path: Path) -> dict[str, Any]:
     if path.suffix.lower() == ".json":
         try:
             data = json.loads(text)
-        except json.JSONDecodeError as exc:
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError, or numbers/nesting past limits
             raise InputError(f"not valid JSON: {exc}", path) from None
         if not isinstance(data, dict):
             raise InputError("a JSON config must be an object of config keys (as config.json is)", path)
         return {k: v for k, v in data.items() if k not in RUN_RECORD_KEYS}
     try:
         return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except (ValueError, RecursionError) as exc:  # TOMLDecodeError, or numbers/nesting past limits
         raise InputError(f"not valid TOML: {exc}", path) from None
 
 

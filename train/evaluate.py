@@ -13,7 +13,6 @@ of repeated runs).
 from __future__ import annotations
 
 import json
-import math
 import platform
 import time
 from collections.abc import Callable
@@ -25,40 +24,17 @@ import torch
 
 from capture.command import progress
 from capture.errors import InputError
-from dataset.manifest import read_manifest
+from dataset.manifest import dataset_folder, read_manifest
 from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
 
-from .checkpoint import load_system, run_checkpoint
+from .checkpoint import NOT_FINITE, checkpoint_path, load_system
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
 from .precision import for_inference, infer
 from .style import MEAN, check_style
 from .systems import check_sample_frames, max_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
-# predict's words for a model whose output is NaN or infinite
-NOT_FINITE = "the model's output is not finite (NaN or inf): a damaged checkpoint?"
-
-
-def check_finite(result: Any, where: str | Path, field: str = "") -> None:
-    """Refuse a result holding a NaN or infinite number (nested dicts and lists): a metric that is not a
-    number is an error, never a score (nor NaN in --json)."""
-    if isinstance(result, dict):
-        for k, v in result.items():
-            check_finite(v, where, f"{field}.{k}" if field else str(k))
-    elif isinstance(result, (list, tuple)):
-        for i, v in enumerate(result):
-            check_finite(v, where, f"{field}[{i}]")
-    elif isinstance(result, float) and not math.isfinite(result):
-        raise InputError(f"metric {field} is not finite ({result}): a damaged checkpoint or dataset?", where)
-
-
-def checkpoint_path(run: str | Path) -> Path:
-    """The checkpoint file a run folder (or file) loads, for messages; an ensemble's folder itself."""
-    try:
-        return run_checkpoint(run)
-    except InputError:
-        return Path(run)
 
 
 def crucial_columns(channels: list[str]) -> list[int] | None:
@@ -250,7 +226,7 @@ def evaluate(
     spec = InputSpec.from_json(payload["inputs"])
     check_style(spec.styles, style)
     info = payload["dataset"]
-    ds = Path(ds).parent if Path(ds).is_file() else Path(ds)
+    ds = dataset_folder(ds)  # the folder or its manifest.json; another file is named, not taken for it
     manifest = read_manifest(ds)
     channels = manifest["channels"]
     check_dataset_fits_run(manifest, info, spec, ds / "manifest.json")
@@ -352,7 +328,6 @@ def evaluate(
         result["rtf_seconds"] = frames / info["fps"]
         result["rtf_frames"] = frames
     result["device"] = device_name(torch.device("cpu"))
-    check_finite(result, checkpoint_path(run))
     say(
         f"{payload['system']} on {split}: rmse entire {_fmt(result['rmse_entire'])}, "
         f"crucial {_fmt(result['rmse_crucial'])}; floor {_fmt(result['floor']['rmse_entire'])}"

@@ -29,9 +29,8 @@ from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
 from dataset.bottleneck import ZIP_MAGIC
 
-from .checkpoint import disk_full, load_system, write_error
+from .checkpoint import NOT_FINITE, checkpoint_path, disk_full, load_system, write_error
 from .data import InputSpec
-from .evaluate import NOT_FINITE, checkpoint_path
 from .systems import max_frames
 
 

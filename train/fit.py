@@ -25,7 +25,7 @@ import torch.distributed as dist
 
 from capture.command import json_safe, progress
 from capture.errors import InputError
-from dataset.manifest import MANIFEST_FILE, read_manifest
+from dataset.manifest import MANIFEST_FILE, dataset_folder, read_manifest
 from dataset.torch_dataset import check_shards
 
 from .augment import augment
@@ -247,24 +247,6 @@ def _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoc
         "bad_evals": 0,
         "finished": False,
     }
-
-
-def dataset_folder(ds: str | Path) -> Path:
-    """The dataset folder ``ds`` (``--data``) names: the folder itself or its manifest.json. Any other
-    file is refused, naming it: taking its folder instead would quietly read the whole dataset a shard
-    lies in (``eval --data DS/train-000000.tar`` scored the test split) or name ``.`` for a file in the
-    current folder."""
-    ds = Path(ds)
-    if not ds.exists() or ds.is_dir():
-        return ds  # a folder, or nothing: read_manifest says it is not a dataset
-    if ds.name == MANIFEST_FILE:
-        return ds.parent
-    if (ds.parent / MANIFEST_FILE).is_file():
-        folder = ds.parent if str(ds.parent) != "." else Path.cwd()
-        raise InputError(
-            f"--data takes the dataset folder, not a file in it: give the dataset folder {folder}", ds
-        )
-    raise InputError("--data takes a dataset folder (as s2a-dataset build writes it), not a file", ds)
 
 
 def check_outside_dataset(out: Path, ds: Path, what: str = "run folder") -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tempfile
 from collections import Counter
 from collections.abc import Callable
@@ -89,11 +90,16 @@ def _read_json(path: Path) -> tuple[object, str | None]:
     """The JSON document in ``path`` (UTF-8, UTF-16 or UTF-32 text as ``capture.paired.read_text``
     reads it), or None and why it could not be read."""
     try:
-        return json.loads(read_text(path)), None
-    except InputError as exc:
-        return None, str(exc).removeprefix(f"{path}: ")
+        text = read_text(path)
+    except InputError as exc:  # its message names the file (and line): the reason alone is wanted here
+        where = f"{exc.path}" + (f":{exc.line}" if exc.line is not None else "") + ": "
+        return None, str(exc).removeprefix(where)
+    try:
+        return json.loads(text), None
     except json.JSONDecodeError as exc:
         return None, f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})"
+    except ValueError as exc:  # an integer of more digits than Python converts (4300)
+        return None, f"not readable JSON ({exc})"
     except RecursionError:
         return None, "nested too deeply to read"
 
@@ -205,8 +211,9 @@ def find_alignments(
             f"--data names {repeated} file(s) more than once (also through their folder): each is read once"
         )
     if not found:
+        skipped = f"; {warnings[-1]}" if warnings else ""  # why the one file given gave nothing
         raise InputError(
-            "no phone alignments found (TextGrid with a 'phones' tier, or alignment JSON)", paths[0]
+            f"no phone alignments found (TextGrid with a 'phones' tier, or alignment JSON){skipped}", paths[0]
         )
     return found
 
@@ -410,6 +417,8 @@ def _check_writable(out: Path) -> None:
     if out.is_dir():
         raise InputError("is a folder; -o names the checkpoint file to write (e.g. ppg.pt)", out)
     if out.exists():  # replaced only when it is an earlier PPG checkpoint (never a run's best.pt, say)
+        if not os.access(out, os.R_OK):
+            raise InputError("exists and cannot be read, so it cannot be told to be a PPG checkpoint", out)
         try:
             payload = load_plain(out, "PPG checkpoint")
         except InputError:

@@ -34,7 +34,7 @@ from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
 
-from .checkpoint import load_system
+from .checkpoint import NOT_FINITE, load_system
 from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference
 from .style import MEAN, check_style
@@ -98,7 +98,7 @@ def animate(
     mask = torch.ones(1, n, dtype=torch.bool)
     y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
     if not np.all(np.isfinite(y)):
-        raise InputError("the model's output is not finite (NaN or inf): a damaged checkpoint?", where)
+        raise InputError(NOT_FINITE, where)
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y, neutral)
 
 
@@ -202,13 +202,13 @@ def predict(
             say(f"warning: {a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
         if result["silent"]:
             peak, dc = result["peak_dbfs"], result["dc_offset_dbfs"]
-            level = "all zero" if dc is None else f"a constant offset of {dc:.1f} dBFS and nothing else"
             if peak is not None:
-                level = f"peak {peak:.1f} dBFS"
-            say(
-                f"warning: {a}: the audio is silent ({level}, under -70 dBFS): there is no speech to "
-                "animate, the face stays still"
-            )
+                level = f" (peak {peak:.1f} dBFS, under -70 dBFS)"
+            elif dc is not None:
+                level = f" once its constant offset of {dc:.1f} dBFS is removed"
+            else:
+                level = " (all zero)"
+            say(f"warning: {a}: the audio is silent{level}: no speech to animate, the face stays still")
         if spec.styles:
             result["style"] = style or (speaker if speaker in spec.styles else MEAN)
         results.append(result)
@@ -246,9 +246,8 @@ def _predict_one(
     raw = read_audio(a, repairs)
     if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
         raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
-    notes: list[dict[str, Any]] = []
-    audio = to_16k_mono(raw, str(a), notes)
-    dc = next((n["dc_offset_dbfs"] for n in notes if n["kind"] == "audio_dc"), None)
+    audio = to_16k_mono(raw, str(a))  # without its DC offset, which is no sound
+    dc = abs(float(np.mean(raw.mono_float(), dtype=np.float64)))
     narrow = is_narrowband(audio, TARGET_RATE)
     peak = float(np.max(np.abs(audio), initial=0.0))
     level = speech_level(audio, TARGET_RATE)
@@ -277,7 +276,7 @@ def _predict_one(
         "narrowband": narrow,
         "silent": peak < SILENT_PEAK,
         "peak_dbfs": round(20 * math.log10(peak), 1) if peak > 0 else None,
-        "dc_offset_dbfs": dc,
+        "dc_offset_dbfs": round(20 * math.log10(dc), 1) if dc > 0 else None,
         "speech_level_dbfs": None if level is None else round(level, 1),
         "repairs": [{"kind": r["kind"], "message": r["message"]} for r in repairs],
     }
