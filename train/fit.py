@@ -263,6 +263,19 @@ def check_outside_dataset(out: Path, ds: Path, what: str = "run folder") -> None
         raise InputError(f"{what} {where}: give -o outside the dataset", out)
 
 
+def _check_before_writing(ds: Path, manifest: dict[str, Any], cfg: dict[str, Any], world: int):
+    """``(inputs, model_config)`` of a run, after everything that can refuse it short of training: the
+    inputs, the arch keys, the samples against ``max_frames``, ridge under torchrun, the shards (missing,
+    truncated, foreign), so that a refused run writes nothing."""
+    spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
+    _, model_config = build_model(cfg["model"], spec, cfg)
+    check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
+    if cfg["model"] == "ridge" and world > 1:
+        raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
+    check_shards(ds, manifest, ("train", "val"))
+    return spec, model_config
+
+
 def fit(
     ds: str | Path,
     run: str | Path,
@@ -414,13 +427,7 @@ def _fit_ensemble(
     say = say if rank == 0 else (lambda _m: None)
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
     folds = check_ensemble_run(manifest, run, cfg, resume, world=world)
-    spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
-    _, model_config = build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
-    # the members' own checks, before the ensemble's folder and config.json are written
-    check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
-    if cfg["model"] == "ridge" and world > 1:
-        raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
-    check_shards(ds, manifest, ("train", "val"))
+    spec, _ = _check_before_writing(ds, manifest, cfg, world)  # the members' own checks, before writing
     run.mkdir(parents=True, exist_ok=True)
     claim()
     if rank == 0:
@@ -634,13 +641,8 @@ def _fit(
         state, cfg = _load_resume_state(run, manifest, ds, cfg, given, world)
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
-    spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
-    _, model_config = build_model(cfg["model"], spec, cfg)  # checks the arch keys before anything is written
-    check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
-    if cfg["model"] == "ridge" and world > 1:
-        raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
-    check_shards(ds, manifest, ("train", "val"))  # a bad shard: refused before anything is written
+    spec, model_config = _check_before_writing(ds, manifest, cfg, world)
     run.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder behind
     claim()
     if spec.note:
