@@ -201,8 +201,9 @@ def _check_range(
     opts: AlignOptions,
     flags: list[str],
     warnings: list[str],
-) -> None:
-    """Flags and warnings for an offset that may lie outside the search range ``--max-offset-ms``.
+) -> bool:
+    """Flags and warnings for an offset that may lie outside the search range ``--max-offset-ms``;
+    whether it warned.
 
     When the content correlation peaks beyond the range (``_content``), the peak inside is not the offset
     (audio with pre-roll matched its speech to the face at a wrong lag inside the range before): the
@@ -236,17 +237,20 @@ def _check_range(
                 }
             )
         else:
-            return
+            return False
         warnings.append(
             f"take {tid}: the speech matches the face best at an offset of {outside:+.3f} s, outside the "
             f"{span} searched{lengths}: the speech could not confirm the offset; if the audio really started "
             f"that far apart from the face, align again with --max-offset-ms {_suggest_ms(outside)}"
         )
-    elif lengths and chosen.confidence < opts.min_confidence:
+        return True
+    if lengths and chosen.confidence < opts.min_confidence:
         warnings.append(
             f"take {tid}: the offset was not measured{lengths}, more than the {span} searched; if the audio "
             f"started that far apart from the face, align again with --max-offset-ms {_suggest_ms(longer_s)}"
         )
+        return True
+    return False
 
 
 def _name_best_guess(tid: str, decision: Decision, opts: AlignOptions, warnings: list[str]) -> None:
@@ -399,9 +403,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         decision = combine(evidence, opts.min_confidence, opts.max_disagreement_s)
     flags += decision.flags
     chosen = decision.chosen
-    warned = len(warnings)
-    _check_range(tid, content_ev, decision, gap, opts, flags, warnings)
-    if "low_confidence" in flags and len(warnings) == warned:
+    if not _check_range(tid, content_ev, decision, gap, opts, flags, warnings) and "low_confidence" in flags:
         _name_best_guess(tid, decision, opts, warnings)
 
     # Drift (content windows over a long take), applied when it is clearly there.

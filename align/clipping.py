@@ -22,6 +22,7 @@ import numpy as np
 from capture import Audio
 from capture.audio_io import full_scale
 
+from .grid import run_bounds
 from .resample import looks_like_timecode
 
 CLIP_RUN = 3  # consecutive samples at the extreme value
@@ -50,8 +51,8 @@ def clipped_share(audio: Audio) -> float:
 
 
 def _flat_samples(at_extreme: np.ndarray) -> int:
-    """Samples in runs of at least ``CLIP_RUN`` consecutive True values (counted with numpy: a timecode
-    channel, a square wave, holds millions of runs)."""
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], at_extreme.view(np.int8), [0]))))
-    lengths = edges[1::2] - edges[::2]
+    """Samples in runs of at least ``CLIP_RUN`` consecutive True values (as arrays: a timecode channel,
+    a square wave, holds millions of runs)."""
+    starts, stops = run_bounds(at_extreme)
+    lengths = stops - starts
     return int(lengths[lengths >= CLIP_RUN].sum())

@@ -71,7 +71,12 @@ def resample_values(
     return out
 
 
+def run_bounds(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, stops) index arrays of the runs of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return edges[::2], edges[1::2]
+
+
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index pairs of the runs of True in ``mask``."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+    return [(int(a), int(b)) for a, b in zip(*run_bounds(mask))]

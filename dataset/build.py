@@ -556,11 +556,10 @@ def audio_gain(audio: np.ndarray, sample_rate: int, peak: float | None = None) -
     one damaged sample that the resampler spread over its neighbours. A stray burst must not scale the
     whole take's speech down: it is muted instead (set to 0, as NaN samples are on import). ``peak``:
     the audio's largest magnitude, when the caller has it."""
-    if peak is not None and peak <= 1.0:
+    top = peak if peak is not None else float(np.max(np.abs(audio), initial=0.0))
+    if top <= 1.0:
         return 1.0, np.zeros(np.size(audio), bool)
     mag = np.abs(np.asarray(audio, np.float32))
-    if float(mag.max(initial=0.0)) <= 1.0:
-        return 1.0, np.zeros(mag.size, bool)
     step = max(1, sample_rate // 100)
     n = -(-mag.size // step)
     frames = np.pad(mag, (0, n * step - mag.size)).astype(np.float64).reshape(n, step)

@@ -62,7 +62,7 @@ def compare(
         if resumable:
             say(f"compare: {run} exists: resuming it with its own config")
         given = given_for(name) if given_for is not None else None
-        summary = fit(ds, run, config_for(name), resume=resumable, say=say, given=given)
+        summary = fit(ds, run, config_for(name), resume=resumable, say=say, given=given, shards_checked=True)
         r = evaluate(run, ds, split, say=say)
         rows.append(
             {

@@ -263,16 +263,20 @@ def check_outside_dataset(out: Path, ds: Path, what: str = "run folder") -> None
         raise InputError(f"{what} {where}: give -o outside the dataset", out)
 
 
-def _check_before_writing(ds: Path, manifest: dict[str, Any], cfg: dict[str, Any], world: int):
+def _check_before_writing(
+    ds: Path, manifest: dict[str, Any], cfg: dict[str, Any], world: int, shards: bool = True
+):
     """``(inputs, model_config)`` of a run, after everything that can refuse it short of training: the
     inputs, the arch keys, the samples against ``max_frames``, ridge under torchrun, the shards (missing,
-    truncated, foreign), so that a refused run writes nothing."""
+    truncated, foreign; not when the caller checked them: ``shards`` False), so that a refused run writes
+    nothing."""
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
     _, model_config = build_model(cfg["model"], spec, cfg)
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
     if cfg["model"] == "ridge" and world > 1:
         raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")
-    check_shards(ds, manifest, ("train", "val"))
+    if shards:
+        check_shards(ds, manifest, ("train", "val"))
     return spec, model_config
 
 
@@ -284,6 +288,7 @@ def fit(
     say: Callable[[str], None] = progress,
     stop_after_steps: int | None = None,
     given: dict[str, Any] | None = None,
+    shards_checked: bool = False,
 ) -> dict[str, Any]:
     """Train system ``cfg["model"]`` on dataset ``ds`` (a folder or its manifest.json) into run folder
     ``run``; returns a summary.
@@ -292,6 +297,7 @@ def fit(
     ``max_minutes`` from ``cfg``) on the dataset it was trained on; ``given`` (the config keys the user
     set) must then agree with the saved config. ``stop_after_steps`` ends this session after that many
     steps with a checkpoint, as if the process had been stopped (the run is then resumable).
+    ``shards_checked``: the caller has checked the dataset's shards (``compare``), not done again.
 
     Under torchrun the process group is created here and destroyed on the way out: a process that
     exits with gloo's worker threads still alive is aborted by the C++ runtime."""
@@ -320,10 +326,10 @@ def fit(
                 _refuse_changes(given, saved, run / CONFIG)
                 cfg = _resumed_config(saved, cfg, given)
         if cfg.get("cv_folds") and not (resume and (run / LAST).is_file()):
-            return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps, claim)
+            return _fit_ensemble(ds, run, cfg, resume, say, stop_after_steps, claim, shards_checked)
         # (a resumed single run given cv_folds is refused by its resume: its config keeps cv_folds 0)
         refuse_beside_ensemble(run, resume)  # whatever this fit's config: never beside an ensemble
-        return _fit(ds, run, cfg, resume, say, stop_after_steps, given, claim)
+        return _fit(ds, run, cfg, resume, say, stop_after_steps, given, claim, shards_checked)
     finally:
         locks.close()
         if owns_group and dist.is_initialized():
@@ -420,6 +426,7 @@ def _fit_ensemble(
     say: Callable[[str], None],
     stop_after_steps: int | None,
     claim: Callable[[], None] = lambda: None,
+    shards_checked: bool = False,
 ) -> dict[str, Any]:
     """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold."""
     manifest = read_manifest(ds)
@@ -427,7 +434,8 @@ def _fit_ensemble(
     say = say if rank == 0 else (lambda _m: None)
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
     folds = check_ensemble_run(manifest, run, cfg, resume, world=world)
-    spec, _ = _check_before_writing(ds, manifest, cfg, world)  # the members' own checks, before writing
+    # the members' own checks, before writing (the members then skip the shards)
+    spec, _ = _check_before_writing(ds, manifest, cfg, world, not shards_checked)
     run.mkdir(parents=True, exist_ok=True)
     claim()
     if rank == 0:
@@ -435,7 +443,7 @@ def _fit_ensemble(
     t0 = time.perf_counter()
 
     def fit_member(folder: Path, member_cfg: dict[str, Any], member_resume: bool) -> dict[str, Any]:
-        return _fit(ds, folder, member_cfg, member_resume, say, stop_after_steps)
+        return _fit(ds, folder, member_cfg, member_resume, say, stop_after_steps, shards_checked=True)
 
     summary = fit_ensemble(fit_member, folds, run, cfg, resume, rank == 0, say)
     checksums = [c for m in summary["members"] for c in m["params_checksums"] or []]
@@ -630,6 +638,7 @@ def _fit(
     stop_after_steps: int | None,
     given: dict[str, Any] | None = None,
     claim: Callable[[], None] = lambda: None,
+    shards_checked: bool = False,
 ) -> dict[str, Any]:
     manifest = read_manifest(ds)  # refuses a manifest whose fps or normalisation is malformed
     rank, world, device = _distributed()
@@ -642,7 +651,7 @@ def _fit(
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
-    spec, model_config = _check_before_writing(ds, manifest, cfg, world)
+    spec, model_config = _check_before_writing(ds, manifest, cfg, world, not shards_checked)
     run.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder behind
     claim()
     if spec.note:
