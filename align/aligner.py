@@ -17,6 +17,7 @@ import numpy as np
 
 from capture import Audio, FrameStatus, InputError, Take, TakeMeta
 from capture.audio_io import SILENT_PEAK
+from capture.paired import LENGTH_MISMATCH_S, paired_excess_s
 from capture.timecode import Timecode
 
 from . import content as ct
@@ -62,11 +63,6 @@ QUIET_SPEECH_DBFS = -45.0
 # How far beyond the search range (s) the content correlation is looked at, at least, to tell whether the
 # peak found inside is the real one or the flank of a higher peak outside (see ``_content``).
 BEYOND_RANGE_S = 0.25
-# Paired audio and frames (``evidence.PAIRED_SOURCES``: audio cut to the frames) whose lengths differ by
-# more than this (s) are flagged ``duration_mismatch``, as the importer notes them (``length_mismatch``).
-# The real pairs differ by 0.03-0.08 s; 30 fps frames imported with --fps 29 or 31, by 3-4 s on a take of
-# two minutes, which the general rule (10 % of the duration) let pass.
-PAIRED_MISMATCH_S = 1.0
 
 
 def _check_audio(take: Take, x: np.ndarray) -> float:
@@ -347,17 +343,20 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     # Paired audio was cut to its frames: how much longer it is than they reach, from its start (as the
     # importer's length_mismatch note measures it; a time column may start after the audio does).
     paired = meta.audio.start_source in PAIRED_SOURCES
-    frames_end = float(take.time[-1]) + 1.0 / meta.fps - s0
-    paired_excess_s = audio_dur - frames_end if paired else 0.0
-    if abs(paired_excess_s) > PAIRED_MISMATCH_S:
+    excess = paired_excess_s(take) if paired else 0.0
+    # Paired audio and frames (``evidence.PAIRED_SOURCES``) whose lengths differ by more than the
+    # importer's ``length_mismatch`` bound are flagged. The real pairs differ by 0.03-0.08 s; 30 fps
+    # frames imported with --fps 29 or 31, by 3-4 s on a take of two minutes, which the general rule
+    # (10 % of the duration) let pass.
+    if abs(excess) > LENGTH_MISMATCH_S:
         # A wrong frame rate at import, or audio that was cut differently (the offset may then be off by
         # as much; see the evidence).
         flags.append("duration_mismatch")
         warnings.append(
-            f"take {tid}: the audio is {abs(paired_excess_s):.2f} s "
-            f"{'longer' if paired_excess_s > 0 else 'shorter'} than the frames it was paired with "
-            f"({audio_dur:.2f} s against {frames_end:.2f} s): check the frame rate it was imported with "
-            "(--fps for a matrix), and whether the audio was cut to these frames (silence "
+            f"take {tid}: the audio is {abs(excess):.2f} s "
+            f"{'longer' if excess > 0 else 'shorter'} than the frames it was paired with "
+            f"({audio_dur:.2f} s against {audio_dur - excess:.2f} s): check the frame rate it was "
+            "imported with (--fps for a matrix), and whether the audio was cut to these frames (silence "
             "before the speech, or its start cut away)"
         )
     elif not paired and abs(longer) > max(1.0, 0.1 * max(audio_dur, face_dur)):
@@ -385,10 +384,10 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         )
 
     # Evidence.
-    placement = timecode_evidence(meta.audio.start_source, paired_excess_s)
+    placement = timecode_evidence(meta.audio.start_source, excess)
     # how far off an unconfirmed placement may be: the length difference, or for paired audio how far it
     # overshoots or falls short of its frames (a time column may start a second after the audio does)
-    gap = paired_excess_s if abs(paired_excess_s) > abs(longer) else longer
+    gap = excess if abs(excess) > abs(longer) else longer
     est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, gap, opts)
     evidence: list[Evidence] = [placement]
     if content_ev is not None:

@@ -111,11 +111,11 @@ def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | 
     return None, None
 
 
-def is_livelink_csv(path: Path) -> bool:
+def is_livelink_csv(path: Path, head: bytes | None = None) -> bool:
     """Whether a CSV's first non-blank line starts like the app's header (``Timecode,BlendShapeCount``,
     any case; in UTF-8, or UTF-16 with its byte-order mark); the Live Link Face reader then reports
-    whatever else is wrong with it."""
-    raw = _head(path)
+    whatever else is wrong with it. ``head``: the file's ``_head``, when the caller has read it."""
+    raw = _head(path) if head is None else head
     if raw is None:
         return True  # let the Live Link Face reader report it
     head = raw.decode(bom_codec(raw) or "utf-8-sig", "replace")
@@ -123,7 +123,7 @@ def is_livelink_csv(path: Path) -> bool:
     return first.lower().replace(" ", "").startswith("timecode,blendshapecount")
 
 
-def _head(path: Path, size: int = 4096) -> bytes | None:
+def _head(path: Path, size: int = 1 << 16) -> bytes | None:
     """The first ``size`` bytes of a file, or None when it cannot be read."""
     try:
         with open(path, "rb") as f:
@@ -155,19 +155,20 @@ def import_source(
                 "--audio-pairing frame-index applies to a CSV with --audio, not a take folder", source
             )
         return read_take_folder(source, variant, audio, strict, swap_lr, timecode_rate)
-    if source.suffix.lower() == ".json" and is_a2f_export(source):
-        if audio is None:
-            raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
+    if source.suffix.lower() == ".json" and audio is not None:  # the export reader names a non-export
         return read_paired(audio, source, None, take_id=source.stem, names_option=False)
+    if source.suffix.lower() == ".json" and is_a2f_export(source):
+        raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
-    livelink = is_livelink_csv(source)
-    if livelink and bom_codec(_head(source, 4) or b""):
+    head = _head(source)
+    livelink = is_livelink_csv(source, head)
+    if livelink and bom_codec(head or b""):
         raise InputError(
             "a Live Link Face CSV saved as UTF-16 text: save it as UTF-8 (as the app writes it)", source
         )
     if not livelink:
-        if source.is_file() and not source.read_bytes()[: 1 << 16].strip():
+        if head is not None and not head.strip():
             raise InputError("file is empty", source)
         if audio is None:
             raise InputError(

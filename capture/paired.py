@@ -636,16 +636,22 @@ def read_paired(
     return take
 
 
-def note_length_mismatch(take: Take, hint: str) -> None:
-    """Note audio more than ``LENGTH_MISMATCH_S`` longer or shorter than the frames it was paired with
-    (repair ``length_mismatch``; ``hint`` says what to check). The frames end one frame period after the
-    last, on the clock align places them by (frame i at i / fps under the frame-index convention, a Live
-    Link CSV's timecodes running 0.16 % slow against it); both are measured from the audio's start."""
+def paired_excess_s(take: Take) -> float:
+    """How much longer (s; negative: shorter) a take's audio is than the frames it was paired with. The
+    frames end one frame period after the last, on the clock align places them by (frame i at i / fps
+    under the frame-index convention, a Live Link CSV's timecodes running 0.16 % slow against it); both
+    are measured from the audio's start."""
     if take.meta.audio.start_source == "paired_frame_convention":
         frames_end = float(take.time[0]) + take.time.size / take.meta.fps - take.meta.audio.start_s
     else:
         frames_end = float(take.time[-1]) + 1 / take.meta.fps - take.meta.audio.start_s
-    mismatch = take.audio.duration_s - frames_end
+    return take.audio.duration_s - frames_end
+
+
+def note_length_mismatch(take: Take, hint: str) -> None:
+    """Note audio more than ``LENGTH_MISMATCH_S`` longer or shorter than the frames it was paired with
+    (repair ``length_mismatch``; ``hint`` says what to check)."""
+    mismatch = paired_excess_s(take)
     if abs(mismatch) > LENGTH_MISMATCH_S:
         take.meta.repairs.append(
             {

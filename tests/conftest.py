@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import importlib
+import io
 import subprocess
 import sys
 from pathlib import Path
@@ -31,6 +34,21 @@ def run_cli(module: str, *args: str, check: bool = False) -> subprocess.Complete
     if check and proc.returncode != 0:
         raise AssertionError(f"{module} {args} failed ({proc.returncode}):\n{proc.stderr}")
     return proc
+
+
+def run_here(module: str, *args: str) -> subprocess.CompletedProcess:
+    """A stage's command line run in this process, as ``run_cli`` returns it: for tests whose subject is
+    what a command does rather than the command line itself (each stage's commands are also run as
+    subprocesses elsewhere), without an interpreter's and PyTorch's start-up per call. A traceback
+    here is an exception the test fails with."""
+    main = importlib.import_module(f"{module}.cli").main
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # argparse's usage errors
+            code = exc.code if isinstance(exc.code, int) else 1
+    return subprocess.CompletedProcess([module, *map(str, args)], code, out.getvalue(), err.getvalue())
 
 
 def import_rig_take(samples: Path, folder: Path) -> Path:

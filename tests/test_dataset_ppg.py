@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_cli, run_here
 from dataset_helpers import speech_like, write_aligned_set
 
 from capture.take import sha256_file
@@ -115,7 +115,7 @@ def test_torchscript_and_onnx_models_agree(takes, tmp_path):
     ts = tmp_path / "ppg.ts"
     torch.jit.script(model).save(str(ts))
     ds_ts = tmp_path / "ds_ts"
-    proc = run_cli("dataset", "build", takes, "-o", ds_ts, "--ppg", "torchscript", "--ppg-model", ts)
+    proc = run_here("dataset", "build", takes, "-o", ds_ts, "--ppg", "torchscript", "--ppg-model", ts)
     assert proc.returncode == 0, proc.stderr
     assert read_manifest(ds_ts)["features"]["ppg"]["dim"] == 8
     ts_arrays = _ppg_arrays(ds_ts)
@@ -137,7 +137,7 @@ def test_torchscript_and_onnx_models_agree(takes, tmp_path):
             dynamo=False,
         )
     ds_onnx = tmp_path / "ds_onnx"
-    proc = run_cli("dataset", "build", takes, "-o", ds_onnx, "--ppg", "onnx", "--ppg-model", onnx_path)
+    proc = run_here("dataset", "build", takes, "-o", ds_onnx, "--ppg", "onnx", "--ppg-model", onnx_path)
     assert proc.returncode == 0, proc.stderr
     onnx_arrays = _ppg_arrays(ds_onnx)
     assert onnx_arrays.keys() == ts_arrays.keys()
@@ -301,5 +301,5 @@ def test_model_with_unusable_values_is_rejected(takes, tmp_path, forward, needle
 def test_a_model_file_for_a_backend_without_one_is_an_error(takes, tmp_path, backend):
     model = tmp_path / "ppg.pt"
     model.write_bytes(b"x")
-    proc = run_cli("dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", backend, "--ppg-model", model)
+    proc = run_here("dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", backend, "--ppg-model", model)
     assert proc.returncode == 1 and "uses no model file" in proc.stderr, proc.stderr

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 import torch
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_cli, run_here
 from dataset_helpers import build_five_take_dataset, speech_like
 from tensorboard.compat.proto.event_pb2 import Event
 from tensorboard.summary.writer.record_writer import RecordWriter
@@ -156,16 +156,16 @@ def test_a_resumed_run_drops_the_tensorboard_events_logged_after_its_checkpoint(
 def test_compare_rerun_refuses_changed_settings_and_keeps_each_runs_limits(ds, tmp_path):
     out = tmp_path / "cmp"
     base = ["compare", "--data", ds, "-o", out, "--models", "blstm", *_sets("eval_every=2"), "--json"]
-    proc = _cli(*base, "--set", "arch.hidden=8", "--max-steps", 4)
+    proc = run_here("train", *base, "--set", "arch.hidden=8", "--max-steps", 4)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["steps"] == 4
     before = {p: (out / p).read_bytes() for p in ("compare.json", "blstm/config.json", "blstm/last.pt")}
-    proc = _cli(*base, "--set", "arch.hidden=16", "--set", "lr=0.01", "--max-steps", 4)
+    proc = run_here("train", *base, "--set", "arch.hidden=16", "--set", "lr=0.01", "--max-steps", 4)
     _one_line_error(proc, "keeps the run's config, but arch.hidden, lr differ")
     assert "blstm/config.json" in proc.stderr and "arch.hidden = 8" in proc.stderr
     assert {p: (out / p).read_bytes() for p in before} == before
     # the same settings again, without --max-steps: the run's own 4 steps hold (not the default 4000)
-    proc = _cli(*base, "--set", "arch.hidden=8", "--max-minutes", 0.2, timeout=120)
+    proc = run_here("train", *base, "--set", "arch.hidden=8", "--max-minutes", 0.2)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["steps"] == 4 and "already finished at step 4" in proc.stderr
 

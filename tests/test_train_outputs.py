@@ -121,12 +121,12 @@ def test_a_fit_refused_for_a_dataset_problem_leaves_no_run_folder(
         result = _cli(capsys, "fit", "--data", bad, "-o", run, *SETS, "--max-steps", 1, *extra)
         _one_line_error(result, f"{bad / shard}: {needle}")
         assert not run.exists()
-    # a folder that existed before the fit keeps what it held, and gains nothing but the fit's lock
+    # a folder that existed before the fit keeps what it held, and gains nothing (not even a lock file)
     kept = tmp_path / "kept"
     kept.mkdir()
     (kept / "notes.txt").write_text("mine\n")
     _one_line_error(_cli(capsys, "fit", "--data", bad, "-o", kept, *SETS, "--max-steps", 1), needle)
-    assert sorted(p.name for p in kept.iterdir() if p.name != ".lock") == ["notes.txt"]
+    assert sorted(p.name for p in kept.iterdir()) == ["notes.txt"]
 
 
 # 3. -o is never the dataset folder or inside it

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_cli, run_here
 from dataset_helpers import write_aligned_set
 
 from capture import read_livelink_csv
@@ -56,7 +56,13 @@ def ds(tmp_path_factory):
 
 
 def _cli(*args):
+    """``s2a-train ARGS`` as a subprocess: the command line as a user runs it."""
     return run_cli("train", *map(str, args))
+
+
+def _here(*args):
+    """``s2a-train ARGS`` in this process, for tests of what a command does (no PyTorch start-up)."""
+    return run_here("train", *map(str, args))
 
 
 def test_fit_cli_overfits_tiny_dataset_and_writes_the_run(ds, tmp_path):
@@ -157,7 +163,7 @@ def test_resume_reproduces_an_uninterrupted_run_exactly(ds, tmp_path):
 
 
 def test_resume_refuses_to_overwrite_and_needs_a_checkpoint(ds, tmp_path):
-    proc = _cli("fit", "--data", ds, "-o", tmp_path / "none", "--resume")
+    proc = _here("fit", "--data", ds, "-o", tmp_path / "none", "--resume")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "nothing to resume" in proc.stderr
 
 
@@ -198,7 +204,7 @@ def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
     assert len(cv["params_checksums"]) == 4 and (tmp_path / "cv" / "ensemble.json").is_file()
     # resumed by one process, it is refused before anything is written, its own config.json included
     before = (tmp_path / "cv" / "config.json").read_bytes()
-    proc = _cli("fit", "--data", ds, "-o", tmp_path / "cv", "--resume", "--max-steps", 6)
+    proc = _here("fit", "--data", ds, "-o", tmp_path / "cv", "--resume", "--max-steps", 6)
     assert proc.returncode == 1 and "trained with 2 process(es)" in proc.stderr, proc.stderr
     assert (tmp_path / "cv" / "config.json").read_bytes() == before
 
@@ -221,8 +227,8 @@ def test_ddp_resume_restores_every_ranks_random_numbers(tmp_path):
 
 def test_ridge_beats_the_floor_and_eval_matches_a_hand_computation(ds, tmp_path):
     run = tmp_path / "ridge"
-    assert _cli("fit", "--data", ds, "--model", "ridge", "-o", run).returncode == 0
-    proc = _cli("eval", run, "--data", ds, "--json")
+    assert _here("fit", "--data", ds, "--model", "ridge", "-o", run).returncode == 0
+    proc = _here("eval", run, "--data", ds, "--json")
     assert proc.returncode == 0, proc.stderr
     r = json.loads(proc.stdout)
     assert r["rmse_crucial"]["mean"] < r["floor"]["rmse_crucial"]["mean"]
@@ -334,7 +340,7 @@ def test_ablations_predict_and_export(ds, tmp_path):
 )
 def test_cli_bad_input_is_one_line_and_exit_1(ds, tmp_path, args, needle):
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
-    proc = _cli(*[a.format(tmp=tmp_path, ds=ds) for a in args])
+    proc = _here(*[a.format(tmp=tmp_path, ds=ds) for a in args])
     assert proc.returncode == 1, proc.stderr
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert needle in proc.stderr
@@ -349,7 +355,7 @@ def test_fit_without_a_val_split_trains_without_validation(ds, tmp_path):
     assert (tmp_path / "s2a" / "last.pt").is_file() and not (tmp_path / "s2a" / "best.pt").exists()
     ridge = fit(tmp_path / "ds", tmp_path / "ridge", _train_cfg(model="ridge"), say=lambda _m: None)
     assert ridge["best_val"] is None
-    proc = _cli("eval", tmp_path / "s2a", "--data", tmp_path / "ds", "--json")
+    proc = _here("eval", tmp_path / "s2a", "--data", tmp_path / "ds", "--json")
     assert proc.returncode == 0, proc.stderr
 
 
@@ -400,7 +406,7 @@ def test_drop_takes_leave_training_and_validation(ds, tmp_path):
     s2a = fit(ds, tmp_path / "s2a", {**cfg, "drop_takes": ["take05"], "max_steps": 4}, say=lambda _m: None)
     assert s2a["steps"] == 4 and s2a["best_val"] is None
     # a cross-validation ensemble deals only the kept takes into folds
-    proc = _cli(
+    proc = _here(
         "fit",
         "--data",
         ds,
@@ -423,7 +429,7 @@ def test_drop_takes_leave_training_and_validation(ds, tmp_path):
             split_keys(manifest, {**cfg, "drop_takes": takes})
     with pytest.raises(InputError, match="both validate and are dropped"):
         split_keys(manifest, {**both, "drop_takes": ["take01"]})
-    proc = _cli("fit", "--data", ds, "-o", tmp_path / "bad", "--set", "drop_takes='take01'")
+    proc = _here("fit", "--data", ds, "-o", tmp_path / "bad", "--set", "drop_takes='take01'")
     assert proc.returncode == 1 and "drop_takes must be a list of take ids" in proc.stderr
 
 
@@ -433,7 +439,7 @@ def test_agreement_leave_one_take_out_is_the_ridge_fit_trains_without_that_take(
     from train.checkpoint import load_system
     from train.data import InputSpec, to_model_inputs, utterances
 
-    proc = _cli("agreement", "--data", ds, "--set", "ridge_alpha=0.5", "--json")
+    proc = _here("agreement", "--data", ds, "--set", "ridge_alpha=0.5", "--json")
     assert proc.returncode == 0, proc.stderr
     r = json.loads(proc.stdout)
     takes = ["take00", "take01", "take02", "take03", "take05"]  # train and val; take04 is the test take
@@ -455,9 +461,9 @@ def test_agreement_leave_one_take_out_is_the_ridge_fit_trains_without_that_take(
     # a take's own fit (the table's diagonal) beats its floor; every take is scored against every fit
     assert all(r["matrix"][t][t] < 1 for t in takes)
     assert all(set(row) == set(takes) for row in r["matrix"].values())
-    human = _cli("agreement", "--data", ds, "--splits", "train", "val", "test")
+    human = _here("agreement", "--data", ds, "--splits", "train", "val", "test")
     assert human.returncode == 0 and "take04" in human.stdout and "leave one take out" in human.stdout
-    bad = _cli("agreement", "--data", ds, "--splits", "dev")
+    bad = _here("agreement", "--data", ds, "--splits", "dev")
     assert bad.returncode == 1 and "unknown split(s) dev" in bad.stderr and "Traceback" not in bad.stderr
 
 
@@ -469,7 +475,7 @@ def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
 
     run = tmp_path / "cv"
     sets = [a for s in TINY + ["cv_folds=2", "eval_every=4"] for a in ("--set", s)]
-    proc = _cli("fit", "--data", ds, "--model", "s2a", "-o", run, "--max-steps", 8, *sets, "--json")
+    proc = _here("fit", "--data", ds, "--model", "s2a", "-o", run, "--max-steps", 8, *sets, "--json")
     assert proc.returncode == 0, proc.stderr
     s = json.loads(proc.stdout)
     members = s["members"]
@@ -494,18 +500,18 @@ def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
     torch.testing.assert_close(got, mean)
     assert not torch.allclose(got, singles[0](content, prosody, item["mask"]))
 
-    proc = _cli("eval", run, "--data", ds, "--json")
+    proc = _here("eval", run, "--data", ds, "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["rmse_entire"]["mean"] > 0
     wav = next((ds.parent / "takes").rglob("audio.wav"))
-    assert _cli("predict", run, wav, "-o", tmp_path / "p.csv").returncode == 0
-    proc = _cli("export", run, "-o", tmp_path / "e.onnx", "--json")
+    assert _here("predict", run, wav, "-o", tmp_path / "p.csv").returncode == 0
+    proc = _here("export", run, "-o", tmp_path / "e.onnx", "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["max_abs_diff"] < 1e-4
 
-    again = _cli("fit", "--data", ds, "--model", "s2a", "-o", run, *sets)
+    again = _here("fit", "--data", ds, "--model", "s2a", "-o", run, *sets)
     assert again.returncode == 1 and "already holds an ensemble" in again.stderr
-    proc = _cli("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 8, "--json")
+    proc = _here("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 8, "--json")
     assert proc.returncode == 0, proc.stderr
     assert [m["steps"] for m in json.loads(proc.stdout)["members"]] == [8, 8]
 
@@ -519,6 +525,6 @@ def test_cross_validation_ensemble_one_member_per_fold_averaged(ds, tmp_path):
     ],
 )
 def test_cross_validation_ensemble_bad_settings(ds, tmp_path, sets, needle):
-    proc = _cli("fit", "--data", ds, "-o", tmp_path / "r", *[a for s in sets for a in ("--set", s)])
+    proc = _here("fit", "--data", ds, "-o", tmp_path / "r", *[a for s in sets for a in ("--set", s)])
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert needle in proc.stderr

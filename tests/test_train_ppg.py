@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli
+from conftest import run_cli, run_here
 from dataset_helpers import speech_like, write_aligned_set
 
 from capture.errors import InputError
@@ -58,7 +58,7 @@ def test_textgrid_alignments_beside_audio(tmp_path):
     labels = _utterance(tmp_path, ["", "aa1", "s", "xx"])
     assert labels[10] == 0 and labels[30] == ARPABET.index("AA") and labels[60] == ARPABET.index("S")
     assert labels[90] == 0 and labels[100] == 0  # unknown label and after the end: SIL
-    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "3", "--json")
+    proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "3", "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["utterances"] == 1
 
@@ -79,12 +79,12 @@ def test_timit_phone_labels_fold_onto_the_39_phones(tmp_path):
         0,
         ARPABET.index("IH"),
     )
-    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "2", "--json")
+    proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "2", "--json")
     assert proc.returncode == 0 and "outside ARPAbet" not in proc.stderr, proc.stderr
 
 
 def test_ppg_without_alignments_is_one_line_error(tmp_path):
-    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt")
+    proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "no phone alignments" in proc.stderr
 
 
@@ -110,14 +110,14 @@ def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_pa
     assert proc.returncode == 0, proc.stderr
     assert "falls back" not in proc.stderr  # the PPG is the content input
     wav = next(takes.rglob("audio.wav"))
-    proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "p.csv", "--ppg-model", ckpt)
+    proc = run_here("train", "predict", run, wav, "-o", tmp_path / "p.csv", "--ppg-model", ckpt)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "p.csv").is_file()
-    proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "q.csv")
+    proc = run_here("train", "predict", run, wav, "-o", tmp_path / "q.csv")
     assert proc.returncode == 1 and "--ppg-model" in proc.stderr
     other = tmp_path / "other.pt"
     other.write_bytes(ckpt.read_bytes() + b"x")
-    proc = run_cli("train", "predict", run, wav, "-o", tmp_path / "q.csv", "--ppg-model", other)
+    proc = run_here("train", "predict", run, wav, "-o", tmp_path / "q.csv", "--ppg-model", other)
     assert proc.returncode == 1 and "differs from the one the dataset was built with" in proc.stderr
     # eval refuses a dataset whose PPG another model computed, as predict does
     shutil.copytree(tmp_path / "ds", tmp_path / "ds2")
@@ -132,7 +132,7 @@ def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_pa
 def _ppg_from_speech(*data, out, steps: int | None = None):
     """``s2a-train ppg --labels pocketsphinx`` on ``data`` (with --json when steps are given)."""
     extra = ["--steps", str(steps), "--json"] if steps is not None else []
-    return run_cli("train", "ppg", "--labels", "pocketsphinx", "--data", *data, "-o", out, *extra)
+    return run_here("train", "ppg", "--labels", "pocketsphinx", "--data", *data, "-o", out, *extra)
 
 
 def test_pieces_cut_at_silences_cover_the_audio():

@@ -13,7 +13,7 @@ import pytest
 import scipy.signal
 import soundfile as sf
 import torch
-from conftest import run_cli
+from conftest import run_cli, run_here
 from dataset_helpers import make_aligned_take
 from test_train_pipeline import TINY
 
@@ -25,7 +25,7 @@ SETS = [a for s in [*TINY, "eval_every=5"] for a in ("--set", s)]
 
 
 def _cli(*args):
-    return run_cli("train", *map(str, args))
+    return run_here("train", *map(str, args))
 
 
 def _one_line_error(proc, needle: str) -> None:

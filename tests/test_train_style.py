@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from conftest import run_cli
+from conftest import run_here
 from dataset_helpers import make_aligned_take
 from test_train_pipeline import TINY
 
@@ -42,7 +42,7 @@ def ds(tmp_path_factory):
 
 
 def _cli(*args):
-    return run_cli("train", *map(str, args))
+    return run_here("train", *map(str, args))
 
 
 def _eval(run, ds, *extra):

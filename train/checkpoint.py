@@ -108,13 +108,18 @@ def save_checkpoint(payload: dict[str, Any], path: Path) -> None:
 @contextmanager
 def run_lock(run: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``run/.lock`` (created if needed) while the block runs: a second
-    ``fit`` into the same run folder is refused instead of interleaving its checkpoints and metrics."""
+    ``fit`` into the same run folder is refused instead of interleaving its checkpoints and metrics.
+    A lock file this fit created goes again if the folder holds no run afterwards (a refused fit
+    into a folder of the user's leaves it as it was)."""
+    created = not (run / LOCK).exists()
     try:
         fd = os.open(run / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as exc:
         raise write_error(exc, run / LOCK, "the run folder's lock file") from None
+    held = False
     try:
-        if not try_lock(fd):
+        held = try_lock(fd)
+        if not held:
             raise InputError(
                 "another s2a-train fit is writing this run folder (it holds its .lock): wait for it to "
                 "finish, or train into another -o",
@@ -122,7 +127,16 @@ def run_lock(run: Path) -> Iterator[None]:
             )
         yield
     finally:
+        if held and created and not (run / CONFIG).exists():
+            (run / LOCK).unlink(missing_ok=True)  # while still held: no other fit can be inside it
         os.close(fd)  # releases the lock
+
+
+def refuse_other_world(trained: int, world: int, what: str, where: Path) -> None:
+    """A run (``what``: "run", "ensemble") resumes only under as many processes as it was trained with:
+    its data positions and its random state are per rank."""
+    if trained != world:
+        raise InputError(f"the {what} was trained with {trained} process(es): resume it with as many", where)
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:

@@ -27,7 +27,7 @@ from torch import nn
 from capture.errors import InputError
 from dataset.manifest import take_recordings
 
-from .checkpoint import CONFIG, LAST, read_run_config, write_json
+from .checkpoint import CONFIG, LAST, read_run_config, refuse_other_world, write_json
 from .data import InputSpec
 from .style import member_style_map
 
@@ -128,11 +128,7 @@ def check_ensemble_run(
             trained = read_run_config(member / CONFIG).get("world_size", 1)
         except InputError:
             continue  # the member's own resume names what is wrong with it
-        if trained != world:
-            raise InputError(
-                f"the ensemble was trained with {trained} process(es): resume it with as many",
-                member / CONFIG,
-            )
+        refuse_other_world(trained, world, "ensemble", member / CONFIG)
     return fold_takes(manifest, cfg["cv_folds"], cfg["drop_takes"])
 
 

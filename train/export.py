@@ -12,6 +12,7 @@ parity check has passed. ``out`` may not be the checkpoint exported, nor any oth
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import warnings
@@ -105,11 +106,9 @@ def export_onnx(
     check_out(run, out)
     model, payload = load_system(run)
     spec = InputSpec.from_json(payload["inputs"])
-    reference = _WithProsody(model) if spec.prosody_dim else _NoProsody(model)
-    traced_model, _ = load_system(run)
-    wrapper = (
-        _WithProsody(_traceable(traced_model)) if spec.prosody_dim else _NoProsody(_traceable(traced_model))
-    )
+    wrap = _WithProsody if spec.prosody_dim else _NoProsody
+    reference = wrap(model)
+    wrapper = wrap(_traceable(copy.deepcopy(model)))  # _traceable swaps modules in place
     limit = max_frames(payload.get("model_config"))
     lengths = _check_lengths(limit)
     example = _inputs(spec, lengths[0], 0)

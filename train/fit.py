@@ -37,6 +37,7 @@ from .checkpoint import (
     METRICS,
     load_checkpoint,
     read_run_config,
+    refuse_other_world,
     run_lock,
     save_checkpoint,
     write_error,
@@ -491,11 +492,7 @@ def _load_resume_state(
     _refuse_changes(given, state["config"], run / LAST)
     cfg = _resumed_config(state["config"], cfg, given)
     check_config(cfg)
-    trained = len(_positions(state))
-    if trained != world:
-        raise InputError(
-            f"the run was trained with {trained} process(es): resume it with as many", run / LAST
-        )
+    refuse_other_world(len(_positions(state)), world, "run", run / LAST)
     return state, cfg
 
 
