@@ -22,7 +22,7 @@ from capture.timecode import Timecode
 
 from . import content as ct
 from .clipping import CLIPPED_AUDIO_SHARE, clipped_share
-from .drift import arrival_drift_ppm, fit_drift, window_lags
+from .drift import WindowLags, arrival_drift_ppm, fit_drift, window_lags
 from .evidence import (
     PAIRED_SOURCES,
     Decision,
@@ -55,7 +55,7 @@ from .vad import speech_level_dbfs, speech_segments, vad_gain
 # copy (flag quiet_audio), content peaks outside the search range not trusted; 5: paired data placed by a
 # time column on the timecode clock, paired audio not cut to its frames not taken as placed, paired
 # duration_mismatch from 1 s; 6: paired audio searched as far as its gap to the frames, --offset-ms
-ALIGN_VERSION = 6
+ALIGN_VERSION = 7
 MIN_TAKE_S = 1.0
 # Speech quieter than this (``vad.speech_level_dbfs``; real recordings speak at -12..-22 dBFS) is
 # flagged ``quiet_audio``: 25 dB and more below an ordinary level, most of the converter's range unused.
@@ -95,28 +95,50 @@ def _content(
     length_gap_s: float,
     opts: AlignOptions,
 ):
-    """Content lag estimate, its evidence, the window lags and the per-frame mouth signal; ``placement``
-    is the audio placement's evidence (``timecode_evidence``), ``length_gap_s`` how much the audio and
-    the tracked face differ in length (s)."""
+    """Content lag estimate, its evidence, the per-frame mouth signal, a note, and the clock drift (to
+    apply, and its report); ``placement`` is the audio placement's evidence (``timecode_evidence``),
+    ``length_gap_s`` how much the audio and the tracked face differ in length (s).
+
+    On a take whose clocks drift, the lag moves along the take (120 ms over a minute at 2,000 ppm) and
+    one correlation over the whole take smears its peak: the drift is fitted on windows first, and the
+    take is judged on the face moved onto the audio's clock rate around its weighted centre (the
+    anchor), where the lag is the one at the anchor."""
+    no_drift: tuple[float, dict[str, Any]] = (0.0, {"applied": False})
     picks = ct.mouth_channels(take.meta.channels)
     t = take.time
     mouth = ct.mouth_opening(take.values, usable, picks) if picks else np.full(t.size, np.nan)
     ok = usable & np.isfinite(mouth)
     if ok.sum() < 10:
-        return None, None, None, mouth, {"note": "no moving mouth-opening channel"}
+        return None, None, mouth, {"note": "no moving mouth-opening channel"}, no_drift
     n = int(x.size / TARGET_RATE * ct.ANALYSIS_RATE)
     grid = s0 + np.arange(n) / ct.ANALYSIS_RATE
     env = ct.band_pass(ct.energy_envelope(x, TARGET_RATE, s0, grid))
-    weight = (cover(t[ok], period, grid, opts.max_gap_s) != UNCOVERED).astype(np.float64)
-    face = ct.band_pass(np.interp(grid, t[ok], mouth[ok]))
-    correlation = ct.CrossCorrelation(env, face, weight)
+
+    def correlate(face_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, ct.CrossCorrelation]:
+        weight = (cover(face_t, period, grid, opts.max_gap_s) != UNCOVERED).astype(np.float64)
+        face = ct.band_pass(np.interp(grid, face_t, mouth[ok]))
+        return weight, face, ct.CrossCorrelation(env, face, weight)
+
+    weight, face, correlation = correlate(t[ok])
     est = correlation.peak(opts.max_offset_s)
     if est is None:
-        return None, None, None, mouth, {"note": "too little overlap for content evidence"}
+        return None, None, mouth, {"note": "too little overlap for content evidence"}, no_drift
+    anchor = float(np.average(grid, weights=weight + 1e-12))
+    wl = window_lags(env, face, weight, s0, est.lag_s)
+    # drift is measured around the offset the take gets (--offset-ms) when it is given
+    around = (
+        wl
+        if opts.offset_s is None
+        else window_lags(env, face, weight, s0, opts.offset_s - opts.face_lead_ms / 1000.0)
+    )
+    drift, drift_info = _drift(around, s0, x.size / TARGET_RATE, take.meta.fps, opts)
+    if drift:
+        weight, face, correlation = correlate(t[ok] - drift * (t[ok] - anchor))
+        est = correlation.peak(opts.max_offset_s) or est
     # The peak inside the search range is only the offset when no higher peak lies beyond it: look at
     # least BEYOND_RANGE_S further (a peak near the edge may be the flank of a higher one outside). When
     # the audio's placement is no evidence (assumed: a CSV with audio recorded elsewhere), the offset
-    # can be anything the audio and face lengths leave room for (audio recorded with pre-roll): look
+    # may lie as far off as the audio and face lengths differ: search the runner-up correlation over
     # that far, and judge the peak against the highest correlation at any of those lags (its
     # runner-up), so that a peak barely beating one a second away (speech rhythm repeats) gets the low
     # confidence it deserves. A real placement (frame log, timecode, paired data whose audio was cut to
@@ -130,14 +152,12 @@ def _content(
     if wide is not None and not outside and longer > opts.max_offset_s:
         if np.isfinite(wide.runner_up) and not wide.runner_up <= est.runner_up:
             judged = dataclasses.replace(est, runner_up=wide.runner_up)
-    wl = window_lags(env, face, weight, s0, est.lag_s)
     if wl.lag_s.size >= 2:
-        agree = float(np.mean(np.abs(wl.lag_s - est.lag_s) <= 1.0 / take.meta.fps))
-        spread = float(np.std(wl.lag_s) / math.sqrt(wl.lag_s.size))
+        expected = est.lag_s + drift * (wl.centre_s - anchor)  # each window's lag on the fitted line
+        agree = float(np.mean(np.abs(wl.lag_s - expected) <= 1.0 / take.meta.fps))
+        spread = float(np.std(wl.lag_s - expected) / math.sqrt(wl.lag_s.size))
     else:
         agree, spread = 1.0, 0.5 / take.meta.fps
-    if opts.offset_s is not None:  # drift is measured around the offset the take gets (--offset-ms)
-        wl = window_lags(env, face, weight, s0, opts.offset_s - opts.face_lead_ms / 1000.0)
     ev = content_evidence(judged, opts.face_lead_ms / 1000.0, agree, spread, take.meta.fps)
     if judged is not est:
         ev.detail["runner_up_searched_s"] = round(opts.max_offset_s + longer, 6)
@@ -150,9 +170,29 @@ def _content(
             f"the correlation is higher at {wide.lag_s:+.3f} s, outside the search range "
             f"±{opts.max_offset_s:g} s: the peak inside it is not the offset"
         )
-    ev.detail["anchor_s"] = round(float(np.average(grid, weights=weight + 1e-12)), 6)
+    ev.detail["anchor_s"] = round(anchor, 6)  # with drift, the lag is the one at this take time
     ev.detail["channels"] = [take.meta.channels[c] for c, _ in picks]
-    return est, ev, wl, mouth, {}
+    return est, ev, mouth, {}, (drift, drift_info)
+
+
+def _drift(
+    wl: WindowLags, s0: float, audio_s: float, fps: float, opts: AlignOptions
+) -> tuple[float, dict[str, Any]]:
+    """(drift to apply, s/s, and its report) from the content lags of windows along a long take:
+    applied when it is clearly there (3 standard errors, and a quarter frame over the take)."""
+    if not opts.drift or audio_s < opts.min_drift_take_s:
+        return 0.0, {"applied": False}
+    fit = fit_drift(wl, s0)
+    if fit is None:
+        return 0.0, {"applied": False}
+    significant = abs(fit.drift) > 3 * fit.drift_se and abs(fit.drift) * audio_s > 0.25 / fps
+    return fit.drift if significant else 0.0, {
+        "applied": bool(significant),
+        "estimate_ppm": round(fit.ppm, 3),
+        "standard_error_ppm": round(fit.drift_se * 1e6, 3) if math.isfinite(fit.drift_se) else None,
+        "windows": fit.windows,
+        "residual_s": round(fit.residual_s, 6),
+    }
 
 
 def _transient_evidence(
@@ -249,14 +289,24 @@ def _check_range(
     return False
 
 
-def _name_best_guess(tid: str, decision: Decision, opts: AlignOptions, warnings: list[str]) -> None:
+def _at_audio_start(ev: Evidence, drift: float, s0: float) -> float:
+    """The offset evidence ``ev`` gives at the first audio sample (``--offset-ms`` means that one): with
+    drift, an offset measured around a take time (``anchor_s``, ``audio_time_s``) moves back to it."""
+    anchor = ev.detail.get("anchor_s", ev.detail.get("audio_time_s", s0))
+    return ev.offset_s - drift * (float(anchor) - s0)
+
+
+def _name_best_guess(
+    tid: str, decision: Decision, opts: AlignOptions, warnings: list[str], drift: float, s0: float
+) -> None:
     """A warning for a take whose evidence all fell short of ``--min-confidence``: what the most
-    confident of it says, and how to use that offset when the user can confirm it."""
+    confident of it says (the offset at the first audio sample, as ``--offset-ms`` takes it), and how to
+    use that offset when the user can confirm it."""
     guesses = [e for e in decision.alternatives if e.confidence > 0 and e.source != "timecode"]
     if not guesses:
         return
     best = max(guesses, key=lambda e: e.confidence)
-    ms = best.offset_s * 1000.0
+    ms = _at_audio_start(best, drift, s0) * 1000.0
     warnings.append(
         f"take {tid}: no evidence reached confidence {opts.min_confidence:g}, so the audio stays where it "
         f"was placed; the best, {best.source}, puts the offset at {ms:+.0f} ms (confidence "
@@ -388,7 +438,9 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     # how far off an unconfirmed placement may be: the length difference, or for paired audio how far it
     # overshoots or falls short of its frames (a time column may start a second after the audio does)
     gap = excess if abs(excess) > abs(longer) else longer
-    est, content_ev, wl, mouth, content_note = _content(take, x, s0, usable, period, placement, gap, opts)
+    est, content_ev, mouth, content_note, (drift, drift_info) = _content(
+        take, x, s0, usable, period, placement, gap, opts
+    )
     evidence: list[Evidence] = [placement]
     if content_ev is not None:
         evidence.append(content_ev)
@@ -403,28 +455,12 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     flags += decision.flags
     chosen = decision.chosen
     if not _check_range(tid, content_ev, decision, gap, opts, flags, warnings) and "low_confidence" in flags:
-        _name_best_guess(tid, decision, opts, warnings)
+        _name_best_guess(tid, decision, opts, warnings, drift, s0)
 
-    # Drift (content windows over a long take), applied when it is clearly there.
-    drift_info: dict[str, Any] = {"applied": False}
-    drift = 0.0
-    if wl is not None and opts.drift and audio_dur >= opts.min_drift_take_s:
-        fit = fit_drift(wl, s0)
-        if fit is not None:
-            significant = abs(fit.drift) > 3 * fit.drift_se and abs(fit.drift) * audio_dur > 0.25 / meta.fps
-            drift_info = {
-                "applied": bool(significant),
-                "estimate_ppm": round(fit.ppm, 3),
-                "standard_error_ppm": round(fit.drift_se * 1e6, 3) if math.isfinite(fit.drift_se) else None,
-                "windows": fit.windows,
-                "residual_s": round(fit.residual_s, 6),
-            }
-            drift = fit.drift if significant else 0.0
     arrival_ppm = arrival_drift_ppm(take.time, take.arrival_s)
     if arrival_ppm is not None:
         drift_info["phone_vs_recorder_ppm"] = round(arrival_ppm, 3)
-    anchor = chosen.detail.get("anchor_s", chosen.detail.get("audio_time_s", s0))
-    offset_s = chosen.offset_s - drift * (float(anchor) - s0)  # the offset at the first audio sample
+    offset_s = _at_audio_start(chosen, drift, s0)
 
     # Face times on the audio clock (s from the first raw audio sample).
     tau = ft - s0 - (offset_s + drift * (ft - s0))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -224,6 +225,42 @@ def test_drift_is_estimated_and_corrected_on_a_long_take(tmp_path):
     assert abs(rep["offset_s"]) < FRAME_60
     _, plain = align_with_report(take, AlignOptions(face_lead_ms=lead * 1000, vad="none"))
     assert abs(plain["drift_ppm"]) < 200
+
+
+def _repeated(take: Take, times: int, ppm: float) -> Take:
+    """The take ``times`` over, back to back on the audio's clock (frame i at audio i / 60 s), with a
+    phone clock running ``ppm`` off it, and its audio only assumed to start at the first row."""
+    n = take.time.size
+    period = take.audio.frames / take.audio.sample_rate  # each repeat starts where its audio does
+    time = np.concatenate([k * period + np.arange(n) / 60.0 for k in range(times)]) * (1 + ppm * 1e-6)
+    long = Take(
+        dataclasses.replace(take.meta),
+        time,
+        np.tile(take.values, (times, 1)),
+        np.tile(take.frame_status, times),
+    )
+    a = take.audio
+    long.attach_audio(Audio(np.tile(a.samples, (times, 1)), a.sample_rate, a.subtype), 0.0, "assumed")
+    return long
+
+
+def test_a_drifting_clock_is_judged_after_its_drift_is_removed(neurosync):
+    """A minute at -2,000 ppm moves the lag by 120 ms along the take: one correlation over the whole
+    take smeared its peak to a low confidence, and the warning offered the lag at the take's middle
+    (-66 ms) as the offset to give, 72 ms off at the start."""
+    options = AlignOptions(vad="none", frame_clock="timecode")
+    steady = align_with_report(_repeated(neurosync, 3, 0.0), options)[1]
+    assert not steady["drift"]["applied"] and steady["offset_source"] == "content"
+    drifting = align_with_report(_repeated(neurosync, 3, -2000.0), options)[1]
+    assert drifting["drift"]["applied"] and drifting["drift_ppm"] == pytest.approx(-2000, abs=400)
+    assert drifting["offset_source"] == "content" and "low_confidence" not in drifting["flags"]
+    assert drifting["offset_s"] == pytest.approx(steady["offset_s"], abs=FRAME_60)
+    # with the bar set above the content's confidence, the offset the warning names is the one at the
+    # first audio sample, as --offset-ms takes it
+    strict = dataclasses.replace(options, min_confidence=0.99)
+    (warning,) = align_with_report(_repeated(neurosync, 3, -2000.0), strict)[1]["warnings"]
+    suggested = int(warning.rsplit("--offset-ms ", 1)[1]) / 1000.0
+    assert suggested == pytest.approx(steady["offset_s"], abs=FRAME_60)
 
 
 def test_dropped_frames_are_interpolated_and_face_loss_splits_the_take(neurosync):
