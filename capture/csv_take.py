@@ -2,8 +2,9 @@
 
 Format (formats doc §2): header ``Timecode,BlendShapeCount,<61 names>`` (newer builds spell the second
 column ``BlendshapeCount``), rows ``HH:MM:SS:FF.fff,61,<61 values with 10 decimals>``, face-lost rows
-``<timecode>,0``. Columns are matched by name, case-insensitively; times come from the timecode, never
-from the row index.
+``<timecode>,0`` (or, from other writers, a count of 0 over values that are all 0). Columns are matched
+by name, case-insensitively; times come from the timecode, never from the row index. A spreadsheet's
+re-save is read too: quoted fields lose their quotes, and a comma ending every line is no column.
 
 Reading has two paths with one result. Clean files (the common case) are parsed by pyarrow's
 multi-threaded CSV engine with fixed column types; anything unusual falls back to a line-by-line
@@ -21,22 +22,28 @@ wrong_fields   a row with the wrong number of fields was dropped; its slot becom
 bad_timecode   a row whose timecode does not parse was dropped; its slot becomes a dropped frame
 bad_value      non-numeric, NaN, infinite or out-of-float32-range cells were set to NaN and the frame
                marked BAD_VALUE
-bad_count      the BlendShapeCount cell disagreed with the number of values; the values were kept
+bad_count      the BlendShapeCount cell was neither the row's number of values nor that of the channels
+               among them (extra columns named in the header: ``blendshape_counts``); values kept
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
 timecode_rate  FF counts at a lower rate than the app's 60 (another writer of the format): times were
                read as FF/rate (``read_timecode_rate``); or FF fits no standard rate (read at 60)
 ============== ================================================================================
 
-Errors: missing, empty or binary file; a header that is not a Live Link Face header; the header again
-further down (two files joined); no usable data rows (naming the first rejected row); a timecode going
-backwards (other than across midnight) or jumping forward by more than ``MAX_GAP_S`` (a clock jump or
-two files joined: the app writes a row for every frame, so such a gap would become thousands of dropped
-frames). ``strict=True`` turns every
-repair into an error as well.
+Notes, which ``strict=True`` lets pass (nothing was changed): ``trailing_comma`` (every line ends with a
+comma), ``unknown_columns`` (header names that are not Live Link channels, kept under their own names),
+``row_rate_change`` (the rows come at another rate for a while: ``note_row_rate_changes``).
+
+Errors: missing, empty or binary file; a header that is not a Live Link Face header (one separated by
+``;`` or tabs says to export it with commas), or that names a column twice or leaves one empty (saying
+how to fix it); the header again further down (two files joined); no usable data rows (naming the first
+rejected row); a timecode going backwards (other than across midnight) or jumping forward by more than
+``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for every frame, so such a gap
+would become thousands of dropped frames). ``strict=True`` turns every repair into an error as well.
 """
 
 from __future__ import annotations
 
+import csv
 import math
 import re
 import sys
@@ -91,9 +98,31 @@ def _repair(repairs: list, line: int | None, kind: str, message: str) -> None:
     repairs.append({"line": line, "kind": kind, "message": message})
 
 
-def _parse_header(text: str, path: Path) -> tuple[str, list[str]]:
-    names = [c.strip() for c in text.rstrip("\r\n").split(",")]
+def _fields(line: str) -> list[str]:
+    """A line's fields. A spreadsheet's re-save may quote them (``"Timecode","BlendshapeCount",...``):
+    the quotes go, as the csv module reads them; the app itself never quotes."""
+    if '"' not in line:
+        return line.split(",")
+    try:
+        return next(csv.reader([line]))
+    except csv.Error:  # a damaged line (a huge quoted field): the row checks say what is wrong with it
+        return line.split(",")
+
+
+def _parse_header(text: str, path: Path) -> tuple[str, list[str], bool]:
+    """Count column name, value column names, and whether every line ends with a comma (a spreadsheet's
+    re-save: that empty last column is no column, when the rows leave it empty too)."""
+    names = [c.strip() for c in _fields(text.rstrip("\r\n"))]
     if len(names) < 3 or names[0].lower() != "timecode" or names[1].lower() != "blendshapecount":
+        for sep in (";", "\t"):
+            if [c.strip().strip('"').lower() for c in text.split(sep)[:2]] == ["timecode", "blendshapecount"]:
+                raise InputError(
+                    f"a Live Link Face CSV re-saved with {sep!r} between the fields (a spreadsheet in a "
+                    "decimal-comma locale?): export it with commas between the fields and '.' as the "
+                    "decimal point, as the app writes it",
+                    path,
+                    1,
+                )
         shown = text[:60].encode("unicode_escape").decode("ascii")
         raise InputError(
             "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount "
@@ -101,13 +130,26 @@ def _parse_header(text: str, path: Path) -> tuple[str, list[str]]:
             path,
             1,
         )
-    values = names[2:]
+    trailing_comma = len(names) > 3 and names[-1] == ""
+    values = names[2:-1] if trailing_comma else names[2:]
+    if "" in values:
+        column = values.index("") + 3
+        raise InputError(
+            f"header leaves column {column} empty: name it, or delete that column from every row", path, 1
+        )
     # one channel under two spellings (JawOpen and jaw_open) is a column named twice too
     keys = [ch.canonical(n) if ch.is_known(n) else n.lower() for n in values]
     dupes = sorted({n for n, key in zip(values, keys) if keys.count(key) > 1})
-    if dupes or "" in values:
-        raise InputError(f"header names a column twice or leaves one empty: {dupes or ['']}", path, 1)
-    return names[1], values
+    if dupes:
+        raise InputError(f"header names a column twice: {dupes}: rename or delete one of each", path, 1)
+    return names[1], values, trailing_comma
+
+
+def blendshape_counts(columns: list[str]) -> set[int]:
+    """The ``BlendShapeCount`` a row of these value columns may carry: the number of values, or, with
+    columns past the channels named in the header (``HeadX``...), the number of channels among them."""
+    channels = sum(ch.is_known(c) for c in columns)
+    return {len(columns), channels} if channels else {len(columns)}
 
 
 def _read_head(path: Path) -> bytes:
@@ -134,10 +176,10 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     # reports a file without data rows.
     if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head and rest.strip():
         try:
-            count_name, columns = _parse_header(first.decode("utf-8"), path)
+            count_name, columns, trailing_comma = _parse_header(first.decode("utf-8"), path)
         except UnicodeDecodeError:
             raise InputError("binary data, not a CSV text file", path, 1) from None
-        rows = _read_fast(path, count_name, columns)
+        rows = None if trailing_comma else _read_fast(path, count_name, columns)
         if rows is not None:
             return rows
     return _read_careful(path, strict)
@@ -193,7 +235,8 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     if table.column("count").null_count or table.column("tc").null_count:
         return None
     counts = table.column("count").to_numpy()
-    if np.any(counts != len(columns)):
+    zero_filled = counts == 0  # face lost, written with every value 0 (see _read_careful)
+    if not np.isin(counts[~zero_filled], list(blendshape_counts(columns))).all():
         return None
     tc = table.column("tc").combine_chunks()
     offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + len(tc) + 1]
@@ -217,6 +260,11 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     if not np.isfinite(values).all():
         return None
     status = np.zeros(table.num_rows, dtype=np.uint8)
+    if zero_filled.any():
+        if np.any(values[zero_filled] != 0):
+            return None  # a count of 0 over values: the careful parser notes it
+        values[zero_filled] = np.nan
+        status[zero_filled] = FrameStatus.FACE_LOST
     if face_lost:
         lost_chars = np.frombuffer("".join(face_lost).encode("ascii", "replace"), dtype=np.uint8)
         if any(len(s) != 15 for s in face_lost):
@@ -235,7 +283,9 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
         full = np.full((order.size, len(columns)), np.nan, dtype=np.float32)
         full[~is_lost] = values
         values = full
-        status = np.where(is_lost, FrameStatus.FACE_LOST, FrameStatus.TRACKED).astype(np.uint8)
+        full_status = np.full(order.size, FrameStatus.FACE_LOST, dtype=np.uint8)
+        full_status[~is_lost] = status
+        status = full_status
     t = unwrap_midnight(tracked_t)
     if t.size > 1 and not (np.all(np.diff(t) > 0) and np.diff(t).max() <= MAX_GAP_S):
         return None
@@ -262,8 +312,9 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     lines = text.splitlines()
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
-    count_name, columns = _parse_header(lines[0], path)
+    count_name, columns, trailing_comma = _parse_header(lines[0], path)
     ncols = len(columns) + 2
+    counts = {str(n) for n in blendshape_counts(columns)}
     times: list[float] = []
     rows: list[list[float] | None] = []
     status: list[int] = []
@@ -278,7 +329,16 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
                 path,
                 number,
             )
-        fields = line.split(",")
+        fields = _fields(line)
+        if trailing_comma and len(fields) == ncols + 1 and fields[-1].strip():
+            raise InputError(
+                "the header's last column is empty but this row has a value there: name it in the header, "
+                "or delete that column from every row",
+                path,
+                number,
+            )
+        if trailing_comma and len(fields) in (3, ncols + 1) and not fields[-1].strip():
+            fields.pop()  # the comma ending every line, a face-lost row's too
         lost = len(fields) == 2 and fields[1].strip() == "0"
         if not lost and len(fields) != ncols:
             if number == last and not ends_with_newline and len(fields) < ncols:
@@ -307,13 +367,6 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             status.append(FrameStatus.FACE_LOST)
             line_numbers.append(number)
             continue
-        if fields[1].strip() != str(len(columns)):
-            _repair(
-                repairs,
-                number,
-                "bad_count",
-                f"{count_name} is {fields[1].strip()!r} but the row has {len(columns)} values",
-            )
         row_status = FrameStatus.TRACKED
         try:
             if "_" in line:  # float() reads "1_0" as 10.0; the app never writes such a cell
@@ -321,6 +374,17 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             vals = [float(x) for x in fields[2:]]
         except ValueError:
             vals = [_cell_value(x) for x in fields[2:]]
+        count = fields[1].strip()
+        if count == "0" and all(v == 0 for v in vals):
+            # Count 0 is the app's face-lost marker; a writer that fills the row with zeros means the same
+            times.append(tod)
+            rows.append(None)
+            status.append(FrameStatus.FACE_LOST)
+            line_numbers.append(number)
+            continue
+        if count not in counts:
+            message = f"{count_name} is {count!r} but the row has {len(columns)} values"
+            _repair(repairs, number, "bad_count", message)
         bad = [columns[i] for i, v in enumerate(vals) if not abs(v) <= _FLOAT32_MAX]
         if bad:
             vals = [v if abs(v) <= _FLOAT32_MAX else math.nan for v in vals]
@@ -388,6 +452,8 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             path,
             line_numbers[b],
         )
+    if trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
+        _repair(repairs, 1, "trailing_comma", "every line ends with a comma: no column, ignored")
     return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
 
 
@@ -434,6 +500,52 @@ def missing_frames(times: np.ndarray, period: float) -> np.ndarray:
     periods, rounded to whole periods (float, so that a corrupt clock's huge gap cannot overflow)."""
     steps = np.diff(times)
     return np.where(steps > 1.5 * period, np.rint(steps / period) - 1, 0.0)
+
+
+# Row steps a change of the row rate must hold to be one (a second at the app's 60 rows/s): dropped rows
+# here and there, or a burst of them, are no change of rate.
+RATE_CHANGE_ROWS = 60
+
+
+def row_rate_changes(times: np.ndarray, period: float) -> list[tuple[int, int, float]]:
+    """Stretches of rows that come at another rate than one per ``period`` (an app that goes from 60 to 30
+    rows/s mid-take): ``(first row, last row, rows per second)`` each. A stretch is where most of every
+    ``RATE_CHANGE_ROWS`` consecutive row steps are not one period long."""
+    steps = np.diff(times)
+    if steps.size < RATE_CHANGE_ROWS:
+        return []
+    off_rate = np.abs(steps / period - 1) >= 0.5
+    counted = np.concatenate([[0], np.cumsum(off_rate)])
+    need = RATE_CHANGE_ROWS // 2 + 1  # off-rate steps that make a window of steps "off"
+    off = counted[RATE_CHANGE_ROWS:] - counted[:-RATE_CHANGE_ROWS] >= need
+    # So the first window off ends ``need`` steps into a stretch, the last starts ``need`` before its end.
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], off, [False]]).astype(np.int8)))
+    stretches = []
+    for start, stop in zip(edges[::2], edges[1::2]):
+        first = 0 if start == 0 else start + RATE_CHANGE_ROWS - need
+        last = times.size - 1 if stop == off.size else stop - 1 + need
+        rate = (last - first) / (times[last] - times[first])
+        stretches.append((int(first), int(last), nearest_standard(rate) or round(rate, 1)))
+    return stretches
+
+
+def note_row_rate_changes(times: np.ndarray, fps: float, period: float, repairs: list) -> None:
+    """Say where the rows come at another rate than the take's (repair ``row_rate_change``). The frames
+    stay as they are: a slower stretch's rows with DROPPED frames between them."""
+    stretches = row_rate_changes(times, period)
+    for first, last, rate in stretches[:3]:
+        until = "the end" if last == times.size - 1 else f"{times[last] - times[0]:.1f} s"
+        gaps = int(missing_frames(times[first : last + 1], period).sum())
+        _repair(
+            repairs,
+            None,
+            "row_rate_change",
+            f"rows come at {rate:g}/s, not {fps:g}/s, from about {times[first] - times[0]:.1f} s "
+            f"({fields_tc(times[first])}) to {until}"
+            + (f": {gaps} DROPPED frames between them" if gaps else ""),
+        )
+    if len(stretches) > 3:
+        _repair(repairs, None, "row_rate_change", f"and {len(stretches) - 3} more changes of the row rate")
 
 
 def fill_dropped(
@@ -542,6 +654,7 @@ def rows_to_take(
     repairs = list(rows.repairs)
     if unknown:
         _repair(repairs, 1, "unknown_columns", f"columns kept under their own names: {unknown}")
+    note_row_rate_changes(rows.seconds_of_day, fps, period, repairs)  # else seen only as dropped frames
     meta = TakeMeta(
         id=safe_id(take_id or rows.path.stem),
         source_kind="livelink_csv",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -113,14 +114,16 @@ def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | 
 
 def is_livelink_csv(path: Path, head: bytes | None = None) -> bool:
     """Whether a CSV's first non-blank line starts like the app's header (``Timecode,BlendShapeCount``,
-    any case; in UTF-8, or UTF-16 with its byte-order mark); the Live Link Face reader then reports
-    whatever else is wrong with it. ``head``: the file's ``_head``, when the caller has read it."""
+    any case; in UTF-8, or UTF-16 with its byte-order mark; also as a spreadsheet re-saves it: quoted,
+    or with ';' or tabs between the fields); the Live Link Face reader then reads it or says what is
+    wrong with it. ``head``: the file's ``_head``, when the caller has read it."""
     raw = _head(path) if head is None else head
     if raw is None:
         return True  # let the Live Link Face reader report it
     head = raw.decode(bom_codec(raw) or "utf-8-sig", "replace")
     first = next((line for line in head.splitlines() if line.strip()), "")
-    return first.lower().replace(" ", "").startswith("timecode,blendshapecount")
+    cells = re.split(r"[,;\t]", first.lower().replace(" ", "").replace('"', ""))
+    return cells[:2] == ["timecode", "blendshapecount"]
 
 
 def _head(path: Path, size: int = 1 << 16) -> bytes | None:

@@ -31,6 +31,12 @@ class MovInfo:
     audio_start_s: float  # presentation time of the first audio sample relative to the video's
     audio_tracks: int = 0  # audio streams in the file (the app writes one; 0: a video-only file)
 
+    @property
+    def timecode_rate(self) -> int | None:
+        """The rate the video's timecode counts frames at: its frame rate, whole (iPhone timecode is 30
+        or 60 fps and never drop-frame, formats doc §0.11), or None when the file gives no rate."""
+        return round(self.video_fps) if self.video_fps else None
+
 
 def probe_mov(path: str | Path) -> MovInfo:
     """Timecode and stream timing of a ``.mov`` without decoding it."""

@@ -7,12 +7,15 @@
 The audio's start on the take clock follows Epic's own ingest: the first ``A`` row of
 ``frame_log.csv``, else its first ``V`` row, else the ``.mov`` timecode track; the blendshape rows sit
 at their CSV timecodes. Without any of these, audio is assumed to start with the first CSV row.
+``frame_log.csv``'s timecodes count at the video's rate: ``video_metadata.json``'s ``FrameRate``, else
+the ``.mov``'s own, else 60. The app's JSON keys are read in any case (``Subject`` as ``subject``).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +31,10 @@ from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
 
 TAKE_FOLDER_MARKERS = ("take.json", "frame_log.csv")
+# The keys of the app's take.json (formats doc §3).
+TAKE_JSON_KEYS = tuple(
+    "frames appVersion slate calibrated subject identifier date version take deviceModel".split()
+)
 _PREFERENCE = ("cal", None, "raw")
 
 
@@ -129,9 +136,31 @@ def _finite_json(value: Any, where: str, bad: list[str]) -> Any:
     return value
 
 
+def _field(data: dict[str, Any], key: str) -> Any:
+    """A field of the app's JSON, its key in any case (``Subject`` for ``subject``): Epic's ingest reads
+    these files with UE's FJsonObject, whose FString keys compare case-insensitively (inferred), so a
+    file of another app version that spells them so is read there too."""
+    if key in data:
+        return data[key]
+    return next((v for k, v in data.items() if k.lower() == key.lower()), None)
+
+
+def _unknown_take_json(app_take: dict[str, Any], repairs: list[dict[str, Any]]) -> None:
+    """Note a take.json none of whose keys is one the app writes (another tool's file, or a renamed
+    layout): its slate, take and subject then come from the file name, which may be wrong."""
+    known = {k.lower() for k in TAKE_JSON_KEYS}
+    if app_take and not any(k.lower() in known for k in app_take):
+        keys = ", ".join(list(app_take)[:5]) + (", ..." if len(app_take) > 5 else "")
+        _bad_json(
+            repairs,
+            f"take.json: none of its keys ({keys}) is one the app writes ({', '.join(TAKE_JSON_KEYS)}): "
+            "ignored: slate, take and subject come from the file name",
+        )
+
+
 def _json_number(data: dict[str, Any], key: str, file: str, repairs: list[dict[str, Any]]) -> float | None:
     """A positive number field of the app's JSON; another value is ignored (repair ``bad_json``)."""
-    value = data.get(key)
+    value = _field(data, key)
     if value is None:
         return None
     try:
@@ -145,12 +174,24 @@ def _json_number(data: dict[str, Any], key: str, file: str, repairs: list[dict[s
 
 def _json_text(data: dict[str, Any], key: str, file: str, repairs: list[dict[str, Any]]) -> str | None:
     """A non-empty text field of the app's JSON; another value is ignored (repair ``bad_json``)."""
-    value = data.get(key)
+    value = _field(data, key)
     if value is None or value == "":
         return None
     if isinstance(value, str):
         return value
     _bad_json(repairs, f"{file}: {key} {repr(value)[:40]} is not text: ignored")
+    return None
+
+
+def _json_whole(data: dict[str, Any], key: str, file: str, repairs: list[dict[str, Any]]) -> int | None:
+    """A whole-number field of the app's JSON, also written as text (``"7"``); another value is ignored
+    (repair ``bad_json``)."""
+    value = _field(data, key)
+    if value is None or type(value) is int:
+        return value
+    if isinstance(value, str) and re.fullmatch(r"[0-9]{1,9}", value.strip()):
+        return int(value)
+    _bad_json(repairs, f"{file}: {key} {repr(value)[:40]} is not a whole number: ignored")
     return None
 
 
@@ -200,13 +241,14 @@ def read_take_folder(
     meta = take.meta
     repairs = meta.repairs
     app_take = _load_json(folder / "take.json", repairs)
+    _unknown_take_json(app_take, repairs)
     video_meta = _load_json(folder / "video_metadata.json", repairs)
     audio_meta = _load_json(folder / "audio_metadata.json", repairs)
     meta.source_kind = "livelink_take_folder"
     meta.id = safe_id(_json_text(app_take, "identifier", "take.json", repairs) or folder.name)
     meta.slate = _json_text(app_take, "slate", "take.json", repairs) or meta.slate
-    if type(app_take.get("take")) is int:
-        meta.take_number = app_take["take"]
+    take_number = _json_whole(app_take, "take", "take.json", repairs)
+    meta.take_number = meta.take_number if take_number is None else take_number
     meta.subject = _json_text(app_take, "subject", "take.json", repairs) or meta.subject
     meta.device = _json_text(app_take, "deviceModel", "take.json", repairs)
     meta.extra.update({"take_json": app_take, "video_metadata": video_meta, "audio_metadata": audio_meta})
@@ -221,7 +263,16 @@ def read_take_folder(
         take.neutral = _neutral_pose(neutral_path, take)
         meta.sources.append(source_file(neutral_path, "neutral_csv"))
 
-    video_rate = _json_number(video_meta, "FrameRate", "video_metadata.json", repairs) or 60.0
+    movs = _files_ending(folder, ".mov")
+    mov = movs[0] if movs else None
+    info = _probe(mov)
+    # frame_log.csv's timecodes count at the video's rate: an app version that writes no
+    # video_metadata.json still states it in the .mov
+    video_rate = (
+        _json_number(video_meta, "FrameRate", "video_metadata.json", repairs)
+        or (info.timecode_rate if info else None)
+        or 60.0
+    )
     log = None
     if (folder / "frame_log.csv").is_file():
         log = read_frame_log(folder / "frame_log.csv", repairs)
@@ -230,9 +281,6 @@ def read_take_folder(
             "audio_rows": log.kinds.count("A"),
             "dropped_video_frames": int(log.dropped[[k == "V" for k in log.kinds]].sum()) if log.kinds else 0,
         }
-    movs = _files_ending(folder, ".mov")
-    mov = movs[0] if movs else None
-    info = _probe(mov)
     mov_audio = mov is not None and (info is None or info.audio_tracks > 0)  # unknown: decoding tells
     wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov (or its audio)
     wav = wavs[0] if wavs and not mov_audio else None
@@ -282,8 +330,8 @@ def read_take_folder(
                 info = probe_mov(mov)
             if info is not None and info.timecode:
                 try:
-                    rate = info.video_fps or video_rate
-                    tod = Timecode.parse(info.timecode, round(rate)).seconds_of_day
+                    rate = info.timecode_rate or round(video_rate)
+                    tod = Timecode.parse(info.timecode, rate).seconds_of_day
                     # a stand-in .wav starts with the video, as the .mov's audio would
                     start_s = _signed_day_diff(tod, csv_t0) + (info.audio_start_s if mov_audio else 0.0)
                     start_source = "mov_timecode"
