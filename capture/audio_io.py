@@ -302,7 +302,10 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:
-        raise InputError(f"audio could not be decoded (a truncated or damaged file?): {exc}", path) from None
+        # FFmpeg's errors carry its own negative error code ("[Errno 1094995529] Invalid data found ..."):
+        # the text is what tells the user something
+        why = getattr(exc, "strerror", None) or str(exc)
+        raise InputError(f"audio could not be decoded (a truncated or damaged file?): {why}", path) from None
     if not chunks:
         raise InputError("audio stream holds no samples", path)
     data = np.concatenate(chunks, axis=0)

@@ -478,15 +478,20 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
                 raise InputError(
                     f"audio {what.format(held)}, meta.json says {said} (damaged?)", folder / meta.audio.file
                 )
-    return Take(
-        meta,
-        arrays["time"],
-        arrays["values"],
-        arrays["frame_status"],
-        take_audio,
-        arrays.get("neutral"),
-        arrays.get("arrival_s"),
-    )
+    try:
+        return Take(
+            meta,
+            arrays["time"],
+            arrays["values"],
+            arrays["frame_status"],
+            take_audio,
+            arrays.get("neutral"),
+            arrays.get("arrival_s"),
+        )
+    except InputError as exc:  # the take's own checks (shapes, times) name the take, not its file
+        if exc.path is not None:
+            raise
+        raise InputError(str(exc), frames_path) from None
 
 
 def find_takes(paths: Iterable[str | Path]) -> list[Path]:

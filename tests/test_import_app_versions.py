@@ -183,3 +183,27 @@ def test_a_take_json_without_any_known_key_is_noted(tmp_path, samples):
     notes = [r["message"] for r in take.meta.repairs if r["kind"] == "bad_json"]
     assert len(notes) == 1 and "take.json" in notes[0] and "name" in notes[0]
     assert take.meta.subject == "iPhone"  # from the file name, as the note says
+
+
+# Messages a probe of s2a-view met, which come from the take and audio readers.
+def test_a_take_folder_with_times_out_of_order_names_its_frames_file(tmp_path, samples):
+    from capture import read_take, write_take
+
+    header, rows = sample_lines(samples, 10)
+    folder = write_take(read_livelink_csv(write_csv(tmp_path / "t.csv", header, rows)), tmp_path / "takes")
+    with np.load(folder / "frames.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["time"] = arrays["time"][::-1].copy()
+    np.savez(folder / "frames.npz", **arrays)
+    with pytest.raises(InputError, match=r"frames\.npz: take t: frame times are not strictly increasing"):
+        read_take(folder)
+
+
+def test_audio_that_is_not_audio_says_why_without_ffmpegs_error_number(tmp_path):
+    from capture import read_audio
+
+    garbage = tmp_path / "noise.wav"
+    garbage.write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    with pytest.raises(InputError, match="could not be decoded") as err:
+        read_audio(garbage)
+    assert "Errno" not in str(err.value) and str(garbage) in str(err.value)
