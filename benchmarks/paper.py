@@ -336,7 +336,7 @@ def takes_of_recordings(aligned: str, speaker: str, n: int) -> list[tuple[str, s
     by_recording: dict[str, tuple[str, str]] = {}
     for folder in takes_of(aligned, [speaker]):
         meta = read_meta(folder)
-        by_recording.setdefault(recording_of(meta), (folder, meta.id))
+        by_recording.setdefault(recording_of(meta, folder), (folder, meta.id))
     if len(by_recording) < n:
         raise RuntimeError(f"{speaker} has {len(by_recording)} recording(s) under {aligned}; {n} are needed")
     return list(by_recording.values())[:n]

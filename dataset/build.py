@@ -47,6 +47,7 @@ from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError, S2AError
 from capture.file_lock import fcntl, try_lock
 from capture.take import (
+    META_FILE,
     FrameStatus,
     Take,
     TakeMeta,
@@ -70,7 +71,7 @@ from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, manifest_path, read_manife
 from .normalize import HIST_LAYOUT, KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
 from .qa import ANIM_LIMIT, BASE_MEMBERS
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
-from .splits import SPLITS, SplitRule, assign_splits, pinned_groups
+from .splits import SPLITS, SplitRule, assign_splits, pinned_groups, speaker_key
 
 DATASET_VERSION = "1"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
@@ -122,8 +123,12 @@ class BuildOptions:
                 f"--features {','.join(self.features) or '(none)'} holds no content feature: a model needs "
                 f"one of {', '.join(CONTENT_FEATURES)} (--ppg adds ppg)"
             )
-        if self.shard_bytes <= 0 or not 0 < self.max_sample_s < math.inf or self.jobs < 1:
-            raise InputError("--shard-mb, --max-sample-s and --jobs must be positive (and finite)")
+        if self.shard_bytes < 1:
+            raise InputError(f"--shard-mb must give a cap of at least one byte, not {self.shard_bytes} bytes")
+        if not 0 < self.max_sample_s < math.inf:
+            raise InputError(f"--max-sample-s must be a positive number of seconds, not {self.max_sample_s}")
+        if self.jobs < 1:
+            raise InputError(f"--jobs must be at least 1 (worker processes), not {self.jobs}")
 
 
 # ------------------------------------------------------------------------------------------ takes
@@ -145,6 +150,7 @@ class SourceTake:
     source: dict[str, Any]
     content_sha256: str
     recording: str = ""  # the raw take align cut this one from (its own id when not cut)
+    notes: list[str] = field(default_factory=list)  # warnings about the take (align's flags, clipping)
 
 
 RACY_NS = 3_000_000_000  # files modified this recently are hashed afresh (see _file_digests)
@@ -218,7 +224,7 @@ def _one_spelling_per_speaker(takes: list[SourceTake]) -> list[str]:
     otherwise put one person in train and test. Returns a warning per merged name."""
     spellings: dict[str, set[str]] = {}
     for t in takes:
-        spellings.setdefault(" ".join(t.speaker.split()).casefold(), set()).add(t.speaker)
+        spellings.setdefault(speaker_key(t.speaker), set()).add(t.speaker)
     warnings = []
     for names in (sorted(n) for n in spellings.values() if len(n) > 1):
         for t in takes:
@@ -272,29 +278,50 @@ def _aligned_folders(
     return [out / n for n in names]
 
 
-def _align_record(meta: TakeMeta) -> dict[str, Any]:
-    """The report align wrote into an aligned take (``extra.align``), or ``{}``."""
+def _malformed(field_name: str, what: str, value: Any, folder: str | Path | None) -> InputError:
+    """The one-line error for an align field of the wrong type, naming the take's meta.json, as
+    ``read_meta`` does for the other fields: a malformed field must not be read as "absent"."""
+    path = Path(folder) / META_FILE if folder is not None else None
+    return InputError(f"malformed metadata: {field_name} must be {what}, not {value!r:.60}", path)
+
+
+def _align_record(meta: TakeMeta, folder: str | Path | None = None) -> dict[str, Any]:
+    """The report align wrote into an aligned take (``extra.align``), or ``{}`` when there is none."""
     record = meta.extra.get("align")
-    return record if isinstance(record, dict) else {}
+    if record is None:
+        return {}
+    if not isinstance(record, dict):
+        raise _malformed("extra.align", "an object (align's report)", record, folder)
+    return record
 
 
-def recording_of(meta: TakeMeta) -> str:
-    """The id of the raw take an aligned take was cut from (align's ``extra.align.parent.id``), else the
-    take's own id: the unit a take split keeps together."""
-    parent = _align_record(meta).get("parent")
+def recording_of(meta: TakeMeta, folder: str | Path | None = None) -> str:
+    """The id of the raw take an aligned take was cut from (align's ``extra.align.parent.id``; a bare
+    id is read too), else the take's own id: the unit a split keeps together. ``folder``: the take's,
+    named when the field is malformed."""
+    parent = _align_record(meta, folder).get("parent")
+    if parent is None:
+        return meta.id
     parent_id = parent.get("id") if isinstance(parent, dict) else parent
-    return parent_id if isinstance(parent_id, str) and parent_id else meta.id
+    if not isinstance(parent_id, str) or not parent_id.strip():
+        raise _malformed("extra.align.parent", "an object whose id names the raw take", parent, folder)
+    return parent_id
 
 
-def untrusted_flags(meta: TakeMeta) -> list[str]:
+def untrusted_flags(meta: TakeMeta, folder: str | Path | None = None) -> list[str]:
     """The flags align raised about a take's audio/face offset (``extra.align.flags``)."""
-    return [f for f in _align_flags(meta) if f in UNTRUSTED_FLAGS]
+    return [f for f in _align_flags(meta, folder) if f in UNTRUSTED_FLAGS]
 
 
-def _align_flags(meta: TakeMeta) -> list[str]:
-    """All the flags align raised about a take (``extra.align.flags``)."""
-    flags = _align_record(meta).get("flags")
-    return [f for f in flags if isinstance(f, str)] if isinstance(flags, list) else []
+def _align_flags(meta: TakeMeta, folder: str | Path | None = None) -> list[str]:
+    """All the flags align raised about a take (``extra.align.flags``); a malformed list is an error,
+    since reading it as "no flags" would keep a take ``--skip-flagged`` leaves out."""
+    flags = _align_record(meta, folder).get("flags")
+    if flags is None:
+        return []
+    if not isinstance(flags, list) or not all(isinstance(f, str) for f in flags):
+        raise _malformed("extra.align.flags", "a list of flag names", flags, folder)
+    return flags
 
 
 def collect_takes(
@@ -311,6 +338,7 @@ def collect_takes(
     seen_paths: set[Path] = set()
     takes: list[SourceTake] = []
     candidates: list[SourceTake] = []
+    skipped: dict[str, str] = {}  # take id: why --skip-flagged left it out
     by_id: dict[str, SourceTake] = {}
     by_sha: dict[str, SourceTake] = {}
     for folder in folders:
@@ -337,28 +365,33 @@ def collect_takes(
                 raise InputError(
                     f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af
                 )
-            flags = untrusted_flags(m)
-            if flags:
-                warnings.append(
-                    f"take {m.id}: align flagged its audio/face offset ({', '.join(flags)}): "
-                    + (
-                        "left out (--skip-flagged)"
-                        if skip_flagged
-                        else "check it, or build with --skip-flagged"
-                    )
+            flags = untrusted_flags(m, af)
+            # a take naming no subject counts as its recording's speaker, with the other segments align
+            # cut from it: as a speaker of its own, one session could sit on both sides of a speaker split
+            recording = recording_of(m, af)
+            speaker = m.subject or recording
+            if flags and skip_flagged:
+                # keyed by take id: the raw and the aligned copy of one take are told once
+                named = ", ".join(flags)
+                skipped[m.id] = (
+                    f"take {m.id}: align flagged its audio/face offset ({named}): left out (--skip-flagged)"
                 )
-                if skip_flagged:
-                    why = f"left out by --skip-flagged (align flagged {', '.join(flags)})"
-                    left_out.update(dict.fromkeys((m.id, recording_of(m), m.subject or m.id), why))
-                    continue
-            clipped = _align_record(m).get("clipped_audio")
-            if isinstance(clipped, float) and "clipped_audio" in _align_flags(m):
-                warnings.append(
+                why = f"left out by --skip-flagged (align flagged {named})"
+                left_out.update(dict.fromkeys((m.id, recording, speaker), why))
+                continue
+            notes = []  # said only of the takes kept: a duplicate's would repeat its twin's
+            if flags:
+                notes.append(
+                    f"take {m.id}: align flagged its audio/face offset ({', '.join(flags)}): check it, or "
+                    "build with --skip-flagged"
+                )
+            clipped = _align_record(m, af).get("clipped_audio")
+            if isinstance(clipped, float) and "clipped_audio" in _align_flags(m, af):
+                notes.append(
                     f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
                     "(its loudest sounds are distorted)"
                 )
             sha, content_sha = take_and_content_sha256(af)
-            speaker = m.subject or m.id
             st = SourceTake(
                 af,
                 m.id,
@@ -371,11 +404,13 @@ def collect_takes(
                 list(m.channels),
                 origin | {"take": m.id, "sha256": sha},
                 content_sha,
+                recording,
+                notes,
             )
-            st.recording = recording_of(m)
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
             candidates.append(st)
+    warnings += skipped.values()
     # duplicates in id order (the first id is kept), whatever the order of the inputs
     for st in sorted(candidates, key=lambda t: (t.id, t.source["path"])):
         if st.content_sha256 in by_sha:
@@ -392,15 +427,19 @@ def collect_takes(
             )
         by_id[st.id] = by_sha[st.content_sha256] = st
         takes.append(st)
+        warnings += st.notes
     if not takes:
         raise InputError("no take is left to build from: " + "; ".join(warnings))
     takes.sort(key=lambda t: t.id)
     warnings += _distinct_keys(takes) + _one_spelling_per_speaker(takes)
-    fps = {round(t.fps, 6) for t in takes}
-    if len(fps) > 1:
+    first_at: dict[float, SourceTake] = {}  # a take of each frame rate, to name in the error
+    for t in takes:
+        first_at.setdefault(round(t.fps, 6), t)
+    if len(first_at) > 1:
+        examples = ", ".join(f"{rate:g} fps: {first_at[rate].folder}" for rate in sorted(first_at))
         raise InputError(
-            f"takes have different frame rates ({', '.join(map(str, sorted(fps)))} fps); "
-            "align them to one rate (s2a-align --fps) or build separate datasets"
+            f"takes have different frame rates ({examples}); align them to one rate (s2a-align --fps) or "
+            "build separate datasets"
         )
     return takes, warnings, left_out
 
@@ -447,9 +486,20 @@ def resolve_channels(
     else:
         # Live Link channels in any spelling and a rig's own names (generic paired import), the latter
         # matched case-insensitively against the takes' channels
-        names = [canonical(n) if is_known(n) else n for n in (p.strip() for p in spec.split(",")) if n]
+        given = [p.strip() for p in spec.split(",") if p.strip()]
+        names = [canonical(n) if is_known(n) else n for n in given]
         if not names:
             raise InputError(f"empty channel selection {spec!r}")
+        # names are matched to the takes' channels without case, and Live Link names in any spelling:
+        # one channel named twice would give identical columns and one key in the statistics
+        seen: dict[str, str] = {}
+        for spelled, name in zip(given, names, strict=True):
+            if name.lower() in seen:
+                raise InputError(
+                    f"--channels names one channel twice ({seen[name.lower()]!r} and {spelled!r}: case and "
+                    "Live Link spellings are ignored)"
+                )
+            seen[name.lower()] = spelled
         held = {c.lower() for t in takes for c in t.channels}
         unknown = [n for n in names if not is_known(n) and n.lower() not in held]
         if unknown:
@@ -730,10 +780,13 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         gain=level,
     )
     neutral = None
+    neutral_nonfinite: list[str] = []  # selected channels whose calibrated neutral is NaN or infinite
     if take.neutral is not None and take.neutral.shape == (len(take.meta.channels),):
         nv = take.neutral[idx]
         if np.all(np.isfinite(nv)):
             neutral = nv.astype(np.float32)
+        else:
+            neutral_nonfinite = [c for c, v in zip(job.channels, nv, strict=True) if not np.isfinite(v)]
 
     # statistics (float64 sums; merged later in take order)
     chan = ChannelAccumulator(len(job.channels))
@@ -824,6 +877,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "out_of_range_frames": int((finite & ~in_range).sum()),
         "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == FrameStatus.INTERPOLATED))),
         "narrowband": narrow,
+        "neutral_nonfinite": neutral_nonfinite,
         "audio_gain": gain,
         "stray_samples": int(stray.sum()),
         "speech_level_dbfs": speech_db,
@@ -1275,6 +1329,13 @@ def _take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
             f"take {r['take']}: its audio has no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at "
             "8 kHz, or through a phone codec?): its filter banks lack the upper bands of the other takes"
         )
+    if r.get("neutral_nonfinite"):
+        bad = r["neutral_nonfinite"]
+        notes.append(
+            f"take {r['take']}: its calibrated neutral pose is not a number for {len(bad)} selected "
+            f"channel(s) ({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''}): not used (its samples' "
+            "neutral is null)"
+        )
     if r.get("audio_gain", 1.0) < 1.0 / FILTER_OVERSHOOT:  # a smaller gain is scaled without a word
         peak = 1 / r["audio_gain"]
         why = "clipped in the recording, then resampled?" if peak < 2 else "float audio"
@@ -1302,7 +1363,7 @@ def _take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     return notes
 
 
-def _pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> dict[str, Any]:
+def pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> dict[str, Any]:
     """Per speaker, the mean and std of voiced log-F0 over the training split's takes (over all of the
     speaker's takes for a held-out speaker)."""
     pitch_norm = {}
@@ -1412,6 +1473,12 @@ def _build(
     work = out / WORK
     work.mkdir(exist_ok=True)
     takes, warnings, left_out = collect_takes(inputs, work, say, options.skip_flagged)
+    fps = takes[0].fps  # all takes share it (collect_takes)
+    if options.max_sample_s * fps < 1 - 1e-9:  # a sample is at least one frame: it would be longer
+        raise InputError(
+            f"--max-sample-s {options.max_sample_s:g} is shorter than one frame at {fps:g} fps "
+            f"({1 / fps:.4g} s): a sample holds at least one frame"
+        )
     kept = {name for t in takes for name in (t.id, t.recording, t.speaker)}
     for pinned in (*options.split.val, *options.split.test):
         if pinned in left_out and pinned not in kept:
@@ -1428,7 +1495,8 @@ def _build(
     assumed = sorted(t.id for t in takes if t.speaker_assumed)
     if assumed:
         warnings.append(
-            f"{len(assumed)} take(s) name no speaker (meta.subject): each counts as its own speaker"
+            f"{len(assumed)} take(s) name no speaker (meta.subject): each recording (a raw take with the "
+            "segments align cut from it) counts as its own speaker"
         )
     extractor = _extractor(options.ppg, options.ppg_model)
     ppg_info = extractor.describe() if extractor is not None else None
@@ -1502,7 +1570,7 @@ def _build(
         feature_norm[name] = {"mean": mean, "std": std, "frames": acc.count}
     pitch_norm = {}
     if "pitch" in options.features:
-        pitch_norm = _pitch_normalization(ordered, sorted({t.speaker for t in takes}))
+        pitch_norm = pitch_normalization(ordered, sorted({t.speaker for t in takes}))
 
     plan = plan_shards(ordered, options.shard_bytes)
     shards = _write_shards(out, work, plan, fingerprint, say)

@@ -98,6 +98,9 @@ def _say(prefix: str):
 def cmd_build(args: argparse.Namespace) -> int:
     if not 0 < args.shard_mb < math.inf:
         raise InputError(f"--shard-mb must be a positive number, not {args.shard_mb}")
+    shard_bytes = int(args.shard_mb * 1024 * 1024)
+    if shard_bytes < 1:
+        raise InputError(f"--shard-mb {args.shard_mb:g} is under one byte: give the cap in MB (default 256)")
     try:
         level = parse_level(args.level)
     except ValueError:
@@ -113,7 +116,7 @@ def cmd_build(args: argparse.Namespace) -> int:
         split=SplitRule(
             args.split_by, args.val_fraction, args.test_fraction, args.seed, tuple(args.val), tuple(args.test)
         ),
-        shard_bytes=int(args.shard_mb * 1024 * 1024),
+        shard_bytes=shard_bytes,
         max_sample_s=args.max_sample_s,
         jobs=args.jobs,
         keep_work=args.keep_work,

@@ -21,6 +21,7 @@ log-F0 is z-scored per speaker over voiced frames.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -239,22 +240,41 @@ class Normalizer:
             raise InputError(f"malformed normalization statistics: {exc}") from None
 
 
-def fit_normalizer(kind: str, channels: list[str], acc: ChannelAccumulator) -> Normalizer:
-    """Normalizer from training-split statistics ``acc``."""
+def animation_statistics(kind: str, acc: ChannelAccumulator) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel, the offset and the spread (std or RMS, 1 for a channel that barely moves) of
+    ``fit_normalizer`` before the spread is rounded to a power of two (``validate --deep`` compares a
+    manifest's scales with them)."""
     if kind == "zscore":
         offset = acc.mean()
-        scale = acc.std()
+        spread = acc.std()
     elif kind == "neutral":
         offset = acc.percentile(5.0)
         # RMS around each take's own neutral (calibrated takes) or around the global neutral (others)
         rest = acc.rest_sumsq - 2 * offset * acc.rest_sum + acc.rest_count * offset * offset
         total = np.maximum(acc.own_count + acc.rest_count, 1)
-        scale = np.sqrt(np.maximum(acc.own_sumsq + rest, 0.0) / total)
+        spread = np.sqrt(np.maximum(acc.own_sumsq + rest, 0.0) / total)
     else:
         raise InputError(f"unknown normalization {kind!r} (known: {', '.join(KINDS)})")
-    scale = np.where(scale < MIN_SCALE, 1.0, scale)
-    scale = np.exp2(np.round(np.log2(scale)))  # a power of two: exact division and multiplication
+    return offset, np.where(spread < MIN_SCALE, 1.0, spread)
+
+
+def fit_normalizer(kind: str, channels: list[str], acc: ChannelAccumulator) -> Normalizer:
+    """Normalizer from training-split statistics ``acc``."""
+    offset, spread = animation_statistics(kind, acc)
+    scale = np.exp2(np.round(np.log2(spread)))  # a power of two: exact division and multiplication
     return Normalizer(kind, channels, offset.astype(np.float32), scale.astype(np.float32))
+
+
+def is_power_of_two(x: float) -> bool:
+    """Whether ``x`` is 2^k for an integer k (the animation scales are)."""
+    mantissa, _ = math.frexp(x)
+    return x > 0 and math.isfinite(x) and mantissa == 0.5
+
+
+def histogram_resolution(x: np.ndarray) -> np.ndarray:
+    """How far a percentile read from the histogram may lie from the value: a bin's width there."""
+    inner = 2 * HIST_INNER / HIST_INNER_BINS
+    return np.where(np.abs(x) < HIST_INNER, inner, np.abs(x) * (HIST_RATIO - 1.0) + inner)
 
 
 class FeatureAccumulator:

@@ -4,7 +4,8 @@
 ``VALIDATORS`` maps each kind of object (manifest, shard, sample, splits) to its function. Each function
 returns ``Problem`` records naming the location (``manifest.json:shards[2].sha256``,
 ``train-000000.tar:KEY.anim.npy``, ...). The default run decodes every sample and reads each FLAC
-header; ``deep`` adds the sha256 of every shard and decodes every FLAC in full.
+header; ``deep`` adds the sha256 of every shard, decodes every FLAC in full and recomputes, with the
+build's own accumulators, the channel distributions and normalisation statistics the manifest holds.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -26,6 +28,7 @@ from .manifest import (
     LOCK_FILE,
     MANIFEST_FILE,
     WORK,
+    _count,
     _number,
     load_manifest,
     manifest_problems,
@@ -107,13 +110,28 @@ CHECKS: tuple[Check, ...] = (
         "manifest",
         False,
         "stats.SPLIT (takes, samples, hours, usable frames, hours per speaker) or a shard's duration_s "
-        "differ from the takes and samples the manifest lists",
+        "differ from the takes and samples the manifest lists; with --deep, a channel distribution "
+        "(stats.SPLIT.channels) from the one recomputed from the split's samples",
     ),
     Check(
         "feature_names",
         "manifest",
         False,
         "features.names, features.dims, members and normalization.features name different features",
+    ),
+    Check(
+        "normalization_scale",
+        "manifest",
+        False,
+        "an animation scale (normalization.animation.scale) that is not a power of two, as the build "
+        "makes every one",
+    ),
+    Check(
+        "normalization_mismatch",
+        "dataset",
+        True,
+        "normalization (animation offset and scale, feature mean and std, per-speaker log-F0) differs "
+        "from what the build computes from the training split's samples",
     ),
     Check(
         "split_empty",
@@ -363,12 +381,12 @@ def validate_sample(
     shard: str,
     manifest: dict[str, Any],
     deep: bool = False,
-    on_anim: Callable[[np.ndarray], None] | None = None,
+    on_arrays: Callable[[dict[str, np.ndarray], np.ndarray], None] | None = None,
     **_: Any,
 ) -> tuple[list[Problem], dict[str, Any] | None]:
     """Decode one sample and check members, dtypes, shapes, values and rates; returns its metadata.
-    ``on_anim`` receives the animation's usable frames (mask true, every value finite), when the
-    animation and mask have the manifest's shape."""
+    ``on_arrays`` receives the decoded arrays (by member name less ``.npy``) and the usable frames (mask
+    true, every animation value finite), when the animation and mask have the manifest's shape."""
     out: list[Problem] = []
     at = f"{shard}:{key}"
     expected = set(manifest.get("members", BASE_MEMBERS))
@@ -413,13 +431,12 @@ def validate_sample(
                 )
             )
         elif (
-            on_anim is not None
+            on_arrays is not None
             and frames is not None
             and anim.dtype.kind == "f"
             and anim.shape[1] == n_channels
         ):
-            usable = mask.astype(bool) & np.isfinite(anim).all(axis=1)
-            on_anim(anim[usable])
+            on_arrays(arrays, mask.astype(bool) & np.isfinite(anim).all(axis=1))
     out += _check_features(arrays, at, manifest, frames)
     phones = arrays.get("phones")
     if phones is not None and frames is not None and phones.shape != (frames,):
@@ -532,16 +549,17 @@ def validate_splits(manifest: dict[str, Any], seen: list[dict[str, Any]], **_: A
     out += _in_several(splits_of, lambda t: f"take {t}", lambda t, s: f"take is in splits {s}")
     if by == "speaker":
         out += _in_several(speaker_splits, lambda k: f"speaker {k}", lambda k, s: f"speaker is in splits {s}")
-    if by == "take":  # segments align cut from one recording go to one split
-        recordings: dict[str, set[str]] = {}
-        recording_of = take_recordings(manifest)
-        for take, splits in splits_of.items():
-            recordings.setdefault(recording_of.get(take, take), set()).update(splits)
-        out += _in_several(
-            recordings,
-            lambda r: f"recording {r}",
-            lambda r, s: f"segments of one recording are in splits {s}",
-        )
+    # segments align cut from one recording go to one split, by take or by speaker (a take naming no
+    # speaker is its recording's: a segment on each side of a speaker split is the same session)
+    recordings: dict[str, set[str]] = {}
+    recording_of = take_recordings(manifest)
+    for take, splits in splits_of.items():
+        recordings.setdefault(recording_of.get(take, take), set()).update(splits)
+    out += _in_several(
+        recordings,
+        lambda r: f"recording {r}",
+        lambda r, s: f"segments of one recording are in splits {s}",
+    )
     listed: dict[str, set[str]] = {}
     for split in SPLITS:
         for take in manifest.get("splits", {}).get(split, {}).get("takes", []):
@@ -750,14 +768,34 @@ def _empty_split_problems(manifest: dict[str, Any]) -> list[Problem]:
     return out
 
 
+def _scale_problems(manifest: dict[str, Any]) -> list[Problem]:
+    """Animation scales that are not powers of two: the build rounds every one to 2^k so that
+    normalising and back is exact (docs/dataset.md, Normalisation); another value was edited in."""
+    from .normalize import is_power_of_two  # here: normalize imports this module
+
+    scales = manifest["normalization"]["animation"]["scale"]
+    channels = manifest["channels"]
+    return [
+        _p(
+            "normalization_scale",
+            f"{MANIFEST_FILE}:normalization.animation.scale[{c}]",
+            f"{scale!r} ({channels[c]}) is not a power of two, as the build makes every scale",
+        )
+        for c, scale in enumerate(scales)
+        if not is_power_of_two(float(scale))
+    ]
+
+
 def manifest_consistency(manifest: dict[str, Any]) -> list[Problem]:
     """Fields of a manifest (that passed ``manifest_schema``) that contradict each other: splits against
-    samples, stats against samples, feature names against members and normalisation, empty splits."""
+    samples, stats against samples, feature names against members and normalisation, empty splits,
+    animation scales that are not powers of two."""
     return (
         _listing_problems(manifest)
         + _stats_problems(manifest)
         + _feature_problems(manifest)
         + _empty_split_problems(manifest)
+        + _scale_problems(manifest)
     )
 
 
@@ -856,6 +894,215 @@ def moments(anim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.full(x.shape[1], x.shape[0], np.float64), x.sum(0), (x * x).sum(0)
 
 
+# ------------------------------------------------------------------------------------------ statistics
+# --deep decodes every sample: the statistics the build stored in the manifest are gathered again with
+# the build's own accumulators and fitted with its own functions. Sums come out in another order than
+# the build's (per sample, not per take), so numbers agree to rounding; percentiles (and the neutral
+# offset, a 5th percentile) to a histogram bin.
+
+
+class Recomputed:
+    """What the build computes from a dataset's frames, gathered from its decoded samples: per split
+    the channel accumulator of the usable frames (a sample's ``neutral`` standing for its take's); over
+    the training split each feature's sums; per take its voiced log-F0 sums, as the build's records."""
+
+    def __init__(self, manifest: dict[str, Any]):
+        from .normalize import ChannelAccumulator  # here: normalize imports this module
+
+        self.n_channels = len(manifest["channels"])
+        self.feature_names = [f for f in manifest["features"]["names"] if f != "pitch"]
+        self.channels = {s: ChannelAccumulator(self.n_channels) for s in SPLITS}
+        self.samples = dict.fromkeys(SPLITS, 0)
+        self.features: dict[str, Any] = {}  # name: FeatureAccumulator over the training split
+        self.takes: dict[str, dict[str, Any]] = {}  # take: {"speaker", "split", "pitch_stats"}
+
+    def add(self, split: str, meta: dict[str, Any] | None, arrays: dict[str, np.ndarray], usable) -> None:
+        from .normalize import FeatureAccumulator
+
+        if split not in self.channels or meta is None:
+            return
+        neutral = meta.get("neutral")
+        if not (isinstance(neutral, list) and len(neutral) == self.n_channels and all(map(_number, neutral))):
+            neutral = None
+        self.channels[split].add(arrays["anim"][usable], None if neutral is None else np.asarray(neutral))
+        self.samples[split] += 1
+        if split == "train":
+            for name in self.feature_names:
+                x = arrays.get(name)
+                if x is not None and x.ndim == 2:
+                    self.features.setdefault(name, FeatureAccumulator(x.shape[1])).add(x)
+        pitch = arrays.get("pitch")
+        if pitch is not None and pitch.ndim == 2 and pitch.shape[1] == 2:
+            lf0 = pitch[pitch[:, 1] > 0.5, 0].astype(np.float64)
+            take = self.takes.setdefault(
+                str(meta.get("take")),
+                {
+                    "speaker": str(meta.get("speaker")),
+                    "split": split,
+                    "pitch_stats": dict.fromkeys(("count", "sum", "sumsq"), 0),
+                },
+            )
+            st = take["pitch_stats"]
+            st["count"] += int(lf0.size)
+            st["sum"] += float(lf0.sum())
+            st["sumsq"] += float((lf0 * lf0).sum())
+
+
+def _near(stored: Any, ours: float, tolerance: float) -> bool:
+    """Whether a stored statistic agrees with the recomputed one (rounding to 6 decimals and to float32
+    included)."""
+    return _number(stored) and abs(stored - ours) <= tolerance + 2e-6 + 1e-6 * abs(ours)
+
+
+def _distribution_problems(manifest: dict[str, Any], ours: Recomputed, complete: list[str]) -> list[Problem]:
+    """stats.SPLIT.channels against the distributions of the split's decoded samples."""
+    from .normalize import histogram_resolution
+
+    out: list[Problem] = []
+    for split in complete:
+        stored = manifest.get("stats", {}).get(split, {}).get("channels", {})
+        for name, found in ours.channels[split].summary(manifest["channels"]).items():
+            theirs = stored.get(name)
+            at = f"{MANIFEST_FILE}:stats.{split}.channels.{name}"
+            if not isinstance(theirs, dict):
+                out.append(_p("stats_mismatch", at, "missing; the split's samples hold the channel"))
+                continue
+            if not found["frames"]:
+                found = {"frames": 0}  # older builds stored 0, not null, for the rest of an empty channel
+            for key, value in found.items():
+                if key == "frames":
+                    same = theirs.get(key) == value
+                else:  # a percentile is read from the histogram: right to a bin
+                    bins = float(histogram_resolution(value)) if key in ("p05", "p50", "p95") else 0.0
+                    same = _near(theirs.get(key), value, bins)
+                if not same:
+                    out.append(
+                        _p(
+                            "stats_mismatch",
+                            f"{at}.{key}",
+                            f"says {theirs.get(key)!r}; the split's samples give {value:.6g}",
+                        )
+                    )
+                    break  # one line per channel
+    return out
+
+
+def _animation_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
+    """normalization.animation against the offsets and spreads the build fits to the training split."""
+    from .normalize import KINDS, animation_statistics, histogram_resolution
+
+    norm = manifest["normalization"]["animation"]
+    acc = ours.channels["train"]
+    if norm.get("kind") not in KINDS:
+        return []
+    offset, spread = animation_statistics(norm["kind"], acc)
+    out: list[Problem] = []
+    at = f"{MANIFEST_FILE}:normalization.animation"
+    for c, name in enumerate(manifest["channels"]):
+        if not acc.count[c]:
+            continue
+        bin_width = float(histogram_resolution(offset[c])) if norm["kind"] == "neutral" else 0.0
+        if not _near(norm["offset"][c], float(offset[c]), bin_width):
+            out.append(
+                _p(
+                    "normalization_mismatch",
+                    f"{at}.offset[{c}]",
+                    f"{name}: says {norm['offset'][c]!r}; the training split's samples give {offset[c]:.6g}",
+                )
+            )
+        # a scale is the spread rounded to a power of two in log2; a spread at the midpoint between two
+        # powers may round either way with the sums in another order
+        octave = math.log2(spread[c])
+        nearest = {2.0 ** math.floor(octave + 0.5)}
+        if abs(octave % 1.0 - 0.5) < 1e-6:
+            nearest |= {2.0 ** math.floor(octave), 2.0 ** math.ceil(octave)}
+        if norm["scale"][c] not in nearest:
+            out.append(
+                _p(
+                    "normalization_mismatch",
+                    f"{at}.scale[{c}]",
+                    f"{name}: says {norm['scale'][c]!r}; the training split's samples give "
+                    f"{min(nearest):g} ({norm['kind']} spread {spread[c]:.6g})",
+                )
+            )
+    return out
+
+
+def _feature_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
+    """normalization.features.NAME against the training split's frames. The build counts only frames
+    inside a take's audio, which a sample does not record: compared when the frame counts agree (the
+    audio covers every frame, as align writes takes); more frames than the split holds is wrong."""
+    out: list[Problem] = []
+    for name, st in manifest["normalization"].get("features", {}).items():
+        acc = ours.features.get(name)
+        at = f"{MANIFEST_FILE}:normalization.features.{name}"
+        if acc is None or not _count(st.get("frames")):
+            continue
+        if st["frames"] > acc.count:
+            out.append(
+                _p(
+                    "normalization_mismatch",
+                    f"{at}.frames",
+                    f"says {st['frames']}; the training split's samples hold {acc.count} frames",
+                )
+            )
+        if st["frames"] != acc.count:
+            continue
+        for key, values in zip(("mean", "std"), acc.mean_std(), strict=True):
+            bad = [d for d, v in enumerate(values) if not _near(st[key][d], v, 1e-5 * abs(v))]
+            if bad:
+                d = bad[0]
+                out.append(
+                    _p(
+                        "normalization_mismatch",
+                        f"{at}.{key}[{d}]",
+                        f"says {st[key][d]!r}; the training split's samples give {values[d]:.6g}"
+                        + (f" ({len(bad)} dimensions differ)" if len(bad) > 1 else ""),
+                    )
+                )
+    return out
+
+
+def _pitch_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
+    """normalization.pitch.speakers against each speaker's voiced log-F0 (compared where the voiced
+    frame counts agree, as for the features)."""
+    from .build import pitch_normalization  # here: build imports this module
+
+    stored = manifest["normalization"].get("pitch", {}).get("speakers", {})
+    records = [ours.takes[t] for t in sorted(ours.takes)]  # in take order, as the build sums them
+    found = pitch_normalization(records, sorted({r["speaker"] for r in records}))
+    out: list[Problem] = []
+    for speaker, mine in found.items():
+        theirs = stored.get(speaker)
+        if not isinstance(theirs, dict) or theirs.get("voiced_frames") != mine["voiced_frames"]:
+            continue  # a missing speaker is manifest_schema's
+        for key in ("mean", "std"):
+            if not _near(theirs.get(key), mine[key], 1e-5 * abs(mine[key])):
+                out.append(
+                    _p(
+                        "normalization_mismatch",
+                        f"{MANIFEST_FILE}:normalization.pitch.speakers.{speaker}.{key}",
+                        f"says {theirs.get(key)!r}; the speaker's voiced log-F0 gives {mine[key]:.6g}",
+                    )
+                )
+    return out
+
+
+def validate_statistics(manifest: dict[str, Any], ours: Recomputed, **_: Any) -> list[Problem]:
+    """The manifest's normalisation and channel distributions against those recomputed from the decoded
+    samples (``validate --deep``), for the splits whose every sample decoded (the others' missing or
+    damaged samples are reported already)."""
+    listed = Counter(sample["split"] for sample in manifest["samples"])
+    complete = [s for s in SPLITS if listed[s] and ours.samples[s] == listed[s]]
+    out = _distribution_problems(manifest, ours, complete)
+    if "train" in complete:
+        out += _animation_problems(manifest, ours) + _feature_norm_problems(manifest, ours)
+    # a held-out speaker's log-F0 statistics come from its takes in every split
+    if "pitch" in manifest["features"]["names"] and all(ours.samples[s] == listed[s] for s in SPLITS):
+        out += _pitch_norm_problems(manifest, ours)
+    return out
+
+
 VALIDATORS: dict[str, Callable[..., Any]] = {
     "manifest": validate_manifest,
     "shard": validate_shard,
@@ -913,16 +1160,24 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
     seen: list[dict[str, Any]] = []
     listed = set()
     shards = manifest.get("shards", [])
+    recomputed = Recomputed(manifest) if deep else None
     for i, entry in enumerate(shards, 1):
         name = entry.get("name", "?")
         listed.add(name)
         split = entry.get("split")
 
         def on_sample(key: str, members: dict[str, bytes], name=name, split=split) -> None:
-            usable: list[np.ndarray] = []
-            found, meta = VALIDATORS["sample"](key, members, name, manifest, deep=deep, on_anim=usable.append)
+            decoded: list[tuple[dict[str, np.ndarray], np.ndarray]] = []
+            found, meta = VALIDATORS["sample"](
+                key, members, name, manifest, deep=deep, on_arrays=lambda a, u: decoded.append((a, u))
+            )
             problems.extend(found)
-            sums = moments(usable[0]) if usable else None
+            sums = None
+            if decoded:
+                arrays, usable = decoded[0]
+                sums = moments(arrays["anim"][usable])
+                if recomputed is not None and not any(p.severity == "error" for p in found):
+                    recomputed.add(split, meta, arrays, usable)
             seen.append({"key": key, "shard": name, "split": split, "meta": meta, "moments": sums})
 
         problems.extend(VALIDATORS["shard"](entry, ds, manifest, deep=deep, on_sample=on_sample))
@@ -930,6 +1185,8 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
             progress(f"[{i}/{len(shards)}] {name}")
     problems.extend(VALIDATORS["splits"](manifest, seen))
     problems.extend(VALIDATORS["takes"](manifest, seen))
+    if recomputed is not None:
+        problems.extend(validate_statistics(manifest, recomputed))
     for p in sorted(ds.glob("*.tar")):
         if p.name not in listed:
             problems.append(_p("shard_unlisted", p.name, "not listed in the manifest", "warning"))

@@ -7,7 +7,7 @@ split for cross-speaker evaluation) goes to one split. Pinned takes, recordings 
 (``--test``, ``--val``) go first; the rest are ordered by a seeded hash of their id (stable when takes
 are added) and taken while they bring each split closer to its fraction of the total duration. A split
 with a fraction above 0 that no group brings closer (every free group is over twice its target) gets
-the shortest free group. Train always keeps at least one.
+the shortest free group. Train always keeps at least one (pins that leave it none are an error).
 """
 
 from __future__ import annotations
@@ -54,21 +54,33 @@ def _order(seed: int, name: str) -> str:
     return hashlib.sha256(f"{seed}:{name}".encode()).hexdigest()
 
 
+def speaker_key(name: str) -> str:
+    """What identifies a speaker: the name without case or extra spacing (``Anna`` and ``anna `` typed
+    on two phones are one person; the build merges such spellings, and pins match them)."""
+    return " ".join(name.split()).casefold()
+
+
 def pinned_groups(
     takes: dict[str, tuple[str, float]], rule: SplitRule, recordings: dict[str, str] | None = None
 ) -> tuple[dict[str, str], dict[str, str]]:
     """``({take id: its group}, {pinned group: split})``: the groups a split keeps together (a
-    recording's takes by take, a speaker's by speaker) and those that ``--val``/``--test`` pin."""
+    recording's takes by take, a speaker's by speaker) and those that ``--val``/``--test`` pin. A pin
+    names a take or recording exactly (two takes may differ only in case) or a speaker in any case
+    or spacing (``speaker_key``)."""
     recording = {t: (recordings or {}).get(t) or t for t in takes}
     group_of = {t: (recording[t] if rule.by == "take" else spk) for t, (spk, _) in takes.items()}
-    known_ids = set(takes) | set(recording.values()) | {spk for spk, _ in takes.values()}
+    take_ids = set(takes) | set(recording.values())
+    speakers = {speaker_key(spk) for spk, _ in takes.values()}
     for pinned in (*rule.val, *rule.test):
-        if pinned not in known_ids:
-            raise InputError(f"pinned take or speaker {pinned!r} is not among the inputs")
+        if pinned not in take_ids and speaker_key(pinned) not in speakers:
+            near = sorted(t for t in take_ids if t.casefold() == pinned.casefold())
+            hint = f" (take ids match exactly, case included: {near[0]!r}?)" if near else ""
+            raise InputError(f"pinned take or speaker {pinned!r} is not among the inputs{hint}")
     split_of_group: dict[str, str] = {}
     for split, pinned in (("test", rule.test), ("val", rule.val)):
+        pinned_speakers = {speaker_key(p) for p in pinned}
         for t, (spk, _) in takes.items():
-            if t in pinned or recording[t] in pinned or spk in pinned:
+            if t in pinned or recording[t] in pinned or speaker_key(spk) in pinned_speakers:
                 g = group_of[t]
                 if split_of_group.get(g, split) != split:
                     raise InputError(f"{g!r} is pinned to both val and test (via take, recording or speaker)")
@@ -106,6 +118,12 @@ def assign_splits(
             free.pop(0)
             split_of_group[g] = split
             have += durations[g]
+    if durations and not free:  # the fractions never take the last group, but pins may
+        unit = "speaker" if rule.by == "speaker" else "recording"
+        raise InputError(
+            f"--val/--test pin all {len(durations)} {unit}(s) of the inputs: none is left for the training "
+            "split; pin fewer"
+        )
     for g in free:
         split_of_group[g] = "train"
     return {t: split_of_group[group_of[t]] for t in takes}
