@@ -85,8 +85,12 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     (repair ``unfinished_audio``); without it, non-finite samples and unfinished WAVs are an
     ``InputError``."""
     path = Path(path)
-    if not path.is_file():
+    if path.is_dir():
+        raise InputError("is a folder, not an audio file", path)
+    if not path.exists():
         raise InputError("audio file not found", path)
+    if not path.is_file():
+        raise InputError("not a regular file (a device or a pipe?): give an audio file", path)
     try:
         info = sf.info(str(path))
     except (sf.LibsndfileError, RuntimeError, TypeError):

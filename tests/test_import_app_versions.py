@@ -207,3 +207,13 @@ def test_audio_that_is_not_audio_says_why_without_ffmpegs_error_number(tmp_path)
     with pytest.raises(InputError, match="could not be decoded") as err:
         read_audio(garbage)
     assert "Errno" not in str(err.value) and str(garbage) in str(err.value)
+
+
+def test_audio_given_as_a_folder_or_a_device_says_so(tmp_path):
+    from capture import read_audio
+
+    for path, needle in ((tmp_path, "is a folder"), (Path("/dev/null"), "not a regular file")):
+        with pytest.raises(InputError, match=needle):
+            read_audio(path)
+    with pytest.raises(InputError, match="audio file not found"):
+        read_audio(tmp_path / "none.wav")

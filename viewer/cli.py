@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -12,10 +13,13 @@ from pathlib import Path
 from capture.command import emit_json, progress, run
 from capture.errors import InputError
 
-from .output import prepare_output
+from .output import Terminated, prepare_output, raise_if_stopped, stopped_by_signals, stops_between_frames
 from .plot import VAD_METHODS
 
 PROG = "s2a-view"
+# What argparse takes as a value rather than an option: its own '-5' and '-.5', and also '-1e9', '-inf'
+# and '-nan', so that a --compare-offset -inf is refused by the finiteness check, not as an unknown option.
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf|infinity|nan)$", re.IGNORECASE)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -140,6 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("probe", help="check that offscreen rendering works here (and say what to install)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_probe)
+    for p in sub.choices.values():  # argparse has no public setting for this (Python 3.11)
+        p._negative_number_matcher = NEGATIVE_NUMBER
     return parser
 
 
@@ -157,19 +163,35 @@ def _warn(anims) -> None:
             progress(f"warning: {w}")
 
 
+def _outside(what: str, start: float, end: float, lo: float, hi: float, shown: str) -> list[str]:
+    """A warning when ``what``, spanning ``start..end`` s, lies wholly outside the rendered ``lo..hi``
+    s (seconds after the input's first frame): that panel shows nothing of it but ``shown``."""
+    if start <= hi and end >= lo:
+        return []
+
+    def sec(x: float) -> str:
+        return f"{x:.3f}" if abs(x) < 1e6 else f"{x:.4g}"  # an offset of 1e300 s stays one short line
+
+    rendered = f"{sec(lo)}..{sec(hi)} s" if hi > lo else f"{sec(lo)} s"
+    return [f"{what} spans {sec(start)}..{sec(end)} s, outside the rendered {rendered}: {shown}"]
+
+
 def cmd_render(args: argparse.Namespace) -> int:
-    from .inputs import livelink_coverage
+    from .inputs import livelink_coverage, missing_face_channels
     from .probe import probe
     from .render import (
         FaceRenderer,
         ReferenceVideo,
-        audio_for_span,
+        aac_rate,
         default_frame,
         distinct_labels,
         load_animation,
+        mp4_frame_fits,
         place_on_parent_clock,
         reference_video_of,
         render_frame,
+        resample_speech,
+        speech_for_video,
         write_image,
         write_mp4,
     )
@@ -183,22 +205,32 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise InputError("--frame/--time pick one frame for a PNG; an MP4 has them all")
     if args.frame is not None and args.time is not None:
         raise InputError("--frame and --time both pick the frame: give one of them")
-    if args.time is not None and not math.isfinite(args.time):
-        raise InputError(f"--time must be a number of seconds, not {args.time}")
-    prepare_output(args.out)
+    for flag, values in (
+        ("--time", [args.time]),
+        ("--video-start", [args.video_start]),
+        ("--compare-offset", args.compare_offset or []),
+    ):
+        bad = [v for v in values if v is not None and not math.isfinite(v)]
+        if bad:
+            raise InputError(f"{flag} must be a number of seconds, not {bad[0]}")
+    if args.compare_offset is not None and len(args.compare_offset) != len(args.compare):
+        raise InputError(
+            f"--compare-offset gives {len(args.compare_offset)} offsets for {len(args.compare)} inputs"
+        )
+    if args.video_start is not None and not args.video:
+        progress("warning: --video-start places a reference video: without --video it is ignored")
     one = "render shows one take per input"
     anims = [load_animation(args.input, args.audio, one_take=one)]
     anims += [load_animation(c, one_take=one, audio_flag=None) for c in args.compare]
     paths = [args.input, *args.compare]
     for a, path in zip(anims, paths):
-        a.warnings += livelink_coverage(a.take, path, "render")
+        a.warnings += livelink_coverage(a.take, path, "render") + missing_face_channels(a.take, path)
     first = anims[0]
     span = float(first.time[-1] - first.t0)
     if args.time is not None and not 0 <= args.time <= span:
         raise InputError(f"--time {args.time:g} s is outside the take's 0..{span:.3f} s", args.input)
     if args.frame is not None and not 0 <= args.frame < first.time.size:
         raise InputError(f"--frame {args.frame} is outside 0..{first.time.size - 1}", args.input)
-    _warn(anims)
     if args.labels:
         names = [s.strip() for s in args.labels.split(",")]
         if len(names) != len(anims):
@@ -207,21 +239,42 @@ def cmd_render(args: argparse.Namespace) -> int:
             a.label = name
     else:
         distinct_labels(anims, paths)
-    if args.compare_offset is not None and len(args.compare_offset) != len(args.compare):
-        raise InputError(
-            f"--compare-offset gives {len(args.compare_offset)} offsets for {len(args.compare)} inputs"
-        )
-    for i, a in enumerate(anims[1:]):
-        a.offset_s = args.compare_offset[i] if args.compare_offset else place_on_parent_clock(anims[0], a)
+    if suffix == ".mp4":
+        shown = (0.0, span)
+    elif args.time is not None:
+        shown = (args.time, args.time)
+    else:
+        k = args.frame if args.frame is not None else default_frame(first)
+        shown = (float(first.time[k] - first.t0),) * 2
+    for i, (a, path) in enumerate(zip(anims[1:], paths[1:])):
+        a.offset_s = args.compare_offset[i] if args.compare_offset else place_on_parent_clock(first, a)
+        end = a.offset_s + float(a.time[-1] - a.t0)
+        held = "its first frame" if a.offset_s > shown[1] else "its last frame"
+        a.warnings += _outside(f"{path} (compare)", a.offset_s, end, *shown, f"its face stays at {held}")
+    _warn(anims)
     model = _face(args.face)
     probe()  # in a subprocess: without GL, say what to install instead of crashing
     video = None
     if args.video:
-        vpath = reference_video_of(anims[0].take) if args.video == "auto" else Path(args.video)
+        vpath = reference_video_of(first.take) if args.video == "auto" else Path(args.video)
         if vpath is None:
             raise InputError("the take names no reference video (--video auto); give the file", args.input)
-        start = args.video_start if args.video_start is not None else anims[0].audio_start_s
+        start = args.video_start if args.video_start is not None else first.audio_start_s
         video = ReferenceVideo(vpath, args.size, start)
+        if video.duration_s is not None:
+            v0 = start - first.t0
+            for w in _outside(f"{vpath} (video)", v0, v0 + video.duration_s, *shown, "its panel stays black"):
+                progress(f"warning: {w}")
+
+    def frame_width(size: int) -> int:
+        return size * len(anims) + (video.width_for(size) if video is not None else 0)
+
+    if suffix == ".mp4" and not mp4_frame_fits(frame_width(args.size), args.size):
+        fits = next((s for s in range(args.size, 15, -1) if mp4_frame_fits(frame_width(s), s)), 16)
+        raise InputError(
+            f"the video would be {frame_width(args.size)}x{args.size} pixels, more than H.264 takes (at "
+            f"most 16384 a side and 8192x4352 in all): give --size {fits} or less"
+        )
     labels = not args.no_labels
     size = (args.size, args.size)
     summary: dict = {
@@ -231,16 +284,15 @@ def cmd_render(args: argparse.Namespace) -> int:
         "face": model.name,
         "bad_values": [a.bad_values for a in anims],
         "clamped_values": [a.clamped for a in anims],
+        "audio_files": [str(a.audio_file) if a.audio_file else None for a in anims],
     }
-    with FaceRenderer(model, size) as renderer:
+    prepare_output(args.out)  # after the inputs are read: a bad input leaves no folder behind
+    with FaceRenderer(model, size) as renderer, stops_between_frames():
         if suffix != ".mp4":
-            if args.time is not None:
-                t_rel = args.time
-            else:
-                k = args.frame if args.frame is not None else default_frame(first)
-                t_rel = float(first.time[k] - first.t0)
+            t_rel = shown[0]
             t = time.perf_counter()
             img = render_frame(renderer, anims, t_rel, video, labels)
+            raise_if_stopped()
             write_image(args.out, img)
             summary |= {
                 "output": str(args.out),
@@ -252,12 +304,19 @@ def cmd_render(args: argparse.Namespace) -> int:
         else:
             n = first.frames
             fps = first.fps
-            voice = next((a for a in anims if a.audio is not None), None)
-            audio = audio_for_span(voice, voice.t0, n / fps) if voice is not None else None
+            speech = speech_for_video(anims, n / fps)
+            audio = None
+            if speech is not None:
+                voice, samples, rate = speech
+                if (to := aac_rate(rate)) != rate:
+                    progress(f"note: {voice.audio_file}: {rate} Hz audio resampled to {to} Hz for AAC")
+                    samples, rate = resample_speech(samples, rate, to), to
+                audio = (samples, rate)
             step = max(1, n // 10)
             t_start = time.perf_counter()
 
             def tick(k: int) -> None:
+                raise_if_stopped()  # a Ctrl-C or SIGTERM during frame k stops here, out of VTK's reach
                 if (k + 1) % step == 0 or k + 1 == n:
                     progress(f"{args.out.name}: {k + 1}/{n} frames ({time.perf_counter() - t_start:.1f} s)")
 
@@ -273,6 +332,8 @@ def cmd_render(args: argparse.Namespace) -> int:
                 "width": timing["width"],
                 "height": timing["height"],
                 "audio": audio is not None,
+                "audio_from": str(speech[0].audio_file) if speech is not None else None,
+                "audio_rate": audio[1] if audio is not None else None,
                 "render_ms_per_frame": round(1000 * timing["render_s"] / n, 2),
                 "encode_ms_per_frame": round(1000 * timing["encode_s"] / n, 2),
                 "frames_per_s": round(n / total, 2),
@@ -289,7 +350,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from .plot import plot_curves
-    from .render import load_animation, place_on_parent_clock
+    from .render import distinct_labels, load_animation, place_on_parent_clock
 
     labels = [s.strip() for s in args.labels.split(",")] if args.labels else []
     if labels and len(labels) != len(args.inputs):
@@ -305,11 +366,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
         )
     for a in anims[1:]:
         a.offset_s = place_on_parent_clock(anims[0], a)
+    if not labels:
+        distinct_labels(anims, args.inputs)  # a raw take and its aligned copy share their take id
     if args.out.suffix.lower() not in (".png", ".svg"):
         raise InputError("the plot is written as .png or .svg", args.out)
     prepare_output(args.out)
     _warn(anims)
     summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
+    for name in summary["repeated_channels"]:
+        progress(f"warning: --channels names {name} more than once: drawn once")
     for label in summary["inputs_without_these_channels"]:
         progress(f"warning: {label} holds none of the channels plotted ({', '.join(summary['channels'])})")
     if args.json:
@@ -322,14 +387,14 @@ def cmd_plot(args: argparse.Namespace) -> int:
 def cmd_stream(args: argparse.Namespace) -> int:
     from capture.replay import check_speed, packet_names, parse_destination
 
-    from .inputs import ABSURD, livelink_coverage, prepared_for_stream
+    from .inputs import ABSURD, livelink_coverage, missing_face_channels, prepared_for_stream
     from .stream import load_take, stream_take
 
     parse_destination(args.to)  # a malformed destination or speed is reported before any file is read
     check_speed(args.speed)
     audio_file = args.audio if args.audio not in (None, "take") else None
-    take, warnings = load_take(args.input, audio_file)
-    warnings += livelink_coverage(take, args.input, "stream")
+    take, warnings, speech_file = load_take(args.input, audio_file)
+    warnings += livelink_coverage(take, args.input, "stream") + missing_face_channels(take, args.input)
     packet_names(take, args.device, args.subject)  # names too long for a datagram: before any output
     take, outside = prepared_for_stream(take)
     for w in warnings:
@@ -343,6 +408,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
         progress(f"streaming {take.meta.id} to {args.to} ({take.duration_s / args.speed:.1f} s)")
     summary = stream_take(take, args.to, args.speed, args.audio is not None, args.subject, args.device)
     summary["outside_0_1"] = outside
+    summary["audio_file"] = str(speech_file) if summary["audio"] and speech_file else None
     if args.json:
         emit_json(summary)
     else:
@@ -366,6 +432,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise InputError("no such dataset or folder", args.dataset)
     prepare_output(args.out)
     summary = write_report(args.dataset, args.out, args.takes, args.limit)
+    for w in summary["warnings"]:
+        progress(f"warning: {w}")
+    for u in summary["unreadable"]:
+        progress(f"warning: {u['error']}: listed as unreadable")
     if summary["thumbnails"] < summary["takes"] and args.limit < summary["takes"]:
         progress(f"note: --limit {args.limit}: curve thumbnails for {args.limit} of {summary['takes']} takes")
     if args.json:
@@ -410,8 +480,19 @@ def cmd_probe(args: argparse.Namespace) -> int:
     return 0
 
 
+def _stoppable(args: argparse.Namespace) -> int:
+    """Run the command; SIGTERM (``timeout``, ``kill``) stops it as Ctrl-C does (exit 143 instead of
+    130), and either removes a half-written output's ``.partial`` file on the way out."""
+    try:
+        with stopped_by_signals():
+            return args.handler(args)
+    except Terminated:
+        progress(f"{PROG}: terminated (SIGTERM)")
+        return 143
+
+
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+    return run(PROG, build_parser(), _stoppable, argv)
 
 
 if __name__ == "__main__":

@@ -80,11 +80,17 @@ class _Gltf:
     def __init__(self, path: Path):
         self.path = path
         data = path.read_bytes()
+        if not data:
+            raise InputError("file is empty: no glTF or GLB", path)
         self.bin: bytes | None = None
         if data[:4] == b"glTF":
             magic, version, length = struct.unpack_from("<III", data, 0)
             if version != 2:
                 raise InputError(f"GLB version {version}; only glTF 2.0 is read", path)
+            if len(data) < length:  # cut short (a copy or download that stopped): say so, not a JSON error
+                raise InputError(
+                    f"GLB is truncated: its header says {length} bytes, the file holds {len(data)}", path
+                )
             off, doc = 12, None
             while off + 8 <= min(length, len(data)):
                 clen, ctype = struct.unpack_from("<II", data, off)

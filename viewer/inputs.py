@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from capture import Take, find_sources, find_takes, import_source, is_take_folder, read_audio, read_take
-from capture.channels import ARKIT52, canonical, is_known
+from capture.channels import ARKIT52, ARKIT61, canonical, is_known
 from capture.csv_take import split_variant
 from capture.errors import InputError
-from capture.importer import is_livelink_csv
+from capture.importer import audio_beside, is_livelink_csv
 from capture.paired import NoFrameRate
-from capture.take import FrameStatus, is_take_dir
+from capture.take import AUDIO_FILE, FrameStatus, is_take_dir
+from capture.take_folder import choose_csv
 from dataset.qa import ANIM_LIMIT
 
 ABSURD = ANIM_LIMIT  # |value| above this is no blendshape weight nor angle in radians
@@ -62,10 +63,12 @@ def take_source(path: str | Path, one_take: str) -> Path:
 
 def read_input(
     path: str | Path, one_take: str, audio: str | Path | None = None, audio_flag: str | None = "--audio"
-) -> tuple[Take, list[str]]:
-    """The one take ``path`` names (see ``take_source``), with ``audio`` as its speech, and warnings
-    about what reading it repaired (one line each). ``audio_flag`` is the option that gives a CSV its
-    audio here (``None``: none does), for the message about a CSV that needs it.
+) -> tuple[Take, list[str], Path | None]:
+    """The one take ``path`` names (see ``take_source``), with ``audio`` as its speech, warnings about
+    what reading it repaired (one line each), and the file its speech was read from (None: silent).
+    ``audio_flag`` is the option that gives a CSV its audio here (``None``: none does), for the message
+    about a CSV that needs it. A CSV named without ``audio`` brings the audio beside it
+    (``csv_with_its_audio``), as naming its folder does.
 
     Audio holding NaN or infinite samples is an ``InputError`` (as ``s2a-train predict`` refuses it),
     never silence in its place."""
@@ -74,10 +77,17 @@ def read_input(
         take = read_take(src)
         if audio is not None:
             take.attach_audio(read_audio(audio))  # without a repair list, NaN samples are an error
-        return take, []
+            return take, [], Path(audio)
+        return take, [], src / AUDIO_FILE if take.audio is not None else None
+    warnings: list[str] = []
+    variant = None
     if src.is_file():
         if src.stat().st_size == 0:
             raise InputError("file is empty: no Live Link Face CSV", src)
+        if src.suffix.lower() == ".csv" and audio is None:
+            src, variant, audio, why = csv_with_its_audio(src)
+            if why:
+                warnings.append(f"{path}: {why}: shown without audio")
         if src.suffix.lower() == ".csv" and audio is None and not is_livelink_csv(src):
             how = f"give its speech with {audio_flag}" if audio_flag else "it cannot be shown here"
             raise InputError(
@@ -86,7 +96,7 @@ def read_input(
                 src,
             )
     try:
-        take = import_source(src, audio)
+        take = import_source(src, audio, variant)
     except NoFrameRate as exc:  # the viewer has no --fps: such a matrix is imported first, with one
         raise InputError(
             f"{exc}; the viewer takes no --fps: import it first (s2a-capture import --matrix {src} "
@@ -98,7 +108,36 @@ def read_input(
             raise InputError(
                 f"the audio holds NaN or infinite samples ({what}): give clean speech", audio or path
             )
-    return take, repair_warnings(take, src)
+    return take, warnings + repair_warnings(take, src), audio_source(take, audio)
+
+
+def csv_with_its_audio(csv: Path) -> tuple[Path, str | None, Path | None, str | None]:
+    """What to read for a CSV named without audio, so that naming it shows what naming its folder
+    shows: the Live Link Face take folder it sits in when that folder reads this very CSV (the speech
+    from its .mov or WAV, on the folder's timing), else the CSV with the audio file beside it (the one
+    of the same stem, else the only one: capture's ``audio_beside``, as ``s2a-capture import
+    --pair-audio`` pairs them). Returns (source, CSV variant to read, audio or None, why no audio was
+    taken when that is worth a warning)."""
+    variant = split_variant(csv.stem)[1]
+    if variant != "neutral" and is_take_folder(csv.parent):
+        try:
+            if choose_csv(csv.parent, variant or "plain")[0] == csv:
+                return csv.parent, variant or "plain", None, None
+        except InputError:  # the folder does not read this CSV: the CSV alone, as named
+            pass
+    audio, why = audio_beside(csv)
+    return csv, None, audio, why
+
+
+def audio_source(take: Take, audio: str | Path | None) -> Path | None:
+    """The file ``take``'s speech was read from: ``audio`` when given, else the WAV or the .mov its
+    reader took it from (None: the take has no audio)."""
+    if take.audio is None:
+        return None
+    if audio is not None:
+        return Path(audio)
+    roles = {s.role: Path(s.path) for s in take.meta.sources}
+    return roles.get("audio") or roles.get("external_audio") or roles.get("reference_video")
 
 
 def repair_warnings(take: Take, path: Path) -> list[str]:
@@ -138,10 +177,31 @@ def livelink_coverage(take: Take, path: str | Path, what: str) -> list[str]:
         raise InputError(
             f"take {take.meta.id} holds none of the 61 Live Link Face channels (its {len(other)} channels "
             f"are a rig's own controls: {shown}): {what} shows Live Link channels only; draw its curves "
-            f"with s2a-view plot --channels {other[0]}",
+            f"with s2a-view plot --channels {','.join(most_varying(take))}",
             path,
         )
     return [f"{path}: {len(other)} channel(s) not of Live Link Face ({shown}) are left out of the {what}"]
+
+
+def most_varying(take: Take, count: int = 2) -> list[str]:
+    """The ``count`` channels of ``take`` whose values spread widest: worth a plot (the first channel of
+    a rig often stays flat)."""
+    values = np.where(np.abs(take.values) <= ABSURD, take.values, np.nan).astype(np.float64)
+    with np.errstate(all="ignore"):
+        spread = np.nan_to_num(np.nanmax(values, axis=0) - np.nanmin(values, axis=0), nan=-1.0)
+    order = np.argsort(-spread, kind="stable")  # ties (all flat) keep the take's own channel order
+    return [take.meta.channels[j] for j in order[:count]]
+
+
+def missing_face_channels(take: Take, path: str | Path) -> list[str]:
+    """A warning naming the Live Link Face channels ``take`` lacks (a CSV without a column, paired
+    data of a few channels): the face shows them at 0, which looks like a closed mouth, not a gap."""
+    held = {canonical(c) for c in take.meta.channels if is_known(c)}
+    missing = [c for c in ARKIT61 if c not in held]
+    if not missing or not held:  # a take of no Live Link channel is refused (livelink_coverage)
+        return []
+    shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+    return [f"{path}: {len(missing)} face channel(s) not in the take, shown at 0: {shown}"]
 
 
 def blendshape_columns(channels: Sequence[str]) -> list[int]:

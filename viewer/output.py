@@ -1,9 +1,12 @@
-"""Where ``s2a-view`` writes: an ``-o`` path checked before any work, and write errors that name that
-path and the file system's reason (never the hidden ``.NAME.partial`` file written first)."""
+"""Where ``s2a-view`` writes: an ``-o`` path checked before any work, write errors that name that path
+and the file system's reason (never the hidden ``.NAME.partial`` file written first), and Ctrl-C or
+SIGTERM that stop a command with that partial file removed."""
 
 from __future__ import annotations
 
 import errno
+import signal
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -35,3 +38,57 @@ def writing(path: str | Path, what: str) -> Iterator[None]:
         else:
             reason = exc.strerror or str(exc).splitlines()[0]
         raise InputError(f"cannot write the {what}: {reason}", path) from None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM reached the command (``timeout``, ``kill``): it stops as on Ctrl-C."""
+
+
+_stopped_by: list[int] = []  # the signal that stopped the command, once one has
+_between_frames = False  # while rendering: a signal is raised at the next raise_if_stopped
+
+
+def _stop(signum: int, frame: object) -> None:
+    _stopped_by.append(signum)
+    if not _between_frames:
+        raise_if_stopped()
+
+
+def raise_if_stopped() -> None:
+    """Raise the stop a signal asked for: ``Terminated`` for SIGTERM, else ``KeyboardInterrupt``."""
+    if _stopped_by:
+        raise Terminated() if _stopped_by[0] == signal.SIGTERM else KeyboardInterrupt()
+
+
+@contextmanager
+def stops_between_frames() -> Iterator[None]:
+    """Inside, a signal only asks to stop, and ``raise_if_stopped`` (between frames, and on leaving)
+    stops: VTK calls back into Python while it renders and swallows an exception raised there (it logs
+    "Failure when calling method: ProcessRequest" over many lines and renders on)."""
+    global _between_frames
+    _between_frames = True
+    try:
+        yield
+    finally:
+        _between_frames = False
+    raise_if_stopped()
+
+
+@contextmanager
+def stopped_by_signals() -> Iterator[None]:
+    """SIGINT and SIGTERM raise their stop (``raise_if_stopped``) while the block runs, so that the
+    ``.partial`` file being written is removed on the way out. A signal the caller handles itself is
+    left alone, as are threads other than the main one (which cannot set handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _stopped_by.clear()
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) in (signal.SIG_DFL, signal.default_int_handler):
+            previous[sig] = signal.signal(sig, _stop)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -47,11 +47,13 @@ def curve(anim: Animation, name: str) -> np.ndarray | None:
     return anim.others[name] if name in anim.others else anim.weights[:, _index(name)]
 
 
-def selected_channels(spec: str, anims: Sequence[Animation]) -> list[str]:
+def selected_channels(spec: str, anims: Sequence[Animation]) -> tuple[list[str], list[str]]:
     """The channels ``--channels`` names that the inputs hold: a set name (those of the set any input
     holds) or a comma list of Live Link channels (any spelling) and of the inputs' other channels (a
-    rig's own controls, by their exact names), each held by at least one input."""
+    rig's own controls, by their exact names), each held by at least one input; and the channels named
+    more than once (``jawOpen,JawOpen``), which are drawn once."""
     is_set = spec.strip().lower() in CHANNEL_SETS
+    repeated: list[str] = []
     if is_set:
         names = [n for n in channel_set(spec) if any(_holds(a, n) for a in anims)]
         missing = [] if names else [spec.strip()]
@@ -59,6 +61,8 @@ def selected_channels(spec: str, anims: Sequence[Animation]) -> list[str]:
         names = [canonical(n) if is_known(n) else n for n in (p.strip() for p in spec.split(",")) if n]
         if not names:
             raise InputError(f"empty channel selection {spec!r}")
+        repeated = list(dict.fromkeys(n for n in names if names.count(n) > 1))
+        names = list(dict.fromkeys(names))  # in the order first named
         missing = [n for n in names if not any(_holds(a, n) for a in anims)]
     if missing:
         what = f"a channel of set {missing[0]!r}" if is_set else f"channel {missing[0]!r}"
@@ -70,7 +74,7 @@ def selected_channels(spec: str, anims: Sequence[Animation]) -> list[str]:
         raise InputError(
             f"no input holds {what}{held}; name channels of the inputs, or a set ({', '.join(CHANNEL_SETS)})"
         )
-    return names
+    return names, repeated
 
 
 def energy_segments(x: np.ndarray, rate: int, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
@@ -139,7 +143,7 @@ def plot_curves(
         raise InputError("the plot is written as .png or .svg", out)
     if not anims:
         raise InputError("nothing to plot")
-    names = selected_channels(channels, anims)
+    names, repeated = selected_channels(channels, anims)
     for flag, v in (("--start", start_s), ("--end", end_s)):
         if v is not None and not math.isfinite(v):
             raise InputError(f"{flag} must be a number of seconds, not {v}")
@@ -175,7 +179,10 @@ def plot_curves(
             t_max = max(t_max, float(t[-1]))
             values = curve(a, name)
             if values is not None:
-                (line,) = ax.plot(t, values, color=colors[i % len(colors)], lw=1.2, label=a.label)
+                marker = "o" if t.size == 1 else None  # one frame is a point: a line through it is not drawn
+                (line,) = ax.plot(
+                    t, values, color=colors[i % len(colors)], lw=1.2, marker=marker, ms=4, label=a.label
+                )
                 handles.setdefault(i, line)
         ax.set_ylabel(name, rotation=0, ha="right", va="center")
         ax.grid(alpha=0.3)
@@ -211,7 +218,12 @@ def plot_curves(
         ax.set_ylim(-lim * 1.05, lim * 1.05)
         ax.set_yticks([])
     axes[-1].set_xlabel("time (s)")
-    axes[-1].set_xlim(start_s if start_s is not None else 0.0, end_s if end_s is not None else t_max)
+    left = start_s if start_s is not None else 0.0
+    right = end_s if end_s is not None else t_max
+    if right <= left:  # one frame and no audio: a frame period either side of it, not an empty range
+        pad = 1.0 / max(a.fps for a in anims)
+        left, right = left - pad, right + pad
+    axes[-1].set_xlim(left, right)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -225,7 +237,9 @@ def plot_curves(
         "inputs": [a.label for a in anims],
         "inputs_without_these_channels": silent,  # drawn nowhere: they hold none of the channels
         "channels": names,
+        "repeated_channels": repeated,  # named more than once in --channels, drawn once
         "duration_s": round(t_max, 6),
         "speech_segments": [[round(a, 4), round(b, 4)] for a, b in segments],
+        "audio_file": str(voice.audio_file) if voice is not None and voice.audio_file else None,
         "vad": vad_label or None,
     }

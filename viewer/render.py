@@ -26,6 +26,11 @@ from .output import writing
 from .probe import probe
 
 BACKGROUND = (38, 40, 46)
+# libx264 refuses a frame wider or taller than 16384 pixels (avcodec_open2 fails; tried with PyAV here:
+# 16384 opens, 16400 does not). H.264's highest level, 6.2, allows 139,264 macroblocks of 16x16 pixels
+# a frame (8192x4352): x264 encodes larger frames, but players and browsers may refuse to decode them.
+H264_MAX_SIDE = 16384
+H264_MAX_MACROBLOCKS = 139264
 
 
 @dataclass
@@ -39,6 +44,7 @@ class Animation:
     weights: np.ndarray
     audio: Audio | None = None
     audio_start_s: float = 0.0  # take time of the first audio sample
+    audio_file: Path | None = None  # where the audio was read from
     take: Take | None = None
     offset_s: float = 0.0  # in side-by-side output: when this animation starts, after the first one's start
     bad_values: int = 0  # frames with NaN, infinite or absurd values, bridged
@@ -79,7 +85,7 @@ def load_animation(
     ``audio`` overrides or adds the speech. What was repaired, bridged or clamped is in ``warnings``.
     A folder holding several takes is an ``InputError`` that starts with ``one_take``.
     """
-    take, warnings = read_input(path, one_take, audio, audio_flag)
+    take, warnings, audio_file = read_input(path, one_take, audio, audio_flag)
     weights = weights_from_values(take.values.astype(np.float64), take.meta.channels)
     other_cols = [j for j, c in enumerate(take.meta.channels) if not is_known(c)]
     others = take.values[:, other_cols].astype(np.float64)
@@ -108,6 +114,7 @@ def load_animation(
     if take.audio is not None:
         anim.audio = take.audio
         anim.audio_start_s = take.meta.audio.start_s if take.meta.audio else 0.0
+        anim.audio_file = audio_file
     return anim
 
 
@@ -205,13 +212,14 @@ def place_on_parent_clock(first: Animation, other: Animation) -> float:
 
 
 def distinct_labels(anims: Sequence[Animation], paths: Sequence[Path]) -> None:
-    """Make panel names unique: equal take ids get the name of the folder or file they came from."""
+    """Make panel (and legend) names unique: equal take ids get the name of the folder holding the take
+    folder, or of the file, they came from; the path as given where those are equal too."""
     names = [a.label for a in anims]
-    for i, a in enumerate(anims):
-        if names.count(a.label) > 1:
-            p = Path(paths[i])
-            where = p.parent.name if p.is_dir() else p.name
-            a.label = f"{a.label} ({where})"
+    twins = [i for i, name in enumerate(names) if names.count(name) > 1]
+    where = {i: Path(paths[i]).parent.name if Path(paths[i]).is_dir() else Path(paths[i]).name for i in twins}
+    for i in twins:
+        same = [j for j in twins if names[j] == names[i] and where[j] == where[i]]
+        anims[i].label = f"{names[i]} ({where[i] if len(same) == 1 else paths[i]})"
 
 
 class ReferenceVideo:
@@ -230,9 +238,16 @@ class ReferenceVideo:
         self.start_s = start_s
         self.index = -1
         self.frame: np.ndarray | None = None
-        w = self.cap.get(cv2.CAP_PROP_FRAME_WIDTH) or height
-        h = self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or height
-        self.width = max(2, int(round(w * height / h / 2)) * 2)
+        self.aspect = (self.cap.get(cv2.CAP_PROP_FRAME_WIDTH) or height) / (
+            self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or height
+        )
+        self.width = self.width_for(height)
+        count = self.cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        self.duration_s = count / self.fps if count > 0 else None  # None: the container does not say
+
+    def width_for(self, height: int) -> int:
+        """The panel's width at ``height``: the video's aspect, an even number of pixels."""
+        return max(2, int(round(self.aspect * height / 2)) * 2)
 
     def at(self, t: float) -> np.ndarray:
         """RGB frame shown at take time ``t`` (s); black before the start and after the end."""
@@ -303,6 +318,44 @@ def audio_for_span(anim: Animation, t0: float, duration_s: float) -> tuple[np.nd
     if hi > lo:
         out[lo - first : hi - first] = x[lo:hi]
     return out, rate
+
+
+def speech_for_video(
+    anims: Sequence[Animation], duration_s: float
+) -> tuple[Animation, np.ndarray, int] | None:
+    """The speech of the first input that has audio, for a video of ``duration_s`` s: that input, its
+    mono samples and their rate. An input shown ``offset_s`` after the first one is at its take time
+    ``t0 - offset_s`` when the video starts, so its sound is cut from there and stays with its face."""
+    voice = next((a for a in anims if a.audio is not None), None)
+    if voice is None:
+        return None
+    samples, rate = audio_for_span(voice, voice.t0 - voice.offset_s, duration_s)
+    return voice, samples, rate
+
+
+def aac_rate(rate: int) -> int:
+    """The sample rate speech at ``rate`` is encoded at in AAC: ``rate`` itself when the encoder takes
+    it, else the lowest rate it takes above it (nothing of the sound lost), its highest beyond them all."""
+    import av
+
+    rates = sorted(av.codec.Codec("aac", "w").audio_rates)
+    if rate in rates:
+        return rate
+    return next((r for r in rates if r > rate), rates[-1])
+
+
+def resample_speech(samples: np.ndarray, rate: int, to: int) -> np.ndarray:
+    """Mono float32 ``samples`` at ``rate`` resampled to ``to`` Hz with soxr, as align resamples speech
+    (``align/resample.py`` says why soxr)."""
+    import soxr
+
+    return soxr.resample(samples, rate, to, quality="VHQ").astype(np.float32)
+
+
+def mp4_frame_fits(width: int, height: int) -> bool:
+    """Whether H.264 (libx264, and decoders up to level 6.2) takes a ``width`` x ``height`` frame."""
+    macroblocks = math.ceil(width / 16) * math.ceil(height / 16)
+    return max(width, height) <= H264_MAX_SIDE and macroblocks <= H264_MAX_MACROBLOCKS
 
 
 def _fps_fraction(fps: float) -> Fraction:

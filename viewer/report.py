@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from capture import InputError, find_takes, read_meta, read_take
+from capture import InputError, find_sources, find_takes, read_meta, read_take
 from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
 from capture.take import FrameStatus
@@ -206,14 +206,24 @@ def _dataset_curves(
     return curves, levels
 
 
-def _find_aligned(sources: list[dict[str, Any]], extra: list[Path]) -> dict[str, Path]:
-    """Aligned take folders by take id: those the manifest names, then any found under ``extra``."""
+def _not_aligned(folder: Path) -> str:
+    return f"{folder}: --takes names aligned take folders (s2a-align output); this one has no align report"
+
+
+def _find_aligned(sources: list[dict[str, Any]], extra: list[Path], warnings: list[str]) -> dict[str, Path]:
+    """Aligned take folders by take id: those the manifest names, then any found under ``extra`` (one
+    that is not aligned is left out, with a line in ``warnings``)."""
     found: dict[str, Path] = {}
     for folder in find_takes(extra) if extra else []:
         try:
-            found.setdefault(read_meta(folder).id, folder)
-        except InputError:
+            meta = read_meta(folder)
+        except InputError as exc:
+            warnings.append(f"{exc}: left out")
             continue
+        if meta.extra.get("align"):
+            found.setdefault(meta.id, folder)
+        else:
+            warnings.append(_not_aligned(folder))
     for s in sources:
         p = Path(s.get("path", ""))
         if s.get("source_kind") == "aligned" and (p / "meta.json").is_file():
@@ -261,6 +271,8 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         raise InputError(f"--limit must be 0 or more (0: no curve thumbnails), not {limit}")
     path = Path(path)
     extra = list(takes or [])
+    warnings: list[str] = []
+    unreadable: list[dict[str, str]] = []
     if (path / "manifest.json").is_file() or path.suffix == ".json":
         from dataset import dataset_stats, read_manifest
 
@@ -268,7 +280,7 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         manifest = read_manifest(ds)
         stats = dataset_stats(ds)
         curves, levels = _dataset_curves(ds, manifest, limit)
-        aligned = _find_aligned(manifest.get("sources", []), extra)
+        aligned = _find_aligned(manifest.get("sources", []), extra, warnings)
         per_take: dict[str, dict[str, Any]] = {}
         for s in manifest["samples"]:
             e = per_take.setdefault(
@@ -303,10 +315,26 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
     else:
         folders = find_takes([path, *extra])
         if not folders:
+            if find_sources([path]):
+                raise InputError(
+                    "holds Live Link Face recordings, not take folders: import them first "
+                    f"(s2a-capture import {path} -o TAKES) and report on TAKES",
+                    path,
+                )
             raise InputError("neither a dataset (manifest.json) nor a folder of takes", path)
         stats, manifest = None, None
-        # Every take is listed; ``limit`` only bounds the thumbnails, as in dataset mode.
-        entries = [_take_entry(f, i < limit) for i, f in enumerate(folders)]
+        given = set(find_takes(extra)) if extra else set()
+        # Every take is listed; ``limit`` only bounds the thumbnails, as in dataset mode. A take folder
+        # that cannot be read is listed apart with its error, and the others are reported.
+        entries = []
+        for f in folders:
+            try:
+                entries.append(_take_entry(f, len(entries) < limit))
+            except InputError as exc:
+                unreadable.append({"path": str(f), "error": str(exc)})
+                continue
+            if f in given and not entries[-1]["align"]:
+                warnings.append(_not_aligned(f))
         kind, title = "takes", path.name
     _outliers(entries)
     return {
@@ -316,6 +344,8 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         "stats": stats,
         "manifest": manifest,
         "takes": entries,
+        "unreadable": unreadable,  # take folders that could not be read: path, error
+        "warnings": warnings,
     }
 
 
@@ -416,6 +446,13 @@ def render_html(data: dict[str, Any]) -> str:
             '<p class="muted">No take stands out (align confidence, offset, usable frames, '
             "mouth-curve levels).</p>"
         )
+    if data["unreadable"]:
+        rows = [
+            f'<tr class="flag"><td class="l">{html.escape(u["path"])}</td>'
+            f'<td class="l bad">{html.escape(u["error"])}</td></tr>'
+            for u in data["unreadable"]
+        ]
+        body.append(f"<h2>Unreadable take folders ({len(rows)})</h2>" + _table(["folder", "error"], rows))
     body.append(f'<h2>Takes</h2><p class="muted">Thumbnails: {_legend_thumb()}</p>')
     rows = []
     for e in entries:
@@ -487,5 +524,7 @@ def write_report(
         "with_align_report": sum(1 for e in data["takes"] if e.get("align")),
         "thumbnails": sum(1 for e in data["takes"] if e.get("curves")),
         "outliers": [{"take": e["take"], "reasons": e["reasons"]} for e in data["takes"] if e["reasons"]],
+        "unreadable": data["unreadable"],
+        "warnings": data["warnings"],
         "bytes": out.stat().st_size,
     }

@@ -52,8 +52,9 @@ def stream_take(
 ) -> dict:
     """Send ``take`` to ``destination`` (``HOST:PORT``); blocks for the take's duration / speed.
 
-    Returns what was sent (frames, packets, duration, device, subject, rate, ``bad_values``: frames
-    with NaN values sent as no-face packets).
+    Returns what was sent: ``packets_sent``, of which ``frames`` carried face values and ``no_face``
+    were no-face packets (``face_lost``: frames the tracker lost; ``bad_values``: frames holding NaN,
+    infinite or absurd values), and duration, device, subject, rate.
     """
     host, port = parse_destination(destination)
     check_speed(speed)
@@ -75,13 +76,18 @@ def stream_take(
     if player is not None:
         player.wait()
     out = report.to_json() | {"to": f"{host}:{port}", "id": take.meta.id, "audio": player is not None}
+    # capture's report counts the no-face packets of face-lost frames only; what went on the wire is
+    # every no-face packet, so that frames + no_face = packets_sent
+    out["face_lost"] = report.no_face
+    out["no_face"] = report.no_face + report.bad_values
     out.pop("lost", None)
     out.pop("duplicated", None)
     out.pop("reordered", None)
     return out
 
 
-def load_take(path: str | Path, audio: str | Path | None = None) -> tuple[Take, list[str]]:
-    """A take folder or a Live Link Face CSV (optionally with its audio) as a take, and warnings about
-    what reading it repaired. A folder holding several takes is an ``InputError``."""
+def load_take(path: str | Path, audio: str | Path | None = None) -> tuple[Take, list[str], Path | None]:
+    """A take folder or a Live Link Face CSV (optionally with its audio) as a take, warnings about what
+    reading it repaired, and the file its speech comes from. A folder holding several takes is an
+    ``InputError``."""
     return read_input(path, "stream sends one take", audio, "--audio FILE")
