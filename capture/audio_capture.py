@@ -79,6 +79,19 @@ class AudioLog:
         self.writer.close()
 
 
+def _device_error(sd, device: int | str | None, exc: Exception) -> str:
+    """Why a sound device did not open, in words: PortAudio's own message ("Error querying device 0")
+    does not say that the machine has no input device at all."""
+    try:
+        inputs = [d for d in sd.query_devices() if d["max_input_channels"] > 0]
+    except sd.PortAudioError:
+        inputs = []
+    listing = "python -m sounddevice lists the devices and their indexes"
+    if not inputs:
+        return f"cannot open audio device {device!r}: no sound input device found ({listing})"
+    return f"cannot open audio device {device!r}: {exc} ({len(inputs)} input device(s); {listing})"
+
+
 class DeviceAudioSource:
     """A sound-device input (mono or more channels, 16-bit) feeding an ``AudioLog``."""
 
@@ -112,7 +125,7 @@ class DeviceAudioSource:
                 callback=self._callback,
             )
         except (sd.PortAudioError, ValueError) as exc:
-            raise InputError(f"cannot open audio device {device!r}: {exc}") from None
+            raise InputError(_device_error(sd, device, exc)) from None
         log.start(sample_rate, channels, "PCM_16", f"device:{device}")
 
     def _callback(self, indata, frames, time_info, status) -> None:

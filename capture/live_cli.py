@@ -164,17 +164,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_remote)
 
 
-# What the commonest rejections usually mean, for the line printed when no take was recorded.
+# What the commonest rejections usually mean, printed under the take lines (or the no-take line).
 REJECT_HINTS = {
     "version": "packets that are not Live Link Face version 6: set the app to Live Link (ARKit); "
     "its MetaHuman Animator mode and UE4-era senders use other protocols",
-    "count": "the app's packets carry 61 values; this sender's count differs",
+    "oversized": "datagrams over 1024 bytes: the app's packet is 312 bytes, and a device id and subject "
+    "of more than 754 UTF-8 bytes together do not fit (use a shorter subject), or another protocol",
+    "count": "the app's packets carry 61 values; this sender's count differs. A sender built on "
+    "PyLiveLinkFace writes the subject's length in characters, not UTF-8 bytes, so a subject with "
+    "non-ASCII letters (é, 話) shifts the rest of its packet: give it an ASCII subject",
     "bad_rate": "a frame rate numerator of 0 or below, a negative denominator, or above 1000 fps",
+    "bad_frame_time": "a negative frame number or a sub-frame outside [0, 1): a sub-frame of 1.0 is the "
+    "next frame's 0.0 (the sender rounds it up), a negative frame number a clock before its origin",
     "not_allowed": "the sender's address is not in --allow",
 }
 
 
 def _report(summaries: list[dict], as_json: bool) -> None:
+    hinted = False
     for s in summaries:
         if as_json:  # stdout stays one JSON object per line; the warnings go to stderr as well
             emit_json(s)
@@ -186,9 +193,9 @@ def _report(summaries: list[dict], as_json: bool) -> None:
             continue
         if s.get("path") is None:
             progress(f"no take recorded; rejected datagrams: {s.get('rejected')}")
-            for reason in sorted(s.get("rejected") or {}, key=lambda r: -s["rejected"][r]):
-                if reason in REJECT_HINTS:
-                    progress(f"  {reason}: {REJECT_HINTS[reason]}")
+            for line in _rejection_hints(s.get("rejected") or {}):
+                progress(f"  {line}")
+            hinted = True
             continue
         progress(
             f"{s['device']} / {s['subject']} -> {s['path']}: {s['frames']} frames, "
@@ -200,6 +207,21 @@ def _report(summaries: list[dict], as_json: bool) -> None:
             progress(f"  torn log tail discarded: {s['torn_tail']}")
         for line in _warnings(s):
             progress(f"  {line}")
+    # A stream rejected whole beside one that made takes (or with --json): say once what it means.
+    hints = [] if hinted or not summaries else _rejection_hints(summaries[0].get("rejected") or {})
+    if hints:
+        progress("rejected datagrams, what they usually mean:")
+    for line in hints:
+        progress(f"  {line}")
+
+
+def _rejection_hints(rejected: dict[str, int]) -> list[str]:
+    """What the session's rejections usually mean, commonest first (the reasons with a hint)."""
+    return [
+        f"{reason}: {REJECT_HINTS[reason]}"
+        for reason in sorted(rejected, key=lambda r: -rejected[r])
+        if reason in REJECT_HINTS
+    ]
 
 
 def _warnings(s: dict) -> list[str]:
@@ -207,6 +229,27 @@ def _warnings(s: dict) -> list[str]:
     lines = [f"warning: {e}" for e in s.get("errors") or []]  # audio and sync-box failures
     if "frame_clock" in s:
         lines.append(f"warning: frames placed by arrival time: {s['frame_clock']['reason']}")
+    if s.get("same_time_dropped"):
+        lines.append(
+            f"warning: {s['same_time_dropped']} frames repeat the frame time of another frame with other "
+            "values: the first of each frame time is kept, the others are only in the session log"
+        )
+    elif s.get("same_time_frames"):
+        lines.append(
+            f"warning: {s['same_time_frames']} frames share their frame time with another frame (the sender "
+            "sends more frames than its frame clock tells apart): spread evenly over their frame period"
+        )
+    if s.get("clock_steps"):
+        lines.append(
+            f"warning: the frame clock jumped forward {s['clock_steps']} time(s) while packets kept coming "
+            "(a clock correction, no lost frames): the stream is cut there, each part on its own clock"
+        )
+    if s.get("senders"):
+        lines.append(
+            f"warning: {len(s['senders'])} senders ({', '.join(s['senders'])}) sent device "
+            f"{s.get('device')} / subject {s.get('subject')} at the same time: each is a stream of its own "
+            "(take names -2, -3...); give them different subjects"
+        )
     for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
         if s.get(key):
             lost = sum(d["bytes_discarded"] for d in s[key])
@@ -589,9 +632,11 @@ def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[
 def cmd_recover(args: argparse.Namespace) -> int:
     sessions = find_sessions(args.dir, include_complete=args.all)
     if not sessions:
-        raise InputError(
-            "no unfinished recording session here (use --all to rebuild finished ones)", args.dir
-        )
+        if not find_sessions(args.dir, include_complete=True):  # a wrong folder, not a finished one
+            raise InputError("no recording session here", args.dir)
+        # Nothing to do is no failure: a script may run recover after every session.
+        progress(f"{args.dir}: nothing to recover, every session is finished (--all rebuilds them)")
+        return 0
     failures = 0
     for session in sessions:
         busy, lock = _session_in_use(session)

@@ -46,11 +46,12 @@ def osc_int32(value: int, what: str, low: int = INT32_MIN) -> int:
 
 def _osc():
     try:
+        from pythonosc.osc_bundle import OscBundle
         from pythonosc.osc_message import OscMessage
         from pythonosc.osc_message_builder import OscMessageBuilder
     except ImportError:
         raise InputError("phone remote control needs the Python package python-osc") from None
-    return OscMessage, OscMessageBuilder
+    return OscMessage, OscMessageBuilder, OscBundle
 
 
 def resolve_target(host: str, port: int) -> str:
@@ -98,7 +99,7 @@ class PhoneRemote:
         reply_port: int = 0,
         timeout_s: float = 2.0,
     ):
-        self._message, self._builder = _osc()
+        self._message, self._builder, self._bundle = _osc()
         self.host, self.port, self.timeout_s = host, port, timeout_s
         if not 1 <= port <= 65535:
             raise InputError(f"phone port {port} is out of range (1..65535)")
@@ -185,12 +186,22 @@ class PhoneRemote:
                 continue
             except OSError:  # ICMP port unreachable comes back as a socket error: keep waiting
                 continue
-            try:
-                msg = self._message(data)
-            except Exception:  # python-osc raises its own parse errors: ignore foreign datagrams
-                continue
-            if msg.address == address:
-                return list(msg.params)
+            for msg in self._messages(data):
+                if msg.address == address:
+                    return list(msg.params)
+
+    def _messages(self, data: bytes) -> list[Any]:
+        """The OSC messages of a datagram: itself, or those of a bundle (OSC 1.0 lets a sender wrap its
+        replies in one, nested too); none for a datagram that is not OSC."""
+        try:
+            if not self._bundle.dgram_is_bundle(data):
+                return [self._message(data)]
+            found = []
+            for item in self._bundle(data):
+                found += self._messages(item.dgram)
+            return found
+        except Exception:  # python-osc raises its own parse errors: ignore foreign datagrams
+            return []
 
     def request(self, address: str, reply: str, *args: Any) -> list[Any]:
         """Send a command and wait for its reply (setting the reply target first; the command is built,
@@ -234,11 +245,12 @@ class PhoneRemote:
         return {"timecode": timecode, "csv": csv, "mov": mov}
 
     def battery(self) -> float:
-        """Battery level as the phone reports it (0..1): an OSC float (an integer is taken too)."""
+        """Battery level as the phone reports it (0..1): an OSC float (an integer is taken too), with the
+        7 significant digits a 32-bit float holds (0.8, not 0.800000011920929)."""
         args = self.request("/BatteryQuery", "/Battery")
         value = args[0] if args else None
         if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
+            return float(f"{value:.7g}")
         raise self.unexpected("/Battery", args)
 
     def thermals(self) -> int:

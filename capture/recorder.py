@@ -7,7 +7,9 @@ last stream's header in the common case), stamp the arrival on the session clock
 checksummed record with the packet's raw frame block (FRAME), or with its frame time alone for a
 packet the app sends while it sees no face (NO_FACE: the frame is kept, as FACE_LOST). Decoding into
 values, duplicate removal, ordering and gap filling happen when the takes are built from the log
-(``session_takes``), so memory stays flat however long the session runs. Buffers are handed to the
+(``session_takes``), so memory stays flat however long the session runs. A stream is a device id and
+subject from one source address: another source of known names gets a stream of its own (``_stream_key``),
+which the take builder joins to the first unless it is a second sender. Buffers are handed to the
 log writer thread at least every ``flush_interval_s`` (default 0.1 s), which writes and fsyncs them.
 """
 
@@ -175,13 +177,15 @@ class LiveRecorder:
         self.datagrams = 0
         self.accepted = 0
         self.rejected: dict[str, int] = dict.fromkeys(ll.REJECT_REASONS, 0)
-        self.streams: dict[bytes, tuple[int, int, int, int]] = {}  # header -> (id, offset, num, den)
-        # per stream id (ids are never reused): datagrams logged and the arrival of the last one
+        # header (or header and source address, see _stream_key) -> (id, offset, num, den)
+        self.streams: dict[bytes | tuple[bytes, Any], tuple[int, int, int, int]] = {}
+        # per stream id (ids are never reused): datagrams logged, the arrival of the last one, its source
         self.stream_packets: list[int] = []
         self.stream_last_ns: list[int] = []
+        self.stream_sources: list[Any] = []
         self.evicted_streams = 0
-        # stream header -> (new rate, records of the packets held back at it); see RATE_CHANGE_PACKETS
-        self._rate_pending: dict[bytes, tuple[tuple[int, int], list[bytes]]] = {}
+        # stream key -> (new rate, records of the packets held back at it); see RATE_CHANGE_PACKETS
+        self._rate_pending: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], list[bytes]]] = {}
         self._next_eviction_ns = 0
         self.socket_errors = 0
         self.error: str | None = None  # set by close() when the log could not be written completely
@@ -275,22 +279,25 @@ class LiveRecorder:
         unpack_time = ll._FRAME_TIME.unpack_from
         unpack_len = ll._LEN.unpack_from
         streams = self.streams
-        packets, last_seen = self.stream_packets, self.stream_last_ns
+        packets, last_seen, sources = self.stream_packets, self.stream_last_ns, self.stream_sources
         payload_len = FRAME_PAYLOAD_BYTES
         count = ll.BLENDSHAPE_COUNT
         block = ll.FRAME_BLOCK_BYTES
         allow = self.allow
         allow_exact = allow.exact if allow is not None else frozenset()
         pending_rates = self._rate_pending
-        recv_into, recvfrom_into = sock.recv_into, sock.recvfrom_into
+        # The source address of every datagram (not only for --allow): senders sharing a device id and
+        # subject are told apart by it (_stream_key).
+        recvfrom_into = sock.recvfrom_into
         flush_ns = int(self.flush_interval_s * 1e9)
         start = now_ns()
         next_flush = start + flush_ns
         status_ns = int(status_every_s * 1e9)
         next_status = start + status_ns
         end = start + int(duration_s * 1e9) if duration_s is not None else None
-        # The stream of the previous packet: most datagrams repeat its header byte for byte.
+        # The stream of the previous packet: most datagrams repeat its header byte for byte, from its source.
         last_hdr, last_size, last_off, last_sid, last_num, last_den = b"\xff", -1, 0, 0, 0, 0
+        last_addr: Any = None
         datagrams = accepted = 0
         first_cb = self.on_first_packet
         last_rejects = dict(rejected)
@@ -298,10 +305,7 @@ class LiveRecorder:
         try:
             while not self._stop:
                 try:
-                    if allow is None:
-                        n = recv_into(buf)
-                    else:
-                        n, addr = recvfrom_into(buf)
+                    n, addr = recvfrom_into(buf)
                 except TimeoutError:
                     n = -1
                 except OSError:
@@ -314,7 +318,12 @@ class LiveRecorder:
                         rejected["not_allowed"] += 1
                     else:
                         sid = -1
-                        if n == last_size and buf.startswith(last_hdr) and buf[last_off + 16] == count:
+                        if (
+                            n == last_size
+                            and addr == last_addr
+                            and buf.startswith(last_hdr)
+                            and buf[last_off + 16] == count
+                        ):
                             fn, sf, num, den = unpack_time(buf, last_off)
                             if num == last_num and den == last_den and fn >= 0 and 0.0 <= sf < 1.0:
                                 sid, off = last_sid, last_off
@@ -327,7 +336,7 @@ class LiveRecorder:
                                 if n2 >= 0 and off + block == n and buf[off + 16] == count:
                                     key = bytes(view[:off])
                                     known = streams.get(key)
-                                    if known is not None:
+                                    if known is not None and sources[known[0]] == addr:
                                         fn, sf, num, den = unpack_time(buf, off)
                                         if (
                                             num == known[2]
@@ -337,7 +346,7 @@ class LiveRecorder:
                                         ):
                                             sid = known[0]
                                             last_hdr, last_size, last_off, last_sid = key, n, off, sid
-                                            last_num, last_den = num, den
+                                            last_num, last_den, last_addr = num, den, addr
                                             if pending_rates and key in pending_rates:
                                                 self._drop_rate_change(key)
                         if sid < 0:
@@ -354,6 +363,7 @@ class LiveRecorder:
                                     off,
                                     sid,
                                 )
+                                last_addr = addr
                         if sid >= 0:
                             packets[sid] += 1
                             last_seen[sid] = t
@@ -419,7 +429,8 @@ class LiveRecorder:
         if reason is not None:
             return reason
         _, _, num, den = ll._FRAME_TIME.unpack_from(view, off)
-        key = bytes(view[:off])
+        header = bytes(view[:off])
+        key = self._stream_key(header, addr)
         known = self.streams.get(key)
         if known is not None:
             if (known[2], known[3]) != (num, den):
@@ -436,22 +447,37 @@ class LiveRecorder:
             return "too_many_streams"
         sid = len(self.stream_packets)
         entry = (sid, off, num, den)
+        record = {
+            "stream": sid,
+            "device": names[0],
+            "subject": names[1],
+            "rate_numerator": num,
+            "rate_denominator": den,
+            "source": addr[0] if addr else None,
+            "port": addr[1] if addr else None,
+        }
+        if key != header:  # another source of these names: the take builder decides what it is
+            record["alongside"] = self.streams[header][0]
         self.streams[key] = entry
         self.stream_packets.append(0)
         self.stream_last_ns.append(time.monotonic_ns())
+        self.stream_sources.append(addr)
         assert self.log is not None
-        self.log.buffer += json_record(
-            RecordType.STREAM,
-            {
-                "stream": sid,
-                "device": names[0],
-                "subject": names[1],
-                "rate_numerator": num,
-                "rate_denominator": den,
-                "source": addr[0] if addr else None,
-            },
-        )
+        self.log.buffer += json_record(RecordType.STREAM, record)
         return entry
+
+    def _stream_key(self, header: bytes, addr: Any) -> bytes | tuple[bytes, Any]:
+        """The key of the stream a packet with ``header`` (device id and subject) from ``addr`` belongs to:
+        ``header`` for the first source of these names, ``(header, addr)`` for any other. The recorder
+        cannot tell yet what another source is (a second sender with the same names, the app sending to
+        this computer twice from a socket per Live Link target, the app restarted on another port), so
+        it logs it as a stream of its own whose STREAM record says ``alongside`` which; the take builder
+        keeps it apart only when it sent at the same time as the first and not copies of its frames."""
+        own = (header, addr)
+        if own in self.streams:
+            return own
+        known = self.streams.get(header)
+        return own if known is not None and self.stream_sources[known[0]] != addr else header
 
     def _rate_change(
         self,

@@ -1,14 +1,17 @@
 """Takes from a live session's logs: used when ``listen`` stops and by ``recover`` after a crash.
 
 Per device/subject stream, frames are read from ``frames.log`` into arrays (frames of a rate above
-``livelink.MAX_RATE_FPS`` dropped). Each stretch of one declared rate (the recorder logs a change of
-rate once it holds, see ``recorder.RATE_CHANGE_PACKETS``) is read as the phone's frame clock by
-``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
-there), the late packets that belong to them, and stray packets (a corrupt or spoofed frame number)
-that belong to none. Per recording, duplicates (same phone frame time, frame number plus sub-frame)
-are dropped keeping the first arrival, the rest are ordered by frame time and split
-into segments wherever the phone's frame time between two frames with a face jumps by more than
-``MAX_GAP_S`` (a long pause or a long time without a face).
+``livelink.MAX_RATE_FPS`` dropped); another source of the same names the recorder logged apart joins
+the stream unless it is a second sender (``_streams_by_sender``). Each stretch of one declared rate (the
+recorder logs a change of rate once it holds, see ``recorder.RATE_CHANGE_PACKETS``), its wraps at
+midnight undone, is read as the phone's frame clock by ``follow_clock``: its recordings (a new one where
+the clock restarted: it went back and went on from there), the late packets that belong to them, and
+stray packets (a corrupt or spoofed frame number) that belong to none. Per recording, duplicates (copies
+of one datagram) are dropped keeping the first arrival, frames sharing a frame time with other values
+are spread over it or counted (``_time_ordered``), the rest are ordered by frame time, cut where the
+phone's clock stepped forward (``_clock_steps``) and split into segments wherever the phone's frame
+time between two frames with a face jumps by more than ``MAX_GAP_S`` (a long pause or a long time
+without a face).
 Each segment with at least ``MIN_TAKE_FRAMES`` frames with a face becomes a take, from its first to its
 last frame with a face; the no-face packets in between become FACE_LOST frames (NaN values, their own
 time and arrival, as the app's face-lost CSV rows), gaps in the frame times DROPPED frames
@@ -19,10 +22,10 @@ not part of it (``face_lost_outside_takes``).
 
 A stream whose frame clock cannot be trusted (``follow_clock``'s ``problem``: most packets repeat the
 frame time of an earlier one with another frame, the clock runs backwards, jumps back far more often
-than a phone restarts, as senders built on PyLiveLinkFace do, whose frame numbers are milliseconds
-counted as frames, or is no clock at all) is placed by arrival time instead (``arrival_clock``):
-packets in arrival order on the declared rate's grid, gaps as DROPPED frames; the take's
-``meta.extra.frame_clock`` and a ``frame_clock`` repair say so.
+than a phone restarts or advances many frames per packet, as senders built on PyLiveLinkFace do, whose
+frame numbers are milliseconds counted as frames, or is no clock at all) is placed by arrival time
+instead (``arrival_clock``): packets in arrival order on the declared rate's grid, gaps as DROPPED
+frames; the take's ``meta.extra.frame_clock`` and a ``frame_clock`` repair say so.
 
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
 clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
@@ -48,6 +51,7 @@ from .audio_capture import read_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped, missing_frames
 from .errors import InputError, S2AError
+from .paired import exact_rate
 from .record_log import LogReader, RecordType
 from .recorder import (
     AUDIO_LOG,
@@ -59,7 +63,7 @@ from .recorder import (
 )
 from .serial_sync import decode_sync_record
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, write_take
-from .timecode import Timecode
+from .timecode import DAY_S, Timecode
 
 MAX_GAP_S = 5.0
 MIN_TAKE_FRAMES = 10
@@ -85,6 +89,27 @@ SLOT_FRACTION = 0.45
 # the arrivals says nothing: a replay at --speed 50 runs 50 times fast.)
 MIN_CLOCK_JUMPS = 4
 CLOCK_JUMP_S = 10.0
+# Nor does a frame number that advances more than MAX_FRAME_ADVANCE frames per packet while the packets
+# come faster than one per MAX_FRAME_ADVANCE frames: PyLiveLinkFace counts milliseconds as frames (1000 / fps
+# per packet, falling back every second), which this tells within a second. A phone's advances 1 or 2 (a
+# replay sends every frame at any speed; network loss slows the packets down as much as the count).
+MAX_FRAME_ADVANCE = 4.0
+# A sender that ticks faster than its frame clock counts (a 60 Hz tracker declaring 30 fps without
+# sub-frames) sends several frames with one frame time. When at least SHARED_TIME_FRACTION of a
+# recording's frames share their frame time with another frame, up to MAX_FRAMES_PER_TIME per frame time,
+# they are spread evenly over the frame period in arrival order; a few are kept only first (and counted).
+# More frames per frame time is a frozen clock, placed by arrival time.
+MAX_FRAMES_PER_TIME = 4
+SHARED_TIME_FRACTION = 0.25
+# A forward jump of the frame time by more than CLOCK_STEP_S that the arrivals do not show (an NTP
+# correction, a clock set forward) is no network loss: the recording is cut there and each part keeps its
+# own clock offset. Judged where the frames on each side (STEP_SIDE_S of frame time) came at one pace
+# (frame time against arrivals, the same within PACE_TOLERANCE: a replay at --speed 4 keeps its gaps) over
+# at least MIN_PACE_S of arrivals (packets sent all at once tell nothing).
+CLOCK_STEP_S = 0.5
+STEP_SIDE_S = 1.0
+PACE_TOLERANCE = 0.25
+MIN_PACE_S = 0.1
 # DROPPED frames a take may get per received frame (plus MAX_GAP_S at the stream's rate): past that,
 # as only a corrupt or hostile frame clock needs, the gaps are left unfilled.
 MAX_DROPPED_PER_FRAME = 4
@@ -439,8 +464,8 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
     there); a jump forward (a pause) stays in the recording. A packet off the clock joins a recording
     whose frame-time range holds it on a free slot (a late packet, or a straggler of the recording before
     a restart), or is stray (a corrupt or spoofed frame number). ``problem`` says why a stream's frame
-    times are no clock (see ``MIN_CLOCK_JUMPS``), judged for streams of ``2 * MIN_TAKE_FRAMES`` packets
-    or more.
+    times are no clock (see ``MIN_CLOCK_JUMPS`` and ``MAX_FRAME_ADVANCE``), judged for streams of
+    ``2 * MIN_TAKE_FRAMES`` packets or more.
     """
     n = frame_time.size
     empty = np.zeros(0, np.int64)
@@ -448,8 +473,19 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
         return _Clock([], empty, None)
     judge = n >= 2 * MIN_TAKE_FRAMES
     repeats = _repeated_times(rows, frame_time)
-    if judge and repeats > n / 2:
+    # A few frames per frame time are a sender ticking faster than its clock (spread by stream_takes).
+    if judge and repeats > n / 2 and n > MAX_FRAMES_PER_TIME * np.unique(frame_time).size:
         return _Clock([], empty, f"{repeats} of {n} packets repeat the frame time of an earlier packet")
+    if judge:
+        period = float(ll.rate_denominator(int(rows["rate_denominator"][0])) / int(rows["rate_numerator"][0]))
+        advance = float(np.median(np.diff(frame_time))) / period  # frames per packet
+        pace = float(arrival_s[-1] - arrival_s[0]) / (n - 1) / period  # frame periods between packets
+        if advance > MAX_FRAME_ADVANCE * max(1.0, pace):
+            problem = (
+                f"the frame number advances {advance:.0f} frames per packet while packets come every "
+                f"{pace:.1f} frames (PyLiveLinkFace counts milliseconds as frames)"
+            )
+            return _Clock([], empty, problem)
     level = _running_median(frame_time, CLOCK_HALF_WINDOW)
     lateness = _lateness(frame_time)
     if judge and lateness > MAX_LATENESS_S:
@@ -544,13 +580,108 @@ def _rate_runs(num: np.ndarray, den: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def _unwrap_midnight(frame_time: np.ndarray, rate: float) -> np.ndarray:
+    """Frame times (arrival order, one rate) with the timecode's wraps at midnight undone. Where the clock
+    falls back by one day (24 h of frames, or at an NTSC rate 24 h of timecode frames at its nominal rate)
+    it goes on from the next day: each packet is put on the day nearest the clock at its moment, so a late
+    packet from before midnight stays on its day. Any other jump back stays a restart."""
+    if frame_time.size < 2 or np.ptp(frame_time) < DAY_S / 2:  # nowhere near both ends of a day
+        return frame_time
+    level = _running_median(frame_time, CLOCK_HALF_WINDOW)
+    fall = -np.diff(level)
+    days = np.array([DAY_S, DAY_S * round(rate) / rate])
+    match = np.abs(fall[:, None] - days) <= RESTART_WINDOW_S
+    day = np.where(match.any(axis=1), days[match.argmax(axis=1)], 0.0)
+    if not day.any():
+        return frame_time
+    clock = level + np.concatenate([[0.0], np.cumsum(day)])
+    length = float(day[day > 0][0])
+    return frame_time + np.rint((clock - frame_time) / length) * length
+
+
+def _frame_blocks(rows: np.ndarray) -> np.ndarray:
+    """Each row's frame block (frame time, count, values) as one opaque value: equal for copies of one
+    datagram."""
+    raw = np.ascontiguousarray(rows).view(np.uint8).reshape(rows.size, ROW_DTYPE.itemsize)
+    block = np.ascontiguousarray(raw[:, ROW_DTYPE.fields["frame_number"][1] :])
+    return block.view(np.dtype((np.void, block.shape[1])))[:, 0]
+
+
+def _rank_in_time(frame_time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For frame times in order: each frame's place among the frames of its frame time (0 for the first)
+    and how many share it."""
+    n = frame_time.size
+    new = np.concatenate([[True], frame_time[1:] != frame_time[:-1]])
+    starts = np.flatnonzero(new)
+    sizes = np.diff(np.append(starts, n))
+    return np.arange(n) - np.repeat(starts, sizes), np.repeat(sizes, sizes)
+
+
+def _pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float | None:
+    """How fast frames' frame time ran against their arrivals (1: real time), None when they arrived
+    within ``MIN_PACE_S`` (sent all at once)."""
+    took = float(arrival_s.max() - arrival_s.min())
+    return float(frame_time[-1] - frame_time[0]) / took if took >= MIN_PACE_S else None
+
+
+def _clock_steps(frame_time: np.ndarray, arrival_s: np.ndarray) -> list[int]:
+    """Where (indices of frames in frame-time order) the phone's clock stepped forward: the frame time
+    jumps by more than ``CLOCK_STEP_S`` and the frames after the jump arrived that much earlier on the
+    phone's clock than those before (at the pace of the ``STEP_SIDE_S`` of frame time on each side, from
+    the fastest packet of each side); frames the network lost leave a gap in the arrivals too."""
+    steps = []
+    for g in (np.flatnonzero(np.diff(frame_time) > CLOCK_STEP_S) + 1).tolist():
+        lo = int(np.searchsorted(frame_time, frame_time[g - 1] - STEP_SIDE_S))
+        hi = int(np.searchsorted(frame_time, frame_time[g] + STEP_SIDE_S, "right"))
+        sides = (slice(lo, g), slice(g, hi))
+        if g - lo < MIN_TAKE_FRAMES or hi - g < MIN_TAKE_FRAMES:
+            continue
+        before, after = (_pace(frame_time[side], arrival_s[side]) for side in sides)
+        if not (before and after) or abs(before / after - 1) > PACE_TOLERANCE:
+            continue
+        speed = (before + after) / 2
+        clock = [np.min(arrival_s[side] - frame_time[side] / speed) for side in sides]
+        if speed * (clock[0] - clock[1]) > CLOCK_STEP_S:
+            steps.append(g)
+    return steps
+
+
+def _time_ordered(r: np.ndarray, ft: np.ndarray, report: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """A recording's frames (arrival order) in frame-time order. Copies of one datagram (the frame block
+    byte for byte) are ``duplicates``: the first arrival is kept. Frames that share a frame time with
+    another frame but not its values (``same_time_frames``) are frames of a sender ticking faster than its
+    frame clock when they are ``SHARED_TIME_FRACTION`` of the recording or more: spread evenly over the
+    frame period in arrival order. A few are kept only first (``same_time_dropped``), never silently."""
+    order = np.argsort(ft, kind="stable")  # arrival order within a frame time
+    r, ft = r[order], ft[order]
+    rank, size = _rank_in_time(ft)
+    if not rank.any():
+        return r, ft
+    shared = np.flatnonzero(size > 1)
+    _, first = np.unique(_frame_blocks(r[shared]), return_index=True)  # equal blocks: equal frame times
+    copy = np.zeros(ft.size, bool)
+    copy[shared] = True
+    copy[shared[first]] = False
+    report["duplicates"] += int(np.count_nonzero(copy))
+    r, ft = r[~copy], ft[~copy]
+    rank, size = _rank_in_time(ft)
+    same_time = int(np.count_nonzero(rank))
+    report["same_time_frames"] += same_time
+    if same_time >= SHARED_TIME_FRACTION * ft.size:
+        period = float(ll.rate_denominator(int(r["rate_denominator"][0])) / int(r["rate_numerator"][0]))
+        return r, ft + rank / size * period
+    report["same_time_dropped"] += same_time
+    return r[rank == 0], ft[rank == 0]
+
+
 def stream_takes(
-    log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None
+    log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None, rows: np.ndarray | None = None
 ) -> tuple[list[Take], dict]:
     """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, rate changes,
-    stray packets and frames, face-lost frames outside the takes, frames with an implausible rate, takes
-    that could not be built)."""
-    rows = log.stream_rows(sid)
+    stray packets and frames, frames sharing a frame time, clock steps, face-lost frames outside the takes,
+    frames with an implausible rate, takes that could not be built). ``rows``: the stream's rows when not
+    the log's (a stream merged with its copies from another source, in arrival order)."""
+    rows = log.stream_rows(sid) if rows is None else rows
     info = log.streams.get(sid, {})
     report: dict[str, Any] = {
         "packets": int(rows.size),
@@ -559,6 +690,9 @@ def stream_takes(
         "restarts": 0,
         "rate_changes": 0,
         "stray_packets": 0,
+        "same_time_frames": 0,
+        "same_time_dropped": 0,
+        "clock_steps": 0,
     }
     # Logs written before the recorder bounded the rate may hold any rate: such frames make no take.
     plausible = ll.plausible_rate(rows["rate_numerator"].astype(np.int64), rows["rate_denominator"])
@@ -577,6 +711,8 @@ def stream_takes(
     report["rate_changes"] = len(runs) - 1
     for run in runs:
         base = run.start
+        if run.stop > run.start:
+            frame_time[run] = _unwrap_midnight(frame_time[run], float(num[base] / den[base]))
         clock = follow_clock(rows[run], frame_time[run], arrival[run])
         if clock.problem is not None:
             problem = clock.problem
@@ -591,23 +727,24 @@ def stream_takes(
     stray_rows = np.concatenate(stray) if stray else np.zeros(0, np.int64)
     report["stray_packets"] = int(stray_rows.size)
     stray_faces = int(np.count_nonzero(rows["count"][stray_rows] != 0))
-    # Per recording: duplicates dropped, frames put in frame-time order, cut into segments of the frames
-    # with a face; the no-face frames between a segment's first and last face frame belong to it.
+    # Per recording: duplicates dropped, frames put in frame-time order, cut where the phone's clock
+    # stepped forward and into segments of the frames with a face; the no-face frames between a segment's
+    # first and last face frame belong to it.
     segments: list[tuple[np.ndarray, np.ndarray, str | None]] = []
     face_lost = int(stray_rows.size) - stray_faces
     for idx, ft, placed_by_arrival in recordings:
-        r = rows[idx]
         prior_max = np.maximum.accumulate(ft)
         report["out_of_order"] += int(np.count_nonzero(ft[1:] < prior_max[:-1]))
-        # np.unique gives the first occurrence in arrival order of each frame time, sorted.
-        _, first = np.unique(ft, return_index=True)
-        report["duplicates"] += int(r.size - first.size)
-        r, ft = r[first], ft[first]
-        face_rows = np.flatnonzero(r["count"] != 0)
-        face_lost += int(r.size - face_rows.size)
-        for s in _segments(ft[face_rows]) if face_rows.size else []:
-            seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
-            segments.append((r[seg], ft[seg], placed_by_arrival))
+        r, ft = _time_ordered(rows[idx], ft, report)
+        steps = [] if placed_by_arrival is not None else _clock_steps(ft, log.seconds(r["arrival_ns"]))
+        report["clock_steps"] += len(steps)
+        for part in np.split(np.arange(ft.size), steps):
+            rp, fp = r[part], ft[part]
+            face_rows = np.flatnonzero(rp["count"] != 0)
+            face_lost += int(rp.size - face_rows.size)
+            for s in _segments(fp[face_rows]) if face_rows.size else []:
+                seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
+                segments.append((rp[seg], fp[seg], placed_by_arrival))
     takes: list[Take] = []
     stray_frames, lost_in_takes = stray_faces, 0
     errors = []
@@ -666,6 +803,8 @@ def _segment_take(
     rate_num, rate_den = int(r["rate_numerator"][0]), int(ll.rate_denominator(int(r["rate_denominator"][0])))
     if not 0 < fps <= MAX_FPS:  # sub-frames that fool the median step: the stream's declared rate
         fps, period = rate_num / rate_den, rate_den / rate_num
+    elif exact_rate(1 / period) != 1 / period:  # an NTSC rate (30000/1001) is named so, as paired data's is
+        fps = exact_rate(1 / period)
     repairs = []
     # Bound what a frame clock can make us allocate: DROPPED frames at most MAX_DROPPED_PER_FRAME per
     # received frame plus MAX_GAP_S at the stream's rate; past that the gaps stay jumps in time.
@@ -741,6 +880,62 @@ def _unique_id(take_id: str, used: set[str]) -> str:
     return name
 
 
+def _source(info: dict[str, Any]) -> str:
+    """A stream's sender as HOST:PORT (``[IPV6]:PORT``), from its STREAM record."""
+    host, port = str(info.get("source")), info.get("port")
+    host = f"[{host}]" if ":" in host else host
+    return host if port is None else f"{host}:{port}"
+
+
+def _interleaved(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two streams' packets (rows) came at the same time: each has at least ``MIN_TAKE_FRAMES``
+    packets within the other's arrival span (a few stragglers of a sender that stopped are not enough)."""
+    ta, tb = a["arrival_ns"], b["arrival_ns"]
+    inside_b = np.count_nonzero((ta >= tb.min()) & (ta <= tb.max()))
+    inside_a = np.count_nonzero((tb >= ta.min()) & (tb <= ta.max()))
+    return min(inside_a, inside_b) >= MIN_TAKE_FRAMES
+
+
+def _same_sender(log: SessionLog, sid: int, chain: list[int]) -> bool:
+    """Whether stream ``sid`` goes on with the streams ``chain`` (one sender): it did not send at the same
+    time as them, or sent mostly copies of their frames."""
+    rows = log.stream_rows(sid)
+    if not any(_interleaved(rows, log.stream_rows(m)) for m in chain):
+        return True
+    theirs = np.concatenate([_frame_blocks(log.stream_rows(m)) for m in chain])
+    return 2 * np.count_nonzero(np.isin(_frame_blocks(rows), theirs)) > rows.size
+
+
+def _streams_by_sender(log: SessionLog) -> tuple[dict[int, list[int]], dict[int, list[str]]]:
+    """The streams takes are built from. The recorder logs each other source of a stream's device id and
+    subject as a stream of its own (``alongside`` in its STREAM record). Such a stream joins the stream
+    (in arrival order) unless it sent at the same time (``_interleaved``) and not mostly copies of its
+    frames: a sender restarted on another port, or the app sending to this computer twice (a socket per
+    Live Link target) is one stream; a second sender with the same names is a stream of its own. Returns
+    the log's streams each built stream is made of (by its first stream id) and, for names two senders
+    shared, every sender's address (HOST:PORT)."""
+    groups: dict[int, list[int]] = {}
+    for sid in log.stream_ids():
+        first = log.streams.get(sid, {}).get("alongside")
+        known = isinstance(first, int) and first in log.frame_counts
+        groups.setdefault(first if known else sid, []).append(sid)
+    members: dict[int, list[int]] = {}
+    senders: dict[int, list[str]] = {}
+    for group in groups.values():
+        chains: list[list[int]] = []
+        for sid in group:
+            joins = next((chain for chain in chains if _same_sender(log, sid, chain)), None)
+            if joins is None:
+                chains.append([sid])
+            else:
+                joins.append(sid)
+        members |= {chain[0]: sorted(chain) for chain in chains}
+        if len(chains) > 1:
+            addresses = [_source(log.streams.get(chain[0], {})) for chain in chains]
+            senders |= {chain[0]: addresses for chain in chains}
+    return dict(sorted(members.items())), senders
+
+
 def find_sessions(path: str | Path, include_complete: bool = False) -> list[Path]:
     """Session folders (``*.recording`` with a frames log) under ``path``, oldest name first."""
     path = Path(path)
@@ -806,15 +1001,22 @@ def build_takes(
     stray_streams = stray_frames = 0
     used: set[str] = set()  # take folder names of this session, case-folded
     try:
-        for sid in log.stream_ids():
+        members, senders = _streams_by_sender(log)
+        for sid, member in members.items():
             info = log.streams.get(sid, {})
             who = {"device": info.get("device"), "subject": info.get("subject")}
             try:
-                takes, report = stream_takes(log, sid, audio, audio_first_s)
+                rows = None
+                if len(member) > 1:  # one sender from several sources, in arrival order
+                    rows = np.concatenate([log.stream_rows(m) for m in member])
+                    rows = rows[np.argsort(rows["arrival_ns"], kind="stable")]
+                takes, report = stream_takes(log, sid, audio, audio_first_s, rows)
             except (MemoryError, ValueError, OverflowError, OSError, S2AError) as exc:
                 message = f"the takes of stream {sid} could not be built: {type(exc).__name__}: {exc}"
                 failed.append(who | {"error": message})
                 continue
+            if sid in senders:
+                report["senders"] = senders[sid]
             failed += [who | {"error": e} for e in report.pop("errors", [])]
             for take in takes:
                 take.meta.id = _unique_id(take.meta.id, used)
@@ -829,7 +1031,12 @@ def build_takes(
                         "restarts",
                         "rate_changes",
                         "stray_packets",
+                        "same_time_frames",
+                        "same_time_dropped",
+                        "clock_steps",
+                        "senders",
                     )
+                    if k in report
                 }
                 if log.torn_tail is not None:
                     take.meta.extra["torn_tail"] = log.torn_tail.to_json()
