@@ -54,7 +54,8 @@ from .vad import speech_level_dbfs, speech_segments, vad_gain
 # idle and timecode channels left out of the mix, clipping only at loud extremes, VAD on a level-raised
 # copy (flag quiet_audio), content peaks outside the search range not trusted; 5: paired data placed by a
 # time column on the timecode clock, paired audio not cut to its frames not taken as placed, paired
-# duration_mismatch from 1 s; 6: paired audio searched as far as its gap to the frames, --offset-ms
+# duration_mismatch from 1 s; 6: paired audio searched as far as its gap to the frames, --offset-ms;
+# 7: content judged after the drift is removed, every offset compared at the first audio sample
 ALIGN_VERSION = 7
 MIN_TAKE_S = 1.0
 # Speech quieter than this (``vad.speech_level_dbfs``; real recordings speak at -12..-22 dBFS) is
@@ -133,8 +134,10 @@ def _content(
     )
     drift, drift_info = _drift(around, s0, x.size / TARGET_RATE, take.meta.fps, opts)
     if drift:
-        weight, face, correlation = correlate(t[ok] - drift * (t[ok] - anchor))
-        est = correlation.peak(opts.max_offset_s) or est
+        on_audio_rate = correlate(t[ok] - drift * (t[ok] - anchor))
+        steady = on_audio_rate[2].peak(opts.max_offset_s)
+        if steady is not None:  # else the whole take's correlation stands, with its own estimate
+            (weight, face, correlation), est = on_audio_rate, steady
     # The peak inside the search range is only the offset when no higher peak lies beyond it: look at
     # least BEYOND_RANGE_S further (a peak near the edge may be the flank of a higher one outside). When
     # the audio's placement is no evidence (assumed: a CSV with audio recorded elsewhere), the offset
@@ -289,16 +292,21 @@ def _check_range(
     return False
 
 
-def _at_audio_start(ev: Evidence, drift: float, s0: float) -> float:
-    """The offset evidence ``ev`` gives at the first audio sample (``--offset-ms`` means that one): with
-    drift, an offset measured around a take time (``anchor_s``, ``audio_time_s``) moves back to it."""
-    anchor = ev.detail.get("anchor_s", ev.detail.get("audio_time_s", s0))
-    return ev.offset_s - drift * (float(anchor) - s0)
+def _to_audio_start(evidence: list[Evidence], drift: float, s0: float) -> None:
+    """Every offset as the one at the first audio sample (what ``offset_s`` and ``--offset-ms`` mean):
+    with drift, an offset measured around a take time (content at its ``anchor_s``, a clap at its
+    ``audio_time_s``) differs from it by ``drift`` times the time between; the measured one is kept in
+    ``detail["offset_at_anchor_s"]``."""
+    if not drift:
+        return
+    for ev in evidence:
+        at = ev.detail.get("anchor_s", ev.detail.get("audio_time_s"))
+        if at is not None:
+            ev.detail["offset_at_anchor_s"] = ev.offset_s
+            ev.offset_s -= drift * (float(at) - s0)
 
 
-def _name_best_guess(
-    tid: str, decision: Decision, opts: AlignOptions, warnings: list[str], drift: float, s0: float
-) -> None:
+def _name_best_guess(tid: str, decision: Decision, opts: AlignOptions, warnings: list[str]) -> None:
     """A warning for a take whose evidence all fell short of ``--min-confidence``: what the most
     confident of it says (the offset at the first audio sample, as ``--offset-ms`` takes it), and how to
     use that offset when the user can confirm it."""
@@ -306,7 +314,7 @@ def _name_best_guess(
     if not guesses:
         return
     best = max(guesses, key=lambda e: e.confidence)
-    ms = _at_audio_start(best, drift, s0) * 1000.0
+    ms = best.offset_s * 1000.0
     warnings.append(
         f"take {tid}: no evidence reached confidence {opts.min_confidence:g}, so the audio stays where it "
         f"was placed; the best, {best.source}, puts the offset at {ms:+.0f} ms (confidence "
@@ -445,6 +453,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     if content_ev is not None:
         evidence.append(content_ev)
     evidence += _transient_evidence(take, x, s0, usable, mouth, opts)
+    _to_audio_start(evidence, drift, s0)  # compared, chosen and reported at one take time
     if opts.offset_s is not None:
         given = Evidence("given", opts.offset_s, 1.0, 0.0, {"note": "given with --offset-ms"})
         decision = combine([given, *evidence], opts.min_confidence, opts.max_disagreement_s)
@@ -455,12 +464,12 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     flags += decision.flags
     chosen = decision.chosen
     if not _check_range(tid, content_ev, decision, gap, opts, flags, warnings) and "low_confidence" in flags:
-        _name_best_guess(tid, decision, opts, warnings, drift, s0)
+        _name_best_guess(tid, decision, opts, warnings)
 
     arrival_ppm = arrival_drift_ppm(take.time, take.arrival_s)
     if arrival_ppm is not None:
         drift_info["phone_vs_recorder_ppm"] = round(arrival_ppm, 3)
-    offset_s = _at_audio_start(chosen, drift, s0)
+    offset_s = chosen.offset_s  # at the first audio sample (_to_audio_start)
 
     # Face times on the audio clock (s from the first raw audio sample).
     tau = ft - s0 - (offset_s + drift * (ft - s0))

@@ -7,6 +7,7 @@ import importlib
 import io
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -36,6 +37,10 @@ def run_cli(module: str, *args: str, check: bool = False) -> subprocess.Complete
     return proc
 
 
+def _warning_to_stderr(message, category, filename, lineno, file=None, line=None) -> None:
+    sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
 def run_here(module: str, *args: str) -> subprocess.CompletedProcess:
     """A stage's command line run in this process, as ``run_cli`` returns it: for tests whose subject is
     what a command does rather than the command line itself (each stage's commands are also run as
@@ -43,7 +48,11 @@ def run_here(module: str, *args: str) -> subprocess.CompletedProcess:
     here is an exception the test fails with."""
     main = importlib.import_module(f"{module}.cli").main
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+        # Python's warnings reach the user's stderr as lines, not pytest's record: a test of one-line
+        # errors must see them
+        warnings.simplefilter("default")
+        warnings.showwarning = _warning_to_stderr
         try:
             code = main([str(a) for a in args])
         except SystemExit as exc:  # argparse's usage errors

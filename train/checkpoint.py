@@ -15,7 +15,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -110,26 +110,39 @@ def run_lock(run: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``run/.lock`` (created if needed) while the block runs: a second
     ``fit`` into the same run folder is refused instead of interleaving its checkpoints and metrics.
     A lock file this fit created goes again if the folder holds no run afterwards (a refused fit
-    into a folder of the user's leaves it as it was)."""
-    created = not (run / LOCK).exists()
-    try:
-        fd = os.open(run / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as exc:
-        raise write_error(exc, run / LOCK, "the run folder's lock file") from None
-    held = False
-    try:
-        held = try_lock(fd)
-        if not held:
+    into a folder of the user's leaves it as it was); a fit that locked a file another one removed
+    meanwhile locks the new one instead."""
+    while True:
+        created = not (run / LOCK).exists()
+        try:
+            fd = os.open(run / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise write_error(exc, run / LOCK, "the run folder's lock file") from None
+        if not try_lock(fd):
+            os.close(fd)
             raise InputError(
                 "another s2a-train fit is writing this run folder (it holds its .lock): wait for it to "
                 "finish, or train into another -o",
                 run,
             )
+        if _same_file(fd, run / LOCK):
+            break
+        os.close(fd)  # the file was removed while this fit waited to lock it: lock the one there now
+    try:
         yield
     finally:
-        if held and created and not (run / CONFIG).exists():
-            (run / LOCK).unlink(missing_ok=True)  # while still held: no other fit can be inside it
+        if created and not (run / CONFIG).exists():
+            with suppress(OSError):  # while still held: no other fit can be inside it
+                (run / LOCK).unlink()
         os.close(fd)  # releases the lock
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """Whether open file ``fd`` is the file ``path`` names now."""
+    try:
+        return os.fstat(fd).st_ino == os.stat(path).st_ino
+    except OSError:
+        return False
 
 
 def refuse_other_world(trained: int, world: int, what: str, where: Path) -> None:
