@@ -109,20 +109,31 @@ def _fields(line: str) -> list[str]:
         return line.split(",")
 
 
+def app_header_separator(line: str) -> str | None:
+    """The separator of a line that starts like the app's header (``Timecode,BlendShapeCount``, any
+    case and spacing, quoted or not, as a spreadsheet may re-save it): ``,``, or ``;`` or a tab from a
+    spreadsheet's re-save; None for any other line."""
+    for sep in (",", ";", "\t"):
+        cells = [c.strip().strip('"').replace(" ", "").lower() for c in line.split(sep)[:2]]
+        if cells == ["timecode", "blendshapecount"]:
+            return sep
+    return None
+
+
 def _parse_header(text: str, path: Path) -> tuple[str, list[str], bool]:
     """Count column name, value column names, and whether every line ends with a comma (a spreadsheet's
     re-save: that empty last column is no column, when the rows leave it empty too)."""
     names = [c.strip() for c in _fields(text.rstrip("\r\n"))]
     if len(names) < 3 or names[0].lower() != "timecode" or names[1].lower() != "blendshapecount":
-        for sep in (";", "\t"):
-            if [c.strip().strip('"').lower() for c in text.split(sep)[:2]] == ["timecode", "blendshapecount"]:
-                raise InputError(
-                    f"a Live Link Face CSV re-saved with {sep!r} between the fields (a spreadsheet in a "
-                    "decimal-comma locale?): export it with commas between the fields and '.' as the "
-                    "decimal point, as the app writes it",
-                    path,
-                    1,
-                )
+        sep = app_header_separator(text)
+        if sep is not None:
+            raise InputError(
+                f"a Live Link Face CSV re-saved with {sep!r} between the fields (a spreadsheet in a "
+                "decimal-comma locale?): export it with commas between the fields and '.' as the "
+                "decimal point, as the app writes it",
+                path,
+                1,
+            )
         shown = text[:60].encode("unicode_escape").decode("ascii")
         raise InputError(
             "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount "
@@ -320,6 +331,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     status: list[int] = []
     line_numbers: list[int] = []
     last = len(lines)
+    comma_rows = 0  # rows whose comma ending the line was dropped (``trailing_comma``)
     for number, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue  # empty lines carry nothing (pyarrow's fast path skips them too)
@@ -339,6 +351,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             )
         if trailing_comma and len(fields) in (3, ncols + 1) and not fields[-1].strip():
             fields.pop()  # the comma ending every line, a face-lost row's too
+            comma_rows += 1
         lost = len(fields) == 2 and fields[1].strip() == "0"
         if not lost and len(fields) != ncols:
             if number == last and not ends_with_newline and len(fields) < ncols:
@@ -361,29 +374,26 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         except ValueError as exc:
             _repair(repairs, number, "bad_timecode", f"{exc}: row dropped")
             continue
-        if lost:
+        vals: list[float] = []
+        if not lost:
+            try:
+                if "_" in line:  # float() reads "1_0" as 10.0; the app never writes such a cell
+                    raise ValueError
+                vals = [float(x) for x in fields[2:]]
+            except ValueError:
+                vals = [_cell_value(x) for x in fields[2:]]
+        count = fields[1].strip()
+        # Count 0 is the app's face-lost marker; a writer that fills the row with zeros means the same
+        if lost or (count == "0" and all(v == 0 for v in vals)):
             times.append(tod)
             rows.append(None)
             status.append(FrameStatus.FACE_LOST)
             line_numbers.append(number)
             continue
         row_status = FrameStatus.TRACKED
-        try:
-            if "_" in line:  # float() reads "1_0" as 10.0; the app never writes such a cell
-                raise ValueError
-            vals = [float(x) for x in fields[2:]]
-        except ValueError:
-            vals = [_cell_value(x) for x in fields[2:]]
-        count = fields[1].strip()
-        if count == "0" and all(v == 0 for v in vals):
-            # Count 0 is the app's face-lost marker; a writer that fills the row with zeros means the same
-            times.append(tod)
-            rows.append(None)
-            status.append(FrameStatus.FACE_LOST)
-            line_numbers.append(number)
-            continue
         if count not in counts:
-            message = f"{count_name} is {count!r} but the row has {len(columns)} values"
+            expected = " or ".join(sorted(counts, key=int))
+            message = f"{count_name} is {count!r} but the row has {len(columns)} values ({expected} expected)"
             _repair(repairs, number, "bad_count", message)
         bad = [columns[i] for i, v in enumerate(vals) if not abs(v) <= _FLOAT32_MAX]
         if bad:
@@ -453,7 +463,8 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             line_numbers[b],
         )
     if trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
-        _repair(repairs, 1, "trailing_comma", "every line ends with a comma: no column, ignored")
+        lines_with = "every line ends" if comma_rows else "the header ends"
+        _repair(repairs, 1, "trailing_comma", f"{lines_with} with a comma: no column, ignored")
     return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
 
 

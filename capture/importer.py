@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import re
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .csv_take import read_livelink_csv
+from .csv_take import app_header_separator, read_livelink_csv
 from .errors import InputError
 from .paired import bom_codec, read_paired
 from .take import Take, is_take_dir
@@ -120,10 +119,9 @@ def is_livelink_csv(path: Path, head: bytes | None = None) -> bool:
     raw = _head(path) if head is None else head
     if raw is None:
         return True  # let the Live Link Face reader report it
-    head = raw.decode(bom_codec(raw) or "utf-8-sig", "replace")
-    first = next((line for line in head.splitlines() if line.strip()), "")
-    cells = re.split(r"[,;\t]", first.lower().replace(" ", "").replace('"', ""))
-    return cells[:2] == ["timecode", "blendshapecount"]
+    text = raw.decode(bom_codec(raw) or "utf-8-sig", "replace")
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    return app_header_separator(first) is not None
 
 
 def _head(path: Path, size: int = 1 << 16) -> bytes | None:

@@ -184,10 +184,10 @@ def _json_text(data: dict[str, Any], key: str, file: str, repairs: list[dict[str
 
 
 def _json_whole(data: dict[str, Any], key: str, file: str, repairs: list[dict[str, Any]]) -> int | None:
-    """A whole-number field of the app's JSON, also written as text (``"7"``); another value is ignored
-    (repair ``bad_json``)."""
+    """A whole-number field of the app's JSON (0 or more), also written as text (``"7"``); another value
+    is ignored (repair ``bad_json``)."""
     value = _field(data, key)
-    if value is None or type(value) is int:
+    if value is None or (type(value) is int and value >= 0):
         return value
     if isinstance(value, str) and re.fullmatch(r"[0-9]{1,9}", value.strip()):
         return int(value)

@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 from conftest import run_here
 
-from capture import Audio, FrameStatus, InputError, read_livelink_csv, read_take_folder, write_reference_mov
+from capture import (
+    Audio,
+    FrameStatus,
+    InputError,
+    csv_take,
+    read_livelink_csv,
+    read_take_folder,
+    write_reference_mov,
+)
 from capture.timecode import Timecode
 
 ZEROS = ",".join(["0.0000000000"] * 61)
@@ -25,6 +33,11 @@ def sample_lines(samples: Path, rows: int = 240) -> tuple[str, list[str]]:
 def write_csv(path: Path, header: str, rows: list[str], end: str = "") -> Path:
     path.write_text("".join(line + end + "\n" for line in [header, *rows]))
     return path
+
+
+def quoted(line: str) -> str:
+    """A line as a spreadsheet re-saves it with every field quoted."""
+    return ",".join(f'"{cell}"' for cell in line.split(","))
 
 
 def kinds(take) -> list[str]:
@@ -48,7 +61,11 @@ def test_frame_log_without_video_metadata_is_read_at_the_mov_rate(tmp_path, samp
 
 
 # 2. A count-0 row with all 61 values zero is the app's face-lost marker, as a short ``<tc>,0`` row is.
-def test_a_zero_filled_count_0_row_is_face_lost(tmp_path, samples):
+def _no_careful_reader(*_args, **_kw):
+    raise AssertionError("the careful reader was used")
+
+
+def test_a_zero_filled_count_0_row_is_face_lost(tmp_path, samples, monkeypatch):
     header, rows = sample_lines(samples, 10)
     rows[3] = rows[3].split(",")[0] + ",0," + ZEROS
     rows[4] = rows[4].split(",")[0] + ",0"
@@ -58,8 +75,9 @@ def test_a_zero_filled_count_0_row_is_face_lost(tmp_path, samples):
     assert take.frame_status.tolist() == [0, 0, 0, 1, 1, 0, 0, 0, 0, 0]
     assert np.isnan(take.values[3]).all()
     assert [(r["kind"], r["line"]) for r in take.meta.repairs] == [("bad_count", 8)]
-    # without that row, the file takes the fast reader: the same frames
+    # without that row, the file takes the fast reader (the careful one refused here): the same frames
     rows[6] = tracked
+    monkeypatch.setattr(csv_take, "_read_careful", _no_careful_reader)
     take = read_livelink_csv(write_csv(tmp_path / "u.csv", header, rows), strict=True)
     assert take.frame_status.tolist() == [0, 0, 0, 1, 1, 0, 0, 0, 0, 0] and kinds(take) == []
     assert np.isnan(take.values[3]).all() and not np.isnan(take.values[5]).any()
@@ -74,7 +92,11 @@ def test_a_comma_ending_every_line_is_no_column(tmp_path, samples):
     assert take.meta.channels == clean.meta.channels
     assert np.array_equal(take.values, clean.values, equal_nan=True)
     assert np.array_equal(take.frame_status, clean.frame_status)
-    assert kinds(take) == ["trailing_comma"]
+    assert kinds(take) == ["trailing_comma"] and "every line ends" in take.meta.repairs[0]["message"]
+    # only the header ending with a comma: said as it is
+    take = read_livelink_csv(write_csv(tmp_path / "h.csv", header + ",", rows), strict=True)
+    assert np.array_equal(take.values, clean.values, equal_nan=True)
+    assert [r["message"] for r in take.meta.repairs] == ["the header ends with a comma: no column, ignored"]
 
 
 def test_an_empty_header_column_says_how_to_fix_it(tmp_path, samples):
@@ -93,9 +115,6 @@ def test_an_empty_header_column_says_how_to_fix_it(tmp_path, samples):
 def test_a_csv_with_every_field_quoted_is_read(tmp_path, samples):
     header, rows = sample_lines(samples)
     clean = read_livelink_csv(write_csv(tmp_path / "clean.csv", header, rows))
-
-    def quoted(line: str) -> str:
-        return ",".join(f'"{cell}"' for cell in line.split(","))
 
     for name, quoted_rows in (("head.csv", rows), ("all.csv", [quoted(r) for r in rows])):
         take = read_livelink_csv(write_csv(tmp_path / name, quoted(header), quoted_rows), strict=True)
@@ -116,9 +135,6 @@ def test_import_recognises_a_spreadsheets_resave_of_a_loose_csv(tmp_path, sample
     is imported as the app's CSV; separated by ';', it gets the reader's advice, not the generic
     paired-data reader's complaint about its timecodes."""
     header, rows = sample_lines(samples)
-
-    def quoted(line: str) -> str:
-        return ",".join(f'"{cell}"' for cell in line.split(","))
 
     write_csv(tmp_path / "q.csv", quoted(header), [quoted(r) for r in rows])
     proc = run_here("capture", "import", tmp_path / "q.csv", "-o", tmp_path / "takes", "--json")
