@@ -68,7 +68,15 @@ from .features import (
     speech_level,
 )
 from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, manifest_path, read_manifest, write_manifest
-from .normalize import HIST_LAYOUT, KINDS, ChannelAccumulator, FeatureAccumulator, fit_normalizer
+from .normalize import (
+    HIST_LAYOUT,
+    KINDS,
+    ChannelAccumulator,
+    FeatureAccumulator,
+    fit_normalizer,
+    usable_neutral,
+    voiced_log_f0_sums,
+)
 from .qa import ANIM_LIMIT, BASE_MEMBERS
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits, pinned_groups, speaker_key
@@ -123,8 +131,8 @@ class BuildOptions:
                 f"--features {','.join(self.features) or '(none)'} holds no content feature: a model needs "
                 f"one of {', '.join(CONTENT_FEATURES)} (--ppg adds ppg)"
             )
-        if self.shard_bytes < 1:
-            raise InputError(f"--shard-mb must give a cap of at least one byte, not {self.shard_bytes} bytes")
+        if self.shard_bytes < 1:  # the command line says it in MB first (dataset.cli)
+            raise InputError(f"a shard's size cap must be at least one byte, not {self.shard_bytes}")
         if not 0 < self.max_sample_s < math.inf:
             raise InputError(f"--max-sample-s must be a positive number of seconds, not {self.max_sample_s}")
         if self.jobs < 1:
@@ -221,13 +229,15 @@ def _distinct_keys(takes: list[SourceTake]) -> list[str]:
 def _one_spelling_per_speaker(takes: list[SourceTake]) -> list[str]:
     """Speakers whose names differ only in case or spacing (``Anna`` and ``anna ``, typed on two
     phones) are one speaker, named by the first spelling in sort order; a speaker split would
-    otherwise put one person in train and test. Returns a warning per merged name."""
+    otherwise put one person in train and test. Returns a warning per merged name. Only ``meta.subject``
+    names are merged: an assumed speaker is a recording id, and ``Take1`` and ``take1`` are two."""
+    named = [t for t in takes if not t.speaker_assumed]
     spellings: dict[str, set[str]] = {}
-    for t in takes:
+    for t in named:
         spellings.setdefault(speaker_key(t.speaker), set()).add(t.speaker)
     warnings = []
     for names in (sorted(n) for n in spellings.values() if len(n) > 1):
-        for t in takes:
+        for t in named:
             if t.speaker in names:
                 t.speaker = names[0]
         warnings.append(
@@ -436,7 +446,8 @@ def collect_takes(
     for t in takes:
         first_at.setdefault(round(t.fps, 6), t)
     if len(first_at) > 1:
-        examples = ", ".join(f"{rate:g} fps: {first_at[rate].folder}" for rate in sorted(first_at))
+        # the user's input, not the copy the build aligned from it under .work/
+        examples = ", ".join(f"{rate:g} fps: {first_at[rate].source['path']}" for rate in sorted(first_at))
         raise InputError(
             f"takes have different frame rates ({examples}); align them to one rate (s2a-align --fps) or "
             "build separate datasets"
@@ -641,13 +652,14 @@ def split_share_warnings(
     split_of: dict[str, str],
     rule: SplitRule,
     recordings: dict[str, str] | None = None,
+    assumed: set[str] | None = None,
 ) -> list[str]:
     """A warning for each val or test split (not pinned) holding more than twice its fraction of the
     audio (and over 10 points more): the recordings are too few or too long for the fractions; and for
     each pinned split that its fraction topped up with takes nobody named (``recordings``: the recording
-    each take was cut from)."""
+    each take was cut from; ``assumed``: the takes whose speaker is assumed, see ``pinned_groups``)."""
     total = sum(d for _, d in durations.values()) or 1.0
-    group_of, pinned_to = pinned_groups(durations, rule, recordings)
+    group_of, pinned_to = pinned_groups(durations, rule, recordings, assumed)
     out = []
     for split, fraction, pinned in (
         ("val", rule.val_fraction, rule.val),
@@ -783,9 +795,8 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     neutral_nonfinite: list[str] = []  # selected channels whose calibrated neutral is NaN or infinite
     if take.neutral is not None and take.neutral.shape == (len(take.meta.channels),):
         nv = take.neutral[idx]
-        if np.all(np.isfinite(nv)):
-            neutral = nv.astype(np.float32)
-        else:
+        neutral = usable_neutral(nv, len(job.channels))
+        if neutral is None:
             neutral_nonfinite = [c for c, v in zip(job.channels, nv, strict=True) if not np.isfinite(v)]
 
     # statistics (float64 sums; merged later in take order)
@@ -800,9 +811,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         feat_stats[name] = acc.to_json()
     pitch_stats = None
     if "pitch" in feats:
-        voiced = (feats["pitch"][:, 1] > 0.5) & in_audio
-        lf0 = feats["pitch"][voiced, 0].astype(np.float64)
-        pitch_stats = {"count": int(lf0.size), "sum": float(lf0.sum()), "sumsq": float((lf0 * lf0).sum())}
+        pitch_stats = voiced_log_f0_sums(feats["pitch"], in_audio)
     phone_counts = None
     if phones is not None:
         phone_counts = np.bincount(phones[mask & (phones >= 0)], minlength=1).tolist()
@@ -1485,8 +1494,9 @@ def _build(
             raise InputError(f"pinned take or speaker {pinned!r} was {left_out[pinned]}")
     durations = {t.id: (t.speaker, t.duration_s) for t in takes}
     recordings = {t.id: t.recording for t in takes}
-    split_of = assign_splits(durations, options.split, recordings)
-    warnings += split_share_warnings(durations, split_of, options.split, recordings)
+    assumed = {t.id for t in takes if t.speaker_assumed}  # their speaker is a recording id: pinned exactly
+    split_of = assign_splits(durations, options.split, recordings, assumed)
+    warnings += split_share_warnings(durations, split_of, options.split, recordings, assumed)
     warnings += empty_split_warnings(split_of, options.split, len({t.speaker for t in takes}))
     previous = _previous_splits(old, work)
     moved = {t: {"from": previous[t], "to": s} for t, s in split_of.items() if previous.get(t, s) != s}

@@ -261,8 +261,37 @@ def animation_statistics(kind: str, acc: ChannelAccumulator) -> tuple[np.ndarray
 def fit_normalizer(kind: str, channels: list[str], acc: ChannelAccumulator) -> Normalizer:
     """Normalizer from training-split statistics ``acc``."""
     offset, spread = animation_statistics(kind, acc)
-    scale = np.exp2(np.round(np.log2(spread)))  # a power of two: exact division and multiplication
-    return Normalizer(kind, channels, offset.astype(np.float32), scale.astype(np.float32))
+    return Normalizer(kind, channels, offset.astype(np.float32), power_of_two(spread).astype(np.float32))
+
+
+def power_of_two(spread: np.ndarray | float) -> np.ndarray:
+    """The scale for ``spread``: the nearest power of two in log2 (a midpoint rounds to the even
+    exponent), so that dividing and multiplying by it is exact. The build and ``validate`` both use it."""
+    return np.exp2(np.round(np.log2(spread)))
+
+
+def usable_neutral(neutral: Any, n: int) -> np.ndarray | None:
+    """A neutral pose as float32 when it is ``n`` finite numbers, else None (the channel's percentile
+    stands in): the build's test of a take's pose and ``validate``'s of a sample's."""
+    if neutral is None:
+        return None
+    try:
+        pose = np.asarray(neutral)
+    except ValueError:  # a ragged list
+        return None
+    if pose.shape != (n,) or pose.dtype.kind not in "fiu" or not np.all(np.isfinite(pose)):
+        return None  # text or true/false in a manifest is no number either
+    return pose.astype(np.float32)
+
+
+def voiced_log_f0_sums(pitch: np.ndarray, frames: np.ndarray | None = None) -> dict[str, Any]:
+    """Count, sum and sum of squares of the voiced log-F0 of ``pitch`` (frames, [log-F0, voiced]), over
+    ``frames`` (a mask) only when given: what per-speaker pitch normalisation merges, in float64."""
+    voiced = pitch[:, 1] > 0.5
+    if frames is not None:
+        voiced &= frames
+    lf0 = pitch[voiced, 0].astype(np.float64)
+    return {"count": int(lf0.size), "sum": float(lf0.sum()), "sumsq": float((lf0 * lf0).sum())}
 
 
 def is_power_of_two(x: float) -> bool:

@@ -38,6 +38,7 @@ from .shards import ShardReader, decode_flac, decode_npy
 from .splits import SPLITS
 
 ANIM_LIMIT = 10.0  # |value| above this is no blendshape weight nor angle in radians
+MIDPOINT_EPS = 1e-9  # in octaves: a recomputed spread this near a midpoint may round either way
 LOG_F0_RANGE = (math.log(20.0), math.log(2000.0))
 # still_channel: a channel counts as animated when the median over takes of its per-take std reaches
 # MOVING_STD (blendshape units); a take whose std is under STILL_RATIO of that median leaves it still
@@ -917,14 +918,11 @@ class Recomputed:
         self.takes: dict[str, dict[str, Any]] = {}  # take: {"speaker", "split", "pitch_stats"}
 
     def add(self, split: str, meta: dict[str, Any] | None, arrays: dict[str, np.ndarray], usable) -> None:
-        from .normalize import FeatureAccumulator
+        from .normalize import FeatureAccumulator, usable_neutral, voiced_log_f0_sums
 
         if split not in self.channels or meta is None:
             return
-        neutral = meta.get("neutral")
-        if not (isinstance(neutral, list) and len(neutral) == self.n_channels and all(map(_number, neutral))):
-            neutral = None
-        self.channels[split].add(arrays["anim"][usable], None if neutral is None else np.asarray(neutral))
+        self.channels[split].add(arrays["anim"][usable], usable_neutral(meta.get("neutral"), self.n_channels))
         self.samples[split] += 1
         if split == "train":
             for name in self.feature_names:
@@ -933,7 +931,6 @@ class Recomputed:
                     self.features.setdefault(name, FeatureAccumulator(x.shape[1])).add(x)
         pitch = arrays.get("pitch")
         if pitch is not None and pitch.ndim == 2 and pitch.shape[1] == 2:
-            lf0 = pitch[pitch[:, 1] > 0.5, 0].astype(np.float64)
             take = self.takes.setdefault(
                 str(meta.get("take")),
                 {
@@ -943,9 +940,8 @@ class Recomputed:
                 },
             )
             st = take["pitch_stats"]
-            st["count"] += int(lf0.size)
-            st["sum"] += float(lf0.sum())
-            st["sumsq"] += float((lf0 * lf0).sum())
+            for key, value in voiced_log_f0_sums(pitch).items():  # every frame: a sample has no audio span
+                st[key] += value
 
 
 def _near(stored: Any, ours: float, tolerance: float) -> bool:
@@ -989,7 +985,7 @@ def _distribution_problems(manifest: dict[str, Any], ours: Recomputed, complete:
 
 def _animation_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
     """normalization.animation against the offsets and spreads the build fits to the training split."""
-    from .normalize import KINDS, animation_statistics, histogram_resolution
+    from .normalize import KINDS, animation_statistics, histogram_resolution, power_of_two
 
     norm = manifest["normalization"]["animation"]
     acc = ours.channels["train"]
@@ -1010,11 +1006,11 @@ def _animation_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Prob
                     f"{name}: says {norm['offset'][c]!r}; the training split's samples give {offset[c]:.6g}",
                 )
             )
-        # a scale is the spread rounded to a power of two in log2; a spread at the midpoint between two
-        # powers may round either way with the sums in another order
+        # the build's rounding; a spread within a hair of the midpoint between two powers may round
+        # either way with the sums in another order
         octave = math.log2(spread[c])
-        nearest = {2.0 ** math.floor(octave + 0.5)}
-        if abs(octave % 1.0 - 0.5) < 1e-6:
+        nearest = {float(power_of_two(spread[c]))}
+        if abs(octave % 1.0 - 0.5) < MIDPOINT_EPS:
             nearest |= {2.0 ** math.floor(octave), 2.0 ** math.ceil(octave)}
         if norm["scale"][c] not in nearest:
             out.append(
@@ -1031,7 +1027,8 @@ def _animation_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Prob
 def _feature_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
     """normalization.features.NAME against the training split's frames. The build counts only frames
     inside a take's audio, which a sample does not record: compared when the frame counts agree (the
-    audio covers every frame, as align writes takes); more frames than the split holds is wrong."""
+    audio covers every frame, as align writes takes); more frames than the samples hold is wrong, fewer
+    is a take with audio shorter than its frames (as in ``_pitch_norm_problems``)."""
     out: list[Problem] = []
     for name, st in manifest["normalization"].get("features", {}).items():
         acc = ours.features.get(name)
@@ -1047,7 +1044,7 @@ def _feature_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[P
                 )
             )
         if st["frames"] != acc.count:
-            continue
+            continue  # fewer: a take's audio ends before its frames, which a sample does not record
         for key, values in zip(("mean", "std"), acc.mean_std(), strict=True):
             bad = [d for d, v in enumerate(values) if not _near(st[key][d], v, 1e-5 * abs(v))]
             if bad:
@@ -1064,8 +1061,8 @@ def _feature_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[P
 
 
 def _pitch_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
-    """normalization.pitch.speakers against each speaker's voiced log-F0 (compared where the voiced
-    frame counts agree, as for the features)."""
+    """normalization.pitch.speakers against each speaker's voiced log-F0, as for the features: compared
+    where the voiced frame counts agree, and more voiced frames than the samples hold is wrong."""
     from .build import pitch_normalization  # here: build imports this module
 
     stored = manifest["normalization"].get("pitch", {}).get("speakers", {})
@@ -1074,14 +1071,26 @@ def _pitch_norm_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Pro
     out: list[Problem] = []
     for speaker, mine in found.items():
         theirs = stored.get(speaker)
-        if not isinstance(theirs, dict) or theirs.get("voiced_frames") != mine["voiced_frames"]:
-            continue  # a missing speaker is manifest_schema's
+        at = f"{MANIFEST_FILE}:normalization.pitch.speakers.{speaker}"
+        if not isinstance(theirs, dict) or not _count(theirs.get("voiced_frames")):
+            continue  # a missing speaker or count is manifest_schema's
+        if theirs["voiced_frames"] > mine["voiced_frames"]:
+            out.append(
+                _p(
+                    "normalization_mismatch",
+                    f"{at}.voiced_frames",
+                    f"says {theirs['voiced_frames']}; the speaker's samples hold {mine['voiced_frames']} "
+                    "voiced frames",
+                )
+            )
+        if theirs["voiced_frames"] != mine["voiced_frames"]:
+            continue  # fewer: a take's audio ends before its frames, which a sample does not record
         for key in ("mean", "std"):
             if not _near(theirs.get(key), mine[key], 1e-5 * abs(mine[key])):
                 out.append(
                     _p(
                         "normalization_mismatch",
-                        f"{MANIFEST_FILE}:normalization.pitch.speakers.{speaker}.{key}",
+                        f"{at}.{key}",
                         f"says {theirs.get(key)!r}; the speaker's voiced log-F0 gives {mine[key]:.6g}",
                     )
                 )

@@ -61,26 +61,36 @@ def speaker_key(name: str) -> str:
 
 
 def pinned_groups(
-    takes: dict[str, tuple[str, float]], rule: SplitRule, recordings: dict[str, str] | None = None
+    takes: dict[str, tuple[str, float]],
+    rule: SplitRule,
+    recordings: dict[str, str] | None = None,
+    assumed: set[str] | None = None,
 ) -> tuple[dict[str, str], dict[str, str]]:
     """``({take id: its group}, {pinned group: split})``: the groups a split keeps together (a
     recording's takes by take, a speaker's by speaker) and those that ``--val``/``--test`` pin. A pin
     names a take or recording exactly (two takes may differ only in case) or a speaker in any case
-    or spacing (``speaker_key``)."""
+    or spacing (``speaker_key``). ``assumed`` holds the takes whose speaker no ``meta.subject`` names:
+    theirs is a recording id, matched exactly as take ids are (``Take1`` and ``take1`` are two)."""
     recording = {t: (recordings or {}).get(t) or t for t in takes}
     group_of = {t: (recording[t] if rule.by == "take" else spk) for t, (spk, _) in takes.items()}
-    take_ids = set(takes) | set(recording.values())
-    speakers = {speaker_key(spk) for spk, _ in takes.values()}
+    assumed = assumed or set()
+
+    def pinned_by(t: str, spk: str, pins: tuple[str, ...]) -> bool:
+        """Whether ``pins`` name take ``t`` of speaker ``spk``: by take, recording or speaker."""
+        if t in pins or recording[t] in pins:
+            return True
+        return spk in pins if t in assumed else speaker_key(spk) in {speaker_key(p) for p in pins}
+
     for pinned in (*rule.val, *rule.test):
-        if pinned not in take_ids and speaker_key(pinned) not in speakers:
+        if not any(pinned_by(t, spk, (pinned,)) for t, (spk, _) in takes.items()):
+            take_ids = set(takes) | set(recording.values())
             near = sorted(t for t in take_ids if t.casefold() == pinned.casefold())
             hint = f" (take ids match exactly, case included: {near[0]!r}?)" if near else ""
             raise InputError(f"pinned take or speaker {pinned!r} is not among the inputs{hint}")
     split_of_group: dict[str, str] = {}
     for split, pinned in (("test", rule.test), ("val", rule.val)):
-        pinned_speakers = {speaker_key(p) for p in pinned}
         for t, (spk, _) in takes.items():
-            if t in pinned or recording[t] in pinned or speaker_key(spk) in pinned_speakers:
+            if pinned_by(t, spk, pinned):
                 g = group_of[t]
                 if split_of_group.get(g, split) != split:
                     raise InputError(f"{g!r} is pinned to both val and test (via take, recording or speaker)")
@@ -89,11 +99,15 @@ def pinned_groups(
 
 
 def assign_splits(
-    takes: dict[str, tuple[str, float]], rule: SplitRule, recordings: dict[str, str] | None = None
+    takes: dict[str, tuple[str, float]],
+    rule: SplitRule,
+    recordings: dict[str, str] | None = None,
+    assumed: set[str] | None = None,
 ) -> dict[str, str]:
     """``{take id: split}`` for ``takes`` = ``{take id: (speaker id, duration in s)}``; ``recordings``
-    maps a take id to the recording it was cut from (by default each take is its own)."""
-    group_of, split_of_group = pinned_groups(takes, rule, recordings)
+    maps a take id to the recording it was cut from (by default each take is its own); ``assumed``: the
+    takes whose speaker is assumed (see ``pinned_groups``)."""
+    group_of, split_of_group = pinned_groups(takes, rule, recordings, assumed)
     durations: dict[str, float] = {}
     for t, (_, dur) in takes.items():
         durations[group_of[t]] = durations.get(group_of[t], 0.0) + dur

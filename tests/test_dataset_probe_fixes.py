@@ -94,14 +94,28 @@ def test_takes_without_a_speaker_split_by_speaker_keep_each_recording_on_one_sid
     assert validate(ds, deep=True).valid
 
 
-def test_validate_flags_a_recording_in_two_splits_whatever_the_rule(root):
-    # one recording whose two segments name different subjects: a speaker split may part them
-    folder = root / "two_subjects"
-    write_take(_segment("rec.seg01", "rec", seed=1, subject="ann"), folder)
-    write_take(_segment("rec.seg02", "rec", seed=2, subject="bob"), folder)
-    write_take(make_aligned_take("other", 1.0, subject="cid", seed=3), folder)
-    ds = root / "ds_two_subjects"
-    _build(folder, ds, "--split-by", "speaker", "--test", "bob", "--val-fraction", "0", *QUICK)
+def test_validate_flags_a_recording_in_two_splits_whatever_the_rule(root, monkeypatch):
+    # subject-less segments of one recording, built as older builds did: each segment its own speaker
+    # (its take id), so a speaker split parted them
+    import dataset.build as build
+
+    merge = build._one_spelling_per_speaker
+
+    def speaker_is_take_id(takes):
+        for t in takes:
+            if t.speaker_assumed:
+                t.speaker = t.id
+        return merge(takes)
+
+    monkeypatch.setattr(build, "_one_spelling_per_speaker", speaker_is_take_id)
+    folder = root / "old_segments"
+    write_take(_segment("rec.seg01", "rec", seed=1, subject=None), folder)
+    write_take(_segment("rec.seg02", "rec", seed=2, subject=None), folder)
+    write_take(make_aligned_take("other", 1.0, subject=None, seed=3), folder)
+    ds = root / "ds_old_segments"
+    _build(folder, ds, "--split-by", "speaker", "--test", "rec.seg02", "--val-fraction", "0", *QUICK)
+    m = json.loads((ds / "manifest.json").read_text())
+    assert {src["take"]: src["speaker"] for src in m["sources"]}["rec.seg02"] == "rec.seg02"
     leaks = _codes(validate(ds), "split_leakage")
     assert [p.location for p in leaks] == ["recording rec"], leaks
 
@@ -235,6 +249,19 @@ def test_pins_that_leave_no_training_take_say_so(takes, root):
 def test_a_take_pin_in_the_wrong_case_gets_a_hint(takes, root):
     proc = run_here("dataset", "build", takes, "-o", root / "ds_pins", "--test", "T0", *QUICK)
     _refused(proc, "pinned take or speaker 'T0' is not among the inputs", "case included: 't0'?")
+
+
+def test_assumed_speakers_differing_only_in_case_are_two_and_pinned_exactly(root):
+    # subject-less takes: their speakers are the recording ids Take1_raw and take1_raw, two recordings
+    folder = root / "case_ids"
+    for i, tid in enumerate(("Take1", "take1", "other")):
+        write_take(make_aligned_take(tid, 1.0, subject=None, seed=40 + i), folder)
+    options = ("--split-by", "speaker", "--test", "Take1_raw", "--val-fraction", "0", "--test-fraction", "0")
+    summary = _build(folder, root / "ds_case_ids", *options, *QUICK)
+    assert not any("differ only in case" in w for w in summary["warnings"]), summary["warnings"]
+    m = json.loads((root / "ds_case_ids" / "manifest.json").read_text())
+    split_of = {src["take"]: (src["speaker"], src["split"]) for src in m["sources"]}
+    assert split_of["Take1"] == ("Take1_raw", "test") and split_of["take1"] == ("take1_raw", "train")
 
 
 # 7. malformed align metadata

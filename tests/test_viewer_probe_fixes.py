@@ -341,3 +341,30 @@ def test_report_on_live_link_face_csvs_says_to_import_them_first(samples, tmp_pa
     proc = run_here("viewer", "report", tmp_path / "csvs", "-o", tmp_path / "r.html")
     _one_line_error(proc, "import them first (s2a-capture import")
     assert not (tmp_path / "r.html").exists()
+
+
+def test_a_take_of_the_52_blendshapes_alone_is_not_warned_about(tmp_path):
+    from capture.channels import ARKIT52
+
+    n = 20
+    t = np.arange(n) / 30
+    values = np.full((n, len(ARKIT52)), 0.1, np.float32)
+    meta = TakeMeta(id="face52", source_kind="paired_matrix", fps=30.0, channels=list(ARKIT52))
+    folder = write_take(Take(meta, t, values, np.zeros(n, np.uint8)), tmp_path / "takes")
+    proc = run_here("viewer", "render", folder, "-o", tmp_path / "r.png", "--size", 32, "--json")
+    _json(proc)
+    assert "shown at 0" not in proc.stderr  # no head or eye angle is asked of a take without head tracking
+
+
+def test_a_rig_take_with_a_channel_of_no_value_is_refused_in_one_line(tmp_path):
+    n = 30
+    t = np.arange(n) / 30
+    values = np.stack([np.full(n, np.nan), 0.5 + 0.5 * np.sin(6 * t), 0.1 * t], axis=1).astype(np.float32)
+    meta = TakeMeta(
+        id="rig", source_kind="paired_matrix", fps=30.0, channels=["blank_c", "mouth_oh_c", "jaw_c"]
+    )
+    folder = write_take(Take(meta, t, values, np.zeros(n, np.uint8)), tmp_path / "takes")
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")  # numpy's "All-NaN slice encountered" came before the error
+        proc = run_here("viewer", "render", folder, "-o", tmp_path / "r.png", "--size", 32)
+    _one_line_error(proc, "plot --channels mouth_oh_c,jaw_c")

@@ -270,10 +270,13 @@ def cmd_render(args: argparse.Namespace) -> int:
         return size * len(anims) + (video.width_for(size) if video is not None else 0)
 
     if suffix == ".mp4" and not mp4_frame_fits(frame_width(args.size), args.size):
-        fits = next((s for s in range(args.size, 15, -1) if mp4_frame_fits(frame_width(s), s)), 16)
+        fits = next((s for s in range(args.size, 15, -1) if mp4_frame_fits(frame_width(s), s)), None)
+        # No --size down to 16 fits when the panels side by side are too many for one video.
+        panels = f"{len(anims)} inputs" + (" and the reference video" if video is not None else "")
+        what = f"give --size {fits} or less" if fits else f"{panels} are too many panels for one video"
         raise InputError(
             f"the video would be {frame_width(args.size)}x{args.size} pixels, more than H.264 takes (at "
-            f"most 16384 a side and 8192x4352 in all): give --size {fits} or less"
+            f"most 16384 a side and 8192x4352 in all): {what}"
         )
     labels = not args.no_labels
     size = (args.size, args.size)

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from capture import Take, find_sources, find_takes, import_source, is_take_folder, read_audio, read_take
-from capture.channels import ARKIT52, ARKIT61, canonical, is_known
+from capture.channels import ARKIT52, canonical, is_known
 from capture.csv_take import split_variant
 from capture.errors import InputError
 from capture.importer import audio_beside, is_livelink_csv
 from capture.paired import NoFrameRate
-from capture.take import AUDIO_FILE, FrameStatus, is_take_dir
+from capture.take import FrameStatus, is_take_dir
 from capture.take_folder import choose_csv
 from dataset.qa import ANIM_LIMIT
 
@@ -78,7 +78,8 @@ def read_input(
         if audio is not None:
             take.attach_audio(read_audio(audio))  # without a repair list, NaN samples are an error
             return take, [], Path(audio)
-        return take, [], src / AUDIO_FILE if take.audio is not None else None
+        # The file meta.json names, as read_take read it (a folder written elsewhere may name another).
+        return take, [], src / take.meta.audio.file if take.meta.audio is not None else None
     warnings: list[str] = []
     variant = None
     if src.is_file():
@@ -187,17 +188,21 @@ def most_varying(take: Take, count: int = 2) -> list[str]:
     """The ``count`` channels of ``take`` whose values spread widest: worth a plot (the first channel of
     a rig often stays flat)."""
     values = np.where(np.abs(take.values) <= ABSURD, take.values, np.nan).astype(np.float64)
-    with np.errstate(all="ignore"):
-        spread = np.nan_to_num(np.nanmax(values, axis=0) - np.nanmin(values, axis=0), nan=-1.0)
+    usable = np.isfinite(values)
+    # Reduced without nanmax/nanmin: their "All-NaN slice" warning would precede the one-line error.
+    highest = np.where(usable, values, -np.inf).max(axis=0, initial=-np.inf)
+    lowest = np.where(usable, values, np.inf).min(axis=0, initial=np.inf)
+    spread = np.where(usable.any(axis=0), highest - lowest, -1.0)  # a channel of no value plots last
     order = np.argsort(-spread, kind="stable")  # ties (all flat) keep the take's own channel order
     return [take.meta.channels[j] for j in order[:count]]
 
 
 def missing_face_channels(take: Take, path: str | Path) -> list[str]:
-    """A warning naming the Live Link Face channels ``take`` lacks (a CSV without a column, paired
-    data of a few channels): the face shows them at 0, which looks like a closed mouth, not a gap."""
+    """A warning naming the ARKit blendshapes ``take`` lacks (a CSV without a column, paired data of a
+    few channels): the face shows them at 0, which looks like a closed mouth, not a gap. The head and
+    eye angles are left out: a take of the 52 blendshapes (no head tracking) is whole, not lacking."""
     held = {canonical(c) for c in take.meta.channels if is_known(c)}
-    missing = [c for c in ARKIT61 if c not in held]
+    missing = [c for c in ARKIT52 if c not in held]
     if not missing or not held:  # a take of no Live Link channel is refused (livelink_coverage)
         return []
     shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")

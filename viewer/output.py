@@ -92,3 +92,4 @@ def stopped_by_signals() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        _stopped_by.clear()  # a signal of this block is not one of a later block (tests run many)

@@ -22,7 +22,7 @@ from capture.channels import is_known
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
-from .output import writing
+from .output import raise_if_stopped, writing
 from .probe import probe
 
 BACKGROUND = (38, 40, 46)
@@ -422,6 +422,9 @@ def write_mp4(
                 for packet in astream.encode():
                     out.mux(packet)
             encode_s += time.perf_counter() - t2
+        # A signal during the flush and mux above was only noted (stops_between_frames): stop before the
+        # rename, so that a stopped render never leaves its output.
+        raise_if_stopped()
         with writing(path, "video"):
             tmp.replace(path)
     except BaseException:
@@ -444,3 +447,4 @@ def write_image(path: str | Path, img: np.ndarray) -> None:
         raise InputError(f"OpenCV cannot write {path.suffix or 'a file without extension'} images", path)
     with writing(path, "image"), atomic_write(path) as f:
         f.write(data.tobytes())
+        raise_if_stopped()  # a signal noted while writing stops here, before the partial file is renamed

@@ -313,7 +313,8 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
             entries.append(e)
         kind, title = "dataset", ds.name
     else:
-        folders = find_takes([path, *extra])
+        named = find_takes(extra) if extra else []  # walked once: the --takes folders are listed too
+        folders = find_takes([path]) + named
         if not folders:
             if find_sources([path]):
                 raise InputError(
@@ -323,7 +324,7 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
                 )
             raise InputError("neither a dataset (manifest.json) nor a folder of takes", path)
         stats, manifest = None, None
-        given = set(find_takes(extra)) if extra else set()
+        given = set(named)
         # Every take is listed; ``limit`` only bounds the thumbnails, as in dataset mode. A take folder
         # that cannot be read is listed apart with its error, and the others are reported.
         entries = []
