@@ -334,9 +334,12 @@ class LiveRecorder:
                                 (n2,) = unpack_len(buf, 5 + n1)
                                 off = 9 + n1 + n2
                                 if n2 >= 0 and off + block == n and buf[off + 16] == count:
-                                    key = bytes(view[:off])
+                                    key = skey = bytes(view[:off])
                                     known = streams.get(key)
-                                    if known is not None and sources[known[0]] == addr:
+                                    if known is not None and sources[known[0]] != addr:
+                                        skey = (key, addr)  # another source of these names (_stream_key)
+                                        known = streams.get(skey)
+                                    if known is not None:
                                         fn, sf, num, den = unpack_time(buf, off)
                                         if (
                                             num == known[2]
@@ -347,8 +350,8 @@ class LiveRecorder:
                                             sid = known[0]
                                             last_hdr, last_size, last_off, last_sid = key, n, off, sid
                                             last_num, last_den, last_addr = num, den, addr
-                                            if pending_rates and key in pending_rates:
-                                                self._drop_rate_change(key)
+                                            if pending_rates and skey in pending_rates:
+                                                self._drop_rate_change(skey)
                         if sid < 0:
                             found = self._classify(view, n, addr, t)
                             if found is None:  # held back (a rate change not yet confirmed)

@@ -89,9 +89,10 @@ SLOT_FRACTION = 0.45
 # the arrivals says nothing: a replay at --speed 50 runs 50 times fast.)
 MIN_CLOCK_JUMPS = 4
 CLOCK_JUMP_S = 10.0
-# Nor does a frame number that advances more than MAX_FRAME_ADVANCE frames per packet while the packets
-# come faster than one per MAX_FRAME_ADVANCE frames: PyLiveLinkFace counts milliseconds as frames (1000 / fps
-# per packet, falling back every second), which this tells within a second. A phone's advances 1 or 2 (a
+# Nor does a frame number that advances more than MAX_FRAME_ADVANCE times as many frames per packet as
+# the packets' spacing in frame periods (and more than MAX_FRAME_ADVANCE): PyLiveLinkFace counts
+# milliseconds as frames (1000 / fps per packet, falling back every second), which this tells within a
+# second. A phone's advances 1 or 2 (a
 # replay sends every frame at any speed; network loss slows the packets down as much as the count).
 MAX_FRAME_ADVANCE = 4.0
 # A sender that ticks faster than its frame clock counts (a 60 Hz tracker declaring 30 fps without
@@ -582,15 +583,19 @@ def _rate_runs(num: np.ndarray, den: np.ndarray) -> list[slice]:
 
 def _unwrap_midnight(frame_time: np.ndarray, rate: float) -> np.ndarray:
     """Frame times (arrival order, one rate) with the timecode's wraps at midnight undone. Where the clock
-    falls back by one day (24 h of frames, or at an NTSC rate 24 h of timecode frames at its nominal rate)
-    it goes on from the next day: each packet is put on the day nearest the clock at its moment, so a late
-    packet from before midnight stays on its day. Any other jump back stays a restart."""
+    falls back by one day (24 h of frames, or at an NTSC rate 24 h of timecode frames at its nominal
+    rate; less the length of packets lost across midnight) it goes on from the next day: each packet is
+    put on the day nearest the clock at its moment, so a late packet from before midnight stays on its
+    day. Any other jump back stays a restart."""
     if frame_time.size < 2 or np.ptp(frame_time) < DAY_S / 2:  # nowhere near both ends of a day
         return frame_time
     level = _running_median(frame_time, CLOCK_HALF_WINDOW)
     fall = -np.diff(level)
     days = np.array([DAY_S, DAY_S * round(rate) / rate])
-    match = np.abs(fall[:, None] - days) <= RESTART_WINDOW_S
+    # packets lost across midnight shorten the fall by as long as they lasted (up to a gap that splits
+    # the take anyway)
+    behind = days - fall[:, None]
+    match = (behind >= -RESTART_WINDOW_S) & (behind <= MAX_GAP_S + RESTART_WINDOW_S)
     day = np.where(match.any(axis=1), days[match.argmax(axis=1)], 0.0)
     if not day.any():
         return frame_time
@@ -626,9 +631,11 @@ def _pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float | None:
 
 def _clock_steps(frame_time: np.ndarray, arrival_s: np.ndarray) -> list[int]:
     """Where (indices of frames in frame-time order) the phone's clock stepped forward: the frame time
-    jumps by more than ``CLOCK_STEP_S`` and the frames after the jump arrived that much earlier on the
-    phone's clock than those before (at the pace of the ``STEP_SIDE_S`` of frame time on each side, from
-    the fastest packet of each side); frames the network lost leave a gap in the arrivals too."""
+    jumps by more than ``CLOCK_STEP_S`` further than the arrivals do across the jump, and more than twice
+    as far; frames the network lost leave a gap in the arrivals too. Each side of the jump
+    (``STEP_SIDE_S`` of frame time) gives when its frame next to the jump arrived, from its fastest
+    packet at the sides' pace: measured at the jump, an error in the pace (Wi-Fi jitter) counts over a
+    side's length, not over the whole gap."""
     steps = []
     for g in (np.flatnonzero(np.diff(frame_time) > CLOCK_STEP_S) + 1).tolist():
         lo = int(np.searchsorted(frame_time, frame_time[g - 1] - STEP_SIDE_S))
@@ -640,8 +647,12 @@ def _clock_steps(frame_time: np.ndarray, arrival_s: np.ndarray) -> list[int]:
         if not (before and after) or abs(before / after - 1) > PACE_TOLERANCE:
             continue
         speed = (before + after) / 2
-        clock = [np.min(arrival_s[side] - frame_time[side] / speed) for side in sides]
-        if speed * (clock[0] - clock[1]) > CLOCK_STEP_S:
+        edge = (frame_time[g - 1], frame_time[g])  # each side's frame next to the jump
+        arrived = [np.min(arrival_s[side] - (frame_time[side] - at) / speed) for side, at in zip(sides, edge)]
+        jump, carried = edge[1] - edge[0], speed * (arrived[1] - arrived[0])
+        # the arrivals must carry on far less than the frame time jumps: a side's pace is known only to
+        # PACE_TOLERANCE (Wi-Fi jitter), which scales a lost stretch's arrival gap by as much
+        if jump - carried > CLOCK_STEP_S and carried < jump / 2:
             steps.append(g)
     return steps
 
