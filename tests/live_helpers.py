@@ -102,6 +102,23 @@ def record_packets(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecor
     return rec
 
 
+def record_paced(tmp_path, session_id: str, packets: list[bytes | None], rate: float) -> LiveRecorder:
+    """Like record_packets, but at ``rate`` packets per second in real time (arrival times matter);
+    None stands for a packet lost on the way: its time passes."""
+    rec, port, runner = start_recorder(tmp_path, session_id)
+    start = time.perf_counter()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i, p in enumerate(packets):
+            time.sleep(max(0.0, start + i / rate - time.perf_counter()))
+            if p is not None:
+                s.sendto(p, ("127.0.0.1", port))
+    time.sleep(0.3)
+    rec.request_stop()
+    runner.join()
+    rec.close()
+    return rec
+
+
 def udp_receiver() -> socket.socket:
     """A UDP socket on loopback (a free port the system picks), reads time out after 0.5 s."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import record_packets, run_cli, start_recorder
+from live_helpers import record_paced, record_packets, run_cli, start_recorder
 
 import capture.livelink as ll
 import capture.session_takes as st
@@ -295,21 +295,6 @@ def _pylivelinkface_frame(t: float, fps: int = 60) -> int:
     return whole * fps + int(round((t - whole) * 1000)) + 1
 
 
-def _send_paced(tmp_path, session_id: str, packets: list[bytes], rate: float) -> LiveRecorder:
-    """Like record_packets, but at ``rate`` packets per second in real time (arrival times matter)."""
-    rec, port, runner = start_recorder(tmp_path, session_id)
-    start = time.perf_counter()
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i, p in enumerate(packets):
-            time.sleep(max(0.0, start + i / rate - time.perf_counter()))
-            s.sendto(p, ("127.0.0.1", port))
-    time.sleep(0.3)
-    rec.request_stop()
-    runner.join()
-    rec.close()
-    return rec
-
-
 @pytest.mark.parametrize(
     "sender, fps", [("pylivelinkface", 60), ("pylivelinkface", 30), ("frozen", 60), ("countdown", 60)]
 )
@@ -329,7 +314,7 @@ def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, se
     values = [VALS + i / 1000 for i in range(n)]
     head = header_bytes("$" + "A" * 35, "Player")
     packets = [head + frame_block(f, s, fps, den, v) for f, s, v in zip(frames, subs, values)]
-    rec = _send_paced(tmp_path, f"{sender}{fps}", packets, rate=float(fps))
+    rec = record_paced(tmp_path, f"{sender}{fps}", packets, rate=float(fps))
     assert rec.accepted == n
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frame_clock"]["placed_by"] == "arrival", line

@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import record_packets, run_cli, start_recorder
+from live_helpers import record_paced, record_packets, run_cli, start_recorder
 from test_osc_remote import FakePhone
 
-from capture import FrameStatus, LiveRecorder, build_takes, read_take
+from capture import FrameStatus, build_takes, read_take
 from capture.live_cli import _warnings
 from capture.livelink import frame_block, header_bytes
 from capture.osc_remote import PhoneRemote
@@ -45,22 +45,6 @@ def _takes(tmp_path, session: str, packets: list[bytes]) -> list[dict]:
 def _markers(line: dict) -> np.ndarray:
     take = read_take(line["path"])
     return take.values[take.frame_status == FrameStatus.TRACKED, 0]
-
-
-def _send_paced(tmp_path, session: str, packets: list[bytes | None], rate: float) -> LiveRecorder:
-    """Send ``packets`` at ``rate`` per second in real time (None: a packet lost, its time passes)."""
-    rec, port, runner = start_recorder(tmp_path, session)
-    start = time.perf_counter()
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i, p in enumerate(packets):
-            time.sleep(max(0.0, start + i / rate - time.perf_counter()))
-            if p is not None:
-                s.sendto(p, ("127.0.0.1", port))
-    time.sleep(0.3)
-    rec.request_stop()
-    runner.join()
-    rec.close()
-    return rec
 
 
 # -- 1. frames that share a frame time are not duplicates -------------------------------------------------
@@ -98,7 +82,7 @@ def test_a_short_pylivelinkface_stream_is_placed_by_arrival(tmp_path):
     head = header_bytes("$" + "A" * 35, "Player")
     values = [np.full(61, i / 1000, np.float32) for i in range(n)]
     packets = [head + frame_block(frame(3600.25 + i / 60), 0.4730, 60, 1, v) for i, v in enumerate(values)]
-    rec = _send_paced(tmp_path, "pyllf", packets, rate=60.0)
+    rec = record_paced(tmp_path, "pyllf", packets, rate=60.0)
     assert rec.accepted == n
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frame_clock"]["placed_by"] == "arrival" and "milliseconds" in line["frame_clock"]["reason"]
@@ -116,7 +100,7 @@ def test_a_forward_clock_step_is_a_cut_and_real_loss_stays_dropped_frames(tmp_pa
     # packets lost on the network, 0.5 s.
     frame = [START + i + (60 if i >= 30 else 0) for i in range(120)]
     packets = [None if 60 <= i < 90 else _packet(frame[i], marker=i) for i in range(120)]
-    rec = _send_paced(tmp_path, "step", packets, rate=60.0)
+    rec = record_paced(tmp_path, "step", packets, rate=60.0)
     lines = build_takes(rec.session_dir, tmp_path)
     assert [(x["frames"], x["dropped_frames"]) for x in lines] == [(30, 0), (90, 30)], lines
     assert all(x["clock_steps"] == 1 and x["restarts"] == 0 for x in lines)
