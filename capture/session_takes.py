@@ -51,7 +51,6 @@ from .audio_capture import read_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped, missing_frames
 from .errors import InputError, S2AError
-from .paired import exact_rate
 from .record_log import LogReader, RecordType
 from .recorder import (
     AUDIO_LOG,
@@ -814,8 +813,10 @@ def _segment_take(
     rate_num, rate_den = int(r["rate_numerator"][0]), int(ll.rate_denominator(int(r["rate_denominator"][0])))
     if not 0 < fps <= MAX_FPS:  # sub-frames that fool the median step: the stream's declared rate
         fps, period = rate_num / rate_den, rate_den / rate_num
-    elif exact_rate(1 / period) != 1 / period:  # an NTSC rate (30000/1001) is named so, as paired data's is
-        fps = exact_rate(1 / period)
+    elif rate_den != 1 and abs(rate_num / rate_den - fps) < 0.5:
+        # a declared NTSC rate (30000/1001) is named so, as paired data's is; the frame times' own rate is
+        # no guide (the app's rows come at 59.90/s of timecode, a replay's at its take's)
+        fps = rate_num / rate_den
     repairs = []
     # Bound what a frame clock can make us allocate: DROPPED frames at most MAX_DROPPED_PER_FRAME per
     # received frame plus MAX_GAP_S at the stream's rate; past that the gaps stay jumps in time.

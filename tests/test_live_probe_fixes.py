@@ -259,6 +259,12 @@ def test_a_stream_at_an_ntsc_rate_is_a_take_at_that_rate(tmp_path):
     take = read_take(line["path"])
     assert take.meta.fps == pytest.approx(30000 / 1001, rel=1e-9) and take.meta.timecode_rate == take.meta.fps
     assert line["frames"] == 120 and line["dropped_frames"] == 0
+    # a stream declaring 60/1 whose frames come at 59.94 per second of its clock (a replay of a take whose
+    # rows came that way) is a 60 fps take: the declared rate names it, not the frames' own rate
+    ticks = np.arange(120) * 60 / (60000 / 1001)
+    packets = [_packet(int(f), f - int(f), marker=i) for i, f in enumerate(ticks)]
+    (line,) = _takes(tmp_path / "60", "sixty", packets)
+    assert read_take(line["path"]).meta.fps == 60.0 and line["frames"] == 120
 
 
 # -- 8. OSC: replies in a bundle, the battery level ----------------------------------------------------------
