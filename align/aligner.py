@@ -126,13 +126,15 @@ def _content(
         return None, None, mouth, {"note": "too little overlap for content evidence"}, no_drift
     anchor = float(np.average(grid, weights=weight + 1e-12))
     wl = window_lags(env, face, weight, s0, est.lag_s)
-    # drift is measured around the offset the take gets (--offset-ms) when it is given
-    around = (
-        wl
-        if opts.offset_s is None
-        else window_lags(env, face, weight, s0, opts.offset_s - opts.face_lead_ms / 1000.0)
-    )
-    drift, drift_info = _drift(around, s0, x.size / TARGET_RATE, take.meta.fps, opts)
+    drift, drift_info = no_drift
+    if opts.drift and x.size / TARGET_RATE >= opts.min_drift_take_s:
+        # drift is measured around the offset the take gets (--offset-ms) when it is given
+        around = (
+            wl
+            if opts.offset_s is None
+            else window_lags(env, face, weight, s0, opts.offset_s - opts.face_lead_ms / 1000.0)
+        )
+        drift, drift_info = _drift(around, s0, x.size / TARGET_RATE, take.meta.fps)
     if drift:
         on_audio_rate = correlate(t[ok] - drift * (t[ok] - anchor))
         steady = on_audio_rate[2].peak(opts.max_offset_s)
@@ -178,13 +180,9 @@ def _content(
     return est, ev, mouth, {}, (drift, drift_info)
 
 
-def _drift(
-    wl: WindowLags, s0: float, audio_s: float, fps: float, opts: AlignOptions
-) -> tuple[float, dict[str, Any]]:
+def _drift(wl: WindowLags, s0: float, audio_s: float, fps: float) -> tuple[float, dict[str, Any]]:
     """(drift to apply, s/s, and its report) from the content lags of windows along a long take:
     applied when it is clearly there (3 standard errors, and a quarter frame over the take)."""
-    if not opts.drift or audio_s < opts.min_drift_take_s:
-        return 0.0, {"applied": False}
     fit = fit_drift(wl, s0)
     if fit is None:
         return 0.0, {"applied": False}

@@ -246,9 +246,12 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     if table.column("count").null_count or table.column("tc").null_count:
         return None
     counts = table.column("count").to_numpy()
-    zero_filled = counts == 0  # face lost, written with every value 0 (see _read_careful)
-    if not np.isin(counts[~zero_filled], list(blendshape_counts(columns))).all():
-        return None
+    zero_filled = None  # rows of count 0: face lost, written with every value 0 (see _read_careful)
+    off = counts != len(columns)
+    if off.any():  # the common file has every count right: nothing more to look at
+        zero_filled = counts == 0
+        if not np.isin(counts[off & ~zero_filled], list(blendshape_counts(columns))).all():
+            return None
     tc = table.column("tc").combine_chunks()
     offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + len(tc) + 1]
     data = np.frombuffer(tc.buffers()[2], dtype=np.uint8)
@@ -271,7 +274,7 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     if not np.isfinite(values).all():
         return None
     status = np.zeros(table.num_rows, dtype=np.uint8)
-    if zero_filled.any():
+    if zero_filled is not None and zero_filled.any():
         if np.any(values[zero_filled] != 0):
             return None  # a count of 0 over values: the careful parser notes it
         values[zero_filled] = np.nan

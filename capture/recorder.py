@@ -279,7 +279,7 @@ class LiveRecorder:
         unpack_time = ll._FRAME_TIME.unpack_from
         unpack_len = ll._LEN.unpack_from
         streams = self.streams
-        packets, last_seen, sources = self.stream_packets, self.stream_last_ns, self.stream_sources
+        packets, last_seen = self.stream_packets, self.stream_last_ns
         payload_len = FRAME_PAYLOAD_BYTES
         count = ll.BLENDSHAPE_COUNT
         block = ll.FRAME_BLOCK_BYTES
@@ -334,11 +334,9 @@ class LiveRecorder:
                                 (n2,) = unpack_len(buf, 5 + n1)
                                 off = 9 + n1 + n2
                                 if n2 >= 0 and off + block == n and buf[off + 16] == count:
-                                    key = skey = bytes(view[:off])
-                                    known = streams.get(key)
-                                    if known is not None and sources[known[0]] != addr:
-                                        skey = (key, addr)  # another source of these names (_stream_key)
-                                        known = streams.get(skey)
+                                    key = bytes(view[:off])
+                                    skey = self._stream_key(key, addr)
+                                    known = streams.get(skey)
                                     if known is not None:
                                         fn, sf, num, den = unpack_time(buf, off)
                                         if (

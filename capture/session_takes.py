@@ -314,13 +314,11 @@ def _repeated_times(rows: np.ndarray, frame_time: np.ndarray) -> int:
     """Packets whose frame time an earlier packet already had, with another frame (copies of a datagram
     are duplicates, not a frozen clock)."""
     order = np.argsort(frame_time, kind="stable")
-    ordered = frame_time[order]
-    new = np.concatenate([[True], ordered[1:] != ordered[:-1]])
-    repeat = np.flatnonzero(~new)
+    rank, _ = _rank_in_time(frame_time[order])
+    repeat = np.flatnonzero(rank)
     if not repeat.size:
         return 0
-    first = np.maximum.accumulate(np.where(new, np.arange(ordered.size), 0))
-    return int(np.count_nonzero(~_identical(rows, order[repeat], order[first[repeat]])))
+    return int(np.count_nonzero(~_identical(rows, order[repeat], order[repeat - rank[repeat]])))
 
 
 class _Recording:
@@ -477,7 +475,7 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
     if judge and repeats > n / 2 and n > MAX_FRAMES_PER_TIME * np.unique(frame_time).size:
         return _Clock([], empty, f"{repeats} of {n} packets repeat the frame time of an earlier packet")
     if judge:
-        period = float(ll.rate_denominator(int(rows["rate_denominator"][0])) / int(rows["rate_numerator"][0]))
+        period = _declared_period(rows)
         advance = float(np.median(np.diff(frame_time))) / period  # frames per packet
         pace = float(arrival_s[-1] - arrival_s[0]) / (n - 1) / period  # frame periods between packets
         if advance > MAX_FRAME_ADVANCE * max(1.0, pace):
@@ -580,6 +578,17 @@ def _rate_runs(num: np.ndarray, den: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def _declared_rate(rows: np.ndarray) -> tuple[int, int]:
+    """The frame rate a recording's sender declares: its first packet's (numerator, denominator)."""
+    return int(rows["rate_numerator"][0]), int(ll.rate_denominator(int(rows["rate_denominator"][0])))
+
+
+def _declared_period(rows: np.ndarray) -> float:
+    """One frame period (s) at the rate a recording's sender declares."""
+    num, den = _declared_rate(rows)
+    return den / num
+
+
 def _unwrap_midnight(frame_time: np.ndarray, rate: float) -> np.ndarray:
     """Frame times (arrival order, one rate) with the timecode's wraps at midnight undone. Where the clock
     falls back by one day (24 h of frames, or at an NTSC rate 24 h of timecode frames at its nominal
@@ -678,7 +687,7 @@ def _time_ordered(r: np.ndarray, ft: np.ndarray, report: dict[str, Any]) -> tupl
     same_time = int(np.count_nonzero(rank))
     report["same_time_frames"] += same_time
     if same_time >= SHARED_TIME_FRACTION * ft.size:
-        period = float(ll.rate_denominator(int(r["rate_denominator"][0])) / int(r["rate_numerator"][0]))
+        period = _declared_period(r)
         return r, ft + rank / size * period
     report["same_time_dropped"] += same_time
     return r[rank == 0], ft[rank == 0]
@@ -810,9 +819,9 @@ def _segment_take(
     finite |= lost  # NaN is what a face-lost frame holds, not a bad value
     t = ft - ft[0]
     fps, period = detect_fps(t)
-    rate_num, rate_den = int(r["rate_numerator"][0]), int(ll.rate_denominator(int(r["rate_denominator"][0])))
+    rate_num, rate_den = _declared_rate(r)
     if not 0 < fps <= MAX_FPS:  # sub-frames that fool the median step: the stream's declared rate
-        fps, period = rate_num / rate_den, rate_den / rate_num
+        fps, period = rate_num / rate_den, _declared_period(r)
     elif rate_den != 1 and abs(rate_num / rate_den - fps) < 0.5:
         # a declared NTSC rate (30000/1001) is named so, as paired data's is; the frame times' own rate is
         # no guide (the app's rows come at 59.90/s of timecode, a replay's at its take's)

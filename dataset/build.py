@@ -318,11 +318,6 @@ def recording_of(meta: TakeMeta, folder: str | Path | None = None) -> str:
     return parent_id
 
 
-def untrusted_flags(meta: TakeMeta, folder: str | Path | None = None) -> list[str]:
-    """The flags align raised about a take's audio/face offset (``extra.align.flags``)."""
-    return [f for f in _align_flags(meta, folder) if f in UNTRUSTED_FLAGS]
-
-
 def _align_flags(meta: TakeMeta, folder: str | Path | None = None) -> list[str]:
     """All the flags align raised about a take (``extra.align.flags``); a malformed list is an error,
     since reading it as "no flags" would keep a take ``--skip-flagged`` leaves out."""
@@ -375,7 +370,8 @@ def collect_takes(
                 raise InputError(
                     f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af
                 )
-            flags = untrusted_flags(m, af)
+            all_flags = _align_flags(m, af)
+            flags = [f for f in all_flags if f in UNTRUSTED_FLAGS]  # about its audio/face offset
             # a take naming no subject counts as its recording's speaker, with the other segments align
             # cut from it: as a speaker of its own, one session could sit on both sides of a speaker split
             recording = recording_of(m, af)
@@ -396,7 +392,7 @@ def collect_takes(
                     "build with --skip-flagged"
                 )
             clipped = _align_record(m, af).get("clipped_audio")
-            if isinstance(clipped, float) and "clipped_audio" in _align_flags(m, af):
+            if isinstance(clipped, float) and "clipped_audio" in all_flags:
                 notes.append(
                     f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
                     "(its loudest sounds are distorted)"
@@ -617,10 +613,11 @@ def audio_gain(audio: np.ndarray, sample_rate: int, peak: float | None = None) -
     one damaged sample that the resampler spread over its neighbours. A stray burst must not scale the
     whole take's speech down: it is muted instead (set to 0, as NaN samples are on import). ``peak``:
     the audio's largest magnitude, when the caller has it."""
-    top = peak if peak is not None else float(np.max(np.abs(audio), initial=0.0))
-    if top <= 1.0:
+    if peak is not None and peak <= 1.0:
         return 1.0, np.zeros(np.size(audio), bool)
     mag = np.abs(np.asarray(audio, np.float32))
+    if (peak if peak is not None else float(mag.max(initial=0.0))) <= 1.0:
+        return 1.0, np.zeros(mag.size, bool)
     step = max(1, sample_rate // 100)
     n = -(-mag.size // step)
     frames = np.pad(mag, (0, n * step - mag.size)).astype(np.float64).reshape(n, step)
@@ -1502,7 +1499,7 @@ def _build(
     moved = {t: {"from": previous[t], "to": s} for t, s in split_of.items() if previous.get(t, s) != s}
     channels, channel_warnings = resolve_channels(options.channels, takes, split_of)
     warnings += channel_warnings
-    assumed = sorted(t.id for t in takes if t.speaker_assumed)
+    assumed = sorted(assumed)  # as the manifest lists them
     if assumed:
         warnings.append(
             f"{len(assumed)} take(s) name no speaker (meta.subject): each recording (a raw take with the "

@@ -29,7 +29,8 @@ import numpy as np
 
 from capture.errors import InputError
 
-from .qa import ANIM_LIMIT
+ANIM_LIMIT = 10.0  # |value| above this is no blendshape weight nor angle in radians
+
 
 KINDS = ("zscore", "neutral")
 # The percentile histogram: bins 1e-3 wide over [-2, 2] (blendshape weights), then bins 1 % wide out to

@@ -34,10 +34,21 @@ from .manifest import (
     manifest_problems,
     take_recordings,
 )
+from .normalize import (
+    ANIM_LIMIT,
+    KINDS,
+    ChannelAccumulator,
+    FeatureAccumulator,
+    animation_statistics,
+    histogram_resolution,
+    is_power_of_two,
+    power_of_two,
+    usable_neutral,
+    voiced_log_f0_sums,
+)
 from .shards import ShardReader, decode_flac, decode_npy
 from .splits import SPLITS
 
-ANIM_LIMIT = 10.0  # |value| above this is no blendshape weight nor angle in radians
 MIDPOINT_EPS = 1e-9  # in octaves: a recomputed spread this near a midpoint may round either way
 LOG_F0_RANGE = (math.log(20.0), math.log(2000.0))
 # still_channel: a channel counts as animated when the median over takes of its per-take std reaches
@@ -772,7 +783,6 @@ def _empty_split_problems(manifest: dict[str, Any]) -> list[Problem]:
 def _scale_problems(manifest: dict[str, Any]) -> list[Problem]:
     """Animation scales that are not powers of two: the build rounds every one to 2^k so that
     normalising and back is exact (docs/dataset.md, Normalisation); another value was edited in."""
-    from .normalize import is_power_of_two  # here: normalize imports this module
 
     scales = manifest["normalization"]["animation"]["scale"]
     channels = manifest["channels"]
@@ -908,7 +918,6 @@ class Recomputed:
     the training split each feature's sums; per take its voiced log-F0 sums, as the build's records."""
 
     def __init__(self, manifest: dict[str, Any]):
-        from .normalize import ChannelAccumulator  # here: normalize imports this module
 
         self.n_channels = len(manifest["channels"])
         self.feature_names = [f for f in manifest["features"]["names"] if f != "pitch"]
@@ -917,12 +926,14 @@ class Recomputed:
         self.features: dict[str, Any] = {}  # name: FeatureAccumulator over the training split
         self.takes: dict[str, dict[str, Any]] = {}  # take: {"speaker", "split", "pitch_stats"}
 
-    def add(self, split: str, meta: dict[str, Any] | None, arrays: dict[str, np.ndarray], usable) -> None:
-        from .normalize import FeatureAccumulator, usable_neutral, voiced_log_f0_sums
+    def add(
+        self, split: str, meta: dict[str, Any] | None, arrays: dict[str, np.ndarray], anim: np.ndarray
+    ) -> None:
+        """One decoded sample: its arrays, and ``anim`` its animation's usable frames."""
 
         if split not in self.channels or meta is None:
             return
-        self.channels[split].add(arrays["anim"][usable], usable_neutral(meta.get("neutral"), self.n_channels))
+        self.channels[split].add(anim, usable_neutral(meta.get("neutral"), self.n_channels))
         self.samples[split] += 1
         if split == "train":
             for name in self.feature_names:
@@ -952,7 +963,6 @@ def _near(stored: Any, ours: float, tolerance: float) -> bool:
 
 def _distribution_problems(manifest: dict[str, Any], ours: Recomputed, complete: list[str]) -> list[Problem]:
     """stats.SPLIT.channels against the distributions of the split's decoded samples."""
-    from .normalize import histogram_resolution
 
     out: list[Problem] = []
     for split in complete:
@@ -985,7 +995,6 @@ def _distribution_problems(manifest: dict[str, Any], ours: Recomputed, complete:
 
 def _animation_problems(manifest: dict[str, Any], ours: Recomputed) -> list[Problem]:
     """normalization.animation against the offsets and spreads the build fits to the training split."""
-    from .normalize import KINDS, animation_statistics, histogram_resolution, power_of_two
 
     norm = manifest["normalization"]["animation"]
     acc = ours.channels["train"]
@@ -1184,9 +1193,10 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
             sums = None
             if decoded:
                 arrays, usable = decoded[0]
-                sums = moments(arrays["anim"][usable])
+                anim = arrays["anim"][usable]  # the usable frames, masked once
+                sums = moments(anim)
                 if recomputed is not None and not any(p.severity == "error" for p in found):
-                    recomputed.add(split, meta, arrays, usable)
+                    recomputed.add(split, meta, arrays, anim)
             seen.append({"key": key, "shard": name, "split": split, "meta": meta, "moments": sums})
 
         problems.extend(VALIDATORS["shard"](entry, ds, manifest, deep=deep, on_sample=on_sample))
