@@ -18,6 +18,7 @@ import numpy as np
 from capture import Audio, FrameStatus, InputError, Take, TakeMeta
 from capture.audio_io import SILENT_PEAK
 from capture.paired import LENGTH_MISMATCH_S, paired_excess_s
+from capture.runs import runs
 from capture.timecode import Timecode
 
 from . import content as ct
@@ -42,7 +43,6 @@ from .grid import (
     frame_period,
     interpolated_share,
     resample_values,
-    runs,
     usable_frames,
 )
 from .options import AlignOptions

@@ -21,8 +21,8 @@ import numpy as np
 
 from capture import Audio
 from capture.audio_io import full_scale
+from capture.runs import run_bounds
 
-from .grid import run_bounds
 from .resample import looks_like_timecode
 
 CLIP_RUN = 3  # consecutive samples at the extreme value

@@ -69,14 +69,3 @@ def resample_values(
     for c in range(v.shape[1]):
         out[:, c] = np.interp(grid_t, frame_t, v[:, c])
     return out
-
-
-def run_bounds(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(starts, stops) index arrays of the runs of True in ``mask``."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return edges[::2], edges[1::2]
-
-
-def runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of the runs of True in ``mask``."""
-    return [(int(a), int(b)) for a, b in zip(*run_bounds(mask))]

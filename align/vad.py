@@ -20,8 +20,8 @@ from importlib import resources
 import numpy as np
 
 from capture import InputError
+from capture.runs import runs
 
-from .grid import runs
 from .resample import TARGET_RATE
 from .torch_threads import torch_threads
 

@@ -57,6 +57,7 @@ import numpy as np
 from . import channels as ch
 from .atomic import atomic_write
 from .errors import InputError
+from .runs import run_bounds
 from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
 from .timecode import (
     CSV_TIMECODE_RATE,
@@ -533,9 +534,8 @@ def row_rate_changes(times: np.ndarray, period: float) -> list[tuple[int, int, f
     need = RATE_CHANGE_ROWS // 2 + 1  # off-rate steps that make a window of steps "off"
     off = counted[RATE_CHANGE_ROWS:] - counted[:-RATE_CHANGE_ROWS] >= need
     # So the first window off ends ``need`` steps into a stretch, the last starts ``need`` before its end.
-    edges = np.flatnonzero(np.diff(np.concatenate([[False], off, [False]]).astype(np.int8)))
     stretches = []
-    for start, stop in zip(edges[::2], edges[1::2]):
+    for start, stop in zip(*run_bounds(off)):
         first = 0 if start == 0 else start + RATE_CHANGE_ROWS - need
         last = times.size - 1 if stop == off.size else stop - 1 + need
         rate = (last - first) / (times[last] - times[first])

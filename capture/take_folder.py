@@ -8,7 +8,8 @@ The audio's start on the take clock follows Epic's own ingest: the first ``A`` r
 ``frame_log.csv``, else its first ``V`` row, else the ``.mov`` timecode track; the blendshape rows sit
 at their CSV timecodes. Without any of these, audio is assumed to start with the first CSV row.
 ``frame_log.csv``'s timecodes count at the video's rate: ``video_metadata.json``'s ``FrameRate``, else
-the ``.mov``'s own, else 60. The app's JSON keys are read in any case (``Subject`` as ``subject``).
+the ``.mov``'s own, else 60, unless its own video rows count at another rate (``FrameLog.timecode_rate``).
+The app's JSON keys are read in any case (``Subject`` as ``subject``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .audio_io import Audio, read_audio
-from .csv_take import read_csv_rows, read_livelink_csv, split_variant
+from .csv_take import STANDARD_FPS, read_csv_rows, read_livelink_csv, split_variant
 from .errors import InputError
 from .mov import MovInfo, choose_mov_audio, probe_mov
 from .paired import note_length_mismatch
@@ -31,6 +32,8 @@ from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
 
 TAKE_FOLDER_MARKERS = ("take.json", "frame_log.csv")
+# Seconds of video rows ``frame_log.csv`` must hold before its timecodes tell the rate they count at.
+MIN_LOG_SPAN_S = 1.2
 # The keys of the app's take.json (formats doc §3).
 TAKE_JSON_KEYS = tuple(
     "frames appVersion slate calibrated subject identifier date version take deviceModel".split()
@@ -53,6 +56,30 @@ class FrameLog:
             return self.kinds.index(kind)
         except ValueError:
             return None
+
+    def timecode_rate(self, stated: float) -> float:
+        """The rate the log's timecodes count at: ``stated`` (the video's), unless the video rows of its
+        first seconds say otherwise: at the rate they count at, each row's timecode minus its media time
+        is one constant (within jitter); at another, FF overflows it or the difference saws by up to a
+        second. Needs ``MIN_LOG_SPAN_S`` of video rows; a log that fits no standard rate keeps
+        ``stated``."""
+        video = [i for i, k in enumerate(self.kinds) if k == "V"]
+        if not video or self.times_s[video[-1]] - self.times_s[video[0]] < MIN_LOG_SPAN_S:
+            return stated
+        head = [i for i in video if self.times_s[i] - self.times_s[video[0]] <= 3 * MIN_LOG_SPAN_S]
+
+        def spread(rate: float) -> float:
+            try:
+                tc = np.array([Timecode.parse(self.timecodes[i], rate).seconds_of_day for i in head])
+            except ValueError:
+                return math.inf
+            lead = tc - self.times_s[head]
+            lead[lead < lead[0] - DAY_S / 2] += DAY_S  # past midnight
+            return float(np.ptp(lead))
+
+        fits = {rate: spread(rate) for rate in (stated, *STANDARD_FPS)}
+        fitting = [rate for rate, s in fits.items() if s <= 2 / rate]
+        return stated if not fitting or stated in fitting else min(fitting, key=lambda r: fits[r] * r)
 
 
 def read_frame_log(path: str | Path, repairs: list[dict[str, Any]]) -> FrameLog:
@@ -281,6 +308,17 @@ def read_take_folder(
             "audio_rows": log.kinds.count("A"),
             "dropped_video_frames": int(log.dropped[[k == "V" for k in log.kinds]].sum()) if log.kinds else 0,
         }
+        log_rate = log.timecode_rate(video_rate)
+        if log_rate != video_rate:
+            repairs.append(
+                {
+                    "line": None,
+                    "kind": "frame_log_rate",
+                    "message": f"frame_log.csv's timecodes count at {log_rate:g} fps, not at the video's "
+                    f"{video_rate:g}: read at {log_rate:g}",
+                }
+            )
+            video_rate = log_rate
     mov_audio = mov is not None and (info is None or info.audio_tracks > 0)  # unknown: decoding tells
     wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov (or its audio)
     wav = wavs[0] if wavs and not mov_audio else None

@@ -87,32 +87,23 @@ def start_recorder(tmp_path, session_id: str, **options) -> tuple[LiveRecorder, 
     return rec, port, runner
 
 
-def record_packets(tmp_path, session_id: str, packets: list[bytes]) -> LiveRecorder:
-    """Run a recorder on loopback, send it ``packets`` (paced), stop it and return it."""
-    rec, port, runner = start_recorder(tmp_path, session_id)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i, p in enumerate(packets):
-            s.sendto(p, ("127.0.0.1", port))
-            if i % 200 == 199:
-                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
-    time.sleep(0.5)
-    rec.request_stop()
-    runner.join()
-    rec.close()
-    return rec
-
-
-def record_paced(tmp_path, session_id: str, packets: list[bytes | None], rate: float) -> LiveRecorder:
-    """Like record_packets, but at ``rate`` packets per second in real time (arrival times matter);
-    None stands for a packet lost on the way: its time passes."""
+def record_packets(
+    tmp_path, session_id: str, packets: list[bytes | None], rate: float | None = None
+) -> LiveRecorder:
+    """Run a recorder on loopback, send it ``packets``, stop it and return it. Without ``rate`` they go
+    as fast as loopback takes them (paced every 200); with it, at ``rate`` packets per second in real
+    time (arrival times matter), None standing for a packet lost on the way: its time passes."""
     rec, port, runner = start_recorder(tmp_path, session_id)
     start = time.perf_counter()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         for i, p in enumerate(packets):
-            time.sleep(max(0.0, start + i / rate - time.perf_counter()))
+            if rate is not None:
+                time.sleep(max(0.0, start + i / rate - time.perf_counter()))
+            elif i % 200 == 199:
+                time.sleep(0.002)  # pace: loopback drops what the receive queue cannot hold
             if p is not None:
                 s.sendto(p, ("127.0.0.1", port))
-    time.sleep(0.3)
+    time.sleep(0.5 if rate is None else 0.3)
     rec.request_stop()
     runner.join()
     rec.close()

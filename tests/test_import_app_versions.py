@@ -233,3 +233,32 @@ def test_audio_given_as_a_folder_or_a_device_says_so(tmp_path):
             read_audio(path)
     with pytest.raises(InputError, match="audio file not found"):
         read_audio(tmp_path / "none.wav")
+
+
+# A frame log whose timecodes count at 30 beside a .mov that says 60 (and no video_metadata.json): the
+# log's own video rows tell its rate, so its audio start is read at 30 and noted.
+@pytest.mark.parametrize("log_rate, mov_rate", [(30, 60), (60, 30), (60, 60)])
+def test_frame_log_counting_at_another_rate_than_the_mov(tmp_path, samples, log_rate, mov_rate):
+    header, rows = sample_lines(samples, 60)
+    folder = tmp_path / "20250101_MySlate_8"
+    folder.mkdir()
+    write_csv(folder / "MySlate_8_iPhone.csv", header, rows)
+    csv_t0 = Timecode.parse(rows[0].split(",")[0]).seconds_of_day
+
+    # two seconds of video rows (media time from 5 s on the phone's clock), the audio's first row 0.1 s in
+    def tc(dt: float) -> str:
+        return Timecode.from_seconds(csv_t0 + dt, log_rate).format()
+
+    lines = [f"V,{i},{5 * log_rate + i},{log_rate},{tc(i / log_rate)},0" for i in range(2 * log_rate)]
+    audio_row = f"A,0,{5 * 48000 + 4800},48000,{tc(0.1)},0"
+    (folder / "frame_log.csv").write_text("\n".join([lines[0], audio_row, *lines[1:]]) + "\n")
+    write_reference_mov(
+        folder / "MySlate_8_iPhone.mov", mov_rate, 3, Audio(np.zeros((4800, 1), np.int16), 48000)
+    )
+    take = read_take_folder(folder)
+    assert take.meta.audio.start_source == "frame_log_audio"
+    assert take.meta.audio.start_s == pytest.approx(0.100, abs=1e-3)
+    noted = [r["message"] for r in take.meta.repairs if r["kind"] == "frame_log_rate"]
+    assert noted == ([] if log_rate == mov_rate else [noted[0]])
+    if noted:
+        assert f"count at {log_rate} fps, not at the video's {mov_rate}" in noted[0]

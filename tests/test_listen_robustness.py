@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import record_paced, record_packets, run_cli, start_recorder
+from live_helpers import record_packets, run_cli, start_recorder
 
 import capture.livelink as ll
 import capture.session_takes as st
@@ -314,7 +314,7 @@ def test_a_sender_without_a_usable_frame_clock_is_placed_by_arrival(tmp_path, se
     values = [VALS + i / 1000 for i in range(n)]
     head = header_bytes("$" + "A" * 35, "Player")
     packets = [head + frame_block(f, s, fps, den, v) for f, s, v in zip(frames, subs, values)]
-    rec = record_paced(tmp_path, f"{sender}{fps}", packets, rate=float(fps))
+    rec = record_packets(tmp_path, f"{sender}{fps}", packets, rate=float(fps))
     assert rec.accepted == n
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frame_clock"]["placed_by"] == "arrival", line

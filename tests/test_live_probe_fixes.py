@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import record_paced, record_packets, run_cli, start_recorder
+from live_helpers import record_packets, run_cli, start_recorder
 from test_osc_remote import FakePhone
 
 from capture import FrameStatus, build_takes, read_take
@@ -82,7 +82,7 @@ def test_a_short_pylivelinkface_stream_is_placed_by_arrival(tmp_path):
     head = header_bytes("$" + "A" * 35, "Player")
     values = [np.full(61, i / 1000, np.float32) for i in range(n)]
     packets = [head + frame_block(frame(3600.25 + i / 60), 0.4730, 60, 1, v) for i, v in enumerate(values)]
-    rec = record_paced(tmp_path, "pyllf", packets, rate=60.0)
+    rec = record_packets(tmp_path, "pyllf", packets, rate=60.0)
     assert rec.accepted == n
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frame_clock"]["placed_by"] == "arrival" and "milliseconds" in line["frame_clock"]["reason"]
@@ -100,7 +100,7 @@ def test_a_forward_clock_step_is_a_cut_and_real_loss_stays_dropped_frames(tmp_pa
     # packets lost on the network, 0.5 s.
     frame = [START + i + (60 if i >= 30 else 0) for i in range(120)]
     packets = [None if 60 <= i < 90 else _packet(frame[i], marker=i) for i in range(120)]
-    rec = record_paced(tmp_path, "step", packets, rate=60.0)
+    rec = record_packets(tmp_path, "step", packets, rate=60.0)
     lines = build_takes(rec.session_dir, tmp_path)
     assert [(x["frames"], x["dropped_frames"]) for x in lines] == [(30, 0), (90, 30)], lines
     assert all(x["clock_steps"] == 1 and x["restarts"] == 0 for x in lines)

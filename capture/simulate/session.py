@@ -31,6 +31,7 @@ from ..channels import ARKIT61, PRONUNCIATION32
 from ..csv_take import write_livelink_csv
 from ..errors import InputError
 from ..mov import write_reference_mov
+from ..runs import runs
 from ..take import FrameStatus, Take, TakeMeta, make_out_dir
 from ..textgrid import TextGrid, interval_tier, write_textgrid
 from ..timecode import CSV_TIMECODE_RATE, Timecode
@@ -229,8 +230,7 @@ def simulate_take(spec: TakeSpec) -> SimulatedTake:
 
 def _runs(mask: np.ndarray) -> list[list[int]]:
     """``[first, last]`` frame index of each run of True."""
-    idx = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [[int(a), int(b) - 1] for a, b in zip(idx[::2], idx[1::2])]
+    return [[a, b - 1] for a, b in runs(mask)]
 
 
 def _accent_curve(utt: Utterance, t: np.ndarray) -> np.ndarray:
