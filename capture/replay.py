@@ -61,7 +61,8 @@ class ReplayReport:
     lost: int = 0
     duplicated: int = 0
     reordered: int = 0  # packets sent after a packet with a higher frame number
-    no_face: int = 0  # no-face packets sent for FACE_LOST frames
+    no_face: int = 0  # no-face packets sent: for FACE_LOST frames and for frames with bad values
+    face_lost: int = 0  # of them, those for FACE_LOST frames
     bad_values: int = 0  # frames with NaN/inf values (BAD_VALUE), sent as no-face packets
     skipped: int = 0  # frames that fell on an already used frame number
     duration_s: float = 0.0
@@ -78,6 +79,7 @@ class ReplayReport:
             "duplicated": self.duplicated,
             "reordered": self.reordered,
             "no_face": self.no_face,
+            "face_lost": self.face_lost,
             "bad_values": self.bad_values,
             "skipped": self.skipped,
             "duration_s": round(self.duration_s, 3),
@@ -269,9 +271,10 @@ def replay_take(
             if f < max_fn:
                 report.reordered += 1
             max_fn = max(max_fn, f)
-            if face_lost[k]:
+            if no_face[k]:
                 report.no_face += 1
-            elif not bad[k]:
+                report.face_lost += int(face_lost[k])
+            else:
                 sent_frames.add(f)
         report.duration_s = time.monotonic() - start
     report.lost = int(lost.sum())

@@ -43,12 +43,13 @@ def test_replay_sends_bad_value_frames_as_no_face_packets():
     with udp_receiver() as sock:
         report = replay_take(take, "127.0.0.1", sock.getsockname()[1], speed=50.0)
         packets = datagrams(sock)
-    assert report.bad_values == 2 and report.no_face == 1
+    assert report.bad_values == 2 and report.face_lost == 1 and report.no_face == 3
     assert report.packets_sent == len(packets) == 39  # the dropped frame is not sent
     values = _values(packets)
     assert len(values) == report.frames == 36
     assert all(np.isfinite(v).all() for v in values)
     assert report.to_json()["bad_values"] == 2
+    assert report.frames + report.no_face == report.packets_sent
 
 
 def test_stream_warns_about_bad_value_frames(tmp_path):

@@ -76,10 +76,6 @@ def stream_take(
     if player is not None:
         player.wait()
     out = report.to_json() | {"to": f"{host}:{port}", "id": take.meta.id, "audio": player is not None}
-    # capture's report counts the no-face packets of face-lost frames only; what went on the wire is
-    # every no-face packet, so that frames + no_face = packets_sent
-    out["face_lost"] = report.no_face
-    out["no_face"] = report.no_face + report.bad_values
     out.pop("lost", None)
     out.pop("duplicated", None)
     out.pop("reordered", None)
