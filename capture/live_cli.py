@@ -25,7 +25,7 @@ from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
 from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, check_record_start, check_subject, resolve_target
 from .record_log import MAGIC, RECORD_HEADER, LogReader, RecordType
-from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_STREAMS, LiveRecorder
+from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_FLUSH_INTERVAL_S, MAX_STREAMS, LiveRecorder
 from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
 from .session_takes import build_takes, find_sessions
@@ -47,6 +47,16 @@ def _stream_slots(text: str) -> int:
     if not 1 <= n <= MAX_STREAMS:
         raise argparse.ArgumentTypeError(f"must be in 1..{MAX_STREAMS}, not {n}")
     return n
+
+
+def _flush_interval(text: str) -> float:
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+    if not 0 < seconds <= MAX_FLUSH_INTERVAL_S:
+        raise argparse.ArgumentTypeError(f"must be in (0, {MAX_FLUSH_INTERVAL_S:g}] seconds, not {text}")
+    return seconds
 
 
 def _bind_address(text: str) -> str:
@@ -94,7 +104,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--serial", metavar="URL", help="sync box: serial device or pyserial URL (socket://, loop://)"
     )
     p.add_argument("--baud", type=int, default=115200, help="serial baud rate")
-    p.add_argument("--flush-interval", type=float, default=0.1, help="seconds between log flushes (<= 0.25)")
+    p.add_argument(
+        "--flush-interval",
+        type=_flush_interval,
+        default=0.1,
+        help=f"seconds between log flushes (at most {MAX_FLUSH_INTERVAL_S:g})",
+    )
     p.add_argument(
         "--max-streams",
         type=_stream_slots,

@@ -138,6 +138,10 @@ STRAY_PACKETS = 5
 STRAY_SILENT_S = 10.0
 
 
+# Longest wait between log flushes: what a crash can cost of the packets received (0.25 s of frames).
+MAX_FLUSH_INTERVAL_S = 0.25
+
+
 class LiveRecorder:
     """Receives Live Link packets on a UDP socket and logs them; see the module docstring.
 
@@ -159,8 +163,8 @@ class LiveRecorder:
     ):
         if not 0 <= port <= 65535:
             raise InputError(f"UDP port {port} is not in 0..65535")
-        if not 0 < flush_interval_s <= 0.25:
-            raise InputError("the flush interval must be in (0, 0.25] seconds")
+        if not 0 < flush_interval_s <= MAX_FLUSH_INTERVAL_S:
+            raise InputError(f"the flush interval must be in (0, {MAX_FLUSH_INTERVAL_S:g}] seconds")
         if not 1 <= max_streams <= MAX_STREAMS:
             raise InputError(f"max_streams must be in 1..{MAX_STREAMS}, got {max_streams}")
         self.out_dir = Path(out_dir)

@@ -151,9 +151,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
         for p in report.problems:
             print(f"{p.severity}: {p.location}: {p.message} [{p.code}]")
         verdict = "valid" if report.valid else "INVALID"
+        errors = sum(p.severity == "error" for p in report.problems)
         print(
             f"{report.dataset}: {verdict} ({report.shards} shards, {report.samples} samples, "
-            f"{len(report.problems)} problems{', deep' if report.deep else ''})"
+            f"{errors} error(s), {len(report.problems) - errors} warning(s){', deep' if report.deep else ''})"
         )
     return 0 if report.valid else 1
 

@@ -481,7 +481,9 @@ def _check_audio(
         else:
             info = sf.info(io.BytesIO(data))
             rate, n = int(info.samplerate), int(info.frames)
-    except (InputError, sf.LibsndfileError, RuntimeError, TypeError) as exc:
+    except InputError as exc:  # decode_flac's own message
+        return [_p("sample_decode", loc, str(exc))]
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
         return [_p("sample_decode", loc, f"audio is not readable FLAC ({str(exc).split(': ', 1)[-1]})")]
     want = manifest.get("sample_rate")
     if rate != want:

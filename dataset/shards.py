@@ -193,7 +193,7 @@ def decode_flac(data: bytes) -> tuple[np.ndarray, int]:
     try:
         x, rate = sf.read(io.BytesIO(data), dtype="float32", always_2d=False)
     except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
-        raise InputError(f"audio is not readable FLAC ({exc})") from None
+        raise InputError(f"audio is not readable FLAC ({str(exc).split(': ', 1)[-1]})") from None
     return x, int(rate)
 
 

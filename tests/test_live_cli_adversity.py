@@ -254,6 +254,9 @@ def test_an_unplugged_sync_box_is_a_warning_at_once_and_keeps_its_events(tmp_pat
         ("--max-streams", "65537"),
         ("--bind", ""),
         ("--bind", " "),
+        ("--flush-interval", "0.5"),
+        ("--flush-interval", "0"),
+        ("--flush-interval", "nan"),
     ],
 )
 def test_options_that_make_no_sense_are_usage_errors(tmp_path, capsys, option, value):

@@ -386,6 +386,9 @@ def test_config_hints_toml_arch_errors_and_a_runs_config_json(s2a, tmp_path):
     # a run's config.json is a config: its data, world_size and inputs records are not keys
     saved = json.loads((s2a[0] / "config.json").read_text())
     assert resolve_config(s2a[0] / "config.json") == {k: saved[k] for k in DEFAULTS}
+    # and it records every size of the network, the defaults the run's arch left out filled in
+    assert {"d_model", "experts", "top_k"} <= set(saved["model_config"])
+    assert saved["model_config"] == torch.load(s2a[0] / "last.pt", weights_only=True)["model_config"]
 
 
 def test_a_second_fit_into_a_run_folder_in_use_is_refused(s2a, ds, tmp_path):

@@ -368,3 +368,20 @@ def test_a_rig_take_with_a_channel_of_no_value_is_refused_in_one_line(tmp_path):
         warnings.simplefilter("always")  # numpy's "All-NaN slice encountered" came before the error
         proc = run_here("viewer", "render", folder, "-o", tmp_path / "r.png", "--size", 32)
     _one_line_error(proc, "plot --channels mouth_oh_c,jaw_c")
+
+
+# From the guide walkthrough: a report of a dataset whose aligned takes have moved said so only on the page.
+def test_report_warns_when_the_align_reports_are_not_where_the_manifest_says(tmp_path):
+    from dataset_helpers import write_aligned_set
+
+    from dataset import build_dataset
+    from viewer.report import gather
+
+    write_aligned_set(tmp_path / "takes", count=4, speakers=2, seconds=2.0)
+    build_dataset([tmp_path / "takes"], tmp_path / "ds")
+    assert gather(tmp_path / "ds", limit=0)["warnings"] == []
+    (tmp_path / "takes").rename(tmp_path / "moved")
+    (warning,) = gather(tmp_path / "ds", limit=0)["warnings"]
+    assert "align reports of 4 take(s) were not found" in warning and "--takes" in warning
+    found = gather(tmp_path / "ds", [tmp_path / "moved"], limit=0)
+    assert found["warnings"] == [] and all(e["align"] for e in found["takes"])

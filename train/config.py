@@ -80,7 +80,7 @@ DEFAULTS: dict[str, Any] = {
 
 
 # what a run's config.json holds besides its config (fit writes them): ignored when it is read as a config
-RUN_RECORD_KEYS = ("data", "world_size", "inputs")
+RUN_RECORD_KEYS = ("data", "world_size", "inputs", "model_config")
 
 
 def _hint(key: str) -> str:

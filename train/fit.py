@@ -608,7 +608,10 @@ def _ridge_run(ds: Path, run: Path, cfg, spec, manifest, state, config_record, s
         except (RuntimeError, TypeError, KeyError) as exc:
             reason = type(exc).__name__
             raise InputError(f"checkpoint has a malformed state_dict ({reason})", run / LAST) from None
-        say(f"ridge is solved in closed form, and this run is (alpha {cfg['ridge_alpha']:g}): nothing to do")
+        say(
+            "ridge is solved in closed form and this run already holds its solution "
+            f"(alpha {cfg['ridge_alpha']:g}): nothing to do"
+        )
         solved = {"steps": 0, "best_val": state.get("best_val"), "stopped": "closed_form"}
     return _summary(
         run,
@@ -661,6 +664,7 @@ def _fit(
 
     torch.manual_seed(cfg["seed"])
     model, model_config = build_model(cfg["model"], spec, cfg)
+    config_record["model_config"] = model_config  # every size of the model, defaults filled in
     model.to(device)
     optimizer = torch.optim.AdamW(
         model.parameters(), lr=cfg["lr"], betas=tuple(cfg["betas"]), weight_decay=cfg["weight_decay"]

@@ -281,6 +281,16 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         stats = dataset_stats(ds)
         curves, levels = _dataset_curves(ds, manifest, limit)
         aligned = _find_aligned(manifest.get("sources", []), extra, warnings)
+        missing = sorted(
+            {s.get("take") for s in manifest.get("sources", []) if s.get("source_kind") == "aligned"}
+            - set(aligned)
+        )
+        if missing:
+            named = ", ".join(map(str, missing[:3])) + (", ..." if len(missing) > 3 else "")
+            warnings.append(
+                f"the align reports of {len(missing)} take(s) were not found where the manifest says the "
+                f"aligned takes are ({named}): give their folder with --takes"
+            )
         per_take: dict[str, dict[str, Any]] = {}
         for s in manifest["samples"]:
             e = per_take.setdefault(
