@@ -83,7 +83,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     ``bad_audio``), a WAV holding fewer samples than its header declares is noted (repair
     ``truncated_audio``) and one whose header declares none although samples follow is read to its end
     (repair ``unfinished_audio``); without it, non-finite samples and unfinished WAVs are an
-    ``InputError``."""
+    ``InputError``. AAC or MP3 whose file does not record the encoder's delay (raw ADTS ``.aac``, an MP3
+    without a LAME tag) keeps it at its start: noted as repair ``encoder_delay_unknown``."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -115,8 +116,10 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
                     f"holds {audio.duration_s:.3f} s (cut short?): the samples present are used",
                 }
             )
+        if repairs is not None and info.subtype.startswith("MPEG_LAYER"):  # mpg123 drops a recorded delay
+            note_unknown_delay(path, repairs)
         return audio
-    return check_samples(decode_with_pyav(path), path, repairs)
+    return check_samples(decode_with_pyav(path, repairs=repairs), path, repairs)
 
 
 def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
@@ -268,13 +271,52 @@ def wav_unfinished_bytes(path: Path) -> int:
     return max(size - start, 0)
 
 
-def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
+# Codecs (FFmpeg's decoder names) whose encoder puts priming samples before the sound (AAC: 1024 or
+# 2112, MP3: 1105 and more), which a decoder can only drop when the file records how many (an MP4 edit
+# list, an MP3's LAME tag).
+PRIMED_CODECS = ("aac", "mp3", "mp3float")
+
+
+def note_unknown_delay(
+    path: Path, repairs: list[dict[str, Any]], stream: Any = None, first_pts: int | None = None
+) -> None:
+    """Note (repair ``encoder_delay_unknown``) audio of a ``PRIMED_CODECS`` codec whose file records no
+    encoder delay for the decoder to drop: FFmpeg finds neither a start after 0 (an MP3's LAME tag) nor
+    packets before it (an MP4 edit list). ``stream``: the file's PyAV audio stream and ``first_pts`` its
+    first packet's (None: the file is opened here, as for what libsndfile decoded)."""
+    if stream is None:
+        import av
+
+        try:
+            with av.open(str(path)) as container:
+                stream = container.streams.audio[0]
+                note_unknown_delay(path, repairs, stream, next(container.demux(stream)).pts)
+        except (av.FFmpegError, OSError, ValueError, IndexError, StopIteration):
+            pass  # FFmpeg cannot tell: libsndfile read it, and nothing is known of a delay
+        return
+    codec = stream.codec_context.name
+    if codec not in PRIMED_CODECS or (first_pts or 0) < 0 or (stream.start_time or 0) > 0:
+        return
+    repairs.append(
+        {
+            "line": None,
+            "kind": "encoder_delay_unknown",
+            "message": f"{path.name}: {codec.removesuffix('float').upper()} audio whose file does not record "
+            "the encoder's delay (raw ADTS .aac, an MP3 without a LAME tag): its priming samples are kept, "
+            "so the audio may start up to ~50 ms late; s2a-align measures the offset",
+        }
+    )
+
+
+def decode_with_pyav(
+    path: str | Path, stream_index: int = 0, repairs: list[dict[str, Any]] | None = None
+) -> Audio:
     """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...).
 
     FFmpeg drops the encoder's priming samples at the start (the edit list); the padding that fills the
     last coded frame (AAC: up to 1023 samples) is cut here, where the container's stream duration ends
     inside that frame (AAC only: other codecs trim their own padding, and an MP3's duration may be an
-    estimate)."""
+    estimate). A file that records no delay keeps it: noted in ``repairs`` (``note_unknown_delay``)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     path = Path(path)
@@ -287,14 +329,17 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
             chunks = []
             fmt = None
             last_frame = 0
-            for frame in container.decode(stream):
-                fmt, last_frame = frame.format, frame.samples
-                arr = frame.to_ndarray()
-                if fmt.is_planar:
-                    arr = arr.T
-                else:
-                    arr = arr.reshape(-1, len(frame.layout.channels))
-                chunks.append(arr)
+            first_pts = None
+            for packet in container.demux(stream):
+                first_pts = packet.pts if first_pts is None else first_pts
+                for frame in packet.decode():
+                    fmt, last_frame = frame.format, frame.samples
+                    arr = frame.to_ndarray()
+                    if fmt.is_planar:
+                        arr = arr.T
+                    else:
+                        arr = arr.reshape(-1, len(frame.layout.channels))
+                    chunks.append(arr)
             rate = stream.rate or stream.codec_context.sample_rate
             # AAC only: an MP3's duration may be an estimate from its bit rate
             aac = stream.codec_context.name == "aac"
@@ -303,6 +348,8 @@ def decode_with_pyav(path: str | Path, stream_index: int = 0) -> Audio:
                 if aac and stream.duration and rate
                 else None
             )
+            if repairs is not None:
+                note_unknown_delay(path, repairs, stream, first_pts)
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:

@@ -33,7 +33,7 @@ TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV
 # Repairs and notes that ask the user to act, printed as warnings by import (the others are counted in
 # the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
 # lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
-# time column read as frame numbers.
+# time column read as frame numbers, frame numbers read as counting from 1, weights on a 0..100 scale.
 WARN_REPAIRS = (
     "timecode_rate",
     "length_mismatch",
@@ -41,6 +41,8 @@ WARN_REPAIRS = (
     "unfinished_audio",
     "no_audio",
     "frame_numbers",
+    "frame_numbers_from_1",
+    "percent_scale",
 )
 
 
@@ -68,10 +70,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--matrix",
         type=Path,
-        help="generic import: frames x channels weights (.npy, .csv, or an Audio2Face blendshape .json)",
+        help="generic import: frames x channels weights (.npy, .npz, .csv, or an Audio2Face .json export)",
     )
-    p.add_argument("--names", type=Path, help="generic import: channel names (.txt one per line, or .npy)")
+    p.add_argument(
+        "--names", type=Path, help="generic import: channel names (.txt one per line, a .json list, or .npy)"
+    )
     p.add_argument("--fps", type=float, help="generic import: frame rate (a .json gives its own)")
+    p.add_argument(
+        "--first-frame",
+        type=int,
+        help="generic import: the number, in a frame-number column, of the frame at the audio's start "
+        "(default: 1 when the column starts at 1, as timelines of Maya, Blender or iClone do, else 0)",
+    )
+    p.add_argument(
+        "--value-scale",
+        type=float,
+        help="generic import: multiply the weights by this (0.01 for weights on a 0..100 scale)",
+    )
     p.add_argument("--id", dest="take_id", help="take id (default: from the source's name)")
     p.add_argument(
         "--variant",
@@ -145,6 +160,16 @@ def cmd_import(args: argparse.Namespace) -> int:
     ):
         raise InputError("--audio-pairing goes with a CSV and its --audio (or --pair-audio)")
     timecode_rate = None if args.timecode_rate == "auto" else float(args.timecode_rate)
+    # the options of generic paired data given, and why a Live Link Face take ignores each
+    generic = {
+        flag: why
+        for flag, value, why in (
+            ("--fps", args.fps, "has its own timecodes"),
+            ("--first-frame", args.first_frame, "has its own timecodes"),
+            ("--value-scale", args.value_scale, "holds weights on the app's 0..1 scale"),
+        )
+        if value is not None
+    }
     if args.matrix is not None:
         if args.sources:
             raise InputError("give either sources or --matrix, not both")
@@ -161,8 +186,10 @@ def cmd_import(args: argparse.Namespace) -> int:
             raise InputError("nothing to import: name CSV files or take folders, or use --matrix")
         if args.names is not None:
             raise InputError("--names only applies to a generic import with --matrix")
-        if args.fps is not None and not (args.pair_audio or args.audio is not None):
-            raise InputError("--fps only applies to generic paired data (--matrix, or CSVs with audio)")
+        if generic and not (args.pair_audio or args.audio is not None):
+            raise InputError(
+                f"{next(iter(generic))} only applies to generic paired data (--matrix, or CSVs with audio)"
+            )
         sources = find_sources(args.sources, exports=args.pair_audio)
         if not sources:
             raise InputError(
@@ -180,7 +207,15 @@ def cmd_import(args: argparse.Namespace) -> int:
     for kind, src in jobs:
         try:
             if kind == "matrix":
-                take = read_paired(args.audio, args.matrix, args.fps, args.names, args.take_id)
+                take = read_paired(
+                    args.audio,
+                    args.matrix,
+                    args.fps,
+                    args.names,
+                    args.take_id,
+                    first_frame=args.first_frame,
+                    value_scale=args.value_scale,
+                )
             else:
                 audio, pairing = args.audio, args.audio_pairing
                 if args.pair_audio:  # loose files get the audio beside them; take folders have their own
@@ -189,11 +224,20 @@ def cmd_import(args: argparse.Namespace) -> int:
                     if why:
                         print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)
                 take = import_source(
-                    src, audio, args.variant, args.strict, args.swap_lr, pairing, args.fps, timecode_rate
+                    src,
+                    audio,
+                    args.variant,
+                    args.strict,
+                    args.swap_lr,
+                    pairing,
+                    args.fps,
+                    timecode_rate,
+                    first_frame=args.first_frame,
+                    value_scale=args.value_scale,
                 )
-                if args.fps is not None and take.meta.source_kind != "paired_matrix":
+                for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
                     print(
-                        f"{PROG}: warning: {src}: --fps ignored: a Live Link Face take has its own timecodes",
+                        f"{PROG}: warning: {src}: {flag} ignored: a Live Link Face take {why}",
                         file=sys.stderr,
                     )
                 if args.take_id:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .csv_take import app_header_separator, read_livelink_csv
 from .errors import InputError
-from .paired import bom_codec, read_paired
+from .paired import bom_codec, emotion_weights, header_names, read_paired
 from .take import Take, is_take_dir
 from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
 
@@ -19,6 +19,8 @@ AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".aif", ".aif
 # The keys of an Audio2Face blendshape export, looked for anywhere in a .json (their order is not fixed:
 # a writer that puts "facsNames" after the weights has it megabytes in).
 _A2F_MARKS = (b'"facsNames"', b'"weightMat"')
+# What Audio2Face adds to an export's name (``line01_bsweight.json`` goes with ``line01.wav``).
+A2F_SUFFIX = "_bsweight"
 
 
 def warn_skipped(path: Path, why: str) -> None:
@@ -60,7 +62,11 @@ def _walk(
         if p.is_dir():
             yield from _walk(p, exports, skipped, seen)
         elif p.suffix.lower() == ".csv":
-            yield p
+            emotions = emotion_weights(header_names(_first_line(_head(p))))
+            if emotions is None:
+                yield p
+            else:
+                skipped(p, emotions)
         elif exports and p.suffix.lower() == ".json":
             if is_a2f_export(p):
                 yield p
@@ -90,19 +96,26 @@ def folder_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file())
 
 
+def audio_stem(source: Path) -> str:
+    """The stem of the audio file that goes with a CSV or export: its own, less Audio2Face's
+    ``_bsweight`` (``line01_bsweight.json`` goes with ``line01.wav``)."""
+    return source.stem.removesuffix(A2F_SUFFIX) if source.suffix.lower() == ".json" else source.stem
+
+
 def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
-    """The audio file that goes with a CSV or export: the one of the same stem, else the only audio
-    file in its folder (``files``: ``folder_files`` of it, when the caller lists each folder once).
-    Returns (path or None, why none was taken when that is worth a warning)."""
+    """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
+    without ``_bsweight``), else the only audio file in its folder (``files``: ``folder_files`` of it,
+    when the caller lists each folder once). Returns (path or None, why none was taken when that is worth
+    a warning)."""
     files = folder_files(source.parent) if files is None else files
     audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES]
-    same = [p for p in audio if p.stem == source.stem]
+    same = [p for p in audio if p.stem in (source.stem, audio_stem(source))]
     if len(same) > 1:
         return None, f"several audio files named {source.stem}.*: {', '.join(p.name for p in same)}"
     if same:
         return same[0], None
     if len(audio) == 1:
-        owner = [p for p in files if p.stem == audio[0].stem and p.suffix.lower() in (".csv", ".json")]
+        owner = [p for p in files if audio_stem(p) == audio[0].stem and p.suffix.lower() in (".csv", ".json")]
         if owner:
             return None, f"the only audio file beside it, {audio[0].name}, is named for {owner[0].name}"
         return audio[0], None
@@ -119,9 +132,14 @@ def is_livelink_csv(path: Path, head: bytes | None = None) -> bool:
     raw = _head(path) if head is None else head
     if raw is None:
         return True  # let the Live Link Face reader report it
-    text = raw.decode(bom_codec(raw) or "utf-8-sig", "replace")
-    first = next((line for line in text.splitlines() if line.strip()), "")
-    return app_header_separator(first) is not None
+    return app_header_separator(_first_line(raw)) is not None
+
+
+def _first_line(raw: bytes | None) -> str:
+    """The first non-blank line of a text file's first bytes (``_head``), as UTF-8 or the byte-order
+    mark's codec says ("" for none)."""
+    text = (raw or b"").decode(bom_codec(raw or b"") or "utf-8-sig", "replace")
+    return next((line for line in text.splitlines() if line.strip()), "")
 
 
 def _head(path: Path, size: int = 1 << 16) -> bytes | None:
@@ -142,12 +160,14 @@ def import_source(
     audio_pairing: str = "first-row",
     fps: float | None = None,
     timecode_rate: float | None = None,
+    first_frame: int | None = None,
+    value_scale: float | None = None,
 ) -> Take:
     """One source (take folder or CSV file) as a take. ``audio_pairing`` (one of ``AUDIO_PAIRINGS``)
     says how external ``audio`` goes with a CSV's rows. ``timecode_rate``: the rate a Live Link Face
     CSV's FF field counts at (None: detected, see ``read_livelink_csv``). A CSV with audio whose header
     is not the app's is generic paired data (``read_paired``: a header of channel names, perhaps a time
-    column; ``fps`` unless the file gives the rate)."""
+    column; ``fps`` unless the file gives the rate; ``first_frame`` and ``value_scale`` as there)."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if source.is_dir():
@@ -157,7 +177,7 @@ def import_source(
             )
         return read_take_folder(source, variant, audio, strict, swap_lr, timecode_rate)
     if source.suffix.lower() == ".json" and audio is not None:  # the export reader names a non-export
-        return read_paired(audio, source, None, take_id=source.stem, names_option=False)
+        return read_paired(audio, source, None, None, source.stem, False, first_frame, value_scale)
     if source.suffix.lower() == ".json" and is_a2f_export(source):
         raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
     if source.suffix.lower() != ".csv":
@@ -171,13 +191,16 @@ def import_source(
     if not livelink:
         if head is not None and not head.strip():
             raise InputError("file is empty", source)
+        emotions = emotion_weights(header_names(_first_line(head)))
+        if emotions is not None:
+            raise InputError(emotions, source)
         if audio is None:
             raise InputError(
                 "not a Live Link Face CSV (its header does not start with Timecode,BlendShapeCount), and "
                 "as generic paired data it needs its audio (--audio, or --pair-audio)",
                 source,
             )
-        return read_paired(audio, source, fps, take_id=source.stem, names_option=False)
+        return read_paired(audio, source, fps, None, source.stem, False, first_frame, value_scale)
     if audio is not None:
         return read_csv_with_audio(
             source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate

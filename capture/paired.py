@@ -82,29 +82,16 @@ _NUMBERED_NAME = re.compile(r"(\d+)[ \t]+(\S.*)")
 
 def read_names(path: str | Path) -> list[str]:
     """Channel names: a text file (one per line, or comma-separated; quotes as in a CSV; blank lines and
-    a comma ending a line are skipped) or a ``.npy`` array of strings (text, or UTF-8 bytes). An empty
-    name is refused, as is a name twice."""
+    a comma ending a line are skipped), a ``.json`` list of names (or an object holding one list of them,
+    or Audio2Face's ``facsNames``) or a ``.npy`` array of strings (text, or UTF-8 bytes). An empty name is
+    refused, as is a name twice, and a text file whose names carry a JSON list's brackets or quotes."""
     path = Path(path)
     if not path.is_file():
         raise InputError("channel-name file not found", path)
     if path.suffix.lower() == ".npy":
-        arr = load_npy(path)
-        if arr.dtype.kind not in "US":
-            raise InputError(f"names array holds {arr.dtype}, not strings", path)
-        names = []
-        for i, x in enumerate(arr.ravel()):
-            if isinstance(x, bytes):
-                try:
-                    x = x.decode("utf-8")
-                except UnicodeDecodeError:
-                    raise InputError(
-                        f"name {i} ({_show(bytes(x))}) is not UTF-8 text: save the names as a str array "
-                        "(dtype U), or as UTF-8 bytes",
-                        path,
-                    ) from None
-            names.append(str(x).strip())
-        if "" in names:
-            raise InputError(f"name {names.index('')} of the array is empty", path)
+        names = string_names(load_npy(path), path)
+    elif path.suffix.lower() == ".json":
+        names = _json_names(path)
     else:
         names = []
         for number, line in enumerate(read_text(path).splitlines(), start=1):
@@ -115,6 +102,14 @@ def read_names(path: str | Path) -> list[str]:
                 cells.pop()  # a comma ending the line
             if not all(cells):
                 raise InputError("an empty channel name (two commas in a row?)", path, number)
+            debris = next((c for c in cells if c[0] in _JSON_DEBRIS or c[-1] in _JSON_DEBRIS), None)
+            if debris is not None:
+                raise InputError(
+                    f"channel name {_show(debris)} carries brackets or quotes: a JSON list of names? "
+                    "save it as a .json file, or write one name a line",
+                    path,
+                    number,
+                )
             names.extend(cells)
         numbered = [_NUMBERED_NAME.fullmatch(n) for n in names]
         if names and all(numbered):
@@ -126,6 +121,55 @@ def read_names(path: str | Path) -> list[str]:
     twice = repeated_name(names)
     if twice is not None:
         raise InputError(f"channel name {twice[1]!r} appears twice", path)
+    return names
+
+
+# What a JSON list of names leaves at the ends of its names when read as text.
+_JSON_DEBRIS = "[]{}\"'"
+
+
+def string_names(arr: np.ndarray, path: Path) -> list[str]:
+    """Channel names from an array of strings (text, or bytes in UTF-8), as ``.npy``/``.npz`` hold them."""
+    if arr.dtype.kind not in "US":
+        raise InputError(f"names array holds {arr.dtype}, not strings", path)
+    names = []
+    for i, x in enumerate(arr.ravel()):
+        if isinstance(x, bytes):
+            try:
+                x = x.decode("utf-8")
+            except UnicodeDecodeError:
+                raise InputError(
+                    f"name {i} ({_show(bytes(x))}) is not UTF-8 text: save the names as a str array "
+                    "(dtype U), or as UTF-8 bytes",
+                    path,
+                ) from None
+        names.append(str(x).strip())
+    if "" in names:
+        raise InputError(f"name {names.index('')} of the array is empty", path)
+    return names
+
+
+def _json_names(path: Path) -> list[str]:
+    """Channel names from a ``.json`` file: a list of names, or an object holding one list (``{"names":
+    [...]}``) or Audio2Face's ``facsNames``."""
+    try:
+        data = json.loads(read_text(path))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"not a JSON file ({exc})", path) from None
+    except RecursionError:
+        raise InputError("not a JSON file (nested too deeply)", path) from None
+    if isinstance(data, dict):
+        lists = [v for v in data.values() if isinstance(v, list)]
+        data = data["facsNames"] if "facsNames" in data else lists[0] if len(lists) == 1 else data
+    if not isinstance(data, list) or not all(isinstance(n, str) for n in data):
+        raise InputError(
+            'a .json names file must hold a list of names (["jawOpen", ...]), or an object holding one '
+            '({"names": [...]})',
+            path,
+        )
+    names = [n.strip() for n in data]
+    if "" in names:
+        raise InputError(f"name {names.index('')} of the list is empty", path)
     return names
 
 
@@ -237,6 +281,16 @@ def _delimiter(first: list[str]) -> str:
     return max(agreeing, key=lambda sep: min(counts[sep]), default=",")
 
 
+def header_names(line: str) -> list[str]:
+    """The cells of a CSV's first line (its header, when it has one), split as ``read_matrix`` splits it."""
+    try:
+        return [
+            c.strip() for c in next(csv.reader([line], delimiter=_delimiter([line]), skipinitialspace=True))
+        ]
+    except (csv.Error, StopIteration):
+        return []
+
+
 def _numbers(cells: list[str], decimal_comma: bool) -> list[float]:
     """A row's values; an empty cell (how pandas writes NaN) is NaN. ValueError for any other cell that
     is not a number, also ``1_0``, which Python's float() alone would read as 10."""
@@ -317,12 +371,19 @@ def _read_csv(path: Path) -> tuple[np.ndarray, list[str] | None, int]:
             rows = [(n, cells[:-1]) for n, cells in rows]
             header = header[:-1] if header is not None else None
             width -= 1
-    if header is not None and header[0] == "" and len(header) == width > 1:
+    if header is not None and header[0] in ("", PANDAS_INDEX) and len(header) == width > 1:
         index = [cells[0] for _, cells in rows]
         if index in (_counting(0, len(rows)), _counting(1, len(rows))):  # pandas' index, R's row names
             rows = [(n, cells[1:]) for n, cells in rows]
             header = header[1:]
             width -= 1
+        elif header[0] == PANDAS_INDEX:
+            raise InputError(
+                f"the first column, {PANDAS_INDEX!r} (pandas' name for a column without a name), does not "
+                "count the rows 0, 1, ... as an index does: name it, or delete it",
+                path,
+                lines[0][0],
+            )
     if header is not None and len(header) != width:
         raise InputError(f"the header names {len(header)} columns, the rows hold {width}", path, lines[0][0])
     if header is not None and not all(header):
@@ -349,6 +410,8 @@ def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None
     numbered = 0
     if path.suffix.lower() == ".npy":
         m = load_npy(path)
+    elif path.suffix.lower() == ".npz":
+        m, header, fps = _read_npz(path)
     elif path.suffix.lower() == ".json":
         m, header, fps = read_a2f_json(path)
     else:
@@ -360,10 +423,47 @@ def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None
     return m, header, fps, numbered
 
 
+# Names of the arrays of a .npz that hold the weights (when it holds more than one array), their channel
+# names and the frame rate, compared in lower case.
+NPZ_WEIGHTS = ("weights", "values", "blendshapes")
+NPZ_NAMES = ("names", "channels", "facsnames", "channel_names")
+NPZ_FPS = ("fps", "frame_rate", "framerate")
+
+
+def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
+    """The weights of a ``.npz`` (never unpickled): its only 2-D array, or the one named in
+    ``NPZ_WEIGHTS``; with the names (an array of strings named in ``NPZ_NAMES``) and rate (a number named
+    in ``NPZ_FPS``) when it stores them."""
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {name.lower(): npz[name] for name in npz.files}
+    except (ValueError, OSError, EOFError) as exc:
+        raise InputError(f"not a .npz of numeric or string arrays ({exc})", path) from None
+    named = [arrays[k] for k in NPZ_WEIGHTS if k in arrays]
+    planes = [a for a in arrays.values() if a.ndim == 2 and a.dtype.kind in "fiu"]
+    found = named if len(named) == 1 else planes if len(planes) == 1 else None
+    if found is None:
+        held = ", ".join(f"{k} {a.dtype} {a.shape}" for k, a in arrays.items()) or "nothing"
+        raise InputError(
+            f"a .npz needs one 2-D frames x channels array, or one named {', '.join(NPZ_WEIGHTS)} (it holds "
+            f"{held})",
+            path,
+        )
+    names = next((string_names(arrays[k], path) for k in NPZ_NAMES if k in arrays), None)
+    fps = next((arrays[k] for k in NPZ_FPS if k in arrays), None)
+    if fps is not None:
+        if fps.size != 1 or fps.dtype.kind not in "fiu":
+            raise InputError(
+                f"the frame rate it stores must be one number, not {fps.dtype} {fps.shape}", path
+            )
+        fps = exact_rate(float(fps.ravel()[0]))
+    return found[0], names, fps
+
+
 def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
-    """Frames x channels weights from ``.npy`` (never unpickled), ``.csv`` (optional header row; comma,
-    semicolon or tab separated, a decimal comma with the last two; empty cells are NaN) or an Audio2Face
-    ``.json`` export; with the names and frame rate the file gives (else None)."""
+    """Frames x channels weights from ``.npy`` or ``.npz`` (never unpickled), ``.csv`` (optional header
+    row; comma, semicolon or tab separated, a decimal comma with the last two; empty cells are NaN) or an
+    Audio2Face ``.json`` export; with the names and frame rate the file gives (else None)."""
     m, header, fps, _ = _read_matrix(Path(path))
     return m, header, fps
 
@@ -387,16 +487,71 @@ MILLISECONDS_COLUMNS = (
 FRAME_COLUMNS = (
     "frame", "frames", "frameindex", "framenumber", "frameno", "framenum", "frameidx", "framecount",
 )  # fmt: skip
+# A name of SECONDS_COLUMNS is in seconds (divisor 1), of MILLISECONDS_COLUMNS in milliseconds (1000).
 _CLOCK_KINDS = {
-    **dict.fromkeys(SECONDS_COLUMNS, "seconds"),
-    **dict.fromkeys(FRAME_COLUMNS, "frames"),
-    **dict.fromkeys(MILLISECONDS_COLUMNS, "milliseconds"),
+    **dict.fromkeys(SECONDS_COLUMNS, ("seconds", 1)),
+    **dict.fromkeys(FRAME_COLUMNS, ("frames", 1)),
+    **dict.fromkeys(MILLISECONDS_COLUMNS, ("seconds", 1000)),
 }
+# Other header names holding one of these words hold times too (`frame_timestamp_ms`, `pts_time`,
+# `elapsed_s`), in the unit a word of ``_UNIT_WORDS`` gives (units per second), else in the unit the
+# column's step fits (``_unit_by_step``).
+TIME_WORDS = ("time", "times", "timestamp", "timestamps", "timecode", "elapsed", "pts")
+_UNIT_WORDS = {
+    **dict.fromkeys(("s", "sec", "secs", "second", "seconds"), 1),
+    **dict.fromkeys(("ms", "msec", "msecs", "millis", "millisecond", "milliseconds"), 1000),
+    **dict.fromkeys(("us", "usec", "usecs", "micros", "microsecond", "microseconds"), 1_000_000),
+}
+_UNITS = {1: "seconds", 1000: "milliseconds", 1_000_000: "microseconds"}
+# A column is taken for a clock by its values alone (``_clock_like``) from this many rows, when it runs
+# past CLOCK_END (beyond any blendshape weight) under a name that is not a face channel's.
+CLOCK_ROWS = 10
+CLOCK_END = 2.0
 
 
 def _column_key(name: str) -> str:
     """A header name as time and frame columns are looked up: lower case, letters and digits only."""
     return re.sub(r"[^0-9a-z]", "", name.lower())
+
+
+def _clock_kind(name: str) -> tuple[str, int | None] | None:
+    """What a header name says its column holds: ("seconds", units per second, None when the name gives
+    no unit), ("frames", 1), or None: a channel."""
+    kind = _CLOCK_KINDS.get(_column_key(name))
+    if kind is not None:
+        return kind
+    words = re.findall(r"[a-z]+", re.sub(r"([a-z])([A-Z])", r"\1_\2", name).lower())
+    if not any(w in TIME_WORDS for w in words):
+        return None
+    units = [_UNIT_WORDS[w] for w in words if w in _UNIT_WORDS]
+    return "seconds", units[-1] if units else None
+
+
+def _unit_by_step(clock: np.ndarray, fps: float | None) -> int | None:
+    """The unit (units per second: 1, 1000 or 1e6) in which a column of increasing times steps by one
+    frame at ``fps`` (None: at a standard rate), else None."""
+    per_unit = column_rate(clock)[0]
+    for divisor in _UNITS:
+        rate = per_unit * divisor
+        if nearest_standard(rate) is not None if fps is None else abs(rate / fps - 1) <= STANDARD_TOLERANCE:
+            return divisor
+    return None
+
+
+def _clock_like(name: str, values: np.ndarray, fps: float | None) -> str | None:
+    """What a column named ``name`` holds when its values increase from row to row as a clock's do
+    (frame numbers, or times in a unit that steps one frame at ``fps`` or a standard rate), else None:
+    at least ``CLOCK_ROWS`` of them, running past ``CLOCK_END``, under a name no face channel has."""
+    if values.size < CLOCK_ROWS or not np.isfinite(values).all() or not (np.diff(values) > 0).all():
+        return None
+    if values[-1] <= CLOCK_END or ch.is_known(name):
+        return None
+    if counts_frames(values):
+        return "frame numbers"
+    divisor = _unit_by_step(values, fps)
+    if divisor is None:
+        return None
+    return f"{_UNITS[divisor]} at {_rate(column_rate(values)[0] * divisor)} frames per second"
 
 
 def channel_name(name: str) -> str:
@@ -405,26 +560,87 @@ def channel_name(name: str) -> str:
     return ch.canonical(name) if ch.is_known(name) else name
 
 
+# The weights of emotions that emotion-driven generators write beside a face take (Audio2Face-3D's
+# a2e_emotion_output.csv, NeuroSync's 7 emotion columns), compared by ``_column_key`` of a name's last
+# dotted part (`emotion_values.joy`): a file of nothing else is not a face take.
+EMOTION_NAMES = (
+    "amazement", "anger", "cheekiness", "disgust", "fear", "grief", "joy", "outofbreath", "pain", "sadness",
+    "angry", "disgusted", "fearful", "happy", "neutral", "sad", "surprised",
+)  # fmt: skip
+# The header pandas gives a first column without a name when it reads a CSV written with its index.
+PANDAS_INDEX = "Unnamed: 0"
+
+
+def emotion_weights(names: list[str]) -> str | None:
+    """Why a header whose channels (time and index columns aside) are all emotion names is not a face
+    take, or None when it has another channel."""
+    rest = [n for n in names if n.strip() and n != PANDAS_INDEX and _clock_kind(n) is None]
+    if not rest or not all(_column_key(re.split(r"[.:/]", n)[-1]) in EMOTION_NAMES for n in rest):
+        return None
+    shown = ", ".join(rest[:3]) + (", ..." if len(rest) > 3 else "")
+    return f"holds emotion weights ({shown}), not face channels: not a face take"
+
+
 def _frame_clock(
-    names: list[str], matrix: np.ndarray, path
-) -> tuple[str | None, np.ndarray | None, int, str | None]:
-    """The time column, if the header has one: (kind "seconds"/"frames", its values in seconds or frame
-    numbers (milliseconds converted), its index, its name)."""
-    found = [(i, n) for i, n in enumerate(names) if _column_key(n) in _CLOCK_KINDS]
+    names: list[str], matrix: np.ndarray, fps: float | None, path
+) -> tuple[str | None, np.ndarray | None, list[int], str | None, list[dict]]:
+    """The column that places the frames, if the header has one: (kind "seconds"/"frames", its values in
+    seconds or frame numbers (other units converted), the columns that are no channels, its name, repair
+    notes). A frame-number column beside a time column is left out (note ``frame_column``); a first
+    column increasing like a clock under a name that does not say so is an error, not a channel."""
+    found = [(i, n, _clock_kind(n)) for i, n in enumerate(names)]
+    found = [(i, n, k) for i, n, k in found if k is not None]
     if not found:
-        return None, None, -1, None
-    if len(found) > 1:
-        raise InputError(f"several time columns: {', '.join(n for _, n in found)}", path)
-    i, name = found[0]
+        what = _clock_like(names[0], matrix[:, 0].astype(np.float64), fps) if len(names) > 1 else None
+        if what is not None:
+            raise InputError(
+                f"column {names[0]!r} increases from row to row like a clock ({what}), but its name does not "
+                "say so: name it `time` (seconds), `time_ms` (milliseconds) or `frame` (frame numbers) to "
+                "place the frames by it, or delete it",
+                path,
+            )
+        return None, None, [], None, []
+    times = [f for f in found if f[2][0] == "seconds"]
+    frames = [f for f in found if f[2][0] == "frames"]
+    if len(times) > 1 or len(frames) > 1:
+        raise InputError(
+            f"several time columns: {', '.join(n for _, n, _ in found)}: keep one and delete the others", path
+        )
+    notes = []
+    if times and frames:
+        notes.append(
+            {
+                "line": None,
+                "kind": "frame_column",
+                "message": f"frame-number column {frames[0][1]!r} left out: the frames are placed by the "
+                f"time column {times[0][1]!r}",
+            }
+        )
+    i, name, (kind, divisor) = (times or frames)[0]
     clock = matrix[:, i].astype(np.float64)
     if not np.isfinite(clock).all() or (clock.size > 1 and not (np.diff(clock) > 0).all()):
         raise InputError(f"time column {name!r} must be finite and increase from row to row", path)
-    kind = _CLOCK_KINDS[_column_key(name)]
     if kind == "frames" and not np.array_equal(clock, np.round(clock)):
         raise InputError(f"frame column {name!r} holds values that are not whole numbers", path)
-    if kind == "milliseconds":
-        kind, clock = "seconds", clock / 1000
-    return kind, clock, i, name
+    if divisor is None and clock.size > 1 and not counts_frames(clock):
+        divisor = _unit_by_step(clock, fps)
+        if divisor is None:
+            at = f" at {_rate(fps)} fps" if fps is not None else " at a standard frame rate"
+            raise InputError(
+                f"time column {name!r} does not name its unit, and its step is one frame{at} in none of "
+                f"seconds, milliseconds and microseconds: add the unit to its name ({name}_s, {name}_ms)",
+                path,
+            )
+        if divisor != 1:
+            notes.append(
+                {
+                    "line": None,
+                    "kind": "time_unit",
+                    "message": f"time column {name!r} names no unit: read in {_UNITS[divisor]}, in which its "
+                    "step is one frame",
+                }
+            )
+    return kind, clock / (divisor or 1), [i for i, _, _ in found], name, notes
 
 
 def counts_frames(clock: np.ndarray) -> bool:
@@ -489,6 +705,8 @@ def read_paired(
     names_path: str | Path | None = None,
     take_id: str | None = None,
     names_option: bool = True,
+    first_frame: int | None = None,
+    value_scale: float | None = None,
 ) -> Take:
     """A take from audio + weight matrix + names at ``fps`` frames per second (None: the rate the
     matrix file gives, as an Audio2Face export does, or its time column's), named ``take_id``
@@ -499,9 +717,15 @@ def read_paired(
     audio's start; ``time_ms``, ``milliseconds``, ... in milliseconds) or a frame index (``frame``,
     ``frame_index``, ...) places the frames instead of the row index and is not a channel; gaps in it
     become DROPPED frames. A take placed by seconds gets its audio with start source
-    ``paired_time_column`` (align keeps the times), others ``paired_frame_convention``."""
+    ``paired_time_column`` (align keeps the times), others ``paired_frame_convention``.
+
+    ``first_frame``: the number in a frame-number column of the frame at the audio's start (None: 1 when
+    the column starts at 1, with note ``frame_numbers_from_1``, else 0). ``value_scale``: a factor the
+    weights are multiplied by (``--value-scale 0.01`` for weights on a 0..100 scale)."""
     if fps is not None and not 0 < fps < math.inf:  # also NaN
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
+    if value_scale is not None and not 0 < value_scale < math.inf:
+        raise InputError(f"--value-scale must be a positive number, not {value_scale}")
     matrix, header, file_fps, numbered = _read_matrix(Path(matrix_path))
     fps, file_fps = exact_rate(fps), exact_rate(file_fps)
     if file_fps is not None and fps is not None and not math.isclose(file_fps, fps, rel_tol=1e-6):
@@ -535,13 +759,17 @@ def read_paired(
         raise InputError(f"no channel names: {remedy}", matrix_path)
     if len(names) != matrix.shape[1]:
         raise InputError(f"{len(names)} channel names for a matrix of {matrix.shape[1]} columns", matrix_path)
-    kind, clock, column, clock_name = _frame_clock(names, matrix, matrix_path)
-    if column >= 0:
-        names = names[:column] + names[column + 1 :]
-        matrix = np.delete(matrix, column, axis=1)
+    emotions = emotion_weights(names)
+    if emotions is not None:
+        raise InputError(emotions, matrix_path)
+    kind, clock, columns, clock_name, notes = _frame_clock(
+        names, matrix, fps if fps is not None else file_fps, matrix_path
+    )
+    if columns:
+        names = [n for j, n in enumerate(names) if j not in columns]
+        matrix = np.delete(matrix, columns, axis=1)
         if not names:
             raise InputError("no channel columns besides the time column", matrix_path)
-    notes = []
     if kind == "seconds" and counts_frames(clock) and fps != 1:
         if fps is None:
             raise NoFrameRate(
@@ -556,6 +784,21 @@ def read_paired(
                 "kind": "frame_numbers",
                 "message": f"time column {clock_name!r} holds whole frame numbers (steps of 1), not seconds: "
                 f"read as frame numbers at {_rate(fps)} fps",
+            }
+        )
+    if kind == "frames":
+        clock = clock - _first_frame(clock, first_frame, clock_name, notes)
+    elif first_frame is not None:
+        raise InputError(
+            "--first-frame applies to a frame-number column (`frame`), and it has none", matrix_path
+        )
+    if value_scale is not None:
+        matrix = matrix * value_scale
+        notes.append(
+            {
+                "line": None,
+                "kind": "value_scale",
+                "message": f"values multiplied by {value_scale:g} (--value-scale)",
             }
         )
     detected = fps is None and file_fps is None
@@ -607,6 +850,9 @@ def read_paired(
     if names_path is not None:
         meta.sources.append(source_file(names_path, "channel_names"))
     meta.repairs.extend(notes)
+    percent = _percent_scale(values)
+    if percent is not None:
+        meta.repairs.append({"line": None, "kind": "percent_scale", "message": percent})
     bad = int((status != FrameStatus.TRACKED).sum())
     if bad:
         meta.repairs.append(
@@ -632,8 +878,58 @@ def read_paired(
         )
     take.attach_audio(audio, 0.0, "paired_time_column" if kind == "seconds" else "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
-    note_length_mismatch(take, "check --fps")
+    hint = "check --fps"
+    if kind == "seconds" and abs(paired_excess_s(take) + time[0]) <= LENGTH_MISMATCH_S:
+        hint = (
+            f"the time column starts at {time[0]:.3f} s, which is where the mismatch comes from: its clock "
+            "does not start with the audio (give the times from the audio's start)"
+        )
+    note_length_mismatch(take, hint)
     return take
+
+
+def _first_frame(clock: np.ndarray, given: int | None, name: str, notes: list[dict]) -> int:
+    """The frame number of a frame-number column at the audio's start: ``given`` (--first-frame), else 1
+    when the column starts at 1 (timelines of Maya, Blender, iClone, Faceware: note
+    ``frame_numbers_from_1``), else 0."""
+    if given is not None or clock[0] != 1:
+        return given or 0
+    notes.append(
+        {
+            "line": None,
+            "kind": "frame_numbers_from_1",
+            "message": f"frame column {name!r} starts at 1: read as counting from 1 (frame 1 at the audio's "
+            "start; --first-frame 0 places frame 0 there instead)",
+        }
+    )
+    return 1
+
+
+# Weights on a 0..100 scale (sliders in percent) rather than 0..1: the largest value reaches PERCENT_PEAK,
+# none lies outside PERCENT_RANGE, and at least half the channels that move reach past PERCENT_CHANNEL (a
+# 0..1 rig overshoots 1 by a few hundredths; head and eye angles in degrees are a handful of channels).
+PERCENT_PEAK = 2.0
+PERCENT_RANGE = (-5.0, 105.0)
+PERCENT_CHANNEL = 1.5
+
+
+def _percent_scale(values: np.ndarray) -> str | None:
+    """Why ``values`` (frames x channels) look like weights on a 0..100 scale, or None."""
+    finite = np.isfinite(values)
+    if not finite.any():
+        return None
+    top = np.where(finite, values, -np.inf).max(axis=0)
+    low = np.where(finite, values, np.inf).min(axis=0)
+    moving, large = top > 0.01, top > PERCENT_CHANNEL
+    if top.max() < PERCENT_PEAK or low.min() < PERCENT_RANGE[0] or top.max() > PERCENT_RANGE[1]:
+        return None
+    if 2 * large.sum() < moving.sum():
+        return None
+    return (
+        f"the weights look like a 0..100 scale, not 0..1 (largest {top.max():.4g}; {large.sum()} of the "
+        f"{moving.sum()} channels that move reach past {PERCENT_CHANNEL:g}): if so, import again with "
+        "--value-scale 0.01"
+    )
 
 
 def paired_excess_s(take: Take) -> float:

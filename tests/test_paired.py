@@ -162,8 +162,10 @@ def test_time_and_frame_columns_place_the_frames(tmp_path, wav):
     f.write_text("frame,jawOpen\n" + "".join(f"{i},0.25\n" for i in range(1, 31)))
     with pytest.raises(InputError, match="no frame rate"):
         read_paired(wav, f, None)
-    take = read_paired(wav, f, 60)
+    take = read_paired(wav, f, 60, first_frame=0)  # numbered from 0: frame 1 one period in
     assert take.time[0] == pytest.approx(1 / 60) and take.meta.channels == ["jawOpen"]
+    take = read_paired(wav, f, 60)  # from 1, as timelines count: frame 1 at the audio's start
+    assert take.time[0] == 0 and any(r["kind"] == "frame_numbers_from_1" for r in take.meta.repairs)
     bad = tmp_path / "b.csv"
     bad.write_text("time,jawOpen\n0.0,0.1\n0.0333,0.1\n0.0333,0.2\n")
     with pytest.raises(InputError, match="must be finite and increase"):
