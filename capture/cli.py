@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .channels import is_known
 from .command import emit_json, progress, run
-from .csv_take import nonfinite_frames, write_livelink_csv
+from .csv_take import nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source
 from .live_cli import register as register_live
@@ -150,6 +150,24 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     print("\n".join(lines))
 
 
+def _of_variant(sources: list[Path], variant: str) -> list[Path]:
+    """``--variant`` among loose CSVs (take folders choose their own CSV): one whose name says another
+    variant of its take (``X_cal.csv`` for ``--variant raw``) is left out with a warning."""
+    kept = []
+    for src in sources:
+        own = split_variant(src.stem)[1] or "plain" if src.suffix.lower() == ".csv" else variant
+        if own == variant:
+            kept.append(src)
+        else:
+            print(
+                f"{PROG}: warning: {src}: the {own} CSV of its take, not --variant {variant}: skipped",
+                file=sys.stderr,
+            )
+    if sources and not kept:
+        raise InputError(f"no {variant} CSV among the sources (--variant {variant})")
+    return kept
+
+
 def cmd_import(args: argparse.Namespace) -> int:
     if args.pair_audio and (args.audio is not None or args.matrix is not None):
         raise InputError("--pair-audio finds each source's audio: give neither --audio nor --matrix with it")
@@ -191,6 +209,8 @@ def cmd_import(args: argparse.Namespace) -> int:
                 f"{next(iter(generic))} only applies to generic paired data (--matrix, or CSVs with audio)"
             )
         sources = find_sources(args.sources, exports=args.pair_audio)
+        if args.variant is not None:
+            sources = _of_variant(sources, args.variant)
         if not sources:
             raise InputError(
                 f"no Live Link Face CSV or take folder under {', '.join(map(str, args.sources))}"

@@ -262,3 +262,20 @@ def test_frame_log_counting_at_another_rate_than_the_mov(tmp_path, samples, log_
     assert noted == ([] if log_rate == mov_rate else [noted[0]])
     if noted:
         assert f"count at {log_rate} fps, not at the video's {mov_rate}" in noted[0]
+
+
+# From the guide walkthrough: --variant raw on a folder holding only a take's _cal CSV imported the _cal.
+def test_variant_leaves_out_loose_csvs_of_another_variant(tmp_path, samples):
+    header, rows = sample_lines(samples, 30)
+    loose = tmp_path / "loose"
+    loose.mkdir()
+    write_csv(loose / "MySlate_9_iPhone_cal.csv", header, rows)
+    proc = run_here("capture", "import", loose, "-o", tmp_path / "takes", "--variant", "raw")
+    assert proc.returncode == 1 and not (tmp_path / "takes" / "MySlate_9_iPhone_cal").exists()
+    assert "the cal CSV of its take, not --variant raw: skipped" in proc.stderr
+    assert "no raw CSV among the sources" in proc.stderr
+    write_csv(loose / "MySlate_9_iPhone_raw.csv", header, rows)
+    proc = run_here("capture", "import", loose, "-o", tmp_path / "takes", "--variant", "raw", "--json")
+    assert proc.returncode == 0 and [json.loads(x)["id"] for x in proc.stdout.splitlines()] == [
+        "MySlate_9_iPhone_raw"
+    ]
