@@ -6,8 +6,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from .errors import S2AError
@@ -35,6 +38,42 @@ def progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM reached the command (``timeout``, ``kill``, a batch scheduler): it stops as on Ctrl-C,
+    with exit code 143."""
+
+
+@contextmanager
+def sigterm_stops() -> Iterator[None]:
+    """Inside, SIGTERM raises ``Terminated`` in the main thread (once; a second SIGTERM ends the process
+    at once), so that the command stops as on Ctrl-C: its ``finally`` blocks run, its partial files go.
+    Left alone off the main thread and where the caller already handles SIGTERM."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        raise Terminated()
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` says memory ran out: a MemoryError (NumPy's too), or PyTorch's allocator refusing."""
+    return isinstance(exc, MemoryError) or (
+        isinstance(exc, RuntimeError) and "can't allocate memory" in str(exc).lower()
+    )
+
+
 def run(
     prog: str,
     parser: argparse.ArgumentParser,
@@ -48,6 +87,9 @@ def run(
     except S2AError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
+    except Terminated:
+        print(f"{prog}: terminated (SIGTERM)", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
@@ -56,4 +98,10 @@ def run(
     except OSError as exc:  # the file system refused (read-only, no permission, a file in the way, full)
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except (MemoryError, RuntimeError) as exc:
+        if not out_of_memory(exc):
+            raise
+        detail = str(exc).strip().splitlines()
+        print(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}", file=sys.stderr)
         return 1

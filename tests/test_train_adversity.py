@@ -433,3 +433,81 @@ def test_ctrl_c_while_pytorch_loads_stops_without_a_traceback(tmp_path):
     for args in (["-c", check], ["-m", "usrpkg"]):
         proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=ROOT, env=env)
         assert proc.stdout.split() == ["False", "True"], proc.stdout + proc.stderr
+
+
+# From the crash probe: a kill while --resume trims metrics.jsonl, TensorBoard on a full disk, SIGTERM.
+def test_trimming_the_metrics_on_resume_never_leaves_them_half_written(tmp_path, monkeypatch):
+    fit_module = sys.modules["train.fit"]  # the package's `fit` is the function
+    metrics = tmp_path / "metrics.jsonl"
+    lines = "".join(json.dumps({"step": s, "mse": 1.0 / s}) + "\n" for s in (10, 20, 30, 40))
+    metrics.write_text(lines)
+    real_write_text = Path.write_text
+
+    def disk_fills(self, text, *args, **kwargs):  # half the text lands, then the disk is full
+        real_write_text(self, text[: len(text) // 2], *args, **kwargs)
+        raise OSError(28, "No space left on device", str(self))
+
+    monkeypatch.setattr(Path, "write_text", disk_fills)
+    with pytest.raises(
+        InputError, match="metrics.jsonl: cannot write metrics.jsonl: no space left on device"
+    ):
+        fit_module._trim_metrics(metrics, 20)
+    monkeypatch.undo()
+    assert metrics.read_text() == lines and [p.name for p in tmp_path.iterdir()] == ["metrics.jsonl"]
+    fit_module._trim_metrics(metrics, 20)
+    assert [json.loads(x)["step"] for x in metrics.read_text().splitlines()] == [10, 20]
+
+
+def test_tensorboard_events_on_a_full_disk_are_one_line(ds, tmp_path, monkeypatch, capfd):
+    def disk_full(self, data):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(RecordWriter, "write", disk_full)  # on TensorBoard's own writer thread
+    with pytest.raises(InputError, match=r"tensorboard: cannot write TensorBoard events: no space left"):
+        fit(ds, tmp_path / "run", _cfg("max_steps=40", "log_every=1", "eval_every=20"), **QUIET)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Exception in thread" not in err, err
+    assert (tmp_path / "run" / "last.pt").is_file() or not (tmp_path / "run" / "best.pt").exists()
+
+
+def test_sigterm_stops_a_fit_as_ctrl_c_does(ds, tmp_path):
+    run = tmp_path / "run"
+    args = ["fit", "--data", ds, "--model", "s2a", "-o", run, "--max-steps", 100000]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "train", *map(str, args), *_sets("eval_every=5", "log_every=1")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    deadline = time.monotonic() + 120
+    while not (run / "last.pt").exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and "s2a-train: terminated (SIGTERM)" in err and "Traceback" not in err, err
+    assert not list(run.glob(".*partial*"))
+    resumed = _cli("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 3)
+    assert resumed.returncode == 0, resumed.stderr
+
+
+@pytest.mark.parametrize(
+    "exc",
+    [
+        MemoryError(),
+        RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory: 8 GB"),
+    ],
+)
+def test_running_out_of_memory_is_one_line(exc, capsys):
+    import argparse
+
+    from capture.command import run
+
+    def handler(_args):
+        raise exc
+
+    assert run("s2a-x", argparse.ArgumentParser(), handler, []) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("s2a-x: error: out of memory") and len(err.splitlines()) == 1, err
+    with pytest.raises(RuntimeError, match="another"):  # any other RuntimeError stays a bug to report
+        run("s2a-x", argparse.ArgumentParser(), lambda _a: (_ for _ in ()).throw(RuntimeError("another")), [])

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from capture.command import emit_json, run
+from capture.command import emit_json, run, sigterm_stops
 from capture.errors import InputError
 
 from .config import MODELS, resolve_config
@@ -292,8 +292,14 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _handle(args: argparse.Namespace) -> int:
+    """Run the command; SIGTERM stops it as Ctrl-C does (a fit keeps its last checkpoint), exit 143."""
+    with sigterm_stops():
+        return args.handler(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+    return run(PROG, build_parser(), _handle, argv)
 
 
 if __name__ == "__main__":

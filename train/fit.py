@@ -14,6 +14,8 @@ import hashlib
 import json
 import math
 import os
+import sys
+import threading
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -40,6 +42,7 @@ from .checkpoint import (
     refuse_other_world,
     run_lock,
     save_checkpoint,
+    write_atomically,
     write_error,
     write_json,
 )
@@ -416,7 +419,7 @@ def _trim_metrics(path: Path, step: int) -> None:
             raise InputError("not a metrics record (a JSON object with a step)", path, i + 1)
         if at <= step:
             kept.append(line)
-    path.write_text("".join(kept))
+    write_atomically(path, lambda tmp: tmp.write_text("".join(kept)))  # a kill here keeps the old lines
 
 
 def _fit_ensemble(
@@ -531,13 +534,19 @@ class MetricsLog:
         self.path, self.lines, self.tb = run / METRICS, None, None
         if not writes:
             return
+        self.events = run / "tensorboard"
+        self._hook = threading.excepthook
+        threading.excepthook = self._events_thread_failed
         try:
             from torch.utils.tensorboard import SummaryWriter
 
             purge = None if resumed_at is None else resumed_at + 1
-            self.tb = SummaryWriter(str(run / "tensorboard"), purge_step=purge)
+            self.tb = SummaryWriter(str(self.events), purge_step=purge)
         except ImportError:  # installed without its dependencies: metrics.jsonl only
             self.tb = None
+        except OSError as exc:
+            self.close()
+            raise write_error(exc, self.events, "TensorBoard events") from None
         try:
             self.lines = open(self.path, "a")  # noqa: SIM115 - closed by close()
         except OSError as exc:
@@ -553,15 +562,34 @@ class MetricsLog:
         except OSError as exc:
             raise write_error(exc, self.path) from None
         if self.tb is not None:
-            for k, v in record.items():
-                if k != "step" and isinstance(v, (int, float)):
-                    self.tb.add_scalar(k, v, record["step"])
+            try:
+                for k, v in record.items():
+                    if k != "step" and isinstance(v, (int, float)):
+                        self.tb.add_scalar(k, v, record["step"])
+            except OSError as exc:  # raised again here from its writer thread (a full disk)
+                raise write_error(exc, self.events, "TensorBoard events") from None
+
+    def _events_thread_failed(self, args: threading.ExceptHookArgs) -> None:
+        """TensorBoard writes events on a thread of its own. A write that fails there (a full disk) is one
+        line, not that thread's traceback; the next call here raises it again and ends the run."""
+        if issubclass(args.exc_type, OSError) and type(args.thread).__module__.startswith("tensorboard"):
+            error = write_error(args.exc_value, self.events, "TensorBoard events")
+            print(f"s2a-train: warning: {error}", file=sys.stderr, flush=True)
+        else:
+            self._hook(args)
 
     def close(self) -> None:
         if self.lines is not None:
             self.lines.close()
-        if self.tb is not None:
-            self.tb.close()
+        try:
+            if self.tb is not None:
+                tb, self.tb = self.tb, None
+                tb.close()
+        except OSError as exc:
+            raise write_error(exc, self.events, "TensorBoard events") from None
+        finally:
+            if threading.excepthook == self._events_thread_failed:
+                threading.excepthook = self._hook
 
 
 def _stop_reason(step: int, cfg: dict[str, Any], early: bool, over: bool) -> str | None:
