@@ -21,6 +21,7 @@ reason, never as an error.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import queue
@@ -302,7 +303,13 @@ class LogWriter:
                     stop = True
                 else:
                     parts.append(more)
-            self._write(b"".join(parts))  # at the stop too: a last try of what is held
+            try:
+                self._write(b"".join(parts))  # at the stop too: a last try of what is held
+            except MemoryError:  # no room to join what waits: those records are dropped, counted, and
+                # the thread goes on (a dead writer thread would lose every later record unreported)
+                self.dropped_bytes += sum(map(len, parts))
+                self.failed_writes += 1
+                self.error = self.error or OSError(errno.ENOMEM, "out of memory holding the records to write")
 
     def _write(self, new: bytes) -> None:
         if len(self._unwritten) + len(new) > MAX_UNWRITTEN_BYTES:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import errno
+import time
+
 import numpy as np
 import pytest
 from live_helpers import synthetic_take
@@ -127,3 +130,28 @@ def test_a_pattern_that_mimics_headers_is_searched_cheaply(tmp_path, monkeypatch
     assert [bytes(p) for p in reader] == payloads and len(reader.skipped) == 1
     # a bounded multiple of the bytes searched, not a megabyte per candidate (196 GB before the budget)
     assert sum(checked) <= (rl.RESYNC_BUDGET + 1) * len(data) + rl.RESYNC_MAX_BYTES
+
+
+def test_a_write_that_runs_out_of_memory_is_counted_and_the_writer_goes_on(tmp_path, monkeypatch):
+    """Joining the records that wait can fail for memory; the writer thread must neither die (every later
+    record lost, nothing reported) nor tear the log."""
+    records = [encode_record(bytes([RecordType.NOTE]) + bytes([i]) * 50) for i in range(3)]
+    log = LogWriter(tmp_path / "a.log", fsync=False)
+    real_write, calls = log._write, []
+
+    def first_write_out_of_memory(data: bytes) -> None:
+        calls.append(len(data))
+        if len(calls) == 1:
+            raise MemoryError()
+        real_write(data)
+
+    monkeypatch.setattr(log, "_write", first_write_out_of_memory)
+    log.put(records[0])
+    while not calls:
+        time.sleep(0.01)
+    log.put(records[1])
+    log.put(records[2])
+    log.close()
+    assert log.dropped_bytes == len(records[0]) and log.failed_writes == 1
+    assert log.error is not None and log.error.errno == errno.ENOMEM
+    assert [bytes(p) for p in LogReader(tmp_path / "a.log")] == [bytes(r[8:]) for r in records[1:]]
