@@ -385,3 +385,21 @@ def test_report_warns_when_the_align_reports_are_not_where_the_manifest_says(tmp
     assert "align reports of 4 take(s) were not found" in warning and "--takes" in warning
     found = gather(tmp_path / "ds", [tmp_path / "moved"], limit=0)
     assert found["warnings"] == [] and all(e["align"] for e in found["takes"])
+
+
+# From the crash probe: a render under a low `ulimit -v` blamed missing Debian packages.
+def test_a_failed_render_probe_under_a_low_memory_limit_says_so(monkeypatch):
+    import resource
+
+    import viewer.probe as probe_module
+
+    crashed = subprocess.CompletedProcess([], -11, "", "")
+    monkeypatch.setattr(probe_module, "_RESULT", None)
+    monkeypatch.setattr(probe_module.subprocess, "run", lambda *a, **k: crashed)
+    monkeypatch.setattr(resource, "getrlimit", lambda _which: (800 << 20, resource.RLIM_INFINITY))
+    with pytest.raises(probe_module.RenderUnavailable, match=r"at most 800 MB \(ulimit -v\)"):
+        probe_module.probe()
+    monkeypatch.setattr(resource, "getrlimit", lambda _which: (resource.RLIM_INFINITY,) * 2)
+    with pytest.raises(probe_module.RenderUnavailable) as no_limit:
+        probe_module.probe()
+    assert str(no_limit.value).startswith("offscreen rendering is not available")

@@ -82,7 +82,25 @@ def probe(timeout_s: float = 120.0) -> dict:
             if proc.returncode == -11:
                 how += " (segmentation fault)"
             tried.append(f"{window}: {how}")
-    raise RenderUnavailable(INSTALL_HINT + " [tried: " + "; ".join(tried) + "]")
+    raise RenderUnavailable(_memory_limit() + INSTALL_HINT + " [tried: " + "; ".join(tried) + "]")
+
+
+def _memory_limit() -> str:
+    """What to say first when this process may use little memory (``ulimit -v``): GL drivers that run out
+    of it crash as a missing driver does."""
+    import resource
+
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit == resource.RLIM_INFINITY or limit >= LOW_MEMORY_LIMIT:
+        return ""
+    return (
+        f"this process may use at most {limit / 2**20:.0f} MB (ulimit -v), which a GL driver can run out of: "
+        "raise the limit, or "
+    )
+
+
+# Below this address-space limit (bytes), a failed probe may be the limit's doing rather than a driver's.
+LOW_MEMORY_LIMIT = 8 << 30
 
 
 if __name__ == "__main__":
