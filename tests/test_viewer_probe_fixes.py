@@ -389,10 +389,10 @@ def test_report_warns_when_the_align_reports_are_not_where_the_manifest_says(tmp
 
 # From the crash probe: a render under a low `ulimit -v` blamed missing Debian packages.
 def test_a_failed_render_probe_under_a_low_memory_limit_says_so(monkeypatch):
+    import importlib
     import resource
 
-    import viewer.probe as probe_module
-
+    probe_module = importlib.import_module("viewer.probe")  # the package's `probe` is the function
     crashed = subprocess.CompletedProcess([], -11, "", "")
     monkeypatch.setattr(probe_module, "_RESULT", None)
     monkeypatch.setattr(probe_module.subprocess, "run", lambda *a, **k: crashed)
