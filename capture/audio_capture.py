@@ -198,6 +198,10 @@ class FileAudioSource:
             audio = self._audio or read_audio(self.path)
         except InputError as exc:
             self.error = str(exc)
+        except (OSError, MemoryError) as exc:  # too many open files, an I/O error, no memory left
+            why = getattr(exc, "strerror", None) or str(exc) or "out of memory"
+            self.error = f"{self.path}: cannot read the audio file: {why}"
+        if self.error is not None:
             self.log.note({"kind": "audio_error", "message": self.error})
             return
         self.log.start(audio.sample_rate, audio.channels, audio.subtype, f"file:{self.path}")

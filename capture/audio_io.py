@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import soundfile as sf
@@ -373,13 +373,56 @@ def decode_with_pyav(
 
 
 def write_audio(path: str | Path, audio: Audio) -> None:
-    """Write WAV with the audio's own subtype (RF64 past 4 GB), atomically."""
+    """Write WAV with the audio's own subtype (RF64 past 4 GB), atomically. A write the system refuses
+    (a full disk) is an ``OSError`` naming ``path``."""
     fmt = "RF64" if audio.samples.nbytes > 0xFFFF0000 else "WAV"
     channels = 1 if audio.samples.ndim == 1 else audio.samples.shape[1]
-    with atomic_write(path) as f:
-        with sf.SoundFile(f, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt) as out:
-            _no_peak_chunk(out)
-            out.write(audio.samples)
+    with atomic_write(path, buffering=1 << 20) as f:
+        sink = _WavSink(f)
+        try:
+            with sf.SoundFile(
+                sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt
+            ) as out:
+                _no_peak_chunk(out)
+                out.write(audio.samples)
+        except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
+            if sink.error is None:
+                raise
+        sink.flush()
+        if sink.error is not None:
+            f.raw.close()  # drops what the buffer holds: closing the file would try the full disk again
+            raise OSError(sink.error.errno, sink.error.strerror, str(path)) from None
+
+
+class _WavSink:
+    """The file libsndfile writes a WAV into. The first error of the system (a full disk) is kept in
+    ``error`` and reported to libsndfile as nothing written: raised inside its C callback it would only
+    be printed ("Exception ignored from cffi callback"), and soundfile would fail on a bare
+    AssertionError."""
+
+    def __init__(self, file: IO[bytes]):
+        self.file = file
+        self.error: OSError | None = None
+
+    def _kept(self, call: Any, *args: Any) -> int:
+        if self.error is None:
+            try:
+                return call(*args)
+            except OSError as exc:
+                self.error = exc
+        return 0
+
+    def write(self, data: bytes) -> int:
+        return self._kept(self.file.write, data)
+
+    def seek(self, offset: int, whence: int = 0) -> int:  # flushes what the buffer holds
+        return self._kept(self.file.seek, offset, whence)
+
+    def tell(self) -> int:
+        return self._kept(self.file.tell)
+
+    def flush(self) -> None:
+        self._kept(self.file.flush)
 
 
 # libsndfile's SFC_SET_ADD_PEAK_CHUNK: float WAVs otherwise carry a PEAK chunk stamped with the wall-clock

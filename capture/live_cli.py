@@ -630,12 +630,24 @@ def _audio_source(args: argparse.Namespace, recorder: LiveRecorder, audio_log: A
 
 def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[dict], out) -> list[str]:
     """What did not reach the takes, one phrase each (the takes hold everything that reached the disk). A
-    sync box that failed is only a warning (given at once and per take): frames and audio are complete."""
-    problems = [recorder.error] if recorder.error else []
-    if audio_log is not None and audio_log.writer.error:
-        problems.append(
-            f"writing the audio log failed: {audio_log.writer.error.strerror or audio_log.writer.error}"
-        )
+    sync box that failed is only a warning (given at once and per take): frames and audio are complete;
+    so are log writes that failed while the disk was full when every byte held reached it later."""
+    problems = []
+    for what, writer in (("recorder log", recorder.log), ("audio log", audio_log and audio_log.writer)):
+        if writer is None or writer.error is None:
+            continue
+        lost = writer.unwritten_bytes + writer.dropped_bytes
+        why = writer.error.strerror or writer.error
+        if not lost and writer.failed_writes:  # the disk had room again: what was held reached it
+            _say(
+                f"warning: writing the {what} failed {writer.failed_writes} time(s) ({why}), but nothing "
+                "was lost: every byte held in memory reached the disk later"
+            )
+        elif what == "recorder log" and recorder.error:
+            problems.append(recorder.error)  # the same words, from the recorder
+        else:
+            counts = f"{writer.failed_writes} failed writes, {lost} bytes not on disk"
+            problems.append(f"writing the {what} failed ({counts}): {why}")
     if source is not None and source.error:
         problems.append(f"no audio was recorded: {source.error}")
     failed = sum(1 for s in summaries if s.get("error"))
