@@ -99,6 +99,19 @@ def _repair(repairs: list, line: int | None, kind: str, message: str) -> None:
     repairs.append({"line": line, "kind": kind, "message": message})
 
 
+_LINE_END = re.compile(r"\r\n|\r|\n")
+
+
+def text_lines(text: str) -> list[str]:
+    """The lines of a text file, split at ``\\n``, ``\\r\\n`` or a lone ``\\r`` only: ``str.splitlines``
+    also splits at form feeds, ``\\x1c``-``\\x1e``, ``\\x85`` and ``\\u2028``, which would shift every
+    later line number and cut a row holding one in two."""
+    lines = _LINE_END.split(text)
+    if lines[-1] == "":
+        lines.pop()  # the line end closing the last line starts no line
+    return lines
+
+
 def _fields(line: str) -> list[str]:
     """A line's fields. A spreadsheet's re-save may quote them (``"Timecode","BlendshapeCount",...``):
     the quotes go, as the csv module reads them; the app itself never quotes."""
@@ -323,8 +336,8 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         _repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
     line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
     text = raw.decode("utf-8", errors="replace")
-    ends_with_newline = text.endswith("\n")
-    lines = text.splitlines()
+    ends_with_newline = text.endswith(("\n", "\r"))
+    lines = text_lines(text)
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
     count_name, columns, trailing_comma = _parse_header(lines[0], path)
@@ -381,7 +394,9 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         vals: list[float] = []
         if not lost:
             try:
-                if "_" in line:  # float() reads "1_0" as 10.0; the app never writes such a cell
+                # float() reads "1_0" as 10.0 and "\u0661" (Arabic-Indic one) as 1.0; the app never
+                # writes such a cell
+                if "_" in line or not line.isascii():
                     raise ValueError
                 vals = [float(x) for x in fields[2:]]
             except ValueError:
@@ -473,9 +488,9 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
 
 
 def _cell_value(text: str) -> float:
-    """A value cell as a float; NaN when it is not a plain decimal number."""
+    """A value cell as a float; NaN when it is not a plain decimal number of ASCII digits."""
     try:
-        return float(text) if "_" not in text else math.nan
+        return float(text) if "_" not in text and text.isascii() else math.nan
     except ValueError:
         return math.nan
 
@@ -725,12 +740,29 @@ def read_livelink_csv(
     return take
 
 
+def _malformed_meta(take: Take, field: str, value: Any, what: str) -> InputError:
+    """The error for a meta.json field ``write_livelink_csv`` cannot use (the take folder was edited)."""
+    return InputError(
+        f"take {take.meta.id}: malformed metadata: meta.json {field} must be {what}, not {value!r:.60}"
+    )
+
+
 def start_seconds_of_day(take: Take) -> float:
-    """Time of day (s) of the take's first frame: the source CSV's, else the start timecode's, else 0."""
+    """Time of day (s) of the take's first frame: the source CSV's, else the start timecode's, else 0.
+    ``InputError`` naming the meta.json field when the one used is not a number or a timecode."""
     t0 = (take.meta.csv or {}).get("start_seconds_of_day")
-    if t0 is None:
-        t0 = Timecode.parse(take.meta.start_timecode).seconds_of_day if take.meta.start_timecode else 0.0
-    return float(t0)
+    if t0 is not None:
+        if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not math.isfinite(t0):
+            raise _malformed_meta(take, "csv.start_seconds_of_day", t0, "a finite number of seconds or null")
+        return float(t0)
+    if not take.meta.start_timecode:
+        return 0.0
+    try:
+        return Timecode.parse(take.meta.start_timecode).seconds_of_day
+    except ValueError:
+        raise _malformed_meta(
+            take, "start_timecode", take.meta.start_timecode, "HH:MM:SS:FF.fff or null"
+        ) from None
 
 
 def _csv_columns(take: Take) -> tuple[list[str], list[int | None]]:
@@ -772,10 +804,17 @@ def write_livelink_csv(
     A frame with a NaN or infinite value in a written channel is a ``<timecode>,0`` row too
     (``nonfinite_frames``): the app never writes a partial row, and a ``nan`` cell is not its format.
     Channels the take lacks are written as ``fill_missing`` (or raise if ``None``). ``count_name``
-    defaults to the spelling of the source file, else ``BlendShapeCount``.
+    defaults to the spelling of the source file, else ``BlendShapeCount``; a meta.json that gives
+    another name is an ``InputError``.
     """
     path = Path(path)
-    count_name = count_name or (take.meta.csv or {}).get("count_name") or COUNT_NAMES[0]
+    if not count_name:
+        count_name = (take.meta.csv or {}).get("count_name") or COUNT_NAMES[0]
+        # the source header's spelling, in any case (as _parse_header reads it)
+        if not isinstance(count_name, str) or count_name.lower() != COUNT_NAMES[0].lower():
+            raise _malformed_meta(
+                take, "csv.count_name", count_name, f"{COUNT_NAMES[0]} in any case, or null"
+            )
     out_names, cols = _csv_columns(take)
     missing = [name for name, j in zip(out_names, cols) if j is None]
     if missing and fill_missing is None:

@@ -39,7 +39,8 @@ class MovInfo:
 
 
 def probe_mov(path: str | Path) -> MovInfo:
-    """Timecode and stream timing of a ``.mov`` without decoding it."""
+    """Timecode and stream timing of a ``.mov`` without decoding it; no width and height for a video
+    stream of a codec FFmpeg does not know."""
     import av
 
     path = Path(path)
@@ -57,7 +58,8 @@ def probe_mov(path: str | Path) -> MovInfo:
                     rate = s.average_rate or s.guessed_rate
                     fps = float(rate) if rate else None
                     frames = s.frames or None
-                    width, height = s.codec_context.width, s.codec_context.height
+                    if s.codec_context is not None:  # None: a codec FFmpeg does not know (damaged)
+                        width, height = s.codec_context.width, s.codec_context.height
                     if s.start_time is not None:
                         v_start = float(s.start_time * s.time_base)
                 if s.type == "audio":
@@ -66,6 +68,10 @@ def probe_mov(path: str | Path) -> MovInfo:
                     a_start = float(s.start_time * s.time_base)
     except (av.FFmpegError, OSError) as exc:
         raise InputError(f"video could not be opened (a truncated or damaged file?): {exc}", path) from None
+    except UnicodeDecodeError:  # PyAV decodes the container's and streams' metadata as UTF-8
+        raise InputError(
+            "video could not be opened (a damaged file?): its metadata is not UTF-8", path
+        ) from None
     return MovInfo(path, timecode, fps, frames, width, height, a_start - v_start, tracks)
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
+import sys
 import time
 from typing import Any
 
@@ -16,6 +18,8 @@ from .errors import InputError
 
 DEFAULT_OSC_PORT = 8000
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1  # OSC 'i' arguments are 32-bit (formats doc §6: <take:i>)
+BUNDLE_TAG = b"#bundle\0"
+MAX_BUNDLE_DEPTH = 8  # bundles within bundles a reply may nest
 
 
 def osc_text(value: str, what: str) -> str:
@@ -46,12 +50,37 @@ def osc_int32(value: int, what: str, low: int = INT32_MIN) -> int:
 
 def _osc():
     try:
-        from pythonosc.osc_bundle import OscBundle
         from pythonosc.osc_message import OscMessage
         from pythonosc.osc_message_builder import OscMessageBuilder
     except ImportError:
         raise InputError("phone remote control needs the Python package python-osc") from None
-    return OscMessage, OscMessageBuilder, OscBundle
+    return OscMessage, OscMessageBuilder
+
+
+def bundled_messages(dgram: bytes, depth: int = 0) -> list[bytes]:
+    """The OSC messages of a datagram: itself, or the elements of a bundle (OSC 1.0: ``#bundle\\0``, an
+    8-byte time tag, then elements of an int32 size and that many bytes), nested bundles opened.
+    ``ValueError`` for a bundle that does not hold together: an element size that is not positive, not a
+    multiple of 4 or past the datagram's end, or bundles nested deeper than ``MAX_BUNDLE_DEPTH``
+    (python-osc's own bundle parser loops forever on a negative size)."""
+    if not dgram.startswith(BUNDLE_TAG):
+        return [dgram]
+    if depth >= MAX_BUNDLE_DEPTH:
+        raise ValueError(f"bundles nested more than {MAX_BUNDLE_DEPTH} deep")
+    messages: list[bytes] = []
+    at = len(BUNDLE_TAG) + 8  # past the time tag
+    if len(dgram) < at:
+        raise ValueError("bundle cut short in its time tag")
+    while at < len(dgram):
+        if len(dgram) - at < 4:
+            raise ValueError(f"{len(dgram) - at} stray bytes after the last bundle element")
+        (size,) = struct.unpack_from(">i", dgram, at)
+        at += 4
+        if size <= 0 or size % 4 or size > len(dgram) - at:
+            raise ValueError(f"bundle element size {size} at byte {at - 4} of {len(dgram)}")
+        messages += bundled_messages(dgram[at : at + size], depth + 1)
+        at += size
+    return messages
 
 
 def resolve_target(host: str, port: int) -> str:
@@ -99,7 +128,7 @@ class PhoneRemote:
         reply_port: int = 0,
         timeout_s: float = 2.0,
     ):
-        self._message, self._builder, self._bundle = _osc()
+        self._message, self._builder = _osc()
         self.host, self.port, self.timeout_s = host, port, timeout_s
         if not 1 <= port <= 65535:
             raise InputError(f"phone port {port} is out of range (1..65535)")
@@ -124,6 +153,7 @@ class PhoneRemote:
             raise InputError(f"cannot bind the reply port {self.reply_host}:{reply_port}: {exc}") from None
         self.reply_port = self.sock.getsockname()[1]
         self._target_set = False
+        self.ignored_datagrams = 0  # replies that were not OSC (warned about once)
 
     def close(self) -> None:
         self.sock.close()
@@ -175,9 +205,11 @@ class PhoneRemote:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
+                n = self.ignored_datagrams
+                ignored = f"; {n} datagram(s) that were not OSC were ignored" if n else ""
                 raise InputError(
                     f"no {address} from the phone at {self.shown()} within {self.timeout_s:g} s "
-                    "(is Live Link Face running with OSC enabled on that port?)"
+                    f"(is Live Link Face running with OSC enabled on that port?){ignored}"
                 )
             self.sock.settimeout(left)
             try:
@@ -192,15 +224,18 @@ class PhoneRemote:
 
     def _messages(self, data: bytes) -> list[Any]:
         """The OSC messages of a datagram: itself, or those of a bundle (OSC 1.0 lets a sender wrap its
-        replies in one, nested too); none for a datagram that is not OSC."""
+        replies in one, nested too: ``bundled_messages``); none for a datagram that is not OSC, which is
+        counted in ``ignored_datagrams`` and warned about on stderr the first time."""
         try:
-            if not self._bundle.dgram_is_bundle(data):
-                return [self._message(data)]
-            found = []
-            for item in self._bundle(data):
-                found += self._messages(item.dgram)
-            return found
-        except Exception:  # python-osc raises its own parse errors: ignore foreign datagrams
+            return [self._message(m) for m in bundled_messages(data)]
+        except Exception as exc:  # python-osc raises its own parse errors: ignore foreign datagrams
+            self.ignored_datagrams += 1
+            if self.ignored_datagrams == 1:
+                print(
+                    f"s2a-capture: warning: a datagram on the reply port {self.reply_port} is not OSC "
+                    f"({str(exc)[:200]}): ignored, as are any more such",
+                    file=sys.stderr,
+                )
             return []
 
     def request(self, address: str, reply: str, *args: Any) -> list[Any]:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .audio_io import Audio, read_audio
-from .csv_take import STANDARD_FPS, read_csv_rows, read_livelink_csv, split_variant
+from .csv_take import STANDARD_FPS, read_csv_rows, read_livelink_csv, split_variant, text_lines
 from .errors import InputError
 from .mov import MovInfo, choose_mov_audio, probe_mov
 from .paired import note_length_mismatch
@@ -87,25 +87,35 @@ def read_frame_log(path: str | Path, repairs: list[dict[str, Any]]) -> FrameLog:
     path = Path(path)
     kinds, idx, times, tcs, dropped = [], [], [], [], []
     text = path.read_text(encoding="utf-8", errors="replace")
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(text_lines(text), start=1):
         if not line.strip():
             continue
         f = [x.strip() for x in line.split(",")]
         try:
             if len(f) < 5 or f[0] not in ("V", "D", "A"):
                 raise ValueError("expected type,index,num,den,timecode[,dropped]")
-            num, den = int(f[2]), int(f[3])
+            if not line.isascii():  # int() reads other scripts' digits too; the app writes ASCII
+                raise ValueError("non-ASCII characters")
+            index, num, den = int(f[1]), int(f[2]), int(f[3])
             if den == 0:
                 raise ValueError("zero time denominator")
-            kinds.append(f[0])
-            idx.append(int(f[1]))
-            times.append(num / den)
-            tcs.append(f[4])
-            dropped.append(len(f) > 5 and f[5] not in ("", "0"))
-        except ValueError as exc:
+            time_s = num / den
+        except (ValueError, OverflowError) as exc:  # OverflowError: num/den beyond a float
+            message = str(exc) if isinstance(exc, ValueError) else "time num/den out of range"
             repairs.append(
-                {"line": number, "kind": "frame_log_row", "message": f"{path.name}: {exc}: row skipped"}
+                {
+                    "line": number,
+                    "kind": "frame_log_row",
+                    "message": f"{path.name}: {message[:200]}: row skipped",
+                }
             )
+            continue
+        # appended only once the whole row parsed: the lists stay one entry per row
+        kinds.append(f[0])
+        idx.append(index)
+        times.append(time_s)
+        tcs.append(f[4])
+        dropped.append(len(f) > 5 and f[5] not in ("", "0"))
     return FrameLog(kinds, np.asarray(idx), np.asarray(times), tcs, np.asarray(dropped, bool))
 
 

@@ -9,6 +9,7 @@ tiers. Both formats are the same sequence of values once labels like ``xmin =`` 
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -143,19 +144,26 @@ def write_textgrid(tg: TextGrid, path: str | Path) -> Path:
 
 
 def _decode(raw: bytes, path: Path) -> str:
-    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-        return raw.decode("utf-16")
+    """UTF-16 after its byte-order mark, else UTF-8; ``InputError`` naming the line of the first bytes
+    that do not decode (a UTF-16 file cut to an odd length, a lone surrogate)."""
+    utf16 = raw.startswith((b"\xff\xfe", b"\xfe\xff"))
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
+    encoding = "utf-16" if utf16 else "utf-8"
     try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputError("TextGrid is neither UTF-8 nor UTF-16 text", path) from None
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].decode(encoding, errors="replace").count("\n") + 1
+        what = (
+            "not UTF-16 text after its UTF-16 byte-order mark" if utf16 else "neither UTF-8 nor UTF-16 text"
+        )
+        raise InputError(f"TextGrid is {what} ({exc.reason})", path, line) from None
 
 
 def parse_textgrid(text: str, path: str | Path | None = None) -> TextGrid:
     """Parse the long or short text format; raises ``InputError`` naming what is malformed."""
     values: list[object] = []
+    starts: list[int] = []  # where each value starts in ``text``, for the line an error names
     for m in _TOKEN.finditer(text):
         if m.group("str") is not None:
             values.append(m.group("str").replace('""', '"'))
@@ -163,7 +171,14 @@ def parse_textgrid(text: str, path: str | Path | None = None) -> TextGrid:
             values.append(float(m.group("num")))
         elif m.group("flag") is not None:
             values.append(m.group("flag"))
+        else:
+            continue
+        starts.append(m.start())
     pos = 0
+
+    def malformed(message: str, at: int) -> InputError:
+        """The error for value ``at``, naming its line."""
+        return InputError(f"malformed TextGrid: {message}", path, text.count("\n", 0, starts[at]) + 1)
 
     def take(kind: type, what: str) -> object:
         nonlocal pos
@@ -171,9 +186,18 @@ def parse_textgrid(text: str, path: str | Path | None = None) -> TextGrid:
             raise InputError(f"TextGrid ends early: expected {what}", path)
         v = values[pos]
         if not isinstance(v, kind):
-            raise InputError(f"malformed TextGrid: expected {what}, found {v!r}", path)
+            raise malformed(f"expected {what}, found {v!r}", pos)
+        if isinstance(v, float) and not math.isfinite(v):  # 1e999
+            raise malformed(f"{what} is out of range", pos)
         pos += 1
         return v
+
+    def count(what: str) -> int:
+        """A number of items: whole, not negative, and no more than the values left could hold."""
+        n = take(float, what)
+        if not (n.is_integer() and 0 <= n <= len(values) - pos):  # type: ignore[attr-defined]
+            raise malformed(f"{what} {n:g} is not a count of what follows", pos - 1)
+        return int(n)  # type: ignore[call-overload]
 
     if take(str, "file type") != "ooTextFile" or take(str, "object class") != "TextGrid":
         raise InputError(
@@ -184,16 +208,16 @@ def parse_textgrid(text: str, path: str | Path | None = None) -> TextGrid:
     flag = take(str, "tiers? <exists>")
     if flag == "<absent>":
         return tg
-    n_tiers = int(take(float, "number of tiers"))  # type: ignore[arg-type]
+    n_tiers = count("number of tiers")
     for _ in range(n_tiers):
         kind = take(str, "tier class")
         if kind not in ("IntervalTier", "TextTier"):
             raise InputError(f"unknown TextGrid tier class {kind!r}", path)
         name = str(take(str, "tier name"))
         xmin, xmax = float(take(float, "tier xmin")), float(take(float, "tier xmax"))  # type: ignore[arg-type]
-        count = int(take(float, "item count"))  # type: ignore[arg-type]
+        items = count("item count")
         tier = Tier(name, xmin, xmax, kind=str(kind))
-        for _ in range(count):
+        for _ in range(items):
             if kind == "IntervalTier":
                 a, b = float(take(float, "interval xmin")), float(take(float, "interval xmax"))  # type: ignore[arg-type]
                 if b < a:

@@ -22,7 +22,8 @@ OTHER_TIMECODE_RATES = (24.0, 25.0, 30.0, 48.0, 50.0)
 # Whole seconds a take must cover before its FF values tell the rate they count at.
 MIN_WHOLE_SECONDS = 2
 
-_TIMECODE = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3}(?:\.\d*)?)\s*$")
+# ASCII digits only: a bare \d also matches other scripts' digits, which int() and float() read.
+_TIMECODE = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3}(?:\.\d*)?)\s*$", re.ASCII)
 
 
 @dataclass(frozen=True)
