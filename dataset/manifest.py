@@ -133,18 +133,69 @@ def _dicts(value: Any) -> list[dict]:
     return [v for v in value if isinstance(v, dict)] if isinstance(value, list) else []
 
 
-def _pitch_problems(data: dict[str, Any], norm: dict[str, Any]) -> list[tuple[str, str]]:
-    """With a pitch feature, every sample's speaker needs log-F0 statistics (a positive std): the
-    reader would otherwise pass raw log-F0 through."""
-    names = data["features"].get("names") if isinstance(data["features"], dict) else None
-    if not isinstance(names, list) or "pitch" not in names:
-        return []
-    pitch = norm.get("pitch")
-    speakers = pitch.get("speakers") if isinstance(pitch, dict) else None
-    if not isinstance(speakers, dict):
-        return [("normalization.pitch.speakers", "missing (the dataset has a pitch feature)")]
+def features_problems(features: Any) -> list[tuple[str, str]]:
+    """(field, message) for ``features.names`` and ``features.dims`` of a manifest (or of the copy of
+    them a training checkpoint keeps)."""
+    features = features if isinstance(features, dict) else {}
     out = []
-    for name, st in speakers.items():
+    names = features.get("names")
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        out.append(("features.names", "must be a list of feature names"))
+        names = []
+    dims = features.get("dims")
+    if not isinstance(dims, dict) or not all(_count(d) and d > 0 for d in dims.values()):
+        out.append(("features.dims", "must be a JSON object {feature: dimension, a positive integer}"))
+    elif lacking := [n for n in names if n not in dims]:
+        out.append(("features.dims", f"lacks feature(s) {', '.join(lacking)}"))
+    return out
+
+
+def normalization_problems(norm: Any, channels: list[str], features: Any) -> list[tuple[str, str]]:
+    """(field, message) for each problem of ``normalization`` (a manifest's, or the copy a training
+    checkpoint keeps) whose ``channels`` and ``features`` passed their checks: the animation offset and
+    scale per channel, each feature's mean and std per dimension, with a pitch feature each speaker's
+    log-F0 mean and positive std (the reader would otherwise pass raw log-F0 through)."""
+    if not isinstance(norm, dict):
+        return [("normalization", "must be a JSON object")]
+    out = []
+    anim = norm.get("animation")
+    anim = anim if isinstance(anim, dict) else {}
+    for field in ("offset", "scale"):
+        v = anim.get(field)
+        if not _numbers(v) or len(v) != len(channels) or (field == "scale" and min(v, default=1) <= 0):
+            out.append(
+                (
+                    f"normalization.animation.{field}",
+                    f"must list one finite number per channel ({len(channels)})"
+                    + (", each positive" if field == "scale" else ""),
+                )
+            )
+    named = anim.get("channels")
+    if named is not None and named != channels:
+        out.append(("normalization.animation.channels", "must equal channels (the columns it normalises)"))
+    dims = features.get("dims") if isinstance(features, dict) else None
+    dims = dims if isinstance(dims, dict) else {}
+    feature_norm = norm.get("features")
+    if not isinstance(feature_norm, dict):
+        out.append(("normalization.features", "must be a JSON object ({feature: {mean, std}})"))
+        feature_norm = {}
+    for name, st in feature_norm.items():
+        if not isinstance(st, dict) or not _numbers(st.get("mean")) or not _numbers(st.get("std")):
+            out.append((f"normalization.features.{name}", "must hold lists of numbers mean and std"))
+        elif len(st["mean"]) != len(st["std"]) or (name in dims and len(st["mean"]) != dims[name]):
+            out.append((f"normalization.features.{name}", f"mean and std must have {dims.get(name)} values"))
+        elif min(st["std"], default=1) <= 0:
+            out.append((f"normalization.features.{name}.std", "must be positive (it divides)"))
+    pitch = norm.get("pitch", {})
+    if not isinstance(pitch, dict):
+        return out + [("normalization.pitch", "must be a JSON object")]
+    speakers = pitch.get("speakers")
+    names = features.get("names") if isinstance(features, dict) else None
+    if speakers is None and isinstance(names, list) and "pitch" in names:
+        return out + [("normalization.pitch.speakers", "missing (the dataset has a pitch feature)")]
+    if not isinstance(speakers, dict | None):
+        return out + [("normalization.pitch.speakers", "must be a JSON object {speaker: {mean, std}}")]
+    for name, st in (speakers or {}).items():
         if (
             not isinstance(st, dict)
             or not _number(st.get("mean"))
@@ -152,9 +203,6 @@ def _pitch_problems(data: dict[str, Any], norm: dict[str, Any]) -> list[tuple[st
             or st["std"] <= 0
         ):
             out.append((f"normalization.pitch.speakers.{name}", "must hold a number mean and a positive std"))
-    needed = sorted({str(s.get("speaker")) for s in _dicts(data["samples"])} - set(speakers))
-    if needed:
-        out.append(("normalization.pitch.speakers", f"lacks the samples' speaker(s) {', '.join(needed[:3])}"))
     return out
 
 
@@ -172,39 +220,20 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     if not isinstance(channels, list) or not channels or not all(isinstance(c, str) for c in channels):
         out.append(("channels", "must be a non-empty list of channel names"))
         channels = []
-    for key in ("features", "normalization", "splits"):
+    for key in ("features", "splits"):
         if not isinstance(data[key], dict):
             out.append((key, "must be a JSON object"))
-    features = data["features"] if isinstance(data["features"], dict) else {}
-    names = features.get("names")
-    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-        out.append(("features.names", "must be a list of feature names"))
-    norm = data["normalization"] if isinstance(data["normalization"], dict) else {}
-    anim = norm.get("animation")
-    anim = anim if isinstance(anim, dict) else {}
-    for field in ("offset", "scale"):
-        v = anim.get(field)
-        if not _numbers(v) or len(v) != len(channels) or (field == "scale" and min(v, default=1) <= 0):
+    out += features_problems(data["features"])
+    out += normalization_problems(data["normalization"], channels, data["features"])
+    speakers = data["normalization"].get("pitch", {}) if isinstance(data["normalization"], dict) else {}
+    speakers = speakers.get("speakers") if isinstance(speakers, dict) else None
+    names = data["features"].get("names") if isinstance(data["features"], dict) else None
+    if isinstance(speakers, dict) and isinstance(names, list) and "pitch" in names:
+        needed = sorted({str(s.get("speaker")) for s in _dicts(data["samples"])} - set(speakers))
+        if needed:
             out.append(
-                (
-                    f"normalization.animation.{field}",
-                    f"must list one finite number per channel ({len(channels)})"
-                    + (", each positive" if field == "scale" else ""),
-                )
+                ("normalization.pitch.speakers", f"lacks the samples' speaker(s) {', '.join(needed[:3])}")
             )
-    named = anim.get("channels")
-    if named is not None and named != channels:
-        out.append(("normalization.animation.channels", "must equal channels (the columns it normalises)"))
-    dims = features.get("dims") if isinstance(features.get("dims"), dict) else {}
-    feature_norm = norm.get("features", {})
-    for name, st in feature_norm.items() if isinstance(feature_norm, dict) else ():
-        if not isinstance(st, dict) or not _numbers(st.get("mean")) or not _numbers(st.get("std")):
-            out.append((f"normalization.features.{name}", "must hold lists of numbers mean and std"))
-        elif len(st["mean"]) != len(st["std"]) or (name in dims and len(st["mean"]) != dims[name]):
-            out.append((f"normalization.features.{name}", f"mean and std must have {dims.get(name)} values"))
-        elif min(st["std"], default=1) <= 0:
-            out.append((f"normalization.features.{name}.std", "must be positive (it divides)"))
-    out += _pitch_problems(data, norm)
     splits = data["splits"] if isinstance(data["splits"], dict) else {}
     for split in SPLITS:  # every split, empty or not: readers look each one up
         takes = splits[split].get("takes") if isinstance(splits.get(split), dict) else None
@@ -226,7 +255,7 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     if not isinstance(stats, dict):
         out.append(("stats", "must be a JSON object"))
     else:
-        for split in sorted({sh.get("split") for sh in _dicts(data["shards"])} & set(SPLITS)):
+        for split in sorted({sh["split"] for sh in _dicts(data["shards"]) if sh.get("split") in SPLITS}):
             if split not in stats:
                 out.append((f"stats.{split}", "missing (the split has shards)"))
         for split, entry in stats.items():
@@ -234,7 +263,7 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
                 out.append((f"stats.{split}", "must be an object under train, val or test"))
             else:
                 out += _fields(entry, f"stats.{split}", SPLIT_STATS, optional=("phone_frames",))
-    for key in ("warnings", "speakers_assumed"):
+    for key in ("warnings", "speakers_assumed", "members"):
         v = data.get(key, [])
         if not isinstance(v, list) or not all(isinstance(w, str) for w in v):
             out.append((key, "must be a list of strings"))

@@ -11,7 +11,6 @@ build's own accumulators, the channel distributions and normalisation statistics
 from __future__ import annotations
 
 import io
-import json
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -27,8 +26,10 @@ from capture.file_lock import held_elsewhere
 from .manifest import (
     LOCK_FILE,
     MANIFEST_FILE,
+    STR,
     WORK,
     _count,
+    _fields,
     _number,
     load_manifest,
     manifest_problems,
@@ -46,7 +47,7 @@ from .normalize import (
     usable_neutral,
     voiced_log_f0_sums,
 )
-from .shards import ShardReader, decode_flac, decode_npy
+from .shards import ShardReader, decode_flac, decode_json_object, decode_npy
 from .splits import SPLITS
 
 MIDPOINT_EPS = 1e-9  # in octaves: a recomputed spread this near a midpoint may round either way
@@ -245,9 +246,10 @@ def validate_shard(
         for key, members in ShardReader(path):
             count += 1
             try:
-                frames += int(json.loads(members.get("json", b"{}")).get("frames", 0))
-            except (json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError, AttributeError):
-                pass
+                said = decode_json_object(members.get("json", b"{}")).get("frames")
+            except InputError:  # validate_sample reports it
+                said = None
+            frames += said if _count(said) else 0
             if on_sample is not None:
                 on_sample(key, members)
     except InputError as exc:
@@ -387,6 +389,16 @@ def _check_metadata(
     return out
 
 
+def _str_or_null(v: Any) -> bool:
+    return v is None or isinstance(v, str)
+
+
+# the sample metadata fields validate groups, sorts and compares by: a field of another type is reported
+# and left out, so that the checks after see only these types
+SAMPLE_META = {"key": STR, "take": STR, "split": STR}
+SAMPLE_META |= {k: (_str_or_null, "a string or null") for k in ("speaker", "content_sha256", "take_sha256")}
+
+
 def validate_sample(
     key: str,
     members: dict[str, bytes],
@@ -411,17 +423,18 @@ def validate_sample(
     meta = None
     if "json" in members:
         try:
-            meta = json.loads(members["json"])
-            if not isinstance(meta, dict):
-                raise ValueError("not an object")
-        except (json.JSONDecodeError, UnicodeDecodeError, ValueError) as exc:
-            out.append(_p("sample_decode", f"{at}.json", f"metadata is not a JSON object ({exc})"))
-            meta = None
+            meta = decode_json_object(members["json"])
+        except InputError as exc:
+            out.append(_p("sample_decode", f"{at}.json", str(exc)))
+        else:
+            bad = list(_fields(meta, "metadata", SAMPLE_META, optional=SAMPLE_META))
+            out += [_p("sample_decode", f"{at}.json", f"{field} {message}") for field, message in bad]
+            meta = {k: v for k, v in meta.items() if f"metadata.{k}" not in dict(bad)}
     arrays: dict[str, np.ndarray] = {}
     for ext, data in members.items():
         if ext.endswith(".npy"):
             try:
-                arrays[ext[:-4]] = decode_npy(data)
+                arrays[ext[:-4]] = decode_npy(data, ext)
             except InputError as exc:
                 out.append(_p("sample_decode", f"{at}.{ext}", str(exc)))
     n_channels = len(manifest.get("channels", []))

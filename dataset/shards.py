@@ -13,8 +13,10 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 import tarfile
+import tokenize
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -178,12 +180,54 @@ class ShardReader:
             yield key, members
 
 
+NPY_HEADER_READERS = {
+    (1, 0): np.lib.format.read_array_header_1_0,
+    (2, 0): np.lib.format.read_array_header_2_0,
+}
+
+
 def decode_npy(data: bytes, what: str = "array") -> np.ndarray:
-    """An array from ``.npy`` bytes (never unpickles)."""
+    """An array from ``.npy`` bytes, for any untrusted ``.npy`` (a shard member, a take's file): the
+    header is parsed and checked first (a dtype without Python objects, so nothing is unpickled; a
+    shape whose data the bytes hold), so a damaged header is an ``InputError`` naming ``what`` and a
+    header declaring a huge shape allocates nothing."""
+    f = io.BytesIO(data)
     try:
-        return np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
+        version = np.lib.format.read_magic(f)
+        if version not in NPY_HEADER_READERS:
+            raise ValueError(f"unsupported .npy version {version[0]}.{version[1]}")
+        shape, fortran_order, dtype = NPY_HEADER_READERS[version](f)
+    except (ValueError, SyntaxError, EOFError, OSError) as exc:
         raise InputError(f"{what} is not a readable .npy ({exc})") from None
+    except tokenize.TokenError as exc:  # NumPy's header parser on an unclosed bracket
+        raise InputError(f"{what} is not a readable .npy (its header is cut short: {exc.args[0]})") from None
+    if dtype.hasobject:
+        raise InputError(f"{what} holds Python objects (dtype {dtype}), which are never unpickled")
+    if dtype.itemsize == 0:
+        raise InputError(f"{what} is not a readable .npy (dtype {dtype} has no size)")
+    count = math.prod(shape)
+    held = len(data) - f.tell()
+    if count * dtype.itemsize > held:
+        raise InputError(
+            f"{what} is not a readable .npy (its header declares shape {shape} of {dtype}, "
+            f"{count * dtype.itemsize} bytes; the file holds {held})"
+        )
+    flat = np.frombuffer(data, dtype, count, offset=f.tell())
+    array = flat.reshape(shape[::-1]).T if fortran_order else flat.reshape(shape)
+    return array.copy(order="K")  # writable and owning its memory, as np.load's
+
+
+def decode_json_object(data: bytes, what: str = "metadata") -> dict[str, Any]:
+    """A JSON object from bytes; anything else (not UTF-8, not JSON, nested past Python's limits, not
+    an object) is an ``InputError`` naming ``what``."""
+    try:
+        value = json.loads(data)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        reason = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
+        raise InputError(f"{what} is not a JSON object ({reason})") from None
+    if not isinstance(value, dict):
+        raise InputError(f"{what} is not a JSON object")
+    return value
 
 
 def decode_flac(data: bytes) -> tuple[np.ndarray, int]:

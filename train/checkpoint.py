@@ -26,6 +26,7 @@ from capture.errors import InputError
 from capture.file_lock import try_lock
 from capture.take import MAX_FPS
 from dataset.bottleneck import load_plain
+from dataset.manifest import features_problems, normalization_problems
 from dataset.normalize import FeatureNormalizer, Normalizer
 
 FORMAT = "s2a-train-checkpoint"
@@ -207,10 +208,14 @@ def load_system(run: str | Path):
         spec = InputSpec.from_json(payload["inputs"])
     except (TypeError, KeyError) as exc:
         raise InputError(f"checkpoint has malformed inputs ({exc})", path) from None
+    check_declared_sizes(payload, path)
     try:
-        model, _ = build_model(payload["system"], spec, payload["config"])
+        with torch.device("meta"):  # sizes only: nothing allocated before they match the weights
+            shaped, _ = build_model(payload["system"], spec, payload["config"])
     except InputError as exc:
         raise InputError(f"checkpoint has a malformed config ({exc})", path) from None
+    check_model_shapes(shaped, payload["state_dict"], path)
+    model, _ = build_model(payload["system"], spec, payload["config"])
     try:
         model.load_state_dict(payload["state_dict"])
     except (RuntimeError, TypeError, AttributeError) as exc:
@@ -218,6 +223,60 @@ def load_system(run: str | Path):
         raise InputError(f"checkpoint has a malformed state_dict ({' '.join(first)})", path) from None
     model.eval()
     return model, payload
+
+
+# the bytes of the tables a model computes when built rather than loads (Transformer-S2A's position
+# table of arch.max_frames rows): a checkpoint's config may not ask for more
+MAX_COMPUTED_BYTES = 1 << 28
+
+
+def _arch_sizes(arch: Any, at: str = "arch") -> Iterator[tuple[str, int]]:
+    """(name, value) of every integer of a config's ``arch`` (its system tables included)."""
+    for key, value in arch.items() if isinstance(arch, dict) else ():
+        if isinstance(value, dict):
+            yield from _arch_sizes(value, f"{at}.{key}")
+        elif isinstance(value, int) and not isinstance(value, bool):
+            yield f"{at}.{key}", value
+
+
+def check_declared_sizes(payload: dict[str, Any], path: Path) -> None:
+    """No size a checkpoint declares (its inputs' dims, its arch's widths, layers, experts) may exceed
+    the number of weights its state_dict holds: the model it describes would hold at least that many.
+    Building the model loops over its layers and experts, so this comes first. ``max_frames`` sizes a
+    computed table instead (``check_model_shapes``)."""
+    weights = sum(v.numel() for v in payload["state_dict"].values() if isinstance(v, torch.Tensor))
+    inputs = payload["inputs"]
+    sizes = [(f"inputs.{k}", inputs[k]) for k in ("content_dim", "prosody_dim", "out_dim")]
+    sizes += [(k, v) for k, v in _arch_sizes(payload["config"].get("arch")) if not k.endswith(".max_frames")]
+    for name, value in sizes:
+        if value > weights:
+            raise InputError(
+                f"checkpoint has malformed {name} ({value}): more than the {weights} weights it holds", path
+            )
+
+
+def check_model_shapes(model: torch.nn.Module, state_dict: dict[str, Any], path: Path) -> None:
+    """The model a checkpoint's inputs and config build, on the meta device (sizes only, nothing
+    allocated), against the weights it holds: every tensor the model loads must have the shape of the
+    stored one, and the tables it computes when built must stay under ``MAX_COMPUTED_BYTES``. The model
+    is built for real after this, so it allocates no more than the checkpoint holds."""
+    expected = model.state_dict()
+    for key, tensor in expected.items():
+        theirs = state_dict.get(key)
+        if not isinstance(theirs, torch.Tensor) or theirs.shape != tensor.shape:
+            found = f"shape {tuple(theirs.shape)}" if isinstance(theirs, torch.Tensor) else "missing"
+            raise InputError(
+                f"checkpoint has a malformed state_dict ({key}: {found}, its inputs and config make "
+                f"shape {tuple(tensor.shape)})",
+                path,
+            )
+    computed = sum(b.numel() * b.element_size() for k, b in model.named_buffers() if k not in expected)
+    if computed > MAX_COMPUTED_BYTES:
+        raise InputError(
+            f"checkpoint's config makes the model compute {computed} bytes of tables when built, more than "
+            f"{MAX_COMPUTED_BYTES} (a malformed arch.max_frames?)",
+            path,
+        )
 
 
 # what inference reads from a checkpoint, with the types it needs
@@ -250,11 +309,50 @@ def check_payload(payload: dict[str, Any], path: Path) -> None:
             f"outputs {out_dim!r}",
             path,
         )
+    # the dataset's features and normalisation as the run read them from its manifest: the same checks
+    problems = features_problems(info["features"])
+    problems += normalization_problems(info["normalization"], info["channels"], info["features"])
+    if problems:
+        field, message = problems[0]
+        raise InputError(f"checkpoint has malformed dataset '{field}' ({message})", path)
     try:
         Normalizer.from_json(info["normalization"]["animation"])
         FeatureNormalizer(info["normalization"])
     except (KeyError, TypeError, ValueError, AttributeError, InputError) as exc:
         raise InputError(f"checkpoint has malformed dataset 'normalization' ({exc})", path) from None
+    check_inputs(payload["inputs"], info["features"]["dims"], path)
+    if not isinstance(payload.get("model_config"), dict | None):
+        raise InputError("checkpoint has malformed 'model_config' (not a dict)", path)
+
+
+def _size(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def check_inputs(inputs: dict[str, Any], dims: dict[str, int], path: Path) -> None:
+    """The checkpoint's InputSpec: its fields' types, and its sizes those of its dataset's features
+    (plus one prosody column per speaker style)."""
+    names = ("prosody", "styles")
+    if not isinstance(inputs.get("content"), str) or not all(
+        isinstance(inputs.get(k, []), list | tuple) and all(isinstance(n, str) for n in inputs.get(k, []))
+        for k in names
+    ):
+        raise InputError("checkpoint has malformed inputs (content, prosody or styles not names)", path)
+    for key in ("content_dim", "prosody_dim", "out_dim"):
+        if not _size(inputs.get(key)):
+            raise InputError(f"checkpoint has malformed inputs ({key} {inputs.get(key)!r})", path)
+    for name in (inputs["content"], *inputs["prosody"]):
+        if name not in dims:
+            raise InputError(
+                f"checkpoint has malformed inputs ({name} is not among its dataset's features)", path
+            )
+    prosody = sum(dims[p] for p in inputs["prosody"]) + len(inputs.get("styles", []))
+    if (inputs["content_dim"], inputs["prosody_dim"]) != (dims[inputs["content"]], prosody):
+        raise InputError(
+            f"checkpoint has malformed inputs (content_dim {inputs['content_dim']}, prosody_dim "
+            f"{inputs['prosody_dim']}; its dataset's features give {dims[inputs['content']]} and {prosody})",
+            path,
+        )
 
 
 def write_json(path: Path, obj: Any) -> None:

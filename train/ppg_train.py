@@ -62,6 +62,19 @@ def _is_silence(label: str) -> bool:
     return p in ("", "SIL", "SP", "SPN") or p.startswith(("+", "<"))
 
 
+def _utterance_audio(alignment: Path, stem: str) -> Path:
+    """The audio of utterance ``stem`` of alignment JSON ``alignment``: the key names a file inside the
+    JSON's folder (a relative path without ``..``), never one anywhere else on disk."""
+    rel = Path(stem)
+    if not rel.name or rel.is_absolute() or ".." in rel.parts:
+        raise InputError(
+            f"utterance key {_show(stem)} must name an audio file inside the alignment's folder "
+            "(a relative path without '..')",
+            alignment,
+        )
+    return _audio_beside(alignment.parent / rel)
+
+
 def _audio_beside(path: Path) -> Path:
     for suffix in AUDIO_SUFFIXES:
         if path.with_suffix(suffix).is_file():
@@ -205,7 +218,7 @@ def find_alignments(
                     continue
                 segs, names = _json_segments(utt["words"], stem, f)
                 _check_segments(segs, names, f)
-                add(_audio_beside(f.parent / stem), segs, f)
+                add(_utterance_audio(f, stem), segs, f)
     if repeated:
         warnings.append(
             f"--data names {repeated} file(s) more than once (also through their folder): each is read once"

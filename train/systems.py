@@ -101,7 +101,7 @@ def build_model(name: str, spec: InputSpec, cfg: dict[str, Any]) -> tuple[nn.Mod
     """(module, its config as a dict) for system ``name``; sizes the modules refuse are config errors."""
     try:
         return _build(name, spec, cfg)
-    except (ValueError, TypeError) as exc:  # the modules check their own sizes
+    except (ValueError, TypeError, OverflowError) as exc:  # the modules check their own sizes (int(inf))
         raise InputError(f"arch settings for {name}: {exc}", "config:arch") from None
 
 
