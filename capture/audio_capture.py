@@ -15,7 +15,6 @@ sample (ns) and the interleaved samples (little-endian, in the source's sample f
 
 from __future__ import annotations
 
-import json
 import struct
 import threading
 import time
@@ -26,10 +25,24 @@ import numpy as np
 
 from .audio_io import Audio, read_audio
 from .errors import InputError
-from .record_log import LogReader, LogWriter, RecordType, TornTail, encode_record, json_record
+from .record_log import (
+    INVALID_RECORD,
+    LogReader,
+    LogWriter,
+    RecordType,
+    TornTail,
+    encode_record,
+    json_fields,
+    json_record,
+)
 from .session_clock import SessionClock
 
 CHUNK_S = 0.1
+# How far a chunk's first-sample index (as time) may disagree with its clock stamp: the stamp's jitter
+# (a callback's latency) and a sound card's drift against the computer's clock (typically < 100 ppm).
+AUDIO_CLOCK_TOLERANCE_S = 1.0
+AUDIO_CLOCK_DRIFT = 1e-3
+_FORMAT_FIELDS = {"sample_rate": (int,), "channels": (int,), "subtype": (str,), "source": (str,)}
 _AUDIO_HEAD = struct.Struct("<BQq")  # type, first sample index, clock ns of the first sample
 _DTYPES = {
     "PCM_16": np.dtype("<i2"),
@@ -241,30 +254,48 @@ def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str
         return None, None, report
     reader = LogReader(path)
     fmt = None
-    chunks: list[tuple[int, int, bytes]] = []
+    chunks: list[tuple[int, int, bytes, tuple[int, int]]] = []
     for payload in reader:
         kind = payload[0]
         if kind == RecordType.AUDIO_FORMAT:
-            fmt = json.loads(bytes(payload[1:]))
+            data = json_fields(payload, _FORMAT_FIELDS, ("sample_rate", "channels", "subtype"))
+            if (
+                data is None
+                or data["subtype"] not in _DTYPES
+                or not (
+                    0 < data["sample_rate"] < 1 << 32 and 0 < data["channels"] < 1 << 16  # WAV's fields
+                )
+            ):
+                reader.reject(INVALID_RECORD)
+            else:
+                fmt = data
         elif kind == RecordType.AUDIO and len(payload) >= _AUDIO_HEAD.size:
             _, first, ns = _AUDIO_HEAD.unpack_from(payload)
-            chunks.append((first, ns, bytes(payload[_AUDIO_HEAD.size :])))
+            chunks.append((first, ns, bytes(payload[_AUDIO_HEAD.size :]), reader.last))
         elif kind == RecordType.NOTE:
-            report["notes"].append(json.loads(bytes(payload[1:])))
+            note = json_fields(payload, {"kind": (str,), "message": (str,)})
+            if note is None:
+                reader.reject(INVALID_RECORD)
+            else:
+                report["notes"].append(note)
+        elif kind == RecordType.AUDIO:
+            reader.reject(INVALID_RECORD)
+    if fmt is not None:
+        chunks = _placeable(chunks, fmt, reader)
     tail: TornTail | None = reader.torn_tail
     if tail is not None:
         report["torn_tail"] = tail.to_json()
     if reader.skipped:
-        report["log_damage"] = [d.to_json() for d in reader.skipped]
+        report["log_damage"] = [d.to_json() for d in sorted(reader.skipped, key=lambda d: d.offset)]
     if fmt is None or not chunks:
         return None, None, report
-    dtype = _DTYPES.get(fmt.get("subtype"), np.dtype("<f4"))
-    channels = int(fmt["channels"])
+    dtype = _DTYPES[fmt["subtype"]]
+    channels = fmt["channels"]
     chunks.sort()
-    total = max(first + len(body) // (dtype.itemsize * channels) for first, _, body in chunks)
+    total = max(first + len(body) // (dtype.itemsize * channels) for first, _, body, _ in chunks)
     samples = np.zeros((total, channels), dtype=dtype.newbyteorder("="))
     covered = 0
-    for first, _, body in chunks:
+    for first, _, body, _ in chunks:
         block = np.frombuffer(body, dtype=dtype).reshape(-1, channels)
         if first > covered:
             report["gaps"].append({"at_sample": covered, "samples": first - covered})
@@ -272,5 +303,27 @@ def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str
         covered = max(covered, first + len(block))
     report["chunks"] = len(chunks)
     first_ns = chunks[0][1] - int(chunks[0][0] * 1e9 / fmt["sample_rate"])
-    subtype = fmt["subtype"] if fmt["subtype"] in _DTYPES else "FLOAT"
-    return Audio(samples, int(fmt["sample_rate"]), subtype), first_ns, report
+    return Audio(samples, fmt["sample_rate"], fmt["subtype"]), first_ns, report
+
+
+def _placeable(
+    chunks: list[tuple[int, int, bytes, tuple[int, int]]], fmt: dict[str, Any], reader: LogReader
+) -> list[tuple[int, int, bytes, tuple[int, int]]]:
+    """The chunks ``read_audio_log`` places by their sample index; the others are counted as damage
+    (``LogReader.reject``): a body that is no whole number of sample frames, or a first-sample index
+    that disagrees with the chunk's clock stamp (the capture counts every sample, so index / rate and
+    the stamp advance together, within ``AUDIO_CLOCK_TOLERANCE_S`` plus ``AUDIO_CLOCK_DRIFT`` of the
+    index's time, against the chunks' median) - a forged index would make room for hours of silence."""
+    frame_bytes = _DTYPES[fmt["subtype"]].itemsize * fmt["channels"]
+    rate = fmt["sample_rate"]
+    whole = [c for c in chunks if len(c[2]) % frame_bytes == 0]
+    if whole:
+        at_s = np.array([first / rate for first, *_ in whole])
+        start_s = np.array([ns / 1e9 for _, ns, *_ in whole]) - at_s  # the clock time of sample 0
+        off = np.abs(start_s - np.median(start_s)) > AUDIO_CLOCK_TOLERANCE_S + AUDIO_CLOCK_DRIFT * at_s
+        whole = [c for c, bad in zip(whole, off, strict=True) if not bad]
+    kept = {id(c) for c in whole}
+    for c in chunks:
+        if id(c) not in kept:
+            reader.reject(INVALID_RECORD, c[3])
+    return whole

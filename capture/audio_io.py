@@ -308,6 +308,13 @@ def note_unknown_delay(
     )
 
 
+def _to_channels(samples: np.ndarray, channels: int) -> np.ndarray:
+    """Frames x channels samples mixed to ``channels``: their mean on each channel (mono to stereo
+    copies the channel, stereo to mono averages the two)."""
+    mixed = samples.mean(axis=1, keepdims=True, dtype=np.float64).astype(samples.dtype)
+    return np.repeat(mixed, channels, axis=1)
+
+
 def decode_with_pyav(
     path: str | Path, stream_index: int = 0, repairs: list[dict[str, Any]] | None = None
 ) -> Audio:
@@ -330,6 +337,7 @@ def decode_with_pyav(
             fmt = None
             last_frame = 0
             first_pts = None
+            changed = 0  # samples decoded with another channel count than the first frame's
             for packet in container.demux(stream):
                 first_pts = packet.pts if first_pts is None else first_pts
                 for frame in packet.decode():
@@ -339,6 +347,9 @@ def decode_with_pyav(
                         arr = arr.T
                     else:
                         arr = arr.reshape(-1, len(frame.layout.channels))
+                    if chunks and arr.shape[1] != chunks[0].shape[1]:
+                        changed += len(arr)
+                        arr = _to_channels(arr, chunks[0].shape[1])
                     chunks.append(arr)
             rate = stream.rate or stream.codec_context.sample_rate
             # AAC only: an MP3's duration may be an estimate from its bit rate
@@ -350,6 +361,16 @@ def decode_with_pyav(
             )
             if repairs is not None:
                 note_unknown_delay(path, repairs, stream, first_pts)
+                if changed:
+                    repairs.append(
+                        {
+                            "line": None,
+                            "kind": "channels_changed",
+                            "message": f"{path.name}: the audio's channel count changes mid-stream: "
+                            f"{changed} samples were mixed to the first frame's "
+                            f"{chunks[0].shape[1]} channel(s)",
+                        }
+                    )
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:

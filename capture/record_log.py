@@ -13,7 +13,8 @@ stretch: the reader searches the bytes after it for the next valid record (a kno
 type, a plausible length, a matching CRC-32) and goes on from there, so a flipped bit or a zeroed
 block in the middle of a session costs only the records it hit (``skipped``). When no valid record
 follows, the damage is the torn tail (what a crash cut short). Both are reported with offset, size and
-reason, never as an error.
+reason, never as an error; so is a valid record whose content a reader finds is none a recorder writes
+(``LogReader.reject``).
 
 ``LogWriter`` hands filled buffers to a background thread that writes and fsyncs them, so the caller
 (the UDP loop) never blocks on the disk.
@@ -51,6 +52,9 @@ RESYNC_MAX_BYTES = 1 << 20
 # the search has checksummed RESYNC_BUDGET times the bytes it has passed (plus RESYNC_MAX_BYTES), only
 # the first kind. A pattern that mimics headers then costs a bounded multiple of its size.
 RESYNC_FREE_BYTES = 4096
+# ``TornTail.reason`` of a record whose checksum holds but whose content no recorder writes (a reader's
+# ``LogReader.reject``): a record forged in bytes a sender chose, or another program's.
+INVALID_RECORD = "invalid_record"
 RESYNC_BUDGET = 8
 
 
@@ -79,6 +83,23 @@ def json_record(kind: RecordType, data: dict[str, Any]) -> bytes:
     return encode_record(bytes([kind]) + json.dumps(data, separators=(",", ":"), default=str).encode())
 
 
+def json_fields(payload, fields: dict[str, tuple[type, ...]], required: tuple[str, ...] = ()) -> dict | None:
+    """The JSON object of a record (after its type byte), or None when it is none a recorder writes: not
+    UTF-8 JSON, not an object, a ``required`` field missing or a field of ``fields`` of another type
+    (``bool`` is no ``int`` here)."""
+    try:
+        data = json.loads(bytes(payload[1:]))
+    except (ValueError, RecursionError):  # ValueError: bad JSON or UTF-8, an integer of 4300+ digits
+        return None
+    if not isinstance(data, dict) or any(key not in data for key in required):
+        return None
+    for key, types in fields.items():
+        value = data.get(key)
+        if key in data and (not isinstance(value, types) or isinstance(value, bool) and bool not in types):
+            return None
+    return data
+
+
 @dataclass
 class TornTail:
     """A stretch of a log that holds no valid record, and why: the torn tail (a crash or power loss cut
@@ -101,6 +122,8 @@ class LogReader:
         self.torn_tail: TornTail | None = None
         self.skipped: list[TornTail] = []  # damaged stretches with valid records after them
         self._lengths: set[int] = set()  # payload lengths of the valid records read so far
+        self._shapes: set[tuple[int, int]] = set()  # (type, payload length) of the valid records read
+        self.last: tuple[int, int] = (0, 0)  # offset and size of the record last yielded
         self.records = 0
         self.valid_bytes = 0
 
@@ -124,12 +147,40 @@ class LogReader:
                 offset, bad = yield from self._records(f, offset, size)
                 if bad is None:
                     break
-                resume = _next_record(f, bad.offset + 1, size, self._lengths)
+                resume = self._resync(f, bad.offset, size)
                 if resume is None:
                     self.torn_tail = TornTail(bad.offset, size - bad.offset, bad.reason)
                     break
                 self.skipped.append(TornTail(bad.offset, resume - bad.offset, bad.reason))
                 offset = resume
+
+    def reject(self, reason: str, record: tuple[int, int] | None = None) -> None:
+        """Count a record whose checksum holds but whose content no recorder writes (a field of the wrong
+        type, a size that does not add up) as damage, like a record that fails its checksum: ``record``
+        (offset, size) or the one last yielded goes to ``skipped`` with ``reason``."""
+        offset, n = record or self.last
+        self.skipped.append(TornTail(offset, n, reason))
+        self.records -= 1
+
+    def _resync(self, f, bad: int, size: int) -> int | None:
+        """Offset of the next valid record after the invalid one at ``bad`` (None: there is none). When
+        the invalid record's header has the type and length of a record read before (a FRAME record whose
+        payload is damaged or cut), it is taken to span that length: a candidate lying inside it is
+        accepted only if the valid records from it reach past its end (records a recorder appended after
+        a torn record do; a record forged in a packet's bytes, which a Live Link sender chooses, does not)."""
+        f.seek(bad)
+        head = f.read(RECORD_HEADER.size + 1)
+        end = None
+        if len(head) == RECORD_HEADER.size + 1:
+            (length, _) = RECORD_HEADER.unpack_from(head)
+            if (head[-1], length) in self._shapes:
+                end = bad + RECORD_HEADER.size + length
+        start = bad + 1
+        while (resume := _next_record(f, start, size, self._lengths)) is not None:
+            if end is None or resume >= end or _chain_past(f, resume, end):
+                return resume
+            start = resume + 1
+        return None
 
     def _records(self, f, offset: int, size: int) -> Iterator[memoryview]:
         """Yields the valid records from ``offset`` on; returns (end offset, the invalid record or None
@@ -175,6 +226,9 @@ class LogReader:
             self.records += 1
             if length > RESYNC_FREE_BYTES and len(self._lengths) < 256:
                 self._lengths.add(length)
+            if len(self._shapes) < 256:
+                self._shapes.add((payload[0], length))
+            self.last = (offset, RECORD_HEADER.size + length)
             at = end
             self.valid_bytes = base + at
             yield payload
@@ -196,6 +250,20 @@ def _plausible_next(f, end: int, size: int, length: int, lengths: set[int]) -> b
     if not (0 < following <= MAX_RECORD_BYTES and head[RECORD_HEADER.size] in _KNOWN_TYPES):
         return False
     return length <= RESYNC_FREE_BYTES or length in lengths or following == length
+
+
+def _chain_past(f, at: int, end: int) -> bool:
+    """Whether valid records follow one another from ``at`` to past ``end``."""
+    while at < end:
+        f.seek(at)
+        head = f.read(RECORD_HEADER.size)
+        if len(head) < RECORD_HEADER.size:
+            return False
+        length, crc = RECORD_HEADER.unpack(head)
+        if not 0 < length <= MAX_RECORD_BYTES or zlib.crc32(f.read(length)) != crc:
+            return False
+        at += RECORD_HEADER.size + length
+    return at > end
 
 
 def _next_record(f, start: int, size: int, lengths: set[int], block: int = 1 << 20) -> int | None:

@@ -15,7 +15,7 @@ without a face).
 Each segment with at least ``MIN_TAKE_FRAMES`` frames with a face becomes a take, from its first to its
 last frame with a face; the no-face packets in between become FACE_LOST frames (NaN values, their own
 time and arrival, as the app's face-lost CSV rows), gaps in the frame times DROPPED frames
-(``csv_take.fill_dropped``, as for CSV takes, on the grid of the packets' own rate, ``detect_fps``)
+(``csv_take.fill_dropped``, as for CSV takes, on the grid of the declared rate: ``_segment_take``)
 within a budget (``MAX_DROPPED_PER_FRAME``) that bounds what a frame clock can make us allocate. A live
 stream has no record start or stop, so no-face packets before a take's first face or after its last are
 not part of it (``face_lost_outside_takes``).
@@ -36,7 +36,6 @@ events likewise.
 
 from __future__ import annotations
 
-import json
 import shutil
 import struct
 import tempfile
@@ -51,7 +50,7 @@ from .audio_capture import read_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped, missing_frames
 from .errors import InputError, S2AError
-from .record_log import LogReader, RecordType
+from .record_log import INVALID_RECORD, LogReader, RecordType, json_fields
 from .recorder import (
     AUDIO_LOG,
     COMPLETE_FILE,
@@ -114,6 +113,9 @@ MIN_PACE_S = 0.1
 # as only a corrupt or hostile frame clock needs, the gaps are left unfilled.
 MAX_DROPPED_PER_FRAME = 4
 SPILL_BYTES = 64 << 20
+# A take's frames whose frame numbers step by k > 1 (their median step) at least this often (losses make
+# multiples of k) come from a sender that sends every k-th frame of its declared rate: a take at rate / k.
+STEADY_STRIDE_FRACTION = 0.95
 # One logged frame: arrival ns (little-endian, ours) + the packet's frame block (big-endian, the app's).
 ROW_DTYPE = np.dtype(
     [
@@ -128,8 +130,45 @@ ROW_DTYPE = np.dtype(
 )
 _STREAM_ID = struct.Struct("<H")
 _FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
+_SYNC_HEAD_BYTES = 1 + 8  # a SYNC record's type byte and i64 arrival ns, before its line
 # What a no-face record's row gets after its frame time: count 0 and NaN values (big-endian like the rest).
 _NO_FACE_TAIL = bytes([0]) + np.full(ll.BLENDSHAPE_COUNT, np.nan, dtype=">f4").tobytes()
+
+
+_INT = (int,)
+_TEXT = (str,)
+# The JSON records of a frames log: the fields a recorder writes with their types, and the required ones.
+_JSON_FIELDS: dict[int, tuple[dict[str, tuple[type, ...]], tuple[str, ...]]] = {
+    RecordType.SESSION: ({"session": _TEXT, "clock": (dict,)}, ()),
+    RecordType.STREAM: (
+        {
+            "stream": _INT,
+            "device": _TEXT,
+            "subject": _TEXT,
+            "rate_numerator": _INT,
+            "rate_denominator": _INT,
+            "source": (str, type(None)),
+            "port": (int, type(None)),
+            "alongside": _INT,
+        },
+        ("stream",),
+    ),
+    RecordType.REJECTS: ({}, ()),
+    RecordType.END: ({"datagrams": _INT, "accepted": _INT, "socket_errors": _INT}, ()),
+    RecordType.NOTE: ({"kind": _TEXT, "message": _TEXT}, ()),
+}
+
+
+def _plausible_json(kind: int, data: dict[str, Any]) -> bool:
+    """What ``json_fields`` does not check: a 16-bit stream id, a clock origin in ns, counts."""
+    if kind == RecordType.STREAM:
+        return 0 <= data["stream"] <= 0xFFFF
+    if kind == RecordType.SESSION:
+        origin = data.get("clock", {}).get("origin_ns")
+        return origin is None or isinstance(origin, int) and not isinstance(origin, bool)
+    if kind == RecordType.REJECTS:
+        return all(type(v) is int and v >= 0 for v in data.values())
+    return True
 
 
 class SessionLog:
@@ -170,29 +209,24 @@ class SessionLog:
                 self._pending_bytes += ROW_DTYPE.itemsize
                 if self._pending_bytes > SPILL_BYTES:
                     self._spill()
-            elif kind == RecordType.SYNC:
+            elif kind == RecordType.SYNC and size >= _SYNC_HEAD_BYTES:
                 self.sync.append(decode_sync_record(payload))
-            elif kind in (
-                RecordType.SESSION,
-                RecordType.STREAM,
-                RecordType.REJECTS,
-                RecordType.END,
-                RecordType.NOTE,
-            ):
-                try:
-                    data = json.loads(bytes(payload[1:]))
-                except (UnicodeDecodeError, json.JSONDecodeError):
-                    continue  # a checksummed record does not go bad; this is a foreign writer's
-                if kind == RecordType.SESSION:
+            elif kind in _JSON_FIELDS:
+                data = json_fields(payload, *_JSON_FIELDS[kind])
+                if data is None or not _plausible_json(kind, data):
+                    reader.reject(INVALID_RECORD)
+                elif kind == RecordType.SESSION:
                     self.session = data
                 elif kind == RecordType.STREAM:
-                    self.streams[int(data["stream"])] = data
+                    self.streams[data["stream"]] = data
                 elif kind == RecordType.REJECTS:
                     self.rejected = {k: v for k, v in data.items() if v}
                 elif kind == RecordType.END:
                     self.end = data
                 else:
                     self.notes.append(data)
+            elif kind in (RecordType.FRAME, RecordType.NO_FACE, RecordType.SYNC):  # of another size
+                reader.reject(INVALID_RECORD)
         if self._spill_dir is not None:
             self._spill()
         self.torn_tail = reader.torn_tail
@@ -818,15 +852,30 @@ def _segment_take(
     status[lost] = FrameStatus.FACE_LOST
     finite |= lost  # NaN is what a face-lost frame holds, not a bad value
     t = ft - ft[0]
-    fps, period = detect_fps(t)
+    # The declared rate (NTSC 30000/1001 named so) is the take's: frame numbers count its frames, so its
+    # grid has a slot for every frame and a lost packet is a DROPPED frame. The frames' own rate (median
+    # step) only wins when faster (a 60 Hz sender declaring 30: frames share a frame time, spread over
+    # it) or when the sender steadily sends every k-th frame number (rate / k); one slower otherwise
+    # (packets lost) gets a note.
     rate_num, rate_den = _declared_rate(r)
-    if not 0 < fps <= MAX_FPS:  # sub-frames that fool the median step: the stream's declared rate
-        fps, period = rate_num / rate_den, _declared_period(r)
-    elif rate_den != 1 and abs(rate_num / rate_den - fps) < 0.5:
-        # a declared NTSC rate (30000/1001) is named so, as paired data's is; the frame times' own rate is
-        # no guide (the app's rows come at 59.90/s of timecode, a replay's at its take's)
-        fps = rate_num / rate_den
+    fps, period = rate_num / rate_den, _declared_period(r)
+    measured, step = detect_fps(t)
+    steps = np.rint(np.diff(t) / period)  # in declared frames
+    stride = int(np.median(steps)) if steps.size else 1
     repairs = []
+    if fps + 0.5 < measured <= MAX_FPS:
+        fps, period = measured, step
+    elif stride > 1 and np.mean(steps % stride == 0) >= STEADY_STRIDE_FRACTION:
+        fps, period = fps / stride, period * stride
+    elif measured < fps - 0.5:
+        repairs.append(
+            {
+                "line": None,
+                "kind": "rate_below_declared",
+                "message": f"frames came at {measured:g} fps (median step) where the sender declares "
+                f"{fps:g}: the take keeps the declared rate, the gaps are DROPPED frames",
+            }
+        )
     # Bound what a frame clock can make us allocate: DROPPED frames at most MAX_DROPPED_PER_FRAME per
     # received frame plus MAX_GAP_S at the stream's rate; past that the gaps stay jumps in time.
     budget = MAX_DROPPED_PER_FRAME * t.size + MAX_GAP_S * rate_num / rate_den

@@ -18,6 +18,7 @@ import hashlib
 import json
 import math
 import os
+import tokenize
 import zipfile
 from collections import Counter
 from collections.abc import Iterable
@@ -448,7 +449,8 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
             arrays = {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise InputError("take folder has no frames.npz", folder) from None
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError, SyntaxError, tokenize.TokenError) as exc:
+        # SyntaxError, TokenError: a member's .npy header NumPy cannot parse (an unclosed bracket)
         raise InputError(f"frames are unreadable ({exc})", frames_path) from None
     for key in ("time", "values", "frame_status"):
         if key not in arrays:
