@@ -82,3 +82,13 @@ def build_five_take_dataset(root: Path) -> Path:
     )
     build_dataset([takes], root / "ds", options, say=lambda _m: None)
     return root / "ds"
+
+
+def build_default_dataset(root: Path) -> Path:
+    """``root/ds``: five aligned 2 s takes of two speakers built by the command line with its defaults."""
+    from conftest import run_cli
+
+    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
+    proc = run_cli("dataset", "build", takes, "-o", root / "ds", "--json")
+    assert proc.returncode == 0, proc.stderr
+    return root / "ds"

@@ -12,18 +12,14 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import run_cli
-from dataset_helpers import write_aligned_set
+from dataset_helpers import build_default_dataset
 
 from dataset.qa import CHECKS, VALIDATORS, moments, validate, validate_takes
 
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("clean")
-    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
-    proc = run_cli("dataset", "build", takes, "-o", root / "ds", "--json")
-    assert proc.returncode == 0, proc.stderr
-    return root / "ds"
+    return build_default_dataset(tmp_path_factory.mktemp("clean"))
 
 
 def _manifest(ds: Path) -> dict:

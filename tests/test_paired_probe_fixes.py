@@ -7,19 +7,18 @@ from __future__ import annotations
 
 import csv
 import json
-from fractions import Fraction
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 import soundfile as sf
+from conftest import run_here
+from test_take_folder import encode
 
 from capture import InputError, read_paired, read_take
 from capture.audio_io import read_audio
 from capture.importer import audio_beside
 from capture.paired import read_names
-from tests.conftest import run_here
 
 NS = "paired/neurosync-trainer-lite-testset"
 
@@ -166,21 +165,6 @@ def test_frame_numbers_from_1_place_frame_1_at_the_audios_start(tmp_path, wav):
 # 4. compressed audio that does not record its encoder delay
 
 
-def encode(path: Path, codec: str, fmt: str, options: dict | None = None, rate: int = 44100) -> Path:
-    """One second of a tone written by an FFmpeg encoder into container ``fmt``."""
-    x = (0.3 * np.sin(2 * np.pi * 440 * np.arange(rate) / rate)).astype(np.float32)
-    with av.open(str(path), "w", format=fmt, options=options or {}) as c:
-        s = c.add_stream(codec, rate=rate, layout="mono")
-        for pos in range(0, x.size, 1152):
-            frame = av.AudioFrame.from_ndarray(x[None, pos : pos + 1152], format="fltp", layout="mono")
-            frame.sample_rate, frame.pts, frame.time_base = rate, pos, Fraction(1, rate)
-            for p in s.encode(frame):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
-    return path
-
-
 @pytest.mark.parametrize(
     ("name", "codec", "fmt", "options", "unknown"),
     [
@@ -191,7 +175,8 @@ def encode(path: Path, codec: str, fmt: str, options: dict | None = None, rate: 
     ],
 )
 def test_audio_that_does_not_record_its_encoder_delay_is_noted(tmp_path, name, codec, fmt, options, unknown):
-    path = encode(tmp_path / name, codec, fmt, options)
+    tone = (0.3 * 32767 * np.sin(2 * np.pi * 440 * np.arange(44100) / 44100)).astype(np.int16)[:, None]
+    path = encode(tmp_path / name, codec, tone, 44100, fmt, options)  # one second of a tone
     repairs = []
     audio = read_audio(path, repairs)
     assert audio.frames > 40000

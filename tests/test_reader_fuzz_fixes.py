@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import run_cli
-from dataset_helpers import write_aligned_set
+from dataset_helpers import build_default_dataset
 from test_ppg_robustness import _json, _phone, _wav
 from test_train_pipeline import TINY
 
@@ -33,11 +33,7 @@ from train.ppg_train import find_alignments
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("fuzzfix")
-    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
-    proc = run_cli("dataset", "build", takes, "-o", root / "ds", "--json")
-    assert proc.returncode == 0, proc.stderr
-    return root / "ds"
+    return build_default_dataset(tmp_path_factory.mktemp("fuzzfix"))
 
 
 @pytest.fixture(scope="module")

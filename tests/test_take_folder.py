@@ -119,9 +119,12 @@ def test_depth_only_take_is_refused_clearly(tmp_path):
         read_take_folder(folder)
 
 
-def encode(path: Path, codec: str, samples: np.ndarray, rate: int) -> Path:
-    """Write mono 16-bit samples with an FFmpeg encoder (as a phone or editor would)."""
-    with av.open(str(path), "w") as c:
+def encode(
+    path: Path, codec: str, samples: np.ndarray, rate: int, container: str | None = None, options=None
+) -> Path:
+    """Write mono 16-bit samples with an FFmpeg encoder (as a phone or editor would), into ``container``
+    (default: the one the file name says) with its muxer ``options``."""
+    with av.open(str(path), "w", format=container, options=options or {}) as c:
         s = c.add_stream(codec, rate=rate, layout="mono")
         fmt = s.codec_context.codec.audio_formats[0].name
         x = samples[:, 0].astype(np.float32) / 32768
