@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from capture.command import emit_json, progress, run
+from capture.command import emit_json, progress, run, sigterm_stops
 
 from .batch import align_takes
 from .options import FRAME_CLOCKS, VAD_METHODS, AlignOptions
@@ -124,15 +124,16 @@ def _main(args: argparse.Namespace) -> int:
             for warning in r.get("warnings") or []:
                 progress(f"{PROG}: warning: {warning}")
 
-    reports = align_takes(
-        args.takes,
-        args.out,
-        opts,
-        jobs=args.jobs,
-        force=args.force,
-        on_report=show,
-        skip_without_audio=args.skip_without_audio,
-    )
+    with sigterm_stops():  # as Ctrl-C: workers stopped, takes aligned so far kept; exit 143
+        reports = align_takes(
+            args.takes,
+            args.out,
+            opts,
+            jobs=args.jobs,
+            force=args.force,
+            on_report=show,
+            skip_without_audio=args.skip_without_audio,
+        )
     return 1 if any("error" in r for r in reports) else 0
 
 

@@ -26,13 +26,10 @@ import math
 import os
 import re
 import shutil
-import signal
 import sys
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -42,8 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from capture.atomic import atomic_write, write_json_atomic
+from align.batch import submit_all, worker_pool
+from capture.atomic import atomic_write, partial_path, write_json_atomic
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
+from capture.command import sigterm_stops
 from capture.errors import InputError, S2AError
 from capture.file_lock import fcntl, try_lock
 from capture.take import (
@@ -284,7 +283,8 @@ def _aligned_folders(
         raise InputError("align produced no usable take (no speech or no tracked frames?)", folder)
     out.mkdir(parents=True, exist_ok=True)
     names = [write_take(t, out).name for t in results]
-    write_json_atomic(done, {"source": str(folder), "sha256": sha, "takes": names})
+    with _writing(done):
+        write_json_atomic(done, {"source": str(folder), "sha256": sha, "takes": names})
     return [out / n for n in names]
 
 
@@ -329,12 +329,43 @@ def _align_flags(meta: TakeMeta, folder: str | Path | None = None) -> list[str]:
     return flags
 
 
+def _whole(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def incomplete_segment_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[str]:
+    """A warning for each raw take of which fewer segments are among the aligned takes ``(folder,
+    meta)`` than align cut from it (``extra.align.segment`` of ``segment_count``, counted per raw take
+    and align run): an s2a-align killed, or out of disk, while renaming them into place, or segments
+    deleted; the dataset would hold part of the recording."""
+    found: dict[tuple[str, str], tuple[int, set[int], Path]] = {}
+    for folder, meta in aligned:
+        record = _align_record(meta, folder)
+        count, number = record.get("segment_count"), record.get("segment")
+        if not (_whole(count) and _whole(number) and 1 <= number <= count):
+            continue
+        key = (recording_of(meta, folder), str(record.get("fingerprint")))
+        found.setdefault(key, (count, set(), folder.parent))[1].add(number)
+    out = []
+    for (recording, _), (count, numbers, where) in sorted(found.items()):
+        if len(numbers) < count:
+            missing = [f"{recording}.seg{k:02d}" for k in range(1, count + 1) if k not in numbers]
+            out.append(
+                f"take {recording}: {where} holds {len(numbers)} of the {count} segments s2a-align cut "
+                f"from it ({', '.join(missing[:3])}{' ...' if len(missing) > 3 else ''} missing: an "
+                "s2a-align run stopped while writing them?), so the dataset holds only part of the "
+                "recording: re-run s2a-align on the raw take to write them all"
+            )
+    return out
+
+
 def collect_takes(
     inputs: list[str | Path], work: Path, say: Callable[[str], None], skip_flagged: bool = False
 ) -> tuple[list[SourceTake], list[str], dict[str, str]]:
     """Aligned takes from ``inputs`` (aligning raw ones), de-duplicated; also returns warnings and the
     takes left out (``{take id, recording and speaker: why}``). Takes whose offset align flagged are
-    warned about, or left out with ``skip_flagged``."""
+    warned about, or left out with ``skip_flagged``; raw takes of which only some segments are here too
+    (``incomplete_segment_warnings``)."""
     warnings: list[str] = []
     left_out: dict[str, str] = {}
     folders = find_takes(inputs)
@@ -346,6 +377,7 @@ def collect_takes(
     skipped: dict[str, str] = {}  # take id: why --skip-flagged left it out
     by_id: dict[str, SourceTake] = {}
     by_sha: dict[str, SourceTake] = {}
+    segments: list[tuple[Path, TakeMeta]] = []  # every aligned take, to find incomplete segment sets
     for folder in folders:
         resolved = folder.resolve()
         if resolved in seen_paths or (WORK in resolved.parts):
@@ -370,6 +402,7 @@ def collect_takes(
                 raise InputError(
                     f"aligned take audio starts at {m.audio.start_s} s; expected 0 (re-run align)", af
                 )
+            segments.append((af, m))
             all_flags = _align_flags(m, af)
             flags = [f for f in all_flags if f in UNTRUSTED_FLAGS]  # about its audio/face offset
             # a take naming no subject counts as its recording's speaker, with the other segments align
@@ -416,6 +449,7 @@ def collect_takes(
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
             candidates.append(st)
+    warnings += incomplete_segment_warnings(segments)
     warnings += skipped.values()
     # duplicates in id order (the first id is kept), whatever the order of the inputs
     for st in sorted(candidates, key=lambda t: (t.id, t.source["path"])):
@@ -712,6 +746,19 @@ def _file_sha256(path: Path) -> str | None:
         return None
 
 
+@contextmanager
+def _writing(path: Path) -> Iterator[Path]:
+    """Name ``path`` in an error writing it: ``write()``, ``fsync()`` and ``close()`` fail (a full disk,
+    a file too large) without a file name, so the error line would name none, and ``open()`` names the
+    hidden ``.NAME.partial`` the file is assembled under."""
+    try:
+        yield path
+    except OSError as exc:
+        if exc.filename not in (None, str(partial_path(path))):
+            raise  # another file's error (a sample read into a shard): it names that file
+        raise InputError(f"cannot be written: {exc.strerror or exc}", path) from None
+
+
 def _invalidate(record: Path) -> None:
     """Remove a record that marks work as done, durably, before that work is redone: a build stopped
     halfway then finds no record, never a record vouching for files another build rewrote."""
@@ -859,7 +906,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             members[f"{name}.npy"] = npy_bytes(arr[a:b])
         if phones is not None:
             members["phones.npy"] = npy_bytes(phones[a:b])
-        with ShardWriter(samples_dir / f"{key}.tar") as w:
+        with _writing(samples_dir / f"{key}.tar") as path, ShardWriter(path) as w:
             w.add(key, members)
             written = w.close()
         samples.append(
@@ -897,9 +944,10 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     job.record.parent.mkdir(parents=True, exist_ok=True)
     # the channel histograms go to an .npz beside the record (written first: the record marks done);
     # compressed, as most of their bins are empty
-    with atomic_write(job.stats) as f:
+    with _writing(job.stats), atomic_write(job.stats) as f:
         np.savez_compressed(f, **chan.to_arrays())
-    write_json_atomic(job.record, rec, compact=True)
+    with _writing(job.record):
+        write_json_atomic(job.record, rec, compact=True)
     return rec | {"cached": False}
 
 
@@ -1008,8 +1056,7 @@ def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str)
     except (FileNotFoundError, json.JSONDecodeError, KeyError, TypeError):
         pass
     _invalidate(record)
-    writer = ShardWriter(target)
-    with writer:
+    with _writing(target), ShardWriter(target) as writer:
         for key in keys:
             for k, members in ShardReader(work / "samples" / f"{key}.tar"):
                 writer.add(k, members)
@@ -1022,7 +1069,8 @@ def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str)
         "fingerprint": fingerprint,
     }
     record.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(record, done)
+    with _writing(record):
+        write_json_atomic(record, done)
     return done
 
 
@@ -1037,79 +1085,6 @@ def _worker_context(options: BuildOptions):
         preload += ["torch", "dataset.bottleneck"]
     ctx.set_forkserver_preload(preload)
     return ctx
-
-
-def _exit_with_build(build_pid: int) -> None:
-    """Worker initializer: a watcher thread ends this worker as soon as the build process that started
-    it is gone (SIGKILL, a crash), instead of computing on for nobody while it holds the build's
-    stdout and stderr open. A pidfd (Linux 5.3) says so at once; elsewhere the pid is polled."""
-    try:
-        pidfd = os.pidfd_open(build_pid)
-    except ProcessLookupError:
-        os._exit(1)
-    except (AttributeError, OSError):
-        pidfd = None
-
-    def watch() -> None:
-        if pidfd is not None:
-            import select
-
-            select.select([pidfd], [], [])
-        else:
-            while True:
-                time.sleep(0.5)
-                try:
-                    os.kill(build_pid, 0)
-                except ProcessLookupError:
-                    break
-                except OSError:
-                    pass
-        os._exit(1)
-
-    threading.Thread(target=watch, name="s2a-build-watch", daemon=True).start()
-
-
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """End a pool's workers now: pending takes cancelled, running ones terminated. A build that stops
-    (an error, Ctrl-C, SIGTERM) leaves no worker computing on and holding its output open."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in processes:
-        if p.is_alive():
-            p.terminate()
-    for p in processes:
-        p.join(5)
-        if p.is_alive():  # pragma: no cover - SIGTERM ignored
-            p.kill()
-            p.join(1)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM reached the build (``timeout``, systemd, a batch scheduler): it stops as on Ctrl-C,
-    finished takes kept for a rerun."""
-
-
-@contextmanager
-def _sigterm_stops_the_build() -> Iterator[None]:
-    """SIGTERM raises ``Terminated`` in the main thread (once; a second SIGTERM ends the process at
-    once), so that the build shuts its workers down. Left alone when the caller handles SIGTERM."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous is not signal.SIG_DFL:
-        yield
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        raise Terminated()
-
-    signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _lock_holder(path: Path) -> str:
@@ -1204,7 +1179,7 @@ def build_dataset(
     if out.exists() and not out.is_dir():
         raise InputError("output exists and is not a folder", out)
     out.mkdir(parents=True, exist_ok=True)
-    with output_lock(out), _sigterm_stops_the_build():
+    with output_lock(out), sigterm_stops():
         return _build(inputs, out, options, say)
 
 
@@ -1257,25 +1232,16 @@ def _process_takes(jobs: list[TakeJob], options: BuildOptions, say: Callable[[st
             records[job.take_id] = rec
             note(i, rec)
         return records
-    pool = ProcessPoolExecutor(
-        max_workers=min(options.jobs, total),
-        mp_context=_worker_context(options),
-        initializer=_exit_with_build,
-        initargs=(os.getpid(),),
-    )
     try:
-        for i, rec in enumerate(pool.map(process_take, jobs), 1):
-            records[rec["take"]] = rec
-            note(i, rec)
+        with worker_pool(min(options.jobs, total), _worker_context(options)) as pool:
+            for i, future in enumerate(submit_all(pool, process_take, [(job,) for job in jobs]), 1):
+                rec = future.result()
+                records[rec["take"]] = rec
+                note(i, rec)
     except BrokenProcessPool:
-        _stop_pool(pool)
         raise S2AError(
             "a worker process died (out of memory?); finished takes are kept: rerun to resume"
         ) from None
-    except BaseException:
-        _stop_pool(pool)
-        raise
-    pool.shutdown()
     return records
 
 
@@ -1557,7 +1523,8 @@ def _build(
     if old is not None:
         # what the old manifest said of the splits outlives it (an interrupted rebuild still reports
         # moved takes when rerun); then never leave a manifest describing shards we are replacing
-        write_json_atomic(work / PREVIOUS_SPLITS, previous)
+        with _writing(work / PREVIOUS_SPLITS):
+            write_json_atomic(work / PREVIOUS_SPLITS, previous)
     manifest_path(out).unlink(missing_ok=True)
 
     records = _process_takes(jobs, options, say)
@@ -1661,7 +1628,8 @@ def _build(
             "dataset_version": DATASET_VERSION,
         },
     }
-    write_manifest(out, manifest)
+    with _writing(manifest_path(out)):
+        write_manifest(out, manifest)
     if not options.keep_work:
         shutil.rmtree(work, ignore_errors=True)
     return _summary(out, read_manifest(out), up_to_date=False, moved=moved)

@@ -8,10 +8,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from capture.command import emit_json, progress, run
+from capture.command import Terminated, emit_json, progress, run
 from capture.errors import InputError
 
-from .build import BuildOptions, Terminated, build_dataset
+from .build import BuildOptions, build_dataset
 from .features import DEFAULT_FEATURES, FeatureSettings, parse_level
 from .normalize import KINDS
 from .ppg import BACKENDS
