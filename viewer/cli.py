@@ -13,7 +13,7 @@ from pathlib import Path
 from capture.command import emit_json, progress, run
 from capture.errors import InputError
 
-from .output import Terminated, prepare_output, raise_if_stopped, stopped_by_signals, stops_between_frames
+from .output import prepare_output, raise_if_stopped, stopped_by_signals, stops_between_frames
 from .plot import VAD_METHODS
 
 PROG = "s2a-view"
@@ -484,14 +484,10 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 
 def _stoppable(args: argparse.Namespace) -> int:
-    """Run the command; SIGTERM (``timeout``, ``kill``) stops it as Ctrl-C does (exit 143 instead of
-    130), and either removes a half-written output's ``.partial`` file on the way out."""
-    try:
-        with stopped_by_signals():
-            return args.handler(args)
-    except Terminated:
-        progress(f"{PROG}: terminated (SIGTERM)")
-        return 143
+    """Run the command; SIGTERM (``timeout``, ``kill``) stops it as Ctrl-C does (``run`` says so, exit
+    143 instead of 130), and either removes a half-written output's ``.partial`` file on the way out."""
+    with stopped_by_signals():
+        return args.handler(args)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from capture.command import Terminated
 from capture.errors import InputError
 from capture.take import make_out_dir
 
@@ -38,10 +39,6 @@ def writing(path: str | Path, what: str) -> Iterator[None]:
         else:
             reason = exc.strerror or str(exc).splitlines()[0]
         raise InputError(f"cannot write the {what}: {reason}", path) from None
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM reached the command (``timeout``, ``kill``): it stops as on Ctrl-C."""
 
 
 _stopped_by: list[int] = []  # the signal that stopped the command, once one has
