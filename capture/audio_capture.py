@@ -38,8 +38,9 @@ from .record_log import (
 from .session_clock import SessionClock
 
 CHUNK_S = 0.1
-# How far a chunk's first-sample index (as time) may disagree with its clock stamp: the stamp's jitter
-# (a callback's latency) and a sound card's drift against the computer's clock (typically < 100 ppm).
+# How far a chunk's first-sample index (as time) may run ahead of its clock stamp, beyond the recording's
+# clock span: the stamp's jitter (a callback's latency) and a sound card's drift against the computer's
+# clock (typically < 100 ppm).
 AUDIO_CLOCK_TOLERANCE_S = 1.0
 AUDIO_CLOCK_DRIFT = 1e-3
 _FORMAT_FIELDS = {"sample_rate": (int,), "channels": (int,), "subtype": (str,), "source": (str,)}
@@ -311,17 +312,21 @@ def _placeable(
 ) -> list[tuple[int, int, bytes, tuple[int, int]]]:
     """The chunks ``read_audio_log`` places by their sample index; the others are counted as damage
     (``LogReader.reject``): a body that is no whole number of sample frames, or a first-sample index
-    that disagrees with the chunk's clock stamp (the capture counts every sample, so index / rate and
-    the stamp advance together, within ``AUDIO_CLOCK_TOLERANCE_S`` plus ``AUDIO_CLOCK_DRIFT`` of the
-    index's time, against the chunks' median) - a forged index would make room for hours of silence."""
+    further ahead of the chunk's clock stamp than any recording can put it - a forged index would make
+    room for hours of silence. Each chunk's index and stamp give the clock time of sample 0; a sound
+    card's drift and its dropped input (overflows, which the index does not count) move that time later
+    as the recording goes on, never earlier by more than the drift, and never by more than the
+    recording's clock span: so a chunk whose sample 0 lies earlier than the chunks' median by more than
+    that span (``AUDIO_CLOCK_DRIFT`` included) and ``AUDIO_CLOCK_TOLERANCE_S`` is no recorder's."""
     frame_bytes = _DTYPES[fmt["subtype"]].itemsize * fmt["channels"]
     rate = fmt["sample_rate"]
     whole = [c for c in chunks if len(c[2]) % frame_bytes == 0]
     if whole:
-        at_s = np.array([first / rate for first, *_ in whole])
-        start_s = np.array([ns / 1e9 for _, ns, *_ in whole]) - at_s  # the clock time of sample 0
-        off = np.abs(start_s - np.median(start_s)) > AUDIO_CLOCK_TOLERANCE_S + AUDIO_CLOCK_DRIFT * at_s
-        whole = [c for c, bad in zip(whole, off, strict=True) if not bad]
+        stamp_s = np.array([ns / 1e9 for _, ns, *_ in whole])
+        start_s = stamp_s - np.array([first / rate for first, *_ in whole])  # the clock time of sample 0
+        span_s = float(stamp_s.max() - stamp_s.min())
+        ahead = np.median(start_s) - start_s > AUDIO_CLOCK_TOLERANCE_S + span_s * (1 + AUDIO_CLOCK_DRIFT)
+        whole = [c for c, bad in zip(whole, ahead, strict=True) if not bad]
     kept = {id(c) for c in whole}
     for c in chunks:
         if id(c) not in kept:

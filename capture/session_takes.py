@@ -165,7 +165,7 @@ def _plausible_json(kind: int, data: dict[str, Any]) -> bool:
         return 0 <= data["stream"] <= 0xFFFF
     if kind == RecordType.SESSION:
         origin = data.get("clock", {}).get("origin_ns")
-        return origin is None or isinstance(origin, int) and not isinstance(origin, bool)
+        return origin is None or type(origin) is int and -(2**63) <= origin < 2**63  # an int64 of ns
     if kind == RecordType.REJECTS:
         return all(type(v) is int and v >= 0 for v in data.values())
     return True
@@ -855,15 +855,18 @@ def _segment_take(
     # The declared rate (NTSC 30000/1001 named so) is the take's: frame numbers count its frames, so its
     # grid has a slot for every frame and a lost packet is a DROPPED frame. The frames' own rate (median
     # step) only wins when faster (a 60 Hz sender declaring 30: frames share a frame time, spread over
-    # it) or when the sender steadily sends every k-th frame number (rate / k); one slower otherwise
-    # (packets lost) gets a note.
+    # it), when the sender steadily sends every k-th frame number (rate / k), or when its frame times do
+    # not fall on the declared grid (a sender declaring 60 that sends 24 frames/s with sub-frame times);
+    # one slower otherwise (packets lost) gets a note.
     rate_num, rate_den = _declared_rate(r)
     fps, period = rate_num / rate_den, _declared_period(r)
     measured, step = detect_fps(t)
-    steps = np.rint(np.diff(t) / period)  # in declared frames
+    raw = np.diff(t) / period  # in declared frames
+    steps = np.rint(raw)
     stride = int(np.median(steps)) if steps.size else 1
+    on_grid = not steps.size or np.mean(np.abs(raw - steps) < 0.1) >= STEADY_STRIDE_FRACTION
     repairs = []
-    if fps + 0.5 < measured <= MAX_FPS:
+    if fps + 0.5 < measured <= MAX_FPS or not on_grid:
         fps, period = measured, step
     elif stride > 1 and np.mean(steps % stride == 0) >= STEADY_STRIDE_FRACTION:
         fps, period = fps / stride, period * stride

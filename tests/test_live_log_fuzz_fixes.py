@@ -77,6 +77,7 @@ def test_records_with_content_no_recorder_writes_are_counted_as_damage(tmp_path)
         b"\x02" + b'{"device": "EVIL"}',  # no stream id
         b"\x01" + b'{"clock": 5}',  # SESSION
         b"\x01" + b'{"clock": {"origin_ns": "x"}}',
+        b"\x01" + b'{"clock": {"origin_ns": 1180591620717411303424}}',  # 2**70: no int64 of ns
         b"\x04" + b'{"bad_header": "many"}',  # REJECTS
         b"\x08" + b"[1]",  # END
         b"\x09" + b'{"kind": 3}',  # NOTE
@@ -132,6 +133,14 @@ def test_a_live_take_keeps_its_declared_rate_through_lost_packets(tmp_path):
     rec = record_packets(tmp_path, "every2", [_packet(START + 2 * i, i) for i in range(60) if i != 30])
     (line,) = build_takes(rec.session_dir, tmp_path / "out2")
     assert read_take(line["path"]).meta.fps == 30.0 and line["frames"] == 60 and line["dropped_frames"] == 1
+    # review: a sender declaring 60 that sends 24 frames/s with sub-frame times is off the 60 fps grid: its
+    # own rate, no DROPPED rows between its frames
+    v = np.full(61, 0.25, np.float32)
+    times = [START + i * 2.5 for i in range(96)]
+    packets = [header_bytes(DEVICE, "iPhone") + frame_block(int(t), t % 1, 60, 1, v) for t in times]
+    rec = record_packets(tmp_path, "film", packets)
+    (line,) = build_takes(rec.session_dir, tmp_path / "out3")
+    assert read_take(line["path"]).meta.fps == 24.0 and line["frames"] == 96 and line["dropped_frames"] == 0
 
 
 def _adts(channels: int, seconds: float = 0.5) -> bytes:
@@ -187,3 +196,31 @@ def test_resync_reads_on_after_a_damaged_record_whose_header_lies(tmp_path):
     (line,) = build_takes(rec.session_dir, tmp_path / "out")
     assert line["frames"] - line["dropped_frames"] == 40 and line["duplicates"] == 40
     assert line["log_damage"][0]["bytes_discarded"] == 29
+
+
+@pytest.mark.parametrize(("hours", "ppm", "overflows"), [(3, 200, 0), (6, -100, 0), (0.5, 0, 30)])
+def test_a_long_drifting_recording_with_dropped_input_keeps_every_audio_chunk(hours, ppm, overflows):
+    """Review: the clock check judged drift from sample 0 against the median chunk, so the first chunks of
+    a 3 h recording at 200 ppm (and every chunk before 3 s of input overflows) were thrown away."""
+    from capture.audio_capture import _placeable
+
+    class Rejects:
+        count = 0
+
+        def reject(self, *_args):
+            self.count += 1
+
+    body = bytes(2 * 4800)  # 0.1 s of 16-bit mono at 48 kHz, one object for every chunk
+    n = int(hours * 36000)
+    chunks, index = [], 0
+    for k in range(n):
+        if overflows and k and k % (n // overflows) == 0:
+            index -= 4800  # 0.1 s of input the sound card dropped: the index does not count it
+        stamp = 10**18 + int(k * 0.1 * (1 + ppm * 1e-6) * 1e9)
+        chunks.append((max(index, 0), stamp, body, (0, 0)))
+        index += 4800
+    rejects = Rejects()
+    fmt = {"subtype": "PCM_16", "channels": 1, "sample_rate": 48000}
+    assert len(_placeable(chunks, fmt, rejects)) == n and rejects.count == 0
+    chunks.insert(7, (10**12, chunks[7][1], body, (0, 0)))  # a forged index: a week of room
+    assert len(_placeable(chunks, fmt, rejects)) == n and rejects.count == 1
