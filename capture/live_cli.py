@@ -636,18 +636,14 @@ def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[
     for what, writer in (("recorder log", recorder.log), ("audio log", audio_log and audio_log.writer)):
         if writer is None or writer.error is None:
             continue
-        lost = writer.unwritten_bytes + writer.dropped_bytes
-        why = writer.error.strerror or writer.error
-        if not lost and writer.failed_writes:  # the disk had room again: what was held reached it
+        if writer.lost_nothing:  # the disk had room again: what was held reached it
             _say(
-                f"warning: writing the {what} failed {writer.failed_writes} time(s) ({why}), but nothing "
-                "was lost: every byte held in memory reached the disk later"
+                f"warning: writing the {what} failed {writer.failed_writes} time(s) "
+                f"({writer.error.strerror or writer.error}), but nothing was lost: every byte held in memory "
+                "reached the disk later"
             )
-        elif what == "recorder log" and recorder.error:
-            problems.append(recorder.error)  # the same words, from the recorder
         else:
-            counts = f"{writer.failed_writes} failed writes, {lost} bytes not on disk"
-            problems.append(f"writing the {what} failed ({counts}): {why}")
+            problems.append(writer.failure(what))
     if source is not None and source.error:
         problems.append(f"no audio was recorded: {source.error}")
     failed = sum(1 for s in summaries if s.get("error"))

@@ -333,6 +333,7 @@ class LogWriter:
             os.close(self._fd)
             raise
         self.error: OSError | None = None
+        self.fsync_failed = False
         self.failed_writes = 0
         self.dropped_bytes = 0
         self.bytes_written = 0
@@ -406,6 +407,22 @@ class LogWriter:
         self._thread.join()
         try:
             os.fsync(self._fd)
-        except OSError as exc:
+        except OSError as exc:  # what the kernel held may not be on disk: no "nothing was lost" after this
             self.error = self.error or exc
+            self.fsync_failed = True
         os.close(self._fd)
+
+    @property
+    def lost_nothing(self) -> bool:
+        """Whether every record handed over reached the disk, failed writes retried included."""
+        return not (self.unwritten_bytes or self.dropped_bytes or self.fsync_failed)
+
+    def failure(self, what: str) -> str | None:
+        """One phrase for a log whose writes failed (None when none did): what was lost and why."""
+        if self.error is None:
+            return None
+        lost = self.unwritten_bytes + self.dropped_bytes
+        counts = f"{self.failed_writes} failed writes, {lost} bytes not on disk"
+        if self.fsync_failed:
+            counts += ", the last sync to disk failed"
+        return f"writing the {what} failed ({counts}): {self.error.strerror or self.error}"

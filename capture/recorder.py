@@ -573,13 +573,8 @@ class LiveRecorder:
                 {"datagrams": self.datagrams, "accepted": self.accepted, "socket_errors": self.socket_errors},
             )
             self.log.close()
-            if self.log.error is not None:
-                # Kept, not raised: what did reach the disk still becomes takes; the caller reports it.
-                lost = self.log.unwritten_bytes + self.log.dropped_bytes
-                self.error = (
-                    f"writing the recorder log failed ({self.log.failed_writes} failed writes, "
-                    f"{lost} bytes not on disk): {self.log.error.strerror or self.log.error}"
-                )
+            # Kept, not raised: what did reach the disk still becomes takes; the caller reports it.
+            self.error = self.log.failure("recorder log")
         if self.sock is not None:
             self.sock.close()
             self.sock = None

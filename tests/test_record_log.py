@@ -155,3 +155,25 @@ def test_a_write_that_runs_out_of_memory_is_counted_and_the_writer_goes_on(tmp_p
     assert log.dropped_bytes == len(records[0]) and log.failed_writes == 1
     assert log.error is not None and log.error.errno == errno.ENOMEM
     assert [bytes(p) for p in LogReader(tmp_path / "a.log")] == [bytes(r[8:]) for r in records[1:]]
+
+
+def test_a_failed_last_sync_is_never_reported_as_nothing_lost(tmp_path, monkeypatch):
+    """Review: writes that failed once and were retried, then a failed fsync at close, was 'nothing lost'."""
+    import capture.record_log as record_log
+
+    log = LogWriter(tmp_path / "a.log", fsync=False)
+    log.error, log.failed_writes = OSError(errno.ENOSPC, "No space left on device"), 1  # retried since
+    real_fsync = record_log.os.fsync
+
+    def fsync_fails(fd):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(record_log.os, "fsync", fsync_fails)
+    log.put(encode_record(bytes([RecordType.NOTE]) + b"x"))
+    log.close()
+    monkeypatch.setattr(record_log.os, "fsync", real_fsync)
+    assert not log.lost_nothing
+    assert log.failure("recorder log") == (
+        "writing the recorder log failed (1 failed writes, 0 bytes not on disk, the last sync to disk "
+        "failed): No space left on device"
+    )
