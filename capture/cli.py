@@ -11,7 +11,7 @@ from .channels import is_known
 from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
-from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source
+from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source, is_livelink_csv
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
@@ -33,7 +33,8 @@ TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV
 # Repairs and notes that ask the user to act, printed as warnings by import (the others are counted in
 # the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
 # lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
-# time column read as frame numbers, frame numbers read as counting from 1, weights on a 0..100 scale.
+# time column read as frame numbers, frame numbers read as counting from 1, weights on a 0..100 scale,
+# --first-frame given for a file of a batch without a frame-number column.
 WARN_REPAIRS = (
     "timecode_rate",
     "length_mismatch",
@@ -43,6 +44,7 @@ WARN_REPAIRS = (
     "frame_numbers",
     "frame_numbers_from_1",
     "percent_scale",
+    "first_frame_ignored",
 )
 
 
@@ -151,11 +153,13 @@ def _print_summary(summary: dict, as_json: bool) -> None:
 
 
 def _of_variant(sources: list[Path], variant: str) -> list[Path]:
-    """``--variant`` among loose CSVs (take folders choose their own CSV): one whose name says another
-    variant of its take (``X_cal.csv`` for ``--variant raw``) is left out with a warning."""
+    """``--variant`` among loose Live Link Face CSVs (take folders choose their own CSV; generic paired
+    data has no variants): one of another variant of its take, by its name (``X_cal.csv`` for
+    ``--variant raw``; ``X.csv`` is the plain one), is left out with a warning."""
     kept = []
     for src in sources:
-        own = split_variant(src.stem)[1] or "plain" if src.suffix.lower() == ".csv" else variant
+        livelink = src.suffix.lower() == ".csv" and is_livelink_csv(src)
+        own = split_variant(src.stem)[1] or "plain" if livelink else variant
         if own == variant:
             kept.append(src)
         else:
@@ -254,6 +258,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                     timecode_rate,
                     first_frame=args.first_frame,
                     value_scale=args.value_scale,
+                    first_frame_strict=not args.pair_audio,
                 )
                 for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
                     print(

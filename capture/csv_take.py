@@ -394,9 +394,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         vals: list[float] = []
         if not lost:
             try:
-                # float() reads "1_0" as 10.0 and "\u0661" (Arabic-Indic one) as 1.0; the app never
-                # writes such a cell
-                if "_" in line or not line.isascii():
+                if not plain_number(line):
                     raise ValueError
                 vals = [float(x) for x in fields[2:]]
             except ValueError:
@@ -487,10 +485,16 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
 
 
+def plain_number(text: str) -> bool:
+    """Whether ``float()`` may read ``text`` (a cell, or a row of them): it reads ``1_0`` as 10.0 and
+    U+0661 (an Arabic-Indic one) as 1.0, which no writer of numbers means; ASCII without ``_`` only."""
+    return "_" not in text and text.isascii()
+
+
 def _cell_value(text: str) -> float:
     """A value cell as a float; NaN when it is not a plain decimal number of ASCII digits."""
     try:
-        return float(text) if "_" not in text and text.isascii() else math.nan
+        return float(text) if plain_number(text) else math.nan
     except ValueError:
         return math.nan
 

@@ -62,7 +62,7 @@ def _walk(
         if p.is_dir():
             yield from _walk(p, exports, skipped, seen)
         elif p.suffix.lower() == ".csv":
-            emotions = emotion_weights(header_names(_first_line(_head(p))))
+            emotions = emotion_header(_head(p))
             if emotions is None:
                 yield p
             else:
@@ -142,6 +142,12 @@ def _first_line(raw: bytes | None) -> str:
     return next((line for line in text.splitlines() if line.strip()), "")
 
 
+def emotion_header(head: bytes | None) -> str | None:
+    """Why a CSV whose first bytes (``_head``) are ``head`` holds emotion weights, not a face take (see
+    ``emotion_weights``), or None."""
+    return emotion_weights(header_names(_first_line(head)))
+
+
 def _head(path: Path, size: int = 1 << 16) -> bytes | None:
     """The first ``size`` bytes of a file, or None when it cannot be read."""
     try:
@@ -162,12 +168,14 @@ def import_source(
     timecode_rate: float | None = None,
     first_frame: int | None = None,
     value_scale: float | None = None,
+    first_frame_strict: bool = True,
 ) -> Take:
     """One source (take folder or CSV file) as a take. ``audio_pairing`` (one of ``AUDIO_PAIRINGS``)
     says how external ``audio`` goes with a CSV's rows. ``timecode_rate``: the rate a Live Link Face
     CSV's FF field counts at (None: detected, see ``read_livelink_csv``). A CSV with audio whose header
     is not the app's is generic paired data (``read_paired``: a header of channel names, perhaps a time
-    column; ``fps`` unless the file gives the rate; ``first_frame`` and ``value_scale`` as there)."""
+    column; ``fps`` unless the file gives the rate; ``first_frame``, ``value_scale`` and
+    ``first_frame_strict`` as there)."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if source.is_dir():
@@ -177,7 +185,9 @@ def import_source(
             )
         return read_take_folder(source, variant, audio, strict, swap_lr, timecode_rate)
     if source.suffix.lower() == ".json" and audio is not None:  # the export reader names a non-export
-        return read_paired(audio, source, None, None, source.stem, False, first_frame, value_scale)
+        return read_paired(
+            audio, source, None, None, source.stem, False, first_frame, value_scale, first_frame_strict
+        )
     if source.suffix.lower() == ".json" and is_a2f_export(source):
         raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
     if source.suffix.lower() != ".csv":
@@ -191,7 +201,7 @@ def import_source(
     if not livelink:
         if head is not None and not head.strip():
             raise InputError("file is empty", source)
-        emotions = emotion_weights(header_names(_first_line(head)))
+        emotions = emotion_header(head)
         if emotions is not None:
             raise InputError(emotions, source)
         if audio is None:
@@ -200,7 +210,9 @@ def import_source(
                 "as generic paired data it needs its audio (--audio, or --pair-audio)",
                 source,
             )
-        return read_paired(audio, source, fps, None, source.stem, False, first_frame, value_scale)
+        return read_paired(
+            audio, source, fps, None, source.stem, False, first_frame, value_scale, first_frame_strict
+        )
     if audio is not None:
         return read_csv_with_audio(
             source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate

@@ -18,13 +18,23 @@ import json
 import math
 import re
 import warnings
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from . import channels as ch
 from .audio_io import read_audio
-from .csv_take import MAX_GAP_S, NTSC_FPS, NTSC_TOLERANCE, STANDARD_TOLERANCE, fill_dropped, nearest_standard
+from .csv_take import (
+    MAX_GAP_S,
+    NTSC_FPS,
+    NTSC_TOLERANCE,
+    STANDARD_TOLERANCE,
+    fill_dropped,
+    nearest_standard,
+    plain_number,
+)
 from .errors import InputError
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
@@ -102,7 +112,7 @@ def read_names(path: str | Path) -> list[str]:
                 cells.pop()  # a comma ending the line
             if not all(cells):
                 raise InputError("an empty channel name (two commas in a row?)", path, number)
-            debris = next((c for c in cells if c[0] in _JSON_DEBRIS or c[-1] in _JSON_DEBRIS), None)
+            debris = next((c for c in cells if _json_debris(c)), None)
             if debris is not None:
                 raise InputError(
                     f"channel name {_show(debris)} carries brackets or quotes: a JSON list of names? "
@@ -124,8 +134,15 @@ def read_names(path: str | Path) -> list[str]:
     return names
 
 
-# What a JSON list of names leaves at the ends of its names when read as text.
-_JSON_DEBRIS = "[]{}\"'"
+def _json_debris(name: str) -> bool:
+    """Whether a name read from a text file is what a JSON list (or object) of names leaves when read as
+    text: it opens with the list's ``[`` (``{``), closes it without opening a bracket of its own (not
+    ``brow_up[L]``), or is wrapped in matching quotes (``'a'``; the csv module unwraps ``"a"``)."""
+    return (
+        name[0] in "[{"
+        or (name[-1] in "]}" and not any(b in name for b in "[{"))
+        or (len(name) > 1 and name[0] == name[-1] and name[0] in "\"'")
+    )
 
 
 def string_names(arr: np.ndarray, path: Path) -> list[str]:
@@ -293,8 +310,8 @@ def header_names(line: str) -> list[str]:
 
 def _numbers(cells: list[str], decimal_comma: bool) -> list[float]:
     """A row's values; an empty cell (how pandas writes NaN) is NaN. ValueError for any other cell that
-    is not a number, also ``1_0``, which Python's float() alone would read as 10."""
-    if any("_" in c for c in cells):
+    is not a number, also ``1_0`` and other scripts' digits, which Python's float() alone would read."""
+    if not all(map(plain_number, cells)):
         raise ValueError
     if decimal_comma:
         cells = [c.replace(",", ".") for c in cells]
@@ -428,36 +445,81 @@ def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None
 NPZ_WEIGHTS = ("weights", "values", "blendshapes")
 NPZ_NAMES = ("names", "channels", "facsnames", "channel_names")
 NPZ_FPS = ("fps", "frame_rate", "framerate")
+# The most values a .npz array may hold (an hour at 120 fps of 200 channels is 86 million): its header
+# says how many before it is read, so a compressed array of zeros cannot take gigabytes.
+NPZ_MAX_VALUES = 200_000_000
+# What reading a damaged .npz raises: a truncated file, a member whose data is cut or corrupt.
+_NPZ_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
-    """The weights of a ``.npz`` (never unpickled): its only 2-D array, or the one named in
+    """The weights of a ``.npz`` (never unpickled): its only 2-D numeric array, or the one named in
     ``NPZ_WEIGHTS``; with the names (an array of strings named in ``NPZ_NAMES``) and rate (a number named
-    in ``NPZ_FPS``) when it stores them."""
+    in ``NPZ_FPS``) when it stores them. Members that are not ``.npy`` arrays (a README) are ignored, and
+    only the arrays used are read."""
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {name.lower(): npz[name] for name in npz.files}
-    except (ValueError, OSError, EOFError) as exc:
+        npz = np.load(path, allow_pickle=False)
+    except _NPZ_ERRORS as exc:
         raise InputError(f"not a .npz of numeric or string arrays ({exc})", path) from None
-    named = [arrays[k] for k in NPZ_WEIGHTS if k in arrays]
-    planes = [a for a in arrays.values() if a.ndim == 2 and a.dtype.kind in "fiu"]
-    found = named if len(named) == 1 else planes if len(planes) == 1 else None
-    if found is None:
-        held = ", ".join(f"{k} {a.dtype} {a.shape}" for k, a in arrays.items()) or "nothing"
-        raise InputError(
-            f"a .npz needs one 2-D frames x channels array, or one named {', '.join(NPZ_WEIGHTS)} (it holds "
-            f"{held})",
-            path,
-        )
-    names = next((string_names(arrays[k], path) for k in NPZ_NAMES if k in arrays), None)
-    fps = next((arrays[k] for k in NPZ_FPS if k in arrays), None)
-    if fps is not None:
-        if fps.size != 1 or fps.dtype.kind not in "fiu":
-            raise InputError(
-                f"the frame rate it stores must be one number, not {fps.dtype} {fps.shape}", path
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise InputError("a .npy array, not a .npz archive: name it .npy", path)
+    try:
+        with npz:
+            arrays = _npz_headers(npz)
+            named = [k for k in NPZ_WEIGHTS if k in arrays]
+            planes = [k for k, (_, shape, dtype) in arrays.items() if len(shape) == 2 and dtype.kind in "fiu"]
+            found = named if len(named) == 1 else planes if len(planes) == 1 else None
+            if found is None:
+                held = (
+                    ", ".join(f"{k} {dtype} {shape}" for k, (_, shape, dtype) in arrays.items()) or "nothing"
+                )
+                raise InputError(
+                    f"a .npz needs one 2-D frames x channels array, or one named {', '.join(NPZ_WEIGHTS)} "
+                    f"(it holds {held})",
+                    path,
+                )
+            names = next(
+                (string_names(_npz_array(npz, arrays[k], path), path) for k in NPZ_NAMES if k in arrays), None
             )
-        fps = exact_rate(float(fps.ravel()[0]))
-    return found[0], names, fps
+            fps = next((arrays[k] for k in NPZ_FPS if k in arrays), None)
+            if fps is not None:
+                _, shape, dtype = fps
+                if math.prod(shape) != 1 or dtype.kind not in "fiu":
+                    raise InputError(
+                        f"the frame rate it stores must be one number, not {dtype} {shape}", path
+                    )
+                fps = exact_rate(float(_npz_array(npz, fps, path).ravel()[0]))
+            return _npz_array(npz, arrays[found[0]], path), names, fps
+    except _NPZ_ERRORS as exc:
+        raise InputError(f"a damaged .npz ({exc})", path) from None
+
+
+def _npz_headers(npz) -> dict[str, tuple[str, tuple[int, ...], np.dtype]]:
+    """The ``.npy`` arrays of an open ``.npz`` by name in lower case: (key, shape, dtype), from their
+    headers alone (nothing is read)."""
+    arrays = {}
+    for member in npz.zip.namelist():
+        if not member.endswith(".npy"):
+            continue
+        with npz.zip.open(member) as f:
+            version = np.lib.format.read_magic(f)
+            read = (
+                np.lib.format.read_array_header_1_0
+                if version == (1, 0)
+                else np.lib.format.read_array_header_2_0
+            )
+            shape, _, dtype = read(f)
+        arrays[member.removesuffix(".npy").lower()] = (member.removesuffix(".npy"), shape, dtype)
+    return arrays
+
+
+def _npz_array(npz, header: tuple[str, tuple[int, ...], np.dtype], path: Path) -> np.ndarray:
+    """One array of an open ``.npz`` (``header``: its ``_npz_headers`` entry), refused when it holds more
+    than ``NPZ_MAX_VALUES`` values."""
+    key, shape, _ = header
+    if math.prod(shape) > NPZ_MAX_VALUES:
+        raise InputError(f"array {key!r} holds {math.prod(shape)} values (more than {NPZ_MAX_VALUES})", path)
+    return npz[key]
 
 
 def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
@@ -474,6 +536,9 @@ MIN_FPS = 1.0
 MIN_CAPTURE_FPS = 10.0
 # Audio longer or shorter than the frames by more than this (s) is noted as repair ``length_mismatch``.
 LENGTH_MISMATCH_S = 1.0
+# A time column's late start is named as the cause of a length mismatch when the frames, counted from
+# their first time, fit the audio within this (s).
+LATE_START_S = 0.25
 # Header names of a column that holds each frame's time rather than a channel, compared by
 # ``_column_key`` (lower case, letters and digits only: `Time (s)` is `times`, `time_ms` is `timems`).
 SECONDS_COLUMNS = (
@@ -707,6 +772,7 @@ def read_paired(
     names_option: bool = True,
     first_frame: int | None = None,
     value_scale: float | None = None,
+    first_frame_strict: bool = True,
 ) -> Take:
     """A take from audio + weight matrix + names at ``fps`` frames per second (None: the rate the
     matrix file gives, as an Audio2Face export does, or its time column's), named ``take_id``
@@ -720,13 +786,17 @@ def read_paired(
     ``paired_time_column`` (align keeps the times), others ``paired_frame_convention``.
 
     ``first_frame``: the number in a frame-number column of the frame at the audio's start (None: 1 when
-    the column starts at 1, with note ``frame_numbers_from_1``, else 0). ``value_scale``: a factor the
-    weights are multiplied by (``--value-scale 0.01`` for weights on a 0..100 scale)."""
+    the column starts at 1, with note ``frame_numbers_from_1``, else 0); for a file without such a column
+    an error, or with ``first_frame_strict`` False (a batch, whose other files may have one) ignored with
+    note ``first_frame_ignored``. ``value_scale``: a factor the weights are multiplied by
+    (``--value-scale 0.01`` for weights on a 0..100 scale)."""
     if fps is not None and not 0 < fps < math.inf:  # also NaN
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
     if value_scale is not None and not 0 < value_scale < math.inf:
         raise InputError(f"--value-scale must be a positive number, not {value_scale}")
     matrix, header, file_fps, numbered = _read_matrix(Path(matrix_path))
+    if file_fps is not None:  # checked before a time column's unit is found from it
+        _check_rate(file_fps, matrix_path, " (the rate the file gives)")
     fps, file_fps = exact_rate(fps), exact_rate(file_fps)
     if file_fps is not None and fps is not None and not math.isclose(file_fps, fps, rel_tol=1e-6):
         raise InputError(
@@ -786,12 +856,19 @@ def read_paired(
                 f"read as frame numbers at {_rate(fps)} fps",
             }
         )
+    renumber = None  # a frame column numbered from N > 1 read as from 0: what --first-frame N would do
     if kind == "frames":
+        if first_frame is None and clock[0] > 1:
+            renumber = (
+                f"frame column {clock_name!r} starts at frame {clock[0]:.0f}: if that frame is at the "
+                f"audio's start, import again with --first-frame {clock[0]:.0f}"
+            )
         clock = clock - _first_frame(clock, first_frame, clock_name, notes)
     elif first_frame is not None:
-        raise InputError(
-            "--first-frame applies to a frame-number column (`frame`), and it has none", matrix_path
-        )
+        without = "--first-frame applies to a frame-number column (`frame`), and it has none"
+        if first_frame_strict:
+            raise InputError(without, matrix_path)
+        notes.append({"line": None, "kind": "first_frame_ignored", "message": f"{without}: ignored"})
     if value_scale is not None:
         matrix = matrix * value_scale
         notes.append(
@@ -810,11 +887,7 @@ def read_paired(
         fps = nominal_rate(rate, spread)
     if fps is None:
         raise NoFrameRate("no frame rate: give --fps", matrix_path)
-    if not MIN_FPS <= fps <= MAX_FPS:
-        hint = " (is the time column in milliseconds?)" if kind == "seconds" else ""
-        raise InputError(
-            f"the frame rate must be in [{MIN_FPS:g}, {MAX_FPS:g}], not {fps:g}{hint}", matrix_path
-        )
+    _check_rate(fps, matrix_path, " (is the time column in milliseconds?)" if kind == "seconds" else "")
     if detected and rate is not None and fps < MIN_CAPTURE_FPS:
         raise NoFrameRate(
             f"time column {clock_name!r} gives {fps:g} frames per second, slower than any face capture "
@@ -873,19 +946,27 @@ def read_paired(
     if time[-1] < 0 or time[0] >= audio.duration_s:
         raise InputError(
             f"the frames ({time[0]:.6g}..{time[-1]:.6g} s) lie outside the audio "
-            f"(0..{audio.duration_s:.3f} s)",
+            f"(0..{audio.duration_s:.3f} s)" + (f": {renumber}" if renumber else ""),
             matrix_path,
         )
     take.attach_audio(audio, 0.0, "paired_time_column" if kind == "seconds" else "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
     hint = "check --fps"
-    if kind == "seconds" and abs(paired_excess_s(take) + time[0]) <= LENGTH_MISMATCH_S:
+    if renumber and time[0] > LENGTH_MISMATCH_S:
+        hint = renumber
+    elif kind == "seconds" and abs(paired_excess_s(take) + time[0]) <= LATE_START_S:
         hint = (
             f"the time column starts at {time[0]:.3f} s, which is where the mismatch comes from: its clock "
             "does not start with the audio (give the times from the audio's start)"
         )
     note_length_mismatch(take, hint)
     return take
+
+
+def _check_rate(fps: float, path, hint: str) -> None:
+    """Refuse a frame rate outside [MIN_FPS, MAX_FPS] (also NaN), ``hint`` added to the message."""
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise InputError(f"the frame rate must be in [{MIN_FPS:g}, {MAX_FPS:g}], not {fps:g}{hint}", path)
 
 
 def _first_frame(clock: np.ndarray, given: int | None, name: str, notes: list[dict]) -> int:
@@ -899,16 +980,18 @@ def _first_frame(clock: np.ndarray, given: int | None, name: str, notes: list[di
             "line": None,
             "kind": "frame_numbers_from_1",
             "message": f"frame column {name!r} starts at 1: read as counting from 1 (frame 1 at the audio's "
-            "start; --first-frame 0 places frame 0 there instead)",
+            "start); the file cannot tell that from counting from 0 with frame 0 missing: if so, import "
+            "again with --first-frame 0",
         }
     )
     return 1
 
 
-# Weights on a 0..100 scale (sliders in percent) rather than 0..1: the largest value reaches PERCENT_PEAK,
-# none lies outside PERCENT_RANGE, and at least half the channels that move reach past PERCENT_CHANNEL (a
-# 0..1 rig overshoots 1 by a few hundredths; head and eye angles in degrees are a handful of channels).
-PERCENT_PEAK = 2.0
+# Weights on a 0..100 scale (sliders in percent) rather than 0..1: the largest value reaches PERCENT_PEAK
+# (the scale is used: not intensities on 0..5, as OpenFace's action units), none lies outside
+# PERCENT_RANGE, and at least half the channels that move reach past PERCENT_CHANNEL (a 0..1 rig
+# overshoots 1 by a few hundredths; head and eye angles in degrees are a handful of channels).
+PERCENT_PEAK = 20.0
 PERCENT_RANGE = (-5.0, 105.0)
 PERCENT_CHANNEL = 1.5
 

@@ -6,7 +6,9 @@ index, `.npz` matrices, two clock columns and a clock that starts late."""
 from __future__ import annotations
 
 import csv
+import io
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -312,3 +314,153 @@ def test_a_clock_that_starts_late_is_named_as_the_cause_of_a_length_mismatch(tmp
         r for r in read_paired(tmp_path / "a.wav", m, None).meta.repairs if r["kind"] == "length_mismatch"
     ]
     assert "the time column starts at 1.500 s" in note["message"] and "--fps" not in note["message"]
+
+
+# 10. a review's findings: damaged .npz files, rates they store, --variant and --first-frame in batches,
+# hints of length mismatches, the 0..100 scale test, bracketed names, digits of other scripts
+
+
+def npy_member(shape: tuple[int, ...]) -> bytes:
+    """A .npy header declaring a float64 array of ``shape``, with no data after it."""
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return buf.getvalue()
+
+
+def npy_names(names: list[str]) -> bytes:
+    """A .npy of an array of names."""
+    buf = io.BytesIO()
+    np.save(buf, np.array(names))
+    return buf.getvalue()
+
+
+def test_a_damaged_or_foreign_npz_is_a_one_line_error(tmp_path, wav):
+    np.savez(tmp_path / "ok.npz", weights=RAMP, channel_names=np.array(["jawOpen", "rig_lip"]), frame_rate=30)
+    take = read_paired(wav, tmp_path / "ok.npz", None)
+    assert take.meta.channels == ["jawOpen", "rig_lip"] and take.meta.fps == 30
+    raw = (tmp_path / "ok.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(InputError, match=r"cut\.npz: not a \.npz"):
+        read_paired(wav, tmp_path / "cut.npz", 30)
+    np.save(tmp_path / "x.npy", RAMP)
+    (tmp_path / "x.npz").write_bytes((tmp_path / "x.npy").read_bytes())
+    with pytest.raises(InputError, match=r"x\.npz: a \.npy array, not a \.npz archive"):
+        read_paired(wav, tmp_path / "x.npz", 30)
+    with zipfile.ZipFile(tmp_path / "readme.npz", "w") as z:  # a README beside the array is no array
+        z.writestr("weights.npy", (tmp_path / "x.npy").read_bytes())
+        z.writestr("names.npy", npy_names(["jawOpen", "rig_lip"]))
+        z.writestr("README.txt", "exported by tool X")
+    assert read_paired(wav, tmp_path / "readme.npz", 30).values.shape == (60, 2)
+
+
+def test_an_npz_reads_only_the_arrays_it_uses(tmp_path, wav):
+    buf = io.BytesIO()
+    np.save(buf, RAMP)
+    with zipfile.ZipFile(tmp_path / "extra.npz", "w") as z:  # an unused array, never read
+        z.writestr("weights.npy", buf.getvalue())
+        z.writestr("names.npy", npy_names(["jawOpen", "rig_lip"]))
+        z.writestr("extra.npy", npy_member((10**9,)))
+    assert read_paired(wav, tmp_path / "extra.npz", 30).values.shape == (60, 2)
+    with zipfile.ZipFile(tmp_path / "huge.npz", "w") as z:  # its header gives its size before it is read
+        z.writestr("weights.npy", npy_member((10**9, 2)))
+    with pytest.raises(InputError, match=r"huge\.npz: array 'weights' holds 2000000000 values \(more than"):
+        read_paired(wav, tmp_path / "huge.npz", 30)
+
+
+@pytest.mark.parametrize("rate", [0.0, np.nan, 5000.0])
+def test_a_rate_an_npz_stores_must_be_a_frame_rate(tmp_path, wav, rate):
+    clock = np.column_stack([np.arange(60) / 30, RAMP[:, 0]])
+    np.savez(tmp_path / "r.npz", weights=clock, names=np.array(["pts_time", "jawOpen"]), fps=rate)
+    with pytest.raises(
+        InputError,
+        match=r"r\.npz: the frame rate must be in \[1, 1000\], not \w+ \(the rate the file gives\)",
+    ):
+        read_paired(wav, tmp_path / "r.npz", None)
+
+
+def test_variant_leaves_generic_paired_csvs_alone(tmp_path, wav):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    sf.write(folder / "rig01.wav", np.zeros(32000, np.int16), 16000, subtype="PCM_16")
+    write_csv(
+        folder / "rig01.csv", ["time", "jawOpen", "rig_lip"], [f"{i / 30:.6f}" for i in range(60)], RAMP
+    )
+    proc, out = import_cli(tmp_path, folder, "--pair-audio", "--variant", "cal")
+    assert proc.returncode == 0 and [Path(x["path"]).name for x in out] == ["rig01"], proc.stderr
+
+
+def test_first_frame_in_a_batch_is_ignored_by_a_file_without_a_frame_column(tmp_path):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for stem in ("line01", "line02"):
+        sf.write(folder / f"{stem}.wav", np.zeros(32000, np.int16), 16000, subtype="PCM_16")
+    export = {"exportFps": 30, "facsNames": ["jawOpen", "rig_lip"], "weightMat": RAMP.tolist()}
+    (folder / "line01_bsweight.json").write_text(json.dumps(export))
+    write_csv(folder / "line02.csv", ["frame", "jawOpen", "rig_lip"], [str(i + 5) for i in range(60)], RAMP)
+    proc, out = import_cli(tmp_path, folder, "--pair-audio", "--fps", "30", "--first-frame", "5")
+    assert proc.returncode == 0 and len(out) == 2, proc.stderr
+    assert proc.stderr.count("--first-frame applies to a frame-number column") == 1
+    assert "line01_bsweight.json: --first-frame applies" in proc.stderr and "ignored" in proc.stderr
+    assert read_take(out[1]["path"]).time[0] == 0  # line02's frame 5 at the audio's start
+    with pytest.raises(InputError, match="--first-frame applies to a frame-number column"):  # one file
+        read_paired(folder / "line01.wav", folder / "line01_bsweight.json", None, first_frame=5)
+
+
+def test_a_late_clock_is_named_only_when_it_explains_the_length_mismatch(tmp_path):
+    sf.write(tmp_path / "a.wav", np.zeros(int(16000 * 1.2), np.int16), 16000, subtype="PCM_16")
+    m = write_csv(
+        tmp_path / "m.csv", ["time", "jawOpen", "rig_lip"], [f"{0.5 + i / 30:.6f}" for i in range(60)], RAMP
+    )
+    [note] = [
+        r for r in read_paired(tmp_path / "a.wav", m, None).meta.repairs if r["kind"] == "length_mismatch"
+    ]
+    assert "check --fps" in note["message"] and "starts at" not in note["message"]  # 0.5 s of 1.3 s
+
+
+def test_frame_numbers_from_1001_name_first_frame(tmp_path, wav):
+    m = write_csv(
+        tmp_path / "m.csv", ["frame", "jawOpen", "rig_lip"], [str(1001 + i) for i in range(60)], RAMP
+    )
+    with pytest.raises(
+        InputError, match=r"lie outside the audio .*: .*starts at frame 1001: .*--first-frame 1001$"
+    ):
+        read_paired(wav, m, 30)
+    sf.write(tmp_path / "long.wav", np.zeros(16000 * 60, np.int16), 16000, subtype="PCM_16")
+    [note] = [
+        r for r in read_paired(tmp_path / "long.wav", m, 30).meta.repairs if r["kind"] == "length_mismatch"
+    ]
+    assert note["message"].endswith("import again with --first-frame 1001")
+    assert read_paired(tmp_path / "long.wav", m, 30, first_frame=1001).time[0] == 0
+
+
+def test_the_frame_numbers_from_1_note_says_what_it_cannot_tell(tmp_path, wav):
+    m = write_csv(tmp_path / "m.csv", ["frame", "jawOpen", "rig_lip"], [str(i + 1) for i in range(60)], RAMP)
+    [note] = [r for r in read_paired(wav, m, 30).meta.repairs if r["kind"] == "frame_numbers_from_1"]
+    assert "cannot tell that from counting from 0 with frame 0 missing" in note["message"]
+    assert note["message"].endswith("--first-frame 0")
+
+
+def test_small_scales_in_use_are_no_percent_scale(tmp_path, wav):
+    rng = np.random.default_rng(0)
+    (tmp_path / "au.txt").write_text("AU01_r\nAU02_r\nAU12_r\n")
+    np.save(tmp_path / "au.npy", rng.uniform(0, 3.5, (60, 3)))  # OpenFace's intensities, 0..5
+    assert "percent_scale" not in kinds(read_paired(wav, tmp_path / "au.npy", 30, tmp_path / "au.txt"))
+    (tmp_path / "deg.txt").write_text("head_yaw_deg\njawOpen\n")
+    np.save(tmp_path / "deg.npy", np.column_stack([np.linspace(0, 6, 60), RAMP[:, 0]]))
+    assert "percent_scale" not in kinds(read_paired(wav, tmp_path / "deg.npy", 30, tmp_path / "deg.txt"))
+
+
+def test_bracketed_rig_names_are_names_and_quoted_ones_are_debris(tmp_path):
+    (tmp_path / "n.txt").write_text("brow_up[L]\nbrow_up[R]\n")
+    assert read_names(tmp_path / "n.txt") == ["brow_up[L]", "brow_up[R]"]
+    (tmp_path / "q.txt").write_text("it's\n'jawOpen',\n")
+    with pytest.raises(InputError, match=r"q\.txt:2: channel name \"'jawOpen'\" carries brackets or quotes"):
+        read_names(tmp_path / "q.txt")
+
+
+def test_digits_of_other_scripts_are_not_numbers(tmp_path, wav):
+    (tmp_path / "m.csv").write_text(
+        "time,jawOpen\n" + "".join(f"{i / 30:.5f},\u0660.\u0665\n" for i in range(60))
+    )
+    with pytest.raises(InputError, match=r"m\.csv:2: non-numeric value in the matrix: '\u0660\.\u0665'"):
+        read_paired(wav, tmp_path / "m.csv", None)
