@@ -26,6 +26,7 @@ from typing import Any
 from capture import InputError, S2AError, Take, TakeMeta, find_takes, read_meta, read_take, write_take
 from capture.atomic import folder_in_place
 from capture.command import json_safe
+from capture.numbers import is_count
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
 
 from .aligner import ALIGN_VERSION, align_with_report
@@ -62,10 +63,6 @@ def _outputs_of(out_dir: Path, take_id: str) -> list[tuple[Path, TakeMeta]]:
     return found
 
 
-def _is_count(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
 def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
     outs = _outputs_of(out_dir, take_id)
     if not outs:
@@ -74,7 +71,7 @@ def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
     count = reports[0].get("segment_count")
     if any(r.get("fingerprint") != fp for r in reports) or len(reports) != count:
         return None
-    if not all(_is_count(r.get("frames")) and _is_count(r.get("gaps_interpolated")) for r in reports):
+    if not all(is_count(r.get("frames")) and is_count(r.get("gaps_interpolated")) for r in reports):
         return None  # an output edited by hand: aligned again
     own = {
         "segment",

@@ -68,9 +68,16 @@ def sigterm_stops() -> Iterator[None]:
 
 
 def out_of_memory(exc: BaseException) -> bool:
-    """Whether ``exc`` says memory ran out: a MemoryError (NumPy's too), or PyTorch's allocator refusing."""
+    """Whether ``exc`` says memory ran out: a MemoryError (NumPy's too), or PyTorch's allocator refusing
+    (the CPU's "can't allocate memory", ``torch.OutOfMemoryError``'s "CUDA out of memory")."""
+    message = str(exc).lower()
     return isinstance(exc, MemoryError) or (
-        isinstance(exc, RuntimeError) and "can't allocate memory" in str(exc).lower()
+        isinstance(exc, RuntimeError)
+        and (
+            type(exc).__name__ == "OutOfMemoryError"
+            or "can't allocate memory" in message
+            or "out of memory" in message
+        )
     )
 
 

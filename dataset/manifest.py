@@ -21,6 +21,7 @@ from typing import Any
 
 from capture.atomic import write_json_atomic
 from capture.errors import InputError
+from capture.numbers import is_count as _count
 
 from .splits import SPLITS
 
@@ -68,10 +69,6 @@ def dataset_folder(ds: str | Path) -> Path:
 
 def _number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _count(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
 
 
 def _fields(obj: dict, at: str, kinds: dict[str, tuple[Callable[[Any], bool], str]], optional=()):

@@ -180,9 +180,12 @@ class ShardReader:
             yield key, members
 
 
+# NumPy reads version 3.0 (2.0 with a UTF-8 header, for non-latin-1 field names) only privately
+_read_npy_header = getattr(np.lib, "_format_impl", np.lib.format)._read_array_header
 NPY_HEADER_READERS = {
     (1, 0): np.lib.format.read_array_header_1_0,
     (2, 0): np.lib.format.read_array_header_2_0,
+    (3, 0): lambda f: _read_npy_header(f, (3, 0)),
 }
 
 
@@ -205,6 +208,10 @@ def decode_npy(data: bytes, what: str = "array") -> np.ndarray:
         raise InputError(f"{what} holds Python objects (dtype {dtype}), which are never unpickled")
     if dtype.itemsize == 0:
         raise InputError(f"{what} is not a readable .npy (dtype {dtype} has no size)")
+    if any(d < 0 for d in shape):
+        raise InputError(
+            f"{what} is not a readable .npy (its header declares shape {shape}: a negative size)"
+        )
     count = math.prod(shape)
     held = len(data) - f.tell()
     if count * dtype.itemsize > held:

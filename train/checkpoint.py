@@ -16,6 +16,7 @@ import os
 import shutil
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ import torch
 from capture.atomic import partial_path, write_json_atomic
 from capture.errors import InputError
 from capture.file_lock import try_lock
+from capture.numbers import is_count
 from capture.take import MAX_FPS
 from dataset.bottleneck import load_plain
 from dataset.manifest import features_problems, normalization_problems
@@ -208,7 +210,7 @@ def load_system(run: str | Path):
         spec = InputSpec.from_json(payload["inputs"])
     except (TypeError, KeyError) as exc:
         raise InputError(f"checkpoint has malformed inputs ({exc})", path) from None
-    check_declared_sizes(payload, path)
+    check_declared_sizes(payload, spec, path)
     try:
         with torch.device("meta"):  # sizes only: nothing allocated before they match the weights
             shaped, _ = build_model(payload["system"], spec, payload["config"])
@@ -239,15 +241,35 @@ def _arch_sizes(arch: Any, at: str = "arch") -> Iterator[tuple[str, int]]:
             yield f"{at}.{key}", value
 
 
-def check_declared_sizes(payload: dict[str, Any], path: Path) -> None:
-    """No size a checkpoint declares (its inputs' dims, its arch's widths, layers, experts) may exceed
-    the number of weights its state_dict holds: the model it describes would hold at least that many.
-    Building the model loops over its layers and experts, so this comes first. ``max_frames`` sizes a
-    computed table instead (``check_model_shapes``)."""
+def _system_sizes(payload: dict[str, Any], spec) -> Iterator[tuple[str, int]]:
+    """(name, value) of the sizes the checkpoint's system is built with, resolved from its config as
+    ``build_model`` resolves them but without building anything: the fields of that system's arch
+    dataclass (arch keys of other systems, and other systems' tables, are ignored as the system ignores
+    them), ridge's ``ridge_context``. A config the system cannot resolve gives none: ``build_model``
+    refuses it, before building any layer."""
+    from .systems import ARCH_TABLES, _config
+
+    system, cfg = payload["system"], payload["config"]
+    if system == "ridge":
+        yield from _arch_sizes({"ridge_context": cfg.get("ridge_context")}, "config")
+    elif system in ARCH_TABLES:
+        try:
+            resolved = asdict(_config(ARCH_TABLES[system], spec, {}, dict(cfg.get("arch", {})), system))
+        except (InputError, ValueError, TypeError, AttributeError):
+            return
+        yield from _arch_sizes(resolved)
+
+
+def check_declared_sizes(payload: dict[str, Any], spec, path: Path) -> None:
+    """No size a checkpoint declares (its inputs' dims; the widths, layers, experts of its system's arch,
+    as ``_system_sizes`` resolves them from its config) may exceed the number of weights its state_dict
+    holds: the model it describes would hold at least that many. Building the model loops over its
+    layers and experts, so this comes first. ``max_frames`` sizes a computed table instead
+    (``check_model_shapes``)."""
     weights = sum(v.numel() for v in payload["state_dict"].values() if isinstance(v, torch.Tensor))
     inputs = payload["inputs"]
     sizes = [(f"inputs.{k}", inputs[k]) for k in ("content_dim", "prosody_dim", "out_dim")]
-    sizes += [(k, v) for k, v in _arch_sizes(payload["config"].get("arch")) if not k.endswith(".max_frames")]
+    sizes += [(k, v) for k, v in _system_sizes(payload, spec) if not k.endswith(".max_frames")]
     for name, value in sizes:
         if value > weights:
             raise InputError(
@@ -325,10 +347,6 @@ def check_payload(payload: dict[str, Any], path: Path) -> None:
         raise InputError("checkpoint has malformed 'model_config' (not a dict)", path)
 
 
-def _size(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
-
-
 def check_inputs(inputs: dict[str, Any], dims: dict[str, int], path: Path) -> None:
     """The checkpoint's InputSpec: its fields' types, and its sizes those of its dataset's features
     (plus one prosody column per speaker style)."""
@@ -339,7 +357,7 @@ def check_inputs(inputs: dict[str, Any], dims: dict[str, int], path: Path) -> No
     ):
         raise InputError("checkpoint has malformed inputs (content, prosody or styles not names)", path)
     for key in ("content_dim", "prosody_dim", "out_dim"):
-        if not _size(inputs.get(key)):
+        if not is_count(inputs.get(key)):
             raise InputError(f"checkpoint has malformed inputs ({key} {inputs.get(key)!r})", path)
     for name in (inputs["content"], *inputs["prosody"]):
         if name not in dims:
