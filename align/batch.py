@@ -355,7 +355,7 @@ def align_takes(
                 on_report(r)
         return reports
     todo = [f for f in folders if f not in clashes]
-    with worker_pool(jobs, _worker_context(opts)) as pool:
+    with worker_pool(min(jobs, len(todo)), _worker_context(opts)) as pool:  # no idle workers
         calls = [(f, out_dir, opts, force, skip_without_audio) for f in todo]
         futures = dict(zip(todo, submit_all(pool, align_folder, calls)))
         for f in folders:

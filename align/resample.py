@@ -212,6 +212,8 @@ def remove_rumble(x: np.ndarray) -> np.ndarray:
     sub-audible rumble removed, as float32. Run forward from the steady state of the first sample (a DC
     offset leaves no transient at the start), then backward from rest, in blocks of ``_CHUNK``."""
     n = x.size
+    if n == 0:  # the mean of nothing is nan, with numpy's warnings
+        return np.zeros(0, np.float32)
     if n < 64:
         return np.ascontiguousarray(x - np.mean(x, dtype=np.float64), dtype=np.float32)
     from scipy.signal import (

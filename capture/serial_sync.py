@@ -1,13 +1,15 @@
 """Sync markers from a serial sync box (button, clapper, timecode reader), stamped on the session clock.
 
 Line protocol (docs/live-capture.md): the box sends one line per event, UTF-8, ended by ``\\n``
-(``\\r\\n`` accepted), at most ``MAX_LINE_BYTES`` bytes, sent the moment the event happens::
+(``\\r\\n`` and a lone ``\\r`` accepted), at most ``MAX_LINE_BYTES`` bytes, sent the moment the
+event happens::
 
     KIND [ARGUMENT ...]
 
 ``KIND`` is one word (``CLAP``, ``BUTTON``, ``MARK``, ``TC``, ...); e.g. ``BUTTON 1``, ``CLAP``,
-``TC 14:58:02:44``. Empty lines are ignored; longer lines are cut and flagged. Each event is logged
-with the clock time its line ending arrived.
+``TC 14:58:02:44``. Empty lines are ignored; a longer line is one event, cut and flagged; a line with
+control characters (other than tab) or invalid UTF-8 (line noise, a wrong baud rate) is dropped and
+counted. Each event is logged with the clock time its line ending arrived.
 
 Ports are pyserial URLs: a device (``/dev/ttyUSB0``), ``socket://HOST:PORT``, ``rfc2217://...`` or
 ``loop://`` for tests.
@@ -15,18 +17,25 @@ Ports are pyserial URLs: a device (``/dev/ttyUSB0``), ``socket://HOST:PORT``, ``
 
 from __future__ import annotations
 
+import codecs
+import contextlib
+import re
 import struct
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from .command import progress
 from .errors import InputError
 from .record_log import RecordType, encode_record
 from .session_clock import SessionClock
 
 MAX_LINE_BYTES = 256
 _SYNC_HEAD = struct.Struct("<Bq")  # type, arrival ns
+_TRUNCATED = b"\0"  # after a SYNC record's line: the line was cut
+_LINE_END = re.compile(rb"\r\n?|\n")
+_CONTROL = re.compile("[\x00-\x08\x0a-\x1f\x7f-\x9f]")  # control characters but tab
 
 
 @dataclass
@@ -48,26 +57,45 @@ class SyncEvent:
         return out
 
 
-def parse_sync_line(raw: bytes, arrival_ns: int) -> SyncEvent | None:
-    """A ``SyncEvent`` from one received line (with or without its ending); None for blank lines."""
-    truncated = len(raw.rstrip(b"\r\n")) > MAX_LINE_BYTES
-    text = raw.rstrip(b"\r\n")[:MAX_LINE_BYTES].decode("utf-8", errors="replace").strip()
+def _event(text: str, arrival_ns: int, truncated: bool) -> SyncEvent | None:
+    """The event a line's text holds; None for a blank line."""
+    text = text.strip()
     if not text:
         return None
     parts = text.split()
     return SyncEvent(arrival_ns, parts[0].upper(), parts[1:], text, truncated)
 
 
+def parse_sync_line(raw: bytes, arrival_ns: int, cut: bool = False) -> SyncEvent | None:
+    """A ``SyncEvent`` from one received line (with or without its ending); None for a blank line. A
+    line over ``MAX_LINE_BYTES`` is cut there (at a character boundary) and flagged ``truncated``, as is
+    one ``cut`` short. ``ValueError`` for line noise: invalid UTF-8 or a control character but tab."""
+    raw = raw.rstrip(b"\r\n")
+    truncated = cut or len(raw) > MAX_LINE_BYTES
+    try:  # not final when cut: a character the cut splits is dropped, not an error
+        text = codecs.getincrementaldecoder("utf-8")().decode(raw[:MAX_LINE_BYTES], final=not truncated)
+    except UnicodeDecodeError:
+        raise ValueError("invalid UTF-8") from None
+    if _CONTROL.search(text):
+        raise ValueError("control characters")
+    return _event(text, arrival_ns, truncated)
+
+
 def sync_record(event: SyncEvent) -> bytes:
-    """The log record of an event: arrival ns and the line as received (cut to the limit)."""
-    return encode_record(_SYNC_HEAD.pack(RecordType.SYNC, event.arrival_ns) + event.text.encode("utf-8"))
+    """The log record of an event: arrival ns and the line as received (cut to the limit), then a NUL
+    byte when it was cut (``truncated``; a line never holds one, and logs without it still decode)."""
+    flag = _TRUNCATED if event.truncated else b""
+    return encode_record(
+        _SYNC_HEAD.pack(RecordType.SYNC, event.arrival_ns) + event.text.encode("utf-8") + flag
+    )
 
 
 def decode_sync_record(payload) -> SyncEvent:
     _, arrival_ns = _SYNC_HEAD.unpack_from(payload)
     raw = bytes(payload[_SYNC_HEAD.size :])
-    event = parse_sync_line(raw, arrival_ns)
-    return event or SyncEvent(arrival_ns, "", [], "")
+    truncated = raw.endswith(_TRUNCATED)
+    text = raw.removesuffix(_TRUNCATED).decode("utf-8", errors="replace")
+    return _event(text, arrival_ns, truncated) or SyncEvent(arrival_ns, "", [], "")
 
 
 def open_serial(url: str, baudrate: int = 115200):
@@ -94,6 +122,7 @@ class SerialSync:
         self.clock = clock
         self.sink = sink
         self.events = 0
+        self.dropped = 0  # lines of line noise (invalid UTF-8, control characters)
         self.error: str | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="serial-sync", daemon=True)
@@ -116,22 +145,30 @@ class SerialSync:
             if not data:
                 continue
             now = self.clock.now_ns()
-            pending += data
-            while b"\n" in pending:
-                line, pending = pending.split(b"\n", 1)
-                self._emit(parse_sync_line(line, now))
-            if len(pending) > 4 * MAX_LINE_BYTES:
-                # A box that never ends its lines: keep what we have as one flagged event.
-                self._emit(parse_sync_line(pending, now), truncated=True)
-                pending = b""
+            *lines, pending = _LINE_END.split(pending + data)
+            for line in lines:
+                self._line(line, now)
+            # A line over the limit is cut there anyway: the rest up to its end is not kept.
+            pending = pending[: MAX_LINE_BYTES + 1]
         # What came after the last line end (a box cut off mid-line): kept, flagged, stamped at its arrival.
         if pending:
-            self._emit(parse_sync_line(pending, now), truncated=True)
+            self._line(pending, now, cut=True)
 
-    def _emit(self, event: SyncEvent | None, truncated: bool = False) -> None:
-        """Count and hand on a parsed line (None: not an event); ``truncated`` flags a line cut short."""
+    def _line(self, raw: bytes, arrival_ns: int, cut: bool = False) -> None:
+        """Count and hand on the event of a received line; ``cut``: a line cut short. Line
+        noise is dropped and counted (``dropped``), with one warning."""
+        try:
+            event = parse_sync_line(raw, arrival_ns, cut)
+        except ValueError as exc:
+            self.dropped += 1
+            if self.dropped == 1:
+                with contextlib.suppress(OSError):  # stderr that cannot be written must not stop the reading
+                    progress(
+                        f"warning: the serial sync box sent a line that is not text ({exc}): such lines are "
+                        "dropped (line noise or a wrong --baud?)"
+                    )
+            return
         if event is not None:
-            event.truncated = truncated or event.truncated
             self.events += 1
             self.sink(event)
 
