@@ -311,6 +311,10 @@ def cmd_render(args: argparse.Namespace) -> int:
             audio = None
             if speech is not None:
                 voice, samples, rate = speech
+                a0 = voice.audio_start_s - (voice.t0 - voice.offset_s)  # seconds into the video
+                a1 = a0 + voice.audio.frames / voice.audio.sample_rate
+                for w in _outside(f"{voice.audio_file} (audio)", a0, a1, *shown, "the video is silent"):
+                    progress(f"warning: {w}")
                 if (to := aac_rate(rate)) != rate:
                     progress(f"note: {voice.audio_file}: {rate} Hz audio resampled to {to} Hz for AAC")
                     samples, rate = resample_speech(samples, rate, to), to

@@ -7,16 +7,23 @@ default scene. Skins, textures and animations are ignored: the mesh is shown in 
 material's base colour.
 
 Target names come from ``mesh.extras.targetNames`` (the common export convention) or a primitive's
-``extras.targetNames``, and map to ARKit channels whatever the spelling (``arkit_channel``).
+``extras.targetNames``, and map to ARKit channels whatever the spelling (``arkit_channel``). Triangle
+strips and fans are drawn as triangles; points and lines are not drawn.
+
+A damaged file is an ``InputError`` naming it: indices, types and counts are checked where they are
+read, and ``load_gltf`` turns any other structural failure while parsing (``KeyError``, ``IndexError``,
+``TypeError``, ``ValueError``, ``AttributeError``, ``struct.error``) into one.
 """
 
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 import re
 import struct
 from pathlib import Path
+from urllib.parse import unquote
 
 import numpy as np
 
@@ -84,6 +91,8 @@ class _Gltf:
             raise InputError("file is empty: no glTF or GLB", path)
         self.bin: bytes | None = None
         if data[:4] == b"glTF":
+            if len(data) < 12:
+                raise InputError(f"GLB header is cut short: {len(data)} of its 12 bytes", path)
             magic, version, length = struct.unpack_from("<III", data, 0)
             if version != 2:
                 raise InputError(f"GLB version {version}; only glTF 2.0 is read", path)
@@ -108,21 +117,36 @@ class _Gltf:
             self.doc = json.loads(doc.decode("utf-8").rstrip("\x00 "))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"not a glTF file ({exc})", path) from None
-        if not str(self.doc.get("asset", {}).get("version", "")).startswith("2"):
+        if not isinstance(self.doc, dict) or not isinstance(self.doc.get("asset"), dict):
+            raise InputError("not a glTF file (no JSON object with an asset object at the top)", path)
+        if not str(self.doc["asset"].get("version", "")).startswith("2"):
             raise InputError("only glTF 2.0 is read (asset.version)", path)
         self.buffers: dict[int, bytes] = {}
 
+    def item(self, kind: str, i) -> dict:
+        """``doc[kind][i]``; an ``InputError`` when ``i`` is not one of its indices."""
+        items = self.doc.get(kind) or []
+        if type(i) is not int or not 0 <= i < len(items) or not isinstance(items[i], dict):
+            raise InputError(f"{kind} index {i!r} is out of range (the file has {len(items)})", self.path)
+        return items[i]
+
     def buffer(self, i: int) -> bytes:
         if i not in self.buffers:
-            b = self.doc["buffers"][i]
+            b = self.item("buffers", i)
             uri = b.get("uri")
             if uri is None:
                 if self.bin is None:
                     raise InputError(f"buffer {i} has no data", self.path)
                 self.buffers[i] = self.bin
             elif uri.startswith("data:"):
-                self.buffers[i] = base64.b64decode(uri.split(",", 1)[1])
+                if "," not in uri:
+                    raise InputError(f"buffer {i}: data URI has no data (no comma)", self.path)
+                try:
+                    self.buffers[i] = base64.b64decode(uri.split(",", 1)[1], validate=True)
+                except binascii.Error as exc:
+                    raise InputError(f"buffer {i}: data URI is not base64 ({exc})", self.path) from None
             else:
+                uri = unquote(uri)  # a URI: "my%20head.bin" is the file "my head.bin"
                 f = self.path.parent / uri
                 if not f.is_file():
                     raise InputError(f"buffer file {uri} not found", self.path)
@@ -130,11 +154,17 @@ class _Gltf:
         return self.buffers[i]
 
     def _view(self, index: int, dtype, width: int, count: int, offset: int) -> np.ndarray:
-        bv = self.doc["bufferViews"][index]
+        bv = self.item("bufferViews", index)
         buf = self.buffer(bv["buffer"])
         item = np.dtype(dtype).itemsize * width
         stride = bv.get("byteStride") or item
         start = bv.get("byteOffset", 0) + offset
+        if stride < item:
+            raise InputError(
+                f"bufferView {index}: byteStride {stride} is less than its {item}-byte element", self.path
+            )
+        if start < 0:
+            raise InputError(f"bufferView {index}: negative byte offset {start}", self.path)
         if count == 0:
             return np.zeros((0, width), dtype)
         need = start + stride * (count - 1) + item
@@ -148,12 +178,16 @@ class _Gltf:
 
     def accessor(self, index: int) -> np.ndarray:
         """Accessor ``index`` as float64 (count, width) (normalised integers scaled to [0, 1]/[-1, 1])."""
-        acc = self.doc["accessors"][index]
+        acc = self.item("accessors", index)
         dtype = _COMPONENT.get(acc["componentType"])
         if dtype is None:
             raise InputError(f"accessor {index}: unknown component type {acc['componentType']}", self.path)
+        if acc["type"] not in _WIDTH:
+            raise InputError(f"accessor {index}: unknown type {acc['type']!r}", self.path)
         width = _WIDTH[acc["type"]]
         count = acc["count"]
+        if type(count) is not int or count < 0:
+            raise InputError(f"accessor {index}: count {count!r} is not a count", self.path)
         if "bufferView" in acc:
             out = self._view(acc["bufferView"], dtype, width, count, acc.get("byteOffset", 0)).astype(
                 np.float64
@@ -171,12 +205,17 @@ class _Gltf:
             vals = self._view(vs["bufferView"], dtype, width, n, vs.get("byteOffset", 0)).astype(np.float64)
             if acc.get("normalized") and dtype in _NORM:
                 vals = np.maximum(vals / _NORM[dtype], -1.0)
-            out[idx[:, 0].astype(np.int64)] = vals
+            idx = idx[:, 0].astype(np.int64)
+            if n and not 0 <= idx.min() <= idx.max() < count:
+                raise InputError(f"accessor {index}: sparse index beyond its {count} elements", self.path)
+            out[idx] = vals
         return out
 
 
 def _node_matrix(node: dict) -> np.ndarray:
     if "matrix" in node:
+        if len(node["matrix"]) != 16:
+            raise ValueError(f"a node's matrix has {len(node['matrix'])} numbers, not 16")
         return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major in glTF
     t = np.array(node.get("translation", [0, 0, 0]), dtype=np.float64)
     x, y, z, w = node.get("rotation", [0, 0, 0, 1])
@@ -197,17 +236,48 @@ def _node_matrix(node: dict) -> np.ndarray:
 def load_gltf(path: str | Path) -> FaceModel:
     """A glTF/GLB head as a ``FaceModel``; its morph targets drive the ARKit channels they name.
 
-    ``InputError`` when the file is not glTF 2.0, or when no morph target maps to an ARKit channel.
+    ``InputError`` naming the file when it is not glTF 2.0, is damaged (an index out of range, a count
+    or type that does not fit, non-finite positions, a head of no size), or when no morph target maps
+    to an ARKit channel.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError("no such glTF/GLB file", path)
-    g = _Gltf(path)
-    doc = g.doc
+    try:
+        return _load(_Gltf(path))
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError, struct.error) as exc:
+        # What the checks along the way do not name: one line naming the file, not a traceback.
+        what = "a field is missing" if isinstance(exc, KeyError) else type(exc).__name__
+        raise InputError(f"damaged glTF ({what}: {exc})", path) from None
+
+
+def _triangles(g: _Gltf, prim: dict, n: int, where: str) -> np.ndarray:
+    """(F, 3) vertex indices of a triangle list (mode 4), strip (5) or fan (6), checked against ``n``."""
+    mode = prim.get("mode", 4)
+    if "indices" in prim:
+        seq = g.accessor(prim["indices"])[:, 0].astype(np.int64)
+    else:
+        seq = np.arange(n)
+    if mode == 4:
+        if seq.size % 3:
+            raise InputError(f"{where}: {seq.size} indices are not whole triangles", g.path)
+        tris = seq.reshape(-1, 3)
+    else:
+        k = np.arange(max(seq.size - 2, 0))
+        if mode == 5:  # strip: triangle k is (k, k+1, k+2), every other one turned to keep the winding
+            tris = np.stack([seq[k], seq[k + 1 + k % 2], seq[k + 2 - k % 2]], axis=1)
+        else:  # fan about the first vertex
+            tris = np.stack([seq[k + 1], seq[k + 2], np.zeros_like(k) + seq[:1]], axis=1)
+    if tris.size and not 0 <= tris.min() <= tris.max() < n:
+        raise InputError(f"{where}: a vertex index is beyond its {n} vertices", g.path)
+    return tris
+
+
+def _load(g: _Gltf) -> FaceModel:
+    path, doc = g.path, g.doc
     nodes = doc.get("nodes", [])
-    scenes = doc.get("scenes", [])
-    if scenes:
-        roots = scenes[doc.get("scene", 0)].get("nodes", [])
+    if doc.get("scenes"):
+        roots = g.item("scenes", doc.get("scene", 0)).get("nodes", [])
     else:
         children = {c for n in nodes for c in n.get("children", [])}
         roots = [i for i in range(len(nodes)) if i not in children]
@@ -221,35 +291,47 @@ def load_gltf(path: str | Path) -> FaceModel:
         seen += 1
         if seen > 100000:
             raise InputError("node hierarchy has a cycle", path)
-        node = nodes[i]
+        node = g.item("nodes", i)
         m = parent @ _node_matrix(node)
         stack += [(c, m) for c in node.get("children", [])]
         if "mesh" not in node:
             continue
-        mesh = doc["meshes"][node["mesh"]]
+        mesh = g.item("meshes", node["mesh"])
         names = (mesh.get("extras") or {}).get("targetNames")
         for k, prim in enumerate(mesh.get("primitives", [])):
-            if prim.get("mode", 4) != 4 or "POSITION" not in prim.get("attributes", {}):
-                continue  # only triangle lists are drawn
+            if prim.get("mode", 4) not in (4, 5, 6) or "POSITION" not in prim.get("attributes", {}):
+                continue  # points and lines are not drawn
+            where = f"mesh {node['mesh']} primitive {k}"
             pos = g.accessor(prim["attributes"]["POSITION"])[:, :3]
-            if "indices" in prim:
-                tris = g.accessor(prim["indices"])[:, 0].astype(np.int64).reshape(-1, 3)
-            else:
-                tris = np.arange(len(pos) - len(pos) % 3).reshape(-1, 3)
+            tris = _triangles(g, prim, len(pos), where)
             pnames = names or (prim.get("extras") or {}).get("targetNames") or []
+            if not isinstance(pnames, list):
+                raise InputError(
+                    f"{where}: targetNames is {type(pnames).__name__}, not a list of names", path
+                )
             deltas: dict[int, np.ndarray] = {}
+            named: dict[int, str] = {}
             for t, target in enumerate(prim.get("targets", [])):
-                tname = pnames[t] if t < len(pnames) else f"target{t}"
+                tname = str(pnames[t]) if t < len(pnames) else f"target{t}"
                 ch = arkit_channel(tname)
                 if ch is None or "POSITION" not in target:
                     unmapped.add(tname)
                     continue
-                mapped.add(ch)
-                d = g.accessor(target["POSITION"])[:, :3] @ m[:3, :3].T
                 idx = _INDEX[ch]
-                deltas[idx] = deltas.get(idx, 0) + d
+                if idx in named:
+                    raise InputError(f"{where}: morph targets {named[idx]} and {tname} both name {ch}", path)
+                d = g.accessor(target["POSITION"])[:, :3]
+                if d.shape[0] != len(pos):
+                    raise InputError(
+                        f"{where}: morph target {tname} moves {d.shape[0]} of {len(pos)} vertices", path
+                    )
+                mapped.add(ch)
+                named[idx] = tname
+                deltas[idx] = d @ m[:3, :3].T
             colors = _part_colors(g, prim, len(pos))
             world = pos @ m[:3, :3].T + m[:3, 3]
+            if not np.isfinite(world).all():
+                raise InputError(f"{where}: vertex positions that are not finite numbers", path)
             if np.linalg.det(m[:3, :3]) < 0:
                 tris = tris[:, ::-1]
             parts.append(Part(f"{mesh.get('name', 'mesh')}.{k}", world, tris, colors, deltas))
@@ -260,8 +342,10 @@ def load_gltf(path: str | Path) -> FaceModel:
         raise InputError(f"no morph target names an ARKit blendshape (targets: {hint})", path)
     allv = np.vstack([p.vertices for p in parts])
     lo, hi = allv.min(axis=0), allv.max(axis=0)
+    if not (hi - lo).max() > 0:
+        raise InputError("the head has no size: all its vertices are at one point", path)
     center = (lo + hi) / 2
-    height = max(hi[1] - lo[1], 1e-9)
+    height = hi[1] - lo[1] or (hi - lo).max()  # a head flat in y is framed by its largest extent
     # Frame the head: 30 degree view, the head's height filling about 80% of the image, from the front.
     dist = height / 0.8 / (2 * np.tan(np.radians(15))) + (hi[2] - lo[2]) / 2
     model = FaceModel(
@@ -285,7 +369,7 @@ def _part_colors(g: _Gltf, prim: dict, n: int) -> np.ndarray:
         return np.clip(np.rint(c * 255), 0, 255).astype(np.uint8)
     base = [0.85, 0.68, 0.58]
     if "material" in prim:
-        mat = g.doc.get("materials", [])[prim["material"]]
+        mat = g.item("materials", prim["material"])
         base = (mat.get("pbrMetallicRoughness") or {}).get("baseColorFactor", base + [1])[:3]
     return np.tile(np.clip(np.rint(np.array(base) * 255), 0, 255).astype(np.uint8), (n, 1))
 

@@ -324,7 +324,8 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         kind, title = "dataset", ds.name
     else:
         named = find_takes(extra) if extra else []  # walked once: the --takes folders are listed too
-        folders = find_takes([path]) + named
+        # A --takes folder inside FOLDER (or FOLDER itself) is one take, listed once.
+        folders = list({f.resolve(): f for f in [*find_takes([path]), *named]}.values())
         if not folders:
             if find_sources([path]):
                 raise InputError(
