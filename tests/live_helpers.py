@@ -126,3 +126,32 @@ def datagrams(sock: socket.socket) -> list[bytes]:
             out.append(sock.recv(4096))
     except TimeoutError:
         return out
+
+
+def listen_with_sync_box(tmp_path, lines: list[bytes]) -> tuple[list[dict], str, int]:
+    """``listen --serial socket://...`` on loopback while a simulated sync box sends ``lines`` 0.3 s apart
+    and a phone replays 150 frames: the listener's JSON lines, stderr and exit code."""
+    from capture.replay import replay_take
+
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    server.settimeout(20)
+
+    def sync_box():
+        conn, _ = server.accept()
+        with conn:
+            for line in lines:
+                time.sleep(0.3)
+                conn.sendall(line)
+            time.sleep(0.5)
+
+    box = threading.Thread(target=sync_box, daemon=True)
+    box.start()
+    listener = Listener(tmp_path / "out", "--serial", f"socket://127.0.0.1:{server.getsockname()[1]}")
+    replay_take(synthetic_take(150, seed=8), "127.0.0.1", listener.port, speed=1.0)
+    box.join(timeout=20)
+    try:
+        return listener.stop()
+    finally:
+        server.close()

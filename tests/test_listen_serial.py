@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 
 import serial
-from live_helpers import Listener, synthetic_take
+from live_helpers import listen_with_sync_box
 
 from capture import read_take
-from capture.replay import replay_take
 from capture.serial_sync import MAX_LINE_BYTES, SerialSync, parse_sync_line
 from capture.session_clock import SessionClock
 
@@ -35,27 +32,7 @@ def test_loop_url_delivers_events_with_arrival_times():
 
 
 def test_socket_url_sync_box_end_to_end(tmp_path):
-    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    server.bind(("127.0.0.1", 0))
-    server.listen(1)
-    server.settimeout(20)
-    box_port = server.getsockname()[1]
-
-    def sync_box():
-        conn, _ = server.accept()
-        with conn:
-            for line in (b"CLAP\n", b"BUTTON 2\n", b"MARK end of sentence\n"):
-                time.sleep(0.3)
-                conn.sendall(line)
-            time.sleep(0.5)
-
-    box = threading.Thread(target=sync_box, daemon=True)
-    box.start()
-    listener = Listener(tmp_path / "out", "--serial", f"socket://127.0.0.1:{box_port}")
-    replay_take(synthetic_take(150, seed=8), "127.0.0.1", listener.port, speed=1.0)
-    box.join(timeout=20)
-    lines, err, code = listener.stop()
-    server.close()
+    lines, err, code = listen_with_sync_box(tmp_path, [b"CLAP\n", b"BUTTON 2\n", b"MARK end of sentence\n"])
     assert code == 0, err
     assert lines[0]["sync_events"] == 3
     take = read_take(lines[0]["path"])

@@ -3,8 +3,6 @@ sync box's long lines (one event, flagged through the log), CR-only line ends an
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -12,13 +10,12 @@ from contextlib import contextmanager
 
 import numpy as np
 import serial
-from live_helpers import Listener, synthetic_take
+from live_helpers import listen_with_sync_box, synthetic_take
 
 import align.batch as batch
 from align.resample import remove_rumble
 from capture import read_take
 from capture.record_log import RECORD_HEADER
-from capture.replay import replay_take
 from capture.serial_sync import MAX_LINE_BYTES, SerialSync, SyncEvent, decode_sync_record, sync_record
 from capture.session_clock import SessionClock
 from capture.take import write_take
@@ -110,27 +107,9 @@ def test_truncated_flag_survives_the_log_and_old_records_decode():
 
 
 def test_listen_takes_keep_one_truncated_event_for_a_long_line(tmp_path):
-    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    server.bind(("127.0.0.1", 0))
-    server.listen(1)
-    server.settimeout(20)
-    box_port = server.getsockname()[1]
-
-    def sync_box():
-        conn, _ = server.accept()
-        with conn:
-            for line in (b"CLAP\r", b"B" * 5000 + b"\n", b"\x00\x01\x02\n", b"BUTTON 2\n"):
-                time.sleep(0.3)
-                conn.sendall(line)
-            time.sleep(0.5)
-
-    box = threading.Thread(target=sync_box, daemon=True)
-    box.start()
-    listener = Listener(tmp_path / "out", "--serial", f"socket://127.0.0.1:{box_port}")
-    replay_take(synthetic_take(150, seed=8), "127.0.0.1", listener.port, speed=1.0)
-    box.join(timeout=20)
-    lines, err, code = listener.stop()
-    server.close()
+    lines, err, code = listen_with_sync_box(
+        tmp_path, [b"CLAP\r", b"B" * 5000 + b"\n", b"\x00\x01\x02\n", b"BUTTON 2\n"]
+    )
     assert code == 0, err
     assert err.count("not text") == 1
     events = read_take(lines[0]["path"]).meta.extra["sync_events"]
