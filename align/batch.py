@@ -7,19 +7,13 @@ a later run with the same fingerprint and all outputs present does nothing for t
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import json
 import multiprocessing as mp
 import os
 import shutil
-import signal
 import sys
-import threading
-import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +22,7 @@ from capture.atomic import folder_in_place
 from capture.command import json_safe
 from capture.numbers import is_count
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
+from capture.workers import submit_all, worker_pool
 
 from .aligner import ALIGN_VERSION, align_with_report
 from .grid import interpolated_share
@@ -209,107 +204,6 @@ def _worker_context(opts: AlignOptions):
             import torch  # noqa: F401
         return mp.get_context("fork")
     return mp.get_context("spawn")
-
-
-STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}  # what a worker leaves to the process that started it
-
-
-def exit_with_parent(parent_pid: int) -> None:
-    """Worker initializer: a watcher thread ends this worker as soon as the process that started it is
-    gone (SIGKILL, a crash), instead of computing on for nobody, writing outputs and holding its stdout
-    and stderr open. A pidfd (Linux 5.3) says so at once; elsewhere the pid is polled. Ctrl-C is left
-    to that process (which stops its workers) and SIGTERM ends the worker at once, whatever handlers
-    a forked worker inherited."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # held while the worker started
-    try:
-        pidfd = os.pidfd_open(parent_pid)
-    except ProcessLookupError:
-        os._exit(1)
-    except (AttributeError, OSError):
-        pidfd = None
-
-    def watch() -> None:
-        if pidfd is not None:
-            import select
-
-            select.select([pidfd], [], [])
-        else:
-            while True:
-                time.sleep(0.5)
-                try:
-                    os.kill(parent_pid, 0)
-                except ProcessLookupError:
-                    break
-                except OSError:
-                    pass
-        os._exit(1)
-
-    threading.Thread(target=watch, name="s2a-exit-with-parent", daemon=True).start()
-
-
-def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """End a pool's workers now: pending calls cancelled, running ones terminated. A command that stops
-    (an error, Ctrl-C, SIGTERM) leaves no worker computing on and holding its output open."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in processes:
-        if p.is_alive():
-            p.terminate()
-    for p in processes:
-        p.join(5)
-        if p.is_alive():  # pragma: no cover - SIGTERM ignored
-            p.kill()
-            p.join(1)
-
-
-@contextmanager
-def worker_pool(jobs: int, context) -> Iterator[ProcessPoolExecutor]:
-    """``jobs`` worker processes (started by ``submit_all``) that never outlive this process: each
-    exits as soon as this one is gone (``exit_with_parent``), and an exception inside (an error, Ctrl-C,
-    SIGTERM) ends them at once (``stop_pool``) rather than waiting for their calls to finish."""
-    pool = ProcessPoolExecutor(
-        max_workers=jobs, mp_context=context, initializer=exit_with_parent, initargs=(os.getpid(),)
-    )
-    try:
-        yield pool
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown()
-
-
-@contextmanager
-def _stop_signals_held() -> Iterator[None]:
-    """Ctrl-C and SIGTERM held (blocked in this thread) inside, while worker processes start: a forked
-    worker, a fork server and the workers it forks inherit the block, so that neither signal lands
-    in them before they are ready (``exit_with_parent`` then ignores Ctrl-C, which this process
-    handles by stopping them, and lets SIGTERM end them); a signal that came meanwhile is raised
-    here on leaving."""
-    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - Windows
-        yield
-        return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
-
-
-def submit_all(pool: ProcessPoolExecutor, fn: Callable, calls: Sequence[tuple]) -> list[Future]:
-    """``fn(*args)`` for each of ``calls`` submitted to ``pool``; its worker processes start here,
-    Ctrl-C and SIGTERM held meanwhile. A system refusing to start them (too many open files, too little
-    memory) is one ``S2AError``."""
-    try:
-        with _stop_signals_held():
-            return [pool.submit(fn, *args) for args in calls]
-    except OSError as exc:
-        hint = "; or raise the open-file limit (ulimit -n)" if exc.errno == errno.EMFILE else ""
-        raise S2AError(
-            f"cannot start the worker processes ({exc.strerror or exc}): run with fewer --jobs{hint}"
-        ) from None
 
 
 def _result(folder: Path, future) -> dict[str, Any]:

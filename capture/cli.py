@@ -158,9 +158,8 @@ def _of_variant(sources: list[Path], variant: str) -> list[Path]:
     ``--variant raw``; ``X.csv`` is the plain one), is left out with a warning."""
     kept = []
     for src in sources:
-        livelink = src.suffix.lower() == ".csv" and is_livelink_csv(src)
-        own = split_variant(src.stem)[1] or "plain" if livelink else variant
-        if own == variant:
+        own = split_variant(src.stem)[1] or "plain"  # what the name says; read the file only if it differs
+        if own == variant or src.suffix.lower() != ".csv" or not is_livelink_csv(src):
             kept.append(src)
         else:
             print(

@@ -58,7 +58,7 @@ from . import channels as ch
 from .atomic import atomic_write
 from .errors import InputError
 from .runs import run_bounds
-from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
+from .take import FrameStatus, SourceFile, Take, TakeMeta, is_finite_number, safe_id, source_file
 from .timecode import (
     CSV_TIMECODE_RATE,
     Timecode,
@@ -756,7 +756,7 @@ def start_seconds_of_day(take: Take) -> float:
     ``InputError`` naming the meta.json field when the one used is not a number or a timecode."""
     t0 = (take.meta.csv or {}).get("start_seconds_of_day")
     if t0 is not None:
-        if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not math.isfinite(t0):
+        if not is_finite_number(t0):
             raise _malformed_meta(take, "csv.start_seconds_of_day", t0, "a finite number of seconds or null")
         return float(t0)
     if not take.meta.start_timecode:

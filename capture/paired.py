@@ -20,7 +20,9 @@ import re
 import warnings
 import zipfile
 import zlib
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -166,15 +168,21 @@ def string_names(arr: np.ndarray, path: Path) -> list[str]:
     return names
 
 
-def _json_names(path: Path) -> list[str]:
-    """Channel names from a ``.json`` file: a list of names, or an object holding one list (``{"names":
-    [...]}``) or Audio2Face's ``facsNames``."""
+def _json_of(text: Callable[[], str], path: Path) -> Any:
+    """The JSON value of the text ``text()`` reads from ``path``; one-line errors for text that is not
+    JSON, nested too deeply, or not decodable."""
     try:
-        data = json.loads(read_text(path))
-    except json.JSONDecodeError as exc:
+        return json.loads(text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"not a JSON file ({exc})", path) from None
     except RecursionError:
         raise InputError("not a JSON file (nested too deeply)", path) from None
+
+
+def _json_names(path: Path) -> list[str]:
+    """Channel names from a ``.json`` file: a list of names, or an object holding one list (``{"names":
+    [...]}``) or Audio2Face's ``facsNames``."""
+    data = _json_of(lambda: read_text(path), path)
     if isinstance(data, dict):
         lists = [v for v in data.values() if isinstance(v, list)]
         data = data["facsNames"] if "facsNames" in data else lists[0] if len(lists) == 1 else data
@@ -230,12 +238,7 @@ def exact_rate(fps: float | None) -> float | None:
 
 def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
     """Weights, pose names and frame rate of an Audio2Face blendshape export (JSON)."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"not a JSON file ({exc})", path) from None
-    except RecursionError:
-        raise InputError("not a JSON file (nested too deeply)", path) from None
+    data = _json_of(lambda: path.read_text(encoding="utf-8-sig"), path)
     if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
         raise InputError("not an Audio2Face blendshape export (no weightMat and facsNames)", path)
     names, rows, fps = data["facsNames"], data["weightMat"], data.get("exportFps")

@@ -192,7 +192,6 @@ class LiveRecorder:
         self._rate_pending: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], list[bytes]]] = {}
         self._next_eviction_ns = 0
         self.socket_errors = 0
-        self.error: str | None = None  # set by close() when the log could not be written completely
         self._stop = False
         self.sock: socket.socket | None = None
         self.log: LogWriter | None = None
@@ -283,7 +282,7 @@ class LiveRecorder:
         unpack_time = ll._FRAME_TIME.unpack_from
         unpack_len = ll._LEN.unpack_from
         streams = self.streams
-        packets, last_seen = self.stream_packets, self.stream_last_ns
+        packets, last_seen, sources = self.stream_packets, self.stream_last_ns, self.stream_sources
         payload_len = FRAME_PAYLOAD_BYTES
         count = ll.BLENDSHAPE_COUNT
         block = ll.FRAME_BLOCK_BYTES
@@ -338,9 +337,11 @@ class LiveRecorder:
                                 (n2,) = unpack_len(buf, 5 + n1)
                                 off = 9 + n1 + n2
                                 if n2 >= 0 and off + block == n and buf[off + 16] == count:
-                                    key = bytes(view[:off])
-                                    skey = self._stream_key(key, addr)
-                                    known = streams.get(skey)
+                                    key = skey = bytes(view[:off])
+                                    known = streams.get(key)
+                                    if known is None or sources[known[0]] != addr:  # the rare case
+                                        skey = self._stream_key(key, addr)
+                                        known = streams.get(skey)
                                     if known is not None:
                                         fn, sf, num, den = unpack_time(buf, off)
                                         if (
@@ -572,9 +573,7 @@ class LiveRecorder:
                 RecordType.END,
                 {"datagrams": self.datagrams, "accepted": self.accepted, "socket_errors": self.socket_errors},
             )
-            self.log.close()
-            # Kept, not raised: what did reach the disk still becomes takes; the caller reports it.
-            self.error = self.log.failure("recorder log")
+            self.log.close()  # a failed write is kept in the log, not raised: the caller reports it
         if self.sock is not None:
             self.sock.close()
             self.sock = None

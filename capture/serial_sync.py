@@ -33,6 +33,7 @@ from .session_clock import SessionClock
 
 MAX_LINE_BYTES = 256
 _SYNC_HEAD = struct.Struct("<Bq")  # type, arrival ns
+SYNC_HEAD_BYTES = _SYNC_HEAD.size  # what a SYNC record holds before its line
 _TRUNCATED = b"\0"  # after a SYNC record's line: the line was cut
 _LINE_END = re.compile(rb"\r\n?|\n")
 _CONTROL = re.compile("[\x00-\x08\x0a-\x1f\x7f-\x9f]")  # control characters but tab

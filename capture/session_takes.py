@@ -50,6 +50,7 @@ from .audio_capture import read_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped, missing_frames
 from .errors import InputError, S2AError
+from .numbers import is_count
 from .record_log import INVALID_RECORD, LogReader, RecordType, json_fields
 from .recorder import (
     AUDIO_LOG,
@@ -59,7 +60,7 @@ from .recorder import (
     NO_FACE_PAYLOAD_BYTES,
     SESSION_SUFFIX,
 )
-from .serial_sync import decode_sync_record
+from .serial_sync import SYNC_HEAD_BYTES, decode_sync_record
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, write_take
 from .timecode import DAY_S, Timecode
 
@@ -130,7 +131,6 @@ ROW_DTYPE = np.dtype(
 )
 _STREAM_ID = struct.Struct("<H")
 _FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
-_SYNC_HEAD_BYTES = 1 + 8  # a SYNC record's type byte and i64 arrival ns, before its line
 # What a no-face record's row gets after its frame time: count 0 and NaN values (big-endian like the rest).
 _NO_FACE_TAIL = bytes([0]) + np.full(ll.BLENDSHAPE_COUNT, np.nan, dtype=">f4").tobytes()
 
@@ -167,7 +167,7 @@ def _plausible_json(kind: int, data: dict[str, Any]) -> bool:
         origin = data.get("clock", {}).get("origin_ns")
         return origin is None or type(origin) is int and -(2**63) <= origin < 2**63  # an int64 of ns
     if kind == RecordType.REJECTS:
-        return all(type(v) is int and v >= 0 for v in data.values())
+        return all(is_count(v) for v in data.values())
     return True
 
 
@@ -209,7 +209,7 @@ class SessionLog:
                 self._pending_bytes += ROW_DTYPE.itemsize
                 if self._pending_bytes > SPILL_BYTES:
                     self._spill()
-            elif kind == RecordType.SYNC and size >= _SYNC_HEAD_BYTES:
+            elif kind == RecordType.SYNC and size >= SYNC_HEAD_BYTES:
                 self.sync.append(decode_sync_record(payload))
             elif kind in _JSON_FIELDS:
                 data = json_fields(payload, *_JSON_FIELDS[kind])
@@ -859,7 +859,7 @@ def _segment_take(
     # not fall on the declared grid (a sender declaring 60 that sends 24 frames/s with sub-frame times);
     # one slower otherwise (packets lost) gets a note.
     rate_num, rate_den = _declared_rate(r)
-    fps, period = rate_num / rate_den, _declared_period(r)
+    fps, period = rate_num / rate_den, rate_den / rate_num
     measured, step = detect_fps(t)
     raw = np.diff(t) / period  # in declared frames
     steps = np.rint(raw)

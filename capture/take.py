@@ -130,7 +130,8 @@ def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _is_number(v: Any) -> bool:
+def is_finite_number(v: Any) -> bool:
+    """Whether ``v`` is a finite JSON number (an int or float, never a bool; a huge int counts as not)."""
     if not isinstance(v, (int, float)) or isinstance(v, bool):
         return False
     try:
@@ -158,7 +159,7 @@ _META_FIELDS: tuple[tuple[str, Any, str], ...] = (
     ("subject", lambda v: v is None or isinstance(v, str), "text or null"),
     ("device", lambda v: v is None or isinstance(v, str), "text or null"),
     ("start_timecode", lambda v: v is None or isinstance(v, str), "text or null"),
-    ("timecode_rate", lambda v: v is None or (_is_number(v) and v > 0), "a positive number or null"),
+    ("timecode_rate", lambda v: v is None or (is_finite_number(v) and v > 0), "a positive number or null"),
     ("repairs", lambda v: isinstance(v, list) and all(isinstance(r, dict) for r in v), "a list of objects"),
     ("csv", lambda v: isinstance(v, dict), "an object"),
     ("extra", lambda v: isinstance(v, dict), "an object"),
@@ -169,7 +170,7 @@ _AUDIO_FIELDS: tuple[tuple[str, Any, str], ...] = (
     ("channels", lambda v: _is_int(v) and v >= 1, "a whole number of at least 1"),
     ("samples", lambda v: _is_int(v) and v >= 1, "a positive whole number"),
     ("subtype", _is_text, "text (PCM_16, PCM_24, PCM_32, FLOAT)"),
-    ("start_s", _is_number, "a finite number of seconds"),
+    ("start_s", is_finite_number, "a finite number of seconds"),
     ("start_source", lambda v: isinstance(v, str), "text"),
 )
 _SOURCE_FIELDS: tuple[tuple[str, Any, str], ...] = (

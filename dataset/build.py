@@ -39,12 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from align.batch import submit_all, worker_pool
 from capture.atomic import atomic_write, partial_path, write_json_atomic
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.command import sigterm_stops
 from capture.errors import InputError, S2AError
 from capture.file_lock import fcntl, try_lock
+from capture.numbers import is_count
 from capture.take import (
     META_FILE,
     FrameStatus,
@@ -56,6 +56,7 @@ from capture.take import (
     sha256_file,
     write_take,
 )
+from capture.workers import submit_all, worker_pool
 
 from .features import (
     DEFAULT_FEATURES,
@@ -329,10 +330,6 @@ def _align_flags(meta: TakeMeta, folder: str | Path | None = None) -> list[str]:
     return flags
 
 
-def _whole(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
 def incomplete_segment_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[str]:
     """A warning for each raw take of which fewer segments are among the aligned takes ``(folder,
     meta)`` than align cut from it (``extra.align.segment`` of ``segment_count``, counted per raw take
@@ -342,7 +339,7 @@ def incomplete_segment_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[st
     for folder, meta in aligned:
         record = _align_record(meta, folder)
         count, number = record.get("segment_count"), record.get("segment")
-        if not (_whole(count) and _whole(number) and 1 <= number <= count):
+        if not (is_count(count) and is_count(number) and 1 <= number <= count):
             continue
         key = (recording_of(meta, folder), str(record.get("fingerprint")))
         found.setdefault(key, (count, set(), folder.parent))[1].add(number)

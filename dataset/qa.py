@@ -429,7 +429,9 @@ def validate_sample(
         else:
             bad = list(_fields(meta, "metadata", SAMPLE_META, optional=SAMPLE_META))
             out += [_p("sample_decode", f"{at}.json", f"{field} {message}") for field, message in bad]
-            meta = {k: v for k, v in meta.items() if f"metadata.{k}" not in dict(bad)}
+            if bad:
+                wrong = {field for field, _ in bad}
+                meta = {k: v for k, v in meta.items() if f"metadata.{k}" not in wrong}
     arrays: dict[str, np.ndarray] = {}
     for ext, data in members.items():
         if ext.endswith(".npy"):
