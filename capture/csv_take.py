@@ -240,10 +240,12 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     sys.unraisablehook = undecodable.append
     try:
         # Memory-mapped, fixed types, no quoting, no UTF-8 re-validation: the least work pyarrow can do.
+        # 2 MB blocks keep both cores busy to the end (16 MB blocks left one idle for the last ones: 0.76x
+        # pyarrow's default read of a 176 MB hour, against 1.0-1.1x now).
         with pa.memory_map(str(path)) as source:
             table = pacsv.read_csv(
                 source,
-                read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 24),
+                read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 21),
                 parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
                 convert_options=pacsv.ConvertOptions(
                     column_types=types, strings_can_be_null=False, check_utf8=False
