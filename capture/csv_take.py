@@ -95,7 +95,9 @@ class CsvRows:
     line_ending: str = "\n"
 
 
-def _repair(repairs: list, line: int | None, kind: str, message: str) -> None:
+def repair(repairs: list, line: int | None, kind: str, message: str) -> None:
+    """Note a repair in ``repairs``: the record every importer writes to a take's ``meta.repairs``
+    (``line`` is the file's line it concerns, or None for the file as a whole)."""
     repairs.append({"line": line, "kind": kind, "message": message})
 
 
@@ -335,7 +337,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     repairs: list[dict[str, Any]] = []
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
-        _repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
+        repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
     line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
     text = raw.decode("utf-8", errors="replace")
     ends_with_newline = text.endswith(("\n", "\r"))
@@ -374,14 +376,14 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         lost = len(fields) == 2 and fields[1].strip() == "0"
         if not lost and len(fields) != ncols:
             if number == last and not ends_with_newline and len(fields) < ncols:
-                _repair(
+                repair(
                     repairs,
                     number,
                     "truncated_row",
                     f"last row cut short ({len(fields)} of {ncols} fields) dropped",
                 )
             else:
-                _repair(
+                repair(
                     repairs,
                     number,
                     "wrong_fields",
@@ -391,7 +393,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         try:
             tod = Timecode.parse(fields[0]).seconds_of_day
         except ValueError as exc:
-            _repair(repairs, number, "bad_timecode", f"{exc}: row dropped")
+            repair(repairs, number, "bad_timecode", f"{exc}: row dropped")
             continue
         vals: list[float] = []
         if not lost:
@@ -413,12 +415,12 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         if count not in counts:
             expected = " or ".join(sorted(counts, key=int))
             message = f"{count_name} is {count!r} but the row has {len(columns)} values ({expected} expected)"
-            _repair(repairs, number, "bad_count", message)
+            repair(repairs, number, "bad_count", message)
         bad = [columns[i] for i, v in enumerate(vals) if not abs(v) <= _FLOAT32_MAX]
         if bad:
             vals = [v if abs(v) <= _FLOAT32_MAX else math.nan for v in vals]
             row_status = FrameStatus.BAD_VALUE
-            _repair(
+            repair(
                 repairs,
                 number,
                 "bad_value",
@@ -453,7 +455,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         if t[i] == t[prev]:
             same = np.array_equal(values[i], values[prev], equal_nan=True)
             keep[i] = False
-            _repair(
+            repair(
                 repairs,
                 line_numbers[i],
                 "duplicate_row",
@@ -483,7 +485,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         )
     if trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
         lines_with = "every line ends" if comma_rows else "the header ends"
-        _repair(repairs, 1, "trailing_comma", f"{lines_with} with a comma: no column, ignored")
+        repair(repairs, 1, "trailing_comma", f"{lines_with} with a comma: no column, ignored")
     return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
 
 
@@ -571,7 +573,7 @@ def note_row_rate_changes(times: np.ndarray, fps: float, period: float, repairs:
     for first, last, rate in stretches[:3]:
         until = "the end" if last == times.size - 1 else f"{times[last] - times[0]:.1f} s"
         gaps = int(missing_frames(times[first : last + 1], period).sum())
-        _repair(
+        repair(
             repairs,
             None,
             "row_rate_change",
@@ -580,7 +582,7 @@ def note_row_rate_changes(times: np.ndarray, fps: float, period: float, repairs:
             + (f": {gaps} DROPPED frames between them" if gaps else ""),
         )
     if len(stretches) > 3:
-        _repair(repairs, None, "row_rate_change", f"and {len(stretches) - 3} more changes of the row rate")
+        repair(repairs, None, "row_rate_change", f"and {len(stretches) - 3} more changes of the row rate")
 
 
 def fill_dropped(
@@ -629,7 +631,7 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
         rate = timecode_rate_of(t)
         seen = f"FF never passes {top:.3f} over {whole_seconds(t)} whole seconds"
         if rate is None:
-            _repair(
+            repair(
                 rows.repairs,
                 None,
                 "timecode_rate",
@@ -646,7 +648,7 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
     if rate != CSV_TIMECODE_RATE:
         rows.seconds_of_day = at_timecode_rate(t, rate)
         message = f"timecode frames (FF) count at {rate:g} fps, not the app's {CSV_TIMECODE_RATE:g} ({seen})"
-        _repair(rows.repairs, None, "timecode_rate", f"{message}: times read as FF/{rate:g}")
+        repair(rows.repairs, None, "timecode_rate", f"{message}: times read as FF/{rate:g}")
     return rate
 
 
@@ -688,7 +690,7 @@ def rows_to_take(
     slate, take_number, subject = parse_take_prefix(prefix)
     repairs = list(rows.repairs)
     if unknown:
-        _repair(repairs, 1, "unknown_columns", f"columns kept under their own names: {unknown}")
+        repair(repairs, 1, "unknown_columns", f"columns kept under their own names: {unknown}")
     note_row_rate_changes(rows.seconds_of_day, fps, period, repairs)  # else seen only as dropped frames
     meta = TakeMeta(
         id=safe_id(take_id or rows.path.stem),

@@ -36,6 +36,7 @@ from .csv_take import (
     fill_dropped,
     nearest_standard,
     plain_number,
+    repair,
 )
 from .errors import InputError
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
@@ -676,13 +677,12 @@ def _frame_clock(
         )
     notes = []
     if times and frames:
-        notes.append(
-            {
-                "line": None,
-                "kind": "frame_column",
-                "message": f"frame-number column {frames[0][1]!r} left out: the frames are placed by the "
-                f"time column {times[0][1]!r}",
-            }
+        repair(
+            notes,
+            None,
+            "frame_column",
+            f"frame-number column {frames[0][1]!r} left out: the frames are placed by the "
+            f"time column {times[0][1]!r}",
         )
     i, name, (kind, divisor) = (times or frames)[0]
     clock = matrix[:, i].astype(np.float64)
@@ -700,13 +700,12 @@ def _frame_clock(
                 path,
             )
         if divisor != 1:
-            notes.append(
-                {
-                    "line": None,
-                    "kind": "time_unit",
-                    "message": f"time column {name!r} names no unit: read in {_UNITS[divisor]}, in which its "
-                    "step is one frame",
-                }
+            repair(
+                notes,
+                None,
+                "time_unit",
+                f"time column {name!r} names no unit: read in {_UNITS[divisor]}, in which its "
+                "step is one frame",
             )
     return kind, clock / (divisor or 1), [i for i, _, _ in found], name, notes
 
@@ -851,13 +850,12 @@ def read_paired(
                 matrix_path,
             )
         kind = "frames"
-        notes.append(
-            {
-                "line": None,
-                "kind": "frame_numbers",
-                "message": f"time column {clock_name!r} holds whole frame numbers (steps of 1), not seconds: "
-                f"read as frame numbers at {_rate(fps)} fps",
-            }
+        repair(
+            notes,
+            None,
+            "frame_numbers",
+            f"time column {clock_name!r} holds whole frame numbers (steps of 1), not seconds: "
+            f"read as frame numbers at {_rate(fps)} fps",
         )
     renumber = None  # a frame column numbered from N > 1 read as from 0: what --first-frame N would do
     if kind == "frames":
@@ -871,16 +869,10 @@ def read_paired(
         without = "--first-frame applies to a frame-number column (`frame`), and it has none"
         if first_frame_strict:
             raise InputError(without, matrix_path)
-        notes.append({"line": None, "kind": "first_frame_ignored", "message": f"{without}: ignored"})
+        repair(notes, None, "first_frame_ignored", f"{without}: ignored")
     if value_scale is not None:
         matrix = matrix * value_scale
-        notes.append(
-            {
-                "line": None,
-                "kind": "value_scale",
-                "message": f"values multiplied by {value_scale:g} (--value-scale)",
-            }
-        )
+        repair(notes, None, "value_scale", f"values multiplied by {value_scale:g} (--value-scale)")
     detected = fps is None and file_fps is None
     rate = spread = None
     if kind == "seconds" and clock.size > 1:
@@ -928,22 +920,14 @@ def read_paired(
     meta.repairs.extend(notes)
     percent = _percent_scale(values)
     if percent is not None:
-        meta.repairs.append({"line": None, "kind": "percent_scale", "message": percent})
+        repair(meta.repairs, None, "percent_scale", percent)
     bad = int((status != FrameStatus.TRACKED).sum())
     if bad:
-        meta.repairs.append(
-            {"line": None, "kind": "bad_value", "message": f"{bad} frames hold NaN/inf: marked invalid"}
-        )
+        repair(meta.repairs, None, "bad_value", f"{bad} frames hold NaN/inf: marked invalid")
     if kind is not None:
         time, values, status, inserted = fill_dropped(time, values, status, 1 / fps)
         if inserted:
-            meta.repairs.append(
-                {
-                    "line": None,
-                    "kind": "dropped_frames",
-                    "message": f"{inserted} frames missing from the time column",
-                }
-            )
+            repair(meta.repairs, None, "dropped_frames", f"{inserted} frames missing from the time column")
     take = Take(meta, time, values, status)
     audio = read_audio(audio_path, meta.repairs)
     if time[-1] < 0 or time[0] >= audio.duration_s:
@@ -978,14 +962,13 @@ def _first_frame(clock: np.ndarray, given: int | None, name: str, notes: list[di
     ``frame_numbers_from_1``), else 0."""
     if given is not None or clock[0] != 1:
         return given or 0
-    notes.append(
-        {
-            "line": None,
-            "kind": "frame_numbers_from_1",
-            "message": f"frame column {name!r} starts at 1: read as counting from 1 (frame 1 at the audio's "
-            "start); the file cannot tell that from counting from 0 with frame 0 missing: if so, import "
-            "again with --first-frame 0",
-        }
+    repair(
+        notes,
+        None,
+        "frame_numbers_from_1",
+        f"frame column {name!r} starts at 1: read as counting from 1 (frame 1 at the audio's "
+        "start); the file cannot tell that from counting from 0 with frame 0 missing: if so, import "
+        "again with --first-frame 0",
     )
     return 1
 
@@ -1035,11 +1018,10 @@ def note_length_mismatch(take: Take, hint: str) -> None:
     (repair ``length_mismatch``; ``hint`` says what to check)."""
     mismatch = paired_excess_s(take)
     if abs(mismatch) > LENGTH_MISMATCH_S:
-        take.meta.repairs.append(
-            {
-                "line": None,
-                "kind": "length_mismatch",
-                "message": f"audio is {abs(mismatch):.3f} s {'longer' if mismatch > 0 else 'shorter'} than "
-                f"the frames: {hint}",
-            }
+        repair(
+            take.meta.repairs,
+            None,
+            "length_mismatch",
+            f"audio is {abs(mismatch):.3f} s {'longer' if mismatch > 0 else 'shorter'} than "
+            f"the frames: {hint}",
         )

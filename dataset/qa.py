@@ -214,15 +214,27 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def decode_metadata(members: dict[str, bytes]) -> dict[str, Any] | InputError | None:
+    """A sample's metadata, decoded from its ``json`` member once for every check that reads it: None
+    when the sample has no such member, the ``InputError`` saying why when it does not decode."""
+    if "json" not in members:
+        return None
+    try:
+        return decode_json_object(members["json"])
+    except InputError as exc:
+        return exc
+
+
 def validate_shard(
     entry: dict[str, Any],
     ds: Path,
     manifest: dict[str, Any],
     deep: bool = False,
-    on_sample: Callable[[str, dict[str, bytes]], None] | None = None,
+    on_sample: Callable[[str, dict[str, bytes], dict[str, Any] | InputError | None], None] | None = None,
     **_: Any,
 ) -> list[Problem]:
-    """File, size, checksum (deep) and readability of one shard; hands each sample to ``on_sample``."""
+    """File, size, checksum (deep) and readability of one shard; hands each sample to ``on_sample``
+    with its metadata as ``decode_metadata`` returns it."""
     out: list[Problem] = []
     name = entry.get("name", "?")
     path = ds / name
@@ -245,13 +257,12 @@ def validate_shard(
     try:
         for key, members in ShardReader(path):
             count += 1
-            try:
-                said = decode_json_object(members.get("json", b"{}")).get("frames")
-            except InputError:  # validate_sample reports it
-                said = None
+            metadata = decode_metadata(members)
+            # metadata that does not decode is validate_sample's to report
+            said = metadata.get("frames") if isinstance(metadata, dict) else None
             frames += said if _count(said) else 0
             if on_sample is not None:
-                on_sample(key, members)
+                on_sample(key, members, metadata)
     except InputError as exc:
         out.append(_p("shard_unreadable", name, str(exc).split(": ", 1)[-1]))
         return out
@@ -406,11 +417,14 @@ def validate_sample(
     manifest: dict[str, Any],
     deep: bool = False,
     on_arrays: Callable[[dict[str, np.ndarray], np.ndarray], None] | None = None,
+    metadata: dict[str, Any] | InputError | None = None,
     **_: Any,
 ) -> tuple[list[Problem], dict[str, Any] | None]:
     """Decode one sample and check members, dtypes, shapes, values and rates; returns its metadata.
     ``on_arrays`` receives the decoded arrays (by member name less ``.npy``) and the usable frames (mask
-    true, every animation value finite), when the animation and mask have the manifest's shape."""
+    true, every animation value finite), when the animation and mask have the manifest's shape.
+    ``metadata`` is the ``json`` member as ``decode_metadata`` returned it, when the caller decoded it
+    already (None: decoded here)."""
     out: list[Problem] = []
     at = f"{shard}:{key}"
     expected = set(manifest.get("members", BASE_MEMBERS))
@@ -422,11 +436,11 @@ def validate_sample(
         out.append(_p("sample_members", at, f"unexpected member(s) {', '.join(extra)}", "warning"))
     meta = None
     if "json" in members:
-        try:
-            meta = decode_json_object(members["json"])
-        except InputError as exc:
-            out.append(_p("sample_decode", f"{at}.json", str(exc)))
+        decoded = metadata if metadata is not None else decode_metadata(members)
+        if isinstance(decoded, InputError):
+            out.append(_p("sample_decode", f"{at}.json", str(decoded)))
         else:
+            meta = decoded
             bad = list(_fields(meta, "metadata", SAMPLE_META, optional=SAMPLE_META))
             out += [_p("sample_decode", f"{at}.json", f"{field} {message}") for field, message in bad]
             if bad:
@@ -1201,10 +1215,22 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
         listed.add(name)
         split = entry.get("split")
 
-        def on_sample(key: str, members: dict[str, bytes], name=name, split=split) -> None:
+        def on_sample(
+            key: str,
+            members: dict[str, bytes],
+            metadata: dict[str, Any] | InputError | None,
+            name=name,
+            split=split,
+        ) -> None:
             decoded: list[tuple[dict[str, np.ndarray], np.ndarray]] = []
             found, meta = VALIDATORS["sample"](
-                key, members, name, manifest, deep=deep, on_arrays=lambda a, u: decoded.append((a, u))
+                key,
+                members,
+                name,
+                manifest,
+                deep=deep,
+                on_arrays=lambda a, u: decoded.append((a, u)),
+                metadata=metadata,
             )
             problems.extend(found)
             sums = None
