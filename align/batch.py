@@ -10,15 +10,13 @@ from __future__ import annotations
 import hashlib
 import json
 import multiprocessing as mp
-import os
 import shutil
 import sys
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 from capture import InputError, S2AError, Take, TakeMeta, find_takes, read_meta, read_take, write_take
-from capture.atomic import folder_in_place
+from capture.atomic import all_or_none, batch_of_writes
 from capture.command import json_safe
 from capture.numbers import is_count
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
@@ -144,26 +142,13 @@ def align_folder(
 
 
 def write_segments(segments: list[Take], out_dir: Path) -> list[Path]:
-    """Write the aligned takes cut from one raw take so that they appear together: each is assembled
-    complete in its own hidden folder (``folder_in_place``), and only once all are written are they
-    renamed into place, one right after another. A kill or a full disk while they are written leaves
-    none of them visible (the hidden folders are cleared by the next write); only a kill between the
-    renames can leave the set incomplete, which ``s2a-dataset build`` reports."""
-    out_dir = make_out_dir(out_dir)
-    targets = [out_dir / safe_id(seg.meta.id) for seg in segments]
-    with ExitStack() as renames:
-        for seg, target in zip(segments, targets):
-            folder = renames.enter_context(folder_in_place(target))
-            try:
-                written = write_take(seg, folder)  # folder/<id>: its files move up into folder
-            except InputError as exc:  # named as the output it is for, not the hidden folder
-                if exc.path != str(folder / target.name):
-                    raise
-                raise InputError(str(exc)[len(exc.path) + 2 :], target) from None
-            for f in written.iterdir():
-                os.replace(f, folder / f.name)
-            written.rmdir()
-    return targets
+    """Write the aligned takes cut from one raw take so that they appear together (``all_or_none``):
+    each is assembled complete under its hidden name, and only once all are written are they renamed
+    into place, one right after another. An invalid segment, a kill or a full disk while they are
+    written leaves none of them visible (the hidden folders of a kill are cleared by the next write);
+    only a kill between the renames can leave the set incomplete, which ``s2a-dataset build`` reports."""
+    with all_or_none():
+        return [write_take(seg, out_dir) for seg in segments]
 
 
 def _error(folder: Path, message: str) -> dict[str, Any]:
@@ -238,26 +223,27 @@ def align_takes(
     if not folders:
         raise InputError(f"no takes found under {', '.join(map(str, paths))}")
     make_out_dir(out_dir)
-    clashes = _id_clashes(folders)
-    reports: list[dict[str, Any]] = []
-    if jobs <= 1 or len(folders) == 1:
-        for f in folders:
-            r = {"id": f.name, "path": str(f), "error": clashes[f]} if f in clashes else None
-            r = r or align_folder(f, out_dir, opts, force, skip_without_audio)
-            reports.append(r)
-            if on_report:
-                on_report(r)
+    with batch_of_writes(out_dir):  # out_dir listed once for leftovers of killed writes, not per take
+        clashes = _id_clashes(folders)
+        reports: list[dict[str, Any]] = []
+        if jobs <= 1 or len(folders) == 1:
+            for f in folders:
+                r = {"id": f.name, "path": str(f), "error": clashes[f]} if f in clashes else None
+                r = r or align_folder(f, out_dir, opts, force, skip_without_audio)
+                reports.append(r)
+                if on_report:
+                    on_report(r)
+            return reports
+        todo = [f for f in folders if f not in clashes]
+        with worker_pool(min(jobs, len(todo)), _worker_context(opts)) as pool:  # no idle workers
+            calls = [(f, out_dir, opts, force, skip_without_audio) for f in todo]
+            futures = dict(zip(todo, submit_all(pool, align_folder, calls)))
+            for f in folders:
+                if f in futures:
+                    r = _result(f, futures[f])
+                else:
+                    r = {"id": f.name, "path": str(f), "error": clashes[f]}
+                reports.append(r)
+                if on_report:
+                    on_report(r)
         return reports
-    todo = [f for f in folders if f not in clashes]
-    with worker_pool(min(jobs, len(todo)), _worker_context(opts)) as pool:  # no idle workers
-        calls = [(f, out_dir, opts, force, skip_without_audio) for f in todo]
-        futures = dict(zip(todo, submit_all(pool, align_folder, calls)))
-        for f in folders:
-            if f in futures:
-                r = _result(f, futures[f])
-            else:
-                r = {"id": f.name, "path": str(f), "error": clashes[f]}
-            reports.append(r)
-            if on_report:
-                on_report(r)
-    return reports

@@ -9,7 +9,7 @@ from pathlib import Path
 from capture.command import emit_json, progress, run, sigterm_stops
 
 from .batch import align_takes
-from .options import FRAME_CLOCKS, VAD_METHODS, AlignOptions
+from .options import FRAME_CLOCKS, VAD_METHODS, AlignOptions, range_problem
 
 PROG = "s2a-align"
 
@@ -24,6 +24,23 @@ def _jobs(text: str) -> int:
     return n
 
 
+def _in_range(option: str):
+    """An argparse type for ``option``'s numbers: one outside its range (``options.RANGES``) is a usage
+    error, as a word is."""
+
+    def number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+        problem = range_problem(option, value)
+        if problem:
+            raise argparse.ArgumentTypeError(problem)
+        return value
+
+    return number
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=PROG,
@@ -33,27 +50,42 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("takes", nargs="+", type=Path, help="take folders, or folders holding them (recursive)")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the aligned takes into")
-    p.add_argument("--fps", type=float, help="output frame rate (default: each take's own)")
+    p.add_argument("--fps", type=_in_range("--fps"), help="output frame rate (default: each take's own)")
     p.add_argument(
         "--face-lead-ms",
-        type=float,
+        type=_in_range("--face-lead-ms"),
         default=0.0,
         help="how far the face moves ahead of the sound, used only when content is the chosen evidence "
         "(offset = content lag + lead; default 0: no assumption, see docs/align.md)",
     )
     p.add_argument("--vad", choices=VAD_METHODS, default="silero", help="speech detector for trimming")
-    p.add_argument("--max-gap-ms", type=float, default=250.0, help="longest gap filled by interpolation")
-    p.add_argument("--max-offset-ms", type=float, default=500.0, help="offset search range (±)")
+    p.add_argument(
+        "--max-gap-ms",
+        type=_in_range("--max-gap-ms"),
+        default=250.0,
+        help="longest gap filled by interpolation",
+    )
+    p.add_argument(
+        "--max-offset-ms", type=_in_range("--max-offset-ms"), default=500.0, help="offset search range (±)"
+    )
     p.add_argument(
         "--offset-ms",
-        type=float,
+        type=_in_range("--offset-ms"),
         help="use this audio/face offset (ms, > 0: the face lags the audio, as reports give it) for the "
         "takes given, instead of the measured one; the evidence is still measured and reported",
     )
     p.add_argument(
-        "--max-disagreement-ms", type=float, default=50.0, help="evidence further apart flags the take"
+        "--max-disagreement-ms",
+        type=_in_range("--max-disagreement-ms"),
+        default=50.0,
+        help="evidence further apart flags the take",
     )
-    p.add_argument("--min-segment-s", type=float, default=1.0, help="shorter segments are left out")
+    p.add_argument(
+        "--min-segment-s",
+        type=_in_range("--min-segment-s"),
+        default=1.0,
+        help="shorter segments are left out",
+    )
     p.add_argument(
         "--frame-clock",
         choices=FRAME_CLOCKS,

@@ -10,6 +10,31 @@ from capture import InputError
 VAD_METHODS = ("silero", "webrtc", "none")
 FRAME_CLOCKS = ("auto", "timecode", "index")
 
+# The numeric options' ranges, in the units the command line gives them (s2a-align checks them as it
+# parses its arguments, a usage error; ``AlignOptions.validate`` for callers from Python): (option,
+# field of AlignOptions, the field's value per unit of the option, lowest, highest). Fields without an
+# option of their own are named by the field.
+RANGES: tuple[tuple[str, str, float, float, float], ...] = (
+    ("--fps", "fps", 1.0, 1.0, 1000.0),
+    ("--face-lead-ms", "face_lead_ms", 1.0, -500.0, 500.0),
+    ("--max-gap-ms", "max_gap_s", 1e-3, 0.0, 60_000.0),
+    ("--max-offset-ms", "max_offset_s", 1e-3, 20.0, 10_000.0),
+    ("--offset-ms", "offset_s", 1e-3, -3_600_000.0, 3_600_000.0),
+    ("--max-disagreement-ms", "max_disagreement_s", 1e-3, 0.0, 10_000.0),
+    ("--min-segment-s", "min_segment_s", 1.0, 0.0, 3600.0),
+    ("vad_pad_s", "vad_pad_s", 1.0, 0.0, 10.0),
+    ("min_confidence", "min_confidence", 1.0, 0.0, 1.0),
+    ("min_drift_take_s", "min_drift_take_s", 1.0, 0.0, 86_400.0),
+)
+
+
+def range_problem(option: str, value: float) -> str | None:
+    """What is wrong with ``value`` (in the option's units) for ``option`` of ``RANGES``; None: nothing."""
+    low, high = next((lo, hi) for opt, _name, _unit, lo, hi in RANGES if opt == option)
+    if low <= value <= high:  # not NaN
+        return None
+    return f"must be between {low:.10g} and {high:.10g}, not {value:.10g}"
+
 
 @dataclass(frozen=True)
 class AlignOptions:
@@ -47,32 +72,17 @@ class AlignOptions:
     offset_s: float | None = None
 
     def validate(self) -> None:
-        if self.fps is not None and not (1.0 <= self.fps <= 1000.0):
-            raise InputError(f"--fps must be between 1 and 1000, not {self.fps:g}")
         if self.frame_clock not in FRAME_CLOCKS:
             raise InputError(
                 f"--frame-clock must be one of {', '.join(FRAME_CLOCKS)}, not {self.frame_clock!r}"
             )
         if self.vad not in VAD_METHODS:
             raise InputError(f"--vad must be one of {', '.join(VAD_METHODS)}, not {self.vad!r}")
-        if not (-500.0 <= self.face_lead_ms <= 500.0):
-            raise InputError(f"--face-lead-ms must be within ±500 ms, not {self.face_lead_ms:g}")
-        # (field, how the command line names it, its unit in seconds, lowest, highest in that unit)
-        for name, option, unit, low, high in (
-            ("max_gap_s", "--max-gap-ms", 1e-3, 0.0, 60_000.0),
-            ("min_segment_s", "--min-segment-s", 1.0, 0.0, 3600.0),
-            ("vad_pad_s", "vad_pad_s", 1.0, 0.0, 10.0),
-            ("max_offset_s", "--max-offset-ms", 1e-3, 20.0, 10_000.0),
-            ("max_disagreement_s", "--max-disagreement-ms", 1e-3, 0.0, 10_000.0),
-            ("min_drift_take_s", "min_drift_take_s", 1.0, 0.0, 86_400.0),
-        ):
-            value = getattr(self, name) / unit
-            if not low <= value <= high:  # also NaN
-                raise InputError(f"{option} must be between {low:g} and {high:g}, not {value:g}")
-        if self.offset_s is not None and not abs(self.offset_s) <= 3600.0:  # also NaN
-            raise InputError(f"--offset-ms must be within ±3600000 ms, not {self.offset_s * 1000:g}")
-        if not (0.0 <= self.min_confidence <= 1.0):
-            raise InputError("--min-confidence must be between 0 and 1")
+        for option, name, unit, _low, _high in RANGES:
+            value = getattr(self, name)
+            problem = None if value is None else range_problem(option, value / unit)
+            if problem:
+                raise InputError(f"{option} {problem}")
 
     def to_json(self) -> dict[str, Any]:
         # without a given offset, the options read as before it existed: takes aligned then stay unchanged

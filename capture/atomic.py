@@ -17,10 +17,12 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager, nullcontext
+from contextvars import ContextVar
 from pathlib import Path
 from typing import IO, Any
 
+from .errors import InputError
 from .file_lock import fcntl, try_lock
 
 
@@ -31,25 +33,31 @@ def partial_path(path: Path) -> Path:
 
 
 @contextmanager
-def atomic_write(path: str | Path, mode: str = "wb", **open_kwargs: Any) -> Iterator[IO]:
+def atomic_write(
+    path: str | Path, mode: str = "wb", *, name_failures: bool = False, **open_kwargs: Any
+) -> Iterator[IO]:
     """Open ``.NAME.partial`` beside ``path`` for writing; on success fsync it and rename it over
-    ``path``."""
+    ``path``. ``name_failures``: a failure to write is an ``InputError`` naming ``path``
+    (``naming_failures``), not an ``OSError``."""
     path = Path(path)
     tmp = partial_path(path)
-    try:
-        with open(tmp, mode, **open_kwargs) as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with naming_failures(path) if name_failures else nullcontext():
+        try:
+            with open(tmp, mode, **open_kwargs) as f:
+                yield f
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
 
 
-def write_json_atomic(path: str | Path, data: Any, compact: bool = False, allow_nan: bool = False) -> None:
+def write_json_atomic(
+    path: str | Path, data: Any, compact: bool = False, allow_nan: bool = False, name_failures: bool = False
+) -> None:
     """JSON written with ``atomic_write``: indented with a final newline, or ``compact`` on one line."""
-    with atomic_write(path, "w", encoding="utf-8") as f:
+    with atomic_write(path, "w", encoding="utf-8", name_failures=name_failures) as f:
         if compact:
             json.dump(data, f, separators=(",", ":"), allow_nan=allow_nan)
         else:
@@ -58,9 +66,25 @@ def write_json_atomic(path: str | Path, data: Any, compact: bool = False, allow_
 
 
 @contextmanager
+def naming_failures(path: str | Path) -> Iterator[Path]:
+    """Make a failure to write ``path`` one line naming it, "PATH: cannot be written: REASON" (an
+    ``InputError``): ``write()``, ``fsync()`` and ``close()`` fail (a full disk, a file too large) naming
+    no file, and ``open()`` names the hidden ``.NAME.partial`` the file is assembled under. An error
+    naming another file (one read while ``path`` is written) is left as it is: it names that file.
+    For writers other than ``atomic_write`` (its ``name_failures`` option applies this)."""
+    path = Path(path)
+    try:
+        yield path
+    except OSError as exc:
+        if exc.filename not in (None, str(partial_path(path))):
+            raise
+        raise InputError(f"cannot be written: {exc.strerror or exc}", path) from None
+
+
+@contextmanager
 def folder_in_place(target: Path) -> Iterator[Path]:
-    """Yield a hidden temporary folder beside ``target``; on success it replaces ``target``, on error it
-    is removed.
+    """Yield a hidden temporary folder beside ``target``; on success it replaces ``target`` (inside
+    ``all_or_none``: when that block ends), on error it is removed.
 
     The new folder is swapped in in one step where the system can (Linux's ``RENAME_EXCHANGE``), so the
     old ``target`` stays visible until the new one is in place; elsewhere it is moved aside to
@@ -68,6 +92,38 @@ def folder_in_place(target: Path) -> Iterator[Path]:
     (``flock``) while it is; leftovers of earlier writes that were killed are removed first, and an old
     ``target`` that such a write left aside is put back when ``target`` is missing
     (``clear_leftovers``)."""
+    renames = _together.get()
+    if renames is None:
+        with _folder_in_place(target) as tmp:
+            yield tmp
+        return
+    with ExitStack() as this:
+        yield this.enter_context(_folder_in_place(target))  # an error here removes this folder at once
+        renames.push(this.pop_all())  # renamed into place with the others at the end of all_or_none
+
+
+_together: ContextVar[ExitStack | None] = ContextVar("_together", default=None)
+
+
+@contextmanager
+def all_or_none() -> Iterator[None]:
+    """Inside, the folders written with ``folder_in_place`` (takes written with ``write_take``) wait
+    and are renamed into place when the block ends, one right after another; if it ends in an error,
+    none is (their hidden folders are removed). Only a kill between those renames can leave some of
+    them in place and not the others."""
+    if _together.get() is not None:  # within an outer all_or_none: that one renames
+        yield
+        return
+    with ExitStack() as renames:
+        token = _together.set(renames)
+        try:
+            yield
+        finally:
+            _together.reset(token)
+
+
+@contextmanager
+def _folder_in_place(target: Path) -> Iterator[Path]:
     clear_leftovers(target)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
     lock = _hold(tmp)
@@ -98,30 +154,62 @@ def folder_in_place(target: Path) -> Iterator[Path]:
         _release(lock)
 
 
-# What ``tempfile.mkdtemp`` adds to ``.NAME.partial-`` and ``.NAME.old-``: the leftovers of a write of
-# ``NAME`` (and not of a take named ``NAME.old-1``, whose own would be ``.NAME.old-1.old-XXXX``).
-_LEFTOVER = re.compile(r"(partial|old)-[a-z0-9_]{8}")
+# A leftover of a write of ``NAME``: what ``tempfile.mkdtemp`` adds to ``.NAME.partial-`` and ``.NAME.old-``
+# (the suffix's length is fixed, so ``.T.old-1.old-XXXXXXXX`` is one of the take ``T.old-1``, not of ``T``).
+_LEFTOVER = re.compile(r"\.(?P<target>.+)\.(partial|old)-[a-z0-9_]{8}")
+
+# The leftovers listed on entering a ``batch_of_writes``: {folder: {NAME: [leftover names]}}
+_listed: dict[Path, dict[str, list[str]]] = {}
+
+
+@contextmanager
+def batch_of_writes(folder: str | Path) -> Iterator[None]:
+    """Inside, the writes of folders in ``folder`` (``folder_in_place``) find the leftovers of killed
+    writes in one listing of ``folder`` made on entering, not in one listing each: N takes written cost
+    O(N), not O(N²). A leftover that appears meanwhile (of another process's write killed during the
+    batch) is cleared by the next write of its take after the batch. Worker processes forked inside
+    inherit the listing."""
+    key = Path(os.path.abspath(folder))
+    if key in _listed or fcntl is None:  # an outer batch's listing serves; or no leftovers to clear
+        yield
+        return
+    _listed[key] = _leftovers_in(key)
+    try:
+        yield
+    finally:
+        del _listed[key]
+
+
+def _leftovers_in(folder: Path) -> dict[str, list[str]]:
+    """The leftovers in ``folder`` by the name of the target written, each list sorted."""
+    found: dict[str, list[str]] = {}
+    try:
+        with os.scandir(folder) as entries:
+            for name in sorted(e.name for e in entries if e.name.startswith(".")):
+                if m := _LEFTOVER.fullmatch(name):
+                    found.setdefault(m["target"], []).append(name)
+    except OSError:
+        pass
+    return found
 
 
 def clear_leftovers(target: Path) -> None:
     """Remove the hidden folders that writes of ``target`` killed mid-way left beside it
     (``.NAME.partial-XXXX``, ``.NAME.old-XXXX``); those a live writer holds locked are left alone. When
-    ``target`` is missing, the old folder such a write had moved aside is put back first."""
+    ``target`` is missing, the old folder such a write had moved aside is put back first. The folder
+    is listed for this, or once for a whole ``batch_of_writes``."""
     if fcntl is None:  # pragma: no cover - without flock a live writer cannot be told from a dead one
         return
-    prefix = f".{target.name}."
-    try:
-        with os.scandir(target.parent) as entries:
-            names = sorted(e.name for e in entries if e.name.startswith(prefix))
-    except OSError:
-        return
-    for folder in [target.parent / n for n in names if _LEFTOVER.fullmatch(n[len(prefix) :])]:
+    listed = _listed.get(Path(os.path.abspath(target.parent)))
+    if listed is None:
+        listed = _leftovers_in(target.parent)
+    for folder in [target.parent / n for n in listed.get(target.name, [])]:
         lock = _hold(folder)
         if lock is None:  # held by a live writer, gone already, or no locks to tell
             continue
         try:
             moved_aside = folder / "take"
-            if folder.name.startswith(prefix + "old-") and os.path.lexists(moved_aside):
+            if folder.name.startswith(f".{target.name}.old-") and os.path.lexists(moved_aside):
                 if not os.path.lexists(target):
                     os.replace(moved_aside, target)
             shutil.rmtree(folder, ignore_errors=True)

@@ -597,6 +597,9 @@ def cmd_listen(args: argparse.Namespace) -> int:
                 audio_log.close()
             recorder.close()
         summaries = build_takes(recorder.session_dir, args.out)
+        if serial_sync is not None:  # lines of line noise are not in the log: only this process counted them
+            for s in summaries:
+                s["sync_lines_dropped"] = serial_sync.dropped
         removed = _remove_partial_takes(recorder.session_id, Path(args.out), summaries)
     finally:
         if lock is not None:

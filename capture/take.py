@@ -499,8 +499,8 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
 
 def find_takes(paths: Iterable[str | Path]) -> list[Path]:
     """Take folders named by ``paths``; a folder that is not a take is searched recursively, skipping
-    takes in or below a hidden folder (a take being written in place, ``folder_in_place``, or one that
-    align assembles inside one) under it: a folder named in ``paths`` counts even when hidden."""
+    takes in or below a hidden folder (a take being written in place, ``folder_in_place``) under it: a
+    folder named in ``paths`` counts even when hidden."""
     found: list[Path] = []
     for p in map(Path, paths):
         if is_take_dir(p):

@@ -16,6 +16,11 @@ from contextlib import contextmanager
 from .errors import S2AError
 
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}  # what a worker leaves to the process that started it
+# File descriptors this process opens at once to start one worker through a fork server (CPython 3.11's
+# forkserver.connect_to_new_process): the socket to the server and two pipes. The first start also leaves
+# two open first (the fork server's and the resource tracker's pipes); each worker then holds two.
+WORKER_START_FDS = 5
+FIRST_START_FDS = WORKER_START_FDS + 2
 
 
 def exit_with_parent(parent_pid: int) -> None:
@@ -102,13 +107,34 @@ def _stop_signals_held() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
+def _room_to_start_a_worker(first: bool) -> None:
+    """``OSError`` (EMFILE) unless this process can open the descriptors that starting one more worker
+    opens (``WORKER_START_FDS``, ``FIRST_START_FDS`` for a pool's first). Python 3.11's fork server dies
+    with a traceback of its own (an EOFError in ``forkserver.main``) when a start fails after connecting
+    to it, as at its ``os.pipe`` under a low ``ulimit -n``: the start is refused before it connects."""
+    held: list[int] = []
+    try:
+        held.append(os.open(os.devnull, os.O_RDONLY))
+        while len(held) < (FIRST_START_FDS if first else WORKER_START_FDS):
+            held.append(os.dup(held[0]))
+    finally:
+        for fd in held:
+            os.close(fd)
+
+
 def submit_all(pool: ProcessPoolExecutor, fn: Callable, calls: Sequence[tuple]) -> list[Future]:
     """``fn(*args)`` for each of ``calls`` submitted to ``pool``; its worker processes start here,
     Ctrl-C and SIGTERM held meanwhile. A system refusing to start them (too many open files, too little
     memory) is one ``S2AError``."""
+    starts = getattr(pool, "_max_workers", len(calls))  # each of the first submits may start a worker
+    futures = []
     try:
         with _stop_signals_held():
-            return [pool.submit(fn, *args) for args in calls]
+            for k, args in enumerate(calls):
+                if k < starts:
+                    _room_to_start_a_worker(first=k == 0)
+                futures.append(pool.submit(fn, *args))
+            return futures
     except OSError as exc:
         hint = "; or raise the open-file limit (ulimit -n)" if exc.errno == errno.EMFILE else ""
         raise S2AError(

@@ -2,6 +2,10 @@
 manifest, validation and statistics. ``ShardDataset`` (PyTorch) lives in ``dataset.torch_dataset``
 so that importing this package does not import torch."""
 
+# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.command); the
+# guard ends below, once this package's imports are done.
+from capture.command import imports_done
+
 from .build import BuildOptions, build_dataset, collect_takes, plan_shards, take_sha256
 from .features import DEFAULT_FEATURES, FEATURES, FeatureSettings, compute_features, parse_features
 from .manifest import MANIFEST_FILE, read_manifest, write_manifest
@@ -12,6 +16,8 @@ from .qa import CHECKS, VALIDATORS, Problem, Report, validate
 from .shards import ShardInfo, ShardReader, ShardWriter
 from .splits import SPLITS, SplitRule, assign_splits
 from .stats import dataset_stats
+
+_guard = imports_done("dataset")
 
 __all__ = [
     "BACKENDS",

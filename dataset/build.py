@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from capture.atomic import atomic_write, partial_path, write_json_atomic
+from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.command import sigterm_stops
 from capture.errors import InputError, S2AError
@@ -284,8 +284,7 @@ def _aligned_folders(
         raise InputError("align produced no usable take (no speech or no tracked frames?)", folder)
     out.mkdir(parents=True, exist_ok=True)
     names = [write_take(t, out).name for t in results]
-    with _writing(done):
-        write_json_atomic(done, {"source": str(folder), "sha256": sha, "takes": names})
+    write_json_atomic(done, {"source": str(folder), "sha256": sha, "takes": names}, name_failures=True)
     return [out / n for n in names]
 
 
@@ -743,19 +742,6 @@ def _file_sha256(path: Path) -> str | None:
         return None
 
 
-@contextmanager
-def _writing(path: Path) -> Iterator[Path]:
-    """Name ``path`` in an error writing it: ``write()``, ``fsync()`` and ``close()`` fail (a full disk,
-    a file too large) without a file name, so the error line would name none, and ``open()`` names the
-    hidden ``.NAME.partial`` the file is assembled under."""
-    try:
-        yield path
-    except OSError as exc:
-        if exc.filename not in (None, str(partial_path(path))):
-            raise  # another file's error (a sample read into a shard): it names that file
-        raise InputError(f"cannot be written: {exc.strerror or exc}", path) from None
-
-
 def _invalidate(record: Path) -> None:
     """Remove a record that marks work as done, durably, before that work is redone: a build stopped
     halfway then finds no record, never a record vouching for files another build rewrote."""
@@ -903,7 +889,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             members[f"{name}.npy"] = npy_bytes(arr[a:b])
         if phones is not None:
             members["phones.npy"] = npy_bytes(phones[a:b])
-        with _writing(samples_dir / f"{key}.tar") as path, ShardWriter(path) as w:
+        with naming_failures(samples_dir / f"{key}.tar") as path, ShardWriter(path) as w:
             w.add(key, members)
             written = w.close()
         samples.append(
@@ -941,10 +927,9 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     job.record.parent.mkdir(parents=True, exist_ok=True)
     # the channel histograms go to an .npz beside the record (written first: the record marks done);
     # compressed, as most of their bins are empty
-    with _writing(job.stats), atomic_write(job.stats) as f:
+    with atomic_write(job.stats, name_failures=True) as f:
         np.savez_compressed(f, **chan.to_arrays())
-    with _writing(job.record):
-        write_json_atomic(job.record, rec, compact=True)
+    write_json_atomic(job.record, rec, compact=True, name_failures=True)
     return rec | {"cached": False}
 
 
@@ -1053,7 +1038,7 @@ def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str)
     except (FileNotFoundError, json.JSONDecodeError, KeyError, TypeError):
         pass
     _invalidate(record)
-    with _writing(target), ShardWriter(target) as writer:
+    with naming_failures(target), ShardWriter(target) as writer:
         for key in keys:
             for k, members in ShardReader(work / "samples" / f"{key}.tar"):
                 writer.add(k, members)
@@ -1066,8 +1051,7 @@ def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str)
         "fingerprint": fingerprint,
     }
     record.parent.mkdir(parents=True, exist_ok=True)
-    with _writing(record):
-        write_json_atomic(record, done)
+    write_json_atomic(record, done, name_failures=True)
     return done
 
 
@@ -1520,8 +1504,7 @@ def _build(
     if old is not None:
         # what the old manifest said of the splits outlives it (an interrupted rebuild still reports
         # moved takes when rerun); then never leave a manifest describing shards we are replacing
-        with _writing(work / PREVIOUS_SPLITS):
-            write_json_atomic(work / PREVIOUS_SPLITS, previous)
+        write_json_atomic(work / PREVIOUS_SPLITS, previous, name_failures=True)
     manifest_path(out).unlink(missing_ok=True)
 
     records = _process_takes(jobs, options, say)
@@ -1625,7 +1608,7 @@ def _build(
             "dataset_version": DATASET_VERSION,
         },
     }
-    with _writing(manifest_path(out)):
+    with naming_failures(manifest_path(out)):
         write_manifest(out, manifest)
     if not options.keep_work:
         shutil.rmtree(work, ignore_errors=True)

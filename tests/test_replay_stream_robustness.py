@@ -110,8 +110,6 @@ def test_replay_audio_out_folders(tmp_path):
         ("capture", ["replay", "TAKE", "--seed", "-1"], "--seed must be a non-negative"),
         ("capture", ["replay", "TAKE", "--subject", "x" * 3000], "datagram limit"),
         ("capture", ["replay", "TAKE", "--audio-out", "TMP"], "is a folder"),
-        ("viewer", ["stream", "TAKE", "--speed", "0"], "--speed must be in 0.01..1000"),
-        ("viewer", ["stream", "TAKE", "--speed", "nan"], "--speed must be in 0.01..1000"),
         ("viewer", ["stream", "TAKE", "--subject", "x" * 3000], "datagram limit"),
         ("viewer", ["stream", "TMP", "--speed", "50"], "found 2 takes under it"),
     ],

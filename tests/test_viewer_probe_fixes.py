@@ -148,7 +148,12 @@ def test_offsets_must_be_finite(samples, tmp_path, option, value):
     out = tmp_path / "n.png"
     extra = ["--compare", csv] if option == "--compare-offset" else ["--video", tmp_path / "any.mov"]
     proc = run_here("viewer", "render", csv, *extra, option, value, "-o", out, "--size", 32, "--json")
-    _one_line_error(proc, f"{option} must be a number of seconds, not {value}")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr  # a usage error
+    assert (
+        proc.stderr.strip()
+        .splitlines()[-1]
+        .endswith(f"argument {option}: must be a number of seconds, not {value}")
+    )
     assert not out.exists()
 
 

@@ -1,6 +1,10 @@
 """viewer: a take or a prediction as a face (pyvista, offscreen), as curves, as video, live in Unreal
 (Live Link packets), and a dataset as one HTML page. Imports every other stage; none imports it."""
 
+# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.command); the
+# guard ends below, once this package's imports are done.
+from capture.command import imports_done
+
 from .face import FaceModel, Part, builtin_face, weights_from_values
 from .gltf import arkit_channel, load_gltf, write_glb
 from .plot import plot_curves
@@ -8,6 +12,8 @@ from .probe import RenderUnavailable, probe
 from .render import Animation, FaceRenderer, load_animation, render_frame, write_mp4
 from .report import write_report
 from .stream import stream_take
+
+_guard = imports_done("viewer")
 
 __all__ = [
     "Animation",

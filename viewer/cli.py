@@ -22,6 +22,31 @@ PROG = "s2a-view"
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf|infinity|nan)$", re.IGNORECASE)
 
 
+def _number(cast: type, low: float, high: float, what: str):
+    """An argparse type: a ``cast`` number (finite) in ``low..high``; one outside is a usage error, as a
+    word is (exit 2, argparse's usage line first). A range the input sets (a frame past its last, a time
+    past its end) is checked against the input, an error of exit code 1."""
+
+    def number(text: str):
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {cast.__name__} value: {text!r}") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"must be {what}, not {text}")
+        return value
+
+    return number
+
+
+SECONDS = _number(float, -math.inf, math.inf, "a number of seconds")
+SIZE = _number(int, 16, 4096, "in 16..4096")
+FRAME = _number(int, 0, math.inf, "a frame index, 0 or more")
+TIME = _number(float, 0.0, math.inf, "seconds after the input's first frame, 0 or more")
+SPEED = _number(float, 0.01, 1000.0, "in 0.01..1000")
+LIMIT = _number(int, 0, math.inf, "0 or more (0: no curve thumbnails)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -44,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--compare-offset",
-        type=float,
+        type=SECONDS,
         nargs="+",
         metavar="S",
         help="seconds after the input's first frame at which each --compare input starts (default: 0, "
@@ -57,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--video-start",
-        type=float,
+        type=SECONDS,
         metavar="S",
         help="take time (s) of the video's first frame (default: the audio's start, else 0)",
     )
@@ -68,9 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="the face: the built-in head (default) or a glTF/GLB file with ARKit morph targets",
     )
     p.add_argument("--audio", type=Path, help="speech for a CSV input (a take folder brings its own)")
-    p.add_argument("--size", type=int, default=512, help="panel height and width in pixels (default 512)")
-    p.add_argument("--frame", type=int, help="PNG: frame index of the input (default: widest open jaw)")
-    p.add_argument("--time", type=float, help="PNG: seconds after the input's first frame")
+    p.add_argument("--size", type=SIZE, default=512, help="panel height and width in pixels (default 512)")
+    p.add_argument("--frame", type=FRAME, help="PNG: frame index of the input (default: widest open jaw)")
+    p.add_argument("--time", type=TIME, help="PNG: seconds after the input's first frame")
     p.add_argument("--labels", help="comma list of panel names, one per input (default: take ids)")
     p.add_argument("--no-labels", action="store_true", help="no panel names in side-by-side output")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -93,11 +118,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="speech segments: auto = align report, else silero VAD (default)",
     )
     p.add_argument("--labels", help="comma list of legend names, one per input")
-    p.add_argument("--start", type=float, help="first second shown")
-    p.add_argument("--end", type=float, help="last second shown")
+    p.add_argument("--start", type=SECONDS, help="first second shown")
+    p.add_argument("--end", type=SECONDS, help="last second shown")
     p.add_argument("--title", help="figure title")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
-    p.set_defaults(handler=cmd_plot)
+    p.set_defaults(handler=cmd_plot, usage_error=p.error)
 
     p = sub.add_parser(
         "stream",
@@ -112,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="play the speech on this machine on the same clock (the take's, or FILE)",
     )
-    p.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = the phone's timing)")
+    p.add_argument("--speed", type=SPEED, default=1.0, help="playback speed (1 = the phone's timing)")
     p.add_argument("--subject", help="Live Link subject name (default: the take's, else iPhone)")
     p.add_argument(
         "--device", help="device id in the packets (default: the take's, else derived from its id)"
@@ -126,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--takes", type=Path, nargs="+", default=[], help="aligned take folders whose align reports to show"
     )
-    p.add_argument("--limit", type=int, default=500, help="at most this many takes get curve thumbnails")
+    p.add_argument("--limit", type=LIMIT, default=500, help="at most this many takes get curve thumbnails")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_report)
 
@@ -199,20 +224,10 @@ def cmd_render(args: argparse.Namespace) -> int:
     suffix = args.out.suffix.lower()
     if suffix not in (".png", ".jpg", ".jpeg", ".mp4"):
         raise InputError("output must be .png (one frame) or .mp4 (the whole take)", args.out)
-    if not 16 <= args.size <= 4096:
-        raise InputError(f"--size must be in 16..4096, not {args.size}")
     if suffix == ".mp4" and (args.frame is not None or args.time is not None):
         raise InputError("--frame/--time pick one frame for a PNG; an MP4 has them all")
     if args.frame is not None and args.time is not None:
         raise InputError("--frame and --time both pick the frame: give one of them")
-    for flag, values in (
-        ("--time", [args.time]),
-        ("--video-start", [args.video_start]),
-        ("--compare-offset", args.compare_offset or []),
-    ):
-        bad = [v for v in values if v is not None and not math.isfinite(v)]
-        if bad:
-            raise InputError(f"{flag} must be a number of seconds, not {bad[0]}")
     if args.compare_offset is not None and len(args.compare_offset) != len(args.compare):
         raise InputError(
             f"--compare-offset gives {len(args.compare_offset)} offsets for {len(args.compare)} inputs"
@@ -227,9 +242,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         a.warnings += livelink_coverage(a.take, path, "render") + missing_face_channels(a.take, path)
     first = anims[0]
     span = float(first.time[-1] - first.t0)
-    if args.time is not None and not 0 <= args.time <= span:
+    if args.time is not None and not args.time <= span:  # the option's own range: argparse (TIME)
         raise InputError(f"--time {args.time:g} s is outside the take's 0..{span:.3f} s", args.input)
-    if args.frame is not None and not 0 <= args.frame < first.time.size:
+    if args.frame is not None and not args.frame < first.time.size:  # and 0 or more (FRAME)
         raise InputError(f"--frame {args.frame} is outside 0..{first.time.size - 1}", args.input)
     if args.labels:
         names = [s.strip() for s in args.labels.split(",")]
@@ -359,6 +374,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     from .plot import plot_curves
     from .render import distinct_labels, load_animation, place_on_parent_clock
 
+    if args.start is not None and args.end is not None and args.start >= args.end:  # no input needed
+        args.usage_error(f"argument --start: {args.start:g} s must come before --end {args.end:g} s")
     labels = [s.strip() for s in args.labels.split(",")] if args.labels else []
     if labels and len(labels) != len(args.inputs):
         raise InputError(f"--labels names {len(labels)} inputs, but {len(args.inputs)} were given")
@@ -433,8 +450,6 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     if args.out.suffix.lower() not in (".html", ".htm"):
         raise InputError("the report is written as .html", args.out)
-    if args.limit < 0:
-        raise InputError(f"--limit must be 0 or more (0: no curve thumbnails), not {args.limit}")
     if not args.dataset.exists():
         raise InputError("no such dataset or folder", args.dataset)
     prepare_output(args.out)

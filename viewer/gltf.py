@@ -100,15 +100,21 @@ class _Gltf:
                 raise InputError(
                     f"GLB is truncated: its header says {length} bytes, the file holds {len(data)}", path
                 )
-            off, doc = 12, None
+            off, doc, k = 12, None, 0
             while off + 8 <= min(length, len(data)):
                 clen, ctype = struct.unpack_from("<II", data, off)
+                if off + 8 + clen > length:  # what fits of it is not the chunk: refused, not read in part
+                    raise InputError(
+                        f"GLB chunk {k} says {clen} bytes, but only {length - off - 8} follow its header "
+                        f"in the file's {length}: the file is damaged",
+                        path,
+                    )
                 chunk = data[off + 8 : off + 8 + clen]
                 if ctype == CHUNK_JSON:
                     doc = chunk
                 elif ctype == CHUNK_BIN and self.bin is None:
                     self.bin = chunk
-                off += 8 + clen
+                off, k = off + 8 + clen, k + 1
             if doc is None:
                 raise InputError("GLB has no JSON chunk", path)
         else:

@@ -1,0 +1,223 @@
+"""Leftovers of the command-line contract: Ctrl-C while s2a-align and s2a-dataset import, out-of-range
+option values of s2a-view and s2a-align as usage errors, the serial sync box's dropped lines in the JSON,
+a GLB chunk longer than its file, and workers that cannot start under a low ``ulimit -n``."""
+
+from __future__ import annotations
+
+import os
+import resource
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, run_cli
+from dataset_helpers import write_aligned_set
+from live_helpers import listen_with_sync_box
+
+from capture.errors import InputError
+from viewer.face import builtin_face
+from viewer.gltf import load_gltf, write_glb
+
+
+def _usage_error(proc: subprocess.CompletedProcess, prog: str, line: str) -> None:
+    """argparse's usage-error form: exit 2, the usage first, the error last, no traceback."""
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0].startswith(f"usage: {prog}") and "Traceback" not in proc.stderr, proc.stderr
+    assert lines[-1] == line, proc.stderr
+
+
+def _one_line_error(proc: subprocess.CompletedProcess, needle: str) -> str:
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    lines = [x for x in proc.stderr.strip().splitlines() if not x.startswith("build: ")]
+    assert len(lines) == 1 and ": error: " in lines[0] and needle in lines[0], proc.stderr
+    return lines[0]
+
+
+# -- 1. Ctrl-C while the command still imports numpy, scipy, PyTorch --------------------------------------
+@pytest.mark.parametrize(
+    ("args", "prog"),
+    [
+        ([sys.executable, "-m", "align", "NOTHING", "-o", "OUT"], "s2a-align"),
+        ([str(Path(sys.executable).parent / "s2a-align"), "NOTHING", "-o", "OUT"], "s2a-align"),
+        ([sys.executable, "-m", "dataset", "build", "NOTHING", "-o", "OUT"], "s2a-dataset"),
+        ([sys.executable, "-m", "viewer", "plot", "NOTHING", "-o", "OUT"], "s2a-view"),
+    ],
+)
+def test_ctrl_c_while_the_command_imports_stops_without_a_traceback(tmp_path, args, prog):
+    """Importing align or dataset takes 0.5 s or more (capture's numpy first): Ctrl-C there printed a
+    KeyboardInterrupt traceback (or an error of a half-imported numpy)."""
+    args = [{"NOTHING": str(tmp_path / "none"), "OUT": str(tmp_path / "out")}.get(a, a) for a in args]
+    stopped = 0
+    for delay in (0.05, 0.1, 0.2, 0.3):
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=60)
+        if f"{prog}: error:" in err:  # imports were done before the signal (a fast machine): not this case
+            continue
+        assert proc.returncode == 130 and "Traceback" not in err, (delay, err)
+        assert err.strip().splitlines()[-1] == f"{prog}: interrupted", (delay, err)
+        stopped += 1
+    assert stopped, "every Ctrl-C came after the imports"
+
+
+def test_a_program_that_imports_the_stages_keeps_its_own_ctrl_c(tmp_path):
+    check = (
+        "import signal, capture, align, dataset, train, viewer; "
+        "print(capture._guard, align._guard, dataset._guard, train._guard, viewer._guard, "
+        "signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    )
+    proc = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, cwd=ROOT)
+    assert proc.stdout.split() == ["False"] * 5 + ["True"], proc.stdout + proc.stderr
+    # a Ctrl-C while capture loads, before the guard, is still Python's KeyboardInterrupt there
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import align"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode in (1, -signal.SIGINT) and "KeyboardInterrupt" in err, err
+
+
+# -- 2. option values out of their range: usage errors (exit 2); input problems stay exit 1 ---------------
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--max-offset-ms", "0", "must be between 20 and 10000, not 0"),
+        ("--max-offset-ms", "nan", "must be between 20 and 10000, not nan"),
+        ("--fps", "0", "must be between 1 and 1000, not 0"),
+        ("--face-lead-ms", "600", "must be between -500 and 500, not 600"),
+        ("--max-gap-ms", "-1", "must be between 0 and 60000, not -1"),
+        ("--offset-ms", "1e9", "must be between -3600000 and 3600000, not 1000000000"),
+        ("--max-disagreement-ms", "inf", "must be between 0 and 10000, not inf"),
+        ("--min-segment-s", "1e308", "must be between 0 and 3600, not 1e+308"),
+    ],
+)
+def test_align_options_out_of_range_are_usage_errors(tmp_path, option, value, message):
+    proc = run_cli("align", tmp_path / "none", "-o", tmp_path / "out", option, value)
+    _usage_error(proc, "s2a-align", f"s2a-align: error: argument {option}: {message}")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.fixture(scope="module")
+def take(tmp_path_factory) -> Path:
+    return write_aligned_set(tmp_path_factory.mktemp("view") / "takes", count=1, seconds=1.0) / "take00"
+
+
+@pytest.mark.parametrize(
+    ("args", "sub", "line"),
+    [
+        (
+            ["render", "TAKE", "-o", "OUT.png", "--size", "0"],
+            "render",
+            "argument --size: must be in 16..4096, not 0",
+        ),
+        (
+            ["render", "TAKE", "-o", "OUT.png", "--frame", "-1"],
+            "render",
+            "argument --frame: must be a frame index",
+        ),
+        (["render", "TAKE", "-o", "OUT.png", "--time", "nan"], "render", "argument --time: must be seconds"),
+        (
+            ["render", "TAKE", "-o", "OUT.png", "--compare", "TAKE", "--compare-offset", "inf"],
+            "render",
+            "argument --compare-offset: must be a number of seconds, not inf",
+        ),
+        (["plot", "TAKE", "-o", "OUT.png", "--start", "nan"], "plot", "argument --start: must be a number"),
+        (
+            ["plot", "TAKE", "-o", "OUT.png", "--start", "5", "--end", "1"],
+            "plot",
+            "argument --start: 5 s must",
+        ),
+        (["stream", "TAKE", "--to", "127.0.0.1:9", "--speed", "0"], "stream", "argument --speed: must be in"),
+        (
+            ["report", "TAKE", "-o", "OUT.html", "--limit", "-1"],
+            "report",
+            "argument --limit: must be 0 or more",
+        ),
+    ],
+)
+def test_view_options_out_of_range_are_usage_errors(take, tmp_path, args, sub, line):
+    names = {"TAKE": str(take), "OUT.png": str(tmp_path / "o.png"), "OUT.html": str(tmp_path / "o.html")}
+    proc = run_cli("viewer", *[names.get(a, a) for a in args])
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0].startswith(f"usage: s2a-view {sub}"), proc.stderr
+    assert lines[-1].startswith(f"s2a-view {sub}: error: {line}"), proc.stderr
+    assert not (tmp_path / "o.png").exists() and not (tmp_path / "o.html").exists()
+
+
+def test_a_view_option_value_the_input_rules_out_stays_an_input_error(take, tmp_path):
+    proc = run_cli("viewer", "render", take, "-o", tmp_path / "o.png", "--frame", "100000")
+    _one_line_error(proc, "--frame 100000 is outside 0..")
+    proc = run_cli("viewer", "plot", take, "-o", tmp_path / "p.png", "--start", "50", "--end", "60")
+    _one_line_error(proc, "--start/--end hold no frame")
+
+
+# -- 3. the serial sync box's lines of line noise are counted in the JSON lines ----------------------------
+def test_listen_counts_the_dropped_serial_lines_in_its_json(tmp_path):
+    noise = [b"CLAP\n", b"\x00\x01\x02 garbage\n", b"\xff\xfe\xfd\n", b"MARK end\n"]
+    lines, err, code = listen_with_sync_box(tmp_path, noise)
+    assert code == 0, err
+    assert lines[0]["sync_events"] == 2 and lines[0]["sync_lines_dropped"] == 2, lines
+    assert err.count("the serial sync box sent a line that is not text") == 1, err
+    lines, err, code = listen_with_sync_box(tmp_path / "clean", [b"CLAP\n"])
+    assert code == 0 and lines[0]["sync_lines_dropped"] == 0, err
+
+
+# -- 4. a GLB chunk longer than what follows it ------------------------------------------------------------
+def _overrun_bin_chunk(path: Path, extra: int) -> Path:
+    data = bytearray(path.read_bytes())
+    json_len = struct.unpack_from("<I", data, 12)[0]
+    bin_at = 12 + 8 + json_len
+    bin_len = struct.unpack_from("<I", data, bin_at)[0]
+    struct.pack_into("<I", data, bin_at, bin_len + extra)
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_a_glb_chunk_longer_than_the_file_is_refused(take, tmp_path):
+    good = write_glb(builtin_face(), tmp_path / "good.glb")
+    assert load_gltf(good).channels
+    bad = _overrun_bin_chunk(write_glb(builtin_face(), tmp_path / "bad.glb"), 64)
+    with pytest.raises(InputError, match=r"bad\.glb: GLB chunk 1 says \d+ bytes, but only \d+ follow"):
+        load_gltf(bad)
+    proc = run_cli("viewer", "render", take, "--face", bad, "-o", tmp_path / "o.png", "--size", "32")
+    _one_line_error(proc, f"{bad}: GLB chunk 1 says")
+    assert not (tmp_path / "o.png").exists()
+
+
+# -- 5. workers that cannot start under a low open-file limit: one line, whoever notices first -------------
+def test_a_build_with_too_few_file_descriptors_for_its_workers_is_one_line(tmp_path):
+    takes = write_aligned_set(tmp_path / "takes", count=6, seconds=2.0)
+    refused = 0
+    for limit in range(17, 24):
+
+        def few_files(limit: int = limit) -> None:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (limit, limit))
+
+        ds = tmp_path / f"ds{limit}"
+        proc = subprocess.run(
+            [sys.executable, "-m", "dataset", "build", takes, "-o", ds, "--jobs", "4"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=120,
+            preexec_fn=few_files,
+            env={**os.environ, "PYTHONWARNINGS": "ignore"},
+        )
+        if proc.returncode == 0:
+            continue
+        refused += 1
+        line = _one_line_error(proc, "cannot start the worker processes (Too many open files)")
+        assert "ulimit -n" in line, (limit, proc.stderr)
+    assert refused, "no open-file limit here was too low for 4 workers"
