@@ -18,8 +18,6 @@ import json
 import math
 import re
 import warnings
-import zipfile
-import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -39,6 +37,7 @@ from .csv_take import (
     repair,
 )
 from .errors import InputError
+from .npz import NPZ_ERRORS, npz_array, npz_headers
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
 
@@ -449,11 +448,6 @@ def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None
 NPZ_WEIGHTS = ("weights", "values", "blendshapes")
 NPZ_NAMES = ("names", "channels", "facsnames", "channel_names")
 NPZ_FPS = ("fps", "frame_rate", "framerate")
-# The most values a .npz array may hold (an hour at 120 fps of 200 channels is 86 million): its header
-# says how many before it is read, so a compressed array of zeros cannot take gigabytes.
-NPZ_MAX_VALUES = 200_000_000
-# What reading a damaged .npz raises: a truncated file, a member whose data is cut or corrupt.
-_NPZ_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
@@ -463,13 +457,13 @@ def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
     only the arrays used are read."""
     try:
         npz = np.load(path, allow_pickle=False)
-    except _NPZ_ERRORS as exc:
+    except NPZ_ERRORS as exc:
         raise InputError(f"not a .npz of numeric or string arrays ({exc})", path) from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise InputError("a .npy array, not a .npz archive: name it .npy", path)
     try:
         with npz:
-            arrays = _npz_headers(npz)
+            arrays = npz_headers(npz)
             named = [k for k in NPZ_WEIGHTS if k in arrays]
             planes = [k for k, (_, shape, dtype) in arrays.items() if len(shape) == 2 and dtype.kind in "fiu"]
             found = named if len(named) == 1 else planes if len(planes) == 1 else None
@@ -483,7 +477,7 @@ def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
                     path,
                 )
             names = next(
-                (string_names(_npz_array(npz, arrays[k], path), path) for k in NPZ_NAMES if k in arrays), None
+                (string_names(npz_array(npz, arrays[k], path), path) for k in NPZ_NAMES if k in arrays), None
             )
             fps = next((arrays[k] for k in NPZ_FPS if k in arrays), None)
             if fps is not None:
@@ -492,38 +486,10 @@ def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
                     raise InputError(
                         f"the frame rate it stores must be one number, not {dtype} {shape}", path
                     )
-                fps = exact_rate(float(_npz_array(npz, fps, path).ravel()[0]))
-            return _npz_array(npz, arrays[found[0]], path), names, fps
-    except _NPZ_ERRORS as exc:
+                fps = exact_rate(float(npz_array(npz, fps, path).ravel()[0]))
+            return npz_array(npz, arrays[found[0]], path), names, fps
+    except NPZ_ERRORS as exc:
         raise InputError(f"a damaged .npz ({exc})", path) from None
-
-
-def _npz_headers(npz) -> dict[str, tuple[str, tuple[int, ...], np.dtype]]:
-    """The ``.npy`` arrays of an open ``.npz`` by name in lower case: (key, shape, dtype), from their
-    headers alone (nothing is read)."""
-    arrays = {}
-    for member in npz.zip.namelist():
-        if not member.endswith(".npy"):
-            continue
-        with npz.zip.open(member) as f:
-            version = np.lib.format.read_magic(f)
-            read = (
-                np.lib.format.read_array_header_1_0
-                if version == (1, 0)
-                else np.lib.format.read_array_header_2_0
-            )
-            shape, _, dtype = read(f)
-        arrays[member.removesuffix(".npy").lower()] = (member.removesuffix(".npy"), shape, dtype)
-    return arrays
-
-
-def _npz_array(npz, header: tuple[str, tuple[int, ...], np.dtype], path: Path) -> np.ndarray:
-    """One array of an open ``.npz`` (``header``: its ``_npz_headers`` entry), refused when it holds more
-    than ``NPZ_MAX_VALUES`` values."""
-    key, shape, _ = header
-    if math.prod(shape) > NPZ_MAX_VALUES:
-        raise InputError(f"array {key!r} holds {math.prod(shape)} values (more than {NPZ_MAX_VALUES})", path)
-    return npz[key]
 
 
 def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:

@@ -19,7 +19,7 @@ import json
 import math
 import os
 import tokenize
-import zipfile
+import unicodedata
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field, fields
@@ -32,11 +32,13 @@ import numpy as np
 from .atomic import folder_in_place, write_json_atomic
 from .audio_io import Audio, read_audio, write_audio
 from .errors import InputError
+from .npz import NPZ_ERRORS, npz_array, npz_headers
 
 FORMAT = "s2a-take"
 SCHEMA_VERSION = 1
 META_FILE = "meta.json"
 FRAMES_FILE = "frames.npz"
+FRAMES_ARRAYS = ("time", "values", "frame_status", "neutral", "arrival_s")  # what write_take stores
 AUDIO_FILE = "audio.wav"
 MAX_FPS = 1000.0  # the highest frame rate a take may declare (the app records 30 or 60)
 
@@ -337,12 +339,22 @@ def source_file(path: str | Path, role: str) -> SourceFile:
 MAX_ID_BYTES = 120  # folder names are limited to 255 bytes; temporary names add a prefix and suffix
 
 
+# Names Windows keeps for devices, with any extension (``AUX.seg01`` too), in any case.
+WINDOWS_DEVICES = {"CON", "PRN", "AUX", "NUL"} | {f"{d}{i}" for d in ("COM", "LPT") for i in range(1, 10)}
+
+
 def safe_id(text: str) -> str:
     """A take id usable as a folder name on every platform: letters, digits, ``-_.``, at most
     ``MAX_ID_BYTES`` bytes of UTF-8 (a longer id is cut and ends in a hash of the whole, so that two
-    long ids stay apart)."""
+    long ids stay apart). Unicode in its composed form (NFC: macOS names files decomposed, and
+    ``Café`` must be one id however it came); never starting with ``-`` (a command-line option) or
+    ``.`` (hidden), never a Windows device name (``AUX``, ``com1``: ``AUX_``)."""
+    text = unicodedata.normalize("NFC", text)
     keep = "".join(c if c.isalnum() or c in "-_." else "_" for c in text.strip())
-    keep = keep.strip(".") or "take"
+    keep = keep.lstrip("-.").rstrip(".") or "take"
+    if keep.split(".")[0].upper() in WINDOWS_DEVICES:
+        head, dot, rest = keep.partition(".")
+        keep = f"{head}_{dot}{rest}"
     if len(keep.encode()) <= MAX_ID_BYTES:
         return keep
     digest = hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()[:12]
@@ -447,10 +459,14 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
     frames_path = folder / FRAMES_FILE
     try:
         with np.load(frames_path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+            if not isinstance(z, np.lib.npyio.NpzFile):
+                raise InputError("frames are unreadable (a .npy array, not a .npz archive)", frames_path)
+            # only the arrays a take has, each checked for its size before it is read (others are ignored)
+            held = {header[0]: header for header in npz_headers(z).values()}
+            arrays = {k: npz_array(z, held[k], frames_path) for k in FRAMES_ARRAYS if k in held}
     except FileNotFoundError:
         raise InputError("take folder has no frames.npz", folder) from None
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError, SyntaxError, tokenize.TokenError) as exc:
+    except (*NPZ_ERRORS, SyntaxError, tokenize.TokenError) as exc:
         # SyntaxError, TokenError: a member's .npy header NumPy cannot parse (an unclosed bracket)
         raise InputError(f"frames are unreadable ({exc})", frames_path) from None
     for key in ("time", "values", "frame_status"):
@@ -500,20 +516,33 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
 def find_takes(paths: Iterable[str | Path]) -> list[Path]:
     """Take folders named by ``paths``; a folder that is not a take is searched recursively, skipping
     takes in or below a hidden folder (a take being written in place, ``folder_in_place``) under it: a
-    folder named in ``paths`` counts even when hidden."""
+    folder named in ``paths`` counts even when hidden. Symbolic links to folders are followed, each real
+    folder once (no loops), and never to the folder searched or one above it."""
     found: list[Path] = []
     for p in map(Path, paths):
         if is_take_dir(p):
             found.append(p)
         elif p.is_dir():
-            found.extend(
-                sorted(
-                    d.parent
-                    for d in p.rglob(META_FILE)
-                    if is_take_dir(d.parent)
-                    and not any(part.startswith(".") for part in d.parent.relative_to(p).parts)
-                )
-            )
+            found.extend(_takes_below(p))
         else:
             raise InputError("no such take folder", p)
     return found
+
+
+def _takes_below(root: Path) -> list[Path]:
+    top = os.path.realpath(root)
+    seen: set[str] = set()
+    takes = []
+    for here, folders, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(here)
+        # a folder reached again, or a link back up to the folder searched or above it
+        if real in seen or (
+            here != str(root) and (top == real or top.startswith(real.rstrip(os.sep) + os.sep))
+        ):
+            folders[:] = []
+            continue
+        seen.add(real)
+        folders[:] = sorted(f for f in folders if not f.startswith("."))
+        if here != str(root) and META_FILE in files and is_take_dir(here):
+            takes.append(Path(here))
+    return sorted(takes)

@@ -1,0 +1,95 @@
+"""Takes as copies leave them: names from macOS (decomposed Unicode) and Windows (device names), names
+that read as options, symbolic links to take folders, and frames.npz with members a take never has."""
+
+from __future__ import annotations
+
+import io
+import os
+import unicodedata
+import zipfile
+
+import numpy as np
+import pytest
+
+from capture import read_take, write_take
+from capture.errors import InputError
+from capture.take import find_takes, safe_id
+from tests.conftest import run_cli
+from tests.live_helpers import synthetic_take
+
+
+@pytest.mark.parametrize(
+    ("name", "expected"),
+    [
+        (unicodedata.normalize("NFD", "Café_1"), "Café_1"),  # as macOS writes it: one id with the NFC name
+        ("Café_1", "Café_1"),
+        (unicodedata.normalize("NFD", "Zoë"), "Zoë"),
+        ("--help", "help"),  # a folder `--help` made `s2a-align *` print its help and do nothing
+        ("-take", "take"),
+        ("AUX", "AUX_"),  # Windows device names cannot be folders there
+        ("com1", "com1_"),
+        ("nul.seg01", "nul_.seg01"),
+        ("COM10", "COM10"),
+        ("console", "console"),
+        ("...", "take"),
+    ],
+)
+def test_take_ids_are_the_same_and_usable_everywhere(name, expected):
+    assert safe_id(name) == expected
+
+
+def test_symlinked_takes_are_found_once_and_links_upward_are_not_followed(tmp_path):
+    """Python's rglob does not follow links: align, build and report skipped symlinked takes."""
+    elsewhere = write_take(synthetic_take(10), tmp_path / "elsewhere")
+    here = tmp_path / "takes"
+    own = write_take(synthetic_take(10, seed=1), here)
+    os.symlink(elsewhere.parent, here / "session1")  # a folder of takes linked in
+    os.symlink(elsewhere, here / "again")  # the same take through a second link: found once
+    os.symlink("..", here / "up")  # up to the folder holding `elsewhere` and `takes` again
+    os.symlink(".", here / "self")
+    found = find_takes([here])
+    assert sorted(os.path.realpath(p) for p in found) == sorted(map(os.path.realpath, [elsewhere, own]))
+    assert find_takes([tmp_path / "elsewhere"]) == [elsewhere]
+
+
+def test_align_reads_a_symlinked_take(tmp_path):
+    take = write_take(synthetic_take(180, audio=True), tmp_path / "raw")
+    (tmp_path / "links").mkdir()
+    os.symlink(take, tmp_path / "links" / take.name)
+    proc = run_cli("align", tmp_path / "links", "-o", tmp_path / "al", "--vad", "none")
+    assert proc.returncode == 0, proc.stderr
+    assert find_takes([tmp_path / "al"]), proc.stderr
+
+
+def _npz_with(folder, extra: dict[str, bytes]) -> None:
+    """frames.npz of ``folder`` rewritten with ``extra`` raw members added."""
+    path = folder / "frames.npz"
+    members = {}
+    with zipfile.ZipFile(path) as z:
+        for name in z.namelist():
+            members[name] = z.read(name)
+    members.update(extra)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+
+
+def _npy_header(shape: tuple[int, ...]) -> bytes:
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return buf.getvalue()
+
+
+def test_frames_members_a_take_never_has_are_not_read(tmp_path):
+    """A member declaring 2 GiB in a few compressed bytes made read_take allocate it."""
+    folder = write_take(synthetic_take(10), tmp_path)
+    _npz_with(folder, {"extra.npy": _npy_header((1 << 28,)) + b"\0" * 64, "README.txt": b"notes"})
+    take = read_take(folder)
+    assert take.values.shape[0] == 10
+
+
+def test_a_take_array_declaring_more_than_any_take_holds_is_refused_before_reading(tmp_path):
+    folder = write_take(synthetic_take(10), tmp_path)
+    _npz_with(folder, {"values.npy": _npy_header((1 << 20, 1 << 10)) + b"\0" * 64})
+    with pytest.raises(InputError, match="array 'values' holds 1073741824 values"):
+        read_take(folder)
