@@ -93,3 +93,26 @@ def test_a_take_array_declaring_more_than_any_take_holds_is_refused_before_readi
     _npz_with(folder, {"values.npy": _npy_header((1 << 20, 1 << 10)) + b"\0" * 64})
     with pytest.raises(InputError, match="array 'values' holds 1073741824 values"):
         read_take(folder)
+
+
+def test_plot_of_a_take_named_in_chinese_warns_once_of_characters_no_font_has(tmp_path):
+    """Each missing glyph was a matplotlib UserWarning of two lines, repeated per draw."""
+    from matplotlib import font_manager
+
+    from viewer.plot import CJK_FONTS
+
+    take = synthetic_take(60)
+    take.meta.id = "你好_take"
+    folder = write_take(take, tmp_path)
+    proc = run_cli("viewer", "plot", folder, "-o", tmp_path / "p.png", "--title", "说话")
+    assert proc.returncode == 0 and "UserWarning" not in proc.stderr, proc.stderr
+    installed = {f.name for f in font_manager.fontManager.ttflist} & set(CJK_FONTS)
+    warned = [line for line in proc.stderr.splitlines() if "no installed font has" in line]
+    assert warned == (
+        []
+        if installed
+        else [
+            "warning: no installed font has '你好说话' (drawn as boxes): "
+            "install one that has them, such as Noto Sans CJK"
+        ]
+    ), proc.stderr

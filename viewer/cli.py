@@ -401,6 +401,11 @@ def cmd_plot(args: argparse.Namespace) -> int:
         progress(f"warning: --channels names {name} more than once: drawn once")
     for label in summary["inputs_without_these_channels"]:
         progress(f"warning: {label} holds none of the channels plotted ({', '.join(summary['channels'])})")
+    if summary["undrawable_characters"]:
+        progress(
+            f"warning: no installed font has {summary['undrawable_characters']!r} (drawn as boxes): "
+            "install one that has them, such as Noto Sans CJK"
+        )
     if args.json:
         emit_json(summary)
     else:

@@ -9,7 +9,10 @@ VAD cannot run, an energy threshold, which the figure labels as a fallback.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import re
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -118,6 +121,44 @@ def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[f
     return [(a + off, b + off) for a, b in segs], "loud (energy threshold, fallback: no VAD model)"
 
 
+# Fonts with Chinese, Japanese and Korean characters, as common systems install them: matplotlib's own
+# DejaVu Sans has none, and take names and titles are often written in them.
+CJK_FONTS = (
+    "Noto Sans CJK JP",
+    "Noto Sans CJK SC",
+    "Source Han Sans",
+    "WenQuanYi Zen Hei",
+    "Microsoft YaHei",
+    "PingFang SC",
+    "Hiragino Sans",
+    "Arial Unicode MS",
+)
+_MISSING_GLYPH = re.compile(r"Glyph (?P<code>\d+) .* missing from font")
+
+
+@contextmanager
+def labels_in_any_script(plt: Any) -> Iterator[list[str]]:
+    """Inside, text falls back to an installed font that has its characters (CJK_FONTS after DejaVu
+    Sans); yields the list it fills with the characters still drawn as boxes (matplotlib warns once per
+    glyph and draw: those warnings become that list; other warnings pass)."""
+    from matplotlib import font_manager
+
+    installed = {f.name for f in font_manager.fontManager.ttflist}
+    families = ["DejaVu Sans"] + [f for f in CJK_FONTS if f in installed]
+    undrawable: list[str] = []
+    with plt.rc_context({"font.family": families}), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield undrawable
+    for w in caught:
+        m = _MISSING_GLYPH.search(str(w.message))
+        if m is None:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        else:
+            char = chr(int(m["code"]))
+            if char not in undrawable:
+                undrawable.append(char)
+
+
 def plot_curves(
     anims: Sequence[Animation],
     out: str | Path,
@@ -157,87 +198,91 @@ def plot_curves(
         raise InputError(
             f"--start/--end hold no frame: the inputs span {first:.3f}..{last:.3f} s (after the first frame)"
         )
-    voice = next((a for a in anims if a.audio is not None), None)
-    rows = len(names) + (1 if voice is not None else 0)
-    ratios = [2.0] * len(names) + ([1.2] if voice is not None else [])
-    fig, axes = plt.subplots(
-        rows,
-        1,
-        sharex=True,
-        figsize=(width_in, 1.6 * sum(ratios) / 2 + 0.8),
-        gridspec_kw={"height_ratios": ratios},
-        squeeze=False,
-    )
-    axes = axes[:, 0]
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    t_max = 0.0
-    handles: dict[int, Any] = {}  # one legend entry per input, from whichever row draws it
-    for r, name in enumerate(names):
-        ax = axes[r]
-        for i, a in enumerate(anims):
-            t = a.time - a.t0 + a.offset_s
-            t_max = max(t_max, float(t[-1]))
-            values = curve(a, name)
-            if values is not None:
-                marker = "o" if t.size == 1 else None  # one frame is a point: a line through it is not drawn
-                (line,) = ax.plot(
-                    t, values, color=colors[i % len(colors)], lw=1.2, marker=marker, ms=4, label=a.label
+    with labels_in_any_script(plt) as undrawable:
+        voice = next((a for a in anims if a.audio is not None), None)
+        rows = len(names) + (1 if voice is not None else 0)
+        ratios = [2.0] * len(names) + ([1.2] if voice is not None else [])
+        fig, axes = plt.subplots(
+            rows,
+            1,
+            sharex=True,
+            figsize=(width_in, 1.6 * sum(ratios) / 2 + 0.8),
+            gridspec_kw={"height_ratios": ratios},
+            squeeze=False,
+        )
+        axes = axes[:, 0]
+        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        t_max = 0.0
+        handles: dict[int, Any] = {}  # one legend entry per input, from whichever row draws it
+        for r, name in enumerate(names):
+            ax = axes[r]
+            for i, a in enumerate(anims):
+                t = a.time - a.t0 + a.offset_s
+                t_max = max(t_max, float(t[-1]))
+                values = curve(a, name)
+                if values is not None:
+                    marker = (
+                        "o" if t.size == 1 else None
+                    )  # one frame is a point: a line through it is not drawn
+                    (line,) = ax.plot(
+                        t, values, color=colors[i % len(colors)], lw=1.2, marker=marker, ms=4, label=a.label
+                    )
+                    handles.setdefault(i, line)
+            ax.set_ylabel(name, rotation=0, ha="right", va="center")
+            ax.grid(alpha=0.3)
+        shown = [handles[i] for i in sorted(handles)]
+        axes[0].legend(handles=shown, loc="upper right", fontsize="small", ncol=min(len(shown), 4))
+        silent = [a.label for i, a in enumerate(anims) if i not in handles]
+        segments: list[tuple[float, float]] = []
+        vad_label = ""
+        if voice is not None:
+            ax = axes[-1]
+            x = voice.audio.mono_float()
+            sr = voice.audio.sample_rate
+            step = max(1, x.size // 20000)  # enough points for the envelope, few for the SVG
+            n = x.size // step
+            blocks = x[: n * step].reshape(n, step)
+            tt = voice.audio_start_s - voice.t0 + voice.offset_s + np.arange(n) * step / sr
+            ax.fill_between(tt, blocks.min(axis=1), blocks.max(axis=1), color="0.35", lw=0)
+            t_max = max(t_max, float(tt[-1]) if tt.size else 0.0)
+            segments, vad_label = speech_segments(voice, vad)
+            for j, (a, b) in enumerate(segments):
+                ax.axvspan(
+                    a - voice.t0 + voice.offset_s,
+                    b - voice.t0 + voice.offset_s,
+                    color="tab:green",
+                    alpha=0.25,
+                    lw=0,
+                    label=vad_label if j == 0 else None,
                 )
-                handles.setdefault(i, line)
-        ax.set_ylabel(name, rotation=0, ha="right", va="center")
-        ax.grid(alpha=0.3)
-    shown = [handles[i] for i in sorted(handles)]
-    axes[0].legend(handles=shown, loc="upper right", fontsize="small", ncol=min(len(shown), 4))
-    silent = [a.label for i, a in enumerate(anims) if i not in handles]
-    segments: list[tuple[float, float]] = []
-    vad_label = ""
-    if voice is not None:
-        ax = axes[-1]
-        x = voice.audio.mono_float()
-        sr = voice.audio.sample_rate
-        step = max(1, x.size // 20000)  # enough points for the envelope, few for the SVG
-        n = x.size // step
-        blocks = x[: n * step].reshape(n, step)
-        tt = voice.audio_start_s - voice.t0 + voice.offset_s + np.arange(n) * step / sr
-        ax.fill_between(tt, blocks.min(axis=1), blocks.max(axis=1), color="0.35", lw=0)
-        t_max = max(t_max, float(tt[-1]) if tt.size else 0.0)
-        segments, vad_label = speech_segments(voice, vad)
-        for j, (a, b) in enumerate(segments):
-            ax.axvspan(
-                a - voice.t0 + voice.offset_s,
-                b - voice.t0 + voice.offset_s,
-                color="tab:green",
-                alpha=0.25,
-                lw=0,
-                label=vad_label if j == 0 else None,
-            )
-        ax.set_ylabel(f"speech\n{voice.label}", rotation=0, ha="right", va="center")
-        if segments:
-            ax.legend(loc="upper right", fontsize="small")
-        lim = float(np.max(np.abs(x))) or 1.0
-        ax.set_ylim(-lim * 1.05, lim * 1.05)
-        ax.set_yticks([])
-    axes[-1].set_xlabel("time (s)")
-    left = start_s if start_s is not None else 0.0
-    right = end_s if end_s is not None else t_max
-    if right <= left:  # one frame and no audio: a frame period either side of it, not an empty range
-        pad = 1.0 / max(a.fps for a in anims)
-        left, right = left - pad, right + pad
-    axes[-1].set_xlim(left, right)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        with writing(out, "plot"), atomic_write(out) as f:
-            fig.savefig(f, dpi=100, format=out.suffix[1:].lower())
-    finally:
-        plt.close(fig)
+            ax.set_ylabel(f"speech\n{voice.label}", rotation=0, ha="right", va="center")
+            if segments:
+                ax.legend(loc="upper right", fontsize="small")
+            lim = float(np.max(np.abs(x))) or 1.0
+            ax.set_ylim(-lim * 1.05, lim * 1.05)
+            ax.set_yticks([])
+        axes[-1].set_xlabel("time (s)")
+        left = start_s if start_s is not None else 0.0
+        right = end_s if end_s is not None else t_max
+        if right <= left:  # one frame and no audio: a frame period either side of it, not an empty range
+            pad = 1.0 / max(a.fps for a in anims)
+            left, right = left - pad, right + pad
+        axes[-1].set_xlim(left, right)
+        if title:
+            fig.suptitle(title)
+        fig.tight_layout()
+        try:
+            with writing(out, "plot"), atomic_write(out) as f:
+                fig.savefig(f, dpi=100, format=out.suffix[1:].lower())
+        finally:
+            plt.close(fig)
     return {
         "output": str(out),
         "inputs": [a.label for a in anims],
         "inputs_without_these_channels": silent,  # drawn nowhere: they hold none of the channels
         "channels": names,
         "repeated_channels": repeated,  # named more than once in --channels, drawn once
+        "undrawable_characters": "".join(undrawable),  # in labels, no installed font has them: boxes
         "duration_s": round(t_max, 6),
         "speech_segments": [[round(a, 4), round(b, 4)] for a, b in segments],
         "audio_file": str(voice.audio_file) if voice is not None and voice.audio_file else None,
