@@ -49,7 +49,8 @@ class ShardDataset(IterableDataset):
     Each item: ``anim`` (window, channels) float32 (normalised when ``normalize``), ``mask`` (window,)
     bool, one (window, dim) float32 tensor per feature (pitch: per-speaker z-scored log-F0 and voicing;
     others z-scored), optionally ``audio`` (samples,) float32 at 16 kHz, ``key`` and ``speaker`` (the
-    sample's, "" if none).
+    sample's, "" if none). ``manifest``: the dataset's manifest as the caller read it (default: read
+    here).
     """
 
     def __init__(
@@ -63,10 +64,12 @@ class ShardDataset(IterableDataset):
         normalize: bool = True,
         audio: bool = False,
         random_crop: bool | None = None,
+        manifest: dict[str, Any] | None = None,
     ):
         super().__init__()
         self.ds = dataset_dir(ds)
-        self.manifest = read_manifest(self.ds)
+        # a caller that read the manifest already (a training run: the build it started on) passes it
+        self.manifest = read_manifest(self.ds) if manifest is None else manifest
         if split not in SPLITS:
             raise InputError(f"split must be one of {', '.join(SPLITS)}, not {split!r}", self.ds)
         if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):

@@ -24,7 +24,7 @@ import torch
 
 from capture.atomic import partial_path, write_json_atomic
 from capture.errors import InputError
-from capture.file_lock import try_lock
+from capture.file_lock import held_elsewhere, try_lock
 from capture.numbers import is_count
 from capture.take import MAX_FPS
 from dataset.bottleneck import load_plain
@@ -34,7 +34,7 @@ from dataset.normalize import FeatureNormalizer, Normalizer
 FORMAT = "s2a-train-checkpoint"
 VERSION = 1
 LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.jsonl"
-LOCK = ".lock"  # held (fcntl.flock) by the fit writing the run folder
+LOCK = ".lock"  # held (fcntl.flock) by the fit writing the run folder, which writes its pid into it
 FULL_BYTES = 1 << 20  # a file system with less than this free after a failed write counts as full
 
 
@@ -114,7 +114,8 @@ def run_lock(run: Path) -> Iterator[None]:
     ``fit`` into the same run folder is refused instead of interleaving its checkpoints and metrics.
     A lock file this fit created goes again if the folder holds no run afterwards (a refused fit
     into a folder of the user's leaves it as it was); a fit that locked a file another one removed
-    meanwhile locks the new one instead."""
+    meanwhile locks the new one instead. The holder's pid is written into the file (``fit_in_progress``
+    reads it while the lock is held; once released, what the file holds means nothing)."""
     while True:
         created = not (run / LOCK).exists()
         try:
@@ -131,6 +132,9 @@ def run_lock(run: Path) -> Iterator[None]:
         if _same_file(fd, run / LOCK):
             break
         os.close(fd)  # the file was removed while this fit waited to lock it: lock the one there now
+    with suppress(OSError):  # for the note of eval and predict only: a full disk does not stop the fit
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     try:
         yield
     finally:
@@ -146,6 +150,39 @@ def _same_file(fd: int, path: Path) -> bool:
         return os.fstat(fd).st_ino == os.stat(path).st_ino
     except OSError:
         return False
+
+
+def fit_in_progress(run: str | Path) -> tuple[Path, int | None] | None:
+    """(run folder, pid or None) when a live ``fit`` holds the lock of the run folder that ``run`` (a run
+    folder or a checkpoint file in one) is, or belongs to (an ensemble's member ``fold-i``: the
+    ensemble's folder), else None."""
+    path = Path(run)
+    folder = path if path.is_dir() else path.parent
+    folders = [folder, folder.parent] if folder.name.startswith("fold-") else [folder]
+    for candidate in folders:
+        lock = candidate / LOCK
+        if lock.is_file() and held_elsewhere(lock):
+            try:
+                pid: int | None = int(lock.read_text().split()[0])
+            except (OSError, ValueError, IndexError, UnicodeDecodeError):
+                pid = None  # a fit of an older version writes none
+            return candidate, pid
+    return None
+
+
+def training_note(run: str | Path, payload: dict[str, Any]) -> str | None:
+    """The note of ``eval`` and ``predict`` on a run whose ``fit`` is still going: which checkpoint (of
+    which step) they use, that a later one may replace. None when no fit holds the run's lock."""
+    live = fit_in_progress(run)
+    if live is None:
+        return None
+    folder, pid = live
+    who = f" (pid {pid})" if pid is not None else ""
+    if "ensemble" in payload:
+        using = "its members' checkpoints as they are now"
+    else:
+        using = f"{checkpoint_path(run).name} of step {payload.get('step')}"
+    return f"{folder} is still training{who}: using {using}"
 
 
 def refuse_other_world(trained: int, world: int, what: str, where: Path) -> None:

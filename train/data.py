@@ -8,7 +8,7 @@ at the animation frame rate; targets are normalised animation channels.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -18,7 +18,11 @@ import torch
 from torch.utils.data import DataLoader
 
 from capture.errors import InputError
-from dataset.manifest import read_manifest, take_recordings, takes_by_recording
+from dataset.manifest import (
+    read_manifest,
+    take_recordings,
+    takes_by_recording,
+)
 from dataset.normalize import FeatureNormalizer
 from dataset.torch_dataset import ShardDataset
 
@@ -126,7 +130,7 @@ class TakeSubset(ShardDataset):
     ShardDataset (``random_crop`` as given, default: crop at random)."""
 
     def __init__(self, ds: str | Path, splits: tuple[str, ...], keys: set[str], **kwargs: Any):
-        kwargs.setdefault("random_crop", True)
+        kwargs.setdefault("random_crop", True)  # manifest=...: as ShardDataset
         super().__init__(ds, splits[0], **kwargs)
         self.shards = [sh["name"] for sh in self.manifest["shards"] if sh["split"] in splits]
         self.keys = set(keys)
@@ -187,23 +191,40 @@ def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "conf
     return train, val
 
 
-def train_dataset(ds: str | Path, spec: InputSpec, cfg: dict[str, Any]) -> ShardDataset:
+def train_dataset(
+    ds: str | Path, spec: InputSpec, cfg: dict[str, Any], manifest: dict[str, Any] | None = None
+) -> ShardDataset:
+    """The training samples of ``cfg`` (``manifest``: the dataset's as the run read it; default: read)."""
+    manifest = read_manifest(ds) if manifest is None else manifest
     kwargs = dict(
-        window=cfg["window"], features=spec.features, shuffle_buffer=cfg["shuffle_buffer"], seed=cfg["seed"]
+        window=cfg["window"],
+        features=spec.features,
+        shuffle_buffer=cfg["shuffle_buffer"],
+        seed=cfg["seed"],
+        manifest=manifest,
     )
-    keys = split_keys(read_manifest(ds), cfg)
+    keys = split_keys(manifest, cfg)
     if keys is None:
         return ShardDataset(ds, "train", **kwargs)
     return TakeSubset(ds, ("train", "val"), keys[0], **kwargs)
 
 
 def endless_batches(
-    data: ShardDataset, batch_size: int, epoch: int = 0, skip: int = 0, seed: int = 0
+    data: ShardDataset,
+    batch_size: int,
+    epoch: int = 0,
+    skip: int = 0,
+    seed: int = 0,
+    check: Callable[[], None] | None = None,
 ) -> Iterator[tuple[int, int, dict[str, Any]]]:
     """(epoch, batch index within the epoch, batch) forever, starting at ``epoch`` after ``skip`` batches
     of it: the data position a checkpoint records, so that a resumed run sees the same batches. The
-    loader gets its own generator so that starting an epoch leaves the global torch RNG alone."""
+    loader gets its own generator so that starting an epoch leaves the global torch RNG alone.
+    ``check`` runs before every epoch (``DatasetWatch.check``: the dataset is the build the run began
+    on)."""
     while True:
+        if check is not None:
+            check()
         data.set_epoch(epoch)
         loader = DataLoader(
             data, batch_size=batch_size, num_workers=0, generator=torch.Generator().manual_seed(seed + epoch)
@@ -222,21 +243,28 @@ def endless_batches(
 
 
 def utterances(
-    ds: str | Path, split: str, spec: InputSpec | None = None, cfg: dict[str, Any] | None = None
+    ds: str | Path,
+    split: str,
+    spec: InputSpec | None = None,
+    cfg: dict[str, Any] | None = None,
+    manifest: dict[str, Any] | None = None,
 ) -> Iterator[dict[str, Any]]:
     """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised). With a
     ``cfg`` that sets ``val_takes`` or ``drop_takes``, "train" and "val" mean its training and
-    validation takes."""
-    manifest = read_manifest(ds)
+    validation takes. ``manifest``: the dataset's as the caller read it (a run: the build it started
+    on, never a newer one read here); default: read here."""
+    manifest = read_manifest(ds) if manifest is None else manifest
     features = spec.features if spec is not None else None
     keys = split_keys(manifest, cfg) if cfg is not None and split in ("train", "val") else None
     if keys is not None:
         chosen = keys[0] if split == "train" else keys[1]
-        reader: ShardDataset = TakeSubset(ds, ("train", "val"), chosen, window=None, features=features)
+        reader: ShardDataset = TakeSubset(
+            ds, ("train", "val"), chosen, window=None, features=features, manifest=manifest
+        )
     elif split not in {s["split"] for s in manifest["shards"]}:
         raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
     else:
-        reader = ShardDataset(ds, split, window=None, features=features)
+        reader = ShardDataset(ds, split, window=None, features=features, manifest=manifest)
     for item in reader:
         yield {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
 

@@ -28,9 +28,10 @@ from dataset.manifest import dataset_folder, read_manifest
 from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
 
-from .checkpoint import NOT_FINITE, checkpoint_path, load_system
+from .checkpoint import NOT_FINITE, checkpoint_path, load_system, training_note
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
 from .precision import for_inference, infer
+from .run_dataset import leaked_takes, recorded_takes
 from .style import MEAN, check_style
 from .systems import check_sample_frames, max_frames
 
@@ -222,6 +223,9 @@ def evaluate(
     (the mean style for a speaker it did not train on), or every utterance in ``style`` (a speaker of
     the run or ``"mean"``)."""
     model, payload = load_system(run)
+    note = training_note(run, payload)
+    if note is not None:
+        say(f"note: {note}")
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
     check_style(spec.styles, style)
@@ -235,6 +239,7 @@ def evaluate(
         raise InputError(f"dataset has no {split!r} split", ds / "manifest.json")
     model_config = payload.get("model_config") or {}
     check_sample_frames(manifest, (split,), model_config, ds / "manifest.json", own_keys)
+    leaked = _leaks(payload, manifest, split, own_keys)
     try:
         train_mean = np.asarray(
             [manifest["stats"]["train"]["channels"][c]["mean"] for c in channels], np.float64
@@ -301,6 +306,14 @@ def evaluate(
             f"(it trained with {given}), not the dataset's {split} split"
         )
         say(f"note: {result['split_note']}: {', '.join(takes)}")
+    # the takes of this dataset that trained or validated the run (None: its checkpoint records none)
+    result["leaked_takes"] = leaked
+    if leaked:
+        result["leak_note"] = (
+            f"{len(leaked)} evaluated take(s) trained or validated this run: these {split} scores are not "
+            "held out"
+        )
+        say(f"warning: {result['leak_note']}: {', '.join(leaked)}")
     result.update(tally.summary())
     fl = floor.summary()
     result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}
@@ -335,6 +348,21 @@ def evaluate(
     return result
 
 
+def _leaks(
+    payload: dict[str, Any], manifest: dict[str, Any], split: str, own_keys: set[str] | None
+) -> list[str] | None:
+    """The takes of the samples evaluated (the dataset's ``split``, or the run's own takes) that trained
+    or validated the run (``run_dataset.leaked_takes``); None for a run whose checkpoint records no takes. An
+    ensemble's first member trained on or validated every take the ensemble used."""
+    record = recorded_takes(payload.get("dataset"))
+    if record is None:
+        return None
+    if own_keys is not None:  # the run's own training or validation takes (its val_takes, drop_takes)
+        return []
+    evaluated = {s["take"] for s in manifest["samples"] if s["split"] == split}
+    return leaked_takes(record, manifest, sorted(evaluated), split)
+
+
 def _fmt(ms: dict[str, float] | None) -> str:
     return "n/a" if ms is None else f"{ms['mean']:.3f} ± {ms['std']:.3f}"
 
@@ -349,6 +377,8 @@ def format_result(r: dict[str, Any]) -> str:
     ]
     if "split_note" in r:
         lines.append(f"  {r['split_note']}: {', '.join(r['split_takes'])}")
+    if r.get("leaked_takes"):
+        lines.append(f"  warning: {r['leak_note']}: {', '.join(r['leaked_takes'])}")
     if "rtf" in r:
         where = f"{r['rtf_seconds']:g} s utterance, {r['device']}, {r.get('precision', 'fp32')}"
         lines.append(f"  rtf {r['rtf']:.5f} ({where})")

@@ -27,7 +27,7 @@ import torch.distributed as dist
 
 from capture.command import json_safe, progress
 from capture.errors import InputError
-from dataset.manifest import MANIFEST_FILE, dataset_folder, read_manifest
+from dataset.manifest import MANIFEST_FILE, dataset_folder
 from dataset.torch_dataset import check_shards
 
 from .augment import augment
@@ -51,6 +51,7 @@ from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, 
 from .ensemble import check_ensemble_run, fit_ensemble, refuse_beside_ensemble
 from .model import masked_mse
 from .ridge import NormalEquations
+from .run_dataset import DIFFERS, RUN_DATASET, DatasetWatch, recorded_takes, run_takes, take_changes
 from .systems import build_model, check_sample_frames
 
 
@@ -112,12 +113,14 @@ def validation_loss(
     device: torch.device,
     weights: torch.Tensor | None = None,
     cfg: dict[str, Any] | None = None,
+    manifest: dict[str, Any] | None = None,
 ) -> float:
     """MSE over every usable frame and channel of the validation split (this rank's share, summed over
-    ranks), normalised units, channels weighted by ``weights`` when given."""
+    ranks), normalised units, channels weighted by ``weights`` when given. ``manifest``: the dataset's
+    as the run read it when it started (default: read here)."""
     model.eval()
     se, n = 0.0, 0.0
-    for item in utterances(ds, "val", spec, cfg):
+    for item in utterances(ds, "val", spec, cfg, manifest):
         content, prosody = to_model_inputs(item, spec)
         mask = item["mask"].to(device)
         pred = model(content.to(device), None if prosody is None else prosody.to(device), mask)
@@ -143,15 +146,19 @@ def _no_validation(manifest: dict[str, Any], cfg: dict[str, Any]) -> str | None:
     return None
 
 
-def _fit_ridge(ds: Path, run: Path, cfg, spec, manifest, say) -> tuple[dict[str, Any], torch.nn.Module]:
+def _fit_ridge(
+    ds: Path, run: Path, cfg, spec, watch: DatasetWatch, say
+) -> tuple[dict[str, Any], torch.nn.Module]:
     """Solve the ridge regression; (summary entries, the fitted model)."""
+    manifest = watch.manifest
     model, model_config = build_model("ridge", spec, cfg)
     eq = NormalEquations(model.linear.in_features, spec.out_dim)
     t0, frames = time.perf_counter(), 0
-    for item in utterances(ds, "train", spec, cfg):
-        content, prosody = to_model_inputs(item, spec)
-        eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
-        frames += int(item["mask"].sum())
+    with watch.reading():
+        for item in utterances(ds, "train", spec, cfg, manifest):
+            content, prosody = to_model_inputs(item, spec)
+            eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
+            frames += int(item["mask"].sum())
     no_val = _no_validation(manifest, cfg)
     has_val = no_val is None
     weights = channel_weights(manifest, cfg)
@@ -160,17 +167,21 @@ def _fit_ridge(ds: Path, run: Path, cfg, spec, manifest, say) -> tuple[dict[str,
         say(f"note: {no_val}: ridge uses alpha 1")
         alphas = [1.0]
     scores = []
-    for alpha in alphas:
-        eq.solve(model, alpha)
-        score = validation_loss(model, ds, spec, torch.device("cpu"), weights, cfg) if has_val else math.nan
-        scores.append(score)
+    with watch.reading():
+        for alpha in alphas:
+            eq.solve(model, alpha)
+            cpu = torch.device("cpu")
+            score = validation_loss(model, ds, spec, cpu, weights, cfg, manifest) if has_val else math.nan
+            scores.append(score)
     best = min(range(len(alphas)), key=lambda i: scores[i])
     cfg = {**cfg, "ridge_alpha": alphas[best]}
     eq.solve(model, alphas[best])
     val = scores[best]
     best_val = None if math.isnan(val) else val
-    payload = _payload(model, None, cfg, spec, model_config, ds, manifest, step=0, epoch=0, batch=0)
+    dataset = dataset_entry(ds, watch, cfg)
+    payload = _payload(model, None, cfg, spec, model_config, dataset, step=0, epoch=0, batch=0)
     payload.update(best_val=best_val, finished=True)
+    watch.check()  # solved on the build it started on
     save_checkpoint(payload, run / LAST)
     elapsed = time.perf_counter() - t0
     scored = "" if best_val is None else f", val mse {best_val:.4f}"
@@ -220,6 +231,10 @@ def _summary(
     }
 
 
+def _show(value: float) -> str:
+    return "none" if math.isinf(value) or math.isnan(value) else f"{value:.4f}"
+
+
 def _checksum(model) -> str:
     h = hashlib.sha256()
     for p in model.parameters():
@@ -227,20 +242,30 @@ def _checksum(model) -> str:
     return h.hexdigest()
 
 
-def _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoch, batch) -> dict[str, Any]:
+def dataset_entry(ds: Path, watch: DatasetWatch, cfg: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's ``dataset``: where the run's dataset is, what a resumed run and inference must
+    match (channels, fps, features with their settings, normalization), the build it was (manifest.json's
+    sha256) and the takes that train and validate the run (``run_takes``: resume and eval compare them)."""
+    manifest = watch.manifest
+    return {
+        "path": str(ds),
+        "channels": manifest["channels"],
+        "fps": manifest["fps"],
+        "features": manifest["features"],  # settings of the feature pipeline, for predict
+        "normalization": manifest["normalization"],
+        "manifest_sha256": watch.sha,
+        "takes": run_takes(manifest, cfg),
+    }
+
+
+def _payload(model, optimizer, cfg, spec, model_config, dataset, step, epoch, batch) -> dict[str, Any]:
     module = model.module if hasattr(model, "module") else model
     return {
         "system": cfg["model"],
         "config": cfg,
         "model_config": model_config,
         "inputs": spec.to_json(),
-        "dataset": {
-            "path": str(ds),
-            "channels": manifest["channels"],
-            "fps": manifest["fps"],
-            "features": manifest["features"],  # settings of the feature pipeline, for predict
-            "normalization": manifest["normalization"],
-        },
+        "dataset": dataset,
         "state_dict": {k: v.detach().cpu() for k, v in module.state_dict().items()},
         "optimizer": optimizer.state_dict() if optimizer is not None else {},
         "step": step,
@@ -376,19 +401,44 @@ def check_resumable(run: Path, given: dict[str, Any] | None, who: str = "--resum
         _refuse_changes(given, read_run_config(run / CONFIG), run / CONFIG, who)
 
 
-RUN_DATASET = ("channels", "fps", "features", "normalization")  # what a resumed run's dataset must match
-
-
 def _same_dataset(state: dict[str, Any], manifest: dict[str, Any], ds: Path, where: Path) -> None:
+    """A resumed run's dataset has the channels, fps, features and normalization it trained with; the
+    refusal says what changed, and whether the run's own dataset folder was rebuilt or another one given."""
     trained = state.get("dataset")
-    if not isinstance(trained, dict) or any(trained.get(k) != manifest[k] for k in RUN_DATASET):
-        differ = [k for k in RUN_DATASET if not isinstance(trained, dict) or trained.get(k) != manifest[k]]
-        was = trained.get("path") if isinstance(trained, dict) else None
+    trained = trained if isinstance(trained, dict) else {}
+    differ = [k for k in RUN_DATASET if trained.get(k) != manifest[k]]
+    if not differ:
+        return
+    words = "; ".join(DIFFERS[k] for k in differ)
+    was = trained.get("path")
+    if isinstance(was, str) and _same_folder(Path(was), ds):
         raise InputError(
-            f"the run was trained on another dataset ({was}; {', '.join(differ)} differ from {ds}): "
-            "resume it with its own dataset",
+            f"the dataset at {ds} was rebuilt since this run trained on it: {words} (a run resumes on the "
+            "dataset it trained on: train a new run on this build, or rebuild the dataset as it was)",
             where,
         )
+    raise InputError(
+        f"the run was trained on another dataset ({was if isinstance(was, str) else 'not recorded'}), "
+        f"not {ds}: {words}; resume it with its own dataset",
+        where,
+    )
+
+
+def _same_folder(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):
+        return a == b
+
+
+def _takes_since(state: dict[str, Any], manifest: dict[str, Any], cfg: dict[str, Any]):
+    """(how the run's train takes, how its val takes changed since the checkpoint ``state``), in words;
+    nothing for a checkpoint that records no takes (written before runs recorded them)."""
+    before = recorded_takes(state.get("dataset"))
+    if before is None:
+        return [], []
+    now = run_takes(manifest, cfg)
+    return take_changes(before, now, "train"), take_changes(before, now, "val")
 
 
 def _resumed_config(
@@ -432,8 +482,10 @@ def _fit_ensemble(
     claim: Callable[[], None] = lambda: None,
     shards_checked: bool = False,
 ) -> dict[str, Any]:
-    """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold."""
-    manifest = read_manifest(ds)
+    """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold, all on the build of
+    the dataset the ensemble started on."""
+    watch = DatasetWatch.read(ds, cfg)
+    manifest = watch.manifest
     rank, world, _device = _distributed()
     say = say if rank == 0 else (lambda _m: None)
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
@@ -447,7 +499,9 @@ def _fit_ensemble(
     t0 = time.perf_counter()
 
     def fit_member(folder: Path, member_cfg: dict[str, Any], member_resume: bool) -> dict[str, Any]:
-        return _fit(ds, folder, member_cfg, member_resume, say, stop_after_steps, shards_checked=True)
+        return _fit(
+            ds, folder, member_cfg, member_resume, say, stop_after_steps, shards_checked=True, watch=watch
+        )
 
     summary = fit_ensemble(fit_member, folds, run, cfg, resume, rank == 0, say)
     checksums = [c for m in summary["members"] for c in m["params_checksums"] or []]
@@ -485,7 +539,8 @@ def _load_resume_state(
     world: int,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """(checkpoint, config) of a run to resume, after every check that it can be: its checkpoint, its
-    dataset, the config keys the user set, its number of processes."""
+    dataset (channels, fps, features, normalization), the config keys the user set, its number of
+    processes."""
     if not (run / LAST).is_file():
         raise InputError(f"nothing to resume: no {LAST}", run)
     state = load_checkpoint(run / LAST)
@@ -622,13 +677,13 @@ def _train_step(net, model, batch, spec, cfg, weights, device):
     return mse, aux, grad_norm, mask
 
 
-def _ridge_run(ds: Path, run: Path, cfg, spec, manifest, state, config_record, say) -> dict[str, Any]:
+def _ridge_run(ds: Path, run: Path, cfg, spec, watch, state, config_record, say) -> dict[str, Any]:
     """A ridge run: solved in closed form; resumed, solved already (nothing to train, nor to append)."""
     t0 = time.perf_counter()
     if state is None:
         write_json(run / CONFIG, config_record)
         _start_afresh(run)
-        solved, ridge = _fit_ridge(ds, run, cfg, spec, manifest, say)
+        solved, ridge = _fit_ridge(ds, run, cfg, spec, watch, say)
     else:
         ridge, _ = build_model("ridge", spec, cfg)
         try:
@@ -667,8 +722,15 @@ def _fit(
     given: dict[str, Any] | None = None,
     claim: Callable[[], None] = lambda: None,
     shards_checked: bool = False,
+    watch: DatasetWatch | None = None,
 ) -> dict[str, Any]:
-    manifest = read_manifest(ds)  # refuses a manifest whose fps or normalisation is malformed
+    # the build the run starts on (an ensemble's members: the ensemble's); refuses a manifest whose fps
+    # or normalisation is malformed
+    if watch is None:
+        watch = DatasetWatch.read(ds, cfg)
+    else:
+        watch.check()
+    manifest = watch.manifest
     rank, world, device = _distributed()
     main = rank == 0
     say = say if main else (lambda _m: None)
@@ -679,6 +741,8 @@ def _fit(
     elif (run / LAST).exists():
         raise InputError(f"run folder already holds {LAST}: use --resume or another -o", run)
     split_keys(manifest, cfg)  # checks val_takes and drop_takes against the dataset
+    watch = DatasetWatch(ds, manifest, watch.sha, cfg)  # the run's config (a resumed run's own)
+    train_changed, val_changed = _takes_since(state, manifest, cfg) if state is not None else ([], [])
     spec, model_config = _check_before_writing(ds, manifest, cfg, world, not shards_checked)
     run.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder behind
     claim()
@@ -688,7 +752,7 @@ def _fit(
         say("note: style_dropout applies with speaker_style = true only: ignored")
     config_record = {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg}
     if cfg["model"] == "ridge":
-        return _ridge_run(ds, run, cfg, spec, manifest, state, config_record, say)
+        return _ridge_run(ds, run, cfg, spec, watch, state, config_record, say)
 
     torch.manual_seed(cfg["seed"])
     model, model_config = build_model(cfg["model"], spec, cfg)
@@ -702,6 +766,18 @@ def _fit(
         step, epoch, batch_pos, best_val, bad_evals = _restore(
             state, model, optimizer, rank, world, run / LAST
         )
+        if train_changed:
+            say(
+                f"warning: the dataset's takes that train this run changed since {LAST} "
+                f"({'; '.join(train_changed)}): training goes on with them as they are now"
+            )
+        if val_changed:  # scores of two validation sets do not compare: the best so far starts again
+            say(
+                f"warning: the takes that validate this run changed since {LAST} "
+                f"({'; '.join(val_changed)}): best_val restarts (was {_show(best_val)}), and the next "
+                f"validation writes {BEST}; patience counts afresh"
+            )
+            best_val, bad_evals = math.inf, 0
     if main:  # written only now that every check has passed
         write_json(run / CONFIG, config_record)
         if state is None:
@@ -722,8 +798,10 @@ def _fit(
     # could wait on a collective the other rank never joins.
     net = torch.nn.parallel.DistributedDataParallel(model, forward_sync_buffers=False) if world > 1 else model
     log = MetricsLog(run, main, None if state is None else step)
+    dataset = dataset_entry(ds, watch, cfg)
 
     def save(name: str) -> None:
+        watch.check()  # a checkpoint holds training on the build the run started on, never a newer one
         positions: list[Any] = [[epoch, batch_pos]]
         rngs: list[Any] = [torch.get_rng_state()]
         if world > 1:  # every rank reads its own shards and draws its own masks: keep each one's
@@ -731,7 +809,7 @@ def _fit(
             dist.all_gather_object(positions, [epoch, batch_pos])
             dist.all_gather_object(rngs, torch.get_rng_state())
         if main:
-            p = _payload(model, optimizer, cfg, spec, model_config, ds, manifest, step, epoch, batch_pos)
+            p = _payload(model, optimizer, cfg, spec, model_config, dataset, step, epoch, batch_pos)
             p["positions"] = positions
             p["rng"]["ranks"] = rngs
             p.update(best_val=None if math.isinf(best_val) else best_val, bad_evals=bad_evals)
@@ -742,7 +820,7 @@ def _fit(
     stopped = None
     t_start = t_log = time.perf_counter()
     frames_since, session_steps = 0.0, 0
-    data = train_dataset(ds, spec, cfg)
+    data = train_dataset(ds, spec, cfg, manifest)
     net.train()
     try:
         if state is not None and state.get("stopped") == "early_stopping":
@@ -750,9 +828,10 @@ def _fit(
         elif step >= cfg["max_steps"]:
             stopped = "max_steps"
             say(f"run already finished at step {step} (max_steps {cfg['max_steps']}); nothing to train")
-        batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"])
+        batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"], watch.check)
         while stopped is None:
-            epoch, i, batch = next(batches)
+            with watch.reading():  # each epoch checks manifest.json; a failed read checks it again
+                epoch, i, batch = next(batches)
             lr = learning_rate(step, cfg)
             for g in optimizer.param_groups:
                 g["lr"] = lr
@@ -783,7 +862,13 @@ def _fit(
             # uninterrupted run (no extra validations counting toward patience, writing best.pt or
             # adding metrics lines at steps the uninterrupted run never validates at).
             if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"]:
-                val = validation_loss(model, ds, spec, device, weights, cfg) if has_val else math.nan
+                if has_val:  # on the build the run started on: checked before and after
+                    with watch.reading():
+                        watch.check()
+                        val = validation_loss(model, ds, spec, device, weights, cfg, manifest)
+                        watch.check()
+                else:
+                    val = math.nan
                 improved = has_val and val < best_val
                 if improved:
                     best_val, bad_evals = val, 0

@@ -34,7 +34,7 @@ from dataset.normalize import Normalizer
 from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
 
-from .checkpoint import NOT_FINITE, load_system
+from .checkpoint import NOT_FINITE, load_system, training_note
 from .data import InputSpec, normalize_features, to_model_inputs
 from .precision import for_inference
 from .style import MEAN, check_style
@@ -143,6 +143,9 @@ def predict(
     raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``; ``neutral``:
     the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral."""
     model, payload = load_system(run)
+    note = training_note(run, payload)
+    if note is not None:
+        say(f"note: {note}")
     model = for_inference(model, precision)
     spec = InputSpec.from_json(payload["inputs"])
     check_style(spec.styles, style)
