@@ -10,7 +10,9 @@ Stages, each resumable:
    ``DS/.work/samples``, then a per-take record with its statistics (written last, so its presence
    means the take is done; a rerun skips it);
 4. statistics of the training split are merged in take order; shards are planned from sample sizes
-   (size-capped, keys sorted) and written atomically; the manifest is written last.
+   (size-capped, keys sorted) and written atomically into ``DS/.work/staged`` (a shard the folder holds
+   byte for byte already stays where it is); then they are swapped in and the manifest written last
+   (``_swap_in``): a rebuild that fails or is stopped before leaves the previous dataset as it was.
 
 Everything written depends only on the inputs and options (no clocks, no paths of the output, one
 thread per process), so an interrupted and resumed build equals an uninterrupted one byte for byte.
@@ -26,7 +28,9 @@ import math
 import os
 import re
 import shutil
+import signal
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -67,7 +71,15 @@ from .features import (
     parse_features,
     speech_level,
 )
-from .manifest import LOCK_FILE, MANIFEST_FILE, WORK, manifest_path, read_manifest, write_manifest
+from .manifest import (
+    LOCK_FILE,
+    MANIFEST_FILE,
+    WORK,
+    lock_holder,
+    manifest_path,
+    read_manifest,
+    write_manifest,
+)
 from .normalize import (
     HIST_LAYOUT,
     KINDS,
@@ -162,6 +174,53 @@ class SourceTake:
 
 
 RACY_NS = 3_000_000_000  # files modified this recently are hashed afresh (see _file_digests)
+TAKE_SWAP_S = 1.0  # how long a take folder that lost its files while read is waited for (see _take_read)
+
+
+def _identity(folder: Path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(folder)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+@contextmanager
+def _take_read(folder: str | Path) -> Iterator[None]:
+    """Reading the take folder ``folder``. ``s2a-align --force`` rewriting a take swaps a new folder in,
+    where the file system cannot exchange two folders in one step by moving the old one aside for a
+    moment: a read then found no meta.json and said "not a take folder". When the folder changed while
+    it was read (another folder at its path now, or its meta.json back within ``TAKE_SWAP_S``), the
+    error says so; a folder that just lacks meta.json (or is gone) keeps its error."""
+    folder = Path(folder)
+    before = _identity(folder)
+    try:
+        yield
+    except (InputError, FileNotFoundError, NotADirectoryError) as exc:
+        if _changed_while_read(folder, before):
+            raise InputError(
+                f"the take folder changed while it was read (is s2a-align writing into {folder.parent}?): "
+                "run the build again once it is done",
+                folder,
+            ) from exc
+        raise
+
+
+def _changed_while_read(folder: Path, before: tuple[int, int] | None) -> bool:
+    """Whether another folder stands at ``folder`` than ``before`` (its identity as a read began), or a
+    folder that lacked meta.json (or was missing) has it again within ``TAKE_SWAP_S``."""
+    now = _identity(folder)
+    if now is not None and before is not None and now != before:
+        return True
+    if (folder / META_FILE).is_file():
+        return False  # there all along: the error is about the take itself
+    deadline = time.monotonic() + TAKE_SWAP_S
+    while time.monotonic() < deadline:
+        time.sleep(0.02)
+        now = _identity(folder)
+        if now is not None and ((folder / META_FILE).is_file() or (before is not None and now != before)):
+            return True
+    return False
 
 
 def _file_digests(folder: Path) -> dict[str, str]:
@@ -379,15 +438,17 @@ def collect_takes(
         if resolved in seen_paths or (WORK in resolved.parts):
             continue
         seen_paths.add(resolved)
-        meta = read_meta(folder)
-        origin: dict[str, Any] = {"path": str(resolved), "source_kind": meta.source_kind}
-        if _is_aligned(meta):
-            aligned = [folder]
-        else:
-            origin["sha256"] = take_sha256(folder)
-            aligned = _aligned_folders(folder, origin["sha256"], meta, work, say)
+        with _take_read(folder):
+            meta = read_meta(folder)
+            origin: dict[str, Any] = {"path": str(resolved), "source_kind": meta.source_kind}
+            if _is_aligned(meta):
+                aligned = [folder]
+            else:
+                origin["sha256"] = take_sha256(folder)
+                aligned = _aligned_folders(folder, origin["sha256"], meta, work, say)
         for af in aligned:
-            m = read_meta(af)
+            with _take_read(af):
+                m = read_meta(af)
             if m.audio is None:
                 raise InputError("aligned take has no audio; a dataset needs speech", af)
             if m.audio.sample_rate != 16000:
@@ -426,7 +487,8 @@ def collect_takes(
                     f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
                     "(its loudest sounds are distorted)"
                 )
-            sha, content_sha = take_and_content_sha256(af)
+            with _take_read(af):
+                sha, content_sha = take_and_content_sha256(af)
             st = SourceTake(
                 af,
                 m.id,
@@ -777,7 +839,8 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     if rec is not None:
         return rec | {"cached": True}
     _invalidate(job.record)  # before its samples are rewritten (see _record_is_current)
-    take = read_take(job.folder)
+    with _take_read(job.folder):
+        take = read_take(job.folder)
     idx = [take.channel_index(c) for c in job.channels]
     values = take.values[:, idx]
     n = values.shape[0]
@@ -1021,24 +1084,41 @@ def plan_shards(records: list[dict[str, Any]], shard_bytes: int) -> list[dict[st
     return plan
 
 
-def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str) -> dict[str, Any]:
+def _holds(path: Path, done: dict[str, Any]) -> bool:
+    """Whether the file ``path`` has the size and sha256 of the shard record ``done``."""
+    try:
+        if path.stat().st_size != done["bytes"]:
+            return False
+    except OSError:
+        return False
+    return _file_sha256(path) == done["sha256"]  # not damaged, nor rewritten by another build
+
+
+def _write_shard(
+    out: Path, work: Path, shard: dict[str, Any], fingerprint: str, stage: bool = True
+) -> dict[str, Any]:
+    """The shard ``shard`` of the plan, recorded in ``.work/shards``; ``"staged"`` in the result says
+    whether it waits in ``.work/staged`` for ``_swap_in`` (False: ``out`` holds it already, those very
+    bytes, and it is not rewritten). ``stage=False`` writes it into ``out`` at once (a repair of a
+    damaged shard of an unchanged dataset)."""
     keys = [s["key"] for s in shard["samples"]]
     record = work / "shards" / f"{shard['name']}.json"
     target = out / shard["name"]
+    staged = work / STAGED / shard["name"]
     try:
         done = json.loads(record.read_text())
-        if (
-            done["keys"] == keys
-            and done["fingerprint"] == fingerprint
-            and target.is_file()
-            and target.stat().st_size == done["bytes"]
-            and _file_sha256(target) == done["sha256"]  # not damaged, nor rewritten by another build
-        ):
-            return done
+        if done["keys"] == keys and done["fingerprint"] == fingerprint:
+            if _holds(target, done):
+                return done | {"staged": False}
+            if stage and _holds(staged, done):
+                return done | {"staged": True}
     except (FileNotFoundError, json.JSONDecodeError, KeyError, TypeError):
         pass
     _invalidate(record)
-    with naming_failures(target), ShardWriter(target) as writer:
+    dest = staged if stage else target
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    # a failure names the dataset's shard (DS/train-000000.tar), whichever folder it is assembled in
+    with naming_failures(target), ShardWriter(dest) as writer:
         for key in keys:
             for k, members in ShardReader(work / "samples" / f"{key}.tar"):
                 writer.add(k, members)
@@ -1052,7 +1132,10 @@ def _write_shard(out: Path, work: Path, shard: dict[str, Any], fingerprint: str)
     }
     record.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(record, done, name_failures=True)
-    return done
+    if stage and _holds(target, done):  # the dataset holds this shard already: nothing to swap in
+        staged.unlink()
+        return done | {"staged": False}
+    return done | {"staged": stage}
 
 
 def _worker_context(options: BuildOptions):
@@ -1066,14 +1149,6 @@ def _worker_context(options: BuildOptions):
         preload += ["torch", "dataset.bottleneck"]
     ctx.set_forkserver_preload(preload)
     return ctx
-
-
-def _lock_holder(path: Path) -> str:
-    try:
-        pid = path.read_text().strip()
-    except OSError:
-        return ""
-    return f" (pid {pid})" if pid.isdigit() else ""
 
 
 @contextmanager
@@ -1091,7 +1166,7 @@ def output_lock(out: Path) -> Iterator[None]:
         if not try_lock(fd):
             os.close(fd)
             raise InputError(
-                f"another build{_lock_holder(path)} is writing into this folder: wait for it to finish, "
+                f"another build{lock_holder(path)} is writing into this folder: wait for it to finish, "
                 "or build into another -o",
                 out,
             ) from None
@@ -1117,9 +1192,13 @@ def output_lock(out: Path) -> Iterator[None]:
 def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
     folders = sorted({str(f.resolve()) for f in find_takes(inputs)})
     model = options.ppg_model
+    takes = []
+    for f in folders:
+        with _take_read(f):
+            takes.append((Path(f).name, take_sha256(f)))
     return _fingerprint(
         {
-            "takes": [(Path(f).name, take_sha256(f)) for f in folders],
+            "takes": takes,
             "channels": options.channels,
             "features": list(options.features),
             "ppg": [options.ppg, sha256_file(model) if model and Path(model).is_file() else model],
@@ -1160,16 +1239,26 @@ def build_dataset(
     if out.exists() and not out.is_dir():
         raise InputError("output exists and is not a folder", out)
     out.mkdir(parents=True, exist_ok=True)
+    state = _Replacing()
     with output_lock(out), sigterm_stops():
-        return _build(inputs, out, options, say)
+        try:
+            return _build(inputs, out, options, say, state)
+        except (S2AError, KeyboardInterrupt) as exc:
+            left = _left(out, state)
+            if left and isinstance(exc, S2AError):
+                exc.args = (f"{exc} ({left})",)
+            elif left:  # Ctrl-C, SIGTERM: the command line says it (dataset.cli)
+                exc.dataset_state = left  # type: ignore[attr-defined]
+            raise
 
 
 PREVIOUS_SPLITS = "previous_splits.json"  # in .work: the splits of the manifest a rebuild replaces
 
 
 def _previous_splits(old: dict[str, Any] | None, work: Path) -> dict[str, str]:
-    """``{take: split}`` of the dataset this build replaces: its manifest, or, when an interrupted
-    rebuild already removed that, what the rebuild saved of it in ``.work``."""
+    """``{take: split}`` of the dataset this build replaces: its manifest, or, when there is none to
+    read (a rebuild by an earlier version removed it before its takes), what a rebuild saved of it in
+    ``.work``."""
     if old is not None:
         return {t: s for s in SPLITS for t in old["splits"][s]["takes"]}
     try:
@@ -1250,7 +1339,7 @@ def _repair_shards(
         if entry["name"] not in names:
             continue
         keys = [{"key": s["key"]} for s in old["samples"] if s["shard"] == entry["name"]]
-        done = _write_shard(out, work, {"name": entry["name"], "samples": keys}, fingerprint)
+        done = _write_shard(out, work, {"name": entry["name"], "samples": keys}, fingerprint, stage=False)
         if done["sha256"] != entry["sha256"] or done["bytes"] != entry["bytes"]:
             say(f"{entry['name']} rebuilt differs from the manifest: rebuilding the dataset")
             return False
@@ -1339,12 +1428,17 @@ def pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> d
 
 def _write_shards(
     out: Path, work: Path, plan: list[dict[str, Any]], fingerprint: str, say: Callable[[str], None]
-) -> list[dict[str, Any]]:
-    """Write the planned shards (reusing intact ones), remove shards of an earlier, larger build; their
-    manifest entries."""
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Write the planned shards into ``.work/staged`` (those ``out`` holds already, byte for byte, stay
+    where they are and are not rewritten); their manifest entries and the names of the shards staged,
+    which ``_swap_in`` moves into ``out``. Nothing in ``out`` changes here: the dataset it holds stays
+    whole until the new one is complete."""
     shards = []
+    staged = []
     for i, shard in enumerate(plan, 1):
         done = _write_shard(out, work, shard, fingerprint)
+        if done["staged"]:
+            staged.append(done["name"])
         say(f"shard {i}/{len(plan)} {done['name']} ({done['bytes'] / 1e6:.1f} MB)")
         shards.append(
             {
@@ -1357,11 +1451,51 @@ def _write_shards(
                 "duration_s": round(sum(s["duration_s"] for s in shard["samples"]), 6),
             }
         )
-    planned = {s["name"] for s in shards}
+    return shards, staged
+
+
+STAGED = "staged"  # in .work: the shards of a build, complete, until _swap_in moves them into the dataset
+
+
+def _swap_in(out: Path, work: Path, staged: list[str], manifest: dict[str, Any]) -> None:
+    """Replace the dataset in ``out`` with the new one: the staged shards renamed into place, then the
+    manifest written (atomically), then the shards it does not list removed (of an earlier, larger
+    build). The caller holds Ctrl-C and SIGTERM back meanwhile (``_stops_deferred``); only a kill (or
+    a crash) among these few renames leaves a manifest that does not match its shards, which the next
+    build mends (its staged shards are still in .work)."""
+    for name in staged:
+        with naming_failures(out / name):
+            os.replace(work / STAGED / name, out / name)
+    _fsync_dir(out)
+    with naming_failures(manifest_path(out)):
+        write_manifest(out, manifest)
+    planned = {s["name"] for s in manifest["shards"]}
     for p in out.iterdir():
         if SHARD_NAME.match(p.name) and p.name not in planned:
             p.unlink()  # left over from an earlier, larger build into this folder
-    return shards
+    _fsync_dir(out)
+
+
+@contextmanager
+def _stops_deferred() -> Iterator[None]:
+    """Inside, Ctrl-C and SIGTERM wait until the block ends, then reach the process as they would have
+    (a stop halfway through a swap would leave a manifest that does not match its shards)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig, handler in previous.items():
+        if handler is not None and handler != signal.SIG_IGN:  # None: not set from Python, left alone
+            signal.signal(sig, lambda signum, _frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            if handler is not None and handler != signal.SIG_IGN:
+                signal.signal(sig, handler)
+        for sig in dict.fromkeys(caught):
+            signal.raise_signal(sig)
 
 
 def _split_stats(
@@ -1402,11 +1536,51 @@ def _split_stats(
     return stats, notes
 
 
+@dataclass
+class _Replacing:
+    """How far a build got with the dataset its folder held, told when the build stops (``_left``):
+    ``previous``, the folder held a readable dataset when the build began; ``phase``: ``"reading"``
+    (that dataset untouched: new shards go to .work/staged), ``"repairing"`` (damaged shards of an
+    unchanged dataset rewritten in place), ``"swapping"`` (``_swap_in``), ``"done"``."""
+
+    previous: bool = False
+    phase: str = "reading"
+
+
+def _left(out: Path, state: _Replacing) -> str:
+    """What a build that stopped (an error, Ctrl-C, SIGTERM) left in ``out``; "" for a first build."""
+    if state.phase == "swapping":
+        return (
+            f"it stopped while swapping the new dataset into {out}, whose manifest and shards may not "
+            "match: run the build again to finish it"
+        )
+    if state.phase == "done":
+        return f"{out} holds the new dataset, complete"
+    if not state.previous:
+        return ""
+    if state.phase == "repairing":
+        return f"it stopped while rewriting damaged shards of {out}: run the build again to finish it"
+    return f"the previous dataset in {out} is intact: its manifest.json and shards are unchanged"
+
+
 def _build(
-    inputs: list[str | Path], out: Path, options: BuildOptions, say: Callable[[str], None]
+    inputs: list[str | Path],
+    out: Path,
+    options: BuildOptions,
+    say: Callable[[str], None],
+    state: _Replacing | None = None,
 ) -> dict[str, Any]:
+    state = state or _Replacing()
     old = _prepare_output(out)
+    state.previous = old is not None
     damaged: list[str] | None = None
+    work = out / WORK
+
+    def up_to_date() -> dict[str, Any]:
+        say("dataset is up to date")
+        if not options.keep_work:  # a cache left by a rebuild that failed or was stopped: of no use now
+            shutil.rmtree(work, ignore_errors=True)
+        return _summary(out, old, up_to_date=True)
 
     def intact() -> bool:
         """The old dataset's shards as its manifest says (checked once, when its inputs match)."""
@@ -1421,9 +1595,7 @@ def _build(
     # to do (without re-aligning raw takes, whose aligned copies went with .work).
     input_fingerprint = _input_fingerprint(inputs, options)
     if old is not None and old.get("build", {}).get("input_fingerprint") == input_fingerprint and intact():
-        say("dataset is up to date")
-        return _summary(out, old, up_to_date=True)
-    work = out / WORK
+        return up_to_date()
     work.mkdir(exist_ok=True)
     takes, warnings, left_out = collect_takes(inputs, work, say, options.skip_flagged)
     fps = takes[0].fps  # all takes share it (collect_takes)
@@ -1495,17 +1667,19 @@ def _build(
     ]
     if old is not None and old.get("build", {}).get("fingerprint") == fingerprint:
         if intact():
-            say("dataset is up to date")
-            return _summary(out, old, up_to_date=True)
+            return up_to_date()
+        state.phase = "repairing"
         if _repair_shards(out, work, old, damaged or [], jobs, fingerprint, options, say):
             if not options.keep_work:
                 shutil.rmtree(work, ignore_errors=True)
             return _summary(out, old, up_to_date=False) | {"repaired": sorted(damaged or [])}
     if old is not None:
-        # what the old manifest said of the splits outlives it (an interrupted rebuild still reports
-        # moved takes when rerun); then never leave a manifest describing shards we are replacing
+        # what the old manifest said of the splits outlives it (a rebuild stopped while swapping the
+        # new dataset in still reports moved takes when rerun)
         write_json_atomic(work / PREVIOUS_SPLITS, previous, name_failures=True)
-    manifest_path(out).unlink(missing_ok=True)
+    # The old manifest and its shards stay as they are until the new dataset is complete: new shards
+    # are written into .work/staged and swapped in at the end (_swap_in), so a rebuild that fails or is
+    # stopped leaves the previous dataset readable.
 
     records = _process_takes(jobs, options, say)
     stats_files = {job.take_id: str(job.stats) for job in jobs}
@@ -1527,7 +1701,7 @@ def _build(
         pitch_norm = pitch_normalization(ordered, sorted({t.speaker for t in takes}))
 
     plan = plan_shards(ordered, options.shard_bytes)
-    shards = _write_shards(out, work, plan, fingerprint, say)
+    shards, staged = _write_shards(out, work, plan, fingerprint, say)
 
     sample_entries = []
     rec_of = {s["key"]: r for r in ordered for s in r["samples"]}
@@ -1608,8 +1782,10 @@ def _build(
             "dataset_version": DATASET_VERSION,
         },
     }
-    with naming_failures(manifest_path(out)):
-        write_manifest(out, manifest)
+    state.phase = "swapping"
+    with _stops_deferred():  # a Ctrl-C or SIGTERM meanwhile stops the build once the swap is done
+        _swap_in(out, work, staged, manifest)
+        state.phase = "done"
     if not options.keep_work:
         shutil.rmtree(work, ignore_errors=True)
     return _summary(out, read_manifest(out), up_to_date=False, moved=moved)

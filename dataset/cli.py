@@ -13,6 +13,7 @@ from capture.errors import InputError
 
 from .build import BuildOptions, build_dataset
 from .features import DEFAULT_FEATURES, FeatureSettings, parse_level
+from .manifest import build_running
 from .normalize import KINDS
 from .ppg import BACKENDS
 from .qa import validate
@@ -20,6 +21,7 @@ from .splits import SplitRule
 from .stats import dataset_stats, format_stats
 
 PROG = "s2a-dataset"
+RESUME = "finished takes are kept: rerun to resume"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -125,9 +127,14 @@ def cmd_build(args: argparse.Namespace) -> int:
     )
     try:
         summary = build_dataset(args.takes, args.out, options, say=_say("build"))
-    except Terminated:
-        print(f"{PROG}: terminated (SIGTERM); finished takes are kept: rerun to resume", file=sys.stderr)
-        return 143
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+        # what the build left in the folder, when it replaced a dataset (dataset.build.build_dataset)
+        left = getattr(exc, "dataset_state", "")
+        if isinstance(exc, Terminated):
+            print(f"{PROG}: terminated (SIGTERM); {left or RESUME}", file=sys.stderr)
+            return 143
+        print(f"{PROG}: interrupted" + (f"; {left}" if left else ""), file=sys.stderr)
+        return 130
     if args.json:
         emit_json(summary)
     else:
@@ -143,7 +150,15 @@ def cmd_build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _not_while_building(ds: Path) -> None:
+    """Refuse to read a dataset that a live build is writing into (see ``build_running``)."""
+    busy = build_running(ds)
+    if busy is not None:
+        raise InputError(busy)
+
+
 def cmd_validate(args: argparse.Namespace) -> int:
+    _not_while_building(args.dataset)
     report = validate(args.dataset, deep=args.deep, progress=_say("validate"))
     if args.json:
         emit_json(report.to_json())
@@ -160,6 +175,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_stats(args: argparse.Namespace) -> int:
+    _not_while_building(args.dataset)
     s = dataset_stats(args.dataset)
     if args.json:
         emit_json(s)

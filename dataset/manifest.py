@@ -21,6 +21,7 @@ from typing import Any
 
 from capture.atomic import write_json_atomic
 from capture.errors import InputError
+from capture.file_lock import held_elsewhere
 from capture.numbers import is_count as _count
 
 from .splits import SPLITS
@@ -41,6 +42,26 @@ def manifest_path(ds: str | Path) -> Path:
 def dataset_dir(ds: str | Path) -> Path:
     """The dataset folder of ``ds``, a dataset folder or its manifest file."""
     return manifest_path(ds).parent
+
+
+def lock_holder(path: str | Path) -> str:
+    """`` (pid N)``, the build that wrote its pid into the lock file ``path``, or ``""``."""
+    try:
+        pid = Path(path).read_text().strip()
+    except (OSError, UnicodeDecodeError):
+        return ""
+    return f" (pid {pid})" if pid.isdigit() else ""
+
+
+def build_running(ds: str | Path) -> str | None:
+    """What to say when a live build holds the lock of dataset ``ds`` (a folder or its manifest) right
+    now, else None. A build replaces the dataset in a swap at its end: a reader that went on reading
+    meanwhile (validate decodes every shard) could see some shards of the old dataset and some of the
+    new, so the commands that read a whole dataset wait for it instead."""
+    folder = dataset_dir(ds)
+    if not held_elsewhere(folder / LOCK_FILE):
+        return None
+    return f"a build{lock_holder(folder / LOCK_FILE)} is writing into {folder}: wait for it to finish"
 
 
 def dataset_folder(ds: str | Path) -> Path:

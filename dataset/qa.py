@@ -1268,6 +1268,7 @@ def leftover_problems(ds: Path) -> list[Problem]:
     state = (
         "a build is writing into this folder right now"
         if held_elsewhere(ds / LOCK_FILE)
-        else "left by a build that was stopped: rerun the build to finish it, or remove them before sharing"
+        else "left by a build that failed or was stopped: rerun the build to finish it, or remove them "
+        "before sharing"
     )
     return [_p("build_leftover", ", ".join(found[:4]) + (" ..." if len(found) > 4 else ""), state, "warning")]
