@@ -27,6 +27,7 @@ from .take import (
     write_take,
 )
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
+from .transfer_litter import Litter
 
 PROG = "s2a-capture"
 TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV_TIMECODE_RATE)))
@@ -34,7 +35,7 @@ TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV
 # the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
 # lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
 # time column read as frame numbers, frame numbers read as counting from 1, weights on a 0..100 scale,
-# --first-frame given for a file of a batch without a frame-number column.
+# --first-frame given for a file of a batch without a frame-number column, a CSV's last row cut short.
 WARN_REPAIRS = (
     "timecode_rate",
     "length_mismatch",
@@ -45,7 +46,10 @@ WARN_REPAIRS = (
     "frame_numbers_from_1",
     "percent_scale",
     "first_frame_ignored",
+    "truncated_row",
 )
+# What a warning adds to a repair's message: what the user may have to do about it.
+WARN_HINTS = {"truncated_row": "an incomplete copy or download? Copy or download the file again"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -211,7 +215,10 @@ def cmd_import(args: argparse.Namespace) -> int:
             raise InputError(
                 f"{next(iter(generic))} only applies to generic paired data (--matrix, or CSVs with audio)"
             )
-        sources = find_sources(args.sources, exports=args.pair_audio)
+        litter = Litter()
+        sources = find_sources(args.sources, exports=args.pair_audio, litter=litter)
+        for line in litter.lines():
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
         if args.variant is not None:
             sources = _of_variant(sources, args.variant)
         if not sources:
@@ -276,7 +283,8 @@ def cmd_import(args: argparse.Namespace) -> int:
             continue
         for repair in take.meta.repairs:
             if repair["kind"] in WARN_REPAIRS:
-                print(f"{PROG}: warning: {src}: {repair['message']}", file=sys.stderr)
+                hint = f" ({WARN_HINTS[repair['kind']]})" if repair["kind"] in WARN_HINTS else ""
+                print(f"{PROG}: warning: {src}: {repair['message']}{hint}", file=sys.stderr)
         summary = take.summary() | {"path": str(folder), "source": str(src)}
         if args.json:
             emit_json(summary)
@@ -328,23 +336,28 @@ def _occupant(folder: Path, take: Take) -> str | None:
     return f"the take imported from {before}" if before else "a take of unknown source"
 
 
-def _load_for_info(path: Path) -> list[Take]:
+def _load_for_info(path: Path, litter: Litter) -> list[Take]:
     if is_take_dir(path):
         return [read_take(path)]
     if path.is_dir():
         takes = find_takes([path])
         if takes:
             return [read_take(t) for t in takes]
-    return [import_source(s) for s in find_sources([path])]
+    return [import_source(s) for s in find_sources([path], litter=litter)]
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    for path in args.takes:
-        takes = _load_for_info(path)
-        if not takes:
-            raise InputError("no takes found", path)
-        for take in takes:
-            _print_summary(take.summary() | {"path": str(path)}, args.json)
+    litter = Litter()  # what the folders held that is no take, said once at the end
+    try:
+        for path in args.takes:
+            takes = _load_for_info(path, litter)
+            if not takes:
+                raise InputError("no takes found", path)
+            for take in takes:
+                _print_summary(take.summary() | {"path": str(path)}, args.json)
+    finally:
+        for line in litter.lines():
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
     return 0
 
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import sys
+import unicodedata
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -11,6 +13,16 @@ from .errors import InputError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
 from .take import Take, is_take_dir
 from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
+from .transfer_litter import (
+    Litter,
+    icloud_error,
+    icloud_original,
+    is_appledouble,
+    is_litter,
+    is_zip,
+    without_litter,
+    zip_error,
+)
 
 # How audio given with --audio goes with a CSV's rows (see read_csv_with_audio).
 AUDIO_PAIRINGS = ("first-row", "frame-index")
@@ -29,24 +41,42 @@ def warn_skipped(path: Path, why: str) -> None:
 
 
 def find_sources(
-    paths: list[str | Path], exports: bool = False, skipped: Callable[[Path, str], None] = warn_skipped
+    paths: list[str | Path],
+    exports: bool = False,
+    skipped: Callable[[Path, str], None] = warn_skipped,
+    litter: Litter | None = None,
 ) -> list[Path]:
     """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively;
     with ``exports``, Audio2Face blendshape exports (``.json``) too, and every other ``.json`` found in a
-    folder is reported to ``skipped`` (path, why) rather than left out silently."""
+    folder is reported to ``skipped`` (path, why) rather than left out silently, as are zip archives,
+    dangling symbolic links and links back to a folder holding the one searched. Operating-system and
+    transfer litter (``capture.transfer_litter``: ``._*``, ``__MACOSX``, ``$RECYCLE.BIN``, ...) is passed
+    over and counted in ``litter``; without one, a warning line per kind is printed here. An iCloud
+    placeholder of a CSV (``.X.csv.icloud``) is a source: importing it says to download it."""
+    tally = Litter() if litter is None else litter
     found: list[Path] = []
     for p in map(Path, paths):
+        if tally.skips(p):
+            continue
         if p.is_file():
             found.append(p)
         elif p.is_dir():
-            found.extend(_walk(p, exports, skipped))
+            found.extend(_walk(p, exports, skipped, tally, p.resolve()))
         else:
             raise InputError("no such file or folder", p)
+    if litter is None:
+        for line in tally.lines():
+            print(f"s2a-capture: warning: {line}", file=sys.stderr)
     return found
 
 
 def _walk(
-    folder: Path, exports: bool, skipped: Callable[[Path, str], None], seen: set[Path] | None = None
+    folder: Path,
+    exports: bool,
+    skipped: Callable[[Path, str], None],
+    litter: Litter,
+    root: Path,
+    seen: set[Path] | None = None,
 ) -> Iterator[Path]:
     seen = set() if seen is None else seen
     real = folder.resolve()
@@ -54,13 +84,25 @@ def _walk(
         return
     seen.add(real)
     if is_take_folder(folder):
+        for p in folder.iterdir():  # counted: what the take folder reader passes over in it
+            litter.skips(p)
         yield folder
         return
     if is_take_dir(folder) or folder.name.startswith("."):
         return  # an imported take of ours, or a hidden/temporary folder
     for p in sorted(folder.iterdir()):
+        if litter.skips(p):
+            continue
+        if p.is_symlink():
+            if not p.exists():  # dangling (or a loop of links)
+                skipped(p, f"a symbolic link to {os.readlink(p)}, which does not exist")
+                continue
+            target = p.resolve()
+            if p.is_dir() and (target == root or target in root.parents):
+                skipped(p, f"a symbolic link to {target}, which holds the folder searched (a loop)")
+                continue
         if p.is_dir():
-            yield from _walk(p, exports, skipped, seen)
+            yield from _walk(p, exports, skipped, litter, root, seen)
         elif p.suffix.lower() == ".csv":
             emotions = emotion_header(_head(p))
             if emotions is None:
@@ -72,6 +114,13 @@ def _walk(
                 yield p
             else:
                 skipped(p, 'not an Audio2Face blendshape export (no "facsNames" or "weightMat" key)')
+        elif is_zip(p):
+            skipped(p, "a zip archive: unzip it to import the takes it holds")
+        elif (original := icloud_original(p)) is not None and Path(original).suffix.lower() in (
+            (".csv", ".json") if exports else (".csv",)
+        ):
+            if not (folder / original).exists():  # a source of this import, not downloaded
+                yield p
 
 
 def is_a2f_export(path: Path) -> bool:
@@ -92,8 +141,9 @@ def is_a2f_export(path: Path) -> bool:
 
 
 def folder_files(folder: Path) -> list[Path]:
-    """The files of a folder, sorted (what ``audio_beside`` looks among)."""
-    return sorted(p for p in folder.iterdir() if p.is_file())
+    """The files of a folder, sorted (what ``audio_beside`` looks among), operating-system and transfer
+    litter left out (a ``._X.wav`` is no audio), iCloud placeholders (``.X.wav.icloud``) kept."""
+    return sorted(p for p in folder.iterdir() if not is_litter(p) and p.is_file())
 
 
 def audio_stem(source: Path) -> str:
@@ -102,20 +152,38 @@ def audio_stem(source: Path) -> str:
     return source.stem.removesuffix(A2F_SUFFIX) if source.suffix.lower() == ".json" else source.stem
 
 
+def _nfc(text: str) -> str:
+    """``text`` in Unicode NFC: macOS writes names decomposed (NFD: ``e`` + combining accent), Windows
+    and Linux as typed (NFC), so a copied ``Café.wav`` may be spelled otherwise than ``Café.csv``."""
+    return unicodedata.normalize("NFC", text)
+
+
 def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
     """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
-    without ``_bsweight``), else the only audio file in its folder (``files``: ``folder_files`` of it,
-    when the caller lists each folder once). Returns (path or None, why none was taken when that is worth
-    a warning)."""
-    files = folder_files(source.parent) if files is None else files
-    audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES]
-    same = [p for p in audio if p.stem in (source.stem, audio_stem(source))]
+    without ``_bsweight``; stems compared in Unicode NFC), else the only audio file in its folder
+    (``files``: ``folder_files`` of it, when the caller lists each folder once; litter such as ``._X.wav``
+    is never audio). Returns (path or None, why none was taken when that is worth a warning). An
+    iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is never imported
+    without its audio."""
+    files = without_litter(folder_files(source.parent) if files is None else files)
+    stems = {_nfc(source.stem), _nfc(audio_stem(source))}
+    for p in files:
+        original = icloud_original(p)
+        if original is not None and Path(original).suffix.lower() in AUDIO_SUFFIXES:
+            if _nfc(Path(original).stem) in stems and not (p.parent / original).exists():
+                raise icloud_error(p, source)
+    audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES and icloud_original(p) is None]
+    same = [p for p in audio if _nfc(p.stem) in stems]
     if len(same) > 1:
         return None, f"several audio files named {source.stem}.*: {', '.join(p.name for p in same)}"
     if same:
         return same[0], None
     if len(audio) == 1:
-        owner = [p for p in files if audio_stem(p) == audio[0].stem and p.suffix.lower() in (".csv", ".json")]
+        owner = [
+            p
+            for p in files
+            if _nfc(audio_stem(p)) == _nfc(audio[0].stem) and p.suffix.lower() in (".csv", ".json")
+        ]
         if owner:
             return None, f"the only audio file beside it, {audio[0].name}, is named for {owner[0].name}"
         return audio[0], None
@@ -178,6 +246,10 @@ def import_source(
     ``first_frame_strict`` as there)."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
+    if is_zip(source):
+        raise zip_error(source)
+    if icloud_original(source) is not None:
+        raise icloud_error(source)
     if source.is_dir():
         if audio_pairing != "first-row":
             raise InputError(
@@ -193,6 +265,12 @@ def import_source(
     if source.suffix.lower() != ".csv":
         raise InputError("not a Live Link Face CSV or take folder", source)
     head = _head(source)
+    if is_appledouble(source):
+        raise InputError(
+            "a macOS metadata file (AppleDouble, as Finder leaves as ._X beside copied files), not a take: "
+            "import the file without the ._ in its name",
+            source,
+        )
     livelink = is_livelink_csv(source, head)
     if livelink and bom_codec(head or b""):
         raise InputError(

@@ -30,6 +30,7 @@ from .mov import MovInfo, choose_mov_audio, probe_mov
 from .paired import note_length_mismatch
 from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
+from .transfer_litter import icloud_error, icloud_original, is_litter
 
 TAKE_FOLDER_MARKERS = ("take.json", "frame_log.csv")
 # Seconds of video rows ``frame_log.csv`` must hold before its timecodes tell the rate they count at.
@@ -39,6 +40,9 @@ TAKE_JSON_KEYS = tuple(
     "frames appVersion slate calibrated subject identifier date version take deviceModel".split()
 )
 _PREFERENCE = ("cal", None, "raw")
+# What a copy adds to a file's name: a browser's re-download ``X (1).csv``, Finder's ``X copy.csv`` and
+# ``X copy 2.csv``, Windows Explorer's ``X - Copy.csv`` and ``X - Copy (2).csv``.
+_COPY_RE = re.compile(r"^(?P<stem>.+?)(?P<copy> \(\d+\)| copy(?: \d+)?| - copy(?: \(\d+\))?)$", re.IGNORECASE)
 
 
 @dataclass
@@ -120,22 +124,60 @@ def read_frame_log(path: str | Path, repairs: list[dict[str, Any]]) -> FrameLog:
 
 
 def is_take_folder(folder: str | Path) -> bool:
-    """A Live Link Face take folder: has take.json or frame_log.csv, or a .mov beside a CSV."""
+    """A Live Link Face take folder: has take.json or frame_log.csv, or a .mov beside a CSV (any of them
+    perhaps an iCloud placeholder: reading the take then says to download it)."""
     folder = Path(folder)
     if not folder.is_dir():
         return False
-    if any((folder / m).is_file() for m in TAKE_FOLDER_MARKERS):
+    waiting = _placeholders(folder)
+    if any((folder / m).is_file() or m in waiting for m in TAKE_FOLDER_MARKERS):
         return True
-    return any(_files_ending(folder, ".mov")) and any(_blendshape_csvs(folder))
+    return bool(_files_ending(folder, ".mov") or _waiting_ending(waiting, ".mov")) and bool(
+        _blendshape_csvs(folder) or _waiting_ending(waiting, ".csv")
+    )
 
 
 def _files_ending(folder: Path, suffix: str) -> list[Path]:
-    """Files of ``folder`` with the suffix in any case (``X.MOV`` as well as ``X.mov``), sorted."""
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() == suffix and p.is_file())
+    """Files of ``folder`` with the suffix in any case (``X.MOV`` as well as ``X.mov``), sorted;
+    operating-system and transfer litter (``._X.mov``, ``~$X.csv``) left out."""
+    return sorted(
+        p for p in folder.iterdir() if p.suffix.lower() == suffix and not is_litter(p) and p.is_file()
+    )
 
 
 def _blendshape_csvs(folder: Path) -> list[Path]:
     return [p for p in _files_ending(folder, ".csv") if p.name.lower() != "frame_log.csv"]
+
+
+def _placeholders(folder: Path) -> dict[str, Path]:
+    """The files of ``folder`` iCloud has not downloaded: their names -> their placeholders
+    (``.X.mov.icloud``)."""
+    waiting = {}
+    for p in folder.iterdir():
+        original = icloud_original(p)
+        if original is not None and not (folder / original).exists():
+            waiting[original] = p
+    return waiting
+
+
+def _waiting_ending(waiting: dict[str, Path], suffix: str) -> list[str]:
+    """The names among ``waiting`` (``_placeholders``) with the suffix in any case (``frame_log.csv``
+    left out)."""
+    return [n for n in waiting if Path(n).suffix.lower() == suffix and n.lower() != "frame_log.csv"]
+
+
+def refuse_placeholders(folder: Path, audio_given: bool = False) -> None:
+    """Refuse a take folder holding an iCloud placeholder of a file the take is read from (the
+    ``.mov``, a ``.wav``, ``frame_log.csv``, the app's JSON; CSVs: ``choose_csv``) rather than import it
+    without its audio or timing; ``audio_given``: its audio comes from elsewhere (``--audio``)."""
+    for name, placeholder in sorted(_placeholders(folder).items()):
+        kind = Path(name).suffix.lower()
+        if (
+            kind == ".json"
+            or name.lower() == "frame_log.csv"
+            or (kind in (".mov", ".wav") and not audio_given)
+        ):
+            raise icloud_error(placeholder, folder)
 
 
 def _bad_json(repairs: list[dict[str, Any]], message: str) -> None:
@@ -232,13 +274,77 @@ def _json_whole(data: dict[str, Any], key: str, file: str, repairs: list[dict[st
     return None
 
 
+@dataclass
+class _CsvFile:
+    """A blendshape CSV of a take folder, or its iCloud placeholder, and what its name says."""
+
+    path: Path  # the file, or its placeholder
+    name: str  # the file's own name
+    prefix: str  # the take's name part: ``MySlate_166_iPhone``
+    variant: str | None  # cal, raw, neutral or None (plain)
+    copy: str  # what a copy added to the name (``" (1)"``, ``" copy"``), or ""
+
+
+def _csv_files(folder: Path) -> list[_CsvFile]:
+    found = [(p, p.name) for p in _blendshape_csvs(folder)]
+    waiting = _placeholders(folder)
+    found += [(waiting[n], n) for n in _waiting_ending(waiting, ".csv")]
+    files = []
+    for path, name in sorted(found, key=lambda f: f[1]):
+        stem = Path(name).stem
+        m = _COPY_RE.match(stem)
+        base, copy = (m.group("stem"), m.group("copy")) if m else (stem, "")
+        prefix, variant = split_variant(base)
+        files.append(_CsvFile(path, name, prefix, variant, copy))
+    return files
+
+
+def _take_names(folder: Path) -> set[str]:
+    """What a take folder's CSV is named after: the ``.mov``'s stem, the app's ``{slate}_{take}_{subject}``
+    and ``identifier`` from take.json, and the folder's name."""
+    names = {folder.name, *(p.stem for p in _files_ending(folder, ".mov"))}
+    names |= {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
+    app_take = _load_json(folder / "take.json", [])
+    identifier = _field(app_take, "identifier")
+    if isinstance(identifier, str):
+        names.add(identifier)
+    parts = [_field(app_take, key) for key in ("slate", "take", "subject")]
+    if all(isinstance(v, (str, int)) and not isinstance(v, bool) for v in parts):
+        names.add("_".join(map(str, parts)))
+    return names
+
+
+def _the_one(folder: Path, files: list[_CsvFile]) -> _CsvFile:
+    """The CSV of one variant to import: the only one, else the one named after the take
+    (``_take_names``, without a copy's addition; else so in any case); several are an error."""
+    if len(files) == 1:
+        return files[0]
+    names = _take_names(folder)
+    exact = [f for f in files if not f.copy and f.prefix in names]
+    if len(exact) != 1:
+        folded = {n.casefold() for n in names}
+        exact = [f for f in files if not f.copy and f.prefix.casefold() in folded] or exact
+    if len(exact) == 1:
+        return exact[0]
+    variant = files[0].variant or "plain"
+    raise InputError(
+        f"take folder holds {len(files)} {variant} CSVs ({', '.join(f.name for f in files)}) and "
+        f"{'none' if not exact else 'more than one'} is named after the take "
+        f"({' or '.join(sorted(names))}): keep the take's own and remove the others (a copy or a "
+        "re-download such as 'X (1).csv' or 'X copy.csv'), or import the right CSV alone",
+        folder,
+    )
+
+
 def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
     """The blendshape CSV to import (``variant`` cal/raw/plain, default cal, then plain, then raw),
-    and the ``_neutral.csv`` beside it if any."""
-    by_variant: dict[str | None, Path] = {}
-    for p in _blendshape_csvs(folder):
-        by_variant.setdefault(split_variant(p.stem)[1], p)
-    neutral = by_variant.pop("neutral", None)
+    and the ``_neutral.csv`` beside it if any. Of two CSVs of one variant (``X.csv`` and a copy
+    ``X (1).csv``, or ``X.CSV`` beside ``x.csv``) the one named after the take is taken, else it is an
+    error naming them; a CSV that iCloud has not downloaded (``.X.csv.icloud``) is an error."""
+    by_variant: dict[str | None, list[_CsvFile]] = {}
+    for f in _csv_files(folder):
+        by_variant.setdefault(f.variant, []).append(f)
+    neutrals = by_variant.pop("neutral", None)
     if not by_variant:
         hint = " (a MetaHuman Animator depth take has none)" if (folder / "depth_data.bin").exists() else ""
         raise InputError(f"take folder holds no blendshape CSV{hint}", folder)
@@ -248,11 +354,15 @@ def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
             raise InputError(
                 f"take folder has no {variant} CSV (has: {[k or 'plain' for k in by_variant]})", folder
             )
-        return by_variant[key], neutral
-    for key in _PREFERENCE:
-        if key in by_variant:
-            return by_variant[key], neutral
-    raise AssertionError("unreachable")
+    else:
+        key = next(k for k in _PREFERENCE if k in by_variant)
+    chosen = [_the_one(folder, by_variant[key])]
+    if neutrals:
+        chosen.append(_the_one(folder, neutrals))
+    for f in chosen:
+        if f.path.name != f.name:
+            raise icloud_error(f.path, folder)
+    return chosen[0].path, chosen[1].path if neutrals else None
 
 
 def _signed_day_diff(a: float, b: float) -> float:
@@ -273,6 +383,7 @@ def read_take_folder(
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("take folder not found", folder)
+    refuse_placeholders(folder, audio_given=audio_file is not None)
     csv_path, neutral_path = choose_csv(folder, variant)
     take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
     meta = take.meta
@@ -300,8 +411,10 @@ def read_take_folder(
         take.neutral = _neutral_pose(neutral_path, take)
         meta.sources.append(source_file(neutral_path, "neutral_csv"))
 
+    # of several, the .mov (or .wav) named as the CSV is the take's
+    prefix = split_variant(csv_path.stem)[0]
     movs = _files_ending(folder, ".mov")
-    mov = movs[0] if movs else None
+    mov = next((p for p in movs if p.stem == prefix), movs[0]) if movs else None
     info = _probe(mov)
     # frame_log.csv's timecodes count at the video's rate: an app version that writes no
     # video_metadata.json still states it in the .mov
@@ -331,7 +444,7 @@ def read_take_folder(
             video_rate = log_rate
     mov_audio = mov is not None and (info is None or info.audio_tracks > 0)  # unknown: decoding tells
     wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov (or its audio)
-    wav = wavs[0] if wavs and not mov_audio else None
+    wav = next((p for p in wavs if p.stem == prefix), wavs[0]) if wavs and not mov_audio else None
     if mov is not None:
         meta.sources.append(source_file(mov, "reference_video"))
         meta.extra["reference_video"] = mov.name
@@ -454,4 +567,5 @@ __all__ = [
     "read_csv_with_audio",
     "read_frame_log",
     "read_take_folder",
+    "refuse_placeholders",
 ]

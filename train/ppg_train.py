@@ -38,6 +38,7 @@ from capture.errors import InputError
 from capture.importer import AUDIO_SUFFIXES as SPEECH_SUFFIXES
 from capture.paired import read_text
 from capture.textgrid import read_textgrid
+from capture.transfer_litter import Litter
 from dataset.bottleneck import CHECKPOINT_FORMAT, BottleneckConfig, BottleneckPPG, load_plain, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
 from dataset.phones import phone_index
@@ -73,6 +74,22 @@ def _utterance_audio(alignment: Path, stem: str) -> Path:
             alignment,
         )
     return _audio_beside(alignment.parent / rel)
+
+
+def _files_under(folder: Path, litter: Litter) -> list[Path]:
+    """The files in and below ``folder``, sorted, less operating-system and transfer litter (``._X.wav``,
+    anything under ``__MACOSX`` or ``$RECYCLE.BIN``), which is counted in ``litter``."""
+    files = []
+    for f in sorted(folder.rglob("*")):
+        here = folder
+        for part in f.relative_to(folder).parts:
+            here = here / part
+            if litter.skips(here):  # the topmost litter folder is counted, not each file in it
+                break
+        else:
+            if f.is_file():
+                files.append(f)
+    return files
 
 
 def _audio_beside(path: Path) -> Path:
@@ -176,6 +193,7 @@ def find_alignments(
     seen_files: set[Path] = set()
     seen_audio: dict[Path, Path] = {}
     repeated = 0
+    litter = Litter()
 
     def add(audio: Path, segs: Segments, source: Path) -> None:
         key = audio.resolve()
@@ -190,7 +208,9 @@ def find_alignments(
     for p in map(Path, paths):
         if not p.exists():
             raise InputError("not found", p)
-        files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+        if litter.skips(p):
+            continue
+        files = _files_under(p, litter) if p.is_dir() else [p]
         for f in files:
             kind = f.suffix.lower()
             if kind not in (".textgrid", ".json"):
@@ -223,6 +243,7 @@ def find_alignments(
         warnings.append(
             f"--data names {repeated} file(s) more than once (also through their folder): each is read once"
         )
+    warnings += litter.lines()
     if not found:
         skipped = f"; {warnings[-1]}" if warnings else ""  # why the one file given gave nothing
         raise InputError(
@@ -231,25 +252,32 @@ def find_alignments(
     return found
 
 
-def find_speech(paths: list[str | Path]) -> list[Path]:
-    """Take folders and audio files under ``paths`` (an audio file inside a take folder is its take's)."""
+def find_speech(paths: list[str | Path], warnings: list[str] | None = None) -> list[Path]:
+    """Take folders and audio files under ``paths`` (an audio file inside a take folder is its take's);
+    operating-system and transfer litter (``._X.wav``, ``__MACOSX``, ...) is left out, one line per kind
+    appended to ``warnings``."""
     found: list[Path] = []
+    litter = Litter()
     for p in map(Path, paths):
         if not p.exists():
             raise InputError("not found", p)
+        if litter.skips(p):
+            continue
         if p.is_file():
             found.append(p)
             continue
-        takes = find_takes([p])
+        # takes of ours in a recycle bin or a zip's __MACOSX are none
+        takes = [t for t in find_takes([p]) if not any(litter.skips(p / q) for q in t.relative_to(p).parents)]
         inside = {t.resolve() for t in takes}
         loose = [
             f
-            for f in sorted(p.rglob("*"))
+            for f in _files_under(p, litter)
             if f.suffix.lower() in SPEECH_SUFFIXES  # the audio files s2a-capture import --pair-audio pairs
-            and f.is_file()
             and not inside.intersection(f.resolve().parents)
         ]
         found += takes + loose
+    if warnings is not None:
+        warnings += litter.lines()
     unique = list(dict.fromkeys(f.resolve() for f in found))
     if not unique:
         raise InputError("no take folders or audio files found", paths[0])
@@ -284,7 +312,7 @@ def decoded_utterances(paths: list[str | Path], warnings: list[str], say: Callab
     labelled by pocketsphinx phone-loop recognition; takes without audio are skipped (``warnings``)."""
     decoder = PocketsphinxExtractor()
     out = []
-    for source in find_speech(paths):
+    for source in find_speech(paths, warnings):
         audio = _speech(source)
         if audio is None:
             warnings.append(f"{source}: take has no audio: skipped")
