@@ -33,6 +33,7 @@ from .atomic import folder_in_place, write_json_atomic
 from .audio_io import Audio, read_audio, write_audio
 from .errors import InputError
 from .npz import NPZ_ERRORS, npz_array, npz_headers
+from .transfer_litter import litter_kind
 
 FORMAT = "s2a-take"
 SCHEMA_VERSION = 1
@@ -516,8 +517,9 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
 def find_takes(paths: Iterable[str | Path]) -> list[Path]:
     """Take folders named by ``paths``; a folder that is not a take is searched recursively, skipping
     takes in or below a hidden folder (a take being written in place, ``folder_in_place``) under it: a
-    folder named in ``paths`` counts even when hidden. Symbolic links to folders are followed, each real
-    folder once (no loops), and never to the folder searched or one above it."""
+    folder named in ``paths`` counts even when hidden; what systems leave among copied files
+    (``__MACOSX``, ``$RECYCLE.BIN``: ``transfer_litter``) is not searched. Symbolic links to folders
+    are followed, each real folder once (no loops), and never to the folder searched or one above it."""
     found: list[Path] = []
     for p in map(Path, paths):
         if is_take_dir(p):
@@ -542,7 +544,7 @@ def _takes_below(root: Path) -> list[Path]:
             folders[:] = []
             continue
         seen.add(real)
-        folders[:] = sorted(f for f in folders if not f.startswith("."))
+        folders[:] = sorted(f for f in folders if not f.startswith(".") and litter_kind(f) is None)
         if here != str(root) and META_FILE in files and is_take_dir(here):
             takes.append(Path(here))
     return sorted(takes)

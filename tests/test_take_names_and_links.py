@@ -116,3 +116,11 @@ def test_plot_of_a_take_named_in_chinese_warns_once_of_characters_no_font_has(tm
             "install one that has them, such as Noto Sans CJK"
         ]
     ), proc.stderr
+
+
+def test_takes_inside_what_systems_leave_are_not_found(tmp_path):
+    """A drive root's recycle bin (deleted takes) and a Finder zip's __MACOSX are not takes to align."""
+    own = write_take(synthetic_take(10), tmp_path / "drive")
+    write_take(synthetic_take(10, seed=1), tmp_path / "drive" / "$RECYCLE.BIN" / "S-1-5-21")
+    write_take(synthetic_take(10, seed=2), tmp_path / "drive" / "__MACOSX")
+    assert find_takes([tmp_path / "drive"]) == [own]
