@@ -3,6 +3,10 @@
 The fingerprint of a take = sha256 over the align version, the options and the bytes of the raw take's
 ``meta.json``, ``frames.npz`` and audio file. It is stored in every output's ``meta.extra["align"]``;
 a later run with the same fingerprint and all outputs present does nothing for that take.
+
+One run at a time writes into an output folder (``output_lock``: ``flock`` on its hidden ``.align.lock``).
+Aligned takes whose raw take is gone (neither given to the run nor on disk) are named in one warning
+and, with ``prune``, removed (``orphans``, ``prune_orphans``).
 """
 
 from __future__ import annotations
@@ -10,14 +14,20 @@ from __future__ import annotations
 import hashlib
 import json
 import multiprocessing as mp
+import os
+import re
 import shutil
 import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from capture import InputError, S2AError, Take, TakeMeta, find_takes, read_meta, read_take, write_take
 from capture.atomic import all_or_none, batch_of_writes
 from capture.command import json_safe
+from capture.file_lock import holding
 from capture.numbers import is_count
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
 from capture.workers import submit_all, worker_pool
@@ -56,13 +66,18 @@ def _outputs_of(out_dir: Path, take_id: str) -> list[tuple[Path, TakeMeta]]:
     return found
 
 
-def _previous(out_dir: Path, take_id: str, fp: str) -> dict[str, Any] | None:
+def _previous(out_dir: Path, take_id: str, fp: str, source: str) -> dict[str, Any] | None:
+    """The stored report of the outputs of ``take_id`` when they are complete, made with the fingerprint
+    ``fp`` and from the raw take folder at ``source`` (a take folder moved or renamed since is aligned
+    again once, so that its outputs record where it is: ``orphans`` goes by it); None otherwise."""
     outs = _outputs_of(out_dir, take_id)
     if not outs:
         return None
     reports = [m.extra["align"] for _, m in outs]
     count = reports[0].get("segment_count")
     if any(r.get("fingerprint") != fp for r in reports) or len(reports) != count:
+        return None
+    if any(r["parent"].get("path") != source for r in reports):
         return None
     if not all(is_count(r.get("frames")) and is_count(r.get("gaps_interpolated")) for r in reports):
         return None  # an output edited by hand: aligned again
@@ -110,7 +125,7 @@ def align_folder(
         meta = read_meta(folder)
         fp = fingerprint(folder, options)
         if not force:
-            prev = _previous(out_dir, meta.id, fp)
+            prev = _previous(out_dir, meta.id, fp, str(folder.resolve()))
             if prev is not None:
                 return json_safe({"id": meta.id, "path": str(folder), "skipped": True} | prev)
         if meta.audio is None and skip_without_audio:
@@ -207,10 +222,15 @@ def align_takes(
     force: bool = False,
     on_report=None,
     skip_without_audio: bool = False,
+    prune: bool = False,
+    on_message: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Align every take under ``paths`` (take folders, searched recursively) into ``out_dir`` with
     ``jobs`` worker processes; returns one report dict per take, in input order. ``on_report`` is
-    called with each report as it is ready."""
+    called with each report as it is ready. One run at a time writes into ``out_dir`` (``output_lock``;
+    another is an ``InputError``). At the end, aligned takes in ``out_dir`` whose raw take is gone
+    (``orphans``) are named in one message to ``on_message`` ("warning: ..."), or removed with
+    ``prune`` (and named as removed)."""
     opts = options or AlignOptions()
     opts.validate()
     out_dir = Path(out_dir)
@@ -223,27 +243,210 @@ def align_takes(
     if not folders:
         raise InputError(f"no takes found under {', '.join(map(str, paths))}")
     make_out_dir(out_dir)
-    with batch_of_writes(out_dir):  # out_dir listed once for leftovers of killed writes, not per take
-        clashes = _id_clashes(folders)
-        reports: list[dict[str, Any]] = []
-        if jobs <= 1 or len(folders) == 1:
-            for f in folders:
-                r = {"id": f.name, "path": str(f), "error": clashes[f]} if f in clashes else None
-                r = r or align_folder(f, out_dir, opts, force, skip_without_audio)
-                reports.append(r)
-                if on_report:
-                    on_report(r)
-            return reports
-        todo = [f for f in folders if f not in clashes]
-        with worker_pool(min(jobs, len(todo)), _worker_context(opts)) as pool:  # no idle workers
-            calls = [(f, out_dir, opts, force, skip_without_audio) for f in todo]
-            futures = dict(zip(todo, submit_all(pool, align_folder, calls)))
-            for f in folders:
-                if f in futures:
-                    r = _result(f, futures[f])
-                else:
-                    r = {"id": f.name, "path": str(f), "error": clashes[f]}
-                reports.append(r)
-                if on_report:
-                    on_report(r)
+    with output_lock(out_dir), batch_of_writes(out_dir):  # listed once for leftovers of killed writes
+        reports = _align_all(folders, out_dir, opts, jobs, force, on_report, skip_without_audio)
+        found = orphans(out_dir, folders)
+        if found and prune:
+            removed, failed = prune_orphans(out_dir, found)
+            if removed:
+                _say(
+                    on_message,
+                    f"removed {_count(removed)} from {out_dir} whose raw take is gone: {_names(removed)}",
+                )
+            if failed:
+                _say(on_message, f"warning: could not remove {_names(failed)} from {out_dir}: {failed[0][2]}")
+        elif found:
+            _say(
+                on_message,
+                f"warning: {_count(found)} in {out_dir} {'comes' if len(found) == 1 else 'come'} from raw "
+                f"takes that are gone (not among this run's takes, not on disk): {_names(found)}; "
+                "s2a-dataset build would still use them: align again with --prune to remove them",
+            )
         return reports
+
+
+def _align_all(
+    folders: list[Path],
+    out_dir: Path,
+    opts: AlignOptions,
+    jobs: int,
+    force: bool,
+    on_report,
+    skip_without_audio: bool,
+) -> list[dict[str, Any]]:
+    clashes = _id_clashes(folders)
+    reports: list[dict[str, Any]] = []
+    if jobs <= 1 or len(folders) == 1:
+        for f in folders:
+            r = {"id": f.name, "path": str(f), "error": clashes[f]} if f in clashes else None
+            r = r or align_folder(f, out_dir, opts, force, skip_without_audio)
+            reports.append(r)
+            if on_report:
+                on_report(r)
+        return reports
+    todo = [f for f in folders if f not in clashes]
+    with worker_pool(min(jobs, len(todo)), _worker_context(opts)) as pool:  # no idle workers
+        calls = [(f, out_dir, opts, force, skip_without_audio) for f in todo]
+        futures = dict(zip(todo, submit_all(pool, align_folder, calls)))
+        for f in folders:
+            if f in futures:
+                r = _result(f, futures[f])
+            else:
+                r = {"id": f.name, "path": str(f), "error": clashes[f]}
+            reports.append(r)
+            if on_report:
+                on_report(r)
+    return reports
+
+
+LOCK_FILE = ".align.lock"  # hidden: find_takes and the dataset stage pass it over
+
+
+@contextmanager
+def output_lock(out_dir: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the output folder ``out_dir`` (``flock`` on its hidden ``.align.lock``,
+    which holds the pid) for a whole run: another run into it is refused at once (``InputError``). The
+    kernel drops the lock when the process ends, however it ends (worker processes forked meanwhile
+    share it until they end), so a killed run never blocks the next one; the file is removed when the
+    run ends. Where no lock can be taken (a folder that cannot be written: each take's write then says
+    so), the run goes on without one."""
+
+    def refused(holder: str) -> InputError:
+        return InputError(
+            f"another s2a-align{holder} is writing into {out_dir}: wait for it or choose another -o"
+        )
+
+    with holding(out_dir / LOCK_FILE, refused, optional=True):
+        yield
+
+
+_PRUNED = re.compile(r"\..+\.pruned-[a-z0-9_]{8}")  # a folder being removed by --prune (a kill's leftover)
+
+
+def _source_of(folder: Path) -> tuple[str, str] | None:
+    """(id, absolute path) of the raw take the aligned take ``folder`` was made from, as its
+    ``meta.extra["align"]["parent"]`` records them; None for anything that is not an aligned take this
+    stage wrote (named ``<id>`` or ``<id>.segNN`` after its raw take's id) or records no absolute path."""
+    try:
+        if not is_take_dir(folder):
+            return None
+        m = read_meta(folder)
+    except (S2AError, OSError):
+        return None
+    report = m.extra.get("align")
+    parent = report.get("parent") if isinstance(report, dict) else None
+    if m.source_kind != "aligned" or not isinstance(parent, dict):
+        return None
+    take_id, path = parent.get("id"), parent.get("path")
+    if not isinstance(take_id, str) or not isinstance(path, str) or not os.path.isabs(path):
+        return None
+    if m.id != take_id and not re.fullmatch(re.escape(take_id) + r"\.seg[0-9]{2,}", m.id):
+        return None
+    return (take_id, path) if folder.name == safe_id(m.id) else None
+
+
+def _same_id(a: str, b: str) -> bool:
+    """Whether two take ids name the same output folder (``safe_id``, ignoring case)."""
+    return safe_id(a).casefold() == safe_id(b).casefold()
+
+
+def _still_there(path: str, take_id: str) -> bool:
+    """Whether the raw take ``take_id`` is still at ``path``. A take there whose metadata cannot be read,
+    or a path that cannot be looked at, is not known to be gone: it counts as there."""
+    try:
+        if not is_take_dir(path):
+            return False
+        return _same_id(read_meta(path).id, take_id)
+    except (S2AError, OSError):
+        return True
+
+
+def orphans(out_dir: Path, folders: list[Path]) -> list[tuple[Path, str]]:
+    """The aligned takes in ``out_dir`` (each with the path of its raw take) whose raw take is gone: not
+    one of this run's take ``folders`` (by path or by take id: a renamed take folder keeps its id) and
+    not on disk at the path its outputs record (nothing there, or a take of another id). Takes aligned
+    from other folders into ``out_dir`` by other runs stay as long as their raw takes do. Only aligned
+    takes this stage wrote are looked at (``_source_of``)."""
+    given_paths = {str(f.resolve()) for f in folders}
+    given_ids = []
+    for f in folders:
+        try:
+            given_ids.append(safe_id(read_meta(f).id).casefold())
+        except S2AError:
+            pass  # its outputs, if any, record its path
+    given = set(given_ids)
+    there: dict[tuple[str, str], bool] = {}
+    found = []
+    try:
+        with os.scandir(out_dir) as entries:
+            names = sorted(
+                e.name for e in entries if not e.name.startswith(".") and e.is_dir(follow_symlinks=False)
+            )
+    except OSError:
+        return []
+    for name in names:
+        source = _source_of(out_dir / name)
+        if source is None:
+            continue
+        take_id, path = source
+        if path in given_paths or safe_id(take_id).casefold() in given:
+            continue
+        if source not in there:
+            there[source] = _still_there(path, take_id)
+        if not there[source]:
+            found.append((out_dir / name, path))
+    return found
+
+
+def prune_orphans(out_dir: Path, found: list[tuple[Path, str]]) -> tuple[list, list]:
+    """Remove the aligned takes ``found`` by ``orphans``: each is first renamed to a hidden
+    ``.NAME.pruned-XXXXXXXX`` (readers never see half a take; a kill's leftover is removed by the next
+    prune), then deleted. Returns (removed, failed): ``found``'s entries, those that failed with the
+    reason added."""
+    _clear_pruned(out_dir)
+    removed, failed = [], []
+    for folder, source in found:
+        try:
+            hidden = Path(tempfile.mkdtemp(prefix=f".{folder.name}.pruned-", dir=out_dir))
+            try:
+                os.replace(folder, hidden / "take")
+            finally:
+                shutil.rmtree(hidden, ignore_errors=True)
+        except OSError as exc:
+            failed.append((folder, source, exc.strerror or str(exc)))
+            continue
+        removed.append((folder, source))
+    return removed, failed
+
+
+def _clear_pruned(out_dir: Path) -> None:
+    """Remove the hidden folders a prune that was killed left in ``out_dir``."""
+    try:
+        with os.scandir(out_dir) as entries:
+            left = [e.path for e in entries if _PRUNED.fullmatch(e.name) and e.is_dir(follow_symlinks=False)]
+    except OSError:
+        return
+    for path in left:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+MAX_NAMED = 20  # aligned takes named in one message; the rest counted
+
+
+def _count(found: list) -> str:
+    return f"{len(found)} aligned take{'' if len(found) == 1 else 's'}"
+
+
+def _names(found: list) -> str:
+    """ "a.seg01, a.seg02 (from /raw/a), b (from /raw/b)": the folders grouped by their raw take."""
+    by_source: dict[str, list[str]] = {}
+    for folder, source, *_ in found[:MAX_NAMED]:
+        by_source.setdefault(source, []).append(folder.name)
+    text = ", ".join(f"{', '.join(names)} (from {source})" for source, names in by_source.items())
+    more = len(found) - MAX_NAMED
+    return text + (f" and {more} more" if more > 0 else "")
+
+
+def _say(on_message: Callable[[str], None] | None, message: str) -> None:
+    if on_message:
+        on_message(message)

@@ -102,6 +102,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="report takes that have no audio as skipped instead of as errors (mixed folders)",
     )
+    p.add_argument(
+        "--prune",
+        action="store_true",
+        help="remove aligned takes in -o whose raw take is gone (neither given nor on disk any more); "
+        "without it they are named in a warning",
+    )
     p.add_argument("--json", action="store_true", help="one JSON report per take on stdout")
     return p
 
@@ -165,6 +171,8 @@ def _main(args: argparse.Namespace) -> int:
             force=args.force,
             on_report=show,
             skip_without_audio=args.skip_without_audio,
+            prune=args.prune,
+            on_message=lambda message: progress(f"{PROG}: {message}"),  # stderr, with --json too
         )
     return 1 if any("error" in r for r in reports) else 0
 

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import errno
 import os
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 try:
@@ -46,3 +49,79 @@ def held_elsewhere(path: str | Path) -> bool:
         return False
     finally:
         os.close(fd)
+
+
+PID_WAIT_S = 0.5  # how long a refused command waits for the lock's holder to have written its pid
+
+
+def lock_holder(path: str | Path, wait_s: float = PID_WAIT_S) -> str:
+    """`` (pid N)``: the process that wrote its pid into the lock file ``path``, or ``""`` when unknown.
+    A holder writes its pid right after taking the lock: one refused in that moment waits ``wait_s``."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            pid = Path(path).read_text().strip()
+        except (OSError, UnicodeDecodeError):
+            pid = ""
+        if pid.isdigit() or time.monotonic() >= deadline:
+            return f" (pid {pid})" if pid.isdigit() else ""
+        time.sleep(0.02)
+
+
+@contextmanager
+def holding(
+    path: Path,
+    refused: Callable[[str], Exception],
+    remove: Callable[[bool], bool] = lambda created: True,
+    optional: bool = False,
+) -> Iterator[None]:
+    """Hold an exclusive lock on the lock file ``path`` (created if needed, this process's pid written
+    into it) while the block runs: the one writer of a folder (an import's output, an align's, a
+    dataset build's, a training run). Another process holding it: ``refused(lock_holder(path))`` is
+    raised at once. ``remove(created)`` (``created``: this lock made the file) says whether the file is
+    removed at the end, while still held, so that one waiting on it sees it went and retries. A lock
+    file that cannot be opened or locked raises its ``OSError``, or with ``optional`` the block runs
+    without a lock (a read-only folder, a file system without locks: the writes then fail themselves)."""
+    taken = _lock(path, refused, optional) if fcntl is not None else None
+    if taken is None:
+        yield
+        return
+    fd, created = taken
+    with suppress(OSError):  # the pid is for the messages of others only: a full disk stops nothing
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    try:
+        yield
+    finally:
+        if remove(created):
+            with suppress(OSError):
+                path.unlink()
+        os.close(fd)  # releases the lock
+
+
+def _lock(path: Path, refused: Callable[[str], Exception], optional: bool) -> tuple[int, bool] | None:
+    while True:
+        created = not os.path.lexists(path)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        except OSError:
+            if optional:
+                return None
+            raise
+        try:
+            locked = try_lock(fd)
+        except OSError:  # a file system without locks
+            os.close(fd)
+            if optional:
+                return None
+            raise
+        if not locked:
+            os.close(fd)
+            raise refused(lock_holder(path))
+        try:
+            same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd, created
+        os.close(fd)  # its holder removed the file as this one opened it: lock the file now at that path

@@ -47,7 +47,7 @@ from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.command import sigterm_stops
 from capture.errors import InputError, S2AError
-from capture.file_lock import fcntl, try_lock
+from capture.file_lock import holding
 from capture.numbers import is_count
 from capture.take import (
     META_FILE,
@@ -75,7 +75,6 @@ from .manifest import (
     LOCK_FILE,
     MANIFEST_FILE,
     WORK,
-    lock_holder,
     manifest_path,
     read_manifest,
     write_manifest,
@@ -1153,40 +1152,20 @@ def _worker_context(options: BuildOptions):
 
 @contextmanager
 def output_lock(out: Path) -> Iterator[None]:
-    """Hold an exclusive lock on the dataset folder ``out`` (``flock`` on ``out/.build.lock``) for a
-    whole build; another build into it is refused at once. The kernel releases the lock when the
-    process ends, however it ends, so a killed build never blocks the next one. The file is removed
-    when the build ends."""
-    if fcntl is None:  # pragma: no cover - Windows: no flock
+    """Hold an exclusive lock on the dataset folder ``out`` (``flock`` on ``out/.build.lock``, which
+    holds the pid) for a whole build; another build into it is refused at once. The kernel releases the
+    lock when the process ends, however it ends, so a killed build never blocks the next one. The file
+    is removed when the build ends."""
+
+    def refused(holder: str) -> InputError:
+        return InputError(
+            f"another build{holder} is writing into this folder: wait for it to finish, or build into "
+            "another -o",
+            out,
+        )
+
+    with holding(out / LOCK_FILE, refused):
         yield
-        return
-    path = out / LOCK_FILE
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        if not try_lock(fd):
-            os.close(fd)
-            raise InputError(
-                f"another build{lock_holder(path)} is writing into this folder: wait for it to finish, "
-                "or build into another -o",
-                out,
-            ) from None
-        try:
-            same = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)  # its holder removed the file as we opened it: lock the file now at that path
-    try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        yield
-    finally:
-        try:
-            path.unlink()  # while still holding it: a build waiting on this file sees it went, retries
-        except FileNotFoundError:  # pragma: no cover
-            pass
-        os.close(fd)
 
 
 def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:

@@ -21,7 +21,7 @@ from typing import Any
 
 from capture.atomic import write_json_atomic
 from capture.errors import InputError
-from capture.file_lock import held_elsewhere
+from capture.file_lock import held_elsewhere, lock_holder
 from capture.numbers import is_count as _count
 
 from .splits import SPLITS
@@ -42,15 +42,6 @@ def manifest_path(ds: str | Path) -> Path:
 def dataset_dir(ds: str | Path) -> Path:
     """The dataset folder of ``ds``, a dataset folder or its manifest file."""
     return manifest_path(ds).parent
-
-
-def lock_holder(path: str | Path) -> str:
-    """`` (pid N)``, the build that wrote its pid into the lock file ``path``, or ``""``."""
-    try:
-        pid = Path(path).read_text().strip()
-    except (OSError, UnicodeDecodeError):
-        return ""
-    return f" (pid {pid})" if pid.isdigit() else ""
 
 
 def build_running(ds: str | Path) -> str | None:

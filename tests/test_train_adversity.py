@@ -397,7 +397,7 @@ def test_a_second_fit_into_a_run_folder_in_use_is_refused(s2a, ds, tmp_path):
     before = (run / "last.pt").read_bytes()
     with run_lock(run):  # a fit in progress (another process holds it)
         proc = _cli("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 6, timeout=120)
-    _one_line_error(proc, "another s2a-train fit is writing this run folder")
+    _one_line_error(proc, f"another s2a-train fit (pid {os.getpid()}) is writing this run folder")
     assert (run / "last.pt").read_bytes() == before
     fd = os.open(run / ".lock", os.O_RDWR)  # released when the holder ends
     try:

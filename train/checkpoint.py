@@ -15,7 +15,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager, suppress
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -24,7 +24,7 @@ import torch
 
 from capture.atomic import partial_path, write_json_atomic
 from capture.errors import InputError
-from capture.file_lock import held_elsewhere, try_lock
+from capture.file_lock import held_elsewhere, holding
 from capture.numbers import is_count
 from capture.take import MAX_FPS
 from dataset.bottleneck import load_plain
@@ -116,40 +116,24 @@ def run_lock(run: Path) -> Iterator[None]:
     into a folder of the user's leaves it as it was); a fit that locked a file another one removed
     meanwhile locks the new one instead. The holder's pid is written into the file (``fit_in_progress``
     reads it while the lock is held; once released, what the file holds means nothing)."""
-    while True:
-        created = not (run / LOCK).exists()
-        try:
-            fd = os.open(run / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise write_error(exc, run / LOCK, "the run folder's lock file") from None
-        if not try_lock(fd):
-            os.close(fd)
-            raise InputError(
-                "another s2a-train fit is writing this run folder (it holds its .lock): wait for it to "
-                "finish, or train into another -o",
-                run,
-            )
-        if _same_file(fd, run / LOCK):
-            break
-        os.close(fd)  # the file was removed while this fit waited to lock it: lock the one there now
-    with suppress(OSError):  # for the note of eval and predict only: a full disk does not stop the fit
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+
+    def refused(holder: str) -> InputError:
+        return InputError(
+            f"another s2a-train fit{holder} is writing this run folder (it holds its .lock): wait for it to "
+            "finish, or train into another -o",
+            run,
+        )
+
+    def remove(created: bool) -> bool:  # while still held: no other fit can be inside it
+        return created and not (run / CONFIG).exists()
+
+    lock = ExitStack()
     try:
+        lock.enter_context(holding(run / LOCK, refused, remove))
+    except OSError as exc:
+        raise write_error(exc, run / LOCK, "the run folder's lock file") from None
+    with lock:
         yield
-    finally:
-        if created and not (run / CONFIG).exists():
-            with suppress(OSError):  # while still held: no other fit can be inside it
-                (run / LOCK).unlink()
-        os.close(fd)  # releases the lock
-
-
-def _same_file(fd: int, path: Path) -> bool:
-    """Whether open file ``fd`` is the file ``path`` names now."""
-    try:
-        return os.fstat(fd).st_ino == os.stat(path).st_ino
-    except OSError:
-        return False
 
 
 def fit_in_progress(run: str | Path) -> tuple[Path, int | None] | None:
