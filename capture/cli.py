@@ -7,10 +7,12 @@ import functools
 import sys
 from pathlib import Path
 
+from .atomic import batch_of_writes
 from .channels import is_known
 from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
+from .file_lock import holding
 from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source, is_livelink_csv
 from .live_cli import register as register_live
 from .paired import read_paired
@@ -28,6 +30,8 @@ from .take import (
 )
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 from .transfer_litter import Litter
+
+IMPORT_LOCK = ".import.lock"  # hidden: held (flock) by the one import writing into a folder
 
 PROG = "s2a-capture"
 TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV_TIMECODE_RATE)))
@@ -230,7 +234,30 @@ def cmd_import(args: argparse.Namespace) -> int:
         if args.take_id and len(sources) != 1:
             raise InputError("--id names one take, but several sources were found")
         jobs = [("source", s) for s in sources]
-    make_out_dir(args.out)
+    out = make_out_dir(args.out)
+    if (out / "manifest.json").exists():  # the dataset stage's (which capture may not import)
+        raise InputError(
+            "is a dataset folder (it holds manifest.json): import takes into a folder of their own", out
+        )
+
+    def refused(holder: str) -> InputError:
+        return InputError(
+            f"another s2a-capture import{holder} is writing into {out}: wait for it or choose another -o"
+        )
+
+    # One import at a time into a folder (two at once each took the same free ids and overwrote each
+    # other's takes); the folder is listed once for leftovers of killed writes, not once per take.
+    with holding(out / IMPORT_LOCK, refused, optional=True), batch_of_writes(out):
+        return _import_all(args, jobs, generic, timecode_rate)
+
+
+def _import_all(
+    args: argparse.Namespace,
+    jobs: list[tuple[str, Path]],
+    generic: dict[str, str],
+    timecode_rate: float | None,
+) -> int:
+    """Import each job into ``args.out``; exit code 1 when any failed (the others are still written)."""
     written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
     listing = functools.cache(folder_files)  # --pair-audio: each folder listed once, however many sources
     failures = 0
@@ -317,7 +344,23 @@ def _unique_id(take: Take, src: Path, written: dict[str, Path], out: Path) -> No
         take.meta.repairs.append({"line": None, "kind": "renamed_id", "message": message})
         print(f"{PROG}: warning: {src}: {message}", file=sys.stderr)
         take.meta.id = name
+    _say_if_replaced(out / name, take, src)
     written[name.casefold()] = src
+
+
+def _say_if_replaced(folder: Path, take: Take, src: Path) -> None:
+    """Warn when ``take`` replaces an earlier import of the same source whose contents have changed
+    since (an identical re-import replaces it without a word: the same bytes)."""
+    try:
+        before = read_meta(folder).sources if folder.exists() else []
+    except S2AError:
+        return
+    now = take.meta.sources
+    if before and now and before[0].path == now[0].path and before[0].sha256 != now[0].sha256:
+        print(
+            f"{PROG}: warning: {src}: replaces {folder}, imported from it before its contents changed",
+            file=sys.stderr,
+        )
 
 
 def _occupant(folder: Path, take: Take) -> str | None:
@@ -327,9 +370,12 @@ def _occupant(folder: Path, take: Take) -> str | None:
     if not folder.exists():
         return None
     try:
-        sources = read_meta(folder).sources
+        meta = read_meta(folder)
     except S2AError:
         return "something that is not a take"
+    if meta.source_kind == "aligned":  # made by s2a-align from such an import: never replaced by one
+        return "an aligned take"
+    sources = meta.sources
     before = sources[0].path if sources else None
     if take.meta.sources and take.meta.sources[0].path == before:
         return None
