@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -299,10 +300,15 @@ def _csv_files(folder: Path) -> list[_CsvFile]:
     return files
 
 
+def folder_name(folder: Path) -> str:
+    """The name of ``folder`` as the user sees it, also when given as ``.``, ``./`` or ``..``."""
+    return Path(os.path.abspath(folder)).name
+
+
 def _take_names(folder: Path) -> set[str]:
     """What a take folder's CSV is named after: the ``.mov``'s stem, the app's ``{slate}_{take}_{subject}``
     and ``identifier`` from take.json, and the folder's name."""
-    names = {folder.name, *(p.stem for p in _files_ending(folder, ".mov"))}
+    names = {folder_name(folder), *(p.stem for p in _files_ending(folder, ".mov"))}
     names |= {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
     app_take = _load_json(folder / "take.json", [])
     identifier = _field(app_take, "identifier")
@@ -393,7 +399,7 @@ def read_take_folder(
     video_meta = _load_json(folder / "video_metadata.json", repairs)
     audio_meta = _load_json(folder / "audio_metadata.json", repairs)
     meta.source_kind = "livelink_take_folder"
-    meta.id = safe_id(_json_text(app_take, "identifier", "take.json", repairs) or folder.name)
+    meta.id = safe_id(_json_text(app_take, "identifier", "take.json", repairs) or folder_name(folder))
     meta.slate = _json_text(app_take, "slate", "take.json", repairs) or meta.slate
     take_number = _json_whole(app_take, "take", "take.json", repairs)
     meta.take_number = meta.take_number if take_number is None else take_number

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
 
 from capture.file_lock import try_lock
 from tests.conftest import run_cli
@@ -76,3 +78,20 @@ def test_a_reimport_of_a_changed_source_says_it_replaces_the_take(samples, tmp_p
     assert changed.returncode == 0, changed.stderr
     assert f"replaces {out / 'S07-001'}, imported from it before its contents changed" in changed.stderr
     assert sorted(p.name for p in out.iterdir()) == ["S07-001"]
+
+
+def test_a_take_folder_imported_as_dot_is_named_after_the_folder(tmp_path):
+    """`cd TAKE && s2a-capture import . -o OUT` named the take `take` (the name of `.` is empty)."""
+    assert run_cli("capture", "simulate", "-o", tmp_path / "phone", "--seconds", "3", "--mov").returncode == 0
+    (folder,) = [p for p in (tmp_path / "phone").iterdir() if p.is_dir()]
+    (folder / "take.json").unlink()  # sent without it: the folder's name is the take's
+    renamed = folder.rename(folder.parent / "UPPER_1")
+    for given in (".", "./"):
+        proc = subprocess.run(
+            [sys.executable, "-m", "capture", "import", given, "-o", str(tmp_path / f"out{len(given)}")],
+            cwd=renamed,
+            capture_output=True,
+            text=True,
+        )
+        assert proc.returncode == 0, proc.stderr
+        assert [p.name for p in (tmp_path / f"out{len(given)}").iterdir()] == ["UPPER_1"], proc.stderr
