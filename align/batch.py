@@ -28,6 +28,7 @@ from capture import InputError, S2AError, Take, TakeMeta, find_takes, read_meta,
 from capture.atomic import all_or_none, batch_of_writes
 from capture.command import json_safe
 from capture.file_lock import holding
+from capture.importer import no_takes_found
 from capture.numbers import is_count
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
 from capture.workers import submit_all, worker_pool
@@ -241,7 +242,7 @@ def align_takes(
     folders = [f for f in find_takes(paths) if out not in f.resolve().parents]
     folders = list({f.resolve(): f for f in folders}.values())  # a take named twice is aligned once
     if not folders:
-        raise InputError(f"no takes found under {', '.join(map(str, paths))}")
+        raise no_takes_found(paths, "s2a-align")
     make_out_dir(out_dir)
     with output_lock(out_dir), batch_of_writes(out_dir):  # listed once for leftovers of killed writes
         reports = _align_all(folders, out_dir, opts, jobs, force, on_report, skip_without_audio)

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from .csv_take import app_header_separator, read_livelink_csv
-from .errors import InputError
+from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
 from .take import Take, is_take_dir
 from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
@@ -121,6 +121,23 @@ def _walk(
         ):
             if not (folder / original).exists():  # a source of this import, not downloaded
                 yield p
+
+
+def no_takes_found(paths: list[str | Path], stage: str) -> InputError:
+    """The error of a ``stage`` (align, the dataset build) that found no take folder of ours under
+    ``paths``: when they hold what ``s2a-capture import`` reads (the app's take folders, CSVs), it says
+    to import them first."""
+    where = ", ".join(map(str, paths))
+    try:
+        recordings = find_sources(paths, skipped=lambda _path, _why: None, litter=Litter())
+    except (S2AError, OSError):
+        recordings = []
+    if not recordings:
+        return InputError(f"no takes found under {where}")
+    return InputError(
+        f"no takes found under {where}, only {len(recordings)} recording(s) not imported yet (Live Link Face "
+        f"take folders or CSVs): run s2a-capture import {where} -o TAKES first, then {stage} TAKES"
+    )
 
 
 def is_a2f_export(path: Path) -> bool:

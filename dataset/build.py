@@ -48,6 +48,7 @@ from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.command import sigterm_stops
 from capture.errors import InputError, S2AError
 from capture.file_lock import holding
+from capture.importer import no_takes_found
 from capture.numbers import is_count
 from capture.take import (
     META_FILE,
@@ -424,7 +425,7 @@ def collect_takes(
     left_out: dict[str, str] = {}
     folders = find_takes(inputs)
     if not folders:
-        raise InputError(f"no takes found in {', '.join(map(str, inputs))}")
+        raise no_takes_found(inputs, "s2a-dataset build")
     seen_paths: set[Path] = set()
     takes: list[SourceTake] = []
     candidates: list[SourceTake] = []

@@ -95,3 +95,19 @@ def test_a_take_folder_imported_as_dot_is_named_after_the_folder(tmp_path):
         )
         assert proc.returncode == 0, proc.stderr
         assert [p.name for p in (tmp_path / f"out{len(given)}").iterdir()] == ["UPPER_1"], proc.stderr
+
+
+def test_align_and_build_on_recordings_not_imported_say_to_import_first(tmp_path):
+    assert run_cli("capture", "simulate", "-o", tmp_path / "phone", "--seconds", "3").returncode == 0
+    for args, stage in (
+        (["align", tmp_path / "phone", "-o", tmp_path / "al"], "s2a-align"),
+        (["dataset", "build", tmp_path / "phone", "-o", tmp_path / "ds"], "s2a-dataset build"),
+    ):
+        proc = run_cli(*args)
+        assert proc.returncode == 1, proc.stderr
+        assert "only 1 recording(s) not imported yet" in proc.stderr, proc.stderr
+        hint = f"run s2a-capture import {tmp_path / 'phone'} -o TAKES first, then {stage} TAKES"
+        assert hint in proc.stderr, proc.stderr
+    (tmp_path / "empty").mkdir()
+    proc = run_cli("align", tmp_path / "empty", "-o", tmp_path / "al")
+    assert proc.stderr.strip().endswith(f"no takes found under {tmp_path / 'empty'}"), proc.stderr
