@@ -22,6 +22,7 @@ import numpy as np
 
 from capture.errors import InputError
 from capture.file_lock import held_elsewhere
+from capture.transfer_litter import is_litter
 
 from .manifest import (
     LOCK_FILE,
@@ -1250,7 +1251,7 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
     if recomputed is not None:
         problems.extend(validate_statistics(manifest, recomputed))
     for p in sorted(ds.glob("*.tar")):
-        if p.name not in listed:
+        if p.name not in listed and not is_litter(p):  # a copy's ._train-000000.tar is no shard
             problems.append(_p("shard_unlisted", p.name, "not listed in the manifest", "warning"))
     problems.extend(leftover_problems(ds))
     return Report(str(ds), deep, len(shards), len(seen), problems)

@@ -124,3 +124,13 @@ def test_takes_inside_what_systems_leave_are_not_found(tmp_path):
     write_take(synthetic_take(10, seed=1), tmp_path / "drive" / "$RECYCLE.BIN" / "S-1-5-21")
     write_take(synthetic_take(10, seed=2), tmp_path / "drive" / "__MACOSX")
     assert find_takes([tmp_path / "drive"]) == [own]
+
+
+def test_validate_passes_over_macos_metadata_beside_the_shards(tmp_path):
+    from dataset.qa import validate
+    from tests.dataset_helpers import build_five_take_dataset
+
+    ds = build_five_take_dataset(tmp_path)
+    (ds / "._train-000000.tar").write_bytes(b"\x00\x05\x16\x07" + b"\0" * 4092)  # a copy to an exFAT drive
+    report = validate(ds)
+    assert not [p for p in report.problems if p.check == "shard_unlisted"], report.problems
