@@ -9,6 +9,10 @@
 
 Sizes live in ``S2AConfig``; the paper's MoE settings (48 experts, top-16, Conv1d+Linear experts) are the
 defaults, the rest (widths, depths) are ours where the paper is silent. Model code does no I/O.
+
+Every model takes ``(content, prosody, mask)``; ``mask`` (B, T) is bool, True on real frames (0/1
+integer or floating masks are converted, other values refused). A batch row with no real frame gives
+zeros, and ``masked_mse`` ignores it.
 """
 
 from __future__ import annotations
@@ -17,7 +21,6 @@ import math
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from .moe import MoELayer
@@ -45,6 +48,43 @@ class S2AConfig:
     moe_inference: str = "routed"  # MoE path in eval mode without autograd: "routed" or "train"
     dropout: float = 0.1
     max_frames: int = 8192
+
+
+def check_inputs(
+    content: torch.Tensor, prosody: torch.Tensor | None, mask: torch.Tensor, prosody_dim: int
+) -> torch.Tensor:
+    """Clear errors for inputs the models cannot take; returns ``mask`` as bool (B, T).
+
+    ``content`` (B, T, C) with T > 0; ``prosody`` (B, T, prosody_dim), or None when prosody_dim is 0;
+    ``mask`` bool, or integer/floating holding only 0 and 1 (converted: nonzero = real frame). While
+    tracing for export only the conversion runs (shapes are symbolic there)."""
+    if torch.jit.is_tracing():
+        return mask if mask.dtype == torch.bool else mask != 0
+    if content.dim() != 3:
+        raise ValueError(f"content must be (batch, frames, features), got shape {tuple(content.shape)}")
+    b, t = content.shape[:2]
+    if t == 0:
+        raise ValueError("the input has no frames (T = 0): give at least one frame per sequence")
+    if prosody_dim:
+        if prosody is None:
+            raise ValueError(
+                f"this model was built with prosody_dim={prosody_dim}: give prosody (B, T, {prosody_dim}), "
+                "not None (prosody_dim=0 builds a model without prosody)"
+            )
+        if tuple(prosody.shape) != (b, t, prosody_dim):
+            raise ValueError(f"prosody must have shape {(b, t, prosody_dim)}, got {tuple(prosody.shape)}")
+    if tuple(mask.shape) != (b, t):
+        raise ValueError(f"mask must have shape {(b, t)} (batch, frames), got {tuple(mask.shape)}")
+    if mask.dtype == torch.bool:
+        return mask
+    if mask.is_complex():
+        raise TypeError(f"mask must be torch.bool (True on real frames), got {mask.dtype}")
+    if bool(((mask != 0) & (mask != 1)).any()):
+        raise ValueError(
+            f"mask must be torch.bool (True on real frames) or hold only 0 and 1; this {mask.dtype} "
+            "mask holds other values"
+        )
+    return mask != 0
 
 
 class PositionalEncoding(nn.Module):
@@ -93,7 +133,9 @@ class Block(nn.Module):
         # No mask when every frame is real (batch-1 inference): the same numbers through the fused
         # attention kernel. Not while tracing for export, which must keep the mask input.
         skip = self.skip_full_mask and not torch.jit.is_tracing() and bool(mask.all())
-        padding = None if skip else ~mask
+        # A row with no real frame would leave attention nothing to attend to (NaN in the fused kernel):
+        # it attends to all its frames instead (finite; the model zeroes that row's output).
+        padding = None if skip else ~mask & mask.any(dim=1, keepdim=True)
         y, _ = self.attn(y, y, y, key_padding_mask=padding, need_weights=False)
         x = x + self.drop(y)
         return x + self.drop(self.ff(self.norm2(x), mask))
@@ -140,7 +182,9 @@ class TransformerS2A(nn.Module):
         self, content: torch.Tensor, prosody: torch.Tensor | None, mask: torch.Tensor
     ) -> torch.Tensor:
         """``content`` (B, T, content_dim), ``prosody`` (B, T, prosody_dim) or None when
-        prosody_dim is 0, ``mask`` (B, T) bool, True on real frames → (B, T, out_dim)."""
+        prosody_dim is 0, ``mask`` (B, T) bool, True on real frames → (B, T, out_dim); rows without
+        a real frame give zeros."""
+        mask = check_inputs(content, prosody, mask, self.config.prosody_dim)
         x = self.drop(self.positions(self.content_in(content)))
         for block in self.encoder:
             x = block(x, mask)
@@ -149,7 +193,7 @@ class TransformerS2A(nn.Module):
         x = self.prosody_in(x)
         for block in self.decoder:
             x = block(x, mask)
-        return self.head(self.norm(x))
+        return zero_empty_rows(self.head(self.norm(x)), mask)
 
     def aux_loss(self) -> torch.Tensor:
         """Sum of the MoE layers' load-balancing losses from the last forward pass."""
@@ -184,12 +228,13 @@ class BLSTM(nn.Module):
         self.head = nn.Linear(2 * c.hidden, c.out_dim)
 
     def forward(self, content, prosody, mask):
+        mask = check_inputs(content, prosody, mask, self.config.prosody_dim)
         x = torch.cat([content, prosody], dim=-1) if self.config.prosody_dim else content
         lengths = mask.sum(dim=1).clamp(min=1).cpu()
         packed = nn.utils.rnn.pack_padded_sequence(x, lengths, batch_first=True, enforce_sorted=False)
         y, _ = self.lstm(packed)
         y, _ = nn.utils.rnn.pad_packed_sequence(y, batch_first=True, total_length=x.shape[1])
-        return self.head(y)
+        return zero_empty_rows(self.head(y), mask)
 
 
 @dataclass
@@ -222,18 +267,26 @@ class NVP(nn.Module):
         )
 
     def forward(self, content, prosody, mask):
+        mask = check_inputs(content, prosody, mask, self.config.prosody_dim)
         x = torch.cat([content, prosody], dim=-1) if self.config.prosody_dim else content
         x = x * mask.unsqueeze(-1).to(x.dtype)
-        return self.mlp(self.window_conv(x.transpose(1, 2)).transpose(1, 2))
+        return zero_empty_rows(self.mlp(self.window_conv(x.transpose(1, 2)).transpose(1, 2)), mask)
+
+
+def zero_empty_rows(out: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``out`` (B, T, C) with the rows whose ``mask`` has no real frame set to zero."""
+    return out.masked_fill(~mask.any(dim=1)[:, None, None], 0.0)
 
 
 def masked_mse(
     pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, weights: torch.Tensor | None = None
 ) -> torch.Tensor:
     """Mean squared error over real frames only (``mask`` (B, T) True on real frames); ``weights``
-    (channels,) scales each channel's squared error (mean over channels of the weighted error)."""
+    (channels,) scales each channel's squared error (mean over channels of the weighted error). Whatever
+    the padding holds (even NaN, or a row without a real frame) is ignored."""
     m = mask.unsqueeze(-1).to(pred.dtype)
-    se = F.mse_loss(pred, target, reduction="none")
+    # padding zeroed before squaring: NaN there would otherwise reach the loss (NaN · 0) and the gradient
+    se = torch.where(m != 0, pred - target, 0.0).square()
     if weights is not None:
         se = se * weights.to(se)
     return (se * m).sum() / (m.sum() * pred.shape[-1]).clamp(min=1)

@@ -16,19 +16,33 @@ Inference (eval mode, no autograd) takes the ``inference`` path, by default ``"r
 rows (one index per tap) into a buffer reused from call to call (fresh 35 MB buffers cost page faults
 that outweigh the saved arithmetic), and two grouped matrix products (``torch._grouped_mm``) run every
 expert on its own frames; the experts' weights are rearranged once and cached until they change. Only
-the routed arithmetic, no padding, no Python loop over experts (on PyTorch without ``_grouped_mm``, or
-when d_model or the expert width is not a whole multiple of 16 bytes, which the grouped product needs:
-batched products padded to the busiest expert). ``inference = "train"`` keeps the training path. The
-same code runs in bfloat16 (train/precision.py).
+the routed arithmetic, no padding, no Python loop over experts (on PyTorch without ``_grouped_mm``, for
+dtypes it cannot take (float64), or when d_model or the expert width is not a whole multiple of 16
+bytes, which the grouped product needs: batched products padded to the busiest expert). Under
+``torch.compile`` (whose grouped product takes bfloat16 only) and while tracing, the training path runs.
+``inference = "train"`` keeps the training path. The same code runs in bfloat16 (train/precision.py).
+
+One layer may run in several threads at once (a server's thread pool around one loaded model): the
+scratch buffers belong to the calling thread (shared by all layers that thread runs, freed with the
+thread), and the cached weights are rebuilt into fresh tensors and published in one assignment, so a
+call never sees another call's half-written data. Neither is part of the state: deepcopy and pickle
+drop the weight cache.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+# Per-thread scratch buffers of the routed inference path: {(name, dtype, device, inference): tensor}.
+_SCRATCH = threading.local()
+
+# Dtypes torch._grouped_mm takes (float64 and integer types go through batched products instead).
+_GROUPED_DTYPES = (torch.float32, torch.bfloat16, torch.float16)
 
 
 class MoELayer(nn.Module):
@@ -37,7 +51,7 @@ class MoELayer(nn.Module):
     Input and output are (batch, frames, d_model). ``mode`` is "dense", "sparse" or "grouped" (see
     module doc).
     After a forward pass, ``aux_loss`` holds the load-balancing loss (Switch Transformer form: experts x
-    Σ fraction-routed · mean-probability), 0 when ``top_k == experts``.
+    Σ fraction-routed · mean-probability, over the real frames of ``mask``), 0 when ``top_k == experts``.
     """
 
     def __init__(
@@ -66,8 +80,7 @@ class MoELayer(nn.Module):
         self.kernel_size = kernel_size
         self.mode = mode
         self.inference = inference
-        self._cache: dict[str, torch.Tensor] = {}  # inference: rearranged weights, reused buffers
-        self._cache_key: tuple = ()
+        self._cache: dict[str, tuple] = {}  # inference: rearranged weights (see _weights)
         self.gate = nn.Linear(d_model, experts)
         # All experts' convolutions as one Conv1d: output channels grouped by expert.
         self.conv = nn.Conv1d(d_model, experts * hidden, kernel_size, padding=kernel_size // 2)
@@ -78,31 +91,57 @@ class MoELayer(nn.Module):
         self.dropout = nn.Dropout(dropout)
         self.aux_loss = torch.zeros(())
 
-    def route(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Top-k expert indices (B, T, k) and their probabilities (softmax over the kept scores)."""
+    def __getstate__(self) -> dict:
+        """Deepcopy and pickle leave the weight cache behind (rebuilt on the first call)."""
+        state = super().__getstate__().copy()
+        state["_cache"] = {}
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        super().__setstate__(state)
+        self._cache = {}  # pickles of older versions held scratch buffers here
+        self.__dict__.pop("_cache_key", None)
+
+    def route(self, h: torch.Tensor, mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Top-k expert indices (B, T, k) and their probabilities (softmax over the kept scores). In
+        training, the balance loss averages over the frames where ``mask`` (B, T) is true (all frames
+        without a mask; 0 when no frame is real)."""
         scores = self.gate(h)
         top_scores, top_idx = scores.topk(self.top_k, dim=-1)
         probs = top_scores.softmax(dim=-1)
         if self.training and self.top_k < self.experts:
             routed = F.one_hot(top_idx, self.experts).sum(dim=-2).float()  # (B, T, E)
-            fraction = routed.mean(dim=(0, 1)) / self.top_k
-            mean_prob = scores.softmax(dim=-1).mean(dim=(0, 1))
+            all_probs = scores.softmax(dim=-1)
+            if mask is None:
+                fraction = routed.mean(dim=(0, 1)) / self.top_k
+                mean_prob = all_probs.mean(dim=(0, 1))
+            else:
+                real = (mask != 0).unsqueeze(-1)
+                frames = real.sum().clamp(min=1)
+                fraction = torch.where(real, routed, 0.0).sum(dim=(0, 1)) / (frames * self.top_k)
+                mean_prob = torch.where(real, all_probs, 0.0).sum(dim=(0, 1)) / frames
             self.aux_loss = self.experts * (fraction * mean_prob).sum()
         else:
             self.aux_loss = scores.new_zeros(())
         return top_idx, probs
 
     def forward(self, h: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """``h`` (B, T, d_model); ``mask`` (B, T) True where frames are real (padding is zeroed first,
-        so it cannot leak into neighbours through the convolution)."""
+        """``h`` (B, T, d_model); ``mask`` (B, T) True (or 1) where frames are real (padding is zeroed
+        first, so it cannot leak into neighbours through the convolution)."""
+        tracing = torch.jit.is_tracing()  # shapes are symbolic there: no checks on them
         if mask is not None:
+            if not tracing and mask.shape != h.shape[:2]:
+                raise ValueError(f"mask must have shape {tuple(h.shape[:2])} (B, T), got {tuple(mask.shape)}")
             h = h * mask.unsqueeze(-1).to(h.dtype)
-        top_idx, probs = self.route(h)
+        if not tracing and h.shape[0] * h.shape[1] == 0:
+            return h * 0.0  # no frames: nothing to route (keeps the graph for autograd)
+        top_idx, probs = self.route(h, mask)
         if (
             self.inference == "routed"
             and not self.training
             and not torch.is_grad_enabled()
-            and not torch.jit.is_tracing()
+            and not tracing
+            and not torch.compiler.is_compiling()
         ):
             return self._routed(h, top_idx, probs)
         if self.mode == "sparse":
@@ -172,7 +211,8 @@ class MoELayer(nn.Module):
 
     def _weights(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The convolution as (E, k*d, H) in tap-major order and its bias (E, 1, H), cached while the
-        parameters are unchanged (same storage and version counter)."""
+        parameters are unchanged (same storage and version counter). Safe in concurrent calls: a
+        rebuild makes fresh tensors and publishes them with their key in one dict assignment."""
         w, b = self.conv.weight, self.conv.bias
         # parameters made under inference_mode have no version counter: rearranged on every call
         key = (
@@ -180,21 +220,26 @@ class MoELayer(nn.Module):
             if w.is_inference()
             else (w.data_ptr(), w._version, b.data_ptr(), b._version, w.dtype, w.device)
         )
-        if not key or key != self._cache_key or "w_conv" not in self._cache:
+        entry = self._cache.get("weights")
+        if not key or entry is None or entry[0] != key:
             e, hid, d, k = self.experts, self.hidden, self.d_model, self.kernel_size
-            self._cache["w_conv"] = w.detach().view(e, hid, d, k).permute(0, 3, 2, 1).reshape(e, k * d, hid)
-            self._cache["b_conv"] = b.detach().view(e, 1, hid).clone()
-            self._cache_key = key
-        return self._cache["w_conv"], self._cache["b_conv"]
+            w_conv = w.detach().view(e, hid, d, k).permute(0, 3, 2, 1).reshape(e, k * d, hid)
+            entry = (key, w_conv, b.detach().view(e, 1, hid).clone())
+            if key:
+                self._cache["weights"] = entry
+        return entry[1], entry[2]
 
     def _grouped_fits(self, dtype: torch.dtype) -> bool:
-        """Whether ``torch._grouped_mm`` exists and takes this layer's weights: their rows (hidden and
-        d_model values) must be whole multiples of 16 bytes."""
+        """Whether ``torch._grouped_mm`` exists and takes this layer's weights: a dtype it supports
+        (float32, bfloat16, float16), rows (hidden and d_model values) that are whole multiples of 16
+        bytes, and not while ``torch.compile`` traces (its grouped product takes bfloat16 only)."""
         size = dtype.itemsize
         return (
             hasattr(torch, "_grouped_mm")
+            and dtype in _GROUPED_DTYPES
             and (self.hidden * size) % 16 == 0
             and (self.d_model * size) % 16 == 0
+            and not torch.compiler.is_compiling()
         )
 
     def _row_width(self, dtype: torch.dtype) -> int:
@@ -207,29 +252,30 @@ class MoELayer(nn.Module):
         """The convolution as (E, k*width, H): per tap the d input weights, then rows for the column of
         ones (the bias on the centre tap) and the zero padding columns; cached like ``_weights``."""
         w_conv, b_conv = self._weights()
-        if self._cache.get("wb_key") is not w_conv:
+        entry = self._cache.get("wb")
+        if entry is None or entry[0] is not w_conv:
             e, hid, d, k = self.experts, self.hidden, self.d_model, self.kernel_size
             width = self._row_width(w_conv.dtype)
             wb = w_conv.new_zeros(e, k, width, hid)
             wb[:, :, :d] = w_conv.view(e, k, d, hid)
             wb[:, k // 2, d] = b_conv.view(e, hid)
-            self._cache["wb"] = wb.view(e, k * width, hid)
-            self._cache["wb_key"] = w_conv
-        return self._cache["wb"]
+            entry = (w_conv, wb.view(e, k * width, hid))
+            self._cache["wb"] = entry  # published whole, after it is complete
+        return entry[1]
 
-    def _buffer(self, name: str, shape: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
-        """A reused scratch tensor of at least ``shape``'s size (grown when needed)."""
+    @staticmethod
+    def _buffer(name: str, shape: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
+        """A scratch tensor of at least ``shape``'s size, reused from call to call by the calling thread
+        only (grown when needed): concurrent calls in other threads get their own."""
         n = math.prod(shape)
-        buf = self._cache.get(name)
-        if (
-            buf is None
-            or buf.numel() < n
-            or buf.dtype != like.dtype
-            or buf.device != like.device
-            or buf.is_inference() != torch.is_inference_mode_enabled()  # in-place rules differ
-        ):
-            buf = torch.empty(n, dtype=like.dtype, device=like.device)
-            self._cache[name] = buf
+        pool = getattr(_SCRATCH, "pool", None)
+        if pool is None:
+            pool = _SCRATCH.pool = {}
+        # inference tensors and normal ones follow different in-place rules: kept apart
+        key = (name, like.dtype, like.device, torch.is_inference_mode_enabled())
+        buf = pool.get(key)
+        if buf is None or buf.numel() < n:
+            buf = pool[key] = torch.empty(n, dtype=like.dtype, device=like.device)
         return buf[:n].view(shape)
 
     def _routed(self, h: torch.Tensor, top_idx: torch.Tensor, probs: torch.Tensor) -> torch.Tensor:
