@@ -1,10 +1,17 @@
 """``ShardDataset``: a PyTorch ``IterableDataset`` over a split's shards.
 
-Shards are divided among DDP ranks (``torch.distributed``, when initialised) and DataLoader workers
-(``get_worker_info``): shard ``i`` goes to consumer ``i % consumers``; with fewer shards than consumers,
-every consumer reads every shard and keeps every ``consumers``-th sample instead. Samples pass through
-a shuffle buffer (seeded by seed, epoch and consumer), are normalised with the manifest's statistics,
-and are cropped or padded to ``window`` frames with a mask (padding frames are masked out).
+Each epoch's samples are the split's shards in an order shuffled by seed and epoch (when shuffling is
+on), divided first among DDP ranks, then among each rank's DataLoader workers (``get_worker_info``).
+By default a level divides whole shards (the ``i``-th shard holding samples goes to reader
+``i % readers``; with fewer shards than readers, every reader reads them all and keeps every
+``readers``-th sample); with ``even_ranks``, each rank takes an equal contiguous run of the epoch's
+samples instead (the remainder, fewer samples than ranks, is dropped), so every rank yields as many.
+The rank and world size come from ``torch.distributed`` in the process that makes or iterates the
+dataset (or from ``rank``/``world_size``), and travel to DataLoader workers with the dataset: a
+spawned worker, where ``torch.distributed`` is not initialised, still reads its rank's share. Samples
+pass through a shuffle buffer (seeded by seed, epoch, rank and worker), are normalised with the
+manifest's statistics, and are cropped or padded to ``window`` frames with a mask (padding frames are
+masked out).
 
 Each sample is checked as it is decoded (cheaply: on the arrays already in memory), since the readers
 compare only a shard's size with the manifest, not its sha256: its members are there, its json is an
@@ -17,6 +24,7 @@ every value is finite (the build writes 0, never NaN, at masked frames). A damag
 from __future__ import annotations
 
 import json
+import operator
 import random
 import tarfile
 from collections.abc import Iterator
@@ -35,36 +43,69 @@ from .shards import ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
 
 
-def _rank_world() -> tuple[int, int]:
+def _distributed() -> tuple[int, int] | None:
+    """(rank, world size) of this process's default process group; None when there is none (never in a
+    DataLoader worker that was spawned or started by a fork server)."""
     if torch.distributed.is_available() and torch.distributed.is_initialized():
         return torch.distributed.get_rank(), torch.distributed.get_world_size()
-    return 0, 1
+    return None
+
+
+def _count(value: Any, what: str, where: Path, least: int | None, none: bool = False) -> int | None:
+    """``value`` as an int of at least ``least`` (any integer-like number: int, numpy or torch integer);
+    None only with ``none``. Anything else (a bool, a float, a string) is an ``InputError``."""
+    if value is None and none:
+        return None
+    try:
+        n = operator.index(value) if not isinstance(value, bool) else None
+    except TypeError:
+        n = None
+    if n is None or (least is not None and n < least):
+        kind = {None: "an", 0: "a non-negative", 1: "a positive"}[least]
+        raise InputError(f"{what} must be {kind} integer{' or None' if none else ''}, not {value!r}", where)
+    return n
 
 
 class ShardDataset(IterableDataset):
     """Samples of one split as dicts of tensors.
 
     ``window``: frames per item (crop at a random start in training, pad with a zero mask when short);
-    None yields whole samples. ``features``: which features to load (default: all in the manifest).
-    Each item: ``anim`` (window, channels) float32 (normalised when ``normalize``), ``mask`` (window,)
-    bool, one (window, dim) float32 tensor per feature (pitch: per-speaker z-scored log-F0 and voicing;
-    others z-scored), optionally ``audio`` (samples,) float32 at 16 kHz, ``key`` and ``speaker`` (the
-    sample's, "" if none). ``manifest``: the dataset's manifest as the caller read it (default: read
-    here).
+    None yields whole samples. ``features``: which features to load (a list of names, or one name;
+    default: all in the manifest). Each item: ``anim`` (window, channels) float32 (normalised when
+    ``normalize``), ``mask`` (window,) bool, one (window, dim) float32 tensor per feature (pitch:
+    per-speaker z-scored log-F0 and voicing; others z-scored), optionally ``audio`` (samples,) float32 at
+    16 kHz, ``key`` and ``speaker`` (the sample's, "" if none). ``manifest``: the dataset's manifest as
+    the caller read it (default: read here).
+
+    ``shuffle_buffer``: samples mixed at a time (0 or 1: none); ``shuffle_shards``: read the shards in
+    an order shuffled by ``seed`` and the epoch (default: when ``shuffle_buffer`` > 1). ``rank`` and
+    ``world_size``: this process's share of the data (default: ``torch.distributed``'s, when it is
+    initialised where the dataset is made or iterated). ``even_ranks``: every rank yields the same
+    number of samples per epoch (the epoch's samples divided into equal contiguous runs, the remainder
+    dropped), for a loop with a collective per step; default: ranks read whole shards, and may yield
+    different numbers. An ``IterableDataset``: no random access (``__getitem__``); ``len()`` is this
+    rank's number of samples in the current epoch.
     """
+
+    # a level (ranks, a rank's workers) divides whole shards among its readers (else sample by sample)
+    divide_shards = True
 
     def __init__(
         self,
         ds: str | Path,
         split: str = "train",
         window: int | None = None,
-        features: list[str] | None = None,
+        features: list[str] | str | None = None,
         shuffle_buffer: int = 0,
         seed: int = 0,
         normalize: bool = True,
         audio: bool = False,
         random_crop: bool | None = None,
         manifest: dict[str, Any] | None = None,
+        shuffle_shards: bool | None = None,
+        rank: int | None = None,
+        world_size: int | None = None,
+        even_ranks: bool = False,
     ):
         super().__init__()
         self.ds = dataset_dir(ds)
@@ -72,9 +113,18 @@ class ShardDataset(IterableDataset):
         self.manifest = read_manifest(self.ds) if manifest is None else manifest
         if split not in SPLITS:
             raise InputError(f"split must be one of {', '.join(SPLITS)}, not {split!r}", self.ds)
-        if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
-            raise InputError(f"window must be a positive number of frames or None, not {window!r}", self.ds)
+        window = _count(window, "window", self.ds, 1, none=True)
         names = list(self.manifest["features"]["names"])
+        if isinstance(features, str):  # one feature by name, never its letters
+            features = [features]
+        elif features is not None:
+            given = features
+            try:
+                features = list(features)
+            except TypeError:
+                features = [None]
+            if not all(isinstance(f, str) for f in features):
+                raise InputError(f"features must be a list of feature names, not {given!r}", self.ds)
         unknown = [f for f in features or () if f not in names]
         if unknown:
             raise InputError(
@@ -82,6 +132,18 @@ class ShardDataset(IterableDataset):
                 f"{', '.join(names) or 'none'})",
                 self.ds,
             )
+        if (rank is None) != (world_size is None):
+            raise InputError("rank and world_size go together: give both or neither", self.ds)
+        self._given: tuple[int, int] | None = None  # the caller's rank and world size
+        if world_size is not None:
+            world = _count(world_size, "world_size", self.ds, 1)
+            r = _count(rank, "rank", self.ds, 0)
+            if r >= world:
+                raise InputError(f"rank must be below world_size ({world}), not {rank!r}", self.ds)
+            self._given = (r, world)
+        # torch.distributed's, resolved where it is initialised (here, in __iter__, __len__ or when the
+        # dataset is pickled for a DataLoader worker) and kept for workers where it is not
+        self._ranks: tuple[int, int] | None = _distributed()
         self.split = split
         self.shards = [s["name"] for s in shards_of(self.manifest, split)]
         self.check_shards()
@@ -94,8 +156,10 @@ class ShardDataset(IterableDataset):
             self.shard_of[sample["key"]] = sample["shard"]
         self.window = window
         self.features = list(features) if features is not None else names
-        self.shuffle_buffer = shuffle_buffer
-        self.seed = seed
+        self.shuffle_buffer = _count(shuffle_buffer, "shuffle_buffer", self.ds, 0)
+        self.seed = _count(seed, "seed", self.ds, None)
+        self.shuffle_shards = self.shuffle_buffer > 1 if shuffle_shards is None else bool(shuffle_shards)
+        self.even_ranks = bool(even_ranks)
         # the epoch in shared memory: DataLoader workers (persistent ones too, forked or spawned) hold
         # copies of this object but read the one value, at the start of each pass
         self._epoch = torch.zeros(1, dtype=torch.int64).share_memory_()
@@ -105,6 +169,22 @@ class ShardDataset(IterableDataset):
         norm = self.manifest["normalization"]
         self.normalizer = Normalizer.from_json(norm["animation"])
         self.feature_normalizer = FeatureNormalizer(norm)
+
+    def rank_world(self) -> tuple[int, int]:
+        """(rank, world size) this process reads for: the ones given, else ``torch.distributed``'s here
+        (when initialised), else the ones resolved where the dataset was made or pickled, else (0, 1)."""
+        if self._given is not None:
+            return self._given
+        here = _distributed()
+        if here is not None:
+            self._ranks = here
+        return self._ranks or (0, 1)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # pickled for a spawned (or fork-server) DataLoader worker: the rank travels along, resolved in
+        # this process, where torch.distributed may be initialised (it never is in the worker)
+        self.rank_world()
+        return self.__dict__.copy()
 
     def check_shards(self) -> None:
         """Each shard to read is there with the manifest's size (a stat per shard): a shard copied from
@@ -138,29 +218,80 @@ class ShardDataset(IterableDataset):
         self.epoch = epoch
 
     def __len__(self) -> int:
-        return sum(s["samples"] for s in shards_of(self.manifest, self.split))
+        """Samples this process's rank yields in the current epoch (with its DataLoader workers
+        together): the whole split with one process."""
+        rank, world = self.rank_world()
+        return int(self._rank_share(self.epoch, rank, world)[0].size)
 
-    def _consumer(self) -> tuple[int, int]:
-        """(this reader's index, number of readers) over DDP ranks × DataLoader workers."""
-        rank, world = _rank_world()
+    def _keep(self, key: str) -> bool:
+        """Whether the sample ``key`` of the shards read is one of this dataset's (a subset: not all)."""
+        return True
+
+    def shard_order(self, epoch: int) -> list[str]:
+        """The shards in the order epoch ``epoch`` reads them: shuffled by seed and epoch (the same in
+        every rank and worker, and again when a run resumes) when ``shuffle_shards``."""
+        order = list(self.shards)
+        if self.shuffle_shards:
+            random.Random(f"{self.seed}:{epoch}:shards").shuffle(order)
+        return order
+
+    def _rank_share(self, epoch: int, rank: int, world: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """(the epoch's sample indices that ``rank`` of ``world`` reads, the first index of each shard
+        and one past the last, the shards in the epoch's order). The epoch's samples are numbered in
+        shard order, each shard's in the order it holds them (the ones ``_keep`` keeps)."""
+        order = self.shard_order(epoch)
+        counts = [sum(1 for key in self.listed.get(name, ()) if self._keep(key)) for name in order]
+        starts = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
+        index = np.arange(starts[-1], dtype=np.int64)
+        return self._divide(index, starts, rank, world, self.even_ranks), starts, order
+
+    def _divide(self, index: np.ndarray, starts: np.ndarray, k: int, n: int, even: bool) -> np.ndarray:
+        """Reader ``k``'s part of the sample indices ``index`` (ascending) among ``n`` readers: an equal
+        contiguous run (``even``: ``len(index) // n`` each, the rest dropped), else whole shards when
+        ``divide_shards`` and there are at least ``n`` shards holding some, else every ``n``-th one."""
+        if n == 1:
+            return index
+        if even:
+            q = index.size // n
+            return index[k * q : (k + 1) * q]
+        if self.divide_shards:
+            shard = np.searchsorted(starts, index, side="right") - 1
+            held = np.unique(shard)
+            if held.size >= n:
+                return index[np.isin(shard, held[k::n])]
+        return index[k::n]
+
+    def _plan(self) -> tuple[int, int, int, list[tuple[str, np.ndarray, bool]]]:
+        """(epoch, rank, worker, [(shard, positions among its kept samples to yield, whether to leave it
+        after the last of them)]): what this reader (a rank's DataLoader worker, or the rank itself)
+        reads this pass. A shard is left early only when other readers read its end: a reader of its
+        end reads all of it, so the listed keys it lacks are found."""
+        rank, world = self.rank_world()
         info = get_worker_info()
         wid, nworkers = (info.id, info.num_workers) if info is not None else (0, 1)
-        return rank * nworkers + wid, world * nworkers
+        epoch = self.epoch  # read once per pass: set_epoch of the main process, even in a worker
+        index, starts, order = self._rank_share(epoch, rank, world)
+        index = self._divide(index, starts, wid, nworkers, even=False)
+        shard = np.searchsorted(starts, index, side="right") - 1
+        plan = []
+        for i in np.unique(shard):
+            positions = index[shard == i] - starts[i]
+            plan.append((order[i], positions, bool(positions[-1] + 1 < starts[i + 1] - starts[i])))
+        return epoch, rank, wid, plan
 
-    def _assignment(self) -> tuple[list[str], int, int]:
-        consumer, consumers = self._consumer()
-        if len(self.shards) >= consumers:
-            return self.shards[consumer::consumers], 0, 1
-        return self.shards, consumer, consumers
-
-    def _samples(self) -> Iterator[tuple[str, dict[str, bytes]]]:
-        shards, offset, stride = self._assignment()
-        i = 0
-        for name in shards:
+    def _samples(self, plan: list[tuple[str, np.ndarray, bool]]) -> Iterator[tuple[str, dict[str, bytes]]]:
+        for name, positions, leave in plan:
+            wanted = set(positions.tolist())
+            last = int(positions[-1])
+            kept = 0
             for key, members in self._read(name):
-                if i % stride == offset:
+                if not self._keep(key):
+                    continue
+                if kept in wanted:
                     yield key, members
-                i += 1
+                kept += 1
+                if leave and kept > last:  # the rest is other readers'
+                    break
 
     def damaged(self, key: str, what: str) -> InputError:
         """The error for sample ``key`` whose contents are not what the manifest promises."""
@@ -267,14 +398,11 @@ class ShardDataset(IterableDataset):
         }
 
     def __iter__(self) -> Iterator[dict[str, Any]]:
-        rank, _ = _rank_world()
-        info = get_worker_info()
-        wid = info.id if info is not None else 0
-        epoch = self.epoch  # read once per pass: set_epoch of the main process, even in a worker
+        epoch, rank, wid, plan = self._plan()
         rng = random.Random(f"{self.seed}:{epoch}:{rank}:{wid}")
         buffer: list[tuple[str, dict[str, bytes]]] = []
         self.check_shards()  # again: a subclass may read other shards, and files change between epochs
-        for sample in self._samples():
+        for sample in self._samples(plan):
             if self.shuffle_buffer <= 1:
                 yield self._decode(*sample, rng)
                 continue

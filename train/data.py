@@ -129,23 +129,18 @@ class TakeSubset(ShardDataset):
     """The samples of ``keys`` (sample keys) read from the shards of ``splits``; otherwise a
     ShardDataset (``random_crop`` as given, default: crop at random)."""
 
+    # every reader scans all the shards and takes every n-th kept sample: dividing the shards instead
+    # could leave a DDP rank with few of the kept takes (with even_ranks: an equal run of them each)
+    divide_shards = False
+
     def __init__(self, ds: str | Path, splits: tuple[str, ...], keys: set[str], **kwargs: Any):
         kwargs.setdefault("random_crop", True)  # manifest=...: as ShardDataset
         super().__init__(ds, splits[0], **kwargs)
         self.shards = [sh["name"] for sh in self.manifest["shards"] if sh["split"] in splits]
         self.keys = set(keys)
 
-    def __len__(self) -> int:
-        return len(self.keys)
-
-    def _samples(self) -> Iterator[tuple[str, dict[str, bytes]]]:
-        # every reader scans all the shards and takes every n-th kept sample: dividing the shards
-        # instead could leave a DDP rank with shards that hold none of the kept takes
-        consumer, consumers = self._consumer()
-        kept = (item for name in self.shards for item in self._read(name) if item[0] in self.keys)
-        for i, (key, members) in enumerate(kept):
-            if i % consumers == consumer:
-                yield key, members
+    def _keep(self, key: str) -> bool:
+        return key in self.keys
 
 
 def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "config:val_takes"):
