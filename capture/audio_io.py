@@ -7,6 +7,7 @@ a take's audio round-trips exactly.
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,20 +33,57 @@ def full_scale(samples: np.ndarray) -> float:
     return _SCALE.get(samples.dtype.name, 1.0)
 
 
+# More channels than this in the second axis of a shorter array: (channels, samples), not (samples, channels)
+MAX_AUDIO_CHANNELS = 64
+
+
+def whole_sample_rate(rate: Any) -> int:
+    """``rate`` as a whole positive number of Hz (44100, 44100.0, a NumPy integer); an ``InputError`` for
+    a fraction (44100.7), zero or less, NaN, a bool or text: a rate is never rounded silently."""
+    if isinstance(rate, (bool, np.bool_)) or not isinstance(rate, (int, float, np.integer, np.floating)):
+        raise InputError(f"audio sample rate must be a whole positive number of Hz, not {rate!r:.40}")
+    if not (math.isfinite(rate) and rate > 0 and float(rate).is_integer()):
+        raise InputError(f"audio sample rate must be a whole positive number of Hz, not {rate!r:.40}")
+    return int(rate)
+
+
+def audio_samples(samples: Any) -> np.ndarray:
+    """``samples`` as a (samples, channels) array of numbers (a 1-D array or a list is one channel); an
+    ``InputError`` for text, bools or objects, more than two dimensions, and an array that is obviously
+    (channels, samples): more than ``MAX_AUDIO_CHANNELS`` columns and fewer rows."""
+    try:
+        x = np.asarray(samples)
+    except (ValueError, TypeError) as exc:  # a ragged list
+        raise InputError(f"audio samples are not an array of numbers ({exc})") from None
+    if x.dtype.kind not in "iuf":
+        raise InputError(f"audio samples must be numbers (integer PCM or float), not {x.dtype}")
+    if x.ndim == 1:
+        x = x[:, None]
+    if x.ndim != 2:
+        raise InputError(f"audio samples must be (samples, channels), not an array of shape {x.shape}")
+    if x.shape[1] > MAX_AUDIO_CHANNELS and x.shape[0] < x.shape[1]:
+        raise InputError(
+            f"audio samples of shape {x.shape} look like (channels, samples): give (samples, channels), "
+            "e.g. samples.T"
+        )
+    return x
+
+
 @dataclass
 class Audio:
-    """Samples (frames x channels) in their recorded format, and the rate in Hz."""
+    """Samples (frames x channels) in their recorded format, and the rate in Hz.
+
+    ``samples`` may be 1-D (one channel) or a list; it must hold numbers, and an array that is obviously
+    (channels, samples) is refused (``audio_samples``). ``sample_rate`` must be a whole number of Hz
+    (``whole_sample_rate``): each an ``InputError``."""
 
     samples: np.ndarray
     sample_rate: int
     subtype: str = "FLOAT"  # soundfile subtype used to store the samples: PCM_16, PCM_24, PCM_32, FLOAT
 
     def __post_init__(self) -> None:
-        if self.samples.ndim == 1:
-            self.samples = self.samples[:, None]
-        if self.sample_rate <= 0:
-            raise InputError(f"invalid audio sample rate {self.sample_rate}")
-        self.sample_rate = int(self.sample_rate)
+        self.samples = audio_samples(self.samples)
+        self.sample_rate = whole_sample_rate(self.sample_rate)
 
     @property
     def frames(self) -> int:

@@ -14,6 +14,7 @@ take. See docs/take-format.md for the full description.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -22,7 +23,7 @@ import tokenize
 import unicodedata
 from collections import Counter
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from enum import IntEnum
 from pathlib import Path
 from typing import Any
@@ -221,6 +222,66 @@ def check_meta_fields(data: dict[str, Any], path: Path | None = None) -> None:
         _check_object(source, _SOURCE_FIELDS, f"sources[{i}].", path)
 
 
+def _numbers(take_id: str, name: str, data: Any, dtype: Any) -> np.ndarray:
+    """``data`` as an array of ``dtype``: numbers only (integers or floats, as ``read_take`` accepts:
+    never text such as "0.5", bools or objects), and no finite value that the conversion would make
+    infinite (beyond float32's range)."""
+    try:
+        raw = np.asarray(data)
+    except (ValueError, TypeError) as exc:  # a ragged list
+        raise InputError(f"take {take_id}: {name} is not an array of numbers ({exc})") from None
+    if raw.dtype.kind not in "iuf":
+        raise InputError(f"take {take_id}: {name} is {raw.dtype}, not numbers")
+    with np.errstate(over="ignore"):
+        out = np.asarray(raw, dtype=dtype)
+    if raw.dtype.kind == "f" and raw.dtype.itemsize > out.dtype.itemsize:
+        beyond = np.isinf(out) & np.isfinite(raw)
+        if beyond.any():
+            first = float(raw[beyond].flat[0])
+            raise InputError(
+                f"take {take_id}: {name} holds {int(beyond.sum())} value(s) beyond the range of {out.dtype} "
+                f"(e.g. {first:.3g})"
+            )
+    return out
+
+
+def _status_codes(take_id: str, data: Any) -> np.ndarray:
+    """``frame_status`` as uint8 codes: an array holding only ``FrameStatus`` codes. A code such as 7,
+    -1 or 256 (that uint8 would wrap), a bool array (True is no code) and a float array holding anything
+    but whole codes (0.5, NaN: ``np.zeros(n)`` is fine) are an ``InputError``."""
+    try:
+        raw = np.asarray(data)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"take {take_id}: frame_status is not an array of codes ({exc})") from None
+    if raw.dtype.kind == "f" and raw.size:
+        whole = np.isfinite(raw) & (raw == np.round(raw))
+        if not whole.all():
+            bad = raw[~whole][:5].tolist()
+            raise InputError(f"take {take_id}: frame_status holds {bad}, not integer codes (FrameStatus)")
+    elif raw.dtype.kind not in "iu" and raw.size:
+        raise InputError(f"take {take_id}: frame_status is {raw.dtype}, not integer codes (FrameStatus)")
+    unknown = np.setdiff1d(raw, [int(s) for s in FrameStatus]) if raw.size else raw
+    if unknown.size:
+        raise InputError(
+            f"take {take_id}: frame_status holds unknown value(s) {unknown[:5].tolist()} "
+            f"(known: {', '.join(f'{int(s)} {s.name}' for s in FrameStatus)})"
+        )
+    return raw.astype(np.uint8)
+
+
+def check_take_audio(take_id: str, audio: Any) -> None:
+    """A take's audio as ``read_take`` accepts it: an ``Audio`` of at least one sample, none of them NaN
+    or infinite; else an ``InputError``."""
+    if not isinstance(audio, Audio):
+        raise InputError(f"take {take_id}: audio must be a capture.Audio, not {type(audio).__name__}")
+    if audio.frames < 1 or audio.channels < 1:
+        raise InputError(f"take {take_id}: audio holds no samples")
+    if audio.samples.dtype.kind == "f":
+        bad = int(np.count_nonzero(~np.isfinite(audio.samples)))
+        if bad:
+            raise InputError(f"take {take_id}: audio holds {bad} NaN or infinite sample(s)")
+
+
 @dataclass
 class Take:
     """One recorded (or simulated) take: frames on the take clock plus optional audio.
@@ -241,33 +302,42 @@ class Take:
     arrival_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        self.time = np.asarray(self.time, dtype=np.float64)
-        self.values = np.asarray(self.values, dtype=np.float32)  # row- or column-major, both fine
-        self.frame_status = np.asarray(self.frame_status, dtype=np.uint8)
-        n = self.time.shape[0]
+        # the checks read_take applies to a take folder, so that write_take never writes what it refuses
+        tid = self.meta.id
+        self.time = _numbers(tid, "time", self.time, np.float64)
+        self.values = _numbers(tid, "values", self.values, np.float32)  # row- or column-major, both fine
+        self.frame_status = _status_codes(tid, self.frame_status)
+        n = self.time.shape[0] if self.time.ndim else 0
         if self.time.ndim != 1 or self.values.shape != (n, len(self.meta.channels)):
             raise InputError(
-                f"take {self.meta.id}: values {self.values.shape} do not match "
+                f"take {tid}: values {self.values.shape} do not match "
                 f"{n} frames x {len(self.meta.channels)} channels"
             )
+        if not np.all(np.isfinite(self.time)):
+            raise InputError(f"take {tid}: frame times hold NaN or infinite values")
         if self.frame_status.shape != (n,):
-            raise InputError(f"take {self.meta.id}: frame_status has the wrong length")
+            raise InputError(f"take {tid}: frame_status has the wrong length")
         if n > 1 and not np.all(np.diff(self.time) > 0):
-            raise InputError(f"take {self.meta.id}: frame times are not strictly increasing")
+            raise InputError(f"take {tid}: frame times are not strictly increasing")
         if self.neutral is not None:
-            self.neutral = np.asarray(self.neutral, dtype=np.float32)
+            self.neutral = _numbers(tid, "neutral", self.neutral, np.float32)
             if self.neutral.shape != (len(self.meta.channels),):
-                raise InputError(f"take {self.meta.id}: neutral has the wrong length")
+                raise InputError(f"take {tid}: neutral has the wrong length")
         if self.arrival_s is not None:
-            self.arrival_s = np.ascontiguousarray(self.arrival_s, dtype=np.float64)
+            self.arrival_s = np.ascontiguousarray(_numbers(tid, "arrival_s", self.arrival_s, np.float64))
             if self.arrival_s.shape != (n,):
-                raise InputError(f"take {self.meta.id}: arrival_s has the wrong length")
+                raise InputError(f"take {tid}: arrival_s has the wrong length")
+        if self.audio is not None:
+            check_take_audio(tid, self.audio)
 
     def attach_audio(self, audio: Audio, start_s: float = 0.0, start_source: str = "assumed") -> None:
-        """Give the take its audio; ``start_s`` is the take time of the first sample."""
+        """Give the take its audio; ``start_s`` is the take time of the first sample. ``meta.audio``
+        names the file ``write_take`` writes it to. Audio without a sample or holding NaN or infinite
+        samples is an ``InputError`` (``check_take_audio``)."""
+        check_take_audio(self.meta.id, audio)
         self.audio = audio
         self.meta.audio = AudioInfo(
-            "", audio.sample_rate, audio.channels, audio.frames, audio.subtype, start_s, start_source
+            AUDIO_FILE, audio.sample_rate, audio.channels, audio.frames, audio.subtype, start_s, start_source
         )
 
     @property
@@ -382,9 +452,27 @@ def write_take(take: Take, out_dir: str | Path, overwrite: bool = True) -> Path:
     """Write ``take`` as ``out_dir/<id>/`` atomically; returns the folder.
 
     The folder is assembled under a hidden temporary name in ``out_dir`` and renamed into place.
-    Metadata holding NaN or infinity (not JSON), fields or a frame rate ``read_meta`` would refuse and
-    folders that cannot be written are ``InputError``s.
+    Metadata holding NaN or infinity (not JSON), fields or a frame rate ``read_meta`` would refuse, arrays
+    or audio ``read_take`` would refuse (the checks of ``Take``'s construction, applied again) and
+    folders that cannot be written are ``InputError``s. So is a take whose ``meta.audio`` names audio it
+    does not hold (read with ``read_take(..., audio=False)``): writing it would replace the folder by one
+    without its audio. ``take`` itself is never modified (the audio record written is a copy's).
     """
+    if take.audio is None and take.meta.audio is not None:
+        raise InputError(
+            f"take {take.meta.id}: its metadata names audio ({take.meta.audio.file or 'attached'}) that the "
+            "take does not hold (was it read without its audio, read_take(..., audio=False)?): read it "
+            "with audio to write it, or set meta.audio = None to write it without audio",
+            Path(out_dir) / safe_id(take.meta.id),
+        )
+    # the checks of construction again (arrays may have been replaced since), on a copy: the metadata
+    # written (its audio record) is the copy's, and the caller's take is never modified
+    try:
+        take = replace(take, meta=copy.deepcopy(take.meta))
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(str(exc), Path(out_dir) / safe_id(take.meta.id)) from None
     out_dir = make_out_dir(out_dir)
     target = out_dir / safe_id(take.meta.id)
     if not 0 < take.meta.fps <= MAX_FPS:  # also NaN: never write a take that cannot be read back

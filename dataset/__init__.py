@@ -9,7 +9,7 @@ from capture.command import imports_done
 from .build import BuildOptions, build_dataset, collect_takes, plan_shards, take_sha256
 from .features import DEFAULT_FEATURES, FEATURES, FeatureSettings, compute_features, parse_features
 from .manifest import MANIFEST_FILE, read_manifest, write_manifest
-from .normalize import ChannelAccumulator, Normalizer, fit_normalizer
+from .normalize import ChannelAccumulator, FeatureNormalizer, Normalizer, fit_normalizer
 from .pitch import PitchSettings, track_pitch
 from .ppg import BACKENDS, PPGResult, make_extractor
 from .qa import CHECKS, VALIDATORS, Problem, Report, validate
@@ -26,6 +26,7 @@ __all__ = [
     "ChannelAccumulator",
     "DEFAULT_FEATURES",
     "FEATURES",
+    "FeatureNormalizer",
     "FeatureSettings",
     "MANIFEST_FILE",
     "Normalizer",

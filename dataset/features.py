@@ -14,7 +14,9 @@ that target: the microphone's gain is arbitrary, the face does not depend on it.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.fft
@@ -35,7 +37,11 @@ MAX_LEVEL_GAIN_DB = 60.0  # a take at -86 dBFS active level is raised no further
 
 @dataclass(frozen=True)
 class FeatureSettings:
-    """Analysis setting shared by all features: rates in Hz, window and hop in seconds."""
+    """Analysis setting shared by all features: rates in Hz, window and hop in seconds.
+
+    The defaults are not those of a build, which normalises the speech level
+    (``FeatureSettings(level=DEFAULT_LEVEL)``): the settings a dataset was built with are
+    ``FeatureSettings.from_manifest(manifest)``."""
 
     sample_rate: int = 16000
     window_s: float = 0.040
@@ -66,6 +72,94 @@ class FeatureSettings:
 
     def to_json(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: Any) -> FeatureSettings:
+        """The settings ``to_json`` wrote (a manifest's ``features.settings``), nested ``pitch`` included,
+        each field checked; a field left out takes its default (``level``: ``"none"``, as datasets built
+        before speech-level normalisation recorded none). An unknown field or a value of the wrong type
+        or range is an ``InputError`` naming it."""
+        if not isinstance(data, dict):
+            raise InputError(f"feature settings must be a JSON object, not {data!r:.60}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(k for k in data if k not in known)
+        if unknown:
+            raise InputError(f"feature settings hold unknown field(s) {', '.join(map(str, unknown))}")
+        kwargs = dict(data)
+        for name, test, what in _SETTINGS_FIELDS:
+            if name in kwargs and not test(kwargs[name]):
+                raise InputError(f"feature settings: {name} must be {what}, not {kwargs[name]!r:.60}")
+        if "pitch" in kwargs:
+            pitch = kwargs["pitch"]
+            if not isinstance(pitch, dict):
+                raise InputError(f"feature settings: pitch must be a JSON object, not {pitch!r:.60}")
+            pitch_known = {f.name for f in fields(PitchSettings)}
+            unknown = sorted(k for k in pitch if k not in pitch_known)
+            if unknown:
+                raise InputError(f"feature settings: pitch holds unknown field(s) {', '.join(unknown)}")
+            for name, test, what in _PITCH_FIELDS:
+                if name in pitch and not test(pitch[name]):
+                    value = pitch[name]
+                    raise InputError(f"feature settings: pitch.{name} must be {what}, not {value!r:.60}")
+            kwargs["pitch"] = PitchSettings(**pitch)
+        try:
+            settings = cls(**kwargs)
+        except ValueError as exc:  # a level that is no "none" or "speech <dB> dBFS"
+            raise InputError(f"feature settings: {exc}") from None
+        if not settings.fmin_hz < settings.fmax_hz <= settings.sample_rate / 2:
+            raise InputError(
+                f"feature settings: fmin_hz {settings.fmin_hz:g} and fmax_hz {settings.fmax_hz:g} must be "
+                f"0 <= fmin_hz < fmax_hz <= half the sample rate ({settings.sample_rate / 2:g} Hz)"
+            )
+        if not settings.pitch.floor_hz < settings.pitch.ceiling_hz:
+            raise InputError("feature settings: pitch.floor_hz must be below pitch.ceiling_hz")
+        return settings
+
+    @classmethod
+    def from_manifest(cls, manifest: Any) -> FeatureSettings:
+        """The settings a dataset's features were computed with: from its manifest (a dict as
+        ``dataset.read_manifest`` returns it, or the dataset folder or its ``manifest.json``), or from the
+        copy of it a training checkpoint keeps (``payload["dataset"]``, or its ``features`` entry).
+        Use these, not ``FeatureSettings()``, to compute features a run or a dataset's statistics fit:
+        the defaults are not a build's (a build normalises the speech level, ``DEFAULT_LEVEL``).
+        Settings that are missing or malformed are an ``InputError`` (``from_json``)."""
+        if isinstance(manifest, (str, Path)):
+            from .manifest import read_manifest  # the manifest module imports this one
+
+            manifest = read_manifest(manifest)
+        if not isinstance(manifest, dict):
+            raise InputError(f"not a dataset manifest (a JSON object), but {type(manifest).__name__}")
+        features = manifest.get("features", manifest)  # a manifest, or its features entry
+        if not isinstance(features, dict) or not isinstance(features.get("settings"), dict):
+            raise InputError("the manifest records no feature settings (features.settings)")
+        return cls.from_json(features["settings"])
+
+
+def _count(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v > 0
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+# What each field of FeatureSettings.from_json must hold: (field, test, what the test asks for).
+_SETTINGS_FIELDS = (
+    ("sample_rate", _count, "a positive whole number of Hz"),
+    ("window_s", lambda v: _number(v) and v > 0, "a positive number of seconds"),
+    ("hop_s", lambda v: _number(v) and v > 0, "a positive number of seconds"),
+    ("n_fft", _count, "a positive whole number"),
+    ("n_mels", _count, "a positive whole number"),
+    ("n_mfcc", _count, "a positive whole number"),
+    ("fmin_hz", lambda v: _number(v) and v >= 0, "a number of Hz, at least 0"),
+    ("fmax_hz", lambda v: _number(v) and v > 0, "a positive number of Hz"),
+    ("level", lambda v: isinstance(v, str), "text ('none' or 'speech <dB> dBFS')"),
+)
+_PITCH_FIELDS = (
+    ("floor_hz", lambda v: _number(v) and v > 0, "a positive number of Hz"),
+    ("ceiling_hz", lambda v: _number(v) and v > 0, "a positive number of Hz"),
+    ("method", lambda v: isinstance(v, str), "text"),
+)
 
 
 def parse_features(spec: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
@@ -244,6 +338,47 @@ def to_animation_rate(values: np.ndarray, hop_s: float, n_frames: int, fps: floa
     return (values[lo] * (1 - w)[:, None] + values[hi] * w[:, None]).astype(np.float32)
 
 
+# compute_features refuses audio whose length at the settings' rate is further than this fraction (or two
+# animation frames) from the animation's span: audio at another rate (44.1 kHz is 2.76 times as long)
+LENGTH_TOLERANCE = 0.2
+
+
+def check_feature_audio(
+    audio: Any, n_frames: int, fps: float, settings: FeatureSettings, sample_rate: int | None = None
+) -> np.ndarray:
+    """``audio`` as the 1-D float samples ``compute_features`` needs, or an ``InputError`` saying what
+    is wrong with it (see ``compute_features``)."""
+    rate = settings.sample_rate
+    if sample_rate is not None and sample_rate != rate:
+        raise InputError(
+            f"audio at {sample_rate} Hz, but the feature settings are for {rate} Hz: resample it first "
+            f"(align.resample.to_16k_mono)"
+        )
+    x = np.asarray(audio)
+    if x.ndim == 2 and x.shape[1] == 1:
+        x = x[:, 0]
+    if x.ndim != 1:
+        raise InputError(f"audio must be mono samples (1-D), not an array of shape {x.shape}: mix it down")
+    if x.dtype.kind != "f":
+        raise InputError(
+            f"audio must be float samples (full scale 1.0), not {x.dtype} (PCM: divide by its full scale, "
+            "32768 for int16)"
+        )
+    bad = int(np.count_nonzero(~np.isfinite(x)))
+    if bad:
+        raise InputError(f"audio holds {bad} NaN or infinite sample(s): features would be NaN")
+    if n_frames > 0 and fps > 0:
+        span = n_frames / fps
+        held = x.size / rate
+        if abs(held - span) > max(LENGTH_TOLERANCE * span, 2.0 / fps):
+            raise InputError(
+                f"audio holds {held:.3f} s at the settings' {rate} Hz, but {n_frames} frames at {fps:g} fps "
+                f"span {span:.3f} s: audio at another sample rate (resample it to {rate} Hz), or frames "
+                "that are not this audio's?"
+            )
+    return x
+
+
 def compute_features(
     audio: np.ndarray,
     n_frames: int,
@@ -253,6 +388,7 @@ def compute_features(
     ppg=None,
     transcript: str | None = None,
     gain: float | None = None,
+    sample_rate: int | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """Every requested feature for one take, at the animation rate.
 
@@ -262,7 +398,14 @@ def compute_features(
     backend knows phones, else None. ``transcript`` (the words spoken) lets a PPG backend that can
     (pocketsphinx) force-align instead of recognising phones. With a speech level in the settings the
     audio is scaled by ``level_gain`` first (``gain``, when the caller has measured it already).
+
+    The audio must be what the settings describe (``check_feature_audio``): an ``InputError`` for
+    ``sample_rate`` (the audio's rate, when the caller knows it) other than ``settings.sample_rate``,
+    audio whose length at ``settings.sample_rate`` is far from ``n_frames / fps`` seconds (audio at
+    another rate: resample it, as ``align.resample.to_16k_mono`` does), audio that is not mono float
+    samples, and NaN or infinite samples.
     """
+    audio = check_feature_audio(audio, n_frames, fps, settings, sample_rate)
     gain = level_gain(audio, settings) if gain is None else gain
     if gain != 1.0:
         audio = np.asarray(audio, np.float32) * np.float32(gain)  # float32 already: one copy

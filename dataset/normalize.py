@@ -22,6 +22,7 @@ log-F0 is z-scored per speaker over voiced frames.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -217,8 +218,26 @@ class Normalizer:
         """Normalised values (frames, channels); float64 by default so that ``inverse`` is exact."""
         return ((np.asarray(x, np.float64) - self._offset(neutral)) / self.scale).astype(dtype)
 
-    def inverse(self, y: np.ndarray, neutral: np.ndarray | None = None) -> np.ndarray:
-        """Values in the take's own units (0..1 blendshape weights), float32."""
+    def inverse(self, y: Any, neutral: Any = None) -> Any:
+        """Values in the take's own units (0..1 blendshape weights): float32 NumPy for an array, and for
+        a torch tensor a tensor of its dtype on its device (float32 for an integer one), differentiable
+        (a loss in the take's units can back-propagate through it). ``neutral`` may be a tensor too."""
+        torch = sys.modules.get("torch")  # never imported here: this package does not need torch
+        if torch is not None and isinstance(y, torch.Tensor):
+            dtype = y.dtype if y.is_floating_point() else torch.float32
+            # float32 arithmetic for float32 and narrower (MPS has no float64); the scales are powers of 2
+            work = torch.float64 if dtype == torch.float64 else torch.float32
+            scale = torch.as_tensor(self.scale, dtype=work, device=y.device)
+            if self.kind == "neutral" and neutral is not None:
+                if isinstance(neutral, torch.Tensor):
+                    offset = neutral.to(device=y.device, dtype=torch.float32).to(work)
+                else:
+                    offset = torch.as_tensor(np.asarray(neutral, np.float32), device=y.device).to(work)
+            else:
+                offset = torch.as_tensor(self.offset, dtype=work, device=y.device)
+            return (y.to(work) * scale + offset).to(dtype)
+        if torch is not None and isinstance(neutral, torch.Tensor):
+            neutral = neutral.detach().cpu().numpy()
         return (np.asarray(y, np.float64) * self.scale + self._offset(neutral)).astype(np.float32)
 
     def to_json(self) -> dict[str, Any]:

@@ -8,14 +8,14 @@ from capture.command import imports_done
 from .checkpoint import load_checkpoint, load_system
 from .compare import compare
 from .config import DEFAULTS, MODELS, resolve_config
-from .data import InputSpec, resolve_inputs
+from .data import InputSpec, normalize_features, resolve_inputs
 from .evaluate import ErrorTally, evaluate
 from .export import export_onnx
 from .fit import fit
 from .model import BLSTM, NVP, BLSTMConfig, NVPConfig, S2AConfig, TransformerS2A, masked_mse
 from .moe import MoELayer
 from .ppg_train import train_ppg
-from .predict import animate, predict
+from .predict import animate, model_audio, predict
 from .ridge import Ridge
 from .systems import build_model
 
@@ -43,6 +43,8 @@ __all__ = [
     "load_checkpoint",
     "load_system",
     "masked_mse",
+    "model_audio",
+    "normalize_features",
     "predict",
     "resolve_config",
     "resolve_inputs",

@@ -10,6 +10,7 @@ form instead.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -46,7 +47,7 @@ from .checkpoint import (
     write_error,
     write_json,
 )
-from .config import DEFAULTS, check_config
+from .config import DEFAULTS, RUN_RECORD_KEYS, check_config
 from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
 from .ensemble import check_ensemble_run, fit_ensemble, refuse_beside_ensemble
 from .model import masked_mse
@@ -309,6 +310,29 @@ def _check_before_writing(
     return spec, model_config
 
 
+def complete_config(cfg: Any) -> dict[str, Any]:
+    """``cfg`` with the keys it leaves out taken from ``DEFAULTS`` (``{"model": "s2a", "max_steps": 1}``
+    from code), checked as ``resolve_config`` checks a config; a complete config is returned as it is.
+    Not a dict, or an unknown key, is an ``InputError``."""
+    if not isinstance(cfg, dict):
+        raise InputError(
+            f"the config must be a dict of config keys (train.resolve_config() makes one), not "
+            f"{type(cfg).__name__}"
+        )
+    if all(k in cfg for k in DEFAULTS):
+        return cfg
+    unknown = sorted(str(k) for k in cfg if k not in DEFAULTS and k not in RUN_RECORD_KEYS)
+    if unknown:
+        raise InputError(
+            f"unknown config key(s) {', '.join(unknown)} (known: {', '.join(sorted(DEFAULTS))}; "
+            "train.resolve_config() makes a complete config)"
+        )
+    full = copy.deepcopy(DEFAULTS)
+    full.update({k: copy.deepcopy(v) for k, v in cfg.items() if k in DEFAULTS})
+    check_config(full)
+    return full
+
+
 def fit(
     ds: str | Path,
     run: str | Path,
@@ -330,6 +354,7 @@ def fit(
 
     Under torchrun the process group is created here and destroyed on the way out: a process that
     exits with gloo's worker threads still alive is aborted by the C++ runtime."""
+    cfg = complete_config(cfg)
     owns_group = int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized()
     ds, run = dataset_folder(ds), Path(run)  # the folder, or its manifest as validate and stats accept it
     if run.exists() and not run.is_dir():

@@ -13,6 +13,7 @@ reads it.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,7 @@ import torch
 from align.resample import TARGET_RATE, to_16k_mono
 from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, read_take, write_livelink_csv
 from capture.atomic import atomic_write
-from capture.audio_io import SILENT_PEAK
+from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
 from capture.command import progress
 from capture.errors import InputError
@@ -31,7 +32,6 @@ from capture.take import make_out_dir, sha256_file
 from dataset.build import NARROWBAND_HZ, is_narrowband
 from dataset.features import FeatureSettings, compute_features, gain_for_level, speech_level
 from dataset.normalize import Normalizer
-from dataset.pitch import PitchSettings
 from dataset.ppg import make_extractor
 
 from .checkpoint import NOT_FINITE, load_system, training_note
@@ -45,21 +45,120 @@ BLENDSHAPES_LOWER = {c.lower() for c in ARKIT52}  # weights in 0..1 (the other 9
 
 
 def feature_settings(features: dict[str, Any]) -> FeatureSettings:
-    try:
-        s = dict(features["settings"])
-        settings = FeatureSettings(**{**s, "pitch": PitchSettings(**s["pitch"])})
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"checkpoint has malformed dataset feature settings ({exc})") from None
-    if settings.sample_rate != TARGET_RATE:
+    """The feature settings a checkpoint's dataset recorded (``FeatureSettings.from_manifest``), which
+    predict needs at ``TARGET_RATE``."""
+    rate = (features.get("settings") or {}).get("sample_rate") if isinstance(features, dict) else None
+    if isinstance(rate, (int, float)) and rate != TARGET_RATE:  # said first: what the other fields follow
         raise InputError(
-            f"checkpoint's features were computed at {settings.sample_rate} Hz; datasets and predict use "
+            f"checkpoint's features were computed at {rate:g} Hz; datasets and predict use "
             f"{TARGET_RATE} Hz (a malformed checkpoint?)"
         )
-    return settings
+    try:
+        return FeatureSettings.from_manifest(features)
+    except InputError as exc:
+        raise InputError(f"checkpoint has malformed dataset feature settings ({exc})") from None
+
+
+# PCM sample formats an array may hold, with the subtype ``capture.Audio`` keeps them as (full scale:
+# ``capture.audio_io.full_scale``)
+_PCM = {"int16": "PCM_16", "int32": "PCM_32"}
+
+
+def model_audio(audio: Any, sample_rate: int | None = None, where: str | Path | None = None) -> np.ndarray:
+    """``audio`` as the model hears it: 16 kHz mono float32 without DC offset or rumble, made as
+    ``predict`` makes it of a file (``align.resample.to_16k_mono``: channels mixed, resampled).
+
+    ``audio``: a ``capture.Audio`` (its own rate), or samples (a NumPy array, a torch tensor or a list)
+    at ``sample_rate`` Hz (None: ``TARGET_RATE``), (samples,) or (samples, channels); float samples
+    have full scale 1.0, int16 and int32 are PCM (scaled by 32768 and 2^31). Samples of another type,
+    NaN or infinite samples, no samples, an array that is (channels, samples) or a rate that is not a
+    whole number are an ``InputError`` naming ``where``."""
+    if isinstance(audio, Audio):
+        if sample_rate is not None and whole_sample_rate(sample_rate) != audio.sample_rate:
+            raise InputError(
+                f"sample_rate {sample_rate} differs from the audio's own {audio.sample_rate} Hz", where
+            )
+        raw = audio
+    else:
+        x = _samples_array(audio, where)
+        rate = TARGET_RATE if sample_rate is None else sample_rate
+        try:
+            if x.dtype.kind == "f":
+                raw = Audio(x.astype(np.float32, copy=False), rate, "FLOAT")
+            elif x.dtype.name in _PCM:
+                raw = Audio(x, rate, _PCM[x.dtype.name])
+            else:
+                raise InputError(
+                    f"audio samples are {x.dtype}: give float samples (full scale 1.0) or int16/int32 PCM"
+                )
+        except InputError as exc:
+            raise InputError(str(exc), where) from None
+    if raw.frames == 0:
+        raise InputError("audio holds no samples", where)
+    if raw.samples.dtype.kind == "f":
+        bad = int(np.count_nonzero(~np.isfinite(raw.samples)))
+        if bad:
+            raise InputError(
+                f"audio holds {bad} NaN or infinite sample(s) (the input, not the model): repair them "
+                "(s2a-capture import sets them to 0) or cut them out",
+                where,
+            )
+    return to_16k_mono(raw, None if where is None else str(where))
+
+
+def _samples_array(audio: Any, where: str | Path | None) -> np.ndarray:
+    """Samples given as a NumPy array, a torch tensor or a (nested) list, as a NumPy array."""
+    if isinstance(audio, torch.Tensor):
+        t = audio.detach().to("cpu")
+        if t.is_floating_point() and t.dtype not in (torch.float32, torch.float64):
+            t = t.float()  # bfloat16 and float16 have no NumPy type of their own
+        return t.numpy()
+    if isinstance(audio, (np.ndarray, list, tuple)):
+        try:
+            x = np.asarray(audio)
+        except ValueError as exc:  # a ragged list
+            raise InputError(f"audio samples are not an array of numbers ({exc})", where) from None
+        if x.dtype.kind not in "iuf":
+            raise InputError(f"audio samples must be numbers, not {x.dtype}", where)
+        if isinstance(audio, (list, tuple)) and x.dtype.kind in "iu":
+            x = x.astype(np.float32)  # a list of numbers is float samples, never PCM by accident
+        return x
+    raise InputError(
+        f"audio must be samples (a NumPy array, a torch tensor or a list) or a capture.Audio, not "
+        f"{type(audio).__name__} (an audio file: read it with capture.read_audio, or use predict)",
+        where,
+    )
+
+
+def animate(
+    model,
+    payload: dict[str, Any],
+    audio: Any,
+    ppg=None,
+    speaker: str | None = None,
+    where: str | Path | None = None,
+    style: str | None = None,
+    neutral: np.ndarray | None = None,
+    level: float | None = None,
+    sample_rate: int | None = None,
+) -> np.ndarray:
+    """(frames, channels) float32 blendshape weights at the dataset's fps for ``audio`` (named ``where``
+    in error messages): a ``capture.Audio``, or samples at ``sample_rate`` Hz (None: 16 kHz) as a NumPy
+    array, torch tensor or list, mono or (samples, channels), float (full scale 1.0) or int16/int32 PCM.
+    The audio is made what the model hears as ``predict`` makes it of a file (``model_audio``: channels
+    mixed, resampled to 16 kHz, DC offset and rumble removed); NaN or infinite samples are an
+    ``InputError``. Pitch is normalised with ``speaker``'s statistics, and a run with speaker styles
+    animates in ``style`` (default: ``speaker``'s style if the run has it, else the mean style). A run
+    normalised to each take's neutral pose is de-normalised on ``neutral`` (the run's channels), else on
+    the training split's offset. ``level``: the active speech level (``speech_level``) of the 16 kHz
+    audio when the caller has measured it (None: measured here). The model runs in eval mode (dropout
+    off); the mode it was in is restored afterwards."""
+    prepared = model_audio(audio, sample_rate, where)
+    return animate_16k(model, payload, prepared, ppg, speaker, where, style, neutral, level)
 
 
 @torch.no_grad()
-def animate(
+def animate_16k(
     model,
     payload: dict[str, Any],
     audio: np.ndarray,
@@ -70,12 +169,7 @@ def animate(
     neutral: np.ndarray | None = None,
     level: float | None = None,
 ) -> np.ndarray:
-    """(frames, channels) float32 blendshape weights at the dataset's fps for 16 kHz mono ``audio``
-    (read from ``where``, for error messages); pitch normalised with ``speaker``'s statistics, and a
-    run with speaker styles animates in ``style`` (default: ``speaker``'s style if the run has it, else
-    the mean style). A run normalised to each take's neutral pose is de-normalised on ``neutral`` (the
-    run's channels), else on the training split's offset. ``level``: the audio's active speech level
-    (``speech_level``) when the caller has measured it (None: measured here)."""
+    """``animate`` for audio made what the model hears already (``model_audio``: 16 kHz mono float32)."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
@@ -90,13 +184,22 @@ def animate(
     if limit is not None:
         window = min(window, limit)
     gain = None if level is None else gain_for_level(level, settings)
-    feats, _ = compute_features(audio, n, fps, tuple(spec.features), settings, ppg=ppg, gain=gain)
+    feats, _ = compute_features(
+        audio, n, fps, tuple(spec.features), settings, ppg=ppg, gain=gain, sample_rate=settings.sample_rate
+    )
     feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
     item: dict[str, Any] = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
     item["speaker"] = speaker or MEAN
     content, prosody = to_model_inputs(item, spec, style)
     mask = torch.ones(1, n, dtype=torch.bool)
-    y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
+    training = getattr(model, "training", False)
+    if training:
+        model.eval()  # dropout off: the same audio always animates alike
+    try:
+        y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
+    finally:
+        if training:
+            model.train()
     if not np.all(np.isfinite(y)):
         raise InputError(NOT_FINITE, where)
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y, neutral)
@@ -128,7 +231,7 @@ def read_neutral(path: str | Path, channels: list[str]) -> np.ndarray:
 
 def predict(
     run: str | Path,
-    audios: list[str | Path],
+    audios: str | Path | list[str | Path],
     out: str | Path,
     ppg_model: str | Path | None = None,
     speaker: str | None = None,
@@ -141,7 +244,11 @@ def predict(
     folder receiving ``<audio stem>.csv``. Returns one summary per file; of several files, one that
     fails gets ``{"audio", "error"}`` and the others are still written (a single file's failure is
     raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``; ``neutral``:
-    the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral."""
+    the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral.
+    ``audios``: a list of audio files, or one file (a ``str`` or ``Path``)."""
+    if isinstance(audios, (str, os.PathLike)):
+        audios = [audios]  # one file, never the characters of its name
+    audios = list(audios)
     model, payload = load_system(run)
     note = training_note(run, payload)
     if note is not None:
@@ -254,7 +361,7 @@ def _predict_one(
     narrow = is_narrowband(audio, TARGET_RATE)
     peak = float(np.max(np.abs(audio), initial=0.0))
     level = speech_level(audio, TARGET_RATE)
-    values = animate(model, payload, audio, ppg, speaker, where=a, style=style, neutral=neutral, level=level)
+    values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
     clipped = int(np.count_nonzero((outside < 0) | (outside > 1)))
