@@ -18,6 +18,7 @@ import soundfile as sf
 
 from .atomic import atomic_write
 from .errors import InputError
+from .numbers import number_array
 
 _NATIVE = {"PCM_16": "int16", "PCM_24": "int32", "PCM_32": "int32", "FLOAT": "float32"}
 _SCALE = {"int16": 32768.0, "int32": 2147483648.0}
@@ -51,12 +52,7 @@ def audio_samples(samples: Any) -> np.ndarray:
     """``samples`` as a (samples, channels) array of numbers (a 1-D array or a list is one channel); an
     ``InputError`` for text, bools or objects, more than two dimensions, and an array that is obviously
     (channels, samples): more than ``MAX_AUDIO_CHANNELS`` columns and fewer rows."""
-    try:
-        x = np.asarray(samples)
-    except (ValueError, TypeError) as exc:  # a ragged list
-        raise InputError(f"audio samples are not an array of numbers ({exc})") from None
-    if x.dtype.kind not in "iuf":
-        raise InputError(f"audio samples must be numbers (integer PCM or float), not {x.dtype}")
+    x = number_array(samples, "audio samples")
     if x.ndim == 1:
         x = x[:, None]
     if x.ndim != 2:

@@ -34,6 +34,7 @@ from .atomic import folder_in_place, write_json_atomic
 from .audio_io import Audio, read_audio, write_audio
 from .errors import InputError
 from .npz import NPZ_ERRORS, npz_array, npz_headers
+from .numbers import number_array
 from .transfer_litter import litter_kind
 
 FORMAT = "s2a-take"
@@ -226,12 +227,7 @@ def _numbers(take_id: str, name: str, data: Any, dtype: Any) -> np.ndarray:
     """``data`` as an array of ``dtype``: numbers only (integers or floats, as ``read_take`` accepts:
     never text such as "0.5", bools or objects), and no finite value that the conversion would make
     infinite (beyond float32's range)."""
-    try:
-        raw = np.asarray(data)
-    except (ValueError, TypeError) as exc:  # a ragged list
-        raise InputError(f"take {take_id}: {name} is not an array of numbers ({exc})") from None
-    if raw.dtype.kind not in "iuf":
-        raise InputError(f"take {take_id}: {name} is {raw.dtype}, not numbers")
+    raw = number_array(data, f"take {take_id}: {name}")
     with np.errstate(over="ignore"):
         out = np.asarray(raw, dtype=dtype)
     if raw.dtype.kind == "f" and raw.dtype.itemsize > out.dtype.itemsize:

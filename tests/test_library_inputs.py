@@ -80,9 +80,9 @@ def test_values_that_are_no_float32_numbers_are_refused():
     t = np.arange(3) / 60
     with pytest.raises(InputError, match="beyond the range of float32"):
         Take(_meta(), t, np.full((3, 1), 1e39), np.zeros(3, np.uint8))
-    with pytest.raises(InputError, match="not numbers"):
+    with pytest.raises(InputError, match="must be numbers"):
         Take(_meta(), t, np.array([["0.5"], ["0.1"], ["0"]]), np.zeros(3, np.uint8))
-    with pytest.raises(InputError, match="not numbers"):
+    with pytest.raises(InputError, match="must be numbers"):
         Take(_meta(), np.array(["0", "1", "2"]), np.zeros((3, 1)), np.zeros(3, np.uint8))
     with pytest.raises(InputError, match="NaN or infinite"):
         Take(_meta(), np.array([np.nan]), np.zeros((1, 1)), np.zeros(1, np.uint8))
