@@ -1198,12 +1198,7 @@ def _input_fingerprint(inputs: list[str | Path], options: BuildOptions) -> str:
 def damaged_shards(out: Path, manifest: dict[str, Any]) -> list[str]:
     """Names of the manifest's shards that are missing or whose size or sha256 differ from it (one
     read of every shard: a flipped byte keeps the size)."""
-    damaged = []
-    for s in manifest["shards"]:
-        path = out / s["name"]
-        if not path.is_file() or path.stat().st_size != s["bytes"] or _file_sha256(path) != s["sha256"]:
-            damaged.append(s["name"])
-    return damaged
+    return [s["name"] for s in manifest["shards"] if not _holds(out / s["name"], s)]
 
 
 def build_dataset(
@@ -1449,11 +1444,18 @@ def _swap_in(out: Path, work: Path, staged: list[str], manifest: dict[str, Any])
     _fsync_dir(out)
     with naming_failures(manifest_path(out)):
         write_manifest(out, manifest)
+    _remove_unlisted_shards(out, manifest)
+
+
+def _remove_unlisted_shards(out: Path, manifest: dict[str, Any]) -> None:
+    """Remove the shards in ``out`` that ``manifest`` does not list: of an earlier, larger build into
+    this folder (after a swap, or when a kill came between a swap's manifest and this)."""
     planned = {s["name"] for s in manifest["shards"]}
-    for p in out.iterdir():
-        if SHARD_NAME.match(p.name) and p.name not in planned:
-            p.unlink()  # left over from an earlier, larger build into this folder
-    _fsync_dir(out)
+    unlisted = [p for p in out.iterdir() if SHARD_NAME.match(p.name) and p.name not in planned]
+    for p in unlisted:
+        p.unlink()
+    if unlisted:
+        _fsync_dir(out)
 
 
 @contextmanager
@@ -1474,8 +1476,8 @@ def _stops_deferred() -> Iterator[None]:
         for sig, handler in previous.items():
             if handler is not None and handler != signal.SIG_IGN:
                 signal.signal(sig, handler)
-        for sig in dict.fromkeys(caught):
-            signal.raise_signal(sig)
+    for sig in dict.fromkeys(caught):  # only after a swap that succeeded: its own error says more
+        signal.raise_signal(sig)
 
 
 def _split_stats(
@@ -1558,6 +1560,7 @@ def _build(
 
     def up_to_date() -> dict[str, Any]:
         say("dataset is up to date")
+        _remove_unlisted_shards(out, old)  # a swap killed after its manifest was written ends here
         if not options.keep_work:  # a cache left by a rebuild that failed or was stopped: of no use now
             shutil.rmtree(work, ignore_errors=True)
         return _summary(out, old, up_to_date=True)
@@ -1653,6 +1656,7 @@ def _build(
             if not options.keep_work:
                 shutil.rmtree(work, ignore_errors=True)
             return _summary(out, old, up_to_date=False) | {"repaired": sorted(damaged or [])}
+        state.phase = "reading"  # not repairable in place: a full rebuild, as for changed inputs
     if old is not None:
         # what the old manifest said of the splits outlives it (a rebuild stopped while swapping the
         # new dataset in still reports moved takes when rerun)

@@ -187,6 +187,36 @@ def test_a_build_killed_in_the_swap_is_finished_by_the_next(built, tmp_path, mon
     assert validate(ds, deep=True).valid
 
 
+def test_a_build_killed_after_the_swaps_manifest_is_finished_by_the_next(built, monkeypatch):
+    """A kill after the new manifest was written but before the shards it no longer lists were removed
+    (a rebuild into fewer shards): the rerun found the dataset up to date and left them (shard_unlisted)."""
+    aligned, ds = built
+    before = sorted(p.name for p in ds.glob("*.tar"))
+    bigger = {"shard_bytes": 64 * 1024 * 1024}  # one shard per split now
+    with monkeypatch.context() as m:
+        m.setattr(build_module, "_remove_unlisted_shards", lambda *a: (_ for _ in ()).throw(_Killed()))
+        with pytest.raises(_Killed):
+            build_dataset([aligned], ds, _opts(**bigger))
+    assert sorted(p.name for p in ds.glob("*.tar")) == before  # the larger build's shards are still there
+    summary = build_dataset([aligned], ds, _opts(**bigger))
+    assert summary["up_to_date"]
+    assert len(list(ds.glob("*.tar"))) == len(read_manifest(ds)["shards"]) < len(before)
+    assert validate(ds, deep=True).valid and not validate(ds).problems
+
+
+def test_a_stop_during_a_swap_that_fails_leaves_the_swaps_own_error():
+    """SIGTERM held back during a swap that then failed (a full disk writing the manifest) replaced the
+    swap's error with 'terminated'."""
+    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        with pytest.raises(InputError, match="cannot be written"):
+            with build_module._stops_deferred():
+                signal.raise_signal(signal.SIGTERM)  # held back
+                raise InputError("cannot be written: No space left on device")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def test_rebuild_leaves_unchanged_shards_where_they_are(built):
     """Another normalisation changes the manifest, not a byte of the shards (they keep raw values): no
     shard is rewritten (each keeps its inode), though the manifest is new."""
