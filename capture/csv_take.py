@@ -57,8 +57,9 @@ import numpy as np
 from . import channels as ch
 from .atomic import atomic_write
 from .errors import InputError
+from .numbers import is_finite_number
 from .runs import run_bounds
-from .take import FrameStatus, SourceFile, Take, TakeMeta, is_finite_number, safe_id, source_file
+from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
 from .timecode import (
     CSV_TIMECODE_RATE,
     Timecode,

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -25,3 +26,13 @@ def number_array(data: Any, what: str) -> np.ndarray:
     if x.dtype.kind not in "iuf":
         raise InputError(f"{what} must be numbers (integers or floats), not {x.dtype}")
     return x
+
+
+def is_finite_number(v: Any) -> bool:
+    """Whether ``v`` is a finite JSON number (an int or float, never a bool; a huge int counts as not)."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # a whole number beyond float range (JSON allows 1000 digits)
+        return False

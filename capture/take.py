@@ -17,7 +17,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import math
 import os
 import tokenize
 import unicodedata
@@ -34,7 +33,7 @@ from .atomic import folder_in_place, write_json_atomic
 from .audio_io import Audio, read_audio, write_audio
 from .errors import InputError
 from .npz import NPZ_ERRORS, npz_array, npz_headers
-from .numbers import number_array
+from .numbers import is_finite_number, number_array
 from .transfer_litter import litter_kind
 
 FORMAT = "s2a-take"
@@ -133,16 +132,6 @@ class TakeMeta:
 
 def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
-
-
-def is_finite_number(v: Any) -> bool:
-    """Whether ``v`` is a finite JSON number (an int or float, never a bool; a huge int counts as not)."""
-    if not isinstance(v, (int, float)) or isinstance(v, bool):
-        return False
-    try:
-        return math.isfinite(v)
-    except OverflowError:  # a whole number beyond float range (JSON allows 1000 digits)
-        return False
 
 
 def _is_text(v: Any) -> bool:

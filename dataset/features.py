@@ -23,6 +23,7 @@ import scipy.fft
 
 from capture.audio_io import SILENT_PEAK
 from capture.errors import InputError
+from capture.numbers import is_finite_number
 
 from .pitch import PitchSettings, track_pitch
 
@@ -139,25 +140,21 @@ def _count(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and v > 0
 
 
-def _number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 # What each field of FeatureSettings.from_json must hold: (field, test, what the test asks for).
 _SETTINGS_FIELDS = (
     ("sample_rate", _count, "a positive whole number of Hz"),
-    ("window_s", lambda v: _number(v) and v > 0, "a positive number of seconds"),
-    ("hop_s", lambda v: _number(v) and v > 0, "a positive number of seconds"),
+    ("window_s", lambda v: is_finite_number(v) and v > 0, "a positive number of seconds"),
+    ("hop_s", lambda v: is_finite_number(v) and v > 0, "a positive number of seconds"),
     ("n_fft", _count, "a positive whole number"),
     ("n_mels", _count, "a positive whole number"),
     ("n_mfcc", _count, "a positive whole number"),
-    ("fmin_hz", lambda v: _number(v) and v >= 0, "a number of Hz, at least 0"),
-    ("fmax_hz", lambda v: _number(v) and v > 0, "a positive number of Hz"),
+    ("fmin_hz", lambda v: is_finite_number(v) and v >= 0, "a number of Hz, at least 0"),
+    ("fmax_hz", lambda v: is_finite_number(v) and v > 0, "a positive number of Hz"),
     ("level", lambda v: isinstance(v, str), "text ('none' or 'speech <dB> dBFS')"),
 )
 _PITCH_FIELDS = (
-    ("floor_hz", lambda v: _number(v) and v > 0, "a positive number of Hz"),
-    ("ceiling_hz", lambda v: _number(v) and v > 0, "a positive number of Hz"),
+    ("floor_hz", lambda v: is_finite_number(v) and v > 0, "a positive number of Hz"),
+    ("ceiling_hz", lambda v: is_finite_number(v) and v > 0, "a positive number of Hz"),
     ("method", lambda v: isinstance(v, str), "text"),
 )
 

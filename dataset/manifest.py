@@ -12,7 +12,6 @@ It is written last and atomically, so a manifest always describes finished shard
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 from collections.abc import Callable
@@ -23,6 +22,7 @@ from capture.atomic import write_json_atomic
 from capture.errors import InputError
 from capture.file_lock import held_elsewhere, lock_holder
 from capture.numbers import is_count as _count
+from capture.numbers import is_finite_number
 
 from .splits import SPLITS
 
@@ -79,10 +79,6 @@ def dataset_folder(ds: str | Path) -> Path:
 # manifest that fails any; qa.validate_manifest reports every failure.
 
 
-def _number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _fields(obj: dict, at: str, kinds: dict[str, tuple[Callable[[Any], bool], str]], optional=()):
     """(location, message) for each field of ``obj`` that is missing (unless optional) or fails its test."""
     for name, (ok, what) in kinds.items():
@@ -98,12 +94,12 @@ def _is_str(v: Any) -> bool:
 
 
 def _numbers(v: Any) -> bool:
-    return isinstance(v, list) and all(_number(x) for x in v)
+    return isinstance(v, list) and all(is_finite_number(x) for x in v)
 
 
 STR = (_is_str, "a string")
 COUNT = (_count, "a non-negative integer")
-SECONDS = (lambda v: _number(v) and v >= 0, "a non-negative number")
+SECONDS = (lambda v: is_finite_number(v) and v >= 0, "a non-negative number")
 SHARD = {"name": STR, "split": STR, "sha256": STR, "bytes": COUNT, "samples": COUNT, "frames": COUNT}
 SHARD |= {"duration_s": SECONDS}
 SAMPLE = {"key": STR, "take": STR, "speaker": STR, "split": STR, "shard": STR, "frames": COUNT}
@@ -111,14 +107,15 @@ SAMPLE |= {"usable_frames": COUNT, "duration_s": SECONDS}
 SPLIT_STATS = {"takes": COUNT, "samples": COUNT, "hours": SECONDS, "usable_frames": COUNT}
 SPLIT_STATS |= {
     "hours_per_speaker": (
-        lambda v: isinstance(v, dict) and all(_number(h) for h in v.values()),
+        lambda v: isinstance(v, dict) and all(is_finite_number(h) for h in v.values()),
         "{speaker: hours}",
     ),
     "channels": (
         lambda v: (
             isinstance(v, dict)
             and all(
-                isinstance(d, dict) and all(x is None or _number(x) for x in d.values()) for d in v.values()
+                isinstance(d, dict) and all(x is None or is_finite_number(x) for x in d.values())
+                for d in v.values()
             )
         ),
         "{channel: {statistic: number}}",
@@ -207,8 +204,8 @@ def normalization_problems(norm: Any, channels: list[str], features: Any) -> lis
     for name, st in (speakers or {}).items():
         if (
             not isinstance(st, dict)
-            or not _number(st.get("mean"))
-            or not _number(st.get("std"))
+            or not is_finite_number(st.get("mean"))
+            or not is_finite_number(st.get("std"))
             or st["std"] <= 0
         ):
             out.append((f"normalization.pitch.speakers.{name}", "must hold a number mean and a positive std"))
@@ -222,7 +219,7 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     if out:
         return out
     fps, rate, channels = data["fps"], data["sample_rate"], data["channels"]
-    if not _number(fps) or fps <= 0:
+    if not is_finite_number(fps) or fps <= 0:
         out.append(("fps", f"must be a positive number, not {fps!r:.40}"))
     if not _count(rate) or rate == 0:
         out.append(("sample_rate", f"must be a positive integer, not {rate!r:.40}"))

@@ -22,6 +22,7 @@ import numpy as np
 
 from capture.errors import InputError
 from capture.file_lock import held_elsewhere
+from capture.numbers import is_finite_number
 from capture.transfer_litter import is_litter
 
 from .manifest import (
@@ -31,7 +32,6 @@ from .manifest import (
     WORK,
     _count,
     _fields,
-    _number,
     load_manifest,
     manifest_problems,
     take_recordings,
@@ -789,7 +789,7 @@ def _empty_split_problems(manifest: dict[str, Any]) -> list[Problem]:
     rule = manifest["splits"].get("rule", {})
     for split in ("val", "test"):
         fraction = rule.get(f"{split}_fraction")
-        if _number(fraction) and fraction > 0 and not manifest["splits"][split]["takes"]:
+        if is_finite_number(fraction) and fraction > 0 and not manifest["splits"][split]["takes"]:
             out.append(
                 _p(
                     "split_empty",
@@ -990,7 +990,7 @@ class Recomputed:
 def _near(stored: Any, ours: float, tolerance: float) -> bool:
     """Whether a stored statistic agrees with the recomputed one (rounding to 6 decimals and to float32
     included)."""
-    return _number(stored) and abs(stored - ours) <= tolerance + 2e-6 + 1e-6 * abs(ours)
+    return is_finite_number(stored) and abs(stored - ours) <= tolerance + 2e-6 + 1e-6 * abs(ours)
 
 
 def _distribution_problems(manifest: dict[str, Any], ours: Recomputed, complete: list[str]) -> list[Problem]:

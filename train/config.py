@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from capture.errors import InputError
+from capture.numbers import is_finite_number
 from capture.paired import read_text
 
 if sys.version_info >= (3, 11):
@@ -180,10 +180,6 @@ def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def check_config(cfg: dict[str, Any]) -> None:
     if cfg["model"] not in MODELS:
         raise InputError(f"model must be one of {', '.join(MODELS)}, got {cfg['model']!r}", "config:model")
@@ -195,7 +191,7 @@ def check_config(cfg: dict[str, Any]) -> None:
         raise InputError(
             f"speaker_style must be true or false, got {cfg['speaker_style']!r}", "config:speaker_style"
         )
-    if not _is_number(cfg["style_dropout"]) or not 0 <= cfg["style_dropout"] < 1:
+    if not is_finite_number(cfg["style_dropout"]) or not 0 <= cfg["style_dropout"] < 1:
         raise InputError(
             f"style_dropout must be a number in [0, 1), got {cfg['style_dropout']!r}", "config:style_dropout"
         )
@@ -239,7 +235,7 @@ def check_config(cfg: dict[str, Any]) -> None:
             f"aug_mask_prosody must be true or false, got {cfg['aug_mask_prosody']!r}",
             "config:aug_mask_prosody",
         )
-    if not _is_number(cfg["lr"]) or cfg["lr"] <= 0:
+    if not is_finite_number(cfg["lr"]) or cfg["lr"] <= 0:
         raise InputError(f"lr must be a positive finite number, got {cfg['lr']!r}", "config:lr")
     for key in (
         "weight_decay",
@@ -250,14 +246,16 @@ def check_config(cfg: dict[str, Any]) -> None:
         "aug_noise",
         "aug_mixup",
     ):
-        if not _is_number(cfg[key]) or cfg[key] < 0:
+        if not is_finite_number(cfg[key]) or cfg[key] < 0:
             raise InputError(
                 f"{key} must be a non-negative number (finite), got {cfg[key]!r}", f"config:{key}"
             )
-    if not _is_number(cfg["min_lr_ratio"]) or not 0 <= cfg["min_lr_ratio"] <= 1:
+    if not is_finite_number(cfg["min_lr_ratio"]) or not 0 <= cfg["min_lr_ratio"] <= 1:
         raise InputError(
             f"min_lr_ratio must be a number in [0, 1], got {cfg['min_lr_ratio']!r}", "config:min_lr_ratio"
         )
     betas = cfg["betas"]
-    if not (isinstance(betas, list) and len(betas) == 2 and all(_is_number(b) and 0 <= b < 1 for b in betas)):
+    if not (
+        isinstance(betas, list) and len(betas) == 2 and all(is_finite_number(b) and 0 <= b < 1 for b in betas)
+    ):
         raise InputError(f"betas must be two numbers in [0, 1), got {betas!r}", "config:betas")
