@@ -80,6 +80,8 @@ class AlignOptions:
             raise InputError(f"--vad must be one of {', '.join(VAD_METHODS)}, not {self.vad!r}")
         for option, name, unit, _low, _high in RANGES:
             value = getattr(self, name)
+            if value is None and name not in ("fps", "offset_s"):  # only these two mean "the take's own"
+                raise InputError(f"{option} must be a number, not None")
             problem = None if value is None else range_problem(option, value / unit)
             if problem:
                 raise InputError(f"{option} {problem}")

@@ -57,10 +57,28 @@ def running_command() -> str | None:
     by_script = {prog: package for package, prog in COMMANDS.items()}
     if os.path.basename(argv[0]) in by_script:
         return by_script[os.path.basename(argv[0])]
-    orig = getattr(sys, "orig_argv", None) or []  # the interpreter's own arguments (Python 3.10+)
-    if "-m" in orig[:-1]:
-        package = orig[orig.index("-m") + 1].split(".")[0]
-        return package if package in COMMANDS else None
+    module = _module_run(getattr(sys, "orig_argv", None) or [])  # the interpreter's own arguments
+    package = module.split(".")[0] if module else None
+    return package if package in COMMANDS else None
+
+
+# Interpreter options that take the next argument as their value (``python -X importtime -m align``).
+_OPTION_VALUES = ("-X", "-W", "--check-hash-based-pycs")
+
+
+def _module_run(orig: list[str]) -> str | None:
+    """The module ``python -m MODULE`` runs, from the interpreter's arguments: only an ``-m`` among its
+    own options counts, not one among a script's arguments (``python tool.py -m train``)."""
+    i = 1
+    while i < len(orig):
+        arg = orig[i]
+        if arg == "-m":
+            return orig[i + 1] if i + 1 < len(orig) else None
+        if arg.startswith("-m"):
+            return arg[2:]
+        if arg.startswith("-c") or arg == "-" or not arg.startswith("-"):
+            return None  # a command, standard input or a script: what follows is its own
+        i += 2 if arg in _OPTION_VALUES else 1
     return None
 
 

@@ -22,12 +22,12 @@ NPZ_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error)
 Header = tuple[str, tuple[int, ...], np.dtype]
 
 
-def npz_headers(npz: np.lib.npyio.NpzFile) -> dict[str, Header]:
-    """The ``.npy`` arrays of an open ``.npz`` by name in lower case: (key, shape, dtype), from their
-    headers alone (nothing is read)."""
+def npz_headers(npz: np.lib.npyio.NpzFile, only: tuple[str, ...] | None = None) -> dict[str, Header]:
+    """The ``.npy`` arrays of an open ``.npz`` (those named in ``only``, when given) by name in lower
+    case: (key, shape, dtype), from their headers alone (nothing is read)."""
     arrays = {}
     for member in npz.zip.namelist():
-        if not member.endswith(".npy"):
+        if not member.endswith(".npy") or (only is not None and member.removesuffix(".npy") not in only):
             continue
         with npz.zip.open(member) as f:
             version = np.lib.format.read_magic(f)

@@ -48,7 +48,7 @@ from . import livelink as ll
 from .atomic import write_json_atomic
 from .audio_capture import read_audio_log
 from .channels import ARKIT61
-from .csv_take import detect_fps, fill_dropped, missing_frames
+from .csv_take import detect_fps, fill_dropped, missing_frames, repair
 from .errors import InputError, S2AError
 from .numbers import is_count
 from .record_log import INVALID_RECORD, LogReader, RecordType, json_fields
@@ -937,7 +937,10 @@ def _segment_take(
     }
     take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
     if audio is not None and audio_first_s is not None:
-        take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
+        try:
+            take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
+        except InputError as exc:  # audio a take cannot hold (NaN samples): the face is kept without it
+            repair(take.meta.repairs, None, "audio_left_out", f"the session's audio is left out: {exc}")
     return take
 
 

@@ -532,11 +532,12 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
     meta = read_meta(folder)
     frames_path = folder / FRAMES_FILE
     try:
-        with np.load(frames_path, allow_pickle=False) as z:
-            if not isinstance(z, np.lib.npyio.NpzFile):
-                raise InputError("frames are unreadable (a .npy array, not a .npz archive)", frames_path)
+        z = np.load(frames_path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise InputError("frames are unreadable (a .npy array, not a .npz archive)", frames_path)
+        with z:
             # only the arrays a take has, each checked for its size before it is read (others are ignored)
-            held = {header[0]: header for header in npz_headers(z).values()}
+            held = {header[0]: header for header in npz_headers(z, FRAMES_ARRAYS).values()}
             arrays = {k: npz_array(z, held[k], frames_path) for k in FRAMES_ARRAYS if k in held}
     except FileNotFoundError:
         raise InputError("take folder has no frames.npz", folder) from None
@@ -617,7 +618,12 @@ def _takes_below(root: Path) -> list[Path]:
             folders[:] = []
             continue
         seen.add(real)
-        folders[:] = sorted(f for f in folders if not f.startswith(".") and litter_kind(f) is None)
+        # not what systems leave (a take folder of ours named like a download, `x.part`, is a take)
+        folders[:] = sorted(
+            f
+            for f in folders
+            if not f.startswith(".") and (litter_kind(f) is None or is_take_dir(os.path.join(here, f)))
+        )
         if here != str(root) and META_FILE in files and is_take_dir(here):
             takes.append(Path(here))
     return sorted(takes)

@@ -126,7 +126,10 @@ def submit_all(pool: ProcessPoolExecutor, fn: Callable, calls: Sequence[tuple]) 
     """``fn(*args)`` for each of ``calls`` submitted to ``pool``; its worker processes start here,
     Ctrl-C and SIGTERM held meanwhile. A system refusing to start them (too many open files, too little
     memory) is one ``S2AError``."""
-    starts = getattr(pool, "_max_workers", len(calls))  # each of the first submits may start a worker
+    # With a fork server (the build's), each of the first submits may start a worker; a forking pool
+    # (align's) starts them all at the first and reports a start refused (EMFILE) itself.
+    forks = getattr(getattr(pool, "_mp_context", None), "get_start_method", lambda: "")() == "fork"
+    starts = 0 if forks else getattr(pool, "_max_workers", len(calls))
     futures = []
     try:
         with _stop_signals_held():

@@ -221,3 +221,17 @@ def test_a_build_with_too_few_file_descriptors_for_its_workers_is_one_line(tmp_p
         line = _one_line_error(proc, "cannot start the worker processes (Too many open files)")
         assert "ulimit -n" in line, (limit, proc.stderr)
     assert refused, "no open-file limit here was too low for 4 workers"
+
+
+def test_a_script_given_dash_m_among_its_own_arguments_keeps_its_ctrl_c(tmp_path):
+    """`python tool.py -m train` is the script's -m, not Python's: the import guard took its Ctrl-C."""
+    script = tmp_path / "tool.py"
+    script.write_text(
+        "import signal, sys\nsys.path.insert(0, sys.argv[-1])\nimport capture\n"
+        "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)\n"
+    )
+    for args in (["-m", "train"], ["-m", "align"]):
+        proc = subprocess.run(
+            [sys.executable, str(script), *args, str(ROOT)], capture_output=True, text=True, cwd=tmp_path
+        )
+        assert proc.stdout.split() == ["True"], proc.stdout + proc.stderr

@@ -41,6 +41,7 @@ def test_take_ids_are_the_same_and_usable_everywhere(name, expected):
 def test_symlinked_takes_are_found_once_and_links_upward_are_not_followed(tmp_path):
     """Python's rglob does not follow links: align, build and report skipped symlinked takes."""
     elsewhere = write_take(synthetic_take(10), tmp_path / "elsewhere")
+    write_take(synthetic_take(10, seed=2), tmp_path / "other")  # reachable only through the link up
     here = tmp_path / "takes"
     own = write_take(synthetic_take(10, seed=1), here)
     os.symlink(elsewhere.parent, here / "session1")  # a folder of takes linked in
@@ -80,10 +81,27 @@ def _npy_header(shape: tuple[int, ...]) -> bytes:
     return buf.getvalue()
 
 
+def test_a_take_folder_named_like_a_download_is_found(tmp_path):
+    """Take ids keep dots: `interview.part.csv` makes the take `interview.part`, no unfinished download."""
+    take = synthetic_take(10)
+    take.meta.id = "interview.part"
+    folder = write_take(take, tmp_path)
+    assert find_takes([tmp_path]) == [folder]
+
+
+def test_frames_saved_as_one_npy_array_are_named_so(tmp_path):
+    folder = write_take(synthetic_take(10), tmp_path)
+    with open(folder / "frames.npz", "wb") as f:
+        np.save(f, np.zeros(3))
+    with pytest.raises(InputError, match="a .npy array, not a .npz archive"):
+        read_take(folder)
+
+
 def test_frames_members_a_take_never_has_are_not_read(tmp_path):
     """A member declaring 2 GiB in a few compressed bytes made read_take allocate it."""
     folder = write_take(synthetic_take(10), tmp_path)
     _npz_with(folder, {"extra.npy": _npy_header((1 << 28,)) + b"\0" * 64, "README.txt": b"notes"})
+    _npz_with(folder, {"damaged.npy": b"\x93NUMPY\x01\x00{'descr': "})  # a header cut short: not read
     take = read_take(folder)
     assert take.values.shape[0] == 10
 

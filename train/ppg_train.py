@@ -266,8 +266,7 @@ def find_speech(paths: list[str | Path], warnings: list[str] | None = None) -> l
         if p.is_file():
             found.append(p)
             continue
-        # takes of ours in a recycle bin or a zip's __MACOSX are none
-        takes = [t for t in find_takes([p]) if not any(litter.skips(p / q) for q in t.relative_to(p).parents)]
+        takes = find_takes([p])  # none from a recycle bin or a zip's __MACOSX (find_takes passes them over)
         inside = {t.resolve() for t in takes}
         loose = [
             f
