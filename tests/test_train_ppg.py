@@ -182,7 +182,7 @@ def test_pocketsphinx_labels_skip_takes_without_audio(samples, tmp_path):
     from capture import write_take
 
     take = make_aligned_take("silent", 3.0, subject="s", seed=0)
-    take.audio = None
+    take.audio = take.meta.audio = None
     write_take(take, tmp_path / "takes")
     speech = (
         samples
