@@ -150,9 +150,9 @@ def animate(
     ``InputError``. Pitch is normalised with ``speaker``'s statistics, and a run with speaker styles
     animates in ``style`` (default: ``speaker``'s style if the run has it, else the mean style). A run
     normalised to each take's neutral pose is de-normalised on ``neutral`` (the run's channels), else on
-    the training split's offset. ``level``: the active speech level (``speech_level``) of the 16 kHz
-    audio when the caller has measured it (None: measured here). The model runs in eval mode (dropout
-    off); the mode it was in is restored afterwards."""
+    the training split's offset. ``level``: the active speech level (``speech_level``) of
+    ``model_audio(audio)`` when the caller has measured it (None: measured here). The model runs in
+    eval mode (dropout off); the mode it was in is restored afterwards."""
     prepared = model_audio(audio, sample_rate, where)
     return animate_16k(model, payload, prepared, ppg, speaker, where, style, neutral, level)
 
