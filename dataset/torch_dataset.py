@@ -5,7 +5,9 @@ on), divided first among DDP ranks, then among each rank's DataLoader workers (`
 By default a level divides whole shards (the ``i``-th shard holding samples goes to reader
 ``i % readers``; with fewer shards than readers, every reader reads them all and keeps every
 ``readers``-th sample); with ``even_ranks``, each rank takes an equal contiguous run of the epoch's
-samples instead (the remainder, fewer samples than ranks, is dropped), so every rank yields as many.
+samples instead (the remainder, fewer samples than ranks, is dropped), so every rank yields as many,
+and its workers split that run by position (consecutive parts whose sizes depend only on the run's
+length and the number of workers), so every rank also makes as many batches.
 The rank and world size come from ``torch.distributed`` in the process that makes or iterates the
 dataset (or from ``rank``/``world_size``), and travel to DataLoader workers with the dataset: a
 spawned worker, where ``torch.distributed`` is not initialised, still reads its rank's share. Samples
@@ -36,6 +38,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from capture.errors import InputError
+from capture.numbers import is_count
 
 from .manifest import _numbers, dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
@@ -56,11 +59,11 @@ def _count(value: Any, what: str, where: Path, least: int | None, none: bool = F
     None only with ``none``. Anything else (a bool, a float, a string) is an ``InputError``."""
     if value is None and none:
         return None
-    try:
+    try:  # an int from any integer-like number; is_count then says whether it counts (never a bool)
         n = operator.index(value) if not isinstance(value, bool) else None
     except TypeError:
         n = None
-    if n is None or (least is not None and n < least):
+    if n is None or (least is not None and not (is_count(n) and n >= least)):
         kind = {None: "an", 0: "a non-negative", 1: "a positive"}[least]
         raise InputError(f"{what} must be {kind} integer{' or None' if none else ''}, not {value!r}", where)
     return n
@@ -82,9 +85,10 @@ class ShardDataset(IterableDataset):
     ``world_size``: this process's share of the data (default: ``torch.distributed``'s, when it is
     initialised where the dataset is made or iterated). ``even_ranks``: every rank yields the same
     number of samples per epoch (the epoch's samples divided into equal contiguous runs, the remainder
-    dropped), for a loop with a collective per step; default: ranks read whole shards, and may yield
-    different numbers. An ``IterableDataset``: no random access (``__getitem__``); ``len()`` is this
-    rank's number of samples in the current epoch.
+    dropped; a rank's DataLoader workers split its run by position, so with one ``batch_size`` every
+    rank also makes as many batches), for a loop with a collective per step; default: ranks read whole
+    shards, and may yield different numbers. An ``IterableDataset``: no random access
+    (``__getitem__``); ``len()`` is this rank's number of samples in the current epoch.
     """
 
     # a level (ranks, a rank's workers) divides whole shards among its readers (else sample by sample)
@@ -245,12 +249,17 @@ class ShardDataset(IterableDataset):
         index = np.arange(starts[-1], dtype=np.int64)
         return self._divide(index, starts, rank, world, self.even_ranks), starts, order
 
-    def _divide(self, index: np.ndarray, starts: np.ndarray, k: int, n: int, even: bool) -> np.ndarray:
+    def _divide(
+        self, index: np.ndarray, starts: np.ndarray, k: int, n: int, even: bool, by_position: bool = False
+    ) -> np.ndarray:
         """Reader ``k``'s part of the sample indices ``index`` (ascending) among ``n`` readers: an equal
-        contiguous run (``even``: ``len(index) // n`` each, the rest dropped), else whole shards when
-        ``divide_shards`` and there are at least ``n`` shards holding some, else every ``n``-th one."""
+        contiguous run (``even``: ``len(index) // n`` each, the rest dropped; ``by_position``: the first
+        ``len(index) % n`` runs one longer, nothing dropped), else whole shards when ``divide_shards``
+        and there are at least ``n`` shards holding some, else every ``n``-th one."""
         if n == 1:
             return index
+        if by_position:  # sizes from len(index) and n alone, wherever the shard boundaries fall
+            return np.array_split(index, n)[k]
         if even:
             q = index.size // n
             return index[k * q : (k + 1) * q]
@@ -271,7 +280,10 @@ class ShardDataset(IterableDataset):
         wid, nworkers = (info.id, info.num_workers) if info is not None else (0, 1)
         epoch = self.epoch  # read once per pass: set_epoch of the main process, even in a worker
         index, starts, order = self._rank_share(epoch, rank, world)
-        index = self._divide(index, starts, wid, nworkers, even=False)
+        # even_ranks: the workers split the rank's run by position, so that each one's number of samples
+        # (and of batches, its last one partial) is the same on every rank; whole shards would make a
+        # rank's batch count depend on where the shard boundaries fall in its run
+        index = self._divide(index, starts, wid, nworkers, even=False, by_position=self.even_ranks)
         shard = np.searchsorted(starts, index, side="right") - 1
         plan = []
         for i in np.unique(shard):

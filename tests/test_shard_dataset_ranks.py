@@ -1,7 +1,8 @@
 """``ShardDataset`` as trainers use it: DDP ranks with DataLoader workers started by spawn (the rank
 reaches the worker), ranks yielding equal numbers of samples for a loop with a collective per step,
 ``len()`` as the rank's share, shard order shuffled per epoch (reproducibly, for exact resumes), and
-integer-like arguments. Real small datasets: 11 training samples in shards of 3, 3, 3 and 2."""
+integer-like arguments. Real small datasets: 11 training samples in shards of 3, 3, 3 and 2, and the
+same samples in shards of 4, 4 and 3 (``uneven``)."""
 
 from __future__ import annotations
 
@@ -43,6 +44,22 @@ def ds(tmp_path_factory) -> Path:
     return root / "ds"
 
 
+@pytest.fixture(scope="module")
+def uneven(ds) -> Path:
+    """The same takes in shards of 4, 4 and 3 training samples: with 2 ranks of 5 samples each, rank 0's
+    run is 4 + 1 samples of the first two shards, rank 1's 3 + 2 of the last two."""
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank"),
+        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
+        max_sample_s=0.4,
+        shard_bytes=120_000,
+    )
+    build_dataset([ds.parent / "takes"], ds.parent / "uneven", options, say=lambda _m: None)
+    m = read_manifest(ds.parent / "uneven")
+    assert [s["samples"] for s in m["shards"] if s["split"] == "train"] == [4, 4, 3]
+    return ds.parent / "uneven"
+
+
 def _train_keys(ds: Path) -> list[str]:
     return sorted(s["key"] for s in read_manifest(ds)["samples"] if s["split"] == "train")
 
@@ -75,7 +92,7 @@ import torch, torch.distributed as dist
 from torch.utils.data import DataLoader
 from dataset.torch_dataset import ShardDataset
 
-rank, rendezvous, ds = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+rank, rendezvous, ds, uneven = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
 early = ShardDataset(ds, "train", window=12)  # made before the process group: resolved when pickled
 dist.init_process_group("gloo", init_method="file://" + rendezvous, rank=rank, world_size=2)
 out = {}
@@ -86,10 +103,11 @@ for name, data in (("early", early), ("late", late)):
     out[name + "_len"] = len(data)
 print(json.dumps(out), flush=True)
 out = {}
-# an ordinary epoch loop with a collective per step (as DDP's backward): every rank takes as many steps
-even = ShardDataset(ds, "train", window=12, shuffle_buffer=4, even_ranks=True)
+# an ordinary epoch loop with a collective per step (as DDP's backward): every rank takes as many steps,
+# on shards of 4, 4 and 3 where workers given whole shards made 3 batches of 3 on one rank, 2 on the other
+even = ShardDataset(uneven, "train", window=12, shuffle_buffer=4, even_ranks=True)
 loader = DataLoader(
-    even, batch_size=2, num_workers=2, multiprocessing_context="spawn", persistent_workers=True
+    even, batch_size=3, num_workers=2, multiprocessing_context="spawn", persistent_workers=True
 )
 out["epochs"] = []
 for epoch in range(2):
@@ -107,13 +125,13 @@ dist.destroy_process_group()
 """
 
 
-def test_ddp_ranks_with_spawned_workers_read_their_share_and_step_together(ds, tmp_path):
+def test_ddp_ranks_with_spawned_workers_read_their_share_and_step_together(ds, uneven, tmp_path):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
         env["GLOO_SOCKET_IFNAME"] = "lo"
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", DDP_SCRIPT, str(rank), str(tmp_path / "rendezvous"), str(ds)],
+            [sys.executable, "-c", DDP_SCRIPT, str(rank), str(tmp_path / "rendezvous"), str(ds), str(uneven)],
             cwd=ROOT,
             env=env,
             stdout=subprocess.PIPE,
@@ -142,8 +160,8 @@ def test_ddp_ranks_with_spawned_workers_read_their_share_and_step_together(ds, t
     results = [json.loads(found[-1]) for found in lines]
     for epoch in range(2):
         a, b = (r["epochs"][epoch] for r in results)
-        # 11 samples: 5 per rank, one dropped; 3 batches of 2, 2, 1 on each
-        assert a["steps"] == b["steps"] == a["batches"] == b["batches"] == 3
+        # 11 samples: 5 per rank, one dropped; each rank's 2 workers read 3 and 2 of them: 2 batches
+        assert a["steps"] == b["steps"] == a["batches"] == b["batches"] == 2
         assert len(a["keys"]) == len(b["keys"]) == a["len"] == b["len"] == 5
         assert not set(a["keys"]) & set(b["keys"]) and len(set(a["keys"] + b["keys"])) == 10
     assert results[0]["epochs"][0]["keys"] != results[0]["epochs"][1]["keys"]
@@ -171,6 +189,37 @@ def test_len_is_the_ranks_share_and_even_ranks_yield_equal_numbers(ds, world):
         assert len({len(k) for k in uneven}) > 1
         assert [len(k) for k in even] == [len(everything) // world] * world  # the remainder dropped
         assert len(set(sum(even, []))) == len(everything) // world * world
+
+
+def _batch_sizes(data, batch_size: int, workers: int) -> list[int]:
+    loader = torch.utils.data.DataLoader(data, batch_size=batch_size, num_workers=workers)
+    return [len(batch["key"]) for batch in loader]
+
+
+def test_even_ranks_take_as_many_batches_with_dataloader_workers(uneven):
+    """Each DataLoader worker makes its own batches (its last one partial): the workers split a rank's
+    run by position, so the batch count does not depend on where shard boundaries fall in it. Split by
+    whole shards, rank 0's workers read 4 and 1 samples (batches of 3: 2 + 1), rank 1's 3 and 2 (1 + 1),
+    and a loop with a collective per step hung."""
+    for shuffle, epochs in ((0, 1), (4, 4)):  # storage order, then shards shuffled per epoch
+        for epoch in range(epochs):
+            for batch_size in (2, 3):
+                sizes = []
+                for rank in (0, 1):
+                    data = ShardDataset(
+                        uneven,
+                        "train",
+                        window=12,
+                        shuffle_buffer=shuffle,
+                        rank=rank,
+                        world_size=2,
+                        even_ranks=True,
+                    )
+                    data.set_epoch(epoch)
+                    sizes.append(_batch_sizes(data, batch_size, workers=2))
+                    assert sum(sizes[-1]) == len(data) == 5
+                # 3 and 2 samples per worker on both ranks
+                assert sorted(sizes[0]) == sorted(sizes[1]), (shuffle, epoch, batch_size, sizes)
 
 
 def test_even_ranks_of_a_take_subset(ds):

@@ -10,13 +10,15 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import soundfile as sf
 import torch
-from conftest import run_here
+from conftest import ROOT, run_here
 from dataset_helpers import SR, make_aligned_take, speech_like, write_aligned_set
 from test_train_pipeline import TINY
 
@@ -259,3 +261,125 @@ def test_resume_on_the_rebuilt_dataset_says_what_changed(builds, tmp_path):
         f"the dataset at {ds} was rebuilt since this run trained on it: its normalization differs" in message
     )
     assert message.count(str(ds)) == 1
+
+
+# 5. under DDP the ranks stop together
+
+
+DDP_FIT = """
+import datetime, json, os, sys
+rank, rendezvous, ds, run = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
+cfg = json.loads(sys.argv[5])
+os.environ.update(WORLD_SIZE="2", RANK=str(rank), LOCAL_RANK=str(rank))  # as torchrun sets them
+import torch.distributed as dist
+dist.init_process_group(
+    "gloo", init_method="file://" + rendezvous, rank=rank, world_size=2, timeout=datetime.timedelta(0, 30)
+)
+from train.fit import fit
+from train.run_dataset import DatasetWatch
+
+if rank == 1:  # this rank checks manifest.json just before each rewrite lands: it never sees one
+    DatasetWatch.changed = lambda self: None
+
+
+def rewrite():  # other bytes, the same build: a new sha256 for the watch, the shards untouched
+    path = os.path.join(ds, "manifest.json")
+    with open(path) as f:
+        data = json.load(f)
+    with open(path + ".new", "w") as f:
+        json.dump(data, f, indent=1)
+    os.replace(path + ".new", path)
+
+
+def say(line):  # rank 0's lines only (fit silences the other ranks)
+    if line.startswith("step 5: mse"):
+        rewrite()
+
+
+try:
+    fit(ds, run, cfg, say=say)
+    out = {"error": None}
+except Exception as exc:
+    out = {"error": type(exc).__name__ + ": " + str(exc)}
+print(json.dumps(out), flush=True)
+dist.destroy_process_group()
+"""
+
+
+def test_ddp_ranks_stop_together_when_only_one_sees_the_rebuild(builds, tmp_path):
+    """Each rank checks manifest.json on its own: a rebuild landing between two ranks' checks is seen by
+    one of them. That rank used to stop alone (at its epoch start or a validation) while the other waited
+    at its next collective; now both stop with the line, at the validation after the rebuild."""
+    ds, run = _copy(builds["a"], tmp_path / "ds"), tmp_path / "run"
+    cfg = _cfg("max_steps=12", "eval_every=2")
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
+        env["GLOO_SOCKET_IFNAME"] = "lo"
+    args = [str(tmp_path / "rendezvous"), str(ds), str(run), json.dumps(cfg)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", DDP_FIT, str(rank), *args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for rank in (0, 1)
+    ]
+    try:
+        outs = [p.communicate(timeout=240) for p in procs]
+    finally:  # a rank waiting at a collective the other never joins: never left behind
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    lines = [[line for line in o[0].splitlines() if line.startswith("{")] for o in outs]
+    assert all(lines), [o[1][-2000:] for o in outs]
+    errors = [json.loads(found[-1])["error"] for found in lines]
+    seen = f"DatasetChanged: {ds} was rebuilt while this run was training ("
+    assert errors[0].startswith(seen) and "(seen by another rank" not in errors[0], errors
+    assert errors[1] == errors[0] + " (seen by another rank: rank 0)", errors
+    assert "\n" not in errors[0]
+    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
+    assert load_checkpoint(run / "last.pt")["step"] == 4  # the last checkpoint before the rebuild
+
+
+# 6. a checkpoint of an earlier version resumes in its own data order
+
+
+def test_a_checkpoint_without_data_order_resumes_with_shards_in_storage_order(builds, tmp_path, monkeypatch):
+    """Shard order became shuffled per epoch (shuffle_buffer > 1): a last.pt written before (no
+    data_order) resumed at its (epoch, batch) but saw other batches. It resumes in storage order, and
+    the checkpoints it writes keep that order; a checkpoint of this version keeps shuffling."""
+    fit_module = sys.modules["train.fit"]  # the module (train.fit is also the function)
+    built = []
+
+    def recording(*args, **kwargs):
+        data = train_dataset(*args, **kwargs)
+        built.append(data.shuffle_shards)
+        return data
+
+    train_dataset = fit_module.train_dataset
+    monkeypatch.setattr(fit_module, "train_dataset", recording)
+    run = tmp_path / "run"
+    fit(builds["a"], run, _cfg("max_steps=6", "eval_every=2"), stop_after_steps=2, **QUIET)
+    state = load_checkpoint(run / "last.pt")
+    assert built == [True] and state["data_order"] == 2
+    fit(builds["a"], run, _cfg("max_steps=6", "eval_every=2"), resume=True, stop_after_steps=2, **QUIET)
+    assert built == [True, True]
+
+    state = load_checkpoint(run / "last.pt")
+    del state["data_order"]  # as the previous version wrote it
+    save_checkpoint({k: v for k, v in state.items() if k not in ("format", "version")}, run / "last.pt")
+    fit(builds["a"], run, _cfg("max_steps=6", "eval_every=2"), resume=True, stop_after_steps=1, **QUIET)
+    assert built == [True, True, False]
+    assert load_checkpoint(run / "last.pt")["data_order"] == 1
+    fit(builds["a"], run, _cfg("max_steps=6", "eval_every=2"), resume=True, **QUIET)
+    assert built == [True, True, False, False]
+
+    state = load_checkpoint(run / "last.pt")
+    state["data_order"] = 3
+    save_checkpoint({k: v for k, v in state.items() if k not in ("format", "version")}, run / "last.pt")
+    with pytest.raises(InputError, match="checkpoint reads its data in order 3; this version knows 1 and 2"):
+        fit(builds["a"], run, _cfg("max_steps=8"), resume=True, **QUIET)

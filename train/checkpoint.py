@@ -5,7 +5,9 @@ A checkpoint is a plain dict of tensors, numbers, strings and lists (no pickled 
 name), ``config`` (resolved training config), ``model_config``, ``inputs`` (InputSpec), ``dataset``
 (channels, fps), ``state_dict``, ``optimizer``, ``step``, ``epoch``, ``batch`` (data position: next batch
 index in ``epoch``), ``positions`` (that pair for every DDP rank), ``rng`` (torch CPU state),
-``best_val``, ``bad_evals``, ``finished``, ``stopped``.
+``best_val``, ``bad_evals``, ``finished``, ``stopped``, ``data_order`` (``DATA_ORDER``: the order the
+training data is read in; absent in checkpoints written before it was recorded, which resume in the
+order they were written in, 1).
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ from dataset.normalize import FeatureNormalizer, Normalizer
 
 FORMAT = "s2a-train-checkpoint"
 VERSION = 1
+# 1: shards in storage order every epoch; 2: shard order shuffled per epoch (seed, epoch) when
+# shuffle_buffer > 1. A resumed run keeps its checkpoint's, so that it sees the batches it would have.
+DATA_ORDER = 2
 LAST, BEST, CONFIG, METRICS = "last.pt", "best.pt", "config.json", "metrics.jsonl"
 LOCK = ".lock"  # held (fcntl.flock) by the fit writing the run folder, which writes its pid into it
 FULL_BYTES = 1 << 20  # a file system with less than this free after a failed write counts as full

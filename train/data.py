@@ -187,9 +187,15 @@ def split_keys(manifest: dict[str, Any], cfg: dict[str, Any], where: str = "conf
 
 
 def train_dataset(
-    ds: str | Path, spec: InputSpec, cfg: dict[str, Any], manifest: dict[str, Any] | None = None
+    ds: str | Path,
+    spec: InputSpec,
+    cfg: dict[str, Any],
+    manifest: dict[str, Any] | None = None,
+    shuffle_shards: bool | None = None,
 ) -> ShardDataset:
-    """The training samples of ``cfg`` (``manifest``: the dataset's as the run read it; default: read)."""
+    """The training samples of ``cfg`` (``manifest``: the dataset's as the run read it; default: read).
+    ``shuffle_shards``: as ``ShardDataset``'s (default: shuffled per epoch when ``shuffle_buffer`` > 1;
+    False: storage order, that of runs checkpointed before shards were shuffled)."""
     manifest = read_manifest(ds) if manifest is None else manifest
     kwargs = dict(
         window=cfg["window"],
@@ -197,6 +203,7 @@ def train_dataset(
         shuffle_buffer=cfg["shuffle_buffer"],
         seed=cfg["seed"],
         manifest=manifest,
+        shuffle_shards=shuffle_shards,
     )
     keys = split_keys(manifest, cfg)
     if keys is None:
@@ -216,7 +223,8 @@ def endless_batches(
     of it: the data position a checkpoint records, so that a resumed run sees the same batches. The
     loader gets its own generator so that starting an epoch leaves the global torch RNG alone.
     ``check`` runs before every epoch (``DatasetWatch.check``: the dataset is the build the run began
-    on)."""
+    on; one process only: under DDP each rank would check alone, at a step of its own, and a rank
+    stopping alone leaves the others waiting at their next collective)."""
     while True:
         if check is not None:
             check()

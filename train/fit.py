@@ -36,6 +36,7 @@ from .augment import enabled as augmenting
 from .checkpoint import (
     BEST,
     CONFIG,
+    DATA_ORDER,
     LAST,
     METRICS,
     load_checkpoint,
@@ -259,7 +260,9 @@ def dataset_entry(ds: Path, watch: DatasetWatch, cfg: dict[str, Any]) -> dict[st
     }
 
 
-def _payload(model, optimizer, cfg, spec, model_config, dataset, step, epoch, batch) -> dict[str, Any]:
+def _payload(
+    model, optimizer, cfg, spec, model_config, dataset, step, epoch, batch, data_order: int = DATA_ORDER
+) -> dict[str, Any]:
     module = model.module if hasattr(model, "module") else model
     return {
         "system": cfg["model"],
@@ -272,6 +275,7 @@ def _payload(model, optimizer, cfg, spec, model_config, dataset, step, epoch, ba
         "step": step,
         "epoch": epoch,
         "batch": batch,
+        "data_order": data_order,  # the order the training data is read in (see _data_order)
         "rng": {"torch": torch.get_rng_state()},
         "best_val": None,
         "bad_evals": 0,
@@ -576,7 +580,20 @@ def _load_resume_state(
     cfg = _resumed_config(state["config"], cfg, given)
     check_config(cfg)
     refuse_other_world(len(_positions(state)), world, "run", run / LAST)
+    _data_order(state, run / LAST)
     return state, cfg
+
+
+def _data_order(state: dict[str, Any], where: Path) -> int:
+    """The order a checkpoint's run reads its training data in: ``DATA_ORDER`` (2: shards shuffled per
+    epoch when ``shuffle_buffer`` > 1), or 1 for a checkpoint that records none (written before shard
+    order was shuffled: shards in storage order every epoch), which then resumes in that order."""
+    order = state.get("data_order", 1)
+    if isinstance(order, bool) or order not in (1, DATA_ORDER):
+        raise InputError(
+            f"checkpoint reads its data in order {order!r}; this version knows 1 and {DATA_ORDER}", where
+        )
+    return order
 
 
 def _positions(state: dict[str, Any]) -> list[Any]:
@@ -749,14 +766,15 @@ def _fit(
     shards_checked: bool = False,
     watch: DatasetWatch | None = None,
 ) -> dict[str, Any]:
+    given_watch = watch is not None
     # the build the run starts on (an ensemble's members: the ensemble's); refuses a manifest whose fps
     # or normalisation is malformed
     if watch is None:
         watch = DatasetWatch.read(ds, cfg)
-    else:
-        watch.check()
-    manifest = watch.manifest
     rank, world, device = _distributed()
+    if given_watch:
+        watch.check_together(device)  # every rank together (DDP): one rank stopping alone hangs the rest
+    manifest = watch.manifest
     main = rank == 0
     say = say if main else (lambda _m: None)
     state = None
@@ -826,7 +844,9 @@ def _fit(
     dataset = dataset_entry(ds, watch, cfg)
 
     def save(name: str) -> None:
-        watch.check()  # a checkpoint holds training on the build the run started on, never a newer one
+        # a checkpoint holds training on the build the run started on, never a newer one; under DDP the
+        # ranks decide together (a rank that stopped alone would leave the others at the gather below)
+        watch.check_together(device)
         positions: list[Any] = [[epoch, batch_pos]]
         rngs: list[Any] = [torch.get_rng_state()]
         if world > 1:  # every rank reads its own shards and draws its own masks: keep each one's
@@ -834,7 +854,7 @@ def _fit(
             dist.all_gather_object(positions, [epoch, batch_pos])
             dist.all_gather_object(rngs, torch.get_rng_state())
         if main:
-            p = _payload(model, optimizer, cfg, spec, model_config, dataset, step, epoch, batch_pos)
+            p = _payload(model, optimizer, cfg, spec, model_config, dataset, step, epoch, batch_pos, order)
             p["positions"] = positions
             p["rng"]["ranks"] = rngs
             p.update(best_val=None if math.isinf(best_val) else best_val, bad_evals=bad_evals)
@@ -845,7 +865,9 @@ def _fit(
     stopped = None
     t_start = t_log = time.perf_counter()
     frames_since, session_steps = 0.0, 0
-    data = train_dataset(ds, spec, cfg, manifest)
+    # a run checkpointed before shard order was shuffled per epoch resumes in its own (storage) order
+    order = DATA_ORDER if state is None else _data_order(state, run / LAST)
+    data = train_dataset(ds, spec, cfg, manifest, shuffle_shards=None if order >= 2 else False)
     net.train()
     try:
         if state is not None and state.get("stopped") == "early_stopping":
@@ -853,9 +875,12 @@ def _fit(
         elif step >= cfg["max_steps"]:
             stopped = "max_steps"
             say(f"run already finished at step {step} (max_steps {cfg['max_steps']}); nothing to train")
-        batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"], watch.check)
+        # each epoch checks manifest.json with one process; under DDP, ranks start their epochs at steps
+        # of their own, so only the checks all ranks make together (validation, checkpoints) stop a run
+        check = watch.check if world == 1 else None
+        batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"], check)
         while stopped is None:
-            with watch.reading():  # each epoch checks manifest.json; a failed read checks it again
+            with watch.reading():  # a failed read checks manifest.json again
                 epoch, i, batch = next(batches)
             lr = learning_rate(step, cfg)
             for g in optimizer.param_groups:
@@ -887,11 +912,11 @@ def _fit(
             # uninterrupted run (no extra validations counting toward patience, writing best.pt or
             # adding metrics lines at steps the uninterrupted run never validates at).
             if step % cfg["eval_every"] == 0 or step >= cfg["max_steps"]:
-                if has_val:  # on the build the run started on: checked before and after
+                if has_val:  # on the build the run started on: checked before and after (by all ranks)
                     with watch.reading():
-                        watch.check()
+                        watch.check_together(device)
                         val = validation_loss(model, ds, spec, device, weights, cfg, manifest)
-                        watch.check()
+                        watch.check_together(device)
                 else:
                     val = math.nan
                 improved = has_val and val < best_val

@@ -1,7 +1,7 @@
 """The build of a dataset a run trains on: manifest.json's sha256 and the takes that train and validate
 the run (the checkpoint's ``dataset`` entry). During training a rebuild of the dataset stops the run
-(``DatasetWatch``); a resumed run whose validation takes changed restarts best_val; evaluation names the
-takes the run trained on (``leaked_takes``)."""
+(``DatasetWatch``; under DDP every rank together, ``agreed_change``); a resumed run whose validation
+takes changed restarts best_val; evaluation names the takes the run trained on (``leaked_takes``)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import torch
+import torch.distributed as dist
+
 from capture.errors import InputError
+from capture.take import sha256_file
 from dataset.manifest import FORMAT, SCHEMA_VERSION, manifest_path, manifest_problems, read_manifest
 
 from .data import split_keys
@@ -29,9 +33,9 @@ MANIFEST_GRACE_S = 2.0  # how long a run waits for a manifest.json that is missi
 
 
 def file_sha256(path: Path) -> str | None:
-    """sha256 of a file's bytes, None when it cannot be read (missing, being replaced)."""
+    """``capture.take.sha256_file``, None when the file cannot be read (missing, being replaced)."""
     try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
+        return sha256_file(path)
     except OSError:
         return None
 
@@ -229,6 +233,13 @@ class DatasetWatch:
         if error is not None:
             raise error
 
+    def check_together(self, device: torch.device | str = "cpu") -> None:
+        """``check`` decided by every rank of a DDP run at once (``agreed_change``): every rank raises,
+        or none does. Each rank must call it at the same point of the run (it holds a collective)."""
+        error = agreed_change(self.changed(), device)
+        if error is not None:
+            raise error
+
     @contextmanager
     def reading(self) -> Iterator[None]:
         """Reads of the dataset in the block: an error there (a shard of another size, samples the
@@ -242,3 +253,25 @@ class DatasetWatch:
             if error is not None:
                 raise error from None
             raise
+
+
+def agreed_change(error: DatasetChanged | None, device: torch.device | str = "cpu") -> DatasetChanged | None:
+    """The error that stops every rank of a DDP run together, given this rank's own ``error`` (its
+    ``DatasetWatch.changed()``): its own when it saw the dataset change, another rank's line (saying
+    which rank saw it) when only another one did, None when none did. Each rank checks manifest.json
+    when it gets there, so a rebuild landing between two ranks' checks is seen by one of them only; a
+    rank stopping alone would leave the others waiting at their next collective until it times out.
+    One all-reduce of a flag (on ``device``: the process group's, cuda for nccl), and a gather of the
+    lines only when a rank saw a change. Without a process group of more than one rank: ``error``."""
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() < 2:
+        return error
+    flag = torch.tensor([0.0 if error is None else 1.0], dtype=torch.float32, device=device)
+    dist.all_reduce(flag)
+    if float(flag[0]) == 0:
+        return None
+    lines: list[Any] = [None] * dist.get_world_size()
+    dist.all_gather_object(lines, None if error is None else str(error))
+    if error is not None:
+        return error
+    rank, line = next((r, x) for r, x in enumerate(lines) if isinstance(x, str))
+    return DatasetChanged(f"{line} (seen by another rank: rank {rank})")
