@@ -5,8 +5,9 @@ The fingerprint of a take = sha256 over the align version, the options and the b
 a later run with the same fingerprint and all outputs present does nothing for that take.
 
 One run at a time writes into an output folder (``output_lock``: ``flock`` on its hidden ``.align.lock``).
-Aligned takes whose raw take is gone (neither given to the run nor on disk) are named in one warning
-and, with ``prune``, removed (``orphans``, ``prune_orphans``).
+Aligned takes whose raw take is gone (neither given to the run nor in the folder that held it) are named
+in one warning and, with ``prune``, removed (``orphans``, ``prune_orphans``); those whose raw take's folder
+cannot be reached (a drive not mounted) are named in another warning and never removed.
 """
 
 from __future__ import annotations
@@ -38,6 +39,15 @@ from .grid import interpolated_share
 from .options import AlignOptions
 from .torch_threads import torch_threads
 
+# The name of an aligned segment: ``<id>.segNN``, numbered from 01 (the aligner writes ``:02d``, so a take
+# of 100 segments or more has ``.seg100``): the one pattern the outputs of a take are recognised by.
+SEGMENT_SUFFIX = r"\.seg[0-9]{2,}"
+
+
+def _segment_number(name: str) -> int:
+    """The number of an aligned segment from its name (``X.seg07`` -> 7)."""
+    return int(name.rsplit(".seg", 1)[1])
+
 
 def fingerprint(folder: Path, options: AlignOptions) -> str:
     """sha256 (hex) of the align version, the options and the raw take's files."""
@@ -53,8 +63,13 @@ def fingerprint(folder: Path, options: AlignOptions) -> str:
 def _outputs_of(out_dir: Path, take_id: str) -> list[tuple[Path, TakeMeta]]:
     """Aligned take folders in ``out_dir`` made from the raw take ``take_id``, with their metadata."""
     base = safe_id(take_id)
+    segment = re.compile(re.escape(base) + SEGMENT_SUFFIX)
+    try:
+        names = [n for n in os.listdir(out_dir) if segment.fullmatch(n)]
+    except OSError:
+        names = []
     found = []
-    for p in [out_dir / base, *sorted(out_dir.glob(f"{base}.seg[0-9][0-9]"))]:
+    for p in [out_dir / base, *(out_dir / n for n in sorted(names, key=_segment_number))]:
         if (p / META_FILE).is_file():
             try:
                 m = read_meta(p)
@@ -231,7 +246,8 @@ def align_takes(
     called with each report as it is ready. One run at a time writes into ``out_dir`` (``output_lock``;
     another is an ``InputError``). At the end, aligned takes in ``out_dir`` whose raw take is gone
     (``orphans``) are named in one message to ``on_message`` ("warning: ..."), or removed with
-    ``prune`` (and named as removed)."""
+    ``prune`` (and named as removed); those whose raw take cannot be reached (``unreachable``) are named
+    in another warning and never removed."""
     opts = options or AlignOptions()
     opts.validate()
     out_dir = Path(out_dir)
@@ -246,7 +262,17 @@ def align_takes(
     make_out_dir(out_dir)
     with output_lock(out_dir), batch_of_writes(out_dir):  # listed once for leftovers of killed writes
         reports = _align_all(folders, out_dir, opts, jobs, force, on_report, skip_without_audio)
-        found = orphans(out_dir, folders)
+        lost = _lost(out_dir, folders)
+        found, away = lost[GONE], lost[UNREACHABLE]
+        if away:
+            _say(
+                on_message,
+                f"warning: {_count(away)} in {out_dir} {'comes' if len(away) == 1 else 'come'} from raw "
+                f"takes that are not reachable (the folder that held them is not there: a drive not "
+                f"mounted, or a share mounted at another path?): {_names(away)}; kept"
+                f"{', also with --prune' if prune else ''}: "
+                "mount it where it was, or remove them by hand if the takes are gone",
+            )
         if found and prune:
             removed, failed = prune_orphans(out_dir, found)
             if removed:
@@ -341,7 +367,7 @@ def _source_of(folder: Path) -> tuple[str, str] | None:
     take_id, path = parent.get("id"), parent.get("path")
     if not isinstance(take_id, str) or not isinstance(path, str) or not os.path.isabs(path):
         return None
-    if m.id != take_id and not re.fullmatch(re.escape(take_id) + r"\.seg[0-9]{2,}", m.id):
+    if m.id != take_id and not re.fullmatch(re.escape(take_id) + SEGMENT_SUFFIX, m.id):
         return None
     return (take_id, path) if folder.name == safe_id(m.id) else None
 
@@ -351,23 +377,45 @@ def _same_id(a: str, b: str) -> bool:
     return safe_id(a).casefold() == safe_id(b).casefold()
 
 
-def _still_there(path: str, take_id: str) -> bool:
-    """Whether the raw take ``take_id`` is still at ``path``. A take there whose metadata cannot be read,
-    or a path that cannot be looked at, is not known to be gone: it counts as there."""
+THERE, GONE, UNREACHABLE = "there", "gone", "unreachable"
+
+
+def _raw_take_state(path: str, take_id: str) -> str:
+    """Whether the raw take ``take_id`` is still at ``path`` (``THERE``), is gone from the folder that
+    held it (``GONE``: that folder, the parent of ``path``, is there and holds no take ``take_id`` at
+    ``path``), or cannot be reached (``UNREACHABLE``: that folder is not there, as on a drive that is not
+    mounted or a share mounted at another path, so nothing is known of the take). A take there whose
+    metadata cannot be read, or a path that cannot be looked at, is not known to be gone: ``THERE``."""
     try:
+        if not os.path.isdir(os.path.dirname(path)):
+            return UNREACHABLE
         if not is_take_dir(path):
-            return False
-        return _same_id(read_meta(path).id, take_id)
+            return GONE
+        return THERE if _same_id(read_meta(path).id, take_id) else GONE
     except (S2AError, OSError):
-        return True
+        return THERE
 
 
 def orphans(out_dir: Path, folders: list[Path]) -> list[tuple[Path, str]]:
     """The aligned takes in ``out_dir`` (each with the path of its raw take) whose raw take is gone: not
     one of this run's take ``folders`` (by path or by take id: a renamed take folder keeps its id) and
-    not on disk at the path its outputs record (nothing there, or a take of another id). Takes aligned
-    from other folders into ``out_dir`` by other runs stay as long as their raw takes do. Only aligned
-    takes this stage wrote are looked at (``_source_of``)."""
+    not at the path its outputs record, in a folder that is there (nothing at the path, or a take of
+    another id). Takes aligned from other folders into ``out_dir`` by other runs stay as long as their
+    raw takes do; those whose raw take's folder cannot be reached are no orphans (``unreachable``). Only
+    aligned takes this stage wrote are looked at (``_source_of``)."""
+    return _lost(out_dir, folders)[GONE]
+
+
+def unreachable(out_dir: Path, folders: list[Path]) -> list[tuple[Path, str]]:
+    """The aligned takes in ``out_dir`` (each with the path of its raw take) whose raw take is not among
+    the take ``folders`` and whose raw take's folder is not there (a drive not mounted, a share mounted
+    elsewhere): not known to be gone, never pruned."""
+    return _lost(out_dir, folders)[UNREACHABLE]
+
+
+def _lost(out_dir: Path, folders: list[Path]) -> dict[str, list[tuple[Path, str]]]:
+    """The aligned takes in ``out_dir`` whose raw take is not among the take ``folders``, by the state
+    of their raw take (``GONE``, ``UNREACHABLE``; see ``orphans``)."""
     given_paths = {str(f.resolve()) for f in folders}
     given_ids = []
     for f in folders:
@@ -376,15 +424,15 @@ def orphans(out_dir: Path, folders: list[Path]) -> list[tuple[Path, str]]:
         except S2AError:
             pass  # its outputs, if any, record its path
     given = set(given_ids)
-    there: dict[tuple[str, str], bool] = {}
-    found = []
+    state: dict[tuple[str, str], str] = {}
+    found: dict[str, list[tuple[Path, str]]] = {GONE: [], UNREACHABLE: []}
     try:
         with os.scandir(out_dir) as entries:
             names = sorted(
                 e.name for e in entries if not e.name.startswith(".") and e.is_dir(follow_symlinks=False)
             )
     except OSError:
-        return []
+        return found
     for name in names:
         source = _source_of(out_dir / name)
         if source is None:
@@ -392,10 +440,10 @@ def orphans(out_dir: Path, folders: list[Path]) -> list[tuple[Path, str]]:
         take_id, path = source
         if path in given_paths or safe_id(take_id).casefold() in given:
             continue
-        if source not in there:
-            there[source] = _still_there(path, take_id)
-        if not there[source]:
-            found.append((out_dir / name, path))
+        if source not in state:
+            state[source] = _raw_take_state(path, take_id)
+        if state[source] != THERE:
+            found[state[source]].append((out_dir / name, path))
     return found
 
 

@@ -181,31 +181,48 @@ def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | 
     (``files``: ``folder_files`` of it, when the caller lists each folder once; litter such as ``._X.wav``
     is never audio). Returns (path or None, why none was taken when that is worth a warning). An
     iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is never imported
-    without its audio."""
+    without its audio. A placeholder counts as the file it stands for: the one of the same stem, the
+    only audio beside the source, or, when all the audio beside it is placeholders, any of them is that
+    error."""
     files = without_litter(folder_files(source.parent) if files is None else files)
     stems = {_nfc(source.stem), _nfc(audio_stem(source))}
+    waiting = {}  # audio iCloud has not downloaded: placeholder -> the name of the file it stands for
     for p in files:
         original = icloud_original(p)
         if original is not None and Path(original).suffix.lower() in AUDIO_SUFFIXES:
-            if _nfc(Path(original).stem) in stems and not (p.parent / original).exists():
-                raise icloud_error(p, source)
+            if not (p.parent / original).exists():
+                waiting[p] = original
+    for p, original in waiting.items():
+        if _nfc(Path(original).stem) in stems:
+            raise icloud_error(p, source)
     audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES and icloud_original(p) is None]
     same = [p for p in audio if _nfc(p.stem) in stems]
     if len(same) > 1:
         return None, f"several audio files named {source.stem}.*: {', '.join(p.name for p in same)}"
     if same:
         return same[0], None
-    if len(audio) == 1:
-        owner = [
-            p
-            for p in files
-            if _nfc(audio_stem(p)) == _nfc(audio[0].stem) and p.suffix.lower() in (".csv", ".json")
-        ]
-        if owner:
-            return None, f"the only audio file beside it, {audio[0].name}, is named for {owner[0].name}"
-        return audio[0], None
-    if audio:
-        return None, f"{len(audio)} audio files beside it and none named {source.stem}.*"
+    candidates = {p: p.name for p in audio} | waiting  # each with the name of the file it is
+
+    def owner(name: str) -> Path | None:
+        """The CSV or export beside the source that an audio file of this name is named for."""
+        stem = _nfc(Path(name).stem)
+        return next(
+            (p for p in files if _nfc(audio_stem(p)) == stem and p.suffix.lower() in (".csv", ".json")), None
+        )
+
+    if len(candidates) == 1:
+        ((only, name),) = candidates.items()
+        if (other := owner(name)) is not None:
+            return None, f"the only audio file beside it, {name}, is named for {other.name}"
+        if only in waiting:
+            raise icloud_error(only, source)
+        return only, None
+    if not audio:  # all placeholders: whichever of them is this source's audio is not downloaded
+        free = sorted((name, p) for p, name in waiting.items() if owner(name) is None)
+        if free:
+            raise icloud_error(free[0][1], source)
+    if candidates:
+        return None, f"{len(candidates)} audio files beside it and none named {source.stem}.*"
     return None, None
 
 
@@ -285,7 +302,11 @@ def import_source(
     if is_appledouble(source):
         raise InputError(
             "a macOS metadata file (AppleDouble, as Finder leaves as ._X beside copied files), not a take: "
-            "import the file without the ._ in its name",
+            + (
+                "import the file without the ._ in its name"
+                if source.name.startswith("._")
+                else "it was perhaps renamed from ._X or copied over X: import the CSV itself"
+            ),
             source,
         )
     livelink = is_livelink_csv(source, head)

@@ -167,18 +167,54 @@ def _waiting_ending(waiting: dict[str, Path], suffix: str) -> list[str]:
     return [n for n in waiting if Path(n).suffix.lower() == suffix and n.lower() != "frame_log.csv"]
 
 
-def refuse_placeholders(folder: Path, audio_given: bool = False) -> None:
-    """Refuse a take folder holding an iCloud placeholder of a file the take is read from (the
-    ``.mov``, a ``.wav``, ``frame_log.csv``, the app's JSON; CSVs: ``choose_csv``) rather than import it
-    without its audio or timing; ``audio_given``: its audio comes from elsewhere (``--audio``)."""
+# The app's files a take is read from besides its CSVs and media (``read_take_folder``).
+APP_FILES = ("take.json", "video_metadata.json", "audio_metadata.json", "frame_log.csv")
+
+
+def refuse_placeholders(folder: Path, audio_given: bool = False, variant: str | None = None) -> None:
+    """Refuse a take folder holding an iCloud placeholder of a file the take is read from rather than
+    import it without its audio or timing: ``APP_FILES``, the CSVs ``choose_csv`` takes (``variant`` as
+    there), and the ``.mov`` and ``.wav`` the take would use (``_media``: a placeholder counts as the file
+    it stands for when choosing them); ``audio_given``: its audio comes from elsewhere (``--audio``).
+    Placeholders of files the take never reads (a second ``.mov``, a ``.wav`` beside a ``.mov`` with
+    audio, other JSON) are left alone."""
+    _refuse_app_placeholders(folder)
+    csv_path, _ = choose_csv(folder, variant)
+    _media(folder, split_variant(csv_path.stem)[0], audio_given)
+
+
+def _refuse_app_placeholders(folder: Path) -> None:
+    """Refuse a take folder holding an iCloud placeholder of one of ``APP_FILES``."""
     for name, placeholder in sorted(_placeholders(folder).items()):
-        kind = Path(name).suffix.lower()
-        if (
-            kind == ".json"
-            or name.lower() == "frame_log.csv"
-            or (kind in (".mov", ".wav") and not audio_given)
-        ):
+        if name.lower() in APP_FILES:
             raise icloud_error(placeholder, folder)
+
+
+def _named_as(files: list[tuple[str, Path]], prefix: str) -> Path | None:
+    """Of several files (their names, paths) of one kind, the take's: the one named as its CSV
+    (``prefix``), else the first by name; None for none."""
+    files = sorted(files)
+    return next((p for name, p in files if Path(name).stem == prefix), files[0][1]) if files else None
+
+
+def _media(folder: Path, prefix: str, audio_given: bool) -> tuple[Path | None, MovInfo | None, Path | None]:
+    """The take's ``.mov`` (with its facts, ``_probe``) and the ``.wav`` that stands in for its audio
+    (None unless the take has no ``.mov`` or its ``.mov`` holds no audio track), each the one named as
+    the CSV (``prefix``), else the first by name. Unless ``audio_given``, a file iCloud has not
+    downloaded counts as there when choosing, and one chosen so is an error (``icloud_error``)."""
+    waiting = {} if audio_given else _placeholders(folder)
+
+    def pick(suffix: str) -> Path | None:
+        real = [(p.name, p) for p in _files_ending(folder, suffix)]
+        chosen = _named_as(real + [(n, waiting[n]) for n in _waiting_ending(waiting, suffix)], prefix)
+        if chosen is not None and chosen in waiting.values():
+            raise icloud_error(chosen, folder)
+        return chosen
+
+    mov = pick(".mov")
+    info = _probe(mov)
+    mov_audio = mov is not None and (info is None or info.audio_tracks > 0)  # unknown: decoding tells
+    return mov, info, None if mov_audio else pick(".wav")
 
 
 def _bad_json(repairs: list[dict[str, Any]], message: str) -> None:
@@ -389,8 +425,10 @@ def read_take_folder(
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("take folder not found", folder)
-    refuse_placeholders(folder, audio_given=audio_file is not None)
+    _refuse_app_placeholders(folder)
     csv_path, neutral_path = choose_csv(folder, variant)
+    # of several, the .mov (or .wav) named as the CSV is the take's
+    mov, info, wav = _media(folder, split_variant(csv_path.stem)[0], audio_given=audio_file is not None)
     take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
     meta = take.meta
     repairs = meta.repairs
@@ -417,11 +455,6 @@ def read_take_folder(
         take.neutral = _neutral_pose(neutral_path, take)
         meta.sources.append(source_file(neutral_path, "neutral_csv"))
 
-    # of several, the .mov (or .wav) named as the CSV is the take's
-    prefix = split_variant(csv_path.stem)[0]
-    movs = _files_ending(folder, ".mov")
-    mov = next((p for p in movs if p.stem == prefix), movs[0]) if movs else None
-    info = _probe(mov)
     # frame_log.csv's timecodes count at the video's rate: an app version that writes no
     # video_metadata.json still states it in the .mov
     video_rate = (
@@ -449,8 +482,6 @@ def read_take_folder(
             )
             video_rate = log_rate
     mov_audio = mov is not None and (info is None or info.audio_tracks > 0)  # unknown: decoding tells
-    wavs = _files_ending(folder, ".wav")  # a WAV beside the CSV stands in for a missing .mov (or its audio)
-    wav = next((p for p in wavs if p.stem == prefix), wavs[0]) if wavs and not mov_audio else None
     if mov is not None:
         meta.sources.append(source_file(mov, "reference_video"))
         meta.extra["reference_video"] = mov.name

@@ -113,8 +113,9 @@ def icloud_error(placeholder: Path, where: Path | None = None) -> InputError:
 
 
 def is_zip(path: Path) -> bool:
-    """Whether ``path`` names a zip archive (by its name: what a download or Finder's Compress makes)."""
-    return path.suffix.lower() == ".zip"
+    """Whether ``path`` is a zip archive: a file named ``X.zip`` (what a download or Finder's Compress
+    makes; a folder so named, such as a take folder, is none)."""
+    return path.suffix.lower() == ".zip" and path.is_file()
 
 
 def zip_error(path: Path) -> InputError:

@@ -217,3 +217,54 @@ def test_a_renamed_raw_take_folder_is_no_orphan(raw_takes, tmp_path):
     proc = run_cli("align", other, "-o", out, *FAST, "--prune", check=True)
     assert _warnings(proc.stderr) == [] and "removed" not in proc.stderr
     assert len(_aligned(out)) == 3
+
+
+def _unreachable(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if "warning:" in line and "not reachable" in line]
+
+
+def test_outputs_of_a_raw_take_on_a_folder_not_there_are_never_pruned(raw_takes, tmp_path):
+    """A drive not mounted (or a share mounted at another path): the folder that held the raw take is not
+    there, so the take is not known to be gone: said apart, kept also with --prune."""
+    drive = _copy_takes(raw_takes, tmp_path / "drive" / "takes", names=[TWO_SEGMENTS])
+    local = _copy_takes(raw_takes, tmp_path / "local", names=["20250107_SimSpk01_1", "20250107_SimSpk01_3"])
+    out = tmp_path / "aligned"
+    run_cli("align", drive, "-o", out, *FAST, check=True)
+    run_cli("align", local, "-o", out, *FAST, check=True)
+    (tmp_path / "drive").rename(tmp_path / "unmounted")  # the drive's takes are no longer where they were
+    shutil.rmtree(local / "20250107_SimSpk01_3")  # gone from a folder that is there
+    proc = run_cli("align", local, "-o", out, *FAST, "--prune")
+    assert proc.returncode == 0, proc.stderr
+    (away,) = _unreachable(proc.stderr)
+    assert away.startswith(f"s2a-align: warning: 2 aligned takes in {out} come from raw takes that are not")
+    assert f"{TWO_SEGMENTS}.seg01, {TWO_SEGMENTS}.seg02 (from {(drive / TWO_SEGMENTS).resolve()})" in away
+    assert "kept, also with --prune" in away and "20250107_SimSpk01_3" not in away
+    (removed,) = [line for line in proc.stderr.splitlines() if "removed" in line]
+    assert "removed 1 aligned take " in removed and "20250107_SimSpk01_3" in removed
+    assert TWO_SEGMENTS not in removed and _warnings(proc.stderr) == []
+    assert set(_aligned(out)) == {"20250107_SimSpk01_1", f"{TWO_SEGMENTS}.seg01", f"{TWO_SEGMENTS}.seg02"}
+    # mounted again where it was: nothing to say
+    (tmp_path / "unmounted").rename(tmp_path / "drive")
+    proc = run_cli("align", local, "-o", out, *FAST, "--prune", check=True)
+    assert _unreachable(proc.stderr) == [] and _warnings(proc.stderr) == [] and "removed" not in proc.stderr
+
+
+def test_a_take_of_a_hundred_segments_or_more_is_not_aligned_again(raw_takes, tmp_path):
+    """The aligner names the 100th segment ``X.seg100``: its outputs are found as those of seg01 to seg99."""
+    from align.batch import orphans
+
+    raw = _copy_takes(raw_takes, tmp_path / "raw", names=[TWO_SEGMENTS])
+    out = tmp_path / "aligned"
+    run_cli("align", raw, "-o", out, *FAST, check=True)
+    # the take's second segment as the aligner would name a take's 100th
+    seg = out / f"{TWO_SEGMENTS}.seg100"
+    (out / f"{TWO_SEGMENTS}.seg02").rename(seg)
+    meta = json.loads((seg / "meta.json").read_text())
+    (seg / "meta.json").write_text(json.dumps(meta | {"id": seg.name}))
+    proc = run_cli("align", raw, "-o", out, *FAST, "--json", check=True)
+    (report,) = map(json.loads, proc.stdout.splitlines())
+    assert report["skipped"] is True, report
+    assert [Path(p).name for p in report["outputs"]] == [f"{TWO_SEGMENTS}.seg01", seg.name]
+    assert sorted(_aligned(out)) == [f"{TWO_SEGMENTS}.seg01", seg.name]
+    shutil.rmtree(raw / TWO_SEGMENTS)
+    assert sorted(p.name for p, _ in orphans(out, [])) == [f"{TWO_SEGMENTS}.seg01", seg.name]

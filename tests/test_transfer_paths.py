@@ -121,7 +121,7 @@ def test_apple_double_beside_a_loose_csv_and_info_of_the_folder(samples, tmp_pat
     assert proc.returncode == 0, proc.stderr
     assert [json.loads(line)["id"] for line in proc.stdout.splitlines()] == ["S07-001"]
     assert "skipped 2 macOS metadata files (._*)" in proc.stderr
-    # named directly (a path typed by hand), an AppleDouble file says what it is
+    # named directly (a path typed by hand), an AppleDouble file is passed over and counted all the same
     proc = run_cli(
         "capture", "import", folder / "._S07-001.csv", folder / "S07-001.csv", "-o", tmp_path / "o2"
     )
@@ -192,8 +192,11 @@ def test_pair_audio_ignores_apple_double_audio_and_pairs_nfd_names(samples, tmp_
     for take in imported(tmp_path / "out"):
         t = read_take(take)
         assert t.audio is not None, take
-    nfd = [s for s in read_take(summaries["take"]["path"]).meta.sources if s.role == "external_audio"]
-    assert Path(nfd[0].path).name == "voice.wav"
+    voice = [s for s in read_take(summaries["take"]["path"]).meta.sources if s.role == "external_audio"]
+    assert Path(voice[0].path).name == "voice.wav"  # not its AppleDouble file ._voice.wav
+    cafe_audio = read_take(summaries[unicodedata.normalize("NFC", "Café")]["path"]).meta.sources
+    (nfd,) = [s for s in cafe_audio if s.role == "external_audio"]
+    assert Path(nfd.path).name == unicodedata.normalize("NFD", "Café") + ".wav"
     assert "imported without audio" not in proc.stderr
 
 
@@ -289,3 +292,74 @@ def test_symlinks_to_a_parent_and_dangling_links_are_skipped(sim_take, tmp_path)
     lines = warnings_of(proc)
     assert any("loop" in w and "holds the folder searched" in w for w in lines), proc.stderr
     assert any("gone.csv" in w and "does not exist" in w for w in lines), proc.stderr
+
+
+def test_apple_double_data_under_a_csv_name_says_what_to_import(samples, tmp_path):
+    from capture.errors import InputError
+    from capture.importer import import_source
+
+    renamed = apple_double(tmp_path / "S07-001.csv")  # AppleDouble data copied over (or renamed to) X.csv
+    with pytest.raises(InputError, match="AppleDouble") as err:
+        import_source(renamed)
+    assert "without the ._" not in str(err.value) and "import the CSV itself" in str(err.value)
+    named = apple_double(tmp_path / "._S07-001.csv")
+    with pytest.raises(InputError, match="import the file without the ._ in its name"):
+        import_source(named)
+    proc = run_cli("capture", "import", renamed, "-o", tmp_path / "out")
+    assert proc.returncode == 1 and "AppleDouble" in proc.stderr and "Traceback" not in proc.stderr
+    assert "without the ._" not in proc.stderr and not imported(tmp_path / "out")
+
+
+def test_pair_audio_refuses_a_csv_whose_only_audio_is_an_icloud_placeholder(samples, tmp_path):
+    csv = samples / "livelinkface/alexdjulin_S07/S07-001.csv"
+    one = tmp_path / "one"
+    one.mkdir()
+    shutil.copy(csv, one / "take.csv")
+    icloud_placeholder(one, "voice.wav")  # the only audio beside it, named otherwise, not downloaded
+    two = tmp_path / "two"
+    two.mkdir()
+    shutil.copy(csv, two / "take.csv")
+    icloud_placeholder(two, "a.wav")
+    icloud_placeholder(two, "b.wav")
+    for folder, name in ((one, "voice.wav"), (two, "a.wav")):
+        proc = run_cli("capture", "import", folder, "--pair-audio", "-o", tmp_path / "out")
+        assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+        assert f"{name} is an iCloud placeholder, not downloaded" in proc.stderr, proc.stderr
+        assert str(folder / "take.csv") in proc.stderr and not imported(tmp_path / "out")
+    # the placeholder of another CSV's audio: that CSV's error, this one's warning as for a real file
+    shutil.copy(csv, two / "a.csv")
+    shutil.copy(csv, two / "b.csv")
+    proc = run_cli("capture", "import", two / "take.csv", "--pair-audio", "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "2 audio files beside it and none named take.*" in proc.stderr
+
+
+def test_icloud_placeholders_of_files_the_take_never_reads_do_not_refuse_it(sim_take, tmp_path):
+    extra_mov = copy_take(sim_take, tmp_path / "extra_mov")
+    icloud_placeholder(extra_mov, "other_take.mov")  # a second .mov, not named as the CSV
+    wav_unused = copy_take(sim_take, tmp_path / "wav_unused")
+    (wav_unused / f"{STEM}.wav").unlink()
+    icloud_placeholder(wav_unused, f"{STEM}.wav")  # the .mov holds the audio: the .wav is never read
+    icloud_placeholder(wav_unused, "notes.json")
+    for take in (extra_mov, wav_unused):
+        t = read_take_folder(take)
+        assert t.audio is not None and t.meta.extra["reference_video"] == f"{STEM}.mov"
+    # without the .mov, the .wav is the take's audio: its placeholder refuses the take
+    (wav_unused / f"{STEM}.mov").unlink()
+    with pytest.raises(Exception, match=f"{STEM}.wav is an iCloud placeholder"):
+        read_take_folder(wav_unused)
+    # the app's JSON the take reads still refuses it
+    app_json = copy_take(sim_take, tmp_path / "app_json")
+    if (app_json / "video_metadata.json").exists():
+        (app_json / "video_metadata.json").unlink()
+    icloud_placeholder(app_json, "video_metadata.json")
+    with pytest.raises(Exception, match="video_metadata.json is an iCloud placeholder"):
+        read_take_folder(app_json)
+
+
+def test_a_take_folder_named_like_a_zip_is_imported(sim_take, tmp_path):
+    take = copy_take(sim_take, tmp_path / "T.zip")
+    proc = run_cli("capture", "import", take, "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "zip archive" not in proc.stderr, proc.stderr
+    proc = run_cli("capture", "import", tmp_path, "-o", tmp_path / "out2")
+    assert proc.returncode == 0 and "zip archive" not in proc.stderr, proc.stderr
+    assert len(imported(tmp_path / "out")) == 1 and len(imported(tmp_path / "out2")) == 1
