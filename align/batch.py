@@ -28,7 +28,7 @@ from typing import Any
 from capture import InputError, S2AError, Take, TakeMeta, find_takes, read_meta, read_take, write_take
 from capture.atomic import all_or_none, batch_of_writes
 from capture.command import json_safe
-from capture.file_lock import holding
+from capture.file_lock import another_writer, holding
 from capture.importer import no_takes_found
 from capture.numbers import is_count
 from capture.take import AUDIO_FILE, FRAMES_FILE, META_FILE, is_take_dir, make_out_dir, safe_id, sha256_file
@@ -338,12 +338,7 @@ def output_lock(out_dir: Path) -> Iterator[None]:
     run ends. Where no lock can be taken (a folder that cannot be written: each take's write then says
     so), the run goes on without one."""
 
-    def refused(holder: str) -> InputError:
-        return InputError(
-            f"another s2a-align{holder} is writing into {out_dir}: wait for it or choose another -o"
-        )
-
-    with holding(out_dir / LOCK_FILE, refused, optional=True):
+    with holding(out_dir / LOCK_FILE, another_writer("s2a-align", out_dir), optional=True):
         yield
 
 

@@ -12,7 +12,7 @@ from .channels import is_known
 from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
-from .file_lock import holding
+from .file_lock import another_writer, holding
 from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source, is_livelink_csv
 from .live_cli import register as register_live
 from .paired import read_paired
@@ -240,14 +240,12 @@ def cmd_import(args: argparse.Namespace) -> int:
             "is a dataset folder (it holds manifest.json): import takes into a folder of their own", out
         )
 
-    def refused(holder: str) -> InputError:
-        return InputError(
-            f"another s2a-capture import{holder} is writing into {out}: wait for it or choose another -o"
-        )
-
     # One import at a time into a folder (two at once each took the same free ids and overwrote each
     # other's takes); the folder is listed once for leftovers of killed writes, not once per take.
-    with holding(out / IMPORT_LOCK, refused, optional=True), batch_of_writes(out):
+    with (
+        holding(out / IMPORT_LOCK, another_writer("s2a-capture import", out), optional=True),
+        batch_of_writes(out),
+    ):
         return _import_all(args, jobs, generic, timecode_rate)
 
 

@@ -13,6 +13,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
+from .errors import InputError
+
 try:
     import fcntl
 except ImportError:  # pragma: no cover - Windows
@@ -66,6 +68,18 @@ def lock_holder(path: str | Path, wait_s: float = PID_WAIT_S) -> str:
         if pid.isdigit() or time.monotonic() >= deadline:
             return f" (pid {pid})" if pid.isdigit() else ""
         time.sleep(0.02)
+
+
+def another_writer(command: str, folder: Path) -> Callable[[str], Exception]:
+    """The ``refused`` of ``holding`` for a command that writes into an output folder: "another
+    COMMAND (pid N) is writing into FOLDER: wait for it or choose another -o"."""
+
+    def refused(holder: str) -> Exception:
+        return InputError(
+            f"another {command}{holder} is writing into {folder}: wait for it or choose another -o"
+        )
+
+    return refused
 
 
 @contextmanager
