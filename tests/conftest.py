@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import io
+import os
 import subprocess
 import sys
 import warnings
@@ -35,6 +36,36 @@ def run_cli(module: str, *args: str, check: bool = False) -> subprocess.Complete
     if check and proc.returncode != 0:
         raise AssertionError(f"{module} {args} failed ({proc.returncode}):\n{proc.stderr}")
     return proc
+
+
+def run_gloo_ranks(script: str, args: list[str], timeout: float = 300) -> list[list[str]]:
+    """``python -c script RANK *args`` for ranks 0 and 1 at once (a gloo group on loopback, as the
+    script sets it up); the JSON lines (``{...}``) each printed, every rank having printed some and
+    exited with 0."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
+        env["GLOO_SOCKET_IFNAME"] = "lo"
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", script, str(rank), *args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for rank in (0, 1)
+    ]
+    try:
+        outs = [p.communicate(timeout=timeout) for p in procs]
+    finally:  # a rank waiting at a collective the other never joins: never left behind
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    lines = [[line for line in out.splitlines() if line.startswith("{")] for out, _ in outs]
+    assert all(lines) and all(p.returncode == 0 for p in procs), [err[-2000:] for _, err in outs]
+    return lines
 
 
 def _warning_to_stderr(message, category, filename, lineno, file=None, line=None) -> None:

@@ -7,15 +7,12 @@ same samples in shards of 4, 4 and 3 (``uneven``)."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from conftest import run_gloo_ranks
 from dataset_helpers import make_aligned_take
 
 from capture import write_take
@@ -126,29 +123,8 @@ dist.destroy_process_group()
 
 
 def test_ddp_ranks_with_spawned_workers_read_their_share_and_step_together(ds, uneven, tmp_path):
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
-        env["GLOO_SOCKET_IFNAME"] = "lo"
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-c", DDP_SCRIPT, str(rank), str(tmp_path / "rendezvous"), str(ds), str(uneven)],
-            cwd=ROOT,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for rank in (0, 1)
-    ]
-    try:
-        outs = [p.communicate(timeout=300) for p in procs]
-    finally:  # a rank waiting at a collective the other never joins: never left behind
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.communicate()
-    lines = [[line for line in o[0].splitlines() if line.startswith("{")] for o in outs]
-    assert all(lines), [o[1][-2000:] for o in outs]
+    args = [str(tmp_path / "rendezvous"), str(ds), str(uneven)]
+    lines = run_gloo_ranks(DDP_SCRIPT, args)
     shares = [json.loads(found[0]) for found in lines]
     everything = _train_keys(ds)
     for name in ("early", "late"):
@@ -156,7 +132,6 @@ def test_ddp_ranks_with_spawned_workers_read_their_share_and_step_together(ds, u
         assert a and b and not set(a) & set(b), name  # not the whole split on every rank
         assert sorted(a + b) == everything, name
         assert [r[name + "_len"] for r in shares] == [len(a), len(b)]  # len(): the rank's share
-    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
     results = [json.loads(found[-1]) for found in lines]
     for epoch in range(2):
         a, b = (r["epochs"][epoch] for r in results)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 import torch
-from conftest import ROOT, run_here
+from conftest import run_gloo_ranks, run_here
 from dataset_helpers import SR, make_aligned_take, speech_like, write_aligned_set
 from test_train_pipeline import TINY
 
@@ -312,36 +311,13 @@ def test_ddp_ranks_stop_together_when_only_one_sees_the_rebuild(builds, tmp_path
     at its next collective; now both stop with the line, at the validation after the rebuild."""
     ds, run = _copy(builds["a"], tmp_path / "ds"), tmp_path / "run"
     cfg = _cfg("max_steps=12", "eval_every=2")
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
-        env["GLOO_SOCKET_IFNAME"] = "lo"
     args = [str(tmp_path / "rendezvous"), str(ds), str(run), json.dumps(cfg)]
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-c", DDP_FIT, str(rank), *args],
-            cwd=ROOT,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for rank in (0, 1)
-    ]
-    try:
-        outs = [p.communicate(timeout=240) for p in procs]
-    finally:  # a rank waiting at a collective the other never joins: never left behind
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.communicate()
-    lines = [[line for line in o[0].splitlines() if line.startswith("{")] for o in outs]
-    assert all(lines), [o[1][-2000:] for o in outs]
+    lines = run_gloo_ranks(DDP_FIT, args, timeout=240)
     errors = [json.loads(found[-1])["error"] for found in lines]
     seen = f"DatasetChanged: {ds} was rebuilt while this run was training ("
     assert errors[0].startswith(seen) and "(seen by another rank" not in errors[0], errors
     assert errors[1] == errors[0] + " (seen by another rank: rank 0)", errors
     assert "\n" not in errors[0]
-    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
     assert load_checkpoint(run / "last.pt")["step"] == 4  # the last checkpoint before the rebuild
 
 
