@@ -2,9 +2,9 @@
 claps, content), corrects drift, trims silence by VAD, and writes 16 kHz audio with frames on a uniform
 grid, one aligned take per segment."""
 
-# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.command); the
+# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
 # guard ends below, once this package's imports are done.
-from capture.command import imports_done
+from capture.import_guard import imports_done
 
 from .aligner import align_take, align_with_report, is_aligned
 from .batch import align_folder, align_takes

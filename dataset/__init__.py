@@ -2,9 +2,9 @@
 manifest, validation and statistics. ``ShardDataset`` (PyTorch) lives in ``dataset.torch_dataset``
 so that importing this package does not import torch."""
 
-# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.command); the
+# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
 # guard ends below, once this package's imports are done.
-from capture.command import imports_done
+from capture.import_guard import imports_done
 
 from .build import BuildOptions, build_dataset, collect_takes, plan_shards, take_sha256
 from .features import DEFAULT_FEATURES, FEATURES, FeatureSettings, compute_features, parse_features

@@ -1,9 +1,9 @@
 """train: Transformer-S2A (MoE), its baselines, training, evaluation, prediction, export and the PPG
 extractor's training. The command line is ``s2a-train`` (``train.cli``)."""
 
-# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.command): PyTorch,
-# numpy and scipy load below, in the first 2-3 s of every s2a-train command. The guard ends below.
-from capture.command import imports_done
+# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard):
+# PyTorch, numpy and scipy load below, in the first 2-3 s of every s2a-train command. The guard ends below.
+from capture.import_guard import imports_done
 
 from .checkpoint import load_checkpoint, load_system
 from .compare import compare

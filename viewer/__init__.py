@@ -1,9 +1,9 @@
 """viewer: a take or a prediction as a face (pyvista, offscreen), as curves, as video, live in Unreal
 (Live Link packets), and a dataset as one HTML page. Imports every other stage; none imports it."""
 
-# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.command); the
+# capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
 # guard ends below, once this package's imports are done.
-from capture.command import imports_done
+from capture.import_guard import imports_done
 
 from .face import FaceModel, Part, builtin_face, weights_from_values
 from .gltf import arkit_channel, load_gltf, write_glb

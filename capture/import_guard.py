@@ -1,0 +1,93 @@
+"""Ctrl-C while a stage command starts: its imports (numpy, scipy, PyTorch: a second or more) stop at once,
+quietly, with exit code 130, instead of a KeyboardInterrupt traceback or the errors of a half-imported
+library. ``capture`` imports this module first of all (it needs four standard modules, no more), which
+installs the guard in a stage command; each stage package ends it once its own imports are done
+(``imports_done``). A program that imports the packages keeps its own Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from typing import Any
+
+# The stage packages and their commands: Ctrl-C while one of them imports stops it quietly (below).
+COMMANDS = {
+    "capture": "s2a-capture",
+    "align": "s2a-align",
+    "dataset": "s2a-dataset",
+    "train": "s2a-train",
+    "viewer": "s2a-view",
+}
+_guarding: str | None = None  # the stage whose command is importing under the guard
+
+
+def running_command() -> str | None:
+    """The stage package whose command this process is (its console script, or ``python -m package``),
+    or None for a program that imports the packages."""
+    argv = getattr(sys, "argv", None) or [""]
+    by_script = {prog: package for package, prog in COMMANDS.items()}
+    if os.path.basename(argv[0]) in by_script:
+        return by_script[os.path.basename(argv[0])]
+    module = _module_run(getattr(sys, "orig_argv", None) or [])  # the interpreter's own arguments
+    package = module.split(".")[0] if module else None
+    return package if package in COMMANDS else None
+
+
+# Interpreter options that take the next argument as their value (``python -X importtime -m align``).
+_OPTION_VALUES = ("-X", "-W", "--check-hash-based-pycs")
+
+
+def _module_run(orig: list[str]) -> str | None:
+    """The module ``python -m MODULE`` runs, from the interpreter's arguments: only an ``-m`` among its
+    own options counts, not one among a script's arguments (``python tool.py -m train``)."""
+    i = 1
+    while i < len(orig):
+        arg = orig[i]
+        if arg == "-m":
+            return orig[i + 1] if i + 1 < len(orig) else None
+        if arg.startswith("-m"):
+            return arg[2:]
+        if arg.startswith("-c") or arg == "-" or not arg.startswith("-"):
+            return None  # a command, standard input or a script: what follows is its own
+        i += 2 if arg in _OPTION_VALUES else 1
+    return None
+
+
+def _stop_quietly(_signum: int, _frame: Any) -> None:
+    print(f"{COMMANDS.get(_guarding or '', 'command')}: interrupted", file=sys.stderr, flush=True)
+    os._exit(130)  # nothing has been written yet
+
+
+def guard_imports() -> None:
+    """Called first by ``capture`` (which every stage imports first): while a stage command imports
+    numpy, scipy and PyTorch (its first second or more), Ctrl-C stops it at once, quietly, with exit code
+    130. Ctrl-C in the middle of an import leaves a half-imported library whose errors follow (a
+    KeyboardInterrupt traceback, or a RecursionError inside numpy). Only in the command itself, on the
+    main thread, where Ctrl-C was Python's own: a program that imports the packages keeps its Ctrl-C."""
+    global _guarding
+    package = running_command()
+    if (
+        _guarding is None
+        and package is not None
+        and threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    ):
+        _guarding = package
+        signal.signal(signal.SIGINT, _stop_quietly)
+
+
+def imports_done(package: str) -> bool:
+    """Called by each stage package once its imports are done: the command of ``package`` gets Python's
+    own Ctrl-C back (its commands handle it from here). Returns whether its imports were guarded."""
+    global _guarding
+    if _guarding != package:
+        return False
+    _guarding = None
+    if signal.getsignal(signal.SIGINT) is _stop_quietly:  # unless an import installed its own
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    return True
+
+
+guard_imports()  # on import: first thing in capture, so before numpy
