@@ -93,7 +93,8 @@ def holding(
     into it) while the block runs: the one writer of a folder (an import's output, an align's, a
     dataset build's, a training run). Another process holding it: ``refused(lock_holder(path))`` is
     raised at once. ``remove(created)`` (``created``: this lock made the file) says whether the file is
-    removed at the end, while still held, so that one waiting on it sees it went and retries. A lock
+    removed at the end, while still held (one that opened it meanwhile finds it gone and locks the
+    file at that path anew). A lock
     file that cannot be opened or locked raises its ``OSError``, or with ``optional`` the block runs
     without a lock (a read-only folder, a file system without locks: the writes then fail themselves)."""
     taken = _lock(path, refused, optional) if fcntl is not None else None

@@ -80,28 +80,11 @@ class FeatureSettings:
         each field checked; a field left out takes its default (``level``: ``"none"``, as datasets built
         before speech-level normalisation recorded none). An unknown field or a value of the wrong type
         or range is an ``InputError`` naming it."""
-        if not isinstance(data, dict):
-            raise InputError(f"feature settings must be a JSON object, not {data!r:.60}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(k for k in data if k not in known)
-        if unknown:
-            raise InputError(f"feature settings hold unknown field(s) {', '.join(map(str, unknown))}")
-        kwargs = dict(data)
-        for name, test, what in _SETTINGS_FIELDS:
-            if name in kwargs and not test(kwargs[name]):
-                raise InputError(f"feature settings: {name} must be {what}, not {kwargs[name]!r:.60}")
+        kwargs = dict(_checked(data, cls, _SETTINGS_FIELDS, "feature settings", "hold", ""))
         if "pitch" in kwargs:
-            pitch = kwargs["pitch"]
-            if not isinstance(pitch, dict):
-                raise InputError(f"feature settings: pitch must be a JSON object, not {pitch!r:.60}")
-            pitch_known = {f.name for f in fields(PitchSettings)}
-            unknown = sorted(k for k in pitch if k not in pitch_known)
-            if unknown:
-                raise InputError(f"feature settings: pitch holds unknown field(s) {', '.join(unknown)}")
-            for name, test, what in _PITCH_FIELDS:
-                if name in pitch and not test(pitch[name]):
-                    value = pitch[name]
-                    raise InputError(f"feature settings: pitch.{name} must be {what}, not {value!r:.60}")
+            pitch = _checked(
+                kwargs["pitch"], PitchSettings, _PITCH_FIELDS, "feature settings: pitch", "holds", "pitch."
+            )
             kwargs["pitch"] = PitchSettings(**pitch)
         try:
             settings = cls(**kwargs)
@@ -138,6 +121,21 @@ class FeatureSettings:
 
 def _count(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and v > 0
+
+
+def _checked(data: Any, cls: type, tests: tuple, what: str, hold: str, prefix: str) -> dict[str, Any]:
+    """``data`` as the JSON object of dataclass ``cls``: no field ``cls`` lacks, each field of ``tests``
+    passing its test; else an ``InputError`` saying so (``what``: the object in the message)."""
+    if not isinstance(data, dict):
+        raise InputError(f"{what} must be a JSON object, not {data!r:.60}")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(str(k) for k in data if k not in known)
+    if unknown:
+        raise InputError(f"{what} {hold} unknown field(s) {', '.join(unknown)}")
+    for name, test, wanted in tests:
+        if name in data and not test(data[name]):
+            raise InputError(f"feature settings: {prefix}{name} must be {wanted}, not {data[name]!r:.60}")
+    return data
 
 
 # What each field of FeatureSettings.from_json must hold: (field, test, what the test asks for).
