@@ -13,7 +13,15 @@ from .command import emit_json, progress, run
 from .csv_take import nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
-from .importer import AUDIO_PAIRINGS, audio_beside, find_sources, folder_files, import_source, is_livelink_csv
+from .importer import (
+    AUDIO_PAIRINGS,
+    audio_beside,
+    find_sources,
+    folder_files,
+    import_source,
+    is_livelink_csv,
+    warn_skipped,
+)
 from .live_cli import register as register_live
 from .paired import read_paired
 from .simulate.cli import register as register_simulate
@@ -28,8 +36,9 @@ from .take import (
     safe_id,
     write_take,
 )
+from .take_archive import Unpacked, clear_unpacked, unpacked
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
-from .transfer_litter import Litter
+from .transfer_litter import Litter, is_zip
 
 IMPORT_LOCK = ".import.lock"  # hidden: held (flock) by the one import writing into a folder
 
@@ -160,18 +169,20 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     print("\n".join(lines))
 
 
-def _of_variant(sources: list[Path], variant: str) -> list[Path]:
+def _of_variant(sources: list[Path], variant: str, box: Unpacked | None = None) -> list[Path]:
     """``--variant`` among loose Live Link Face CSVs (take folders choose their own CSV; generic paired
     data has no variants): one of another variant of its take, by its name (``X_cal.csv`` for
-    ``--variant raw``; ``X.csv`` is the plain one), is left out with a warning."""
+    ``--variant raw``; ``X.csv`` is the plain one), is left out with a warning. ``box``: the archive
+    the sources were unpacked from, to name them by."""
     kept = []
     for src in sources:
         own = split_variant(src.stem)[1] or "plain"  # what the name says; read the file only if it differs
         if own == variant or src.suffix.lower() != ".csv" or not is_livelink_csv(src):
             kept.append(src)
         else:
+            shown = box.shown(src) if box else src
             print(
-                f"{PROG}: warning: {src}: the {own} CSV of its take, not --variant {variant}: skipped",
+                f"{PROG}: warning: {shown}: the {own} CSV of its take, not --variant {variant}: skipped",
                 file=sys.stderr,
             )
     if sources and not kept:
@@ -189,6 +200,15 @@ def cmd_import(args: argparse.Namespace) -> int:
     ):
         raise InputError("--audio-pairing goes with a CSV and its --audio (or --pair-audio)")
     timecode_rate = None if args.timecode_rate == "auto" else float(args.timecode_rate)
+    litter = Litter()  # what the folders and archives held that is no take, said once at the end
+    try:
+        return _import_jobs(args, timecode_rate, litter)
+    finally:
+        for line in litter.lines():
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+
+
+def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: Litter) -> int:
     # the options of generic paired data given, and why a Live Link Face take ignores each
     generic = {
         flag: why
@@ -219,10 +239,7 @@ def cmd_import(args: argparse.Namespace) -> int:
             raise InputError(
                 f"{next(iter(generic))} only applies to generic paired data (--matrix, or CSVs with audio)"
             )
-        litter = Litter()
-        sources = find_sources(args.sources, exports=args.pair_audio, litter=litter)
-        for line in litter.lines():
-            print(f"{PROG}: warning: {line}", file=sys.stderr)
+        sources = find_sources(args.sources, exports=args.pair_audio, litter=litter, archives=True)
         if args.variant is not None:
             sources = _of_variant(sources, args.variant)
         if not sources:
@@ -231,9 +248,11 @@ def cmd_import(args: argparse.Namespace) -> int:
             )
         if args.audio is not None and len(sources) != 1:
             raise InputError(f"--audio pairs with one source, but {len(sources)} were found")
+        if args.audio is not None and is_zip(sources[0]):
+            raise InputError("--audio pairs with a CSV or take folder, not a zip archive", sources[0])
         if args.take_id and len(sources) != 1:
             raise InputError("--id names one take, but several sources were found")
-        jobs = [("source", s) for s in sources]
+        jobs = [("archive" if is_zip(s) else "source", s) for s in sources]
     out = make_out_dir(args.out)
     if (out / "manifest.json").exists():  # the dataset stage's (which capture may not import)
         raise InputError(
@@ -246,20 +265,65 @@ def cmd_import(args: argparse.Namespace) -> int:
         holding(out / IMPORT_LOCK, another_writer("s2a-capture import", out), optional=True),
         batch_of_writes(out),
     ):
-        return _import_all(args, jobs, generic, timecode_rate)
+        clear_unpacked(out)  # archives a killed import left unpacked
+        importer = _Importer(args, generic, timecode_rate, litter)
+        failures = sum(
+            importer.archive(src) if kind == "archive" else not importer.one(kind, src) for kind, src in jobs
+        )
+        return 1 if failures else 0
 
 
-def _import_all(
-    args: argparse.Namespace,
-    jobs: list[tuple[str, Path]],
-    generic: dict[str, str],
-    timecode_rate: float | None,
-) -> int:
-    """Import each job into ``args.out``; exit code 1 when any failed (the others are still written)."""
-    written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
-    listing = functools.cache(folder_files)  # --pair-audio: each folder listed once, however many sources
-    failures = 0
-    for kind, src in jobs:
+class _Importer:
+    """Imports jobs into ``args.out``, each source given a take id no other of the run has."""
+
+    def __init__(
+        self, args: argparse.Namespace, generic: dict[str, str], timecode_rate: float | None, litter: Litter
+    ) -> None:
+        self.args, self.generic, self.timecode_rate, self.litter = args, generic, timecode_rate, litter
+        self.written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
+        # --pair-audio: each folder listed once, however many sources
+        self.listing = functools.cache(folder_files)
+
+    def _failed(self, src: Path | str, exc: S2AError, box: Unpacked | None = None) -> None:
+        print(f"{PROG}: error: {box.shown(exc) if box else exc}", file=sys.stderr)
+        if self.args.json:
+            emit_json({"source": str(src), "error": box.shown(exc) if box else str(exc)})
+
+    def archive(self, archive: Path, outer: Unpacked | None = None) -> int:
+        """Import the takes a zip archive holds (and those of the archives in it, one level down: a
+        download of a folder of zipped takes), unpacked into the output folder meanwhile; the number
+        that failed (1 when the archive itself cannot be read). ``outer``: the archive it is in."""
+        args = self.args
+        name = outer.shown(archive) if outer else str(archive)
+        try:
+            with unpacked(archive, args.out, self.litter, name) as box:
+                sources = find_sources(
+                    [box.folder],
+                    exports=args.pair_audio,
+                    litter=self.litter,
+                    skipped=lambda path, why: warn_skipped(Path(box.shown(path)), why),
+                    archives=outer is None,
+                )
+                if args.variant is not None:
+                    sources = _of_variant(sources, args.variant, box)
+                if not sources:
+                    raise InputError("holds no Live Link Face CSV or take folder", name)
+                if args.take_id and len(sources) != 1:
+                    raise InputError(f"--id names one take, but the archive holds {len(sources)}", name)
+                progress(f"{name}: {len(sources)} source{'s' if len(sources) > 1 else ''} unpacked")
+                return sum(
+                    self.archive(src, box) if is_zip(src) else not self.one("source", src, box)
+                    for src in sources
+                )
+        except S2AError as exc:
+            self._failed(name, exc)
+            return 1
+
+    def one(self, kind: str, src: Path, box: Unpacked | None = None) -> bool:
+        """Import one job (a source, or the matrix of a generic import); whether it was written. ``box``:
+        the archive ``src`` was unpacked from, to name it and its files by."""
+        args, generic, timecode_rate, listing = self.args, self.generic, self.timecode_rate, self.listing
+        shown = box.shown(src) if box else src
         try:
             if kind == "matrix":
                 take = read_paired(
@@ -277,7 +341,7 @@ def _import_all(
                     audio, why = audio_beside(src, listing(src.parent)) if src.is_file() else (None, None)
                     pairing = args.audio_pairing if audio is not None else "first-row"
                     if why:
-                        print(f"{PROG}: warning: {src}: {why}: imported without audio", file=sys.stderr)
+                        print(f"{PROG}: warning: {shown}: {why}: imported without audio", file=sys.stderr)
                 take = import_source(
                     src,
                     audio,
@@ -293,33 +357,32 @@ def _import_all(
                 )
                 for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
                     print(
-                        f"{PROG}: warning: {src}: {flag} ignored: a Live Link Face take {why}",
+                        f"{PROG}: warning: {shown}: {flag} ignored: a Live Link Face take {why}",
                         file=sys.stderr,
                     )
                 if args.take_id:
                     take.meta.id = args.take_id
-            _unique_id(take, src, written, args.out)
+            if box:
+                box.rename_files(take)
+            _unique_id(take, shown, self.written, args.out)
             folder = write_take(take, args.out)
         except S2AError as exc:
-            failures += 1
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
-            if args.json:
-                emit_json({"source": str(src), "error": str(exc)})
-            continue
+            self._failed(shown, exc, box)
+            return False
         for repair in take.meta.repairs:
             if repair["kind"] in WARN_REPAIRS:
                 hint = f" ({WARN_HINTS[repair['kind']]})" if repair["kind"] in WARN_HINTS else ""
-                print(f"{PROG}: warning: {src}: {repair['message']}{hint}", file=sys.stderr)
-        summary = take.summary() | {"path": str(folder), "source": str(src)}
+                print(f"{PROG}: warning: {shown}: {repair['message']}{hint}", file=sys.stderr)
+        summary = take.summary() | {"path": str(folder), "source": str(shown)}
         if args.json:
             emit_json(summary)
         else:
             progress(
-                f"{src} -> {folder}: {summary['frames']} frames at {summary['fps']:g} fps, "
+                f"{shown} -> {folder}: {summary['frames']} frames at {summary['fps']:g} fps, "
                 f"{summary['dropped_frames']} dropped, {summary['face_lost_frames']} face-lost, "
                 f"{summary['repairs']} repairs"
             )
-    return 1 if failures else 0
+        return True
 
 
 def _unique_id(take: Take, src: Path, written: dict[str, Path], out: Path) -> None:
@@ -381,6 +444,12 @@ def _occupant(folder: Path, take: Take) -> str | None:
 
 
 def _load_for_info(path: Path, litter: Litter) -> list[Take]:
+    if is_zip(path):
+        with unpacked(path, litter=litter) as box:
+            try:
+                return [import_source(s) for s in find_sources([box.folder], litter=litter)]
+            except S2AError as exc:
+                raise InputError(box.shown(exc)) from None
     if is_take_dir(path):
         return [read_take(path)]
     if path.is_dir():

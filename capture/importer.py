@@ -45,11 +45,13 @@ def find_sources(
     exports: bool = False,
     skipped: Callable[[Path, str], None] = warn_skipped,
     litter: Litter | None = None,
+    archives: bool = False,
 ) -> list[Path]:
     """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively;
     with ``exports``, Audio2Face blendshape exports (``.json``) too, and every other ``.json`` found in a
     folder is reported to ``skipped`` (path, why) rather than left out silently, as are zip archives,
-    dangling symbolic links and links back to a folder holding the one searched. Operating-system and
+    dangling symbolic links and links back to a folder holding the one searched; with ``archives``, zip
+    archives found are sources (``capture.take_archive``). Operating-system and
     transfer litter (``capture.transfer_litter``: ``._*``, ``__MACOSX``, ``$RECYCLE.BIN``, ...) is passed
     over and counted in ``litter``; without one, a warning line per kind is printed here. An iCloud
     placeholder of a CSV (``.X.csv.icloud``) is a source: importing it says to download it."""
@@ -61,7 +63,7 @@ def find_sources(
         if p.is_file():
             found.append(p)
         elif p.is_dir():
-            found.extend(_walk(p, exports, skipped, tally, p.resolve()))
+            found.extend(_walk(p, exports, archives, skipped, tally, p.resolve()))
         else:
             raise InputError("no such file or folder", p)
     if litter is None:
@@ -73,6 +75,7 @@ def find_sources(
 def _walk(
     folder: Path,
     exports: bool,
+    archives: bool,
     skipped: Callable[[Path, str], None],
     litter: Litter,
     root: Path,
@@ -102,7 +105,7 @@ def _walk(
                 skipped(p, f"a symbolic link to {target}, which holds the folder searched (a loop)")
                 continue
         if p.is_dir():
-            yield from _walk(p, exports, skipped, litter, root, seen)
+            yield from _walk(p, exports, archives, skipped, litter, root, seen)
         elif p.suffix.lower() == ".csv":
             emotions = emotion_header(_head(p))
             if emotions is None:
@@ -115,7 +118,10 @@ def _walk(
             else:
                 skipped(p, 'not an Audio2Face blendshape export (no "facsNames" or "weightMat" key)')
         elif is_zip(p):
-            skipped(p, "a zip archive: unzip it to import the takes it holds")
+            if archives:
+                yield p
+            else:
+                skipped(p, "a zip archive: unzip it to import the takes it holds")
         elif (original := icloud_original(p)) is not None and Path(original).suffix.lower() in (
             (".csv", ".json") if exports else (".csv",)
         ):
@@ -129,7 +135,7 @@ def no_takes_found(paths: list[str | Path], stage: str) -> InputError:
     to import them first."""
     where = ", ".join(map(str, paths))
     try:
-        recordings = find_sources(paths, skipped=lambda _path, _why: None, litter=Litter())
+        recordings = find_sources(paths, skipped=lambda _path, _why: None, litter=Litter(), archives=True)
     except (S2AError, OSError):
         recordings = []
     if not recordings:

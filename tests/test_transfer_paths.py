@@ -266,18 +266,20 @@ def test_icloud_placeholders_refuse_their_take_and_others_import(sim_take, tmp_p
     assert read_take(out).audio is not None and str(good) in read_take(out).meta.sources[0].path
 
 
-def test_zip_archives_are_named_not_read(samples, tmp_path):
+def test_zip_archives_are_imported_and_named_where_not_read(samples, tmp_path):
+    """import reads archives (tests/test_take_archives.py); s2a-view, which reads takes in place, names them."""
     folder = tmp_path / "dl"
     folder.mkdir()
     shutil.copy(samples / "livelinkface/alexdjulin_S07/S07-001.csv", folder / "S07-001.csv")
     shutil.make_archive(str(tmp_path / "takes"), "zip", folder)
     shutil.copy(tmp_path / "takes.zip", folder / "more takes.zip")
     proc = run_cli("capture", "import", tmp_path / "takes.zip", "-o", tmp_path / "out")
-    assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
-    assert "takes.zip is a zip archive: unzip it first" in proc.stderr
-    proc = run_cli("capture", "import", folder, "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "takes.zip/S07-001.csv ->" in proc.stderr, proc.stderr
+    proc = run_cli("capture", "import", folder, "-o", tmp_path / "out2")
     assert proc.returncode == 0, proc.stderr
-    assert "more takes.zip: a zip archive: unzip it" in proc.stderr
+    assert "more takes.zip/S07-001.csv ->" in proc.stderr
+    proc = run_cli("viewer", "plot", tmp_path / "takes.zip", "-o", tmp_path / "p.png")
+    assert proc.returncode == 1 and "takes.zip is a zip archive: unzip it first" in proc.stderr, proc.stderr
 
 
 def test_symlinks_to_a_parent_and_dangling_links_are_skipped(sim_take, tmp_path):

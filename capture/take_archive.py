@@ -1,0 +1,208 @@
+"""Zip archives of takes, as they reach a computer: takes shared from the phone (AirDrop, Files, mail),
+a take folder compressed by Finder or Windows Explorer, a download of a shared folder. ``s2a-capture
+import`` and ``info`` unpack one into a hidden folder (``unpacked``) and read the takes there as any
+folder; the takes record their files as ``ARCHIVE.zip/member`` (``Unpacked.shown``).
+
+What an archive may hold is checked before a byte is written: no member outside the folder unpacked
+into (absolute paths, ``..``, drive letters), no two members of one name, no encryption, and room on
+the disk for every member as its header declares it (the reader never writes more than that, so a
+"zip bomb" is refused before it is unpacked). Symbolic links are not made; operating-system litter
+(``__MACOSX``, ``._X``) is passed over. Names written without the archive's UTF-8 flag (Finder, Windows
+Explorer, most tools) are read as UTF-8 when they are that, else as the zip standard's code page 437.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import stat
+import tempfile
+import zipfile
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+from .errors import InputError
+from .take import Take
+from .transfer_litter import Litter
+
+# Hidden folders an import unpacks archives into, inside its output folder; one left by a killed import
+# is removed by the next import into that folder (which holds the folder's import lock).
+UNPACK_PREFIX = ".unzip-"
+# Room kept free on the disk beyond what the members take (the takes imported are written there too).
+SPARE_BYTES = 64 << 20
+_UTF8_FLAG = 0x800
+_ENCRYPTED_FLAG = 0x1
+# Compression methods Python's zipfile cannot read, by number (APPNOTE 4.4.5), for the error.
+_METHODS = {
+    6: "Implode",
+    9: "Deflate64 (Windows Explorer uses it for large files)",
+    18: "IBM TERSE",
+    19: "IBM LZ77",
+    93: "Zstandard",
+    95: "XZ",
+    97: "WavPack",
+    98: "PPMd",
+    99: "AES encryption (WinZip)",
+}
+_DRIVE = re.compile(r"[A-Za-z]:")
+
+
+@dataclass
+class Unpacked:
+    """An archive unpacked: ``folder`` holds its members (named after the archive, ``takes.zip`` ->
+    ``.../takes``, so a take folder zipped without its folder keeps a name)."""
+
+    archive: Path
+    folder: Path
+    name: str  # what the archive is called in messages and records (a member of another archive's)
+
+    def shown(self, text: object) -> str:
+        """``text`` (a path of a file unpacked, or a message naming one) with the archive's member in its
+        place: ``takes.zip/T/T.csv``."""
+        return str(text).replace(str(self.folder), self.name)
+
+    def rename_files(self, take: Take) -> None:
+        """Record ``take``'s files as the archive's members (absolute: ``/dl/takes.zip/T/T.csv``; the
+        unpacked copies are gone after the import), in its sources and repair messages."""
+        whole = os.path.abspath(self.name)
+        for source in take.meta.sources:
+            source.path = source.path.replace(str(self.folder), whole)
+        for repair in take.meta.repairs:
+            if isinstance(repair.get("message"), str):
+                repair["message"] = self.shown(repair["message"])
+
+
+def member_name(info: zipfile.ZipInfo) -> str:
+    """A member's name as its writer meant it: without the UTF-8 flag, zipfile reads names as code page
+    437, but Finder, Windows Explorer (since Windows 10) and Info-ZIP write UTF-8 without setting it."""
+    name = info.filename
+    if not info.flag_bits & _UTF8_FLAG:
+        try:
+            name = name.encode("cp437").decode("utf-8")
+        except (UnicodeEncodeError, UnicodeDecodeError):
+            pass
+    return name.replace("\\", "/")  # some Windows writers separate folders so, against the standard
+
+
+def member_parts(info: zipfile.ZipInfo, archive: Path) -> tuple[str, ...]:
+    """The folders and file name a member unpacks to, relative to the folder unpacked into; an
+    ``InputError`` for a member whose name would put it elsewhere."""
+    name = member_name(info)
+    parts = tuple(p for p in PurePosixPath(name).parts if p not in ("", "."))
+    if name.startswith("/") or ".." in parts or (parts and _DRIVE.match(parts[0])):
+        raise InputError(
+            f"member {name!r} would be written outside the folder unpacked into: an archive not made by "
+            "the app or a file manager; unpack it yourself after checking it",
+            archive,
+        )
+    return parts
+
+
+def _is_link(info: zipfile.ZipInfo) -> bool:
+    return stat.S_ISLNK(info.external_attr >> 16)
+
+
+_READABLE = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA)
+Plan = list[tuple[zipfile.ZipInfo, tuple[str, ...]]]  # the members to unpack, each with its parts
+
+
+def _plan(zf: zipfile.ZipFile, archive: Path, litter: Litter) -> Plan:
+    """The members to unpack with their relative parts, after every check that needs no writing."""
+    plan, seen = [], {}
+    for info in zf.infolist():
+        parts = member_parts(info, archive)
+        if not parts or any(litter.skips(archive.joinpath(*parts[: i + 1])) for i in range(len(parts))):
+            continue
+        if info.flag_bits & _ENCRYPTED_FLAG:
+            raise InputError(f"member {'/'.join(parts)} is encrypted: unzip it with its password", archive)
+        if info.compress_type not in _READABLE:
+            method = _METHODS.get(info.compress_type, f"method {info.compress_type}")
+            raise InputError(
+                f"member {'/'.join(parts)} is compressed with {method}, which cannot be read here: "
+                "unzip it with your system's tool (or 7-Zip) and import the folder",
+                archive,
+            )
+        if _is_link(info):
+            continue  # a link is no take file; following one could reach outside the folder
+        key = "/".join(parts)
+        if key in seen and not info.is_dir():
+            raise InputError(f"holds two members named {key}: unzip it and keep the right one", archive)
+        seen[key] = info
+        plan.append((info, parts))
+    return plan
+
+
+def _check_room(plan: Plan, into: Path, archive: Path) -> None:
+    need = sum(info.file_size for info, _ in plan if not info.is_dir())
+    free = shutil.disk_usage(into).free
+    if need + SPARE_BYTES > free:
+        raise InputError(
+            f"unpacking it needs {need / 1e9:.2f} GB and {into} has {free / 1e9:.2f} GB free: free some "
+            "space, or unzip it elsewhere and import the folder",
+            archive,
+        )
+
+
+@contextmanager
+def unpacked(
+    archive: Path, into: Path | None = None, litter: Litter | None = None, name: str | None = None
+) -> Iterator[Unpacked]:
+    """``archive`` unpacked into a hidden folder made in ``into`` (default: the system's temporary
+    folder), removed on leaving; ``name``: what to call it (default: its path). Litter passed over is
+    counted in ``litter``. An ``InputError`` (naming it so) names
+    what is wrong: not a zip archive (or cut short), a member outside the folder, encrypted, compressed
+    with a method not readable here, damaged (its checksum), too large for the disk."""
+    tally = Litter() if litter is None else litter
+    name = str(archive) if name is None else name
+    try:
+        zf = zipfile.ZipFile(archive)
+    except zipfile.BadZipFile as exc:
+        raise InputError(
+            f"not a readable zip archive ({exc}): a download or copy cut short? Copy it again", name
+        ) from None
+    except OSError as exc:
+        raise InputError(f"cannot read it: {exc.strerror or exc}", name) from None
+    with zf:
+        plan = _plan(zf, Path(name), tally)
+        where = Path(tempfile.gettempdir() if into is None else into)
+        _check_room(plan, where, Path(name))
+        work = Path(tempfile.mkdtemp(prefix=UNPACK_PREFIX, dir=where)).resolve()  # as source paths are
+        try:
+            folder = work / archive.stem
+            folder.mkdir()
+            for info, parts in plan:
+                _unpack_member(zf, info, folder.joinpath(*parts), name)
+            yield Unpacked(archive, folder, name)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, archive: str) -> None:
+    name = member_name(info)
+    try:
+        if info.is_dir():
+            target.mkdir(parents=True, exist_ok=True)
+            return
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with zf.open(info) as src, open(target, "xb") as dst:
+            shutil.copyfileobj(src, dst, 1 << 20)
+    except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+        raise InputError(f"member {name} is damaged ({exc}): copy the archive again", archive) from None
+    except FileExistsError:  # a file and a folder of one name (``T`` and ``T/x``), or names equal here
+        raise InputError(f"member {name} clashes with another member of that name", archive) from None
+    except OSError as exc:
+        raise InputError(f"cannot unpack member {name}: {exc.strerror or exc}", archive) from None
+
+
+def clear_unpacked(folder: Path) -> None:
+    """Remove what killed imports left unpacked in ``folder`` (call it holding the folder's import lock)."""
+    try:
+        leftovers = [p for p in folder.iterdir() if p.name.startswith(UNPACK_PREFIX) and p.is_dir()]
+    except OSError:
+        return
+    for p in leftovers:
+        shutil.rmtree(p, ignore_errors=True)
