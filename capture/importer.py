@@ -11,7 +11,7 @@ from pathlib import Path
 from .csv_take import app_header_separator, read_livelink_csv
 from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
-from .take import Take, is_take_dir
+from .take import Take, is_take_dir, leads_back
 from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
 from .transfer_litter import (
     Litter,
@@ -20,6 +20,7 @@ from .transfer_litter import (
     is_appledouble,
     is_litter,
     is_zip,
+    not_downloaded,
     without_litter,
     zip_error,
 )
@@ -101,7 +102,7 @@ def _walk(
                 skipped(p, f"a symbolic link to {os.readlink(p)}, which does not exist")
                 continue
             target = p.resolve()
-            if p.is_dir() and (target == root or target in root.parents):
+            if p.is_dir() and leads_back(target, root):
                 skipped(p, f"a symbolic link to {target}, which holds the folder searched (a loop)")
                 continue
         if p.is_dir():
@@ -122,11 +123,10 @@ def _walk(
                 yield p
             else:
                 skipped(p, "a zip archive: unzip it to import the takes it holds")
-        elif (original := icloud_original(p)) is not None and Path(original).suffix.lower() in (
+        elif (original := not_downloaded(p)) is not None and Path(original).suffix.lower() in (
             (".csv", ".json") if exports else (".csv",)
         ):
-            if not (folder / original).exists():  # a source of this import, not downloaded
-                yield p
+            yield p  # a source of this import, not downloaded
 
 
 def no_takes_found(paths: list[str | Path], stage: str) -> InputError:
@@ -194,10 +194,9 @@ def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | 
     stems = {_nfc(source.stem), _nfc(audio_stem(source))}
     waiting = {}  # audio iCloud has not downloaded: placeholder -> the name of the file it stands for
     for p in files:
-        original = icloud_original(p)
+        original = not_downloaded(p)
         if original is not None and Path(original).suffix.lower() in AUDIO_SUFFIXES:
-            if not (p.parent / original).exists():
-                waiting[p] = original
+            waiting[p] = original
     for p, original in waiting.items():
         if _nfc(Path(original).stem) in stems:
             raise icloud_error(p, source)

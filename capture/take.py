@@ -605,6 +605,13 @@ def find_takes(paths: Iterable[str | Path]) -> list[Path]:
     return found
 
 
+def leads_back(real: str | Path, top: str | Path) -> bool:
+    """Whether the folder of real path ``real`` is the folder searched (real path ``top``) or one holding
+    it: a symbolic link there would walk the search again (or everything above it)."""
+    real, top = os.fspath(real), os.fspath(top)
+    return top == real or top.startswith(real.rstrip(os.sep) + os.sep)
+
+
 def _takes_below(root: Path) -> list[Path]:
     top = os.path.realpath(root)
     seen: set[str] = set()
@@ -612,9 +619,7 @@ def _takes_below(root: Path) -> list[Path]:
     for here, folders, files in os.walk(root, followlinks=True):
         real = os.path.realpath(here)
         # a folder reached again, or a link back up to the folder searched or above it
-        if real in seen or (
-            here != str(root) and (top == real or top.startswith(real.rstrip(os.sep) + os.sep))
-        ):
+        if real in seen or (here != str(root) and leads_back(real, top)):
             folders[:] = []
             continue
         seen.add(real)

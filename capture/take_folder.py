@@ -31,7 +31,7 @@ from .mov import MovInfo, choose_mov_audio, probe_mov
 from .paired import note_length_mismatch
 from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
-from .transfer_litter import icloud_error, icloud_original, is_litter
+from .transfer_litter import icloud_error, is_litter, not_downloaded
 
 TAKE_FOLDER_MARKERS = ("take.json", "frame_log.csv")
 # Seconds of video rows ``frame_log.csv`` must hold before its timecodes tell the rate they count at.
@@ -153,12 +153,7 @@ def _blendshape_csvs(folder: Path) -> list[Path]:
 def _placeholders(folder: Path) -> dict[str, Path]:
     """The files of ``folder`` iCloud has not downloaded: their names -> their placeholders
     (``.X.mov.icloud``)."""
-    waiting = {}
-    for p in folder.iterdir():
-        original = icloud_original(p)
-        if original is not None and not (folder / original).exists():
-            waiting[original] = p
-    return waiting
+    return {original: p for p in folder.iterdir() if (original := not_downloaded(p)) is not None}
 
 
 def _waiting_ending(waiting: dict[str, Path], suffix: str) -> list[str]:

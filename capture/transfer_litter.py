@@ -102,6 +102,13 @@ def icloud_original(path: Path) -> str | None:
     return None
 
 
+def not_downloaded(path: Path) -> str | None:
+    """The name of the file an iCloud placeholder stands for when that file is not beside it (not
+    downloaded yet), else None (not a placeholder, or one iCloud left beside the downloaded file)."""
+    original = icloud_original(path)
+    return original if original is not None and not (path.parent / original).exists() else None
+
+
 def icloud_error(placeholder: Path, where: Path | None = None) -> InputError:
     """The error for a file of a take that iCloud has not downloaded (``placeholder``: its
     ``.X.icloud`` file), naming ``where`` (default: the placeholder)."""
