@@ -46,10 +46,12 @@ STAGES = ("capture", "align", "dataset", "train", "viewer")
 def _in_our_code(traceback: str) -> bool:
     """Whether a traceback passes through this repository's code after the guard is in place: a Ctrl-C
     before (Python's own start-up, runpy finding the module, capture importing the guard's few standard
-    modules) is beyond any guard of ours."""
-    frames = re.findall(r'File "([^"]+)", line \d+', traceback)
-    ours = [f for f in frames if any(f"{os.sep}{pkg}{os.sep}" in f for pkg in STAGES)]
-    return any(not f.endswith(("import_guard.py", f"capture{os.sep}__init__.py")) for f in ours)
+    modules) is beyond any guard of ours: so is a stage's import of the guard (``from capture.import_guard
+    import ...``, ``from . import import_guard``), slow on a loaded machine or a first run compiling
+    bytecode."""
+    frames = re.findall(r'File "([^"]+)", line \d+[^\n]*\n(?:[ \t]+(?!File ")(\S[^\n]*))?', traceback)
+    ours = [(f, code) for f, code in frames if any(f"{os.sep}{pkg}{os.sep}" in f for pkg in STAGES)]
+    return any(not f.endswith("import_guard.py") and "import_guard" not in code for f, code in ours)
 
 
 @pytest.mark.parametrize(

@@ -267,7 +267,7 @@ def test_icloud_placeholders_refuse_their_take_and_others_import(sim_take, tmp_p
 
 
 def test_zip_archives_are_imported_and_named_where_not_read(samples, tmp_path):
-    """import reads archives (tests/test_take_archives.py); s2a-view, which reads takes in place, names them."""
+    """import reads archives (tests/test_take_archives.py); s2a-view, reading takes in place, names them."""
     folder = tmp_path / "dl"
     folder.mkdir()
     shutil.copy(samples / "livelinkface/alexdjulin_S07/S07-001.csv", folder / "S07-001.csv")
