@@ -12,6 +12,7 @@ raw names; ``MouthSmile_L``, ``Eye_Blink_L``), and a namespace or path before th
 
 from __future__ import annotations
 
+import difflib
 import re
 
 from .errors import InputError
@@ -189,6 +190,19 @@ def udp_index(name: str) -> int:
 def canonical(name: str) -> str:
     """Canonical (ARKit camelCase) name of a Live Link channel, from any spelling."""
     return ARKIT61[udp_index(name)]
+
+
+def _folded(name: str) -> str:
+    return _PREFIX.sub("", name.strip()).replace("_", "").lower()
+
+
+def meant_channel(name: str, missing: list[str] | tuple[str, ...]) -> str | None:
+    """Of the channels ``missing`` (Live Link names), the one a name that is no channel was perhaps meant to
+    be (a typo in a header: ``JawOpne``, ``MouthSmileLetf``), or None. Only a suggestion: a rig's own
+    control keeps its name, so a close name is never taken for the channel."""
+    folded = {_folded(m): m for m in missing}
+    close = difflib.get_close_matches(_folded(name), list(folded), n=1, cutoff=0.8)
+    return folded[close[0]] if close else None
 
 
 def channel_set(spec: str) -> tuple[str, ...]:

@@ -48,7 +48,9 @@ TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV
 # the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
 # lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
 # time column read as frame numbers, frame numbers read as counting from 1, weights on a 0..100 scale,
-# --first-frame given for a file of a batch without a frame-number column, a CSV's last row cut short.
+# --first-frame given for a file of a batch without a frame-number column, a CSV's last row cut short,
+# most of a CSV's frames without values or many of its rows without a timecode (a file read wrongly), a
+# column named like a channel the CSV lacks (a typo), channel values no face makes (a typing slip).
 WARN_REPAIRS = (
     "timecode_rate",
     "length_mismatch",
@@ -60,6 +62,10 @@ WARN_REPAIRS = (
     "percent_scale",
     "first_frame_ignored",
     "truncated_row",
+    "bad_values_widespread",
+    "bad_timecodes_widespread",
+    "channel_typo",
+    "value_range",
 )
 # What a warning adds to a repair's message: what the user may have to do about it.
 WARN_HINTS = {"truncated_row": "an incomplete copy or download? Copy or download the file again"}
@@ -378,8 +384,9 @@ class _Importer:
             emit_json(summary)
         else:
             progress(
-                f"{shown} -> {folder}: {summary['frames']} frames at {summary['fps']:g} fps, "
-                f"{summary['dropped_frames']} dropped, {summary['face_lost_frames']} face-lost, "
+                f"{shown} -> {folder}: {summary['frames']} frames at {summary['fps']:g} fps: "
+                f"{summary['valid_frames']} valid, {summary['bad_value_frames']} bad-value, "
+                f"{summary['dropped_frames']} dropped, {summary['face_lost_frames']} face-lost; "
                 f"{summary['repairs']} repairs"
             )
         return True

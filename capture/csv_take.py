@@ -6,6 +6,9 @@ column ``BlendshapeCount``), rows ``HH:MM:SS:FF.fff,61,<61 values with 10 decima
 by name, case-insensitively; times come from the timecode, never from the row index. A spreadsheet's
 re-save is read too: quoted fields lose their quotes, and a comma ending every line is no column.
 
+Face-lost rows as pandas and spreadsheets re-save them (``<timecode>,0.0``, ``<timecode>,0,,,...``) are
+face-lost rows too, a count written ``61.0`` is 61, and rows of nothing but commas are blank lines.
+
 Reading has two paths with one result. Clean files (the common case) are parsed by pyarrow's
 multi-threaded CSV engine with fixed column types; anything unusual falls back to a line-by-line
 parser that repairs what it can, records each repair with its line in the take's metadata, and raises
@@ -25,20 +28,30 @@ bad_value      non-numeric, NaN, infinite or out-of-float32-range cells were set
 bad_count      the BlendShapeCount cell was neither the row's number of values nor that of the channels
                among them (extra columns named in the header: ``blendshape_counts``); values kept
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
+number_format  cells written as a spreadsheet's locale writes numbers were read (one note for each way):
+               a quoted decimal comma (``"0,1421"``), a U+2212 minus sign, no-break or narrow spaces
+timecode_format timecodes without zero padding (``12:28:1:03.060``) were read (one note)
+index_column   pandas' index column before Timecode (header ``""`` or ``Unnamed: 0``) was dropped
+bad_values_widespread, bad_timecodes_widespread  most frames lost their values, or over 5 % of the rows
+               their timecodes (a file read wrongly, not a damaged row: import prints it as a warning)
 timecode_rate  FF counts at a lower rate than the app's 60 (another writer of the format): times were
                read as FF/rate (``read_timecode_rate``); or FF fits no standard rate (read at 60)
 ============== ================================================================================
 
 Notes, which ``strict=True`` lets pass (nothing was changed): ``trailing_comma`` (every line ends with a
 comma), ``unknown_columns`` (header names that are not Live Link channels, kept under their own names),
-``row_rate_change`` (the rows come at another rate for a while: ``note_row_rate_changes``).
+``row_rate_change`` (the rows come at another rate for a while: ``note_row_rate_changes``), ``text_column``
+(a column that is no channel holds text: left out if it holds no number, else NaN there; never a frame's
+damage), ``channel_typo`` (a column named close to a channel the header lacks), ``value_range`` (channel
+values beyond ``VALUE_LIMIT``), ``gap`` (no rows for ``GAP_NOTE_S`` or more).
 
-Errors: missing, empty or binary file; a header that is not a Live Link Face header (one separated by
-``;`` or tabs says to export it with commas), or that names a column twice or leaves one empty (saying
-how to fix it); the header again further down (two files joined); no usable data rows (naming the first
-rejected row); a timecode going backwards (other than across midnight) or jumping forward by more than
-``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for every frame, so such a gap
-would become thousands of dropped frames). ``strict=True`` turns every repair into an error as well.
+Errors: missing, empty or binary file, or UTF-16 text (``utf16_csv_error``); a header that is not a Live
+Link Face header (one separated by ``;`` or tabs says to export it with commas), or that names a column
+twice or leaves one empty (saying how to fix it); the header again further down (two files joined); no
+usable data rows (naming the first rejected row); a timecode going backwards (other than across midnight)
+or jumping forward by more than ``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for
+every frame, so such a gap would become thousands of dropped frames). ``strict=True`` turns every repair
+into an error as well.
 """
 
 from __future__ import annotations
@@ -94,6 +107,7 @@ class CsvRows:
     status: np.ndarray  # uint8 FrameStatus per row
     repairs: list[dict[str, Any]] = field(default_factory=list)
     line_ending: str = "\n"
+    lines: np.ndarray | None = None  # each row's line in the file, when the careful parser read it
 
 
 def repair(repairs: list, line: int | None, kind: str, message: str) -> None:
@@ -126,23 +140,87 @@ def _fields(line: str) -> list[str]:
         return line.split(",")
 
 
+# What pandas writes above the index column of a table it saves with one (``df.to_csv()``): nothing, or
+# ``Unnamed: 0`` for a table read from such a file and saved again (compared without spaces, any case).
+INDEX_NAMES = ("", "unnamed:0")
+
+
+def _index_name(name: str) -> bool:
+    return name.strip().strip('"').replace(" ", "").lower() in INDEX_NAMES
+
+
 def app_header_separator(line: str) -> str | None:
     """The separator of a line that starts like the app's header (``Timecode,BlendShapeCount``, any
-    case and spacing, quoted or not, as a spreadsheet may re-save it): ``,``, or ``;`` or a tab from a
-    spreadsheet's re-save; None for any other line."""
+    case and spacing, quoted or not, perhaps after pandas' index column, as a spreadsheet or script may
+    re-save it): ``,``, or ``;`` or a tab from a spreadsheet's re-save; None for any other line."""
     for sep in (",", ";", "\t"):
-        cells = [c.strip().strip('"').replace(" ", "").lower() for c in line.split(sep)[:2]]
-        if cells == ["timecode", "blendshapecount"]:
+        cells = [c.strip().strip('"').replace(" ", "").lower() for c in line.split(sep)[:3]]
+        if len(cells) == 3 and _index_name(cells[0]):
+            cells = cells[1:]
+        if cells[:2] == ["timecode", "blendshapecount"]:
             return sep
     return None
 
 
-def _parse_header(text: str, path: Path) -> tuple[str, list[str], bool]:
-    """Count column name, value column names, and whether every line ends with a comma (a spreadsheet's
-    re-save: that empty last column is no column, when the rows leave it empty too)."""
+_UTF16_BOMS = ((b"\xff\xfe", "utf-16-le"), (b"\xfe\xff", "utf-16-be"))
+
+
+def utf16_csv_error(head: bytes, path: str | Path) -> InputError | None:
+    """The error for a Live Link Face CSV saved as UTF-16 text with its byte-order mark (Windows'
+    "Unicode" text; Excel's "Unicode Text", which also puts tabs between the fields), from its first
+    bytes; None for any other file. One message wherever the file is met: loose or in a take folder."""
+    codec = next((codec for bom, codec in _UTF16_BOMS if head.startswith(bom)), None)
+    if codec is None:
+        return None
+    text = head[2 : len(head) // 2 * 2].decode(codec, "replace")
+    sep = app_header_separator(next((line for line in text_lines(text) if line.strip()), ""))
+    if sep is None:
+        return None
+    if sep == "\t":
+        return InputError(
+            "a Live Link Face CSV saved as UTF-16 text with tabs between the fields (Excel's \"Unicode "
+            'Text"): save it as CSV UTF-8, with commas between the fields (as the app writes it)',
+            path,
+        )
+    return InputError(
+        "a Live Link Face CSV saved as UTF-16 text: save it as UTF-8 (as the app writes it)", path
+    )
+
+
+@dataclass
+class CsvHeader:
+    """What a Live Link Face CSV's header says."""
+
+    count_name: str  # BlendShapeCount as spelled
+    columns: list[str]  # value column names as written
+    trailing_comma: bool  # every line ends with a comma (a spreadsheet's re-save): that last column is none
+    index_column: str | None = None  # pandas' index column before Timecode ("" or "Unnamed: 0"), if any
+
+
+def _parse_header(text: str, path: Path) -> CsvHeader:
+    """The header, or an ``InputError`` saying what is wrong with it."""
     names = [c.strip() for c in _fields(text.rstrip("\r\n"))]
+    index_column = None
+    if (
+        len(names) > 3
+        and _index_name(names[0])
+        and [n.lower() for n in names[1:3]]
+        == [
+            "timecode",
+            "blendshapecount",
+        ]
+    ):
+        index_column = names.pop(0)  # pandas' row index (df.to_csv()): dropped from every row
     if len(names) < 3 or names[0].lower() != "timecode" or names[1].lower() != "blendshapecount":
         sep = app_header_separator(text)
+        if sep == "\t":
+            raise InputError(
+                "a Live Link Face CSV re-saved with tabs between the fields (a spreadsheet's \"Text (Tab "
+                "delimited)\"?): save it as CSV, with commas between the fields and '.' as the decimal "
+                "point, as the app writes it",
+                path,
+                1,
+            )
         if sep is not None:
             raise InputError(
                 f"a Live Link Face CSV re-saved with {sep!r} between the fields (a spreadsheet in a "
@@ -170,7 +248,7 @@ def _parse_header(text: str, path: Path) -> tuple[str, list[str], bool]:
     dupes = sorted({n for n, key in zip(values, keys) if keys.count(key) > 1})
     if dupes:
         raise InputError(f"header names a column twice: {dupes}: rename or delete one of each", path, 1)
-    return names[1], values, trailing_comma
+    return CsvHeader(names[1], values, trailing_comma, index_column)
 
 
 def blendshape_counts(columns: list[str]) -> set[int]:
@@ -190,6 +268,9 @@ def _read_head(path: Path) -> bytes:
         raise InputError("is a folder, not a CSV file", path) from None
     if not head.strip():
         raise InputError("file is empty", path)
+    utf16 = utf16_csv_error(head, path)
+    if utf16 is not None:
+        raise utf16
     if b"\x00" in head:
         raise InputError("binary data, not a CSV text file", path, 1)
     return head
@@ -204,10 +285,11 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     # reports a file without data rows.
     if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head and rest.strip():
         try:
-            count_name, columns, trailing_comma = _parse_header(first.decode("utf-8"), path)
+            header = _parse_header(first.decode("utf-8"), path)
         except UnicodeDecodeError:
             raise InputError("binary data, not a CSV text file", path, 1) from None
-        rows = None if trailing_comma else _read_fast(path, count_name, columns)
+        plain = not header.trailing_comma and header.index_column is None
+        rows = _read_fast(path, header.count_name, header.columns) if plain else None
         if rows is not None:
             return rows
     return _read_careful(path, strict)
@@ -333,6 +415,47 @@ def _file_order(tracked: np.ndarray, lost: np.ndarray) -> np.ndarray | None:
     return np.argsort(both, kind="stable")
 
 
+@dataclass
+class _Seen:
+    """How often something was met in a file, and where first: its text, line and column."""
+
+    count: int = 0
+    text: str = ""
+    line: int = 0
+    column: str = ""
+
+    def add(self, text: str, line: int, column: str = "") -> None:
+        if not self.count:
+            self.text, self.line, self.column = text, line, column
+        self.count += 1
+
+    def first(self) -> str:
+        """The first one met, for a message: ``'0,1421' in EyeBlinkLeft on line 2``."""
+        return (
+            f"{_shown(self.text)}" + (f" in {self.column}" if self.column else "") + f" on line {self.line}"
+        )
+
+
+def _shown(cell: str) -> str:
+    return repr(cell.strip()[:40])
+
+
+# A row that is nothing but separators (and quotes): the empty rows of a spreadsheet's used range.
+_ONLY_SEPARATORS = re.compile(r'[\s,"]*')
+_COUNT = re.compile(r"\s*(\d+)(?:\.0*)?\s*", re.ASCII)
+
+
+def _count_of(cell: str) -> int | None:
+    """A BlendShapeCount cell's number: ``61``, or ``61.0`` as pandas and spreadsheets re-save it."""
+    m = _COUNT.fullmatch(cell)
+    return int(m.group(1)) if m else None
+
+
+# Of the shares of a take's rows lost to damage: more than these are said as a warning, not only counted.
+BAD_VALUE_SHARE = 0.5
+BAD_TIMECODE_SHARE = 0.05
+
+
 def _read_careful(path: Path, strict: bool) -> CsvRows:
     raw = path.read_bytes()
     repairs: list[dict[str, Any]] = []
@@ -345,18 +468,23 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     lines = text_lines(text)
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
-    count_name, columns, trailing_comma = _parse_header(lines[0], path)
+    header = _parse_header(lines[0], path)
+    count_name, columns, trailing_comma = header.count_name, header.columns, header.trailing_comma
     ncols = len(columns) + 2
-    counts = {str(n) for n in blendshape_counts(columns)}
+    counts = blendshape_counts(columns)
+    is_channel = [ch.is_known(c) for c in columns]
+    seen: dict[str, _Seen] = {}  # what the file holds that is read with a repair, by kind
     times: list[float] = []
     rows: list[list[float] | None] = []
     status: list[int] = []
     line_numbers: list[int] = []
     last = len(lines)
     comma_rows = 0  # rows whose comma ending the line was dropped (``trailing_comma``)
+    data_rows = 0  # lines holding a row (not blank)
+    index_start = 0  # what pandas' index column counts from (0, or 1 when its first row says so)
     for number, line in enumerate(lines[1:], start=2):
-        if not line.strip():
-            continue  # empty lines carry nothing (pyarrow's fast path skips them too)
+        if _ONLY_SEPARATORS.fullmatch(line):
+            continue  # empty lines carry nothing (pyarrow's fast path skips them too); nor do ",,,,"
         if line.strip() == lines[0].strip():
             raise InputError(
                 "the header repeats here: two recordings joined into one file? Split it at this line",
@@ -364,6 +492,13 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
                 number,
             )
         fields = _fields(line)
+        if header.index_column is not None:
+            cell = fields.pop(0).strip()
+            if data_rows == 0 and cell == "1":
+                index_start = 1
+            if cell != str(data_rows + index_start):
+                seen.setdefault("index", _Seen()).add(cell, number)
+        data_rows += 1
         if trailing_comma and len(fields) == ncols + 1 and fields[-1].strip():
             raise InputError(
                 "the header's last column is empty but this row has a value there: name it in the header, "
@@ -374,7 +509,8 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         if trailing_comma and len(fields) in (3, ncols + 1) and not fields[-1].strip():
             fields.pop()  # the comma ending every line, a face-lost row's too
             comma_rows += 1
-        lost = len(fields) == 2 and fields[1].strip() == "0"
+        count = _count_of(fields[1]) if len(fields) > 1 else None
+        lost = len(fields) == 2 and count == 0
         if not lost and len(fields) != ncols:
             if number == last and not ends_with_newline and len(fields) < ncols:
                 repair(
@@ -395,18 +531,15 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             tod = Timecode.parse(fields[0]).seconds_of_day
         except ValueError as exc:
             repair(repairs, number, "bad_timecode", f"{exc}: row dropped")
+            seen.setdefault("bad_timecode", _Seen()).add(fields[0], number)
             continue
-        vals: list[float] = []
-        if not lost:
-            try:
-                if not plain_number(line):
-                    raise ValueError
-                vals = [float(x) for x in fields[2:]]
-            except ValueError:
-                vals = [_cell_value(x) for x in fields[2:]]
-        count = fields[1].strip()
-        # Count 0 is the app's face-lost marker; a writer that fills the row with zeros means the same
-        if lost or (count == "0" and all(v == 0 for v in vals)):
+        if not Timecode.is_zero_padded(fields[0]):
+            seen.setdefault("unpadded", _Seen()).add(fields[0], number)
+        cells = fields[2:]
+        vals = [] if lost else _row_values(line, cells, columns, number, seen)
+        # Count 0 is the app's face-lost marker; a writer that fills the row with zeros, or (pandas, a
+        # spreadsheet) with empty cells, means the same
+        if lost or (count == 0 and all(v == 0 or not c.strip() for v, c in zip(vals, cells))):
             times.append(tod)
             rows.append(None)
             status.append(FrameStatus.FACE_LOST)
@@ -414,25 +547,34 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             continue
         row_status = FrameStatus.TRACKED
         if count not in counts:
-            expected = " or ".join(sorted(counts, key=int))
-            message = f"{count_name} is {count!r} but the row has {len(columns)} values ({expected} expected)"
+            expected = " or ".join(map(str, sorted(counts)))
+            shown = fields[1].strip()
+            message = f"{count_name} is {shown!r} but the row has {len(columns)} values ({expected} expected)"
             repair(repairs, number, "bad_count", message)
-        bad = [columns[i] for i, v in enumerate(vals) if not abs(v) <= _FLOAT32_MAX]
+        bad = []
+        for i, v in enumerate(vals):
+            if not abs(v) <= _FLOAT32_MAX:
+                vals[i] = math.nan
+                if is_channel[i]:
+                    bad.append(i)
+                elif cells[i].strip():  # another column's non-number is no channel's damage (_other_columns)
+                    seen.setdefault(f"text {columns[i]}", _Seen()).add(cells[i], number)
         if bad:
-            vals = [v if abs(v) <= _FLOAT32_MAX else math.nan for v in vals]
             row_status = FrameStatus.BAD_VALUE
+            seen.setdefault("bad_value", _Seen()).add(cells[bad[0]], number, columns[bad[0]])
             repair(
                 repairs,
                 number,
                 "bad_value",
-                f"non-numeric, non-finite or out-of-range value in {', '.join(bad[:5])}"
+                f"non-numeric, non-finite or out-of-range value in {', '.join(columns[i] for i in bad[:5])}"
                 + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
-                + ": set to NaN, frame marked invalid",
+                + f" ({_shown(cells[bad[0]])}): set to NaN, frame marked invalid",
             )
         times.append(tod)
         rows.append(vals)
         status.append(row_status)
         line_numbers.append(number)
+    _note_read_with_repairs(seen, header, index_start, repairs)
     if strict and repairs:
         first = repairs[0]
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
@@ -442,6 +584,7 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             first = rejected[0]
             raise InputError(f"no usable data rows; the first: {first['message']}", path, first["line"])
         raise InputError("no data rows after the header", path)
+    _warn_widespread(seen, len(times), data_rows, repairs)
     t = unwrap_midnight(np.asarray(times))
     values = np.full((len(rows), len(columns)), np.nan, dtype=np.float32)
     for i, r in enumerate(rows):
@@ -487,7 +630,126 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
     if trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
         lines_with = "every line ends" if comma_rows else "the header ends"
         repair(repairs, 1, "trailing_comma", f"{lines_with} with a comma: no column, ignored")
-    return CsvRows(path, count_name, columns, t[keep], values[keep], st[keep], repairs, line_ending)
+    values, columns = _other_columns(values, columns, is_channel, st, seen, repairs)
+    return CsvRows(
+        path,
+        count_name,
+        columns,
+        t[keep],
+        values[keep],
+        st[keep],
+        repairs,
+        line_ending,
+        np.asarray(line_numbers)[keep],
+    )
+
+
+def _row_values(
+    line: str, cells: list[str], columns: list[str], number: int, seen: dict[str, _Seen]
+) -> list[float]:
+    """A row's value cells as floats, NaN where a cell holds no number. Cells a spreadsheet's locale
+    wrote otherwise than the app are read (``_cell_value``), and counted in ``seen`` by how."""
+    if plain_number(line):
+        try:
+            return [float(x) for x in cells]
+        except ValueError:
+            pass
+    vals = []
+    for cell, column in zip(cells, columns):
+        value, how = _cell_value(cell)
+        if how:
+            seen.setdefault(how, _Seen()).add(cell, number, column)
+        vals.append(value)
+    return vals
+
+
+def _note_read_with_repairs(
+    seen: dict[str, _Seen], header: CsvHeader, index_start: int, repairs: list
+) -> None:
+    """One repair for each way of writing the file's cells that was read otherwise than as they stand:
+    number formats of a spreadsheet's locale, timecodes without zero padding, pandas' index column."""
+    for how, (kind, done) in _NUMBER_FORMATS.items():
+        if how in seen:
+            s = seen[how]
+            repair(
+                repairs,
+                s.line,
+                "number_format",
+                f"{counted(s.count, 'value')} written {kind} ({s.first()}): {done}",
+            )
+    if "unpadded" in seen:
+        s = seen["unpadded"]
+        padded = Timecode.parse(s.text).format()
+        repair(
+            repairs,
+            s.line,
+            "timecode_format",
+            f"{counted(s.count, 'timecode')} written without zero padding ({s.first()}): read as {padded} "
+            "would be",
+        )
+    if header.index_column is not None:
+        name = repr(header.index_column) if header.index_column else "no name"
+        what = f"a column before Timecode ({name} in the header: pandas' row index)"
+        if "index" in seen:
+            repair(
+                repairs,
+                1,
+                "index_column",
+                f"{what} dropped, though it does not count the rows ({seen['index'].first()})",
+            )
+        else:
+            repair(repairs, 1, "index_column", f"{what} counting the rows from {index_start}: dropped")
+
+
+def _warn_widespread(seen: dict[str, _Seen], frames: int, data_rows: int, repairs: list) -> None:
+    """Say when damage is no longer the odd row: more than ``BAD_VALUE_SHARE`` of the frames lost their
+    values, or more than ``BAD_TIMECODE_SHARE`` of the rows their timecodes (printed by import as
+    warnings: a whole take of NaN is a file read wrongly, not a damaged row)."""
+    bad = seen.get("bad_value")
+    if bad and bad.count > max(1, BAD_VALUE_SHARE * frames):
+        hint = ": a decimal comma?" if "," in bad.text else ": empty cells?" if not bad.text.strip() else ""
+        message = f"{bad.count} of {frames} frames have non-numeric values ({bad.first()}){hint}"
+        repair(repairs, None, "bad_values_widespread", message)
+    tc = seen.get("bad_timecode")
+    if tc and tc.count > max(1, BAD_TIMECODE_SHARE * data_rows):
+        message = f"{tc.count} of {data_rows} rows dropped for timecodes that do not parse ({tc.first()})"
+        repair(repairs, None, "bad_timecodes_widespread", message)
+
+
+def _other_columns(
+    values: np.ndarray,
+    columns: list[str],
+    is_channel: list[bool],
+    status: np.ndarray,
+    seen: dict[str, _Seen],
+    repairs: list,
+) -> tuple[np.ndarray, list[str]]:
+    """The values and columns without the columns that are no channel and hold no number (a user's
+    ``Notes``, empty or text), each left out with a note; another such column holding some cells that
+    are not numbers keeps NaN there, also with a note. (Kind ``text_column``: a note, as nothing a
+    channel holds was changed.)"""
+    with_values = status != FrameStatus.FACE_LOST
+    keep = []
+    for j, name in enumerate(columns):
+        missing = int(np.isnan(values[with_values, j]).sum()) if not is_channel[j] else 0
+        if missing == 0:
+            keep.append(j)
+            continue
+        text = seen.get(f"text {name}")
+        example = f" ({text.first()})" if text else ""
+        if missing == int(with_values.sum()):
+            repair(repairs, 1, "text_column", f"column {name!r} holds no numbers{example}: left out")
+        else:
+            keep.append(j)
+            repair(
+                repairs,
+                1,
+                "text_column",
+                f"column {name!r}: {missing} cells are not numbers{example}: NaN there",
+            )
+    if len(keep) == len(columns):
+        return values, columns
+    return values[:, keep], [columns[j] for j in keep]
 
 
 def plain_number(text: str) -> bool:
@@ -496,12 +758,39 @@ def plain_number(text: str) -> bool:
     return "_" not in text and text.isascii()
 
 
-def _cell_value(text: str) -> float:
-    """A value cell as a float; NaN when it is not a plain decimal number of ASCII digits."""
+# How a spreadsheet's locale may write a number the app writes as ``-0.1421131641``: what ``_cell_value``
+# reads, and the words of its repair (kind ``number_format``): how it was written, what was done.
+_NUMBER_FORMATS = {
+    "decimal_comma": ("with a decimal comma", "read with a decimal point"),
+    "minus": ("with a U+2212 minus sign", "read as '-'"),
+    "spaces": ("with non-breaking or narrow spaces around them", "spaces ignored"),
+}
+# A quoted cell of a comma-separated file holding one comma between digits: a decimal comma (a number
+# with digit groups has more, or a point too).
+_DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+", re.ASCII)
+
+
+def _cell_value(text: str) -> tuple[float, str | None]:
+    """A value cell as a float, and how a spreadsheet's locale wrote it when not as the app does (a key
+    of ``_NUMBER_FORMATS``); NaN when it is not a decimal number of ASCII digits in one of these ways."""
     try:
-        return float(text) if plain_number(text) else math.nan
+        if plain_number(text):
+            return float(text), None
     except ValueError:
-        return math.nan
+        pass
+    cell, how = text.strip(), None  # str.strip also takes no-break and narrow spaces
+    if cell != text.strip(" \t"):
+        how = "spaces"
+    if "\u2212" in cell:
+        cell, how = cell.replace("\u2212", "-"), "minus"
+    if _DECIMAL_COMMA.fullmatch(cell):
+        cell, how = cell.replace(",", "."), "decimal_comma"
+    if how is None or not plain_number(cell):
+        return math.nan, None
+    try:
+        return float(cell), how
+    except ValueError:
+        return math.nan, None
 
 
 def fields_tc(seconds_of_day: float) -> str:
@@ -685,13 +974,16 @@ def rows_to_take(
         values[:, moved] = values[:, take_cols_arr[moved]]
     tracked = rows.status == FrameStatus.TRACKED
     fps, period = detect_fps(rows.seconds_of_day[tracked] if tracked.sum() > 1 else rows.seconds_of_day)
+    repairs = list(rows.repairs)
+    note_far_values(rows, values[:, : len(known)], channels[: len(known)], repairs)
+    note_gaps(rows, period, repairs)
     t, v, st, dropped = fill_dropped(rows.seconds_of_day, values, rows.status, period)
     t0 = float(t[0])
     prefix, variant = split_variant(rows.path.stem)
     slate, take_number, subject = parse_take_prefix(prefix)
-    repairs = list(rows.repairs)
     if unknown:
         repair(repairs, 1, "unknown_columns", f"columns kept under their own names: {unknown}")
+        note_channel_typos(known, unknown, repairs)
     note_row_rate_changes(rows.seconds_of_day, fps, period, repairs)  # else seen only as dropped frames
     meta = TakeMeta(
         id=safe_id(take_id or rows.path.stem),
@@ -719,6 +1011,93 @@ def rows_to_take(
     )
     meta.extra["dropped_frames_inserted"] = dropped
     return Take(meta, t - t0, v, st)
+
+
+# A value of a Live Link channel beyond this is no measurement: the app's shapes reach 1.05, its head and eye
+# rotations about 0.7 (formats doc §2). A value typed without its decimal point (12 for 0.12) is one.
+VALUE_LIMIT = 10.0
+# A gap between rows this long is noted: the app drops a row now and then, never a second's worth.
+GAP_NOTE_S = 1.0
+
+
+def _row_line(rows: CsvRows, i: int) -> tuple[int | None, str]:
+    """The file's line of row ``i`` (None if not found) and the words saying it. The fast path keeps no
+    line numbers: the line is looked up by its timecode, once for each note that names one."""
+    if rows.lines is not None:
+        line: int | None = int(rows.lines[i])
+    else:
+        data = rows.path.read_bytes()
+        at = data.find(b"\n" + fields_tc(rows.seconds_of_day[i]).encode() + b",")
+        line = data.count(b"\n", 0, at) + 2 if at >= 0 else None
+    return line, f" on line {line}" if line else ""
+
+
+def counted(n: int, word: str) -> str:
+    """``1 value``, ``2 values``."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def note_far_values(rows: CsvRows, values: np.ndarray, names: list[str], repairs: list) -> None:
+    """Say (repair ``value_range``, a warning of import) when channel ``values`` (rows x ``names``) go
+    beyond ``VALUE_LIMIT``: kept as they are, as the file may mean them, but no face makes them."""
+    if not values.size:
+        return
+    with np.errstate(invalid="ignore"):
+        top, bottom = np.fmax.reduce(values, axis=0).max(), np.fmin.reduce(values, axis=0).min()
+        if not (top > VALUE_LIMIT or bottom < -VALUE_LIMIT):
+            return  # the common take: two passes over the values, no copy
+        far = np.abs(values) > VALUE_LIMIT
+    row, col = (int(i[0]) for i in np.nonzero(far))
+    line, on_line = _row_line(rows, row)
+    which = [ch.livelink_name(names[j]) for j in np.flatnonzero(far.any(axis=0))]
+    more = f" and {len(which) - 5} more channels" if len(which) > 5 else ""
+    first = f"{values[row, col]:g} in {ch.livelink_name(names[col])} at {fields_tc(rows.seconds_of_day[row])}"
+    repair(
+        repairs,
+        line,
+        "value_range",
+        f"{counted(int(far.sum()), 'value')} beyond ±{VALUE_LIMIT:g} in {', '.join(which[:5])}{more} (the "
+        f"first: {first}{on_line}), where the app's values stay within about ±1.05: typed without a decimal "
+        "point? Kept as they are",
+    )
+
+
+def note_gaps(rows: CsvRows, period: float, repairs: list) -> None:
+    """Note (repair ``gap``) where no rows come for ``GAP_NOTE_S`` or more (rows deleted from the middle):
+    such a gap becomes DROPPED frames like any, but not the odd dropped row's."""
+    t = rows.seconds_of_day
+    steps = np.diff(t)
+    at = np.flatnonzero(steps >= GAP_NOTE_S)
+    for i in at[:3]:
+        line, on_line = _row_line(rows, int(i) + 1)
+        frames = int(np.rint(steps[i] / period)) - 1
+        repair(
+            repairs,
+            line,
+            "gap",
+            f"a gap of {steps[i]:.1f} s with no rows, from {fields_tc(t[i])} to {fields_tc(t[i + 1])}"
+            f"{on_line}: {frames} DROPPED frames (rows deleted?)",
+        )
+    if at.size > 3:
+        repair(repairs, None, "gap", f"and {at.size - 3} more gaps of {GAP_NOTE_S:g} s or more")
+
+
+def note_channel_typos(known: list[str], unknown: list[str], repairs: list) -> None:
+    """Say (repair ``channel_typo``, a warning of import) when a column that is no channel is close to a
+    channel the header lacks (``JawOpne`` without ``JawOpen``): it stays a column of its own name, as a
+    rig's control would, but the take has no such channel."""
+    present = {ch.udp_index(c) for c in known}
+    missing = [name for i, name in enumerate(ch.LIVELINK_ORDER) if i not in present]
+    for name in unknown:
+        meant = ch.meant_channel(name, missing)
+        if meant is not None:
+            repair(
+                repairs,
+                1,
+                "channel_typo",
+                f"no {meant} column; {name} is not a channel: did you mean {meant}? (rename the column to "
+                f"import it as {meant})",
+            )
 
 
 def parse_take_prefix(prefix: str) -> tuple[str | None, int | None, str | None]:

@@ -8,7 +8,7 @@ import unicodedata
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .csv_take import app_header_separator, read_livelink_csv
+from .csv_take import app_header_separator, read_livelink_csv, utf16_csv_error
 from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
 from .take import Take, is_take_dir, leads_back
@@ -301,9 +301,11 @@ def import_source(
         )
     if source.suffix.lower() == ".json" and is_a2f_export(source):
         raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
-    if source.suffix.lower() != ".csv":
-        raise InputError("not a Live Link Face CSV or take folder", source)
     head = _head(source)
+    # named directly, a file of another suffix is read when its header is the app's (a .tsv, or Excel's
+    # "Unicode Text" .txt: the reader then says what is wrong with it, as for a .csv)
+    if source.suffix.lower() != ".csv" and (head is None or not is_livelink_csv(source, head)):
+        raise InputError("not a Live Link Face CSV or take folder", source)
     if is_appledouble(source):
         raise InputError(
             "a macOS metadata file (AppleDouble, as Finder leaves as ._X beside copied files), not a take: "
@@ -316,7 +318,7 @@ def import_source(
         )
     livelink = is_livelink_csv(source, head)
     if livelink and bom_codec(head or b""):
-        raise InputError(
+        raise utf16_csv_error(head or b"", source) or InputError(
             "a Live Link Face CSV saved as UTF-16 text: save it as UTF-8 (as the app writes it)", source
         )
     if not livelink:

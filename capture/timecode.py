@@ -22,8 +22,10 @@ OTHER_TIMECODE_RATES = (24.0, 25.0, 30.0, 48.0, 50.0)
 # Whole seconds a take must cover before its FF values tell the rate they count at.
 MIN_WHOLE_SECONDS = 2
 
-# ASCII digits only: a bare \d also matches other scripts' digits, which int() and float() read.
-_TIMECODE = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3}(?:\.\d*)?)\s*$", re.ASCII)
+# ASCII digits only: a bare \d also matches other scripts' digits, which int() and float() read. Fields of
+# one digit are read too: scripts write f"{h}:{m}:{s}:{ff}" (``12:28:1:03.060``); ``is_zero_padded`` tells.
+_TIMECODE = re.compile(r"^\s*(\d{1,2}):(\d{1,2}):(\d{1,2})[:;](\d{1,3}(?:\.\d*)?)\s*$", re.ASCII)
+_PADDED = re.compile(r"^\s*\d{1,2}:\d{2}:\d{2}[:;]", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,12 @@ class Timecode:
         if h > 23 or mi > 59 or s > 59 or f >= rate + 1e-6:
             raise ValueError(f"timecode {text!r} is out of range at {rate:g} fps")
         return cls(h, mi, s, f, rate)
+
+    @staticmethod
+    def is_zero_padded(text: str) -> bool:
+        """Whether a timecode ``parse`` reads writes its minutes and seconds with two digits, as the app
+        does (``12:28:01:03.060``, not ``12:28:1:03.060``; hours of one digit were always read as such)."""
+        return _PADDED.match(text) is not None
 
     @property
     def seconds_of_day(self) -> float:
