@@ -75,6 +75,7 @@ from .features import (
 from .manifest import (
     LOCK_FILE,
     MANIFEST_FILE,
+    TAKE_RECORDS,
     WORK,
     manifest_path,
     read_manifest,
@@ -651,11 +652,11 @@ class TakeJob:
 
     @property
     def record(self) -> Path:
-        return Path(self.work) / "takes" / f"{self.key}.json"
+        return Path(self.work) / TAKE_RECORDS / f"{self.key}.json"
 
     @property
     def stats(self) -> Path:
-        return Path(self.work) / "takes" / f"{self.key}.stats.npz"
+        return Path(self.work) / TAKE_RECORDS / f"{self.key}.stats.npz"
 
 
 _EXTRACTORS: dict[tuple[str, str | None], Any] = {}
@@ -771,10 +772,11 @@ def split_share_warnings(
     return out
 
 
-def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
+def _record_of(job: TakeJob) -> dict[str, Any] | None:
+    """The take's record when it is of this take as this build would process it (its samples unchecked)."""
     try:
         rec = json.loads(job.record.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
+    except (OSError, json.JSONDecodeError):
         return None
     if (
         not isinstance(rec, dict)
@@ -783,7 +785,15 @@ def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
         or rec.get("sha256") != job.sha256
         or rec.get("split") != job.split
         or rec.get("speaker") != job.speaker  # another take's spelling may now name it
+        or not isinstance(rec.get("samples"), list)
     ):
+        return None
+    return rec
+
+
+def _record_is_current(job: TakeJob) -> dict[str, Any] | None:
+    rec = _record_of(job)
+    if rec is None:
         return None
     # each sample tar as the record wrote it (sha256): a build with other options that was stopped while
     # rewriting this take's samples must not lend them to this one (it drops the record first, too)
@@ -1432,6 +1442,61 @@ def _write_shards(
 STAGED = "staged"  # in .work: the shards of a build, complete, until _swap_in moves them into the dataset
 
 
+def _clear_work(work: Path, options: BuildOptions, jobs: list[TakeJob] | None = None) -> None:
+    """After a build: ``.work`` removed but for the take records (small: JSON and compressed histograms;
+    the samples are in the shards), those of takes no longer built (``jobs``: the build's) among them
+    too. ``--keep-work`` keeps everything."""
+    if options.keep_work:
+        return
+    for p in work.iterdir() if work.is_dir() else []:
+        if p.name != TAKE_RECORDS:
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+    if jobs is not None:
+        kept = {f for job in jobs for f in (job.record.name, job.stats.name)}
+        for p in (work / TAKE_RECORDS).glob("*") if (work / TAKE_RECORDS).is_dir() else []:
+            if p.name not in kept:
+                p.unlink(missing_ok=True)
+
+
+def _restore_samples(out: Path, old: dict[str, Any] | None, jobs: list[TakeJob]) -> int:
+    """Put back into ``.work/samples`` the samples of takes whose record says this build would make
+    them as the last one did (same take contents, options, split and speaker), read from the dataset's
+    shards: a rebuild after adding one take to N computes the features of one take, not N + 1 (a take
+    whose samples cannot be restored, from a damaged or missing shard, is processed again). Returns the
+    number of takes restored. Each restored sample is checked against the sha256 its record holds
+    (``_record_is_current``), as the samples a build leaves are."""
+    if old is None:
+        return 0
+    shard_of = {s.get("key"): s.get("shard") for s in old.get("samples", []) if isinstance(s, dict)}
+    wanted: dict[str, dict[str, Path]] = {}  # shard -> {key: where its one-sample tar goes}
+    takes = {}
+    for job in jobs:
+        rec = _record_of(job)
+        if rec is None or not job.stats.is_file():
+            continue
+        samples_dir = Path(job.work) / "samples"
+        missing = [s.get("key") for s in rec["samples"] if not (samples_dir / f"{s.get('key')}.tar").exists()]
+        if not missing:
+            continue  # left by a build that stopped: checked as ever
+        if not all(isinstance(shard_of.get(k), str) and SHARD_NAME.match(shard_of[k]) for k in missing):
+            continue
+        for k in missing:
+            wanted.setdefault(shard_of[k], {})[k] = samples_dir / f"{k}.tar"
+        takes[job.take_id] = missing
+    for shard, keys in sorted(wanted.items()):
+        try:
+            for key, members in ShardReader(out / shard):
+                if key in keys:
+                    keys[key].parent.mkdir(parents=True, exist_ok=True)
+                    with ShardWriter(keys[key]) as w:
+                        w.add(key, members)
+                        w.close()
+        except (InputError, OSError):
+            continue  # those takes are processed again
+    samples_dir = Path(jobs[0].work) / "samples" if jobs else out
+    return sum(all((samples_dir / f"{k}.tar").exists() for k in keys) for keys in takes.values())
+
+
 def _swap_in(out: Path, work: Path, staged: list[str], manifest: dict[str, Any]) -> None:
     """Replace the dataset in ``out`` with the new one: the staged shards renamed into place, then the
     manifest written (atomically), then the shards it does not list removed (of an earlier, larger
@@ -1561,8 +1626,7 @@ def _build(
     def up_to_date() -> dict[str, Any]:
         say("dataset is up to date")
         _remove_unlisted_shards(out, old)  # a swap killed after its manifest was written ends here
-        if not options.keep_work:  # a cache left by a rebuild that failed or was stopped: of no use now
-            shutil.rmtree(work, ignore_errors=True)
+        _clear_work(work, options)  # what a rebuild that failed or was stopped left: of no use now
         return _summary(out, old, up_to_date=True)
 
     def intact() -> bool:
@@ -1653,8 +1717,7 @@ def _build(
             return up_to_date()
         state.phase = "repairing"
         if _repair_shards(out, work, old, damaged or [], jobs, fingerprint, options, say):
-            if not options.keep_work:
-                shutil.rmtree(work, ignore_errors=True)
+            _clear_work(work, options)
             return _summary(out, old, up_to_date=False) | {"repaired": sorted(damaged or [])}
         state.phase = "reading"  # not repairable in place: a full rebuild, as for changed inputs
     if old is not None:
@@ -1665,6 +1728,9 @@ def _build(
     # are written into .work/staged and swapped in at the end (_swap_in), so a rebuild that fails or is
     # stopped leaves the previous dataset readable.
 
+    restored = _restore_samples(out, old, jobs)
+    if restored:
+        say(f"{restored} take(s) unchanged since the last build: their samples taken from its shards")
     records = _process_takes(jobs, options, say)
     stats_files = {job.take_id: str(job.stats) for job in jobs}
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
@@ -1770,8 +1836,7 @@ def _build(
     with _stops_deferred():  # a Ctrl-C or SIGTERM meanwhile stops the build once the swap is done
         _swap_in(out, work, staged, manifest)
         state.phase = "done"
-    if not options.keep_work:
-        shutil.rmtree(work, ignore_errors=True)
+    _clear_work(work, options, jobs)
     return _summary(out, read_manifest(out), up_to_date=False, moved=moved)
 
 

@@ -30,6 +30,9 @@ FORMAT = "s2a-dataset"
 SCHEMA_VERSION = 1
 MANIFEST_FILE = "manifest.json"
 WORK = ".work"  # a build's working folder inside the dataset folder
+# In .work: each take's record (its statistics and samples' sha256) and statistics, kept after a build so
+# that a rebuild processes only the takes that changed; a cache, not a leftover (safe to delete).
+TAKE_RECORDS = "takes"
 LOCK_FILE = ".build.lock"  # held (flock) by the one build writing into a dataset folder
 REQUIRED = ("fps", "sample_rate", "channels", "features", "normalization", "splits", "shards", "samples")
 

@@ -29,6 +29,7 @@ from .manifest import (
     LOCK_FILE,
     MANIFEST_FILE,
     STR,
+    TAKE_RECORDS,
     WORK,
     _count,
     _fields,
@@ -1260,10 +1261,23 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
 LEFTOVERS = (WORK, LOCK_FILE)
 
 
+def _only_take_records(path: Path) -> bool:
+    """Whether ``path`` is a ``.work`` folder holding nothing but the build's take records."""
+    try:
+        return path.name == WORK and path.is_dir() and {p.name for p in path.iterdir()} <= {TAKE_RECORDS}
+    except OSError:
+        return False
+
+
 def leftover_problems(ds: Path) -> list[Problem]:
     """Warnings for what a build leaves only while it runs or when it was stopped: ``.work/``, its
-    lock, hidden ``.NAME.partial`` files. A finished dataset to share has none."""
-    found = sorted(p.name for p in ds.iterdir() if p.name in LEFTOVERS or p.name.endswith(".partial"))
+    lock, hidden ``.NAME.partial`` files. A finished dataset to share has none (a ``.work`` holding only
+    the take records a build keeps for the next, ``.work/takes``, is no leftover)."""
+    found = sorted(
+        p.name
+        for p in ds.iterdir()
+        if (p.name in LEFTOVERS or p.name.endswith(".partial")) and not _only_take_records(p)
+    )
     if not found:
         return []
     state = (
