@@ -14,6 +14,7 @@ numbers come from the take's start timecode plus frame time at the take's rate.
 
 from __future__ import annotations
 
+import re
 import socket
 import time
 import uuid
@@ -121,9 +122,20 @@ def _values_in_engine_order(take: Take) -> np.ndarray:
     return out
 
 
+# An Apple model identifier (``iPhone13,3``, ``iPad8,1``): what take.json's ``deviceModel`` holds, which
+# the take folder reader keeps as ``meta.device``. It names a model, not a phone: the app streams a UUID.
+_MODEL_ID = re.compile(r"^[A-Za-z]+\d+,\d+$")
+
+
 def default_device(take: Take) -> str:
-    """The take's device id, or a stable upper-case UUID derived from its id (like the app's)."""
-    return take.meta.device or str(uuid.uuid5(uuid.NAMESPACE_URL, "s2a-take:" + take.meta.id)).upper()
+    """The device id the take was streamed with (a take recorded from the live stream), else a stable
+    upper-case UUID derived from the take's id, 36 characters like the app's. A device model (take.json's
+    ``deviceModel``) is no device id: two phones of one model would share it, and listeners key their
+    streams on it."""
+    device = take.meta.device
+    if device and not _MODEL_ID.match(device):
+        return device
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, "s2a-take:" + take.meta.id)).upper()
 
 
 def check_speed(speed: float) -> None:

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from capture.command import emit_json, run, sigterm_stops
+from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 
 from .config import MODELS, resolve_config
@@ -63,6 +64,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="the speaker's neutral pose (a _neutral.csv or a calibrated take folder), for a run built "
         "with --normalization neutral",
+    )
+    p.add_argument(
+        "--count-name",
+        choices=COUNT_NAMES,
+        help="spelling of the CSV's second header column (default: BlendShapeCount, as Epic's importer "
+        "reads it; NeuroSync's loader drops BlendshapeCount by that exact name)",
     )
     _precision_option(p)
     _style_option(p, "the --speaker's when the run trained on that speaker, else the mean style")
@@ -221,6 +228,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
         precision=args.precision,
         style=args.style,
         neutral=args.neutral,
+        count_name=args.count_name,
     )
     failed = [r for r in results if "error" in r]
     for r in results:

@@ -2,17 +2,22 @@
 
 Graph inputs: ``content`` (1, frames, content_dim) float32, ``prosody`` (1, frames, prosody_dim) float32
 (absent for the no-prosody ablation) and ``mask`` (1, frames) bool; output ``animation`` (1, frames,
-channels), normalised (de-normalise with the manifest's ``scale`` and ``offset``). Frames are a dynamic
-axis, up to the model's ``max_frames`` (Transformer-S2A's positional table; longer inputs fail in
-onnxruntime, so run them in windows as ``predict`` does). The parity check runs both on random inputs of
-two lengths and reports the largest difference; an output that is not finite (NaN or inf, from either)
-fails it. The graph is written beside ``out`` under a hidden name and renamed over ``out`` only once the
-parity check has passed. ``out`` may not be the checkpoint exported, nor any other PyTorch checkpoint.
+channels), normalised. The file carries what a user of the graph needs and would otherwise have to fetch
+from the dataset (``onnx_metadata``, as JSON strings in ``metadata_props``): the output's channel names,
+the frame rate, the input features and their settings, and the normalisation statistics of the inputs
+and of the output (``dataset.Normalizer.from_json(normalization["animation"]).inverse`` de-normalises).
+The batch dimension is 1 everywhere. Frames are a dynamic axis, up to the model's ``max_frames``
+(Transformer-S2A's positional table; longer inputs fail in onnxruntime, so run them in windows as
+``predict`` does). The parity check runs both on random inputs of two lengths and reports the largest
+difference; an output that is not finite (NaN or inf, from either) fails it. The graph is written beside
+``out`` under a hidden name and renamed over ``out`` only once the parity check has passed. ``out`` may
+not be the checkpoint exported, nor any other PyTorch checkpoint.
 """
 
 from __future__ import annotations
 
 import copy
+import json
 import math
 import os
 import warnings
@@ -133,6 +138,7 @@ def export_onnx(
             if disk_full(exc, out.parent):
                 raise write_error(exc, out, "the ONNX file") from None
             raise
+        annotate(tmp, payload, names, limit)
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
         session = ort.InferenceSession(str(tmp), options, providers=["CPUExecutionProvider"])
@@ -167,7 +173,50 @@ def export_onnx(
         "max_frames": limit,
         # the last len(styles) prosody columns: a one-hot of one of these speakers, or 1/n each (mean style)
         "styles": list(spec.styles),
+        "metadata": sorted(onnx_metadata(payload, limit)),  # keys of the graph's metadata_props
     }
+
+
+def onnx_metadata(payload: dict[str, Any], limit: int | None) -> dict[str, str]:
+    """What a user of the graph needs beside it, each as a JSON string (``metadata_props`` hold text):
+    the output's channel names in order, the frame rate, the inputs (which features, in which order, feed
+    ``content`` and ``prosody``), the features' settings (``dataset.FeatureSettings.from_manifest`` reads
+    this entry), and the normalisation statistics (``train.normalize_features`` reads the dict these sit
+    in; ``animation`` de-normalises the output). Together they stand in for the dataset's manifest."""
+    info = payload["dataset"]
+    fields = {
+        "system": payload["system"],
+        "channels": list(info["channels"]),
+        "fps": info["fps"],
+        "inputs": payload["inputs"],
+        "features": info["features"],
+        "normalization": info["normalization"],
+        "max_frames": limit,
+    }
+    return {key: json.dumps(value) for key, value in fields.items()}
+
+
+def annotate(path: Path, payload: dict[str, Any], names: list[str], limit: int | None) -> None:
+    """Write ``onnx_metadata`` and a doc string into the graph at ``path``, and fix the output's batch
+    dimension at 1 as the inputs' is (the tracer leaves it a symbol, ``Whereanimation_dim_0``)."""
+    import onnx
+
+    graph = onnx.load(str(path))
+    for key, value in onnx_metadata(payload, limit).items():
+        graph.metadata_props.add(key=key, value=value)
+    channels = len(payload["dataset"]["channels"])
+    features = " and ".join(f"{n} (1, frames, dim) float32" for n in names if n != "mask")
+    graph.doc_string = (
+        f"s2a-toolkit speech-to-animation model ({payload['system']}) at {payload['dataset']['fps']:g} "
+        f"frames per second. Inputs: {features} (features as metadata 'inputs' and 'features' say, "
+        "normalised with metadata 'normalization'), mask (1, frames) bool. Output: animation "
+        f"(1, frames, {channels}) float32 of the channels in metadata 'channels', normalised: "
+        "de-normalise with metadata 'normalization' -> 'animation'."
+    )
+    batch = graph.graph.output[0].type.tensor_type.shape.dim[0]
+    batch.ClearField("dim_param")
+    batch.dim_value = 1
+    onnx.save(graph, str(path))
 
 
 def largest_difference(got: np.ndarray, ref: np.ndarray) -> float:

@@ -629,6 +629,8 @@ class MetricsLog:
 
     def __init__(self, run: Path, writes: bool, resumed_at: int | None):
         self.path, self.lines, self.tb = run / METRICS, None, None
+        self._tb_step: int | None = None  # the step of the last scalars written, and their tags
+        self._tb_tags: set[str] = set()
         if not writes:
             return
         self.events = run / "tensorboard"
@@ -659,10 +661,16 @@ class MetricsLog:
         except OSError as exc:
             raise write_error(exc, self.path) from None
         if self.tb is not None:
+            step = record["step"]
+            if step != self._tb_step:
+                self._tb_step, self._tb_tags = step, set()
             try:
                 for k, v in record.items():
-                    if k != "step" and isinstance(v, (int, float)):
-                        self.tb.add_scalar(k, v, record["step"])
+                    # a figure two records of one step share (the epoch of a training row and of the
+                    # validation row after it) is one scalar event, not two of the same step
+                    if k != "step" and k not in self._tb_tags and isinstance(v, (int, float)):
+                        self.tb.add_scalar(k, v, step)
+                        self._tb_tags.add(k)
             except OSError as exc:  # raised again here from its writer thread (a full disk)
                 raise write_error(exc, self.events, "TensorBoard events") from None
 

@@ -7,7 +7,9 @@ to 0..1 (the app's range; how many were outside is reported). The CSV has the ap
 channels the model does not predict are 0, and channels of the run that are no ARKit name are listed
 in a warning. A run none of whose channels is an ARKit name (a rig's own controls) writes a rig CSV
 instead: a ``time`` column in seconds and one column per channel, as ``s2a-capture import --matrix``
-reads it.
+reads it. The header's second column is spelt ``BlendShapeCount`` (Epic's importer and the 2021 app) unless
+``count_name`` asks for the newer app's ``BlendshapeCount``, which NeuroSync's loader drops by that exact
+name.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from capture.atomic import atomic_write
 from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
 from capture.command import progress
+from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
 from dataset.build import NARROWBAND_HZ, is_narrowband
@@ -239,13 +242,17 @@ def predict(
     precision: str = "fp32",
     style: str | None = None,
     neutral: str | Path | None = None,
+    count_name: str | None = None,
 ) -> list[dict[str, Any]]:
     """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
     folder receiving ``<audio stem>.csv``. Returns one summary per file; of several files, one that
     fails gets ``{"audio", "error"}`` and the others are still written (a single file's failure is
     raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``; ``neutral``:
-    the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral.
+    the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral;
+    ``count_name``: the CSV's second column, one of ``COUNT_NAMES`` (None: ``BlendShapeCount``).
     ``audios``: a list of audio files, or one file (a ``str`` or ``Path``)."""
+    if count_name is not None and count_name not in COUNT_NAMES:
+        raise InputError(f"count name must be one of {', '.join(COUNT_NAMES)}, not {count_name!r}")
     if isinstance(audios, (str, os.PathLike)):
         audios = [audios]  # one file, never the characters of its name
     audios = list(audios)
@@ -280,6 +287,8 @@ def predict(
             f"{others[:5]}"
         )
     pose = _neutral_pose(info, neutral, say)
+    if count_name is not None and not arkit:
+        say("note: the run writes rig CSVs (a time column, no BlendShapeCount): --count-name ignored")
     known = sorted(info["normalization"].get("pitch", {}).get("speakers", {}))
     if speaker is not None and speaker not in known:
         raise InputError(
@@ -293,7 +302,9 @@ def predict(
     results = []
     for a, path in zip(map(Path, audios), paths):
         try:  # one unreadable file is reported and the others are still predicted
-            result = _predict_one(model, payload, a, path, ppg, speaker, style, arkit, blendshapes, pose)
+            result = _predict_one(
+                model, payload, a, path, ppg, speaker, style, arkit, blendshapes, pose, count_name
+            )
         except InputError as exc:
             if len(audios) == 1:
                 raise
@@ -344,7 +355,7 @@ def _neutral_pose(info: dict[str, Any], neutral: str | Path | None, say) -> np.n
 
 
 def _predict_one(
-    model, payload, a: Path, path: Path, ppg, speaker, style, arkit, blendshapes, neutral
+    model, payload, a: Path, path: Path, ppg, speaker, style, arkit, blendshapes, neutral, count_name=None
 ) -> dict[str, Any]:
     """Predict audio file ``a`` into CSV ``path``; the summary of ``predict``."""
     info = payload["dataset"]
@@ -370,7 +381,7 @@ def _predict_one(
     take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
     try:
         if arkit:
-            write_livelink_csv(take, path)
+            write_livelink_csv(take, path, count_name=count_name)
         else:
             write_rig_csv(take, path)
     except OSError as exc:

@@ -5,6 +5,9 @@ variants of one take (``_cal``, ``_raw``, ``_neutral``) count as that one take. 
 repaired (rows dropped, cells set to NaN) comes back as warnings. Values no face can take, NaN,
 infinite or beyond ±``ABSURD`` (no blendshape weight nor angle in radians is), are bad values.
 Blendshape weights outside ``0..1`` (ARKit itself reaches 1.05) are clamped for the face and counted.
+A take whose audio was paired by frame index (``s2a-capture import --audio-pairing frame-index``: row i
+goes with audio time i/fps) is shown on that clock, as ``s2a-align`` places it, not by its timecodes,
+which run 0.16 % slow against it in a Live Link Face CSV (32 ms over 20 s).
 """
 
 from __future__ import annotations
@@ -79,7 +82,7 @@ def read_input(
             take.attach_audio(read_audio(audio))  # without a repair list, NaN samples are an error
             return take, [], Path(audio)
         # The file meta.json names, as read_take read it (a folder written elsewhere may name another).
-        return take, [], src / take.meta.audio.file if take.meta.audio is not None else None
+        return on_audio_clock(take), [], src / take.meta.audio.file if take.meta.audio is not None else None
     warnings: list[str] = []
     variant = None
     if src.is_file():
@@ -109,7 +112,16 @@ def read_input(
             raise InputError(
                 f"the audio holds NaN or infinite samples ({what}): give clean speech", audio or path
             )
-    return take, warnings + repair_warnings(take, src), audio_source(take, audio)
+    return on_audio_clock(take), warnings + repair_warnings(take, src), audio_source(take, audio)
+
+
+def on_audio_clock(take: Take) -> Take:
+    """``take`` with its frames where its audio placement puts them, by ``s2a-align``'s own rule
+    (``align.aligner.frame_clock``, ``auto``): audio paired by frame index places frame i at i/fps from
+    the first frame (dropped-frame placeholders counted); any other placement keeps the timecodes."""
+    from align.aligner import frame_clock  # align's imports (SciPy) only for a viewer that reads a take
+
+    return frame_clock(take, "auto")[0]
 
 
 def csv_with_its_audio(csv: Path) -> tuple[Path, str | None, Path | None, str | None]:
