@@ -10,7 +10,7 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .channels import is_known
 from .command import emit_json, progress, run
-from .csv_take import nonfinite_frames, split_variant, write_livelink_csv
+from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
 from .importer import (
@@ -153,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--out", type=Path, required=True, help="CSV file to write (folders are created)")
     p.add_argument(
         "--count-name",
-        choices=("BlendShapeCount", "BlendshapeCount"),
+        choices=COUNT_NAMES,
         help="spelling of the second header column (default: as in the source)",
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary")

@@ -321,6 +321,70 @@ def test_ddp_ranks_stop_together_when_only_one_sees_the_rebuild(builds, tmp_path
     assert load_checkpoint(run / "last.pt")["step"] == 4  # the last checkpoint before the rebuild
 
 
+DDP_START = """
+import datetime, json, os, sys, time
+rank, rendezvous, ds, run, flag = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[6]
+cfg = json.loads(sys.argv[5])
+os.environ.update(WORLD_SIZE="2", RANK=str(rank), LOCAL_RANK=str(rank))  # as torchrun sets them
+import torch.distributed as dist
+dist.init_process_group(
+    "gloo", init_method="file://" + rendezvous, rank=rank, world_size=2, timeout=datetime.timedelta(0, 30)
+)
+from train.fit import fit
+from train.run_dataset import DatasetWatch
+
+first_read = DatasetWatch.read.__func__
+
+
+def read(cls, *args):  # rank 0 reads manifest.json; a rebuild lands; then rank 1 reads it
+    watch = first_read(cls, *args)
+    if rank == 0:
+        open(flag, "w").close()
+    return watch
+
+
+DatasetWatch.read = classmethod(read)
+if rank == 1:
+    while not os.path.exists(flag):
+        time.sleep(0.05)
+    path = os.path.join(ds, "manifest.json")
+    with open(path) as f:
+        data = json.load(f)
+    with open(path + ".new", "w") as f:
+        json.dump(data, f, indent=1)  # other bytes: another build for the run's fingerprint
+    os.replace(path + ".new", path)
+try:
+    fit(ds, run, cfg, say=lambda _line: None)
+    out = {"error": None}
+except Exception as exc:
+    out = {"error": type(exc).__name__ + ": " + str(exc)}
+print(json.dumps(out), flush=True)
+dist.destroy_process_group()
+"""
+
+
+def test_ddp_ranks_that_start_on_two_builds_stop_together(builds, tmp_path):
+    """Each rank reads manifest.json at start-up on its own: a rebuild landing between two ranks' reads
+    started them on different builds (each then checked against its own). Both now stop before training,
+    with one line naming each rank's build."""
+    ds, run = _copy(builds["a"], tmp_path / "ds"), tmp_path / "run"
+    args = [
+        str(tmp_path / "rendezvous"),
+        str(ds),
+        str(run),
+        json.dumps(_cfg("max_steps=4")),
+        str(tmp_path / "read"),
+    ]
+    lines = run_gloo_ranks(DDP_START, args, timeout=240)
+    errors = [json.loads(found[-1])["error"] for found in lines]
+    assert errors[0] == errors[1], errors
+    assert errors[0].startswith(f"DatasetChanged: {ds} was rebuilt as this run started: its ranks read"), (
+        errors
+    )
+    assert "rank 0: " in errors[0] and "rank 1: " in errors[0] and "start the run again" in errors[0]
+    assert not (run / "last.pt").exists()
+
+
 # 6. a checkpoint of an earlier version resumes in its own data order
 
 

@@ -514,6 +514,7 @@ def _fit_ensemble(
     """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold, all on the build of
     the dataset the ensemble started on."""
     watch = DatasetWatch.read(ds, cfg)
+    watch.agree()  # every rank on one build, or every rank stops
     manifest = watch.manifest
     rank, world, _device = _distributed()
     say = say if rank == 0 else (lambda _m: None)
@@ -782,6 +783,8 @@ def _fit(
     rank, world, device = _distributed()
     if given_watch:
         watch.check_together(device)  # every rank together (DDP): one rank stopping alone hangs the rest
+    else:
+        watch.agree()  # every rank on one build, or every rank stops
     manifest = watch.manifest
     main = rank == 0
     say = say if main else (lambda _m: None)

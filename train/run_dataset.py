@@ -240,6 +240,23 @@ class DatasetWatch:
         if error is not None:
             raise error
 
+    def agree(self) -> None:
+        """Stop every rank of a DDP run at start-up when they read manifest.json of two builds: each
+        reads it on its own, so a rebuild landing between their reads would start them on different
+        builds (one rank's samples read against another build's manifest, different val takes). One
+        gather of the manifests' sha256; every rank raises the same line, or none does. Without a
+        process group of more than one rank: nothing to agree."""
+        if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() < 2:
+            return
+        shas: list[Any] = [None] * dist.get_world_size()
+        dist.all_gather_object(shas, self.sha)
+        if len(set(shas)) > 1:
+            builds = ", ".join(f"rank {r}: {sha[:12]}" for r, sha in enumerate(shas))
+            raise DatasetChanged(
+                f"{self.ds} was rebuilt as this run started: its ranks read manifest.json of different "
+                f"builds (sha256 {builds}): start the run again"
+            )
+
     @contextmanager
     def reading(self) -> Iterator[None]:
         """Reads of the dataset in the block: an error there (a shard of another size, samples the
