@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -145,9 +146,34 @@ def cmd_build(args: argparse.Namespace) -> int:
             + (" (up to date)" if summary["up_to_date"] else "")
             + (f" (repaired {', '.join(summary['repaired'])})" if summary.get("repaired") else "")
         )
-        for w in summary["warnings"]:
+        for w in grouped_warnings(summary["warnings"]):
             print(f"warning: {w}")
     return 0
+
+
+_OF_A_TAKE = re.compile(r"take (\S+): (.+)", re.DOTALL)
+GROUP_FROM = 4  # takes warned alike from which one line names them together
+
+
+def grouped_warnings(warnings: list[str], named: int = 3) -> list[str]:
+    """The build's warnings as printed: those saying the same of ``GROUP_FROM`` or more takes
+    (``take X: align flagged its audio/face offset (low_confidence): ...``) as one line naming the first
+    ``named`` of them and how many more, at the first one's place; the manifest keeps every line."""
+    alike: dict[str, list[str]] = {}
+    for w in warnings:
+        m = _OF_A_TAKE.fullmatch(w)
+        if m:
+            alike.setdefault(m[2], []).append(m[1])
+    out = []
+    for w in warnings:
+        m = _OF_A_TAKE.fullmatch(w)
+        takes = alike.get(m[2], []) if m else []
+        if len(takes) < GROUP_FROM:
+            out.append(w)
+        elif takes[0] == m[1]:
+            more = f" and {len(takes) - named} more" if len(takes) > named else ""
+            out.append(f"{len(takes)} takes ({', '.join(takes[:named])}{more}): {m[2]}")
+    return out
 
 
 def _not_while_building(ds: Path) -> None:

@@ -123,8 +123,8 @@ def test_sigterm_during_a_rebuild_keeps_the_previous_dataset(tmp_path):
     assert run_cli("dataset", "build", aligned, "-o", ds).returncode == 0
     before = _snapshot(ds)
     _add_take(aligned, "take06", seed=6)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "dataset", "build", str(aligned), "-o", str(ds)],
+    proc = subprocess.Popen(  # samples of another length: every take processed again
+        [sys.executable, "-m", "dataset", "build", str(aligned), "-o", str(ds), "--max-sample-s", "3"],
         cwd=ROOT,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
