@@ -268,10 +268,11 @@ def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: 
     # One import at a time into a folder (two at once each took the same free ids and overwrote each
     # other's takes); the folder is listed once for leftovers of killed writes, not once per take.
     with (
-        holding(out / IMPORT_LOCK, another_writer("s2a-capture import", out), optional=True),
+        holding(out / IMPORT_LOCK, another_writer("s2a-capture import", out), optional=True) as alone,
         batch_of_writes(out),
     ):
-        clear_unpacked(out)  # archives a killed import left unpacked
+        if alone:  # without the lock, another import may be reading what it unpacked
+            clear_unpacked(out)  # archives a killed import left unpacked
         importer = _Importer(args, generic, timecode_rate, litter)
         failures = sum(
             importer.archive(src) if kind == "archive" else not importer.one(kind, src) for kind, src in jobs
@@ -302,18 +303,20 @@ class _Importer:
         args = self.args
         name = outer.shown(archive) if outer else str(archive)
         try:
-            with unpacked(archive, args.out, self.litter, name) as box:
+            with unpacked(archive, args.out, self.litter, outer) as box:
                 sources = find_sources(
                     [box.folder],
                     exports=args.pair_audio,
                     litter=self.litter,
                     skipped=lambda path, why: warn_skipped(Path(box.shown(path)), why),
-                    archives=outer is None,
+                    archives=box.unpacks_archives,
                 )
                 if args.variant is not None:
                     sources = _of_variant(sources, args.variant, box)
                 if not sources:
-                    raise InputError("holds no Live Link Face CSV or take folder", name)
+                    ours = find_takes([box.folder])
+                    why = " (it holds takes imported already: unzip it where you keep takes)" if ours else ""
+                    raise InputError(f"holds no Live Link Face CSV or take folder{why}", name)
                 if args.take_id and len(sources) != 1:
                     raise InputError(f"--id names one take, but the archive holds {len(sources)}", name)
                 progress(f"{name}: {len(sources)} source{'s' if len(sources) > 1 else ''} unpacked")
@@ -450,20 +453,33 @@ def _occupant(folder: Path, take: Take) -> str | None:
     return f"the take imported from {before}" if before else "a take of unknown source"
 
 
-def _load_for_info(path: Path, litter: Litter) -> list[Take]:
-    if is_zip(path):
-        with unpacked(path, litter=litter) as box:
-            try:
-                return [import_source(s) for s in find_sources([box.folder], litter=litter)]
-            except S2AError as exc:
-                raise InputError(box.shown(exc)) from None
+def _load_for_info(path: Path, litter: Litter, outer: Unpacked | None = None) -> list[Take]:
+    """The takes ``path`` holds: a take of ours, a folder of them, recordings to import, zip archives of
+    any of these (and the archives in them, as import reads them); ``outer``: the archive ``path`` was
+    unpacked from."""
+    if not is_zip(path):
+        return _takes_in(path, litter, outer)
+    with unpacked(path, litter=litter, outer=outer) as box:
+        try:
+            return _takes_in(box.folder, litter, box)
+        except S2AError as exc:
+            raise InputError(box.shown(exc)) from None
+
+
+def _takes_in(path: Path, litter: Litter, box: Unpacked | None) -> list[Take]:
     if is_take_dir(path):
         return [read_take(path)]
     if path.is_dir():
         takes = find_takes([path])
         if takes:
             return [read_take(t) for t in takes]
-    return [import_source(s) for s in find_sources([path], litter=litter)]
+    sources = find_sources(
+        [path],
+        litter=litter,
+        archives=box is None or box.unpacks_archives,
+        skipped=lambda p, why: warn_skipped(Path(box.shown(p) if box else p), why),
+    )
+    return [t for s in sources for t in (_load_for_info(s, litter, box) if is_zip(s) else [import_source(s)])]
 
 
 def cmd_info(args: argparse.Namespace) -> int:

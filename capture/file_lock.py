@@ -88,7 +88,7 @@ def holding(
     refused: Callable[[str], Exception],
     remove: Callable[[bool], bool] = lambda created: True,
     optional: bool = False,
-) -> Iterator[None]:
+) -> Iterator[bool]:
     """Hold an exclusive lock on the lock file ``path`` (created if needed, this process's pid written
     into it) while the block runs: the one writer of a folder (an import's output, an align's, a
     dataset build's, a training run). Another process holding it: ``refused(lock_holder(path))`` is
@@ -96,17 +96,18 @@ def holding(
     removed at the end, while still held (one that opened it meanwhile finds it gone and locks the
     file at that path anew). A lock
     file that cannot be opened or locked raises its ``OSError``, or with ``optional`` the block runs
-    without a lock (a read-only folder, a file system without locks: the writes then fail themselves)."""
+    without a lock (a read-only folder, a file system without locks: the writes then fail themselves).
+    The block is given whether it holds the lock."""
     taken = _lock(path, refused, optional) if fcntl is not None else None
     if taken is None:
-        yield
+        yield False
         return
     fd, created = taken
     with suppress(OSError):  # the pid is for the messages of others only: a full disk stops nothing
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     try:
-        yield
+        yield True
     finally:
         if remove(created):
             with suppress(OSError):

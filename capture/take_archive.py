@@ -13,7 +13,6 @@ Explorer, most tools) are read as UTF-8 when they are that, else as the zip stan
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import stat
@@ -34,6 +33,7 @@ from .transfer_litter import Litter
 UNPACK_PREFIX = ".unzip-"
 # Room kept free on the disk beyond what the members take (the takes imported are written there too).
 SPARE_BYTES = 64 << 20
+MAX_DEPTH = 2  # archives in an archive are read; archives in those are named and skipped
 _UTF8_FLAG = 0x800
 _ENCRYPTED_FLAG = 0x1
 # Compression methods Python's zipfile cannot read, by number (APPNOTE 4.4.5), for the error.
@@ -58,7 +58,14 @@ class Unpacked:
 
     archive: Path
     folder: Path
-    name: str  # what the archive is called in messages and records (a member of another archive's)
+    name: str  # what the archive is called in messages: as given, or a member of another archive's
+    real: str  # and in the takes' records: its real path (symbolic links resolved), as a loose file's
+    depth: int = 1  # 1 for an archive given or found in a folder, 2 for one in an archive
+
+    @property
+    def unpacks_archives(self) -> bool:
+        """Whether the archives found in this one are read too (one level down, not further)."""
+        return self.depth < MAX_DEPTH
 
     def shown(self, text: object) -> str:
         """``text`` (a path of a file unpacked, or a message naming one) with the archive's member in its
@@ -66,11 +73,11 @@ class Unpacked:
         return str(text).replace(str(self.folder), self.name)
 
     def rename_files(self, take: Take) -> None:
-        """Record ``take``'s files as the archive's members (absolute: ``/dl/takes.zip/T/T.csv``; the
-        unpacked copies are gone after the import), in its sources and repair messages."""
-        whole = os.path.abspath(self.name)
+        """Record ``take``'s files as the archive's members (``/dl/takes.zip/T/T.csv``, the archive by its
+        real path: a re-import through another spelling replaces them; the unpacked copies are gone after
+        the import), in its sources and repair messages."""
         for source in take.meta.sources:
-            source.path = source.path.replace(str(self.folder), whole)
+            source.path = source.path.replace(str(self.folder), self.real)
         for repair in take.meta.repairs:
             if isinstance(repair.get("message"), str):
                 repair["message"] = self.shown(repair["message"])
@@ -149,15 +156,16 @@ def _check_room(plan: Plan, into: Path, archive: Path) -> None:
 
 @contextmanager
 def unpacked(
-    archive: Path, into: Path | None = None, litter: Litter | None = None, name: str | None = None
+    archive: Path, into: Path | None = None, litter: Litter | None = None, outer: Unpacked | None = None
 ) -> Iterator[Unpacked]:
     """``archive`` unpacked into a hidden folder made in ``into`` (default: the system's temporary
-    folder), removed on leaving; ``name``: what to call it (default: its path). Litter passed over is
-    counted in ``litter``. An ``InputError`` (naming it so) names
+    folder), removed on leaving; ``outer``: the archive it was unpacked from, if any, to name it as a
+    member of. Litter passed over is counted in ``litter``. An ``InputError`` (naming it) names
     what is wrong: not a zip archive (or cut short), a member outside the folder, encrypted, compressed
     with a method not readable here, damaged (its checksum), too large for the disk."""
     tally = Litter() if litter is None else litter
-    name = str(archive) if name is None else name
+    name = outer.shown(archive) if outer else str(archive)
+    real = str(archive).replace(str(outer.folder), outer.real) if outer else str(Path(archive).resolve())
     try:
         zf = zipfile.ZipFile(archive)
     except zipfile.BadZipFile as exc:
@@ -172,11 +180,15 @@ def unpacked(
         _check_room(plan, where, Path(name))
         work = Path(tempfile.mkdtemp(prefix=UNPACK_PREFIX, dir=where)).resolve()  # as source paths are
         try:
-            folder = work / archive.stem
-            folder.mkdir()
+            # named as the archive (a take folder zipped without its folder keeps a name), never "." or ".."
+            folder = work / (archive.stem.strip(".") and archive.stem or "archive")
+            try:
+                folder.mkdir()
+            except OSError as exc:
+                raise InputError(f"cannot unpack it into {where}: {exc.strerror or exc}", name) from None
             for info, parts in plan:
                 _unpack_member(zf, info, folder.joinpath(*parts), name)
-            yield Unpacked(archive, folder, name)
+            yield Unpacked(archive, folder, name, real, outer.depth + 1 if outer else 1)
         finally:
             shutil.rmtree(work, ignore_errors=True)
 

@@ -159,18 +159,19 @@ def grouped_warnings(warnings: list[str], named: int = 3) -> list[str]:
     """The build's warnings as printed: those saying the same of ``GROUP_FROM`` or more takes
     (``take X: align flagged its audio/face offset (low_confidence): ...``) as one line naming the first
     ``named`` of them and how many more, at the first one's place; the manifest keeps every line."""
-    alike: dict[str, list[str]] = {}
+    alike: dict[str, list[str]] = {}  # what is said -> the takes it is said of, each once, in order
     for w in warnings:
         m = _OF_A_TAKE.fullmatch(w)
-        if m:
-            alike.setdefault(m[2], []).append(m[1])
-    out = []
+        if m and m[1] not in alike.setdefault(m[2], []):
+            alike[m[2]].append(m[1])
+    out, said = [], set()
     for w in warnings:
         m = _OF_A_TAKE.fullmatch(w)
-        takes = alike.get(m[2], []) if m else []
+        takes = alike[m[2]] if m else []
         if len(takes) < GROUP_FROM:
             out.append(w)
-        elif takes[0] == m[1]:
+        elif m[2] not in said:
+            said.add(m[2])
             more = f" and {len(takes) - named} more" if len(takes) > named else ""
             out.append(f"{len(takes)} takes ({', '.join(takes[:named])}{more}): {m[2]}")
     return out

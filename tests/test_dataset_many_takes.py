@@ -30,6 +30,9 @@ def test_warnings_alike_of_many_takes_are_one_line_at_the_first_ones_place():
     assert grouped_warnings([f"take t{i}: {FLAG}" for i in range(4)], named=4) == [
         f"4 takes (t0, t1, t2, t3): {FLAG}"
     ]
+    # a take said twice is one take of the group, and the group one line
+    twice = [f"take {t}: {FLAG}" for t in ("a", "b", "a", "c", "d", "b")]
+    assert grouped_warnings(twice) == [f"4 takes (a, b, c and 1 more): {FLAG}"]
 
 
 def test_a_rebuild_from_the_cache_says_one_line_not_one_per_take(tmp_path: Path):

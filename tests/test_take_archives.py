@@ -268,3 +268,57 @@ def test_unpacked_counts_litter_and_names_members(sim_take, tmp_path):
         assert not list(box.folder.rglob("._*")) and not (box.folder / "__MACOSX").exists()
     assert not box.folder.exists()
     assert any("macOS metadata" in line for line in tally.lines())
+
+
+def test_archives_named_dot_zip_are_one_error_each_and_the_others_import(samples, tmp_path):
+    """``..zip`` has the stem ``.``: unpacking into a folder of that name failed with a bare
+    ``File exists`` naming a hidden folder, and stopped the whole import."""
+    csv = samples / "livelinkface/alexdjulin_S07/S07-001.csv"
+    (tmp_path / "z").mkdir()
+    for name in ("..zip", "...zip", "good.zip"):
+        with zipfile.ZipFile(tmp_path / "z" / name, "w") as z:
+            z.write(csv, "S07-001.csv" if name == "good.zip" else f"{name[:2]}S07.csv")
+    proc = run_cli("capture", "import", tmp_path / "z", "-o", tmp_path / "out")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    assert len(imported(tmp_path / "out")) == 3 and UNPACK_PREFIX not in proc.stderr
+
+
+def test_info_reads_archives_in_a_folder_in_an_archive_and_of_imported_takes(sim_take, samples, tmp_path):
+    folder = tmp_path / "fz"
+    folder.mkdir()
+    zip_folder(sim_take, folder / "take.zip")
+    proc = run_cli("capture", "info", folder, "--json")
+    assert proc.returncode == 0 and json.loads(proc.stdout)["frames"] > 100, proc.stderr
+    outer = zip_folder(folder, tmp_path / "outer.zip")
+    proc = run_cli("capture", "info", outer, "--json")
+    assert proc.returncode == 0 and json.loads(proc.stdout)["frames"] > 100, proc.stderr
+    # a zip of takes imported already: info reads them; import says what they are
+    out = tmp_path / "out"
+    run_cli("capture", "import", sim_take, "-o", out, check=True)
+    ours = zip_folder(out / sim_take.name, tmp_path / "ours.zip")
+    proc = run_cli("capture", "info", ours, "--json")
+    assert proc.returncode == 0 and json.loads(proc.stdout)["frames"] > 100, proc.stderr
+    proc = run_cli("capture", "import", ours, "-o", tmp_path / "again")
+    assert proc.returncode == 1 and "it holds takes imported already" in proc.stderr, proc.stderr
+
+
+def test_an_archive_imported_again_through_a_link_replaces_its_take(sim_take, tmp_path):
+    (tmp_path / "z").mkdir()
+    zip_folder(sim_take, tmp_path / "z" / "take.zip")
+    (tmp_path / "zl").symlink_to(tmp_path / "z")
+    out = tmp_path / "out"
+    run_cli("capture", "import", tmp_path / "z" / "take.zip", "-o", out, check=True)
+    proc = run_cli("capture", "import", tmp_path / "zl" / "take.zip", "-o", out)
+    assert proc.returncode == 0 and "written as" not in proc.stderr, proc.stderr
+    assert len(imported(out)) == 1
+    assert read_take(imported(out)[0]).meta.sources[0].path.startswith(str((tmp_path / "z").resolve()))
+
+
+def test_an_import_without_the_folder_lock_leaves_what_others_unpacked(sim_take, tmp_path):
+    out = tmp_path / "out"
+    busy = out / f"{UNPACK_PREFIX}other123" / "take"
+    busy.mkdir(parents=True)
+    (out / ".import.lock").symlink_to(tmp_path / "elsewhere")  # cannot be locked: the import runs unlocked
+    proc = run_cli("capture", "import", zip_folder(sim_take, tmp_path / "take.zip"), "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    assert busy.is_dir()  # another import's, perhaps: only an import holding the lock clears them

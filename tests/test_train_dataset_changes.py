@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import sys
 from pathlib import Path
 
@@ -327,9 +328,12 @@ rank, rendezvous, ds, run, flag = int(sys.argv[1]), sys.argv[2], sys.argv[3], sy
 cfg = json.loads(sys.argv[5])
 os.environ.update(WORLD_SIZE="2", RANK=str(rank), LOCAL_RANK=str(rank))  # as torchrun sets them
 import torch.distributed as dist
-dist.init_process_group(
-    "gloo", init_method="file://" + rendezvous, rank=rank, world_size=2, timeout=datetime.timedelta(0, 30)
-)
+if rendezvous.isdigit():  # as under torchrun: fit makes the process group itself
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=rendezvous)
+else:
+    dist.init_process_group(
+        "gloo", init_method="file://" + rendezvous, rank=rank, world_size=2, timeout=datetime.timedelta(0, 30)
+    )
 from train.fit import fit
 from train.run_dataset import DatasetWatch
 
@@ -359,20 +363,27 @@ try:
 except Exception as exc:
     out = {"error": type(exc).__name__ + ": " + str(exc)}
 print(json.dumps(out), flush=True)
-dist.destroy_process_group()
+if dist.is_initialized():
+    dist.destroy_process_group()
 """
 
 
-def test_ddp_ranks_that_start_on_two_builds_stop_together(builds, tmp_path):
+@pytest.mark.parametrize("ensemble", [False, True])
+def test_ddp_ranks_that_start_on_two_builds_stop_together(builds, tmp_path, ensemble):
     """Each rank reads manifest.json at start-up on its own: a rebuild landing between two ranks' reads
     started them on different builds (each then checked against its own). Both now stop before training,
-    with one line naming each rank's build."""
+    with one line naming each rank's build; also a cross-validation ensemble under torchrun, where fit
+    makes the process group."""
     ds, run = _copy(builds["a"], tmp_path / "ds"), tmp_path / "run"
+    if ensemble:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            rendezvous = str(s.getsockname()[1])
     args = [
-        str(tmp_path / "rendezvous"),
+        rendezvous if ensemble else str(tmp_path / "rendezvous"),
         str(ds),
         str(run),
-        json.dumps(_cfg("max_steps=4")),
+        json.dumps(_cfg("max_steps=4", *(["cv_folds=2"] if ensemble else []))),
         str(tmp_path / "read"),
     ]
     lines = run_gloo_ranks(DDP_START, args, timeout=240)

@@ -514,9 +514,9 @@ def _fit_ensemble(
     """A cross-validation ensemble (train/ensemble.py): one ordinary run per fold, all on the build of
     the dataset the ensemble started on."""
     watch = DatasetWatch.read(ds, cfg)
-    watch.agree()  # every rank on one build, or every rank stops
-    manifest = watch.manifest
     rank, world, _device = _distributed()
+    watch.agree()  # every rank on one build, or every rank stops (after _distributed: the group exists)
+    manifest = watch.manifest
     say = say if rank == 0 else (lambda _m: None)
     split_keys(manifest, cfg)  # checks drop_takes against the dataset
     folds = check_ensemble_run(manifest, run, cfg, resume, world=world)
