@@ -10,9 +10,12 @@ Face-lost rows as pandas and spreadsheets re-save them (``<timecode>,0.0``, ``<t
 face-lost rows too, a count written ``61.0`` is 61, and rows of nothing but commas are blank lines.
 
 Reading has two paths with one result. Clean files (the common case) are parsed by pyarrow's
-multi-threaded CSV engine with fixed column types; anything unusual falls back to a line-by-line
-parser that repairs what it can, records each repair with its line in the take's metadata, and raises
-``InputError`` naming the file and line for what it cannot repair.
+multi-threaded CSV engine with fixed column types; the careful parser reads line by line, repairs what
+it can, records each repair with its line in the take's metadata, and raises ``InputError`` naming the
+file and line for what it cannot repair. A long file with a few damaged rows takes both: pyarrow reads
+the rows it can, the careful parser's per-row logic only the lines pyarrow cannot take (``_read_mended``),
+so that a cut-short last line costs what the intact file does. Files a spreadsheet re-saved (a BOM, CRLF,
+a comma ending every line, pandas' index column) go to the careful parser whole.
 
 Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``):
 
@@ -30,7 +33,8 @@ bad_count      the BlendShapeCount cell was neither the row's number of values n
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
 number_format  cells written as a spreadsheet's locale writes numbers were read (one note for each way):
                a quoted decimal comma (``"0,1421"``), a U+2212 minus sign, no-break or narrow spaces
-timecode_format timecodes without zero padding (``12:28:1:03.060``) were read (one note)
+timecode_format timecodes without zero padding (``12:28:1:03.060``) were read (one note); FF at 60.000
+               (never the app's) was read as the next second's frame 0 (another note)
 index_column   pandas' index column before Timecode (header ``""`` or ``Unnamed: 0``) was dropped
 bad_values_widespread, bad_timecodes_widespread  most frames lost their values, or over 5 % of the rows
                their timecodes (a file read wrongly, not a damaged row: import prints it as a warning)
@@ -77,6 +81,7 @@ from .timecode import (
     CSV_TIMECODE_RATE,
     Timecode,
     at_timecode_rate,
+    fixed_width_seconds,
     parse_fixed_width,
     timecode_frames,
     timecode_rate_of,
@@ -289,32 +294,68 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
         except UnicodeDecodeError:
             raise InputError("binary data, not a CSV text file", path, 1) from None
         plain = not header.trailing_comma and header.index_column is None
-        rows = _read_fast(path, header.count_name, header.columns) if plain else None
+        rows = _read_fast(path, header, len(first) + 1, strict) if plain else None
         if rows is not None:
             return rows
     return _read_careful(path, strict)
 
 
-def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | None:
-    """pyarrow path for well-formed files; ``None`` sends the file to the careful parser."""
+# A file whose lines with other bytes than a number's split it into more pieces than this is damaged all
+# over: the careful parser reads it whole rather than pyarrow piece by piece.
+MAX_PIECES = 256
+
+
+def _read_fast(path: Path, header: CsvHeader, body_start: int, strict: bool) -> CsvRows | None:
+    """pyarrow's parse, with the careful parser's per-row logic for the rows pyarrow cannot take, so that
+    a long take with a damaged row costs what an intact one does (``_read_mended``). ``None`` sends the
+    whole file to the careful parser (one that pyarrow cannot read even without its odd lines)."""
+    import pyarrow as pa
+
+    with pa.memory_map(str(path)) as source:
+        data = source.read_buffer()  # no copy: numpy and pyarrow read the mapped file
+        lines, screened = None, np.empty(0, np.int64)
+        read = _arrow_read([data.slice(body_start)], len(header.columns))
+        if read is None:  # a cell that is no number: again without the lines holding a non-number byte
+            lines = _Lines(data)
+            screened = lines.with_other_bytes()
+            pieces = lines.pieces_without(screened)
+            if lines.has_cr or not pieces or len(pieces) > MAX_PIECES:
+                return None
+            read = _arrow_read(pieces, len(header.columns))
+            if read is None:
+                return None
+        table, odd = read
+        del read
+        if table.num_rows == 0:
+            return None
+        times, values, status, trouble = _table_rows(table, header.columns)
+        del table  # its float64 columns: freed before a merge copies the values
+        if lines is None and not trouble.any():
+            rows = _plain_rows(path, header, times, values, status, odd)
+            if rows is not None:
+                return rows
+        lines = lines or _Lines(data)
+        if lines.has_cr:
+            return None
+        return _read_mended(path, header, lines, screened, odd, (times, values, status, trouble), strict)
+
+
+def _arrow_read(pieces: list[Any], n_values: int) -> tuple[Any, list[str]] | None:
+    """pyarrow's table of whole lines of the file (``pieces``: buffers, each of whole lines), and the text
+    of the lines it skipped for another number of fields than the header's. ``None`` when a cell is no
+    number, or a skipped line is not UTF-8."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    face_lost: list[str] = []
-    other_invalid = []
+    odd: list[str] = []
 
     def on_invalid(row: Any) -> str:
-        text = row.text or ""
-        parts = text.split(",")
-        if len(parts) == 2 and parts[1].strip() == "0":
-            face_lost.append(parts[0])
-        else:
-            other_invalid.append(text)
+        odd.append(row.text or "")
         return "skip"
 
-    names = ["tc", "count"] + [f"v{i}" for i in range(len(columns))]
-    # Parsed as float64 and narrowed on the copy below: pyarrow parses doubles faster than floats, and
-    # the careful parser rounds the same way (decimal -> double -> float32).
+    names = ["tc", "count"] + [f"v{i}" for i in range(n_values)]
+    # Parsed as float64 and narrowed on the copy in _table_rows: pyarrow parses doubles faster than floats,
+    # and the careful parser rounds the same way (decimal -> double -> float32).
     types = {n: pa.float64() for n in names[2:]}
     types["tc"] = pa.string()
     types["count"] = pa.int32()
@@ -323,18 +364,21 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
     # A row that is not UTF-8 makes pyarrow fail inside our handler; that failure only tells us to use
     # the careful parser, so keep it from being printed.
     sys.unraisablehook = undecodable.append
+    tables = []
     try:
-        # Memory-mapped, fixed types, no quoting, no UTF-8 re-validation: the least work pyarrow can do.
-        # 2 MB blocks keep both cores busy to the end (16 MB blocks left one idle for the last ones: 0.76x
-        # pyarrow's default read of a 176 MB hour, against 1.0-1.1x now).
-        with pa.memory_map(str(path)) as source:
-            table = pacsv.read_csv(
-                source,
-                read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 21),
-                parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
-                convert_options=pacsv.ConvertOptions(
-                    column_types=types, strings_can_be_null=False, check_utf8=False
-                ),
+        for piece in pieces:
+            # Fixed types, no quoting, no UTF-8 re-validation: the least work pyarrow can do. 2 MB blocks
+            # keep both cores busy to the end (16 MB blocks left one idle for the last ones: 0.76x
+            # pyarrow's default read of a 176 MB hour, against 1.0-1.1x now).
+            tables.append(
+                pacsv.read_csv(
+                    pa.BufferReader(piece),
+                    read_options=pacsv.ReadOptions(column_names=names, block_size=1 << 21),
+                    parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
+                    convert_options=pacsv.ConvertOptions(
+                        column_types=types, strings_can_be_null=False, check_utf8=False
+                    ),
+                )
             )
     except (pa.ArrowException, UnicodeDecodeError, OSError):
         return None
@@ -342,58 +386,75 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
         sys.unraisablehook = previous_hook
     if undecodable:
         return None
-    if other_invalid or table.num_rows == 0:
-        return None
-    if table.column("count").null_count or table.column("tc").null_count:
-        return None
-    counts = table.column("count").to_numpy()
-    zero_filled = None  # rows of count 0: face lost, written with every value 0 (see _read_careful)
-    off = counts != len(columns)
-    if off.any():  # the common file has every count right: nothing more to look at
-        zero_filled = counts == 0
-        if not np.isin(counts[off & ~zero_filled], list(blendshape_counts(columns))).all():
-            return None
+    return (tables[0] if len(tables) == 1 else pa.concat_tables(tables)), odd
+
+
+def _table_rows(table: Any, columns: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Times of day, values and status of pyarrow's rows, and which of them the careful parser must read
+    instead (``trouble``): a timecode not in the app's exact layout (or at FF 60.000), an empty, NaN or
+    infinite cell or one beyond float32, a count that is none a row may carry (0 over values not all 0)."""
+    import pyarrow.compute as pc
+
+    n = table.num_rows
     tc = table.column("tc").combine_chunks()
-    offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + len(tc) + 1]
-    data = np.frombuffer(tc.buffers()[2], dtype=np.uint8)
-    if not np.all(np.diff(offsets) == 15):
-        return None
-    tracked_t = parse_fixed_width(data[offsets[0] : offsets[-1]].reshape(-1, 15))
-    if tracked_t is None:
-        return None
+    offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + n + 1]
+    chars = np.frombuffer(tc.buffers()[2], dtype=np.uint8)
+    app_width = np.diff(offsets) == 15
+    times = np.full(n, np.nan)
+    if app_width.all():
+        times, ok = fixed_width_seconds(chars[offsets[0] : offsets[-1]].reshape(-1, 15))
+    else:
+        ok = np.zeros(n, bool)
+        starts = offsets[:-1][app_width]
+        times[app_width], ok[app_width] = fixed_width_seconds(chars[starts[:, None] + np.arange(15)])
+    trouble = ~ok
     # Column-major, so that each parsed column lands in one contiguous copy.
-    values = np.empty((table.num_rows, len(columns)), dtype=np.float32, order="F")
+    values = np.empty((n, len(columns)), dtype=np.float32, order="F")
     for i in range(len(columns)):
-        col = table.column(i + 2)
-        if col.null_count:
-            return None
         start = 0
-        for chunk in col.chunks:  # copy chunk by chunk: no concatenated temporary per column
-            with np.errstate(over="ignore"):  # beyond float32 becomes inf: the careful parser repairs it
+        for chunk in table.column(i + 2).chunks:  # chunk by chunk: no concatenated temporary per column
+            with np.errstate(over="ignore"):  # beyond float32 becomes inf (an empty cell NaN): trouble
                 values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
             start += len(chunk)
-    if not np.isfinite(values).all():
-        return None
-    status = np.zeros(table.num_rows, dtype=np.uint8)
-    if zero_filled is not None and zero_filled.any():
-        if np.any(values[zero_filled] != 0):
-            return None  # a count of 0 over values: the careful parser notes it
-        values[zero_filled] = np.nan
-        status[zero_filled] = FrameStatus.FACE_LOST
-    if face_lost:
-        lost_chars = np.frombuffer("".join(face_lost).encode("ascii", "replace"), dtype=np.uint8)
-        if any(len(s) != 15 for s in face_lost):
+    if not np.isfinite(values).all():  # the common file has none: one pass, no per-row mask
+        trouble |= ~np.isfinite(values).all(axis=1)
+    counts = pc.fill_null(table.column("count"), -1).to_numpy()
+    status = np.zeros(n, dtype=np.uint8)
+    off = counts != len(columns)
+    if off.any():  # the common file has every count right: nothing more to look at
+        zero = counts == 0
+        trouble |= off & ~zero & ~np.isin(counts, list(blendshape_counts(columns)))
+        # A count of 0 over values all 0 is face lost (see _RowReader); over other values the careful
+        # parser notes the count.
+        trouble |= zero & np.any(values != 0, axis=1)
+        lost = zero & ~trouble
+        values[lost] = np.nan
+        status[lost] = FrameStatus.FACE_LOST
+    return times, values, status, trouble
+
+
+def _plain_rows(
+    path: Path, header: CsvHeader, times: np.ndarray, values: np.ndarray, status: np.ndarray, odd: list[str]
+) -> CsvRows | None:
+    """The rows of a file pyarrow read whole, when the lines it skipped are all the app's face-lost rows
+    (``<timecode>,0``) and the times run forward: placed among the others by their timecodes, with no need
+    to know any row's line. ``None`` sends the file to ``_read_mended``."""
+    columns = header.columns
+    if odd:
+        parts = [text.split(",") for text in odd]
+        if any(len(p) != 2 or p[1].strip() != "0" or len(p[0]) != 15 for p in parts):
             return None
+        lost_chars = np.frombuffer("".join(p[0] for p in parts).encode("ascii", "replace"), dtype=np.uint8)
         lost_t = parse_fixed_width(lost_chars.reshape(-1, 15))
         if lost_t is None:
             return None
         # Rows of either kind interleave in the file; the (unwrapped) timecode restores their order.
-        all_t = np.concatenate([tracked_t, lost_t])
-        is_lost = np.concatenate([np.zeros(tracked_t.size, bool), np.ones(lost_t.size, bool)])
-        order = _file_order(tracked_t, lost_t)
+        all_t = np.concatenate([times, lost_t])
+        is_lost = np.concatenate([np.zeros(times.size, bool), np.ones(lost_t.size, bool)])
+        order = _file_order(times, lost_t)
         if order is None:
             return None
-        tracked_t = all_t[order]
+        times = all_t[order]
         is_lost = is_lost[order]
         full = np.full((order.size, len(columns)), np.nan, dtype=np.float32)
         full[~is_lost] = values
@@ -401,10 +462,10 @@ def _read_fast(path: Path, count_name: str, columns: list[str]) -> CsvRows | Non
         full_status = np.full(order.size, FrameStatus.FACE_LOST, dtype=np.uint8)
         full_status[~is_lost] = status
         status = full_status
-    t = unwrap_midnight(tracked_t)
+    t = unwrap_midnight(times)
     if t.size > 1 and not (np.all(np.diff(t) > 0) and np.diff(t).max() <= MAX_GAP_S):
         return None
-    return CsvRows(path, count_name, columns, t, values, status)
+    return CsvRows(path, header.count_name, columns, t, values, status)
 
 
 def _file_order(tracked: np.ndarray, lost: np.ndarray) -> np.ndarray | None:
@@ -413,6 +474,111 @@ def _file_order(tracked: np.ndarray, lost: np.ndarray) -> np.ndarray | None:
     if both.size and both.max() - both.min() > 43200:
         return None
     return np.argsort(both, kind="stable")
+
+
+class _Lines:
+    """Where each line of a file starts and ends, found by numpy in pyarrow's memory map (no copy): the
+    lines pyarrow could not take are named by these numbers and read again from here."""
+
+    CHUNK = 1 << 20  # bytes scanned at a time: the comparison's temporary stays in the cache
+
+    def __init__(self, data: Any) -> None:
+        self.bytes = np.frombuffer(data, dtype=np.uint8)
+        size = self.bytes.size
+        ends = [np.flatnonzero(self.bytes[i : i + self.CHUNK] == 10) + i for i in range(0, size, self.CHUNK)]
+        self.ends = np.concatenate(ends) if ends else np.empty(0, np.int64)
+        self.ends_with_newline = bool(size) and self.bytes[-1] == 10
+        if not self.ends_with_newline:
+            self.ends = np.append(self.ends, size)  # the last line, without its line end
+        self.starts = np.concatenate([[0], self.ends[:-1] + 1])
+        self.count = self.ends.size
+        # a line end the careful parser splits at and this index does not: that file is read whole
+        self.has_cr = any(np.any(self.bytes[i : i + self.CHUNK] == 13) for i in range(0, size, self.CHUNK))
+
+    def text(self, number: int) -> str:
+        """Line ``number`` (from 1), decoded as the careful parser decodes the file."""
+        return self.raw(number).decode("utf-8", errors="replace")
+
+    def raw(self, number: int) -> bytes:
+        return self.bytes[self.starts[number - 1] : self.ends[number - 1]].tobytes()
+
+    def with_other_bytes(self) -> np.ndarray:
+        """The data lines holding a byte that no number of the app's rows holds (a letter, a quote, a space,
+        any non-ASCII byte): those where pyarrow meets a cell it cannot convert, found without parsing."""
+        found = []
+        for i in range(0, self.bytes.size, self.CHUNK):
+            chunk = self.bytes[i : i + self.CHUNK]
+            at = np.flatnonzero((chunk < ord("+")) | (chunk > ord(":")))  # + , - . / 0-9 : pass
+            found.append(at[~np.isin(chunk[at], np.frombuffer(b"\neE", np.uint8))] + i)
+        numbers = np.unique(np.searchsorted(self.starts, np.concatenate(found), side="right"))
+        return numbers[numbers > 1]  # the header is no data line
+
+    def pieces_without(self, numbers: np.ndarray) -> list[Any]:
+        """The data lines but ``numbers``, as runs of whole lines: slices of the mapped file, no copy."""
+        import pyarrow as pa
+
+        buffer = pa.py_buffer(self.bytes)
+        bounds = np.concatenate([[1], numbers, [self.count + 1]])
+        pieces = []
+        for before, after in zip(bounds[:-1], bounds[1:]):
+            if after - before > 1:  # lines before + 1 .. after - 1
+                start, stop = self.starts[before], min(self.ends[after - 2] + 1, self.bytes.size)
+                pieces.append(buffer.slice(int(start), int(stop - start)))
+        return pieces
+
+    def table_lines(self, odd: list[str], screened: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The line numbers of pyarrow's rows, and of the lines it skipped for their number of fields (whose
+        text is ``odd``), among the data lines but ``screened``. pyarrow also skips empty lines."""
+        numbers = np.arange(2, self.count + 1)
+        length = (self.ends - self.starts)[1:]
+        outside = np.zeros(numbers.size, bool)
+        outside[screened - 2] = True
+        texts = {text.encode() for text in odd}
+        maybe = np.isin(length, [len(t) for t in texts]) & ~outside  # a line's length, then its bytes
+        skipped = [n for n in numbers[maybe].tolist() if self.raw(n) in texts]
+        outside[np.asarray(skipped, dtype=np.int64) - 2] = True
+        return numbers[~outside & (length > 0)], np.asarray(skipped, dtype=np.int64)
+
+
+def _read_mended(
+    path: Path,
+    header: CsvHeader,
+    lines: _Lines,
+    screened: np.ndarray,
+    odd: list[str],
+    table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    strict: bool,
+) -> CsvRows | None:
+    """The rows of pyarrow's table that need no repair, and the lines it could not take read by the careful
+    parser's per-row logic (``_RowReader``), merged in file order: the careful parser's result at the cost
+    of reading these lines. ``None`` when the table's rows cannot be matched to the file's lines."""
+    times, values, status, trouble = table
+    numbers, skipped = lines.table_lines(odd, screened)
+    if numbers.size != times.size:
+        return None
+    again = np.union1d(np.union1d(skipped, screened), numbers[trouble])
+    reader = _RowReader(path, header, lines.text(1), again.size, lines.count, lines.ends_with_newline, [])
+    for number in again.tolist():
+        reader.read(number, lines.text(number))
+    good = ~trouble
+    n_good, n = int(good.sum()), reader.n
+    numbers = np.concatenate([numbers[good], reader.lines[:n]])
+    order = np.argsort(numbers, kind="stable")
+    where = np.empty(order.size, dtype=np.intp)  # each row's place in file order
+    where[order] = np.arange(order.size)
+    merged = np.empty((order.size, len(header.columns)), dtype=np.float32)
+    merged[where[:n_good]] = values if n_good == times.size else values[good]
+    merged[where[n_good:]] = reader.values[:n]
+    return _finish(
+        reader,
+        np.concatenate([times[good], reader.times[:n]])[order],
+        merged,
+        np.concatenate([status[good], reader.status[:n]])[order],
+        numbers[order],
+        n_good + reader.data_rows,
+        "\n",
+        strict,
+    )
 
 
 @dataclass
@@ -464,98 +630,130 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
     line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
     text = raw.decode("utf-8", errors="replace")
+    del raw  # of the file's three copies (bytes, text, lines), one at a time is enough
     ends_with_newline = text.endswith(("\n", "\r"))
     lines = text_lines(text)
+    del text
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
     header = _parse_header(lines[0], path)
-    count_name, columns, trailing_comma = header.count_name, header.columns, header.trailing_comma
-    ncols = len(columns) + 2
-    counts = blendshape_counts(columns)
-    is_channel = [ch.is_known(c) for c in columns]
-    seen: dict[str, _Seen] = {}  # what the file holds that is read with a repair, by kind
-    times: list[float] = []
-    rows: list[list[float] | None] = []
-    status: list[int] = []
-    line_numbers: list[int] = []
-    last = len(lines)
-    comma_rows = 0  # rows whose comma ending the line was dropped (``trailing_comma``)
-    data_rows = 0  # lines holding a row (not blank)
-    index_start = 0  # what pandas' index column counts from (0, or 1 when its first row says so)
-    for number, line in enumerate(lines[1:], start=2):
+    reader = _RowReader(path, header, lines[0], len(lines) - 1, len(lines), ends_with_newline, repairs)
+    for number in range(2, len(lines) + 1):
+        reader.read(number, lines[number - 1])
+    n = reader.n
+    return _finish(
+        reader,
+        reader.times[:n],
+        reader.values[:n],
+        reader.status[:n],
+        reader.lines[:n],
+        reader.data_rows,
+        line_ending,
+        strict,
+    )
+
+
+class _RowReader:
+    """The careful parser's reading of data lines, one at a time: each problem repaired with a note in
+    ``repairs`` (what it met counted in ``seen``), or an ``InputError``. Rows land in arrays allocated for
+    ``capacity`` of them: a Python list of floats per row would cost 8 times the float32 array (22 MB a
+    minute of CSV). It reads a whole file, or only the lines pyarrow could not take (``_read_mended``)."""
+
+    def __init__(
+        self,
+        path: Path,
+        header: CsvHeader,
+        header_line: str,
+        capacity: int,
+        last: int,
+        ends_with_newline: bool,
+        repairs: list,
+    ) -> None:
+        self.path, self.header, self.header_line = path, header, header_line.strip()
+        self.last, self.ends_with_newline = last, ends_with_newline  # to tell a last line cut short
+        self.ncols = len(header.columns) + 2
+        self.counts = blendshape_counts(header.columns)
+        self.is_channel = [ch.is_known(c) for c in header.columns]
+        self.repairs = repairs
+        self.seen: dict[str, _Seen] = {}  # what the file holds that is read with a repair, by kind
+        self.times = np.empty(capacity)
+        self.values = np.full((capacity, len(header.columns)), np.nan, dtype=np.float32)
+        self.status = np.empty(capacity, dtype=np.uint8)
+        self.lines = np.empty(capacity, dtype=np.int64)  # each row's line in the file
+        self.n = 0  # rows read
+        self.data_rows = 0  # lines holding a row (not blank)
+        self.comma_rows = 0  # rows whose comma ending the line was dropped (``trailing_comma``)
+        self.index_start = 0  # what pandas' index column counts from (0, or 1 when its first row says so)
+
+    def read(self, number: int, line: str) -> None:
+        """Read line ``number`` of the file (a row, a blank line, or a damaged one)."""
+        header, columns, ncols, seen = self.header, self.header.columns, self.ncols, self.seen
         if _ONLY_SEPARATORS.fullmatch(line):
-            continue  # empty lines carry nothing (pyarrow's fast path skips them too); nor do ",,,,"
-        if line.strip() == lines[0].strip():
+            return  # empty lines carry nothing (pyarrow's fast path skips them too); nor do ",,,,"
+        if line.strip() == self.header_line:
             raise InputError(
                 "the header repeats here: two recordings joined into one file? Split it at this line",
-                path,
+                self.path,
                 number,
             )
         fields = _fields(line)
         if header.index_column is not None:
             cell = fields.pop(0).strip()
-            if data_rows == 0 and cell == "1":
-                index_start = 1
-            if cell != str(data_rows + index_start):
+            if self.data_rows == 0 and cell == "1":
+                self.index_start = 1
+            if cell != str(self.data_rows + self.index_start):
                 seen.setdefault("index", _Seen()).add(cell, number)
-        data_rows += 1
-        if trailing_comma and len(fields) == ncols + 1 and fields[-1].strip():
+        self.data_rows += 1
+        if header.trailing_comma and len(fields) == ncols + 1 and fields[-1].strip():
             raise InputError(
                 "the header's last column is empty but this row has a value there: name it in the header, "
                 "or delete that column from every row",
-                path,
+                self.path,
                 number,
             )
-        if trailing_comma and len(fields) in (3, ncols + 1) and not fields[-1].strip():
+        if header.trailing_comma and len(fields) in (3, ncols + 1) and not fields[-1].strip():
             fields.pop()  # the comma ending every line, a face-lost row's too
-            comma_rows += 1
+            self.comma_rows += 1
         count = _count_of(fields[1]) if len(fields) > 1 else None
         lost = len(fields) == 2 and count == 0
         if not lost and len(fields) != ncols:
-            if number == last and not ends_with_newline and len(fields) < ncols:
-                repair(
-                    repairs,
-                    number,
-                    "truncated_row",
-                    f"last row cut short ({len(fields)} of {ncols} fields) dropped",
-                )
+            if number == self.last and not self.ends_with_newline and len(fields) < ncols:
+                message = f"last row cut short ({len(fields)} of {ncols} fields) dropped"
+                repair(self.repairs, number, "truncated_row", message)
             else:
-                repair(
-                    repairs,
-                    number,
-                    "wrong_fields",
-                    f"row has {len(fields)} fields, expected {ncols}: dropped",
-                )
-            continue
+                message = f"row has {len(fields)} fields, expected {ncols}: dropped"
+                repair(self.repairs, number, "wrong_fields", message)
+            return
         try:
-            tod = Timecode.parse(fields[0]).seconds_of_day
+            timecode = Timecode.parse(fields[0])
         except ValueError as exc:
-            repair(repairs, number, "bad_timecode", f"{exc}: row dropped")
+            repair(self.repairs, number, "bad_timecode", f"{exc}: row dropped")
             seen.setdefault("bad_timecode", _Seen()).add(fields[0], number)
-            continue
+            return
         if not Timecode.is_zero_padded(fields[0]):
             seen.setdefault("unpadded", _Seen()).add(fields[0], number)
+        if timecode.is_whole_second:
+            seen.setdefault("whole_second", _Seen()).add(fields[0], number)
+        tod = timecode.seconds_of_day
         cells = fields[2:]
         vals = [] if lost else _row_values(line, cells, columns, number, seen)
         # Count 0 is the app's face-lost marker; a writer that fills the row with zeros, or (pandas, a
         # spreadsheet) with empty cells, means the same
         if lost or (count == 0 and all(v == 0 or not c.strip() for v, c in zip(vals, cells))):
-            times.append(tod)
-            rows.append(None)
-            status.append(FrameStatus.FACE_LOST)
-            line_numbers.append(number)
-            continue
+            self._add(number, tod, None, FrameStatus.FACE_LOST)
+            return
         row_status = FrameStatus.TRACKED
-        if count not in counts:
-            expected = " or ".join(map(str, sorted(counts)))
+        if count not in self.counts:
+            expected = " or ".join(map(str, sorted(self.counts)))
             shown = fields[1].strip()
-            message = f"{count_name} is {shown!r} but the row has {len(columns)} values ({expected} expected)"
-            repair(repairs, number, "bad_count", message)
+            message = f"{header.count_name} is {shown!r} but the row has {len(columns)} values"
+            message += f" ({expected} expected)"
+            repair(self.repairs, number, "bad_count", message)
         bad = []
         for i, v in enumerate(vals):
             if not abs(v) <= _FLOAT32_MAX:
                 vals[i] = math.nan
-                if is_channel[i]:
+                if self.is_channel[i]:
                     bad.append(i)
                 elif cells[i].strip():  # another column's non-number is no channel's damage (_other_columns)
                     seen.setdefault(f"text {columns[i]}", _Seen()).add(cells[i], number)
@@ -563,34 +761,49 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             row_status = FrameStatus.BAD_VALUE
             seen.setdefault("bad_value", _Seen()).add(cells[bad[0]], number, columns[bad[0]])
             repair(
-                repairs,
+                self.repairs,
                 number,
                 "bad_value",
                 f"non-numeric, non-finite or out-of-range value in {', '.join(columns[i] for i in bad[:5])}"
                 + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
                 + f" ({_shown(cells[bad[0]])}): set to NaN, frame marked invalid",
             )
-        times.append(tod)
-        rows.append(vals)
-        status.append(row_status)
-        line_numbers.append(number)
-    _note_read_with_repairs(seen, header, index_start, repairs)
+        self._add(number, tod, vals, row_status)
+
+    def _add(self, number: int, tod: float, vals: list[float] | None, status: int) -> None:
+        i = self.n
+        self.times[i], self.status[i], self.lines[i] = tod, status, number
+        if vals is not None:
+            self.values[i] = vals
+        self.n += 1
+
+
+def _finish(
+    reader: _RowReader,
+    times: np.ndarray,
+    values: np.ndarray,
+    status: np.ndarray,
+    numbers: np.ndarray,
+    data_rows: int,
+    line_ending: str,
+    strict: bool,
+) -> CsvRows:
+    """The careful parser's checks of the rows as a whole (in file order: ``times`` of day, ``values``,
+    ``status`` and line ``numbers`` of each row, what ``reader`` met), and its result: the notes of what was
+    read with a repair, duplicate rows dropped, timecodes going back or jumping refused, other columns."""
+    path, header, repairs, seen = reader.path, reader.header, reader.repairs, reader.seen
+    _note_read_with_repairs(seen, header, reader.index_start, repairs)
     if strict and repairs:
         first = repairs[0]
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
-    if not times:
+    if not times.size:
         rejected = [r for r in repairs if r["kind"] != "bom"]
         if rejected:
             first = rejected[0]
             raise InputError(f"no usable data rows; the first: {first['message']}", path, first["line"])
         raise InputError("no data rows after the header", path)
-    _warn_widespread(seen, len(times), data_rows, repairs)
-    t = unwrap_midnight(np.asarray(times))
-    values = np.full((len(rows), len(columns)), np.nan, dtype=np.float32)
-    for i, r in enumerate(rows):
-        if r is not None:
-            values[i] = r
-    st = np.asarray(status, dtype=np.uint8)
+    _warn_widespread(seen, times.size, data_rows, repairs)
+    t = unwrap_midnight(times)
     keep = np.ones(t.size, dtype=bool)
     for i in np.flatnonzero(np.diff(t) <= 0) + 1:
         prev = i - 1
@@ -601,20 +814,20 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
             keep[i] = False
             repair(
                 repairs,
-                line_numbers[i],
+                int(numbers[i]),
                 "duplicate_row",
                 "row repeats the previous timecode"
                 + (" with the same values" if same else " with different values")
-                + f" (line {line_numbers[prev]}): dropped",
+                + f" (line {numbers[prev]}): dropped",
             )
             if strict:
-                raise InputError("duplicate timecode (strict mode)", path, line_numbers[i])
+                raise InputError("duplicate timecode (strict mode)", path, int(numbers[i]))
         elif t[i] < t[prev]:
             raise InputError(
                 f"timecode {fields_tc(t[i])} goes back from {fields_tc(t[prev])} on line "
-                f"{line_numbers[prev]} (a clock jump?); split the file there or fix the timecodes",
+                f"{numbers[prev]} (a clock jump?); split the file there or fix the timecodes",
                 path,
-                line_numbers[i],
+                int(numbers[i]),
             )
     kept = np.flatnonzero(keep)
     gaps = np.diff(t[kept])
@@ -622,26 +835,18 @@ def _read_careful(path: Path, strict: bool) -> CsvRows:
         a, b = kept[np.argmax(gaps)], kept[np.argmax(gaps) + 1]
         raise InputError(
             f"timecode {fields_tc(t[b])} jumps {gaps.max():,.0f} s forward from {fields_tc(t[a])} on line "
-            f"{line_numbers[a]} (a clock jump, or files joined?); gaps over {MAX_GAP_S:g} s are refused: "
+            f"{numbers[a]} (a clock jump, or files joined?); gaps over {MAX_GAP_S:g} s are refused: "
             "split the file there or fix the timecodes",
             path,
-            line_numbers[b],
+            int(numbers[b]),
         )
-    if trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
-        lines_with = "every line ends" if comma_rows else "the header ends"
+    if header.trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
+        lines_with = "every line ends" if reader.comma_rows else "the header ends"
         repair(repairs, 1, "trailing_comma", f"{lines_with} with a comma: no column, ignored")
-    values, columns = _other_columns(values, columns, is_channel, st, seen, repairs)
-    return CsvRows(
-        path,
-        count_name,
-        columns,
-        t[keep],
-        values[keep],
-        st[keep],
-        repairs,
-        line_ending,
-        np.asarray(line_numbers)[keep],
-    )
+    values, columns = _other_columns(values, header.columns, reader.is_channel, status, seen, repairs)
+    if not keep.all():
+        t, values, status, numbers = t[keep], values[keep], status[keep], numbers[keep]
+    return CsvRows(path, header.count_name, columns, t, values, status, repairs, line_ending, numbers)
 
 
 def _row_values(
@@ -686,6 +891,15 @@ def _note_read_with_repairs(
             "timecode_format",
             f"{counted(s.count, 'timecode')} written without zero padding ({s.first()}): read as {padded} "
             "would be",
+        )
+    if "whole_second" in seen:
+        s = seen["whole_second"]
+        repair(
+            repairs,
+            s.line,
+            "timecode_format",
+            f"{counted(s.count, 'timecode')} with FF {CSV_TIMECODE_RATE:.3f} ({s.first()}), which the app "
+            "never writes (its FF stops at 59.999; a writer rounding up?): read as the next second's frame 0",
         )
     if header.index_column is not None:
         name = repr(header.index_column) if header.index_column else "no name"
@@ -1043,7 +1257,11 @@ def note_far_values(rows: CsvRows, values: np.ndarray, names: list[str], repairs
     if not values.size:
         return
     with np.errstate(invalid="ignore"):
-        top, bottom = np.fmax.reduce(values, axis=0).max(), np.fmin.reduce(values, axis=0).min()
+        # per column NaN-skipping, then across columns NaN-skipping too (a column of NaN only)
+        top, bottom = (
+            np.fmax.reduce(np.fmax.reduce(values, axis=0)),
+            np.fmin.reduce(np.fmin.reduce(values, axis=0)),
+        )
         if not (top > VALUE_LIMIT or bottom < -VALUE_LIMIT):
             return  # the common take: two passes over the values, no copy
         far = np.abs(values) > VALUE_LIMIT

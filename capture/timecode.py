@@ -3,6 +3,9 @@
 A timecode cell reads ``HH:MM:SS:FF.fff``: FF is the frame within the second at the timecode rate and
 ``.fff`` the fractional sub-frame (0..1 of a frame), not milliseconds. The app's CSV always uses a
 60 fps timecode rate, also when it writes 30 rows/s, so ``seconds = H*3600 + M*60 + S + FF.fff/60``.
+The app's FF runs 0..59.999; FF equal to the rate (``60.000``, from a writer rounding 59.9996 up) is
+read as the next second's frame 0, as the sum says (``is_whole_second``: the CSV reader notes it);
+beyond the rate the timecode is out of range.
 Other writers of the format count FF at the take's own rate (formats doc §8): ``timecode_rate_of``
 recognises them and ``at_timecode_rate`` re-reads their times.
 ``frame_log.csv`` may also use the drop-frame separator ``;`` (iPhone timecode itself never drops).
@@ -46,7 +49,7 @@ class Timecode:
             raise ValueError(f"timecode {text!r} is not of the form HH:MM:SS:FF.fff")
         h, mi, s = int(m.group(1)), int(m.group(2)), int(m.group(3))
         f = float(m.group(4))
-        if h > 23 or mi > 59 or s > 59 or f >= rate + 1e-6:
+        if h > 23 or mi > 59 or s > 59 or f > rate:
             raise ValueError(f"timecode {text!r} is out of range at {rate:g} fps")
         return cls(h, mi, s, f, rate)
 
@@ -55,6 +58,12 @@ class Timecode:
         """Whether a timecode ``parse`` reads writes its minutes and seconds with two digits, as the app
         does (``12:28:01:03.060``, not ``12:28:1:03.060``; hours of one digit were always read as such)."""
         return _PADDED.match(text) is not None
+
+    @property
+    def is_whole_second(self) -> bool:
+        """FF equals the rate (``12:28:01:60.000``): no writer that counts frames within the second writes
+        it (the app's FF stops at 59.999), one rounding 59.9996 to 3 decimals does."""
+        return self.frames >= self.rate
 
     @property
     def seconds_of_day(self) -> float:
@@ -83,6 +92,26 @@ class Timecode:
         return self.format()
 
 
+def fixed_width_seconds(chars: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Seconds of day for an (n, 15) uint8 array of ``HH:MM:SS:FF.fff`` timecodes, vectorised, and which
+    rows are in exactly that layout and in range (FF below 60: ``60.000`` is for the general parser, which
+    notes it). Rows that are not hold meaningless seconds.
+
+    The sum is ``Timecode.parse``'s to the bit: whole seconds plus FF.fff (the decimal, correctly rounded:
+    milli-frames / 1000) / 60, so that both parsers give one time for one cell.
+    """
+    d = chars[:, [0, 1, 3, 4, 6, 7, 9, 10, 12, 13, 14]].astype(np.int32) - ord("0")
+    seps = chars[:, [2, 5, 8, 11]]
+    ok = np.all((d >= 0) & (d <= 9), axis=1) & np.all(seps == np.frombuffer(b":::.", np.uint8), axis=1)
+    h = d[:, 0] * 10 + d[:, 1]
+    m = d[:, 2] * 10 + d[:, 3]
+    s = d[:, 4] * 10 + d[:, 5]
+    milli_frames = (d[:, 6] * 10 + d[:, 7]) * 1000 + d[:, 8] * 100 + d[:, 9] * 10 + d[:, 10]
+    ok &= (h <= 23) & (m <= 59) & (s <= 59) & (milli_frames < 60000)
+    frames = milli_frames / 1000
+    return (h * 3600 + m * 60 + s).astype(np.float64) + frames / CSV_TIMECODE_RATE, ok
+
+
 def parse_fixed_width(chars: np.ndarray) -> np.ndarray | None:
     """Seconds of day for an (n, 15) uint8 array of ``HH:MM:SS:FF.fff`` timecodes, vectorised.
 
@@ -91,19 +120,8 @@ def parse_fixed_width(chars: np.ndarray) -> np.ndarray | None:
     """
     if chars.ndim != 2 or chars.shape[1] != 15:
         return None
-    seps = chars[:, [2, 5, 8, 11]]
-    if not (np.all(seps[:, :3] == ord(":")) and np.all(seps[:, 3] == ord("."))):
-        return None
-    d = chars[:, [0, 1, 3, 4, 6, 7, 9, 10, 12, 13, 14]].astype(np.int32) - ord("0")
-    if d.size and (d.min() < 0 or d.max() > 9):
-        return None
-    h = d[:, 0] * 10 + d[:, 1]
-    m = d[:, 2] * 10 + d[:, 3]
-    s = d[:, 4] * 10 + d[:, 5]
-    milli_frames = (d[:, 6] * 10 + d[:, 7]) * 1000 + d[:, 8] * 100 + d[:, 9] * 10 + d[:, 10]
-    if h.size and (h.max() > 23 or m.max() > 59 or s.max() > 59 or milli_frames.max() >= 60000):
-        return None
-    return (h * 3600 + m * 60 + s).astype(np.float64) + milli_frames / (1000 * CSV_TIMECODE_RATE)
+    seconds, ok = fixed_width_seconds(chars)
+    return seconds if ok.all() else None
 
 
 def unwrap_midnight(seconds_of_day: np.ndarray) -> np.ndarray:

@@ -226,6 +226,16 @@ def test_values_beyond_any_face_are_a_warning(samples, tmp_path):
     assert "on line 1236" in err
 
 
+def test_far_values_are_said_beside_a_channel_that_is_nan_throughout(samples, tmp_path):
+    """A channel column of no numbers at all made the check's maximum NaN, and the check said nothing."""
+    header, rows = sample(samples)
+    for row in rows:
+        row[header.index("EyeBlinkLeft")] = "x"
+    rows[1234][header.index("JawOpen")] = "12"
+    take = read_livelink_csv(write(tmp_path / "t.csv", header, rows))
+    assert "value_range" in kinds(take)
+
+
 def test_rows_deleted_from_the_middle_are_noted_once(samples, tmp_path):
     header, rows = sample(samples)
     take = read_livelink_csv(write(tmp_path / "t.csv", header, rows[:600] + rows[900:]))
