@@ -6,9 +6,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -36,6 +38,74 @@ def emit_json(obj: dict[str, Any]) -> None:
 def progress(message: str) -> None:
     """Human-readable progress on stderr."""
     print(message, file=sys.stderr, flush=True)
+
+
+# Seconds between two lines of a long job's progress; this environment variable changes it (a test's
+# small input reports within its run, a batch log may want fewer lines).
+PROGRESS_INTERVAL_S = 5.0
+PROGRESS_INTERVAL_VAR = "S2A_PROGRESS_INTERVAL_S"
+
+
+def progress_interval() -> float:
+    """``PROGRESS_INTERVAL_S``, or the seconds ``$S2A_PROGRESS_INTERVAL_S`` gives (0 or more)."""
+    text = os.environ.get(PROGRESS_INTERVAL_VAR, "")
+    try:
+        seconds = float(text)
+    except ValueError:
+        return PROGRESS_INTERVAL_S
+    return seconds if 0 <= seconds < math.inf else PROGRESS_INTERVAL_S
+
+
+def duration_words(seconds: float) -> str:
+    """``seconds`` as a person reads a wait: ``45 s``, ``12 min``, ``1 h 48 min``."""
+    seconds = max(0, round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60} min"
+
+
+class TimedProgress:
+    """Progress of a long job by the clock, not by the fraction done: a tenth of a 60-minute render is
+    twelve silent minutes, while a line every few seconds shows at once that the job moves and when
+    it ends. ``update(done)`` after each unit of work says ``what: done/total unit (%), rate, about ...
+    left`` once ``interval`` seconds have passed since the start or the last line, and a last line
+    when the job ends having said anything; a job over within the first interval says nothing. The
+    ``clock`` and ``interval`` are injectable so that a test needs no sleeping."""
+
+    def __init__(
+        self,
+        what: str,
+        total: int,
+        unit: str,
+        say: Callable[[str], None] = progress,
+        interval: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.what, self.total, self.unit, self.say, self.clock = what, total, unit, say, clock
+        self.interval = progress_interval() if interval is None else interval
+        self.start = self.last = clock()
+        self.said = False
+
+    def update(self, done: int) -> None:
+        now = self.clock()
+        over = done >= self.total
+        if now - self.last < self.interval and not (over and self.said):
+            return
+        elapsed = now - self.start
+        rate = done / elapsed if elapsed > 0 else math.inf
+        share = 100 * done / self.total if self.total else 100.0
+        share = share if over else min(share, 99.9)  # 100 % is for the end
+        line = f"{self.what}: {done:,}/{self.total:,} {self.unit} ({share:.1f} %)"
+        if math.isfinite(rate):
+            line += f", {rate:,.0f}" if rate >= 10 else f", {rate:.2g}"
+            line += f" {self.unit}/s"
+        if over:
+            line += f", done in {duration_words(elapsed)}"
+        elif rate > 0:
+            line += f", about {duration_words((self.total - done) / rate)} left"
+        self.say(line)
+        self.last, self.said = now, True
 
 
 class Terminated(KeyboardInterrupt):

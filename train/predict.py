@@ -28,7 +28,7 @@ from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, 
 from capture.atomic import atomic_write
 from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
-from capture.command import progress
+from capture.command import TimedProgress, progress
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
@@ -171,8 +171,11 @@ def animate_16k(
     style: str | None = None,
     neutral: np.ndarray | None = None,
     level: float | None = None,
+    on_window: Callable[[int, int], None] | None = None,
 ) -> np.ndarray:
-    """``animate`` for audio made what the model hears already (``model_audio``: 16 kHz mono float32)."""
+    """``animate`` for audio made what the model hears already (``model_audio``: 16 kHz mono float32).
+    ``on_window(done, count)``: before the first window the model runs (0) and after each
+    (``infer_windowed``)."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
@@ -199,7 +202,7 @@ def animate_16k(
     if training:
         model.eval()  # dropout off: the same audio always animates alike
     try:
-        y = infer_windowed(model, content, prosody, mask, window)[0].double().numpy()
+        y = infer_windowed(model, content, prosody, mask, window, on_window)[0].double().numpy()
     finally:
         if training:
             model.train()
@@ -303,7 +306,7 @@ def predict(
     for a, path in zip(map(Path, audios), paths):
         try:  # one unreadable file is reported and the others are still predicted
             result = _predict_one(
-                model, payload, a, path, ppg, speaker, style, arkit, blendshapes, pose, count_name
+                model, payload, a, path, ppg, speaker, style, arkit, blendshapes, pose, count_name, say
             )
         except InputError as exc:
             if len(audios) == 1:
@@ -355,9 +358,21 @@ def _neutral_pose(info: dict[str, Any], neutral: str | Path | None, say) -> np.n
 
 
 def _predict_one(
-    model, payload, a: Path, path: Path, ppg, speaker, style, arkit, blendshapes, neutral, count_name=None
+    model,
+    payload,
+    a: Path,
+    path: Path,
+    ppg,
+    speaker,
+    style,
+    arkit,
+    blendshapes,
+    neutral,
+    count_name=None,
+    say: Callable[[str], None] = progress,
 ) -> dict[str, Any]:
-    """Predict audio file ``a`` into CSV ``path``; the summary of ``predict``."""
+    """Predict audio file ``a`` into CSV ``path``; the summary of ``predict``. An hour of speech runs
+    for minutes in hundreds of windows: their count, rate and time left are said every few seconds."""
     info = payload["dataset"]
     if a.is_dir():
         raise InputError("is a folder, not an audio file", a)
@@ -372,7 +387,16 @@ def _predict_one(
     narrow = is_narrowband(audio, TARGET_RATE)
     peak = float(np.max(np.abs(audio), initial=0.0))
     level = speech_level(audio, TARGET_RATE)
-    values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level)
+    windows: TimedProgress | None = None
+
+    def on_window(done: int, count: int) -> None:
+        nonlocal windows
+        if windows is None:  # the clock starts at the first window: reading and features are done
+            windows = TimedProgress(f"predict: {a.name}", count, "windows", say)
+        else:
+            windows.update(done)
+
+    values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level, on_window)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
     clipped = int(np.count_nonzero((outside < 0) | (outside > 1)))

@@ -11,6 +11,7 @@ frame is the weighted mean of the windows that hold it, so no window edge shows 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 
@@ -41,18 +42,29 @@ def blend_weights(window: int, first: bool, last: bool) -> torch.Tensor:
     return w
 
 
+def _unwatched(done: int, count: int) -> None:
+    """No one shows this inference's progress."""
+
+
 def infer_windowed(
     model: torch.nn.Module,
     content: torch.Tensor,
     prosody: torch.Tensor | None,
     mask: torch.Tensor,
     window: int,
+    on_window: Callable[[int, int], None] | None = None,
 ) -> torch.Tensor:
-    """``infer`` over (1, frames, ...) inputs, in blended windows of ``window`` frames when longer."""
+    """``infer`` over (1, frames, ...) inputs, in blended windows of ``window`` frames when longer.
+    ``on_window(done, count)`` before the first window (0) and after each: an hour of speech is
+    minutes of windows, whose progress the caller shows."""
     frames = content.shape[1]
-    if frames <= window:
-        return infer(model, content, prosody, mask)
     starts = window_starts(frames, window)
+    on_window = on_window or _unwatched
+    on_window(0, len(starts))
+    if len(starts) == 1:
+        y = infer(model, content, prosody, mask)
+        on_window(1, 1)
+        return y
     out = total = None
     for i, s in enumerate(starts):
         part = slice(s, s + window)
@@ -62,4 +74,5 @@ def infer_windowed(
         w = blend_weights(window, i == 0, i == len(starts) - 1)[None, :, None]
         out[:, part] += y * w
         total[:, part] += w
+        on_window(i + 1, len(starts))
     return out / total

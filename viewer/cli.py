@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from capture.command import emit_json, progress, run
+from capture.command import TimedProgress, emit_json, progress, run
 from capture.errors import InputError
 
 from .output import prepare_output, raise_if_stopped, stopped_by_signals, stops_between_frames
@@ -334,13 +334,12 @@ def cmd_render(args: argparse.Namespace) -> int:
                     progress(f"note: {voice.audio_file}: {rate} Hz audio resampled to {to} Hz for AAC")
                     samples, rate = resample_speech(samples, rate, to), to
                 audio = (samples, rate)
-            step = max(1, n // 10)
             t_start = time.perf_counter()
+            frames_done = TimedProgress(f"render: {args.out.name}", n, "frames")
 
             def tick(k: int) -> None:
                 raise_if_stopped()  # a Ctrl-C or SIGTERM during frame k stops here, out of VTK's reach
-                if (k + 1) % step == 0 or k + 1 == n:
-                    progress(f"{args.out.name}: {k + 1}/{n} frames ({time.perf_counter() - t_start:.1f} s)")
+                frames_done.update(k + 1)
 
             timing = write_mp4(
                 args.out, lambda k: render_frame(renderer, anims, k / fps, video, labels), n, fps, audio, tick
