@@ -24,6 +24,16 @@ def samples() -> Path:
     return SAMPLES
 
 
+@pytest.fixture(scope="module")
+def sim_take(tmp_path_factory) -> Path:
+    """A simulated Live Link Face take folder (take.json, frame_log.csv, .mov with audio, CSV): 2 s at
+    16 kHz, made once per test module (a module may define its own)."""
+    root = tmp_path_factory.mktemp("sim")
+    run_cli("capture", "simulate", "-o", root, "--seconds", 2, "--mov", "--sample-rate", 16000, check=True)
+    (folder,) = [p for p in root.iterdir() if p.is_dir()]
+    return folder
+
+
 def run_cli(module: str, *args: str, check: bool = False) -> subprocess.CompletedProcess:
     """Run a stage's command line as a user would (``python -m <stage> ...``)."""
     proc = subprocess.run(

@@ -21,15 +21,6 @@ from capture.transfer_litter import Litter
 from tests.conftest import run_cli
 
 
-@pytest.fixture(scope="module")
-def sim_take(tmp_path_factory) -> Path:
-    """A simulated Live Link Face take folder (take.json, frame_log.csv, .mov with audio, CSV)."""
-    root = tmp_path_factory.mktemp("sim")
-    run_cli("capture", "simulate", "-o", root, "--seconds", 2, "--mov", "--sample-rate", 16000, check=True)
-    (folder,) = [p for p in root.iterdir() if p.is_dir()]
-    return folder
-
-
 def zip_folder(folder: Path, archive: Path, inside: str | None = None, finder: bool = False) -> Path:
     """``folder``'s files zipped under ``inside/`` (default: the folder's name; "" for none); ``finder``
     adds the ``__MACOSX/.../._X`` entries Finder's Compress writes."""

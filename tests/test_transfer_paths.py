@@ -35,15 +35,6 @@ def icloud_placeholder(folder: Path, name: str) -> Path:
     return path
 
 
-@pytest.fixture(scope="module")
-def sim_take(tmp_path_factory) -> Path:
-    """A simulated Live Link Face take folder (take.json, frame_log.csv, .mov with audio, .wav, CSV)."""
-    root = tmp_path_factory.mktemp("sim")
-    run_cli("capture", "simulate", "-o", root, "--seconds", 2, "--mov", "--sample-rate", 16000, check=True)
-    (folder,) = [p for p in root.iterdir() if p.is_dir()]
-    return folder
-
-
 def copy_take(sim_take: Path, where: Path) -> Path:
     where.parent.mkdir(parents=True, exist_ok=True)
     return Path(shutil.copytree(sim_take, where))
