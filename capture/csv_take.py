@@ -82,7 +82,6 @@ from .timecode import (
     Timecode,
     at_timecode_rate,
     fixed_width_seconds,
-    parse_fixed_width,
     timecode_frames,
     timecode_rate_of,
     unwrap_midnight,
@@ -290,9 +289,12 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     # reports a file without data rows.
     if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head and rest.strip():
         try:
-            header = _parse_header(first.decode("utf-8"), path)
+            text = first.decode("utf-8")
         except UnicodeDecodeError:
-            raise InputError("binary data, not a CSV text file", path, 1) from None
+            text = "\ufffd"
+        if "\ufffd" in text:  # as the careful parser decodes it: a header of replacement characters
+            raise InputError("binary data, not a CSV text file", path, 1)
+        header = _parse_header(text, path)
         plain = not header.trailing_comma and header.index_column is None
         rows = _read_fast(path, header, len(first) + 1, strict) if plain else None
         if rows is not None:
@@ -358,7 +360,8 @@ def _arrow_read(pieces: list[Any], n_values: int) -> tuple[Any, list[str]] | Non
     # and the careful parser rounds the same way (decimal -> double -> float32).
     types = {n: pa.float64() for n in names[2:]}
     types["tc"] = pa.string()
-    types["count"] = pa.int32()
+    # text, not int32: pyarrow's integers also take "-0" and "0x3d", which the careful parser does not
+    types["count"] = pa.string()
     undecodable = []
     previous_hook = sys.unraisablehook
     # A row that is not UTF-8 makes pyarrow fail inside our handler; that failure only tells us to use
@@ -393,6 +396,7 @@ def _table_rows(table: Any, columns: list[str]) -> tuple[np.ndarray, np.ndarray,
     """Times of day, values and status of pyarrow's rows, and which of them the careful parser must read
     instead (``trouble``): a timecode not in the app's exact layout (or at FF 60.000), an empty, NaN or
     infinite cell or one beyond float32, a count that is none a row may carry (0 over values not all 0)."""
+    import pyarrow as pa
     import pyarrow.compute as pc
 
     n = table.num_rows
@@ -410,70 +414,62 @@ def _table_rows(table: Any, columns: list[str]) -> tuple[np.ndarray, np.ndarray,
     trouble = ~ok
     # Column-major, so that each parsed column lands in one contiguous copy.
     values = np.empty((n, len(columns)), dtype=np.float32, order="F")
-    for i in range(len(columns)):
-        start = 0
-        for chunk in table.column(i + 2).chunks:  # chunk by chunk: no concatenated temporary per column
-            with np.errstate(over="ignore"):  # beyond float32 becomes inf (an empty cell NaN): trouble
+    with np.errstate(over="ignore"):  # beyond float32 becomes inf (an empty cell NaN): trouble
+        for i in range(len(columns)):
+            start = 0
+            for chunk in table.column(i + 2).chunks:  # chunk by chunk: no concatenated temporary per column
                 values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
-            start += len(chunk)
-    if not np.isfinite(values).all():  # the common file has none: one pass, no per-row mask
-        trouble |= ~np.isfinite(values).all(axis=1)
-    counts = pc.fill_null(table.column("count"), -1).to_numpy()
+                start += len(chunk)
+    # NaN, infinite (beyond float32 once narrowed) and float32's largest, which 3.4028235e38 (beyond it)
+    # also rounds to: the careful parser decides those rows. The common file has none: three passes over
+    # the values, no per-row mask.
+    if not np.isfinite(values).all() or values.max() >= _FLOAT32_MAX or values.min() <= -_FLOAT32_MAX:
+        with np.errstate(invalid="ignore"):
+            trouble |= ~(np.abs(values) < _FLOAT32_MAX).all(axis=1)
+    count = table.column("count").combine_chunks()
+    digits = _only_digits(count)
+    if digits.all():
+        counts = pc.cast(count, pa.int32()).to_numpy()
+    else:  # a count written otherwise (61.0, -0, 0x3d, empty): the careful parser reads those rows
+        trouble |= ~digits
+        counts = np.where(digits, pc.cast(pc.if_else(digits, count, "0"), pa.int32()).to_numpy(), -1)
     status = np.zeros(n, dtype=np.uint8)
     off = counts != len(columns)
     if off.any():  # the common file has every count right: nothing more to look at
         zero = counts == 0
         trouble |= off & ~zero & ~np.isin(counts, list(blendshape_counts(columns)))
-        # A count of 0 over values all 0 is face lost (see _RowReader); over other values the careful
-        # parser notes the count.
-        trouble |= zero & np.any(values != 0, axis=1)
-        lost = zero & ~trouble
-        values[lost] = np.nan
-        status[lost] = FrameStatus.FACE_LOST
+        # A count of 0 over values is read by the careful parser (face lost when they are all 0 as
+        # written, not only once rounded to float32: 1e-46 is no 0)
+        trouble |= zero
     return times, values, status, trouble
+
+
+def _only_digits(cells: Any) -> np.ndarray:
+    """Which of a pyarrow string array's cells are 1 to 9 decimal digits, from its buffers (no copy)."""
+    n = len(cells)
+    offsets = np.frombuffer(cells.buffers()[1], dtype=np.int32)[cells.offset : cells.offset + n + 1]
+    chars = np.frombuffer(cells.buffers()[2], dtype=np.uint8)[offsets[0] : offsets[-1]]
+    lengths = np.diff(offsets)
+    other = (chars < ord("0")) | (chars > ord("9"))
+    if not other.any():
+        return (lengths >= 1) & (lengths <= 9)
+    per_cell = np.add.reduceat(other, np.minimum(offsets[:-1] - offsets[0], max(chars.size - 1, 0)))
+    return (lengths >= 1) & (lengths <= 9) & ~(per_cell.astype(bool) & (lengths > 0))
 
 
 def _plain_rows(
     path: Path, header: CsvHeader, times: np.ndarray, values: np.ndarray, status: np.ndarray, odd: list[str]
 ) -> CsvRows | None:
-    """The rows of a file pyarrow read whole, when the lines it skipped are all the app's face-lost rows
-    (``<timecode>,0``) and the times run forward: placed among the others by their timecodes, with no need
-    to know any row's line. ``None`` sends the file to ``_read_mended``."""
-    columns = header.columns
+    """The rows of a file pyarrow read whole, when it skipped no line and the times run forward; ``None``
+    sends the file to ``_read_mended``, which places skipped lines (the app's face-lost rows ``<timecode>,0``
+    among them) by their line numbers: placing them by their timecodes would silently put rows in order
+    that the file has out of order."""
     if odd:
-        parts = [text.split(",") for text in odd]
-        if any(len(p) != 2 or p[1].strip() != "0" or len(p[0]) != 15 for p in parts):
-            return None
-        lost_chars = np.frombuffer("".join(p[0] for p in parts).encode("ascii", "replace"), dtype=np.uint8)
-        lost_t = parse_fixed_width(lost_chars.reshape(-1, 15))
-        if lost_t is None:
-            return None
-        # Rows of either kind interleave in the file; the (unwrapped) timecode restores their order.
-        all_t = np.concatenate([times, lost_t])
-        is_lost = np.concatenate([np.zeros(times.size, bool), np.ones(lost_t.size, bool)])
-        order = _file_order(times, lost_t)
-        if order is None:
-            return None
-        times = all_t[order]
-        is_lost = is_lost[order]
-        full = np.full((order.size, len(columns)), np.nan, dtype=np.float32)
-        full[~is_lost] = values
-        values = full
-        full_status = np.full(order.size, FrameStatus.FACE_LOST, dtype=np.uint8)
-        full_status[~is_lost] = status
-        status = full_status
+        return None
     t = unwrap_midnight(times)
     if t.size > 1 and not (np.all(np.diff(t) > 0) and np.diff(t).max() <= MAX_GAP_S):
         return None
-    return CsvRows(path, header.count_name, columns, t, values, status)
-
-
-def _file_order(tracked: np.ndarray, lost: np.ndarray) -> np.ndarray | None:
-    """Merge order of two row kinds by time; ``None`` when a midnight wrap makes it ambiguous."""
-    both = np.concatenate([tracked, lost])
-    if both.size and both.max() - both.min() > 43200:
-        return None
-    return np.argsort(both, kind="stable")
+    return CsvRows(path, header.count_name, header.columns, t, values, status)
 
 
 class _Lines:
