@@ -302,6 +302,7 @@ try:
 except Exception as exc:
     out = {"error": type(exc).__name__ + ": " + str(exc)}
 print(json.dumps(out), flush=True)
+dist.barrier()  # both ranks done before the group goes: one leaving first can abort the other's exit
 dist.destroy_process_group()
 """
 
@@ -364,6 +365,7 @@ except Exception as exc:
     out = {"error": type(exc).__name__ + ": " + str(exc)}
 print(json.dumps(out), flush=True)
 if dist.is_initialized():
+    dist.barrier()  # both ranks done before the group goes
     dist.destroy_process_group()
 """
 
