@@ -1,7 +1,7 @@
 """Zip archives of takes, as they reach a computer: takes shared from the phone (AirDrop, Files, mail),
 a take folder compressed by Finder or Windows Explorer, a download of a shared folder. ``s2a-capture
 import`` and ``info`` unpack one into a hidden folder (``unpacked``) and read the takes there as any
-folder; the takes record their files as ``ARCHIVE.zip/member`` (``Unpacked.shown``).
+folder; the takes record their files as ``ARCHIVE.zip/member`` (``Unpacked.rename_files``).
 
 What an archive may hold is checked before a byte is written: no member outside the folder unpacked
 into (absolute paths, ``..``, drive letters), no two members of one name, no encryption, and room on

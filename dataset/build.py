@@ -1479,8 +1479,9 @@ def _restore_samples(out: Path, old: dict[str, Any] | None, jobs: list[TakeJob])
     whose samples cannot be restored, from a damaged or missing shard, is processed again). Returns the
     number of takes restored. Each restored sample is checked against the sha256 its record holds
     (``_record_is_current``), as the samples a build leaves are."""
-    if old is None:
+    if old is None or not jobs:
         return 0
+    samples_dir = Path(jobs[0].work) / "samples"  # the build's one .work
     shard_of = {s.get("key"): s.get("shard") for s in old.get("samples", []) if isinstance(s, dict)}
     wanted: dict[str, dict[str, Path]] = {}  # shard -> {key: where its one-sample tar goes}
     takes = {}
@@ -1488,7 +1489,6 @@ def _restore_samples(out: Path, old: dict[str, Any] | None, jobs: list[TakeJob])
         rec = _record_of(job)
         if rec is None or not job.stats.is_file():
             continue
-        samples_dir = Path(job.work) / "samples"
         missing = [s.get("key") for s in rec["samples"] if not (samples_dir / f"{s.get('key')}.tar").exists()]
         if not missing:
             continue  # left by a build that stopped: checked as ever
@@ -1507,7 +1507,6 @@ def _restore_samples(out: Path, old: dict[str, Any] | None, jobs: list[TakeJob])
                         w.close()
         except (InputError, OSError):
             continue  # those takes are processed again
-    samples_dir = Path(jobs[0].work) / "samples" if jobs else out
     return sum(all((samples_dir / f"{k}.tar").exists() for k in keys) for keys in takes.values())
 
 
