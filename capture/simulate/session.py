@@ -28,7 +28,7 @@ from scipy.signal import lfilter
 from ..atomic import folder_in_place
 from ..audio_io import Audio, write_audio
 from ..channels import ARKIT61, PRONUNCIATION32
-from ..csv_take import write_livelink_csv
+from ..csv_take import counted, write_livelink_csv
 from ..errors import InputError
 from ..mov import write_reference_mov
 from ..runs import runs
@@ -64,6 +64,10 @@ class TakeSpec:
     sample_rate: int = 16000
     artifacts: Artifacts = field(default_factory=Artifacts)
     mov: bool = False
+
+    @property
+    def take_key(self) -> tuple[int, int]:
+        return self.speaker, self.take
 
     def validate(self) -> None:
         if not (0 <= self.seed < 2**63):
@@ -152,11 +156,9 @@ def simulate_take(spec: TakeSpec) -> SimulatedTake:
     status[dropped] = FrameStatus.DROPPED
     values[status != FrameStatus.TRACKED] = np.nan
 
-    slate = f"Sim{speaker.name.capitalize()}"
+    slate, folder_name = take_names(spec, speaker)
     # The collector names the Live Link subject after the speaker, so imports know who spoke.
     prefix = f"{slate}_{spec.take}_{speaker.name}"
-    date = _BASE_DATE + dt.timedelta(days=int(spec.seed % 1000))
-    folder_name = f"{date:%Y%m%d}_{slate}_{spec.take}"
     meta = TakeMeta(
         id=folder_name,
         source_kind="simulated",
@@ -228,6 +230,14 @@ def simulate_take(spec: TakeSpec) -> SimulatedTake:
     return SimulatedTake(spec, speaker, utt, articulation, audio, take, tg, truth, prefix, folder_name)
 
 
+def take_names(spec: TakeSpec, speaker: Speaker | None = None) -> tuple[str, str]:
+    """The slate and the take folder's name (``<YYYYMMDD>_<slate>_<take>``) of ``spec``."""
+    speaker = speaker or draw_speaker(spec.seed, spec.speaker)
+    slate = f"Sim{speaker.name.capitalize()}"
+    date = _BASE_DATE + dt.timedelta(days=int(spec.seed % 1000))
+    return slate, f"{date:%Y%m%d}_{slate}_{spec.take}"
+
+
 def _runs(mask: np.ndarray) -> list[list[int]]:
     """``[first, last]`` frame index of each run of True."""
     return [[a, b - 1] for a, b in runs(mask)]
@@ -284,6 +294,35 @@ def write_frame_log(sim: SimulatedTake, path: Path) -> None:
         tc = Timecode.from_seconds(tod0 + t, fps).format()
         lines.append(f"A,{i},{int(round(t * sr))},{sr},{tc},0\n")
     path.write_text("".join(lines), encoding="ascii")
+
+
+def _same_takes_there(out_dir: Path, specs: list[TakeSpec]) -> dict[tuple[int, int], SimulatedTake]:
+    """The takes of ``specs`` whose folders exist already, simulated (a run repeated with the same
+    arguments and seed writes the same bytes again). A folder of that name holding anything else (a take
+    simulated with other settings, a recording) is never replaced: ``InputError`` before a byte is written.
+    """
+    made, other = {}, []
+    for spec in specs:
+        folder = out_dir / take_names(spec)[1]
+        if not folder.exists() and not folder.is_symlink():
+            continue
+        try:
+            there = json.loads((folder / SIMULATION_FILE).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError):
+            there = None
+        sim = simulate_take(spec)
+        if there != json.loads(json.dumps(sim.truth)):
+            other.append(folder.name)
+        made[spec.take_key] = sim
+    if other:
+        more = f" and {len(other) - 3} more" if len(other) > 3 else ""
+        raise InputError(
+            f"{counted(len(other), 'take folder')} this simulation writes {'is' if len(other) == 1 else 'are'}"
+            f" there already, holding other takes ({', '.join(other[:3])}{more}: simulated with other "
+            "settings, or recorded): simulate into another folder, or move them away first",
+            out_dir,
+        )
+    return made
 
 
 def write_take_folder(sim: SimulatedTake, out_dir: str | Path) -> Path:
@@ -412,9 +451,10 @@ def simulate(
     """
     specs = plan_session(speakers, takes, seconds, fps, language, seed, sample_rate, artifacts, mov)
     make_out_dir(Path(out_dir))  # before the first take is simulated
+    made = _same_takes_there(Path(out_dir), specs)
     summaries = []
     for spec in specs:
-        sim = simulate_take(spec)
+        sim = made.pop(spec.take_key, None) or simulate_take(spec)
         folder = write_take_folder(sim, out_dir)
         t = sim.truth
         summary = {
