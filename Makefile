@@ -29,7 +29,8 @@ test: $(STAMP) deb
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	@# pytest exits 5 when it collected no tests: that is a failure here, never a pass.
-	$(BIN)/python -m pytest -q; rc=$$?; [ $$rc -ne 5 ] || echo "pytest collected no tests" >&2; exit $$rc
+	@# two workers (the machine's two cores), a test file each at a time: its module fixtures are made once
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile; rc=$$?; [ $$rc -ne 5 ] || echo "pytest collected no tests" >&2; exit $$rc
 
 # The whole pipeline on bundled data; it grows with each stage. Each step is a target of its own.
 DEMO := demo-out

@@ -13,6 +13,12 @@ from pathlib import Path
 
 import pytest
 
+# Under pytest-xdist (make test: two workers on two cores) each worker's PyTorch, and every command a test
+# starts, takes one thread: two workers of two threads each fought over the cores (a test's torch work
+# took up to 4x as long).
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT.parent / "shared" / "samples"
 
