@@ -112,18 +112,6 @@ def fixed_width_seconds(chars: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (h * 3600 + m * 60 + s).astype(np.float64) + frames / CSV_TIMECODE_RATE, ok
 
 
-def parse_fixed_width(chars: np.ndarray) -> np.ndarray | None:
-    """Seconds of day for an (n, 15) uint8 array of ``HH:MM:SS:FF.fff`` timecodes, vectorised.
-
-    Returns ``None`` when any row is not in exactly that layout, so the caller can fall back to the
-    general parser (which then names the offending line).
-    """
-    if chars.ndim != 2 or chars.shape[1] != 15:
-        return None
-    seconds, ok = fixed_width_seconds(chars)
-    return seconds if ok.all() else None
-
-
 def unwrap_midnight(seconds_of_day: np.ndarray) -> np.ndarray:
     """Make times of day continuous across midnight: a backward jump of over 12 h adds a day."""
     t = np.asarray(seconds_of_day, dtype=np.float64)
