@@ -70,33 +70,61 @@ class TimedProgress:
     twelve silent minutes, while a line every few seconds shows at once that the job moves and when
     it ends. ``update(done)`` after each unit of work says ``what: done/total unit (%), rate, about ...
     left`` once ``interval`` seconds have passed since the start or the last line, and a last line
-    when the job ends having said anything; a job over within the first interval says nothing. The
-    ``clock`` and ``interval`` are injectable so that a test needs no sleeping."""
+    when the job ends having said anything; a job over within the first interval says nothing
+    (``at_once``: the first update speaks at once; ``bar``: a bar of that many ``#`` before the
+    count). A job of several steps goes on with ``step``; a step that cannot count its work says
+    ``what: step: 25 s so far`` from ``ticking``. The interval runs across steps, so no step is
+    silent for longer. The ``clock`` and ``interval`` are injectable so that a test needs no
+    sleeping."""
 
     def __init__(
         self,
         what: str,
-        total: int,
-        unit: str,
+        total: int | None = None,
+        unit: str = "",
         say: Callable[[str], None] = progress,
         interval: float | None = None,
         clock: Callable[[], float] = time.monotonic,
+        at_once: bool = False,
+        bar: int = 0,
     ) -> None:
-        self.what, self.total, self.unit, self.say, self.clock = what, total, unit, say, clock
+        self.say, self.clock, self.bar = say, clock, bar
         self.interval = progress_interval() if interval is None else interval
-        self.start = self.last = clock()
+        self.last = -math.inf if at_once else clock()
         self.said = False
+        self.lock = threading.Lock()  # ``ticking``'s thread and the job's own updates
+        self.name = what
+        self.step("", total, unit)
 
-    def update(self, done: int) -> None:
-        now = self.clock()
-        over = done >= self.total
-        if now - self.last < self.interval and not (over and self.said):
-            return
-        elapsed = now - self.start
+    def step(self, part: str, total: int | None = None, unit: str = "") -> None:
+        """Go on with the next step of the job, said as ``what: part`` (``what`` for ""), with its own
+        count, rate and time left."""
+        self.what, self.total, self.unit = f"{self.name}: {part}" if part else self.name, total, unit
+        self.start, self.done = self.clock(), 0
+
+    def update(self, done: int | None = None, detail: str = "") -> None:
+        """``done`` units (None: as many as last time) and, in a line said, ``: detail`` after it."""
+        with self.lock:
+            self.done = self.done if done is None else done
+            now = self.clock()
+            over = self.total is not None and self.done >= self.total
+            if now - self.last < self.interval and not (over and self.said):
+                return
+            self.say(self._line(now - self.start, over) + (f": {detail}" if detail else ""))
+            self.last, self.said = now, True
+
+    def _line(self, elapsed: float, over: bool) -> str:
+        if self.total is None:
+            took = duration_words(elapsed)
+            return f"{self.what}: done in {took}" if over else f"{self.what}: {took} so far"
+        done = self.done
         rate = done / elapsed if elapsed > 0 else math.inf
         share = 100 * done / self.total if self.total else 100.0
         share = share if over else min(share, 99.9)  # 100 % is for the end
-        line = f"{self.what}: {done:,}/{self.total:,} {self.unit} ({share:.1f} %)"
+        line = f"{self.what}: " if self.what else ""
+        if self.bar:
+            line += f"[{'#' * round(self.bar * share / 100):<{self.bar}}] "
+        line += f"{done:,}/{self.total:,} {self.unit} ({share:.1f} %)"
         if math.isfinite(rate):
             line += f", {rate:,.0f}" if rate >= 10 else f", {rate:.2g}"
             line += f" {self.unit}/s"
@@ -104,8 +132,32 @@ class TimedProgress:
             line += f", done in {duration_words(elapsed)}"
         elif rate > 0:
             line += f", about {duration_words((self.total - done) / rate)} left"
-        self.say(line)
-        self.last, self.said = now, True
+        return line
+
+    @contextmanager
+    def ticking(self, part: str) -> Iterator[None]:
+        """A step that cannot count its work (a library call that reports nothing): while the block
+        runs, a thread says ``what: part: N s so far`` each interval, and ``...: done in N s`` at its
+        end when the job has said anything."""
+        self.step(part)
+        stop = threading.Event()
+
+        def tick() -> None:
+            while not stop.wait(max(0.05, min(self.interval / 10, 1.0))):
+                self.update()
+
+        self.update()
+        thread = threading.Thread(target=tick, daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            thread.join()
+        with self.lock:
+            if self.said:
+                self.say(self._line(self.clock() - self.start, True))
+                self.last = self.clock()
 
 
 class Terminated(KeyboardInterrupt):

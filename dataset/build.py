@@ -45,7 +45,7 @@ import numpy as np
 
 from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
-from capture.command import sigterm_stops
+from capture.command import TimedProgress, sigterm_stops
 from capture.errors import InputError, S2AError
 from capture.file_lock import holding
 from capture.importer import no_takes_found
@@ -1270,30 +1270,25 @@ def empty_split_warnings(split_of: dict[str, str], rule: SplitRule, speakers: in
     return out
 
 
-PROGRESS_EVERY_S = 1.0  # the build's progress: at most a line a second
-
-
 def _process_takes(jobs: list[TakeJob], options: BuildOptions, say: Callable[[str], None]):
     """Records of ``jobs`` by take id, ``--jobs`` processes at once. A build that stops (an error in a
     take, Ctrl-C, SIGTERM) stops its workers too; finished takes stay cached."""
     records: dict[str, dict[str, Any]] = {}
     total = len(jobs)
     cached = 0
-    said_at = -math.inf  # when the last line was said (time.monotonic)
+    takes = TimedProgress("", total, "takes", say, at_once=True, bar=20)
 
     def note(i: int, rec: dict[str, Any]) -> None:
-        """A line for a take processed, at most one a second (and the last): hundreds of takes are not
-        hundreds of lines; the takes taken from the cache are counted, not named."""
-        nonlocal cached, said_at
+        """A line for the first take processed, then one every few seconds (``TimedProgress``) and the
+        last: hundreds of takes are not hundreds of lines; the takes taken from the cache are counted,
+        not named."""
+        nonlocal cached
         cached += bool(rec.get("cached"))
-        now = time.monotonic()
-        if i < total and (rec.get("cached") or now - said_at < PROGRESS_EVERY_S):
+        if i < total and rec.get("cached"):
             return
-        said_at = now
-        bar = "#" * round(20 * i / total)
         state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
         from_cache = f"; {cached} from the cache" if cached else ""
-        say(f"[{bar:<20}] {i}/{total} {rec['take']} ({state}{from_cache})")
+        takes.update(i, f"{rec['take']} ({state}{from_cache})")
 
     if options.jobs == 1 or total <= 1:
         for i, job in enumerate(jobs, 1):

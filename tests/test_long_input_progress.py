@@ -1,20 +1,23 @@
 """Progress of long jobs by the clock (``capture.command.TimedProgress``): a line every few seconds with
-done/total, the rate and the time left, none for a job over within the first interval. The helper runs
-on a fake clock; ``s2a-view render`` and ``s2a-train predict`` run for real with the interval made 0
-through ``$S2A_PROGRESS_INTERVAL_S``, so that every frame and window says its line."""
+done/total, the rate and the time left, none for a job over within the first interval, and every step
+of a job said (one that cannot count its work says how long it has run). The helper runs on a fake
+clock; ``s2a-view render``, ``s2a-train predict`` and ``s2a-dataset build`` run for real with the
+interval made 0 through ``$S2A_PROGRESS_INTERVAL_S``, so that every frame, window and take says its
+line."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT, run_here
-from dataset_helpers import build_five_take_dataset, make_aligned_take
+from conftest import ROOT, run_cli
+from dataset_helpers import build_five_take_dataset, make_aligned_take, write_aligned_set
 from test_train_pipeline import TINY
 
 from capture import write_take
@@ -83,6 +86,48 @@ def test_the_last_line_comes_at_once_when_anything_was_said():
     assert len(lines) == 2
 
 
+def test_the_interval_runs_across_the_steps_of_a_job():
+    job, clock, lines = _progress(10)
+    for k in range(1, 11):
+        clock.now += 0.6  # 6 s: lines at 5 s and at the end
+        job.update(k)
+    job.step("audio", 4, "s")
+    clock.now += 3.0  # 3 s after the last line: a step that started with it stays quiet
+    job.update(1)
+    clock.now += 2.0
+    job.update(2)
+    assert lines[2:] == ["render: a.mp4: audio: 2/4 s (50.0 %), 0.4 s/s, about 5 s left"]
+    job.update(4)  # the step's end: said, as the job said something
+    assert lines[-1] == "render: a.mp4: audio: 4/4 s (100.0 %), 0.8 s/s, done in 5 s"
+
+
+def test_a_step_that_cannot_count_says_how_long_it_has_run():
+    lines: list[str] = []
+    job = TimedProgress("predict: a.wav", say=lines.append, interval=0.05)
+    with job.ticking("features of 1 h 0 min of audio"):
+        time.sleep(0.3)  # a library call that reports nothing
+    assert len(lines) >= 3, lines  # one at once (the interval passed), then each 0.05 s
+    assert set(lines[:-1]) == {"predict: a.wav: features of 1 h 0 min of audio: 0 s so far"}
+    assert lines[-1] == "predict: a.wav: features of 1 h 0 min of audio: done in 0 s"
+    quiet: list[str] = []
+    short = TimedProgress("predict: a.wav", say=quiet.append, interval=5.0)
+    with short.ticking("features"):
+        time.sleep(0.2)
+    assert quiet == []
+
+
+def test_a_job_at_once_says_its_first_unit_with_a_bar():
+    clock, lines = FakeClock(), []
+    job = TimedProgress("", 8, "takes", lines.append, 5.0, clock, at_once=True, bar=20)
+    clock.now += 1.0
+    job.update(1, "take00 (2.0 s of audio)")
+    clock.now += 1.0
+    job.update(2, "take01 (2.0 s of audio)")
+    assert lines == [
+        "[##                  ] 1/8 takes (12.5 %), 1 takes/s, about 7 s left: take00 (2.0 s of audio)"
+    ]
+
+
 def test_durations_read_as_a_person_reads_a_wait():
     assert [duration_words(s) for s in (0.4, 45, 89, 12 * 60, 3599, 6480)] == [
         "0 s",
@@ -114,13 +159,24 @@ def _render(take: Path, out: Path, interval: str | None) -> subprocess.Completed
     return proc
 
 
-def test_render_says_its_frames_by_the_clock(tmp_path):
+def test_render_says_its_frames_by_the_clock_and_then_its_audio_and_file(tmp_path):
     take = write_take(make_aligned_take("take00", 0.5, subject="spk0", seed=0), tmp_path / "takes")
     every = _render(take, tmp_path / "every.mp4", "0")
-    lines = [line for line in every.stderr.splitlines() if line.startswith("render: every.mp4: ")]
+    said = [line for line in every.stderr.splitlines() if line.startswith("render: every.mp4: ")]
+    lines = [line for line in said if " frames (" in line]
     assert len(lines) == 30  # 0.5 s at 60 fps, a line a frame
     assert lines[0].startswith("render: every.mp4: 1/30 frames (3.3 %), ") and " frames/s, about " in lines[0]
     assert lines[-1].startswith("render: every.mp4: 30/30 frames (100.0 %), ") and ", done in " in lines[-1]
+    after = said[said.index(lines[-1]) + 1 :]  # the encoder's last frames, the audio, the file's index
+    assert after[0] == "render: every.mp4: finishing the video: 0 s so far", after
+    assert after[1].startswith("render: every.mp4: finishing the video: done in ")
+    assert after[2].startswith("render: every.mp4: audio: 0/1 s (0.0 %)"), after
+    audio_end = next(i for i, line in enumerate(after) if line.startswith("render: every.mp4: audio: 1/1 s"))
+    assert ", done in " in after[audio_end]
+    assert after[audio_end + 1 :] == [
+        "render: every.mp4: writing the file: 0 s so far",
+        "render: every.mp4: writing the file: done in 0 s",
+    ]
     quiet = _render(take, tmp_path / "quiet.mp4", None)  # 0.5 s of frames end within the first 5 s
     assert "render: " not in quiet.stderr, quiet.stderr
 
@@ -137,18 +193,55 @@ def tiny_run(tmp_path_factory) -> Path:
     return root / "run"
 
 
-def test_predict_counts_each_files_windows(tiny_run, tmp_path, monkeypatch):
+def test_predict_says_every_step_of_each_file(tiny_run, tmp_path, monkeypatch):
+    """Reading the audio, its features and the CSV (20 s, 29 s and 5 s of silence for an hour of audio)
+    say how long they have run, the windows how many are done."""
     rng = np.random.default_rng(0)
     wav = tmp_path / "speech.wav"
     sf.write(wav, (0.1 * rng.standard_normal(70 * 16000)).astype(np.float32), 16000)  # 70 s: 4 windows
     monkeypatch.setenv(PROGRESS_INTERVAL_VAR, "0")
-    proc = run_here("train", "predict", tiny_run, wav, "-o", tmp_path / "out")
+    proc = run_cli("train", "predict", tiny_run, wav, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.startswith("predict: speech.wav: ")]
-    assert [line.split(" (")[0] for line in lines] == [
+    steps = [line.split(": ")[2] for line in lines if " windows (" not in line]
+    assert list(dict.fromkeys(steps)) == [
+        "reading the audio",
+        "features of 1 min of audio",
+        "writing speech.csv",
+    ]
+    for step in dict.fromkeys(steps):
+        mine = [line for line in lines if line.split(": ")[2] == step]
+        assert mine[0].endswith(" s so far") and mine[-1].startswith(f"predict: speech.wav: {step}: done in ")
+    windows = [line for line in lines if " windows (" in line]
+    assert [line.split(" (")[0] for line in windows] == [
         f"predict: speech.wav: {k}/4 windows" for k in range(1, 5)
     ]
-    assert " windows/s, about " in lines[0] and ", done in " in lines[-1]
+    assert " windows/s, about " in windows[0] and ", done in " in windows[-1]
+    order = [lines.index(line) for line in (windows[0], windows[-1])]
+    assert lines[order[0] - 1].startswith("predict: speech.wav: features of 1 min of audio: done in ")
+    assert lines[order[1] + 1] == "predict: speech.wav: writing speech.csv: 0 s so far"
     monkeypatch.delenv(PROGRESS_INTERVAL_VAR)
-    quiet = run_here("train", "predict", tiny_run, wav, "-o", tmp_path / "again")
+    sf.write(wav, (0.1 * rng.standard_normal(3 * 16000)).astype(np.float32), 16000)  # done within 5 s
+    quiet = run_cli("train", "predict", tiny_run, wav, "-o", tmp_path / "again")
     assert quiet.returncode == 0 and "predict: " not in quiet.stderr, quiet.stderr
+
+
+def test_the_build_says_its_takes_by_the_same_clock(tmp_path, monkeypatch):
+    """The build's own one-a-second throttle is gone: its takes are said by ``TimedProgress``, the first
+    at once, then every interval, and the last, with the rate and the time left."""
+    from dataset import BuildOptions, build_dataset
+
+    aligned = write_aligned_set(tmp_path / "aligned", count=3, speakers=1, seconds=1.0)
+    options = BuildOptions(features=("fbank",), max_sample_s=0.5)
+    monkeypatch.setenv(PROGRESS_INTERVAL_VAR, "0")
+    lines: list[str] = []
+    build_dataset([aligned], tmp_path / "every", options, say=lines.append)
+    bars = [line for line in lines if line.startswith("[")]
+    assert [line.split(": ")[-1] for line in bars] == [f"take0{i} (1.0 s of audio)" for i in range(3)]
+    assert bars[0].startswith("[#######             ] 1/3 takes (33.3 %), ") and " takes/s, about " in bars[0]
+    assert bars[-1].startswith("[####################] 3/3 takes (100.0 %), ") and ", done in " in bars[-1]
+    monkeypatch.setenv(PROGRESS_INTERVAL_VAR, "60")
+    lines.clear()
+    build_dataset([aligned], tmp_path / "few", options, say=lines.append)
+    bars = [line for line in lines if line.startswith("[")]
+    assert [line.split(": ")[-1] for line in bars] == ["take00 (1.0 s of audio)", "take02 (1.0 s of audio)"]

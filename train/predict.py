@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, 
 from capture.atomic import atomic_write
 from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
-from capture.command import TimedProgress, progress
+from capture.command import TimedProgress, duration_words, progress
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
@@ -171,11 +172,10 @@ def animate_16k(
     style: str | None = None,
     neutral: np.ndarray | None = None,
     level: float | None = None,
-    on_window: Callable[[int, int], None] | None = None,
+    job: TimedProgress | None = None,
 ) -> np.ndarray:
     """``animate`` for audio made what the model hears already (``model_audio``: 16 kHz mono float32).
-    ``on_window(done, count)``: before the first window the model runs (0) and after each
-    (``infer_windowed``)."""
+    ``job``: where the features (a step without a count) and the windows the model runs go on."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
@@ -190,10 +190,16 @@ def animate_16k(
     if limit is not None:
         window = min(window, limit)
     gain = None if level is None else gain_for_level(level, settings)
-    feats, _ = compute_features(
-        audio, n, fps, tuple(spec.features), settings, ppg=ppg, gain=gain, sample_rate=settings.sample_rate
-    )
-    feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
+    seconds = duration_words(audio.size / settings.sample_rate)
+    with job.ticking(f"features of {seconds} of audio") if job else nullcontext():
+        names, rate = tuple(spec.features), settings.sample_rate
+        feats, _ = compute_features(audio, n, fps, names, settings, ppg=ppg, gain=gain, sample_rate=rate)
+        feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
+
+    def on_window(done: int, count: int) -> None:  # the windows: the job's next step, counted
+        if job is not None:
+            job.step("", count, "windows") if done == 0 else job.update(done)
+
     item: dict[str, Any] = {name: torch.from_numpy(v).unsqueeze(0) for name, v in feats.items()}
     item["speaker"] = speaker or MEAN
     content, prosody = to_model_inputs(item, spec, style)
@@ -372,31 +378,25 @@ def _predict_one(
     say: Callable[[str], None] = progress,
 ) -> dict[str, Any]:
     """Predict audio file ``a`` into CSV ``path``; the summary of ``predict``. An hour of speech runs
-    for minutes in hundreds of windows: their count, rate and time left are said every few seconds."""
+    for minutes: every few seconds a line says which step it is in (reading the audio, features,
+    windows, writing the CSV) and how far (the windows' count, rate and time left)."""
     info = payload["dataset"]
     if a.is_dir():
         raise InputError("is a folder, not an audio file", a)
     if path.is_dir():
         raise InputError("output CSV path is a folder", path)
     repairs: list[dict[str, Any]] = []  # damaged samples are repaired as s2a-capture import repairs them
-    raw = read_audio(a, repairs)
-    if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
-        raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
-    audio = to_16k_mono(raw, str(a))  # without its DC offset, which is no sound
-    dc = abs(float(np.mean(raw.mono_float(), dtype=np.float64)))
-    narrow = is_narrowband(audio, TARGET_RATE)
-    peak = float(np.max(np.abs(audio), initial=0.0))
-    level = speech_level(audio, TARGET_RATE)
-    windows: TimedProgress | None = None
-
-    def on_window(done: int, count: int) -> None:
-        nonlocal windows
-        if windows is None:  # the clock starts at the first window: reading and features are done
-            windows = TimedProgress(f"predict: {a.name}", count, "windows", say)
-        else:
-            windows.update(done)
-
-    values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level, on_window)
+    job = TimedProgress(f"predict: {a.name}", say=say)
+    with job.ticking("reading the audio"):
+        raw = read_audio(a, repairs)
+        if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
+            raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
+        audio = to_16k_mono(raw, str(a))  # without its DC offset, which is no sound
+        dc = abs(float(np.mean(raw.mono_float(), dtype=np.float64)))
+        narrow = is_narrowband(audio, TARGET_RATE)
+        peak = float(np.max(np.abs(audio), initial=0.0))
+        level = speech_level(audio, TARGET_RATE)
+    values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level, job)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
     clipped = int(np.count_nonzero((outside < 0) | (outside > 1)))
@@ -404,10 +404,11 @@ def _predict_one(
     meta = TakeMeta(id=a.stem, source_kind="predicted", fps=fps, channels=list(info["channels"]))
     take = Take(meta, np.arange(n) / fps, values, np.zeros(n, np.uint8))
     try:
-        if arkit:
-            write_livelink_csv(take, path, count_name=count_name)
-        else:
-            write_rig_csv(take, path)
+        with job.ticking(f"writing {path.name}"):
+            if arkit:
+                write_livelink_csv(take, path, count_name=count_name)
+            else:
+                write_rig_csv(take, path)
     except OSError as exc:
         raise InputError(f"cannot write the CSV: {exc.strerror}", path) from None
     return {

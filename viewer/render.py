@@ -19,6 +19,7 @@ import numpy as np
 from capture import ARKIT61, Audio, FrameStatus, InputError, Take
 from capture.atomic import atomic_write
 from capture.channels import is_known
+from capture.command import TimedProgress
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
@@ -372,7 +373,9 @@ def write_mp4(
 ) -> dict:
     """Encode ``count`` frames (``frames(k)`` → RGB uint8) as H.264 at ``fps`` with AAC audio.
 
-    Returns timing figures: seconds spent rendering (inside ``frames``) and encoding.
+    Returns timing figures: seconds spent rendering (inside ``frames``) and encoding. What follows the
+    frames (the encoder's last frames, the audio, the file's index: 24 s for an hour of audio here) is
+    said every few seconds when it takes that long (``TimedProgress``: ``render: NAME: audio: k/n s``).
     """
     import av
 
@@ -406,12 +409,16 @@ def write_mp4(
                 if on_frame is not None:
                     on_frame(k)
             t2 = time.perf_counter()
-            for packet in vs.encode():
-                out.mux(packet)
+            job = TimedProgress(f"render: {path.name}")
+            with job.ticking("finishing the video"):
+                for packet in vs.encode():
+                    out.mux(packet)
             if astream is not None:
                 samples, sr = audio
                 chunk = 1024
+                job.step("audio", math.ceil(samples.size / sr), "s")
                 for i in range(0, samples.size, chunk):
+                    job.update(i // sr)
                     block = samples[i : i + chunk][None, :].astype(np.float32)
                     af = av.AudioFrame.from_ndarray(block, format="flt", layout="mono")
                     af.sample_rate = sr
@@ -421,6 +428,9 @@ def write_mp4(
                         out.mux(packet)
                 for packet in astream.encode():
                     out.mux(packet)
+                job.update(job.total)
+            with job.ticking("writing the file"):
+                out.close()  # the container's index: leaving the ``with`` closes it again, a no-op
             encode_s += time.perf_counter() - t2
         # A signal during the flush and mux above was only noted (stops_between_frames): stop before the
         # rename, so that a stopped render never leaves its output.
