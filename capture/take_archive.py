@@ -156,11 +156,16 @@ def _check_room(plan: Plan, into: Path, archive: Path) -> None:
 
 @contextmanager
 def unpacked(
-    archive: Path, into: Path | None = None, litter: Litter | None = None, outer: Unpacked | None = None
+    archive: Path,
+    into: Path | None = None,
+    litter: Litter | None = None,
+    outer: Unpacked | None = None,
+    prefix: str = UNPACK_PREFIX,
 ) -> Iterator[Unpacked]:
     """``archive`` unpacked into a hidden folder made in ``into`` (default: the system's temporary
     folder), removed on leaving; ``outer``: the archive it was unpacked from, if any, to name it as a
-    member of. Litter passed over is counted in ``litter``. An ``InputError`` (naming it) names
+    member of; ``prefix``: how the hidden folder's name starts (one command's own, to find what a killed
+    run of it left). Litter passed over is counted in ``litter``. An ``InputError`` (naming it) names
     what is wrong: not a zip archive (or cut short), a member outside the folder, encrypted, compressed
     with a method not readable here, damaged (its checksum), too large for the disk."""
     tally = Litter() if litter is None else litter
@@ -178,7 +183,7 @@ def unpacked(
         plan = _plan(zf, Path(name), tally)
         where = Path(tempfile.gettempdir() if into is None else into)
         _check_room(plan, where, Path(name))
-        work = Path(tempfile.mkdtemp(prefix=UNPACK_PREFIX, dir=where)).resolve()  # as source paths are
+        work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
         try:
             # named as the archive (a take folder zipped without its folder keeps a name), never "." or ".."
             folder = work / (archive.stem.strip(".") and archive.stem or "archive")

@@ -57,7 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Render a take folder or Live Link Face CSV with the built-in face or a glTF/GLB head "
         "with ARKit morph targets. .png: one frame; .mp4: every frame at the take's rate with its audio.",
     )
-    p.add_argument("input", type=Path, help="take folder or Live Link Face CSV (a recording or a prediction)")
+    p.add_argument(
+        "input",
+        type=Path,
+        help="take folder or Live Link Face CSV (a recording or a prediction), or a zip of one "
+        "(ARCHIVE.zip/TAKE names one take of an archive of several)",
+    )
     p.add_argument("-o", "--out", type=Path, required=True, help="output .png (one frame) or .mp4 (the take)")
     p.add_argument(
         "--compare",
@@ -105,7 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
         "plot",
         help="channels over time for takes/predictions, waveform and VAD segments beneath (PNG/SVG)",
     )
-    p.add_argument("inputs", type=Path, nargs="+", help="take folders or Live Link Face CSVs")
+    p.add_argument(
+        "inputs",
+        type=Path,
+        nargs="+",
+        help="take folders or Live Link Face CSVs, or zips of one (ARCHIVE.zip/TAKE)",
+    )
     p.add_argument("-o", "--out", type=Path, required=True, help="output .png or .svg")
     p.add_argument(
         "--channels", default="jawOpen", help="comma list of channels or a set name (default jawOpen)"
@@ -128,7 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
         "stream",
         help="send a take or prediction as Live Link packets to Unreal (v6, 61 channels, real time)",
     )
-    p.add_argument("input", type=Path, help="take folder or Live Link Face CSV")
+    p.add_argument(
+        "input", type=Path, help="take folder or Live Link Face CSV, or a zip of one (ARCHIVE.zip/TAKE)"
+    )
     p.add_argument("--to", required=True, metavar="HOST:PORT", help="where Unreal listens (port 11111)")
     p.add_argument(
         "--audio",
@@ -146,7 +158,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_stream)
 
     p = sub.add_parser("report", help="one self-contained HTML page for a dataset or a folder of takes")
-    p.add_argument("dataset", type=Path, help="dataset folder (manifest.json) or a folder of take folders")
+    p.add_argument(
+        "dataset",
+        type=Path,
+        help="dataset folder (manifest.json) or a folder of take folders (or a zip of one)",
+    )
     p.add_argument("-o", "--out", type=Path, required=True, help="output .html")
     p.add_argument(
         "--takes", type=Path, nargs="+", default=[], help="aligned take folders whose align reports to show"
@@ -202,8 +218,10 @@ def _outside(what: str, start: float, end: float, lo: float, hi: float, shown: s
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    from .probe import probe, start
+
+    start()  # the rendering probe's child runs while the inputs load (about 2 s of VTK start-up)
     from .inputs import livelink_coverage, missing_face_channels
-    from .probe import probe
     from .render import (
         FaceRenderer,
         ReferenceVideo,
@@ -450,14 +468,35 @@ def cmd_stream(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from capture.atomic import atomic_write
+
+    from .inputs import shown, shown_in_page, unpacked_folder
+    from .output import writing
     from .report import write_report
 
     if args.out.suffix.lower() not in (".html", ".htm"):
         raise InputError("the report is written as .html", args.out)
-    if not args.dataset.exists():
+    # A zipped dataset or folder of takes (and --takes) is reported on unpacked, named as the archive.
+    try:
+        places = [unpacked_folder(p) for p in (args.dataset, *args.takes)]
+    except InputError as exc:
+        raise InputError(shown(exc)) from None
+    dataset, *takes = [place[0] if place else p for place, p in zip(places, (args.dataset, *args.takes))]
+    if not dataset.exists():
         raise InputError("no such dataset or folder", args.dataset)
     prepare_output(args.out)
-    summary = write_report(args.dataset, args.out, args.takes, args.limit)
+    try:
+        summary = write_report(dataset, args.out, takes, args.limit)
+    except InputError as exc:  # "import them first (s2a-capture import X ...)" names the archive itself
+        raise InputError(shown(exc).replace(f"import {shown(dataset)} ", f"import {args.dataset} ")) from None
+    if any(places):  # the page and the summary name the archives' members, not the unpacked copies
+        page = args.out.read_text(encoding="utf-8")
+        if (named := shown_in_page(page)) != page:
+            with writing(args.out, "report"), atomic_write(args.out, "w", encoding="utf-8") as f:
+                f.write(named)
+            summary["bytes"] = args.out.stat().st_size
+        summary["warnings"] = [shown(w) for w in summary["warnings"]]
+        summary["unreadable"] = [{k: shown(v) for k, v in u.items()} for u in summary["unreadable"]]
     for w in summary["warnings"]:
         progress(f"warning: {w}")
     for u in summary["unreadable"]:
@@ -508,8 +547,11 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 def _stoppable(args: argparse.Namespace) -> int:
     """Run the command; SIGTERM (``timeout``, ``kill``) stops it as Ctrl-C does (``run`` says so, exit
-    143 instead of 130), and either removes a half-written output's ``.partial`` file on the way out."""
-    with stopped_by_signals():
+    143 instead of 130), and either removes a half-written output's ``.partial`` file on the way out,
+    and the zip archives unpacked for the command's inputs (``inputs.archives_unpacked``)."""
+    from .inputs import archives_unpacked
+
+    with stopped_by_signals(), archives_unpacked():
         return args.handler(args)
 
 

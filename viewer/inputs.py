@@ -8,23 +8,39 @@ Blendshape weights outside ``0..1`` (ARKit itself reaches 1.05) are clamped for 
 A take whose audio was paired by frame index (``s2a-capture import --audio-pairing frame-index``: row i
 goes with audio time i/fps) is shown on that clock, as ``s2a-align`` places it, not by its timecodes,
 which run 0.16 % slow against it in a Live Link Face CSV (32 ms over 20 s).
+
+A zip archive holding one take (a take folder zipped by Finder or Windows Explorer, a zipped CSV with
+its audio) is read as that take unzipped: ``takes.zip``; one take of an archive holding several is named
+by its path inside, ``takes.zip/TakeName``. The archive is unpacked by capture's reader
+(``capture.take_archive``: the same checks as ``s2a-capture import``) into the system's temporary
+folder, never beside the archive, and removed when the command ends (``archives_unpacked``), on an
+error, Ctrl-C or SIGTERM too. Messages name the archive's members (``takes.zip/T/T.csv``), never the
+temporary copies.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from pathlib import Path
+import os
+import shutil
+import signal
+import tempfile
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, contextmanager
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
 from capture import Take, find_sources, find_takes, import_source, is_take_folder, read_audio, read_take
 from capture.channels import ARKIT52, canonical, is_known
 from capture.csv_take import split_variant
-from capture.errors import InputError
-from capture.importer import audio_beside, is_livelink_csv
+from capture.errors import InputError, S2AError
+from capture.importer import audio_beside, is_livelink_csv, warn_skipped
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
+from capture.take_archive import UNPACK_PREFIX, Unpacked, unpacked
 from capture.take_folder import choose_csv
+from capture.transfer_litter import Litter, is_zip
 from dataset.qa import ANIM_LIMIT
 
 ABSURD = ANIM_LIMIT  # |value| above this is no blendshape weight nor angle in radians
@@ -33,10 +49,11 @@ _QUIET_REPAIRS = ("bom", "no_audio")
 _BLENDSHAPES = frozenset(ARKIT52)
 
 
-def take_source(path: str | Path, one_take: str) -> Path:
+def take_source(path: str | Path, one_take: str, shown: str | None = None) -> Path:
     """The take folder, Live Link Face take folder, folder of one take's CSVs or CSV file ``path``
     names. ``one_take`` opens the error for a folder holding several takes (``"render shows one take
-    per input"``), which lists them."""
+    per input"``), which lists them and says how to name one; ``shown``: what the user called ``path``
+    when that is not its name here (``takes.zip`` for the folder an archive was unpacked into)."""
     path = Path(path)
     if is_take_dir(path) or path.is_file():
         return path
@@ -46,7 +63,9 @@ def take_source(path: str | Path, one_take: str) -> Path:
         return path
     found = [(f"{p.relative_to(path)}/", p) for p in find_takes([path])]
     groups: dict[tuple[Path, str], tuple[str, Path]] = {}
-    for src in find_sources([path]):  # Live Link Face take folders and CSVs, not take folders of ours
+    archives: list[str] = []  # zip archives in the folder, which are takes only when named
+    skipped = warn_skipped if shown is None else lambda p, why: archives.append(str(p.relative_to(path)))
+    for src in find_sources([path], skipped=skipped):  # Live Link Face take folders and CSVs, not ours
         if src.is_dir():
             groups[(src, "")] = (f"{src.relative_to(path)}/", src)
             continue
@@ -55,32 +74,59 @@ def take_source(path: str | Path, one_take: str) -> Path:
             # The folder, not the file: the take folder reader picks the variant and the audio beside it.
             groups.setdefault((src.parent, prefix.lower()), (str(src.relative_to(path)), src.parent))
     found += groups.values()
-    if not found:
+    names = [name for name, _ in found] or [a for a in archives if a.lower().endswith(".zip")]
+    if not found and not names:
         raise InputError("holds no take folder or Live Link Face CSV", path)
-    if len(found) > 1:
-        names = [name for name, _ in found]
-        shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
-        raise InputError(f"{one_take}; found {len(found)} takes under it ({shown}): name one of them", path)
-    return found[0][1]
+    if len(found) == 1:
+        return found[0][1]
+    shown_names = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    if not found:  # archives in an archive: each is named as a path into the outer one
+        raise InputError(
+            f"holds no take of its own, but {len(names)} zip archive(s) ({shown_names}): name one "
+            f"as {shown}/{names[0]}",
+            path,
+        )
+    how = "name one of them" + (f" as {shown}/{names[0].rstrip('/')}" if shown else "")
+    raise InputError(f"{one_take}; found {len(found)} takes under it ({shown_names}): {how}", path)
 
 
 def read_input(
     path: str | Path, one_take: str, audio: str | Path | None = None, audio_flag: str | None = "--audio"
 ) -> tuple[Take, list[str], Path | None]:
-    """The one take ``path`` names (see ``take_source``), with ``audio`` as its speech, warnings about
-    what reading it repaired (one line each), and the file its speech was read from (None: silent).
-    ``audio_flag`` is the option that gives a CSV its audio here (``None``: none does), for the message
-    about a CSV that needs it. A CSV named without ``audio`` brings the audio beside it
-    (``csv_with_its_audio``), as naming its folder does.
+    """The one take ``path`` names (see ``take_source``; a zip archive of one take, or
+    ``ARCHIVE.zip/member`` naming one take in it, as that take unzipped: ``unpacked_input``), with
+    ``audio`` as its speech, warnings about what reading it repaired (one line each), and the file its
+    speech was read from (None: silent). ``audio_flag`` is the option that gives a CSV its audio here
+    (``None``: none does), for the message about a CSV that needs it. A CSV named without ``audio``
+    brings the audio beside it (``csv_with_its_audio``), as naming its folder does.
 
     Audio holding NaN or infinite samples is an ``InputError`` (as ``s2a-train predict`` refuses it),
-    never silence in its place."""
-    src = take_source(path, one_take)
+    never silence in its place. Called outside ``archives_unpacked``, an archive is unpacked for this
+    call only: the take returned holds its values and audio, but no file of it remains to be read."""
+    if not _sessions:
+        with archives_unpacked():
+            return read_input(path, one_take, audio, audio_flag)
+    place = unpacked_input(path)
+    if place is None:
+        return _read_source(path, take_source(path, one_take), audio, audio_flag)
+    folder, name = place
+    try:
+        take, warnings, speech = _read_source(folder, take_source(folder, one_take, name), audio, audio_flag)
+    except S2AError as exc:
+        raise InputError(shown(exc)) from None
+    return take, [shown(w) for w in warnings], Path(shown(speech)) if speech is not None else None
+
+
+def _read_source(
+    path: str | Path, src: Path, audio: str | Path | None, audio_flag: str | None
+) -> tuple[Take, list[str], Path | None]:
+    """``read_input`` of ``src``, the take source ``path`` names."""
     if is_take_dir(src):
-        take = read_take(src)
+        take = read_take(src, audio=audio is None)
         if audio is not None:
-            take.attach_audio(read_audio(audio))  # without a repair list, NaN samples are an error
-            return take, [], Path(audio)
+            # without a repair list, NaN samples are an error
+            take.attach_audio(read_audio(audio), *replaced_speech_start(take))
+            return on_audio_clock(take), [], Path(audio)
         # The file meta.json names, as read_take read it (a folder written elsewhere may name another).
         return on_audio_clock(take), [], src / take.meta.audio.file if take.meta.audio is not None else None
     warnings: list[str] = []
@@ -113,6 +159,171 @@ def read_input(
                 f"the audio holds NaN or infinite samples ({what}): give clean speech", audio or path
             )
     return on_audio_clock(take), warnings + repair_warnings(take, src), audio_source(take, audio)
+
+
+class _Session:
+    """The archives one command unpacked, removed together when it ends."""
+
+    def __init__(self) -> None:
+        self.stack = ExitStack()
+        self.boxes: list[Unpacked] = []
+
+
+_sessions: list[_Session] = []  # innermost last; the CLI holds one open while a command runs
+
+
+@contextmanager
+def archives_unpacked() -> Iterator[None]:
+    """While the block runs, archives named as inputs (``read_input``, ``unpacked_input``) stay
+    unpacked (a render reads a take's reference video frame by frame); on leaving, also by an error,
+    Ctrl-C or SIGTERM, their unpacked files are removed, with Ctrl-C and SIGTERM held off meanwhile
+    (a second Ctrl-C would otherwise leave them half removed)."""
+    session = _Session()
+    _sessions.append(session)
+    _clear_orphans()
+    try:
+        yield
+    finally:
+        _sessions.remove(session)
+        with _signals_held():
+            session.stack.close()
+
+
+_PREFIX = f"{UNPACK_PREFIX}view-"  # .unzip-view-PID-xxxx: which process unpacked it
+
+
+def _own_prefix() -> str:
+    return f"{_PREFIX}{os.getpid()}-"
+
+
+def _clear_orphans() -> None:
+    """Remove what viewer processes killed by SIGKILL (no ``finally`` runs) left unpacked in the
+    temporary folder: folders of a process that no longer runs. Those of a process alive (another
+    command, or one that took a dead one's PID) are left."""
+    try:
+        leftovers = [p for p in Path(tempfile.gettempdir()).iterdir() if p.name.startswith(_PREFIX)]
+    except OSError:
+        return
+    for p in leftovers:
+        pid = p.name[len(_PREFIX) :].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _runs(int(pid)):
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def _runs(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: another user's process
+        return True
+    return True
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM arrive after the block, not in it (main thread only)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def shown(text: object) -> str:
+    """``text`` (a path, a message) with the folders archives were unpacked into named as the archives'
+    members (``takes.zip/T/T.csv``), as the user knows them."""
+    out = str(text)
+    for session in _sessions:
+        for box in reversed(session.boxes):  # an archive in an archive first: its name holds the outer
+            out = box.shown(out)
+    return out
+
+
+def archive_member(path: Path) -> tuple[Path, PurePosixPath] | None:
+    """The zip archive ``path`` is or lies in, and the member it names (``takes.zip/T`` -> takes.zip,
+    ``T``; ``.`` for the archive itself); None when ``path`` is no archive nor in one (a path that
+    exists and is not a ``.zip`` file, or one under no ``.zip`` file)."""
+    if is_zip(path):
+        return path, PurePosixPath(".")
+    if path.exists():
+        return None
+    for parent in path.parents:
+        if is_zip(parent):
+            return parent, PurePosixPath(path.relative_to(parent).as_posix())
+        if parent.exists():
+            return None
+    return None
+
+
+def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path, str] | None:
+    """Where the archive ``path`` is or names a member of is unpacked (inside ``archives_unpacked``),
+    the folder or file ``path`` names there and ``path`` as the user wrote it, for messages; None for
+    a path in no archive. An archive in the archive is entered when the path names it
+    (``download.zip/T.zip/T``), as ``s2a-capture import`` reads one level of them. The archive is
+    checked and unpacked by ``capture.take_archive.unpacked``, its ``InputError`` naming what is wrong;
+    what it passed over (``__MACOSX``, ``._X``) is counted in ``litter``."""
+    if not _sessions:
+        raise RuntimeError("unpacked_input is called inside archives_unpacked()")
+    found = archive_member(Path(path))
+    if found is None:
+        return None
+    archive, member = found
+    session, outer = _sessions[-1], None
+    tally = Litter() if litter is None else litter
+    while True:
+        box = session.stack.enter_context(unpacked(archive, litter=tally, outer=outer, prefix=_own_prefix()))
+        session.boxes.append(box)
+        parts = member.parts
+        target = box.folder.joinpath(*parts)
+        inner = next((i for i in range(1, len(parts) + 1) if is_zip(box.folder.joinpath(*parts[:i]))), None)
+        if inner is None or not box.unpacks_archives:
+            break
+        # a path through an archive in this one: that archive unpacked in turn
+        archive, member, outer = box.folder.joinpath(*parts[:inner]), PurePosixPath(*parts[inner:]), box
+    if not target.exists():
+        held = sorted(p.name + ("/" if p.is_dir() else "") for p in box.folder.iterdir())
+        listed = ", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
+        raise InputError(f"holds no {member} (it holds {listed or 'nothing'})", box.name)
+    return target, box.shown(target)
+
+
+def unpacked_folder(path: str | Path) -> tuple[Path, str] | None:
+    """``unpacked_input`` for a folder of takes or a dataset (``s2a-view report``): the folder the
+    archive or its member ``path`` names, entered when it holds nothing but one folder (a folder zipped
+    by Finder or Windows Explorer holds itself), and its name for messages; None for a path in no
+    archive."""
+    place = unpacked_input(path)
+    if place is None:
+        return None
+    folder, name = place
+    inside = list(folder.iterdir()) if folder.is_dir() else []
+    if len(inside) == 1 and inside[0].is_dir() and not (folder / "manifest.json").exists():
+        return inside[0], shown(inside[0])
+    return folder, name
+
+
+def shown_in_page(page: str) -> str:
+    """``shown`` for an HTML page, whose paths are escaped."""
+    import html
+
+    for session in _sessions:
+        for box in reversed(session.boxes):
+            page = page.replace(html.escape(str(box.folder)), html.escape(box.name))
+    return page
+
+
+def replaced_speech_start(take: Take) -> tuple[float, str]:
+    """Where speech given for a take folder of ours (``--audio``) starts: (take time in seconds,
+    start source). Where the take's own speech started, on its clock (the same file given again shows
+    the same: a take paired by frame index stays on that clock, one placed by frame_log.csv keeps that
+    offset); a take without speech gets it at its first frame, as a CSV given with ``--audio`` does."""
+    if take.meta.audio is not None:
+        return float(take.meta.audio.start_s), take.meta.audio.start_source
+    return (float(take.time[0]) if take.time.size else 0.0), "assumed_first_csv_row"
 
 
 def on_audio_clock(take: Take) -> Take:
