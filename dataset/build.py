@@ -415,6 +415,28 @@ def incomplete_segment_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[st
     return out
 
 
+def aligned_twice_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[str]:
+    """A warning for each raw take that the aligned takes ``(folder, meta)`` hold from more than one
+    s2a-align run with other options (two fingerprints of align's record): both runs' segments are
+    built, so its speech counts twice. (Runs that cut it alike give takes of one id, refused as such.)"""
+    runs: dict[str, dict[str, set[Path]]] = {}
+    for folder, meta in aligned:
+        run = _align_record(meta, folder).get("fingerprint")
+        if isinstance(run, str):
+            runs.setdefault(recording_of(meta, folder), {}).setdefault(run, set()).add(folder.parent)
+    out = []
+    for recording, by_run in sorted(runs.items()):
+        if len(by_run) > 1:
+            times = "twice" if len(by_run) == 2 else f"{len(by_run)} times"
+            places = sorted({str(p) for where in by_run.values() for p in where})
+            shown = ", ".join(places[:-1]) + f" and {places[-1]}" if len(places) > 1 else places[0]
+            out.append(
+                f"take {recording}: aligned {times} with other options (in {shown}): the segments of each "
+                f"are built, so its speech counts {times} in the dataset: build from one of those folders"
+            )
+    return out
+
+
 def collect_takes(
     inputs: list[str | Path], work: Path, say: Callable[[str], None], skip_flagged: bool = False
 ) -> tuple[list[SourceTake], list[str], dict[str, str]]:
@@ -508,7 +530,7 @@ def collect_takes(
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
             candidates.append(st)
-    warnings += incomplete_segment_warnings(segments)
+    warnings += incomplete_segment_warnings(segments) + aligned_twice_warnings(segments)
     warnings += skipped.values()
     # duplicates in id order (the first id is kept), whatever the order of the inputs
     for st in sorted(candidates, key=lambda t: (t.id, t.source["path"])):

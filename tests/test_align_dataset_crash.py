@@ -203,6 +203,29 @@ def test_the_build_warns_of_a_take_whose_segments_are_partly_there(tmp_path):
     assert "re-run s2a-align on the raw take" in warning
 
 
+def test_the_build_warns_of_a_take_aligned_twice_with_other_options(tmp_path):
+    """One raw take aligned into two folders with other options (two segments there, one here): the ids
+    differ (ids alike are refused as two takes of one id), so both alignments were built without a word."""
+    first, second = tmp_path / "a1", tmp_path / "a2"
+    for take, where, run in [
+        (_segment("rec.seg01", "rec", 1, 2, seed=1), first, "f1"),
+        (_segment("rec.seg02", "rec", 2, 2, seed=2), first, "f1"),
+        (_segment("rec", "rec", 1, 1, seed=3), second, "f2"),
+        (_segment("other", "other", 1, 1, seed=4), second, "f3"),
+    ]:
+        take.meta.extra["align"]["fingerprint"] = run
+        write_take(take, where)
+    options = BuildOptions(features=("energy", "fbank"), max_sample_s=1.0)
+    summary = build_dataset([first, second], tmp_path / "ds", options)
+    twice = [w for w in summary["warnings"] if "aligned twice" in w]
+    assert twice == [
+        f"take rec: aligned twice with other options (in {first} and {second}): the segments of each are "
+        "built, so its speech counts twice in the dataset: build from one of those folders"
+    ], summary["warnings"]
+    once = build_dataset([first], tmp_path / "ds1", options)
+    assert not [w for w in once["warnings"] if "aligned" in w], once["warnings"]
+
+
 # -- 4. a full disk names the file the build was writing ----------------------------------------------------
 @pytest.mark.parametrize(
     ("limit", "jobs", "where"),
