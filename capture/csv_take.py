@@ -14,8 +14,10 @@ multi-threaded CSV engine with fixed column types; the careful parser reads line
 it can, records each repair with its line in the take's metadata, and raises ``InputError`` naming the
 file and line for what it cannot repair. A long file with a few damaged rows takes both: pyarrow reads
 the rows it can, the careful parser's per-row logic only the lines pyarrow cannot take (``_read_mended``),
-so that a cut-short last line costs what the intact file does. Files a spreadsheet re-saved (a BOM, CRLF,
-a comma ending every line, pandas' index column) go to the careful parser whole.
+so that a cut-short last line costs what the intact file does. Files a spreadsheet or script re-saved
+whole (a BOM, CRLF, a comma ending every line, pandas' index column, quoted header names) are read so
+too; a line ending at a lone CR, or more than half the lines to read line by line, sends a file to the
+careful parser whole.
 
 Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``):
 
@@ -31,8 +33,9 @@ bad_value      non-numeric, NaN, infinite or out-of-float32-range cells were set
 bad_count      the BlendShapeCount cell was neither the row's number of values nor that of the channels
                among them (extra columns named in the header: ``blendshape_counts``); values kept
 duplicate_row  a row repeating the previous row's timecode was dropped (the first one is kept)
-number_format  cells written as a spreadsheet's locale writes numbers were read (one note for each way):
-               a quoted decimal comma (``"0,1421"``), a U+2212 minus sign, no-break or narrow spaces
+number_format  cells written as a spreadsheet's locale writes numbers were read (one note for each way,
+               a cell written two ways counts in both): a quoted decimal comma (``"0,1421"``), a U+2212
+               minus sign, no-break or narrow spaces
 timecode_format timecodes without zero padding (``12:28:1:03.060``) were read (one note); FF at 60.000
                (never the app's) was read as the next second's frame 0 (another note)
 index_column   pandas' index column before Timecode (header ``""`` or ``Unnamed: 0``) was dropped
@@ -52,7 +55,8 @@ values beyond ``VALUE_LIMIT``), ``gap`` (no rows for ``GAP_NOTE_S`` or more).
 Errors: missing, empty or binary file, or UTF-16 text (``utf16_csv_error``); a header that is not a Live
 Link Face header (one separated by ``;`` or tabs says to export it with commas), or that names a column
 twice or leaves one empty (saying how to fix it); the header again further down (two files joined); no
-usable data rows (naming the first rejected row); a timecode going backwards (other than across midnight)
+usable data rows (naming the first rejected row); values written with unquoted decimal commas (``0,1421``
+split in two fields) on most rows; a timecode going backwards (other than across midnight)
 or jumping forward by more than ``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for
 every frame, so such a gap would become thousands of dropped frames). ``strict=True`` turns every repair
 into an error as well.
@@ -284,10 +288,11 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     """Parse a Live Link Face CSV into rows (times of day in seconds, values, per-row status)."""
     path = Path(path)
     head = _read_head(path)
-    first, _, rest = head.partition(b"\n")
+    bom = head.startswith(b"\xef\xbb\xbf")
+    first, _, rest = head[3 if bom else 0 :].partition(b"\n")
     # pyarrow reading no rows can abort the process at exit (apache/arrow#38676): the careful parser
-    # reports a file without data rows.
-    if not head.startswith(b"\xef\xbb\xbf") and b"\r" not in head and rest.strip():
+    # reports a file without data rows. A header line ending at a lone CR is the careful parser's too.
+    if b"\r" not in first[:-1] and rest.strip():
         try:
             text = first.decode("utf-8")
         except UnicodeDecodeError:
@@ -295,8 +300,7 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
         if "\ufffd" in text:  # as the careful parser decodes it: a header of replacement characters
             raise InputError("binary data, not a CSV text file", path, 1)
         header = _parse_header(text, path)
-        plain = not header.trailing_comma and header.index_column is None
-        rows = _read_fast(path, header, len(first) + 1, strict) if plain else None
+        rows = _read_fast(path, header, bom, len(first) + 1, strict)
         if rows is not None:
             return rows
     return _read_careful(path, strict)
@@ -305,44 +309,71 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
 # A file whose lines with other bytes than a number's split it into more pieces than this is damaged all
 # over: the careful parser reads it whole rather than pyarrow piece by piece.
 MAX_PIECES = 256
+# The pieces of a file up to this size are read by pyarrow as one copy of them (each read of a piece costs
+# about a millisecond of setup; a copy of a small file costs less).
+JOIN_PIECES_BYTES = 1 << 24
+# A file where more than this share of the data lines must be read by the careful parser's per-row logic
+# (a text cell on most lines) is read by the careful parser whole: merging pyarrow's few rows into it costs
+# more than it saves.
+MAX_MENDED_SHARE = 0.5
 
 
-def _read_fast(path: Path, header: CsvHeader, body_start: int, strict: bool) -> CsvRows | None:
+def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict: bool) -> CsvRows | None:
     """pyarrow's parse, with the careful parser's per-row logic for the rows pyarrow cannot take, so that
-    a long take with a damaged row costs what an intact one does (``_read_mended``). ``None`` sends the
-    whole file to the careful parser (one that pyarrow cannot read even without its odd lines)."""
+    a long take with a damaged row costs what an intact one does (``_read_mended``). A whole file's re-save
+    (a BOM, CRLF line ends, a comma ending every line, pandas' index column) is read so too. ``None`` sends
+    the whole file to the careful parser (one that pyarrow cannot read even without its odd lines, or one
+    with a line ending at a lone CR)."""
     import pyarrow as pa
 
     with pa.memory_map(str(path)) as source:
         data = source.read_buffer()  # no copy: numpy and pyarrow read the mapped file
+        if bom:
+            data = data.slice(3)  # line 1 starts after the byte-order mark, as for the careful parser
+        # as the careful parser tells the file's line ends
+        crlf = b"\r\n" in data.slice(0, min(data.size, 65536)).to_pybytes()
+        resaved = bom or crlf or header.trailing_comma or header.index_column is not None
         lines, screened = None, np.empty(0, np.int64)
-        read = _arrow_read([data.slice(body_start)], len(header.columns))
+        read = _arrow_read([data.slice(body_start)], header)
         if read is None:  # a cell that is no number: again without the lines holding a non-number byte
             lines = _Lines(data)
             screened = lines.with_other_bytes()
-            pieces = lines.pieces_without(screened)
-            if lines.has_cr or not pieces or len(pieces) > MAX_PIECES:
+            if lines.has_cr or screened.size > MAX_MENDED_SHARE * (lines.count - 1):
                 return None
-            read = _arrow_read(pieces, len(header.columns))
+            pieces = lines.pieces_without(screened)
+            if not pieces or len(pieces) > MAX_PIECES:
+                return None
+            if len(pieces) > 1 and data.size <= JOIN_PIECES_BYTES:  # one read: each costs pyarrow's setup
+                pieces = [pa.py_buffer(b"".join(piece.to_pybytes() for piece in pieces))]
+            read = _arrow_read(pieces, header)
             if read is None:
                 return None
         table, odd = read
         del read
         if table.num_rows == 0:
             return None
-        times, values, status, trouble = _table_rows(table, header.columns)
+        rows = _table_rows(table, header)
         del table  # its float64 columns: freed before a merge copies the values
-        if lines is None and not trouble.any():
-            rows = _plain_rows(path, header, times, values, status, odd)
-            if rows is not None:
-                return rows
+        if lines is None and not resaved and not rows[3].any():
+            plain = _plain_rows(path, header, *rows[:3], odd)
+            if plain is not None:
+                return plain
         lines = lines or _Lines(data)
         if lines.has_cr:
             return None
-        return _read_mended(path, header, lines, screened, odd, (times, values, status, trouble), strict)
+        return _read_mended(path, header, lines, screened, odd, rows, bom, "\r\n" if crlf else "\n", strict)
 
 
-def _arrow_read(pieces: list[Any], n_values: int) -> tuple[Any, list[str]] | None:
+def _arrow_names(header: CsvHeader) -> list[str]:
+    """pyarrow's names of a row's fields: pandas' index column, timecode, count, values, the comma ending
+    every line (an empty field)."""
+    names = ["tc", "count"] + [f"v{i}" for i in range(len(header.columns))]
+    if header.index_column is not None:
+        names.insert(0, "index")
+    return names + ["comma"] if header.trailing_comma else names
+
+
+def _arrow_read(pieces: list[Any], header: CsvHeader) -> tuple[Any, list[str]] | None:
     """pyarrow's table of whole lines of the file (``pieces``: buffers, each of whole lines), and the text
     of the lines it skipped for another number of fields than the header's. ``None`` when a cell is no
     number, or a skipped line is not UTF-8."""
@@ -355,13 +386,13 @@ def _arrow_read(pieces: list[Any], n_values: int) -> tuple[Any, list[str]] | Non
         odd.append(row.text or "")
         return "skip"
 
-    names = ["tc", "count"] + [f"v{i}" for i in range(n_values)]
+    names = _arrow_names(header)
     # Parsed as float64 and narrowed on the copy in _table_rows: pyarrow parses doubles faster than floats,
     # and the careful parser rounds the same way (decimal -> double -> float32).
-    types = {n: pa.float64() for n in names[2:]}
-    types["tc"] = pa.string()
-    # text, not int32: pyarrow's integers also take "-0" and "0x3d", which the careful parser does not
-    types["count"] = pa.string()
+    types = {n: pa.float64() for n in names if n.startswith("v")}
+    # Text, not int32: pyarrow's integers also take "-0" and "0x3d", which the careful parser does not (the
+    # count, pandas' index); the comma ending every line must leave an empty field, checked by its length.
+    types.update((n, pa.string()) for n in ("tc", "count", "index", "comma") if n in names)
     undecodable = []
     previous_hook = sys.unraisablehook
     # A row that is not UTF-8 makes pyarrow fail inside our handler; that failure only tells us to use
@@ -392,13 +423,18 @@ def _arrow_read(pieces: list[Any], n_values: int) -> tuple[Any, list[str]] | Non
     return (tables[0] if len(tables) == 1 else pa.concat_tables(tables)), odd
 
 
-def _table_rows(table: Any, columns: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Times of day, values and status of pyarrow's rows, and which of them the careful parser must read
-    instead (``trouble``): a timecode not in the app's exact layout (or at FF 60.000), an empty, NaN or
-    infinite cell or one beyond float32, a count that is none a row may carry (0 over values not all 0)."""
+def _table_rows(
+    table: Any, header: CsvHeader
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Times of day, values and status of pyarrow's rows, which of them the careful parser must read
+    instead (``trouble``: a timecode not in the app's exact layout (or at FF 60.000), an empty, NaN or
+    infinite cell or one beyond float32, a count that is none a row may carry (0 over values not all 0), a
+    cell where the comma ending every line should leave none), and the number in pandas' index column
+    (-1 where it is not written as ``str`` writes a number; None without that column)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
+    columns = header.columns
     n = table.num_rows
     tc = table.column("tc").combine_chunks()
     offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + n + 1]
@@ -417,7 +453,7 @@ def _table_rows(table: Any, columns: list[str]) -> tuple[np.ndarray, np.ndarray,
     with np.errstate(over="ignore"):  # beyond float32 becomes inf (an empty cell NaN): trouble
         for i in range(len(columns)):
             start = 0
-            for chunk in table.column(i + 2).chunks:  # chunk by chunk: no concatenated temporary per column
+            for chunk in table.column(f"v{i}").chunks:  # chunk by chunk: no concatenated temporary per column
                 values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
                 start += len(chunk)
     # NaN, infinite (beyond float32 once narrowed) and float32's largest, which 3.4028235e38 (beyond it)
@@ -441,7 +477,31 @@ def _table_rows(table: Any, columns: list[str]) -> tuple[np.ndarray, np.ndarray,
         # A count of 0 over values is read by the careful parser (face lost when they are all 0 as
         # written, not only once rounded to float32: 1e-46 is no 0)
         trouble |= zero
-    return times, values, status, trouble
+    if header.trailing_comma:
+        comma = table.column("comma").combine_chunks()
+        trouble |= (
+            np.diff(np.frombuffer(comma.buffers()[1], np.int32)[comma.offset : comma.offset + n + 1]) > 0
+        )
+    index = (
+        _index_numbers(table.column("index").combine_chunks()) if header.index_column is not None else None
+    )
+    return times, values, status, trouble, index
+
+
+def _index_numbers(cells: Any) -> np.ndarray:
+    """The numbers of a pyarrow string array's cells written as ``str`` writes a count (digits, no leading
+    zero), -1 for the others (``01``, ``1.0``, empty)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    digits = _only_digits(cells)
+    if len(cells):
+        lengths = np.diff(
+            np.frombuffer(cells.buffers()[1], np.int32)[cells.offset : cells.offset + len(cells) + 1]
+        )
+        digits &= ~(pc.starts_with(cells, "0").to_numpy(zero_copy_only=False) & (lengths > 1))
+    numbers = pc.cast(pc.if_else(pa.array(digits), cells, "0"), pa.int64()).to_numpy()
+    return np.where(digits, numbers, -1)
 
 
 def _only_digits(cells: Any) -> np.ndarray:
@@ -473,23 +533,32 @@ def _plain_rows(
 
 
 class _Lines:
-    """Where each line of a file starts and ends, found by numpy in pyarrow's memory map (no copy): the
-    lines pyarrow could not take are named by these numbers and read again from here."""
+    """Where each line of a file starts and ends (LF or CRLF), found by numpy in pyarrow's memory map (no
+    copy): the lines pyarrow could not take are named by these numbers and read again from here."""
 
     CHUNK = 1 << 20  # bytes scanned at a time: the comparison's temporary stays in the cache
 
     def __init__(self, data: Any) -> None:
         self.bytes = np.frombuffer(data, dtype=np.uint8)
         size = self.bytes.size
-        ends = [np.flatnonzero(self.bytes[i : i + self.CHUNK] == 10) + i for i in range(0, size, self.CHUNK)]
-        self.ends = np.concatenate(ends) if ends else np.empty(0, np.int64)
+        found = [np.flatnonzero(self.bytes[i : i + self.CHUNK] == 10) + i for i in range(0, size, self.CHUNK)]
+        newlines = np.concatenate(found) if found else np.empty(0, np.int64)
+        # a CR before a line's LF is part of its line end (CRLF), as for pyarrow and the careful parser
+        crlf = self.bytes[newlines[newlines > 0] - 1] == 13
+        self.ends = newlines.copy()
+        self.ends[newlines.size - crlf.size :] -= crlf
         self.ends_with_newline = bool(size) and self.bytes[-1] == 10
         if not self.ends_with_newline:
-            self.ends = np.append(self.ends, size)  # the last line, without its line end
-        self.starts = np.concatenate([[0], self.ends[:-1] + 1])
+            newlines = np.append(newlines, size)  # the last line, without its line end
+            self.ends = np.append(self.ends, size)
+        self.newlines = newlines  # each line's LF (the file's size for a last line without one)
+        self.starts = np.concatenate([[0], newlines[:-1] + 1])
         self.count = self.ends.size
-        # a line end the careful parser splits at and this index does not: that file is read whole
-        self.has_cr = any(np.any(self.bytes[i : i + self.CHUNK] == 13) for i in range(0, size, self.CHUNK))
+        # a lone CR, a line end the careful parser splits at and this index does not: that file is read whole
+        crs = sum(
+            int(np.count_nonzero(self.bytes[i : i + self.CHUNK] == 13)) for i in range(0, size, self.CHUNK)
+        )
+        self.has_cr = crs > int(crlf.sum())
 
     def text(self, number: int) -> str:
         """Line ``number`` (from 1), decoded as the careful parser decodes the file."""
@@ -500,12 +569,13 @@ class _Lines:
 
     def with_other_bytes(self) -> np.ndarray:
         """The data lines holding a byte that no number of the app's rows holds (a letter, a quote, a space,
-        any non-ASCII byte): those where pyarrow meets a cell it cannot convert, found without parsing."""
+        any non-ASCII byte): those where pyarrow meets a cell it cannot convert, found without parsing. (A CR
+        passes: a file with one that is not part of a CRLF is read whole by the careful parser.)"""
         found = []
         for i in range(0, self.bytes.size, self.CHUNK):
             chunk = self.bytes[i : i + self.CHUNK]
             at = np.flatnonzero((chunk < ord("+")) | (chunk > ord(":")))  # + , - . / 0-9 : pass
-            found.append(at[~np.isin(chunk[at], np.frombuffer(b"\neE", np.uint8))] + i)
+            found.append(at[~np.isin(chunk[at], np.frombuffer(b"\r\neE", np.uint8))] + i)
         numbers = np.unique(np.searchsorted(self.starts, np.concatenate(found), side="right"))
         return numbers[numbers > 1]  # the header is no data line
 
@@ -518,7 +588,7 @@ class _Lines:
         pieces = []
         for before, after in zip(bounds[:-1], bounds[1:]):
             if after - before > 1:  # lines before + 1 .. after - 1
-                start, stop = self.starts[before], min(self.ends[after - 2] + 1, self.bytes.size)
+                start, stop = self.starts[before], min(self.newlines[after - 2] + 1, self.bytes.size)
                 pieces.append(buffer.slice(int(start), int(stop - start)))
         return pieces
 
@@ -542,22 +612,57 @@ def _read_mended(
     lines: _Lines,
     screened: np.ndarray,
     odd: list[str],
-    table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
+    bom: bool,
+    line_ending: str,
     strict: bool,
 ) -> CsvRows | None:
     """The rows of pyarrow's table that need no repair, and the lines it could not take read by the careful
     parser's per-row logic (``_RowReader``), merged in file order: the careful parser's result at the cost
-    of reading these lines. ``None`` when the table's rows cannot be matched to the file's lines."""
-    times, values, status, trouble = table
+    of reading these lines. ``None`` when the table's rows cannot be matched to the file's lines, or when
+    most lines would have to be read line by line."""
+    times, values, status, trouble, index = table
     numbers, skipped = lines.table_lines(odd, screened)
     if numbers.size != times.size:
         return None
     again = np.union1d(np.union1d(skipped, screened), numbers[trouble])
-    reader = _RowReader(path, header, lines.text(1), again.size, lines.count, lines.ends_with_newline, [])
+    if again.size > MAX_MENDED_SHARE * (lines.count - 1):
+        return None
+    data_lines, index_start = None, 0
+    if index is not None:  # pandas' index column: it must count the data lines, the careful parser's too
+        texts = {n: lines.text(n) for n in again.tolist()}
+        read_here = [n for n, text in texts.items() if not _ONLY_SEPARATORS.fullmatch(text)]
+        # two sorted runs of other lines: a merge (union1d would hash every line number)
+        data_lines = np.concatenate([numbers[~trouble], np.asarray(read_here, np.int64)])
+        data_lines.sort(kind="stable")
+        if data_lines.size:
+            first = int(data_lines[0])
+            if first in texts:
+                index_start = int(_fields(texts[first])[0].strip() == "1")
+            else:
+                index_start = int(index[np.searchsorted(numbers, first)] == 1)
+        miscounted = index != np.searchsorted(data_lines, numbers) + index_start
+        if (miscounted & ~trouble).any():  # the careful parser notes the first such row
+            again = np.union1d(again, numbers[miscounted & ~trouble])
+            trouble = trouble | miscounted
+    repairs: list[dict[str, Any]] = []
+    if bom:
+        repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
+    reader = _RowReader(
+        path, header, lines.text(1), again.size, lines.count, lines.ends_with_newline, repairs
+    )
+    reader.index_start = index_start
     for number in again.tolist():
+        if data_lines is not None:
+            reader.data_rows = int(np.searchsorted(data_lines, number))  # data lines before this one
         reader.read(number, lines.text(number))
     good = ~trouble
     n_good, n = int(good.sum()), reader.n
+    data_rows = data_lines.size if data_lines is not None else n_good + reader.data_rows
+    if header.trailing_comma:
+        reader.comma_rows += n_good  # pyarrow's rows all ended with the comma (an empty field)
+    if n == 0 and n_good == times.size:  # nothing to merge: pyarrow's rows are all the rows
+        return _finish(reader, times, values, status, numbers, data_rows, line_ending, strict)
     numbers = np.concatenate([numbers[good], reader.lines[:n]])
     order = np.argsort(numbers, kind="stable")
     where = np.empty(order.size, dtype=np.intp)  # each row's place in file order
@@ -571,8 +676,8 @@ def _read_mended(
         merged,
         np.concatenate([status[good], reader.status[:n]])[order],
         numbers[order],
-        n_good + reader.data_rows,
-        "\n",
+        data_rows,
+        line_ending,
         strict,
     )
 
@@ -602,6 +707,8 @@ def _shown(cell: str) -> str:
     return repr(cell.strip()[:40])
 
 
+# A cell of a row split at unquoted decimal commas: each piece of a value, and the count, is a whole number.
+_WHOLE_NUMBER = re.compile(r"\s*[+-]?\d+\s*", re.ASCII)
 # A row that is nothing but separators (and quotes): the empty rows of a spreadsheet's used range.
 _ONLY_SEPARATORS = re.compile(r'[\s,"]*')
 _COUNT = re.compile(r"\s*(\d+)(?:\.0*)?\s*", re.ASCII)
@@ -680,6 +787,7 @@ class _RowReader:
         self.data_rows = 0  # lines holding a row (not blank)
         self.comma_rows = 0  # rows whose comma ending the line was dropped (``trailing_comma``)
         self.index_start = 0  # what pandas' index column counts from (0, or 1 when its first row says so)
+        self.split_fields = 0  # fields of the first row whose values split at unquoted decimal commas
 
     def read(self, number: int, line: str) -> None:
         """Read line ``number`` of the file (a row, a blank line, or a damaged one)."""
@@ -716,6 +824,15 @@ class _RowReader:
             if number == self.last and not self.ends_with_newline and len(fields) < ncols:
                 message = f"last row cut short ({len(fields)} of {ncols} fields) dropped"
                 repair(self.repairs, number, "truncated_row", message)
+            elif len(fields) > ncols and all(_WHOLE_NUMBER.fullmatch(cell) for cell in fields[1:]):
+                # every cell past the timecode a whole number, and too many: values split at their decimal
+                # commas (a script writing "0,1421" unquoted into a comma-separated file)
+                if "unquoted_decimal_comma" not in seen:
+                    self.split_fields = len(fields)
+                seen.setdefault("unquoted_decimal_comma", _Seen()).add(",".join(fields[2:4]), number)
+                message = f"row has {len(fields)} fields, expected {ncols}"
+                message += " (decimal commas without quotes?): dropped"
+                repair(self.repairs, number, "wrong_fields", message)
             else:
                 message = f"row has {len(fields)} fields, expected {ncols}: dropped"
                 repair(self.repairs, number, "wrong_fields", message)
@@ -788,6 +905,15 @@ def _finish(
     ``status`` and line ``numbers`` of each row, what ``reader`` met), and its result: the notes of what was
     read with a repair, duplicate rows dropped, timecodes going back or jumping refused, other columns."""
     path, header, repairs, seen = reader.path, reader.header, reader.repairs, reader.seen
+    split = seen.get("unquoted_decimal_comma")
+    if split and (split.count > BAD_VALUE_SHARE * data_rows or not times.size):
+        raise InputError(
+            f"values written with a decimal comma and without quotes ({split.first()}): each splits in two "
+            f"fields ({reader.split_fields} fields where the header has {reader.ncols}; {split.count} of "
+            f"{data_rows} rows): save it with '.' as the decimal point, as the app writes it",
+            path,
+            split.line,
+        )
     _note_read_with_repairs(seen, header, reader.index_start, repairs)
     if strict and repairs:
         first = repairs[0]
@@ -857,8 +983,8 @@ def _row_values(
             pass
     vals = []
     for cell, column in zip(cells, columns):
-        value, how = _cell_value(cell)
-        if how:
+        value, hows = _cell_value(cell)
+        for how in hows:
             seen.setdefault(how, _Seen()).add(cell, number, column)
         vals.append(value)
     return vals
@@ -980,27 +1106,30 @@ _NUMBER_FORMATS = {
 _DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+", re.ASCII)
 
 
-def _cell_value(text: str) -> tuple[float, str | None]:
-    """A value cell as a float, and how a spreadsheet's locale wrote it when not as the app does (a key
-    of ``_NUMBER_FORMATS``); NaN when it is not a decimal number of ASCII digits in one of these ways."""
+def _cell_value(text: str) -> tuple[float, tuple[str, ...]]:
+    """A value cell as a float, and each way a spreadsheet's locale wrote it otherwise than the app does
+    (keys of ``_NUMBER_FORMATS``: ``"\u22120,5"`` is two); NaN when it is not a decimal number of ASCII
+    digits written in these ways."""
     try:
         if plain_number(text):
-            return float(text), None
+            return float(text), ()
     except ValueError:
         pass
-    cell, how = text.strip(), None  # str.strip also takes no-break and narrow spaces
+    cell, hows = text.strip(), []  # str.strip also takes no-break and narrow spaces
     if cell != text.strip(" \t"):
-        how = "spaces"
+        hows.append("spaces")
     if "\u2212" in cell:
-        cell, how = cell.replace("\u2212", "-"), "minus"
+        cell = cell.replace("\u2212", "-")
+        hows.append("minus")
     if _DECIMAL_COMMA.fullmatch(cell):
-        cell, how = cell.replace(",", "."), "decimal_comma"
-    if how is None or not plain_number(cell):
-        return math.nan, None
+        cell = cell.replace(",", ".")
+        hows.append("decimal_comma")
+    if not hows or not plain_number(cell):
+        return math.nan, ()
     try:
-        return float(cell), how
+        return float(cell), tuple(hows)
     except ValueError:
-        return math.nan, None
+        return math.nan, ()
 
 
 def fields_tc(seconds_of_day: float) -> str:
