@@ -10,7 +10,6 @@ import os
 import shutil
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import ROOT, run_cli
+from test_take_archives import _patched
 
 from capture.take_archive import UNPACK_PREFIX
 from viewer.inputs import read_input
@@ -207,17 +207,6 @@ def test_an_archive_in_an_archive_is_named_by_its_path(samples, tmp_path):
     assert "2 zip archive(s) (S07.zip, S88.zip)" in line and f"as {outer}/S07.zip" in line
     summary(view(tmp, "render", outer / "S07.zip", "-o", tmp_path / "x.png", "--size", 64, "--json"))
     assert unpacked_left(tmp) == []
-
-
-def _patched(path: Path, offset: int, fmt: str, value: int) -> None:
-    """Set a field of every local and central header (offset from a local header's signature)."""
-    data = bytearray(path.read_bytes())
-    for sig, extra in ((b"PK\x03\x04", 0), (b"PK\x01\x02", 2)):
-        start = 0
-        while (i := data.find(sig, start)) >= 0:
-            struct.pack_into(fmt, data, i + offset + extra, value)
-            start = i + 4
-    path.write_bytes(bytes(data))
 
 
 def test_hostile_and_unreadable_archives_are_one_line_and_write_nothing(samples, tmp_path):
