@@ -12,8 +12,11 @@ The rank and world size come from ``torch.distributed`` in the process that make
 dataset (or from ``rank``/``world_size``), and travel to DataLoader workers with the dataset: a
 spawned worker, where ``torch.distributed`` is not initialised, still reads its rank's share. Samples
 pass through a shuffle buffer (seeded by seed, epoch, rank and worker), are normalised with the
-manifest's statistics, and are cropped or padded to ``window`` frames with a mask (padding frames are
-masked out).
+manifest's statistics, and are cropped or padded to ``window`` frames. Two per-frame flags come along:
+``mask``, the frames whose animation is a target (usable: False on padding and on the frames the build
+marked unusable, a lost face or bad values), for losses and metrics; and ``present``, the frames of the
+sample (False on padding only), for a model's input, whose audio features are real at unusable frames
+too (at inference every frame is real: a model fed ``mask`` would train on inputs it never sees).
 
 Each sample is checked as it is decoded (cheaply: on the arrays already in memory), since the readers
 compare only a shard's size with the manifest, not its sha256: its members are there, its json is an
@@ -72,13 +75,15 @@ def _count(value: Any, what: str, where: Path, least: int | None, none: bool = F
 class ShardDataset(IterableDataset):
     """Samples of one split as dicts of tensors.
 
-    ``window``: frames per item (crop at a random start in training, pad with a zero mask when short);
-    None yields whole samples. ``features``: which features to load (a list of names, or one name;
-    default: all in the manifest). Each item: ``anim`` (window, channels) float32 (normalised when
-    ``normalize``), ``mask`` (window,) bool, one (window, dim) float32 tensor per feature (pitch:
-    per-speaker z-scored log-F0 and voicing; others z-scored), optionally ``audio`` (samples,) float32 at
-    16 kHz, ``key`` and ``speaker`` (the sample's, "" if none). ``manifest``: the dataset's manifest as
-    the caller read it (default: read here).
+    ``window``: frames per item (crop at a random start in training, pad with frames False in both
+    flags when short); None yields whole samples. ``features``: which features to load (a list of
+    names, or one name; default: all in the manifest). Each item: ``anim`` (window, channels) float32
+    (normalised when ``normalize``), ``mask`` (window,) bool, True on usable frames (the loss's and the
+    metrics': False on padding and on unusable frames), ``present`` (window,) bool, True on the
+    sample's frames (the model's input: False on padding only; ``mask`` implies it), one (window, dim)
+    float32 tensor per feature (pitch: per-speaker z-scored log-F0 and voicing; others z-scored),
+    optionally ``audio`` (samples,) float32 at 16 kHz, ``key`` and ``speaker`` (the sample's, "" if
+    none). ``manifest``: the dataset's manifest as the caller read it (default: read here).
 
     ``shuffle_buffer``: samples mixed at a time (0 or 1: none); ``shuffle_shards``: read the shards in
     an order shuffled by ``seed`` and the epoch (default: when ``shuffle_buffer`` > 1). ``rank`` and
@@ -374,7 +379,8 @@ class ShardDataset(IterableDataset):
         if self.normalize:
             neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
             anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * mask[:, None]
-        item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask}
+        present = np.ones(mask.shape, bool)  # every frame of the sample; False only on padding below
+        item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask, "present": present}
         item["speaker"] = str(meta.get("speaker") or "")
         for name in self.features:
             x = feats[name].astype(np.float32)
@@ -387,7 +393,7 @@ class ShardDataset(IterableDataset):
             w = self.window
             if n > w:
                 start = rng.randrange(n - w + 1) if self.random_crop else 0
-            for k in ("anim", "mask", *self.features):
+            for k in ("anim", "mask", "present", *self.features):
                 v = item[k][start : start + w]
                 if v.shape[0] < w:
                     pad = np.zeros((w - v.shape[0], *v.shape[1:]), v.dtype)

@@ -29,7 +29,7 @@ from capture.command import progress
 from capture.errors import InputError
 from dataset.manifest import dataset_folder, read_manifest, take_recordings
 
-from .data import resolve_inputs, to_model_inputs, utterances
+from .data import present_frames, resolve_inputs, to_model_inputs, utterances
 from .ridge import NormalEquations, Ridge
 
 MATRIX_TAKES = 30  # the take-by-take table is takes² scores: skipped above this many takes
@@ -78,7 +78,7 @@ def take_agreement(
     for take, item in _items(ds, splits, spec, take_of):
         content, prosody = to_model_inputs(item, spec)
         sums.setdefault(take, NormalEquations(n_in, spec.out_dim)).add(
-            model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"]
+            model.inputs(content, prosody, present_frames(item)), item["anim"], item["mask"]
         )
     takes = sorted(t for t, eq in sums.items() if eq.n > 0)
     if len(takes) < 2:
@@ -103,7 +103,7 @@ def take_agreement(
             continue
         content, prosody = to_model_inputs(item, spec)
         mask = item["mask"][0]
-        x = model.inputs(content, prosody, item["mask"])[0][mask]
+        x = model.inputs(content, prosody, present_frames(item))[0][mask]
         y = item["anim"][0][mask]
         frames[take] = frames.get(take, 0) + int(mask.sum())
         fits = {("loo", take): loto[take], **{("single", t): f for t, f in single.items()}}

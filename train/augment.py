@@ -10,8 +10,12 @@ after the reader's random window crop, on the training batches only:
 - ``aug_feature_masks`` × up to ``aug_feature_mask_width`` dims: SpecAugment feature masks, bands of
   content dimensions set to 0 for the whole window;
 - ``aug_mixup``: mixup (Zhang et al. 2018) with a Beta(a, a) weight per window: a window's inputs and
-  targets are blended with those of another window of the batch, frame by frame; masks are combined
-  (a frame counts when it is usable in both).
+  targets are blended with those of another window of the batch, frame by frame; the flags are
+  combined (a frame is a target when it is usable in both, and a model input when it is present in
+  both: a frame blended with padding is neither).
+
+Both flags travel through: ``mask`` (usable frames, the loss's) stays inside ``present`` (the sample's
+frames, the model's input), whatever the augmentation.
 
 Random numbers come from the global torch generator, which the checkpoint saves, so a resumed run
 draws the same masks as an uninterrupted one. Targets are untouched except by mixup.
@@ -53,9 +57,26 @@ def augment(
     mask: torch.Tensor,
     cfg: dict[str, Any],
 ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor, torch.Tensor]:
-    """Augmented (content, prosody, target, mask) of one training batch: content (B, T, C), prosody
-    (B, T, P) or None, target (B, T, channels), mask (B, T) bool. Inputs are not modified in place."""
+    """Augmented (content, prosody, target, mask) of a batch with one flag for both uses (``mask``
+    (B, T) bool); ``augment_frames`` keeps the reader's two apart."""
+    content, prosody, target, mask, _ = augment_frames(content, prosody, target, mask, mask, cfg)
+    return content, prosody, target, mask
+
+
+def augment_frames(
+    content: torch.Tensor,
+    prosody: torch.Tensor | None,
+    target: torch.Tensor,
+    mask: torch.Tensor,
+    present: torch.Tensor,
+    cfg: dict[str, Any],
+) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Augmented (content, prosody, target, mask, present) of one training batch: content (B, T, C),
+    prosody (B, T, P) or None, target (B, T, channels), ``mask`` (B, T) bool (usable frames: the
+    loss's), ``present`` (B, T) bool (the frames that are not padding: the model's). Inputs are not
+    modified in place."""
     b, t, c = content.shape
+    mask = mask & present  # a target frame is always an input frame
     if cfg["aug_noise"] > 0:
         content = content + cfg["aug_noise"] * torch.randn(content.shape).to(content)
     if cfg["aug_time_masks"] and cfg["aug_time_mask_width"]:
@@ -77,4 +98,5 @@ def augment(
             prosody = w.to(prosody) * prosody + (1 - w.to(prosody)) * prosody[perm]
         target = w.to(target) * target + (1 - w.to(target)) * target[perm]
         mask = mask & mask[perm]
-    return content, prosody, target, mask
+        present = present & present[perm]
+    return content, prosody, target, mask, present

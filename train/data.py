@@ -125,6 +125,14 @@ def to_model_inputs(
     return content, prosody
 
 
+def present_frames(item: dict[str, Any]) -> torch.Tensor:
+    """The (batched) item's frames that exist (the reader's ``present``: False on padding only), what a
+    model takes as its ``mask``; an item without it (made by other code) falls back to its ``mask``.
+    The loss and the metrics take ``item["mask"]`` (usable frames) instead."""
+    present = item.get("present")
+    return item["mask"] if present is None else present
+
+
 class TakeSubset(ShardDataset):
     """The samples of ``keys`` (sample keys) read from the shards of ``splits``; otherwise a
     ShardDataset (``random_crop`` as given, default: crop at random)."""

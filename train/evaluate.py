@@ -2,8 +2,10 @@
 
 ``rmse`` = root mean square error of DE-normalised coefficients (0..1 blendshape units) × 100, over the
 usable frames of an utterance (the dataset's raw samples, normalised and de-normalised with the RUN's
-statistics, so that a dataset built with other statistics gives the same numbers): ``entire`` over
-every channel of the dataset, ``crucial`` over jawOpen and mouthClose (paper Table 1). Reported as
+statistics, so that a dataset built with other statistics gives the same numbers; the model reads
+every frame, unusable ones included, as ``s2a-train predict`` does, and only the usable ones are
+scored): ``entire`` over every channel of the dataset, ``crucial`` over jawOpen and mouthClose (paper
+Table 1). Reported as
 mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
 floor predicts every frame as the training split's per-channel mean (from the manifest). ``rtf`` =
 seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
@@ -267,13 +269,14 @@ def evaluate(
         raw_feats = {f: item[f].numpy() for f in spec.features}
         feats = normalize_features(run_norm, raw_feats, item["speaker"])
         batch = {f: torch.from_numpy(x).unsqueeze(0) for f, x in feats.items()}
-        batch["mask"] = item["mask"].unsqueeze(0)
+        batch["mask"] = item["mask"].unsqueeze(0)  # the frames scored
+        batch["present"] = item["present"].unsqueeze(0)  # the frames the model sees: all of the sample
         batch["speaker"] = item["speaker"] or ""
         own_style += style is None and batch["speaker"] in spec.styles
         seen += 1
         content, prosody = to_model_inputs(batch, spec, style)
         mask = item["mask"].numpy()
-        pred_norm = infer(model, content, prosody, batch["mask"])[0].double().numpy()
+        pred_norm = infer(model, content, prosody, batch["present"])[0].double().numpy()
         if not np.all(np.isfinite(pred_norm)):
             raise InputError(NOT_FINITE, checkpoint_path(run))
         true = item["anim"].numpy().astype(np.float64)

@@ -10,6 +10,7 @@ form instead.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import json
@@ -31,7 +32,7 @@ from capture.errors import InputError
 from dataset.manifest import MANIFEST_FILE, dataset_folder
 from dataset.torch_dataset import check_shards
 
-from .augment import augment
+from .augment import augment_frames
 from .augment import enabled as augmenting
 from .checkpoint import (
     BEST,
@@ -49,11 +50,27 @@ from .checkpoint import (
     write_json,
 )
 from .config import DEFAULTS, RUN_RECORD_KEYS, check_config
-from .data import endless_batches, resolve_inputs, split_keys, to_model_inputs, train_dataset, utterances
+from .data import (
+    endless_batches,
+    present_frames,
+    resolve_inputs,
+    split_keys,
+    to_model_inputs,
+    train_dataset,
+    utterances,
+)
 from .ensemble import check_ensemble_run, fit_ensemble, refuse_beside_ensemble
 from .model import masked_mse
 from .ridge import NormalEquations
-from .run_dataset import DIFFERS, RUN_DATASET, DatasetWatch, recorded_takes, run_takes, take_changes
+from .run_dataset import (
+    DIFFERS,
+    RUN_DATASET,
+    DatasetWatch,
+    agreed_failure,
+    recorded_takes,
+    run_takes,
+    take_changes,
+)
 from .systems import build_model, check_sample_frames
 
 
@@ -122,15 +139,26 @@ def validation_loss(
     as the run read it when it started (default: read here)."""
     model.eval()
     se, n = 0.0, 0.0
-    for item in utterances(ds, "val", spec, cfg, manifest):
-        content, prosody = to_model_inputs(item, spec)
-        mask = item["mask"].to(device)
-        pred = model(content.to(device), None if prosody is None else prosody.to(device), mask)
-        m = mask.unsqueeze(-1).float()
-        err = (pred.float() - item["anim"].to(device)) ** 2
-        se += float(((err if weights is None else err * weights) * m).sum())
-        n += float(m.sum()) * pred.shape[-1]
-    model.train()
+    error = None
+    try:
+        for item in utterances(ds, "val", spec, cfg, manifest):
+            content, prosody = to_model_inputs(item, spec)
+            mask = item["mask"].to(device)  # the frames scored; the model sees every frame of the sample
+            present = present_frames(item).to(device)
+            pred = model(content.to(device), None if prosody is None else prosody.to(device), present)
+            m = mask.unsqueeze(-1).float()
+            err = (pred.float() - item["anim"].to(device)) ** 2
+            se += float(((err if weights is None else err * weights) * m).sum())
+            n += float(m.sum()) * pred.shape[-1]
+    except (InputError, OSError) as exc:  # under DDP: decided with the other ranks below
+        if not dist.is_initialized():
+            raise
+        error = exc
+    finally:
+        model.train()
+    error = agreed_failure(error, device)  # every rank read its share, or every rank stops
+    if error is not None:
+        raise error
     se, n = _all_sum([se, n], device)
     return se / n if n else float("nan")
 
@@ -159,7 +187,7 @@ def _fit_ridge(
     with watch.reading():
         for item in utterances(ds, "train", spec, cfg, manifest):
             content, prosody = to_model_inputs(item, spec)
-            eq.add(model.inputs(content, prosody, item["mask"]), item["anim"], item["mask"])
+            eq.add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["mask"])
             frames += int(item["mask"].sum())
     no_val = _no_validation(manifest, cfg)
     has_val = no_val is None
@@ -680,7 +708,8 @@ class MetricsLog:
         line, not that thread's traceback; the next call here raises it again and ends the run."""
         if issubclass(args.exc_type, OSError) and type(args.thread).__module__.startswith("tensorboard"):
             error = write_error(args.exc_value, self.events, "TensorBoard events")
-            print(f"s2a-train: warning: {error}", file=sys.stderr, flush=True)
+            with contextlib.suppress(OSError, ValueError):  # stderr closed by a caller: still no traceback
+                print(f"s2a-train: warning: {error}", file=sys.stderr, flush=True)
         else:
             self._hook(args)
 
@@ -708,18 +737,36 @@ def _stop_reason(step: int, cfg: dict[str, Any], early: bool, over: bool) -> str
     return "max_minutes" if over else None
 
 
+def _read_together(batches, world: int, device: torch.device):
+    """``next(batches)``; under DDP every rank's read succeeded, or every rank raises (its own error, or
+    the line of the rank that failed): a rank stopping alone would leave the others at the gradients'
+    all-reduce until the process group times out. One all-reduce of a flag per step."""
+    if world == 1:
+        return next(batches)
+    try:
+        got, error = next(batches), None
+    except (InputError, OSError) as exc:
+        got, error = None, exc
+    error = agreed_failure(error, device)
+    if error is not None:
+        raise error
+    return got
+
+
 def _train_step(net, model, batch, spec, cfg, weights, device):
     """Forward and backward of one batch (augmented as configured), gradients clipped; (mse, aux loss,
-    gradient norm before clipping, frame mask). The caller steps the optimizer once the norm is finite."""
+    gradient norm before clipping, usable-frame mask). The caller steps the optimizer once the norm is
+    finite. The model sees the batch's ``present`` frames, the loss scores its ``mask`` (usable ones)."""
     content, prosody = to_model_inputs(batch, spec, style_dropout=cfg["style_dropout"])
     content = content.to(device)
     prosody = None if prosody is None else prosody.to(device)
-    mask = batch["mask"].to(device)
+    mask = batch["mask"].to(device)  # usable frames: the loss's
+    present = present_frames(batch).to(device)  # frames that are not padding: the model's input
     target = batch["anim"].to(device)
     if augmenting(cfg):
-        content, prosody, target, mask = augment(content, prosody, target, mask, cfg)
+        content, prosody, target, mask, present = augment_frames(content, prosody, target, mask, present, cfg)
     with _autocast(cfg, device):
-        pred = net(content, prosody, mask)
+        pred = net(content, prosody, present)
     mse = masked_mse(pred.float(), target, mask, weights)
     aux = model.aux_loss().to(device) if hasattr(model, "aux_loss") else torch.zeros((), device=device)
     model.zero_grad(set_to_none=True)
@@ -892,7 +939,8 @@ def _fit(
         batches = endless_batches(data, cfg["batch_size"], epoch, batch_pos, cfg["seed"], check)
         while stopped is None:
             with watch.reading():  # a failed read checks manifest.json again
-                epoch, i, batch = next(batches)
+                # under DDP the ranks read their own shards: one failing alone stops them all
+                epoch, i, batch = _read_together(batches, world, device)
             lr = learning_rate(step, cfg)
             for g in optimizer.param_groups:
                 g["lr"] = lr

@@ -12,7 +12,10 @@ defaults, the rest (widths, depths) are ours where the paper is silent. Model co
 
 Every model takes ``(content, prosody, mask)``; ``mask`` (B, T) is bool, True on real frames (0/1
 integer or floating masks are converted, other values refused). A batch row with no real frame gives
-zeros, and ``masked_mse`` ignores it.
+zeros, and ``masked_mse`` ignores it. Real means the frame exists, not that its animation is a target:
+from the reader, the model takes ``present`` (False on padding only) and the loss takes ``mask``
+(usable frames), since the speech at a frame whose face was lost is real and at inference every frame
+is seen.
 """
 
 from __future__ import annotations
@@ -230,7 +233,10 @@ class BLSTM(nn.Module):
     def forward(self, content, prosody, mask):
         mask = check_inputs(content, prosody, mask, self.config.prosody_dim)
         x = torch.cat([content, prosody], dim=-1) if self.config.prosody_dim else content
-        lengths = mask.sum(dim=1).clamp(min=1).cpu()
+        x = x * mask.unsqueeze(-1).to(x.dtype)  # a frame inside a row that is not real reads as zeros
+        # each row runs up to its last real frame (padding sits at the end of a row)
+        positions = torch.arange(1, mask.shape[1] + 1, device=mask.device)
+        lengths = (positions * mask).amax(dim=1).clamp(min=1).cpu()
         packed = nn.utils.rnn.pack_padded_sequence(x, lengths, batch_first=True, enforce_sorted=False)
         y, _ = self.lstm(packed)
         y, _ = nn.utils.rnn.pad_packed_sequence(y, batch_first=True, total_length=x.shape[1])
@@ -281,7 +287,8 @@ def zero_empty_rows(out: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 def masked_mse(
     pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, weights: torch.Tensor | None = None
 ) -> torch.Tensor:
-    """Mean squared error over real frames only (``mask`` (B, T) True on real frames); ``weights``
+    """Mean squared error over the target frames only (``mask`` (B, T) True on usable frames: the
+    reader's ``mask``, not the model's ``present``); ``weights``
     (channels,) scales each channel's squared error (mean over channels of the weighted error). Whatever
     the padding holds (even NaN, or a row without a real frame) is ignored."""
     m = mask.unsqueeze(-1).to(pred.dtype)

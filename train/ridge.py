@@ -28,6 +28,8 @@ class Ridge(nn.Module):
         self.linear = nn.Linear(n_in, out_dim)
 
     def inputs(self, content: torch.Tensor, prosody: torch.Tensor | None, mask: torch.Tensor) -> torch.Tensor:
+        """Stacked inputs (B, T, (2·context + 1)·D), zero at frames ``mask`` says are not there (the
+        reader's ``present``: padding; unusable frames have real speech and stay)."""
         x = torch.cat([content, prosody], dim=-1) if self.prosody_dim else content
         return stack_frames(x * mask.unsqueeze(-1).to(x.dtype), self.context)
 
@@ -36,7 +38,8 @@ class Ridge(nn.Module):
 
 
 class NormalEquations:
-    """Running sums Σx, Σxxᵀ, Σxyᵀ, Σy over masked frames (float64)."""
+    """Running sums Σx, Σxxᵀ, Σxyᵀ, Σy over the frames of ``add``'s mask (usable frames: the reader's
+    ``mask``), float64."""
 
     def __init__(self, n_in: int, n_out: int):
         self.n = 0

@@ -272,6 +272,28 @@ class DatasetWatch:
             raise
 
 
+def agreed_failure(error: Exception | None, device: torch.device | str = "cpu") -> Exception | None:
+    """The error that stops every rank of a DDP run together, given the one this rank met reading its
+    share of the data (None: it read fine): its own when it met one, else an ``InputError`` with the
+    line of the first rank that did (naming that rank), None when no rank did. Under DDP each rank reads
+    its own shards: a rank that failed alone (a damaged sample, a shard gone) and stopped would leave the
+    others waiting at their next collective until it times out, and one that skipped it would train on
+    other data than its peers. One all-reduce of a flag, and a gather of the lines only on failure.
+    Without a process group of more than one rank: ``error``."""
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() < 2:
+        return error
+    flag = torch.tensor([0.0 if error is None else 1.0], dtype=torch.float32, device=device)
+    dist.all_reduce(flag)
+    if float(flag[0]) == 0:
+        return None
+    lines: list[Any] = [None] * dist.get_world_size()
+    dist.all_gather_object(lines, None if error is None else (isinstance(error, DatasetChanged), str(error)))
+    if error is not None:
+        return error
+    rank, (changed, line) = next((r, x) for r, x in enumerate(lines) if x is not None)
+    return (DatasetChanged if changed else InputError)(f"{line} (met by another rank: rank {rank})")
+
+
 def agreed_change(error: DatasetChanged | None, device: torch.device | str = "cpu") -> DatasetChanged | None:
     """The error that stops every rank of a DDP run together, given this rank's own ``error`` (its
     ``DatasetWatch.changed()``): its own when it saw the dataset change, another rank's line (saying
