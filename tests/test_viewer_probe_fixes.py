@@ -400,8 +400,7 @@ def test_a_failed_render_probe_under_a_low_memory_limit_says_so(monkeypatch):
     probe_module = importlib.import_module("viewer.probe")  # the package's `probe` is the function
     crashed = subprocess.CompletedProcess([], -11, "", "")
     monkeypatch.setattr(probe_module, "_RESULT", None)
-    monkeypatch.setattr(probe_module, "_STARTED", None)
-    monkeypatch.setattr(probe_module, "_outcome", lambda _window, _timeout: crashed)
+    monkeypatch.setattr(probe_module.subprocess, "run", lambda *a, **k: crashed)
     monkeypatch.setattr(resource, "getrlimit", lambda _which: (800 << 20, resource.RLIM_INFINITY))
     with pytest.raises(probe_module.RenderUnavailable, match=r"at most 800 MB \(ulimit -v\)"):
         probe_module.probe()
@@ -409,29 +408,3 @@ def test_a_failed_render_probe_under_a_low_memory_limit_says_so(monkeypatch):
     with pytest.raises(probe_module.RenderUnavailable) as no_limit:
         probe_module.probe()
     assert str(no_limit.value).startswith("offscreen rendering is not available")
-
-
-def test_a_probe_started_early_is_the_one_collected(monkeypatch):
-    """``start`` begins the probe's child while a command loads its inputs; ``probe`` waits for that child
-    rather than starting another, and one begun for a window no longer asked for is ended unused."""
-    import importlib
-
-    probe_module = importlib.import_module("viewer.probe")
-    monkeypatch.setattr(probe_module, "_RESULT", None)
-    monkeypatch.setattr(probe_module, "_STARTED", None)
-    monkeypatch.delenv(probe_module.WINDOW_ENV, raising=False)
-    spawned = []
-    real_spawn = probe_module._spawn
-    monkeypatch.setattr(probe_module, "_spawn", lambda w: spawned.append(w) or real_spawn(w))
-    probe_module.start()
-    child = probe_module._STARTED[1]
-    assert spawned == [probe_module.CANDIDATES[0]]
-    info = probe_module.probe()
-    assert spawned == [probe_module.CANDIDATES[0]] and child.returncode == 0 and info["nonblank"]
-    monkeypatch.setattr(probe_module, "_RESULT", None)
-    probe_module.start()
-    early = probe_module._STARTED[1]
-    monkeypatch.setenv(probe_module.WINDOW_ENV, probe_module.CANDIDATES[0] + "-asked-since")
-    with pytest.raises(probe_module.RenderUnavailable):
-        probe_module.probe()  # a window class VTK does not know: asked, and refused
-    assert early.returncode is not None and spawned[-1].endswith("-asked-since")

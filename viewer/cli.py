@@ -218,10 +218,8 @@ def _outside(what: str, start: float, end: float, lo: float, hi: float, shown: s
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .probe import probe, start
-
-    start()  # the rendering probe's child runs while the inputs load (about 2 s of VTK start-up)
     from .inputs import livelink_coverage, missing_face_channels
+    from .probe import probe
     from .render import (
         FaceRenderer,
         ReferenceVideo,

@@ -8,7 +8,6 @@ needs the ``vtk-osmesa`` wheel) and reports the first that draws something. The 
 
 from __future__ import annotations
 
-import atexit
 import json
 import os
 import subprocess
@@ -28,7 +27,6 @@ INSTALL_HINT = (
 )
 
 _RESULT: dict | None = None
-_STARTED: tuple[str, subprocess.Popen] | None = None  # a probe begun by ``start``: its window and child
 
 
 class RenderUnavailable(S2AError):
@@ -48,53 +46,6 @@ def _child(window: str) -> None:
     print(json.dumps({"window": cls, "nonblank": bool(img.max() > 0), "shape": list(img.shape)}))
 
 
-def _spawn(window: str) -> subprocess.Popen:
-    code = f"from viewer.probe import _child; _child({window!r})"
-    return subprocess.Popen(
-        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-
-
-def start() -> None:
-    """Begin the probe of the first window class in the background: a command that will render calls this
-    first, so that the child's seconds (VTK's import, a GL context) pass while the command loads its
-    inputs. ``probe`` collects the answer; a child not collected is ended when this process exits."""
-    global _STARTED
-    if _RESULT is not None or _STARTED is not None:
-        return
-    window = os.environ.get(WINDOW_ENV) or CANDIDATES[0]
-    try:
-        _STARTED = (window, _spawn(window))
-    except OSError:  # no process to spare (file descriptors, memory): ``probe`` asks again, in turn
-        return
-    atexit.register(lambda: _STARTED is not None and _end(_STARTED[1]))
-
-
-def _end(child: subprocess.Popen) -> None:
-    if child.poll() is None:
-        child.kill()
-    child.communicate()
-
-
-def _outcome(window: str, timeout_s: float) -> subprocess.CompletedProcess | None:
-    """The child's exit status and output for ``window`` (the one ``start`` began, if it is that window);
-    ``None`` when it timed out."""
-    global _STARTED
-    started, _STARTED = _STARTED, None
-    child = started[1] if started is not None and started[0] == window else _spawn(window)
-    if started is not None and child is not started[1]:  # WINDOW_ENV set since: that one is asked
-        _end(started[1])
-    try:
-        out, err = child.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        _end(child)
-        return None
-    except BaseException:  # Ctrl-C while waiting: the child goes with this process
-        _end(child)
-        raise
-    return subprocess.CompletedProcess(child.args, child.returncode, out, err)
-
-
 def probe(timeout_s: float = 120.0) -> dict:
     """The first working window class as ``{"window": ..., ...}``; ``RenderUnavailable`` otherwise.
 
@@ -106,8 +57,12 @@ def probe(timeout_s: float = 120.0) -> dict:
     tried = []
     requested = os.environ.get(WINDOW_ENV)
     for window in (requested,) if requested else CANDIDATES:
-        proc = _outcome(window, timeout_s)
-        if proc is None:
+        code = f"from viewer.probe import _child; _child({window!r})"
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout_s
+            )
+        except subprocess.TimeoutExpired:
             tried.append(f"{window}: timed out")
             continue
         line = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
