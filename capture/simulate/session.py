@@ -316,9 +316,10 @@ def _same_takes_there(out_dir: Path, specs: list[TakeSpec]) -> dict[tuple[int, i
         made[spec.take_key] = sim
     if other:
         more = f" and {len(other) - 3} more" if len(other) > 3 else ""
+        verb = "is" if len(other) == 1 else "are"
         raise InputError(
-            f"{counted(len(other), 'take folder')} this simulation writes {'is' if len(other) == 1 else 'are'}"
-            f" there already, holding other takes ({', '.join(other[:3])}{more}: simulated with other "
+            f"{counted(len(other), 'take folder')} this simulation writes {verb} there already, holding "
+            f"other takes ({', '.join(other[:3])}{more}: simulated with other "
             "settings, or recorded): simulate into another folder, or move them away first",
             out_dir,
         )
