@@ -68,13 +68,14 @@ def write_aligned_set(root: Path, count: int = 6, speakers: int = 2, seconds: fl
     return root
 
 
-def build_five_take_dataset(root: Path) -> Path:
+def build_five_take_dataset(root: Path, gap: tuple[int, int] | None = None) -> Path:
     """``root/ds``: five aligned 2 s takes of two speakers, pitch, energy and filter banks, 1 s samples;
-    take03 validates, take04 tests, take00-02 train (the train stage's small adversity datasets)."""
+    take03 validates, take04 tests, take00-02 train (the train stage's small adversity datasets).
+    ``gap``: frames where each take lost the face (``make_aligned_take``)."""
     from dataset import BuildOptions, build_dataset
     from dataset.splits import SplitRule
 
-    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
+    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0, gap=gap)
     options = BuildOptions(
         features=("pitch", "energy", "fbank"),
         split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),

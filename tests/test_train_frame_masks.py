@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import run_gloo_ranks
-from dataset_helpers import make_aligned_take, write_aligned_set
+from dataset_helpers import build_five_take_dataset, make_aligned_take
 from torch.utils.data import DataLoader
 
 from capture import write_take
@@ -47,25 +47,14 @@ SAMPLE = 60  # frames per sample (1 s at 60 fps)
 WINDOW = 80  # a training window longer than a sample: 20 frames of padding
 
 
-def _build(root, gap):
-    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0, gap=gap)
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"),
-        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
-        max_sample_s=1.0,
-    )
-    build_dataset([takes], root / "ds", options, say=lambda _m: None)
-    return root / "ds"
-
-
 @pytest.fixture(scope="module")
 def gappy(tmp_path_factory):
-    return _build(tmp_path_factory.mktemp("gappy"), GAP)
+    return build_five_take_dataset(tmp_path_factory.mktemp("gappy"), GAP)
 
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory):
-    return _build(tmp_path_factory.mktemp("clean"), None)
+    return build_five_take_dataset(tmp_path_factory.mktemp("clean"))
 
 
 def _manifest(ds):

@@ -1,6 +1,6 @@
 """The build of a dataset a run trains on: manifest.json's sha256 and the takes that train and validate
 the run (the checkpoint's ``dataset`` entry). During training a rebuild of the dataset stops the run
-(``DatasetWatch``; under DDP every rank together, ``agreed_change``); a resumed run whose validation
+(``DatasetWatch``; under DDP every rank together, ``agreed_failure``); a resumed run whose validation
 takes changed restarts best_val; evaluation names the takes the run trained on (``leaked_takes``)."""
 
 from __future__ import annotations
@@ -234,9 +234,9 @@ class DatasetWatch:
             raise error
 
     def check_together(self, device: torch.device | str = "cpu") -> None:
-        """``check`` decided by every rank of a DDP run at once (``agreed_change``): every rank raises,
+        """``check`` decided by every rank of a DDP run at once (``agreed_failure``): every rank raises,
         or none does. Each rank must call it at the same point of the run (it holds a collective)."""
-        error = agreed_change(self.changed(), device)
+        error = agreed_failure(self.changed(), device)
         if error is not None:
             raise error
 
@@ -273,13 +273,15 @@ class DatasetWatch:
 
 
 def agreed_failure(error: Exception | None, device: torch.device | str = "cpu") -> Exception | None:
-    """The error that stops every rank of a DDP run together, given the one this rank met reading its
-    share of the data (None: it read fine): its own when it met one, else an ``InputError`` with the
-    line of the first rank that did (naming that rank), None when no rank did. Under DDP each rank reads
-    its own shards: a rank that failed alone (a damaged sample, a shard gone) and stopped would leave the
-    others waiting at their next collective until it times out, and one that skipped it would train on
-    other data than its peers. One all-reduce of a flag, and a gather of the lines only on failure.
-    Without a process group of more than one rank: ``error``."""
+    """The error that stops every rank of a DDP run together, given this rank's own (None: it met none):
+    its own when it met one, else another rank's line (naming that rank), None when no rank met one.
+    Each rank reads its own shards and checks manifest.json when it gets there: a rank that failed alone
+    (a damaged sample, a shard gone, a rebuild landing between two ranks' checks) and stopped would leave
+    the others waiting at their next collective until it times out, and one that skipped a sample would
+    train on other data than its peers. One all-reduce of a flag (on ``device``: the process group's,
+    cuda for nccl), and a gather of the lines only on failure. A ``DatasetChanged`` met by another rank
+    is one here too; any other error an ``InputError``. Without a process group of more than one rank:
+    ``error``."""
     if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() < 2:
         return error
     flag = torch.tensor([0.0 if error is None else 1.0], dtype=torch.float32, device=device)
@@ -291,26 +293,6 @@ def agreed_failure(error: Exception | None, device: torch.device | str = "cpu") 
     if error is not None:
         return error
     rank, (changed, line) = next((r, x) for r, x in enumerate(lines) if x is not None)
-    return (DatasetChanged if changed else InputError)(f"{line} (met by another rank: rank {rank})")
-
-
-def agreed_change(error: DatasetChanged | None, device: torch.device | str = "cpu") -> DatasetChanged | None:
-    """The error that stops every rank of a DDP run together, given this rank's own ``error`` (its
-    ``DatasetWatch.changed()``): its own when it saw the dataset change, another rank's line (saying
-    which rank saw it) when only another one did, None when none did. Each rank checks manifest.json
-    when it gets there, so a rebuild landing between two ranks' checks is seen by one of them only; a
-    rank stopping alone would leave the others waiting at their next collective until it times out.
-    One all-reduce of a flag (on ``device``: the process group's, cuda for nccl), and a gather of the
-    lines only when a rank saw a change. Without a process group of more than one rank: ``error``."""
-    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() < 2:
-        return error
-    flag = torch.tensor([0.0 if error is None else 1.0], dtype=torch.float32, device=device)
-    dist.all_reduce(flag)
-    if float(flag[0]) == 0:
-        return None
-    lines: list[Any] = [None] * dist.get_world_size()
-    dist.all_gather_object(lines, None if error is None else str(error))
-    if error is not None:
-        return error
-    rank, line = next((r, x) for r, x in enumerate(lines) if isinstance(x, str))
-    return DatasetChanged(f"{line} (seen by another rank: rank {rank})")
+    if changed:
+        return DatasetChanged(f"{line} (seen by another rank: rank {rank})")
+    return InputError(f"{line} (met by another rank: rank {rank})")
