@@ -437,7 +437,7 @@ def _table_rows(
     columns = header.columns
     n = table.num_rows
     tc = table.column("tc").combine_chunks()
-    offsets = np.frombuffer(tc.buffers()[1], dtype=np.int32)[tc.offset : tc.offset + n + 1]
+    offsets = _offsets(tc)
     chars = np.frombuffer(tc.buffers()[2], dtype=np.uint8)
     app_width = np.diff(offsets) == 15
     times = np.full(n, np.nan)
@@ -479,9 +479,7 @@ def _table_rows(
         trouble |= zero
     if header.trailing_comma:
         comma = table.column("comma").combine_chunks()
-        trouble |= (
-            np.diff(np.frombuffer(comma.buffers()[1], np.int32)[comma.offset : comma.offset + n + 1]) > 0
-        )
+        trouble |= np.diff(_offsets(comma)) > 0
     index = (
         _index_numbers(table.column("index").combine_chunks()) if header.index_column is not None else None
     )
@@ -496,18 +494,21 @@ def _index_numbers(cells: Any) -> np.ndarray:
 
     digits = _only_digits(cells)
     if len(cells):
-        lengths = np.diff(
-            np.frombuffer(cells.buffers()[1], np.int32)[cells.offset : cells.offset + len(cells) + 1]
-        )
+        lengths = np.diff(_offsets(cells))
         digits &= ~(pc.starts_with(cells, "0").to_numpy(zero_copy_only=False) & (lengths > 1))
     numbers = pc.cast(pc.if_else(pa.array(digits), cells, "0"), pa.int64()).to_numpy()
     return np.where(digits, numbers, -1)
 
 
+def _offsets(cells: Any) -> np.ndarray:
+    """Where each cell of a pyarrow string array starts in its data buffer, and where the last ends (n + 1
+    int32 offsets, read from its buffers: no copy)."""
+    return np.frombuffer(cells.buffers()[1], dtype=np.int32)[cells.offset : cells.offset + len(cells) + 1]
+
+
 def _only_digits(cells: Any) -> np.ndarray:
     """Which of a pyarrow string array's cells are 1 to 9 decimal digits, from its buffers (no copy)."""
-    n = len(cells)
-    offsets = np.frombuffer(cells.buffers()[1], dtype=np.int32)[cells.offset : cells.offset + n + 1]
+    offsets = _offsets(cells)
     chars = np.frombuffer(cells.buffers()[2], dtype=np.uint8)[offsets[0] : offsets[-1]]
     lengths = np.diff(offsets)
     other = (chars < ord("0")) | (chars > ord("9"))

@@ -30,6 +30,7 @@ from .replay import Impairment, format_destination, parse_destination, replay_ta
 from .serial_sync import SerialSync, open_serial
 from .session_takes import build_takes, find_sessions
 from .take import Take, is_take_dir, read_meta, read_take
+from .workers import process_runs
 
 # Held (flock) by ``listen`` in the session folder from before the recorder opens until the takes are
 # built: ``recover`` leaves a session whose lock is held alone.
@@ -416,15 +417,7 @@ def _recorder_running(record: dict[str, Any]) -> bool:
         return False
     if os.name != "posix" or host != socket.gethostname():
         return False
-    try:
-        os.kill(pid, 0)  # signal 0: only asks whether the process exists
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process: it exists
-        pass
-    except OSError:
-        return False
-    return _is_recorder(pid, record)
+    return process_runs(pid) and _is_recorder(pid, record)
 
 
 def _session_in_use(session: Path) -> tuple[str | None, int | None]:

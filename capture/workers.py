@@ -48,15 +48,22 @@ def exit_with_parent(parent_pid: int) -> None:
         else:
             while True:
                 time.sleep(0.5)
-                try:
-                    os.kill(parent_pid, 0)
-                except ProcessLookupError:
+                if not process_runs(parent_pid):
                     break
-                except OSError:
-                    pass
         os._exit(1)
 
     threading.Thread(target=watch, name="s2a-exit-with-parent", daemon=True).start()
+
+
+def process_runs(pid: int) -> bool:
+    """Whether process ``pid`` exists (signal 0 only asks); another user's process does."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: another user's process
+        return True
+    return True
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:

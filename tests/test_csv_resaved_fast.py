@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import SAMPLES
-from test_csv_long_damaged import assert_same
+from test_csv_long_damaged import assert_same, read_counting_careful_lines
 
 from capture import csv_take
 from capture.csv_take import CsvRows, _read_careful, read_csv_rows
@@ -188,19 +188,11 @@ def test_a_resaved_file_costs_what_the_apps_does_in_the_per_row_reader(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Only the damaged lines go through the careful parser's per-row logic, as in the app's own file."""
-    calls = []
-    read = csv_take._RowReader.read
-
-    def counting(self: csv_take._RowReader, number: int, line: str) -> None:
-        calls.append(number)
-        read(self, number, line)
-
-    monkeypatch.setattr(csv_take._RowReader, "read", counting)
     lines = damage(REAL["S07"].read_text().splitlines())
     path = tmp_path / "t.csv"
     path.write_bytes(resave(lines, WAYS))
-    read_csv_rows(path)
-    assert 5 <= len(calls) <= 12
+    _, careful_lines = read_counting_careful_lines(path, monkeypatch)
+    assert 5 <= careful_lines <= 12
 
 
 # Unquoted decimal commas: each value splits in two fields.

@@ -41,6 +41,7 @@ from capture.take import FrameStatus, is_take_dir
 from capture.take_archive import UNPACK_PREFIX, Unpacked, unpacked
 from capture.take_folder import choose_csv
 from capture.transfer_litter import Litter, is_zip
+from capture.workers import process_runs
 from dataset.qa import ANIM_LIMIT
 
 ABSURD = ANIM_LIMIT  # |value| above this is no blendshape weight nor angle in radians
@@ -206,18 +207,8 @@ def _clear_orphans() -> None:
         return
     for p in leftovers:
         pid = p.name[len(_PREFIX) :].split("-", 1)[0]
-        if pid.isdigit() and int(pid) != os.getpid() and not _runs(int(pid)):
+        if pid.isdigit() and int(pid) != os.getpid() and not process_runs(int(pid)):
             shutil.rmtree(p, ignore_errors=True)
-
-
-def _runs(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # EPERM: another user's process
-        return True
-    return True
 
 
 @contextmanager
@@ -237,10 +228,16 @@ def shown(text: object) -> str:
     """``text`` (a path, a message) with the folders archives were unpacked into named as the archives'
     members (``takes.zip/T/T.csv``), as the user knows them."""
     out = str(text)
-    for session in _sessions:
-        for box in reversed(session.boxes):  # an archive in an archive first: its name holds the outer
-            out = box.shown(out)
+    for box in _boxes():
+        out = box.shown(out)
     return out
+
+
+def _boxes() -> Iterator[Unpacked]:
+    """The archives unpacked, an archive in an archive before the one holding it (its folder lies in the
+    outer one's)."""
+    for session in _sessions:
+        yield from reversed(session.boxes)
 
 
 def archive_member(path: Path) -> tuple[Path, PurePosixPath] | None:
@@ -310,9 +307,8 @@ def shown_in_page(page: str) -> str:
     """``shown`` for an HTML page, whose paths are escaped."""
     import html
 
-    for session in _sessions:
-        for box in reversed(session.boxes):
-            page = page.replace(html.escape(str(box.folder)), html.escape(box.name))
+    for box in _boxes():
+        page = page.replace(html.escape(str(box.folder)), html.escape(box.name))
     return page
 
 
