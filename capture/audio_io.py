@@ -7,6 +7,7 @@ a take's audio round-trips exactly.
 
 from __future__ import annotations
 
+import io
 import math
 import struct
 from dataclasses import dataclass
@@ -118,7 +119,10 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     ``truncated_audio``) and one whose header declares none although samples follow is read to its end
     (repair ``unfinished_audio``); without it, non-finite samples and unfinished WAVs are an
     ``InputError``. AAC or MP3 whose file does not record the encoder's delay (raw ADTS ``.aac``, an MP3
-    without a LAME tag) keeps it at its start: noted as repair ``encoder_delay_unknown``."""
+    without a LAME tag) keeps it at its start: noted as repair ``encoder_delay_unknown``. An .mp3 of several
+    files joined end to end (``cat a.mp3 b.mp3``) is read whole, each file without its own encoder delay
+    and padding, the later ones mixed to the first one's channel count (repair ``channels_changed``); one
+    whose sample rate changes is an ``InputError`` saying where."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -131,6 +135,12 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     except (sf.LibsndfileError, RuntimeError, TypeError):
         info = None
     if info is not None:
+        if info.subtype.startswith("MPEG_LAYER"):
+            data = path.read_bytes()
+            runs = mpeg_runs(data)
+            if len(runs) > 1:  # joined files, or a change of channels: libsndfile would stop there
+                return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
+            del data
         dtype = _NATIVE.get(info.subtype, "float32")
         subtype = info.subtype if info.subtype in _NATIVE else "FLOAT"
         try:
@@ -349,41 +359,88 @@ def _to_channels(samples: np.ndarray, channels: int) -> np.ndarray:
     return np.repeat(mixed, channels, axis=1)
 
 
-def decode_with_pyav(
-    path: str | Path, stream_index: int = 0, repairs: list[dict[str, Any]] | None = None
-) -> Audio:
-    """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...).
+def _one_layout(chunks: list[np.ndarray]) -> tuple[np.ndarray, int, int]:
+    """Decoded chunks (frames x channels) joined, each mixed to the first chunk's channel count; with the
+    number of samples that were mixed and the sample where the first of them starts."""
+    channels = chunks[0].shape[1]
+    changed, first_changed, at = 0, 0, 0
+    for i, arr in enumerate(chunks):
+        if arr.shape[1] != channels:
+            first_changed = first_changed if changed else at
+            changed += len(arr)
+            chunks[i] = _to_channels(arr, channels)
+        at += len(arr)
+    return np.concatenate(chunks, axis=0), changed, first_changed
 
-    FFmpeg drops the encoder's priming samples at the start (the edit list); the padding that fills the
-    last coded frame (AAC: up to 1023 samples) is cut here, where the container's stream duration ends
-    inside that frame (AAC only: other codecs trim their own padding, and an MP3's duration may be an
-    estimate). A file that records no delay keeps it: noted in ``repairs`` (``note_unknown_delay``)."""
+
+def _note_channels_changed(
+    path: Path, repairs: list[dict[str, Any]] | None, changed: int, at: int, rate: int, channels: int
+) -> None:
+    if repairs is not None and changed:
+        repairs.append(
+            {
+                "line": None,
+                "kind": "channels_changed",
+                "message": f"{path.name}: the audio's channel count changes mid-stream (from "
+                f"{at / rate:.3f} s): {changed} samples were mixed to the first frame's "
+                f"{channels} channel(s)",
+            }
+        )
+
+
+@dataclass
+class _Decoded:
+    """What FFmpeg decoded from one audio stream, before its chunks are joined."""
+
+    chunks: list[np.ndarray]  # frames x channels, one per decoded frame
+    rate: int
+    sample_format: str  # FFmpeg's sample format of the last frame, planar or not: s16, s32, u8, flt ...
+    last_frame: int  # samples of the last decoded frame
+    declared: int | None  # samples the container declares (AAC only), None when unknown
+    damaged: int = 0  # packets FFmpeg could not decode (only when asked to skip them): silence in their place
+
+
+def _decode_frames(
+    source: str | IO[bytes],
+    path: Path,
+    stream_index: int,
+    repairs: list[dict[str, Any]] | None,
+    skip_damaged: bool = False,
+) -> _Decoded:
+    """Every frame of one audio stream of ``source`` (a file name, or an MP3 held in memory), decoded by
+    FFmpeg; an undecodable stream is an ``InputError`` naming ``path`` (with ``skip_damaged``, a packet
+    FFmpeg cannot decode is counted and replaced by silence of its duration, so the sound after it keeps its
+    time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
-    path = Path(path)
     try:
-        with av.open(str(path)) as container:
+        with av.open(source, format=None if isinstance(source, str) else "mp3") as container:
             streams = container.streams.audio
             if not streams:
                 raise InputError("file has no audio stream", path)
             stream = streams[stream_index]
             chunks = []
-            fmt = None
+            fmt = "flt"
             last_frame = 0
             first_pts = None
-            changed = 0  # samples decoded with another channel count than the first frame's
+            damaged = 0
             for packet in container.demux(stream):
                 first_pts = packet.pts if first_pts is None else first_pts
-                for frame in packet.decode():
-                    fmt, last_frame = frame.format, frame.samples
+                try:
+                    frames = packet.decode()
+                except av.InvalidDataError:
+                    if not skip_damaged:
+                        raise
+                    damaged += 1
+                    chunks.append(_silence_of(packet, stream, chunks))
+                    continue
+                for frame in frames:
+                    fmt, last_frame = frame.format.name, frame.samples
                     arr = frame.to_ndarray()
-                    if fmt.is_planar:
+                    if frame.format.is_planar:
                         arr = arr.T
                     else:
                         arr = arr.reshape(-1, len(frame.layout.channels))
-                    if chunks and arr.shape[1] != chunks[0].shape[1]:
-                        changed += len(arr)
-                        arr = _to_channels(arr, chunks[0].shape[1])
                     chunks.append(arr)
             rate = stream.rate or stream.codec_context.sample_rate
             # AAC only: an MP3's duration may be an estimate from its bit rate
@@ -395,16 +452,6 @@ def decode_with_pyav(
             )
             if repairs is not None:
                 note_unknown_delay(path, repairs, stream, first_pts)
-                if changed:
-                    repairs.append(
-                        {
-                            "line": None,
-                            "kind": "channels_changed",
-                            "message": f"{path.name}: the audio's channel count changes mid-stream: "
-                            f"{changed} samples were mixed to the first frame's "
-                            f"{chunks[0].shape[1]} channel(s)",
-                        }
-                    )
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:
@@ -412,19 +459,304 @@ def decode_with_pyav(
         # the text is what tells the user something
         why = getattr(exc, "strerror", None) or str(exc)
         raise InputError(f"audio could not be decoded (a truncated or damaged file?): {why}", path) from None
-    if not chunks:
-        raise InputError("audio stream holds no samples", path)
-    data = np.concatenate(chunks, axis=0)
-    if declared is not None and 0 < data.shape[0] - declared < last_frame:
-        data = data[:declared]  # the last frame's padding
-    name = fmt.name.rstrip("p") if fmt is not None else "flt"
-    if name == "s16":
+    return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged)
+
+
+def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray]) -> np.ndarray:
+    """Silence as long as an undecodable packet (none when its duration is unknown), in the layout of what
+    was decoded before it."""
+    rate = stream.rate or stream.codec_context.sample_rate
+    seconds = float(packet.duration * packet.time_base) if packet.duration and packet.time_base else 0.0
+    channels = chunks[-1].shape[1] if chunks else stream.codec_context.channels
+    return np.zeros((round(seconds * rate), channels), chunks[-1].dtype if chunks else np.float32)
+
+
+def _in_recorded_format(data: np.ndarray, rate: int, sample_format: str) -> Audio:
+    if sample_format == "s16":
         return Audio(data.astype(np.int16, copy=False), rate, "PCM_16")
-    if name == "s32":
+    if sample_format == "s32":
         return Audio(data.astype(np.int32, copy=False), rate, "PCM_32")
-    if name == "u8":
+    if sample_format == "u8":
         return Audio((data.astype(np.float32) - 128.0) / 128.0, rate, "FLOAT")
     return Audio(data.astype(np.float32, copy=False), rate, "FLOAT")
+
+
+def decode_with_pyav(
+    path: str | Path, stream_index: int = 0, repairs: list[dict[str, Any]] | None = None
+) -> Audio:
+    """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...).
+
+    FFmpeg drops the encoder's priming samples at the start (the edit list); the padding that fills the
+    last coded frame (AAC: up to 1023 samples) is cut here, where the container's stream duration ends
+    inside that frame (AAC only: other codecs trim their own padding, and an MP3's duration may be an
+    estimate). A file that records no delay keeps it: noted in ``repairs`` (``note_unknown_delay``).
+    Audio whose channel count changes mid-stream is mixed to the first frame's (repair
+    ``channels_changed``)."""
+    path = Path(path)
+    decoded = _decode_frames(str(path), path, stream_index, repairs)
+    if not decoded.chunks:
+        raise InputError("audio stream holds no samples", path)
+    data, changed, at = _one_layout(decoded.chunks)
+    _note_channels_changed(path, repairs, changed, at, decoded.rate, data.shape[1])
+    declared = decoded.declared
+    if declared is not None and 0 < data.shape[0] - declared < decoded.last_frame:
+        data = data[:declared]  # the last frame's padding
+    return _in_recorded_format(data, decoded.rate, decoded.sample_format)
+
+
+# MPEG audio frame headers (ISO/IEC 11172-3, 13818-3 and the MPEG 2.5 extension): 11 sync bits, then the
+# version (2 bits: 3 MPEG-1, 2 MPEG-2, 0 MPEG-2.5), layer (3 - bits), CRC flag; bitrate index, sample rate
+# index, padding, private bit; channel mode (3: mono), mode extension, flags. Bit rates in kbit/s.
+_MPEG_RATES = {3: (44100, 48000, 32000), 2: (22050, 24000, 16000), 0: (11025, 12000, 8000)}
+_MPEG1_KBPS = {
+    1: (32, 64, 96, 128, 160, 192, 224, 256, 288, 320, 352, 384, 416, 448),
+    2: (32, 48, 56, 64, 80, 96, 112, 128, 160, 192, 224, 256, 320, 384),
+    3: (32, 40, 48, 56, 64, 80, 96, 112, 128, 160, 192, 224, 256, 320),
+}
+_MPEG2_KBPS = {
+    1: (32, 48, 56, 64, 80, 96, 112, 128, 144, 160, 176, 192, 224, 256),
+    2: (8, 16, 24, 32, 40, 48, 56, 64, 80, 96, 112, 128, 144, 160),
+    3: (8, 16, 24, 32, 40, 48, 56, 64, 80, 96, 112, 128, 144, 160),
+}
+# a frame header's second and third bytes -> (frame bytes, samples per channel, sample rate, layer, format
+# bits, where a Xing/Info header's text would start (stereo, mono), where the side information starts)
+_MpegFrame = tuple[int, int, int, int, int, tuple[int, int], int]
+_MPEG_FRAMES: dict[int, _MpegFrame] = {}
+
+
+def _mpeg_frame_table() -> dict[int, _MpegFrame]:
+    """Every valid combination of a header's second and third bytes (free-format bit rates left out: their
+    frame size is not in the header), computed once."""
+    if _MPEG_FRAMES:
+        return _MPEG_FRAMES
+    for version, rates in _MPEG_RATES.items():
+        for layer in (1, 2, 3):
+            kbps = (_MPEG1_KBPS if version == 3 else _MPEG2_KBPS)[layer]
+            samples = 384 if layer == 1 else 1152 if layer == 2 or version == 3 else 576
+            side = (32, 17) if version == 3 else (17, 9)  # layer III side information: stereo, mono
+            for b1 in range(0xE0, 0x100):
+                if (b1 >> 3) & 3 != version or 4 - ((b1 >> 1) & 3) != layer:
+                    continue
+                crc = 0 if b1 & 1 else 2
+                for b2 in range(0x100):
+                    bitrate, rate_index, padding = b2 >> 4, (b2 >> 2) & 3, (b2 >> 1) & 1
+                    if bitrate in (0, 15) or rate_index == 3:
+                        continue
+                    rate, bits = rates[rate_index], kbps[bitrate - 1] * 1000
+                    if layer == 1:
+                        size = (12 * bits // rate + padding) * 4
+                    else:
+                        size = samples // 8 * bits // rate + padding
+                    fmt = (b1 & 0x1E) << 8 | (b2 & 0x0C) << 1  # version, layer, rate; bit 0 left for mono
+                    text_at = (4 + crc + side[0], 4 + crc + side[1])
+                    _MPEG_FRAMES[b1 << 8 | b2] = (size, samples, rate, layer, fmt, text_at, 4 + crc)
+    return _MPEG_FRAMES
+
+
+def _mpeg_frame(data: bytes, pos: int) -> _MpegFrame | None:
+    if pos + 4 > len(data) or data[pos] != 0xFF:
+        return None
+    return _MPEG_FRAMES.get(data[pos + 1] << 8 | data[pos + 2])
+
+
+def _mpeg_channels(data: bytes, pos: int) -> int:
+    return 1 if data[pos + 3] >> 6 == 3 else 2
+
+
+def _tag_bytes(data: bytes, pos: int) -> int:
+    """Bytes of the ID3v2, ID3v1 (and extended "TAG+") or APEv2 tag at ``pos``; 0 when none starts there."""
+    head = data[pos : pos + 32]
+    if head[:3] == b"ID3" and len(head) >= 10 and head[3] < 0xFF and all(b < 0x80 for b in head[6:10]):
+        size = head[6] << 21 | head[7] << 14 | head[8] << 7 | head[9]
+        return 10 + size + (10 if head[5] & 0x10 else 0)  # the footer flag
+    if head[:4] == b"TAG+":
+        return 227
+    if head[:3] == b"TAG":
+        return 128
+    if head[:8] == b"APETAGEX" and len(head) == 32:
+        size, flags = struct.unpack("<4xI4xI", head[8:24])
+        return 32 + size if flags & (1 << 29) else 32  # a header: the items and footer follow it
+    return 0
+
+
+_XING_TEXTS = (b"Xing", b"Info")
+
+
+def _is_file_header(data: bytes, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the frame at ``pos`` is the Xing/Info (LAME) or VBRI frame an encoder writes first, holding
+    the file's frame count (no sound). One in the middle of a stream is where another file was joined on."""
+    text_at = pos + frame[5][data[pos + 3] >= 0xC0]
+    return data.startswith(_XING_TEXTS, text_at) or data.startswith(b"VBRI", pos + 36)
+
+
+def _file_header_frames(data: bytes, pos: int, frame: _MpegFrame) -> int:
+    """The frames a file's Xing/Info or VBRI frame at ``pos`` declares follow it; 0 when it does not say."""
+    if data.startswith(b"VBRI", pos + 36):
+        return int.from_bytes(data[pos + 50 : pos + 54], "big")
+    text_at = pos + frame[5][data[pos + 3] >= 0xC0]
+    flags = data[text_at + 4 : text_at + 8]
+    return int.from_bytes(data[text_at + 8 : text_at + 12], "big") if flags[3:] and flags[3] & 1 else 0
+
+
+def _confirmed(data: bytes, pos: int, frame: _MpegFrame, end_confirms: bool = True) -> bool:
+    """Whether a frame header at ``pos`` is followed by another of the same format, a tag or (with
+    ``end_confirms``) the end of the data: what tells a real frame (a resync point, a change of format)
+    from stray bytes. A change of format needs a frame after it: one damaged last header is no change."""
+    nxt = pos + frame[0]
+    if nxt >= len(data) - 3:
+        return end_confirms
+    if _tag_bytes(data, nxt):
+        return True
+    after = _mpeg_frame(data, nxt)
+    return (
+        after is not None and after[4] == frame[4] and _mpeg_channels(data, nxt) == _mpeg_channels(data, pos)
+    )
+
+
+def _resync(data: bytes, pos: int) -> int | None:
+    """The next confirmed frame or tag at or after ``pos`` (stray bytes skipped); None at the end."""
+    while True:
+        sync = data.find(b"\xff", pos)
+        tag = data.find(b"ID3", pos, len(data) if sync == -1 else sync + 2)  # only before that sync
+        if tag != -1 and _tag_bytes(data, tag):
+            return tag
+        if sync == -1:
+            return None
+        frame = _mpeg_frame(data, sync)
+        if frame is not None and _confirmed(data, sync, frame):
+            return sync
+        pos = sync + 1
+
+
+_NO_COUNT = 1 << 62  # a file whose header declares no frame count: never past it
+
+
+@dataclass
+class MpegRun:
+    """Consecutive MPEG audio frames of one format in an .mp3: where they lie (bytes), their sample rate
+    (Hz), channel count and layer, the samples coded in them (per channel: encoder delay and padding
+    included), and whether they begin a file of their own (the file's first frames, or frames after a tag
+    or at a Xing/Info frame: another recording joined on)."""
+
+    start: int
+    end: int
+    sample_rate: int
+    channels: int
+    layer: int
+    samples: int
+    new_file: bool
+
+    @property
+    def frames(self) -> int:
+        return self.samples // (384 if self.layer == 1 else 1152 if self.sample_rate >= 32000 else 576)
+
+
+def mpeg_runs(data: bytes) -> list[MpegRun]:
+    """The runs of frames of an MPEG audio stream (an .mp3's bytes), split where another file was joined
+    on or where the sample rate, channel count or layer changes; tags skipped. One run: a plain file."""
+    table = _mpeg_frame_table()
+    runs: list[MpegRun] = []
+    pos, n, after_tag = 0, len(data), True
+    # the current run, kept in locals (written to runs[-1] when it ends): this loop runs once per frame
+    run_format, end, coded = -1, 0, 0
+    last_frame, counted = _NO_COUNT, 0  # the frames its file's Xing/Info header declares, and those seen
+    while pos < n - 6:  # a header and its CRC: no frame of sound ends within the last bytes
+        frame = table.get(data[pos + 1] << 8 | data[pos + 2]) if data[pos] == 0xFF else None
+        if frame is None:
+            skip = _tag_bytes(data, pos)
+            if skip:
+                pos, after_tag = pos + skip, True
+                continue
+            found = _resync(data, pos + 1)  # stray bytes inside a file: not a join
+            if found is None:
+                break
+            pos = found
+            continue
+        size, samples = frame[0], frame[1]
+        mono = data[pos + 3] >= 0xC0
+        # a header frame holds no sound: its side information is zeros (a cheap test first, once per frame)
+        header = not data[pos + frame[6]] and _is_file_header(data, pos, frame)
+        counted += 1
+        if frame[4] | mono == run_format and not (after_tag or header or counted > last_frame):
+            pos, end, coded = pos + size, pos + size, coded + samples
+            continue
+        # frames past the count a file declares are another file (LAME counts them without its Info frame;
+        # one more frame at the very end is let pass, for encoders that count it and for a stray tail)
+        past_count = counted > last_frame and _mpeg_frame(data, pos + size) is not None
+        new_file = not runs or after_tag or header or past_count or frame[3] != runs[-1].layer
+        if not new_file and frame[4] | mono == run_format:
+            end, coded = pos + size, coded + samples
+        elif new_file or _confirmed(data, pos, frame, end_confirms=False):
+            if runs:
+                runs[-1].end, runs[-1].samples = end, coded
+            runs.append(MpegRun(pos, pos + size, frame[2], 1 if mono else 2, frame[3], samples, new_file))
+            run_format, end, coded = frame[4] | mono, pos + size, samples
+            if new_file:
+                last_frame, counted = (_file_header_frames(data, pos, frame) if header else 0) or _NO_COUNT, 0
+        else:  # a lone header of another format (damage): stray bytes
+            found = _resync(data, pos + 1)
+            if found is None:
+                break
+            pos = found
+            continue
+        pos, after_tag = pos + size, False
+    if runs:
+        runs[-1].end, runs[-1].samples = min(end, n), coded
+    return runs
+
+
+def _read_joined_mpeg(
+    path: Path, data: bytes, runs: list[MpegRun], repairs: list[dict[str, Any]] | None
+) -> Audio:
+    """An .mp3 made of several files joined end to end (``cat a.mp3 b.mp3``), or whose channel count or
+    layer changes mid-stream: each joined file decoded on its own, so each one's encoder delay and padding
+    (its LAME tag) is dropped, and the later ones mixed to the first one's channel count (repair
+    ``channels_changed``). libsndfile would stop at the first file's frame count or at the first change
+    of channels, FFmpeg at the first tag in the middle. A change of sample rate is an ``InputError``."""
+    first = runs[0]
+    coded = 0
+    for run in runs:
+        if run.sample_rate != first.sample_rate:
+            raise InputError(
+                f"the MP3's sample rate changes from {first.sample_rate} to {run.sample_rate} Hz at about "
+                f"{coded / first.sample_rate:.3f} s (recordings joined into one file?): split it there and "
+                "convert the parts to one rate",
+                path,
+            )
+        coded += run.samples
+    starts = [i for i, run in enumerate(runs) if run.new_file] + [len(runs)]
+    chunks: list[np.ndarray] = []
+    sample_format, damaged, last = "flt", 0, len(starts) - 2
+    for k, (a, b) in enumerate(zip(starts, starts[1:])):
+        part = io.BytesIO(data[runs[a].start : runs[b - 1].end])
+        try:
+            # the note of an unknown encoder delay is about the start: the first file's
+            decoded = _decode_frames(part, path, 0, repairs if k == 0 else None, skip_damaged=True)
+        except InputError:
+            if k == 0:
+                raise
+            # too short for FFmpeg to open (a file cut short): silence in its place, unless it ends the audio
+            damaged += sum(run.frames for run in runs[a:b])
+            if k < last:
+                lost = sum(run.samples for run in runs[a:b])
+                chunks.append(np.zeros((lost, chunks[0].shape[1] if chunks else first.channels), np.float32))
+            continue
+        chunks += decoded.chunks
+        sample_format, damaged = decoded.sample_format, damaged + decoded.damaged
+    if not chunks:
+        raise InputError("audio stream holds no samples", path)
+    samples, changed, at = _one_layout(chunks)
+    _note_channels_changed(path, repairs, changed, at, first.sample_rate, samples.shape[1])
+    if repairs is not None and damaged:
+        repairs.append(
+            {
+                "line": None,
+                "kind": "bad_audio",
+                "message": f"{path.name}: {damaged} damaged MPEG audio frame(s) could not be decoded: "
+                "silence in their place (at the end: left out)",
+            }
+        )
+    return _in_recorded_format(samples, first.sample_rate, sample_format)
 
 
 def write_audio(path: str | Path, audio: Audio) -> None:
