@@ -15,9 +15,11 @@ it can, records each repair with its line in the take's metadata, and raises ``I
 file and line for what it cannot repair. A long file with a few damaged rows takes both: pyarrow reads
 the rows it can, the careful parser's per-row logic only the lines pyarrow cannot take (``_read_mended``),
 so that a cut-short last line costs what the intact file does. Files a spreadsheet or script re-saved
-whole (a BOM, CRLF, a comma ending every line, pandas' index column, quoted header names) are read so
-too; a line ending at a lone CR, or more than half the lines to read line by line, sends a file to the
-careful parser whole.
+whole (a BOM, CRLF, a comma ending every line, pandas' index column, quoted header names, every cell or
+the timecodes in quotes) are read so too; a line ending at a lone CR, or more than half the lines to read
+line by line, sends a file to the careful parser whole. pyarrow reads a long file a part at a time
+(``PART_BYTES``), giving back each part's mapped pages once read, so that the parse of an hour holds
+little more than its result.
 
 Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``):
 
@@ -66,8 +68,10 @@ from __future__ import annotations
 
 import csv
 import math
+import mmap
 import re
 import sys
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -300,7 +304,10 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
         if "\ufffd" in text:  # as the careful parser decodes it: a header of replacement characters
             raise InputError("binary data, not a CSV text file", path, 1)
         header = _parse_header(text, path)
-        rows = _read_fast(path, header, bom, len(first) + 1, strict)
+        # Quotes on the first data lines: a file whose every cell (or its timecodes) a spreadsheet or
+        # pandas quoted, read by pyarrow with quoting on, as the careful parser's csv module reads it.
+        quoted = b'"' in rest
+        rows = _read_fast(path, header, bom, len(first) + 1, strict, quoted)
         if rows is not None:
             return rows
     return _read_careful(path, strict)
@@ -318,50 +325,133 @@ JOIN_PIECES_BYTES = 1 << 24
 MAX_MENDED_SHARE = 0.5
 
 
-def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict: bool) -> CsvRows | None:
+def _read_fast(
+    path: Path, header: CsvHeader, bom: bool, body_start: int, strict: bool, quoted: bool
+) -> CsvRows | None:
     """pyarrow's parse, with the careful parser's per-row logic for the rows pyarrow cannot take, so that
     a long take with a damaged row costs what an intact one does (``_read_mended``). A whole file's re-save
-    (a BOM, CRLF line ends, a comma ending every line, pandas' index column) is read so too. ``None`` sends
-    the whole file to the careful parser (one that pyarrow cannot read even without its odd lines, or one
-    with a line ending at a lone CR)."""
+    (a BOM, CRLF line ends, a comma ending every line, pandas' index column, cells in quotes: ``quoted``)
+    is read so too. ``None`` sends the whole file to the careful parser (one that pyarrow cannot read even
+    without its odd lines, or one with a line ending at a lone CR)."""
     import pyarrow as pa
 
-    with pa.memory_map(str(path)) as source:
-        data = source.read_buffer()  # no copy: numpy and pyarrow read the mapped file
-        if bom:
-            data = data.slice(3)  # line 1 starts after the byte-order mark, as for the careful parser
-        # as the careful parser tells the file's line ends
-        crlf = b"\r\n" in data.slice(0, min(data.size, 65536)).to_pybytes()
-        resaved = bom or crlf or header.trailing_comma or header.index_column is not None
-        lines, screened = None, np.empty(0, np.int64)
-        read = _arrow_read([data.slice(body_start)], header)
-        if read is None:  # a cell that is no number: again without the lines holding a non-number byte
-            lines = _Lines(data)
-            screened = lines.with_other_bytes()
-            if lines.has_cr or screened.size > MAX_MENDED_SHARE * (lines.count - 1):
-                return None
-            pieces = lines.pieces_without(screened)
-            if not pieces or len(pieces) > MAX_PIECES:
-                return None
-            if len(pieces) > 1 and data.size <= JOIN_PIECES_BYTES:  # one read: each costs pyarrow's setup
-                pieces = [pa.py_buffer(b"".join(piece.to_pybytes() for piece in pieces))]
-            read = _arrow_read(pieces, header)
-            if read is None:
-                return None
-        table, odd = read
-        del read
-        if table.num_rows == 0:
+    mapped = _MappedFile(path)
+    data = mapped.buffer  # no copy: numpy and pyarrow read the mapped file
+    if bom:
+        data = data.slice(3)  # line 1 starts after the byte-order mark, as for the careful parser
+    # as the careful parser tells the file's line ends
+    crlf = b"\r\n" in data.slice(0, min(data.size, 65536)).to_pybytes()
+    resaved = bom or crlf or header.trailing_comma or header.index_column is not None or quoted
+    lines, screened = None, np.empty(0, np.int64)
+    read = _arrow_rows([data.slice(body_start)], header, quoted, mapped.release)
+    if read is None:  # a cell that is no number: again without the lines holding a non-number byte
+        lines = _Lines(data, mapped.release)
+        screened = lines.with_other_bytes(quoted)
+        if lines.has_cr or screened.size > MAX_MENDED_SHARE * (lines.count - 1):
             return None
-        rows = _table_rows(table, header)
-        del table  # its float64 columns: freed before a merge copies the values
-        if lines is None and not resaved and not rows[3].any():
-            plain = _plain_rows(path, header, *rows[:3], odd)
-            if plain is not None:
-                return plain
-        lines = lines or _Lines(data)
-        if lines.has_cr:
+        pieces = lines.pieces_without(screened)
+        if not pieces or len(pieces) > MAX_PIECES:
             return None
-        return _read_mended(path, header, lines, screened, odd, rows, bom, "\r\n" if crlf else "\n", strict)
+        if len(pieces) > 1 and data.size <= JOIN_PIECES_BYTES:  # one read: each costs pyarrow's setup
+            pieces = [pa.py_buffer(b"".join(piece.to_pybytes() for piece in pieces))]
+        read = _arrow_rows(pieces, header, quoted, mapped.release)
+        if read is None:
+            return None
+    rows, odd = read
+    del read
+    if lines is None and not resaved and not rows[3].any():
+        plain = _plain_rows(path, header, *rows[:3], odd)
+        if plain is not None:
+            return plain
+    lines = lines or _Lines(data, mapped.release)
+    if lines.has_cr:
+        return None
+    return _read_mended(path, header, lines, screened, odd, rows, bom, "\r\n" if crlf else "\n", strict)
+
+
+class _MappedFile:
+    """A file mapped into memory read-only, whose pages can be given back once read: mapped pages count in
+    the process's resident memory (an hour's 176 MB CSV would add its size to the peak of its parse),
+    though the kernel's page cache keeps them; a page read again is mapped again from there."""
+
+    def __init__(self, path: Path) -> None:
+        import pyarrow as pa
+
+        with open(path, "rb") as f:
+            self.map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        self.buffer = pa.py_buffer(self.map)
+        self.start = self.buffer.address
+
+    def release(self, address: int, size: int) -> None:
+        """Give back the pages of the ``size`` bytes at ``address`` (a part of the map, else nothing)."""
+        start, stop = address - self.start, min(address - self.start + size, len(self.map))
+        if _DONTNEED is not None and 0 <= start < stop:
+            start -= start % mmap.PAGESIZE  # a page read again (the next part's first line) is mapped again
+            self.map.madvise(_DONTNEED, start, stop - start)
+
+
+_DONTNEED = getattr(mmap, "MADV_DONTNEED", None)  # Linux, the BSDs, macOS; elsewhere pages stay mapped
+# pyarrow reads a long file this many bytes (of whole lines) at a time, each part's table turned into the
+# take's arrays before the next: the float64 table of the whole file and its mapped pages would double
+# the peak memory of its parse.
+PART_BYTES = 1 << 25
+
+
+def _parts(piece: Any) -> Iterator[Any]:
+    """A buffer of whole lines as parts of whole lines of about ``PART_BYTES`` each (no copy), each cut
+    found when the part before it is wanted (only then are the pages past the cut read)."""
+    at = 0
+    while piece.size - at > 2 * PART_BYTES:
+        cut = at + PART_BYTES
+        found = piece.slice(cut, min(1 << 16, piece.size - cut)).to_pybytes().find(b"\n")
+        if found < 0:  # no line end for 64 kB: no part of this file is cut there
+            break
+        yield piece.slice(at, cut + found + 1 - at)
+        at = cut + found + 1
+    yield piece.slice(at)
+
+
+def _arrow_rows(
+    pieces: list[Any], header: CsvHeader, quoted: bool, release: Any
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], list[str]] | None:
+    """pyarrow's rows of whole lines of the file (``_table_rows``, read part by part: ``_parts``, each
+    part's mapped pages given back by ``release`` once read), and the text of the lines it skipped;
+    ``None`` as for ``_arrow_read``, or when it reads no row."""
+    import pyarrow as pa
+
+    odd: list[str] = []
+    parts = []
+    for piece in pieces:
+        for part in _parts(piece):
+            table = _arrow_read(part, header, quoted, odd)
+            if table is None:
+                return None
+            release(part.address, part.size)
+            if table.num_rows:
+                parts.append(_table_rows(table, header))
+            del table  # its float64 columns: freed before the next part is read
+            pa.default_memory_pool().release_unused()  # what pyarrow's allocator would keep for reuse
+    return (_joined_rows(parts), odd) if parts else None
+
+
+def _joined_rows(
+    parts: list[tuple],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The parts' rows as one: each part's values freed once copied (the copy of the values, in column
+    order, is the only one held at its end)."""
+    if len(parts) == 1:
+        return parts[0]
+    times, _, status, trouble, index = (
+        np.concatenate([part[k] for part in parts]) if parts[0][k] is not None else None for k in range(5)
+    )
+    values = np.empty((times.size, parts[0][1].shape[1]), dtype=np.float32, order="F")
+    at = 0
+    for i in range(len(parts)):
+        block, parts[i] = parts[i][1], ()
+        values[at : at + block.shape[0]] = block
+        at += block.shape[0]
+        del block  # this part's values freed before the next is copied
+    return times, values, status, trouble, index
 
 
 def _arrow_names(header: CsvHeader) -> list[str]:
@@ -373,14 +463,14 @@ def _arrow_names(header: CsvHeader) -> list[str]:
     return names + ["comma"] if header.trailing_comma else names
 
 
-def _arrow_read(pieces: list[Any], header: CsvHeader) -> tuple[Any, list[str]] | None:
-    """pyarrow's table of whole lines of the file (``pieces``: buffers, each of whole lines), and the text
-    of the lines it skipped for another number of fields than the header's. ``None`` when a cell is no
-    number, or a skipped line is not UTF-8."""
+def _arrow_read(piece: Any, header: CsvHeader, quoted: bool, odd: list[str]) -> Any:
+    """pyarrow's table of whole lines of the file (``piece``: a buffer of whole lines); the text of the
+    lines it skipped for another number of fields than the header's is added to ``odd``. ``None`` when a
+    cell is no number, or a skipped line is not UTF-8. ``quoted``: cells may be in quotes, which go as the
+    careful parser's csv module takes them (a quote opening a cell, ``""`` within one); a quote left open,
+    which pyarrow carries into the next line, leaves fewer rows than lines (``_read_mended`` gives up)."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
-
-    odd: list[str] = []
 
     def on_invalid(row: Any) -> str:
         odd.append(row.text or "")
@@ -398,29 +488,25 @@ def _arrow_read(pieces: list[Any], header: CsvHeader) -> tuple[Any, list[str]] |
     # A row that is not UTF-8 makes pyarrow fail inside our handler; that failure only tells us to use
     # the careful parser, so keep it from being printed.
     sys.unraisablehook = undecodable.append
-    tables = []
     try:
-        for piece in pieces:
-            # Fixed types, no quoting, no UTF-8 re-validation: the least work pyarrow can do. 2 MB blocks
-            # keep both cores busy to the end (16 MB blocks left one idle for the last ones: 0.76x
-            # pyarrow's default read of a 176 MB hour, against 1.0-1.1x now).
-            tables.append(
-                pacsv.read_csv(
-                    pa.BufferReader(piece),
-                    read_options=pacsv.ReadOptions(column_names=names, block_size=1 << 21),
-                    parse_options=pacsv.ParseOptions(quote_char=False, invalid_row_handler=on_invalid),
-                    convert_options=pacsv.ConvertOptions(
-                        column_types=types, strings_can_be_null=False, check_utf8=False
-                    ),
-                )
-            )
+        # Fixed types, no quoting (unless the file has quotes), no UTF-8 re-validation: the least work
+        # pyarrow can do. 2 MB blocks keep both cores busy to the end (16 MB blocks left one idle for the
+        # last ones: 0.76x pyarrow's default read of a 176 MB hour, against 1.0-1.1x now).
+        table = pacsv.read_csv(
+            pa.BufferReader(piece),
+            read_options=pacsv.ReadOptions(column_names=names, block_size=1 << 21),
+            parse_options=pacsv.ParseOptions(
+                quote_char='"' if quoted else False, invalid_row_handler=on_invalid
+            ),
+            convert_options=pacsv.ConvertOptions(
+                column_types=types, strings_can_be_null=False, check_utf8=False
+            ),
+        )
     except (pa.ArrowException, UnicodeDecodeError, OSError):
         return None
     finally:
         sys.unraisablehook = previous_hook
-    if undecodable:
-        return None
-    return (tables[0] if len(tables) == 1 else pa.concat_tables(tables)), odd
+    return None if undecodable else table
 
 
 def _table_rows(
@@ -539,15 +625,27 @@ class _Lines:
 
     CHUNK = 1 << 20  # bytes scanned at a time: the comparison's temporary stays in the cache
 
-    def __init__(self, data: Any) -> None:
+    def __init__(self, data: Any, release: Any = None) -> None:
         self.bytes = np.frombuffer(data, dtype=np.uint8)
+        self.release = release or (lambda address, size: None)  # a chunk's mapped pages, once scanned
         size = self.bytes.size
-        found = [np.flatnonzero(self.bytes[i : i + self.CHUNK] == 10) + i for i in range(0, size, self.CHUNK)]
+        found, after_cr, crs = [], [], 0
+        last = 0  # the byte before the chunk (none before the file's first)
+        for i in range(0, size, self.CHUNK):
+            chunk = self.bytes[i : i + self.CHUNK]
+            at = np.flatnonzero(chunk == 10)
+            # a CR before a line's LF is part of its line end (CRLF), as for pyarrow and the careful parser
+            before = chunk[np.maximum(at - 1, 0)]
+            if at.size and at[0] == 0:
+                before[0] = last
+            found.append(at + i)
+            after_cr.append(before == 13)
+            crs += int(np.count_nonzero(chunk == 13))
+            last = chunk[-1]
+            self.release(chunk.ctypes.data, chunk.size)  # scanned once: not mapped again but for odd lines
         newlines = np.concatenate(found) if found else np.empty(0, np.int64)
-        # a CR before a line's LF is part of its line end (CRLF), as for pyarrow and the careful parser
-        crlf = self.bytes[newlines[newlines > 0] - 1] == 13
-        self.ends = newlines.copy()
-        self.ends[newlines.size - crlf.size :] -= crlf
+        crlf = np.concatenate(after_cr) if after_cr else np.empty(0, bool)
+        self.ends = newlines - crlf
         self.ends_with_newline = bool(size) and self.bytes[-1] == 10
         if not self.ends_with_newline:
             newlines = np.append(newlines, size)  # the last line, without its line end
@@ -556,9 +654,6 @@ class _Lines:
         self.starts = np.concatenate([[0], newlines[:-1] + 1])
         self.count = self.ends.size
         # a lone CR, a line end the careful parser splits at and this index does not: that file is read whole
-        crs = sum(
-            int(np.count_nonzero(self.bytes[i : i + self.CHUNK] == 13)) for i in range(0, size, self.CHUNK)
-        )
         self.has_cr = crs > int(crlf.sum())
 
     def text(self, number: int) -> str:
@@ -568,15 +663,18 @@ class _Lines:
     def raw(self, number: int) -> bytes:
         return self.bytes[self.starts[number - 1] : self.ends[number - 1]].tobytes()
 
-    def with_other_bytes(self) -> np.ndarray:
-        """The data lines holding a byte that no number of the app's rows holds (a letter, a quote, a space,
-        any non-ASCII byte): those where pyarrow meets a cell it cannot convert, found without parsing. (A CR
-        passes: a file with one that is not part of a CRLF is read whole by the careful parser.)"""
+    def with_other_bytes(self, quoted: bool = False) -> np.ndarray:
+        """The data lines holding a byte that no number of the app's rows holds (a letter, a quote unless the
+        file's cells are ``quoted``, a space, any non-ASCII byte): those where pyarrow meets a cell it cannot
+        convert, found without parsing. (A CR passes: a file with one that is not part of a CRLF is read
+        whole by the careful parser.)"""
+        passing = np.frombuffer(b'\r\neE"' if quoted else b"\r\neE", np.uint8)
         found = []
         for i in range(0, self.bytes.size, self.CHUNK):
             chunk = self.bytes[i : i + self.CHUNK]
             at = np.flatnonzero((chunk < ord("+")) | (chunk > ord(":")))  # + , - . / 0-9 : pass
-            found.append(at[~np.isin(chunk[at], np.frombuffer(b"\r\neE", np.uint8))] + i)
+            found.append(at[~np.isin(chunk[at], passing)] + i)
+            self.release(chunk.ctypes.data, chunk.size)
         numbers = np.unique(np.searchsorted(self.starts, np.concatenate(found), side="right"))
         return numbers[numbers > 1]  # the header is no data line
 
