@@ -9,6 +9,11 @@ the disk for every member as its header declares it (the reader never writes mor
 "zip bomb" is refused before it is unpacked). Symbolic links are not made; operating-system litter
 (``__MACOSX``, ``._X``) is passed over. Names written without the archive's UTF-8 flag (Finder, Windows
 Explorer, most tools) are read as UTF-8 when they are that, else as the zip standard's code page 437.
+
+A reader that needs a few members only (``s2a-view`` showing one take of an archive of a day's takes,
+gigabytes of ``.mov``) picks them from the archive's list (``pick``): the checks of names (outside the
+folder, two of one name) still see the whole archive, those of a member's bytes (encryption, a method
+not readable here, damage) and the room on the disk see what is unpacked.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import stat
 import tempfile
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -117,22 +122,28 @@ _READABLE = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfil
 Plan = list[tuple[zipfile.ZipInfo, tuple[str, ...]]]  # the members to unpack, each with its parts
 
 
-def _plan(zf: zipfile.ZipFile, archive: Path, litter: Litter) -> Plan:
-    """The members to unpack with their relative parts, after every check that needs no writing."""
+@dataclass(frozen=True)
+class Member:
+    """A member an archive would unpack, as ``pick`` sees it: its folders and file name (``parts``)."""
+
+    parts: tuple[str, ...]
+    is_dir: bool
+
+
+# Given the members an archive holds (litter and links left out), the parts of those to unpack.
+Pick = Callable[[list[Member]], Collection[tuple[str, ...]]]
+
+
+def _plan(zf: zipfile.ZipFile, archive: Path, litter: Litter, readable: bool = True) -> Plan:
+    """The members to unpack with their relative parts, after every check that needs no writing
+    (``readable``: with those of their bytes, ``_check_readable``, else left to the caller)."""
     plan, seen = [], {}
     for info in zf.infolist():
         parts = member_parts(info, archive)
         if not parts or any(litter.skips(archive.joinpath(*parts[: i + 1])) for i in range(len(parts))):
             continue
-        if info.flag_bits & _ENCRYPTED_FLAG:
-            raise InputError(f"member {'/'.join(parts)} is encrypted: unzip it with its password", archive)
-        if info.compress_type not in _READABLE:
-            method = _METHODS.get(info.compress_type, f"method {info.compress_type}")
-            raise InputError(
-                f"member {'/'.join(parts)} is compressed with {method}, which cannot be read here: "
-                "unzip it with your system's tool (or 7-Zip) and import the folder",
-                archive,
-            )
+        if readable:
+            _check_readable(info, parts, archive)
         if _is_link(info):
             continue  # a link is no take file; following one could reach outside the folder
         key = "/".join(parts)
@@ -140,6 +151,28 @@ def _plan(zf: zipfile.ZipFile, archive: Path, litter: Litter) -> Plan:
             raise InputError(f"holds two members named {key}: unzip it and keep the right one", archive)
         seen[key] = info
         plan.append((info, parts))
+    return plan
+
+
+def _check_readable(info: zipfile.ZipInfo, parts: tuple[str, ...], archive: Path) -> None:
+    """Refuse a member whose bytes cannot be read here: encrypted, or compressed by another method."""
+    if info.flag_bits & _ENCRYPTED_FLAG:
+        raise InputError(f"member {'/'.join(parts)} is encrypted: unzip it with its password", archive)
+    if info.compress_type not in _READABLE:
+        method = _METHODS.get(info.compress_type, f"method {info.compress_type}")
+        raise InputError(
+            f"member {'/'.join(parts)} is compressed with {method}, which cannot be read here: "
+            "unzip it with your system's tool (or 7-Zip) and import the folder",
+            archive,
+        )
+
+
+def _picked(plan: Plan, pick: Pick, archive: Path) -> Plan:
+    """The members of ``plan`` that ``pick`` wants, their bytes checked (``_check_readable``)."""
+    wanted = set(pick([Member(parts, info.is_dir()) for info, parts in plan]))
+    plan = [(info, parts) for info, parts in plan if parts in wanted]
+    for info, parts in plan:
+        _check_readable(info, parts, archive)
     return plan
 
 
@@ -161,13 +194,15 @@ def unpacked(
     litter: Litter | None = None,
     outer: Unpacked | None = None,
     prefix: str = UNPACK_PREFIX,
+    pick: Pick | None = None,
 ) -> Iterator[Unpacked]:
     """``archive`` unpacked into a hidden folder made in ``into`` (default: the system's temporary
     folder), removed on leaving; ``outer``: the archive it was unpacked from, if any, to name it as a
     member of; ``prefix``: how the hidden folder's name starts (one command's own, to find what a killed
-    run of it left). Litter passed over is counted in ``litter``. An ``InputError`` (naming it) names
-    what is wrong: not a zip archive (or cut short), a member outside the folder, encrypted, compressed
-    with a method not readable here, damaged (its checksum), too large for the disk."""
+    run of it left); ``pick``: the members to unpack (default all). Litter passed over is counted in
+    ``litter``. An ``InputError`` (naming it) names what is wrong: not a zip archive (or cut short), a
+    member outside the folder, encrypted, compressed with a method not readable here, damaged (its
+    checksum), too large for the disk."""
     tally = Litter() if litter is None else litter
     name = outer.shown(archive) if outer else str(archive)
     real = str(archive).replace(str(outer.folder), outer.real) if outer else str(Path(archive).resolve())
@@ -180,7 +215,9 @@ def unpacked(
     except OSError as exc:
         raise InputError(f"cannot read it: {exc.strerror or exc}", name) from None
     with zf:
-        plan = _plan(zf, Path(name), tally)
+        plan = _plan(zf, Path(name), tally, readable=pick is None)
+        if pick is not None:
+            plan = _picked(plan, pick, Path(name))
         where = Path(tempfile.gettempdir() if into is None else into)
         _check_room(plan, where, Path(name))
         work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are

@@ -10,8 +10,10 @@ import os
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import sys
+import tempfile
 import time
 import zipfile
 from pathlib import Path
@@ -21,8 +23,9 @@ import pytest
 from conftest import ROOT, run_cli
 from test_take_archives import _patched
 
+from capture.errors import InputError
 from capture.take_archive import UNPACK_PREFIX
-from viewer.inputs import read_input
+from viewer.inputs import archives_unpacked, read_input
 
 NEUROSYNC = "paired/neurosync-trainer-lite-testset"
 S07 = "livelinkface/alexdjulin_S07/S07-001.csv"
@@ -360,3 +363,173 @@ def test_what_a_killed_viewer_left_unpacked_is_removed_by_the_next(samples, tmp_
     alive.mkdir()
     summary(view(tmp, "render", archive, "-o", tmp_path / "x.png", "--size", 64, "--json"))
     assert unpacked_left(tmp) == [alive.name]
+
+
+# -- one take of an archive of several: only what it needs is unpacked -------------------------------
+def _set_in_central_directory(archive: Path, members: set[str], offset: int, fmt: str, value: int) -> None:
+    """Set a field of the central directory headers of ``members`` (offset from each one's signature):
+    what the archive's list, and so its checks, read of them."""
+    data = bytearray(archive.read_bytes())
+    start = 0
+    while (i := data.find(b"PK\x01\x02", start)) >= 0:
+        (length,) = struct.unpack_from("<H", data, i + 28)
+        if data[i + 46 : i + 46 + length].decode() in members:
+            struct.pack_into(fmt, data, i + offset, value)
+        start = i + 4
+    archive.write_bytes(bytes(data))
+
+
+def _unpacked_files(tmp: Path) -> list[str]:
+    """The files unpacked in ``tmp``, relative to the folder each archive was unpacked into."""
+    return sorted(
+        p.relative_to(folder).as_posix()
+        for d in tmp.iterdir()
+        if d.name.startswith(UNPACK_PREFIX)
+        for folder in d.iterdir()  # one, named as its archive
+        for p in folder.rglob("*")
+        if p.is_file()
+    )
+
+
+@pytest.fixture
+def day_archive(sim_take, tmp_path) -> Path:
+    """A day's takes zipped: T1, T2, T3 (each the simulated take folder), T2's .mov encrypted, T3 with
+    300 clips beside its take, each declaring 4.3 GB (1.3 TB in all): only T1 can be unpacked whole."""
+    files: dict[str, Path | bytes] = {
+        f"day/{t}/{p.name}": p for t in ("T1", "T2", "T3") for p in sorted(sim_take.iterdir())
+    }
+    files["day/T1/Z broll.mov"] = next(sim_take.glob("*.mov"))  # a video the take reader does not read
+    clips = {f"day/T3/clip{i:03d}.mov" for i in range(300)}
+    archive = zip_files(tmp_path / "day.zip", files | dict.fromkeys(clips, b"0" * 100))
+    _set_in_central_directory(archive, {f"day/T2/{next(sim_take.glob('*.mov')).name}"}, 8, "<H", 0x1)
+    _set_in_central_directory(archive, clips, 24, "<I", 0xFFFFFFF0)  # uncompressed size
+    return archive
+
+
+def test_one_take_named_in_an_archive_of_several_unpacks_that_take_only(
+    day_archive, sim_take, tmp_path, monkeypatch
+):
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    csv = next(p.name for p in sim_take.glob("*.csv") if p.name != "frame_log.csv")
+    mov = next(sim_take.glob("*.mov")).name
+    want, _, _ = read_input(sim_take, "one")
+    with archives_unpacked():
+        by_folder, _, speech = read_input(day_archive / "day/T1", "one")
+        assert speech == day_archive / "day/T1" / mov  # the member, its audio read from it
+        assert _unpacked_files(tmp) == sorted(
+            [f"day/T1/{p.name}" for p in sim_take.iterdir()] + ["day/T1/Z broll.mov"]
+        )
+    with archives_unpacked():  # a CSV named: the files of its folder its reader looks at, its .mov too
+        by_csv, _, speech = read_input(day_archive / "day/T1" / csv, "one")
+        assert speech == day_archive / "day/T1" / mov
+        assert _unpacked_files(tmp) == sorted(f"day/T1/{p.name}" for p in sim_take.iterdir())
+    for got in (by_folder, by_csv):
+        assert np.array_equal(got.values, want.values, equal_nan=True) and np.array_equal(got.time, want.time)
+        assert np.array_equal(got.audio.samples, want.audio.samples)
+    # the members a take needs are checked as ever: T2's .mov encrypted, T3's clips too large for the disk
+    with archives_unpacked(), pytest.raises(InputError, match=f"member day/T2/{mov} is encrypted"):
+        read_input(day_archive / "day/T2", "one")
+    with archives_unpacked(), pytest.raises(InputError, match="unpacking it needs 1288.49 GB"):
+        read_input(day_archive / "day/T3", "one")
+    with archives_unpacked():  # its CSV named: the clips beside it are no video of its take
+        assert len(read_input(day_archive / "day/T3" / csv, "one")[0].time) == len(want.time)
+    assert unpacked_left(tmp) == []
+
+
+def test_checks_of_names_still_see_the_whole_archive(samples, tmp_path):
+    csv = (samples / S07).read_bytes()
+    evil = tmp_path / "evil.zip"
+    with zipfile.ZipFile(evil, "w") as z:
+        z.writestr("S07/S07-001.csv", csv)
+        z.writestr("S88/../../escaped.csv", csv)
+    twice = tmp_path / "twice.zip"
+    with pytest.warns(UserWarning, match="Duplicate name"), zipfile.ZipFile(twice, "w") as z:
+        z.writestr("S07/S07-001.csv", csv)
+        z.writestr("S88/S88-001.csv", csv)
+        z.writestr("S88/S88-001.csv", b"x")
+    for archive, what in ((evil, "would be written outside"), (twice, "holds two members named S88")):
+        with archives_unpacked(), pytest.raises(InputError, match=what):
+            read_input(archive / "S07", "one")
+
+
+def test_an_archive_named_in_an_archive_is_the_only_member_unpacked(samples, tmp_path, monkeypatch):
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    outer = zip_files(
+        tmp_path / "download.zip",
+        {
+            "S07.zip": zip_files(tmp_path / "S07.zip", {"S07-001.csv": samples / S07}),
+            "S88.zip": zip_files(tmp_path / "S88.zip", {"S88-001.csv": samples / S88}),
+            "S88-001.csv": samples / S88,
+        },
+    )
+    with archives_unpacked():
+        take, _, _ = read_input(outer / "S07.zip", "one")
+        assert len(take.time) == 2030  # S07-001.csv's rows
+        assert _unpacked_files(tmp) == ["S07-001.csv", "S07.zip"]  # download.zip's S07.zip, and what it holds
+    with archives_unpacked(), pytest.raises(InputError, match=r"holds no S99.zip \(it holds S07.zip, S8"):
+        read_input(outer / "S99.zip", "one")
+
+
+# -- Ctrl-C while the unpacked copies are removed, and a process VTK ends itself -----------------------
+_SECOND_CTRL_C = """
+import os, signal, sys, threading, time
+from pathlib import Path
+from viewer.inputs import archives_unpacked, unpacked_input
+from viewer.output import stopped_by_signals
+
+def second_ctrl_c(folder):  # pressed again once the removal has begun
+    count = len(os.listdir(folder))
+    while os.path.isdir(folder) and len(os.listdir(folder)) == count:
+        time.sleep(0.001)
+    os.kill(os.getpid(), signal.SIGINT)
+
+try:
+    with stopped_by_signals(), archives_unpacked():
+        folder, _ = unpacked_input(Path(sys.argv[1]))
+        threading.Thread(target=second_ctrl_c, args=(folder,), daemon=True).start()
+        os.kill(os.getpid(), signal.SIGINT)
+except KeyboardInterrupt:
+    sys.exit(130)  # as the command line does
+"""
+
+_CTRL_C_IN_VTK = """
+import os, signal, sys
+from pathlib import Path
+from vtkmodules.vtkCommonCore import vtkObject
+from viewer.inputs import archives_unpacked, unpacked_input
+from viewer.output import stopped_by_signals
+
+def observer(obj, event):
+    os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while VTK calls Python: VTK ends the process (Py_Exit)
+    sum(range(100))
+
+try:
+    with stopped_by_signals(), archives_unpacked():
+        unpacked_input(Path(sys.argv[1]))
+        watched = vtkObject()
+        watched.AddObserver("ModifiedEvent", observer)
+        watched.Modified()
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("script", [_SECOND_CTRL_C, _CTRL_C_IN_VTK], ids=["second-ctrl-c", "ctrl-c-in-vtk"])
+def test_what_was_unpacked_is_removed_whatever_thread_or_call_a_ctrl_c_meets(tmp_path, script):
+    archive = zip_files(tmp_path / "many.zip", {f"T/{i:04d}.json": b"{}" for i in range(3000)})
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.run(
+        [sys.executable, "-c", script, str(archive)],
+        cwd=ROOT,
+        env=os.environ | {"TMPDIR": str(tmp)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode > 0, proc.stderr  # stopped (130, or 1 from VTK), not killed by a signal
+    assert unpacked_left(tmp) == [], proc.stderr

@@ -14,12 +14,14 @@ its audio) is read as that take unzipped: ``takes.zip``; one take of an archive 
 by its path inside, ``takes.zip/TakeName``. The archive is unpacked by capture's reader
 (``capture.take_archive``: the same checks as ``s2a-capture import``) into the system's temporary
 folder, never beside the archive, and removed when the command ends (``archives_unpacked``), on an
-error, Ctrl-C or SIGTERM too. Messages name the archive's members (``takes.zip/T/T.csv``), never the
-temporary copies.
+error, Ctrl-C or SIGTERM too. Of an archive whose member is named, only what that member needs is
+unpacked (``members_needed``: an archive of a day's takes holds gigabytes of ``.mov``). Messages name
+the archive's members (``takes.zip/T/T.csv``), never the temporary copies.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import signal
@@ -38,9 +40,9 @@ from capture.errors import InputError, S2AError
 from capture.importer import audio_beside, is_livelink_csv, warn_skipped
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
-from capture.take_archive import UNPACK_PREFIX, Unpacked, unpacked
+from capture.take_archive import MAX_DEPTH, UNPACK_PREFIX, Member, Unpacked, unpacked
 from capture.take_folder import choose_csv
-from capture.transfer_litter import Litter, is_zip
+from capture.transfer_litter import Litter, icloud_original, is_zip
 from capture.workers import process_runs
 from dataset.qa import ANIM_LIMIT
 
@@ -212,16 +214,42 @@ def _clear_orphans() -> None:
 
 
 @contextmanager
-def _signals_held() -> Iterator[None]:
-    """SIGINT and SIGTERM arrive after the block, not in it (main thread only)."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+def _signals_held(redeliver: bool = True) -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive in the block act after it (main thread only): their handlers are
+    swapped for one that notes them, and each one noted is raised again after the block (unless not
+    ``redeliver``: the process is ending anyway). Blocking them (``pthread_sigmask``) would not hold
+    them: that holds them off this thread only, another thread (OpenBLAS's, FFmpeg's) takes them in its
+    place, and Python runs the handler in this thread all the same, in the block."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    noted: list[int] = []
+
+    def note(signum: int, frame: object) -> None:
+        noted.append(signum)
+
+    before = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not None:  # None: a handler not set from Python, which stays
+            before[sig] = signal.signal(sig, note)
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(noted) if redeliver else ():  # each once, in the order met
+            signal.raise_signal(sig)
+
+
+@atexit.register
+def _remove_at_exit() -> None:
+    """Remove what sessions still open unpacked when the interpreter ends without leaving them: VTK
+    ends it itself (``Py_Exit``, exit status 1) on a Ctrl-C met while it calls a Python observer, from
+    inside that call, and no ``finally`` of the command runs then."""
+    while _sessions:
+        session = _sessions.pop()
+        with _signals_held(redeliver=False):
+            session.stack.close()
 
 
 def shown(text: object) -> str:
@@ -260,9 +288,11 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
     """Where the archive ``path`` is or names a member of is unpacked (inside ``archives_unpacked``),
     the folder or file ``path`` names there and ``path`` as the user wrote it, for messages; None for
     a path in no archive. An archive in the archive is entered when the path names it
-    (``download.zip/T.zip/T``), as ``s2a-capture import`` reads one level of them. The archive is
-    checked and unpacked by ``capture.take_archive.unpacked``, its ``InputError`` naming what is wrong;
-    what it passed over (``__MACOSX``, ``._X``) is counted in ``litter``."""
+    (``download.zip/T.zip/T``), as ``s2a-capture import`` reads one level of them. Of an archive whose
+    member is named, only what that member needs is unpacked (``members_needed``): a day's takes hold
+    gigabytes of ``.mov``. The archive is checked and unpacked by ``capture.take_archive.unpacked``, its
+    ``InputError`` naming what is wrong; what it passed over (``__MACOSX``, ``._X``) is counted in
+    ``litter``."""
     if not _sessions:
         raise RuntimeError("unpacked_input is called inside archives_unpacked()")
     found = archive_member(Path(path))
@@ -272,20 +302,94 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
     session, outer = _sessions[-1], None
     tally = Litter() if litter is None else litter
     while True:
-        box = session.stack.enter_context(unpacked(archive, litter=tally, outer=outer, prefix=_own_prefix()))
+        route = _Route(member, enter_archives=(outer.depth + 1 if outer else 1) < MAX_DEPTH)
+        box = session.stack.enter_context(
+            unpacked(archive, litter=tally, outer=outer, prefix=_own_prefix(), pick=route.pick)
+        )
         session.boxes.append(box)
-        parts = member.parts
-        target = box.folder.joinpath(*parts)
-        inner = next((i for i in range(1, len(parts) + 1) if is_zip(box.folder.joinpath(*parts[:i]))), None)
-        if inner is None or not box.unpacks_archives:
+        target = box.folder.joinpath(*member.parts)
+        if route.inner is None:
             break
         # a path through an archive in this one: that archive unpacked in turn
-        archive, member, outer = box.folder.joinpath(*parts[:inner]), PurePosixPath(*parts[inner:]), box
+        parts = member.parts
+        archive, member, outer = (
+            box.folder.joinpath(*parts[: route.inner]),
+            PurePosixPath(*parts[route.inner :]),
+            box,
+        )
     if not target.exists():
-        held = sorted(p.name + ("/" if p.is_dir() else "") for p in box.folder.iterdir())
+        held = sorted({m.parts[0] + ("/" if m.is_dir or len(m.parts) > 1 else "") for m in route.listed})
         listed = ", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
         raise InputError(f"holds no {member} (it holds {listed or 'nothing'})", box.name)
     return target, box.shown(target)
+
+
+class _Route:
+    """Which members of an archive a path into it (``member``; ``.`` for the whole archive) needs: the
+    ``pick`` given to ``unpacked``, which keeps the archive's list (``listed``) for messages and notes
+    whether the path goes through an archive in this one (``inner``: how many of its parts name it)."""
+
+    def __init__(self, member: PurePosixPath, enter_archives: bool) -> None:
+        self.parts = member.parts  # () for "."
+        self.enter_archives = enter_archives
+        self.listed: list[Member] = []
+        self.inner: int | None = None
+
+    def pick(self, members: list[Member]) -> set[tuple[str, ...]]:
+        self.listed = members
+        files = {m.parts for m in members if not m.is_dir}
+        if self.enter_archives:
+            for i in range(1, len(self.parts) + 1):
+                if self.parts[:i] in files and self.parts[i - 1].lower().endswith(".zip"):
+                    self.inner = i
+                    return {self.parts[:i]}  # only that archive: its own members are picked in turn
+        return members_needed(members, self.parts)
+
+
+# Files beside a named file that no take reader looks at, and large: videos other than the take's .mov,
+# archives (other takes). A take folder's .mov is its audio and reference video: the one it reads is kept.
+_NOT_READ_BESIDE = (".mov", ".mp4", ".m4v", ".avi", ".mkv", ".zip")
+
+
+def members_needed(members: list[Member], parts: tuple[str, ...]) -> set[tuple[str, ...]]:
+    """The members of an archive (``members``) that showing its member ``parts`` needs: all for the
+    archive itself (``()``), a folder's own members for a folder, and for a file (a CSV) the files its
+    reader may look at beside it: those of its folder, less other takes' videos and archives (of the
+    ``.mov`` files, those the take folder reader may take: ``_movs_read``); none when it holds no
+    ``parts``."""
+    if not parts:
+        return {m.parts for m in members}
+    n = len(parts)
+    if any(m.parts == parts and not m.is_dir for m in members):
+        beside = [
+            m.parts for m in members if not m.is_dir and len(m.parts) == n and m.parts[:-1] == parts[:-1]
+        ]
+        kept = {b for b in beside if PurePosixPath(b[-1]).suffix.lower() not in _NOT_READ_BESIDE}
+        return kept | _movs_read(beside, parts[-1]) | {parts}
+    return {m.parts for m in members if m.parts[:n] == parts}
+
+
+def _movs_read(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]]:
+    """Of the ``.mov`` files in the folder of the CSV ``named`` (``beside``: the folder's files), those
+    the take folder reader may read (``capture.take_folder``): the one named as the CSV and the first
+    by name, its fallback, and one an iCloud placeholder stands beside (without it, the placeholder
+    would count as not downloaded); all of them unless the folder's CSVs are one take's (one prefix,
+    one of each variant): between several, the reader picks by the take's names, ``.mov`` stems among
+    them (a flat folder of several takes' CSVs and ``.mov`` files is unpacked as a whole)."""
+    movs = sorted((b for b in beside if PurePosixPath(b[-1]).suffix.lower() == ".mov"), key=lambda b: b[-1])
+    names = [_original_name(b[-1]) for b in beside]
+    csvs = [n for n in names if n.lower().endswith(".csv") and n.lower() != "frame_log.csv"]
+    split = [split_variant(PurePosixPath(n).stem) for n in csvs]  # a copy "X (1)" is a prefix of its own
+    if len({prefix for prefix, _ in split}) > 1 or len({variant for _, variant in split}) < len(split):
+        return set(movs)
+    prefix = split_variant(PurePosixPath(named).stem)[0]
+    placeheld = {icloud_original(Path(b[-1])) for b in beside}
+    return {b for b in movs if PurePosixPath(b[-1]).stem == prefix or b[-1] in placeheld} | set(movs[:1])
+
+
+def _original_name(name: str) -> str:
+    """The name of the file an iCloud placeholder (``.X.csv.icloud``) stands for, else ``name``."""
+    return icloud_original(Path(name)) or name
 
 
 def unpacked_folder(path: str | Path) -> tuple[Path, str] | None:
