@@ -74,8 +74,9 @@ class TimedProgress:
     (``at_once``: the first update speaks at once; ``bar``: a bar of that many ``#`` before the
     count). A job of several steps goes on with ``step``; a step that cannot count its work says
     ``what: step: 25 s so far`` from ``ticking``. The interval runs across steps, so no step is
-    silent for longer. The ``clock`` and ``interval`` are injectable so that a test needs no
-    sleeping."""
+    silent for longer. Units done without work (``update``'s ``skipped``: taken from a cache) count
+    in the share done, not in the rate. The ``clock`` and ``interval`` are injectable so that a test
+    needs no sleeping."""
 
     def __init__(
         self,
@@ -99,16 +100,23 @@ class TimedProgress:
     def step(self, part: str, total: int | None = None, unit: str = "") -> None:
         """Go on with the next step of the job, said as ``what: part`` (``what`` for ""), with its own
         count, rate and time left."""
-        self.what, self.total, self.unit = f"{self.name}: {part}" if part else self.name, total, unit
-        self.start, self.done = self.clock(), 0
+        self.what = f"{self.name}: {part}" if part and self.name else part or self.name
+        self.total, self.unit = total, unit
+        self.start, self.done, self.skipped = self.clock(), 0, 0
 
-    def update(self, done: int | None = None, detail: str = "") -> None:
-        """``done`` units (None: as many as last time) and, in a line said, ``: detail`` after it."""
+    def update(
+        self, done: int | None = None, detail: str = "", skipped: int | None = None, at_once: bool = False
+    ) -> None:
+        """``done`` units (None: as many as last time) and, in a line said, ``: detail`` after it.
+        ``skipped``: how many of ``done`` needed no work (None: as many as last time), left out of the
+        rate and the time left (a thousand takes from a cache are no rate of computing them).
+        ``at_once``: this line is said whatever the clock (the first unit of real work, a last line)."""
         with self.lock:
             self.done = self.done if done is None else done
+            self.skipped = self.skipped if skipped is None else skipped
             now = self.clock()
             over = self.total is not None and self.done >= self.total
-            if now - self.last < self.interval and not (over and self.said):
+            if now - self.last < self.interval and not (over and self.said) and not at_once:
                 return
             self.say(self._line(now - self.start, over) + (f": {detail}" if detail else ""))
             self.last, self.said = now, True
@@ -118,19 +126,20 @@ class TimedProgress:
             took = duration_words(elapsed)
             return f"{self.what}: done in {took}" if over else f"{self.what}: {took} so far"
         done = self.done
-        rate = done / elapsed if elapsed > 0 else math.inf
+        worked = done - self.skipped
+        rate = worked / elapsed if elapsed > 0 else math.inf
         share = 100 * done / self.total if self.total else 100.0
         share = share if over else min(share, 99.9)  # 100 % is for the end
         line = f"{self.what}: " if self.what else ""
         if self.bar:
             line += f"[{'#' * round(self.bar * share / 100):<{self.bar}}] "
         line += f"{done:,}/{self.total:,} {self.unit} ({share:.1f} %)"
-        if math.isfinite(rate):
+        if math.isfinite(rate) and worked > 0:  # no rate (nor time left) before any work is done
             line += f", {rate:,.0f}" if rate >= 10 else f", {rate:.2g}"
             line += f" {self.unit}/s"
         if over:
             line += f", done in {duration_words(elapsed)}"
-        elif rate > 0:
+        elif worked > 0 and rate > 0:
             line += f", about {duration_words((self.total - done) / rate)} left"
         return line
 

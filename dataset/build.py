@@ -456,9 +456,20 @@ def collect_takes(
     by_id: dict[str, SourceTake] = {}
     by_sha: dict[str, SourceTake] = {}
     segments: list[tuple[Path, TakeMeta]] = []  # every aligned take, to find incomplete segment sets
-    for folder in folders:
+    # hundreds of raw takes to align are not hundreds of lines: the first said at once, then a line
+    # every few seconds
+    reading = TimedProgress("reading takes", len(folders), "takes", say)
+    aligned_now = 0
+
+    def aligning(message: str) -> None:
+        nonlocal aligned_now
+        reading.update(detail=message, at_once=not aligned_now)
+        aligned_now += 1
+
+    for i, folder in enumerate(folders, 1):
         resolved = folder.resolve()
         if resolved in seen_paths or (WORK in resolved.parts):
+            reading.update(i)
             continue
         seen_paths.add(resolved)
         with _take_read(folder):
@@ -468,7 +479,8 @@ def collect_takes(
                 aligned = [folder]
             else:
                 origin["sha256"] = take_sha256(folder)
-                aligned = _aligned_folders(folder, origin["sha256"], meta, work, say)
+                aligned = _aligned_folders(folder, origin["sha256"], meta, work, aligning)
+        reading.update(i, meta.id if aligned == [folder] else f"{meta.id} aligned: {len(aligned)} take(s)")
         for af in aligned:
             with _take_read(af):
                 m = read_meta(af)
@@ -1292,25 +1304,33 @@ def empty_split_warnings(split_of: dict[str, str], rule: SplitRule, speakers: in
     return out
 
 
-def _process_takes(jobs: list[TakeJob], options: BuildOptions, say: Callable[[str], None]):
-    """Records of ``jobs`` by take id, ``--jobs`` processes at once. A build that stops (an error in a
-    take, Ctrl-C, SIGTERM) stops its workers too; finished takes stay cached."""
+def _process_takes(
+    jobs: list[TakeJob],
+    options: BuildOptions,
+    say: Callable[[str], None],
+    takes: TimedProgress | None = None,
+):
+    """Records of ``jobs`` by take id, ``--jobs`` processes at once, said by ``takes`` (a ``TimedProgress``
+    counting them). A build that stops (an error in a take, Ctrl-C, SIGTERM) stops its workers too;
+    finished takes stay cached."""
     records: dict[str, dict[str, Any]] = {}
     total = len(jobs)
+    takes = takes or TimedProgress("", total, "takes", say, bar=20)
     cached = 0
-    takes = TimedProgress("", total, "takes", say, at_once=True, bar=20)
 
     def note(i: int, rec: dict[str, Any]) -> None:
-        """A line for the first take processed, then one every few seconds (``TimedProgress``) and the
-        last: hundreds of takes are not hundreds of lines; the takes taken from the cache are counted,
-        not named."""
+        """A line for the first take computed, then one every few seconds (``TimedProgress``) and the
+        last: hundreds of takes are not hundreds of lines. Takes from the cache are counted, not named,
+        and not in the rate: a rebuild from the cache says one line, "all N from the cache"."""
         nonlocal cached
+        first = not rec.get("cached") and i - 1 == cached  # the first take this build computes
         cached += bool(rec.get("cached"))
-        if i < total and rec.get("cached"):
-            return
-        state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
-        from_cache = f"; {cached} from the cache" if cached else ""
-        takes.update(i, f"{rec['take']} ({state}{from_cache})")
+        if cached == total:
+            detail = f"all {cached} from the cache"
+        else:
+            state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
+            detail = f"{rec['take']} ({state}{f'; {cached} from the cache' if cached else ''})"
+        takes.update(i, detail, skipped=cached, at_once=first or i == total)
 
     if options.jobs == 1 or total <= 1:
         for i, job in enumerate(jobs, 1):
@@ -1443,19 +1463,25 @@ def pitch_normalization(ordered: list[dict[str, Any]], speakers: list[str]) -> d
 
 
 def _write_shards(
-    out: Path, work: Path, plan: list[dict[str, Any]], fingerprint: str, say: Callable[[str], None]
+    out: Path, work: Path, plan: list[dict[str, Any]], fingerprint: str, progress: TimedProgress
 ) -> tuple[list[dict[str, Any]], list[str]]:
     """Write the planned shards into ``.work/staged`` (those ``out`` holds already, byte for byte, stay
     where they are and are not rewritten); their manifest entries and the names of the shards staged,
     which ``_swap_in`` moves into ``out``. Nothing in ``out`` changes here: the dataset it holds stays
-    whole until the new one is complete."""
+    whole until the new one is complete. Said as the next step of ``progress`` (the build's): a line
+    every few seconds, and the last."""
     shards = []
     staged = []
+    held = 0  # shards the dataset holds already, byte for byte: no work, not in the rate
+    progress.step("writing shards", len(plan), "shards")
     for i, shard in enumerate(plan, 1):
         done = _write_shard(out, work, shard, fingerprint)
         if done["staged"]:
             staged.append(done["name"])
-        say(f"shard {i}/{len(plan)} {done['name']} ({done['bytes'] / 1e6:.1f} MB)")
+        else:
+            held += 1
+        size = f"{done['bytes'] / 1e6:.1f} MB{', in place already' if not done['staged'] else ''}"
+        progress.update(i, f"{done['name']} ({size})", skipped=held, at_once=i == len(plan))
         shards.append(
             {
                 "name": done["name"],
@@ -1761,7 +1787,9 @@ def _build(
     restored = _restore_samples(out, old, jobs)
     if restored:
         say(f"{restored} take(s) unchanged since the last build: their samples taken from its shards")
-    records = _process_takes(jobs, options, say)
+    # one clock for the takes and then the shards: no stretch of the build is silent for longer
+    progress = TimedProgress("", len(jobs), "takes", say, bar=20)
+    records = _process_takes(jobs, options, say, progress)
     stats_files = {job.take_id: str(job.stats) for job in jobs}
     ordered = [records[t.id] | {"stats_file": stats_files[t.id]} for t in takes]
     for r in ordered:
@@ -1781,7 +1809,7 @@ def _build(
         pitch_norm = pitch_normalization(ordered, sorted({t.speaker for t in takes}))
 
     plan = plan_shards(ordered, options.shard_bytes)
-    shards, staged = _write_shards(out, work, plan, fingerprint, say)
+    shards, staged = _write_shards(out, work, plan, fingerprint, progress)
 
     sample_entries = []
     rec_of = {s["key"]: r for r in ordered for s in r["samples"]}

@@ -245,3 +245,73 @@ def test_the_build_says_its_takes_by_the_same_clock(tmp_path, monkeypatch):
     build_dataset([aligned], tmp_path / "few", options, say=lines.append)
     bars = [line for line in lines if line.startswith("[")]
     assert [line.split(": ")[-1] for line in bars] == ["take00 (1.0 s of audio)", "take02 (1.0 s of audio)"]
+
+
+def test_units_taken_from_a_cache_count_in_the_share_not_in_the_rate():
+    job, clock, lines = _progress(100)
+    clock.now += 1.0
+    job.update(60, "cached", skipped=60)  # a second of checking the cache: no rate of work
+    clock.now += 5.0
+    job.update(70, skipped=60)  # 10 computed in 6 s
+    clock.now += 0.5
+    job.update(80, skipped=None, at_once=True)  # as many skipped as last time, said whatever the clock
+    assert lines == [
+        "render: a.mp4: 70/100 frames (70.0 %), 1.7 frames/s, about 18 s left",
+        "render: a.mp4: 80/100 frames (80.0 %), 3.1 frames/s, about 6 s left",
+    ]
+    job.step("", 5, "frames")
+    job.update(5, "all 5 from the cache", skipped=5, at_once=True)
+    assert lines[-1] == "render: a.mp4: 5/5 frames (100.0 %), done in 0 s: all 5 from the cache"
+
+
+def _build_cli(takes: Path, ds: Path, interval: str, *extra: str) -> list[str]:
+    """The lines ``s2a-dataset build`` says on stderr, run as a user runs it."""
+    env = {k: v for k, v in os.environ.items() if k != PROGRESS_INTERVAL_VAR} | {
+        PROGRESS_INTERVAL_VAR: interval
+    }
+    cmd = [sys.executable, "-m", "dataset", "build", str(takes), "-o", str(ds), "--features", "fbank"]
+    cmd += ["--max-sample-s", "0.5", "--keep-work", *extra]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stderr.splitlines()
+
+
+def test_the_build_says_its_shards_by_the_clock_and_a_build_from_the_cache_says_so_once(tmp_path):
+    """The shards were a line each (hundreds of shards, hundreds of lines): now a line at most every
+    interval with the count, rate and time left, and the last always. A rebuild whose takes all come
+    from the cache says that in one line (no rate of 3,000 takes/s), then its shards."""
+    takes = write_aligned_set(tmp_path / "takes", count=4, speakers=1, seconds=1.0)
+    every = _build_cli(takes, tmp_path / "ds", "0", "--shard-mb", "0.03")  # a shard a sample: 8
+    shards = [line for line in every if line.startswith("build: writing shards: [")]
+    assert [line.split("] ")[1].split(" (")[0] for line in shards] == [f"{k}/8 shards" for k in range(1, 9)]
+    assert " shards/s, about " in shards[0] and shards[-1].endswith(", done in 0 s: test-000001.tar (0.0 MB)")
+    assert every.index(shards[0]) > max(i for i, line in enumerate(every) if " takes (" in line)
+    assert not [line for line in every if line.startswith("build: shard ")]
+    cached = _build_cli(takes, tmp_path / "ds", "60", "--shard-mb", "0.06")  # other shards, same takes
+    assert cached == [
+        "build: [####################] 4/4 takes (100.0 %), done in 0 s: all 4 from the cache",
+        "build: writing shards: [####################] 5/5 shards (100.0 %), "
+        + cached[1].split("(100.0 %), ")[1],
+    ], cached
+    assert cached[1].endswith(": test-000000.tar (0.1 MB)") and " shards/s, done in " in cached[1]
+
+
+def test_raw_takes_the_build_aligns_are_said_by_the_clock(tmp_path, monkeypatch):
+    """Raw takes the build aligns itself were a line each ("aligning X"): now the first at once (aligning
+    is slow), then a line every interval, and the last."""
+    from dataset import BuildOptions, build_dataset
+
+    for i in range(2):
+        take = make_aligned_take(f"raw{i}", 1.5, seed=i)
+        take.meta.source_kind = "livelink_csv"
+        del take.meta.extra["align"]
+        write_take(take, tmp_path / "raw")
+    monkeypatch.setenv(PROGRESS_INTERVAL_VAR, "60")
+    lines: list[str] = []
+    build_dataset([tmp_path / "raw"], tmp_path / "ds", BuildOptions(features=("fbank",)), say=lines.append)
+    reading = [line for line in lines if line.startswith("reading takes: ")]
+    assert reading[0] == "reading takes: 0/2 takes (0.0 %): aligning raw0", lines
+    assert len(reading) == 2 and reading[1].startswith("reading takes: 2/2 takes (100.0 %), "), lines
+    assert reading[1].endswith(": raw1 aligned: 1 take(s)") and not [
+        x for x in lines if x.startswith("aligning")
+    ]
