@@ -150,6 +150,7 @@ def align_folder(
         if take.meta.source_kind == "aligned":
             raise InputError("take is already aligned", folder)
         segments, report = align_with_report(take, options)
+        del take  # the raw take's samples (317 MB for an hour at 44.1 kHz) before the segments are written
         stale = [p for p, _ in _outputs_of(out_dir, meta.id)]
         for seg in segments:
             seg.meta.extra["align"]["fingerprint"] = fp

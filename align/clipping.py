@@ -41,7 +41,7 @@ def clipped_share(audio: Audio) -> float:
         # the resting value from 64k samples spread over the channel: a median, not a precise one
         centre = float(np.median(channel[:: max(1, channel.size // 65536)])) / scale
         loud = [e for e in {high, low} if abs(float(e) / scale - centre) >= CLIP_MIN_LEVEL]
-        flat = sum(_flat_samples(channel == extreme) for extreme in loud)
+        flat = sum(_flat_samples(channel, extreme) for extreme in loud)
         # the timecode test (the costlier one) only where flat tops would flag the take: a timecode
         # signal lives at its two levels, far more than CLIPPED_AUDIO_SHARE of the time
         few = flat <= CLIPPED_AUDIO_SHARE * channel.size
@@ -50,9 +50,22 @@ def clipped_share(audio: Audio) -> float:
     return worst / max(audio.frames, 1)
 
 
-def _flat_samples(at_extreme: np.ndarray) -> int:
-    """Samples in runs of at least ``CLIP_RUN`` consecutive True values (as arrays: a timecode channel,
-    a square wave, holds millions of runs)."""
-    starts, stops = run_bounds(at_extreme)
-    lengths = stops - starts
-    return int(lengths[lengths >= CLIP_RUN].sum())
+def _flat_samples(channel: np.ndarray, extreme, block: int = 1 << 18) -> int:
+    """Samples of ``channel`` in runs of at least ``CLIP_RUN`` consecutive samples at ``extreme`` (as
+    arrays: a timecode channel, a square wave, holds millions of runs), ``block`` samples at a time: the
+    run arrays of a whole hour-long channel took 2.5 GB. A run reaching the end of a block is carried
+    into the next."""
+    total, carried = 0, 0  # carried: the length of the run that reached the end of the last block
+    for lo in range(0, channel.size, block):
+        part = channel[lo : lo + block]
+        starts, stops = run_bounds(part == extreme)
+        lengths = stops - starts
+        if carried and starts.size and starts[0] == 0:
+            lengths[0] += carried  # the run goes on
+        elif carried >= CLIP_RUN:
+            total += carried  # the run ended with the last block
+        carried = 0
+        if stops.size and stops[-1] == part.size:
+            carried, lengths = int(lengths[-1]), lengths[:-1]
+        total += int(lengths[lengths >= CLIP_RUN].sum())
+    return total + (carried if carried >= CLIP_RUN else 0)

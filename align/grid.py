@@ -62,9 +62,9 @@ def resample_values(
 
     Going to a lower rate, the frames are first smoothed (Gaussian, sigma 0.4 source frames per
     output frame) so that motion faster than the new Nyquist rate does not alias."""
-    v = values.astype(np.float64)
+    v = values  # np.interp takes each channel as float64 itself: no float64 copy of all of them
     if dst_fps < 0.9 * src_fps and v.shape[0] > 3:
-        v = gaussian_filter1d(v, sigma=0.4 * src_fps / dst_fps, axis=0, mode="nearest")
+        v = gaussian_filter1d(v.astype(np.float64), sigma=0.4 * src_fps / dst_fps, axis=0, mode="nearest")
     out = np.empty((grid_t.size, v.shape[1]), dtype=np.float32)
     for c in range(v.shape[1]):
         out[:, c] = np.interp(grid_t, frame_t, v[:, c])

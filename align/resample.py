@@ -23,6 +23,7 @@ predicted jawOpen from 0.061 to 0.089. They are removed by a zero-phase high-pas
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -44,7 +45,7 @@ IDLE_CHANNEL_DB = 25.0
 # corner): DC and rumble out; -0.3 dB at 60 Hz, the lowest fundamental of a deep voice.
 HIGHPASS_HZ = 25.0
 DC_NOTE_LEVEL = 1e-3  # a DC offset from -60 dBFS up is recorded in the report (``audio_dc``)
-_CHUNK = 1 << 20  # samples per filtering block: bounded memory on hour-long takes
+_CHUNK = 1 << 18  # samples per block (16 s at 16 kHz): bounded memory on hour-long takes
 
 # Linear timecode (SMPTE LTC) is a two-level square wave: 80 bits per frame in biphase-mark code, so
 # 1,920-4,800 level changes per second at 24-30 fps, with (almost) every sample at one of its two levels.
@@ -207,15 +208,21 @@ def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
     return x, note
 
 
-def remove_rumble(x: np.ndarray) -> np.ndarray:
+def remove_rumble(
+    x: np.ndarray, out: np.ndarray | None = None, tick: Callable[[], None] | None = None
+) -> np.ndarray:
     """``x`` (16 kHz float samples) through the zero-phase high-pass at ``HIGHPASS_HZ``: its DC offset and
     sub-audible rumble removed, as float32. Run forward from the steady state of the first sample (a DC
-    offset leaves no transient at the start), then backward from rest, in blocks of ``_CHUNK``."""
+    offset leaves no transient at the start), then backward from rest, in blocks of ``_CHUNK``. ``out``:
+    a float32 array of ``x``'s size to write into (``x`` itself: filtered in place, no second copy of an
+    hour of audio); None: a new one. ``tick``: called after each block of each pass."""
     n = x.size
+    y = np.empty(n, np.float32) if out is None else out
     if n == 0:  # the mean of nothing is nan, with numpy's warnings
-        return np.zeros(0, np.float32)
+        return y
     if n < 64:
-        return np.ascontiguousarray(x - np.mean(x, dtype=np.float64), dtype=np.float32)
+        y[:] = np.ascontiguousarray(x - np.mean(x, dtype=np.float64), dtype=np.float32)
+        return y
     from scipy.signal import (
         butter,
         sosfilt,
@@ -223,41 +230,141 @@ def remove_rumble(x: np.ndarray) -> np.ndarray:
     )  # here: scipy.signal adds 0.5 s to every command's start
 
     sos = butter(2, HIGHPASS_HZ, btype="highpass", fs=TARGET_RATE, output="sos")
-    y = np.empty(n, np.float32)
     zi = sosfilt_zi(sos) * float(x[0])
-    for lo in range(0, n, _CHUNK):
+    for lo in range(0, n, _CHUNK):  # each block is read (as float64) before its place in y is written
         part, zi = sosfilt(sos, np.asarray(x[lo : lo + _CHUNK], dtype=np.float64), zi=zi)
         y[lo : lo + _CHUNK] = part
+        if tick is not None:
+            tick()
     zi = np.zeros_like(zi)
     for hi in range(n, 0, -_CHUNK):
         lo = max(0, hi - _CHUNK)
         part, zi = sosfilt(sos, y[lo:hi][::-1].astype(np.float64), zi=zi)
         y[lo:hi] = part[::-1]
+        if tick is not None:
+            tick()
     return y
 
 
+def mono_blocks(audio: Audio) -> Iterator[np.ndarray]:
+    """``audio.mono_float()`` in blocks of ``_CHUNK`` frames: the same float32 samples (mono_float works
+    frame by frame), without an hour of them at the file's rate in memory at once."""
+    for lo in range(0, audio.frames, _CHUNK):
+        yield Audio(audio.samples[lo : lo + _CHUNK], audio.sample_rate, audio.subtype).mono_float()
+
+
+def sum64(blocks: Iterable[np.ndarray]) -> float:
+    """The float64 sum of float32 samples given in blocks of a whole number of NumPy buffers (the last
+    may be shorter), bit for bit ``np.sum(all, dtype=np.float64)``: NumPy sums a cast array one buffer
+    (``np.getbufsize()`` samples) at a time, pairwise within it and in order across, and so does this.
+    A DC offset is subtracted from every sample: its last bit matters."""
+    step, total = np.getbufsize(), 0.0
+    for block in blocks:
+        for lo in range(0, block.size, step):
+            total += float(np.add.reduce(block[lo : lo + step], dtype=np.float64))
+    return total
+
+
+def mono_mean(audio: Audio) -> float:
+    """``np.mean(audio.mono_float(), dtype=np.float64)`` (the mean of nothing: nan) without a float32
+    copy of all the audio at its own rate: 635 MB for an hour at 44.1 kHz."""
+    return sum64(mono_blocks(audio)) / audio.frames if audio.frames else math.nan
+
+
+def _resampled(blocks: Iterable[np.ndarray], rate: int, frames: int) -> np.ndarray:
+    """The float32 samples of ``blocks`` (``frames`` of them at ``rate`` Hz) at ``TARGET_RATE``, resampled
+    as ``soxr.resample`` does it (libsoxr streams: the same samples, block by block)."""
+    import soxr
+
+    if rate == TARGET_RATE:
+        y = np.empty(frames, np.float32)
+        at = 0
+        for block in blocks:
+            y[at : at + block.size] = block
+            at += block.size
+        return y
+    stream = soxr.ResampleStream(rate, TARGET_RATE, 1, dtype="float32", quality="VHQ")
+    y = np.empty(round(frames * TARGET_RATE / rate) + 16, np.float32)  # soxr gives the rounded length
+    at = 0
+    for block in blocks:
+        y, at = _put(y, at, stream.resample_chunk(block, last=False))
+    y, at = _put(y, at, stream.resample_chunk(np.zeros(0, np.float32), last=True))
+    if at < y.size:
+        y.resize(at, refcheck=False)  # shrunk where it lies: no copy
+    return y
+
+
+def _put(y: np.ndarray, at: int, part: np.ndarray) -> tuple[np.ndarray, int]:
+    """``part`` written into ``y`` from ``at`` (``y`` grown when it is too short); (``y``, the new end)."""
+    if at + part.size > y.size:
+        y = np.concatenate([y[:at], np.zeros(at + part.size - y.size + (1 << 16), np.float32)])
+    y[at : at + part.size] = part
+    return y, at + part.size
+
+
+class _Work:
+    """The blocks of ``to_16k_mono``'s work, counted for ``on_block``: the mean and the resampling go
+    through the input's blocks, the filter's two passes through the output's."""
+
+    def __init__(self, frames: int, rate: int, on_block: Callable[[int, int], None] | None):
+        out = round(frames * TARGET_RATE / rate)
+        self.total = 2 * -(-frames // _CHUNK) + (2 * -(-out // _CHUNK) if out >= 64 else 0)
+        self.done, self.on_block = 0, on_block
+        if on_block is not None:  # said as the work begins: its rate is timed from here
+            on_block(0, self.total)
+
+    def tick(self) -> None:
+        self.done = min(self.done + 1, self.total)
+        if self.on_block is not None:
+            self.on_block(self.done, self.total)
+
+    def through(self, blocks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+        for block in blocks:
+            yield block
+            self.tick()
+
+    def finish(self) -> None:
+        if self.on_block is not None and self.done < self.total:
+            self.on_block(self.total, self.total)
+
+
 def to_16k_mono(
-    audio: Audio, path: str | None = None, notes: list[dict[str, Any]] | None = None
+    audio: Audio,
+    path: str | None = None,
+    notes: list[dict[str, Any]] | None = None,
+    on_block: Callable[[int, int], None] | None = None,
 ) -> np.ndarray:
     """The audio as mono float32 samples at 16 kHz (values in [-1, 1)), the channels mixed by
     ``mono_mix`` and the DC offset and rumble removed by ``remove_rumble``. With ``notes``, the mix's
     note (``kind`` ``audio_mix``) and, when the mix held a DC offset of at least ``DC_NOTE_LEVEL``, a note
-    on it (``kind`` ``audio_dc``) are appended."""
-    import soxr
+    on it (``kind`` ``audio_dc``) are appended. ``on_block(done, total)``: called after each block of
+    work (the mean, the resampling and the filter's two passes go ``_CHUNK`` samples at a time), so that
+    an hour of audio can say how far it has come (and once with 0 done as it begins)."""
+    if audio.channels == 1:  # mono: read block by block from the recorded samples, never whole as float32
+        frames, note = audio.frames, None
 
-    x, note = mono_mix(audio)
+        def blocks() -> Iterator[np.ndarray]:
+            return mono_blocks(audio)
+    else:
+        x, note = mono_mix(audio)
+        frames = x.size
+
+        def blocks() -> Iterator[np.ndarray]:
+            return (x[lo : lo + _CHUNK] for lo in range(0, frames, _CHUNK))
+
     if note is not None and notes is not None:
         notes.append(note)
     if audio.sample_rate < 8000:
         raise InputError(
             f"audio sample rate {audio.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
         )
-    dc = float(np.sum(x, dtype=np.float64)) / max(x.size, 1)
-    if dc != 0.0:  # off before resampling: the resampler would ring on the step from 0 at the start
-        x = x - np.float32(dc)
-    if audio.sample_rate != TARGET_RATE:
-        x = soxr.resample(x.astype(np.float32), audio.sample_rate, TARGET_RATE, quality="VHQ")
-    y = remove_rumble(x)
+    work = _Work(frames, audio.sample_rate, on_block)
+    dc = sum64(work.through(blocks())) / max(frames, 1)
+    # off before resampling: the resampler would ring on the step from 0 at the start
+    shifted = (b - np.float32(dc) for b in blocks()) if dc != 0.0 else blocks()
+    y = _resampled(work.through(shifted), audio.sample_rate, frames)
+    remove_rumble(y, out=y, tick=work.tick)
+    work.finish()
     if notes is not None and abs(dc) >= DC_NOTE_LEVEL:
         db = 20.0 * math.log10(abs(dc))
         notes.append(

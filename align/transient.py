@@ -40,16 +40,12 @@ class Transient:
 def audio_claps(x: np.ndarray, start_s: float, min_jump_db: float = 30.0) -> list[Transient]:
     """Clap-like impulses in 16 kHz mono audio whose first sample is at take time ``start_s`` (s); the
     strength is how far (dB) an impulse stands above the sound around it, over ``min_jump_db``."""
-    from scipy.signal import butter, sosfilt  # here: scipy.signal adds 0.5 s to every command's start
-
-    hp = sosfilt(
-        butter(4, CLAP_HIGH_PASS_HZ, btype="high", fs=TARGET_RATE, output="sos"), x.astype(np.float64)
-    )
     hop = 32  # 2 ms
-    n = hp.size // hop
+    n = x.size // hop
     if n < 100:
         return []
-    e = np.square(hp[: n * hop]).reshape(n, hop).mean(axis=1)
+    high = _HighBand(x)
+    e = high.energy(hop)
     db = 10 * np.log10(e + 1e-12)
     loud = db.max()
     # Loudest 2 ms window 12-100 ms before each window, and 40-60 ms after it.
@@ -74,10 +70,49 @@ def audio_claps(x: np.ndarray, start_s: float, min_jump_db: float = 30.0) -> lis
         if above < CLAP_ABOVE_SURROUNDINGS_DB:
             continue
         last = i
-        seg = np.abs(hp[i * hop - hop : (i + 2) * hop])
+        seg = np.abs(high.samples(i * hop - hop, (i + 2) * hop))
         k = int(np.flatnonzero(seg >= 0.3 * seg.max())[0]) + i * hop - hop
         out.append(Transient(start_s + k / TARGET_RATE, float(above / min_jump_db)))
     return out
+
+
+class _HighBand:
+    """The audio through the clap high-pass (4th-order Butterworth above ``CLAP_HIGH_PASS_HZ``, causal),
+    computed a block at a time: an hour of it in float64 (with its float64 input and its square) took
+    1.4 GB. The filter's state at each block's start is kept, so that the few stretches a clap needs
+    again are filtered anew from the block they lie in, sample for sample the same."""
+
+    BLOCK = 1 << 18  # samples (16 s), a multiple of the energy hop
+
+    def __init__(self, x: np.ndarray):
+        from scipy.signal import butter  # here: scipy.signal adds 0.5 s to every command's start
+
+        self.x = x
+        self.sos = butter(4, CLAP_HIGH_PASS_HZ, btype="high", fs=TARGET_RATE, output="sos")
+        self.starts: list[np.ndarray] = []  # the filter's state at the start of each block
+
+    def energy(self, hop: int) -> np.ndarray:
+        """Mean square of the high-passed audio in each whole window of ``hop`` samples."""
+        from scipy.signal import sosfilt
+
+        x, n = self.x, self.x.size // hop
+        e = np.empty(n)
+        zi = np.zeros((self.sos.shape[0], 2))
+        for lo in range(0, x.size, self.BLOCK):
+            self.starts.append(zi)
+            hp, zi = sosfilt(self.sos, x[lo : lo + self.BLOCK].astype(np.float64), zi=zi)
+            k, rows = lo // hop, min(hp.size // hop, n - lo // hop)
+            e[k : k + rows] = np.square(hp[: rows * hop]).reshape(rows, hop).mean(axis=1)
+        return e
+
+    def samples(self, lo: int, hi: int) -> np.ndarray:
+        """The high-passed samples ``lo:hi`` (after ``energy``), filtered again from their block's start."""
+        from scipy.signal import sosfilt
+
+        lo, hi = max(lo, 0), min(hi, self.x.size)
+        first = lo // self.BLOCK * self.BLOCK
+        hp, _ = sosfilt(self.sos, self.x[first:hi].astype(np.float64), zi=self.starts[lo // self.BLOCK])
+        return hp[lo - first :]
 
 
 def step_transients(t: np.ndarray, signal: np.ndarray, min_ratio: float = 2.5) -> list[Transient]:

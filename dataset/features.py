@@ -14,6 +14,7 @@ that target: the microphone's gain is arbitrary, the face does not depend on it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,7 @@ from capture.audio_io import SILENT_PEAK
 from capture.errors import InputError
 from capture.numbers import is_finite_number
 
-from .pitch import PitchSettings, track_pitch
+from .pitch import PitchSettings, pitch_pieces, track_pitch
 
 FEATURES = ("pitch", "energy", "fbank", "mfcc", "ppg")
 DEFAULT_FEATURES = ("pitch", "energy", "fbank")
@@ -289,11 +290,21 @@ def n_analysis_frames(n_samples: int, settings: FeatureSettings) -> int:
     return 1 + n_samples // settings.hop_length
 
 
+SPECTRAL_BLOCK = 2048  # analysis frames computed at a time (41 s of audio at a 20 ms hop)
+_SCALE_BLOCK = 1 << 18  # samples scaled by the level gain at a time
+
+
 def spectral_features(
-    audio: np.ndarray, settings: FeatureSettings, block: int = 2048
+    audio: np.ndarray,
+    settings: FeatureSettings,
+    block: int = SPECTRAL_BLOCK,
+    tick: Callable[[], None] | None = None,
+    gain: float = 1.0,
 ) -> dict[str, np.ndarray]:
     """Log energy (frames,), log-mel filter banks (frames, n_mels) and MFCC (frames, n_mfcc) on the
-    analysis grid. Computed block by block so memory stays bounded for long takes."""
+    analysis grid of ``audio`` scaled by ``gain`` (float32 ``audio * np.float32(gain)``, made in the
+    padded copy). Computed block by block so memory stays bounded for long takes; ``tick`` is called
+    after each block of ``block`` frames."""
     x = np.asarray(audio, np.float32)
     win, hop = settings.win_length, settings.hop_length
     pad = win // 2
@@ -301,10 +312,15 @@ def spectral_features(
     # x reflected at both ends by half a window (zeros when too short to reflect), then zeros up to the
     # last frame's end: one copy of the audio, not one per step
     padded = np.zeros(max(x.size + 2 * pad, (n - 1) * hop + win), np.float32)
-    padded[pad : pad + x.size] = x
-    if x.size > pad:
-        padded[:pad] = x[pad:0:-1]
-        padded[pad + x.size : 2 * pad + x.size] = x[-2 : -pad - 2 : -1]
+    if gain == 1.0:
+        padded[pad : pad + x.size] = x
+    else:  # scaled a block at a time into the copy: no scaled copy of an hour of audio besides
+        for lo in range(0, x.size, _SCALE_BLOCK):
+            part = x[lo : lo + _SCALE_BLOCK]
+            padded[pad + lo : pad + lo + part.size] = part * np.float32(gain)
+    if x.size > pad:  # reflected from the (scaled) samples in place: x[pad:0:-1] and x[-2:-pad-2:-1]
+        padded[:pad] = padded[2 * pad : pad : -1]
+        padded[pad + x.size : 2 * pad + x.size] = padded[pad + x.size - 2 : x.size - 2 : -1]
     window = np.hanning(win + 2)[1:-1].astype(np.float32)  # periodic-ish Hann without zero ends
     mel = mel_filters(settings).astype(np.float32).T
     dct = dct_matrix(settings.n_mels, settings.n_mfcc).astype(np.float32).T
@@ -317,6 +333,8 @@ def spectral_features(
         spec = scipy.fft.rfft(frames * window, n=settings.n_fft, axis=1)  # float32 in, complex64 out
         power = (spec.real**2 + spec.imag**2).astype(np.float32)
         fbank[start : start + block] = np.log(np.maximum(power @ mel, 1e-10))
+        if tick is not None:
+            tick()
     return {"energy": energy, "fbank": fbank, "mfcc": fbank @ dct}
 
 
@@ -359,7 +377,11 @@ def check_feature_audio(
             f"audio must be float samples (full scale 1.0), not {x.dtype} (PCM: divide by its full scale, "
             "32768 for int16)"
         )
-    bad = int(np.count_nonzero(~np.isfinite(x)))
+    # counted a block at a time: two boolean copies of an hour of audio are 115 MB
+    bad = sum(
+        int(np.count_nonzero(~np.isfinite(x[lo : lo + _SCALE_BLOCK])))
+        for lo in range(0, x.size, _SCALE_BLOCK)
+    )
     if bad:
         raise InputError(f"audio holds {bad} NaN or infinite sample(s): features would be NaN")
     if n_frames > 0 and fps > 0:
@@ -374,6 +396,26 @@ def check_feature_audio(
     return x
 
 
+class _Count:
+    """One part of ``compute_features``' work (``part``: ``total`` ``unit``), said to its ``on_block``
+    as it begins (0 done) and after each unit done."""
+
+    def __init__(self, on_block, part: str, total: int, unit: str) -> None:
+        self.on_block, self.part, self.total, self.unit, self.done = on_block, part, total, unit, 0
+        if on_block is not None:  # said as the part begins: its rate is timed from here
+            on_block(part, 0, total, unit)
+
+    def tick(self) -> None:
+        self.done = min(self.done + 1, self.total)
+        if self.on_block is not None:
+            self.on_block(self.part, self.done, self.total, self.unit)
+
+    def finish(self) -> None:  # audio too short to track pitch in tracks no piece
+        if self.done < self.total:
+            self.done = self.total - 1
+            self.tick()
+
+
 def compute_features(
     audio: np.ndarray,
     n_frames: int,
@@ -384,6 +426,7 @@ def compute_features(
     transcript: str | None = None,
     gain: float | None = None,
     sample_rate: int | None = None,
+    on_block: Callable[[str, int, int, str], None] | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """Every requested feature for one take, at the animation rate.
 
@@ -399,12 +442,19 @@ def compute_features(
     audio whose length at ``settings.sample_rate`` is far from ``n_frames / fps`` seconds (audio at
     another rate: resample it, as ``align.resample.to_16k_mono`` does), audio that is not mono float
     samples, and NaN or infinite samples.
+
+    ``on_block(part, done, total, unit)``: called as each part of the work begins and goes on, so that an
+    hour of audio can say how far it has come: ``spectra`` (``SPECTRAL_BLOCK`` analysis frames a block),
+    ``pitch`` (``pitch.CHUNK_S`` of audio a piece), ``ppg`` (at once).
     """
     audio = check_feature_audio(audio, n_frames, fps, settings, sample_rate)
     gain = level_gain(audio, settings) if gain is None else gain
-    if gain != 1.0:
-        audio = np.asarray(audio, np.float32) * np.float32(gain)  # float32 already: one copy
-    spectral = spectral_features(audio, settings)
+    # the spectra and the pitch tracker scale their own copies (audio * np.float32(gain), the same
+    # samples): an hour of scaled audio besides the caller's is 230 MB
+    blocks = -(-n_analysis_frames(audio.size, settings) // SPECTRAL_BLOCK)
+    spectral = spectral_features(
+        audio, settings, tick=_Count(on_block, "spectra", blocks, "blocks").tick, gain=gain
+    )
     n_an = spectral["energy"].shape[0]
     out: dict[str, np.ndarray] = {}
     phones = None
@@ -414,11 +464,18 @@ def compute_features(
             if grid.ndim == 1:
                 grid = grid[:, None]
         elif name == "pitch":
-            grid = track_pitch(audio, settings.sample_rate, n_an, settings.hop_s, settings.pitch)
+            pieces = _Count(on_block, "pitch", len(pitch_pieces(audio.size, settings.sample_rate)), "pieces")
+            grid = track_pitch(
+                audio, settings.sample_rate, n_an, settings.hop_s, settings.pitch, pieces.tick, gain
+            )
+            pieces.finish()
         elif name == "ppg":
             if ppg is None:
                 raise InputError("feature 'ppg' requested but no PPG backend given (use --ppg)")
-            result = ppg.extract(audio, spectral["fbank"], transcript)
+            scaled = audio if gain == 1.0 else np.asarray(audio, np.float32) * np.float32(gain)
+            result = ppg.extract(scaled, spectral["fbank"], transcript)
+            del scaled
+            _Count(on_block, "ppg", 1, "passes").tick()
             grid = result.posteriors
             if result.phone_ids is not None:
                 pos = np.clip(np.round(np.arange(n_frames) / fps / settings.hop_s), 0, n_an - 1)

@@ -8,6 +8,7 @@ measured. Per-speaker normalisation happens at read time from statistics in the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,11 +29,25 @@ class PitchSettings:
     method: str = "praat-ac"
 
 
+def pitch_pieces(n_samples: int, sample_rate: int) -> list[int]:
+    """The first samples of the pieces ``track_pitch`` tracks ``n_samples`` of audio in."""
+    chunk, margin = int(CHUNK_S * sample_rate), int(MARGIN_S * sample_rate)
+    return [0] if n_samples <= chunk + 2 * margin else list(range(0, n_samples, chunk))
+
+
 def track_pitch(
-    audio: np.ndarray, sample_rate: int, n_frames: int, hop_s: float, settings: PitchSettings
+    audio: np.ndarray,
+    sample_rate: int,
+    n_frames: int,
+    hop_s: float,
+    settings: PitchSettings,
+    tick: Callable[[], None] | None = None,
+    gain: float = 1.0,
 ) -> np.ndarray:
     """(n_frames, 2) float32: natural-log F0 (log Hz, interpolated through unvoiced frames) and the
-    voicing flag (1 voiced, 0 not), at frame centres ``k * hop_s`` seconds."""
+    voicing flag (1 voiced, 0 not), at frame centres ``k * hop_s`` seconds, of ``audio`` scaled by
+    ``gain`` (float32 ``audio * np.float32(gain)``, piece by piece). ``tick``: called after each piece
+    (``pitch_pieces``) of a long audio is tracked."""
     import parselmouth
 
     out = np.zeros((n_frames, 2), np.float32)
@@ -42,17 +57,21 @@ def track_pitch(
     # whose frames are dropped, so that Praat's memory (about 16 bytes per sample) stays bounded; audio
     # up to CHUNK_S + 2 MARGIN_S is tracked in one piece, as before.
     chunk, margin, total = int(CHUNK_S * sample_rate), int(MARGIN_S * sample_rate), audio.size
-    starts = [0] if total <= chunk + 2 * margin else list(range(0, total, chunk))
-    peak = float(np.max(np.abs(audio)))
+    starts = pitch_pieces(total, sample_rate)
+    # max |x * gain| without a copy of the audio: float32 rounding keeps the order of samples (gain > 0)
+    g = np.float32(gain)
+    peak = float(np.maximum(audio.max() * g, -(audio.min() * g)))
     pieces = []
     for start in starts:
         end = total if len(starts) == 1 else min(total, start + chunk)
         lo, hi = max(0, start - margin), min(total, end + margin)
-        if hi - lo < int(3 * sample_rate / settings.floor_hz) + 1:
-            continue  # a last sliver shorter than one analysis window: its frames come from the margin
-        t, f = _praat_pitch(parselmouth, audio[lo:hi], lo / sample_rate, sample_rate, hop_s, settings, peak)
-        keep = (t >= start / sample_rate) & (t < end / sample_rate) if len(starts) > 1 else slice(None)
-        pieces.append((t[keep], f[keep]))
+        if hi - lo >= int(3 * sample_rate / settings.floor_hz) + 1:  # else a sliver: frames from the margin
+            piece = audio[lo:hi] if gain == 1.0 else audio[lo:hi] * g
+            t, f = _praat_pitch(parselmouth, piece, lo / sample_rate, sample_rate, hop_s, settings, peak)
+            keep = (t >= start / sample_rate) & (t < end / sample_rate) if len(starts) > 1 else slice(None)
+            pieces.append((t[keep], f[keep]))
+        if tick is not None:
+            tick()
     times = np.concatenate([t for t, _ in pieces])
     f0 = np.concatenate([f for _, f in pieces])
     centres = np.arange(n_frames) * hop_s

@@ -194,8 +194,9 @@ def tiny_run(tmp_path_factory) -> Path:
 
 
 def test_predict_says_every_step_of_each_file(tiny_run, tmp_path, monkeypatch):
-    """Reading the audio, its features and the CSV (20 s, 29 s and 5 s of silence for an hour of audio)
-    say how long they have run, the windows how many are done."""
+    """Reading the audio (the decoder reports nothing) and the CSV say how long they have run; the
+    16 kHz audio, the spectra, the pitch and the windows, which go in blocks, how many are done, the
+    rate and the time left (an hour of audio: 20 s, 29 s and 5 s of silence before)."""
     rng = np.random.default_rng(0)
     wav = tmp_path / "speech.wav"
     sf.write(wav, (0.1 * rng.standard_normal(70 * 16000)).astype(np.float32), 16000)  # 70 s: 4 windows
@@ -203,22 +204,29 @@ def test_predict_says_every_step_of_each_file(tiny_run, tmp_path, monkeypatch):
     proc = run_cli("train", "predict", tiny_run, wav, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.startswith("predict: speech.wav: ")]
-    steps = [line.split(": ")[2] for line in lines if " windows (" not in line]
+    step_of = {line: line.split(" (")[0].rsplit(": ", 1)[0] for line in lines}
+    steps = [step_of[line] for line in lines if " windows (" not in line]
     assert list(dict.fromkeys(steps)) == [
-        "reading the audio",
-        "features of 1 min of audio",
-        "writing speech.csv",
+        "predict: speech.wav: reading the audio",
+        "predict: speech.wav: 16 kHz mono audio",
+        "predict: speech.wav: features of 1 min of audio: spectra",
+        "predict: speech.wav: features of 1 min of audio: pitch",
+        "predict: speech.wav: writing speech.csv",
     ]
-    for step in dict.fromkeys(steps):
-        mine = [line for line in lines if line.split(": ")[2] == step]
-        assert mine[0].endswith(" s so far") and mine[-1].startswith(f"predict: speech.wav: {step}: done in ")
+    for step in ("reading the audio", "writing speech.csv"):
+        mine = [line for line in lines if step_of[line].endswith(step)]
+        assert mine[0].endswith(" s so far") and ": done in " in mine[-1], mine
+    for step, unit in (("16 kHz mono audio", "blocks"), ("spectra", "blocks"), ("pitch", "pieces")):
+        mine = [line for line in lines if step_of[line].endswith(step)]
+        assert mine[0].endswith(f": 0/{mine[-1].split('/')[1].split()[0]} {unit} (0.0 %)"), mine
+        assert f" {unit}/s" in mine[1] and ", done in " in mine[-1] and "(100.0 %)" in mine[-1], mine
     windows = [line for line in lines if " windows (" in line]
     assert [line.split(" (")[0] for line in windows] == [
         f"predict: speech.wav: {k}/4 windows" for k in range(1, 5)
     ]
     assert " windows/s, about " in windows[0] and ", done in " in windows[-1]
     order = [lines.index(line) for line in (windows[0], windows[-1])]
-    assert lines[order[0] - 1].startswith("predict: speech.wav: features of 1 min of audio: done in ")
+    assert step_of[lines[order[0] - 1]].endswith(": pitch") and ", done in " in lines[order[0] - 1]
     assert lines[order[1] + 1] == "predict: speech.wav: writing speech.csv: 0 s so far"
     monkeypatch.delenv(PROGRESS_INTERVAL_VAR)
     sf.write(wav, (0.1 * rng.standard_normal(3 * 16000)).astype(np.float32), 16000)  # done within 5 s

@@ -17,14 +17,13 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from align.resample import TARGET_RATE, to_16k_mono
+from align.resample import TARGET_RATE, mono_mean, to_16k_mono
 from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, read_take, write_livelink_csv
 from capture.atomic import atomic_write
 from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
@@ -175,7 +174,7 @@ def animate_16k(
     job: TimedProgress | None = None,
 ) -> np.ndarray:
     """``animate`` for audio made what the model hears already (``model_audio``: 16 kHz mono float32).
-    ``job``: where the features (a step without a count) and the windows the model runs go on."""
+    ``job``: where the features and the windows the model runs are said, each counted."""
     spec = InputSpec.from_json(payload["inputs"])
     info = payload["dataset"]
     fps, settings = info["fps"], feature_settings(info["features"])
@@ -184,17 +183,20 @@ def animate_16k(
     if n < 1:
         raise InputError("audio is shorter than half an animation frame", where)
     span = int(round(n * settings.sample_rate / fps))
-    audio = np.pad(audio, (0, max(span - audio.size, 0)))[:span]
+    # cut or padded to the frames' span; a copy only when padded (an hour of audio is 230 MB)
+    audio = audio[:span] if audio.size >= span else np.pad(audio, (0, span - audio.size))
     window = int(round(PREDICT_WINDOW_S * fps))
     limit = max_frames(payload.get("model_config"))
     if limit is not None:
         window = min(window, limit)
     gain = None if level is None else gain_for_level(level, settings)
     seconds = duration_words(audio.size / settings.sample_rate)
-    with job.ticking(f"features of {seconds} of audio") if job else nullcontext():
-        names, rate = tuple(spec.features), settings.sample_rate
-        feats, _ = compute_features(audio, n, fps, names, settings, ppg=ppg, gain=gain, sample_rate=rate)
-        feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
+    names, rate = tuple(spec.features), settings.sample_rate
+    counted = _counted_parts(job, f"features of {seconds} of audio") if job else None
+    feats, _ = compute_features(
+        audio, n, fps, names, settings, ppg=ppg, gain=gain, sample_rate=rate, on_block=counted
+    )
+    feats = normalize_features({"normalization": info["normalization"]}, feats, speaker)
 
     def on_window(done: int, count: int) -> None:  # the windows: the job's next step, counted
         if job is not None:
@@ -215,6 +217,37 @@ def animate_16k(
     if not np.all(np.isfinite(y)):
         raise InputError(NOT_FINITE, where)
     return Normalizer.from_json(info["normalization"]["animation"]).inverse(y, neutral)
+
+
+def _counted(job: TimedProgress, part: str) -> Callable[[int, int], None]:
+    """A callback ``(done, total)`` that says ``part`` of ``job`` as a counted step: a fraction, a rate
+    and the time left instead of the seconds so far."""
+
+    begun = False
+
+    def on_block(done: int, total: int) -> None:
+        nonlocal begun
+        if not begun:  # the step begins with its first block of work: its total is known then
+            job.step(part, total, "blocks")
+            begun = True
+        job.update(done)
+
+    return on_block
+
+
+def _counted_parts(job: TimedProgress, step: str) -> Callable[[str, int, int, str], None]:
+    """A callback ``(part, done, total, unit)`` that says each part of ``step`` of ``job`` as a counted
+    step of its own (``step: part``): the spectra take a second an hour, the pitch tracker a minute."""
+    current = None
+
+    def on_block(part: str, done: int, total: int, unit: str) -> None:
+        nonlocal current
+        if part != current:
+            job.step(f"{step}: {part}", total, unit)
+            current = part
+        job.update(done)
+
+    return on_block
 
 
 def read_neutral(path: str | Path, channels: list[str]) -> np.ndarray:
@@ -387,15 +420,17 @@ def _predict_one(
         raise InputError("output CSV path is a folder", path)
     repairs: list[dict[str, Any]] = []  # damaged samples are repaired as s2a-capture import repairs them
     job = TimedProgress(f"predict: {a.name}", say=say)
-    with job.ticking("reading the audio"):
+    with job.ticking("reading the audio"):  # the decoder says nothing of how far it is
         raw = read_audio(a, repairs)
-        if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
-            raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
-        audio = to_16k_mono(raw, str(a))  # without its DC offset, which is no sound
-        dc = abs(float(np.mean(raw.mono_float(), dtype=np.float64)))
-        narrow = is_narrowband(audio, TARGET_RATE)
-        peak = float(np.max(np.abs(audio), initial=0.0))
-        level = speech_level(audio, TARGET_RATE)
+    if repairs and not np.any(raw.samples):  # nothing but NaN/inf (and zeros): no sound left to animate
+        raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
+    # without its DC offset, which is no sound; counted in blocks
+    audio = to_16k_mono(raw, str(a), on_block=_counted(job, "16 kHz mono audio"))
+    dc = abs(mono_mean(raw))  # block by block: no float32 copy of the file's samples
+    del raw  # the recorded samples (317 MB for an hour at 44.1 kHz) are not needed any more
+    narrow = is_narrowband(audio, TARGET_RATE)
+    peak = float(np.maximum(audio.max(initial=0.0), -audio.min(initial=0.0)))  # max |x|, no copy
+    level = speech_level(audio, TARGET_RATE)
     values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level, job)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
