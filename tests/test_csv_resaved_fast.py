@@ -120,12 +120,11 @@ def careful(path: Path, strict: bool = False) -> CsvRows | str:
         return str(exc)
 
 
-@pytest.mark.parametrize("damaged", [False, True], ids=["intact", "damaged"])
-@pytest.mark.parametrize("ways", VARIANTS, ids=["+".join(v) for v in VARIANTS])
-@pytest.mark.parametrize("sample", sorted(REAL))
-def test_a_resaved_file_takes_the_fast_path_to_the_careful_parsers_result(
+def same_both_ways(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, sample: str, ways: tuple[str, ...], damaged: bool
-) -> None:
+) -> CsvRows:
+    """The careful parser's reading of the sample re-saved ``ways`` (damaged or not), checked to be the
+    fast path's too."""
     lines = REAL[sample].read_text().splitlines()
     path = tmp_path / f"{sample}.csv"
     path.write_bytes(resave(damage(lines) if damaged else lines, ways))
@@ -133,6 +132,16 @@ def test_a_resaved_file_takes_the_fast_path_to_the_careful_parsers_result(
     assert not isinstance(want, str), want
     assert not isinstance(fast, str), fast
     assert_same(fast, want, lines_kept=False)
+    return want
+
+
+@pytest.mark.parametrize("damaged", [False, True], ids=["intact", "damaged"])
+@pytest.mark.parametrize("ways", VARIANTS, ids=["+".join(v) for v in VARIANTS])
+@pytest.mark.parametrize("sample", sorted(REAL))
+def test_a_resaved_file_takes_the_fast_path_to_the_careful_parsers_result(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, sample: str, ways: tuple[str, ...], damaged: bool
+) -> None:
+    want = same_both_ways(tmp_path, monkeypatch, sample, ways, damaged)
     kinds = {r["kind"] for r in want.repairs}
     assert ("bom" in kinds) == ("bom" in ways) and ("index_column" in kinds) == ("index" in ways)
     assert ("trailing_comma" in kinds) == ("comma" in ways)
@@ -152,13 +161,7 @@ def test_a_file_of_quoted_cells_takes_the_fast_path_to_the_careful_parsers_resul
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, sample: str, ways: tuple[str, ...], damaged: bool
 ) -> None:
     """Quotes are read as the careful parser's csv module reads them, with no note (nothing was changed)."""
-    lines = REAL[sample].read_text().splitlines()
-    path = tmp_path / f"{sample}.csv"
-    path.write_bytes(resave(damage(lines) if damaged else lines, ways))
-    fast, want = read_without_careful(path, monkeypatch), careful(path)
-    assert not isinstance(want, str), want
-    assert not isinstance(fast, str), fast
-    assert_same(fast, want, lines_kept=False)
+    want = same_both_ways(tmp_path, monkeypatch, sample, ways, damaged)
     if not damaged:
         notes = [("bom", "bom"), ("index", "index_column"), ("comma", "trailing_comma")]
         assert [r["kind"] for r in want.repairs] == [kind for way, kind in notes if way in ways]
