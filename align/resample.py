@@ -22,6 +22,7 @@ predicted jawOpen from 0.061 to 0.089. They are removed by a zero-phase high-pas
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -248,9 +249,14 @@ def remove_rumble(
 
 def mono_blocks(audio: Audio) -> Iterator[np.ndarray]:
     """``audio.mono_float()`` in blocks of ``_CHUNK`` frames: the same float32 samples (mono_float works
-    frame by frame), without an hour of them at the file's rate in memory at once."""
+    frame by frame), without an hour of them at the file's rate in memory at once. Each block is a
+    shallow copy of ``audio`` holding a slice of its samples, not a new ``Audio``: the constructor
+    checks its samples again, and refuses the last block of a file of more than 64 channels
+    (``MAX_AUDIO_CHANNELS``) when it holds fewer frames than channels, as (channels, samples)."""
+    part = copy.copy(audio)
     for lo in range(0, audio.frames, _CHUNK):
-        yield Audio(audio.samples[lo : lo + _CHUNK], audio.sample_rate, audio.subtype).mono_float()
+        part.samples = audio.samples[lo : lo + _CHUNK]
+        yield part.mono_float()
 
 
 def sum64(blocks: Iterable[np.ndarray]) -> float:

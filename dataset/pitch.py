@@ -58,15 +58,20 @@ def track_pitch(
     # up to CHUNK_S + 2 MARGIN_S is tracked in one piece, as before.
     chunk, margin, total = int(CHUNK_S * sample_rate), int(MARGIN_S * sample_rate), audio.size
     starts = pitch_pieces(total, sample_rate)
-    # max |x * gain| without a copy of the audio: float32 rounding keeps the order of samples (gain > 0)
+    # max |x * gain| without a copy of the audio: the scaled samples are float32 (as a whole scaled copy
+    # was, whatever the audio's float type), and float32 rounding and scaling keep or reverse the order
+    # of samples, so the extremes of x * gain are those of x scaled (a negative gain swaps them)
     g = np.float32(gain)
-    peak = float(np.maximum(audio.max() * g, -(audio.min() * g)))
+    high, low = audio.max(), audio.min()
+    if gain != 1.0:
+        high, low = np.float32(high) * g, np.float32(low) * g
+    peak = float(max(abs(high), abs(low)))
     pieces = []
     for start in starts:
         end = total if len(starts) == 1 else min(total, start + chunk)
         lo, hi = max(0, start - margin), min(total, end + margin)
         if hi - lo >= int(3 * sample_rate / settings.floor_hz) + 1:  # else a sliver: frames from the margin
-            piece = audio[lo:hi] if gain == 1.0 else audio[lo:hi] * g
+            piece = audio[lo:hi] if gain == 1.0 else np.asarray(audio[lo:hi], np.float32) * g
             t, f = _praat_pitch(parselmouth, piece, lo / sample_rate, sample_rate, hop_s, settings, peak)
             keep = (t >= start / sample_rate) & (t < end / sample_rate) if len(starts) > 1 else slice(None)
             pieces.append((t[keep], f[keep]))
