@@ -628,6 +628,19 @@ def _resync(data: bytes, pos: int) -> int | None:
         pos = sync + 1
 
 
+def _starts_reservoir(data: bytes, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the frame at ``pos`` could be a file's first: not layer III, or its sound starts in its own
+    bytes (``main_data_begin`` 0: a layer III frame may begin its sound in the bytes of the frames before
+    it, the bit reservoir, which a file's first frame has none of)."""
+    if frame[3] != 3:
+        return True
+    side = pos + frame[6]
+    if side + 2 > len(data):
+        return True
+    # main_data_begin: the side information's first 9 bits (MPEG-1), 8 bits (MPEG-2 and 2.5)
+    return not (data[side] if frame[1] == 576 else data[side] << 1 | data[side + 1] >> 7)
+
+
 _NO_COUNT = 1 << 62  # a file whose header declares no frame count: never past it
 
 
@@ -683,6 +696,11 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
         # frames past the count a file declares are another file (LAME counts them without its Info frame;
         # one more frame at the very end is let pass, for encoders that count it and for a stray tail)
         past_count = counted > last_frame and _mpeg_frame(data, pos + size) is not None
+        if past_count and not _starts_reservoir(data, pos, frame):
+            # its sound begins in the bytes of frames before it: the same file, whose count is wrong (a
+            # file edited after encoding); read on as one, the count no more trusted (split there, the
+            # part after it would lose the start of its sound: a click)
+            past_count, last_frame = False, _NO_COUNT
         new_file = not runs or after_tag or header or past_count or frame[3] != runs[-1].layer
         if not new_file and frame[4] | mono == run_format:
             end, coded = pos + size, coded + samples

@@ -18,6 +18,7 @@ not readable here, damage) and the room on the disk see what is unpacked.
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import stat
@@ -221,6 +222,7 @@ def unpacked(
         where = Path(tempfile.gettempdir() if into is None else into)
         _check_room(plan, where, Path(name))
         work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
+        pid = os.getpid()
         try:
             # named as the archive (a take folder zipped without its folder keeps a name), never "." or ".."
             folder = work / (archive.stem.strip(".") and archive.stem or "archive")
@@ -232,7 +234,10 @@ def unpacked(
                 _unpack_member(zf, info, folder.joinpath(*parts), name)
             yield Unpacked(archive, folder, name, real, outer.depth + 1 if outer else 1)
         finally:
-            shutil.rmtree(work, ignore_errors=True)
+            # a forked child that inherited this (its generator closed as the child ends) leaves it: the
+            # files are the parent's, still being read
+            if os.getpid() == pid:
+                shutil.rmtree(work, ignore_errors=True)
 
 
 def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, archive: str) -> None:

@@ -27,6 +27,7 @@ import shutil
 import signal
 import tempfile
 import threading
+import unicodedata
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from pathlib import Path, PurePosixPath
@@ -170,6 +171,7 @@ class _Session:
     def __init__(self) -> None:
         self.stack = ExitStack()
         self.boxes: list[Unpacked] = []
+        self.pid = os.getpid()  # a forked child inherits the session, not what it unpacked
 
 
 _sessions: list[_Session] = []  # innermost last; the CLI holds one open while a command runs
@@ -188,8 +190,9 @@ def archives_unpacked() -> Iterator[None]:
         yield
     finally:
         _sessions.remove(session)
-        with _signals_held():
-            session.stack.close()
+        if session.pid == os.getpid():  # a forked child leaving the block: the files are its parent's
+            with _signals_held():
+                session.stack.close()
 
 
 _PREFIX = f"{UNPACK_PREFIX}view-"  # .unzip-view-PID-xxxx: which process unpacked it
@@ -245,9 +248,12 @@ def _signals_held(redeliver: bool = True) -> Iterator[None]:
 def _remove_at_exit() -> None:
     """Remove what sessions still open unpacked when the interpreter ends without leaving them: VTK
     ends it itself (``Py_Exit``, exit status 1) on a Ctrl-C met while it calls a Python observer, from
-    inside that call, and no ``finally`` of the command runs then."""
+    inside that call, and no ``finally`` of the command runs then. A forked child that ends normally
+    leaves its parent's sessions alone: their files are the parent's, still being read."""
     while _sessions:
         session = _sessions.pop()
+        if session.pid != os.getpid():
+            continue
         with _signals_held(redeliver=False):
             session.stack.close()
 
@@ -307,6 +313,7 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
             unpacked(archive, litter=tally, outer=outer, prefix=_own_prefix(), pick=route.pick)
         )
         session.boxes.append(box)
+        member = PurePosixPath(*route.parts) if route.parts else member  # as the archive spells it
         target = box.folder.joinpath(*member.parts)
         if route.inner is None:
             break
@@ -330,13 +337,14 @@ class _Route:
     whether the path goes through an archive in this one (``inner``: how many of its parts name it)."""
 
     def __init__(self, member: PurePosixPath, enter_archives: bool) -> None:
-        self.parts = member.parts  # () for "."
+        self.parts = member.parts  # () for "."; as the archive spells them once ``pick`` has seen it
         self.enter_archives = enter_archives
         self.listed: list[Member] = []
         self.inner: int | None = None
 
     def pick(self, members: list[Member]) -> set[tuple[str, ...]]:
         self.listed = members
+        self.parts = _as_spelled(self.parts, members)
         files = {m.parts for m in members if not m.is_dir}
         if self.enter_archives:
             for i in range(1, len(self.parts) + 1):
@@ -367,6 +375,27 @@ def members_needed(members: list[Member], parts: tuple[str, ...]) -> set[tuple[s
         kept = {b for b in beside if PurePosixPath(b[-1]).suffix.lower() not in _NOT_READ_BESIDE}
         return kept | _movs_read(beside, parts[-1]) | {parts}
     return {m.parts for m in members if m.parts[:n] == parts}
+
+
+def _spelling(name: str) -> str:
+    return unicodedata.normalize("NFC", name).casefold()
+
+
+def _as_spelled(parts: tuple[str, ...], members: list[Member]) -> tuple[str, ...]:
+    """``parts`` as the archive spells them: a name typed in another case or Unicode normalisation
+    (macOS writes names decomposed, NFD; a shell types them composed) is the member's own where one
+    member only is so named, as the whole archive unpacked on macOS's file system found it; else as
+    typed."""
+    known = {m.parts[:i] for m in members for i in range(1, len(m.parts) + 1)}
+    for i in range(len(parts)):
+        if parts[: i + 1] in known:
+            continue
+        same = {k[i] for k in known if len(k) == i + 1 and k[:i] == parts[:i]}
+        same = {name for name in same if _spelling(name) == _spelling(parts[i])}
+        if len(same) != 1:
+            return parts
+        parts = (*parts[:i], same.pop(), *parts[i + 1 :])
+    return parts
 
 
 def _movs_read(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]]:
