@@ -98,15 +98,16 @@ def test_fit_cli_overfits_tiny_dataset_and_writes_the_run(ds, tmp_path):
     ]
     assert len(losses) == 30
     assert np.mean(losses[-3:]) < 0.9 * np.mean(losses[:2])  # most channels are unpredictable noise
-    # evaluated on the training split itself, the fit is well below the train-mean floor
-    proc = _cli("eval", run, "--data", ds, "--split", "train", "--json")
+    # evaluated on the training split itself, the fit is well below the train-mean floor (in this
+    # process: eval's command line runs as a subprocess in test_train_adversity.py)
+    proc = _here("eval", run, "--data", ds, "--split", "train", "--json")
     assert proc.returncode == 0, proc.stderr
     r = json.loads(proc.stdout)
     assert r["rmse_entire"]["mean"] < 0.8 * r["floor"]["rmse_entire"]["mean"]
     assert r["rmse_crucial"]["mean"] < 0.5 * r["floor"]["rmse_crucial"]["mean"]
     assert r["rtf"] > 0 and r["device"].startswith("cpu") and r["precision"] == "fp32"
     if bf16_is_native():  # the same evaluation in bfloat16: the same errors to bfloat16's rounding
-        proc = _cli("eval", run, "--data", ds, "--split", "train", "--precision", "bf16", "--json")
+        proc = _here("eval", run, "--data", ds, "--split", "train", "--precision", "bf16", "--json")
         assert proc.returncode == 0, proc.stderr
         half = json.loads(proc.stdout)
         assert half["precision"] == "bf16" and half["rtf"] > 0
@@ -184,18 +185,37 @@ def _torchrun(ds, run, *extra):
     return summaries[0]
 
 
-def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
-    s = _torchrun(ds, tmp_path / "ddp", "--max-steps", 6)
+@pytest.fixture(scope="module")
+def ddp_runs(tmp_path_factory):
+    """A 2-process torchrun of 6 steps, and the same run stopped after 3 steps (still in warm-up, so the
+    schedule does not depend on max_steps) and resumed to 6: the two DDP tests below both only read them
+    (each torchrun is mostly 3 interpreters' start-up). 3 training samples: one rank's batches hold 2
+    windows, the other's 1, so dropout and style dropout draw different amounts of random numbers per
+    rank. Returns (whole summary, resumed summary, whole run folder, resumed run folder)."""
+    root = tmp_path_factory.mktemp("ddp")
+    takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=1.5)
+    options = BuildOptions(
+        features=("pitch", "energy", "fbank"), split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",))
+    )
+    build_dataset([takes], root / "ds", options, say=lambda _m: None)
+    drawing = ("--set", "arch.dropout=0.3", "--set", "speaker_style=true", "--set", "style_dropout=0.5")
+    whole = _torchrun(root / "ds", root / "whole", "--max-steps", 6, *drawing)
+    _torchrun(root / "ds", root / "cut", "--max-steps", 3, *drawing)
+    resumed = _torchrun(root / "ds", root / "cut", "--max-steps", 6, "--resume", *drawing)
+    return whole, resumed, root / "whole", root / "cut"
+
+
+def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, ddp_runs, tmp_path):
+    s, resumed, whole_run, cut_run = ddp_runs
     assert s["world_size"] == 2 and s["steps"] == 6 and s["stopped"] == "max_steps"
     # both ranks stepped together: their parameters are bit-identical after training
     assert len(s["params_checksums"]) == 2 and s["ranks_in_sync"]
-    assert json.loads((tmp_path / "ddp" / "config.json").read_text())["world_size"] == 2
-    # stopped after 3 steps (still in warm-up, so the schedule does not depend on max_steps) and
-    # resumed: every rank continues from its own data position and the result is the same
-    _torchrun(ds, tmp_path / "two", "--max-steps", 3)
-    resumed = _torchrun(ds, tmp_path / "two", "--max-steps", 6, "--resume")
+    assert json.loads((whole_run / "config.json").read_text())["world_size"] == 2
+    # stopped after 3 steps and resumed: every rank continues from its own data position and the result
+    # is the same
+    assert resumed["world_size"] == 2 and resumed["steps"] == 6 and resumed["ranks_in_sync"]
     assert resumed["params_checksums"] == s["params_checksums"]
-    a, b = load_checkpoint(tmp_path / "ddp" / "last.pt"), load_checkpoint(tmp_path / "two" / "last.pt")
+    a, b = load_checkpoint(whole_run / "last.pt"), load_checkpoint(cut_run / "last.pt")
     assert a["positions"] == b["positions"] and len(a["positions"]) == 2
     # a cross-validation ensemble under torchrun: each member trains on a subset of the takes, which
     # both ranks share sample by sample (shards divided between ranks could leave one with none)
@@ -209,19 +229,11 @@ def test_ddp_two_cpu_processes_with_torchrun_and_exact_resume(ds, tmp_path):
     assert (tmp_path / "cv" / "config.json").read_bytes() == before
 
 
-def test_ddp_resume_restores_every_ranks_random_numbers(tmp_path):
+def test_ddp_resume_restores_every_ranks_random_numbers(ddp_runs):
     """3 training samples: one rank's batches hold 2 windows, the other's 1, so dropout and style
     dropout draw different amounts of random numbers per rank; resuming must restore each rank's own
     generator for the result to equal an uninterrupted run."""
-    takes = write_aligned_set(tmp_path / "takes", count=5, speakers=2, seconds=1.5)
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"), split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",))
-    )
-    build_dataset([takes], tmp_path / "ds", options, say=lambda _m: None)
-    drawing = ("--set", "arch.dropout=0.3", "--set", "speaker_style=true", "--set", "style_dropout=0.5")
-    whole = _torchrun(tmp_path / "ds", tmp_path / "whole", "--max-steps", 6, *drawing)
-    _torchrun(tmp_path / "ds", tmp_path / "cut", "--max-steps", 3, *drawing)
-    resumed = _torchrun(tmp_path / "ds", tmp_path / "cut", "--max-steps", 6, "--resume", *drawing)
+    whole, resumed, _whole_run, _cut_run = ddp_runs
     assert resumed["params_checksums"] == whole["params_checksums"]
 
 
@@ -259,7 +271,9 @@ def test_ridge_beats_the_floor_and_eval_matches_a_hand_computation(ds, tmp_path)
 def test_ablations_predict_and_export(ds, tmp_path):
     run = tmp_path / "mfcc"
     sets = [a for s in TINY for a in ("--set", s)]
-    proc = _cli(
+    # every command in this process: fit's command line runs as a subprocess above, predict's and export's
+    # in test_train_repairs.py; here the subject is what they do, without a PyTorch start-up per command
+    proc = _here(
         "fit",
         "--data",
         ds,
@@ -284,7 +298,7 @@ def test_ablations_predict_and_export(ds, tmp_path):
     # predict: a take's own audio → a Live Link Face CSV of 61 channels at the dataset's rate
     wav = next((ds.parent / "takes").rglob("audio.wav"))
     out = tmp_path / "pred.csv"
-    proc = _cli("predict", run, wav, "-o", out, "--json")
+    proc = _here("predict", run, wav, "-o", out, "--json")
     assert proc.returncode == 0, proc.stderr
     info = json.loads(proc.stdout)
     take = read_livelink_csv(out)
@@ -299,7 +313,7 @@ def test_ablations_predict_and_export(ds, tmp_path):
     speech, sr = sf.read(wav, dtype="float32")
     long_wav = tmp_path / "long.wav"
     sf.write(long_wav, np.tile(speech, int(np.ceil(70 * sr / speech.size)))[: 70 * sr], sr)
-    proc = _cli("predict", run, long_wav, "-o", tmp_path / "long.csv", "--json")
+    proc = _here("predict", run, long_wav, "-o", tmp_path / "long.csv", "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["frames"] == 70 * 60
     jaw = read_livelink_csv(tmp_path / "long.csv").values[:, lowered.index("jawopen")]
@@ -307,7 +321,7 @@ def test_ablations_predict_and_export(ds, tmp_path):
 
     # export: the ONNX graph reproduces the PyTorch model on inputs of another length
     onnx_path = tmp_path / "m.onnx"
-    proc = _cli("export", run, "-o", onnx_path, "--json")
+    proc = _here("export", run, "-o", onnx_path, "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["max_abs_diff"] < 1e-4
     import onnxruntime as ort
