@@ -1,4 +1,5 @@
-"""Review of session 16's changes: joined-MP3 splitting, CSV parts on the fast path, archive picks."""
+"""Found by review: an MP3 whose Info frame undercounts its frames is no join; archive members named in
+another case or Unicode form, and a forked child's clean-up, in s2a-view's picks."""
 
 from __future__ import annotations
 

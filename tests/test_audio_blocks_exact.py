@@ -1,5 +1,6 @@
-"""Review of session 16's block-by-block audio work: to_16k_mono (soxr streaming, blockwise DC mean,
-rumble filter in place), the clipping and clap searches, and the level gain applied per pitch piece."""
+"""The block-by-block audio work of align and features, exact to the whole-array code: to_16k_mono (soxr
+streaming, blockwise DC mean, rumble filter in place), the clipping and clap searches, and the level gain
+applied per pitch piece."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from dataset.pitch import PitchSettings, track_pitch
 
 
 def _old_to_16k_mono(audio: Audio) -> np.ndarray:
-    """The whole-array conversion before session 16 (mono input): mean, one-shot soxr, rumble filter."""
+    """The whole-array conversion before it went block by block (mono input): mean, one-shot soxr,
+    rumble filter."""
     x = audio.mono_float()
     dc = float(np.sum(x, dtype=np.float64)) / max(x.size, 1)
     if dc != 0.0:
