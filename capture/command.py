@@ -243,3 +243,29 @@ def run(
         detail = str(exc).strip().splitlines()
         print(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}", file=sys.stderr)
         return 1
+
+
+@contextmanager
+def stops_deferred(redeliver: bool = True) -> Iterator[None]:
+    """Inside, Ctrl-C and SIGTERM wait until the block ends, then reach the process as they would have
+    (each once, in the order met), for work a stop must not cut in half (a dataset's swap, removing what
+    was unpacked). Not after a block that raised (its own error says more), nor without ``redeliver``
+    (the process is ending anyway). Python handlers note them meanwhile: blocking them
+    (``pthread_sigmask``) would hold them off this thread only, another thread (OpenBLAS's, FFmpeg's)
+    would take them, and Python would run the handler in this thread all the same. Left alone off the
+    main thread, and for handlers not set from Python or ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: h for sig, h in previous.items() if h is not None and h != signal.SIG_IGN}
+    for sig in previous:
+        signal.signal(sig, lambda signum, _frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    for sig in dict.fromkeys(caught) if redeliver else ():
+        signal.raise_signal(sig)

@@ -28,9 +28,7 @@ import math
 import os
 import re
 import shutil
-import signal
 import sys
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -45,7 +43,7 @@ import numpy as np
 
 from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
-from capture.command import TimedProgress, sigterm_stops
+from capture.command import TimedProgress, sigterm_stops, stops_deferred
 from capture.errors import InputError, S2AError
 from capture.file_lock import holding
 from capture.importer import no_takes_found
@@ -1556,7 +1554,7 @@ def _restore_samples(out: Path, old: dict[str, Any] | None, jobs: list[TakeJob])
 def _swap_in(out: Path, work: Path, staged: list[str], manifest: dict[str, Any]) -> None:
     """Replace the dataset in ``out`` with the new one: the staged shards renamed into place, then the
     manifest written (atomically), then the shards it does not list removed (of an earlier, larger
-    build). The caller holds Ctrl-C and SIGTERM back meanwhile (``_stops_deferred``); only a kill (or
+    build). The caller holds Ctrl-C and SIGTERM back meanwhile (``stops_deferred``); only a kill (or
     a crash) among these few renames leaves a manifest that does not match its shards, which the next
     build mends (its staged shards are still in .work)."""
     for name in staged:
@@ -1577,28 +1575,6 @@ def _remove_unlisted_shards(out: Path, manifest: dict[str, Any]) -> None:
         p.unlink()
     if unlisted:
         _fsync_dir(out)
-
-
-@contextmanager
-def _stops_deferred() -> Iterator[None]:
-    """Inside, Ctrl-C and SIGTERM wait until the block ends, then reach the process as they would have
-    (a stop halfway through a swap would leave a manifest that does not match its shards)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    for sig, handler in previous.items():
-        if handler is not None and handler != signal.SIG_IGN:  # None: not set from Python, left alone
-            signal.signal(sig, lambda signum, _frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            if handler is not None and handler != signal.SIG_IGN:
-                signal.signal(sig, handler)
-    for sig in dict.fromkeys(caught):  # only after a swap that succeeded: its own error says more
-        signal.raise_signal(sig)
 
 
 def _split_stats(
@@ -1891,7 +1867,7 @@ def _build(
         },
     }
     state.phase = "swapping"
-    with _stops_deferred():  # a Ctrl-C or SIGTERM meanwhile stops the build once the swap is done
+    with stops_deferred():  # a Ctrl-C or SIGTERM meanwhile stops the build once the swap is done
         _swap_in(out, work, staged, manifest)
         state.phase = "done"
     _clear_work(work, options, jobs)

@@ -22,6 +22,7 @@ from dataset_helpers import make_aligned_take, write_aligned_set
 
 import dataset.build as build_module
 from capture import write_take
+from capture.command import stops_deferred
 from capture.errors import InputError
 from capture.take import read_meta
 from dataset import read_manifest
@@ -212,7 +213,7 @@ def test_a_stop_during_a_swap_that_fails_leaves_the_swaps_own_error():
     previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         with pytest.raises(InputError, match="cannot be written"):
-            with build_module._stops_deferred():
+            with stops_deferred():
                 signal.raise_signal(signal.SIGTERM)  # held back
                 raise InputError("cannot be written: No space left on device")
     finally:

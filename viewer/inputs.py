@@ -24,9 +24,7 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
-import signal
 import tempfile
-import threading
 import unicodedata
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
@@ -36,6 +34,7 @@ import numpy as np
 
 from capture import Take, find_sources, find_takes, import_source, is_take_folder, read_audio, read_take
 from capture.channels import ARKIT52, canonical, is_known
+from capture.command import stops_deferred
 from capture.csv_take import split_variant
 from capture.errors import InputError, S2AError
 from capture.importer import audio_beside, is_livelink_csv, warn_skipped
@@ -191,7 +190,7 @@ def archives_unpacked() -> Iterator[None]:
     finally:
         _sessions.remove(session)
         if session.pid == os.getpid():  # a forked child leaving the block: the files are its parent's
-            with _signals_held():
+            with stops_deferred():
                 session.stack.close()
 
 
@@ -216,34 +215,6 @@ def _clear_orphans() -> None:
             shutil.rmtree(p, ignore_errors=True)
 
 
-@contextmanager
-def _signals_held(redeliver: bool = True) -> Iterator[None]:
-    """SIGINT and SIGTERM that arrive in the block act after it (main thread only): their handlers are
-    swapped for one that notes them, and each one noted is raised again after the block (unless not
-    ``redeliver``: the process is ending anyway). Blocking them (``pthread_sigmask``) would not hold
-    them: that holds them off this thread only, another thread (OpenBLAS's, FFmpeg's) takes them in its
-    place, and Python runs the handler in this thread all the same, in the block."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    noted: list[int] = []
-
-    def note(signum: int, frame: object) -> None:
-        noted.append(signum)
-
-    before = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        if signal.getsignal(sig) is not None:  # None: a handler not set from Python, which stays
-            before[sig] = signal.signal(sig, note)
-    try:
-        yield
-    finally:
-        for sig, handler in before.items():
-            signal.signal(sig, handler)
-        for sig in dict.fromkeys(noted) if redeliver else ():  # each once, in the order met
-            signal.raise_signal(sig)
-
-
 @atexit.register
 def _remove_at_exit() -> None:
     """Remove what sessions still open unpacked when the interpreter ends without leaving them: VTK
@@ -254,7 +225,7 @@ def _remove_at_exit() -> None:
         session = _sessions.pop()
         if session.pid != os.getpid():
             continue
-        with _signals_held(redeliver=False):
+        with stops_deferred(redeliver=False):
             session.stack.close()
 
 
