@@ -122,7 +122,10 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     without a LAME tag) keeps it at its start: noted as repair ``encoder_delay_unknown``. An .mp3 of several
     files joined end to end (``cat a.mp3 b.mp3``) is read whole, each file without its own encoder delay
     and padding, the later ones mixed to the first one's channel count (repair ``channels_changed``); one
-    whose sample rate changes is an ``InputError`` saying where."""
+    whose sample rate changes is an ``InputError`` saying where. A later file without a LAME tag loses
+    LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``). An
+    .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the count) is
+    read whole, its count corrected (``MpegRun.count_low``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -138,7 +141,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
         if info.subtype.startswith("MPEG_LAYER"):
             data = path.read_bytes()
             runs = mpeg_runs(data)
-            if len(runs) > 1:  # joined files, or a change of channels: libsndfile would stop there
+            # joined files, a change of channels, a frame count too low: libsndfile would stop there
+            if len(runs) > 1 or any(run.count_low for run in runs):
                 return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
             del data
         dtype = _NATIVE.get(info.subtype, "float32")
@@ -339,7 +343,7 @@ def note_unknown_delay(
             pass  # FFmpeg cannot tell: libsndfile read it, and nothing is known of a delay
         return
     codec = stream.codec_context.name
-    if codec not in PRIMED_CODECS or (first_pts or 0) < 0 or (stream.start_time or 0) > 0:
+    if codec not in PRIMED_CODECS or _delay_recorded(stream, first_pts):
         return
     repairs.append(
         {
@@ -350,6 +354,12 @@ def note_unknown_delay(
             "so the audio may start up to ~50 ms late; s2a-align measures the offset",
         }
     )
+
+
+def _delay_recorded(stream: Any, first_pts: int | None) -> bool:
+    """Whether FFmpeg found the encoder's delay recorded in the file, for it to drop: a start after 0 (an
+    MP3's LAME tag) or packets before it (an MP4 edit list)."""
+    return (first_pts or 0) < 0 or (stream.start_time or 0) > 0
 
 
 def _to_channels(samples: np.ndarray, channels: int) -> np.ndarray:
@@ -398,6 +408,7 @@ class _Decoded:
     last_frame: int  # samples of the last decoded frame
     declared: int | None  # samples the container declares (AAC only), None when unknown
     damaged: int = 0  # packets FFmpeg could not decode (only when asked to skip them): silence in their place
+    delay_recorded: bool = True  # the file records its encoder's delay, which FFmpeg dropped
 
 
 def _decode_frames(
@@ -450,6 +461,8 @@ def _decode_frames(
                 if aac and stream.duration and rate
                 else None
             )
+            primed = stream.codec_context.name in PRIMED_CODECS
+            delay_recorded = not primed or _delay_recorded(stream, first_pts)
             if repairs is not None:
                 note_unknown_delay(path, repairs, stream, first_pts)
     except InputError:
@@ -459,7 +472,7 @@ def _decode_frames(
         # the text is what tells the user something
         why = getattr(exc, "strerror", None) or str(exc)
         raise InputError(f"audio could not be decoded (a truncated or damaged file?): {why}", path) from None
-    return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged)
+    return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged, delay_recorded)
 
 
 def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray]) -> np.ndarray:
@@ -598,6 +611,52 @@ def _file_header_frames(data: bytes, pos: int, frame: _MpegFrame) -> int:
     return int.from_bytes(data[text_at + 8 : text_at + 12], "big") if flags[3:] and flags[3] & 1 else 0
 
 
+def _file_header_bytes(data: bytes, pos: int, frame: _MpegFrame) -> int:
+    """The bytes a file's Xing/Info frame at ``pos`` declares its stream holds (from that frame on: FFmpeg,
+    LAME; some writers count the ID3v2 tag before it too); 0 when it does not say."""
+    if data.startswith(b"VBRI", pos + 36):
+        return 0  # its byte count's extent varies between writers: not used
+    text_at = pos + frame[5][data[pos + 3] >= 0xC0]
+    flags = data[text_at + 4 : text_at + 8]
+    if not (flags[3:] and flags[3] & 2):
+        return 0
+    at = text_at + 8 + (4 if flags[3] & 1 else 0)  # after the frame count, when there is one
+    return int.from_bytes(data[at : at + 4], "big")
+
+
+def _count_low(data: bytes, pos: int, size: int, file_ends: tuple[int, ...]) -> bool:
+    """Whether the frame at ``pos`` (``size`` bytes), past the frame count its file's Xing/Info frame
+    declares, is that file's own all the same: where the byte count the same header declares ends
+    (``file_ends``: counted from the header, or from the tag before it) lies after this frame, on a frame,
+    a tag or the end of the data. Only the count is wrong then (a file edited after encoding); a file
+    joined on begins where the byte count ends."""
+    if pos in file_ends:
+        return False
+    n = len(data)
+    return any(
+        end > pos + size and (end == n or _tag_bytes(data, end) or _mpeg_frame(data, end) is not None)
+        for end in file_ends
+    )
+
+
+def _stops_at_count(data: bytes, header: int) -> bool:
+    """Whether a decoder stops at the frame count the file header frame at ``header`` declares: a Xing/Info
+    frame's (libsndfile, FFmpeg), not a VBRI frame's (libsndfile reads past it to the last frame)."""
+    return not data.startswith(b"VBRI", header + 36)
+
+
+def _ends_stream(data: bytes, end: int) -> bool:
+    """Whether a frame ending at ``end`` is the stream's last whole one: the data ends there, or tags do
+    (ID3v1, APEv2 at a file's end) with no frame after them."""
+    n = len(data)
+    while end < n:
+        skip = _tag_bytes(data, end)
+        if not skip:
+            return False
+        end += skip
+    return end == n
+
+
 def _confirmed(data: bytes, pos: int, frame: _MpegFrame, end_confirms: bool = True) -> bool:
     """Whether a frame header at ``pos`` is followed by another of the same format, a tag or (with
     ``end_confirms``) the end of the data: what tells a real frame (a resync point, a change of format)
@@ -649,7 +708,9 @@ class MpegRun:
     """Consecutive MPEG audio frames of one format in an .mp3: where they lie (bytes), their sample rate
     (Hz), channel count and layer, the samples coded in them (per channel: encoder delay and padding
     included), and whether they begin a file of their own (the file's first frames, or frames after a tag
-    or at a Xing/Info frame: another recording joined on)."""
+    or at a Xing/Info frame: another recording joined on). ``count_low``: a file's first run, whose Xing/Info
+    frame declares fewer frames than the file holds (its byte count says so, the frames past the count go
+    on in its bit reservoir, or one whole frame past it ends the data): a decoder would stop early."""
 
     start: int
     end: int
@@ -658,6 +719,7 @@ class MpegRun:
     layer: int
     samples: int
     new_file: bool
+    count_low: bool = False
 
     @property
     def frames(self) -> int:
@@ -669,16 +731,18 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
     on or where the sample rate, channel count or layer changes; tags skipped. One run: a plain file."""
     table = _mpeg_frame_table()
     runs: list[MpegRun] = []
-    pos, n, after_tag = 0, len(data), True
+    pos, n, after_tag, tag_start = 0, len(data), True, 0
     # the current run, kept in locals (written to runs[-1] when it ends): this loop runs once per frame
     run_format, end, coded = -1, 0, 0
     last_frame, counted = _NO_COUNT, 0  # the frames its file's Xing/Info header declares, and those seen
+    file_ends: tuple[int, ...] = ()  # where the bytes its header declares end (see _count_low)
+    file_run = 0  # the run its header begins
     while pos < n - 6:  # a header and its CRC: no frame of sound ends within the last bytes
         frame = table.get(data[pos + 1] << 8 | data[pos + 2]) if data[pos] == 0xFF else None
         if frame is None:
             skip = _tag_bytes(data, pos)
             if skip:
-                pos, after_tag = pos + skip, True
+                pos, after_tag, tag_start = pos + skip, True, pos if not after_tag else tag_start
                 continue
             found = _resync(data, pos + 1)  # stray bytes inside a file: not a join
             if found is None:
@@ -694,23 +758,44 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
             pos, end, coded = pos + size, pos + size, coded + samples
             continue
         # frames past the count a file declares are another file (LAME counts them without its Info frame;
-        # one more frame at the very end is let pass, for encoders that count it and for a stray tail)
+        # one more frame at the very end is none: the file's own, below, or a cut tail)
         past_count = counted > last_frame and _mpeg_frame(data, pos + size) is not None
         if past_count and not _starts_reservoir(data, pos, frame):
             # its sound begins in the bytes of frames before it: the same file, whose count is wrong (a
             # file edited after encoding); read on as one, the count no more trusted (split there, the
-            # part after it would lose the start of its sound: a click)
+            # part after it would lose the start of its sound: a click). Read whole, the count corrected:
+            # a decoder that trusts it stops there (libsndfile: 1152 samples lost per frame uncounted)
             past_count, last_frame = False, _NO_COUNT
+            runs[file_run].count_low = _stops_at_count(data, runs[file_run].start)
+        elif past_count and _count_low(data, pos, size, file_ends):
+            # its sound starts in its own bytes, as a file's first frame does, but the byte count of the
+            # same header says the file goes on: only the count is wrong. Read whole, the count corrected
+            # (split there, FFmpeg trimmed the file's padding from the middle and restarted its filter
+            # bank: about a frame lost, the sound after it early)
+            past_count, last_frame = False, _NO_COUNT
+            runs[file_run].count_low = True
+        elif counted > last_frame and not (header or after_tag) and _ends_stream(data, pos + size):
+            # one whole frame past the count ends the file (no frame follows it, only its tags): the file's
+            # last, uncounted (a partial frame there is a cut tail, left to the decoder as before)
+            last_frame = _NO_COUNT
+            runs[file_run].count_low = _stops_at_count(data, runs[file_run].start)
         new_file = not runs or after_tag or header or past_count or frame[3] != runs[-1].layer
         if not new_file and frame[4] | mono == run_format:
             end, coded = pos + size, coded + samples
         elif new_file or _confirmed(data, pos, frame, end_confirms=False):
+            # a change of channels whose sound starts in the frame's own bytes: an encoder's first frame
+            # (an encoder cannot change channels mid-stream), so another file, joined on bare: its priming
+            # is dropped or noted as a later file's
+            new_file = new_file or _starts_reservoir(data, pos, frame)
             if runs:
                 runs[-1].end, runs[-1].samples = end, coded
             runs.append(MpegRun(pos, pos + size, frame[2], 1 if mono else 2, frame[3], samples, new_file))
             run_format, end, coded = frame[4] | mono, pos + size, samples
             if new_file:
+                file_run = len(runs) - 1
                 last_frame, counted = (_file_header_frames(data, pos, frame) if header else 0) or _NO_COUNT, 0
+                declared = _file_header_bytes(data, pos, frame) if header else 0
+                file_ends = (pos + declared, (tag_start if after_tag else pos) + declared) if declared else ()
         else:  # a lone header of another format (damage): stray bytes
             found = _resync(data, pos + 1)
             if found is None:
@@ -730,7 +815,9 @@ def _read_joined_mpeg(
     layer changes mid-stream: each joined file decoded on its own, so each one's encoder delay and padding
     (its LAME tag) is dropped, and the later ones mixed to the first one's channel count (repair
     ``channels_changed``). libsndfile would stop at the first file's frame count or at the first change
-    of channels, FFmpeg at the first tag in the middle. A change of sample rate is an ``InputError``."""
+    of channels, FFmpeg at the first tag in the middle. A later file that records no delay: see
+    ``_drop_lame_delay``; a file whose Info frame counts too few frames: corrected (``_counted_whole``). A
+    change of sample rate is an ``InputError``."""
     first = runs[0]
     coded = 0
     for run in runs:
@@ -746,7 +833,7 @@ def _read_joined_mpeg(
     chunks: list[np.ndarray] = []
     sample_format, damaged, last = "flt", 0, len(starts) - 2
     for k, (a, b) in enumerate(zip(starts, starts[1:])):
-        part = io.BytesIO(data[runs[a].start : runs[b - 1].end])
+        part = io.BytesIO(_counted_whole(data[runs[a].start : runs[b - 1].end], runs[a:b]))
         try:
             # the note of an unknown encoder delay is about the start: the first file's
             decoded = _decode_frames(part, path, 0, repairs if k == 0 else None, skip_damaged=True)
@@ -759,6 +846,8 @@ def _read_joined_mpeg(
                 lost = sum(run.samples for run in runs[a:b])
                 chunks.append(np.zeros((lost, chunks[0].shape[1] if chunks else first.channels), np.float32))
             continue
+        if k and not decoded.delay_recorded:
+            _drop_lame_delay(path, data, runs[a], runs[b - 1].end, decoded.chunks, chunks, repairs)
         chunks += decoded.chunks
         sample_format, damaged = decoded.sample_format, damaged + decoded.damaged
     if not chunks:
@@ -777,6 +866,72 @@ def _read_joined_mpeg(
     return _in_recorded_format(samples, first.sample_rate, sample_format)
 
 
+# What FFmpeg decodes from a LAME-encoded MP3 that does not record its delay (no LAME tag) starts this many
+# samples before the sound: the encoder's 576 of look-ahead and the synthesis filter bank's 528 + 1 (the
+# decoder's). Measured on libmp3lame's output (FFmpeg's write_xing=0) at 8 to 48 kHz, mono and stereo:
+# the encoded signal lies 1105 samples in, and 0 with the tag.
+LAME_DELAY = 576 + 529
+# LAME fills the bits a frame leaves unused (ancillary data: at least in its last frames, where it drains
+# its bit reservoir) with its name and version, "LAME3.100UUUU...": what tells its output without a tag.
+# Its name only: the version may be left out (too few bits) or cut by the next frame's header
+_LAME_SIGNATURE = b"LAME"
+
+
+def _counted_whole(part: bytes, runs: list[MpegRun]) -> bytes:
+    """The bytes of one file of a joined .mp3 (``runs``: its runs), with the frame count its Xing/Info
+    frame declares set to the frames it holds when that count is low (``MpegRun.count_low``): FFmpeg
+    trims the encoder's padding where the count ends."""
+    frame = _mpeg_frame(part, 0)
+    if not runs[0].count_low or frame is None:
+        return part
+    at = frame[5][part[3] >= 0xC0] + 8
+    frames = sum(run.frames for run in runs) - 1  # its Info frame holds no sound
+    return part[:at] + frames.to_bytes(4, "big") + part[at + 4 :]
+
+
+def _drop_lame_delay(
+    path: Path,
+    data: bytes,
+    first: MpegRun,
+    end: int,
+    part: list[np.ndarray],
+    before: list[np.ndarray],
+    repairs: list[dict[str, Any]] | None,
+) -> None:
+    """The priming samples of a joined file after the first (``part``: its decoded chunks, ``data[first.start:
+    end]`` its bytes) that records no encoder delay: LAME's dropped, when its bytes are LAME's and start as
+    an encoder's first frame does (no bit reservoir); any other encoder's kept, noted in ``repairs`` (repair
+    ``encoder_delay_unknown``, saying from which second). ``before``: the chunks of the parts before it."""
+    frame = _mpeg_frame(data, first.start)
+    if (
+        frame is not None
+        and frame[3] == 3
+        and _starts_reservoir(data, first.start, frame)
+        and data.find(_LAME_SIGNATURE, first.start, end) != -1
+    ):
+        drop = LAME_DELAY
+        while drop and part:  # the delay may span frames (576 samples each below 32 kHz)
+            if len(part[0]) > drop:
+                part[0], drop = part[0][drop:], 0
+            else:
+                drop -= len(part.pop(0))
+        return
+    if repairs is not None:
+        at = sum(len(chunk) for chunk in before) / first.sample_rate
+        repairs.append(
+            {
+                "line": None,
+                "kind": "encoder_delay_unknown",
+                "message": f"{path.name}: the MP3 file joined on at {at:.3f} s does not record its encoder's "
+                "delay (no LAME tag) nor begins as LAME's output does: its priming samples are kept there, "
+                "so the sound after it may be up to ~50 ms late",
+            }
+        )
+
+
+WRITE_FRAMES = 1 << 16  # frames handed to libsndfile per write
+
+
 def write_audio(path: str | Path, audio: Audio) -> None:
     """Write WAV with the audio's own subtype (RF64 past 4 GB), atomically. A write the system refuses
     (a full disk) is an ``OSError`` naming ``path``."""
@@ -789,7 +944,10 @@ def write_audio(path: str | Path, audio: Audio) -> None:
                 sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt
             ) as out:
                 _no_peak_chunk(out)
-                out.write(audio.samples)
+                # a block at a time: soundfile's file callback copies each buffer libsndfile hands it
+                # into bytes, and for a same-format write that buffer is the whole array (+230 MB an hour)
+                for lo in range(0, max(audio.frames, 1), WRITE_FRAMES):
+                    out.write(audio.samples[lo : lo + WRITE_FRAMES])
         except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
             if sink.error is None:
                 raise

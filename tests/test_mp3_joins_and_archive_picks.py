@@ -1,5 +1,6 @@
-"""Found by review: an MP3 whose Info frame undercounts its frames is no join; archive members named in
-another case or Unicode form, and a forked child's clean-up, in s2a-view's picks."""
+"""Found by review: an MP3 whose Info frame undercounts its frames is no join, and is read whole (libsndfile
+stopped at the count); archive members named in another case or Unicode form, and a forked child's
+clean-up, in s2a-view's picks."""
 
 from __future__ import annotations
 
@@ -46,17 +47,66 @@ def with_frame_count(data: bytes, delta: int) -> bytes:
     return data[:at] + (count + delta).to_bytes(4, "big") + data[at + 4 :]
 
 
-def test_an_mp3_whose_info_frame_undercounts_its_frames_reads_as_before_not_split(tmp_path):
-    # a file edited after encoding declares two or three frames fewer than it holds: the frames past
-    # the count continue its bit reservoir, they are no file of their own; split there, the part after
-    # was decoded without the bytes its first frame's sound begins in (a click of 0.3 full scale)
-    data = lame_mp3(tmp_path / "a.mp3").read_bytes()
-    for delta in (-2, -3):
+def ffmpeg_decoded(path: Path) -> np.ndarray:
+    """What FFmpeg decodes from ``path``: its encoder delay and padding dropped (its LAME tag)."""
+    with av.open(str(path)) as container:
+        return np.concatenate([f.to_ndarray().T for f in container.decode(audio=0)])
+
+
+def test_an_mp3_whose_info_frame_undercounts_its_frames_is_read_whole_not_split(tmp_path):
+    # a file edited after encoding declares one or more frames fewer than it holds: the frames past the
+    # count continue its bit reservoir, they are no file of their own (split there, the part after was
+    # decoded without the bytes its first frame's sound begins in: a click of 0.3 full scale). libsndfile
+    # stopped at the count: the last 1152 samples lost per frame uncounted (2304 of 57330 for 2)
+    right = lame_mp3(tmp_path / "a.mp3")
+    data = right.read_bytes()
+    whole = ffmpeg_decoded(right)  # the same file with its right count
+    assert len(whole) == len(sf.read(str(right))[0]) == 57330
+    # the last frame alone past the count, before an ID3v1 tag: the file's too
+    id3v1 = b"TAG" + bytes(125)
+    for delta, tail in ((-1, b""), (-1, id3v1), (-2, b""), (-3, b""), (-20, id3v1)):
         path = tmp_path / f"count{delta}.mp3"
-        path.write_bytes(with_frame_count(data, delta))
-        assert len(mpeg_runs(path.read_bytes())) == 1
+        path.write_bytes(with_frame_count(data, delta) + tail)
+        runs = mpeg_runs(path.read_bytes())
+        assert len(runs) == 1 and runs[0].count_low
+        audio = read_audio(path, repairs := [])
+        assert np.array_equal(audio.samples, whole) and repairs == []
+
+
+def test_an_mp3_whose_info_frame_counts_right_reads_as_libsndfile_does(tmp_path):
+    # its count met, a whole frame more is not there: nothing corrected, read as libsndfile reads it
+    path = lame_mp3(tmp_path / "a.mp3", seconds=0.7)
+    for tail in (b"", b"TAG" + bytes(125)):
+        path.write_bytes(path.read_bytes() + tail)
+        assert [run.count_low for run in mpeg_runs(path.read_bytes())] == [False]
         expected, _ = sf.read(str(path), dtype="float32", always_2d=True)
         assert np.array_equal(read_audio(path).samples, expected)
+
+
+def as_vbri(data: bytes, count: int) -> bytes:
+    """``data`` whose Info frame is made a VBRI frame (Fraunhofer's) declaring ``count`` frames."""
+    _mpeg_frame_table()
+    pos = _tag_bytes(data, 0)
+    frame = _mpeg_frame(data, pos)
+    assert frame is not None
+    # version 1, delay 0, quality 75, the bytes and frames, then an empty table of contents
+    fields = [(1, 2), (0, 2), (75, 2), (len(data) - pos, 4), (count, 4), (0, 2), (1, 2), (2, 2), (0, 2)]
+    body = b"VBRI" + b"".join(value.to_bytes(size, "big") for value, size in fields)
+    head = bytes(36) + body + bytes(frame[0] - 40 - len(body))
+    return data[: pos + 4] + head + data[pos + frame[0] :]
+
+
+def test_an_mp3_whose_vbri_frame_undercounts_its_frames_reads_as_libsndfile_does(tmp_path):
+    # libsndfile reads past a VBRI frame's count to the last frame: nothing lost, nothing to correct
+    data = lame_mp3(tmp_path / "a.mp3", seconds=0.7).read_bytes()
+    count = _file_header_frames(data, _tag_bytes(data, 0), _mpeg_frame(data, _tag_bytes(data, 0)))
+    right = tmp_path / "right.mp3"
+    right.write_bytes(as_vbri(data, count))
+    expected, _ = sf.read(str(right), dtype="float32", always_2d=True)
+    path = tmp_path / "undercount.mp3"
+    path.write_bytes(as_vbri(data, count - 2))
+    assert [run.count_low for run in mpeg_runs(path.read_bytes())] == [False]
+    assert np.array_equal(read_audio(path).samples, expected)
 
 
 def test_a_member_named_in_another_case_or_unicode_form_is_the_archives_own(tmp_path):
