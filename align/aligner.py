@@ -46,6 +46,7 @@ from .grid import (
     usable_frames,
 )
 from .options import AlignOptions
+from .recorded import audio_of
 from .resample import TARGET_RATE, to_16k_mono
 from .transient import audio_claps, step_transients, video_motion, video_transients
 from .vad import speech_level_dbfs, speech_segments, vad_gain
@@ -362,15 +363,18 @@ def _timecode_at(meta: TakeMeta, take_time: float) -> str | None:
 
 
 def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[list[Take], dict[str, Any]]:
-    """Align ``take``; returns the aligned segment takes and the take's report (see ``align_take``)."""
+    """Align ``take``; returns the aligned segment takes and the take's report (see ``align_take``).
+    A take read without its audio is aligned to its audio file read block by block when the call is
+    made in ``recorded.reading_from_file`` (as ``align_folder`` does)."""
     opts = options or AlignOptions()
     opts.validate()
     meta = take.meta
     tid = meta.id
-    if take.audio is None or meta.audio is None:
+    audio = audio_of(take)
+    if audio is None or meta.audio is None:
         raise InputError(f"take {tid} has no audio: align needs the speech (import it with --audio)")
     notes: list[dict[str, Any]] = []
-    x = to_16k_mono(take.audio, tid, notes)
+    x = to_16k_mono(audio, tid, notes)
     mix_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_mix"]
     dc_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_dc"]
     peak = _check_audio(take, x)
@@ -418,7 +422,7 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         )
     elif not paired and abs(longer) > max(1.0, 0.1 * max(audio_dur, face_dur)):
         flags.append("duration_mismatch")
-    clipped = clipped_share(take.audio)
+    clipped = clipped_share(audio)
     if clipped > CLIPPED_AUDIO_SHARE:
         flags.append("clipped_audio")
         warnings.append(

@@ -22,14 +22,17 @@ predicted jawOpen from 0.061 to 0.089. They are removed by a zero-phase high-pas
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from capture import Audio, InputError
+from capture.audio_io import full_scale
+
+from .recorded import RecordedAudio, recorded
 
 TARGET_RATE = 16000
 
@@ -58,16 +61,36 @@ _TIMECODE_BLOCK_S = 0.1
 _TIMECODE_MAX_BLOCKS = 600  # spread over the take: bounded work on hour-long takes
 
 
-def channel_float(audio: Audio, k: int) -> np.ndarray:
-    """Channel ``k`` (from 0) of ``audio`` as float32 samples in [-1, 1)."""
-    return Audio(audio.samples[:, k : k + 1], audio.sample_rate, audio.subtype).mono_float()
+def _float_channels(block: np.ndarray) -> np.ndarray:
+    """Recorded samples (frames x channels) as float32 in [-1, 1): each channel as ``Audio.mono_float``
+    makes it of that channel alone."""
+    scale = full_scale(block)
+    f = block.astype(np.float32)
+    if scale != 1.0:
+        f /= scale
+    return f
 
 
-def _level(x: np.ndarray) -> float:
-    """RMS about the mean (a DC offset is no sound)."""
-    n = max(x.size, 1)
-    mean = float(np.sum(x, dtype=np.float64)) / n
-    square = float(np.einsum("i,i->", x, x, dtype=np.float64)) / n
+def _add64(total: float, x: np.ndarray, square: bool = False) -> float:
+    """``total`` plus the float64 sum (``square``: of squares) of the float32 samples ``x``. NumPy sums a
+    cast array one buffer (``np.getbufsize()`` samples) at a time, pairwise within it and in order across
+    (``np.sum(.., dtype=np.float64)``, ``np.einsum``), and so does this: fed blocks of a whole number of
+    buffers, the last bit is the whole array's."""
+    step = np.getbufsize()
+    for lo in range(0, x.size, step):
+        part = x[lo : lo + step]
+        if square:
+            total += float(np.einsum("i,i->", part, part, dtype=np.float64))
+        else:
+            total += float(np.add.reduce(part, dtype=np.float64))
+    return total
+
+
+def _level_of(total: float, squares: float, frames: int) -> float:
+    """RMS about the mean (a DC offset is no sound) of ``frames`` samples summing to ``total``, their
+    squares to ``squares``."""
+    n = max(frames, 1)
+    mean, square = total / n, squares / n
     return math.sqrt(max(square - mean * mean, 0.0))
 
 
@@ -76,29 +99,49 @@ def looks_like_timecode(x: np.ndarray, rate: int, scale: float = 1.0) -> bool:
     signal (LTC) rather than sound: in most of the 0.1 s blocks that are not silent, at least
     ``TIMECODE_TWO_LEVEL_SHARE`` of the samples sit near one of two levels, evenly split between them,
     and the signal changes level at least ``TIMECODE_MIN_CROSSINGS_PER_S`` times a second."""
+    block, pick = _timecode_blocks(x.size, rate)
+    if pick.size == 0:
+        return False
+    return _two_levels(x[: (pick[-1] + 1) * block].reshape(-1, block)[pick], rate, scale)
+
+
+def _timecode_blocks(frames: int, rate: int) -> tuple[int, np.ndarray]:
+    """The samples per 0.1 s block of ``looks_like_timecode`` and the numbers of the blocks it looks
+    at: at most ``_TIMECODE_MAX_BLOCKS`` spread over ``frames`` samples."""
     block = max(int(rate * _TIMECODE_BLOCK_S), 64)
-    nb = x.size // block
+    nb = frames // block
     if nb == 0:
-        return False
-    pick = np.unique(np.linspace(0, nb - 1, min(nb, _TIMECODE_MAX_BLOCKS)).astype(np.int64))
-    b = x[: nb * block].reshape(nb, block)[pick].astype(np.float64) / scale
-    lo, hi = np.percentile(b, [1.0, 99.0], axis=1)
-    half = (hi - lo) / 2.0
-    d = b - ((hi + lo) / 2.0)[:, None]
-    active = half > 1e-3  # above -60 dBFS: a timecode signal is recorded far louder
-    if not active.any():
-        return False
-    near = np.mean(np.abs(d) >= 0.6 * half[:, None], axis=1)
-    up = np.mean(d > 0, axis=1)
-    crossings = np.count_nonzero(np.diff(np.signbit(d), axis=1), axis=1) / (block / rate)
-    two_level = (
-        active
-        & (near >= TIMECODE_TWO_LEVEL_SHARE)
-        & (up > 0.3)
-        & (up < 0.7)
-        & (crossings >= TIMECODE_MIN_CROSSINGS_PER_S)
-    )
-    return bool(np.count_nonzero(two_level) >= 0.5 * np.count_nonzero(active))
+        return block, np.zeros(0, np.int64)
+    return block, np.unique(np.linspace(0, nb - 1, min(nb, _TIMECODE_MAX_BLOCKS)).astype(np.int64))
+
+
+_TIMECODE_ROWS = 64  # 0.1 s blocks judged at a time: the float64 arrays of all 600 took 100 MB at 48 kHz
+
+
+def _two_levels(rows: np.ndarray, rate: int, scale: float = 1.0) -> bool:
+    """``looks_like_timecode``'s verdict on its 0.1 s blocks ``rows`` (blocks x samples, full scale
+    ``scale``), judged ``_TIMECODE_ROWS`` at a time (each block on its own: the same verdict)."""
+    width = rows.shape[1]
+    active_count = two_level_count = 0
+    for lo in range(0, rows.shape[0], _TIMECODE_ROWS):
+        b = rows[lo : lo + _TIMECODE_ROWS].astype(np.float64) / scale
+        lo_level, hi_level = np.percentile(b, [1.0, 99.0], axis=1)
+        half = (hi_level - lo_level) / 2.0
+        d = b - ((hi_level + lo_level) / 2.0)[:, None]
+        active = half > 1e-3  # above -60 dBFS: a timecode signal is recorded far louder
+        near = np.mean(np.abs(d) >= 0.6 * half[:, None], axis=1)
+        up = np.mean(d > 0, axis=1)
+        crossings = np.count_nonzero(np.diff(np.signbit(d), axis=1), axis=1) / (width / rate)
+        two_level = (
+            active
+            & (near >= TIMECODE_TWO_LEVEL_SHARE)
+            & (up > 0.3)
+            & (up < 0.7)
+            & (crossings >= TIMECODE_MIN_CROSSINGS_PER_S)
+        )
+        active_count += int(np.count_nonzero(active))
+        two_level_count += int(np.count_nonzero(two_level))
+    return active_count > 0 and two_level_count >= 0.5 * active_count
 
 
 def _channels_text(ks: list[int]) -> str:
@@ -109,26 +152,96 @@ def _channels_text(ks: list[int]) -> str:
     return f"channels {', '.join(names[:-1])} and {names[-1]}"
 
 
-def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
+def mono_mix(audio: Audio | RecordedAudio) -> tuple[np.ndarray, dict[str, Any] | None]:
     """Mono float32 samples of ``audio`` and ``None`` when all its channels are averaged; otherwise the
     samples and a note (``audio_mix`` of the align report; channels count from 1) saying what was done:
 
     - ``channels_left_out``: channels holding a timecode signal, and channels more than
       ``IDLE_CHANNEL_DB`` below the loudest (idle), are left out; the others are averaged;
     - ``louder_channel``: the average of the channels kept is more than ``CANCELLED_MIX_DB`` below the
-      loudest of them (phase-inverted copies cancel to silence): that channel alone is used."""
-    n = audio.channels
-    if n < 2:
-        return audio.mono_float(), None
-    channels = [channel_float(audio, k) for k in range(n)]
-    timecode = [looks_like_timecode(c, audio.sample_rate) for c in channels]
-    levels = [_level(c) for c in channels]
+      loudest of them (phase-inverted copies cancel to silence): that channel alone is used.
+
+    The channels are measured and mixed a block at a time (``mix_blocks``): the float32 copies of
+    every channel of an hour at 48 kHz stereo took 1.4 GB."""
+    source = recorded(audio)
+    mix = _Mix(None, None) if source.channels < 2 else _mix_of(source)
+    x = np.empty(source.frames, np.float32)
+    at = 0
+    for block in mix_blocks(source, mix, _CHUNK):
+        x[at : at + block.size] = block
+        at += block.size
+    return x, mix.note
+
+
+@dataclass
+class _Mix:
+    """How several channels become one: ``used`` (from 0) averaged, or all of them as ``mono_float``
+    averages them (None); ``note`` as ``mono_mix`` says."""
+
+    used: list[int] | None
+    note: dict[str, Any] | None
+
+
+def mix_blocks(source: RecordedAudio, mix: _Mix, size: int) -> Iterator[np.ndarray]:
+    """The mono float32 samples of ``mix`` of ``source``'s channels, ``size`` frames at a time."""
+    if mix.used is None:
+        yield from source.mono_blocks(size)
+        return
+    for block in source.blocks(size):
+        f = _float_channels(block)
+        x = np.ascontiguousarray(f[:, mix.used[0]])  # a copy: never the caller's samples
+        for k in mix.used[1:]:
+            x += f[:, k]
+        if len(mix.used) > 1:
+            x /= len(mix.used)
+        yield x
+
+
+def _channel_measures(source: RecordedAudio) -> tuple[list[bool], list[float]]:
+    """Per channel of ``source``: whether it holds a timecode signal (``looks_like_timecode``) and its
+    level (RMS about the mean), measured in one pass through its blocks."""
+    n, frames = source.channels, source.frames
+    sums, squares = [0.0] * n, [0.0] * n
+    width, pick = _timecode_blocks(frames, source.sample_rate)
+    starts = pick * width
+    seen = np.zeros((n, pick.size, width), source.dtype)  # the 0.1 s blocks the timecode test looks at
+    lo = 0
+    for block in source.blocks(_CHUNK):
+        f = _float_channels(block)
+        for k in range(n):
+            c = np.ascontiguousarray(f[:, k])
+            sums[k], squares[k] = _add64(sums[k], c), _add64(squares[k], c, square=True)
+        hi = lo + f.shape[0]
+        for i in range(int(np.searchsorted(starts + width, lo, "right")), int(np.searchsorted(starts, hi))):
+            at = int(starts[i])
+            a, b = max(at, lo), min(at + width, hi)
+            seen[:, i, a - at : b - at] = block[a - lo : b - lo].T
+        lo = hi
+    # judged as float32 in [-1, 1) (each channel as the whole channel's float32 copy held it)
+    timecode = [
+        bool(pick.size) and _two_levels(_float_channels(seen[k]), source.sample_rate) for k in range(n)
+    ]
+    return timecode, [_level_of(sums[k], squares[k], frames) for k in range(n)]
+
+
+def _mix_level(source: RecordedAudio, used: list[int]) -> float:
+    """The level (RMS about the mean) of the average of the channels ``used``."""
+    total = squares = 0.0
+    for x in mix_blocks(source, _Mix(used, None), _CHUNK):
+        total, squares = _add64(total, x), _add64(squares, x, square=True)
+    return _level_of(total, squares, source.frames)
+
+
+def _mix_of(source: RecordedAudio) -> _Mix:
+    """How ``mono_mix`` mixes the channels of ``source`` (two or more)."""
+    n = source.channels
+    timecode, levels = _channel_measures(source)
     sound = [k for k in range(n) if not timecode[k]]
     if not sound:  # nothing but timecode: nothing to hear, the speech check reports it
-        return audio.mono_float(), None
+        return _Mix(None, None)
     loud = max(sound, key=lambda k: levels[k])
     if levels[loud] <= 0:  # all silent: the silence check reports it
-        return audio.mono_float(), None
+        return _Mix(None, None)
     left_out: list[dict[str, Any]] = []
     used: list[int] = []
     for k in range(n):
@@ -145,13 +258,6 @@ def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
             )
         else:
             used.append(k)
-    if len(used) == 1:
-        x = channels[used[0]]
-    else:
-        x = channels[used[0]].copy()
-        for k in used[1:]:
-            x += channels[k]
-        x /= len(used)
     dropped = ""
     if left_out:
         parts = [
@@ -171,7 +277,7 @@ def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
         ]
         dropped = f"{', '.join(parts)} left out of the mix"
     if len(used) > 1:
-        mix = _level(x)
+        mix = _mix_level(source, used)
         below_db = 20.0 * math.log10(levels[loud] / mix) if mix > 0 else None  # None: the mix is silent
         if below_db is None or below_db > CANCELLED_MIX_DB:
             how = (
@@ -192,9 +298,9 @@ def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
             }
             if left_out:
                 note["left_out"] = left_out
-            return channels[loud], note
+            return _Mix([loud], note)
     if not left_out:
-        return x, None
+        return _Mix(used, None)
     kept = _channels_text(used) + (" alone is" if len(used) == 1 else " are averaged and")
     note = {
         "kind": "audio_mix",
@@ -206,7 +312,7 @@ def mono_mix(audio: Audio) -> tuple[np.ndarray, dict[str, Any] | None]:
     }
     if len(used) == 1:
         note["channel"] = used[0] + 1
-    return x, note
+    return _Mix(used, note)
 
 
 def remove_rumble(
@@ -247,31 +353,23 @@ def remove_rumble(
     return y
 
 
-def mono_blocks(audio: Audio) -> Iterator[np.ndarray]:
+def mono_blocks(audio: Audio | RecordedAudio) -> Iterator[np.ndarray]:
     """``audio.mono_float()`` in blocks of ``_CHUNK`` frames: the same float32 samples (mono_float works
-    frame by frame), without an hour of them at the file's rate in memory at once. Each block is a
-    shallow copy of ``audio`` holding a slice of its samples, not a new ``Audio``: the constructor
-    checks its samples again, and refuses the last block of a file of more than 64 channels
-    (``MAX_AUDIO_CHANNELS``) when it holds fewer frames than channels, as (channels, samples)."""
-    part = copy.copy(audio)
-    for lo in range(0, audio.frames, _CHUNK):
-        part.samples = audio.samples[lo : lo + _CHUNK]
-        yield part.mono_float()
+    frame by frame), without an hour of them at the file's rate in memory at once."""
+    return recorded(audio).mono_blocks(_CHUNK)
 
 
 def sum64(blocks: Iterable[np.ndarray]) -> float:
     """The float64 sum of float32 samples given in blocks of a whole number of NumPy buffers (the last
-    may be shorter), bit for bit ``np.sum(all, dtype=np.float64)``: NumPy sums a cast array one buffer
-    (``np.getbufsize()`` samples) at a time, pairwise within it and in order across, and so does this.
-    A DC offset is subtracted from every sample: its last bit matters."""
-    step, total = np.getbufsize(), 0.0
+    may be shorter), bit for bit ``np.sum(all, dtype=np.float64)`` (``_add64``). A DC offset is
+    subtracted from every sample: its last bit matters."""
+    total = 0.0
     for block in blocks:
-        for lo in range(0, block.size, step):
-            total += float(np.add.reduce(block[lo : lo + step], dtype=np.float64))
+        total = _add64(total, block)
     return total
 
 
-def mono_mean(audio: Audio) -> float:
+def mono_mean(audio: Audio | RecordedAudio) -> float:
     """``np.mean(audio.mono_float(), dtype=np.float64)`` (the mean of nothing: nan) without a float32
     copy of all the audio at its own rate: 635 MB for an hour at 44.1 kHz."""
     return sum64(mono_blocks(audio)) / audio.frames if audio.frames else math.nan
@@ -335,7 +433,7 @@ class _Work:
 
 
 def to_16k_mono(
-    audio: Audio,
+    audio: Audio | RecordedAudio,
     path: str | None = None,
     notes: list[dict[str, Any]] | None = None,
     on_block: Callable[[int, int], None] | None = None,
@@ -345,30 +443,33 @@ def to_16k_mono(
     note (``kind`` ``audio_mix``) and, when the mix held a DC offset of at least ``DC_NOTE_LEVEL``, a note
     on it (``kind`` ``audio_dc``) are appended. ``on_block(done, total)``: called after each block of
     work (the mean, the resampling and the filter's two passes go ``_CHUNK`` samples at a time), so that
-    an hour of audio can say how far it has come (and once with 0 done as it begins)."""
-    if audio.channels == 1:  # mono: read block by block from the recorded samples, never whole as float32
-        frames, note = audio.frames, None
+    an hour of audio can say how far it has come (and once with 0 done as it begins). ``audio`` may be
+    a ``RecordedAudio`` reading the take's file: mono is then never whole in memory at its own rate, and
+    several channels only while they are mixed."""
+    source = recorded(audio)
+    if source.channels == 1:  # mono: read block by block from the recorded samples, never whole as float32
+        frames, note = source.frames, None
 
         def blocks() -> Iterator[np.ndarray]:
-            return mono_blocks(audio)
-    else:
-        x, note = mono_mix(audio)
-        frames = x.size
+            return source.mono_blocks(_CHUNK)
+    else:  # the channels measured, then mixed, block by block: never whole at their own rate
+        mix = _mix_of(source)
+        frames, note = source.frames, mix.note
 
         def blocks() -> Iterator[np.ndarray]:
-            return (x[lo : lo + _CHUNK] for lo in range(0, frames, _CHUNK))
+            return mix_blocks(source, mix, _CHUNK)
 
     if note is not None and notes is not None:
         notes.append(note)
-    if audio.sample_rate < 8000:
+    if source.sample_rate < 8000:
         raise InputError(
-            f"audio sample rate {audio.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
+            f"audio sample rate {source.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
         )
-    work = _Work(frames, audio.sample_rate, on_block)
+    work = _Work(frames, source.sample_rate, on_block)
     dc = sum64(work.through(blocks())) / max(frames, 1)
     # off before resampling: the resampler would ring on the step from 0 at the start
     shifted = (b - np.float32(dc) for b in blocks()) if dc != 0.0 else blocks()
-    y = _resampled(work.through(shifted), audio.sample_rate, frames)
+    y = _resampled(work.through(shifted), source.sample_rate, frames)
     remove_rumble(y, out=y, tick=work.tick)
     work.finish()
     if notes is not None and abs(dc) >= DC_NOTE_LEVEL:

@@ -971,12 +971,15 @@ def paired_excess_s(take: Take) -> float:
     """How much longer (s; negative: shorter) a take's audio is than the frames it was paired with. The
     frames end one frame period after the last, on the clock align places them by (frame i at i / fps
     under the frame-index convention, a Live Link CSV's timecodes running 0.16 % slow against it); both
-    are measured from the audio's start."""
-    if take.meta.audio.start_source == "paired_frame_convention":
-        frames_end = float(take.time[0]) + take.time.size / take.meta.fps - take.meta.audio.start_s
+    are measured from the audio's start. A take read without its audio (align reads it from its file
+    a block at a time) is measured by its record in meta.json."""
+    info = take.meta.audio
+    if info.start_source == "paired_frame_convention":
+        frames_end = float(take.time[0]) + take.time.size / take.meta.fps - info.start_s
     else:
-        frames_end = float(take.time[-1]) + 1 / take.meta.fps - take.meta.audio.start_s
-    return take.audio.duration_s - frames_end
+        frames_end = float(take.time[-1]) + 1 / take.meta.fps - info.start_s
+    duration_s = take.audio.duration_s if take.audio is not None else info.samples / info.sample_rate
+    return duration_s - frames_end
 
 
 def note_length_mismatch(take: Take, hint: str) -> None:

@@ -262,9 +262,23 @@ def check_take_audio(take_id: str, audio: Any) -> None:
     if audio.frames < 1 or audio.channels < 1:
         raise InputError(f"take {take_id}: audio holds no samples")
     if audio.samples.dtype.kind == "f":
-        bad = int(np.count_nonzero(~np.isfinite(audio.samples)))
+        bad = _non_finite(audio.samples)
         if bad:
             raise InputError(f"take {take_id}: audio holds {bad} NaN or infinite sample(s)")
+
+
+_CHECK_FRAMES = 1 << 16  # frames of audio checked at a time
+
+
+def _non_finite(samples: np.ndarray) -> int:
+    """How many of the float ``samples`` are NaN or infinite, ``_CHECK_FRAMES`` frames at a time: the
+    boolean mask of all of them took 58 MB on an hour of 16 kHz audio (each segment align writes)."""
+    bad = 0
+    for lo in range(0, samples.shape[0], _CHECK_FRAMES):
+        block = samples[lo : lo + _CHECK_FRAMES]
+        if not np.isfinite(block).all():
+            bad += int(np.count_nonzero(~np.isfinite(block)))
+    return bad
 
 
 @dataclass
