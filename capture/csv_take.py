@@ -16,10 +16,12 @@ file and line for what it cannot repair. A long file with a few damaged rows tak
 the rows it can, the careful parser's per-row logic only the lines pyarrow cannot take (``_read_mended``),
 so that a cut-short last line costs what the intact file does. Files a spreadsheet or script re-saved
 whole (a BOM, CRLF, a comma ending every line, pandas' index column, quoted header names, every cell or
-the timecodes in quotes) are read so too; a line ending at a lone CR, or more than half the lines to read
-line by line, sends a file to the careful parser whole. pyarrow reads a long file a part at a time
-(``PART_BYTES``), giving back each part's mapped pages once read, so that the parse of an hour holds
-little more than its result.
+the timecodes in quotes) are read so too, and so are quotes first met further on (later rows re-saved, a
+quoted cell here and there); a line ending at a lone CR, or more than half the lines to read line by
+line, sends a file to the careful parser whole. pyarrow reads a long file a part at a time
+(``PART_BYTES``), with quoting on in the parts holding a quote, writing each part's values into one
+array and giving back its mapped pages once read, so that the parse of an hour holds little more than
+its result.
 
 Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``):
 
@@ -304,10 +306,7 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
         if "\ufffd" in text:  # as the careful parser decodes it: a header of replacement characters
             raise InputError("binary data, not a CSV text file", path, 1)
         header = _parse_header(text, path)
-        # Quotes on the first data lines: a file whose every cell (or its timecodes) a spreadsheet or
-        # pandas quoted, read by pyarrow with quoting on, as the careful parser's csv module reads it.
-        quoted = b'"' in rest
-        rows = _read_fast(path, header, bom, len(first) + 1, strict, quoted)
+        rows = _read_fast(path, header, bom, len(first) + 1, strict)
         if rows is not None:
             return rows
     return _read_careful(path, strict)
@@ -323,43 +322,42 @@ JOIN_PIECES_BYTES = 1 << 24
 # (a text cell on most lines) is read by the careful parser whole: merging pyarrow's few rows into it costs
 # more than it saves.
 MAX_MENDED_SHARE = 0.5
+MERGE_ROWS = 1 << 14  # pyarrow's rows copied at a time into the merged rows (a 4 MB block)
 
 
-def _read_fast(
-    path: Path, header: CsvHeader, bom: bool, body_start: int, strict: bool, quoted: bool
-) -> CsvRows | None:
+def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict: bool) -> CsvRows | None:
     """pyarrow's parse, with the careful parser's per-row logic for the rows pyarrow cannot take, so that
     a long take with a damaged row costs what an intact one does (``_read_mended``). A whole file's re-save
-    (a BOM, CRLF line ends, a comma ending every line, pandas' index column, cells in quotes: ``quoted``)
-    is read so too. ``None`` sends the whole file to the careful parser (one that pyarrow cannot read even
-    without its odd lines, or one with a line ending at a lone CR)."""
-    import pyarrow as pa
-
+    (a BOM, CRLF line ends, a comma ending every line, pandas' index column, cells in quotes, from the first
+    line or further on) is read so too. ``None`` sends the whole file to the careful parser (one that
+    pyarrow cannot read even without its odd lines, or one with a line ending at a lone CR)."""
     mapped = _MappedFile(path)
     data = mapped.buffer  # no copy: numpy and pyarrow read the mapped file
     if bom:
         data = data.slice(3)  # line 1 starts after the byte-order mark, as for the careful parser
     # as the careful parser tells the file's line ends
     crlf = b"\r\n" in data.slice(0, min(data.size, 65536)).to_pybytes()
-    resaved = bom or crlf or header.trailing_comma or header.index_column is not None or quoted
+    resaved = bom or crlf or header.trailing_comma or header.index_column is not None
     lines, screened = None, np.empty(0, np.int64)
-    read = _arrow_rows([data.slice(body_start)], header, quoted, mapped.release)
+    read = _arrow_rows([data.slice(body_start)], header, mapped)
     if read is None:  # a cell that is no number: again without the lines holding a non-number byte
         lines = _Lines(data, mapped.release)
-        screened = lines.with_other_bytes(quoted)
-        if lines.has_cr or screened.size > MAX_MENDED_SHARE * (lines.count - 1):
+        if lines.has_cr:
             return None
-        pieces = lines.pieces_without(screened)
-        if not pieces or len(pieces) > MAX_PIECES:
-            return None
-        if len(pieces) > 1 and data.size <= JOIN_PIECES_BYTES:  # one read: each costs pyarrow's setup
-            pieces = [pa.py_buffer(b"".join(piece.to_pybytes() for piece in pieces))]
-        read = _arrow_rows(pieces, header, quoted, mapped.release)
-        if read is None:
-            return None
-    rows, odd = read
+        screened = lines.with_other_bytes(quotes=True)
+        read = _read_screened(lines, screened, header, mapped)
+        if read is None:  # then also without those holding a quote: a quoted cell no number ("0,1421")
+            with_quotes = lines.with_other_bytes(quotes=False)
+            if with_quotes.size == screened.size:  # no line holds a quote
+                return None
+            screened = with_quotes
+            read = _read_screened(lines, screened, header, mapped)
+            if read is None:
+                return None
+    rows, odd, quoted = read
     del read
-    if lines is None and not resaved and not rows[3].any():
+    # quotes (pyarrow may carry one left open into the next line): the rows are matched to the lines
+    if lines is None and not (resaved or quoted) and not rows[3].any():
         plain = _plain_rows(path, header, *rows[:3], odd)
         if plain is not None:
             return plain
@@ -367,6 +365,23 @@ def _read_fast(
     if lines.has_cr:
         return None
     return _read_mended(path, header, lines, screened, odd, rows, bom, "\r\n" if crlf else "\n", strict)
+
+
+def _read_screened(
+    lines: _Lines, screened: np.ndarray, header: CsvHeader, mapped: _MappedFile
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], list[str], bool] | None:
+    """``_arrow_rows`` of the data lines but ``screened``; ``None`` when it cannot read them, or when they
+    leave too many lines (``MAX_MENDED_SHARE``) or pieces (``MAX_PIECES``) for the careful parser."""
+    import pyarrow as pa
+
+    if screened.size > MAX_MENDED_SHARE * (lines.count - 1):
+        return None
+    pieces = lines.pieces_without(screened)
+    if not pieces or len(pieces) > MAX_PIECES:
+        return None
+    if len(pieces) > 1 and lines.bytes.size <= JOIN_PIECES_BYTES:  # one read: each costs pyarrow's setup
+        pieces = [pa.py_buffer(b"".join(piece.to_pybytes() for piece in pieces))]
+    return _arrow_rows(pieces, header, mapped)
 
 
 class _MappedFile:
@@ -389,12 +404,21 @@ class _MappedFile:
             start -= start % mmap.PAGESIZE  # a page read again (the next part's first line) is mapped again
             self.map.madvise(_DONTNEED, start, stop - start)
 
+    def holds_quote(self, part: Any) -> bool:
+        """Whether the buffer ``part`` (a part of the map, or of pieces joined in memory) holds a quote."""
+        start = part.address - self.start
+        if 0 <= start and start + part.size <= len(self.map):
+            return self.map.find(b'"', start, start + part.size) >= 0  # memchr over the mapped pages
+        return b'"' in part.to_pybytes()  # pieces joined: a small file's (JOIN_PIECES_BYTES)
+
 
 _DONTNEED = getattr(mmap, "MADV_DONTNEED", None)  # Linux, the BSDs, macOS; elsewhere pages stay mapped
 # pyarrow reads a long file this many bytes (of whole lines) at a time, each part's table turned into the
 # take's arrays before the next: the float64 table of the whole file and its mapped pages would double
-# the peak memory of its parse.
-PART_BYTES = 1 << 25
+# the peak memory of its parse. A part's read (its mapped pages, pyarrow's buffers, its float64 table) is
+# the peak's part beyond the values: 32 MB parts took an hour's parse to 220-235 MB, 16 MB to 185-205,
+# at the same speed.
+PART_BYTES = 1 << 24
 
 
 def _parts(piece: Any) -> Iterator[Any]:
@@ -412,46 +436,84 @@ def _parts(piece: Any) -> Iterator[Any]:
 
 
 def _arrow_rows(
-    pieces: list[Any], header: CsvHeader, quoted: bool, release: Any
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], list[str]] | None:
+    pieces: list[Any], header: CsvHeader, mapped: _MappedFile
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], list[str], bool] | None:
     """pyarrow's rows of whole lines of the file (``_table_rows``, read part by part: ``_parts``, each
-    part's mapped pages given back by ``release`` once read), and the text of the lines it skipped;
-    ``None`` as for ``_arrow_read``, or when it reads no row."""
+    part's mapped pages given back once read), the text of the lines it skipped, and whether a part was
+    read with quoting on (one holding a quote: a spreadsheet's re-save of the whole file or of its later
+    rows, a quoted cell anywhere; the others are read without, the least work); ``None`` as for
+    ``_arrow_read``, or when it reads no row."""
     import pyarrow as pa
 
     odd: list[str] = []
-    parts = []
+    parts, quoted = [], False
+    values = _ValueRows(len(header.columns), sum(piece.size for piece in pieces))
     for piece in pieces:
         for part in _parts(piece):
-            table = _arrow_read(part, header, quoted, odd)
+            quotes = mapped.holds_quote(part)
+            table = _arrow_read(part, header, quotes, odd)
             if table is None:
                 return None
-            release(part.address, part.size)
+            quoted |= quotes
+            mapped.release(part.address, part.size)
+            block = values.block(table.num_rows, part.size)
             if table.num_rows:
-                parts.append(_table_rows(table, header))
+                parts.append(_table_rows(table, header, block))
+            del block
             del table  # its float64 columns: freed before the next part is read
             pa.default_memory_pool().release_unused()  # what pyarrow's allocator would keep for reuse
-    return (_joined_rows(parts), odd) if parts else None
-
-
-def _joined_rows(
-    parts: list[tuple],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """The parts' rows as one: each part's values freed once copied (the copy of the values, in column
-    order, is the only one held at its end)."""
-    if len(parts) == 1:
-        return parts[0]
-    times, _, status, trouble, index = (
-        np.concatenate([part[k] for part in parts]) if parts[0][k] is not None else None for k in range(5)
+    if not values.n:
+        return None
+    times, status, trouble, index = (
+        np.concatenate([part[k] for part in parts]) if parts[0][k] is not None else None for k in range(4)
     )
-    values = np.empty((times.size, parts[0][1].shape[1]), dtype=np.float32, order="F")
-    at = 0
-    for i in range(len(parts)):
-        block, parts[i] = parts[i][1], ()
-        values[at : at + block.shape[0]] = block
-        at += block.shape[0]
-        del block  # this part's values freed before the next is copied
-    return times, values, status, trouble, index
+    return (times, values.trimmed(), status, trouble, index), odd, quoted
+
+
+# The share of rows the first part's bytes per row foretell that the values' array is allocated for beyond
+# them: the app's rows differ in length by a minus sign here and there, not more (pages of the array that
+# no row reaches are never touched, and given back when it is trimmed).
+ROWS_MARGIN = 1.03
+
+
+class _ValueRows:
+    """The values of pyarrow's rows, part after part, in one array: allocated once for the rows the file's
+    bytes hold at the first part's bytes per row, grown in place if later rows are shorter, trimmed in
+    place at the end. The values are held once: the parts' arrays joined at the end held them twice, at
+    the peak of an hour's parse."""
+
+    def __init__(self, columns: int, size: int) -> None:
+        self.size = size  # bytes of the lines to read
+        self.array = np.empty((0, columns), dtype=np.float32)
+        self.n = 0  # rows written
+        self.bytes_read = 0
+
+    def block(self, rows: int, part_bytes: int) -> np.ndarray:
+        """Where the next ``rows`` rows go (a view), read from ``part_bytes`` bytes."""
+        self.bytes_read += part_bytes
+        start, self.n = self.n, self.n + rows
+        if self.n > len(self.array):
+            left = max(self.size - self.bytes_read, 0)
+            self._resize(self.n + math.ceil(left * self.n / self.bytes_read * ROWS_MARGIN))
+        return self.array[start : self.n]
+
+    def trimmed(self) -> np.ndarray:
+        """The rows written (in place when nothing else holds the array: no copy)."""
+        self._resize(self.n)
+        return self.array if len(self.array) == self.n else self.array[: self.n]
+
+    def _resize(self, rows: int) -> None:
+        if not len(self.array):
+            self.array = np.empty((rows, self.array.shape[1]), dtype=np.float32)
+            return
+        try:
+            # realloc: a large array's pages are remapped, not copied (numpy zeroes the rows it adds)
+            self.array.resize((rows, self.array.shape[1]))
+        except ValueError:  # something else holds a view of it (a debugger): copied, or left untrimmed
+            if rows > len(self.array):
+                grown = np.empty((rows, self.array.shape[1]), dtype=np.float32)
+                grown[: len(self.array)] = self.array
+                self.array = grown
 
 
 def _arrow_names(header: CsvHeader) -> list[str]:
@@ -510,13 +572,14 @@ def _arrow_read(piece: Any, header: CsvHeader, quoted: bool, odd: list[str]) -> 
 
 
 def _table_rows(
-    table: Any, header: CsvHeader
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """Times of day, values and status of pyarrow's rows, which of them the careful parser must read
-    instead (``trouble``: a timecode not in the app's exact layout (or at FF 60.000), an empty, NaN or
-    infinite cell or one beyond float32, a count that is none a row may carry (0 over values not all 0), a
-    cell where the comma ending every line should leave none), and the number in pandas' index column
-    (-1 where it is not written as ``str`` writes a number; None without that column)."""
+    table: Any, header: CsvHeader, values: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Times of day and status of pyarrow's rows (their values written into ``values``, rows x columns),
+    which of them the careful parser must read instead (``trouble``: a timecode not in the app's exact
+    layout (or at FF 60.000), an empty, NaN or infinite cell or one beyond float32, a count that is none a
+    row may carry (0 over values not all 0), a cell where the comma ending every line should leave none),
+    and the number in pandas' index column (-1 where it is not written as ``str`` writes a number; None
+    without that column)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
@@ -534,14 +597,15 @@ def _table_rows(
         starts = offsets[:-1][app_width]
         times[app_width], ok[app_width] = fixed_width_seconds(chars[starts[:, None] + np.arange(15)])
     trouble = ~ok
-    # Column-major, so that each parsed column lands in one contiguous copy.
-    values = np.empty((n, len(columns)), dtype=np.float32, order="F")
     with np.errstate(over="ignore"):  # beyond float32 becomes inf (an empty cell NaN): trouble
-        for i in range(len(columns)):
-            start = 0
-            for chunk in table.column(f"v{i}").chunks:  # chunk by chunk: no concatenated temporary per column
-                values[start : start + len(chunk), i] = chunk.to_numpy(zero_copy_only=False)
-                start += len(chunk)
+        start = 0
+        # A batch (a 2 MB block of lines: _arrow_read) at a time, column after column: the batch's rows
+        # stay in the cache while each column is written across them.
+        for batch in table.to_batches():
+            rows = values[start : start + batch.num_rows]
+            for i in range(len(columns)):
+                rows[:, i] = batch.column(f"v{i}").to_numpy(zero_copy_only=False)
+            start += batch.num_rows
     # NaN, infinite (beyond float32 once narrowed) and float32's largest, which 3.4028235e38 (beyond it)
     # also rounds to: the careful parser decides those rows. The common file has none: three passes over
     # the values, no per-row mask.
@@ -569,7 +633,7 @@ def _table_rows(
     index = (
         _index_numbers(table.column("index").combine_chunks()) if header.index_column is not None else None
     )
-    return times, values, status, trouble, index
+    return times, status, trouble, index
 
 
 def _index_numbers(cells: Any) -> np.ndarray:
@@ -663,12 +727,12 @@ class _Lines:
     def raw(self, number: int) -> bytes:
         return self.bytes[self.starts[number - 1] : self.ends[number - 1]].tobytes()
 
-    def with_other_bytes(self, quoted: bool = False) -> np.ndarray:
-        """The data lines holding a byte that no number of the app's rows holds (a letter, a quote unless the
-        file's cells are ``quoted``, a space, any non-ASCII byte): those where pyarrow meets a cell it cannot
-        convert, found without parsing. (A CR passes: a file with one that is not part of a CRLF is read
-        whole by the careful parser.)"""
-        passing = np.frombuffer(b'\r\neE"' if quoted else b"\r\neE", np.uint8)
+    def with_other_bytes(self, quotes: bool) -> np.ndarray:
+        """The data lines holding a byte that no number of the app's rows holds (a letter, a space, any
+        non-ASCII byte, a quote unless ``quotes`` pass: a piece holding one is read with quoting on, as the
+        csv module reads it): those where pyarrow meets a cell it cannot convert, found without parsing. (A
+        CR passes: a file with one that is not part of a CRLF is read whole by the careful parser.)"""
+        passing = np.frombuffer(b'\r\neE"' if quotes else b"\r\neE", np.uint8)
         found = []
         for i in range(0, self.bytes.size, self.CHUNK):
             chunk = self.bytes[i : i + self.CHUNK]
@@ -767,7 +831,11 @@ def _read_mended(
     where = np.empty(order.size, dtype=np.intp)  # each row's place in file order
     where[order] = np.arange(order.size)
     merged = np.empty((order.size, len(header.columns)), dtype=np.float32)
-    merged[where[:n_good]] = values if n_good == times.size else values[good]
+    # pyarrow's good rows a block at a time: their copy (values[good]) would hold the values a third time
+    good_rows = np.flatnonzero(good)
+    for start in range(0, n_good, MERGE_ROWS):
+        at = good_rows[start : start + MERGE_ROWS]
+        merged[where[start : start + at.size]] = values[at]
     merged[where[n_good:]] = reader.values[:n]
     return _finish(
         reader,
