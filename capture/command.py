@@ -75,8 +75,9 @@ class TimedProgress:
     count). A job of several steps goes on with ``step``; a step that cannot count its work says
     ``what: step: 25 s so far`` from ``ticking``. The interval runs across steps, so no step is
     silent for longer. Units done without work (``update``'s ``skipped``: taken from a cache) count
-    in the share done, not in the rate. The ``clock`` and ``interval`` are injectable so that a test
-    needs no sleeping."""
+    in the share done, not in the rate, and a rate counts from when the first unit of work began
+    (``update``'s ``began``) when the job says so: starting worker processes is no work done. The
+    ``clock`` and ``interval`` are injectable so that a test needs no sleeping."""
 
     def __init__(
         self,
@@ -103,15 +104,26 @@ class TimedProgress:
         self.what = f"{self.name}: {part}" if part and self.name else part or self.name
         self.total, self.unit = total, unit
         self.start, self.done, self.skipped = self.clock(), 0, 0
+        self.working_since: float | None = None  # when the first unit of work began (``update``'s began)
 
     def update(
-        self, done: int | None = None, detail: str = "", skipped: int | None = None, at_once: bool = False
+        self,
+        done: int | None = None,
+        detail: str = "",
+        skipped: int | None = None,
+        at_once: bool = False,
+        began: float | None = None,
     ) -> None:
         """``done`` units (None: as many as last time) and, in a line said, ``: detail`` after it.
         ``skipped``: how many of ``done`` needed no work (None: as many as last time), left out of the
         rate and the time left (a thousand takes from a cache are no rate of computing them).
-        ``at_once``: this line is said whatever the clock (the first unit of real work, a last line)."""
+        ``at_once``: this line is said whatever the clock (the first unit of real work, a last line).
+        ``began``: when (the clock's reading) the unit of work just done began: the rate and the time
+        left count from the earliest such, not from the step's start (a pool of workers starting, a
+        cache checked: no rate of work); the time the step took still counts from its start."""
         with self.lock:
+            if began is not None and (self.working_since is None or began < self.working_since):
+                self.working_since = max(began, self.start)
             self.done = self.done if done is None else done
             self.skipped = self.skipped if skipped is None else skipped
             now = self.clock()
@@ -127,7 +139,8 @@ class TimedProgress:
             return f"{self.what}: done in {took}" if over else f"{self.what}: {took} so far"
         done = self.done
         worked = done - self.skipped
-        rate = worked / elapsed if elapsed > 0 else math.inf
+        working = elapsed if self.working_since is None else elapsed - (self.working_since - self.start)
+        rate = worked / working if working > 0 else math.inf
         share = 100 * done / self.total if self.total else 100.0
         share = share if over else min(share, 99.9)  # 100 % is for the end
         line = f"{self.what}: " if self.what else ""

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib
 import json
 import math
 import os
@@ -1186,11 +1187,19 @@ def _worker_context(options: BuildOptions):
     if sys.platform == "win32":  # pragma: no cover - no fork server there
         return get_context("spawn")
     ctx = get_context("forkserver")
-    preload = ["dataset.build", "dataset.pitch", "parselmouth", "scipy.fft"]
-    if options.ppg in ("bottleneck", "torchscript"):
-        preload += ["torch", "dataset.bottleneck"]
-    ctx.set_forkserver_preload(preload)
+    ctx.set_forkserver_preload(_take_modules(options))
     return ctx
+
+
+def _take_modules(options: BuildOptions) -> list[str]:
+    """The heavy modules computing a take imports (some lazily: scipy.signal in ``is_narrowband``), which
+    are imported before a take is timed, as start-up: in the workers' fork server, or in this process
+    before its first take computed with ``--jobs 1``. Left to the first take, they took seconds of it,
+    which the build's progress counted as the rate of computing takes."""
+    modules = ["dataset.build", "dataset.pitch", "parselmouth", "scipy.fft", "scipy.signal"]
+    if options.ppg in ("bottleneck", "torchscript"):
+        modules += ["torch", "dataset.bottleneck"]
+    return modules
 
 
 @contextmanager
@@ -1314,31 +1323,42 @@ def _process_takes(
     records: dict[str, dict[str, Any]] = {}
     total = len(jobs)
     takes = takes or TimedProgress("", total, "takes", say, bar=20)
+    modules = _take_modules(options)
     cached = 0
+    computed = ""  # the last take computed, as a line names it
 
     def note(i: int, rec: dict[str, Any]) -> None:
         """A line for the first take computed, then one every few seconds (``TimedProgress``) and the
-        last: hundreds of takes are not hundreds of lines. Takes from the cache are counted, not named,
-        and not in the rate: a rebuild from the cache says one line, "all N from the cache"."""
-        nonlocal cached
+        last: hundreds of takes are not hundreds of lines. Takes from the cache are counted, not named
+        (a line said while they are counted names the last take computed), and not in the rate, which
+        counts from when the first take computed began: the workers' start-up and the cache's checks
+        are no rate of computing takes. A rebuild from the cache says one line, "all N from the
+        cache"."""
+        nonlocal cached, computed
+        began = rec.pop("began_s")  # None for a take from the cache
         first = not rec.get("cached") and i - 1 == cached  # the first take this build computes
-        cached += bool(rec.get("cached"))
-        if cached == total:
-            detail = f"all {cached} from the cache"
+        if rec.get("cached"):
+            cached += 1
         else:
-            state = "cached" if rec.get("cached") else f"{rec['duration_s']:.1f} s of audio"
-            detail = f"{rec['take']} ({state}{f'; {cached} from the cache' if cached else ''})"
-        takes.update(i, detail, skipped=cached, at_once=first or i == total)
+            computed = f"{rec['take']} ({rec['duration_s']:.1f} s of audio"
+        from_cache = f"{cached} from the cache"
+        if cached == total:
+            detail = f"all {from_cache}"
+        else:
+            detail = f"{computed}{f'; {from_cache}' if cached else ''})" if computed else from_cache
+        takes.update(i, detail, skipped=cached, at_once=first or i == total, began=began)
 
     if options.jobs == 1 or total <= 1:
         for i, job in enumerate(jobs, 1):
-            rec = process_take(job)
+            rec = _process_take_timed(job, modules)
             records[job.take_id] = rec
             note(i, rec)
         return records
     try:
         with worker_pool(min(options.jobs, total), _worker_context(options)) as pool:
-            for i, future in enumerate(submit_all(pool, process_take, [(job,) for job in jobs]), 1):
+            for i, future in enumerate(
+                submit_all(pool, _process_take_timed, [(job, modules) for job in jobs]), 1
+            ):
                 rec = future.result()
                 records[rec["take"]] = rec
                 note(i, rec)
@@ -1347,6 +1367,20 @@ def _process_takes(
             "a worker process died (out of memory?); finished takes are kept: rerun to resume"
         ) from None
     return records
+
+
+def _process_take_timed(job: TakeJob, modules: list[str]) -> dict[str, Any]:
+    """``process_take``'s record with when computing it began (``began_s``: ``time.monotonic``, one
+    clock for all the machine's processes; None for a take from the cache), from which the build's
+    progress counts its rate: the ``modules`` it needs (``_take_modules``) are imported first, as
+    start-up, not as the take's time (a take from the cache needs none)."""
+    rec = _record_is_current(job)
+    if rec is not None:  # checked here too, so that a rebuild from the cache imports nothing
+        return rec | {"cached": True, "began_s": None}
+    for module in modules:
+        importlib.import_module(module)
+    began = time.monotonic()
+    return process_take(job) | {"began_s": began}
 
 
 def _repair_shards(

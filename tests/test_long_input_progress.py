@@ -7,10 +7,12 @@ line."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,7 @@ from test_train_pipeline import TINY
 
 from capture import write_take
 from capture.command import PROGRESS_INTERVAL_S, PROGRESS_INTERVAL_VAR, TimedProgress, duration_words
+from dataset.manifest import TAKE_RECORDS
 
 
 class FakeClock:
@@ -270,6 +273,51 @@ def test_units_taken_from_a_cache_count_in_the_share_not_in_the_rate():
     job.step("", 5, "frames")
     job.update(5, "all 5 from the cache", skipped=5, at_once=True)
     assert lines[-1] == "render: a.mp4: 5/5 frames (100.0 %), done in 0 s: all 5 from the cache"
+
+
+def test_the_rate_counts_from_when_the_first_unit_of_work_began():
+    job, clock, lines = _progress(10)
+    clock.now += 10.0  # worker processes starting: no work done
+    job.update(1, skipped=0, at_once=True, began=clock.now - 0.5)  # the first unit took 0.5 s
+    clock.now += 0.5
+    job.update(2, at_once=True, began=clock.now - 1.5)  # a second worker's, begun before the first
+    clock.now += 4.0
+    job.update(10)
+    assert lines == [
+        "render: a.mp4: 1/10 frames (10.0 %), 2 frames/s, about 4 s left",
+        "render: a.mp4: 2/10 frames (20.0 %), 1.3 frames/s, about 6 s left",
+        "render: a.mp4: 10/10 frames (100.0 %), 1.8 frames/s, done in 14 s",  # the whole step's time
+    ]
+
+
+def test_the_build_rates_its_takes_from_the_first_take_begun_and_names_only_takes_computed(
+    tmp_path, monkeypatch
+):
+    """Starting the build's worker processes took seconds, counted as the first take's (18 s left said
+    of 0.3 s); a line said while takes from the cache were counted named one of them as the take done."""
+    from dataset import BuildOptions, build_dataset
+
+    aligned = write_aligned_set(tmp_path / "aligned", count=4, speakers=1, seconds=1.0)
+    options = BuildOptions(features=("fbank",), max_sample_s=0.5, keep_work=True, jobs=2)
+    monkeypatch.setenv(PROGRESS_INTERVAL_VAR, "0")
+    lines: list[tuple[float, str]] = []
+    build_dataset([aligned], tmp_path / "ds", options, say=lambda x: lines.append((time.monotonic(), x)))
+    started = next(t for t, x in lines if x.startswith("reading takes: 4/4"))  # the takes' step begins
+    said, first = next((t, x) for t, x in lines if x.startswith("[#####  "))
+    left = float(first.split("about ")[1].split(" s left")[0])  # seconds: a minute is far off
+    assert left < said - started, (said - started, first)  # not the workers' start-up over again
+    records = tmp_path / "ds" / ".work" / TAKE_RECORDS
+    (again,) = [p for p in records.glob("*.json") if json.loads(p.read_text())["take"] == "take02"]
+    again.unlink()  # take02 computed again, between takes from the cache
+    texts: list[str] = []
+    build_dataset([aligned], tmp_path / "ds", replace(options, jobs=1, shard_bytes=60_000), say=texts.append)
+    bars = [x.split(": ", 1)[1] for x in texts if x.startswith("[")]
+    assert bars == [
+        "1 from the cache",
+        "2 from the cache",
+        "take02 (1.0 s of audio; 2 from the cache)",
+        "take02 (1.0 s of audio; 3 from the cache)",
+    ], texts
 
 
 def _build_cli(takes: Path, ds: Path, interval: str, *extra: str) -> list[str]:

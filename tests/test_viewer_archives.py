@@ -533,3 +533,49 @@ def test_what_was_unpacked_is_removed_whatever_thread_or_call_a_ctrl_c_meets(tmp
     )
     assert proc.returncode > 0, proc.stderr  # stopped (130, or 1 from VTK), not killed by a signal
     assert unpacked_left(tmp) == [], proc.stderr
+
+
+def test_one_csv_of_a_flat_folder_of_takes_unpacks_that_take_alone(sim_take, tmp_path, monkeypatch):
+    """A Live Link Face export zipped flat: each take's CSV and .mov side by side, one take with a WAV of
+    its name (and the iCloud placeholder left beside it once downloaded). A CSV of such a folder is read
+    alone, with the audio beside it (the take folder reader refuses to choose among its CSVs): of the
+    archive, only that CSV and that audio are unpacked (no .mov), and it is read as from the folder
+    unzipped."""
+    csv = next(p for p in sim_take.glob("*.csv") if p.name != "frame_log.csv")
+    flat = tmp_path / "export"
+    flat.mkdir()
+    for i in (1, 2, 3):
+        shutil.copy(csv, flat / f"MySlate_{i}_iPhone.csv")
+        shutil.copy(next(sim_take.glob("*.mov")), flat / f"MySlate_{i}_iPhone.mov")
+    shutil.copy(next(sim_take.glob("*.wav")), flat / "MySlate_2_iPhone.wav")
+    (flat / ".MySlate_2_iPhone.wav.icloud").write_bytes(b"bplist00")
+    archive = zip_files(tmp_path / "takes.zip", {p.name: p for p in sorted(flat.iterdir())})
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    whole = sum(p.stat().st_size for p in flat.iterdir())
+    mov_size = (flat / "MySlate_1_iPhone.mov").stat().st_size
+    for name, unpacked, speech in (
+        ("MySlate_2_iPhone.csv", [".MySlate_2_iPhone.wav.icloud", "MySlate_2_iPhone.wav"], True),
+        # no audio of its name: the only one beside it is named for another CSV, which is unpacked to say so
+        (
+            "MySlate_1_iPhone.csv",
+            [".MySlate_2_iPhone.wav.icloud", "MySlate_2_iPhone.wav", "MySlate_2_iPhone.csv"],
+            False,
+        ),
+    ):
+        want, want_warnings, want_speech = read_input(flat / name, "one")
+        with archives_unpacked():
+            got, warnings, got_speech = read_input(archive / name, "one")
+            files = _unpacked_files(tmp)
+            written = sum(p.stat().st_size for p in tmp.rglob("*") if p.is_file())
+        assert files == sorted([name, *unpacked]), files
+        assert written == sum((flat / f).stat().st_size for f in files) <= whole - 3 * mov_size
+        assert np.array_equal(got.values, want.values, equal_nan=True) and np.array_equal(got.time, want.time)
+        assert (got.audio is not None) == (want.audio is not None) == speech
+        if speech:
+            assert np.array_equal(got.audio.samples, want.audio.samples)
+            assert got_speech == archive / want_speech.name
+        assert warnings == [w.replace(str(flat), str(archive)) for w in want_warnings]
+        assert ("is named for MySlate_2_iPhone.csv" in "".join(warnings)) != speech
+    assert unpacked_left(tmp) == []

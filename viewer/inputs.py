@@ -37,7 +37,7 @@ from capture.channels import ARKIT52, canonical, is_known
 from capture.command import stops_deferred
 from capture.csv_take import split_variant
 from capture.errors import InputError, S2AError
-from capture.importer import audio_beside, is_livelink_csv, warn_skipped
+from capture.importer import AUDIO_SUFFIXES, audio_beside, audio_stem, is_livelink_csv, warn_skipped
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
 from capture.take_archive import MAX_DEPTH, UNPACK_PREFIX, Member, Unpacked, unpacked
@@ -333,9 +333,10 @@ _NOT_READ_BESIDE = (".mov", ".mp4", ".m4v", ".avi", ".mkv", ".zip")
 def members_needed(members: list[Member], parts: tuple[str, ...]) -> set[tuple[str, ...]]:
     """The members of an archive (``members``) that showing its member ``parts`` needs: all for the
     archive itself (``()``), a folder's own members for a folder, and for a file (a CSV) the files its
-    reader may look at beside it: those of its folder, less other takes' videos and archives (of the
-    ``.mov`` files, those the take folder reader may take: ``_movs_read``); none when it holds no
-    ``parts``."""
+    reader may look at beside it: for a CSV read alone (``_read_alone``: one take's of a flat folder of
+    several), the audio files ``audio_beside`` may pair with it (``_read_alone_needs``); else those of
+    its folder, less other takes' videos and archives (of the ``.mov`` files, those the take folder
+    reader may take: ``_movs_read``); none when it holds no ``parts``."""
     if not parts:
         return {m.parts for m in members}
     n = len(parts)
@@ -343,6 +344,8 @@ def members_needed(members: list[Member], parts: tuple[str, ...]) -> set[tuple[s
         beside = [
             m.parts for m in members if not m.is_dir and len(m.parts) == n and m.parts[:-1] == parts[:-1]
         ]
+        if _read_alone(beside, parts[-1]):
+            return _read_alone_needs(beside, parts[-1]) | {parts}
         kept = {b for b in beside if PurePosixPath(b[-1]).suffix.lower() not in _NOT_READ_BESIDE}
         return kept | _movs_read(beside, parts[-1]) | {parts}
     return {m.parts for m in members if m.parts[:n] == parts}
@@ -375,7 +378,7 @@ def _movs_read(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]
     by name, its fallback, and one an iCloud placeholder stands beside (without it, the placeholder
     would count as not downloaded); all of them unless the folder's CSVs are one take's (one prefix,
     one of each variant): between several, the reader picks by the take's names, ``.mov`` stems among
-    them (a flat folder of several takes' CSVs and ``.mov`` files is unpacked as a whole)."""
+    them (a flat folder of several takes whose CSV is not read alone, ``_read_alone``, keeps them all)."""
     movs = sorted((b for b in beside if PurePosixPath(b[-1]).suffix.lower() == ".mov"), key=lambda b: b[-1])
     names = [_original_name(b[-1]) for b in beside]
     csvs = [n for n in names if n.lower().endswith(".csv") and n.lower() != "frame_log.csv"]
@@ -385,6 +388,65 @@ def _movs_read(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]
     prefix = split_variant(PurePosixPath(named).stem)[0]
     placeheld = {icloud_original(Path(b[-1])) for b in beside}
     return {b for b in movs if PurePosixPath(b[-1]).stem == prefix or b[-1] in placeheld} | set(movs[:1])
+
+
+def _read_alone(beside: list[tuple[str, ...]], named: str) -> bool:
+    """Whether the CSV ``named`` is read alone with the audio beside it (``csv_with_its_audio``), its
+    folder's files as ``beside`` lists them, whatever else the folder holds: a neutral pose, or a CSV of
+    a flat folder of several takes (``MySlate_1_iPhone.csv``, ``.mov``, ``MySlate_2_iPhone.csv``, ...,
+    as people zip an export), where two CSVs or more of its variant are named as ``.mov`` files beside
+    them: the take folder reader then reads none of them (``choose_csv`` refuses to choose, whatever
+    take.json says). CSVs whose names may be a copy's (``X (1)``, ``X copy``) are not counted: the
+    reader sets those aside."""
+    if PurePosixPath(named).suffix.lower() != ".csv":
+        return False
+    variant = split_variant(PurePosixPath(named).stem)[1]
+    if variant == "neutral":
+        return True
+    names = [PurePosixPath(_original_name(b[-1])) for b in beside]
+    movs = {n.stem for n in names if n.suffix.lower() == ".mov"}
+    named_as_movs = [
+        n
+        for n in names
+        if n.suffix.lower() == ".csv"
+        and not _maybe_a_copy(n.stem)
+        and split_variant(n.stem) in {(mov, variant) for mov in movs}
+    ]
+    return len(named_as_movs) > 1
+
+
+def _maybe_a_copy(stem: str) -> bool:
+    """Whether ``stem`` may be a copy's (a browser's ``X (1)``, Finder's ``X copy``, Windows Explorer's
+    ``X - Copy (2)``): wider than the take folder reader's own test, so that a doubt keeps every .mov."""
+    return stem.endswith(")") or " copy" in stem.casefold()
+
+
+def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]]:
+    """What ``audio_beside`` looks at for the CSV ``named`` read alone (``beside``: its folder's files):
+    the audio files of its stem, else every audio file beside it with the CSVs and JSON exports they may
+    be named for (an only one, or an iCloud placeholder, named for another is not this CSV's); each
+    with the iCloud placeholder standing for it, or standing beside it (a placeholder without the file
+    it stands for counts as not downloaded). No .mov, nor the app's files: the folder unpacked is then
+    no take folder, and the CSV is read alone there too."""
+    by_name: dict[str, set[tuple[str, ...]]] = {}  # a file's name -> it and its placeholder
+    for b in beside:
+        by_name.setdefault(_original_name(b[-1]), set()).add(b)
+    stem = _nfc(PurePosixPath(named).stem)
+    audio = [n for n in by_name if PurePosixPath(n).suffix.lower() in AUDIO_SUFFIXES]
+    same = [n for n in audio if _nfc(PurePosixPath(n).stem) == stem]
+    wanted = {named, *(same or audio)}
+    if not same:
+        owners = {_nfc(PurePosixPath(n).stem) for n in audio}
+        wanted |= {
+            n
+            for n in by_name
+            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and _nfc(audio_stem(Path(n))) in owners
+        }
+    return {b for n in wanted for b in by_name.get(n, ())}
+
+
+def _nfc(name: str) -> str:
+    return unicodedata.normalize("NFC", name)
 
 
 def _original_name(name: str) -> str:
