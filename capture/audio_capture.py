@@ -4,7 +4,8 @@ Two sources feed the same ``AudioLog``:
 
 - ``DeviceAudioSource``: a microphone through PortAudio (``sounddevice``, imported only when used).
   Each callback's first sample is placed at ``now - (currentTime - inputBufferAdcTime)``: PortAudio's
-  own estimate of how long ago the buffer started being captured, moved onto our monotonic clock.
+  own estimate of how long ago the buffer started being captured, moved onto our monotonic clock, when
+  that estimate is one a buffer of that length can have (``capture_delay_s``), else the buffer's length.
 - ``FileAudioSource``: a sound file played against the clock in real time, for tests and re-enacted
   sessions. Its first sample sits exactly at the moment playback starts (when listening starts, or
   when the first Live Link packet arrives).
@@ -56,6 +57,27 @@ PORTAUDIO_HINT = (
     "recording from a sound device needs the PortAudio library: install the Debian package "
     "libportaudio2 (apt-get install libportaudio2), or record with --audio-file"
 )
+
+
+# The most a sound device's input latency can add to a buffer's length (seconds): how long before the
+# callback its first sample may have been captured, beyond the buffer itself.
+MAX_INPUT_LATENCY_S = 1.0
+
+
+def capture_delay_s(current_time: float, adc_time: float, frames: int, sample_rate: float) -> float:
+    """How long before a sound-device callback the first sample of its buffer of ``frames`` was captured
+    (seconds). PortAudio's times (``currentTime - inputBufferAdcTime``) when they are ones such a buffer
+    can have: at least about its length (the buffer had to fill before the callback) and at most
+    ``MAX_INPUT_LATENCY_S`` more. Otherwise the buffer's length: some host APIs leave both times 0
+    (DirectSound, WDM-KS), give the ADC time with the wrong sign (WASAPI before PortAudio's fix of 2023)
+    or derive it from another rate (CoreAudio input-only streams), and a delay of 0 stamped each buffer a
+    whole buffer (0.1 s) late, which moved the take's audio by as much against its frames."""
+    length = frames / sample_rate
+    if current_time and adc_time:
+        ago = current_time - adc_time
+        if 0.5 * length <= ago <= length + MAX_INPUT_LATENCY_S:
+            return ago
+    return length
 
 
 def check_regular_file(path: Path) -> None:
@@ -144,11 +166,8 @@ class DeviceAudioSource:
 
     def _callback(self, indata, frames, time_info, status) -> None:
         now = self.clock.now_ns()
-        ago = 0.0
-        if time_info.currentTime and time_info.inputBufferAdcTime:
-            ago = max(0.0, time_info.currentTime - time_info.inputBufferAdcTime)
-        else:
-            ago = frames / self.stream.samplerate
+        times = time_info.currentTime, time_info.inputBufferAdcTime
+        ago = capture_delay_s(*times, frames, self.stream.samplerate)
         if status.input_overflow:
             self.overflows += 1
             self.log.note({"kind": "audio_overflow", "at_sample": self.index})

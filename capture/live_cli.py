@@ -193,42 +193,72 @@ REJECT_HINTS = {
     "bad_frame_time": "a negative frame number or a sub-frame outside [0, 1): a sub-frame of 1.0 is the "
     "next frame's 0.0 (the sender rounds it up), a negative frame number a clock before its origin",
     "not_allowed": "the sender's address is not in --allow",
+    "bad_length": "a device id or subject length that runs past the datagram: the packet is big-endian "
+    "(network byte order), and a sender that writes its lengths little-endian (a C#/Unity "
+    "BinaryWriter, struct.pack('<i')) has all its packets rejected so",
+    "bad_text": "a device id or subject that is not UTF-8 text (the app sends UTF-8): a sender that "
+    "writes its names in another encoding (Latin-1, UTF-16) needs ASCII names or UTF-8",
+    "size_mismatch": "datagrams longer than the packet they hold (261 bytes after the names): a sender "
+    "that pads its packets to a fixed buffer size; send only the packet's bytes",
+    "short": "datagrams that end before the packet does (a sender that cuts its packets to a fixed "
+    "buffer size, or another protocol)",
 }
+
+
+def _printable(line: str) -> str:
+    """``line`` with the characters a terminal acts on (escape sequences, carriage returns, bells) written
+    as Python escapes: device ids and subjects are what a sender chose, and a hostile one could otherwise
+    rewrite the terminal (clear it, forge lines, set the clipboard through an escape sequence)."""
+    if line.isprintable():
+        return line
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in line)
+
+
+def _tell(message: str) -> None:
+    """``progress`` of a line that may quote what a sender sent (``_printable``)."""
+    progress(_printable(message))
 
 
 def _report(summaries: list[dict], as_json: bool) -> None:
     hinted = False
+    said: set[str] = set()  # a session's warnings (audio, the receive queue) are in every take's summary
+
+    def warnings(s: dict) -> list[str]:
+        lines = [line for line in _warnings(s) if line not in said]
+        said.update(lines)
+        return lines
+
     for s in summaries:
         if as_json:  # stdout stays one JSON object per line; the warnings go to stderr as well
             emit_json(s)
-            for line in _warnings(s):
-                progress(f"{s.get('path')}: {line}")
+            for line in warnings(s):
+                _tell(f"{s.get('path')}: {line}")
             continue
         if s.get("error"):
-            progress(f"{s.get('device')} / {s.get('subject')}: {s['error']}")
+            _tell(f"{s.get('device')} / {s.get('subject')}: {s['error']}")
             continue
         if s.get("path") is None:
-            progress(f"no take recorded; rejected datagrams: {s.get('rejected')}")
-            for line in _rejection_hints(s.get("rejected") or {}):
-                progress(f"  {line}")
+            _tell(f"no take recorded; rejected datagrams: {s.get('rejected')}")
+            for line in warnings(s) + _rejection_hints(s.get("rejected") or {}):
+                _tell(f"  {line}")
             hinted = True
             continue
-        progress(
+        _tell(
             f"{s['device']} / {s['subject']} -> {s['path']}: {s['frames']} frames, "
             f"{s['dropped_frames']} dropped, {s.get('face_lost_frames', 0)} face lost, "
             f"{s.get('duplicates', 0)} duplicates, "
             f"{s.get('out_of_order', 0)} out of order; rejected {s.get('rejected')}"
         )
         if "torn_tail" in s:
-            progress(f"  torn log tail discarded: {s['torn_tail']}")
-        for line in _warnings(s):
-            progress(f"  {line}")
+            _tell(f"  torn log tail discarded: {s['torn_tail']}")
+        for line in warnings(s):
+            _tell(f"  {line}")
     # A stream rejected whole beside one that made takes (or with --json): say once what it means.
     hints = [] if hinted or not summaries else _rejection_hints(summaries[0].get("rejected") or {})
     if hints:
-        progress("rejected datagrams, what they usually mean:")
+        _tell("rejected datagrams, what they usually mean:")
     for line in hints:
-        progress(f"  {line}")
+        _tell(f"  {line}")
 
 
 def _rejection_hints(rejected: dict[str, int]) -> list[str]:
@@ -260,6 +290,13 @@ def _warnings(s: dict) -> list[str]:
             f"warning: the frame clock jumped forward {s['clock_steps']} time(s) while packets kept coming "
             "(a clock correction, no lost frames): the stream is cut there, each part on its own clock"
         )
+    if s.get("receive_queue_drops"):
+        lines.append(
+            f"warning: {s['receive_queue_drops']} datagrams reached this computer but were dropped before "
+            "listen read them (its receive queue was full: listen was suspended or fell behind in a burst); "
+            "the takes lack their frames. A larger queue rides out bursts: sysctl -w "
+            "net.core.rmem_max=8388608"
+        )
     if s.get("senders"):
         lines.append(
             f"warning: {len(s['senders'])} senders ({', '.join(s['senders'])}) sent device "
@@ -282,6 +319,8 @@ def _say(message: str) -> None:
 
 def _status_line(counts: dict) -> None:
     failed = f", {counts['failed_writes']} failed log writes" if counts.get("failed_writes") else ""
+    if counts.get("receive_queue_drops"):
+        failed += f", {counts['receive_queue_drops']} dropped in a full receive queue"
     _say(
         f"{counts['elapsed_s']:.0f} s: {counts['accepted']} packets from {counts['streams']} stream(s), "
         f"{counts['rejected']} rejected{failed}"
@@ -590,6 +629,9 @@ def cmd_listen(args: argparse.Namespace) -> int:
                 audio_log.close()
             recorder.close()
         summaries = build_takes(recorder.session_dir, args.out)
+        if recorder.receive_drops:  # never logged as packets: only the kernel counted them
+            for s in summaries:
+                s["receive_queue_drops"] = recorder.receive_drops
         if serial_sync is not None:  # lines of line noise are not in the log: only this process counted them
             for s in summaries:
                 s["sync_lines_dropped"] = serial_sync.dropped

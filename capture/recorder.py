@@ -9,8 +9,11 @@ packet the app sends while it sees no face (NO_FACE: the frame is kept, as FACE_
 values, duplicate removal, ordering and gap filling happen when the takes are built from the log
 (``session_takes``), so memory stays flat however long the session runs. A stream is a device id and
 subject from one source address: another source of known names gets a stream of its own (``_stream_key``),
-which the take builder joins to the first unless it is a second sender. Buffers are handed to the
-log writer thread at least every ``flush_interval_s`` (default 0.1 s), which writes and fsyncs them.
+which the take builder joins to the first unless it is a second sender; a sender that sends from a new
+source port again and again goes on in one stream (``PORT_HOPS``). At a stop the datagrams already queued
+are read too; those the system dropped with the receive queue full are counted (``receive_queue_drops``).
+Buffers are handed to the log writer thread at least every ``flush_interval_s`` (default 0.1 s), which
+writes and fsyncs them.
 """
 
 from __future__ import annotations
@@ -118,6 +121,26 @@ def parse_allow_list(addresses: Iterable[str] | None) -> AllowList | None:
     return AllowList(addresses)
 
 
+def receive_queue_drops(sock: socket.socket) -> int | None:
+    """Datagrams the system dropped because ``sock``'s receive queue was full (the listener suspended or
+    behind in a burst): they never reach ``recvfrom``, so only the kernel's count tells of them. Linux
+    gives it per socket in the ``drops`` column of /proc/net/udp(6), found by the socket's inode; None
+    where it cannot be read (another system, no /proc)."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+        for table in ("/proc/self/net/udp", "/proc/self/net/udp6"):
+            with open(table, encoding="ascii", errors="replace") as f:
+                next(f, None)  # the column titles
+                for line in f:
+                    fields = line.split()
+                    # sl local remote st tx:rx tr:when retrnsmt uid timeout inode ref pointer drops
+                    if len(fields) >= 13 and fields[9] == inode:
+                        return int(fields[12])
+    except (OSError, ValueError):
+        return None
+    return None
+
+
 def _unspecified(host: str) -> bool:
     """Whether ``host`` is the all-interfaces address (``0.0.0.0``, ``::``)."""
     try:
@@ -130,6 +153,16 @@ def _unspecified(host: str) -> bool:
 # new recording once this many packets in a row carry the new rate; until then they are held back, and
 # if the old rate comes back first they are rejected (``rate_changed``: a corrupt or spoofed packet).
 RATE_CHANGE_PACKETS = 3
+# A rate within RATE_JITTER (relative) of the stream's is no change of setting but a sender that declares
+# its measured rate (a PC app or script: 58-62 around 60): logged as it comes, the take builder decides.
+RATE_JITTER = 0.08
+
+
+def close_rates(num_a: int, den_a: int, num_b: int, den_b: int) -> bool:
+    """Whether two declared rates are within ``RATE_JITTER`` of each other (in integers)."""
+    a, b = num_a * ll.rate_denominator(den_b), num_b * ll.rate_denominator(den_a)
+    return abs(a - b) <= RATE_JITTER * min(a, b)
+
 
 # When every --max-streams slot is taken, a stream that has sent at most STRAY_PACKETS datagrams and
 # nothing for STRAY_SILENT_S seconds (a stray or spoofed packet) gives its slot to a new stream; its
@@ -137,6 +170,19 @@ RATE_CHANGE_PACKETS = 3
 STRAY_PACKETS = 5
 STRAY_SILENT_S = 10.0
 
+
+# The socket loop wakes up at least this often (seconds) to flush, check the duration and signals.
+SOCKET_WAKE_S = 0.05
+# What a stop may spend reading the datagrams still queued (a sender flooding on is cut off there).
+STOP_DRAIN_S = 0.5
+
+# A sender whose packets of one device id and subject come from this many source ports of one address in a
+# row, each of the earlier ones used for at most PORT_HOP_PACKETS packets (a script opening a socket per
+# packet), is taken to hop ports: its packets from further ports go on in the stream of its latest port.
+# Without this each packet made a stream: the --max-streams slots filled, and the rest of its packets were
+# rejected (``too_many_streams``). A sender restarted on a new port has sent for longer than that.
+PORT_HOPS = 4
+PORT_HOP_PACKETS = 120
 
 # Longest wait between log flushes: what a crash can cost of the packets received (0.25 s of frames).
 MAX_FLUSH_INTERVAL_S = 0.25
@@ -191,7 +237,13 @@ class LiveRecorder:
         # stream key -> (new rate, records of the packets held back at it); see RATE_CHANGE_PACKETS
         self._rate_pending: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], list[bytes]]] = {}
         self._next_eviction_ns = 0
+        # (header, source host) -> its last PORT_HOPS stream ids; the key a port-hopping host goes on in
+        self._host_streams: dict[tuple[bytes, Any], list[int]] = {}
+        self._port_hops: dict[tuple[bytes, Any], bytes | tuple[bytes, Any]] = {}
         self.socket_errors = 0
+        # Datagrams the system dropped with this socket's receive queue full (``receive_queue_drops``):
+        # read at the status lines and when closing; None where the system does not say.
+        self.receive_drops: int | None = None
         self._stop = False
         self.sock: socket.socket | None = None
         self.log: LogWriter | None = None
@@ -215,7 +267,7 @@ class LiveRecorder:
         except (OSError, OverflowError) as exc:
             sock.close()
             raise InputError(f"cannot listen on UDP {self.bind}:{self.port}: {exc}") from None
-        sock.settimeout(0.05)  # wake up regularly to flush, check the duration and signals
+        sock.settimeout(SOCKET_WAKE_S)
         try:
             self.session_dir.mkdir(parents=True, exist_ok=True)
             self.log = LogWriter(self.session_dir / FRAMES_LOG, fsync=self.fsync)
@@ -305,12 +357,20 @@ class LiveRecorder:
         first_cb = self.on_first_packet
         last_rejects = dict(rejected)
         addr: Any = None
+        # After request_stop the datagrams already in the receive queue are read too (they reached this
+        # computer before the stop), without waiting for more, for at most STOP_DRAIN_S.
+        draining_until = 0
         try:
-            while not self._stop:
+            while True:
+                if self._stop and not draining_until:
+                    draining_until = now_ns() + int(STOP_DRAIN_S * 1e9)
+                    sock.setblocking(False)
                 try:
                     n, addr = recvfrom_into(buf)
                 except TimeoutError:
                     n = -1
+                except BlockingIOError:  # draining, and the queue is empty
+                    break
                 except OSError:
                     self.socket_errors += 1
                     n = -1
@@ -398,6 +458,7 @@ class LiveRecorder:
                     if status is not None and t >= next_status:
                         next_status = t + status_ns
                         rejected_now = sum(rejected.values())
+                        self.receive_drops = receive_queue_drops(sock)
                         status(
                             {
                                 "elapsed_s": (t - start) / 1e9,
@@ -407,13 +468,18 @@ class LiveRecorder:
                                 "streams": len(streams),
                                 "evicted_streams": self.evicted_streams,
                                 "failed_writes": log.failed_writes,
+                                "receive_queue_drops": self.receive_drops or 0,
                             }
                         )
                     if end is not None and t >= end:
                         break
                 elif end is not None and t >= end:
                     break
+                if draining_until and t >= draining_until:
+                    break
         finally:
+            if draining_until:
+                sock.settimeout(SOCKET_WAKE_S)
             self.datagrams += datagrams
             self.accepted += accepted
             self.on_first_packet = first_cb
@@ -439,7 +505,7 @@ class LiveRecorder:
         key = self._stream_key(header, addr)
         known = self.streams.get(key)
         if known is not None:
-            if (known[2], known[3]) != (num, den):
+            if (known[2], known[3]) != (num, den) and not close_rates(known[2], known[3], num, den):
                 return self._rate_change(key, known, view, n, num, den, t)
             if key in self._rate_pending:
                 self._drop_rate_change(key)
@@ -465,6 +531,7 @@ class LiveRecorder:
         if key != header:  # another source of these names: the take builder decides what it is
             record["alongside"] = self.streams[header][0]
         self.streams[key] = entry
+        self._count_source_port(header, key, addr, sid)
         self.stream_packets.append(0)
         self.stream_last_ns.append(time.monotonic_ns())
         self.stream_sources.append(addr)
@@ -472,18 +539,40 @@ class LiveRecorder:
         self.log.buffer += json_record(RecordType.STREAM, record)
         return entry
 
+    def _count_source_port(self, header: bytes, key: bytes | tuple[bytes, Any], addr: Any, sid: int) -> None:
+        """Note a new stream ``sid`` of its host; when the host hops ports (``PORT_HOPS``), its later ports
+        go on in this stream (noted in the log)."""
+        if not addr:
+            return
+        host = (header, addr[0])
+        recent = self._host_streams.setdefault(host, [])
+        recent.append(sid)
+        del recent[:-PORT_HOPS]
+        earlier = recent[:-1]
+        if len(earlier) == PORT_HOPS - 1 and all(self.stream_packets[s] <= PORT_HOP_PACKETS for s in earlier):
+            if host not in self._port_hops:
+                assert self.log is not None
+                self.log.buffer += json_record(
+                    RecordType.NOTE, {"kind": "port_hopping", "stream": sid, "source": addr[0]}
+                )
+            self._port_hops[host] = key
+
     def _stream_key(self, header: bytes, addr: Any) -> bytes | tuple[bytes, Any]:
         """The key of the stream a packet with ``header`` (device id and subject) from ``addr`` belongs to:
         ``header`` for the first source of these names, ``(header, addr)`` for any other. The recorder
         cannot tell yet what another source is (a second sender with the same names, the app sending to
         this computer twice from a socket per Live Link target, the app restarted on another port), so
         it logs it as a stream of its own whose STREAM record says ``alongside`` which; the take builder
-        keeps it apart only when it sent at the same time as the first and not copies of its frames."""
+        keeps it apart only when it sent at the same time as the first and not copies of its frames. A host
+        that hops ports (``PORT_HOPS``) goes on in the stream of its latest new port."""
         own = (header, addr)
         if own in self.streams:
             return own
         known = self.streams.get(header)
-        return own if known is not None and self.stream_sources[known[0]] != addr else header
+        if known is None or self.stream_sources[known[0]] == addr:
+            return header
+        hop = self._port_hops.get((header, addr[0] if addr else None))
+        return hop if hop in self.streams else own
 
     def _rate_change(
         self,
@@ -567,12 +656,15 @@ class LiveRecorder:
         """Log the final counts and an END record, close the socket and the log (waits for fsync)."""
         for key in list(self._rate_pending):  # a rate change that never got RATE_CHANGE_PACKETS in a row
             self._drop_rate_change(key)
+        if self.sock is not None:
+            self.receive_drops = receive_queue_drops(self.sock)
         if self.log is not None:
             self.log.buffer += json_record(RecordType.REJECTS, self.rejected)
-            self.log.buffer += json_record(
-                RecordType.END,
-                {"datagrams": self.datagrams, "accepted": self.accepted, "socket_errors": self.socket_errors},
-            )
+            end: dict[str, Any] = {"datagrams": self.datagrams, "accepted": self.accepted}
+            end["socket_errors"] = self.socket_errors
+            if self.receive_drops is not None:
+                end["receive_queue_drops"] = self.receive_drops
+            self.log.buffer += json_record(RecordType.END, end)
             self.log.close()  # a failed write is kept in the log, not raised: the caller reports it
         if self.sock is not None:
             self.sock.close()
