@@ -290,6 +290,17 @@ def _warnings(s: dict) -> list[str]:
             f"warning: the frame clock jumped forward {s['clock_steps']} time(s) while packets kept coming "
             "(a clock correction, no lost frames): the stream is cut there, each part on its own clock"
         )
+    if s.get("clock_steps_back"):
+        lines.append(
+            f"warning: the phone's clock stepped back {s['clock_steps_back']} time(s) while packets kept "
+            "coming (a timecode re-sync): the frames after each step are placed where they arrived (see the "
+            "take's clock_step_back repair)"
+        )
+    if s.get("rate_jitter_packets"):
+        lines.append(
+            f"warning: {s['rate_jitter_packets']} packets declared a frame rate that wavered around one "
+            "value (a sender reporting its measured rate): read at the rate most packets declared"
+        )
     if s.get("receive_queue_drops"):
         lines.append(
             f"warning: {s['receive_queue_drops']} datagrams reached this computer but were dropped before "

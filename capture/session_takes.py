@@ -3,12 +3,15 @@
 Per device/subject stream, frames are read from ``frames.log`` into arrays (frames of a rate above
 ``livelink.MAX_RATE_FPS`` dropped); another source of the same names the recorder logged apart joins
 the stream unless it is a second sender (``_streams_by_sender``). Each stretch of one declared rate (the
-recorder logs a change of rate once it holds, see ``recorder.RATE_CHANGE_PACKETS``), its wraps at
-midnight undone, is read as the phone's frame clock by ``follow_clock``: its recordings (a new one where
-the clock restarted: it went back and went on from there), the late packets that belong to them, and
-stray packets (a corrupt or spoofed frame number) that belong to none. Per recording, duplicates (copies
-of one datagram) are dropped keeping the first arrival, frames sharing a frame time with other values
-are spread over it or counted (``_time_ordered``), the rest are ordered by frame time, cut where the
+recorder logs a change of rate once it holds, see ``recorder.RATE_CHANGE_PACKETS``; a rate that jitters
+within ``recorder.RATE_JITTER``, a sender declaring its measured rate, is one stretch read at its median
+rate: ``_rate_stretches``), its wraps at midnight undone, is read as the phone's frame clock by
+``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
+there), the late packets that belong to them, and stray packets (a corrupt or spoofed frame number) that
+belong to none. Per recording, small steps back of the phone's clock are undone (``_undo_steps_back``:
+the frames after one are placed where they arrived), duplicates (copies of one datagram) are dropped
+keeping the first arrival, frames sharing a frame time with other values are spread over it or counted
+(``_time_ordered``), the rest are ordered by frame time, cut where the
 phone's clock stepped forward (``_clock_steps``) and split into segments wherever the phone's frame
 time between two frames with a face jumps by more than ``MAX_GAP_S`` (a long pause or a long time
 without a face).
@@ -58,6 +61,7 @@ from .recorder import (
     FRAME_PAYLOAD_BYTES,
     FRAMES_LOG,
     NO_FACE_PAYLOAD_BYTES,
+    RATE_JITTER,
     SESSION_SUFFIX,
 )
 from .serial_sync import SYNC_HEAD_BYTES, decode_sync_record
@@ -110,6 +114,14 @@ CLOCK_STEP_S = 0.5
 STEP_SIDE_S = 1.0
 PACE_TOLERANCE = 0.25
 MIN_PACE_S = 0.1
+# A step back of the phone's clock by more than BACK_STEP_S that the arrivals do not show (an NTP or
+# Tentacle Sync re-sync), too small for a restart (RESTART_WINDOW_S), is undone: the frames after it are
+# placed where they arrived (``_undo_steps_back``).
+BACK_STEP_S = 0.1
+MAX_STEP_SIDE_PACKETS = 120  # a side of STEP_SIDE_S at most this many packets (a declared 1000 fps)
+# A jittering declared rate (``_rate_stretches``): two runs of nearby rates are a change of setting when
+# each has at least this many packets.
+RATE_HOLD_PACKETS = 2 * MIN_TAKE_FRAMES
 # DROPPED frames a take may get per received frame (plus MAX_GAP_S at the stream's rate): past that,
 # as only a corrupt or hostile frame clock needs, the gaps are left unfilled.
 MAX_DROPPED_PER_FRAME = 4
@@ -612,6 +624,52 @@ def _rate_runs(num: np.ndarray, den: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple[int, int] | None]]:
+    """Stretches (arrival order) that each make recordings of their own, with the rate a jittering one is
+    read at (None: its one declared rate). Consecutive runs of one rate (``_rate_runs``) whose rates lie
+    within ``RATE_JITTER`` of each other are one jittering rate (a sender that declares
+    its measured rate) when the rate changes more than once or one of two runs is short
+    (``RATE_HOLD_PACKETS``); two long runs are a change of setting (24 -> 25, 30 -> 29.97), as is any
+    larger change (30 -> 60). A jittering stretch is read at the median packet's declared rate."""
+    rate = num / den
+    runs = _rate_runs(num, den)
+    if not num.size:  # every frame dropped (an implausible rate): one empty stretch, as before
+        return [(run, None) for run in runs]
+    groups: list[list[slice]] = []
+    low = high = 0.0  # the rates of the current group span [low, high]
+    for run in runs:
+        r = float(rate[run.start])
+        if groups and max(high, r) <= (1 + RATE_JITTER) * min(low, r):
+            groups[-1].append(run)
+            low, high = min(low, r), max(high, r)
+        else:
+            groups.append([run])
+            low = high = r
+    stretches: list[tuple[slice, tuple[int, int] | None]] = []
+    for group in groups:
+        shortest = min(run.stop - run.start for run in group)
+        if len(group) < 2 or len(group) == 2 and shortest >= RATE_HOLD_PACKETS:
+            stretches += [(run, None) for run in group]
+            continue
+        whole = slice(group[0].start, group[-1].stop)
+        middle = whole.start + int(
+            np.argsort(rate[whole], kind="stable")[(whole.stop - whole.start - 1) // 2]
+        )
+        stretches.append((whole, (int(num[middle]), int(den[middle]))))
+    return stretches
+
+
+def _rate_jitter_note(num: np.ndarray, den: np.ndarray, nominal: tuple[int, int]) -> str:
+    """What a take says of a jittering declared rate (``_rate_stretches``)."""
+    rate = num / den
+    changes = int(np.count_nonzero(rate[1:] != rate[:-1]))
+    return (
+        f"the sender declared a varying frame rate ({rate.min():g} to {rate.max():g} fps, {changes} "
+        f"changes over {rate.size} packets: a measured rate, not a change of setting); the frames are "
+        f"placed at the median declared rate, {nominal[0] / nominal[1]:g} fps"
+    )
+
+
 def _declared_rate(rows: np.ndarray) -> tuple[int, int]:
     """The frame rate a recording's sender declares: its first packet's (numerator, denominator)."""
     return int(rows["rate_numerator"][0]), int(ll.rate_denominator(int(rows["rate_denominator"][0])))
@@ -699,6 +757,74 @@ def _clock_steps(frame_time: np.ndarray, arrival_s: np.ndarray) -> list[int]:
     return steps
 
 
+def _floors(behind: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """At each packet ``i``, the least of ``behind`` over the ``width`` packets before it and over the
+    ``width`` from it on (the fastest packet's, which late ones do not move); inf where there are none."""
+    padded = np.concatenate([np.full(width, np.inf), behind, np.full(width, np.inf)])
+    least = np.lib.stride_tricks.sliding_window_view(padded, width).min(axis=1)
+    return least[: behind.size], least[width : width + behind.size]
+
+
+def _undo_steps_back(
+    frame_time: np.ndarray, arrival_s: np.ndarray, period: float
+) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
+    """A recording's frame times (arrival order) with the phone's clock's steps back undone: where it
+    stepped back by less than a restart (an NTP or Tentacle Sync re-sync while the app keeps sending) the
+    frames after the step are moved to where they arrived, by the step in whole frame periods, so that none
+    overlaps a frame before it and the audio stays in sync. Returns the new frame times and per step (new
+    frame time of the first frame after it, seconds moved, the phone's frame time there).
+
+    A step is where ``arrival - frame time`` of the fastest packet over ``STEP_SIDE_S`` of frames after a
+    packet exceeds that before it by more than ``BACK_STEP_S`` (late packets, Wi-Fi bursts do not move
+    the fastest packet), and where the frame times after it start at least half as much below the latest
+    before it: a sender that paused with its clock, a slow replay or the network holding packets back for
+    a while moves the arrivals but not the frame times back.
+    Next to the step, a packet is of the clock after it when it arrived half the step later than the
+    fastest before it (a packet of the clock before it as late as that is taken for one after it)."""
+    n = frame_time.size
+    width = min(max(2 * MIN_TAKE_FRAMES, int(STEP_SIDE_S / period)), MAX_STEP_SIDE_PACKETS)
+    if n < 2 * width:
+        return frame_time, []
+    behind = arrival_s - frame_time
+    before, after = _floors(behind, width)
+    rise = after - before
+    moved = frame_time.copy()
+    steps: list[tuple[float, float, float]] = []
+    done = 0  # packets up to here are placed
+    found = np.flatnonzero(rise > BACK_STEP_S)
+    for cluster in np.split(found, np.flatnonzero(np.diff(found) > 1) + 1) if found.size else []:
+        step = float(rise[cluster].max())
+        at = int(cluster[np.argmax(rise[cluster] > step / 2)])  # it rises there, it stays up a side long
+        if at < width or at + width > n:  # a side the recording's ends cut short tells too little
+            continue
+        # the clock went back: the frame times after the step start below the latest before it (the
+        # third latest and earliest, which a stray frame number cannot give)
+        latest = np.partition(frame_time[at - width : at], width - 3)[width - 3]
+        if latest - np.partition(frame_time[at : at + width], 2)[2] < step / 2:
+            continue
+        zone = slice(max(at - width, done), at + width)
+        later = np.zeros(n, bool)
+        later[zone] = behind[zone] - before[at] > step / 2
+        later[zone.stop :] = True
+        shift = round(step / period) * period
+        moved[later] += shift
+        first = zone.start + int(np.argmax(later[zone]))
+        steps.append((float(moved[first]), shift, float(frame_time[first])))
+        done = zone.stop
+    return moved, steps
+
+
+def _step_back_note(step: tuple[float, float, float], frame_time: np.ndarray) -> tuple[str, str]:
+    """A take's note of a step back of the phone's clock (``_undo_steps_back``) within its frames."""
+    at, shift, phone = step
+    return (
+        "clock_step_back",
+        f"the phone's clock stepped back {shift:.2f} s at {at - frame_time[0]:.2f} s into the take "
+        f"(its timecode went to {Timecode.from_seconds(phone).format()}) while packets kept coming (a "
+        "clock re-sync): the frames after it are placed where they arrived, none dropped",
+    )
+
+
 def _time_ordered(r: np.ndarray, ft: np.ndarray, report: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """A recording's frames (arrival order) in frame-time order. Copies of one datagram (the frame block
     byte for byte) are ``duplicates``: the first arrival is kept. Frames that share a frame time with
@@ -731,7 +857,8 @@ def stream_takes(
     log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None, rows: np.ndarray | None = None
 ) -> tuple[list[Take], dict]:
     """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, rate changes,
-    stray packets and frames, frames sharing a frame time, clock steps, face-lost frames outside the takes,
+    packets of a jittering rate, stray packets and frames, frames sharing a frame time, clock steps forward
+    and back, face-lost frames outside the takes,
     frames with an implausible rate, takes that could not be built). ``rows``: the stream's rows when not
     the log's (a stream merged with its copies from another source, in arrival order)."""
     rows = log.stream_rows(sid) if rows is None else rows
@@ -746,6 +873,7 @@ def stream_takes(
         "same_time_frames": 0,
         "same_time_dropped": 0,
         "clock_steps": 0,
+        "clock_steps_back": 0,
     }
     # Logs written before the recorder bounded the rate may hold any rate: such frames make no take.
     plausible = ll.plausible_rate(rows["rate_numerator"].astype(np.int64), rows["rate_denominator"])
@@ -754,25 +882,37 @@ def stream_takes(
         rows = rows[plausible]
     num = rows["rate_numerator"].astype(np.int64)
     den = ll.rate_denominator(rows["rate_denominator"].astype(np.int64))
+    stretches = _rate_stretches(num, den)
+    jitter_notes: dict[int, str] = {}  # stretch start -> its note
+    for run, nominal in stretches:
+        if nominal is not None:
+            # A jittering declared rate: read the stretch at one rate (in a copy of the rows, not the log).
+            if not jitter_notes:
+                rows = rows.copy()
+            jitter_notes[run.start] = _rate_jitter_note(num[run], den[run], nominal)
+            report["rate_jitter_packets"] = report.get("rate_jitter_packets", 0) + run.stop - run.start
+            num[run], den[run] = nominal
+            rows["rate_numerator"][run], rows["rate_denominator"][run] = nominal
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
     arrival = log.seconds(rows["arrival_ns"])
-    # Recordings: (row indices in arrival order, their frame times, why placed by arrival or None).
-    recordings: list[tuple[np.ndarray, np.ndarray, str | None]] = []
+    # Recordings: (row indices in arrival order, their frame times, why placed by arrival or None, the
+    # note of a jittering declared rate or None).
+    recordings: list[tuple[np.ndarray, np.ndarray, str | None, str | None]] = []
     problem = None
     stray = []
-    runs = _rate_runs(num, den)
-    report["rate_changes"] = len(runs) - 1
-    for run in runs:
+    report["rate_changes"] = len(stretches) - 1
+    for run, _ in stretches:
         base = run.start
+        note = jitter_notes.get(base)
         if run.stop > run.start:
             frame_time[run] = _unwrap_midnight(frame_time[run], float(num[base] / den[base]))
         clock = follow_clock(rows[run], frame_time[run], arrival[run])
         if clock.problem is not None:
             problem = clock.problem
             placed = arrival_clock(arrival[run], float(den[base] / num[base]))
-            recordings.append((np.arange(run.start, run.stop), placed, problem))
+            recordings.append((np.arange(run.start, run.stop), placed, problem, note))
             continue
-        recordings += [(base + idx, frame_time[base + idx], None) for idx in clock.recordings]
+        recordings += [(base + idx, frame_time[base + idx], None, note) for idx in clock.recordings]
         stray.append(base + clock.stray)
     if problem is not None:
         report["frame_clock"] = {"placed_by": "arrival", "reason": problem}
@@ -783,9 +923,14 @@ def stream_takes(
     # Per recording: duplicates dropped, frames put in frame-time order, cut where the phone's clock
     # stepped forward and into segments of the frames with a face; the no-face frames between a segment's
     # first and last face frame belong to it.
-    segments: list[tuple[np.ndarray, np.ndarray, str | None]] = []
+    # Segments: (rows, frame times, why placed by arrival or None, notes for the take).
+    segments: list[tuple[np.ndarray, np.ndarray, str | None, list[tuple[str, str]]]] = []
     face_lost = int(stray_rows.size) - stray_faces
-    for idx, ft, placed_by_arrival in recordings:
+    for idx, ft, placed_by_arrival, rate_note in recordings:
+        backs: list[tuple[float, float, float]] = []
+        if placed_by_arrival is None:  # frames after a small step back of the clock: where they arrived
+            ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx]))
+            report["clock_steps_back"] += len(backs)
         prior_max = np.maximum.accumulate(ft)
         report["out_of_order"] += int(np.count_nonzero(ft[1:] < prior_max[:-1]))
         r, ft = _time_ordered(rows[idx], ft, report)
@@ -797,13 +942,17 @@ def stream_takes(
             face_lost += int(rp.size - face_rows.size)
             for s in _segments(fp[face_rows]) if face_rows.size else []:
                 seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
-                segments.append((rp[seg], fp[seg], placed_by_arrival))
+                notes = [("rate_jitter", rate_note)] if rate_note else []
+                notes += [
+                    _step_back_note(back, fp[seg]) for back in backs if fp[seg][0] <= back[0] <= fp[seg][-1]
+                ]
+                segments.append((rp[seg], fp[seg], placed_by_arrival, notes))
     takes: list[Take] = []
     stray_frames, lost_in_takes = stray_faces, 0
     errors = []
     session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
     base_id = f"{session}_{info.get('subject')}_{(info.get('device') or '')[:8]}"
-    for k, (r, ft, placed_by_arrival) in enumerate(segments):
+    for k, (r, ft, placed_by_arrival, notes) in enumerate(segments):
         lost = r["count"] == 0
         n_lost = int(np.count_nonzero(lost))
         if r.size - n_lost < MIN_TAKE_FRAMES:
@@ -821,6 +970,8 @@ def stream_takes(
                         "message": f"frames placed by arrival time: {placed_by_arrival}",
                     }
                 )
+            for kind, message in notes:
+                repair(take.meta.repairs, None, kind, message)
             takes.append(take)
         except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
             errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
@@ -1051,6 +1202,11 @@ def build_takes(
         "recovered": recovered,
         "sync_events": len(log.sync),
     }
+    drops = (log.end or {}).get("receive_queue_drops")
+    if is_count(drops) and drops:
+        # Datagrams the system dropped before the recorder read them: never logged, counted at its stop (a
+        # value of another type is ignored, not the END record: its counts still hold).
+        common["receive_queue_drops"] = drops
     if log.end is None:
         # Killed: count what reached the disk (rejections as of the last flushed snapshot).
         common["accepted"] = int(sum(log.frame_counts.values()))
@@ -1110,6 +1266,8 @@ def build_takes(
                         "same_time_frames",
                         "same_time_dropped",
                         "clock_steps",
+                        "clock_steps_back",
+                        "rate_jitter_packets",
                         "senders",
                     )
                     if k in report
