@@ -7,7 +7,6 @@ way with the whole-array way on the real NeuroSync take, and the results to the 
 from __future__ import annotations
 
 import os
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ import pytest
 import scipy.signal  # noqa: F401
 import soundfile as sf
 import soxr  # noqa: F401
+from test_long_take_memory import _traced_peak
 
 from align import AlignOptions, align_folder, align_with_report
 from align.clipping import clipped_share
@@ -25,16 +25,6 @@ from capture import Audio, InputError, Take, read_audio, read_livelink_csv, read
 from capture.take import AudioInfo, TakeMeta
 
 OPTIONS = AlignOptions(vad="webrtc")
-
-
-def _traced_peak(step, *args, **kwargs):
-    """(result, peak bytes NumPy and Python allocated while ``step`` ran)."""
-    tracemalloc.start()
-    try:
-        result = step(*args, **kwargs)
-        return result, tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
 
 
 @pytest.fixture(scope="module")
