@@ -245,7 +245,9 @@ def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: 
             raise InputError(
                 f"{next(iter(generic))} only applies to generic paired data (--matrix, or CSVs with audio)"
             )
-        sources = find_sources(args.sources, exports=args.pair_audio, litter=litter, archives=True)
+        sources = find_sources(
+            args.sources, exports=args.pair_audio, litter=litter, archives=True, variant=args.variant
+        )
         if args.variant is not None:
             sources = _of_variant(sources, args.variant)
         if not sources:
@@ -310,6 +312,7 @@ class _Importer:
                     litter=self.litter,
                     skipped=lambda path, why: warn_skipped(Path(box.shown(path)), why),
                     archives=box.unpacks_archives,
+                    variant=args.variant,
                 )
                 if args.variant is not None:
                     sources = _of_variant(sources, args.variant, box)

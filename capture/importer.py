@@ -12,7 +12,13 @@ from .csv_take import app_header_separator, read_livelink_csv, utf16_csv_error
 from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
 from .take import Take, is_take_dir, leads_back
-from .take_folder import is_take_folder, read_csv_with_audio, read_take_folder
+from .take_folder import (
+    is_take_folder,
+    read_csv_with_audio,
+    read_take_folder,
+    reads_as_take,
+    takes_side_by_side,
+)
 from .transfer_litter import (
     Litter,
     icloud_error,
@@ -47,8 +53,11 @@ def find_sources(
     skipped: Callable[[Path, str], None] = warn_skipped,
     litter: Litter | None = None,
     archives: bool = False,
+    variant: str | None = None,
 ) -> list[Path]:
-    """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively;
+    """Live Link Face take folders and loose CSV files named by ``paths``, searched recursively (a folder
+    of several takes side by side, each CSV named as a ``.mov`` beside it, is one CSV per take, of
+    ``variant`` as a take folder chooses it: ``takes_side_by_side``);
     with ``exports``, Audio2Face blendshape exports (``.json``) too, and every other ``.json`` found in a
     folder is reported to ``skipped`` (path, why) rather than left out silently, as are zip archives,
     dangling symbolic links and links back to a folder holding the one searched; with ``archives``, zip
@@ -64,7 +73,7 @@ def find_sources(
         if p.is_file():
             found.append(p)
         elif p.is_dir():
-            found.extend(_walk(p, exports, archives, skipped, tally, p.resolve()))
+            found.extend(_walk(p, exports, archives, skipped, tally, p.resolve(), variant))
         else:
             raise InputError("no such file or folder", p)
     if litter is None:
@@ -80,6 +89,7 @@ def _walk(
     skipped: Callable[[Path, str], None],
     litter: Litter,
     root: Path,
+    variant: str | None,
     seen: set[Path] | None = None,
 ) -> Iterator[Path]:
     seen = set() if seen is None else seen
@@ -90,7 +100,8 @@ def _walk(
     if is_take_folder(folder):
         for p in folder.iterdir():  # counted: what the take folder reader passes over in it
             litter.skips(p)
-        yield folder
+        # several takes' CSVs and .movs gathered into one folder: each CSV is read as its take
+        yield from takes_side_by_side(folder, variant) or [folder]
         return
     if is_take_dir(folder) or folder.name.startswith("."):
         return  # an imported take of ours, or a hidden/temporary folder
@@ -106,7 +117,7 @@ def _walk(
                 skipped(p, f"a symbolic link to {target}, which holds the folder searched (a loop)")
                 continue
         if p.is_dir():
-            yield from _walk(p, exports, archives, skipped, litter, root, seen)
+            yield from _walk(p, exports, archives, skipped, litter, root, variant, seen)
         elif p.suffix.lower() == ".csv":
             emotions = emotion_header(_head(p))
             if emotions is None:
@@ -282,7 +293,9 @@ def import_source(
     CSV's FF field counts at (None: detected, see ``read_livelink_csv``). A CSV with audio whose header
     is not the app's is generic paired data (``read_paired``: a header of channel names, perhaps a time
     column; ``fps`` unless the file gives the rate; ``first_frame``, ``value_scale`` and
-    ``first_frame_strict`` as there)."""
+    ``first_frame_strict`` as there). A Live Link Face CSV without ``audio`` is read as its take when
+    its folder reads it so or the ``.mov`` named as its take is beside it (``reads_as_take``): a take
+    is never imported without the audio beside it."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if is_zip(source):
@@ -340,4 +353,6 @@ def import_source(
         return read_csv_with_audio(
             source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate
         )
+    if reads_as_take(source):  # named alone, as its take folder reads it: with the audio of its .mov
+        return read_take_folder(source.parent, None, None, strict, swap_lr, timecode_rate, csv=source)
     return read_livelink_csv(source, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)

@@ -185,23 +185,28 @@ def _refuse_app_placeholders(folder: Path) -> None:
             raise icloud_error(placeholder, folder)
 
 
-def _named_as(files: list[tuple[str, Path]], prefix: str) -> Path | None:
+def _named_as(files: list[tuple[str, Path]], prefix: str, exact: bool = False) -> Path | None:
     """Of several files (their names, paths) of one kind, the take's: the one named as its CSV
-    (``prefix``), else the first by name; None for none."""
+    (``prefix``), else (unless ``exact``) the first by name; None for none."""
     files = sorted(files)
-    return next((p for name, p in files if Path(name).stem == prefix), files[0][1]) if files else None
+    named = next((p for name, p in files if Path(name).stem == prefix), None)
+    return named if named is not None or exact or not files else files[0][1]
 
 
-def _media(folder: Path, prefix: str, audio_given: bool) -> tuple[Path | None, MovInfo | None, Path | None]:
+def _media(
+    folder: Path, prefix: str, audio_given: bool, exact: bool = False
+) -> tuple[Path | None, MovInfo | None, Path | None]:
     """The take's ``.mov`` (with its facts, ``_probe``) and the ``.wav`` that stands in for its audio
     (None unless the take has no ``.mov`` or its ``.mov`` holds no audio track), each the one named as
-    the CSV (``prefix``), else the first by name. Unless ``audio_given``, a file iCloud has not
-    downloaded counts as there when choosing, and one chosen so is an error (``icloud_error``)."""
+    the CSV (``prefix``), else (unless ``exact``: a folder of several takes) the first by name. Unless
+    ``audio_given``, a file iCloud has not downloaded counts as there when choosing, and one chosen so
+    is an error (``icloud_error``)."""
     waiting = {} if audio_given else _placeholders(folder)
 
     def pick(suffix: str) -> Path | None:
         real = [(p.name, p) for p in _files_ending(folder, suffix)]
-        chosen = _named_as(real + [(n, waiting[n]) for n in _waiting_ending(waiting, suffix)], prefix)
+        named = real + [(n, waiting[n]) for n in _waiting_ending(waiting, suffix)]
+        chosen = _named_as(named, prefix, exact)
         if chosen is not None and chosen in waiting.values():
             raise icloud_error(chosen, folder)
         return chosen
@@ -402,6 +407,70 @@ def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
     return chosen[0].path, chosen[1].path if neutrals else None
 
 
+def _mov_names(folder: Path) -> set[str]:
+    """The stems of the ``.mov`` files of ``folder``, iCloud placeholders of them included."""
+    names = {p.stem for p in _files_ending(folder, ".mov")}
+    return names | {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
+
+
+def _is_its_folder(csv: Path) -> bool:
+    """Whether the folder ``csv`` sits in is its take's own folder: a take folder that reads this very
+    CSV (``choose_csv`` of its variant), so that its take.json, metadata and frame_log.csv are this
+    take's. A folder of several takes, where they are nobody's in particular, is not."""
+    variant = split_variant(csv.stem)[1]
+    if variant == "neutral" or not is_take_folder(csv.parent):
+        return False
+    try:
+        return choose_csv(csv.parent, variant or "plain")[0].name == csv.name
+    except InputError:  # the folder does not read this CSV (several takes, or it is a copy)
+        return False
+
+
+def reads_as_take(csv: str | Path) -> bool:
+    """Whether a Live Link Face CSV named alone is read as its take (``read_take_folder`` with
+    ``csv``): its folder reads it as its take, or the ``.mov`` named as its take (its stem without
+    ``_cal``/``_raw``) sits beside it, perhaps not yet downloaded from iCloud (reading then says so).
+    A ``_neutral.csv`` is no take."""
+    csv = Path(csv)
+    prefix, variant = split_variant(csv.stem)
+    if variant == "neutral" or not csv.parent.is_dir():
+        return False
+    return _is_its_folder(csv) or prefix in _mov_names(csv.parent)
+
+
+def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[Path]:
+    """The CSVs of a folder holding several takes side by side (each take's ``X.csv`` and ``X.mov``
+    gathered into one folder), one per take, to import on its own; [] for any other folder. Every
+    blendshape CSV must be named as a ``.mov`` beside it (less ``_cal``/``_raw``/``_neutral``), none a
+    copy (``X (1).csv``: a take folder's copies stay its error or choice), of two takes or more. Of a
+    take's variants, ``variant``'s (cal, raw, plain) when it has one, else the one a take folder
+    prefers (cal, plain, raw): its cal and raw CSVs are one performance, not two takes."""
+    folder = Path(folder)
+    files = _csv_files(folder)
+    movs = _mov_names(folder)
+    if any(f.copy or f.prefix not in movs for f in files) or len({f.prefix for f in files}) < 2:
+        return []
+    wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
+    chosen = []
+    for prefix in dict.fromkeys(f.prefix for f in files):
+        of_take = {f.variant: f.path for f in files if f.prefix == prefix}
+        key = next((k for k in (*wanted, *_PREFERENCE) if k in of_take), None)
+        if key is not None or None in of_take:
+            chosen.append(of_take[key])
+    return chosen
+
+
+def _neutral_named_as(folder: Path, prefix: str) -> Path | None:
+    """The ``_neutral.csv`` of the take ``prefix`` in a folder of several takes, or None; one iCloud
+    has not downloaded is an error."""
+    found = [f for f in _csv_files(folder) if f.variant == "neutral" and f.prefix == prefix and not f.copy]
+    if not found:
+        return None
+    if found[0].path.name != found[0].name:
+        raise icloud_error(found[0].path, folder)
+    return found[0].path
+
+
 def _signed_day_diff(a: float, b: float) -> float:
     d = (a - b) % DAY_S
     return d - DAY_S if d > DAY_S / 2 else d
@@ -414,25 +483,49 @@ def read_take_folder(
     strict: bool = False,
     swap_lr: bool = False,
     timecode_rate: float | None = None,
+    csv: str | Path | None = None,
 ) -> Take:
     """Import a Live Link Face take folder (blendshapes, audio from the ``.mov``, timing, metadata);
-    ``timecode_rate``: the rate its CSV's FF counts at (None: detected, see ``read_livelink_csv``)."""
+    ``timecode_rate``: the rate its CSV's FF counts at (None: detected, see ``read_livelink_csv``).
+    ``csv``: a CSV named alone, read as its take (``folder`` is then its folder, ``variant`` unused):
+    with the ``.mov`` (else ``.wav``) and ``_neutral.csv`` named as it, and the folder's app files only
+    when the folder is its take's own (``_is_its_folder``); in a folder of several takes the ``.mov``'s
+    own timecode places the audio."""
+    if csv is not None:
+        csv_path, folder = Path(csv), Path(csv).parent
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("take folder not found", folder)
-    _refuse_app_placeholders(folder)
-    csv_path, neutral_path = choose_csv(folder, variant)
-    # of several, the .mov (or .wav) named as the CSV is the take's
-    mov, info, wav = _media(folder, split_variant(csv_path.stem)[0], audio_given=audio_file is not None)
+    own = csv is None or _is_its_folder(csv_path)
+    if own:
+        _refuse_app_placeholders(folder)
+        # named alone, the CSV's own variant (``choose_csv`` of it is this CSV, as ``_is_its_folder`` found)
+        own_variant = variant if csv is None else split_variant(csv_path.stem)[1] or "plain"
+        csv_path, neutral_path = choose_csv(folder, own_variant)
+    prefix = split_variant(csv_path.stem)[0]
+    if not own:
+        neutral_path = _neutral_named_as(folder, prefix)
+    # of several, the .mov (or .wav) named as the CSV is the take's (in a folder of several takes, only it)
+    mov, info, wav = _media(folder, prefix, audio_given=audio_file is not None, exact=not own)
     take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
     meta = take.meta
     repairs = meta.repairs
-    app_take = _load_json(folder / "take.json", repairs)
+
+    def app_file(name: str) -> Path | None:
+        """One of the app's files of this take; none in a folder of several takes."""
+        return folder / name if own and (folder / name).is_file() else None
+
+    def app_json(name: str) -> dict[str, Any]:
+        path = app_file(name)
+        return {} if path is None else _load_json(path, repairs)
+
+    app_take = app_json("take.json")
     _unknown_take_json(app_take, repairs)
-    video_meta = _load_json(folder / "video_metadata.json", repairs)
-    audio_meta = _load_json(folder / "audio_metadata.json", repairs)
+    video_meta = app_json("video_metadata.json")
+    audio_meta = app_json("audio_metadata.json")
     meta.source_kind = "livelink_take_folder"
-    meta.id = safe_id(_json_text(app_take, "identifier", "take.json", repairs) or folder_name(folder))
+    if own:
+        meta.id = safe_id(_json_text(app_take, "identifier", "take.json", repairs) or folder_name(folder))
     meta.slate = _json_text(app_take, "slate", "take.json", repairs) or meta.slate
     take_number = _json_whole(app_take, "take", "take.json", repairs)
     meta.take_number = meta.take_number if take_number is None else take_number
@@ -440,12 +533,12 @@ def read_take_folder(
     meta.device = _json_text(app_take, "deviceModel", "take.json", repairs)
     meta.extra.update({"take_json": app_take, "video_metadata": video_meta, "audio_metadata": audio_meta})
     # A simulated take (s2a-capture simulate) carries its ground truth beside the app's files.
-    if (folder / "simulation.json").is_file():
-        meta.extra["simulation"] = _load_json(folder / "simulation.json", repairs)
-        meta.sources.append(source_file(folder / "simulation.json", "simulation.json"))
+    if (simulation := app_file("simulation.json")) is not None:
+        meta.extra["simulation"] = _load_json(simulation, repairs)
+        meta.sources.append(source_file(simulation, "simulation.json"))
     for name in ("take.json", "video_metadata.json", "audio_metadata.json", "frame_log.csv"):
-        if (folder / name).is_file():
-            meta.sources.append(source_file(folder / name, name))
+        if (path := app_file(name)) is not None:
+            meta.sources.append(source_file(path, name))
     if neutral_path is not None:
         take.neutral = _neutral_pose(neutral_path, take)
         meta.sources.append(source_file(neutral_path, "neutral_csv"))
@@ -458,8 +551,8 @@ def read_take_folder(
         or 60.0
     )
     log = None
-    if (folder / "frame_log.csv").is_file():
-        log = read_frame_log(folder / "frame_log.csv", repairs)
+    if (frame_log := app_file("frame_log.csv")) is not None:
+        log = read_frame_log(frame_log, repairs)
         meta.extra["frame_log"] = {
             "video_frames": log.kinds.count("V"),
             "audio_rows": log.kinds.count("A"),
@@ -599,5 +692,7 @@ __all__ = [
     "read_csv_with_audio",
     "read_frame_log",
     "read_take_folder",
+    "reads_as_take",
     "refuse_placeholders",
+    "takes_side_by_side",
 ]

@@ -25,7 +25,7 @@ from test_take_archives import _patched
 
 from capture.errors import InputError
 from capture.take_archive import UNPACK_PREFIX
-from viewer.inputs import archives_unpacked, read_input
+from viewer.inputs import archives_unpacked, read_input, take_source
 
 NEUROSYNC = "paired/neurosync-trainer-lite-testset"
 S07 = "livelinkface/alexdjulin_S07/S07-001.csv"
@@ -538,9 +538,9 @@ def test_what_was_unpacked_is_removed_whatever_thread_or_call_a_ctrl_c_meets(tmp
 def test_one_csv_of_a_flat_folder_of_takes_unpacks_that_take_alone(sim_take, tmp_path, monkeypatch):
     """A Live Link Face export zipped flat: each take's CSV and .mov side by side, one take with a WAV of
     its name (and the iCloud placeholder left beside it once downloaded). A CSV of such a folder is read
-    alone, with the audio beside it (the take folder reader refuses to choose among its CSVs): of the
-    archive, only that CSV and that audio are unpacked (no .mov), and it is read as from the folder
-    unzipped."""
+    as its take, with the audio of the .mov named as it (as ``s2a-capture import`` reads it): of the
+    archive, only that CSV and its take's .mov (and WAV) are unpacked, not the other takes' .mov files,
+    and it is read as from the folder unzipped."""
     csv = next(p for p in sim_take.glob("*.csv") if p.name != "frame_log.csv")
     flat = tmp_path / "export"
     flat.mkdir()
@@ -555,14 +555,12 @@ def test_one_csv_of_a_flat_folder_of_takes_unpacks_that_take_alone(sim_take, tmp
     monkeypatch.setattr(tempfile, "tempdir", str(tmp))
     whole = sum(p.stat().st_size for p in flat.iterdir())
     mov_size = (flat / "MySlate_1_iPhone.mov").stat().st_size
-    for name, unpacked, speech in (
-        ("MySlate_2_iPhone.csv", [".MySlate_2_iPhone.wav.icloud", "MySlate_2_iPhone.wav"], True),
-        # no audio of its name: the only one beside it is named for another CSV, which is unpacked to say so
+    for name, unpacked in (
         (
-            "MySlate_1_iPhone.csv",
-            [".MySlate_2_iPhone.wav.icloud", "MySlate_2_iPhone.wav", "MySlate_2_iPhone.csv"],
-            False,
+            "MySlate_2_iPhone.csv",
+            ["MySlate_2_iPhone.mov", ".MySlate_2_iPhone.wav.icloud", "MySlate_2_iPhone.wav"],
         ),
+        ("MySlate_1_iPhone.csv", ["MySlate_1_iPhone.mov"]),  # the WAV of another take is not its audio
     ):
         want, want_warnings, want_speech = read_input(flat / name, "one")
         with archives_unpacked():
@@ -570,12 +568,14 @@ def test_one_csv_of_a_flat_folder_of_takes_unpacks_that_take_alone(sim_take, tmp
             files = _unpacked_files(tmp)
             written = sum(p.stat().st_size for p in tmp.rglob("*") if p.is_file())
         assert files == sorted([name, *unpacked]), files
-        assert written == sum((flat / f).stat().st_size for f in files) <= whole - 3 * mov_size
+        assert written == sum((flat / f).stat().st_size for f in files) <= whole - 2 * mov_size
         assert np.array_equal(got.values, want.values, equal_nan=True) and np.array_equal(got.time, want.time)
-        assert (got.audio is not None) == (want.audio is not None) == speech
-        if speech:
-            assert np.array_equal(got.audio.samples, want.audio.samples)
-            assert got_speech == archive / want_speech.name
+        assert got.audio is not None and want.audio is not None and want_speech.suffix == ".mov"
+        assert np.array_equal(got.audio.samples, want.audio.samples)
+        assert got.meta.audio.start_source == want.meta.audio.start_source == "mov_timecode"
+        assert got_speech == archive / want_speech.name
         assert warnings == [w.replace(str(flat), str(archive)) for w in want_warnings]
-        assert ("is named for MySlate_2_iPhone.csv" in "".join(warnings)) != speech
+    # the folder named whole holds several takes: listed, one to be named
+    with pytest.raises(InputError, match="found 3 takes under it"):
+        take_source(flat, "one")
     assert unpacked_left(tmp) == []

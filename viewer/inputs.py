@@ -41,7 +41,7 @@ from capture.importer import AUDIO_SUFFIXES, audio_beside, audio_stem, is_liveli
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
 from capture.take_archive import MAX_DEPTH, UNPACK_PREFIX, Member, Unpacked, unpacked
-from capture.take_folder import choose_csv
+from capture.take_folder import choose_csv, reads_as_take, takes_side_by_side
 from capture.transfer_litter import Litter, icloud_original, is_zip
 from capture.workers import process_runs
 from dataset.qa import ANIM_LIMIT
@@ -62,7 +62,7 @@ def take_source(path: str | Path, one_take: str, shown: str | None = None) -> Pa
         return path
     if not path.is_dir():
         raise InputError("no such take folder or CSV file", path)
-    if is_take_folder(path):
+    if is_take_folder(path) and not takes_side_by_side(path):  # several takes side by side: listed below
         return path
     found = [(f"{p.relative_to(path)}/", p) for p in find_takes([path])]
     groups: dict[tuple[Path, str], tuple[str, Path]] = {}
@@ -431,6 +431,10 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
     by_name: dict[str, set[tuple[str, ...]]] = {}  # a file's name -> it and its placeholder
     for b in beside:
         by_name.setdefault(_original_name(b[-1]), set()).add(b)
+    prefix, variant = split_variant(PurePosixPath(named).stem)
+    if variant != "neutral" and f"{prefix}.mov" in by_name:  # read as its take (``reads_as_take``)
+        own = (named, f"{prefix}.mov", f"{prefix}.wav", f"{prefix}_neutral.csv")  # the .wav: a silent .mov's
+        return {b for n in own for b in by_name.get(n, ())}
     stem = _nfc(PurePosixPath(named).stem)
     audio = [n for n in by_name if PurePosixPath(n).suffix.lower() in AUDIO_SUFFIXES]
     same = [n for n in audio if _nfc(PurePosixPath(n).stem) == stem]
@@ -511,6 +515,8 @@ def csv_with_its_audio(csv: Path) -> tuple[Path, str | None, Path | None, str | 
                 return csv.parent, variant or "plain", None, None
         except InputError:  # the folder does not read this CSV: the CSV alone, as named
             pass
+    if reads_as_take(csv):  # the .mov of its take beside it (takes side by side): read as import reads it
+        return csv, None, None, None
     audio, why = audio_beside(csv)
     return csv, None, audio, why
 
