@@ -846,7 +846,7 @@ def _read_joined_mpeg(
                 lost = sum(run.samples for run in runs[a:b])
                 chunks.append(np.zeros((lost, chunks[0].shape[1] if chunks else first.channels), np.float32))
             continue
-        if k and not decoded.delay_recorded:
+        if k and not decoded.delay_recorded and _ends_as_declared(data, runs[starts[k - 1]], runs[a].start):
             _drop_lame_delay(path, data, runs[a], runs[b - 1].end, decoded.chunks, chunks, repairs)
         chunks += decoded.chunks
         sample_format, damaged = decoded.sample_format, damaged + decoded.damaged
@@ -887,6 +887,30 @@ def _counted_whole(part: bytes, runs: list[MpegRun]) -> bytes:
     at = frame[5][part[3] >= 0xC0] + 8
     frames = sum(run.frames for run in runs) - 1  # its Info frame holds no sound
     return part[:at] + frames.to_bytes(4, "big") + part[at + 4 :]
+
+
+def _ends_as_declared(data: bytes, previous: MpegRun, start: int) -> bool:
+    """Whether the file whose first run is ``previous`` ends at ``start`` (tags after it allowed) by the
+    byte count its Xing/Info frame declares, or declares none. A file cut short mid-frame runs on into the
+    frames of the file joined after it, and is split from them where its frame count ends: mid-sound, at
+    a frame that may start as an encoder's first does (no bit reservoir: 320 kbit/s, quiet), which is no
+    file's start, and has no priming to drop (1105 samples of sound were lost there)."""
+    frame = _mpeg_frame(data, previous.start)
+    if frame is None or not _is_file_header(data, previous.start, frame):
+        return True
+    declared = _file_header_bytes(data, previous.start, frame)
+    if not declared:
+        return True
+    ends = [previous.start + declared]
+    tag = start - declared  # some writers count the ID3v2 tag before the header frame too
+    if 0 <= tag < previous.start and _tag_bytes(data, tag):
+        ends.append(start)
+    for end in ends:
+        while end < start and _tag_bytes(data, end):
+            end += _tag_bytes(data, end)
+        if end == start:
+            return True
+    return False
 
 
 def _drop_lame_delay(

@@ -219,14 +219,33 @@ def _tell(message: str) -> None:
     progress(_printable(message))
 
 
+# The summary keys of the warnings that are about one stream, not the whole session (``_report``).
+_STREAM_WARNINGS = (
+    "device",
+    "subject",
+    "frame_clock",
+    "same_time_dropped",
+    "same_time_frames",
+    "clock_steps",
+    "clock_steps_back",
+    "rate_jitter_packets",
+    "senders",
+)
+
+
 def _report(summaries: list[dict], as_json: bool) -> None:
     hinted = False
-    said: set[str] = set()  # a session's warnings (audio, the receive queue) are in every take's summary
+    # a session's warnings (audio, the receive queue) are in every take's summary, a stream's in each of its
+    # takes': each said once, a stream's once per stream (two phones whose clocks both stepped back once
+    # get a line each)
+    said: set[tuple[Any, str]] = set()
 
     def warnings(s: dict) -> list[str]:
-        lines = [line for line in _warnings(s) if line not in said]
-        said.update(lines)
-        return lines
+        own = set(_warnings({k: s[k] for k in _STREAM_WARNINGS if k in s}))
+        keys = [((s.get("device"), s.get("subject")) if line in own else None, line) for line in _warnings(s)]
+        new = [key for key in keys if key not in said]
+        said.update(new)
+        return [line for _, line in new]
 
     for s in summaries:
         if as_json:  # stdout stays one JSON object per line; the warnings go to stderr as well

@@ -628,9 +628,9 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
     """Stretches (arrival order) that each make recordings of their own, with the rate a jittering one is
     read at (None: its one declared rate). Consecutive runs of one rate (``_rate_runs``) whose rates lie
     within ``RATE_JITTER`` of each other are one jittering rate (a sender that declares
-    its measured rate) when the rate changes more than once or one of two runs is short
-    (``RATE_HOLD_PACKETS``); two long runs are a change of setting (24 -> 25, 30 -> 29.97), as is any
-    larger change (30 -> 60). A jittering stretch is read at the median packet's declared rate."""
+    its measured rate) when one of them is short (``RATE_HOLD_PACKETS``); runs that each hold are changes
+    of setting (24 -> 25, 30 -> 29.97, and back), as is any larger change (30 -> 60). A jittering stretch
+    is read at the median packet's declared rate."""
     rate = num / den
     runs = _rate_runs(num, den)
     if not num.size:  # every frame dropped (an implausible rate): one empty stretch, as before
@@ -648,7 +648,9 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
     stretches: list[tuple[slice, tuple[int, int] | None]] = []
     for group in groups:
         shortest = min(run.stop - run.start for run in group)
-        if len(group) < 2 or len(group) == 2 and shortest >= RATE_HOLD_PACKETS:
+        # runs that each hold are settings (read at another's rate, a run's frames would sit elsewhere in
+        # the day: 24 <-> 25 fps is 4 % of its timecode)
+        if len(group) < 2 or shortest >= RATE_HOLD_PACKETS:
             stretches += [(run, None) for run in group]
             continue
         whole = slice(group[0].start, group[-1].stop)
@@ -778,7 +780,9 @@ def _undo_steps_back(
     packet exceeds that before it by more than ``BACK_STEP_S`` (late packets, Wi-Fi bursts do not move
     the fastest packet), and where the frame times after it start at least half as much below the latest
     before it: a sender that paused with its clock, a slow replay or the network holding packets back for
-    a while moves the arrivals but not the frame times back.
+    a while moves the arrivals but not the frame times back; and where the fastest packet over the
+    ``STEP_SIDE_S`` after those is still as late (when the recording goes on that long): a stall the
+    network flushed out of order moves both, but the arrivals for the flush only.
     Next to the step, a packet is of the clock after it when it arrived half the step later than the
     fastest before it (a packet of the clock before it as late as that is taken for one after it)."""
     n = frame_time.size
@@ -801,6 +805,10 @@ def _undo_steps_back(
         # third latest and earliest, which a stray frame number cannot give)
         latest = np.partition(frame_time[at - width : at], width - 3)[width - 3]
         if latest - np.partition(frame_time[at : at + width], 2)[2] < step / 2:
+            continue
+        # and the arrivals stay behind by the step a side further on (until the next step): a stall the
+        # network flushed out of order rises for the flush only
+        if at + 2 * width <= n and after[at + width] - before[at] < step / 2:
             continue
         zone = slice(max(at - width, done), at + width)
         later = np.zeros(n, bool)
