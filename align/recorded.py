@@ -9,6 +9,7 @@ the 16 kHz copy is made. The blocks are the samples ``capture.read_audio`` gives
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -37,6 +38,7 @@ class RecordedAudio:
         self.subtype, self.dtype = subtype, np.dtype(dtype)
         self._audio: Audio | None = None
         self._file: sf.SoundFile | None = None
+        self._stamp: tuple[int, int, int] | None = None  # the file's (inode, size, mtime) when opened
 
     @classmethod
     def of(cls, audio: Audio) -> RecordedAudio:
@@ -48,21 +50,36 @@ class RecordedAudio:
     def from_take_file(cls, path: Path, info: AudioInfo) -> RecordedAudio | None:
         """The take's audio file ``path`` kept open to be read block by block, or None when it is not a
         WAV ``write_take`` writes, or does not hold what ``info`` (its record in meta.json) says, or holds
-        NaN or infinite samples: ``read_take`` then reads it whole and says what is wrong with it."""
+        NaN or infinite samples: ``read_take`` then reads it whole and says what is wrong with it. Only
+        a regular file is opened: libsndfile would wait forever on a named pipe with no writer. A pass
+        through the blocks that ends with the file rewritten or replaced since it was opened is an
+        ``InputError``: the passes (measuring the channels, mixing them, looking for clipping) must
+        all read one recording."""
+        if not path.is_file():
+            return None
         try:
             f = sf.SoundFile(str(path))
         except (sf.LibsndfileError, RuntimeError, TypeError, OSError):
             return None
         held = cls(f.samplerate, f.channels, f.frames, f.subtype, _NATIVE.get(f.subtype, "float32"))
         held._file = f
+        try:
+            held._stamp = _stamp(path)
+        except OSError:
+            held.close()
+            return None
         expected = (info.sample_rate, info.channels, info.samples)
-        if (
-            f.format not in ("WAV", "RF64", "WAVEX")
-            or f.subtype not in _NATIVE
-            or (f.samplerate, f.channels, f.frames) != expected
-            or f.frames < 1
-            or (held.dtype.kind == "f" and not all(np.isfinite(b).all() for b in held.blocks(_CHECK_FRAMES)))
-        ):
+        try:
+            usable = (
+                f.format in ("WAV", "RF64", "WAVEX")
+                and f.subtype in _NATIVE
+                and (f.samplerate, f.channels, f.frames) == expected
+                and f.frames >= 1
+                and (held.dtype.kind != "f" or all(np.isfinite(b).all() for b in held.blocks(_CHECK_FRAMES)))
+            )
+        except InputError:  # cut short or changed while checked: read_take says what it holds now
+            usable = False
+        if not usable:
             held.close()
             return None
         return held
@@ -88,12 +105,23 @@ class RecordedAudio:
                     self._file.name,
                 )
             yield block
+        # each pass ends here: one through the file rewritten in place since it was opened (an editor
+        # saving over it) would mix two recordings into one result, each pass deciding on another
+        try:
+            same = _stamp(Path(self._file.name)) == self._stamp
+        except OSError:
+            same = False
+        if not same:
+            raise InputError(
+                "audio changed while it was read (rewritten or replaced?): align it again", self._file.name
+            )
 
     def mono_blocks(self, size: int) -> Iterator[np.ndarray]:
         """``Audio.mono_float`` of each block: the same float32 samples as of the whole (it works frame by
         frame). Each block goes through a shallow copy of one ``Audio``: a new one would check its samples
         again, and refuse the last block of a file of more than 64 channels (``MAX_AUDIO_CHANNELS``)
-        holding fewer frames than channels, as (channels, samples)."""
+        holding fewer frames than channels, as (channels, samples). For a file, that ``Audio`` is made
+        once of as many frames of zeros as channels, which that check lets pass."""
         part = copy.copy(self._audio) if self._audio is not None else self._template()
         for block in self.blocks(size):
             part.samples = block
@@ -115,7 +143,14 @@ class RecordedAudio:
             self._file.close()
 
     def _template(self) -> Audio:
-        return Audio(np.zeros((1, self.channels), self.dtype), self.sample_rate, self.subtype)
+        # as many rows as channels: a row of more than MAX_AUDIO_CHANNELS looks like (channels, samples)
+        return Audio(np.zeros((self.channels, self.channels), self.dtype), self.sample_rate, self.subtype)
+
+
+def _stamp(path: Path) -> tuple[int, int, int]:
+    """What changes when the file at ``path`` is rewritten or replaced: its inode, size and mtime."""
+    st = os.stat(path)
+    return st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def recorded(audio: Audio | RecordedAudio) -> RecordedAudio:
