@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_cli, run_here
 from dataset_helpers import make_aligned_take, write_aligned_set
 
 from capture import PRONUNCIATION32, read_meta, write_take
@@ -31,7 +31,8 @@ from dataset.build import take_sha256
 def built(tmp_path_factory) -> tuple[Path, Path]:
     root = tmp_path_factory.mktemp("ds")
     takes = write_aligned_set(root / "takes", count=6, speakers=2, neutral=False, gap=(20, 30))
-    proc = run_cli("dataset", "build", takes, "-o", root / "ds", "--shard-mb", "0.3", "--json")
+    # in this process: build's command line runs as a subprocess in the tests below
+    proc = run_here("dataset", "build", takes, "-o", root / "ds", "--shard-mb", "0.3", "--json")
     assert proc.returncode == 0, proc.stderr
     return takes, root / "ds"
 
@@ -107,7 +108,7 @@ def test_stats_reports_hours_per_speaker_and_channels(built):
     jaw = s["channel_distributions"]["train"]["jawOpen"]
     cheek = s["channel_distributions"]["train"]["mouthPucker"]
     assert jaw["std"] > 5 * cheek["std"]  # the simulated jaw moves with the speech, the pucker does not
-    human = run_cli("dataset", "stats", ds)
+    human = run_here("dataset", "stats", ds)
     assert human.returncode == 0 and "spk0" in human.stdout
 
 
@@ -152,7 +153,8 @@ def _dataset_files(ds: Path) -> list[str]:
 def test_killed_build_resumes_to_identical_bytes(tmp_path):
     takes = write_aligned_set(tmp_path / "takes", count=10, speakers=3, seconds=4.0)
     ref = tmp_path / "ref"
-    subprocess.run(_build_cmd(takes, ref), check=True, capture_output=True, cwd=ROOT, timeout=300)
+    # the builds that are not killed run in this process, but for the one with --jobs 2 (its workers)
+    assert run_here(*_build_cmd(takes, ref)[2:]).returncode == 0
     rng = random.Random()
     out = tmp_path / "resumed"
     for attempt in range(10):
@@ -181,13 +183,8 @@ def test_killed_build_resumes_to_identical_bytes(tmp_path):
         assert attempt < 9, "the build never ran long enough to be killed"
     assert not (out / "manifest.json").exists()
     # the rerun (with more features than the reference) is a different dataset; build the same one
-    subprocess.run(
-        _build_cmd(takes, out, "--features", "pitch,energy,fbank,mfcc"),
-        check=True,
-        capture_output=True,
-        cwd=ROOT,
-        timeout=300,
-    )
+    resumed = run_here(*_build_cmd(takes, out, "--features", "pitch,energy,fbank,mfcc")[2:])
+    assert resumed.returncode == 0, resumed.stderr
     full = tmp_path / "full"
     subprocess.run(
         _build_cmd(takes, full, "--features", "pitch,energy,fbank,mfcc", "--jobs", "2"),
@@ -201,7 +198,7 @@ def test_killed_build_resumes_to_identical_bytes(tmp_path):
     assert mismatch == [] and errors == []
     assert len(match) == len(_dataset_files(full)) >= 4
     # a finished build rerun is a no-op; the reference (fewer features) differs
-    proc = run_cli(
+    proc = run_here(
         "dataset",
         "build",
         takes,
@@ -220,7 +217,7 @@ def test_killed_build_resumes_to_identical_bytes(tmp_path):
 def test_split_by_speaker_holds_out_speakers(tmp_path):
     takes = write_aligned_set(tmp_path / "takes", count=8, speakers=4, seconds=2.0)
     ds = tmp_path / "ds"
-    proc = run_cli(
+    proc = run_here(
         "dataset",
         "build",
         takes,
@@ -241,7 +238,7 @@ def test_split_by_speaker_holds_out_speakers(tmp_path):
     assert all(speakers) and not (speakers[0] & speakers[1]) and not (speakers[0] & speakers[2])
     # pitch is normalised per speaker; the held-out speaker's statistics come from its own takes
     assert m["normalization"]["pitch"]["speakers"]["spk3"]["from"].startswith("all")
-    assert run_cli("dataset", "validate", ds).returncode == 0
+    assert run_here("dataset", "validate", ds).returncode == 0
 
 
 def test_neutral_normalization_uses_calibrated_neutral(tmp_path):
@@ -249,7 +246,7 @@ def test_neutral_normalization_uses_calibrated_neutral(tmp_path):
     for i in range(4):
         write_take(make_aligned_take(f"n{i}", 2.0, seed=i, neutral=(i % 2 == 0)), takes)
     ds = tmp_path / "ds"
-    proc = run_cli(
+    proc = run_here(
         "dataset",
         "build",
         takes,
@@ -278,13 +275,13 @@ def test_channel_selection_and_metric_warning(tmp_path):
         take.values[:, 2] = 0.0  # never moves
         write_take(take, takes)
     ds = tmp_path / "ds"
-    proc = run_cli("dataset", "build", takes, "-o", ds, "--channels", "varying", "--json")
+    proc = run_here("dataset", "build", takes, "-o", ds, "--channels", "varying", "--json")
     assert proc.returncode == 0, proc.stderr
     m = read_manifest(ds)
     assert m["channels"] == ["JawOpen_ctl", "LipPress_ctl"]
     assert any("mouthClose" in w for w in m["warnings"])
     # ARKit selection on a rig without those channels: one clear line, exit 1
-    bad = run_cli("dataset", "build", takes, "-o", tmp_path / "ds2")
+    bad = run_here("dataset", "build", takes, "-o", tmp_path / "ds2")
     assert bad.returncode == 1 and "lacks 32 selected channel(s)" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr
 
@@ -304,7 +301,7 @@ def test_rig_takes_with_their_channels_in_another_order_build_by_name(tmp_path):
         write_take(take, takes)
     for spec in ("all", "varying"):
         ds = tmp_path / f"ds-{spec}"
-        proc = run_cli("dataset", "build", takes, "-o", ds, "--channels", spec, "--json")
+        proc = run_here("dataset", "build", takes, "-o", ds, "--channels", spec, "--json")
         assert proc.returncode == 0, proc.stderr
         m = read_manifest(ds)
         want = list(rig) if spec == "all" else ["JawOpen_ctl"]  # LipPress_ctl is constant too
@@ -315,24 +312,26 @@ def test_rig_takes_with_their_channels_in_another_order_build_by_name(tmp_path):
                 anim = np.load(io.BytesIO(members["anim.npy"]))
                 if lip is not None:
                     assert np.allclose(anim[:, lip], 0.25)  # every take's own column, by name
-    typo = run_cli(
+    typo = run_here(
         "dataset", "build", takes, "-o", tmp_path / "ds3", "--channels", "JawOpen_ctl,LipPres_ctl,jawOpen"
     )
     assert typo.returncode == 1 and "unknown channel 'LipPres_ctl'" in typo.stderr, typo.stderr
 
 
 def test_bad_input_and_usage_errors(tmp_path):
+    """The first as a user runs it (a subprocess), the others in this process (the commands run as
+    subprocesses elsewhere in this file)."""
     missing = run_cli("dataset", "build", tmp_path / "nope", "-o", tmp_path / "ds")
     assert missing.returncode == 1 and "no such take folder" in missing.stderr
     assert len(missing.stderr.strip().splitlines()) == 1
-    usage = run_cli("dataset", "build", tmp_path, "-o", tmp_path / "ds", "--split-by", "window")
+    usage = run_here("dataset", "build", tmp_path, "-o", tmp_path / "ds", "--split-by", "window")
     assert usage.returncode == 2
-    not_ds = run_cli("dataset", "validate", tmp_path)
+    not_ds = run_here("dataset", "validate", tmp_path)
     assert not_ds.returncode == 1 and "no manifest.json" in not_ds.stderr
     takes = write_aligned_set(tmp_path / "takes", count=2, seconds=1.0)
-    wrong = run_cli("dataset", "build", takes, "-o", tmp_path / "ds", "--channels", "jawOpen,noSuchChannel")
+    wrong = run_here("dataset", "build", takes, "-o", tmp_path / "ds", "--channels", "jawOpen,noSuchChannel")
     assert wrong.returncode == 1 and "noSuchChannel" in wrong.stderr
-    ppg = run_cli("dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "bottleneck")
+    ppg = run_here("dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "bottleneck")
     assert ppg.returncode == 1 and "--ppg-model" in ppg.stderr
 
 
@@ -350,7 +349,7 @@ def test_build_aligns_raw_simulated_takes(tmp_path):
     assert m["sources"] and all(
         s["source_kind"] != "aligned" and s["aligned_from_sha256"] for s in m["sources"]
     )
-    assert run_cli("dataset", "validate", ds, "--deep").returncode == 0
+    assert run_here("dataset", "validate", ds, "--deep").returncode == 0
     again = run_cli("dataset", "build", tmp_path / "takes", "-o", ds, "--json")
     assert again.returncode == 0 and json.loads(again.stdout)["up_to_date"] is True
 
@@ -398,12 +397,12 @@ def test_duplicate_take_under_another_id_is_kept_once(tmp_path):
     meta.id = "take00_copy"
     write_json_atomic(copy / "meta.json", meta.to_json())
     ds = tmp_path / "ds"
-    proc = run_cli("dataset", "build", takes, tmp_path / "more", "-o", ds, "--json")
+    proc = run_here("dataset", "build", takes, tmp_path / "more", "-o", ds, "--json")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["takes"] == 3 and any("take00_copy" in w and "duplicate" in w for w in summary["warnings"])
-    assert run_cli("dataset", "validate", ds).returncode == 0
-    pinned = run_cli(
+    assert run_here("dataset", "validate", ds).returncode == 0
+    pinned = run_here(
         "dataset", "build", takes, tmp_path / "more", "-o", tmp_path / "p", "--test", "take00_copy"
     )
     assert pinned.returncode == 1 and "Traceback" not in pinned.stderr

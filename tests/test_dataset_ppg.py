@@ -63,8 +63,9 @@ def test_bottleneck_checkpoint_round_trip_and_build(takes, tmp_path):
     arrays = _ppg_arrays(ds)
     assert all(a.shape[1] == 64 and a.dtype == np.float32 and np.isfinite(a).all() for a in arrays.values())
     # the stored PPG is what the network computes from the preprocessor's filter banks
-    assert run_cli("dataset", "validate", ds, "--deep").returncode == 0
-    stats = json.loads(run_cli("dataset", "stats", ds, "--json").stdout)
+    # validate's and stats' command lines run as subprocesses in test_dataset_build.py: here, in this process
+    assert run_here("dataset", "validate", ds, "--deep").returncode == 0
+    stats = json.loads(run_here("dataset", "stats", ds, "--json").stdout)
     assert stats["phone_coverage"]["phones"] == 40 and stats["phone_coverage"]["covered"] >= 1
 
 
@@ -92,7 +93,7 @@ def test_checkpoint_with_pickled_code_is_refused(takes, tmp_path):
         (ckpt, "not an archive torch.save writes"),
         (wav, "not an archive torch.save writes"),
     ):
-        proc = run_cli(
+        proc = run_here(
             "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "bottleneck", "--ppg-model", model
         )
         assert proc.returncode == 1 and needle in proc.stderr and "PPG checkpoint" in proc.stderr, proc.stderr
@@ -199,7 +200,7 @@ def test_model_with_wrong_output_is_rejected(takes, tmp_path):
 
     ts = tmp_path / "bad.ts"
     torch.jit.script(Pool()).save(str(ts))
-    proc = run_cli(
+    proc = run_here(
         "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "torchscript", "--ppg-model", ts
     )
     assert proc.returncode == 1 and "expected (1, " in proc.stderr and "bad.ts" in proc.stderr
@@ -264,7 +265,7 @@ def test_model_for_another_filter_bank_width_gets_a_clear_error(takes, tmp_path)
     """A user's model built for 80 mel bins fails inside TorchScript; the build names the width it fed."""
     ts = tmp_path / "mel80.ts"
     torch.jit.script(torch.nn.Linear(80, 64)).save(str(ts))
-    proc = run_cli(
+    proc = run_here(
         "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "torchscript", "--ppg-model", ts
     )
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
@@ -291,7 +292,7 @@ def test_model_with_unusable_values_is_rejected(takes, tmp_path, forward, needle
     spec.loader.exec_module(module)
     ts = tmp_path / "bad.ts"
     torch.jit.script(module.M()).save(str(ts))
-    proc = run_cli(
+    proc = run_here(
         "dataset", "build", takes, "-o", tmp_path / "ds", "--ppg", "torchscript", "--ppg-model", ts
     )
     assert proc.returncode == 1 and needle in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

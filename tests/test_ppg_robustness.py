@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 import torch
-from conftest import run_cli
+from conftest import run_cli, run_here
 from dataset_helpers import speech_like
 
 from capture.errors import InputError
@@ -129,12 +129,14 @@ def test_ppg_never_overwrites_a_file_that_is_not_a_ppg_checkpoint(tmp_path):
     best = tmp_path / "run" / "best.pt"
     torch.save({"format": "s2a-train-checkpoint", "version": 1}, best)
     before = best.read_bytes()
-    proc = run_cli("train", "ppg", "--data", tmp_path / "d", "-o", best, "--steps", "1")
+    proc = run_here("train", "ppg", "--data", tmp_path / "d", "-o", best, "--steps", "1")
     _one_line_error(proc, str(best), "exists and is not a PPG checkpoint")
     assert best.read_bytes() == before
 
 
 def test_bad_json_is_one_line_error_on_the_command_line(tmp_path):
+    """The command line as a user runs it (a subprocess); the other one-line errors here run in this
+    process, without a PyTorch start-up each."""
     path = _json(tmp_path, _phone(start="0.1"))
     proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "1")
     _one_line_error(proc, str(path), "'start' must be a finite number")
@@ -181,7 +183,7 @@ def test_utterance_without_phones_is_skipped_with_a_warning(tmp_path):
     _grid(tmp_path / "d", "empty", [(0.0, 1.2, "")])
     _point_tier(tmp_path / "d" / "points")
     _grid(tmp_path / "d", "ipa", [(0.0, 0.6, "ɑː"), (0.6, 1.2, "S")])
-    proc = run_cli(
+    proc = run_here(
         "train", "ppg", "--data", tmp_path / "d", "-o", tmp_path / "p.pt", "--steps", "1", "--json"
     )
     assert proc.returncode == 0, proc.stderr
@@ -215,7 +217,7 @@ def test_missing_tier_names_the_file(tmp_path):
     path = write_textgrid(
         TextGrid(0.0, 1.2, [interval_tier("words", PHONES, 0.0, 1.2)]), tmp_path / "utt.TextGrid"
     )
-    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt")
+    proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt")
     _one_line_error(proc, f"{path}: TextGrid has no tier 'phones' (tiers: ['words'])")
 
 
@@ -237,7 +239,7 @@ def test_bad_arguments_are_one_line_errors_before_training(tmp_path, args, messa
         pytest.skip("no /proc")
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]
     out = [] if "-o" in args else ["-o", tmp_path / "p.pt"]
-    proc = run_cli("train", "ppg", "--data", tmp_path / "d", *out, *args)
+    proc = run_here("train", "ppg", "--data", tmp_path / "d", *out, *args)
     _one_line_error(proc, message)
     assert "ppg:" not in proc.stderr and not (tmp_path / "p.pt").exists()
 

@@ -217,6 +217,35 @@ def test_write_failures_name_the_file_and_leave_the_old_one(tmp_path):
     assert str(err) == "/proc/m.onnx: cannot write m.onnx: No such file or directory"
 
 
+# The three commands run one after the other in one interpreter (PyTorch imported once, not three times),
+# each with the process's stderr (file descriptor 2) in its own file; whatever the interpreter writes
+# at exit lands in exit.err.
+COMMANDS = r"""
+import os, sys, traceback
+from train.cli import main
+small, out, ds, aligned, run = sys.argv[1:6]
+for name, args in (
+    ("fit", ["fit", "--data", ds, "-o", small + "/run", "--resume", "--max-steps", "8"]),
+    ("ppg", ["ppg", "--data", aligned, "-o", small + "/ppg.pt", "--steps", "1"]),
+    ("export", ["export", run, "-o", small + "/m.onnx"]),
+    ("exit", None),
+):
+    sys.stderr.flush()
+    with open(f"{out}/{name}.err", "w") as err:
+        os.dup2(err.fileno(), 2)
+    if args is None:
+        break
+    try:
+        code = main(args)
+    except SystemExit as exc:
+        code = exc.code
+    except BaseException:
+        traceback.print_exc()
+        code = "raised"
+    sys.stderr.flush()
+    print(f"{name}={code}", flush=True)
+"""
+
 FULL_DISK = r"""
 set -u
 mount -t tmpfs -o size=${SIZE_KB}k tmpfs "$SMALL" || exit 99
@@ -226,10 +255,8 @@ digest() { sha256sum "$1" | cut -c1-16; }
 before=$(digest "$SMALL/run/last.pt"); ppg_before=$(digest "$SMALL/ppg.pt")
 avail=$(df -k --output=avail "$SMALL" | tail -1)
 head -c $(( (avail - 48) * 1024 )) /dev/zero > "$SMALL/filler"
-"$PY" -m train fit --data "$DS" -o "$SMALL/run" --resume --max-steps 8 2> "$OUT/fit.err"; echo "fit=$?"
+"$PY" -c "$COMMANDS" "$SMALL" "$OUT" "$DS" "$ALIGNED" "$RUN"; echo "driver=$?"
 [ "$(digest "$SMALL/run/last.pt")" = "$before" ] && echo "last_kept=yes"
-"$PY" -m train ppg --data "$ALIGNED" -o "$SMALL/ppg.pt" --steps 1 2> "$OUT/ppg.err"; echo "ppg=$?"
-"$PY" -m train export "$RUN" -o "$SMALL/m.onnx" 2> "$OUT/export.err"; echo "export=$?"
 [ "$(digest "$SMALL/ppg.pt")" = "$ppg_before" ] && echo "ppg_kept=yes"
 [ "$(head -c 4 "$SMALL/m.onnx")" = old ] && echo "onnx_kept=yes"
 echo "files=$(ls -A "$SMALL" "$SMALL/run" | tr '\n' ' ')"
@@ -260,6 +287,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_keeps_the_old_files(s2a, ds
         OLD_PPG=str(old_ppg),
         OUT=str(tmp_path),
         PY=sys.executable,
+        COMMANDS=COMMANDS,
     )
     proc = subprocess.run(
         ["unshare", "-r", "-m", "bash", "-c", FULL_DISK], capture_output=True, text=True, env=env, cwd=ROOT
@@ -267,7 +295,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_keeps_the_old_files(s2a, ds
     if proc.returncode == 99:
         pytest.skip("cannot mount a tmpfs here")
     said = dict(w.split("=", 1) for w in proc.stdout.split() if "=" in w and not w.startswith("files"))
-    assert (said["fit"], said["ppg"], said["export"]) == ("1", "1", "1"), proc.stdout
+    assert (said["fit"], said["ppg"], said["export"], said["driver"]) == ("1", "1", "1", "0"), proc.stdout
     assert [said.get(k) for k in ("last_kept", "ppg_kept", "onnx_kept")] == ["yes"] * 3, proc.stdout
     assert ".partial" not in proc.stdout, proc.stdout  # no half-written file left behind
     for name, needle in (
@@ -278,6 +306,8 @@ def test_a_full_disk_is_one_line_naming_the_file_and_keeps_the_old_files(s2a, ds
         err = (tmp_path / f"{name}.err").read_text()
         assert "Traceback" not in err and needle in err and "no space left on device" in err, (name, err)
         assert sum(": error: " in line for line in err.splitlines()) == 1, err
+    at_exit = (tmp_path / "exit.err").read_text()
+    assert "Traceback" not in at_exit and "Exception" not in at_exit, at_exit
 
 
 def test_export_replaces_the_onnx_file_only_once_parity_holds(s2a, tmp_path):
@@ -487,7 +517,8 @@ def test_sigterm_stops_a_fit_as_ctrl_c_does(ds, tmp_path):
     _out, err = proc.communicate(timeout=60)
     assert proc.returncode == 143 and "s2a-train: terminated (SIGTERM)" in err and "Traceback" not in err, err
     assert not list(run.glob(".*partial*"))
-    resumed = _cli("fit", "--data", ds, "-o", run, "--resume", "--max-steps", 3)
+    # resumed in this process: fit --resume's command line runs as a subprocess in the test above
+    resumed = run_here("train", "fit", "--data", ds, "-o", run, "--resume", "--max-steps", 3)
     assert resumed.returncode == 0, resumed.stderr
 
 

@@ -231,8 +231,7 @@ def test_ridge_fits_on_inputs_that_include_unusable_frames(gappy, tmp_path):
 # -- DDP: a failed read is every rank's decision -------------------------------------------------------
 DDP_FIT = """
 import datetime, json, os, sys
-rank, rendezvous, ds, run = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
-cfg = json.loads(sys.argv[5])
+rank, rendezvous, cases = int(sys.argv[1]), sys.argv[2], json.loads(sys.argv[3])
 os.environ.update(WORLD_SIZE="2", RANK=str(rank), LOCAL_RANK=str(rank))  # as torchrun sets them
 import torch.distributed as dist
 dist.init_process_group(
@@ -240,13 +239,14 @@ dist.init_process_group(
 )
 from train.fit import fit
 
-try:
-    fit(ds, run, cfg, say=lambda _m: None)
-    out = {"error": None}
-except Exception as exc:
-    out = {"error": type(exc).__name__ + ": " + str(exc)}
-print(json.dumps(out), flush=True)
-dist.barrier()  # both ranks done before the group goes
+for ds, run, cfg in cases:  # one fit after the other in the same group: the interpreters start once
+    try:
+        fit(ds, run, cfg, say=lambda _m: None)
+        out = {"run": run, "error": None}
+    except Exception as exc:
+        out = {"run": run, "error": type(exc).__name__ + ": " + str(exc)}
+    print(json.dumps(out), flush=True)
+    dist.barrier()  # both ranks done before the next fit, or before the group goes
 dist.destroy_process_group()
 """
 
@@ -260,30 +260,48 @@ def _damage_in_place(shard):
     shard.write_bytes(bytes(data))
 
 
-@pytest.mark.parametrize("split", ["train", "val"])
-def test_ddp_ranks_stop_together_when_one_meets_a_damaged_sample(tmp_path, split):
-    """Each rank reads its own shards (or its own samples of a shared one): the rank that met the
-    damaged sample used to stop alone while the other waited at the gradients' all-reduce (or the
-    validation's sum) until the process group timed out. Now both stop at once with its line."""
+def _damaged_dataset(root, split):
+    """Five takes of two speakers; the first shard of ``split`` damaged in place."""
     for i, seconds in enumerate([2.0, 1.6, 0.8, 1.2, 1.0]):
         take = make_aligned_take(f"take{i:02d}", seconds, subject=f"spk{i % 2}", seed=i)
-        write_take(take, tmp_path / "takes")
+        write_take(take, root / "takes")
     options = BuildOptions(
         features=("pitch", "energy", "fbank"),
         split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
         max_sample_s=0.4,
         shard_bytes=100_000,
     )
-    ds = tmp_path / "ds"
-    build_dataset([tmp_path / "takes"], ds, options, say=lambda _m: None)
+    ds = root / "ds"
+    build_dataset([root / "takes"], ds, options, say=lambda _m: None)
     shards = [s["name"] for s in _manifest(ds)["shards"] if s["split"] == split]
     assert len(shards) >= (2 if split == "train" else 1)
     _damage_in_place(ds / shards[0])
+    return ds
+
+
+@pytest.fixture(scope="module")
+def ddp_damaged_fits(tmp_path_factory):
+    """{split: (dataset, each rank's error)} of a 2-rank fit on a dataset whose first shard of that split
+    is damaged; both fits run in one pair of rank processes (their start-up, PyTorch's import, is most of
+    each)."""
+    root = tmp_path_factory.mktemp("ddp-damaged")
     cfg = resolve_config(sets=[*TINY, "max_steps=40", "eval_every=2", "batch_size=2", "window=24"])
-    args = [str(tmp_path / "rendezvous"), str(ds), str(tmp_path / "run"), json.dumps(cfg)]
-    lines = run_gloo_ranks(DDP_FIT, args, timeout=240)
-    errors = [json.loads(found[-1])["error"] for found in lines]
+    splits = ("train", "val")
+    cases = [[str(_damaged_dataset(root / split, split)), str(root / split / "run"), cfg] for split in splits]
+    lines = run_gloo_ranks(DDP_FIT, [str(root / "rendezvous"), json.dumps(cases)], timeout=240)
+    found = [[r for r in map(json.loads, rank_lines) if "run" in r] for rank_lines in lines]
+    assert all([r["run"] for r in rank] == [c[1] for c in cases] for rank in found), found
+    return {split: (cases[k][0], [rank[k]["error"] for rank in found]) for k, split in enumerate(splits)}
+
+
+@pytest.mark.parametrize("split", ["train", "val"])
+def test_ddp_ranks_stop_together_when_one_meets_a_damaged_sample(ddp_damaged_fits, split):
+    """Each rank reads its own shards (or its own samples of a shared one): the rank that met the
+    damaged sample used to stop alone while the other waited at the gradients' all-reduce (or the
+    validation's sum) until the process group timed out. Now both stop at once with its line."""
+    ds, errors = ddp_damaged_fits[split]
     met = [e for e in errors if "(met by another rank" not in e]
     assert len(met) == 1 and met[0].startswith("InputError: ") and "damaged shard" in met[0], errors
+    assert f"s2a-dataset validate {ds})" in met[0], errors  # this fit's dataset, not the other's
     first = errors.index(met[0])
     assert errors[1 - first] == f"{met[0]} (met by another rank: rank {first})", errors

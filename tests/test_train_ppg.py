@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli, run_here
+from conftest import run_here
 from dataset_helpers import speech_like, write_aligned_set
 
 from capture.errors import InputError
@@ -25,7 +25,8 @@ from train.ppg_train import find_alignments, frame_labels
 def trained(samples, tmp_path_factory):
     out = tmp_path_factory.mktemp("ppg") / "ppg.pt"
     librivox = samples / "speech" / "pocketsphinx-testdata-librivox"
-    proc = run_cli("train", "ppg", "--data", librivox, "-o", out, "--steps", "100", "--json")
+    # in this process: ppg's command line runs as a subprocess in test_ppg_robustness.py
+    proc = run_here("train", "ppg", "--data", librivox, "-o", out, "--steps", "100", "--json")
     assert proc.returncode == 0, proc.stderr
     return out, json.loads(proc.stdout)
 
@@ -96,7 +97,8 @@ def test_ppg_dataset_trains_and_predicts_with_the_same_extractor(trained, tmp_pa
     )
     run = tmp_path / "run"
     tiny = ["window=60", "batch_size=2", "eval_every=2", "arch.d_model=32", "arch.ff_dim=64"]
-    proc = run_cli(
+    # in this process: fit's command line runs as a subprocess in test_train_pipeline.py
+    proc = run_here(
         "train",
         "fit",
         "--data",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 import torch
-from conftest import run_cli
+from conftest import run_cli, run_here
 from dataset_helpers import write_aligned_set
 from test_train_pipeline import TINY
 
@@ -222,7 +222,7 @@ def test_eval_on_a_dataset_without_the_runs_feature_is_one_line(data, tmp_path):
         del m["features"]["dims"]["fbank"]
 
     ds = _edited_copy(data["ds"], tmp_path / "ds", drop_fbank)
-    proc = run_cli("train", "eval", data["run"], "--data", ds)
+    proc = run_here("train", "eval", data["run"], "--data", ds)  # eval's command line: test_train_adversity
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
     assert "manifest.json: dataset has no fbank feature, the run needs it" in proc.stderr
 
@@ -300,6 +300,8 @@ def test_predict_paths_and_messages(data, tmp_path):
 
 
 def test_export_into_a_folder_is_one_line(data, tmp_path):
+    """export's command line as a user runs it (a subprocess); the other commands here run in this
+    process (fit's and eval's command lines run as subprocesses in test_train_adversity.py)."""
     proc = run_cli("train", "export", data["run"], "-o", tmp_path)
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
     assert "output path is a folder" in proc.stderr
@@ -308,10 +310,10 @@ def test_export_into_a_folder_is_one_line(data, tmp_path):
 def test_cli_resume_with_a_changed_set_is_one_line(data, tmp_path):
     run = tmp_path / "r"
     shutil.copytree(data["run"], run)
-    proc = run_cli("train", "fit", "--data", data["ds"], "-o", run, "--resume", "--set", "lr=0.1")
+    proc = run_here("train", "fit", "--data", data["ds"], "-o", run, "--resume", "--set", "lr=0.1")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
     assert "--resume keeps the run's config, but lr differ" in proc.stderr
-    proc = run_cli("train", "fit", "--data", data["ds"], "-o", run, "--config", tmp_path)
+    proc = run_here("train", "fit", "--data", data["ds"], "-o", run, "--config", tmp_path)
     assert proc.returncode == 1 and "config path is a folder" in proc.stderr
 
 
