@@ -6,15 +6,16 @@ import argparse
 import math
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 from capture.command import Terminated, emit_json, progress, run
 from capture.errors import InputError
 
 from .build import BuildOptions, build_dataset
 from .features import DEFAULT_FEATURES, FeatureSettings, parse_level
-from .manifest import build_running
+from .manifest import MANIFEST_FILE, build_running, dataset_dir
 from .normalize import KINDS
 from .ppg import BACKENDS
 from .qa import validate
@@ -23,6 +24,7 @@ from .stats import dataset_stats, format_stats
 
 PROG = "s2a-dataset"
 RESUME = "finished takes are kept: rerun to resume"
+T = TypeVar("T")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -184,9 +186,40 @@ def _not_while_building(ds: Path) -> None:
         raise InputError(busy)
 
 
+def dataset_files_state(ds: Path) -> list[tuple[str, int, int, int]]:
+    """(name, inode, mtime in ns, size) of the manifest and the shards of dataset ``ds``, sorted: what a
+    build swapping the dataset in changes (it renames new files into place)."""
+    folder = dataset_dir(ds)
+    out = []
+    for p in [folder / MANIFEST_FILE, *folder.glob("*.tar")]:
+        try:
+            st = p.stat()
+        except OSError:  # missing or unreadable: reported by the reader itself
+            continue
+        out.append((p.name, st.st_ino, st.st_mtime_ns, st.st_size))
+    return sorted(out)
+
+
+def read_unchanged(ds: Path, read: Callable[[], T], command: str) -> T:
+    """``read()`` of dataset ``ds``, refused when a build started writing into it meanwhile or swapped
+    new files in: the lock is checked only before reading, and a build started after that could make
+    validate report faults of a half-swapped dataset (or none of a dataset just replaced)."""
+    _not_while_building(ds)
+    before = dataset_files_state(ds)
+    result = read()
+    if build_running(ds) is not None or dataset_files_state(ds) != before:
+        raise InputError(
+            f"the dataset changed while {command} read it (a build wrote into it?): "
+            f"run s2a-dataset {command} again",
+            dataset_dir(ds),
+        )
+    return result
+
+
 def cmd_validate(args: argparse.Namespace) -> int:
-    _not_while_building(args.dataset)
-    report = validate(args.dataset, deep=args.deep, progress=_say("validate"))
+    report = read_unchanged(
+        args.dataset, lambda: validate(args.dataset, deep=args.deep, progress=_say("validate")), "validate"
+    )
     if args.json:
         emit_json(report.to_json())
     else:
@@ -202,8 +235,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_stats(args: argparse.Namespace) -> int:
-    _not_while_building(args.dataset)
-    s = dataset_stats(args.dataset)
+    s = read_unchanged(args.dataset, lambda: dataset_stats(args.dataset), "stats")
     if args.json:
         emit_json(s)
     else:

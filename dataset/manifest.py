@@ -215,6 +215,23 @@ def normalization_problems(norm: Any, channels: list[str], features: Any) -> lis
     return out
 
 
+def _repeated_keys(samples: Any) -> list[tuple[str, str]]:
+    """(field, message) for each sample key listed again: readers look samples up by key, so a second
+    entry (a hand-merged manifest) would count its hours twice in stats and, pointing at another shard
+    or another length, make the reader expect the sample where it is not."""
+    first: dict[str, int] = {}
+    out = []
+    for i, s in enumerate(samples if isinstance(samples, list) else []):
+        key = s.get("key") if isinstance(s, dict) else None
+        if not isinstance(key, str):
+            continue
+        if key in first:
+            out.append((f"samples[{i}].key", f"{key!r} is listed twice (also samples[{first[key]}])"))
+        else:
+            first[key] = i
+    return out
+
+
 def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     """(field, message) for each field of a manifest that readers rely on and that is missing or has
     the wrong type or value; empty for a usable manifest."""
@@ -260,6 +277,7 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
         if isinstance(name, str) and ("/" in name or "\\" in name or name.startswith(".")):
             out.append((f"shards[{i}].name", f"shard name {name!r} is not a plain file name"))
     out += _objects(data["samples"], "samples", SAMPLE, optional=("usable_frames",))
+    out += _repeated_keys(data["samples"])
     stats = data.get("stats", {})
     if not isinstance(stats, dict):
         out.append(("stats", "must be a JSON object"))
