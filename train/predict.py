@@ -341,6 +341,7 @@ def predict(
     folder = out.parent if single else out
     make_out_dir(folder)
     paths = csv_paths(audios, out, single)
+    _refuse_overwriting_an_input(audios, paths)
     results = []
     for a, path in zip(map(Path, audios), paths):
         try:  # one unreadable file is reported and the others are still predicted
@@ -364,18 +365,42 @@ def predict(
         for r in result["repairs"]:
             say(f"warning: {a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
         if result["silent"]:
-            peak, dc = result["peak_dbfs"], result["dc_offset_dbfs"]
-            if peak is not None:
-                level = f" (peak {peak:.1f} dBFS, under -70 dBFS)"
-            elif dc is not None:
-                level = f" once its constant offset of {dc:.1f} dBFS is removed"
-            else:
-                level = " (all zero)"
-            say(f"warning: {a}: the audio is silent{level}: no speech to animate, the face stays still")
+            quiet = _silence_words(result["peak_dbfs"], result["dc_offset_dbfs"])
+            say(f"warning: {a}: the audio is silent{quiet}: no speech to animate, the face stays still")
         if spec.styles:
             result["style"] = style or (speaker if speaker in spec.styles else MEAN)
         results.append(result)
     return results
+
+
+def _silence_words(peak_dbfs: float | None, dc_dbfs: float | None) -> str:
+    """How silent audio is silent: quiet, a constant offset (DC) and nothing else, or all zero. An offset
+    itself under -70 dBFS (float samples of 1e-40, say) is no offset worth naming: the audio is as quiet
+    as its offset."""
+    if peak_dbfs is not None:
+        return f" (peak {peak_dbfs:.1f} dBFS, under -70 dBFS)"
+    if dc_dbfs is None:
+        return " (all zero)"
+    if dc_dbfs < 20 * math.log10(SILENT_PEAK):
+        return f" (peak {dc_dbfs:.1f} dBFS, under -70 dBFS)"
+    return f" once its constant offset of {dc_dbfs:.1f} dBFS is removed"
+
+
+def _refuse_overwriting_an_input(audios: list[str | Path], paths: list[Path]) -> None:
+    """An output CSV that is one of the audio files (``predict run voice.csv -o voice.csv``, or a folder
+    receiving ``x.csv`` that holds the audio ``x.csv``) would replace the recording with its animation:
+    refused before any file is written."""
+    inputs = {}  # (device, inode) → audio file: one stat a file, however long the batch
+    for a in map(Path, audios):
+        if a.is_file():
+            st = a.stat()
+            inputs[(st.st_dev, st.st_ino)] = a
+    for path in paths:
+        if path.is_file():
+            st = path.stat()
+            if (st.st_dev, st.st_ino) in inputs:
+                a = inputs[(st.st_dev, st.st_ino)]
+                raise InputError(f"output CSV is the audio file {a} itself: choose another -o", path)
 
 
 def _neutral_pose(info: dict[str, Any], neutral: str | Path | None, say) -> np.ndarray | None:
