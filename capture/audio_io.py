@@ -150,7 +150,7 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
         try:
             data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
         except (sf.LibsndfileError, RuntimeError) as exc:
-            raise InputError(f"audio is unreadable: {exc}", path) from None
+            return _read_cut_short(path, info, exc, repairs)
         if data.shape[0] == 0:
             return _read_unfinished_wav(path, repairs)
         audio = check_samples(Audio(data, rate, subtype), path, repairs)
@@ -168,6 +168,34 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
             note_unknown_delay(path, repairs)
         return audio
     return check_samples(decode_with_pyav(path, repairs=repairs), path, repairs)
+
+
+def _read_cut_short(path: Path, info: Any, exc: Exception, repairs: list[dict[str, Any]] | None) -> Audio:
+    """A file libsndfile stops reading partway (a FLAC cut short: "lost sync"): an ``InputError``, unless
+    ``repairs`` is given and FFmpeg decodes samples of it: then those are used (the cut packet, which
+    FFmpeg cannot decode, as silence of its length) and the repair ``truncated_audio`` says how much of
+    the length its header declares is there (as for a WAV cut short, which libsndfile reads to its end)."""
+    unreadable = InputError(f"audio is unreadable: {exc}", path)
+    if repairs is None:
+        raise unreadable from None
+    found: list[dict[str, Any]] = []
+    try:
+        audio = decode_with_pyav(path, repairs=found, skip_damaged=True)
+    except InputError:
+        raise unreadable from None
+    if audio.frames == 0:
+        raise unreadable from None
+    repairs += found
+    repairs.append(
+        {
+            "line": None,
+            "kind": "truncated_audio",
+            "message": f"{path.name}: header declares {info.frames / info.samplerate:.3f} s of audio, "
+            f"the file holds {audio.duration_s:.3f} s ({exc}; cut short?): the samples present are used, "
+            "the packet cut through as silence",
+        }
+    )
+    return check_samples(audio, path, repairs)
 
 
 def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
@@ -495,7 +523,10 @@ def _in_recorded_format(data: np.ndarray, rate: int, sample_format: str) -> Audi
 
 
 def decode_with_pyav(
-    path: str | Path, stream_index: int = 0, repairs: list[dict[str, Any]] | None = None
+    path: str | Path,
+    stream_index: int = 0,
+    repairs: list[dict[str, Any]] | None = None,
+    skip_damaged: bool = False,
 ) -> Audio:
     """The first audio stream of any container FFmpeg reads (.mov, .m4a, .mp3, ...).
 
@@ -504,9 +535,9 @@ def decode_with_pyav(
     inside that frame (AAC only: other codecs trim their own padding, and an MP3's duration may be an
     estimate). A file that records no delay keeps it: noted in ``repairs`` (``note_unknown_delay``).
     Audio whose channel count changes mid-stream is mixed to the first frame's (repair
-    ``channels_changed``)."""
+    ``channels_changed``). ``skip_damaged``: a packet FFmpeg cannot decode is silence of its duration."""
     path = Path(path)
-    decoded = _decode_frames(str(path), path, stream_index, repairs)
+    decoded = _decode_frames(str(path), path, stream_index, repairs, skip_damaged)
     if not decoded.chunks:
         raise InputError("audio stream holds no samples", path)
     data, changed, at = _one_layout(decoded.chunks)

@@ -14,7 +14,7 @@ import soundfile as sf
 from conftest import run_cli
 from dataset_helpers import SR, make_aligned_take, speech_like
 
-from capture import Audio, read_audio, read_take_folder, write_reference_mov, write_take
+from capture import Audio, InputError, read_audio, read_take_folder, write_reference_mov, write_take
 from capture.take_folder import read_csv_with_audio
 from dataset import BuildOptions, build_dataset, read_manifest
 from dataset.features import FeatureSettings, compute_features
@@ -278,3 +278,24 @@ def test_level_option_of_the_build(tmp_path):
     proc = run_cli(*common, "-o", tmp_path / "bad", "--level", "loud")
     assert proc.returncode == 1 and "--level must be speech, none or a target in dBFS" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_a_flac_cut_short_keeps_the_samples_it_holds(tmp_path):
+    """libsndfile stops a FLAC cut short with "lost sync" (it was one error: the recording lost); as a WAV
+    cut short, the samples present are read, bit for bit (FLAC is lossless), the packet cut through as
+    silence, and noted; without a repair list it is still an error."""
+    rng = np.random.default_rng(0)
+    speech = (rng.standard_normal((32000, 1)) * 3000).astype(np.int16)
+    sf.write(tmp_path / "whole.flac", speech, 16000, subtype="PCM_16", format="FLAC")
+    data = (tmp_path / "whole.flac").read_bytes()
+    (tmp_path / "cut.flac").write_bytes(data[: len(data) // 2])
+    repairs: list[dict] = []
+    audio = read_audio(tmp_path / "cut.flac", repairs)
+    assert audio.subtype == "PCM_16" and audio.sample_rate == 16000
+    kept = int(np.flatnonzero(audio.samples[:, 0])[-1]) + 1  # the FLAC blocks wholly in the first half
+    assert kept >= 8192 and np.array_equal(audio.samples[:kept], speech[:kept])
+    assert kept < audio.frames <= 20000 and not audio.samples[kept:].any()  # the block cut through: silence
+    (note,) = [r["message"] for r in repairs if r["kind"] == "truncated_audio"]
+    assert "header declares 2.000 s" in note and "cut short" in note
+    with pytest.raises(InputError, match="audio is unreadable"):
+        read_audio(tmp_path / "cut.flac")
