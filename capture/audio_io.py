@@ -223,6 +223,9 @@ def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Au
     return audio
 
 
+CHECK_FRAMES = 1 << 16  # frames of float audio checked for NaN at once
+
+
 def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
     """Damaged float samples, set right and recorded in ``repairs`` (repair ``bad_audio``): NaN or
     infinite samples are set to 0 (without ``repairs``: an ``InputError``), and isolated samples far past
@@ -230,12 +233,17 @@ def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None
     ``repairs`` they are left as they are)."""
     if audio.samples.dtype.kind != "f":
         return audio
-    bad = ~np.isfinite(audio.samples)
-    count = int(bad.sum())
+    count = 0
+    for lo in range(0, audio.frames, CHECK_FRAMES):  # a block at a time: no mask of all the samples
+        block = audio.samples[lo : lo + CHECK_FRAMES]
+        finite = np.isfinite(block)
+        if not finite.all():
+            count += int(finite.size - np.count_nonzero(finite))
+            if repairs is not None:
+                block[~finite] = 0.0
     if count:
         if repairs is None:
             raise InputError(f"audio holds {count} NaN or infinite sample(s)", path)
-        audio.samples[bad] = 0.0
         repairs.append(
             {
                 "line": None,
@@ -280,9 +288,10 @@ _SPIKE_RING = np.concatenate([np.arange(-32, -3), np.arange(4, 33)])
 def damaged_samples(x: np.ndarray) -> np.ndarray:
     """Indices of the isolated damaged samples of one channel of finite float audio (see SPIKE_FACTOR):
     impulses far above the signal around them, which no microphone or converter produces."""
-    a = np.abs(x)
-    if a.size == 0 or float(a.max()) <= 1.0:  # within full scale: a legal value of every format
+    # within full scale, a legal value of every format: told without |x|, a copy of the channel
+    if x.size == 0 or max(float(x.max()), -float(x.min())) <= 1.0:
         return np.zeros(0, np.int64)
+    a = np.abs(x)
     level = float(np.percentile(a, 99.9))
     cand = np.flatnonzero(a > max(1.0, SPIKE_FACTOR * level))  # by construction under 0.1 % of samples
     if cand.size == 0:
@@ -426,11 +435,69 @@ def _note_channels_changed(
         )
 
 
+class _Samples:
+    """Decoded frames written one after another into one array (frames x channels), as they come: the
+    audio is held once, not as a list of chunks and then their join. Each frame is mixed to the first
+    frame's channel count (``_one_layout``'s mixing) and the array takes the dtype joining them would give
+    (``np.concatenate``'s promotion). ``expected``: the samples the stream is thought to hold, to allocate
+    once; a short guess grows the array in place, and what is not used is given back at the end."""
+
+    def __init__(self, expected: int = 0):
+        self._data: np.ndarray | None = None
+        self._expected = max(expected, 0)
+        self.used = 0  # samples written
+        self.changed, self.first_changed = 0, 0  # samples mixed to the first channel count, where from
+        self.last_channels: int | None = None  # the layout of the last frame, for silence in its place
+        self.last_dtype: np.dtype | None = None
+
+    def __bool__(self) -> bool:
+        return self.last_dtype is not None
+
+    def append(self, arr: np.ndarray) -> None:
+        self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
+        if self._data is None:
+            self._data = self._allocated(arr)
+        channels = self._data.shape[1]
+        if arr.shape[1] != channels:
+            self.first_changed = self.first_changed if self.changed else self.used
+            self.changed += len(arr)
+            arr = _to_channels(arr, channels)
+        if arr.dtype != self._data.dtype:
+            joined = np.result_type(self._data, arr)
+            if joined != self._data.dtype:
+                self._data = self._data.astype(joined)  # a format change mid-stream: rare
+        end = self.used + len(arr)
+        if end > len(self._data):
+            self._data.resize((max(end, len(self._data) * 3 // 2), channels), refcheck=False)
+        self._data[self.used : end] = arr
+        self.used = end
+
+    @property
+    def channels(self) -> int:
+        assert self._data is not None
+        return self._data.shape[1]
+
+    def _allocated(self, first: np.ndarray) -> np.ndarray:
+        # untouched pages of a generous guess cost no memory: the slack covers a frame of padding. A
+        # container that claims more than can be allocated (damaged) only loses the head start
+        try:
+            return np.empty((max(self._expected + 4096, len(first)), first.shape[1]), first.dtype)
+        except (MemoryError, ValueError):
+            return np.empty((len(first), first.shape[1]), first.dtype)
+
+    def take(self, frames: int | None = None) -> np.ndarray:
+        """The samples written (the first ``frames`` of them), the unused rest of the array given back."""
+        assert self._data is not None
+        data, self._data = self._data, None
+        data.resize((self.used if frames is None else frames, data.shape[1]), refcheck=False)
+        return data
+
+
 @dataclass
 class _Decoded:
     """What FFmpeg decoded from one audio stream, before its chunks are joined."""
 
-    chunks: list[np.ndarray]  # frames x channels, one per decoded frame
+    chunks: list[np.ndarray] | _Samples  # frames x channels, one per decoded frame, or written in one array
     rate: int
     sample_format: str  # FFmpeg's sample format of the last frame, planar or not: s16, s32, u8, flt ...
     last_frame: int  # samples of the last decoded frame
@@ -439,17 +506,28 @@ class _Decoded:
     delay_recorded: bool = True  # the file records its encoder's delay, which FFmpeg dropped
 
 
+def _expected_samples(stream: Any) -> int:
+    """The samples a stream's container says it holds (0 when it does not say), to allocate for."""
+    rate = stream.rate or stream.codec_context.sample_rate or 0
+    if stream.duration and stream.time_base and rate:
+        return round(float(stream.duration * stream.time_base) * rate)
+    return 0
+
+
 def _decode_frames(
     source: str | IO[bytes],
     path: Path,
     stream_index: int,
     repairs: list[dict[str, Any]] | None,
     skip_damaged: bool = False,
+    joined: bool = True,
 ) -> _Decoded:
     """Every frame of one audio stream of ``source`` (a file name, or an MP3 held in memory), decoded by
     FFmpeg; an undecodable stream is an ``InputError`` naming ``path`` (with ``skip_damaged``, a packet
     FFmpeg cannot decode is counted and replaced by silence of its duration, so the sound after it keeps its
-    time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``)."""
+    time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``).
+    ``joined``: the frames are written into one array as they are decoded (``_Samples``), else kept as a
+    list of chunks (the joined-MP3 path edits them)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     try:
@@ -458,7 +536,7 @@ def _decode_frames(
             if not streams:
                 raise InputError("file has no audio stream", path)
             stream = streams[stream_index]
-            chunks = []
+            chunks: list[np.ndarray] | _Samples = _Samples(_expected_samples(stream)) if joined else []
             fmt = "flt"
             last_frame = 0
             first_pts = None
@@ -503,22 +581,31 @@ def _decode_frames(
     return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged, delay_recorded)
 
 
-def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray]) -> np.ndarray:
+def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _Samples) -> np.ndarray:
     """Silence as long as an undecodable packet (none when its duration is unknown), in the layout of what
     was decoded before it."""
     rate = stream.rate or stream.codec_context.sample_rate
     seconds = float(packet.duration * packet.time_base) if packet.duration and packet.time_base else 0.0
-    channels = chunks[-1].shape[1] if chunks else stream.codec_context.channels
-    return np.zeros((round(seconds * rate), channels), chunks[-1].dtype if chunks else np.float32)
+    if isinstance(chunks, _Samples):
+        channels, dtype = chunks.last_channels, chunks.last_dtype
+    else:
+        channels, dtype = (chunks[-1].shape[1], chunks[-1].dtype) if chunks else (None, None)
+    channels = stream.codec_context.channels if channels is None else channels
+    return np.zeros((round(seconds * rate), channels), np.float32 if dtype is None else dtype)
 
 
 def _in_recorded_format(data: np.ndarray, rate: int, sample_format: str) -> Audio:
+    """Decoded samples as the recorded format's: converted in place where the dtype allows, so the audio
+    is not held twice."""
     if sample_format == "s16":
         return Audio(data.astype(np.int16, copy=False), rate, "PCM_16")
     if sample_format == "s32":
         return Audio(data.astype(np.int32, copy=False), rate, "PCM_32")
     if sample_format == "u8":
-        return Audio((data.astype(np.float32) - 128.0) / 128.0, rate, "FLOAT")
+        unsigned = data.astype(np.float32)
+        unsigned -= 128.0  # the same float32 arithmetic as (x - 128.0) / 128.0, without its temporaries
+        unsigned /= 128.0
+        return Audio(unsigned, rate, "FLOAT")
     return Audio(data.astype(np.float32, copy=False), rate, "FLOAT")
 
 
@@ -535,16 +622,20 @@ def decode_with_pyav(
     inside that frame (AAC only: other codecs trim their own padding, and an MP3's duration may be an
     estimate). A file that records no delay keeps it: noted in ``repairs`` (``note_unknown_delay``).
     Audio whose channel count changes mid-stream is mixed to the first frame's (repair
-    ``channels_changed``). ``skip_damaged``: a packet FFmpeg cannot decode is silence of its duration."""
+    ``channels_changed``). ``skip_damaged``: a packet FFmpeg cannot decode is silence of its duration.
+    The frames are written into one array as they are decoded (``_Samples``): an hour's take is held once."""
     path = Path(path)
     decoded = _decode_frames(str(path), path, stream_index, repairs, skip_damaged)
-    if not decoded.chunks:
+    samples = decoded.chunks
+    assert isinstance(samples, _Samples)
+    if not samples:
         raise InputError("audio stream holds no samples", path)
-    data, changed, at = _one_layout(decoded.chunks)
-    _note_channels_changed(path, repairs, changed, at, decoded.rate, data.shape[1])
+    _note_channels_changed(
+        path, repairs, samples.changed, samples.first_changed, decoded.rate, samples.channels
+    )
     declared = decoded.declared
-    if declared is not None and 0 < data.shape[0] - declared < decoded.last_frame:
-        data = data[:declared]  # the last frame's padding
+    padded = declared is not None and 0 < samples.used - declared < decoded.last_frame
+    data = samples.take(declared if padded else None)  # the last frame's padding
     return _in_recorded_format(data, decoded.rate, decoded.sample_format)
 
 
@@ -867,7 +958,9 @@ def _read_joined_mpeg(
         part = io.BytesIO(_counted_whole(data[runs[a].start : runs[b - 1].end], runs[a:b]))
         try:
             # the note of an unknown encoder delay is about the start: the first file's
-            decoded = _decode_frames(part, path, 0, repairs if k == 0 else None, skip_damaged=True)
+            decoded = _decode_frames(
+                part, path, 0, repairs if k == 0 else None, skip_damaged=True, joined=False
+            )
         except InputError:
             if k == 0:
                 raise
