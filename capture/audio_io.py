@@ -19,6 +19,7 @@ import soundfile as sf
 
 from .atomic import atomic_write
 from .errors import InputError
+from .growing import GrowingRows
 from .numbers import number_array
 
 _NATIVE = {"PCM_16": "int16", "PCM_24": "int32", "PCM_32": "int32", "FLOAT": "float32"}
@@ -443,7 +444,7 @@ class _Samples:
     once; a short guess grows the array in place, and what is not used is given back at the end."""
 
     def __init__(self, expected: int = 0):
-        self._data: np.ndarray | None = None
+        self._rows: GrowingRows | None = None
         self._expected = max(expected, 0)
         self.used = 0  # samples written
         self.changed, self.first_changed = 0, 0  # samples mixed to the first channel count, where from
@@ -455,42 +456,43 @@ class _Samples:
 
     def append(self, arr: np.ndarray) -> None:
         self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
-        if self._data is None:
-            self._data = self._allocated(arr)
-        channels = self._data.shape[1]
+        if self._rows is None:
+            self._rows = self._allocated(arr)
+        rows = self._rows
+        channels = rows.array.shape[1]
         if arr.shape[1] != channels:
             self.first_changed = self.first_changed if self.changed else self.used
             self.changed += len(arr)
             arr = _to_channels(arr, channels)
-        if arr.dtype != self._data.dtype:
-            joined = np.result_type(self._data, arr)
-            if joined != self._data.dtype:
-                self._data = self._data.astype(joined)  # a format change mid-stream: rare
+        if arr.dtype != rows.array.dtype:
+            joined = np.result_type(rows.array, arr)
+            if joined != rows.array.dtype:
+                rows.array = rows.array.astype(joined)  # a format change mid-stream: rare
         end = self.used + len(arr)
-        if end > len(self._data):
-            self._data.resize((max(end, len(self._data) * 3 // 2), channels), refcheck=False)
-        self._data[self.used : end] = arr
+        if end > len(rows):
+            rows.resize(max(end, len(rows) * 3 // 2))
+        rows.array[self.used : end] = arr
         self.used = end
 
     @property
     def channels(self) -> int:
-        assert self._data is not None
-        return self._data.shape[1]
+        assert self._rows is not None
+        return self._rows.array.shape[1]
 
-    def _allocated(self, first: np.ndarray) -> np.ndarray:
+    def _allocated(self, first: np.ndarray) -> GrowingRows:
         # untouched pages of a generous guess cost no memory: the slack covers a frame of padding. A
         # container that claims more than can be allocated (damaged) only loses the head start
         try:
-            return np.empty((max(self._expected + 4096, len(first)), first.shape[1]), first.dtype)
+            return GrowingRows(max(self._expected + 4096, len(first)), first.shape[1], first.dtype)
         except (MemoryError, ValueError):
-            return np.empty((len(first), first.shape[1]), first.dtype)
+            return GrowingRows(len(first), first.shape[1], first.dtype)
 
     def take(self, frames: int | None = None) -> np.ndarray:
         """The samples written (the first ``frames`` of them), the unused rest of the array given back."""
-        assert self._data is not None
-        data, self._data = self._data, None
-        data.resize((self.used if frames is None else frames, data.shape[1]), refcheck=False)
-        return data
+        assert self._rows is not None
+        rows, self._rows = self._rows, None
+        rows.resize(self.used if frames is None else frames)
+        return rows.array
 
 
 @dataclass

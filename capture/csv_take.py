@@ -84,6 +84,7 @@ import numpy as np
 from . import channels as ch
 from .atomic import atomic_write
 from .errors import InputError
+from .growing import GrowingRows
 from .numbers import is_finite_number
 from .runs import run_bounds
 from .take import FrameStatus, SourceFile, Take, TakeMeta, safe_id, source_file
@@ -498,7 +499,7 @@ class _ValueRows:
 
     def __init__(self, columns: int, size: int) -> None:
         self.size = size  # bytes of the lines to read
-        self.array = np.empty((0, columns), dtype=np.float32)
+        self.rows = GrowingRows(0, columns, np.float32)
         self.n = 0  # rows written
         self.bytes_read = 0
 
@@ -506,32 +507,21 @@ class _ValueRows:
         """Where the next ``rows`` rows go (a view), read from ``part_bytes`` bytes."""
         self.bytes_read += part_bytes
         start, self.n = self.n, self.n + rows
-        if self.n > len(self.array):
+        if self.n > len(self.rows):
             left = max(self.size - self.bytes_read, 0)
-            self._resize(self.n + math.ceil(left * self.n / self.bytes_read * ROWS_MARGIN))
-        return self.array[start : self.n]
+            estimate = self.n + math.ceil(left * self.n / self.bytes_read * ROWS_MARGIN)
+            if len(self.rows):
+                self.rows.resize(estimate)
+            else:  # the first part: allocated for the estimate, untouched rows costing nothing
+                self.rows = GrowingRows(estimate, self.rows.array.shape[1], np.float32)
+        return self.rows.array[start : self.n]
 
     def trimmed(self) -> np.ndarray:
         """The rows written, an array of their size owning its memory (trimmed in place when nothing else
         holds the array: no copy)."""
-        if len(self.array) != self.n:
-            self._resize(self.n)
-        return self.array
-
-    def _resize(self, rows: int) -> None:
-        if not len(self.array):
-            self.array = np.empty((rows, self.array.shape[1]), dtype=np.float32)
-            return
-        try:
-            # realloc: a large array's pages are remapped, not copied (numpy zeroes the rows it adds)
-            self.array.resize((rows, self.array.shape[1]))
-        except ValueError:
-            # Something else holds a view of it (a debugger's or tracer's view of the frames' locals):
-            # copied, so that the values returned are no view keeping a larger array alive.
-            kept = min(rows, len(self.array))
-            copy = np.empty((rows, self.array.shape[1]), dtype=np.float32)
-            copy[:kept] = self.array[:kept]
-            self.array = copy
+        if len(self.rows) != self.n:
+            self.rows.resize(self.n)
+        return self.rows.array
 
 
 def _arrow_names(header: CsvHeader) -> list[str]:
