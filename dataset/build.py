@@ -1344,8 +1344,10 @@ def _process_takes(
         from_cache = f"{cached} from the cache"
         if cached == total:
             detail = f"all {from_cache}"
+        elif not computed:
+            detail = from_cache
         else:
-            detail = f"{computed}{f'; {from_cache}' if cached else ''})" if computed else from_cache
+            detail = f"{computed}; {from_cache})" if cached else f"{computed})"
         takes.update(i, detail, skipped=cached, at_once=first or i == total, began=began)
 
     if options.jobs == 1 or total <= 1:

@@ -9,12 +9,12 @@ joining the chunks gave.
 from __future__ import annotations
 
 import io
-import tracemalloc
 from pathlib import Path
 
 import av
 import numpy as np
 import pytest
+from test_long_take_memory import _traced_peak
 
 from capture import Audio, InputError
 from capture.audio_io import (
@@ -138,12 +138,7 @@ def test_an_hours_take_is_held_once_while_it_is_decoded(tmp_path):
     for name in ("aac_mono.m4a", "s16_stereo.mov"):
         path = tmp_path / name
         path.write_bytes(_encoded(*CASES[name], seconds=2.0))
-        tracemalloc.start()
-        try:
-            audio = decode_with_pyav(path)
-            peak = tracemalloc.get_traced_memory()[1]
-        finally:
-            tracemalloc.stop()
+        audio, peak = _traced_peak(decode_with_pyav, path)
         assert peak < 1.3 * audio.samples.nbytes, (name, peak / audio.samples.nbytes)
 
 
@@ -156,12 +151,7 @@ def test_float_audio_is_checked_without_a_copy_of_it():
     samples[[1000, 500_000], 0] = [np.nan, np.inf]
     audio = Audio(samples, 16000, "FLOAT")
     repairs: list[dict] = []
-    tracemalloc.start()
-    try:
-        check_samples(audio, Path("take.wav"), repairs)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    _, peak = _traced_peak(check_samples, audio, Path("take.wav"), repairs)
     assert peak < samples.nbytes / 8, (peak, samples.nbytes)
     assert [r["message"] for r in repairs] == ["take.wav: 2 NaN or infinite samples set to 0"]
     assert audio.samples[1000, 0] == 0 and audio.samples[500_000, 0] == 0 and np.isfinite(audio.samples).all()

@@ -11,13 +11,13 @@ from __future__ import annotations
 import itertools
 import subprocess
 import sys
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import SAMPLES
 from test_csv_long_damaged import assert_same, read_counting_careful_lines
+from test_long_take_memory import _traced_peak
 
 from capture import csv_take
 from capture.csv_take import CsvRows, _read_careful, read_csv_rows
@@ -447,11 +447,6 @@ def test_the_parts_values_are_written_into_one_array_not_joined(
     path, short = long_resaved
     read_csv_rows(short)  # the libraries' first use: no part of the peak
     monkeypatch.setattr(csv_take, "PART_BYTES", 1 << 22)
-    tracemalloc.start()
-    try:
-        rows = read_csv_rows(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    rows, peak = _traced_peak(read_csv_rows, path)
     assert rows.values.shape == (60_000, 61) and not rows.repairs[3:]  # bom, index_column, trailing_comma
     assert peak < 1.6 * rows.values.nbytes, peak / rows.values.nbytes
