@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource, check_regular_file
-from .command import emit_json, progress
+from .command import Terminated, emit_json, progress
 from .errors import InputError, S2AError
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
@@ -407,18 +407,44 @@ def _check_audio_file(path: Path, first_packet: bool) -> None:
         progress(f"warning: {path} does not exist yet: it has to be there when the first packet arrives")
 
 
-def _lock_session(session_dir: Path) -> int | None:
+def _lock_session(session_dir: Path) -> tuple[int | None, bool]:
     """Make the session folder and take its lock (``SESSION_LOCK``) for as long as ``listen`` records
     and builds the takes: ``recover`` leaves a locked session alone. Returns the lock's descriptor
-    (None without ``fcntl``); the lock goes with the process, however it ends. ``OSError`` when the
-    folder cannot be made."""
-    session_dir.mkdir(parents=True, exist_ok=True)
+    (None without ``fcntl``; the lock goes with the process, however it ends) and whether this call made
+    the folder (not when it was there already). ``OSError`` when the folder or its lock cannot be made
+    (and a folder made for it is gone again)."""
+    made = True
+    try:
+        session_dir.mkdir(parents=True)
+    except FileExistsError:
+        if not session_dir.is_dir():
+            raise
+        made = False
     if fcntl is None:  # pragma: no cover - Windows: recover goes by the session record's pid alone
-        return None
-    fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        return None, made
+    try:
+        fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+    except OSError:
+        if made:
+            with contextlib.suppress(OSError):
+                session_dir.rmdir()
+        raise
     with contextlib.suppress(OSError):  # a file system without locks: recover goes by the pid then
         try_lock(fd)
-    return fd
+    return fd, made
+
+
+def _remove_unstarted_session(session_dir: Path, made: bool) -> None:
+    """Remove the session folder of a ``listen`` that stopped or failed before it recorded: only when
+    this ``listen`` made it, and only the files it writes there (its lock and logs): a folder that was
+    there before, or that holds anything else, stays."""
+    if not made:
+        return
+    for name in (SESSION_LOCK, FRAMES_LOG, AUDIO_LOG):
+        with contextlib.suppress(OSError):
+            (session_dir / name).unlink()
+    with contextlib.suppress(OSError):  # not empty: another file is not ours to remove
+        session_dir.rmdir()
 
 
 def _session_record(session: Path) -> dict[str, Any]:
@@ -562,9 +588,10 @@ def _quiet_terminal(*_) -> None:
     os.close(devnull)
 
 
-def _stop_signals(recorder: LiveRecorder) -> dict[int, Any]:
-    """SIGINT, SIGTERM and SIGHUP (a closed terminal or ssh session) stop the recording cleanly; the
-    previous handlers, to restore. A SIGHUP that is ignored (``nohup``) stays ignored."""
+def _stop_signals(recorder: LiveRecorder, caught: list[int]) -> dict[int, Any]:
+    """SIGINT, SIGTERM and SIGHUP (a closed terminal or ssh session) stop the recording cleanly, each
+    noted in ``caught``; the previous handlers, to restore. A SIGHUP that is ignored (``nohup``) stays
+    ignored."""
     stops = [signal.SIGINT, signal.SIGTERM]
     hup = getattr(signal, "SIGHUP", None)
     if hup is not None and signal.getsignal(hup) is not signal.SIG_IGN:
@@ -573,9 +600,16 @@ def _stop_signals(recorder: LiveRecorder) -> dict[int, Any]:
     def stop(signum, _frame) -> None:
         if signum == hup:
             _quiet_terminal()
+        caught.append(signum)
         recorder.request_stop()
 
     return {s: signal.signal(s, stop) for s in stops}
+
+
+def _stopped_before_recording(signum: int) -> KeyboardInterrupt:
+    """What a stop signal that came while ``listen`` set up raises once the half-made session is gone:
+    the command then ends as on Ctrl-C (exit code 130) or, for SIGTERM, with exit code 143."""
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
@@ -599,46 +633,56 @@ def cmd_listen(args: argparse.Namespace) -> int:
             serial_port.close()
         raise
     lock: int | None = None
+    made = False  # whether this listen made the session folder (only then may a failed start remove it)
     source = audio_log = serial_sync = None
 
     def discard() -> None:
-        """A start that failed: nothing was received yet, so leave no half-made session behind."""
+        """A start that failed or was stopped: nothing was received yet, so leave no half-made session
+        behind (``_remove_unstarted_session``)."""
+        nonlocal lock
         if audio_log is not None:
             audio_log.close()
         recorder.close()
+        _remove_unstarted_session(recorder.session_dir, made)
         if lock is not None:
             os.close(lock)
-        shutil.rmtree(recorder.session_dir, ignore_errors=True)
+            lock = None
         if out_is_new:  # nor the output folder this failed start made (rmdir: only when empty)
             with contextlib.suppress(OSError):
                 Path(args.out).rmdir()
         if serial_port is not None:
             serial_port.close()
 
+    # From before the session folder is made, a stop signal is only noted: one while the folder, its lock
+    # and logs are made (the first milliseconds) removes them all once they are (``discard``), rather than
+    # leave a folder without a session record; one after the set-up ends the recording cleanly.
+    caught: list[int] = []
+    previous = _stop_signals(recorder, caught)
     try:
         try:
-            lock = _lock_session(recorder.session_dir)
-        except OSError as exc:  # a read-only output folder, a file in the way
-            raise InputError(
-                f"cannot write the session log: {exc.strerror or exc}", recorder.session_dir
-            ) from None
-        host, port = recorder.open()
-        if args.audio_device is not None or args.audio_file is not None:
             try:
-                audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
-            except OSError as exc:
+                lock, made = _lock_session(recorder.session_dir)
+            except OSError as exc:  # a read-only output folder, a file in the way
                 raise InputError(
-                    f"cannot write the audio log: {exc.strerror or exc}", recorder.session_dir
+                    f"cannot write the session log: {exc.strerror or exc}", recorder.session_dir
                 ) from None
-            source = _audio_source(args, recorder, audio_log)
-    except InputError:
-        discard()
-        raise
-    previous: dict[int, Any] = {}
-    try:
+            host, port = recorder.open()
+            if args.audio_device is not None or args.audio_file is not None:
+                try:
+                    audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
+                except OSError as exc:
+                    raise InputError(
+                        f"cannot write the audio log: {exc.strerror or exc}", recorder.session_dir
+                    ) from None
+                source = _audio_source(args, recorder, audio_log)
+        except InputError:
+            discard()
+            raise
+        if caught:  # stopped before the recording began: nothing to keep
+            discard()
+            raise _stopped_before_recording(caught[0])
         if serial_port is not None:
             serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
-        previous = _stop_signals(recorder)
         progress(f"listening on udp://{format_destination(host, port)} -> {recorder.session_dir}")
         warnings = _Warnings(recorder, audio_log, source, serial_sync)
         try:

@@ -61,6 +61,7 @@ from .recorder import (
     FRAME_PAYLOAD_BYTES,
     FRAMES_LOG,
     NO_FACE_PAYLOAD_BYTES,
+    RATE_CHANGE_PACKETS,
     RATE_JITTER,
     SESSION_SUFFIX,
 )
@@ -629,8 +630,9 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
     read at (None: its one declared rate). Consecutive runs of one rate (``_rate_runs``) whose rates lie
     within ``RATE_JITTER`` of each other are one jittering rate (a sender that declares
     its measured rate) when one of them is short (``RATE_HOLD_PACKETS``); runs that each hold are changes
-    of setting (24 -> 25, 30 -> 29.97, and back), as is any larger change (30 -> 60). A jittering stretch
-    is read at the median packet's declared rate."""
+    of setting (24 -> 25, 30 -> 29.97, and back), as is any larger change (30 -> 60), and so is a short
+    steady run that starts the stream before one that holds (``_steady_start``). A jittering stretch is
+    read at the median packet's declared rate."""
     rate = num / den
     runs = _rate_runs(num, den)
     if not num.size:  # every frame dropped (an implausible rate): one empty stretch, as before
@@ -646,6 +648,9 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
             groups.append([run])
             low = high = r
     stretches: list[tuple[slice, tuple[int, int] | None]] = []
+    if _steady_start(groups[0]):
+        stretches.append((groups[0][0], None))
+        groups[0] = groups[0][1:]
     for group in groups:
         shortest = min(run.stop - run.start for run in group)
         # runs that each hold are settings (read at another's rate, a run's frames would sit elsewhere in
@@ -659,6 +664,19 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
         )
         stretches.append((whole, (int(num[middle]), int(den[middle]))))
     return stretches
+
+
+def _steady_start(group: list[slice]) -> bool:
+    """Whether the first runs of a stream's rates (a group of ``_rate_stretches``) begin with a change of
+    setting: a run too short to hold (``RATE_HOLD_PACKETS``) but of at least ``RATE_CHANGE_PACKETS``
+    packets of one rate, as the recorder confirms a change, followed by a run that holds (the app's
+    setting changed right after the stream began). A jittering start differs for a packet or two, or
+    changes again before a run holds; read at the next run's rate, a steady start's frames would sit
+    elsewhere in the day."""
+    if len(group) < 2:
+        return False
+    first, second = (run.stop - run.start for run in group[:2])
+    return RATE_CHANGE_PACKETS <= first < RATE_HOLD_PACKETS <= second
 
 
 def _rate_jitter_note(num: np.ndarray, den: np.ndarray, nominal: tuple[int, int]) -> str:
