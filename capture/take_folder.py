@@ -9,7 +9,10 @@ The audio's start on the take clock follows Epic's own ingest: the first ``A`` r
 at their CSV timecodes. Without any of these, audio is assumed to start with the first CSV row.
 ``frame_log.csv``'s timecodes count at the video's rate: ``video_metadata.json``'s ``FrameRate``, else
 the ``.mov``'s own, else 60, unless its own video rows count at another rate (``FrameLog.timecode_rate``).
-The app's JSON keys are read in any case (``Subject`` as ``subject``).
+The app's JSON keys are read in any case (``Subject`` as ``subject``). The names of one take's files
+(its CSVs, ``.mov``, ``.wav``, ``_neutral.csv``, the take's names from take.json and its folder) are
+matched in Unicode NFC (``_nfc``): macOS's HFS+ writes names decomposed (NFD), so a take copied from a
+Mac beside files named on Linux spells ``Café_3`` two ways; the names written out stay as found.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import json
 import math
 import os
 import re
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -185,11 +189,17 @@ def _refuse_app_placeholders(folder: Path) -> None:
             raise icloud_error(placeholder, folder)
 
 
+def _nfc(name: str) -> str:
+    """``name`` in Unicode NFC, as the names of one take's files are compared: macOS's HFS+ stores
+    names decomposed (NFD: ``e`` + combining accent), Linux and Windows keep them as typed (NFC)."""
+    return unicodedata.normalize("NFC", name)
+
+
 def _named_as(files: list[tuple[str, Path]], prefix: str, exact: bool = False) -> Path | None:
     """Of several files (their names, paths) of one kind, the take's: the one named as its CSV
-    (``prefix``), else (unless ``exact``) the first by name; None for none."""
+    (``prefix``, compared in NFC), else (unless ``exact``) the first by name; None for none."""
     files = sorted(files)
-    named = next((p for name, p in files if Path(name).stem == prefix), None)
+    named = next((p for name, p in files if _nfc(Path(name).stem) == _nfc(prefix)), None)
     return named if named is not None or exact or not files else files[0][1]
 
 
@@ -317,7 +327,7 @@ class _CsvFile:
 
     path: Path  # the file, or its placeholder
     name: str  # the file's own name
-    prefix: str  # the take's name part: ``MySlate_166_iPhone``
+    prefix: str  # the take's name part, in NFC (``_nfc``): ``MySlate_166_iPhone``
     variant: str | None  # cal, raw, neutral or None (plain)
     copy: str  # what a copy added to the name (``" (1)"``, ``" copy"``), or ""
 
@@ -332,7 +342,7 @@ def _csv_files(folder: Path) -> list[_CsvFile]:
         m = _COPY_RE.match(stem)
         base, copy = (m.group("stem"), m.group("copy")) if m else (stem, "")
         prefix, variant = split_variant(base)
-        files.append(_CsvFile(path, name, prefix, variant, copy))
+        files.append(_CsvFile(path, name, _nfc(prefix), variant, copy))
     return files
 
 
@@ -343,7 +353,7 @@ def folder_name(folder: Path) -> str:
 
 def _take_names(folder: Path) -> set[str]:
     """What a take folder's CSV is named after: the ``.mov``'s stem, the app's ``{slate}_{take}_{subject}``
-    and ``identifier`` from take.json, and the folder's name."""
+    and ``identifier`` from take.json, and the folder's name; in NFC (``_nfc``)."""
     names = {folder_name(folder), *(p.stem for p in _files_ending(folder, ".mov"))}
     names |= {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
     app_take = _load_json(folder / "take.json", [])
@@ -353,7 +363,7 @@ def _take_names(folder: Path) -> set[str]:
     parts = [_field(app_take, key) for key in ("slate", "take", "subject")]
     if all(isinstance(v, (str, int)) and not isinstance(v, bool) for v in parts):
         names.add("_".join(map(str, parts)))
-    return names
+    return {_nfc(n) for n in names}
 
 
 def _the_one(folder: Path, files: list[_CsvFile]) -> _CsvFile:
@@ -408,9 +418,9 @@ def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
 
 
 def _mov_names(folder: Path) -> set[str]:
-    """The stems of the ``.mov`` files of ``folder``, iCloud placeholders of them included."""
+    """The stems of the ``.mov`` files of ``folder``, iCloud placeholders of them included, in NFC."""
     names = {p.stem for p in _files_ending(folder, ".mov")}
-    return names | {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
+    return {_nfc(n) for n in names | {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}}
 
 
 def _is_its_folder(csv: Path) -> bool:
@@ -421,7 +431,7 @@ def _is_its_folder(csv: Path) -> bool:
     if variant == "neutral" or not is_take_folder(csv.parent):
         return False
     try:
-        return choose_csv(csv.parent, variant or "plain")[0].name == csv.name
+        return _nfc(choose_csv(csv.parent, variant or "plain")[0].name) == _nfc(csv.name)
     except InputError:  # the folder does not read this CSV (several takes, or it is a copy)
         return False
 
@@ -429,22 +439,23 @@ def _is_its_folder(csv: Path) -> bool:
 def reads_as_take(csv: str | Path) -> bool:
     """Whether a Live Link Face CSV named alone is read as its take (``read_take_folder`` with
     ``csv``): its folder reads it as its take, or the ``.mov`` named as its take (its stem without
-    ``_cal``/``_raw``) sits beside it, perhaps not yet downloaded from iCloud (reading then says so).
-    A ``_neutral.csv`` is no take."""
+    ``_cal``/``_raw``, compared in NFC) sits beside it, perhaps not yet downloaded from iCloud (reading
+    then says so). A ``_neutral.csv`` is no take."""
     csv = Path(csv)
     prefix, variant = split_variant(csv.stem)
     if variant == "neutral" or not csv.parent.is_dir():
         return False
-    return _is_its_folder(csv) or prefix in _mov_names(csv.parent)
+    return _is_its_folder(csv) or _nfc(prefix) in _mov_names(csv.parent)
 
 
 def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[Path]:
     """The CSVs of a folder holding several takes side by side (each take's ``X.csv`` and ``X.mov``
     gathered into one folder), one per take, to import on its own; [] for any other folder. Every
-    blendshape CSV must be named as a ``.mov`` beside it (less ``_cal``/``_raw``/``_neutral``), none a
-    copy (``X (1).csv``: a take folder's copies stay its error or choice), of two takes or more. Of a
-    take's variants, ``variant``'s (cal, raw, plain) when it has one, else the one a take folder
-    prefers (cal, plain, raw): its cal and raw CSVs are one performance, not two takes."""
+    blendshape CSV must be named as a ``.mov`` beside it (less ``_cal``/``_raw``/``_neutral``; names
+    compared in NFC, so a take's files of two spellings are one take's), none a copy (``X (1).csv``: a
+    take folder's copies stay its error or choice), of two takes or more. Of a take's variants,
+    ``variant``'s (cal, raw, plain) when it has one, else the one a take folder prefers (cal, plain,
+    raw): its cal and raw CSVs are one performance, not two takes."""
     folder = Path(folder)
     files = _csv_files(folder)
     movs = _mov_names(folder)
@@ -463,7 +474,9 @@ def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[P
 def _neutral_named_as(folder: Path, prefix: str) -> Path | None:
     """The ``_neutral.csv`` of the take ``prefix`` in a folder of several takes, or None; one iCloud
     has not downloaded is an error."""
-    found = [f for f in _csv_files(folder) if f.variant == "neutral" and f.prefix == prefix and not f.copy]
+    found = [
+        f for f in _csv_files(folder) if f.variant == "neutral" and f.prefix == _nfc(prefix) and not f.copy
+    ]
     if not found:
         return None
     if found[0].path.name != found[0].name:

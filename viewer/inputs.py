@@ -15,8 +15,11 @@ by its path inside, ``takes.zip/TakeName``. The archive is unpacked by capture's
 (``capture.take_archive``: the same checks as ``s2a-capture import``) into the system's temporary
 folder, never beside the archive, and removed when the command ends (``archives_unpacked``), on an
 error, Ctrl-C or SIGTERM too. Of an archive whose member is named, only what that member needs is
-unpacked (``members_needed``: an archive of a day's takes holds gigabytes of ``.mov``). Messages name
-the archive's members (``takes.zip/T/T.csv``), never the temporary copies.
+unpacked (``members_needed``: an archive of a day's takes holds gigabytes of ``.mov``), and of any
+archive, a take's ``.wav`` beside its ``.mov`` only when the ``.mov`` holds no audio track, as the take
+reader then reads it (``_wavs_held_back``). Names of one take's files are matched in Unicode NFC, as
+the take reader matches them (a Mac writes them decomposed). Messages name the archive's members
+(``takes.zip/T/T.csv``), never the temporary copies.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from capture.command import stops_deferred
 from capture.csv_take import split_variant
 from capture.errors import InputError, S2AError
 from capture.importer import AUDIO_SUFFIXES, audio_beside, audio_stem, is_livelink_csv, warn_skipped
+from capture.mov import probe_mov
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
 from capture.take_archive import MAX_DEPTH, UNPACK_PREFIX, Member, Unpacked, unpacked
@@ -267,9 +271,10 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
     a path in no archive. An archive in the archive is entered when the path names it
     (``download.zip/T.zip/T``), as ``s2a-capture import`` reads one level of them. Of an archive whose
     member is named, only what that member needs is unpacked (``members_needed``): a day's takes hold
-    gigabytes of ``.mov``. The archive is checked and unpacked by ``capture.take_archive.unpacked``, its
-    ``InputError`` naming what is wrong; what it passed over (``__MACOSX``, ``._X``) is counted in
-    ``litter``."""
+    gigabytes of ``.mov``. A take's ``.wav`` beside its ``.mov`` is unpacked after it, and only when the
+    reader reads it (``_wavs_read``). The archive is checked and unpacked by
+    ``capture.take_archive.unpacked``, its ``InputError`` naming what is wrong; what it passed over
+    (``__MACOSX``, ``._X``) is counted in ``litter``."""
     if not _sessions:
         raise RuntimeError("unpacked_input is called inside archives_unpacked()")
     found = archive_member(Path(path))
@@ -299,19 +304,28 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
         held = sorted({m.parts[0] + ("/" if m.is_dir or len(m.parts) > 1 else "") for m in route.listed})
         listed = ", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
         raise InputError(f"holds no {member} (it holds {listed or 'nothing'})", box.name)
+    read = {b for b in route.held_back if _wavs_read(target, box.folder.joinpath(*b[:-1]))}
+    if read:  # unpacked apart, then moved beside the take's other files
+        later = session.stack.enter_context(
+            unpacked(archive, litter=Litter(), outer=outer, prefix=_own_prefix(), pick=lambda _: read)
+        )
+        for parts in read:
+            later.folder.joinpath(*parts).replace(box.folder.joinpath(*parts))
     return target, box.shown(target)
 
 
 class _Route:
     """Which members of an archive a path into it (``member``; ``.`` for the whole archive) needs: the
     ``pick`` given to ``unpacked``, which keeps the archive's list (``listed``) for messages and notes
-    whether the path goes through an archive in this one (``inner``: how many of its parts name it)."""
+    whether the path goes through an archive in this one (``inner``: how many of its parts name it),
+    and the ``.wav`` files it holds back until the ``.mov`` beside them is seen (``held_back``)."""
 
     def __init__(self, member: PurePosixPath, enter_archives: bool) -> None:
         self.parts = member.parts  # () for "."; as the archive spells them once ``pick`` has seen it
         self.enter_archives = enter_archives
         self.listed: list[Member] = []
         self.inner: int | None = None
+        self.held_back: set[tuple[str, ...]] = set()  # unpacked only if read (``_wavs_held_back``)
 
     def pick(self, members: list[Member]) -> set[tuple[str, ...]]:
         self.listed = members
@@ -322,7 +336,9 @@ class _Route:
                 if self.parts[:i] in files and self.parts[i - 1].lower().endswith(".zip"):
                     self.inner = i
                     return {self.parts[:i]}  # only that archive: its own members are picked in turn
-        return members_needed(members, self.parts)
+        needed = members_needed(members, self.parts)
+        self.held_back = _wavs_held_back(needed & files)
+        return needed - self.held_back
 
 
 # Files beside a named file that no take reader looks at, and large: videos other than the take's .mov,
@@ -336,7 +352,8 @@ def members_needed(members: list[Member], parts: tuple[str, ...]) -> set[tuple[s
     reader may look at beside it: for a CSV read alone (``_read_alone``: one take's of a flat folder of
     several), the audio files ``audio_beside`` may pair with it (``_read_alone_needs``); else those of
     its folder, less other takes' videos and archives (of the ``.mov`` files, those the take folder
-    reader may take: ``_movs_read``); none when it holds no ``parts``."""
+    reader may take: ``_movs_read``); none when it holds no ``parts``. A take's files' names are compared
+    in Unicode NFC, as the take folder reader compares them (a Mac writes them decomposed)."""
     if not parts:
         return {m.parts for m in members}
     n = len(parts)
@@ -349,6 +366,38 @@ def members_needed(members: list[Member], parts: tuple[str, ...]) -> set[tuple[s
         kept = {b for b in beside if PurePosixPath(b[-1]).suffix.lower() not in _NOT_READ_BESIDE}
         return kept | _movs_read(beside, parts[-1]) | {parts}
     return {m.parts for m in members if m.parts[:n] == parts}
+
+
+def _wavs_held_back(files: set[tuple[str, ...]]) -> set[tuple[str, ...]]:
+    """Of the files an archive's member needs, the ``.wav`` files (and iCloud placeholders of them) in a
+    folder where a ``.mov`` is unpacked too: a take folder's reader takes its speech from the ``.mov``
+    and reads a ``.wav`` only where the ``.mov`` holds no audio track (``capture.take_folder``), which
+    only the ``.mov`` unpacked tells (``_wavs_read``). A ``.wav`` is as large as the ``.mov``'s audio."""
+    movs = {b[:-1] for b in files if PurePosixPath(b[-1]).suffix.lower() == ".mov"}
+    return {
+        b for b in files if b[:-1] in movs and PurePosixPath(_original_name(b[-1])).suffix.lower() == ".wav"
+    }
+
+
+def _wavs_read(target: Path, folder: Path) -> bool:
+    """Whether showing ``target`` (the folder or file named, unpacked) may read a ``.wav`` held back in
+    ``folder`` (``_wavs_held_back``), as it would on the folder unzipped: unless every ``.mov`` of the
+    folder holds an audio track and ``target`` is a folder (its take folders read as such) or a CSV read
+    as its take (``reads_as_take``): the take folder's reader then takes its speech from the ``.mov`` it
+    chooses. A CSV read alone takes the audio beside it (``csv_with_its_audio``); a ``.mov`` iCloud has
+    not downloaded, or one that does not open, leaves the choice to the reader."""
+    if target.is_file() and not (target.suffix.lower() == ".csv" and reads_as_take(target)):
+        return True
+    movs = [p for p in folder.iterdir() if Path(_original_name(p.name)).suffix.lower() == ".mov"]
+    return not movs or not all(p.is_file() and p.suffix.lower() == ".mov" and _holds_audio(p) for p in movs)
+
+
+def _holds_audio(mov: Path) -> bool:
+    """Whether the ``.mov`` holds an audio track (False for one that does not open)."""
+    try:
+        return probe_mov(mov).audio_tracks > 0
+    except InputError:
+        return False
 
 
 def _spelling(name: str) -> str:
@@ -380,14 +429,15 @@ def _movs_read(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]
     one of each variant): between several, the reader picks by the take's names, ``.mov`` stems among
     them (a flat folder of several takes whose CSV is not read alone, ``_read_alone``, keeps them all)."""
     movs = sorted((b for b in beside if PurePosixPath(b[-1]).suffix.lower() == ".mov"), key=lambda b: b[-1])
-    names = [_original_name(b[-1]) for b in beside]
+    names = [_nfc(_original_name(b[-1])) for b in beside]
     csvs = [n for n in names if n.lower().endswith(".csv") and n.lower() != "frame_log.csv"]
     split = [split_variant(PurePosixPath(n).stem) for n in csvs]  # a copy "X (1)" is a prefix of its own
     if len({prefix for prefix, _ in split}) > 1 or len({variant for _, variant in split}) < len(split):
         return set(movs)
-    prefix = split_variant(PurePosixPath(named).stem)[0]
+    prefix = split_variant(_nfc(PurePosixPath(named).stem))[0]
     placeheld = {icloud_original(Path(b[-1])) for b in beside}
-    return {b for b in movs if PurePosixPath(b[-1]).stem == prefix or b[-1] in placeheld} | set(movs[:1])
+    named_as = {b for b in movs if _nfc(PurePosixPath(b[-1]).stem) == prefix or b[-1] in placeheld}
+    return named_as | set(movs[:1])
 
 
 def _read_alone(beside: list[tuple[str, ...]], named: str) -> bool:
@@ -403,7 +453,7 @@ def _read_alone(beside: list[tuple[str, ...]], named: str) -> bool:
     variant = split_variant(PurePosixPath(named).stem)[1]
     if variant == "neutral":
         return True
-    names = [PurePosixPath(_original_name(b[-1])) for b in beside]
+    names = [PurePosixPath(_nfc(_original_name(b[-1]))) for b in beside]
     movs = {n.stem for n in names if n.suffix.lower() == ".mov"}
     named_as_movs = [
         n
@@ -428,16 +478,17 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
     with the iCloud placeholder standing for it, or standing beside it (a placeholder without the file
     it stands for counts as not downloaded). No .mov, nor the app's files: the folder unpacked is then
     no take folder, and the CSV is read alone there too."""
-    by_name: dict[str, set[tuple[str, ...]]] = {}  # a file's name -> it and its placeholder
+    by_name: dict[str, set[tuple[str, ...]]] = {}  # a file's name, in NFC -> it and its placeholder
     for b in beside:
-        by_name.setdefault(_original_name(b[-1]), set()).add(b)
+        by_name.setdefault(_nfc(_original_name(b[-1])), set()).add(b)
+    named = _nfc(named)
     prefix, variant = split_variant(PurePosixPath(named).stem)
     if variant != "neutral" and f"{prefix}.mov" in by_name:  # read as its take (``reads_as_take``)
         own = (named, f"{prefix}.mov", f"{prefix}.wav", f"{prefix}_neutral.csv")  # the .wav: a silent .mov's
         return {b for n in own for b in by_name.get(n, ())}
-    stem = _nfc(PurePosixPath(named).stem)
+    stem = PurePosixPath(named).stem
     audio = [n for n in by_name if PurePosixPath(n).suffix.lower() in AUDIO_SUFFIXES]
-    same = [n for n in audio if _nfc(PurePosixPath(n).stem) == stem]
+    same = [n for n in audio if PurePosixPath(n).stem == stem]
     wanted = {named, *(same or audio)}
     if not same:
         owners = {_nfc(PurePosixPath(n).stem) for n in audio}
