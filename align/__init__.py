@@ -3,15 +3,13 @@ claps, content), corrects drift, trims silence by VAD, and writes 16 kHz audio w
 grid, one aligned take per segment."""
 
 # capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
-# guard ends below, once this package's imports are done.
-from capture.import_guard import imports_done
+# guard ends once the command's own module (cli.py) has imported, after this package's imports.
+import capture.import_guard  # noqa: F401  # isort: skip
 
 from .aligner import align_take, align_with_report, is_aligned
 from .batch import align_folder, align_takes
 from .grid import INTERPOLATED
 from .options import AlignOptions
-
-_guard = imports_done("align")
 
 __all__ = [
     "AlignOptions",

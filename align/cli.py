@@ -7,9 +7,13 @@ import sys
 from pathlib import Path
 
 from capture.command import emit_json, progress, run, sigterm_stops
+from capture.import_guard import imports_done
 
 from .batch import align_takes
 from .options import FRAME_CLOCKS, VAD_METHODS, AlignOptions, range_problem
+
+# The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
+_guard = imports_done("align")
 
 PROG = "s2a-align"
 

@@ -1,8 +1,8 @@
 """capture: Live Link Face formats (channels, CSV, take folders, UDP) and the take container."""
 
 # First: while a stage command imports (numpy below, then its own stage's libraries), Ctrl-C stops it
-# quietly (import_guard); each stage ends that once its imports are done.
-from . import import_guard  # isort: skip
+# quietly (import_guard, installed on import); each stage's cli.py ends that once its imports are done.
+from . import import_guard  # noqa: F401  # isort: skip
 
 # isort: split
 from .audio_io import Audio, read_audio, write_audio
@@ -42,8 +42,6 @@ from .take import (
 )
 from .take_folder import is_take_folder, read_csv_with_audio, read_frame_log, read_take_folder
 from .timecode import Timecode
-
-_guard = import_guard.imports_done("capture")
 
 __all__ = [
     "REJECT_REASONS",

@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import struct
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -126,7 +130,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     whose sample rate changes is an ``InputError`` saying where. A later file without a LAME tag loses
     LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``). An
     .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the count) is
-    read whole, its count corrected (``MpegRun.count_low``)."""
+    read whole, its count corrected (``MpegRun.count_low``). Within ``audio_left_in_files`` (an import),
+    audio libsndfile reads cleanly is a ``FileAudio``: checked a block at a time, left in its file."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -148,13 +153,18 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
             del data
         dtype = _NATIVE.get(info.subtype, "float32")
         subtype = info.subtype if info.subtype in _NATIVE else "FLOAT"
-        try:
-            data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
-        except (sf.LibsndfileError, RuntimeError) as exc:
-            return _read_cut_short(path, info, exc, repairs)
-        if data.shape[0] == 0:
-            return _read_unfinished_wav(path, repairs)
-        audio = check_samples(Audio(data, rate, subtype), path, repairs)
+        audio = None
+        if _LEFT_IN_FILES.get() and not info.subtype.startswith("MPEG_LAYER"):
+            audio = _left_in_file(path, info, dtype, subtype, repairs)
+        if audio is None:
+            try:
+                data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
+            except (sf.LibsndfileError, RuntimeError) as exc:
+                return _read_cut_short(path, info, exc, repairs)
+            if data.shape[0] == 0:
+                return _read_unfinished_wav(path, repairs)
+            audio = check_samples(Audio(data, rate, subtype), path, repairs)
+        rate = audio.sample_rate
         declared = wav_declared_frames(path)
         if repairs is not None and declared is not None and declared > audio.frames:
             repairs.append(
@@ -224,6 +234,150 @@ def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Au
     return audio
 
 
+# Whether read_audio leaves a cleanly read file's samples in it (``audio_left_in_files``).
+_LEFT_IN_FILES: ContextVar[bool] = ContextVar("_LEFT_IN_FILES", default=False)
+
+
+@contextmanager
+def audio_left_in_files() -> Iterator[None]:
+    """Within it, ``read_audio`` gives the audio of a file libsndfile reads to its end without an error
+    (WAV, FLAC, AIFF, OGG; not MP3) as a ``FileAudio``: its samples are checked a block at a time and
+    left in the file, for ``write_audio`` to copy a block at a time (an import holds no take's recorded
+    audio whole: 317 MB an hour at 44.1 kHz int16 mono). Files whose float samples go past full scale,
+    which ``check_samples`` may repair on whole channels, are read whole as before."""
+    token = _LEFT_IN_FILES.set(True)
+    try:
+        yield
+    finally:
+        _LEFT_IN_FILES.reset(token)
+
+
+def _file_blocks(path: Path, dtype: str, size: int) -> Iterator[np.ndarray]:
+    """The samples of a file libsndfile reads, ``size`` frames (frames x channels) at a time."""
+    with sf.SoundFile(str(path)) as f:
+        while len(block := f.read(size, dtype=dtype, always_2d=True)):
+            yield block
+
+
+def _file_stamp(path: Path) -> tuple[int, int, int, int]:
+    """What tells a file changed: its size, modification time, inode and device (a file rewritten in
+    place within the clock's tick, a few milliseconds, to the same size is not told)."""
+    st = os.stat(path)
+    return st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev
+
+
+def _left_in_file(
+    path: Path, info: Any, dtype: str, subtype: str, repairs: list[dict[str, Any]] | None
+) -> FileAudio | None:
+    """``read_audio``'s audio of a file libsndfile reads, checked a block at a time and left in the file
+    (NaN or infinite float samples counted, noted as ``check_samples`` notes them, set to 0 when it is
+    copied); None when reading it whole decides more: an error of libsndfile (a file cut short), no
+    samples, NaN without ``repairs`` (an ``InputError``), float samples past full scale with ``repairs``
+    (``damaged_samples`` looks at whole channels)."""
+    stamp = _file_stamp(path)
+    frames, bad, peak = 0, 0, 0.0
+    try:
+        for block in _file_blocks(path, dtype, CHECK_FRAMES):
+            frames += len(block)
+            if block.dtype.kind == "f":
+                finite = np.isfinite(block)
+                if not finite.all():
+                    bad += int(finite.size - np.count_nonzero(finite))
+                    block[~finite] = 0.0
+                peak = max(peak, float(block.max()), -float(block.min()))
+    except (sf.LibsndfileError, RuntimeError):
+        return None
+    if frames == 0 or (bad and repairs is None) or (peak > 1.0 and repairs is not None):
+        return None
+    if bad and repairs is not None:
+        repairs.append(_non_finite_note(path, bad))
+    return FileAudio(path, info.samplerate, subtype, np.dtype(dtype), frames, info.channels, stamp)
+
+
+class FileAudio(Audio):
+    """Audio left in its file (``audio_left_in_files``), read a block at a time when it is written
+    (``write_audio``) and read whole only when ``samples`` is asked for. Float samples that are NaN or
+    infinite are read as 0 (``read_audio``'s repair). A file changed or removed since it was read is an
+    ``InputError``: the audio is never other than the one checked."""
+
+    def __init__(
+        self,
+        path: Path,
+        sample_rate: int,
+        subtype: str,
+        dtype: np.dtype,
+        frames: int,
+        channels: int,
+        stamp: tuple[int, int, int, int],
+    ):
+        self.path, self.dtype = path, dtype
+        self.sample_rate, self.subtype = whole_sample_rate(sample_rate), subtype
+        self._frames, self._channels, self._stamp = frames, channels, stamp  # as read_audio found them
+        self._held: np.ndarray | None = None
+
+    @property
+    def held(self) -> bool:
+        """Whether the samples were read into memory (asked for, or set)."""
+        return self._held is not None
+
+    @property
+    def samples(self) -> np.ndarray:  # type: ignore[override]
+        if self._held is None:
+            held = np.empty((self._frames, self._channels), self.dtype)
+            at = 0
+            for block in self.blocks(CHECK_FRAMES):
+                held[at : at + len(block)] = block
+                at += len(block)
+            self._held = held
+        return self._held
+
+    @samples.setter
+    def samples(self, value: Any) -> None:
+        self._held = audio_samples(value)
+
+    @property
+    def frames(self) -> int:
+        return self._frames if self._held is None else int(self._held.shape[0])
+
+    @property
+    def channels(self) -> int:
+        return self._channels if self._held is None else int(self._held.shape[1])
+
+    @property
+    def nbytes(self) -> int:
+        """The size of the samples in memory, read whole."""
+        return self.frames * self.channels * self.dtype.itemsize
+
+    def blocks(self, size: int) -> Iterator[np.ndarray]:
+        """The samples, ``size`` frames at a time, as ``read_audio`` checked them (NaN set to 0)."""
+        try:
+            if _file_stamp(self.path) != self._stamp:
+                raise InputError("audio file changed since it was read: import it again", self.path)
+            frames = 0
+            for block in _file_blocks(self.path, self.dtype.name, size):
+                frames += len(block)
+                if frames > self._frames:
+                    break
+                if block.dtype.kind == "f":
+                    block[~np.isfinite(block)] = 0.0
+                yield block
+        except OSError as exc:
+            raise InputError(f"audio file cannot be read again: {exc.strerror or exc}", self.path) from None
+        except (sf.LibsndfileError, RuntimeError) as exc:
+            raise InputError(f"audio file cannot be read again: {exc}", self.path) from None
+        if frames != self._frames:
+            raise InputError("audio file changed since it was read: import it again", self.path)
+
+
+def _non_finite_note(path: Path, count: int) -> dict[str, Any]:
+    """The repair ``bad_audio`` of ``count`` NaN or infinite samples set to 0."""
+    return {
+        "line": None,
+        "kind": "bad_audio",
+        "message": f"{path.name}: {count} NaN or infinite samples set to 0",
+    }
+
+
 CHECK_FRAMES = 1 << 16  # frames of float audio checked for NaN at once
 
 
@@ -245,13 +399,7 @@ def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None
     if count:
         if repairs is None:
             raise InputError(f"audio holds {count} NaN or infinite sample(s)", path)
-        repairs.append(
-            {
-                "line": None,
-                "kind": "bad_audio",
-                "message": f"{path.name}: {count} NaN or infinite samples set to 0",
-            }
-        )
+        repairs.append(_non_finite_note(path, count))
     if repairs is None:
         return audio
     found, worst = 0, 0.0
@@ -1085,8 +1233,16 @@ WRITE_FRAMES = 1 << 16  # frames handed to libsndfile per write
 def write_audio(path: str | Path, audio: Audio) -> None:
     """Write WAV with the audio's own subtype (RF64 past 4 GB), atomically. A write the system refuses
     (a full disk) is an ``OSError`` naming ``path``."""
-    fmt = "RF64" if audio.samples.nbytes > 0xFFFF0000 else "WAV"
-    channels = 1 if audio.samples.ndim == 1 else audio.samples.shape[1]
+    if isinstance(audio, FileAudio) and not audio.held:  # copied from its file a block at a time
+        nbytes, channels, blocks = audio.nbytes, audio.channels, audio.blocks(WRITE_FRAMES)
+    else:
+        nbytes, channels = audio.samples.nbytes, 1 if audio.samples.ndim == 1 else audio.samples.shape[1]
+        # a block at a time: soundfile's file callback copies each buffer libsndfile hands it into
+        # bytes, and for a same-format write that buffer is the whole array (+230 MB an hour)
+        blocks = (
+            audio.samples[lo : lo + WRITE_FRAMES] for lo in range(0, max(audio.frames, 1), WRITE_FRAMES)
+        )
+    fmt = "RF64" if nbytes > 0xFFFF0000 else "WAV"
     with atomic_write(path, buffering=1 << 20) as f:
         sink = _WavSink(f)
         try:
@@ -1094,10 +1250,8 @@ def write_audio(path: str | Path, audio: Audio) -> None:
                 sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt
             ) as out:
                 _no_peak_chunk(out)
-                # a block at a time: soundfile's file callback copies each buffer libsndfile hands it
-                # into bytes, and for a same-format write that buffer is the whole array (+230 MB an hour)
-                for lo in range(0, max(audio.frames, 1), WRITE_FRAMES):
-                    out.write(audio.samples[lo : lo + WRITE_FRAMES])
+                for block in blocks:
+                    out.write(block)
         except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
             if sink.error is None:
                 raise

@@ -8,11 +8,13 @@ import sys
 from pathlib import Path
 
 from .atomic import batch_of_writes
+from .audio_io import audio_left_in_files
 from .channels import is_known
 from .command import emit_json, progress, run
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
+from .import_guard import imports_done
 from .importer import (
     AUDIO_PAIRINGS,
     audio_beside,
@@ -39,6 +41,9 @@ from .take import (
 from .take_archive import Unpacked, clear_unpacked, unpacked
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 from .transfer_litter import Litter, is_zip
+
+# The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
+_guard = imports_done("capture")
 
 IMPORT_LOCK = ".import.lock"  # hidden: held (flock) by the one import writing into a folder
 
@@ -337,47 +342,49 @@ class _Importer:
         args, generic, timecode_rate, listing = self.args, self.generic, self.timecode_rate, self.listing
         shown = box.shown(src) if box else src
         try:
-            if kind == "matrix":
-                take = read_paired(
-                    args.audio,
-                    args.matrix,
-                    args.fps,
-                    args.names,
-                    args.take_id,
-                    first_frame=args.first_frame,
-                    value_scale=args.value_scale,
-                )
-            else:
-                audio, pairing = args.audio, args.audio_pairing
-                if args.pair_audio:  # loose files get the audio beside them; take folders have their own
-                    audio, why = audio_beside(src, listing(src.parent)) if src.is_file() else (None, None)
-                    pairing = args.audio_pairing if audio is not None else "first-row"
-                    if why:
-                        print(f"{PROG}: warning: {shown}: {why}: imported without audio", file=sys.stderr)
-                take = import_source(
-                    src,
-                    audio,
-                    args.variant,
-                    args.strict,
-                    args.swap_lr,
-                    pairing,
-                    args.fps,
-                    timecode_rate,
-                    first_frame=args.first_frame,
-                    value_scale=args.value_scale,
-                    first_frame_strict=not args.pair_audio,
-                )
-                for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
-                    print(
-                        f"{PROG}: warning: {shown}: {flag} ignored: a Live Link Face take {why}",
-                        file=sys.stderr,
+            # recorded audio that libsndfile reads cleanly stays in its file until write_take copies it
+            with audio_left_in_files():
+                if kind == "matrix":
+                    take = read_paired(
+                        args.audio,
+                        args.matrix,
+                        args.fps,
+                        args.names,
+                        args.take_id,
+                        first_frame=args.first_frame,
+                        value_scale=args.value_scale,
                     )
-                if args.take_id:
-                    take.meta.id = args.take_id
-            if box:
-                box.rename_files(take)
-            _unique_id(take, shown, self.written, args.out)
-            folder = write_take(take, args.out)
+                else:
+                    audio, pairing = args.audio, args.audio_pairing
+                    if args.pair_audio:  # loose files get the audio beside them; take folders have their own
+                        audio, why = audio_beside(src, listing(src.parent)) if src.is_file() else (None, None)
+                        pairing = args.audio_pairing if audio is not None else "first-row"
+                        if why:
+                            print(f"{PROG}: warning: {shown}: {why}: imported without audio", file=sys.stderr)
+                    take = import_source(
+                        src,
+                        audio,
+                        args.variant,
+                        args.strict,
+                        args.swap_lr,
+                        pairing,
+                        args.fps,
+                        timecode_rate,
+                        first_frame=args.first_frame,
+                        value_scale=args.value_scale,
+                        first_frame_strict=not args.pair_audio,
+                    )
+                    for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
+                        print(
+                            f"{PROG}: warning: {shown}: {flag} ignored: a Live Link Face take {why}",
+                            file=sys.stderr,
+                        )
+                    if args.take_id:
+                        take.meta.id = args.take_id
+                if box:
+                    box.rename_files(take)
+                _unique_id(take, shown, self.written, args.out)
+                folder = write_take(take, args.out)
         except S2AError as exc:
             self._failed(shown, exc, box)
             return False

@@ -1,8 +1,9 @@
 """Ctrl-C while a stage command starts: its imports (numpy, scipy, PyTorch: a second or more) stop at once,
 quietly, with exit code 130, instead of a KeyboardInterrupt traceback or the errors of a half-imported
 library. ``capture`` imports this module first of all (it needs four standard modules, no more), which
-installs the guard in a stage command; each stage package ends it once its own imports are done
-(``imports_done``). A program that imports the packages keeps its own Ctrl-C."""
+installs the guard in a stage command; each stage's command module (``cli.py``, imported after its
+package) ends it once its imports are done (``imports_done``). A program that imports the packages keeps
+its own Ctrl-C."""
 
 from __future__ import annotations
 
@@ -79,7 +80,7 @@ def guard_imports() -> None:
 
 
 def imports_done(package: str) -> bool:
-    """Called by each stage package once its imports are done: the command of ``package`` gets Python's
+    """Called by each stage's ``cli.py`` once its imports are done: the command of ``package`` gets Python's
     own Ctrl-C back (its commands handle it from here). Returns whether its imports were guarded."""
     global _guarding
     if _guarding != package:

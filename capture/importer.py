@@ -295,7 +295,9 @@ def import_source(
     column; ``fps`` unless the file gives the rate; ``first_frame``, ``value_scale`` and
     ``first_frame_strict`` as there). A Live Link Face CSV without ``audio`` is read as its take when
     its folder reads it so or the ``.mov`` named as its take is beside it (``reads_as_take``): a take
-    is never imported without the audio beside it."""
+    is never imported without the audio beside it. Under ``audio_left_in_files`` (``s2a-capture
+    import``), recorded audio that libsndfile reads cleanly (WAV, FLAC, ...) is checked a block at a
+    time and left in its file until ``write_take`` copies it."""
     if audio_pairing not in AUDIO_PAIRINGS:
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if is_zip(source):

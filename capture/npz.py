@@ -4,9 +4,11 @@ Never unpickles."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import zipfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +22,20 @@ NPZ_MAX_VALUES = 200_000_000
 NPZ_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error)
 
 Header = tuple[str, tuple[int, ...], np.dtype]
+
+
+@contextlib.contextmanager
+def open_npz(path: Path) -> Iterator[np.lib.npyio.NpzFile | np.ndarray]:
+    """``np.load`` (never unpickling) of a file this opens and closes, whatever is in it: NumPy's own
+    open leaves the file open when an archive that starts like a zip is damaged. Yields the open
+    ``.npz``, or the array of a ``.npy`` given instead; raises what ``NPZ_ERRORS`` names."""
+    with open(path, "rb") as f:
+        loaded = np.load(f, allow_pickle=False)
+        if isinstance(loaded, np.lib.npyio.NpzFile):
+            with loaded:
+                yield loaded
+        else:
+            yield loaded
 
 
 def npz_headers(npz: np.lib.npyio.NpzFile, only: tuple[str, ...] | None = None) -> dict[str, Header]:

@@ -37,7 +37,7 @@ from .csv_take import (
     repair,
 )
 from .errors import InputError
-from .npz import NPZ_ERRORS, npz_array, npz_headers
+from .npz import NPZ_ERRORS, npz_array, npz_headers, open_npz
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 
 
@@ -456,13 +456,9 @@ def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
     in ``NPZ_FPS``) when it stores them. Members that are not ``.npy`` arrays (a README) are ignored, and
     only the arrays used are read."""
     try:
-        npz = np.load(path, allow_pickle=False)
-    except NPZ_ERRORS as exc:
-        raise InputError(f"not a .npz of numeric or string arrays ({exc})", path) from None
-    if not isinstance(npz, np.lib.npyio.NpzFile):
-        raise InputError("a .npy array, not a .npz archive: name it .npy", path)
-    try:
-        with npz:
+        with open_npz(path) as npz:
+            if not isinstance(npz, np.lib.npyio.NpzFile):
+                raise InputError("a .npy array, not a .npz archive: name it .npy", path)
             arrays = npz_headers(npz)
             named = [k for k in NPZ_WEIGHTS if k in arrays]
             planes = [k for k, (_, shape, dtype) in arrays.items() if len(shape) == 2 and dtype.kind in "fiu"]
@@ -489,7 +485,7 @@ def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
                 fps = exact_rate(float(npz_array(npz, fps, path).ravel()[0]))
             return npz_array(npz, arrays[found[0]], path), names, fps
     except NPZ_ERRORS as exc:
-        raise InputError(f"a damaged .npz ({exc})", path) from None
+        raise InputError(f"not a .npz of numeric or string arrays, or a damaged one ({exc})", path) from None
 
 
 def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:

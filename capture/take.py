@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from .atomic import folder_in_place, write_json_atomic
-from .audio_io import Audio, read_audio, write_audio
+from .audio_io import Audio, FileAudio, read_audio, write_audio
 from .errors import InputError
-from .npz import NPZ_ERRORS, npz_array, npz_headers
+from .npz import NPZ_ERRORS, npz_array, npz_headers, open_npz
 from .numbers import is_finite_number, number_array
 from .transfer_litter import litter_kind
 
@@ -261,6 +261,8 @@ def check_take_audio(take_id: str, audio: Any) -> None:
         raise InputError(f"take {take_id}: audio must be a capture.Audio, not {type(audio).__name__}")
     if audio.frames < 1 or audio.channels < 1:
         raise InputError(f"take {take_id}: audio holds no samples")
+    if isinstance(audio, FileAudio) and not audio.held:
+        return  # left in its file: checked a block at a time as it was read, NaN read as 0 (read_audio)
     if audio.samples.dtype.kind == "f":
         bad = _non_finite(audio.samples)
         if bad:
@@ -546,10 +548,9 @@ def read_take(folder: str | Path, audio: bool = True) -> Take:
     meta = read_meta(folder)
     frames_path = folder / FRAMES_FILE
     try:
-        z = np.load(frames_path, allow_pickle=False)
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            raise InputError("frames are unreadable (a .npy array, not a .npz archive)", frames_path)
-        with z:
+        with open_npz(frames_path) as z:
+            if not isinstance(z, np.lib.npyio.NpzFile):
+                raise InputError("frames are unreadable (a .npy array, not a .npz archive)", frames_path)
             # only the arrays a take has, each checked for its size before it is read (others are ignored)
             held = {header[0]: header for header in npz_headers(z, FRAMES_ARRAYS).values()}
             arrays = {k: npz_array(z, held[k], frames_path) for k in FRAMES_ARRAYS if k in held}

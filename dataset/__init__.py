@@ -3,8 +3,8 @@ manifest, validation and statistics. ``ShardDataset`` (PyTorch) lives in ``datas
 so that importing this package does not import torch."""
 
 # capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
-# guard ends below, once this package's imports are done.
-from capture.import_guard import imports_done
+# guard ends once the command's own module (cli.py) has imported, after this package's imports.
+import capture.import_guard  # noqa: F401  # isort: skip
 
 from .build import BuildOptions, build_dataset, collect_takes, plan_shards, take_sha256
 from .features import DEFAULT_FEATURES, FEATURES, FeatureSettings, compute_features, parse_features
@@ -16,8 +16,6 @@ from .qa import CHECKS, VALIDATORS, Problem, Report, validate
 from .shards import ShardInfo, ShardReader, ShardWriter
 from .splits import SPLITS, SplitRule, assign_splits
 from .stats import dataset_stats
-
-_guard = imports_done("dataset")
 
 __all__ = [
     "BACKENDS",

@@ -12,6 +12,7 @@ from typing import TypeVar
 
 from capture.command import Terminated, emit_json, progress, run
 from capture.errors import InputError
+from capture.import_guard import imports_done
 
 from .build import BuildOptions, build_dataset
 from .features import DEFAULT_FEATURES, FeatureSettings, parse_level
@@ -21,6 +22,9 @@ from .ppg import BACKENDS
 from .qa import validate
 from .splits import SplitRule
 from .stats import dataset_stats, format_stats
+
+# The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
+_guard = imports_done("dataset")
 
 PROG = "s2a-dataset"
 RESUME = "finished takes are kept: rerun to resume"

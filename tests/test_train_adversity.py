@@ -461,8 +461,8 @@ def test_ctrl_c_while_pytorch_loads_stops_without_a_traceback(tmp_path):
         assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (delay, err)
     # a program that imports the package, directly or under `python -m`, keeps Python's own Ctrl-C
     check = (
-        "import signal, train; "
-        "print(train._guard, signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+        "import signal, train.cli; "
+        "print(train.cli._guard, signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
     )
     (tmp_path / "usrpkg").mkdir()
     (tmp_path / "usrpkg" / "__init__.py").write_text(check + "\n")

@@ -2,8 +2,9 @@
 extractor's training. The command line is ``s2a-train`` (``train.cli``)."""
 
 # capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard):
-# PyTorch, numpy and scipy load below, in the first 2-3 s of every s2a-train command. The guard ends below.
-from capture.import_guard import imports_done
+# PyTorch, numpy and scipy load below, in the first 2-3 s of every s2a-train command. The guard ends once
+# the command's own module (cli.py) has imported.
+import capture.import_guard  # noqa: F401  # isort: skip
 
 from .checkpoint import load_checkpoint, load_system
 from .compare import compare
@@ -18,8 +19,6 @@ from .ppg_train import train_ppg
 from .predict import animate, model_audio, predict
 from .ridge import Ridge
 from .systems import build_model
-
-_guard = imports_done("train")
 
 __all__ = [
     "BLSTM",

@@ -11,9 +11,13 @@ from pathlib import Path
 from capture.command import emit_json, run, sigterm_stops
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
+from capture.import_guard import imports_done
 
 from .config import MODELS, resolve_config
 from .precision import PRECISIONS
+
+# The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
+_guard = imports_done("train")
 
 PROG = "s2a-train"
 

@@ -2,8 +2,8 @@
 (Live Link packets), and a dataset as one HTML page. Imports every other stage; none imports it."""
 
 # capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
-# guard ends below, once this package's imports are done.
-from capture.import_guard import imports_done
+# guard ends once the command's own module (cli.py) has imported, after this package's imports.
+import capture.import_guard  # noqa: F401  # isort: skip
 
 from .face import FaceModel, Part, builtin_face, weights_from_values
 from .gltf import arkit_channel, load_gltf, write_glb
@@ -12,8 +12,6 @@ from .probe import RenderUnavailable, probe
 from .render import Animation, FaceRenderer, load_animation, render_frame, write_mp4
 from .report import write_report
 from .stream import stream_take
-
-_guard = imports_done("viewer")
 
 __all__ = [
     "Animation",

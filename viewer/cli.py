@@ -12,9 +12,13 @@ from pathlib import Path
 
 from capture.command import TimedProgress, emit_json, progress, run
 from capture.errors import InputError
+from capture.import_guard import imports_done
 
 from .output import prepare_output, raise_if_stopped, stopped_by_signals, stops_between_frames
 from .plot import VAD_METHODS
+
+# The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
+_guard = imports_done("viewer")
 
 PROG = "s2a-view"
 # What argparse takes as a value rather than an option: its own '-5' and '-.5', and also '-1e9', '-inf'
