@@ -88,7 +88,7 @@ def _warning_to_stderr(message, category, filename, lineno, file=None, line=None
     sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
-def run_here(module: str, *args: str) -> subprocess.CompletedProcess:
+def run_here(module: str, *args: str, check: bool = False) -> subprocess.CompletedProcess:
     """A stage's command line run in this process, as ``run_cli`` returns it: for tests whose subject is
     what a command does rather than the command line itself (each stage's commands are also run as
     subprocesses elsewhere), without an interpreter's and PyTorch's start-up per call. A traceback
@@ -104,6 +104,8 @@ def run_here(module: str, *args: str) -> subprocess.CompletedProcess:
             code = main([str(a) for a in args])
         except SystemExit as exc:  # argparse's usage errors
             code = exc.code if isinstance(exc.code, int) else 1
+    if check and code != 0:
+        raise AssertionError(f"{module} {args} failed ({code}):\n{err.getvalue()}")
     return subprocess.CompletedProcess([module, *map(str, args)], code, out.getvalue(), err.getvalue())
 
 

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_cli, run_here
 
 from capture import find_takes, read_meta
 from capture.file_lock import held_elsewhere
@@ -94,7 +94,7 @@ def test_a_second_align_into_the_same_folder_is_refused_at_once(raw_takes, tmp_p
         # the lock is a hidden file: no take to anything that scans the folder
         assert all(not p.name.startswith(".") for p in find_takes([out]))
         began = time.monotonic()
-        second = run_cli("align", *reversed(takes), "-o", out, "--max-gap-ms", 1000, *FAST)
+        second = run_here("align", *reversed(takes), "-o", out, "--max-gap-ms", 1000, *FAST)
         assert time.monotonic() - began < 60
         assert second.returncode == 1 and second.stdout == ""
         assert second.stderr.splitlines() == [
@@ -123,12 +123,12 @@ def test_a_killed_align_leaves_no_lock_in_the_way(raw_takes, tmp_path):
         first.kill()
         first.communicate(timeout=60)
     assert (out / LOCK).is_file() and not held_elsewhere(out / LOCK)  # its file stays, its lock went
-    proc = run_cli("align", raw, "-o", out, *FAST)
+    proc = run_here("align", raw, "-o", out, *FAST)
     assert proc.returncode == 0 and "another s2a-align" not in proc.stderr, proc.stderr
     assert len(_aligned(out)) == 8 and not (out / LOCK).exists()
     # a lock file a kill left behind is no take to the dataset stage
     (out / LOCK).write_text("12345\n")
-    build = run_cli("dataset", "build", out, "-o", tmp_path / "ds")
+    build = run_here("dataset", "build", out, "-o", tmp_path / "ds")
     assert build.returncode == 0 and LOCK not in build.stdout + build.stderr, build.stderr
     assert find_takes([out]) and all(p.is_dir() for p in find_takes([out]))
 
@@ -141,16 +141,16 @@ def test_outputs_of_a_deleted_raw_take_are_named_in_one_warning(raw_takes, tmp_p
     (other / "elsewhere" / "meta.json").write_text(json.dumps(meta | {"id": "elsewhere"}))
     shutil.rmtree(raw / "20250107_SimSpk01_5")
     out = tmp_path / "aligned"
-    run_cli("align", raw, "-o", out, *FAST, check=True)
-    run_cli("align", other, "-o", out, *FAST, check=True)  # a second input folder into the same output
+    run_here("align", raw, "-o", out, *FAST, check=True)
+    run_here("align", other, "-o", out, *FAST, check=True)  # a second input folder into the same output
     assert {f"{TWO_SEGMENTS}.seg01", f"{TWO_SEGMENTS}.seg02", "elsewhere"} <= set(_aligned(out))
 
     # a take left out of a run but still on disk, and the other folder's take: no warning
-    proc = run_cli("align", raw / "20250107_SimSpk01_1", "-o", out, *FAST, check=True)
+    proc = run_here("align", raw / "20250107_SimSpk01_1", "-o", out, *FAST, check=True)
     assert _warnings(proc.stderr) == []
 
     shutil.rmtree(raw / TWO_SEGMENTS)
-    proc = run_cli("align", raw, "-o", out, *FAST, "--json", check=True)
+    proc = run_here("align", raw, "-o", out, *FAST, "--json", check=True)
     assert len(proc.stdout.splitlines()) == 4  # the JSON lines stay one report per take
     (warning,) = _warnings(proc.stderr)
     assert warning.startswith(
@@ -161,7 +161,7 @@ def test_outputs_of_a_deleted_raw_take_are_named_in_one_warning(raw_takes, tmp_p
     assert {f"{TWO_SEGMENTS}.seg01", f"{TWO_SEGMENTS}.seg02", "elsewhere"} <= set(_aligned(out))  # kept
 
     # the other folder's run sees the same orphans, and never the first folder's takes still on disk
-    (warning,) = _warnings(run_cli("align", other, "-o", out, *FAST, check=True).stderr)
+    (warning,) = _warnings(run_here("align", other, "-o", out, *FAST, check=True).stderr)
     assert TWO_SEGMENTS in warning and "20250107_SimSpk01_1" not in warning
 
 
@@ -169,8 +169,8 @@ def test_prune_removes_only_aligned_takes_whose_raw_take_is_gone(raw_takes, tmp_
     raw = _copy_takes(raw_takes, tmp_path / "raw", names=["20250107_SimSpk01_1", TWO_SEGMENTS])
     other = _copy_takes(raw_takes, tmp_path / "other", names=["20250107_SimSpk01_3", "20250107_SimSpk01_4"])
     out = tmp_path / "aligned"
-    run_cli("align", raw, "-o", out, *FAST, check=True)
-    run_cli("align", other, "-o", out, *FAST, check=True)
+    run_here("align", raw, "-o", out, *FAST, check=True)
+    run_here("align", other, "-o", out, *FAST, check=True)
     # what else a user keeps there: a note, a folder, a raw take, an aligned take renamed by hand
     (out / "README.txt").write_text("takes of May\n")
     (out / "notes").mkdir()
@@ -179,7 +179,7 @@ def test_prune_removes_only_aligned_takes_whose_raw_take_is_gone(raw_takes, tmp_
     shutil.rmtree(raw / TWO_SEGMENTS)
     shutil.rmtree(other / "20250107_SimSpk01_4")
 
-    proc = run_cli("align", raw, "-o", out, *FAST, "--prune")
+    proc = run_here("align", raw, "-o", out, *FAST, "--prune")
     assert proc.returncode == 0, proc.stderr
     removed = [line for line in proc.stderr.splitlines() if "removed" in line]
     assert len(removed) == 1 and _warnings(proc.stderr) == []
@@ -195,7 +195,7 @@ def test_prune_removes_only_aligned_takes_whose_raw_take_is_gone(raw_takes, tmp_
     ]
     assert (out / "README.txt").read_text() == "takes of May\n"
     # nothing left to warn of or to prune
-    proc = run_cli("align", raw, "-o", out, *FAST, "--prune", check=True)
+    proc = run_here("align", raw, "-o", out, *FAST, "--prune", check=True)
     assert "removed" not in proc.stderr and _warnings(proc.stderr) == []
     assert sorted(p.name for p in out.iterdir()) == left
 
@@ -204,9 +204,9 @@ def test_a_renamed_raw_take_folder_is_no_orphan(raw_takes, tmp_path):
     raw = _copy_takes(raw_takes, tmp_path / "raw", names=["20250107_SimSpk01_1", "20250107_SimSpk01_3"])
     other = _copy_takes(raw_takes, tmp_path / "other", names=["20250107_SimSpk01_4"])
     out = tmp_path / "aligned"
-    run_cli("align", raw, "-o", out, *FAST, check=True)
+    run_here("align", raw, "-o", out, *FAST, check=True)
     (raw / "20250107_SimSpk01_1").rename(raw / "renamed_by_hand")
-    proc = run_cli("align", raw, "-o", out, *FAST, "--json", check=True)
+    proc = run_here("align", raw, "-o", out, *FAST, "--json", check=True)
     assert _warnings(proc.stderr) == []
     reports = {r["id"]: r for r in map(json.loads, proc.stdout.splitlines())}
     # the take keeps its id; aligned again once, its output records where it is now
@@ -214,7 +214,7 @@ def test_a_renamed_raw_take_folder_is_no_orphan(raw_takes, tmp_path):
     parent = _aligned(out)["20250107_SimSpk01_1"]["parent"]
     assert parent["path"] == str((raw / "renamed_by_hand").resolve())
     # another run into the same output: the renamed take is still on disk, nothing to warn of or prune
-    proc = run_cli("align", other, "-o", out, *FAST, "--prune", check=True)
+    proc = run_here("align", other, "-o", out, *FAST, "--prune", check=True)
     assert _warnings(proc.stderr) == [] and "removed" not in proc.stderr
     assert len(_aligned(out)) == 3
 
@@ -229,11 +229,11 @@ def test_outputs_of_a_raw_take_on_a_folder_not_there_are_never_pruned(raw_takes,
     drive = _copy_takes(raw_takes, tmp_path / "drive" / "takes", names=[TWO_SEGMENTS])
     local = _copy_takes(raw_takes, tmp_path / "local", names=["20250107_SimSpk01_1", "20250107_SimSpk01_3"])
     out = tmp_path / "aligned"
-    run_cli("align", drive, "-o", out, *FAST, check=True)
-    run_cli("align", local, "-o", out, *FAST, check=True)
+    run_here("align", drive, "-o", out, *FAST, check=True)
+    run_here("align", local, "-o", out, *FAST, check=True)
     (tmp_path / "drive").rename(tmp_path / "unmounted")  # the drive's takes are no longer where they were
     shutil.rmtree(local / "20250107_SimSpk01_3")  # gone from a folder that is there
-    proc = run_cli("align", local, "-o", out, *FAST, "--prune")
+    proc = run_here("align", local, "-o", out, *FAST, "--prune")
     assert proc.returncode == 0, proc.stderr
     (away,) = _unreachable(proc.stderr)
     assert away.startswith(f"s2a-align: warning: 2 aligned takes in {out} come from raw takes that are not")
@@ -245,7 +245,7 @@ def test_outputs_of_a_raw_take_on_a_folder_not_there_are_never_pruned(raw_takes,
     assert set(_aligned(out)) == {"20250107_SimSpk01_1", f"{TWO_SEGMENTS}.seg01", f"{TWO_SEGMENTS}.seg02"}
     # mounted again where it was: nothing to say
     (tmp_path / "unmounted").rename(tmp_path / "drive")
-    proc = run_cli("align", local, "-o", out, *FAST, "--prune", check=True)
+    proc = run_here("align", local, "-o", out, *FAST, "--prune", check=True)
     assert _unreachable(proc.stderr) == [] and _warnings(proc.stderr) == [] and "removed" not in proc.stderr
 
 
@@ -255,13 +255,13 @@ def test_a_take_of_a_hundred_segments_or_more_is_not_aligned_again(raw_takes, tm
 
     raw = _copy_takes(raw_takes, tmp_path / "raw", names=[TWO_SEGMENTS])
     out = tmp_path / "aligned"
-    run_cli("align", raw, "-o", out, *FAST, check=True)
+    run_here("align", raw, "-o", out, *FAST, check=True)
     # the take's second segment as the aligner would name a take's 100th
     seg = out / f"{TWO_SEGMENTS}.seg100"
     (out / f"{TWO_SEGMENTS}.seg02").rename(seg)
     meta = json.loads((seg / "meta.json").read_text())
     (seg / "meta.json").write_text(json.dumps(meta | {"id": seg.name}))
-    proc = run_cli("align", raw, "-o", out, *FAST, "--json", check=True)
+    proc = run_here("align", raw, "-o", out, *FAST, "--json", check=True)
     (report,) = map(json.loads, proc.stdout.splitlines())
     assert report["skipped"] is True, report
     assert [Path(p).name for p in report["outputs"]] == [f"{TWO_SEGMENTS}.seg01", seg.name]

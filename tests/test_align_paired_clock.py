@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli
+from conftest import run_here
 
 from capture import FrameStatus, Take, read_audio, read_take, write_take
 from capture.csv_take import read_livelink_csv
@@ -53,12 +53,12 @@ def _align_as_hinted(take: Path, out: Path, offset_s: float) -> tuple[dict, dict
     outside the range; then again into ``out`` with the ``--max-offset-ms`` the warning gives. Returns
     both reports."""
     first = json.loads(
-        run_cli("align", take, "-o", out.with_name(out.name + "-first"), "--json", "--vad", "none").stdout
+        run_here("align", take, "-o", out.with_name(out.name + "-first"), "--json", "--vad", "none").stdout
     )
     assert first["offset_s"] == 0.0 and "low_confidence" in first["flags"], first
     (hint,) = [w for w in first["warnings"] if "--max-offset-ms" in w]
     assert float(hint.split("at an offset of ")[1].split(" s,")[0]) == pytest.approx(offset_s, abs=0.02)
-    again = run_cli(
+    again = run_here(
         "align", take, "-o", out, "--json", "--vad", "none", "--max-offset-ms", hint.rsplit(" ", 1)[1]
     )
     return first, json.loads(again.stdout)
@@ -76,7 +76,7 @@ def test_frames_placed_by_a_time_column_keep_their_times(samples, tmp_path):
         times = times[times < dur]
         write_take(_timed_take(samples, f"{name}_time", times, "paired_time_column"), takes)
         write_take(_timed_take(samples, f"{name}_index", times, "paired_frame_convention"), takes)
-    proc = run_cli("align", takes, "-o", tmp_path / "aligned", "--json", "--vad", "none", "--jobs", "1")
+    proc = run_here("align", takes, "-o", tmp_path / "aligned", "--json", "--vad", "none", "--jobs", "1")
     assert proc.returncode == 0, proc.stderr
     reports = _reports(proc)
     for name in clocks:
@@ -97,7 +97,7 @@ def test_a_wrong_fps_is_a_warning_at_import_and_a_flag_in_align(samples, tmp_pat
     fg = samples / FACEGOOD
     takes = tmp_path / "takes"
     for fps in (29, 30, 31):
-        proc = run_cli(
+        proc = run_here(
             "capture",
             "import",
             "--matrix",
@@ -120,7 +120,7 @@ def test_a_wrong_fps_is_a_warning_at_import_and_a_flag_in_align(samples, tmp_pat
         else:
             (line,) = warned
             assert line.startswith("s2a-capture: warning: ") and "than the frames: check --fps" in line
-    proc = run_cli("align", takes, "-o", tmp_path / "aligned", "--json", "--vad", "none", "--jobs", "1")
+    proc = run_here("align", takes, "-o", tmp_path / "aligned", "--json", "--vad", "none", "--jobs", "1")
     assert proc.returncode == 0, proc.stderr
     reports = _reports(proc)
     assert "duration_mismatch" not in reports["fg30"]["flags"] and "warnings" not in reports["fg30"]
@@ -130,7 +130,7 @@ def test_a_wrong_fps_is_a_warning_at_import_and_a_flag_in_align(samples, tmp_pat
         assert "duration_mismatch" in rep["flags"], rep["flags"]
         assert any("check the frame rate" in w and "--fps" in w for w in rep["warnings"]), rep["warnings"]
     # Without --json the warning reaches the console.
-    proc = run_cli("align", takes / "fg29", "-o", tmp_path / "again", "--vad", "none", "--force")
+    proc = run_here("align", takes / "fg29", "-o", tmp_path / "again", "--vad", "none", "--force")
     assert "s2a-align: warning: take fg29: the audio is 1." in proc.stderr, proc.stderr
 
 
@@ -152,7 +152,7 @@ def test_paired_audio_not_cut_to_its_frames_is_flagged(samples, tmp_path, name, 
     csv = samples / NEUROSYNC / "testset.csv"
     takes = tmp_path / "takes"
     args = [csv, "--audio", wav, "--audio-pairing", "frame-index", "-o", takes, "--id", name]
-    run_cli("capture", "import", *args, check=True)
+    run_here("capture", "import", *args, check=True)
     first, rep = _align_as_hinted(takes / name, tmp_path / "wide", -lead_s)
     assert first["audio_start_source"] == "paired_frame_convention"
     if abs(lead_s) == 1.0:  # a second of speech moved: content finds it
@@ -164,7 +164,7 @@ def test_paired_audio_not_cut_to_its_frames_is_flagged(samples, tmp_path, name, 
         assert "the best, content, puts the offset at" in guess
         ms = guess.rsplit(" ", 1)[1]
         assert float(ms) / 1000 == pytest.approx(-lead_s, abs=0.02)
-        given = run_cli(
+        given = run_here(
             "align", takes / name, "-o", tmp_path / "given", "--json", "--vad", "none", "--offset-ms", ms
         )
         rep = json.loads(given.stdout)

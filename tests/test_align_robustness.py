@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import run_cli, run_here
 
 import align.batch
 from align import AlignOptions, align_takes
@@ -26,7 +26,7 @@ def raw_takes(tmp_path_factory) -> Path:
     """Four imported simulated take folders (two speakers, 5 s each)."""
     root = tmp_path_factory.mktemp("raw")
     sim = root / "sim"
-    run_cli(
+    run_here(
         "capture",
         "simulate",
         "-o",
@@ -41,7 +41,7 @@ def raw_takes(tmp_path_factory) -> Path:
         1,
         check=True,
     )
-    run_cli("capture", "import", sim, "-o", root / "takes", check=True)
+    run_here("capture", "import", sim, "-o", root / "takes", check=True)
     folders = sorted(p for p in (root / "takes").iterdir() if p.is_dir())
     assert len(folders) == 4
     return root / "takes"
@@ -191,7 +191,8 @@ def _mixed_folder(raw_takes: Path, root: Path) -> tuple[Path, dict[str, str]]:
 def test_one_bad_take_does_not_stop_the_batch(raw_takes, tmp_path, jobs):
     mixed, bad = _mixed_folder(raw_takes, tmp_path)
     out = tmp_path / "al"
-    proc = run_cli("align", mixed, "-o", out, "--json", "--jobs", jobs, *FAST)
+    run = run_here if jobs == 1 else run_cli  # worker processes of a real command line, not of pytest's
+    proc = run("align", mixed, "-o", out, "--json", "--jobs", jobs, *FAST)
     assert proc.returncode == 1, proc.stderr  # docs/align.md: any take that cannot be aligned
     assert "Traceback" not in proc.stderr
     reports = list(map(json.loads, proc.stdout.splitlines()))
@@ -207,7 +208,7 @@ def test_one_bad_take_does_not_stop_the_batch(raw_takes, tmp_path, jobs):
         for path in r["outputs"]:
             assert read_take(path).meta.source_kind == "aligned"
     # without --json: one line per failing take on stderr, the good takes still reported
-    lines = run_cli("align", mixed, "-o", tmp_path / "al2", *FAST).stderr.splitlines()
+    lines = run_here("align", mixed, "-o", tmp_path / "al2", *FAST).stderr.splitlines()
     assert sum(line.startswith("s2a-align: error:") for line in lines) == len(bad)
     assert len(lines) == 4 + len(bad) and "Traceback" not in "\n".join(lines)
 
@@ -231,10 +232,10 @@ def test_a_program_fault_on_one_take_is_reported_for_that_take(raw_takes, tmp_pa
 
 def test_a_hand_edited_output_is_aligned_again_not_a_crash(raw_takes, tmp_path):
     out = tmp_path / "al"
-    first = _reports(run_cli("align", raw_takes, "-o", out, "--json", *FAST, check=True))
+    first = _reports(run_here("align", raw_takes, "-o", out, "--json", *FAST, check=True))
     take_id, report = next(iter(first.items()))
     _edit_meta(Path(report["outputs"][0]), lambda m: m["extra"]["align"].pop("frames"))
-    proc = run_cli("align", raw_takes, "-o", out, "--json", *FAST)
+    proc = run_here("align", raw_takes, "-o", out, "--json", *FAST)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr
     again = _reports(proc)
     assert again[take_id]["skipped"] is False  # aligned again: the stored report was damaged
@@ -245,9 +246,9 @@ def test_a_hand_edited_output_is_aligned_again_not_a_crash(raw_takes, tmp_path):
 
 
 def test_weak_content_evidence_on_a_short_take_keeps_the_placement(tmp_path):
-    run_cli("capture", "simulate", "-o", tmp_path / "sim", "--seconds", 2, "--seed", 1, check=True)
-    run_cli("capture", "import", tmp_path / "sim", "-o", tmp_path / "takes", check=True)
-    proc = run_cli("align", tmp_path / "takes", "-o", tmp_path / "al", "--json", *FAST, check=True)
+    run_here("capture", "simulate", "-o", tmp_path / "sim", "--seconds", 2, "--seed", 1, check=True)
+    run_here("capture", "import", tmp_path / "sim", "-o", tmp_path / "takes", check=True)
+    proc = run_here("align", tmp_path / "takes", "-o", tmp_path / "al", "--json", *FAST, check=True)
     (report,) = _reports(proc).values()
     content = [e for e in report["alternatives"] if e["source"] == "content"]
     # the evidence was measured, is weak, and would have moved the face
@@ -292,7 +293,7 @@ def test_phase_inverted_stereo_is_aligned_on_one_channel(raw_takes, tmp_path):
     raw = tmp_path / "raw"
     _stereo_take(raw_takes, raw, "inverted", lambda x: -x)
     _stereo_take(raw_takes, raw, "normal", lambda x: 0.5 * x)
-    proc = run_cli("align", raw, "-o", tmp_path / "al", "--json", *FAST)
+    proc = run_here("align", raw, "-o", tmp_path / "al", "--json", *FAST)
     assert proc.returncode == 0, proc.stderr
     reports = _reports(proc)
     inverted, normal = reports["inverted"], reports["normal"]
@@ -307,7 +308,7 @@ def test_phase_inverted_stereo_is_aligned_on_one_channel(raw_takes, tmp_path):
     assert np.sqrt(np.mean(a**2)) == pytest.approx(np.sqrt(np.mean(b**2)) / 0.75, rel=0.05)
     assert inverted["offset_s"] == pytest.approx(normal["offset_s"], abs=1e-3)
     # without --json the warning is a line of its own
-    text = run_cli("align", raw, "-o", tmp_path / "al2", *FAST).stderr
+    text = run_here("align", raw, "-o", tmp_path / "al2", *FAST).stderr
     assert "s2a-align: warning: take inverted: the 2 audio channels cancel" in text
 
 
@@ -337,7 +338,7 @@ def test_outputs_follow_the_meta_id_and_a_second_take_of_that_id_is_refused(raw_
     raw = tmp_path / "raw"
     _copy(raw_takes, raw / "folder_a", new_id="speaker_take")
     _copy(raw_takes, raw / "folder_b", new_id="speaker_take")
-    proc = run_cli("align", raw, "-o", tmp_path / "al", "--json", *FAST)
+    proc = run_here("align", raw, "-o", tmp_path / "al", "--json", *FAST)
     assert proc.returncode == 1
     reports = list(map(json.loads, proc.stdout.splitlines()))
     first, second = reports

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli
+from conftest import run_here
 
 from align.clipping import clipped_share
 from align.resample import to_16k_mono
@@ -26,12 +26,12 @@ def _speech(samples: Path) -> tuple[np.ndarray, int]:
 
 
 def _import(tmp_path: Path, csv: Path, wav: Path, take_id: str) -> Path:
-    run_cli("capture", "import", csv, "--audio", wav, "-o", tmp_path / "takes", "--id", take_id, check=True)
+    run_here("capture", "import", csv, "--audio", wav, "-o", tmp_path / "takes", "--id", take_id, check=True)
     return tmp_path / "takes" / take_id
 
 
 def _align(take: Path, out: Path, *options: str) -> dict:
-    proc = run_cli("align", take, "-o", out, "--json", *options)
+    proc = run_here("align", take, "-o", out, "--json", *options)
     return json.loads(proc.stdout.splitlines()[-1])
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_cli
+from conftest import run_here
 from dataset_helpers import SR, make_aligned_take, speech_like
 
 from capture import Audio, InputError, read_audio, read_take_folder, write_reference_mov, write_take
@@ -151,7 +151,7 @@ def test_a_mov_without_audio_uses_the_wav_beside_it_or_imports_without_audio(tmp
 
     bare = _folder(tmp_path, samples, "bare")
     write_reference_mov(bare / "MySlate_166_iPhone.mov", 60.0, 10, audio=None, timecode="19:18:11:20")
-    proc = run_cli("capture", "import", bare, "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", bare, "-o", tmp_path / "out", "--json")
     assert proc.returncode == 0, proc.stderr
     meta = json.loads((tmp_path / "out" / "bare" / "meta.json").read_text())
     assert meta["audio"] is None
@@ -215,7 +215,7 @@ def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp
     assert dc["silent"] and dc["peak_dbfs"] is None and dc["dc_offset_dbfs"] == -6.0
     assert "dc.wav: the audio is silent once its constant offset of -6.0 dBFS is removed: no speech" in text
     # the command line exits 0 with the repair in its JSON
-    proc = run_cli(
+    proc = run_here(
         "train", "predict", ridge_run / "run", tmp_path / "nan.wav", "-o", tmp_path / "x.csv", "--json"
     )
     assert proc.returncode == 0, proc.stderr
@@ -266,16 +266,16 @@ def test_level_option_of_the_build(tmp_path):
     for i in range(3):
         write_take(make_aligned_take(f"t{i}", 2.0, subject="a", seed=i), tmp_path / "takes")
     common = ["dataset", "build", tmp_path / "takes", "--val", "t1", "--test", "t2", "--json"]
-    proc = run_cli(*common, "-o", tmp_path / "none", "--level", "none")
+    proc = run_here(*common, "-o", tmp_path / "none", "--level", "none")
     assert proc.returncode == 0, proc.stderr
     assert read_manifest(tmp_path / "none")["features"]["settings"]["level"] == "none"
-    proc = run_cli(*common, "-o", tmp_path / "db", "--level", "-23")
+    proc = run_here(*common, "-o", tmp_path / "db", "--level", "-23")
     assert proc.returncode == 0, proc.stderr
     m = read_manifest(tmp_path / "db")
     assert m["features"]["settings"]["level"] == "speech -23 dBFS"
     [(_key, members)] = list(ShardReader(tmp_path / "db" / m["samples"][0]["shard"]))
     assert json.loads(members["json"])["level_gain"] > 0
-    proc = run_cli(*common, "-o", tmp_path / "bad", "--level", "loud")
+    proc = run_here(*common, "-o", tmp_path / "bad", "--level", "loud")
     assert proc.returncode == 1 and "--level must be speech, none or a target in dBFS" in proc.stderr
     assert "Traceback" not in proc.stderr
 

@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 import pytest
-from conftest import import_rig_take, run_cli
+from conftest import import_rig_take, run_here
 
 from capture import FrameStatus, Take, TakeMeta, read_take, write_take
 from capture import channels as ch
@@ -131,12 +131,12 @@ def test_a_paired_csv_in_other_spellings_imports_and_exports_as_live_link(sample
     )
     takes = tmp_path / "takes"
     audio = samples / NEUROSYNC / "audio.wav"
-    proc = run_cli("capture", "import", "--matrix", matrix, "--fps", 60, "--audio", audio, "-o", takes)
+    proc = run_here("capture", "import", "--matrix", matrix, "--fps", 60, "--audio", audio, "-o", takes)
     assert proc.returncode == 0, proc.stderr
     take = read_take(takes / "spelled", audio=False)
     assert take.meta.channels == [ch.arkit_name(n) for n in names]
     out = tmp_path / "spelled_out.csv"
-    proc = run_cli("capture", "export-csv", takes / "spelled", "-o", out)
+    proc = run_here("capture", "export-csv", takes / "spelled", "-o", out)
     assert proc.returncode == 0 and "warning" not in proc.stderr, proc.stderr
     header, *rows = out.read_text().splitlines()
     col = header.split(",").index("JawOpen")
@@ -147,7 +147,7 @@ def test_a_paired_csv_in_other_spellings_imports_and_exports_as_live_link(sample
 def test_export_csv_refuses_a_take_without_live_link_channels(samples, tmp_path):
     """A FACEGOOD take used to give a 61-column CSV of zeros and exit 0."""
     out = tmp_path / "rig.csv"
-    proc = run_cli("capture", "export-csv", import_rig_take(samples, tmp_path), "-o", out)
+    proc = run_here("capture", "export-csv", import_rig_take(samples, tmp_path), "-o", out)
     assert proc.returncode == 1 and not out.exists()
     (line,) = proc.stderr.splitlines()
     assert line.startswith("s2a-capture: error: ") and "takes/rig" in line
@@ -166,7 +166,7 @@ def test_export_csv_warns_of_the_channels_it_leaves_out(samples, tmp_path):
     write_take(Take(meta, np.arange(n) / 60.0, values.astype(np.float32), np.zeros(n, np.uint8)), tmp_path)
     assert FrameStatus.TRACKED == 0
     out = tmp_path / "mixed.csv"
-    proc = run_cli("capture", "export-csv", tmp_path / "mixed", "-o", out, "--json")
+    proc = run_here("capture", "export-csv", tmp_path / "mixed", "-o", out, "--json")
     assert proc.returncode == 0, proc.stderr
     assert '"channels_left_out": 2' in proc.stdout
     (line,) = [x for x in proc.stderr.splitlines() if "warning" in x]

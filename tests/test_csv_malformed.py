@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from capture import FrameStatus, InputError, read_livelink_csv, read_take, write_take
-from tests.conftest import SAMPLES, run_cli
+from tests.conftest import SAMPLES, run_here
 
 
 def base_lines() -> tuple[str, list[str]]:
@@ -147,7 +147,7 @@ def test_missing_file(tmp_path):
 def test_cli_reports_one_line_and_exit_1(tmp_path, name):
     path = tmp_path / f"{name}.csv"
     path.write_bytes(case(name))
-    proc = run_cli("capture", "import", path, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", path, "-o", tmp_path / "out")
     assert proc.returncode == 1
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().count("\n") == 0 and str(path) in proc.stderr
@@ -159,11 +159,11 @@ def test_cli_keeps_going_past_a_bad_file(tmp_path, samples):
     bad.write_bytes(case("binary"))
     good = tmp_path / "in" / "good.csv"
     good.write_bytes((samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_bytes())
-    proc = run_cli("capture", "import", tmp_path / "in", "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", tmp_path / "in", "-o", tmp_path / "out", "--json")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert (tmp_path / "out" / "good").is_dir() and not (tmp_path / "out" / "bad").exists()
 
 
 def test_cli_usage_error_exits_2(tmp_path):
-    proc = run_cli("capture", "import")
+    proc = run_here("capture", "import")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_here
 from dataset_helpers import make_aligned_take, write_aligned_set
 
 import dataset.build as build_module
@@ -49,9 +49,9 @@ def _dataset_files(ds: Path) -> dict[str, bytes]:
 
 def _readable(ds: Path) -> None:
     """validate (valid), stats and the manifest reader all read ``ds``."""
-    proc = run_cli("dataset", "validate", ds)
+    proc = run_here("dataset", "validate", ds)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    proc = run_cli("dataset", "stats", ds, "--json")
+    proc = run_here("dataset", "stats", ds, "--json")
     assert proc.returncode == 0, proc.stderr
     read_manifest(ds)
 
@@ -71,7 +71,7 @@ def built(tmp_path) -> tuple[Path, Path]:
     """Five aligned takes and a dataset built from them by the command line."""
     aligned = write_aligned_set(tmp_path / "aligned", count=5, speakers=2, seconds=2.0)
     ds = tmp_path / "ds"
-    proc = run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
+    proc = run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
     assert proc.returncode == 0, proc.stderr
     return aligned, ds
 
@@ -83,7 +83,7 @@ def test_rebuild_that_fails_on_a_take_leaves_the_previous_dataset_readable(built
     aligned, ds = built
     before = _snapshot(ds)
     _add_take(aligned, "take05", seed=5, nan=96)
-    proc = run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
+    proc = run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     (line,) = [x for x in proc.stderr.strip().splitlines() if not x.startswith("build: ")]
     assert "audio holds 96 NaN or infinite sample(s)" in line
@@ -122,7 +122,7 @@ def test_rebuild_stopped_after_writing_new_shards_keeps_the_old_ones(built, tmp_
 def test_sigterm_during_a_rebuild_keeps_the_previous_dataset(tmp_path):
     aligned = write_aligned_set(tmp_path / "aligned", count=6, speakers=2, seconds=4.0)
     ds = tmp_path / "ds"
-    assert run_cli("dataset", "build", aligned, "-o", ds).returncode == 0
+    assert run_here("dataset", "build", aligned, "-o", ds).returncode == 0
     before = _snapshot(ds)
     _add_take(aligned, "take06", seed=6)
     proc = subprocess.Popen(  # samples of another length: every take processed again
@@ -226,7 +226,7 @@ def test_rebuild_leaves_unchanged_shards_where_they_are(built):
     aligned, ds = built
     inodes = {p.name: p.stat().st_ino for p in ds.glob("*.tar")}
     manifest = (ds / "manifest.json").read_bytes()
-    proc = run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI, "--normalization", "neutral")
+    proc = run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI, "--normalization", "neutral")
     assert proc.returncode == 0, proc.stderr
     assert (ds / "manifest.json").read_bytes() != manifest
     assert {p.name: p.stat().st_ino for p in ds.glob("*.tar")} == inodes
@@ -236,10 +236,10 @@ def test_rebuild_leaves_unchanged_shards_where_they_are(built):
 def test_up_to_date_rebuild_clears_the_cache_a_failed_rebuild_left(built):
     aligned, ds = built
     bad = _add_take(aligned, "take05", seed=5, nan=10)
-    assert run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI).returncode == 1
+    assert run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI).returncode == 1
     assert (ds / ".work").is_dir()
     shutil.rmtree(bad)  # back to the inputs of the dataset in the folder
-    proc = run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI, "--json")
+    proc = run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI, "--json")
     assert proc.returncode == 0 and '"up_to_date": true' in proc.stdout, proc.stderr
     assert {p.name for p in (ds / ".work").iterdir()} == {"takes"}  # the take records only
     assert not [p for p in validate(ds).problems if p.code == "build_leftover"]
@@ -252,7 +252,7 @@ def test_validate_and_stats_wait_for_a_running_build(built):
     _aligned, ds = built
     with output_lock(ds):  # what a running build holds
         for args in (("validate", ds), ("stats", ds), ("validate", ds / "manifest.json", "--json")):
-            proc = run_cli("dataset", *args)
+            proc = run_here("dataset", *args)
             assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
             assert proc.stderr.strip() == (
                 f"s2a-dataset: error: a build (pid {os.getpid()}) is writing into {ds}: wait for it to finish"
@@ -264,7 +264,7 @@ def test_validate_during_a_first_build_says_a_build_is_running_not_no_dataset(tm
     ds = tmp_path / "ds"
     ds.mkdir()
     with output_lock(ds):
-        proc = run_cli("dataset", "validate", ds)
+        proc = run_here("dataset", "validate", ds)
     assert proc.returncode == 1
     assert "is writing into" in proc.stderr and "not a dataset" not in proc.stderr, proc.stderr
 
@@ -325,20 +325,20 @@ def test_adding_a_take_processes_that_take_only_and_equals_a_fresh_build(built, 
     the unchanged takes' samples come from the dataset's own shards, checked against their sha256."""
     aligned, ds = built
     _add_take(aligned, "take05", seed=5)
-    proc = run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
+    proc = run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
     assert proc.returncode == 0, proc.stderr
     said = proc.stdout + proc.stderr
     assert re.search(r"\b(\d+) take\(s\) unchanged since the last build", said), said
     computed = [line for line in said.splitlines() if "s of audio" in line]
     assert len(computed) == 1 and "take05" in computed[0], said
     fresh = tmp_path / "fresh"
-    assert run_cli("dataset", "build", aligned, "-o", fresh, *SMALL_CLI).returncode == 0
+    assert run_here("dataset", "build", aligned, "-o", fresh, *SMALL_CLI).returncode == 0
     assert _dataset_files(ds) == _dataset_files(fresh)  # byte for byte
     assert {p.name for p in (ds / ".work").iterdir()} == {"takes"}
     assert validate(ds, deep=True).valid and not validate(ds).problems
     # a take removed: its records go too
     shutil.rmtree(aligned / "take05")
-    assert run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI).returncode == 0
+    assert run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI).returncode == 0
     assert not [p for p in (ds / ".work" / "takes").iterdir() if "take05" in p.name]
 
 
@@ -347,6 +347,6 @@ def test_a_damaged_shard_makes_its_takes_processed_again(built):
     shard = sorted(ds.glob("train-*.tar"))[0]
     shard.write_bytes(shard.read_bytes()[:1000])  # cut short
     _add_take(aligned, "take05", seed=5)
-    proc = run_cli("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
+    proc = run_here("dataset", "build", aligned, "-o", ds, *SMALL_CLI)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     assert validate(ds, deep=True).valid

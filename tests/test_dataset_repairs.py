@@ -10,7 +10,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import run_here
 from dataset_helpers import make_aligned_take
 
 import dataset.build
@@ -27,7 +27,7 @@ def _one_line_error(proc, needle: str) -> None:
 
 
 def _build(takes, out, *extra):
-    proc = run_cli("dataset", "build", takes, "-o", out, "--json", *extra)
+    proc = run_here("dataset", "build", takes, "-o", out, "--json", *extra)
     assert proc.returncode == 0, proc.stderr
     return json.loads((out / "manifest.json").read_text())
 
@@ -77,7 +77,7 @@ def test_build_keeps_recordings_together_and_validate_finds_a_split_one(tmp_path
     assert split["rec2.seg01"] == split["rec2.seg02"] == "test"
     assert split["rec1.seg01"] == split["rec1.seg02"] == "val"  # pinning one segment pins its recording
     assert {src["recording"] for src in m["sources"]} == {"rec0", "rec1", "rec2", "rec3"}
-    assert run_cli("dataset", "validate", tmp_path / "ds").returncode == 0
+    assert run_here("dataset", "validate", tmp_path / "ds").returncode == 0
 
     # a dataset whose segments of one recording sit in two splits (built by a tool that split takes,
     # or before recordings were kept together): validate finds it from the manifest's recordings, and
@@ -99,7 +99,7 @@ def test_build_keeps_recordings_together_and_validate_finds_a_split_one(tmp_path
             for src in m["sources"]:
                 del src["recording"]
             (tmp_path / "leaky" / "manifest.json").write_text(json.dumps(m))
-        proc = run_cli("dataset", "validate", tmp_path / "leaky", "--json")
+        proc = run_here("dataset", "validate", tmp_path / "leaky", "--json")
         leaks = [p["location"] for p in json.loads(proc.stdout)["problems"] if p["code"] == "split_leakage"]
         assert "recording x0" in leaks and "recording x1" in leaks, (old, leaks)
 
@@ -178,7 +178,7 @@ def test_out_of_range_values_loud_float_audio_and_narrowband_audio(tmp_path):
     assert len(narrow) == 1 and narrow[0].startswith("take calm: its audio has no energy above 4.5 kHz")
     wild_entry = next(s for s in m["samples"] if s["take"] == "wild")
     assert wild_entry["usable_frames"] == wild_entry["frames"] - 10
-    proc = run_cli("dataset", "validate", tmp_path / "ds", "--deep")
+    proc = run_here("dataset", "validate", tmp_path / "ds", "--deep")
     assert proc.returncode == 0, proc.stdout + proc.stderr  # no value_range problem: the frames are masked
     loud_shard = next(s["shard"] for s in m["samples"] if s["take"] == "loud")
     gains = {}
@@ -195,7 +195,7 @@ def test_aligned_take_off_its_frame_grid_is_refused(tmp_path):
     take.time = take.time * 1.5
     write_take(take, tmp_path / "takes")
     _one_line_error(
-        run_cli("dataset", "build", tmp_path / "takes", "-o", tmp_path / "ds"), "not the uniform grid i/fps"
+        run_here("dataset", "build", tmp_path / "takes", "-o", tmp_path / "ds"), "not the uniform grid i/fps"
     )
 
 
@@ -219,7 +219,7 @@ def test_flagged_takes_are_warned_about_or_left_out(tmp_path):
     skipped = _build(tmp_path / "takes", tmp_path / "skipped", "--skip-flagged")
     assert {s["take"] for s in skipped["samples"]} == {"t0", "t2"}
     assert any("left out (--skip-flagged)" in w for w in skipped["warnings"])
-    pinned = run_cli(
+    pinned = run_here(
         "dataset", "build", tmp_path / "takes", "-o", tmp_path / "p", "--skip-flagged", "--test", "t1"
     )
     _one_line_error(pinned, "'t1' was left out by --skip-flagged (align flagged evidence_disagrees)")
@@ -264,11 +264,11 @@ def test_manifest_normalisation_that_contradicts_the_data_is_invalid(
     m = json.loads((ds / "manifest.json").read_text())
     edit(m)
     (ds / "manifest.json").write_text(json.dumps(m))
-    proc = run_cli("dataset", "validate", ds, "--json")
+    proc = run_here("dataset", "validate", ds, "--json")
     assert proc.returncode == 1, proc.stdout
     found = [p["location"] for p in json.loads(proc.stdout)["problems"] if p["code"] == "manifest_schema"]
     assert found == [f"manifest.json:{location}"], found
-    _one_line_error(run_cli("dataset", "stats", ds), location)
+    _one_line_error(run_here("dataset", "stats", ds), location)
 
 
 def test_sample_metadata_that_is_a_list_and_paths_that_are_files(small_ds, tmp_path):
@@ -288,15 +288,15 @@ def test_sample_metadata_that_is_a_list_and_paths_that_are_files(small_ds, tmp_p
                 data = b"[1, 2]"
                 info.size = len(data)
             tar.addfile(info, __import__("io").BytesIO(data))
-    proc = run_cli("dataset", "validate", ds, "--json")
+    proc = run_here("dataset", "validate", ds, "--json")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert "sample_decode" in {p["code"] for p in json.loads(proc.stdout)["problems"]}
 
     blocker = tmp_path / "afile"
     blocker.write_text("")
-    _one_line_error(run_cli("dataset", "validate", blocker), "not a dataset")
-    _one_line_error(run_cli("dataset", "stats", blocker), "not a dataset")
-    _one_line_error(run_cli("dataset", "build", small_ds.parent / "takes", "-o", blocker / "sub"), "afile")
+    _one_line_error(run_here("dataset", "validate", blocker), "not a dataset")
+    _one_line_error(run_here("dataset", "stats", blocker), "not a dataset")
+    _one_line_error(run_here("dataset", "build", small_ds.parent / "takes", "-o", blocker / "sub"), "afile")
 
 
 def test_a_damaged_float_sample_far_past_full_scale_is_refused(tmp_path):
@@ -304,7 +304,7 @@ def test_a_damaged_float_sample_far_past_full_scale_is_refused(tmp_path):
     take.audio.samples[1000, 0] = 1e30  # one damaged sample: scaling would silence the take
     write_take(take, tmp_path / "takes")
     _one_line_error(
-        run_cli("dataset", "build", tmp_path / "takes", "-o", tmp_path / "ds"), "over 1000 times full scale"
+        run_here("dataset", "build", tmp_path / "takes", "-o", tmp_path / "ds"), "over 1000 times full scale"
     )
 
 
@@ -337,4 +337,4 @@ def test_spellings_of_one_speaker_clashing_keys_and_interpolated_takes(tmp_path)
     assert "take ids 'take.1', 'take_1' give one sample key" in warnings
     assert "take b1: 67% of its usable frames were interpolated" in warnings
     assert not any("take.1" in w and "interpolated" in w for w in m["warnings"])
-    assert run_cli("dataset", "validate", tmp_path / "ds").returncode == 0
+    assert run_here("dataset", "validate", tmp_path / "ds").returncode == 0

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import soundfile as sf
-from conftest import run_cli
+from conftest import run_here
 from dataset_helpers import make_aligned_take, write_aligned_set
 
 from capture import write_take
@@ -31,10 +31,10 @@ def built(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("robust")
     takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
     write_take(make_aligned_take("take05", 3.0, subject="spk1", seed=9, gap=(10, 170)), takes)
-    proc = run_cli("dataset", "build", takes, "-o", root / "ds", "--json")
+    proc = run_here("dataset", "build", takes, "-o", root / "ds", "--json")
     assert proc.returncode == 0, proc.stderr
     others = write_aligned_set(root / "others", count=4, speakers=2, seconds=1.0)
-    proc = run_cli("dataset", "build", others, "-o", root / "other", "--json")
+    proc = run_here("dataset", "build", others, "-o", root / "other", "--json")
     assert proc.returncode == 0, proc.stderr
     return {"takes": takes, "ds": root / "ds", "other": root / "other"}
 
@@ -82,13 +82,13 @@ def test_malformed_manifest_field_is_invalid_and_refused_by_every_reader(built, 
     ds = _copy(built["ds"], tmp_path / "ds")
     _edit_manifest(ds, _set(field, value))
     where = field.replace(".0.", "[0].")
-    proc = run_cli("dataset", "validate", ds, "--json")
+    proc = run_here("dataset", "validate", ds, "--json")
     assert proc.returncode == 1, proc.stdout + proc.stderr
     problems = json.loads(proc.stdout)["problems"]
     assert [p["location"] for p in problems if p["code"] == "manifest_schema"] == [f"manifest.json:{where}"]
-    _one_line_error(run_cli("dataset", "stats", ds), f"manifest field {where} ")
-    _one_line_error(run_cli("dataset", "stats", ds / "manifest.json"), f"manifest field {where} ")
-    _one_line_error(run_cli("viewer", "report", ds, "-o", tmp_path / "r.html"), f"manifest field {where} ")
+    _one_line_error(run_here("dataset", "stats", ds), f"manifest field {where} ")
+    _one_line_error(run_here("dataset", "stats", ds / "manifest.json"), f"manifest field {where} ")
+    _one_line_error(run_here("viewer", "report", ds, "-o", tmp_path / "r.html"), f"manifest field {where} ")
 
 
 # ------------------------------------------------------------------------------------------ bugs 2, 3, 6
@@ -97,26 +97,26 @@ def test_malformed_manifest_field_is_invalid_and_refused_by_every_reader(built, 
 def test_build_refuses_bad_options_and_takes_with_one_line(built, tmp_path):
     takes = built["takes"]
     _one_line_error(
-        run_cli("dataset", "build", takes, "-o", tmp_path / "a", "--max-sample-s", "nan"), "--max-sample-s"
+        run_here("dataset", "build", takes, "-o", tmp_path / "a", "--max-sample-s", "nan"), "--max-sample-s"
     )
     _one_line_error(
-        run_cli("dataset", "build", takes, "-o", tmp_path / "b", "--shard-mb", "inf"), "--shard-mb"
+        run_here("dataset", "build", takes, "-o", tmp_path / "b", "--shard-mb", "inf"), "--shard-mb"
     )
     for features in ("", "pitch,energy"):
-        proc = run_cli("dataset", "build", takes, "-o", tmp_path / "c", "--features", features)
+        proc = run_here("dataset", "build", takes, "-o", tmp_path / "c", "--features", features)
         _one_line_error(proc, "no content feature")
     # a take whose meta.json says 0 fps, and one whose audio was cut short: named, one line
     bad = tmp_path / "bad"
     shutil.copytree(takes, bad)
     meta = json.loads((bad / "take01" / "meta.json").read_text())
     (bad / "take01" / "meta.json").write_text(json.dumps(meta | {"fps": 0}))
-    _one_line_error(run_cli("dataset", "build", bad / "take01", "-o", tmp_path / "d"), "take01")
-    _one_line_error(run_cli("dataset", "build", bad, "-o", tmp_path / "e"), "fps must be a frame rate")
+    _one_line_error(run_here("dataset", "build", bad / "take01", "-o", tmp_path / "d"), "take01")
+    _one_line_error(run_here("dataset", "build", bad, "-o", tmp_path / "e"), "fps must be a frame rate")
     cut = tmp_path / "cut"
     shutil.copytree(takes, cut)
     x, rate = sf.read(cut / "take02" / "audio.wav", dtype="float32")
     sf.write(cut / "take02" / "audio.wav", x[:730], rate, subtype="FLOAT")
-    _one_line_error(run_cli("dataset", "build", cut, "-o", tmp_path / "f"), "take02")
+    _one_line_error(run_here("dataset", "build", cut, "-o", tmp_path / "f"), "take02")
 
 
 def test_build_warns_about_a_take_with_few_usable_frames(built):
@@ -168,7 +168,7 @@ ENTRIES = [("frames", 5), ("duration_s", 99), ("split", "test"), ("take", "someo
 def test_validate_compares_manifest_sample_entries_with_the_shards(built, tmp_path, field, value):
     ds = _copy(built["ds"], tmp_path / "ds")
     _edit_manifest(ds, _set(f"samples.0.{field}", value))
-    proc = run_cli("dataset", "validate", ds, "--json")
+    proc = run_here("dataset", "validate", ds, "--json")
     assert proc.returncode == 1, proc.stdout
     found = [p for p in json.loads(proc.stdout)["problems"] if p["code"] == "manifest_mismatch"]
     assert len(found) == 1 and found[0]["location"].endswith(f".{field}"), found
@@ -180,18 +180,18 @@ def test_validate_compares_manifest_sample_entries_with_the_shards(built, tmp_pa
 def test_view_outputs_in_new_folders_and_plot_ranges(built, tmp_path):
     take = built["takes"] / "take00"
     out = tmp_path / "no" / "such" / "p.png"
-    proc = run_cli("viewer", "plot", take, "-o", out, "--vad", "energy")
+    proc = run_here("viewer", "plot", take, "-o", out, "--vad", "energy")
     assert proc.returncode == 0, proc.stderr
     assert out.stat().st_size > 0
     report = tmp_path / "no" / "other" / "r.html"
-    assert run_cli("viewer", "report", built["ds"], "-o", report).returncode == 0 and report.is_file()
+    assert run_here("viewer", "report", built["ds"], "-o", report).returncode == 0 and report.is_file()
     bad = tmp_path / "q.png"
     for args in (["--start", "5", "--end", "1"], ["--start", "nan"]):  # usage errors (exit 2)
-        proc = run_cli("viewer", "plot", take, "-o", bad, *args)
+        proc = run_here("viewer", "plot", take, "-o", bad, *args)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert "argument --start" in proc.stderr.strip().splitlines()[-1], proc.stderr
-    _one_line_error(run_cli("viewer", "plot", take, "-o", bad, "--start", "50", "--end", "60"), "no frame")
+    _one_line_error(run_here("viewer", "plot", take, "-o", bad, "--start", "50", "--end", "60"), "no frame")
     assert not bad.exists()
     blocked = tmp_path / "file"
     blocked.write_text("")
-    _one_line_error(run_cli("viewer", "plot", take, "-o", blocked / "p.png"), "cannot create")
+    _one_line_error(run_here("viewer", "plot", take, "-o", blocked / "p.png"), "cannot create")

@@ -13,7 +13,7 @@ import soundfile as sf
 
 from capture import FrameStatus, InputError, read_livelink_csv, read_take, read_take_folder, write_take
 from capture.audio_io import read_audio
-from tests.conftest import run_cli
+from tests.conftest import run_here
 
 T_ID = "20250106_SimSpk01_1"
 
@@ -22,7 +22,7 @@ T_ID = "20250106_SimSpk01_1"
 def sim_take(tmp_path_factory) -> Path:
     """A simulated Live Link Face take folder with .mov, .wav and the app's JSON files."""
     root = tmp_path_factory.mktemp("sim")
-    run_cli("capture", "simulate", "-o", root, "--seconds", 3, "--mov", "--sample-rate", 44100, check=True)
+    run_here("capture", "simulate", "-o", root, "--seconds", 3, "--mov", "--sample-rate", 44100, check=True)
     (folder,) = [p for p in root.iterdir() if p.is_dir()]
     return folder
 
@@ -76,7 +76,7 @@ def test_bad_fields_in_app_json_are_ignored_with_a_repair(take_dir, tmp_path, na
     assert any(m.startswith(f"{name}: {field} ") for m in messages), messages
     assert take.audio.sample_rate == 44100 and take.meta.audio.start_source == "frame_log_audio"
     assert type(take.meta.take_number) is int  # a JSON true is not a take number (the file name's is used)
-    proc = run_cli("capture", "info", take_dir)
+    proc = run_here("capture", "info", take_dir)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr
 
 
@@ -90,7 +90,7 @@ def test_bad_fields_in_app_json_are_ignored_with_a_repair(take_dir, tmp_path, na
 )
 def test_non_finite_numbers_in_app_json_never_reach_the_writer(take_dir, tmp_path, name, text, where):
     (take_dir / name).write_text(text)
-    proc = run_cli("capture", "import", take_dir, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", take_dir, "-o", tmp_path / "out")
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     (out,) = (tmp_path / "out").iterdir()
     take = read_take(out)
@@ -112,7 +112,7 @@ def test_non_finite_audio_samples_are_repaired_and_align_never_crashes(take_dir,
     sf.write(folder / "audio.wav", data, rate, subtype="FLOAT")
     with pytest.raises(InputError, match="1 NaN or infinite sample"):
         read_take(folder)
-    proc = run_cli("align", tmp_path / "raw", "-o", tmp_path / "aligned", "--vad", "none")
+    proc = run_here("align", tmp_path / "raw", "-o", tmp_path / "aligned", "--vad", "none")
     one_line_error(proc, "NaN or infinite sample")
 
 
@@ -127,7 +127,7 @@ def test_csv_values_beyond_float32_and_underscores_are_bad_values(tmp_path, samp
         lines[row] = ",".join(fields)
     path = tmp_path / "big.csv"
     path.write_text("\n".join(lines) + "\n")
-    proc = run_cli("capture", "import", path, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", path, "-o", tmp_path / "out")
     assert proc.returncode == 0 and "RuntimeWarning" not in proc.stderr, proc.stderr
     take = read_take(tmp_path / "out" / "big")
     assert {r["line"]: r["kind"] for r in take.meta.repairs} == {
@@ -156,12 +156,12 @@ def test_implausible_forward_gap_is_an_error_naming_the_line(tmp_path, samples):
     s88 = (samples / "livelinkface/alexdjulin_S88/S88-001.csv").read_text()
     joined = tmp_path / "joined.csv"
     joined.write_text(s07 + s88)  # `cat a.csv b.csv`: the second header names the line
-    proc = run_cli("capture", "import", joined, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", joined, "-o", tmp_path / "out")
     one_line_error(proc, f"{joined}:2030: the header repeats here")
     assert not (tmp_path / "out" / "joined").exists()
     # without the second header, the 6-hour jump itself is refused
     joined.write_text(s07 + s88.split("\n", 1)[1])
-    proc = run_cli("capture", "import", joined, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", joined, "-o", tmp_path / "out")
     one_line_error(proc, f"{joined}:2030: timecode ")
     assert "forward" in proc.stderr and not (tmp_path / "out" / "joined").exists()
     # the same take twice (no jump forward, the clock goes back): the header is what tells
@@ -192,7 +192,7 @@ def test_same_take_id_from_two_sources_is_never_overwritten(tmp_path, samples):
     for sub in ("a", "b", "c"):
         (tmp_path / "coll" / sub).mkdir(parents=True)
         shutil.copy(src, tmp_path / "coll" / sub / ("Take.csv" if sub == "c" else "take.csv"))
-    proc = run_cli("capture", "import", tmp_path / "coll", "-o", tmp_path / "out")
+    proc = run_here("capture", "import", tmp_path / "coll", "-o", tmp_path / "out")
     assert proc.returncode == 0 and "Traceback" not in proc.stderr
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["Take-3", "take", "take-2"]
     assert proc.stderr.count("warning:") == 2
@@ -201,8 +201,8 @@ def test_same_take_id_from_two_sources_is_never_overwritten(tmp_path, samples):
 
 def test_align_refuses_two_takes_with_one_id(take_dir, tmp_path):
     for sub in ("run1", "run2"):
-        run_cli("capture", "import", take_dir, "-o", tmp_path / "raw" / sub, check=True)
-    proc = run_cli("align", tmp_path / "raw", "-o", tmp_path / "aligned", "--vad", "none")
+        run_here("capture", "import", take_dir, "-o", tmp_path / "raw" / sub, check=True)
+    proc = run_here("align", tmp_path / "raw", "-o", tmp_path / "aligned", "--vad", "none")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert proc.stderr.count("error:") == 1 and "would overwrite each other" in proc.stderr
     out = read_take(tmp_path / "aligned" / T_ID)
@@ -248,7 +248,7 @@ def test_unfinished_wav_is_read_to_its_end(take_dir, tmp_path):
     np.testing.assert_array_equal(take.audio.samples[:, 0], data)
     with pytest.raises(InputError, match="declares no samples, but .* bytes follow it"):
         read_audio(wav)
-    proc = run_cli("capture", "import", take_dir, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", take_dir, "-o", tmp_path / "out")
     assert proc.returncode == 0 and "unfinished_audio" not in proc.stderr and "did not finish" in proc.stderr
 
 
@@ -257,18 +257,18 @@ def test_unfinished_wav_is_read_to_its_end(take_dir, tmp_path):
 
 def test_output_path_errors_are_one_line(take_dir, tmp_path):
     csv = next(take_dir.glob("*.csv"))
-    proc = run_cli("capture", "import", take_dir, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", take_dir, "-o", tmp_path / "out")
     take = tmp_path / "out" / T_ID
-    proc = run_cli("capture", "export-csv", take, "-o", tmp_path / "new" / "x" / "y.csv")
+    proc = run_here("capture", "export-csv", take, "-o", tmp_path / "new" / "x" / "y.csv")
     assert proc.returncode == 0 and (tmp_path / "new" / "x" / "y.csv").is_file()
-    one_line_error(run_cli("capture", "export-csv", take, "-o", tmp_path), "is a folder")
-    one_line_error(run_cli("capture", "export-csv", csv, "-o", tmp_path / "x.csv"), "not a take folder")
+    one_line_error(run_here("capture", "export-csv", take, "-o", tmp_path), "is a folder")
+    one_line_error(run_here("capture", "export-csv", csv, "-o", tmp_path / "x.csv"), "not a take folder")
     afile = tmp_path / "afile"
     afile.write_text("")
-    one_line_error(run_cli("capture", "export-csv", take, "-o", afile / "y.csv"), "output folder is a file")
-    one_line_error(run_cli("capture", "import", csv, "-o", afile), "output folder is a file")
+    one_line_error(run_here("capture", "export-csv", take, "-o", afile / "y.csv"), "output folder is a file")
+    one_line_error(run_here("capture", "import", csv, "-o", afile), "output folder is a file")
     one_line_error(
-        run_cli("align", tmp_path / "out", "-o", afile, "--vad", "none"), "output folder is a file"
+        run_here("align", tmp_path / "out", "-o", afile, "--vad", "none"), "output folder is a file"
     )
 
 
@@ -280,7 +280,7 @@ def test_generic_import_refuses_a_non_finite_fps(tmp_path, sim_take):
     np.save(matrix, np.zeros((10, 2), np.float32))
     (tmp_path / "names.txt").write_text("a\nb\n")
     for fps in ("nan", "inf"):
-        proc = run_cli(
+        proc = run_here(
             "capture", "import", "--matrix", matrix, "--names", tmp_path / "names.txt", "--fps", fps,
             "--audio", next(sim_take.glob("*.wav")), "-o", tmp_path / "out",
         )  # fmt: skip
@@ -295,7 +295,7 @@ def test_unknown_frame_status_in_a_take_is_refused(take_dir, tmp_path):
     np.savez(folder / "frames.npz", **arrays)
     with pytest.raises(InputError, match=r"unknown value\(s\) \[9\]"):
         read_take(folder)
-    one_line_error(run_cli("capture", "info", folder), "frame_status")
+    one_line_error(run_here("capture", "info", folder), "frame_status")
 
 
 def test_meta_json_with_nan_is_a_one_line_error_not_a_traceback(take_dir, tmp_path):
@@ -319,7 +319,7 @@ def test_header_only_csv_never_aborts_the_process(tmp_path, samples):
     path = tmp_path / "h.csv"
     path.write_text(header + "\n")
     for _ in range(6):
-        one_line_error(run_cli("capture", "import", path, "-o", tmp_path / "out"), "no data rows")
+        one_line_error(run_here("capture", "import", path, "-o", tmp_path / "out"), "no data rows")
 
 
 # align: options and hand-edited takes
@@ -337,8 +337,8 @@ def test_header_only_csv_never_aborts_the_process(tmp_path, samples):
     ],
 )
 def test_align_option_out_of_range_names_the_option(take_dir, tmp_path, option, value):
-    run_cli("capture", "import", take_dir, "-o", tmp_path / "takes", check=True)
-    proc = run_cli("align", tmp_path / "takes", "-o", tmp_path / "al", option, value)
+    run_here("capture", "import", take_dir, "-o", tmp_path / "takes", check=True)
+    proc = run_here("align", tmp_path / "takes", "-o", tmp_path / "al", option, value)
     # a usage error (exit 2): argparse's usage line, then the option named
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     assert (
@@ -351,7 +351,7 @@ def test_align_option_out_of_range_names_the_option(take_dir, tmp_path, option, 
 @pytest.mark.parametrize("fps", [0, "NaN", None, "sixty", 1e9, -60])
 def test_a_take_with_a_bad_fps_in_meta_json_fails_alone(take_dir, tmp_path, fps):
     takes = tmp_path / "takes"
-    run_cli("capture", "import", take_dir, "-o", takes, check=True)
+    run_here("capture", "import", take_dir, "-o", takes, check=True)
     (good,) = list(takes.iterdir())
     bad = shutil.copytree(good, takes / "0000_bad")
     meta = json.loads((bad / "meta.json").read_text())
@@ -360,7 +360,7 @@ def test_a_take_with_a_bad_fps_in_meta_json_fails_alone(take_dir, tmp_path, fps)
     (bad / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match="fps must be a frame rate"):
         read_take(bad)
-    proc = run_cli("align", takes, "-o", tmp_path / "al", "--vad", "none", "--json")
+    proc = run_here("align", takes, "-o", tmp_path / "al", "--vad", "none", "--json")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     reports = {r["id"]: r for r in map(json.loads, proc.stdout.splitlines())}
     assert "fps must be a frame rate" in reports["0000_bad"]["error"]
@@ -368,7 +368,7 @@ def test_a_take_with_a_bad_fps_in_meta_json_fails_alone(take_dir, tmp_path, fps)
 
 
 def test_frame_times_that_are_not_float_seconds_are_refused(take_dir, tmp_path):
-    run_cli("capture", "import", take_dir, "-o", tmp_path / "takes", check=True)
+    run_here("capture", "import", take_dir, "-o", tmp_path / "takes", check=True)
     (folder,) = list((tmp_path / "takes").iterdir())
     with np.load(folder / "frames.npz") as z:
         arrays = dict(z)
@@ -380,8 +380,8 @@ def test_frame_times_that_are_not_float_seconds_are_refused(take_dir, tmp_path):
 
 def test_content_confidence_rests_on_the_overlap_not_the_audio(tmp_path):
     """A face cut to its first 1.5 s against 20 s of audio: the content evidence rests on 1.5 s."""
-    run_cli("capture", "simulate", "-o", tmp_path / "sim", "--seconds", 20, "--seed", 2, check=True)
-    run_cli("capture", "import", tmp_path / "sim", "-o", tmp_path / "takes", check=True)
+    run_here("capture", "simulate", "-o", tmp_path / "sim", "--seconds", 20, "--seed", 2, check=True)
+    run_here("capture", "import", tmp_path / "sim", "-o", tmp_path / "takes", check=True)
     (folder,) = list((tmp_path / "takes").iterdir())
     with np.load(folder / "frames.npz") as z:
         arrays = dict(z)
@@ -389,7 +389,7 @@ def test_content_confidence_rests_on_the_overlap_not_the_audio(tmp_path):
     np.savez(
         folder / "frames.npz", **{k: v[keep] if v.shape[:1] == keep.shape else v for k, v in arrays.items()}
     )
-    proc = run_cli("align", tmp_path / "takes", "-o", tmp_path / "al", "--vad", "none", "--json")
+    proc = run_here("align", tmp_path / "takes", "-o", tmp_path / "al", "--vad", "none", "--json")
     (report,) = map(json.loads, proc.stdout.splitlines())
     # too weak to move the placement (below the minimum confidence): listed among the alternatives
     content = [a for a in report["alternatives"] if a["source"] == "content"]
@@ -400,13 +400,13 @@ def test_content_confidence_rests_on_the_overlap_not_the_audio(tmp_path):
 
 def test_align_output_into_an_input_folder_or_a_take_is_refused(take_dir, tmp_path):
     takes = tmp_path / "takes"
-    run_cli("capture", "import", take_dir, "-o", takes, check=True)
+    run_here("capture", "import", take_dir, "-o", takes, check=True)
     (take,) = list(takes.iterdir())
     for out in (takes, take, take / "aligned"):
-        proc = run_cli("align", takes, "-o", out, "--vad", "none")
+        proc = run_here("align", takes, "-o", out, "--vad", "none")
         one_line_error(proc, "the output folder is an input folder or inside a take")
     assert not (take / "aligned").exists()
-    proc = run_cli("align", takes, "-o", tmp_path / "al", "--vad", "none")
+    proc = run_here("align", takes, "-o", tmp_path / "al", "--vad", "none")
     assert proc.returncode == 0, proc.stderr
 
 
@@ -446,7 +446,7 @@ def test_pair_audio_imports_a_batch_of_paired_data(samples, tmp_path):
     shutil.copy(ns / "testset.csv", two / "x.csv")
     for n in ("a.wav", "b.wav"):
         shutil.copy(ns / "audio.wav", two / n)
-    proc = run_cli(
+    proc = run_here(
         "capture",
         "import",
         root,
@@ -475,7 +475,7 @@ def test_pair_audio_imports_a_batch_of_paired_data(samples, tmp_path):
 def test_pair_audio_option_errors(tmp_path):
     (tmp_path / "a.csv").write_text("x")
     one_line_error(
-        run_cli(
+        run_here(
             "capture", "import", tmp_path, "-o", tmp_path / "o", "--pair-audio", "--audio", tmp_path / "a.wav"
         ),
         "--pair-audio finds each source's audio",
@@ -483,7 +483,7 @@ def test_pair_audio_option_errors(tmp_path):
     a2f = tmp_path / "solo.json"
     a2f.write_text('{"exportFps": 30, "facsNames": ["jawOpen"], "weightMat": [[0.1]]}')
     one_line_error(
-        run_cli("capture", "import", a2f, "-o", tmp_path / "o"), "an Audio2Face export needs its audio"
+        run_here("capture", "import", a2f, "-o", tmp_path / "o"), "an Audio2Face export needs its audio"
     )
 
 
@@ -498,22 +498,22 @@ def test_pair_audio_takes_generic_csvs_from_other_generators(samples, tmp_path):
     (root / "a" / "gen.csv").write_text("time,blendShapes.JawOpen,mouthClose\n" + rows)
     shutil.copy(ns / "audio.wav", root / "b" / "audio.wav")
     (root / "b" / "frames.csv").write_text("frame,jawOpen\n" + "".join(f"{i},0.2\n" for i in range(600)))
-    proc = run_cli("capture", "import", root, "-o", tmp_path / "out", "--pair-audio", "--json")
+    proc = run_here("capture", "import", root, "-o", tmp_path / "out", "--pair-audio", "--json")
     assert proc.returncode == 1  # the frame-index CSV needs a rate; the other is imported
     assert "frames.csv: no frame rate: give --fps" in proc.stderr
     take = read_take(tmp_path / "out" / "gen")
     assert take.meta.fps == 60 and take.meta.channels == ["jawOpen", "mouthClose"] and take.audio is not None
-    proc = run_cli("capture", "import", root / "b", "-o", tmp_path / "out2", "--pair-audio", "--fps", "30")
+    proc = run_here("capture", "import", root / "b", "-o", tmp_path / "out2", "--pair-audio", "--fps", "30")
     assert proc.returncode == 0, proc.stderr
     assert read_take(tmp_path / "out2" / "frames").meta.fps == 30
     one_line_error(
-        run_cli("capture", "import", root, "-o", tmp_path / "o3", "--fps", "30"), "--fps only applies"
+        run_here("capture", "import", root, "-o", tmp_path / "o3", "--fps", "30"), "--fps only applies"
     )
     app = tmp_path / "app"
     app.mkdir()
     shutil.copy(ns / "testset.csv", app / "t.csv")
     shutil.copy(ns / "audio.wav", app / "t.wav")
-    proc = run_cli("capture", "import", app, "-o", tmp_path / "o4", "--pair-audio", "--fps", "45")
+    proc = run_here("capture", "import", app, "-o", tmp_path / "o4", "--pair-audio", "--fps", "45")
     assert proc.returncode == 0, proc.stderr
     assert "t.csv: --fps ignored: a Live Link Face take has its own timecodes" in proc.stderr
 
@@ -526,7 +526,7 @@ def test_pair_audio_never_borrows_another_takes_audio_and_survives_link_loops(sa
         shutil.copy(ns / "testset.csv", root / f"{name}.csv")
     shutil.copy(ns / "audio.wav", root / "take1.wav")
     (root / "sub" / "loop").symlink_to(root, target_is_directory=True)  # a folder that contains itself
-    proc = run_cli("capture", "import", root, "-o", tmp_path / "out", "--pair-audio", "--json")
+    proc = run_here("capture", "import", root, "-o", tmp_path / "out", "--pair-audio", "--json")
     assert proc.returncode == 0, proc.stderr
     names = sorted(Path(json.loads(x)["path"]).name for x in proc.stdout.splitlines())
     assert names == ["take1", "take2"]  # each once, though the loop reaches them again and again
@@ -539,7 +539,7 @@ def test_a_generic_csv_without_audio_says_what_it_needs(tmp_path):
     path = tmp_path / "gen.csv"
     path.write_text("time,jawOpen\n0,0.1\n0.0333,0.2\n")
     one_line_error(
-        run_cli("capture", "import", path, "-o", tmp_path / "o"),
+        run_here("capture", "import", path, "-o", tmp_path / "o"),
         "as generic paired data it needs its audio (--audio, or --pair-audio)",
     )
 
@@ -548,7 +548,7 @@ def test_an_app_csv_with_a_leading_blank_line_is_judged_as_the_apps(samples, tmp
     ns = samples / "paired" / "neurosync-trainer-lite-testset"
     csv = tmp_path / "blank.csv"
     csv.write_text("\n" + (ns / "testset.csv").read_text())
-    proc = run_cli("capture", "import", csv, "--audio", ns / "audio.wav", "-o", tmp_path / "o")
+    proc = run_here("capture", "import", csv, "--audio", ns / "audio.wav", "-o", tmp_path / "o")
     one_line_error(proc, "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount")
 
 
@@ -556,5 +556,7 @@ def test_an_empty_csv_is_named_empty_with_or_without_audio(samples, tmp_path):
     empty = tmp_path / "take.csv"
     empty.write_text("\n \n")
     wav = next((samples / "speech").rglob("*.wav"))
-    one_line_error(run_cli("capture", "import", empty, "-o", tmp_path / "a"), "file is empty")
-    one_line_error(run_cli("capture", "import", empty, "--audio", wav, "-o", tmp_path / "b"), "file is empty")
+    one_line_error(run_here("capture", "import", empty, "-o", tmp_path / "a"), "file is empty")
+    one_line_error(
+        run_here("capture", "import", empty, "--audio", wav, "-o", tmp_path / "b"), "file is empty"
+    )

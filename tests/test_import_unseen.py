@@ -15,7 +15,7 @@ from test_import_robustness import one_line_error, repairs_of
 
 from capture import FrameStatus, Timecode, read_livelink_csv, read_paired, read_take
 from capture.channels import CSV_ORDER
-from tests.conftest import run_cli
+from tests.conftest import run_here
 
 HEADER = "Timecode,BlendshapeCount," + ",".join(CSV_ORDER)
 START_S = 10 * 3600.0  # 10:00:00:00
@@ -53,7 +53,7 @@ def imported(proc) -> dict:
 @pytest.mark.parametrize("rate", [24, 25, 30, 50])
 def test_timecode_frames_counted_at_the_takes_rate_are_read_at_it(tmp_path, rate):
     csv = livelink_csv(tmp_path / f"tc{rate}.csv", counted_at(rate, 4 * rate))
-    proc = run_cli("capture", "import", csv, "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", csv, "-o", tmp_path / "out", "--json")
     summary = imported(proc)
     assert summary["fps"] == rate and summary["frames"] == 4 * rate and summary["dropped_frames"] == 0
     assert summary["duration_s"] == pytest.approx(4.0)
@@ -84,31 +84,31 @@ def test_rows_missing_from_a_30_fps_timecode_become_dropped_frames(tmp_path):
 def test_timecode_rate_can_be_given(tmp_path):
     csv = livelink_csv(tmp_path / "tc30.csv", counted_at(30, 300))
     as_app = imported(
-        run_cli("capture", "import", csv, "-o", tmp_path / "a", "--json", "--timecode-rate", 60)
+        run_here("capture", "import", csv, "-o", tmp_path / "a", "--json", "--timecode-rate", 60)
     )
     assert as_app["fps"] == 60 and as_app["repairs"] == 0  # the app's reading, as asked
     # --strict makes no guess: the detected rate is refused, a given one is read
     one_line_error(
-        run_cli("capture", "import", csv, "-o", tmp_path / "s", "--strict"),
+        run_here("capture", "import", csv, "-o", tmp_path / "s", "--strict"),
         "count at 30 fps, not the app's 60",
     )
-    strict = run_cli(
+    strict = run_here(
         "capture", "import", csv, "-o", tmp_path / "t", "--json", "--strict", "--timecode-rate", 30
     )
     assert imported(strict)["fps"] == 30
     one_line_error(
-        run_cli("capture", "import", csv, "-o", tmp_path / "b", "--timecode-rate", 25),
+        run_here("capture", "import", csv, "-o", tmp_path / "b", "--timecode-rate", 25),
         "timecode frames (FF) reach 29.000: they do not count at 25 fps",
     )
     # under two whole seconds FF cannot tell its rate: auto keeps the app's 60, the option reads it at 30
     short = livelink_csv(tmp_path / "short.csv", counted_at(30, 45))
-    assert imported(run_cli("capture", "import", short, "-o", tmp_path / "c", "--json"))["fps"] == 60
+    assert imported(run_here("capture", "import", short, "-o", tmp_path / "c", "--json"))["fps"] == 60
     given = imported(
-        run_cli("capture", "import", short, "-o", tmp_path / "d", "--json", "--timecode-rate", 30)
+        run_here("capture", "import", short, "-o", tmp_path / "d", "--json", "--timecode-rate", 30)
     )
     assert given["fps"] == 30 and given["frames"] == 45
     one_line_error(
-        run_cli(
+        run_here(
             "capture",
             "import",
             "--matrix",
@@ -149,7 +149,7 @@ def test_matrix_imports_are_named_after_the_matrix_and_never_replace_another_sou
     def matrix_import(stem: str, fps: int, *extra) -> dict:
         np.save(tmp_path / f"{stem}.npy", np.random.default_rng(fps).random((2 * fps, 2)))
         return imported(
-            run_cli(
+            run_here(
                 "capture",
                 "import",
                 "--matrix",
@@ -187,13 +187,13 @@ def test_an_earlier_import_of_another_csv_or_a_folder_of_the_user_is_not_replace
     a = livelink_csv(tmp_path / "a/take.csv", counted_at(60, 60))
     b = livelink_csv(tmp_path / "b/take.csv", counted_at(60, 90))
     for src, path in ((a, "take"), (b, "take-2"), (a, "take"), (b, "take-2")):
-        proc = run_cli("capture", "import", src, "-o", out, "--json")
+        proc = run_here("capture", "import", src, "-o", out, "--json")
         assert imported(proc)["path"] == str(out / path)
     assert read_take(out / "take").time.size == 60 and read_take(out / "take-2").time.size == 90
     mine = out / "notes"
     mine.mkdir()
     (mine / "todo.txt").write_text("keep me")
-    proc = run_cli("capture", "import", a, "-o", out, "--json", "--id", "notes")
+    proc = run_here("capture", "import", a, "-o", out, "--json", "--id", "notes")
     assert imported(proc)["path"] == str(out / "notes-2") and "is not a take" in proc.stderr
     assert (mine / "todo.txt").read_text() == "keep me"
 
@@ -228,7 +228,7 @@ def test_a_livelink_csv_at_59_94_rows_per_second_is_a_60_fps_take(tmp_path):
 def test_csv_with_audio_of_the_wrong_length_is_noted_as_for_a_matrix(tmp_path, pairing):
     csv = livelink_csv(tmp_path / "take.csv", counted_at(60, 300))  # 5 s
     short = wav(tmp_path / "short.wav", 0.1)
-    proc = run_cli(
+    proc = run_here(
         "capture", "import", csv, "--audio", short, "--audio-pairing", pairing, "-o", tmp_path / "o", "--json"
     )
     (note,) = repairs_of(read_take(imported(proc)["path"]), "length_mismatch")
@@ -237,7 +237,7 @@ def test_csv_with_audio_of_the_wrong_length_is_noted_as_for_a_matrix(tmp_path, p
     (same,) = repairs_of(read_paired(short, tmp_path / "m.npy", 60, tmp_path / "n.txt"), "length_mismatch")
     pattern = r"audio is 4\.900 s shorter than the frames: "
     assert re.match(pattern, note) and re.match(pattern, same), (note, same)
-    fits = run_cli(
+    fits = run_here(
         "capture", "import", csv, "--audio", wav(tmp_path / "fits.wav", 5.5), "-o", tmp_path / "p", "--json"
     )
     assert not repairs_of(read_take(imported(fits)["path"]), "length_mismatch")

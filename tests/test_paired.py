@@ -7,7 +7,7 @@ import pytest
 import soundfile as sf
 
 from capture import FrameStatus, InputError, read_paired, read_take
-from tests.conftest import run_cli
+from tests.conftest import run_here
 
 
 @pytest.fixture
@@ -72,7 +72,7 @@ def test_bad_inputs_give_clear_errors(tmp_path, wav):
 
 
 def test_cli_generic_import_needs_its_flags(tmp_path, wav):
-    proc = run_cli("capture", "import", "--matrix", tmp_path / "m.npy", "-o", tmp_path / "o")
+    proc = run_here("capture", "import", "--matrix", tmp_path / "m.npy", "-o", tmp_path / "o")
     assert proc.returncode == 1 and "--matrix needs --audio" in proc.stderr
 
 
@@ -98,7 +98,7 @@ def _a2f_export(path, frames=45, fps=30, **override):
 
 def test_audio2face_json_import_takes_names_and_rate_from_the_file(tmp_path, wav):
     data = _a2f_export(tmp_path / "a2f.json", frames=45, fps=30)
-    proc = run_cli(
+    proc = run_here(
         "capture", "import", "--matrix", tmp_path / "a2f.json", "--audio", wav, "-o", tmp_path / "o", "--json"
     )
     assert proc.returncode == 0, proc.stderr
@@ -143,7 +143,7 @@ def test_json_that_is_not_an_audio2face_export(tmp_path, wav):
     with pytest.raises(InputError, match="not an Audio2Face blendshape export"):
         read_paired(wav, path, 30)
     path.write_text("{not json")
-    proc = run_cli("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
+    proc = run_here("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
     assert proc.returncode == 1 and "not a JSON file" in proc.stderr and "Traceback" not in proc.stderr
 
 
@@ -238,6 +238,6 @@ def test_generic_csv_mistakes_are_one_line_errors(tmp_path, wav, name, text, nee
 def test_audio2face_json_edge_cases(tmp_path, wav, raw, needle):
     path = tmp_path / "x.json"
     path.write_text(raw)
-    proc = run_cli("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
+    proc = run_here("capture", "import", "--matrix", path, "--audio", wav, "-o", tmp_path / "o")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import run_cli
+from conftest import run_here
 from dataset_helpers import build_default_dataset
 from test_ppg_robustness import _json, _phone, _wav
 from test_train_pipeline import TINY
@@ -164,7 +164,7 @@ def test_manifest_fields_of_the_wrong_type_are_listed_and_refused(clean, tmp_pat
         assert ("manifest_schema", f"manifest.json:{field}") in {(c, w) for c, w, _ in found}, found
     with pytest.raises(InputError, match=re.escape(f"manifest field {field} ")):
         read_manifest(ds)
-    proc = run_cli("dataset", "validate", ds)
+    proc = run_here("dataset", "validate", ds)
     assert proc.returncode == 1 and "[manifest_schema]" in proc.stdout and "Traceback" not in proc.stderr
 
 
@@ -212,7 +212,7 @@ def test_eval_of_a_checkpoint_with_malformed_pitch_statistics_is_one_line(run, c
     payload = torch.load(run / "last.pt", weights_only=True)
     payload["dataset"]["normalization"]["pitch"]["speakers"] = {"spk": {"mean": "", "std": 1.0}}
     torch.save(payload, tmp_path / "bad.pt")
-    proc = run_cli("train", "eval", tmp_path / "bad.pt", "--data", clean)
+    proc = run_here("train", "eval", tmp_path / "bad.pt", "--data", clean)
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
     assert "normalization.pitch.speakers.spk" in proc.stderr
 
@@ -228,7 +228,7 @@ def test_alignment_key_outside_the_json_folder_is_one_line(tmp_path, key):
     path.write_text(json.dumps({key: {"words": _phone()}}))
     with pytest.raises(InputError, match=f"utterance key {json.dumps(key)} must name an audio file inside"):
         find_alignments([folder])
-    proc = run_cli("train", "ppg", "--data", folder, "-o", tmp_path / "p.pt")
+    proc = run_here("train", "ppg", "--data", folder, "-o", tmp_path / "p.pt")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
 
 

@@ -18,7 +18,7 @@ from capture import read_take
 from capture.errors import InputError
 from capture.take_archive import UNPACK_PREFIX, member_name, unpacked
 from capture.transfer_litter import Litter
-from tests.conftest import run_cli
+from tests.conftest import run_here
 
 
 def zip_folder(folder: Path, archive: Path, inside: str | None = None, finder: bool = False) -> Path:
@@ -43,7 +43,7 @@ def imported(out: Path) -> list[Path]:
 def test_a_take_folder_zipped_by_finder_imports_with_its_audio_named_by_its_members(sim_take, tmp_path):
     archive = zip_folder(sim_take, tmp_path / "take.zip", finder=True)
     out = tmp_path / "out"
-    proc = run_cli("capture", "import", archive, "-o", out)
+    proc = run_here("capture", "import", archive, "-o", out)
     assert proc.returncode == 0, proc.stderr
     assert "macOS metadata" in proc.stderr and "Traceback" not in proc.stderr
     (folder,) = imported(out)
@@ -53,14 +53,14 @@ def test_a_take_folder_zipped_by_finder_imports_with_its_audio_named_by_its_memb
     assert take.meta.sources and all(s.path.startswith(member) for s in take.meta.sources), take.meta.sources
     assert [p.name for p in out.iterdir() if p.name.startswith(UNPACK_PREFIX)] == []  # nothing left unpacked
     # the same archive again replaces its take: the same source, not a second take beside it
-    proc = run_cli("capture", "import", archive, "-o", out)
+    proc = run_here("capture", "import", archive, "-o", out)
     assert proc.returncode == 0 and "renamed" not in proc.stderr and "written as" not in proc.stderr
     assert imported(out) == [folder]
 
 
 def test_a_take_folders_contents_zipped_without_the_folder_keep_the_takes_id(sim_take, tmp_path):
     archive = zip_folder(sim_take, tmp_path / "shared from phone.zip", inside="")
-    proc = run_cli("capture", "import", archive, "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", archive, "-o", tmp_path / "out", "--json")
     assert proc.returncode == 0, proc.stderr
     (folder,) = imported(tmp_path / "out")
     assert folder.name == sim_take.name  # take.json's identifier, not the archive's or a temporary name
@@ -77,7 +77,7 @@ def test_loose_csvs_and_their_audio_in_an_archive_pair(samples, tmp_path):
         loose / "S07-001.wav", 0.3 * np.sin(2 * np.pi * 220 * t) * (np.sin(2 * np.pi * 3 * t) > 0), 16000
     )
     archive = zip_folder(loose, tmp_path / "loose.zip", inside="")
-    proc = run_cli("capture", "import", archive, "--pair-audio", "-o", tmp_path / "out")
+    proc = run_here("capture", "import", archive, "--pair-audio", "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     (folder,) = imported(tmp_path / "out")
     assert read_take(folder).audio is not None
@@ -90,12 +90,12 @@ def test_archives_in_a_folder_and_in_an_archive_are_imported_one_level_down(sim_
     shutil.copy(samples / "livelinkface/alexdjulin_S88/S88-001.csv", downloads / "S88-001.csv")
     with zipfile.ZipFile(downloads / "session" / "csv.zip", "w") as z:
         z.write(samples / "livelinkface/alexdjulin_S07/S07-001.csv", "S07-001.csv")
-    proc = run_cli("capture", "import", downloads, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", downloads, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert {p.name for p in imported(tmp_path / "out")} == {sim_take.name, "S88-001", "S07-001"}
     # Google Drive's download of that folder: one archive holding the others
     outer = zip_folder(downloads, tmp_path / "drive-download.zip")
-    proc = run_cli("capture", "import", outer, "-o", tmp_path / "out2")
+    proc = run_here("capture", "import", outer, "-o", tmp_path / "out2")
     assert proc.returncode == 0, proc.stderr
     assert {p.name for p in imported(tmp_path / "out2")} == {sim_take.name, "S88-001", "S07-001"}
     take = read_take(tmp_path / "out2" / "S07-001")
@@ -104,7 +104,7 @@ def test_archives_in_a_folder_and_in_an_archive_are_imported_one_level_down(sim_
     (tmp_path / "wrap").mkdir()
     shutil.copy(outer, tmp_path / "wrap" / "drive-download.zip")
     three = zip_folder(tmp_path / "wrap", tmp_path / "three.zip")
-    proc = run_cli("capture", "import", three, "-o", tmp_path / "out3")
+    proc = run_here("capture", "import", three, "-o", tmp_path / "out3")
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     assert [p.name for p in imported(tmp_path / "out3")] == ["S88-001"]
     assert "three.zip/wrap/drive-download.zip/downloads/session/take1.zip: a zip archive" in proc.stderr
@@ -112,7 +112,7 @@ def test_archives_in_a_folder_and_in_an_archive_are_imported_one_level_down(sim_
 
 def test_info_reads_an_archive(sim_take, tmp_path):
     archive = zip_folder(sim_take, tmp_path / "take.zip")
-    proc = run_cli("capture", "info", archive, "--json")
+    proc = run_here("capture", "info", archive, "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["frames"] > 100
 
@@ -133,7 +133,7 @@ def test_members_outside_the_folder_refuse_the_archive_and_write_nothing(samples
         tmp_path / "evil.zip", [(zipfile.ZipInfo("ok.csv"), csv), (zipfile.ZipInfo(name), csv)]
     )
     out = tmp_path / "sub" / "out"
-    proc = run_cli("capture", "import", archive, "-o", out)
+    proc = run_here("capture", "import", archive, "-o", out)
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
     assert "would be written outside the folder unpacked into" in proc.stderr
     assert not imported(out) and not (tmp_path / "sub" / "escaped.csv").exists()
@@ -146,7 +146,7 @@ def test_links_in_an_archive_are_not_made(samples, tmp_path):
     link.create_system = 3
     link.external_attr = (stat.S_IFLNK | 0o777) << 16
     archive = _raw_zip(tmp_path / "links.zip", [(link, b"/etc/passwd"), (zipfile.ZipInfo("S88.csv"), csv)])
-    proc = run_cli("capture", "import", archive, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", archive, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert [p.name for p in imported(tmp_path / "out")] == ["S88"]
 
@@ -166,11 +166,11 @@ def test_encrypted_and_deflate64_archives_say_what_to_do(samples, tmp_path):
     csv = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_bytes()[:4000]
     locked = _raw_zip(tmp_path / "locked.zip", [(zipfile.ZipInfo("S07-001.csv"), csv)])
     _patched(locked, 6, "<H", 0x1)  # general purpose flags: encrypted
-    proc = run_cli("capture", "import", locked, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", locked, "-o", tmp_path / "out")
     assert proc.returncode == 1 and "is encrypted: unzip it with its password" in proc.stderr, proc.stderr
     big = _raw_zip(tmp_path / "explorer.zip", [(zipfile.ZipInfo("S07-001.csv"), csv)])
     _patched(big, 8, "<H", 9)  # compression method: Deflate64
-    proc = run_cli("capture", "import", big, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", big, "-o", tmp_path / "out")
     assert proc.returncode == 1 and "Deflate64" in proc.stderr and "7-Zip" in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
 
@@ -187,7 +187,7 @@ def test_a_cut_short_or_damaged_archive_is_one_line_and_the_other_sources_import
     data[len(data) // 3] ^= 0xFF  # inside the compressed CSV
     damaged.write_bytes(bytes(data))
     out = tmp_path / "out"
-    proc = run_cli("capture", "import", cut, damaged, csv_path, "-o", out)
+    proc = run_here("capture", "import", cut, damaged, csv_path, "-o", out)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     errors = [line for line in proc.stderr.splitlines() if "error:" in line]
     assert len(errors) == 2, proc.stderr
@@ -203,7 +203,7 @@ def test_two_members_of_one_name_refuse_the_archive(samples, tmp_path):
         archive = _raw_zip(
             tmp_path / "twice.zip", [(zipfile.ZipInfo("a.csv"), csv), (zipfile.ZipInfo("a.csv"), b"x")]
         )
-    proc = run_cli("capture", "import", archive, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", archive, "-o", tmp_path / "out")
     assert proc.returncode == 1 and "holds two members named a.csv" in proc.stderr, proc.stderr
 
 
@@ -238,7 +238,7 @@ def test_what_a_killed_import_left_unpacked_is_removed_by_the_next(sim_take, tmp
     left.mkdir(parents=True)
     (left / "big.mov").write_bytes(bytes(1000))
     archive = zip_folder(sim_take, tmp_path / "take.zip")
-    proc = run_cli("capture", "import", archive, "-o", out)
+    proc = run_here("capture", "import", archive, "-o", out)
     assert proc.returncode == 0, proc.stderr
     assert [p.name for p in out.iterdir() if not p.name.startswith(".import")] == [sim_take.name]
 
@@ -246,7 +246,7 @@ def test_what_a_killed_import_left_unpacked_is_removed_by_the_next(sim_take, tmp
 def test_align_on_a_folder_of_archives_says_to_import_them(sim_take, tmp_path):
     (tmp_path / "in").mkdir()
     zip_folder(sim_take, tmp_path / "in" / "take.zip")
-    proc = run_cli("align", tmp_path / "in", "-o", tmp_path / "al")
+    proc = run_here("align", tmp_path / "in", "-o", tmp_path / "al")
     assert proc.returncode == 1 and "run s2a-capture import" in proc.stderr, proc.stderr
 
 
@@ -269,7 +269,7 @@ def test_archives_named_dot_zip_are_one_error_each_and_the_others_import(samples
     for name in ("..zip", "...zip", "good.zip"):
         with zipfile.ZipFile(tmp_path / "z" / name, "w") as z:
             z.write(csv, "S07-001.csv" if name == "good.zip" else f"{name[:2]}S07.csv")
-    proc = run_cli("capture", "import", tmp_path / "z", "-o", tmp_path / "out")
+    proc = run_here("capture", "import", tmp_path / "z", "-o", tmp_path / "out")
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     assert len(imported(tmp_path / "out")) == 3 and UNPACK_PREFIX not in proc.stderr
 
@@ -278,18 +278,18 @@ def test_info_reads_archives_in_a_folder_in_an_archive_and_of_imported_takes(sim
     folder = tmp_path / "fz"
     folder.mkdir()
     zip_folder(sim_take, folder / "take.zip")
-    proc = run_cli("capture", "info", folder, "--json")
+    proc = run_here("capture", "info", folder, "--json")
     assert proc.returncode == 0 and json.loads(proc.stdout)["frames"] > 100, proc.stderr
     outer = zip_folder(folder, tmp_path / "outer.zip")
-    proc = run_cli("capture", "info", outer, "--json")
+    proc = run_here("capture", "info", outer, "--json")
     assert proc.returncode == 0 and json.loads(proc.stdout)["frames"] > 100, proc.stderr
     # a zip of takes imported already: info reads them; import says what they are
     out = tmp_path / "out"
-    run_cli("capture", "import", sim_take, "-o", out, check=True)
+    run_here("capture", "import", sim_take, "-o", out, check=True)
     ours = zip_folder(out / sim_take.name, tmp_path / "ours.zip")
-    proc = run_cli("capture", "info", ours, "--json")
+    proc = run_here("capture", "info", ours, "--json")
     assert proc.returncode == 0 and json.loads(proc.stdout)["frames"] > 100, proc.stderr
-    proc = run_cli("capture", "import", ours, "-o", tmp_path / "again")
+    proc = run_here("capture", "import", ours, "-o", tmp_path / "again")
     assert proc.returncode == 1 and "it holds takes imported already" in proc.stderr, proc.stderr
 
 
@@ -298,8 +298,8 @@ def test_an_archive_imported_again_through_a_link_replaces_its_take(sim_take, tm
     zip_folder(sim_take, tmp_path / "z" / "take.zip")
     (tmp_path / "zl").symlink_to(tmp_path / "z")
     out = tmp_path / "out"
-    run_cli("capture", "import", tmp_path / "z" / "take.zip", "-o", out, check=True)
-    proc = run_cli("capture", "import", tmp_path / "zl" / "take.zip", "-o", out)
+    run_here("capture", "import", tmp_path / "z" / "take.zip", "-o", out, check=True)
+    proc = run_here("capture", "import", tmp_path / "zl" / "take.zip", "-o", out)
     assert proc.returncode == 0 and "written as" not in proc.stderr, proc.stderr
     assert len(imported(out)) == 1
     assert read_take(imported(out)[0]).meta.sources[0].path.startswith(str((tmp_path / "z").resolve()))
@@ -310,6 +310,6 @@ def test_an_import_without_the_folder_lock_leaves_what_others_unpacked(sim_take,
     busy = out / f"{UNPACK_PREFIX}other123" / "take"
     busy.mkdir(parents=True)
     (out / ".import.lock").symlink_to(tmp_path / "elsewhere")  # cannot be locked: the import runs unlocked
-    proc = run_cli("capture", "import", zip_folder(sim_take, tmp_path / "take.zip"), "-o", out)
+    proc = run_here("capture", "import", zip_folder(sim_take, tmp_path / "take.zip"), "-o", out)
     assert proc.returncode == 0, proc.stderr
     assert busy.is_dir()  # another import's, perhaps: only an import holding the lock clears them

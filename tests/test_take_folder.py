@@ -15,7 +15,7 @@ import pytest
 from capture import Audio, InputError, read_audio, read_take, read_take_folder, write_reference_mov
 from capture.take_folder import read_csv_with_audio
 from capture.timecode import Timecode
-from tests.conftest import run_cli
+from tests.conftest import run_here
 
 CSV_T0 = Timecode.parse("19:18:11:20.002").seconds_of_day  # first row of MySlate_166_iPhone_cal.csv
 
@@ -173,16 +173,16 @@ def test_csv_with_external_audio_of_any_format(tmp_path, samples, ext, codec):
 
 def test_cli_imports_take_folders_found_recursively(tmp_path, samples):
     make_take_folder(tmp_path / "phone" / "takes", samples)
-    proc = run_cli("capture", "import", tmp_path / "phone", "-o", tmp_path / "out", "--json", check=True)
+    proc = run_here("capture", "import", tmp_path / "phone", "-o", tmp_path / "out", "--json", check=True)
     [summary] = [json.loads(x) for x in proc.stdout.splitlines()]
     assert summary["id"] == "20241204_MySlate_166" and summary["audio_sample_rate"] == 48000
     assert summary["frames"] == 1848
-    info = run_cli("capture", "info", tmp_path / "phone" / "takes" / "20241204_MySlate_166", "--json")
+    info = run_here("capture", "info", tmp_path / "phone" / "takes" / "20241204_MySlate_166", "--json")
     assert json.loads(info.stdout)["audio_start_s"] == pytest.approx((19 - 20.002) / 60, abs=1e-6)
 
 
 def test_missing_audio_file_is_a_clear_error(tmp_path, samples):
-    proc = run_cli(
+    proc = run_here(
         "capture",
         "import",
         samples / "livelinkface/alexdjulin_S07/S07-001.csv",
@@ -204,10 +204,10 @@ def test_audio_pairing_by_frame_index_is_recorded_for_align(tmp_path, samples):
         ("frame-index", "paired_frame_convention"),
     ):
         out = tmp_path / pairing
-        run_cli("capture", "import", csv, "--audio", wav, "--audio-pairing", pairing, "-o", out, check=True)
+        run_here("capture", "import", csv, "--audio", wav, "--audio-pairing", pairing, "-o", out, check=True)
         assert read_take(out / "testset", audio=False).meta.audio.start_source == source
     for bad in (["--audio-pairing", "frame-index"], ["--audio", wav, "--audio-pairing", "by-ear"]):
-        proc = run_cli("capture", "import", csv, *bad, "-o", tmp_path / "bad")
+        proc = run_here("capture", "import", csv, *bad, "-o", tmp_path / "bad")
         assert (
             proc.returncode in (1, 2) and "--audio-pairing" in proc.stderr and "Traceback" not in proc.stderr
         )

@@ -16,7 +16,7 @@ import soundfile as sf
 
 from capture import read_take, read_take_folder
 from capture.transfer_litter import Litter, icloud_original, is_appledouble, litter_kind
-from tests.conftest import run_cli
+from tests.conftest import run_here
 
 STEM = "SimSpk01_1_spk01"  # the simulated take's file names
 
@@ -77,7 +77,7 @@ def test_apple_double_files_in_a_take_folder_are_skipped_and_the_audio_kept(sim_
     shadow.mkdir(parents=True)
     for name in ("take.json", "frame_log.csv", f"{STEM}.csv", f"{STEM}.mov"):
         apple_double(shadow / f"._{name}")
-    proc = run_cli("capture", "import", tmp_path / "card", "-o", tmp_path / "out")
+    proc = run_here("capture", "import", tmp_path / "card", "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     (out,) = imported(tmp_path / "out")
     t = read_take(out)
@@ -104,16 +104,16 @@ def test_apple_double_beside_a_loose_csv_and_info_of_the_folder(samples, tmp_pat
     shutil.copy(samples / "livelinkface/alexdjulin_S07/S07-001.csv", folder / "S07-001.csv")
     apple_double(folder / "._S07-001.csv")
     apple_double(folder / "._S07-001_cal.csv")
-    proc = run_cli("capture", "import", folder, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", folder, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert [p.name for p in imported(tmp_path / "out")] == ["S07-001"]
     assert "skipped 2 macOS metadata files (._*)" in proc.stderr
-    proc = run_cli("capture", "info", folder, "--json")
+    proc = run_here("capture", "info", folder, "--json")
     assert proc.returncode == 0, proc.stderr
     assert [json.loads(line)["id"] for line in proc.stdout.splitlines()] == ["S07-001"]
     assert "skipped 2 macOS metadata files (._*)" in proc.stderr
     # named directly (a path typed by hand), an AppleDouble file is passed over and counted all the same
-    proc = run_cli(
+    proc = run_here(
         "capture", "import", folder / "._S07-001.csv", folder / "S07-001.csv", "-o", tmp_path / "o2"
     )
     assert proc.returncode == 0 and "skipped 1 macOS metadata file (._*)" in proc.stderr, proc.stderr
@@ -129,7 +129,7 @@ def test_windows_and_download_litter_is_skipped(sim_take, tmp_path):
     (drive / "takes" / f"~${STEM}.csv").write_bytes(b"\x0cuser" + bytes(150))  # Excel's owner file
     (drive / "takes" / f"{STEM}.csv.crdownload").write_text("Timecode,BlendShapeCount\n")
     (drive / "takes" / f"{STEM}.csv.part").write_text("Timecode,Blend")
-    proc = run_cli("capture", "import", drive, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", drive, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert len(imported(tmp_path / "out")) == 1
     for line in (
@@ -151,7 +151,7 @@ def test_apple_double_textgrid_does_not_stop_ppg_training(tmp_path):
     write_textgrid(TextGrid(0.0, 2.0, [tier]), tmp_path / "utt.TextGrid")
     apple_double(tmp_path / "._utt.TextGrid")
     apple_double(tmp_path / "._utt.wav")
-    proc = run_cli("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "1", "--json")
+    proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "1", "--json")
     assert proc.returncode == 0, proc.stderr
     assert "skipped 2 macOS metadata files (._*)" in proc.stderr
     warnings: list[str] = []
@@ -176,7 +176,7 @@ def test_pair_audio_ignores_apple_double_audio_and_pairs_nfd_names(samples, tmp_
     shutil.copy(csv, cafe / (unicodedata.normalize("NFC", "Café") + ".csv"))
     _wav(cafe / "other.wav", 1.0)
     _wav(cafe / (unicodedata.normalize("NFD", "Café") + ".wav"), 1.0)
-    proc = run_cli("capture", "import", one, cafe, "--pair-audio", "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", one, cafe, "--pair-audio", "-o", tmp_path / "out", "--json")
     assert proc.returncode == 0, proc.stderr
     summaries = {s["id"]: s for s in map(json.loads, proc.stdout.splitlines())}
     assert set(summaries) == {"take", unicodedata.normalize("NFC", "Café")}, proc.stdout
@@ -202,7 +202,7 @@ def test_the_csv_named_after_the_take_wins_over_a_copy(sim_take, samples, tmp_pa
     real_rows = read_take_folder(take).time.size
     (take / copy).write_text(_other_csv(samples))
     assert sorted(p.name for p in take.glob("*.csv") if p.name != "frame_log.csv")[0] == copy  # sorts first
-    proc = run_cli("capture", "import", take, "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", take, "-o", tmp_path / "out", "--json")
     assert proc.returncode == 0, proc.stderr
     (summary,) = map(json.loads, proc.stdout.splitlines())
     t = read_take(summary["path"])
@@ -215,7 +215,7 @@ def test_two_csvs_none_named_after_the_take_are_an_error_naming_them(sim_take, s
         (take / name).unlink()
     shutil.move(take / f"{STEM}.csv", take / "A.csv")
     (take / "B.csv").write_text(_other_csv(samples))
-    proc = run_cli("capture", "import", take, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", take, "-o", tmp_path / "out")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert "2 plain CSVs (A.csv, B.csv)" in proc.stderr and "remove the others" in proc.stderr
     assert not imported(tmp_path / "out")
@@ -225,7 +225,7 @@ def test_a_csv_cut_short_is_a_warning(samples, tmp_path):
     text = (samples / "livelinkface/alexdjulin_S07/S07-001.csv").read_text()
     cut = tmp_path / "cut.csv"
     cut.write_text(text.rstrip("\n")[:-40])
-    proc = run_cli("capture", "import", cut, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", cut, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert "last row cut short" in proc.stderr and "an incomplete copy or download?" in proc.stderr
 
@@ -243,7 +243,7 @@ def test_icloud_placeholders_refuse_their_take_and_others_import(sim_take, tmp_p
     loose = root / "loose"
     loose.mkdir()
     icloud_placeholder(loose, "S07-001.csv")
-    proc = run_cli("capture", "import", root, "-o", tmp_path / "out", "--json")
+    proc = run_here("capture", "import", root, "-o", tmp_path / "out", "--json")
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     errors = [line for line in proc.stderr.splitlines() if "error:" in line]
     assert len(errors) == 3, proc.stderr
@@ -264,12 +264,12 @@ def test_zip_archives_are_imported_and_viewed(samples, tmp_path):
     shutil.copy(samples / "livelinkface/alexdjulin_S07/S07-001.csv", folder / "S07-001.csv")
     shutil.make_archive(str(tmp_path / "takes"), "zip", folder)
     shutil.copy(tmp_path / "takes.zip", folder / "more takes.zip")
-    proc = run_cli("capture", "import", tmp_path / "takes.zip", "-o", tmp_path / "out")
+    proc = run_here("capture", "import", tmp_path / "takes.zip", "-o", tmp_path / "out")
     assert proc.returncode == 0 and "takes.zip/S07-001.csv ->" in proc.stderr, proc.stderr
-    proc = run_cli("capture", "import", folder, "-o", tmp_path / "out2")
+    proc = run_here("capture", "import", folder, "-o", tmp_path / "out2")
     assert proc.returncode == 0, proc.stderr
     assert "more takes.zip/S07-001.csv ->" in proc.stderr
-    proc = run_cli("viewer", "plot", tmp_path / "takes.zip", "-o", tmp_path / "p.png")
+    proc = run_here("viewer", "plot", tmp_path / "takes.zip", "-o", tmp_path / "p.png")
     assert proc.returncode == 0 and (tmp_path / "p.png").stat().st_size > 0, proc.stderr
 
 
@@ -279,7 +279,7 @@ def test_symlinks_to_a_parent_and_dangling_links_are_skipped(sim_take, tmp_path)
     copy_take(sim_take, folder / "T")
     os.symlink("..", folder / "loop")
     os.symlink("missing.csv", folder / "gone.csv")
-    proc = run_cli("capture", "import", folder, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", folder, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert len(imported(tmp_path / "out")) == 1
     lines = warnings_of(proc)
@@ -298,7 +298,7 @@ def test_apple_double_data_under_a_csv_name_says_what_to_import(samples, tmp_pat
     named = apple_double(tmp_path / "._S07-001.csv")
     with pytest.raises(InputError, match="import the file without the ._ in its name"):
         import_source(named)
-    proc = run_cli("capture", "import", renamed, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", renamed, "-o", tmp_path / "out")
     assert proc.returncode == 1 and "AppleDouble" in proc.stderr and "Traceback" not in proc.stderr
     assert "without the ._" not in proc.stderr and not imported(tmp_path / "out")
 
@@ -315,14 +315,14 @@ def test_pair_audio_refuses_a_csv_whose_only_audio_is_an_icloud_placeholder(samp
     icloud_placeholder(two, "a.wav")
     icloud_placeholder(two, "b.wav")
     for folder, name in ((one, "voice.wav"), (two, "a.wav")):
-        proc = run_cli("capture", "import", folder, "--pair-audio", "-o", tmp_path / "out")
+        proc = run_here("capture", "import", folder, "--pair-audio", "-o", tmp_path / "out")
         assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
         assert f"{name} is an iCloud placeholder, not downloaded" in proc.stderr, proc.stderr
         assert str(folder / "take.csv") in proc.stderr and not imported(tmp_path / "out")
     # the placeholder of another CSV's audio: that CSV's error, this one's warning as for a real file
     shutil.copy(csv, two / "a.csv")
     shutil.copy(csv, two / "b.csv")
-    proc = run_cli("capture", "import", two / "take.csv", "--pair-audio", "-o", tmp_path / "out")
+    proc = run_here("capture", "import", two / "take.csv", "--pair-audio", "-o", tmp_path / "out")
     assert proc.returncode == 0 and "2 audio files beside it and none named take.*" in proc.stderr
 
 
@@ -351,8 +351,8 @@ def test_icloud_placeholders_of_files_the_take_never_reads_do_not_refuse_it(sim_
 
 def test_a_take_folder_named_like_a_zip_is_imported(sim_take, tmp_path):
     take = copy_take(sim_take, tmp_path / "T.zip")
-    proc = run_cli("capture", "import", take, "-o", tmp_path / "out")
+    proc = run_here("capture", "import", take, "-o", tmp_path / "out")
     assert proc.returncode == 0 and "zip archive" not in proc.stderr, proc.stderr
-    proc = run_cli("capture", "import", tmp_path, "-o", tmp_path / "out2")
+    proc = run_here("capture", "import", tmp_path, "-o", tmp_path / "out2")
     assert proc.returncode == 0 and "zip archive" not in proc.stderr, proc.stderr
     assert len(imported(tmp_path / "out")) == 1 and len(imported(tmp_path / "out2")) == 1

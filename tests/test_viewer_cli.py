@@ -14,7 +14,7 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import run_cli, run_here
 from dataset_helpers import write_aligned_set
 
 from capture import (
@@ -104,7 +104,7 @@ def test_render_png_of_the_real_take(samples, tmp_path):
 def test_render_mp4_side_by_side_has_every_frame_and_the_audio(short_take, prediction_csv, tmp_path):
     out = tmp_path / "compare.mp4"
     s = _json(
-        run_cli(
+        run_here(
             "viewer", "render", short_take, "--compare", prediction_csv, "-o", out, "--size", "128", "--json"
         )
     )
@@ -172,7 +172,7 @@ def test_plot_png_and_svg(samples, short_take, prediction_csv, tmp_path):
     src = samples / NEUROSYNC
     out = tmp_path / "curves.png"
     s = _json(
-        run_cli(
+        run_here(
             "viewer",
             "plot",
             src / "testset.csv",
@@ -192,7 +192,7 @@ def test_plot_png_and_svg(samples, short_take, prediction_csv, tmp_path):
     assert img.shape[1] == 1000 and img.std() > 20
     svg = tmp_path / "compare.svg"
     s = _json(
-        run_cli(
+        run_here(
             "viewer",
             "plot",
             short_take,
@@ -321,13 +321,13 @@ def test_report_opens_in_headless_chromium(tmp_path):
 
 def test_report_over_take_folders_without_a_dataset(short_take, tmp_path):
     out = tmp_path / "takes.html"
-    s = _json(run_cli("viewer", "report", short_take.parent, "-o", out, "--json"))
+    s = _json(run_here("viewer", "report", short_take.parent, "-o", out, "--json"))
     assert s["kind"] == "takes" and s["takes"] == 1
     assert "Not a built dataset" in out.read_text()
 
 
 def test_export_face_writes_a_glb_with_52_targets(tmp_path):
-    s = _json(run_cli("viewer", "export-face", "-o", tmp_path / "face.glb", "--names", "suffix", "--json"))
+    s = _json(run_here("viewer", "export-face", "-o", tmp_path / "face.glb", "--names", "suffix", "--json"))
     assert s["channels"] == 52
     data = (tmp_path / "face.glb").read_bytes()
     assert data[:4] == b"glTF" and b"eyeBlink_L" in data and b"jawOpen" in data
@@ -345,7 +345,7 @@ def test_export_face_writes_a_glb_with_52_targets(tmp_path):
     ],
 )
 def test_errors_are_one_line_with_exit_codes(tmp_path, args, code, needle):
-    proc = run_cli(
+    proc = run_here(
         "viewer", *[a if not a.startswith(("no/", "x.", "r.")) else str(tmp_path / a) for a in args]
     )
     assert proc.returncode == code

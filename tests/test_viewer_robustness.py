@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import import_rig_take, run_cli
+from conftest import import_rig_take, run_here
 from dataset_helpers import make_aligned_take
 from live_helpers import datagrams, udp_receiver
 
@@ -69,7 +69,7 @@ def test_render_and_plot_refuse_a_folder_of_several_takes(samples, tmp_path):
     for name in ("alexdjulin_S07/S07-001.csv", "alexdjulin_S88/S88-001.csv"):
         shutil.copy(samples / "livelinkface" / name, folder)
     for cmd, out in (("render", "f.png"), ("plot", "p.png")):
-        proc = run_cli("viewer", cmd, folder, "-o", tmp_path / out)
+        proc = run_here("viewer", cmd, folder, "-o", tmp_path / out)
         line = _one_line_error(proc, "found 2 takes under it", "S07-001.csv", "S88-001.csv")
         assert line.startswith(f"s2a-view: error: {folder}: {cmd} ")
         assert not (tmp_path / out).exists()
@@ -81,7 +81,7 @@ def test_the_variants_of_one_take_in_a_folder_are_one_take(samples, tmp_path):
     text = "".join(_lines(samples))
     (folder / "MySlate_166_iPhone_cal.csv").write_text(text, encoding="utf-8")
     (folder / "MySlate_166_iPhone_raw.csv").write_text(text, encoding="utf-8")
-    s = _json(run_cli("viewer", "plot", folder, "-o", tmp_path / "p.png", "--json"))
+    s = _json(run_here("viewer", "plot", folder, "-o", tmp_path / "p.png", "--json"))
     assert len(s["inputs"]) == 1 and (tmp_path / "p.png").is_file()
 
 
@@ -98,7 +98,7 @@ def test_the_variants_of_one_take_in_a_folder_are_one_take(samples, tmp_path):
 )
 def test_render_checks_time_and_frame_before_rendering(short_csv, tmp_path, option, value, needle):
     out = tmp_path / "f.png"
-    proc = run_cli("viewer", "render", short_csv, "-o", out, option, value, "--json")
+    proc = run_here("viewer", "render", short_csv, "-o", out, option, value, "--json")
     if needle.startswith("argument"):
         assert proc.returncode == 2 and needle in proc.stderr.strip().splitlines()[-1], proc.stderr
     else:
@@ -113,11 +113,11 @@ def test_report_limit_bounds_thumbnails_and_refuses_negative_values(short_csv, t
         take.meta.id = tid
         write_take(take, tmp_path / "takes")
     out = tmp_path / "r.html"
-    proc = run_cli("viewer", "report", tmp_path / "takes", "-o", out, "--limit", "-1")
+    proc = run_here("viewer", "report", tmp_path / "takes", "-o", out, "--limit", "-1")
     assert proc.returncode == 2 and "argument --limit" in proc.stderr, proc.stderr  # a usage error
     assert not out.exists()
     for limit, thumbs in (("0", 0), ("1", 1)):
-        s = _json(run_cli("viewer", "report", tmp_path / "takes", "-o", out, "--limit", limit, "--json"))
+        s = _json(run_here("viewer", "report", tmp_path / "takes", "-o", out, "--limit", limit, "--json"))
         assert s["takes"] == 2 and s["thumbnails"] == thumbs  # every take listed, never one dropped
         assert "take_a" in out.read_text() and "take_b" in out.read_text()
 
@@ -158,7 +158,7 @@ def absurd_csv(samples, tmp_path) -> Path:
 
 def test_render_bridges_an_absurd_frame_and_clamps_weights(absurd_csv, tmp_path):
     out = tmp_path / "f.png"
-    proc = run_cli("viewer", "render", absurd_csv, "-o", out, "--frame", "9", "--size", "96", "--json")
+    proc = run_here("viewer", "render", absurd_csv, "-o", out, "--frame", "9", "--size", "96", "--json")
     s = _json(proc)
     assert s["bad_values"] == [1] and s["clamped_values"] == [2]
     assert "1 frame(s) hold NaN, infinite or absurd (beyond ±10) values" in proc.stderr
@@ -185,7 +185,7 @@ def test_bridged_and_clamped_weights(absurd_csv):
 def test_stream_sends_an_absurd_frame_as_no_face_and_counts_it(absurd_csv):
     with udp_receiver() as sock:
         to = f"127.0.0.1:{sock.getsockname()[1]}"
-        proc = run_cli("viewer", "stream", absurd_csv, "--to", to, "--speed", "50", "--json")
+        proc = run_here("viewer", "stream", absurd_csv, "--to", to, "--speed", "50", "--json")
         packets = datagrams(sock)
     s = _json(proc)
     assert s["bad_values"] == 1 and s["outside_0_1"] == 2
@@ -211,17 +211,17 @@ def test_write_errors_name_the_given_path_and_the_reason(short_csv, tmp_path):
         (["report", takes, "-o", "/proc/r.html"], "/proc/r.html", "cannot write the report"),
         (["render", short_csv, "-o", "/proc/f.png", "--size", "32"], "/proc/f.png", "cannot write the image"),
     ]:
-        line = _one_line_error(run_cli("viewer", *args), f"{path}: {what}: /proc does not take new files")
+        line = _one_line_error(run_here("viewer", *args), f"{path}: {what}: /proc does not take new files")
         assert "unknown extension" not in line
 
 
 def test_export_face_refuses_a_folder_and_names_that_are_not_glb(tmp_path):
     folder = tmp_path / "v.glb"
     folder.mkdir()
-    _one_line_error(run_cli("viewer", "export-face", "-o", folder), f"{folder}: is a folder")
+    _one_line_error(run_here("viewer", "export-face", "-o", folder), f"{folder}: is a folder")
     assert list(folder.iterdir()) == [] and [p.name for p in tmp_path.iterdir()] == ["v.glb"]
     for name in ("face.gltf", "face.obj"):
-        _one_line_error(run_cli("viewer", "export-face", "-o", tmp_path / name), "ending in .glb")
+        _one_line_error(run_here("viewer", "export-face", "-o", tmp_path / name), "ending in .glb")
         assert not (tmp_path / name).exists()
 
 
@@ -231,9 +231,9 @@ def test_an_empty_csv_error_names_no_capture_option(tmp_path):
     other = tmp_path / "matrix.csv"
     other.write_text("jawOpen,mouthClose\n0.1,0.2\n", encoding="utf-8")
     for args in (["render", empty, "-o", tmp_path / "f.png"], ["plot", empty, "-o", tmp_path / "p.png"]):
-        line = _one_line_error(run_cli("viewer", *args), f"{empty}: file is empty")
+        line = _one_line_error(run_here("viewer", *args), f"{empty}: file is empty")
         assert "--pair-audio" not in line
-    line = _one_line_error(run_cli("viewer", "stream", other, "--to", "127.0.0.1:9"), "--audio FILE")
+    line = _one_line_error(run_here("viewer", "stream", other, "--to", "127.0.0.1:9"), "--audio FILE")
     assert "--pair-audio" not in line
 
 
@@ -245,7 +245,7 @@ def test_rows_the_reader_dropped_are_warned_about(samples, tmp_path):
     lines[8] = ",".join(lines[8].split(",")[:10]) + "\n"  # line 9: too few fields
     csv = tmp_path / "rows.csv"
     csv.write_text("".join(lines), encoding="utf-8")
-    proc = run_cli("viewer", "plot", csv, "-o", tmp_path / "p.png", "--json")
+    proc = run_here("viewer", "plot", csv, "-o", tmp_path / "p.png", "--json")
     assert proc.returncode == 0, proc.stderr
     warnings = [w for w in proc.stderr.splitlines() if w.startswith("warning:")]
     assert f"warning: {csv}:4: timecode 'garbage'" in proc.stderr
@@ -259,12 +259,12 @@ def test_nan_audio_is_refused(short_csv, tmp_path):
     wav = tmp_path / "nan.wav"
     sf.write(wav, x, 16000, subtype="FLOAT")
     for cmd, out in (("plot", "p.png"), ("render", "f.png")):
-        proc = run_cli("viewer", cmd, short_csv, "--audio", wav, "-o", tmp_path / out)
+        proc = run_here("viewer", cmd, short_csv, "--audio", wav, "-o", tmp_path / out)
         _one_line_error(proc, f"{wav}: the audio holds NaN or infinite samples")
         assert not (tmp_path / out).exists()
     take = read_take(write_take(read_livelink_csv(short_csv), tmp_path / "takes"))
     folder = tmp_path / "takes" / take.meta.id
-    proc = run_cli("viewer", "plot", folder, "--audio", wav, "-o", tmp_path / "p.png")
+    proc = run_here("viewer", "plot", folder, "--audio", wav, "-o", tmp_path / "p.png")
     _one_line_error(proc, "NaN or infinite sample")
 
 
@@ -278,18 +278,18 @@ def test_a_rigs_own_controls_are_plotted_by_name_and_not_rendered_as_a_still_fac
     stream used to show a neutral face and send zeros, and plot refused its channel names."""
     out = tmp_path / "rig.png"
     summary = _json(
-        run_cli("viewer", "plot", rig_take, "-o", out, "--channels", "mouth_oh_c,jaw_thrust_c", "--json")
+        run_here("viewer", "plot", rig_take, "-o", out, "--channels", "mouth_oh_c,jaw_thrust_c", "--json")
     )
     assert summary["channels"] == ["mouth_oh_c", "jaw_thrust_c"] and out.stat().st_size > 0
     _one_line_error(
-        run_cli("viewer", "plot", rig_take, "-o", out, "--channels", "jawOpen"),
+        run_here("viewer", "plot", rig_take, "-o", out, "--channels", "jawOpen"),
         "no input holds channel 'jawOpen'",
         "116 rig controls",
     )
-    line = _one_line_error(run_cli("viewer", "render", rig_take, "-o", tmp_path / "face.png"))
+    line = _one_line_error(run_here("viewer", "render", rig_take, "-o", tmp_path / "face.png"))
     assert "holds none of the 61 Live Link Face channels" in line and "s2a-view plot --channels" in line
     assert not (tmp_path / "face.png").exists()
-    _one_line_error(run_cli("viewer", "stream", rig_take, "--to", "127.0.0.1:9"), "stream shows Live Link")
+    _one_line_error(run_here("viewer", "stream", rig_take, "--to", "127.0.0.1:9"), "stream shows Live Link")
 
 
 def test_a_matrix_csv_without_a_rate_is_sent_to_import(samples, tmp_path):
@@ -298,7 +298,7 @@ def test_a_matrix_csv_without_a_rate_is_sent_to_import(samples, tmp_path):
     matrix = tmp_path / "weights.csv"
     matrix.write_text("jawOpen,mouthClose\n" + "".join(f"{i / 60:.3f},0.1\n" for i in range(60)))
     wav = samples / "paired" / "neurosync-trainer-lite-testset" / "audio.wav"
-    line = _one_line_error(run_cli("viewer", "plot", matrix, "--audio", wav, "-o", tmp_path / "p.png"))
+    line = _one_line_error(run_here("viewer", "plot", matrix, "--audio", wav, "-o", tmp_path / "p.png"))
     assert f"import it first (s2a-capture import --matrix {matrix} " in line
 
 
@@ -311,9 +311,9 @@ def test_a_take_with_rig_controls_beside_live_link_channels_is_plotted_and_rende
     take.values[:, -1] = np.nan
     mixed = write_take(take, tmp_path / "takes")
     out = tmp_path / "both.png"
-    proc = run_cli("viewer", "plot", mixed, rig_take, "-o", out, "--channels", "jawOpen", "--json")
+    proc = run_here("viewer", "plot", mixed, rig_take, "-o", out, "--channels", "jawOpen", "--json")
     summary = _json(proc)
     assert summary["inputs_without_these_channels"] == ["rig"]
     assert "rig holds none of the channels" in proc.stderr
-    proc = run_cli("viewer", "render", mixed, "-o", tmp_path / "face.png", "--json")
+    proc = run_here("viewer", "render", mixed, "-o", tmp_path / "face.png", "--json")
     assert _json(proc)["bad_values"] == [0] and "extra_ctl" in proc.stderr  # left out, with a warning
