@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import io
 import math
-import os
 import struct
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -252,18 +252,18 @@ def audio_left_in_files() -> Iterator[None]:
         _LEFT_IN_FILES.reset(token)
 
 
-def _file_blocks(path: Path, dtype: str, size: int) -> Iterator[np.ndarray]:
-    """The samples of a file libsndfile reads, ``size`` frames (frames x channels) at a time."""
+def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterator[np.ndarray]:
+    """The samples of a file libsndfile reads, ``size`` frames (frames x channels) at a time; nothing
+    when the file opens with another rate, channel count or subtype than ``info`` (replaced since)."""
     with sf.SoundFile(str(path)) as f:
+        if info is not None and (f.samplerate, f.channels, f.subtype) != (
+            info.samplerate,
+            info.channels,
+            info.subtype,
+        ):
+            return
         while len(block := f.read(size, dtype=dtype, always_2d=True)):
             yield block
-
-
-def _file_stamp(path: Path) -> tuple[int, int, int, int]:
-    """What tells a file changed: its size, modification time, inode and device (a file rewritten in
-    place within the clock's tick, a few milliseconds, to the same size is not told)."""
-    st = os.stat(path)
-    return st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev
 
 
 def _left_in_file(
@@ -271,13 +271,13 @@ def _left_in_file(
 ) -> FileAudio | None:
     """``read_audio``'s audio of a file libsndfile reads, checked a block at a time and left in the file
     (NaN or infinite float samples counted, noted as ``check_samples`` notes them, set to 0 when it is
-    copied); None when reading it whole decides more: an error of libsndfile (a file cut short), no
-    samples, NaN without ``repairs`` (an ``InputError``), float samples past full scale with ``repairs``
-    (``damaged_samples`` looks at whole channels)."""
-    stamp = _file_stamp(path)
-    frames, bad, peak = 0, 0, 0.0
+    copied; the CRC-32 of the samples so checked kept, to tell the file changed); None when reading it
+    whole decides more: an error of libsndfile (a file cut short), no samples, NaN without ``repairs``
+    (an ``InputError``), float samples past full scale with ``repairs`` (``damaged_samples`` looks at
+    whole channels)."""
+    frames, bad, peak, crc = 0, 0, 0.0, 0
     try:
-        for block in _file_blocks(path, dtype, CHECK_FRAMES):
+        for block in _file_blocks(path, dtype, CHECK_FRAMES, info):
             frames += len(block)
             if block.dtype.kind == "f":
                 finite = np.isfinite(block)
@@ -285,20 +285,23 @@ def _left_in_file(
                     bad += int(finite.size - np.count_nonzero(finite))
                     block[~finite] = 0.0
                 peak = max(peak, float(block.max()), -float(block.min()))
+            crc = zlib.crc32(block, crc)
     except (sf.LibsndfileError, RuntimeError):
         return None
     if frames == 0 or (bad and repairs is None) or (peak > 1.0 and repairs is not None):
         return None
     if bad and repairs is not None:
         repairs.append(_non_finite_note(path, bad))
-    return FileAudio(path, info.samplerate, subtype, np.dtype(dtype), frames, info.channels, stamp)
+    return FileAudio(path, info.samplerate, subtype, np.dtype(dtype), frames, info.channels, crc)
 
 
 class FileAudio(Audio):
     """Audio left in its file (``audio_left_in_files``), read a block at a time when it is written
     (``write_audio``) and read whole only when ``samples`` is asked for. Float samples that are NaN or
-    infinite are read as 0 (``read_audio``'s repair). A file changed or removed since it was read is an
-    ``InputError``: the audio is never other than the one checked."""
+    infinite are read as 0 (``read_audio``'s repair). A file whose samples changed since they were read
+    (their count or their CRC-32: also a file rewritten in place to the same size and modification time)
+    or that was removed is an ``InputError`` once it is read again: the audio is never other than the
+    one checked. A file only touched, or replaced by a copy of the same samples, is read as it was."""
 
     def __init__(
         self,
@@ -308,12 +311,22 @@ class FileAudio(Audio):
         dtype: np.dtype,
         frames: int,
         channels: int,
-        stamp: tuple[int, int, int, int],
+        crc: int,
     ):
-        self.path, self.dtype = path, dtype
+        self.path, self.dtype = path, dtype  # as given, to name it
+        self._read_from = path.absolute()  # where it is, whatever the working folder is later
         self.sample_rate, self.subtype = whole_sample_rate(sample_rate), subtype
-        self._frames, self._channels, self._stamp = frames, channels, stamp  # as read_audio found them
+        self._frames, self._channels, self._crc = frames, channels, crc  # as read_audio found them
         self._held: np.ndarray | None = None
+
+    def __repr__(self) -> str:
+        """The file and its layout: never the samples (``Audio``'s would read them all, and a file
+        changed or removed since would make repr an error)."""
+        held = ", held" if self.held else ""
+        return (
+            f"FileAudio({str(self.path)!r}, {self.frames} frames, {self.channels} channel(s), "
+            f"{self.sample_rate} Hz, {self.subtype}{held})"
+        )
 
     @property
     def held(self) -> bool:
@@ -349,24 +362,27 @@ class FileAudio(Audio):
         return self.frames * self.channels * self.dtype.itemsize
 
     def blocks(self, size: int) -> Iterator[np.ndarray]:
-        """The samples, ``size`` frames at a time, as ``read_audio`` checked them (NaN set to 0)."""
+        """The samples, ``size`` frames at a time, as ``read_audio`` checked them (NaN set to 0); the
+        file's change is told after its last block (its CRC-32), before a write of them completes."""
+        changed = InputError("audio file changed since it was read: import it again", self.path)
+        frames, crc = 0, 0
         try:
-            if _file_stamp(self.path) != self._stamp:
-                raise InputError("audio file changed since it was read: import it again", self.path)
-            frames = 0
-            for block in _file_blocks(self.path, self.dtype.name, size):
+            with open(self._read_from, "rb"):  # removed, or unreadable: the system's own words
+                pass
+            for block in _file_blocks(self._read_from, self.dtype.name, size):
                 frames += len(block)
-                if frames > self._frames:
-                    break
+                if frames > self._frames or block.shape[1] != self._channels:
+                    raise changed
                 if block.dtype.kind == "f":
                     block[~np.isfinite(block)] = 0.0
+                crc = zlib.crc32(block, crc)
                 yield block
         except OSError as exc:
             raise InputError(f"audio file cannot be read again: {exc.strerror or exc}", self.path) from None
         except (sf.LibsndfileError, RuntimeError) as exc:
             raise InputError(f"audio file cannot be read again: {exc}", self.path) from None
-        if frames != self._frames:
-            raise InputError("audio file changed since it was read: import it again", self.path)
+        if frames != self._frames or crc != self._crc:
+            raise changed
 
 
 def _non_finite_note(path: Path, count: int) -> dict[str, Any]:
