@@ -14,7 +14,10 @@ import signal
 import socket
 import stat
 import sys
+import threading
+import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +41,11 @@ SESSION_LOCK = "listen.lock"
 # A process counts as a session's recorder when it started no later than this after the session did
 # (the tick and boot-time rounding of /proc); one started later got the recorder's pid after it died.
 PID_START_SLACK_S = 2.0
+# While ``listen`` sets up, a first stop signal waits for the bookkeeping under way (making the session
+# folder, its lock and logs: milliseconds) for at most this long (seconds) and then stops it; one that comes
+# later, one in a step that waits (opening the sound device, reading --audio-file) and a second one stop it
+# at once (``_SetUp``).
+SETUP_DEFER_S = 0.2
 
 
 def _stream_slots(text: str) -> int:
@@ -588,10 +596,42 @@ def _quiet_terminal(*_) -> None:
     os.close(devnull)
 
 
-def _stop_signals(recorder: LiveRecorder, caught: list[int]) -> dict[int, Any]:
+class _SetUp:
+    """Whether ``listen`` still sets up, and how a stop signal stops it meanwhile (``_stop_signals``): the
+    first one is noted and the bookkeeping under way finishes (so that ``discard`` finds what to remove),
+    unless the set-up waits (``waiting``: a sound device opening, a long --audio-file read) or has taken
+    longer than ``SETUP_DEFER_S`` (a file system that stalls); a second one raises at once."""
+
+    def __init__(self, caught: list[int]) -> None:
+        self.caught = caught
+        self.active = True
+        self.waiting = False
+        self.started = time.monotonic()
+
+    def stops_now(self) -> bool:
+        """Whether the stop signal just noted in ``caught`` raises at once (and so ends the set-up)."""
+        if not (self.active and self.caught):
+            return False
+        if self.waiting or len(self.caught) > 1 or time.monotonic() - self.started > SETUP_DEFER_S:
+            self.active = False
+            return True
+        return False
+
+    def wait(self) -> None:
+        """The set-up begins a step that waits: a stop signal noted before (in the bookkeeping just done)
+        raises now, and any from here at once."""
+        self.waiting = True
+        if self.stops_now():
+            raise _stopped_before_recording(self.caught[0])
+
+
+def _stop_signals(recorder: LiveRecorder, setup: _SetUp) -> dict[int, Any]:
     """SIGINT, SIGTERM and SIGHUP (a closed terminal or ssh session) stop the recording cleanly, each
-    noted in ``caught``; the previous handlers, to restore. A SIGHUP that is ignored (``nohup``) stays
-    ignored."""
+    noted in ``setup.caught``; while ``setup`` is active they stop the set-up (``_SetUp``). The previous
+    handlers, to restore; none off the main thread (a library's thread: only it can set handlers). A
+    SIGHUP that is ignored (``nohup``) stays ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
     stops = [signal.SIGINT, signal.SIGTERM]
     hup = getattr(signal, "SIGHUP", None)
     if hup is not None and signal.getsignal(hup) is not signal.SIG_IGN:
@@ -600,8 +640,10 @@ def _stop_signals(recorder: LiveRecorder, caught: list[int]) -> dict[int, Any]:
     def stop(signum, _frame) -> None:
         if signum == hup:
             _quiet_terminal()
-        caught.append(signum)
+        setup.caught.append(signum)
         recorder.request_stop()
+        if setup.stops_now():
+            raise _stopped_before_recording(setup.caught[0])
 
     return {s: signal.signal(s, stop) for s in stops}
 
@@ -610,6 +652,78 @@ def _stopped_before_recording(signum: int) -> KeyboardInterrupt:
     """What a stop signal that came while ``listen`` set up raises once the half-made session is gone:
     the command then ends as on Ctrl-C (exit code 130) or, for SIGTERM, with exit code 143."""
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _keep_stderr(fd: int) -> None:
+    """Put the process's stderr back on ``fd`` (a copy of it from before a set-up step that a stop left
+    running): the step may have sent it elsewhere, and may do so again while it runs on (sounddevice sends
+    it to /dev/null while PortAudio looks for devices, a device that hangs holds it there); the stop's
+    line has to be seen. So ``sys.stderr``, when it is the process's own, writes to a copy of ``fd`` too."""
+    with contextlib.suppress(OSError):
+        os.dup2(fd, 2)
+    stream = sys.stderr
+    if stream is None or stream is not sys.__stderr__:  # a caller's own stream: theirs to look after
+        return
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        if stream.fileno() == 2:
+            stream.flush()
+            sys.stderr = open(  # the process's stderr from here on
+                os.dup(fd), "w", buffering=1, encoding=stream.encoding, errors=stream.errors
+            )
+
+
+def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
+    """``make()`` (a set-up step that may wait long: a sound device that hangs in opening, an hour of
+    --audio-file read whole) in a thread of its own while this one waits for it, so that a stop signal
+    stops ``listen`` at once (``setup.waiting``): a stop signal reaches Python only between its own
+    steps, never inside a library's call. What ``make`` returns after such a stop is stopped unused (its
+    ``stop``), and the process's stderr is kept where it was (``_keep_stderr``). Off the main thread (no
+    stop signals to wait for) it runs in this one."""
+    if threading.current_thread() is not threading.main_thread():
+        return make()
+    done: dict[str, Any] = {}
+    guard = threading.Lock()
+
+    def work() -> None:
+        try:
+            value = make()
+        except BaseException as exc:  # handed to the waiting thread, which raises it
+            done["error"] = exc
+            return
+        with guard:
+            if not done.get("abandoned"):
+                done["value"] = value
+                return
+        with contextlib.suppress(Exception):
+            value.stop()
+
+    thread = threading.Thread(target=work, name="listen-set-up", daemon=True)
+    try:
+        stderr: int | None = os.dup(2)
+    except OSError:  # no stderr to keep
+        stderr = None
+    try:
+        setup.wait()
+        thread.start()
+        while thread.is_alive():
+            thread.join(0.05)
+    except BaseException:
+        with guard:
+            done["abandoned"] = True
+            value = done.pop("value", None)
+        if value is not None:
+            with contextlib.suppress(Exception):
+                value.stop()
+        if stderr is not None:
+            _keep_stderr(stderr)
+        raise
+    finally:
+        setup.waiting = False
+        if stderr is not None:
+            os.close(stderr)
+    if "error" in done:
+        raise done["error"]
+    return done["value"]
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
@@ -653,29 +767,38 @@ def cmd_listen(args: argparse.Namespace) -> int:
         if serial_port is not None:
             serial_port.close()
 
-    # From before the session folder is made, a stop signal is only noted: one while the folder, its lock
-    # and logs are made (the first milliseconds) removes them all once they are (``discard``), rather than
-    # leave a folder without a session record; one after the set-up ends the recording cleanly.
+    # From before the session folder is made, a stop signal stops the set-up (``_SetUp``): one while the
+    # folder, its lock and logs are made (the first milliseconds) is noted, and removes them all once they
+    # are (``discard``), rather than leave a folder without a session record; one in a step that waits, a
+    # later or a second one stops it at once, and ``discard`` removes what there is. One after the set-up
+    # ends the recording cleanly.
     caught: list[int] = []
-    previous = _stop_signals(recorder, caught)
+    setup = _SetUp(caught)
+    previous: dict[int, Any] = {}
     try:
         try:
             try:
-                lock, made = _lock_session(recorder.session_dir)
-            except OSError as exc:  # a read-only output folder, a file in the way
-                raise InputError(
-                    f"cannot write the session log: {exc.strerror or exc}", recorder.session_dir
-                ) from None
-            host, port = recorder.open()
-            if args.audio_device is not None or args.audio_file is not None:
+                previous = _stop_signals(recorder, setup)
+                made = not os.path.lexists(recorder.session_dir)  # until _lock_session says (a stop within)
                 try:
-                    audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
-                except OSError as exc:
+                    lock, made = _lock_session(recorder.session_dir)
+                except OSError as exc:  # a read-only output folder, a file in the way
                     raise InputError(
-                        f"cannot write the audio log: {exc.strerror or exc}", recorder.session_dir
+                        f"cannot write the session log: {exc.strerror or exc}", recorder.session_dir
                     ) from None
-                source = _audio_source(args, recorder, audio_log)
-        except InputError:
+                host, port = recorder.open()
+                if args.audio_device is not None or args.audio_file is not None:
+                    try:
+                        audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
+                    except OSError as exc:
+                        raise InputError(
+                            f"cannot write the audio log: {exc.strerror or exc}", recorder.session_dir
+                        ) from None
+                    log = audio_log
+                    source = _while_stoppable(lambda: _audio_source(args, recorder, log), setup)
+            finally:
+                setup.active = False  # from here a stop signal is only noted
+        except BaseException:  # an error, or a stop signal that stopped the set-up at once
             discard()
             raise
         if caught:  # stopped before the recording began: nothing to keep
