@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_here
 from dataset_helpers import build_five_take_dataset, make_aligned_take, write_aligned_set
 from test_train_pipeline import TINY
 
@@ -204,7 +204,7 @@ def test_predict_says_every_step_of_each_file(tiny_run, tmp_path, monkeypatch):
     wav = tmp_path / "speech.wav"
     sf.write(wav, (0.1 * rng.standard_normal(70 * 16000)).astype(np.float32), 16000)  # 70 s: 4 windows
     monkeypatch.setenv(PROGRESS_INTERVAL_VAR, "0")
-    proc = run_cli("train", "predict", tiny_run, wav, "-o", tmp_path / "out")
+    proc = run_here("train", "predict", tiny_run, wav, "-o", tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.startswith("predict: speech.wav: ")]
     step_of = {line: line.split(" (")[0].rsplit(": ", 1)[0] for line in lines}
@@ -233,7 +233,7 @@ def test_predict_says_every_step_of_each_file(tiny_run, tmp_path, monkeypatch):
     assert lines[order[1] + 1] == "predict: speech.wav: writing speech.csv: 0 s so far"
     monkeypatch.delenv(PROGRESS_INTERVAL_VAR)
     sf.write(wav, (0.1 * rng.standard_normal(3 * 16000)).astype(np.float32), 16000)  # done within 5 s
-    quiet = run_cli("train", "predict", tiny_run, wav, "-o", tmp_path / "again")
+    quiet = run_here("train", "predict", tiny_run, wav, "-o", tmp_path / "again")
     assert quiet.returncode == 0 and "predict: " not in quiet.stderr, quiet.stderr
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_here
 from live_helpers import run_cli
 
 from capture import ARKIT61, PRONUNCIATION32, FrameStatus, read_audio, read_take, read_take_folder
@@ -357,19 +358,22 @@ def test_api_rejects_unknown_language():
 
 def test_a_folder_with_older_takes_keeps_them(tmp_path):
     """A run repeated with the same arguments writes the same bytes again (and may add speakers); a take
-    folder of the same name holding another take (other settings, or a recording) is never replaced."""
+    folder of the same name holding another take (other settings, or a recording) is never replaced. (In
+    this process: the command line runs as a subprocess in the other tests here.)"""
     out = tmp_path / "takes"
     args = ["simulate", "-o", str(out), "--takes", "2", "--seconds", "2", "--seed", "3"]
-    assert run_cli(*args).returncode == 0
+    assert run_here("capture", *args).returncode == 0
     before = folder_bytes(out)
-    again = run_cli(*args)
+    again = run_here("capture", *args)
     assert again.returncode == 0, again.stderr
     assert folder_bytes(out) == before
-    more = run_cli(*args[:3], "--speakers", "2", "--takes", "3", *args[5:])  # spk01's two takes, and spk02's
+    more = run_here(
+        "capture", *args[:3], "--speakers", "2", "--takes", "3", *args[5:]
+    )  # spk01's two takes, and spk02's
     assert more.returncode == 0, more.stderr
     added = folder_bytes(out)
     assert {k: v for k, v in added.items() if k in before} == before and len(added) > len(before)
-    longer = run_cli(*args[:6], "3", *args[7:])  # --seconds 3: other takes of the same names
+    longer = run_here("capture", *args[:6], "3", *args[7:])  # --seconds 3: other takes of the same names
     assert longer.returncode == 1 and "Traceback" not in longer.stderr
     (line,) = longer.stderr.strip().splitlines()
     assert "2 take folders this simulation writes are there already, holding other takes" in line, line
@@ -377,6 +381,6 @@ def test_a_folder_with_older_takes_keeps_them(tmp_path):
     assert folder_bytes(out) == added  # nothing written, nothing replaced
     (out / "20250109_SimSpk01_1" / "simulation.json").unlink()  # as a recording's folder of that name
     kept = folder_bytes(out)
-    r = run_cli(*args)
+    r = run_here("capture", *args)
     assert r.returncode == 1 and "1 take folder this simulation writes is there already" in r.stderr
     assert folder_bytes(out) == kept
