@@ -18,8 +18,9 @@ import pytest
 
 EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 LINES = {signal.SIGINT: "s2a-capture: interrupted", signal.SIGTERM: "s2a-capture: terminated (SIGTERM)"}
-# How soon after the signal a stopped set-up has to be over (it takes tens of milliseconds; a busy machine)
-PROMPT_S = 0.6
+# How soon after the signal a stopped set-up has to be over (it takes tens of milliseconds here; a busy
+# machine running four of them beside the suite: more)
+PROMPT_S = 1.0
 
 
 def _sparse_wav(path: Path, seconds: int, rate: int = 48000, channels: int = 2) -> Path:
@@ -82,9 +83,10 @@ class SetUpStop:
         assert not self.out.exists(), sorted(p.name for p in self.out.rglob("*"))  # nothing left behind
 
 
-def _stops_promptly(trials: list[SetUpStop]) -> None:
+def _stops_promptly(trials: list[SetUpStop], skip_unless_set_up: bool = False) -> None:
     """Signal each trial in its set-up; each must end within ``PROMPT_S`` as a stopped start does (every
-    process is ended whatever happens)."""
+    process is ended whatever happens). ``skip_unless_set_up``: a machine where every trial ended before
+    its audio set-up (the emulated device not there) skips the test."""
     try:
         deadline = time.monotonic() + 20
         while any(t.waiting(now := time.monotonic()) for t in trials):
@@ -92,6 +94,9 @@ def _stops_promptly(trials: list[SetUpStop]) -> None:
             for t in trials:
                 t.poke(time.monotonic())
             time.sleep(0.0005)
+        if all(t.signalled_at is None for t in trials) and skip_unless_set_up:
+            _, err = trials[0].proc.communicate(timeout=20)
+            pytest.skip(f"listen never waited in its audio set-up here: {err.strip()[-200:]}")
         for trial in trials:
             trial.check()
     finally:
@@ -126,7 +131,7 @@ def test_a_stop_while_the_sound_device_hangs_in_opening_stops_listen_at_once(tmp
         SetUpStop(tmp_path / f"out-{i}", sig, "--audio-device", "hang", env=env)
         for i, sig in enumerate([signal.SIGINT, signal.SIGTERM] * 2)
     ]
-    _stops_promptly(trials)
+    _stops_promptly(trials, skip_unless_set_up=True)  # an ALSA without its file plugin: no such device
 
 
 def test_a_stop_while_listen_reads_an_hour_of_audio_file_stops_it_at_once(tmp_path):
