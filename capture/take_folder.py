@@ -12,7 +12,9 @@ the ``.mov``'s own, else 60, unless its own video rows count at another rate (``
 The app's JSON keys are read in any case (``Subject`` as ``subject``). The names of one take's files
 (its CSVs, ``.mov``, ``.wav``, ``_neutral.csv``, the take's names from take.json and its folder) are
 matched in Unicode NFC (``_nfc``): macOS's HFS+ writes names decomposed (NFD), so a take copied from a
-Mac beside files named on Linux spells ``Café_3`` two ways; the names written out stay as found.
+Mac beside files named on Linux spells ``Café_3`` two ways; the names written out stay as found. Two
+files of one take named alike in NFC but both present (``_twins_error``) are an error naming both, never
+one taken in silence; names equal only in NFKC (``ﬁ`` and ``fi``) are two names.
 """
 
 from __future__ import annotations
@@ -195,12 +197,38 @@ def _nfc(name: str) -> str:
     return unicodedata.normalize("NFC", name)
 
 
+def _spellings(names: list[str]) -> str:
+    """Names equal in NFC, each told by its Unicode spelling, for a message: ``Café.mov (composed, NFC)
+    and Café.mov (decomposed, NFD, as a Mac writes names)``."""
+    return " and ".join(
+        f"{n} ({'composed, NFC' if n == _nfc(n) else 'decomposed, NFD, as a Mac writes names'})"
+        for n in sorted(names)
+    )
+
+
+def _twins_error(names: list[str], folder: Path) -> InputError:
+    """The error for two files of one take named alike but for their Unicode spelling (``_nfc``): which
+    one is the take's, no name tells; neither is taken in silence."""
+    return InputError(
+        f"holds {_spellings(names)}: one name spelled two ways in Unicode (a file copied from a Mac beside "
+        "one named here); keep the take's own and remove or rename the other",
+        folder,
+    )
+
+
 def _named_as(files: list[tuple[str, Path]], prefix: str, exact: bool = False) -> Path | None:
     """Of several files (their names, paths) of one kind, the take's: the one named as its CSV
-    (``prefix``, compared in NFC), else (unless ``exact``) the first by name; None for none."""
+    (``prefix``, compared in NFC), else (unless ``exact``) the first by name; None for none. Two files
+    whose names are equal in NFC, the chosen one among them, are an error (``_twins_error``)."""
     files = sorted(files)
-    named = next((p for name, p in files if _nfc(Path(name).stem) == _nfc(prefix)), None)
-    return named if named is not None or exact or not files else files[0][1]
+    named = [(name, p) for name, p in files if _nfc(Path(name).stem) == _nfc(prefix)]
+    chosen = named[0] if named else None if exact or not files else files[0]
+    if chosen is None:
+        return None
+    twins = sorted({name for name, _ in files if _nfc(name) == _nfc(chosen[0])})
+    if len(twins) > 1:
+        raise _twins_error(twins, chosen[1].parent)
+    return chosen[1]
 
 
 def _media(
@@ -374,10 +402,14 @@ def _the_one(folder: Path, files: list[_CsvFile]) -> _CsvFile:
     names = _take_names(folder)
     exact = [f for f in files if not f.copy and f.prefix in names]
     if len(exact) != 1:
-        folded = {n.casefold() for n in names}
-        exact = [f for f in files if not f.copy and f.prefix.casefold() in folded] or exact
+        # lower(), not casefold(): casefold() also merges what only NFKC equates (``ﬁ`` and ``fi``)
+        folded = {n.lower() for n in names}
+        exact = [f for f in files if not f.copy and f.prefix.lower() in folded] or exact
     if len(exact) == 1:
         return exact[0]
+    twins = [f.name for f in files if any(g.name != f.name and _nfc(g.name) == _nfc(f.name) for g in files)]
+    if twins:  # two spellings of one name look alike in a list of names: said so
+        raise _twins_error(twins, folder)
     variant = files[0].variant or "plain"
     raise InputError(
         f"take folder holds {len(files)} {variant} CSVs ({', '.join(f.name for f in files)}) and "
@@ -461,6 +493,8 @@ def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[P
     movs = _mov_names(folder)
     if any(f.copy or f.prefix not in movs for f in files) or len({f.prefix for f in files}) < 2:
         return []
+    if len({(f.prefix, f.variant) for f in files}) < len(files):  # one CSV spelled two ways (``_nfc``)
+        return []  # read as one take folder, whose ``choose_csv`` names them
     wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
     chosen = []
     for prefix in dict.fromkeys(f.prefix for f in files):
@@ -479,6 +513,8 @@ def _neutral_named_as(folder: Path, prefix: str) -> Path | None:
     ]
     if not found:
         return None
+    if len(found) > 1:  # spelled two ways (``_nfc``)
+        raise _twins_error([f.name for f in found], folder)
     if found[0].path.name != found[0].name:
         raise icloud_error(found[0].path, folder)
     return found[0].path
@@ -510,6 +546,10 @@ def read_take_folder(
     if not folder.is_dir():
         raise InputError("take folder not found", folder)
     own = csv is None or _is_its_folder(csv_path)
+    if not own:  # its folder's own take, but for a twin of its name: not read without take.json in silence
+        twins = sorted({f.name for f in _csv_files(folder) if _nfc(f.name) == _nfc(csv_path.name)})
+        if len(twins) > 1:
+            raise _twins_error(twins, folder)
     if own:
         _refuse_app_placeholders(folder)
         # named alone, the CSV's own variant (``choose_csv`` of it is this CSV, as ``_is_its_folder`` found)

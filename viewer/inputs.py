@@ -401,7 +401,9 @@ def _holds_audio(mov: Path) -> bool:
 
 
 def _spelling(name: str) -> str:
-    return unicodedata.normalize("NFC", name).casefold()
+    """``name`` in NFC and lower case; not ``casefold()``, which also equates what only NFKC does
+    (``ﬁ`` and ``fi``): names that differ so are two names."""
+    return unicodedata.normalize("NFC", name).lower()
 
 
 def _as_spelled(parts: tuple[str, ...], members: list[Member]) -> tuple[str, ...]:
