@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import sys
-import unicodedata
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -14,9 +13,11 @@ from .paired import bom_codec, emotion_weights, header_names, read_paired
 from .take import Take, is_take_dir, leads_back
 from .take_folder import (
     is_take_folder,
+    nfc,
     read_csv_with_audio,
     read_take_folder,
     reads_as_take,
+    spellings,
     takes_side_by_side,
 )
 from .transfer_litter import (
@@ -186,12 +187,6 @@ def audio_stem(source: Path) -> str:
     return source.stem.removesuffix(A2F_SUFFIX) if source.suffix.lower() == ".json" else source.stem
 
 
-def _nfc(text: str) -> str:
-    """``text`` in Unicode NFC: macOS writes names decomposed (NFD: ``e`` + combining accent), Windows
-    and Linux as typed (NFC), so a copied ``Café.wav`` may be spelled otherwise than ``Café.csv``."""
-    return unicodedata.normalize("NFC", text)
-
-
 def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
     """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
     without ``_bsweight``; stems compared in Unicode NFC), else the only audio file in its folder
@@ -202,28 +197,30 @@ def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | 
     only audio beside the source, or, when all the audio beside it is placeholders, any of them is that
     error."""
     files = without_litter(folder_files(source.parent) if files is None else files)
-    stems = {_nfc(source.stem), _nfc(audio_stem(source))}
+    stems = {nfc(source.stem), nfc(audio_stem(source))}
     waiting = {}  # audio iCloud has not downloaded: placeholder -> the name of the file it stands for
     for p in files:
         original = not_downloaded(p)
         if original is not None and Path(original).suffix.lower() in AUDIO_SUFFIXES:
             waiting[p] = original
     for p, original in waiting.items():
-        if _nfc(Path(original).stem) in stems:
+        if nfc(Path(original).stem) in stems:
             raise icloud_error(p, source)
     audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES and icloud_original(p) is None]
-    same = [p for p in audio if _nfc(p.stem) in stems]
+    same = [p for p in audio if nfc(p.stem) in stems]
     if len(same) > 1:
-        return None, f"several audio files named {source.stem}.*: {', '.join(p.name for p in same)}"
+        names = [p.name for p in same]
+        listed = spellings(names) if len({nfc(n) for n in names}) == 1 else ", ".join(names)
+        return None, f"several audio files named {source.stem}.*: {listed}"
     if same:
         return same[0], None
     candidates = {p: p.name for p in audio} | waiting  # each with the name of the file it is
 
     def owner(name: str) -> Path | None:
         """The CSV or export beside the source that an audio file of this name is named for."""
-        stem = _nfc(Path(name).stem)
+        stem = nfc(Path(name).stem)
         return next(
-            (p for p in files if _nfc(audio_stem(p)) == stem and p.suffix.lower() in (".csv", ".json")), None
+            (p for p in files if nfc(audio_stem(p)) == stem and p.suffix.lower() in (".csv", ".json")), None
         )
 
     if len(candidates) == 1:

@@ -11,7 +11,7 @@ at their CSV timecodes. Without any of these, audio is assumed to start with the
 the ``.mov``'s own, else 60, unless its own video rows count at another rate (``FrameLog.timecode_rate``).
 The app's JSON keys are read in any case (``Subject`` as ``subject``). The names of one take's files
 (its CSVs, ``.mov``, ``.wav``, ``_neutral.csv``, the take's names from take.json and its folder) are
-matched in Unicode NFC (``_nfc``): macOS's HFS+ writes names decomposed (NFD), so a take copied from a
+matched in Unicode NFC (``nfc``): macOS's HFS+ writes names decomposed (NFD), so a take copied from a
 Mac beside files named on Linux spells ``Café_3`` two ways; the names written out stay as found. Two
 files of one take named alike in NFC but both present (``_twins_error``) are an error naming both, never
 one taken in silence; names equal only in NFKC (``ﬁ`` and ``fi``) are two names.
@@ -191,26 +191,27 @@ def _refuse_app_placeholders(folder: Path) -> None:
             raise icloud_error(placeholder, folder)
 
 
-def _nfc(name: str) -> str:
+def nfc(name: str) -> str:
     """``name`` in Unicode NFC, as the names of one take's files are compared: macOS's HFS+ stores
-    names decomposed (NFD: ``e`` + combining accent), Linux and Windows keep them as typed (NFC)."""
+    names decomposed (NFD: ``e`` + combining accent), Linux and Windows keep them as typed (NFC), so a
+    copied ``Café.wav`` may be spelled otherwise than ``Café.csv``."""
     return unicodedata.normalize("NFC", name)
 
 
-def _spellings(names: list[str]) -> str:
+def spellings(names: list[str]) -> str:
     """Names equal in NFC, each told by its Unicode spelling, for a message: ``Café.mov (composed, NFC)
     and Café.mov (decomposed, NFD, as a Mac writes names)``."""
     return " and ".join(
-        f"{n} ({'composed, NFC' if n == _nfc(n) else 'decomposed, NFD, as a Mac writes names'})"
+        f"{n} ({'composed, NFC' if n == nfc(n) else 'decomposed, NFD, as a Mac writes names'})"
         for n in sorted(names)
     )
 
 
 def _twins_error(names: list[str], folder: Path) -> InputError:
-    """The error for two files of one take named alike but for their Unicode spelling (``_nfc``): which
+    """The error for two files of one take named alike but for their Unicode spelling (``nfc``): which
     one is the take's, no name tells; neither is taken in silence."""
     return InputError(
-        f"holds {_spellings(names)}: one name spelled two ways in Unicode (a file copied from a Mac beside "
+        f"holds {spellings(names)}: one name spelled two ways in Unicode (a file copied from a Mac beside "
         "one named here); keep the take's own and remove or rename the other",
         folder,
     )
@@ -221,11 +222,11 @@ def _named_as(files: list[tuple[str, Path]], prefix: str, exact: bool = False) -
     (``prefix``, compared in NFC), else (unless ``exact``) the first by name; None for none. Two files
     whose names are equal in NFC, the chosen one among them, are an error (``_twins_error``)."""
     files = sorted(files)
-    named = [(name, p) for name, p in files if _nfc(Path(name).stem) == _nfc(prefix)]
+    named = [(name, p) for name, p in files if nfc(Path(name).stem) == nfc(prefix)]
     chosen = named[0] if named else None if exact or not files else files[0]
     if chosen is None:
         return None
-    twins = sorted({name for name, _ in files if _nfc(name) == _nfc(chosen[0])})
+    twins = sorted({name for name, _ in files if nfc(name) == nfc(chosen[0])})
     if len(twins) > 1:
         raise _twins_error(twins, chosen[1].parent)
     return chosen[1]
@@ -355,7 +356,7 @@ class _CsvFile:
 
     path: Path  # the file, or its placeholder
     name: str  # the file's own name
-    prefix: str  # the take's name part, in NFC (``_nfc``): ``MySlate_166_iPhone``
+    prefix: str  # the take's name part, in NFC (``nfc``): ``MySlate_166_iPhone``
     variant: str | None  # cal, raw, neutral or None (plain)
     copy: str  # what a copy added to the name (``" (1)"``, ``" copy"``), or ""
 
@@ -370,7 +371,7 @@ def _csv_files(folder: Path) -> list[_CsvFile]:
         m = _COPY_RE.match(stem)
         base, copy = (m.group("stem"), m.group("copy")) if m else (stem, "")
         prefix, variant = split_variant(base)
-        files.append(_CsvFile(path, name, _nfc(prefix), variant, copy))
+        files.append(_CsvFile(path, name, nfc(prefix), variant, copy))
     return files
 
 
@@ -381,7 +382,7 @@ def folder_name(folder: Path) -> str:
 
 def _take_names(folder: Path) -> set[str]:
     """What a take folder's CSV is named after: the ``.mov``'s stem, the app's ``{slate}_{take}_{subject}``
-    and ``identifier`` from take.json, and the folder's name; in NFC (``_nfc``)."""
+    and ``identifier`` from take.json, and the folder's name; in NFC (``nfc``)."""
     names = {folder_name(folder), *(p.stem for p in _files_ending(folder, ".mov"))}
     names |= {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
     app_take = _load_json(folder / "take.json", [])
@@ -391,7 +392,7 @@ def _take_names(folder: Path) -> set[str]:
     parts = [_field(app_take, key) for key in ("slate", "take", "subject")]
     if all(isinstance(v, (str, int)) and not isinstance(v, bool) for v in parts):
         names.add("_".join(map(str, parts)))
-    return {_nfc(n) for n in names}
+    return {nfc(n) for n in names}
 
 
 def _the_one(folder: Path, files: list[_CsvFile]) -> _CsvFile:
@@ -407,7 +408,7 @@ def _the_one(folder: Path, files: list[_CsvFile]) -> _CsvFile:
         exact = [f for f in files if not f.copy and f.prefix.lower() in folded] or exact
     if len(exact) == 1:
         return exact[0]
-    twins = [f.name for f in files if any(g.name != f.name and _nfc(g.name) == _nfc(f.name) for g in files)]
+    twins = [f.name for f in files if any(g.name != f.name and nfc(g.name) == nfc(f.name) for g in files)]
     if twins:  # two spellings of one name look alike in a list of names: said so
         raise _twins_error(twins, folder)
     variant = files[0].variant or "plain"
@@ -452,7 +453,7 @@ def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
 def _mov_names(folder: Path) -> set[str]:
     """The stems of the ``.mov`` files of ``folder``, iCloud placeholders of them included, in NFC."""
     names = {p.stem for p in _files_ending(folder, ".mov")}
-    return {_nfc(n) for n in names | {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}}
+    return {nfc(n) for n in names | {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}}
 
 
 def _is_its_folder(csv: Path) -> bool:
@@ -463,7 +464,7 @@ def _is_its_folder(csv: Path) -> bool:
     if variant == "neutral" or not is_take_folder(csv.parent):
         return False
     try:
-        return _nfc(choose_csv(csv.parent, variant or "plain")[0].name) == _nfc(csv.name)
+        return nfc(choose_csv(csv.parent, variant or "plain")[0].name) == nfc(csv.name)
     except InputError:  # the folder does not read this CSV (several takes, or it is a copy)
         return False
 
@@ -477,7 +478,7 @@ def reads_as_take(csv: str | Path) -> bool:
     prefix, variant = split_variant(csv.stem)
     if variant == "neutral" or not csv.parent.is_dir():
         return False
-    return _is_its_folder(csv) or _nfc(prefix) in _mov_names(csv.parent)
+    return _is_its_folder(csv) or nfc(prefix) in _mov_names(csv.parent)
 
 
 def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[Path]:
@@ -493,7 +494,7 @@ def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[P
     movs = _mov_names(folder)
     if any(f.copy or f.prefix not in movs for f in files) or len({f.prefix for f in files}) < 2:
         return []
-    if len({(f.prefix, f.variant) for f in files}) < len(files):  # one CSV spelled two ways (``_nfc``)
+    if len({(f.prefix, f.variant) for f in files}) < len(files):  # one CSV spelled two ways (``nfc``)
         return []  # read as one take folder, whose ``choose_csv`` names them
     wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
     chosen = []
@@ -509,11 +510,11 @@ def _neutral_named_as(folder: Path, prefix: str) -> Path | None:
     """The ``_neutral.csv`` of the take ``prefix`` in a folder of several takes, or None; one iCloud
     has not downloaded is an error."""
     found = [
-        f for f in _csv_files(folder) if f.variant == "neutral" and f.prefix == _nfc(prefix) and not f.copy
+        f for f in _csv_files(folder) if f.variant == "neutral" and f.prefix == nfc(prefix) and not f.copy
     ]
     if not found:
         return None
-    if len(found) > 1:  # spelled two ways (``_nfc``)
+    if len(found) > 1:  # spelled two ways (``nfc``)
         raise _twins_error([f.name for f in found], folder)
     if found[0].path.name != found[0].name:
         raise icloud_error(found[0].path, folder)
@@ -547,7 +548,7 @@ def read_take_folder(
         raise InputError("take folder not found", folder)
     own = csv is None or _is_its_folder(csv_path)
     if not own:  # its folder's own take, but for a twin of its name: not read without take.json in silence
-        twins = sorted({f.name for f in _csv_files(folder) if _nfc(f.name) == _nfc(csv_path.name)})
+        twins = sorted({f.name for f in _csv_files(folder) if nfc(f.name) == nfc(csv_path.name)})
         if len(twins) > 1:
             raise _twins_error(twins, folder)
     if own:

@@ -288,3 +288,16 @@ def test_a_stop_while_the_wav_is_unpacked_leaves_nothing(samples, tmp_path, sig)
     )
     assert proc.returncode in (130, 143) and "Traceback" not in proc.stderr, proc.stderr
     assert left_in(tmp) == [] and list(tmp.iterdir()) == []
+
+
+def test_audio_files_of_one_name_spelled_two_ways_beside_a_csv_are_told_apart(tmp_path):
+    """``audio_beside`` takes neither of two .wav files named alike but for their Unicode spelling, and
+    its warning says how they differ (it listed "Café_3.wav, Café_3.wav")."""
+    from capture.importer import audio_beside
+
+    nfd = unicodedata.normalize("NFD", NFC)
+    (tmp_path / f"{NFC}.csv").write_text("Timecode,BlendshapeCount,JawOpen\n")
+    for name in (NFC, nfd):
+        (tmp_path / f"{name}.wav").write_bytes(b"")
+    audio, why = audio_beside(tmp_path / f"{NFC}.csv")
+    assert audio is None and "composed, NFC" in why and "decomposed, NFD" in why, why

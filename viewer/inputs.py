@@ -28,7 +28,6 @@ import atexit
 import os
 import shutil
 import tempfile
-import unicodedata
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from pathlib import Path, PurePosixPath
@@ -45,7 +44,7 @@ from capture.mov import probe_mov
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
 from capture.take_archive import MAX_DEPTH, UNPACK_PREFIX, Member, Unpacked, unpacked
-from capture.take_folder import choose_csv, reads_as_take, takes_side_by_side
+from capture.take_folder import choose_csv, nfc, reads_as_take, takes_side_by_side
 from capture.transfer_litter import Litter, icloud_original, is_zip
 from capture.workers import process_runs
 from dataset.qa import ANIM_LIMIT
@@ -403,7 +402,7 @@ def _holds_audio(mov: Path) -> bool:
 def _spelling(name: str) -> str:
     """``name`` in NFC and lower case; not ``casefold()``, which also equates what only NFKC does
     (``ﬁ`` and ``fi``): names that differ so are two names."""
-    return unicodedata.normalize("NFC", name).lower()
+    return nfc(name).lower()
 
 
 def _as_spelled(parts: tuple[str, ...], members: list[Member]) -> tuple[str, ...]:
@@ -431,14 +430,14 @@ def _movs_read(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]
     one of each variant): between several, the reader picks by the take's names, ``.mov`` stems among
     them (a flat folder of several takes whose CSV is not read alone, ``_read_alone``, keeps them all)."""
     movs = sorted((b for b in beside if PurePosixPath(b[-1]).suffix.lower() == ".mov"), key=lambda b: b[-1])
-    names = [_nfc(_original_name(b[-1])) for b in beside]
+    names = [nfc(_original_name(b[-1])) for b in beside]
     csvs = [n for n in names if n.lower().endswith(".csv") and n.lower() != "frame_log.csv"]
     split = [split_variant(PurePosixPath(n).stem) for n in csvs]  # a copy "X (1)" is a prefix of its own
     if len({prefix for prefix, _ in split}) > 1 or len({variant for _, variant in split}) < len(split):
         return set(movs)
-    prefix = split_variant(_nfc(PurePosixPath(named).stem))[0]
+    prefix = split_variant(nfc(PurePosixPath(named).stem))[0]
     placeheld = {icloud_original(Path(b[-1])) for b in beside}
-    named_as = {b for b in movs if _nfc(PurePosixPath(b[-1]).stem) == prefix or b[-1] in placeheld}
+    named_as = {b for b in movs if nfc(PurePosixPath(b[-1]).stem) == prefix or b[-1] in placeheld}
     return named_as | set(movs[:1])
 
 
@@ -455,7 +454,7 @@ def _read_alone(beside: list[tuple[str, ...]], named: str) -> bool:
     variant = split_variant(PurePosixPath(named).stem)[1]
     if variant == "neutral":
         return True
-    names = [PurePosixPath(_nfc(_original_name(b[-1]))) for b in beside]
+    names = [PurePosixPath(nfc(_original_name(b[-1]))) for b in beside]
     movs = {n.stem for n in names if n.suffix.lower() == ".mov"}
     named_as_movs = [
         n
@@ -482,8 +481,8 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
     no take folder, and the CSV is read alone there too."""
     by_name: dict[str, set[tuple[str, ...]]] = {}  # a file's name, in NFC -> it and its placeholder
     for b in beside:
-        by_name.setdefault(_nfc(_original_name(b[-1])), set()).add(b)
-    named = _nfc(named)
+        by_name.setdefault(nfc(_original_name(b[-1])), set()).add(b)
+    named = nfc(named)
     prefix, variant = split_variant(PurePosixPath(named).stem)
     if variant != "neutral" and f"{prefix}.mov" in by_name:  # read as its take (``reads_as_take``)
         own = (named, f"{prefix}.mov", f"{prefix}.wav", f"{prefix}_neutral.csv")  # the .wav: a silent .mov's
@@ -493,17 +492,13 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
     same = [n for n in audio if PurePosixPath(n).stem == stem]
     wanted = {named, *(same or audio)}
     if not same:
-        owners = {_nfc(PurePosixPath(n).stem) for n in audio}
+        owners = {nfc(PurePosixPath(n).stem) for n in audio}
         wanted |= {
             n
             for n in by_name
-            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and _nfc(audio_stem(Path(n))) in owners
+            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and nfc(audio_stem(Path(n))) in owners
         }
     return {b for n in wanted for b in by_name.get(n, ())}
-
-
-def _nfc(name: str) -> str:
-    return unicodedata.normalize("NFC", name)
 
 
 def _original_name(name: str) -> str:
