@@ -40,6 +40,17 @@ def sim_take(tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.fixture
+def unpack_tmp(tmp_path, monkeypatch) -> Path:
+    """The temporary folder the viewer unpacks archives into (Python's, pointed at ``tmp_path/tmp``)."""
+    import tempfile
+
+    folder = tmp_path / "tmp"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(folder))
+    return folder
+
+
 def run_cli(module: str, *args: str, check: bool = False) -> subprocess.CompletedProcess:
     """Run a stage's command line as a user would (``python -m <stage> ...``)."""
     proc = subprocess.run(

@@ -11,7 +11,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import unicodedata
 import zipfile
 from pathlib import Path
@@ -32,17 +31,8 @@ NFD = unicodedata.normalize("NFD", "Café_3")
 TWINS = "one name spelled two ways in Unicode"
 
 
-@pytest.fixture
-def tmp(tmp_path, monkeypatch) -> Path:
-    """The temporary folder the viewer unpacks archives into."""
-    folder = tmp_path / "tmp"
-    folder.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(folder))
-    return folder
-
-
-def left_in(tmp: Path) -> list[str]:
-    return sorted(p.name for p in tmp.iterdir() if p.name.startswith(UNPACK_PREFIX))
+def left_in(unpack_tmp: Path) -> list[str]:
+    return sorted(p.name for p in unpack_tmp.iterdir() if p.name.startswith(UNPACK_PREFIX))
 
 
 def view(path: Path) -> tuple:
@@ -58,7 +48,7 @@ def view(path: Path) -> tuple:
 
 
 # -- two spellings of one name, both present --------------------------------------------------------
-def test_a_mov_spelled_two_ways_is_an_error_naming_both_zipped_or_not(samples, tmp_path, tmp):
+def test_a_mov_spelled_two_ways_is_an_error_naming_both_zipped_or_not(samples, tmp_path, unpack_tmp):
     """The take's .mov copied from a Mac (NFD) beside its copy named here (NFC), of other speech: which
     is the take's no name tells; the take folder, and the viewer on it zipped, say so."""
     folder = tmp_path / "T"
@@ -74,7 +64,7 @@ def test_a_mov_spelled_two_ways_is_an_error_naming_both_zipped_or_not(samples, t
         with archives_unpacked():
             got = view(named)
         assert got == view(folder.parent / named.relative_to(archive)) and TWINS in got[1], named
-    assert left_in(tmp) == []
+    assert left_in(unpack_tmp) == []
 
 
 def test_a_wav_spelled_two_ways_beside_a_silent_mov_is_an_error(samples, tmp_path):
@@ -169,7 +159,7 @@ def test_names_equal_only_in_nfkc_are_not_merged(samples, tmp_path):
     assert takes_side_by_side(flat) == []
 
 
-def test_an_archive_member_named_with_a_ligature_is_not_another(samples, tmp_path, tmp):
+def test_an_archive_member_named_with_a_ligature_is_not_another(samples, tmp_path, unpack_tmp):
     """An archive holding ``file_3.csv`` holds no ``ﬁle_3.csv`` (a name typed in another case still finds
     its member, as macOS's file system would)."""
     write_csv(samples, tmp_path / "FILE_3.csv", rows=40)
@@ -180,7 +170,7 @@ def test_an_archive_member_named_with_a_ligature_is_not_another(samples, tmp_pat
         read_input(archive / "\ufb01le_3.csv", "one")
     with archives_unpacked():
         assert read_input(archive / "FILE_3.csv", "one")[0].values.shape[0] == 40  # case: as on a Mac
-    assert left_in(tmp) == []
+    assert left_in(unpack_tmp) == []
 
 
 # -- the zipped take shows as the folder unzipped --------------------------------------------------
@@ -226,7 +216,7 @@ def _case(kind: str, folder: Path, samples: Path) -> list[str]:
 
 @pytest.mark.parametrize("kind", ["damaged_mov", "icloud_mov", "silent_mov", "two_movs", "wav_only"])
 @pytest.mark.parametrize("finder", [False, True], ids=["zip", "finder_zip"])
-def test_a_zipped_take_shows_as_the_folder_unzipped(samples, tmp_path, tmp, kind, finder):
+def test_a_zipped_take_shows_as_the_folder_unzipped(samples, tmp_path, unpack_tmp, kind, finder):
     folder = tmp_path / "src" / "T"
     folder.mkdir(parents=True)
     csvs = _case(kind, folder, samples)
@@ -238,7 +228,7 @@ def test_a_zipped_take_shows_as_the_folder_unzipped(samples, tmp_path, tmp, kind
         with archives_unpacked():
             got = view(named)
         assert got == want, (kind, named)
-    assert left_in(tmp) == []
+    assert left_in(unpack_tmp) == []
     if kind in ("silent_mov", "wav_only"):  # read from the .wav, as from the folder
         assert want[0] == f"{NFD}.wav" and np.frombuffer(want[2], np.int16).size == 16000
 
@@ -276,18 +266,18 @@ def test_a_stop_while_the_wav_is_unpacked_leaves_nothing(samples, tmp_path, sig)
     write_mov(folder / "T.mov", None)
     write_wav(folder / "T.wav", tone(660))
     archive = zip_folder(folder, tmp_path / "t.zip", inside="T")
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
+    unpack_tmp = tmp_path / "tmp"
+    unpack_tmp.mkdir()
     proc = subprocess.run(
         [sys.executable, "-c", _STOP_IN_SECOND_UNPACK, str(archive / "T"), str(int(sig))],
         cwd=ROOT,
-        env=os.environ | {"TMPDIR": str(tmp), "PYTHONPATH": str(ROOT)},
+        env=os.environ | {"TMPDIR": str(unpack_tmp), "PYTHONPATH": str(ROOT)},
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert proc.returncode in (130, 143) and "Traceback" not in proc.stderr, proc.stderr
-    assert left_in(tmp) == [] and list(tmp.iterdir()) == []
+    assert left_in(unpack_tmp) == [] and list(unpack_tmp.iterdir()) == []
 
 
 def test_audio_files_of_one_name_spelled_two_ways_beside_a_csv_are_told_apart(tmp_path):

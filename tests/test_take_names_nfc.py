@@ -6,7 +6,6 @@ take's ``.wav`` only when its ``.mov`` holds no audio track, the only case its r
 from __future__ import annotations
 
 import os
-import tempfile
 import unicodedata
 import zipfile
 from pathlib import Path
@@ -135,16 +134,7 @@ def assert_same_view(got, want) -> None:
     assert a_speech.name == b_speech.name and len(a_warnings) == len(b_warnings)
 
 
-@pytest.fixture
-def tmp(tmp_path, monkeypatch) -> Path:
-    """The temporary folder the viewer unpacks archives into."""
-    folder = tmp_path / "tmp"
-    folder.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(folder))
-    return folder
-
-
-def test_a_zipped_csv_of_a_flat_folder_finds_its_mov_across_spellings(samples, tmp_path, tmp):
+def test_a_zipped_csv_of_a_flat_folder_finds_its_mov_across_spellings(samples, tmp_path, unpack_tmp):
     flat = tmp_path / "export"
     flat.mkdir()
     write_csv(samples, flat / f"{NFC}.csv")
@@ -155,17 +145,19 @@ def test_a_zipped_csv_of_a_flat_folder_finds_its_mov_across_spellings(samples, t
     want = read_input(flat / f"{NFC}.csv", "one")
     with archives_unpacked():
         got = read_input(archive / f"{NFC}.csv", "one")
-        files, written = unpacked(tmp)
+        files, written = unpacked(unpack_tmp)
         assert_same_view(got, want)
     assert files == sorted([f"{NFC}.csv", f"{NFD}.mov"])  # not the other take's .mov
     assert written == (flat / f"{NFC}.csv").stat().st_size + (flat / f"{NFD}.mov").stat().st_size
     assert want[2] == flat / f"{NFD}.mov"  # its .mov's audio, not read alone and silent
     np.testing.assert_array_equal(got[0].audio.samples, tone(440).samples)
-    assert unpacked(tmp) == ([], 0)
+    assert unpacked(unpack_tmp) == ([], 0)
 
 
 @pytest.mark.parametrize("mov_audio", [True, False], ids=["mov_with_audio", "silent_mov"])
-def test_a_zipped_take_unpacks_its_wav_only_when_its_mov_holds_no_audio(samples, tmp_path, tmp, mov_audio):
+def test_a_zipped_take_unpacks_its_wav_only_when_its_mov_holds_no_audio(
+    samples, tmp_path, unpack_tmp, mov_audio
+):
     """A take folder zipped with its .mov and a .wav (speech recorded apart, as large as a take's audio):
     the .wav is unpacked only where the take reader reads it, the .mov holding no audio track; the take
     is shown as from the folder unzipped, whether the archive, its folder or its CSV is named."""
@@ -182,11 +174,11 @@ def test_a_zipped_take_unpacks_its_wav_only_when_its_mov_holds_no_audio(samples,
     for named in (archive, archive / "T", archive / "T" / "T.csv"):
         with archives_unpacked():  # a WAV's samples are read from its file: compared while it is there
             got = read_input(named, "one")
-            files, written = unpacked(tmp)
+            files, written = unpacked(unpack_tmp)
             assert_same_view(got, want)
             speech = tone(440) if mov_audio else read_audio(folder / "T.wav")
             np.testing.assert_array_equal(got[0].audio.samples, speech.samples)
         assert files == needed, named
         assert written == sum(sizes[n] for n in needed)
         assert got[2] == archive / "T" / want[2].name  # named as the member
-    assert unpacked(tmp) == ([], 0)
+    assert unpacked(unpack_tmp) == ([], 0)
