@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from live_helpers import record_packets
+from test_review_listen_setup import _sparse_wav
 
-from capture import Audio, build_takes, read_take, write_audio
+from capture import build_takes, read_take
 from capture.live_cli import SESSION_LOCK, _lock_session, _remove_unstarted_session, _session_record
 from capture.livelink import frame_block, header_bytes
 from capture.recorder import AUDIO_LOG, COMPLETE_FILE, FRAMES_LOG
@@ -80,9 +81,9 @@ def _outcome(trial: EarlyStop) -> str:
 def test_a_stop_in_the_first_milliseconds_of_listen_leaves_no_empty_session(tmp_path):
     # Before, a SIGINT or SIGTERM between making the session folder and taking the stop signals left a
     # folder with the lock alone, or a frames log without its SESSION record, for recover to meet.
-    audio = tmp_path / "voice.wav"
-    t = np.arange(48000 * 20) / 48000
-    write_audio(audio, Audio((0.2 * np.sin(2 * np.pi * 220 * t)).astype(np.float32), 48000))
+    # ten minutes of audio file (sparse: silence that costs no disk), read while listen sets up: a signal
+    # sent once its audio log is there lands in the read on a fast machine too
+    audio = _sparse_wav(tmp_path / "voice.wav", 600, channels=1)
     plan = [
         (signal.SIGTERM, 0.0, ()),
         (signal.SIGTERM, 0.05, ()),
@@ -103,8 +104,8 @@ def test_a_stop_in_the_first_milliseconds_of_listen_leaves_no_empty_session(tmp_
     outcomes = [_outcome(trial) for trial in trials]
     # Each signal that came once the session folder existed came before the recording began or after.
     assert all(o in ("set-up", "recording") for o in outcomes[2:]), outcomes
-    # The audio file is read while listen sets up (tens of milliseconds): a stop at its audio log comes
-    # before the recording, so the set-up window is met whatever the load.
+    # The audio file is read while listen sets up (a tenth of a second or more): a stop at its audio log
+    # comes before the recording, so the set-up window is met whatever the load.
     assert "set-up" in outcomes[4:], outcomes
 
 
