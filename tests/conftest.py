@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import io
 import os
@@ -105,6 +106,7 @@ def run_here(module: str, *args: str, check: bool = False) -> subprocess.Complet
     subprocesses elsewhere), without an interpreter's and PyTorch's start-up per call. A traceback
     here is an exception the test fails with."""
     main = importlib.import_module(f"{module}.cli").main
+    gc.collect()  # what earlier tests left to the collector warns now, not into this command's stderr
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
         # Python's warnings reach the user's stderr as lines, not pytest's record: a test of one-line

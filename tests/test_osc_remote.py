@@ -35,6 +35,7 @@ class FakePhone:
     def _any(self, address, *args):
         self.received.append((address, *args))
         if address == "/OSCSetSendTarget":
+            self._close_reply()  # a new target: the app answers there from now on
             self.reply = SimpleUDPClient(args[0], args[1])
             self.reply.send_message("/OSCSetSendTargetConfirm", [])
         elif self.reply is None:
@@ -50,9 +51,14 @@ class FakePhone:
         elif address == "/ThermalsQuery":
             self.reply.send_message("/Thermals", [self.thermals])
 
+    def _close_reply(self):
+        if self.reply is not None:
+            self.reply._sock.close()  # python-osc's client has no close of its own
+
     def close(self):
         self.server.shutdown()
         self.server.server_close()
+        self._close_reply()
 
 
 @pytest.fixture
