@@ -420,7 +420,7 @@ def _lock_session(session_dir: Path) -> tuple[int | None, bool]:
     and builds the takes: ``recover`` leaves a locked session alone. Returns the lock's descriptor
     (None without ``fcntl``; the lock goes with the process, however it ends) and whether this call made
     the folder (not when it was there already). ``OSError`` when the folder or its lock cannot be made
-    (and a folder made for it is gone again)."""
+    (``_remove_unstarted_session`` removes a folder made for it)."""
     made = True
     try:
         session_dir.mkdir(parents=True)
@@ -430,13 +430,7 @@ def _lock_session(session_dir: Path) -> tuple[int | None, bool]:
         made = False
     if fcntl is None:  # pragma: no cover - Windows: recover goes by the session record's pid alone
         return None, made
-    try:
-        fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
-    except OSError:
-        if made:
-            with contextlib.suppress(OSError):
-                session_dir.rmdir()
-        raise
+    fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
     with contextlib.suppress(OSError):  # a file system without locks: recover goes by the pid then
         try_lock(fd)
     return fd, made
@@ -602,8 +596,8 @@ class _SetUp:
     unless the set-up waits (``waiting``: a sound device opening, a long --audio-file read) or has taken
     longer than ``SETUP_DEFER_S`` (a file system that stalls); a second one raises at once."""
 
-    def __init__(self, caught: list[int]) -> None:
-        self.caught = caught
+    def __init__(self) -> None:
+        self.caught: list[int] = []  # the stop signals noted, in order
         self.active = True
         self.waiting = False
         self.started = time.monotonic()
@@ -772,8 +766,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
     # are (``discard``), rather than leave a folder without a session record; one in a step that waits, a
     # later or a second one stops it at once, and ``discard`` removes what there is. One after the set-up
     # ends the recording cleanly.
-    caught: list[int] = []
-    setup = _SetUp(caught)
+    setup = _SetUp()
     previous: dict[int, Any] = {}
     try:
         try:
@@ -801,9 +794,9 @@ def cmd_listen(args: argparse.Namespace) -> int:
         except BaseException:  # an error, or a stop signal that stopped the set-up at once
             discard()
             raise
-        if caught:  # stopped before the recording began: nothing to keep
+        if setup.caught:  # stopped before the recording began: nothing to keep
             discard()
-            raise _stopped_before_recording(caught[0])
+            raise _stopped_before_recording(setup.caught[0])
         if serial_port is not None:
             serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
         progress(f"listening on udp://{format_destination(host, port)} -> {recorder.session_dir}")

@@ -217,6 +217,13 @@ def _twins_error(names: list[str], folder: Path) -> InputError:
     )
 
 
+def _refuse_twins(names: list[str], name: str, folder: Path) -> None:
+    """``_twins_error`` when ``names`` hold ``name`` in two spellings (equal in ``nfc``)."""
+    twins = sorted({n for n in names if nfc(n) == nfc(name)})
+    if len(twins) > 1:
+        raise _twins_error(twins, folder)
+
+
 def _named_as(files: list[tuple[str, Path]], prefix: str, exact: bool = False) -> Path | None:
     """Of several files (their names, paths) of one kind, the take's: the one named as its CSV
     (``prefix``, compared in NFC), else (unless ``exact``) the first by name; None for none. Two files
@@ -226,9 +233,7 @@ def _named_as(files: list[tuple[str, Path]], prefix: str, exact: bool = False) -
     chosen = named[0] if named else None if exact or not files else files[0]
     if chosen is None:
         return None
-    twins = sorted({name for name, _ in files if nfc(name) == nfc(chosen[0])})
-    if len(twins) > 1:
-        raise _twins_error(twins, chosen[1].parent)
+    _refuse_twins([name for name, _ in files], chosen[0], chosen[1].parent)
     return chosen[1]
 
 
@@ -548,9 +553,7 @@ def read_take_folder(
         raise InputError("take folder not found", folder)
     own = csv is None or _is_its_folder(csv_path)
     if not own:  # its folder's own take, but for a twin of its name: not read without take.json in silence
-        twins = sorted({f.name for f in _csv_files(folder) if nfc(f.name) == nfc(csv_path.name)})
-        if len(twins) > 1:
-            raise _twins_error(twins, folder)
+        _refuse_twins([f.name for f in _csv_files(folder)], csv_path.name, folder)
     if own:
         _refuse_app_placeholders(folder)
         # named alone, the CSV's own variant (``choose_csv`` of it is this CSV, as ``_is_its_folder`` found)

@@ -48,6 +48,7 @@ from capture.command import TimedProgress, sigterm_stops, stops_deferred
 from capture.errors import InputError, S2AError
 from capture.file_lock import holding
 from capture.importer import no_takes_found
+from capture.npz import open_npz
 from capture.numbers import is_count
 from capture.take import (
     META_FILE,
@@ -602,7 +603,7 @@ def resolve_channels(
             for t in takes:
                 if splits[t.id] != "train":
                     continue
-                with np.load(t.folder / "frames.npz", allow_pickle=False) as z:
+                with open_npz(t.folder / "frames.npz") as z:
                     v, s = z["values"], z["frame_status"]
                 column = {c.lower(): j for j, c in enumerate(t.channels)}
                 v = v[:, [column[c.lower()] for c in first]]  # in the first take's order

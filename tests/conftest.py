@@ -9,6 +9,7 @@ import io
 import os
 import subprocess
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -44,8 +45,6 @@ def sim_take(tmp_path_factory) -> Path:
 @pytest.fixture
 def unpack_tmp(tmp_path, monkeypatch) -> Path:
     """The temporary folder the viewer unpacks archives into (Python's, pointed at ``tmp_path/tmp``)."""
-    import tempfile
-
     folder = tmp_path / "tmp"
     folder.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(folder))

@@ -16,25 +16,17 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import run_here
+from test_import_audio_streaming import TESTSET, _imported
 
 from capture import InputError, audio_io, read_audio, write_take
 from capture.audio_io import WRITE_FRAMES, audio_left_in_files, write_audio
-from capture.importer import import_source
 from capture.take_folder import read_csv_with_audio
-
-TESTSET = Path("paired") / "neurosync-trainer-lite-testset"
 
 
 @pytest.fixture(scope="module")
 def speech(samples) -> np.ndarray:
     """The test set's speech as recorded: 44.1 kHz int16 mono, 20 s."""
     return read_audio(samples / TESTSET / "audio.wav").samples
-
-
-def _imported(csv: Path, audio: Path):
-    """``import_source`` as ``s2a-capture import`` calls it: recorded audio left in its file."""
-    with audio_left_in_files():
-        return import_source(csv, audio)
 
 
 def _rewrite_in_place(path: Path, samples: np.ndarray) -> None:
