@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import io
 import math
+import shutil
 import struct
+import tempfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
@@ -131,7 +133,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``). An
     .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the count) is
     read whole, its count corrected (``MpegRun.count_low``). Within ``audio_left_in_files`` (an import),
-    audio libsndfile reads cleanly is a ``FileAudio``: checked a block at a time, left in its file."""
+    audio libsndfile reads cleanly is a ``FileAudio``: checked a block at a time, left in its file; audio
+    FFmpeg decodes is a ``FileAudio`` of the scratch file it was decoded into."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -154,7 +157,7 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
         dtype = _NATIVE.get(info.subtype, "float32")
         subtype = info.subtype if info.subtype in _NATIVE else "FLOAT"
         audio = None
-        if _LEFT_IN_FILES.get() and not info.subtype.startswith("MPEG_LAYER"):
+        if _LEFT_IN_FILES.get() is not None and not info.subtype.startswith("MPEG_LAYER"):
             audio = _left_in_file(path, info, dtype, subtype, repairs)
         if audio is None:
             try:
@@ -234,22 +237,52 @@ def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Au
     return audio
 
 
-# Whether read_audio leaves a cleanly read file's samples in it (``audio_left_in_files``).
-_LEFT_IN_FILES: ContextVar[bool] = ContextVar("_LEFT_IN_FILES", default=False)
+class _Scratch:
+    """Where an import's decoded audio waits until its take is written: WAV files in a hidden folder made
+    when the first one is (in ``folder``, the system's temporary folder when None), removed with them."""
+
+    def __init__(self, folder: Path | None, prefix: str):
+        self.folder, self.prefix = folder, prefix
+        self._made: Path | None = None
+        self._count = 0
+
+    def new_file(self) -> Path:
+        if self._made is None:
+            self._made = Path(tempfile.mkdtemp(prefix=self.prefix, dir=self.folder))
+        self._count += 1
+        return self._made / f"decoded-{self._count}.wav"
+
+    def remove(self) -> None:
+        if self._made is not None:
+            shutil.rmtree(self._made, ignore_errors=True)
+            self._made = None
+
+
+# Where read_audio leaves what it decodes, when it leaves a cleanly read file's samples in it
+# (``audio_left_in_files``); None: it holds every file's samples whole.
+_LEFT_IN_FILES: ContextVar[_Scratch | None] = ContextVar("_LEFT_IN_FILES", default=None)
 
 
 @contextmanager
-def audio_left_in_files() -> Iterator[None]:
+def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-decoded-") -> Iterator[None]:
     """Within it, ``read_audio`` gives the audio of a file libsndfile reads to its end without an error
     (WAV, FLAC, AIFF, OGG; not MP3) as a ``FileAudio``: its samples are checked a block at a time and
     left in the file, for ``write_audio`` to copy a block at a time (an import holds no take's recorded
-    audio whole: 317 MB an hour at 44.1 kHz int16 mono). Files whose float samples go past full scale,
-    which ``check_samples`` may repair on whole channels, are read whole as before."""
-    token = _LEFT_IN_FILES.set(True)
+    audio whole: 317 MB an hour at 44.1 kHz int16 mono). Audio FFmpeg decodes (``decode_with_pyav``: a
+    .mov's AAC, an .m4a) is decoded a block at a time into a scratch WAV, in a hidden folder made in
+    ``scratch`` (the system's temporary folder when None) whose name starts with ``prefix``, and given as
+    a ``FileAudio`` of it (an import of an hour of 48 kHz stereo AAC peaked at 1.4 GB, now 117 MB); that
+    folder is removed when the block ends, however it ends, so such audio must be written within it (read
+    after it, it is an ``InputError``). Its float samples past full scale, which ``check_samples`` may
+    repair, are looked at in passes over the scratch file (``_damaged_in_file``); a WAV's (or FLAC's ...)
+    are read whole as before."""
+    left = _Scratch(None if scratch is None else Path(scratch), prefix)
+    token = _LEFT_IN_FILES.set(left)
     try:
         yield
     finally:
         _LEFT_IN_FILES.reset(token)
+        left.remove()
 
 
 def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterator[np.ndarray]:
@@ -292,7 +325,17 @@ def _left_in_file(
         return None
     if bad and repairs is not None:
         repairs.append(_non_finite_note(path, bad))
-    return FileAudio(path, info.samplerate, subtype, np.dtype(dtype), frames, info.channels, crc)
+    return FileAudio(
+        path,
+        info.samplerate,
+        subtype,
+        np.dtype(dtype),
+        frames,
+        info.channels,
+        crc,
+        non_finite=bad,
+        peak=peak if np.dtype(dtype).kind == "f" else None,
+    )
 
 
 class FileAudio(Audio):
@@ -301,7 +344,12 @@ class FileAudio(Audio):
     infinite are read as 0 (``read_audio``'s repair). A file whose samples changed since they were read
     (their count or their CRC-32: also a file rewritten in place to the same size and modification time)
     or that was removed is an ``InputError`` once it is read again: the audio is never other than the
-    one checked. A file only touched, or replaced by a copy of the same samples, is read as it was."""
+    one checked. A file only touched, or replaced by a copy of the same samples, is read as it was.
+
+    ``shown``: the file to name instead of ``path`` (the source of audio decoded into a scratch file).
+    ``non_finite``: the NaN or infinite float samples found when it was checked (read as 0), and
+    ``peak`` the largest magnitude of the others (None: not known), for ``check_samples`` and
+    ``finite_peak`` to tell without reading the file whole."""
 
     def __init__(
         self,
@@ -312,12 +360,20 @@ class FileAudio(Audio):
         frames: int,
         channels: int,
         crc: int,
+        *,
+        shown: Path | None = None,
+        non_finite: int = 0,
+        peak: float | None = None,
     ):
-        self.path, self.dtype = path, dtype  # as given, to name it
+        self.path, self.dtype = path if shown is None else shown, dtype  # as given, to name it
         self._read_from = path.absolute()  # where it is, whatever the working folder is later
         self.sample_rate, self.subtype = whole_sample_rate(sample_rate), subtype
         self._frames, self._channels, self._crc = frames, channels, crc  # as read_audio found them
+        self.non_finite, self.peak = non_finite, peak
         self._held: np.ndarray | None = None
+        # samples set right (frame, channel, value), sorted by frame: applied as blocks are read
+        self._mend_at, self._mend_channel = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        self._mend_value = np.zeros(0, dtype)
 
     def __repr__(self) -> str:
         """The file and its layout: never the samples (``Audio``'s would read them all, and a file
@@ -361,6 +417,21 @@ class FileAudio(Audio):
         """The size of the samples in memory, read whole."""
         return self.frames * self.channels * self.dtype.itemsize
 
+    def mend(self, frames: np.ndarray, channel: int, values: np.ndarray) -> None:
+        """Set the samples at ``frames`` of ``channel`` to ``values`` (damaged samples set right) as they
+        are read: the file is left as it was checked."""
+        at = np.concatenate([self._mend_at, frames])
+        order = np.argsort(at, kind="stable")
+        self._mend_at = at[order]
+        self._mend_channel = np.concatenate([self._mend_channel, np.full(len(frames), channel)])[order]
+        self._mend_value = np.concatenate([self._mend_value, values.astype(self.dtype)])[order]
+
+    def _mended(self, block: np.ndarray, start: int) -> None:
+        """The mends of the frames of ``block`` (from frame ``start``) applied to it."""
+        lo, hi = np.searchsorted(self._mend_at, [start, start + len(block)])
+        if hi > lo:
+            block[self._mend_at[lo:hi] - start, self._mend_channel[lo:hi]] = self._mend_value[lo:hi]
+
     def blocks(self, size: int) -> Iterator[np.ndarray]:
         """The samples, ``size`` frames at a time, as ``read_audio`` checked them (NaN set to 0); the
         file's change is told after its last block (its CRC-32), before a write of them completes."""
@@ -376,6 +447,7 @@ class FileAudio(Audio):
                 if block.dtype.kind == "f":
                     block[~np.isfinite(block)] = 0.0
                 crc = zlib.crc32(block, crc)
+                self._mended(block, frames - len(block))
                 yield block
         except OSError as exc:
             raise InputError(f"audio file cannot be read again: {exc.strerror or exc}", self.path) from None
@@ -401,34 +473,46 @@ def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None
     """Damaged float samples, set right and recorded in ``repairs`` (repair ``bad_audio``): NaN or
     infinite samples are set to 0 (without ``repairs``: an ``InputError``), and isolated samples far past
     full scale (``damaged_samples``) are replaced by the interpolation of their neighbours (without
-    ``repairs`` they are left as they are)."""
-    if audio.samples.dtype.kind != "f":
-        return audio
-    count = 0
-    for lo in range(0, audio.frames, CHECK_FRAMES):  # a block at a time: no mask of all the samples
-        block = audio.samples[lo : lo + CHECK_FRAMES]
-        finite = np.isfinite(block)
-        if not finite.all():
-            count += int(finite.size - np.count_nonzero(finite))
-            if repairs is not None:
-                block[~finite] = 0.0
+    ``repairs`` they are left as they are). A ``FileAudio`` checked as it was written to its file is
+    told by what that check found, its float32 samples past full scale looked at in passes over the file
+    (``_damaged_in_file``): it is never read whole here."""
+    if isinstance(audio, FileAudio) and not audio.held and audio.peak is not None:
+        if audio.dtype.kind != "f":
+            return audio
+        count = audio.non_finite  # read as 0
+        past_full_scale = audio.peak > 1.0
+    else:
+        if audio.samples.dtype.kind != "f":
+            return audio
+        count = 0
+        for lo in range(0, audio.frames, CHECK_FRAMES):  # a block at a time: no mask of all the samples
+            block = audio.samples[lo : lo + CHECK_FRAMES]
+            finite = np.isfinite(block)
+            if not finite.all():
+                count += int(finite.size - np.count_nonzero(finite))
+                if repairs is not None:
+                    block[~finite] = 0.0
+        past_full_scale = True  # damaged_samples tells
     if count:
         if repairs is None:
             raise InputError(f"audio holds {count} NaN or infinite sample(s)", path)
         repairs.append(_non_finite_note(path, count))
-    if repairs is None:
+    if repairs is None or not past_full_scale:
         return audio
-    found, worst = 0, 0.0
-    for c in range(audio.channels):
-        x = audio.samples[:, c]
-        spikes = damaged_samples(x)
-        if spikes.size:
-            found += int(spikes.size)
-            worst = max(worst, float(np.max(np.abs(x[spikes]))))
-            good = np.ones(x.size, bool)
-            good[spikes] = False
-            keep = np.flatnonzero(good)
-            x[spikes] = np.interp(spikes, keep, x[keep]).astype(x.dtype)
+    if isinstance(audio, FileAudio) and not audio.held and audio.dtype == np.float32:
+        found, worst = _damaged_in_file(audio)  # in passes over the file, not on whole channels
+    else:
+        found, worst = 0, 0.0
+        for c in range(audio.channels):
+            x = audio.samples[:, c]
+            spikes = damaged_samples(x)
+            if spikes.size:
+                found += int(spikes.size)
+                worst = max(worst, float(np.max(np.abs(x[spikes]))))
+                good = np.ones(x.size, bool)
+                good[spikes] = False
+                keep = np.flatnonzero(good)
+                x[spikes] = np.interp(spikes, keep, x[keep]).astype(x.dtype)
     if found:
         repairs.append(
             {
@@ -442,11 +526,22 @@ def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None
     return audio
 
 
+def finite_peak(audio: Audio) -> float:
+    """The largest magnitude of ``audio``'s finite samples, full scale 1 whatever the sample format (0
+    for silence); of a ``FileAudio``, the one found when it was checked, when known."""
+    if isinstance(audio, FileAudio) and not audio.held and audio.peak is not None:
+        return audio.peak / _SCALE.get(audio.dtype.name, 1.0)
+    x = audio.samples
+    finite = np.abs(x[np.isfinite(x)]) if x.dtype.kind == "f" else np.abs(x.astype(np.float64))
+    return float(finite.max(initial=0.0)) / full_scale(x)
+
+
 # A damaged float sample: past full scale, and over SPIKE_FACTOR times both the take's level (its 99.9th
 # percentile of |x|; speech peaks at 1.3-2.0 times it in every real sample) and every sample 4 to 32
 # samples away (a band-limited sound, even a click, spreads over its neighbours; a flipped bit does
 # not): runs of up to 4 damaged samples, a few per take.
 SPIKE_FACTOR = 10.0
+LEVEL_PERCENTILE = 99.9
 _SPIKE_RING = np.concatenate([np.arange(-32, -3), np.arange(4, 33)])
 
 
@@ -457,15 +552,158 @@ def damaged_samples(x: np.ndarray) -> np.ndarray:
     if x.size == 0 or max(float(x.max()), -float(x.min())) <= 1.0:
         return np.zeros(0, np.int64)
     a = np.abs(x)
-    level = float(np.percentile(a, 99.9))
+    level = float(np.percentile(a, LEVEL_PERCENTILE))
     cand = np.flatnonzero(a > max(1.0, SPIKE_FACTOR * level))  # by construction under 0.1 % of samples
     if cand.size == 0:
         return cand
+    return _isolated(cand, a, 0, a.size)
+
+
+def _isolated(cand: np.ndarray, a: np.ndarray, start: int, n: int) -> np.ndarray:
+    """Those of the samples ``cand`` (indices into a channel of ``n``) over ``SPIKE_FACTOR`` times every
+    sample 4 to 32 away (none before the first or after the last); ``a``: |x| from sample ``start`` on,
+    holding all of them."""
     ring = cand[:, None] + _SPIKE_RING[None, :]
-    inside = (ring >= 0) & (ring < a.size)
-    ring = np.clip(ring, 0, a.size - 1)
+    inside = (ring >= 0) & (ring < n)
+    ring = np.clip(ring - start, 0, a.size - 1)
     neighbours = np.where(inside, a[ring], 0.0)
-    return cand[a[cand] > SPIKE_FACTOR * neighbours.max(axis=1)]
+    return cand[a[cand - start] > SPIKE_FACTOR * neighbours.max(axis=1)]
+
+
+def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
+    """``check_samples``' repair of damaged samples (``damaged_samples``) of float32 audio left in its file,
+    found in passes over the file instead of on whole channels (|x| of an hour of 48 kHz audio: 691 MB a
+    channel): each channel's peak and the histogram of |x|'s upper 16 bits; the lower bits of the buckets
+    holding the level's two ranks (the level NumPy's percentile gives, to the bit: ``_level_ranks``); the
+    samples past the threshold. Their neighbours, and those a mend interpolates, are read where they lie.
+    The mends are kept in ``audio`` (``FileAudio.mend``), to be applied as its blocks are read. Returns
+    the number of damaged samples and the largest magnitude among them."""
+    n, channels = audio.frames, audio.channels
+    high = np.zeros((channels, 1 << 16), np.int64)
+    peaks = np.zeros(channels, np.float32)
+    for block in audio.blocks(CHECK_FRAMES):
+        bits = np.abs(block).view(np.uint32)  # the order of non-negative floats
+        for c in range(channels):
+            high[c] += np.bincount(bits[:, c] >> 16, minlength=1 << 16)
+        peaks = np.maximum(peaks, bits.max(axis=0).view(np.float32))
+    past = [c for c in range(channels) if peaks[c] > 1.0]  # within full scale: none damaged
+    lo_rank, hi_rank, gamma = _level_ranks(n)
+    buckets = {}  # (channel, rank): (bucket, rank within it)
+    for c in past:
+        counts = np.cumsum(high[c])
+        for rank in (lo_rank, hi_rank):
+            bucket = int(np.searchsorted(counts, rank, side="right"))
+            buckets[c, rank] = (bucket, rank - (int(counts[bucket - 1]) if bucket else 0))
+    low = {(c, b): np.zeros(1 << 16, np.int64) for (c, _), (b, _) in buckets.items()}
+    if past:
+        for block in audio.blocks(CHECK_FRAMES):
+            bits = np.abs(block).view(np.uint32)
+            for (c, b), counts in low.items():
+                column = bits[:, c]
+                counts += np.bincount(column[column >> 16 == b] & 0xFFFF, minlength=1 << 16)
+    thresholds = {}
+    for c in past:
+        ranked = []
+        for rank in (lo_rank, hi_rank):
+            b, within = buckets[c, rank]
+            lower = int(np.searchsorted(np.cumsum(low[c, b]), within, side="right"))
+            ranked.append(np.array([b << 16 | lower], np.uint32).view(np.float32)[0])
+        thresholds[c] = max(1.0, SPIKE_FACTOR * _lerp(ranked[0], ranked[1], gamma))
+    found: dict[int, list[np.ndarray]] = {c: [] for c in past}
+    at = 0
+    if past:
+        for block in audio.blocks(CHECK_FRAMES):
+            for c in past:
+                hits = np.flatnonzero(np.abs(block[:, c]) > thresholds[c])
+                if hits.size:
+                    found[c].append(hits + at)
+            at += len(block)
+    count, worst = 0, 0.0
+    with sf.SoundFile(str(audio._read_from)) as f:
+        for c, parts in found.items():
+            if not parts:
+                continue
+            cand = np.concatenate(parts)
+            spikes, values = _spikes_in_file(f, c, cand, n)
+            if spikes.size:
+                count += int(spikes.size)
+                worst = max(worst, float(np.max(values)))
+                audio.mend(spikes, c, _mended(f, c, spikes, n))
+    return count, worst
+
+
+def _level_ranks(n: int) -> tuple[int, int, float]:
+    """The ranks (from 0, of n values in order) NumPy's percentile ``LEVEL_PERCENTILE`` interpolates
+    between, and the weight of the upper one: its 'linear' method, in its arithmetic."""
+    q = np.true_divide(LEVEL_PERCENTILE, 100)
+    virtual = n * q + (1 + q * (1 - 1 - 1)) - 1
+    lower = int(np.floor(virtual))
+    gamma = float(virtual - lower)
+    if virtual >= n - 1:
+        return n - 1, n - 1, gamma
+    if virtual < 0:
+        return 0, 0, gamma
+    return lower, lower + 1, gamma
+
+
+def _lerp(a: np.floating, b: np.floating, t: float) -> float:
+    """NumPy's interpolation of a percentile between ``a`` and ``b`` (in their type): from the nearer one."""
+    diff = b - a
+    return float(b - diff * (1 - t)) if t >= 0.5 else float(a + diff * t)
+
+
+def _window_reads(
+    f: sf.SoundFile, c: int, starts: np.ndarray, ends: np.ndarray
+) -> Iterator[tuple[int, np.ndarray]]:
+    """|x| of channel ``c`` of the file ``f`` over each window [start, end) (overlapping ones merged), NaN
+    or infinite samples read as 0."""
+    i = 0
+    while i < len(starts):
+        start, end = int(starts[i]), int(ends[i])
+        while i + 1 < len(starts) and starts[i + 1] <= end:
+            i += 1
+            end = max(end, int(ends[i]))
+        f.seek(start)
+        x = f.read(end - start, dtype="float32", always_2d=True)[:, c]
+        x[~np.isfinite(x)] = 0.0
+        yield start, np.abs(x)
+        i += 1
+
+
+def _spikes_in_file(f: sf.SoundFile, c: int, cand: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``_isolated`` of the candidates ``cand`` (sorted) of channel ``c`` of the file ``f``, read around
+    each; with their magnitudes."""
+    reach = int(np.abs(_SPIKE_RING).max())
+    starts, ends = np.maximum(cand - reach, 0), np.minimum(cand + reach + 1, n)
+    spikes, values = [], []
+    for start, a in _window_reads(f, c, starts, ends):
+        here = cand[(cand >= start) & (cand < start + a.size)]
+        isolated = _isolated(here, a, start, n)
+        spikes.append(isolated)
+        values.append(a[isolated - start])
+    return np.concatenate(spikes), np.concatenate(values)
+
+
+def _mended(f: sf.SoundFile, c: int, spikes: np.ndarray, n: int) -> np.ndarray:
+    """The values ``check_samples`` gives the damaged samples ``spikes`` (sorted) of channel ``c``: the
+    interpolation of the nearest samples on either side that are not damaged, read from the file ``f``."""
+    damaged = set(spikes.tolist())
+    values = []
+    for s in spikes.tolist():
+        keep = []
+        for step in (-1, 1):
+            i = s + step
+            while i in damaged:
+                i += step
+            if 0 <= i < n:
+                keep.append(i)
+        around = []
+        for i in keep:
+            f.seek(i)
+            v = f.read(1, dtype="float32", always_2d=True)[:, c]
+            around.append(v[0] if np.isfinite(v[0]) else np.float32(0))
+        values.append(np.interp(np.array([s]), np.array(keep), np.array(around, np.float32))[0])
+    return np.array(values).astype(np.float32)
 
 
 def _wav_data_chunk(path: Path) -> tuple[int, int, int | None] | None:
@@ -663,7 +901,8 @@ class _Samples:
 class _Decoded:
     """What FFmpeg decoded from one audio stream, before its chunks are joined."""
 
-    chunks: list[np.ndarray] | _Samples  # frames x channels, one per decoded frame, or written in one array
+    chunks: list[np.ndarray] | _Samples | _DecodedToFile  # frames x channels: one per decoded frame, in one
+    # array, or in a scratch file
     rate: int
     sample_format: str  # FFmpeg's sample format of the last frame, planar or not: s16, s32, u8, flt ...
     last_frame: int  # samples of the last decoded frame
@@ -687,13 +926,15 @@ def _decode_frames(
     repairs: list[dict[str, Any]] | None,
     skip_damaged: bool = False,
     joined: bool = True,
+    into: Callable[[Any], _DecodedToFile] | None = None,
 ) -> _Decoded:
     """Every frame of one audio stream of ``source`` (a file name, or an MP3 held in memory), decoded by
     FFmpeg; an undecodable stream is an ``InputError`` naming ``path`` (with ``skip_damaged``, a packet
     FFmpeg cannot decode is counted and replaced by silence of its duration, so the sound after it keeps its
     time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``).
     ``joined``: the frames are written into one array as they are decoded (``_Samples``), else kept as a
-    list of chunks (the joined-MP3 path edits them)."""
+    list of chunks (the joined-MP3 path edits them). ``into``: makes what they are written into, given the
+    stream (``_DecodedToFile``)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     try:
@@ -702,7 +943,11 @@ def _decode_frames(
             if not streams:
                 raise InputError("file has no audio stream", path)
             stream = streams[stream_index]
-            chunks: list[np.ndarray] | _Samples = _Samples(_expected_samples(stream)) if joined else []
+            chunks: list[np.ndarray] | _Samples | _DecodedToFile
+            if into is not None:
+                chunks = into(stream)
+            else:
+                chunks = _Samples(_expected_samples(stream)) if joined else []
             fmt = "flt"
             last_frame = 0
             first_pts = None
@@ -747,15 +992,15 @@ def _decode_frames(
     return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged, delay_recorded)
 
 
-def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _Samples) -> np.ndarray:
+def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _Samples | _DecodedToFile) -> np.ndarray:
     """Silence as long as an undecodable packet (none when its duration is unknown), in the layout of what
     was decoded before it."""
     rate = stream.rate or stream.codec_context.sample_rate
     seconds = float(packet.duration * packet.time_base) if packet.duration and packet.time_base else 0.0
-    if isinstance(chunks, _Samples):
-        channels, dtype = chunks.last_channels, chunks.last_dtype
-    else:
+    if isinstance(chunks, list):
         channels, dtype = (chunks[-1].shape[1], chunks[-1].dtype) if chunks else (None, None)
+    else:
+        channels, dtype = chunks.last_channels, chunks.last_dtype
     channels = stream.codec_context.channels if channels is None else channels
     return np.zeros((round(seconds * rate), channels), np.float32 if dtype is None else dtype)
 
@@ -763,16 +1008,26 @@ def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _Samples) -
 def _in_recorded_format(data: np.ndarray, rate: int, sample_format: str) -> Audio:
     """Decoded samples as the recorded format's: converted in place where the dtype allows, so the audio
     is not held twice."""
+    return Audio(*_recorded_samples(data, sample_format, rate))
+
+
+def _recorded_samples(data: np.ndarray, sample_format: str, rate: int = 0) -> tuple[np.ndarray, int, str]:
+    """(samples, ``rate``, subtype) of ``_in_recorded_format``: sample by sample, so a block at a time
+    converts as the whole does."""
     if sample_format == "s16":
-        return Audio(data.astype(np.int16, copy=False), rate, "PCM_16")
+        return data.astype(np.int16, copy=False), rate, "PCM_16"
     if sample_format == "s32":
-        return Audio(data.astype(np.int32, copy=False), rate, "PCM_32")
+        return data.astype(np.int32, copy=False), rate, "PCM_32"
     if sample_format == "u8":
         unsigned = data.astype(np.float32)
         unsigned -= 128.0  # the same float32 arithmetic as (x - 128.0) / 128.0, without its temporaries
         unsigned /= 128.0
-        return Audio(unsigned, rate, "FLOAT")
-    return Audio(data.astype(np.float32, copy=False), rate, "FLOAT")
+        return unsigned, rate, "FLOAT"
+    return data.astype(np.float32, copy=False), rate, "FLOAT"
+
+
+# FFmpeg's sample format of decoded frames (planar or not) by the dtype PyAV gives them in
+_FORMAT_OF_DTYPE = {"int16": "s16", "int32": "s32", "uint8": "u8", "float32": "flt", "float64": "dbl"}
 
 
 def decode_with_pyav(
@@ -789,8 +1044,15 @@ def decode_with_pyav(
     estimate). A file that records no delay keeps it: noted in ``repairs`` (``note_unknown_delay``).
     Audio whose channel count changes mid-stream is mixed to the first frame's (repair
     ``channels_changed``). ``skip_damaged``: a packet FFmpeg cannot decode is silence of its duration.
-    The frames are written into one array as they are decoded (``_Samples``): an hour's take is held once."""
+    The frames are written into one array as they are decoded (``_Samples``): an hour's take is held once.
+    Within ``audio_left_in_files`` they are written a block at a time into a scratch WAV instead, and the
+    audio is a ``FileAudio`` of it (``_decoded_to_file``): the same samples, never held whole."""
     path = Path(path)
+    scratch = _LEFT_IN_FILES.get()
+    if scratch is not None:
+        audio = _decoded_to_file(path, stream_index, repairs, skip_damaged, scratch)
+        if audio is not None:
+            return audio
     decoded = _decode_frames(str(path), path, stream_index, repairs, skip_damaged)
     samples = decoded.chunks
     assert isinstance(samples, _Samples)
@@ -799,10 +1061,220 @@ def decode_with_pyav(
     _note_channels_changed(
         path, repairs, samples.changed, samples.first_changed, decoded.rate, samples.channels
     )
-    declared = decoded.declared
-    padded = declared is not None and 0 < samples.used - declared < decoded.last_frame
-    data = samples.take(declared if padded else None)  # the last frame's padding
+    data = samples.take(_without_padding(decoded, samples.used))
     return _in_recorded_format(data, decoded.rate, decoded.sample_format)
+
+
+def _without_padding(decoded: _Decoded, used: int) -> int | None:
+    """The samples to keep of the ``used`` decoded: the container's declared duration when it ends inside
+    the last frame (its padding), else None (all)."""
+    declared = decoded.declared
+    padded = declared is not None and 0 < used - declared < decoded.last_frame
+    return declared if padded else None
+
+
+class _NotStreamed(Exception):
+    """Decoded audio ``_DecodedToFile`` cannot write as the whole-array way would hold it (its sample
+    format changes mid-stream): decoded whole instead."""
+
+
+def _decoded_to_file(
+    path: Path,
+    stream_index: int,
+    repairs: list[dict[str, Any]] | None,
+    skip_damaged: bool,
+    scratch: _Scratch,
+) -> FileAudio | None:
+    """``decode_with_pyav``'s audio written a block at a time into a new file of ``scratch`` as it is
+    decoded, as a ``FileAudio`` of it naming ``path``: the same samples, repairs and notes, never held
+    whole. None (nothing noted, the file removed) when the sample format changes mid-stream, which the
+    whole-array way joins by NumPy's promotion and converts by the last frame's format. Whatever else ends
+    the decoding (an error, Ctrl-C) removes the file too."""
+    found: list[dict[str, Any]] | None = None if repairs is None else []
+    sink: _DecodedToFile | None = None
+
+    def into(stream: Any) -> _DecodedToFile:
+        nonlocal sink
+        try:
+            sink = _DecodedToFile(scratch.new_file(), path, stream)
+        except OSError as exc:
+            raise _scratch_refused(scratch.folder or Path(tempfile.gettempdir()), exc, path) from None
+        return sink
+
+    try:
+        decoded = _decode_frames(str(path), path, stream_index, found, skip_damaged, into=into)
+        assert sink is not None
+        if not sink:
+            raise InputError("audio stream holds no samples", path)
+        _note_channels_changed(path, found, sink.changed, sink.first_changed, decoded.rate, sink.channels)
+        audio = sink.finish(_without_padding(decoded, sink.used), decoded.rate, decoded.sample_format)
+    except _NotStreamed:
+        return None
+    finally:
+        if sink is not None:
+            sink.close()  # an error, Ctrl-C: the file goes now; done: it stays for the FileAudio
+    if repairs is not None and found:
+        repairs += found
+    return audio
+
+
+def _scratch_refused(folder: Path, exc: OSError, source: Path) -> InputError:
+    """The error of a scratch file for ``source``'s decoded audio the system refuses (a full disk)."""
+    return InputError(f"audio could not be decoded into {folder}: {exc.strerror or exc}", source)
+
+
+class _DecodedToFile:
+    """Decoded frames written into a scratch WAV a block at a time, as ``_Samples`` would hold them: each
+    mixed to the first frame's channel count, converted to the recorded format (``_recorded_samples``),
+    NaN or infinite float samples set to 0 and counted, the largest magnitude and the CRC-32 of what is
+    written kept (for the ``FileAudio`` of the file). The last frame's worth of samples waits in memory
+    until the end, for the padding the container's duration cuts there (``_without_padding``)."""
+
+    def __init__(self, scratch: Path, source: Path, stream: Any):
+        self.scratch, self.source = scratch, source
+        self._rate_of: Callable[[], int] = lambda: stream.rate or stream.codec_context.sample_rate
+        self.used = 0  # samples decoded
+        self.changed, self.first_changed = 0, 0  # samples mixed to the first channel count, where from
+        self.last_channels: int | None = None  # the layout of the last chunk, for silence in its place
+        self.last_dtype: np.dtype | None = None
+        self.channels = 0
+        self._dtype: np.dtype | None = None  # that of every decoded chunk
+        self._waiting: list[np.ndarray] = []  # decoded, not yet written
+        self._waiting_frames = 0
+        self._longest = 0  # the longest chunk yet: the padding a duration may cut lies within it
+        self._file: IO[bytes] | None = None
+        self._sink: _WavSink | None = None
+        self._out: sf.SoundFile | None = None
+        self._rate = 0
+        self._crc, self._bad, self._peak = 0, 0, 0.0
+        self._recorded: tuple[np.dtype, str] | None = None  # the dtype and subtype written
+        self._done = False
+
+    def __bool__(self) -> bool:
+        return self.last_dtype is not None
+
+    def append(self, arr: np.ndarray) -> None:
+        self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
+        if self._dtype is None:
+            self._dtype, self.channels = arr.dtype, arr.shape[1]
+        if arr.dtype != self._dtype:
+            raise _NotStreamed
+        if arr.shape[1] != self.channels:
+            self.first_changed = self.first_changed if self.changed else self.used
+            self.changed += len(arr)
+            arr = _to_channels(arr, self.channels)
+        self._waiting.append(arr)
+        self._waiting_frames += len(arr)
+        self.used += len(arr)
+        self._longest = max(self._longest, len(arr))
+        if self._waiting_frames >= self._longest + WRITE_FRAMES:
+            self._write(self._waiting_frames - self._longest)
+
+    def _write(self, frames: int) -> None:
+        """Write the first ``frames`` of the samples waiting."""
+        assert self._dtype is not None
+        if not self._waiting:  # chunks of no samples
+            waiting = np.zeros((0, self.channels), self._dtype)
+        else:
+            waiting = self._waiting[0] if len(self._waiting) == 1 else np.concatenate(self._waiting)
+        self._waiting = [waiting[frames:]] if len(waiting) > frames else []
+        self._waiting_frames = len(waiting) - frames
+        block, rate, subtype = _recorded_samples(waiting[:frames], _FORMAT_OF_DTYPE.get(self._dtype.name, ""))
+        block = np.ascontiguousarray(block)
+        if block.dtype.kind == "f":
+            finite = np.isfinite(block)
+            if not finite.all():
+                self._bad += int(finite.size - np.count_nonzero(finite))
+                block = block if block.flags.writeable else block.copy()
+                block[~finite] = 0.0
+        if len(block):
+            self._peak = max(self._peak, float(block.max()), -float(block.min()))
+        self._crc = zlib.crc32(block, self._crc)
+        if self._out is None:
+            self._open(subtype)
+        assert self._out is not None and self._sink is not None
+        try:
+            self._out.write(block)
+        except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
+            if self._sink.error is None:
+                raise
+        self._refused()
+        self._recorded = (block.dtype, subtype)
+
+    def _open(self, subtype: str) -> None:
+        rate = self._rate_of()
+        if not rate or rate <= 0:
+            raise _NotStreamed  # no rate to write: the whole-array way says what is wrong
+        self._rate = int(rate)
+        try:
+            self._file = open(self.scratch, "wb", buffering=1 << 20)
+        except OSError as exc:
+            raise _scratch_refused(self.scratch.parent, exc, self.source) from None
+        self._sink = _WavSink(self._file)
+        # RF64: a size past 4 GB is no error; libsndfile reads it as it reads a WAV
+        self._out = sf.SoundFile(self._sink, "w", self._rate, self.channels, subtype=subtype, format="RF64")
+        self._refused()
+
+    def _refused(self) -> None:
+        if self._sink is not None and self._sink.error is not None:
+            raise _scratch_refused(self.scratch.parent, self._sink.error, self.source)
+
+    def finish(self, frames: int | None, rate: int, sample_format: str) -> FileAudio:
+        """The audio decoded (its first ``frames``; None: all) as a ``FileAudio`` of the file; ``rate``
+        and ``sample_format``: the stream's, as decoding ends."""
+        assert self._dtype is not None
+        frames = self.used if frames is None else frames
+        cut = self.used - frames
+        if cut > self._waiting_frames or (self._out is not None and rate != self._rate):
+            raise _NotStreamed  # cannot happen: a duration ends inside the last chunk, rates do not change
+        if self._out is None:
+            self._rate_of = lambda: rate
+        if _FORMAT_OF_DTYPE.get(self._dtype.name) != sample_format:
+            raise _NotStreamed  # silence only (decoded as float), or frames of a format not listed
+        self._write(self._waiting_frames - cut)
+        assert self._out is not None and self._file is not None
+        out, self._out = self._out, None
+        try:
+            out.close()
+        except (AssertionError, sf.SoundFileError):
+            if self._sink is None or self._sink.error is None:
+                raise
+        self._refused()
+        try:
+            self._file.close()
+        except OSError as exc:
+            raise _scratch_refused(self.scratch.parent, exc, self.source) from None
+        self._done = True
+        assert self._recorded is not None
+        dtype, subtype = self._recorded
+        return FileAudio(
+            self.scratch,
+            self._rate,
+            subtype,
+            np.dtype(dtype),
+            frames,
+            self.channels,
+            self._crc,
+            shown=self.source,
+            non_finite=self._bad,
+            peak=self._peak,
+        )
+
+    def close(self) -> None:
+        """Unless ``finish`` made a ``FileAudio`` of it: the file closed and removed."""
+        if self._done:
+            return
+        try:
+            if self._out is not None:
+                self._out.close()
+        except (AssertionError, sf.SoundFileError):
+            pass  # a full disk: the file goes all the same
+        if self._file is not None:
+            try:
+                self._file.close()
+            except OSError:
+                pass
+        self.scratch.unlink(missing_ok=True)
 
 
 # MPEG audio frame headers (ISO/IEC 11172-3, 13818-3 and the MPEG 2.5 extension): 11 sync bits, then the

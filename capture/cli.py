@@ -38,7 +38,7 @@ from .take import (
     safe_id,
     write_take,
 )
-from .take_archive import Unpacked, clear_unpacked, unpacked
+from .take_archive import UNPACK_PREFIX, Unpacked, clear_unpacked, unpacked
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 from .transfer_litter import Litter, is_zip
 
@@ -342,8 +342,11 @@ class _Importer:
         args, generic, timecode_rate, listing = self.args, self.generic, self.timecode_rate, self.listing
         shown = box.shown(src) if box else src
         try:
-            # recorded audio that libsndfile reads cleanly stays in its file until write_take copies it
-            with audio_left_in_files():
+            # recorded audio that libsndfile reads cleanly stays in its file until write_take copies it;
+            # what FFmpeg decodes waits in a scratch file in the output folder (where the take is written:
+            # room for it, not a small /tmp), removed when this block ends, however it ends; a kill
+            # leaves it to the next import's clear_unpacked, as an archive unpacked there
+            with audio_left_in_files(args.out, f"{UNPACK_PREFIX}audio-"):
                 if kind == "matrix":
                     take = read_paired(
                         args.audio,

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .audio_io import SILENT_PEAK, Audio, check_samples, decode_with_pyav, full_scale
+from .audio_io import SILENT_PEAK, Audio, check_samples, decode_with_pyav, finite_peak
 from .errors import InputError
 
 
@@ -99,7 +99,7 @@ def choose_mov_audio(
     if count <= 1:
         return check_samples(decode_with_pyav(path), path, repairs), None
     tracks = [decode_with_pyav(path, i) for i in range(count)]
-    peaks = [_peak(t) for t in tracks]
+    peaks = [finite_peak(t) for t in tracks]
     chosen = next((i for i, p in enumerate(peaks) if p >= SILENT_PEAK), 0)
     described = ", ".join(f"{i + 1}: {_describe_peak(p)}" for i, p in enumerate(peaks))
     if peaks[chosen] >= SILENT_PEAK:
@@ -121,14 +121,6 @@ def choose_mov_audio(
         "peaks_dbfs": [round(20 * np.log10(p), 1) if p > 0 else None for p in peaks],
     }
     return check_samples(tracks[chosen], path, repairs), choice
-
-
-def _peak(audio: Audio) -> float:
-    """Largest finite sample magnitude, full scale 1 whatever the sample format."""
-    x = audio.samples
-    scale = full_scale(x)
-    finite = np.abs(x[np.isfinite(x)]) if x.dtype.kind == "f" else np.abs(x.astype(np.float64))
-    return float(finite.max(initial=0.0)) / scale
 
 
 def _describe_peak(peak: float) -> str:
