@@ -273,9 +273,8 @@ def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-d
     ``scratch`` (the system's temporary folder when None) whose name starts with ``prefix``, and given as
     a ``FileAudio`` of it (an import of an hour of 48 kHz stereo AAC peaked at 1.4 GB, now 117 MB); that
     folder is removed when the block ends, however it ends, so such audio must be written within it (read
-    after it, it is an ``InputError``). Its float samples past full scale, which ``check_samples`` may
-    repair, are looked at in passes over the scratch file (``_damaged_in_file``); a WAV's (or FLAC's ...)
-    are read whole as before."""
+    after it, it is an ``InputError``). Float samples past full scale (of a file, or decoded), which
+    ``check_samples`` may repair, are looked at in passes over the file (``_damaged_in_file``)."""
     left = _Scratch(None if scratch is None else Path(scratch), prefix)
     token = _LEFT_IN_FILES.set(left)
     try:
@@ -303,11 +302,11 @@ def _left_in_file(
     path: Path, info: Any, dtype: str, subtype: str, repairs: list[dict[str, Any]] | None
 ) -> FileAudio | None:
     """``read_audio``'s audio of a file libsndfile reads, checked a block at a time and left in the file
-    (NaN or infinite float samples counted, noted as ``check_samples`` notes them, set to 0 when it is
-    copied; the CRC-32 of the samples so checked kept, to tell the file changed); None when reading it
+    (NaN or infinite float samples counted, set to 0 when it is copied; the CRC-32 of the samples so
+    checked kept, to tell the file changed), then float samples given to ``check_samples``, which notes
+    them and looks for damaged samples past full scale in passes over the file; None when reading it
     whole decides more: an error of libsndfile (a file cut short), no samples, NaN without ``repairs``
-    (an ``InputError``), float samples past full scale with ``repairs`` (``damaged_samples`` looks at
-    whole channels)."""
+    (an ``InputError``)."""
     frames, bad, peak, crc = 0, 0, 0.0, 0
     try:
         for block in _file_blocks(path, dtype, CHECK_FRAMES, info):
@@ -321,21 +320,15 @@ def _left_in_file(
             crc = zlib.crc32(block, crc)
     except (sf.LibsndfileError, RuntimeError):
         return None
-    if frames == 0 or (bad and repairs is None) or (peak > 1.0 and repairs is not None):
+    if frames == 0 or (bad and repairs is None):
         return None
-    if bad and repairs is not None:
-        repairs.append(_non_finite_note(path, bad))
-    return FileAudio(
-        path,
-        info.samplerate,
-        subtype,
-        np.dtype(dtype),
-        frames,
-        info.channels,
-        crc,
-        non_finite=bad,
-        peak=peak if np.dtype(dtype).kind == "f" else None,
+    kept = np.dtype(dtype)
+    if kept.kind != "f":
+        return FileAudio(path, info.samplerate, subtype, kept, frames, info.channels, crc)
+    audio = FileAudio(
+        path, info.samplerate, subtype, kept, frames, info.channels, crc, non_finite=bad, peak=peak
     )
+    return check_samples(audio, path, repairs)
 
 
 class FileAudio(Audio):
