@@ -14,7 +14,13 @@ from capture.command import TimedProgress, emit_json, progress, run
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
-from .output import prepare_output, raise_if_stopped, stopped_by_signals, stops_between_frames
+from .output import (
+    prepare_output,
+    raise_if_stopped,
+    refuse_writing_over_inputs,
+    stopped_by_signals,
+    stops_between_frames,
+)
 from .plot import VAD_METHODS
 
 # The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
@@ -208,6 +214,31 @@ def _warn(anims) -> None:
             progress(f"warning: {w}")
 
 
+def _face_gaps(model, anims) -> tuple[list[str], list[str]]:
+    """The ARKit blendshapes the inputs move that ``model`` has no morph target for (a glTF head whose
+    targets are named in a way ``arkit_channel`` does not know, or that lacks them): the face shows
+    them still, a closed mouth for a missing jawOpen. Returns them, the widest moved first, and a
+    warning line that names them and the head's targets left unread; empty lists when the head moves
+    everything the inputs move."""
+    import numpy as np
+
+    from capture.channels import ARKIT52
+
+    held = set(model.channels)
+    peak = {c: max(float(np.abs(a.weights[:, k]).max()) for a in anims) for k, c in enumerate(ARKIT52)}
+    moved = sorted((c for c in ARKIT52 if c not in held and peak[c] > 1e-6), key=lambda c: -peak[c])
+    if not moved:
+        return [], []
+    names = ", ".join(moved[:5]) + (f" and {len(moved) - 5} more" if len(moved) > 5 else "")
+    unread = model.extra.get("unmapped", [])
+    hint = f"; its morph targets not matched to one: {', '.join(unread[:5])}" if unread else ""
+    hint += f" (and {len(unread) - 5} more)" if len(unread) > 5 else ""
+    return moved, [
+        f"{model.name}: {len(moved)} blendshape(s) the input moves have no morph target in this head and "
+        f"stay still: {names}{hint}"
+    ]
+
+
 def _outside(what: str, start: float, end: float, lo: float, hi: float, shown: str) -> list[str]:
     """A warning when ``what``, spanning ``start..end`` s, lies wholly outside the rendered ``lo..hi``
     s (seconds after the input's first frame): that panel shows nothing of it but ``shown``."""
@@ -219,6 +250,17 @@ def _outside(what: str, start: float, end: float, lo: float, hi: float, shown: s
 
     rendered = f"{sec(lo)}..{sec(hi)} s" if hi > lo else f"{sec(lo)} s"
     return [f"{what} spans {sec(start)}..{sec(end)} s, outside the rendered {rendered}: {shown}"]
+
+
+def _files_read(anims, paths) -> list[tuple[Path | None, str]]:
+    """What the inputs were read from, as (file, what it is) for ``refuse_writing_over_inputs``: each
+    one's speech file and the files its take records as its sources (its CSV, its .mov)."""
+    files: list[tuple[Path | None, str]] = []
+    for a, path in zip(anims, paths):
+        files.append((a.audio_file, f"the speech of {path}"))
+        sources = a.take.meta.sources if a.take is not None else []
+        files += [(Path(s.path), f"a file of the take {path} ({s.role.replace('_', ' ')})") for s in sources]
+    return files
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -287,13 +329,19 @@ def cmd_render(args: argparse.Namespace) -> int:
         held = "its first frame" if a.offset_s > shown[1] else "its last frame"
         a.warnings += _outside(f"{path} (compare)", a.offset_s, end, *shown, f"its face stays at {held}")
     _warn(anims)
-    model = _face(args.face)
-    probe()  # in a subprocess: without GL, say what to install instead of crashing
-    video = None
+    vpath = None
     if args.video:
         vpath = reference_video_of(first.take) if args.video == "auto" else Path(args.video)
         if vpath is None:
             raise InputError("the take names no reference video (--video auto); give the file", args.input)
+    refuse_writing_over_inputs(args.out, _files_read(anims, paths) + [(vpath, "the reference video")])
+    model = _face(args.face)
+    face_missing, warnings = _face_gaps(model, anims)
+    for w in warnings:
+        progress(f"warning: {w}")
+    probe()  # in a subprocess: without GL, say what to install instead of crashing
+    video = None
+    if vpath is not None:
         start = args.video_start if args.video_start is not None else first.audio_start_s
         video = ReferenceVideo(vpath, args.size, start)
         if video.duration_s is not None:
@@ -320,6 +368,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "compare": [str(c) for c in args.compare],
         "compare_offset_s": [round(a.offset_s, 6) for a in anims[1:]],
         "face": model.name,
+        "face_missing": face_missing,
         "bad_values": [a.bad_values for a in anims],
         "clamped_values": [a.clamped for a in anims],
         "audio_files": [str(a.audio_file) if a.audio_file else None for a in anims],

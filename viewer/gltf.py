@@ -49,6 +49,9 @@ _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "M
 _NORM = {np.int8: 127.0, np.uint8: 255.0, np.int16: 32767.0, np.uint16: 65535.0}
 _LOOKUP = {n.lower(): n for n in ARKIT52}
 _INDEX = {n: i for i, n in enumerate(ARKIT61)}
+MAX_TARGET_REACH = 100.0  # a morph target may move a vertex at most this many times the head's size
+# a buffer URI that is no relative reference: an absolute path (POSIX, Windows, UNC) or one with a scheme
+_NOT_RELATIVE = re.compile(r"[/\\]|[A-Za-z][A-Za-z0-9+.-]*:")
 _PREFIXES = ("arkit", "blendshape", "blendshapes", "bs", "shape", "morph", "target")
 
 
@@ -56,10 +59,14 @@ def arkit_channel(name: str) -> str | None:
     """The ARKit channel (camelCase) a morph target name means, or None.
 
     Case-insensitive; camelCase or PascalCase; ``_L``/``_R``, ``.L``, ``Left``/``Right`` sides;
-    namespaces (``blendShape1.jawOpen``, ``Face:JawOpen``) and prefixes (``ARKit_``, ``bs_``) dropped.
+    namespaces (``blendShape1.jawOpen``, ``Face:JawOpen``) and prefixes (``ARKit_``, ``bs_``, and one
+    numbered as Maya numbers its blendShape nodes: ``blendShape1_jawOpen``) dropped, as is the number
+    Blender gives a duplicate (``jawOpen.001``).
     """
     seg = re.split(r"[.:|/]", name.strip())
     seg = [s for s in seg if s]
+    while len(seg) >= 2 and seg[-1].isdigit():  # "jawOpen.001"
+        seg.pop()
     if not seg:
         return None
     last = seg[-1]
@@ -71,7 +78,7 @@ def arkit_channel(name: str) -> str | None:
         if m:
             last, side = m.group(1), "left" if m.group(2).upper() == "L" else "right"
     key = re.sub(r"[^a-z0-9]", "", last.lower()) + side
-    candidates = [key] + [key[len(p) :] for p in _PREFIXES if key.startswith(p)]
+    candidates = [key] + [key[len(p) :].lstrip("0123456789") for p in _PREFIXES if key.startswith(p)]
     for k in candidates:
         if k in _LOOKUP:
             return _LOOKUP[k]
@@ -153,6 +160,14 @@ class _Gltf:
                     raise InputError(f"buffer {i}: data URI is not base64 ({exc})", self.path) from None
             else:
                 uri = unquote(uri)  # a URI: "my%20head.bin" is the file "my head.bin"
+                if _NOT_RELATIVE.match(uri):
+                    # glTF 2.0 buffers are data URIs or references relative to the .gltf: an absolute path
+                    # or another scheme (file:, http:) would read whatever file it names, or nothing
+                    raise InputError(
+                        f"buffer {i}: {uri!r} is not a file beside the .gltf (glTF takes a data: URI or a "
+                        "relative path)",
+                        self.path,
+                    )
                 f = self.path.parent / uri
                 if not f.is_file():
                     raise InputError(f"buffer file {uri} not found", self.path)
@@ -243,7 +258,8 @@ def load_gltf(path: str | Path) -> FaceModel:
     """A glTF/GLB head as a ``FaceModel``; its morph targets drive the ARKit channels they name.
 
     ``InputError`` naming the file when it is not glTF 2.0, is damaged (an index out of range, a count
-    or type that does not fit, non-finite positions, a head of no size), or when no morph target maps
+    or type that does not fit, non-finite positions or target offsets, a target that moves a vertex
+    over ``MAX_TARGET_REACH`` times the head's size, a head of no size), or when no morph target maps
     to an ARKit channel.
     """
     path = Path(path)
@@ -290,6 +306,7 @@ def _load(g: _Gltf) -> FaceModel:
     parts: list[Part] = []
     mapped: set[str] = set()
     unmapped: set[str] = set()
+    reach: list[tuple[str, float]] = []  # how far each morph target moves a vertex
     stack = [(i, np.eye(4)) for i in roots]
     seen = 0
     while stack:
@@ -331,9 +348,14 @@ def _load(g: _Gltf) -> FaceModel:
                     raise InputError(
                         f"{where}: morph target {tname} moves {d.shape[0]} of {len(pos)} vertices", path
                     )
+                if not np.isfinite(d).all():
+                    raise InputError(
+                        f"{where}: morph target {tname} moves vertices by numbers that are not finite", path
+                    )
                 mapped.add(ch)
                 named[idx] = tname
                 deltas[idx] = d @ m[:3, :3].T
+                reach.append((f"{where}: morph target {tname}", float(np.abs(deltas[idx]).max(initial=0.0))))
             colors = _part_colors(g, prim, len(pos))
             world = pos @ m[:3, :3].T + m[:3, 3]
             if not np.isfinite(world).all():
@@ -350,6 +372,15 @@ def _load(g: _Gltf) -> FaceModel:
     lo, hi = allv.min(axis=0), allv.max(axis=0)
     if not (hi - lo).max() > 0:
         raise InputError("the head has no size: all its vertices are at one point", path)
+    for what, far in reach:
+        # A target that throws a vertex this far is damage, not a pose: the camera's depth range then
+        # spans it, and the head vanishes from every frame it moves in (a blank image, no error).
+        if far > MAX_TARGET_REACH * (hi - lo).max():
+            raise InputError(
+                f"{what} moves a vertex by {far:.3g}, over {MAX_TARGET_REACH:g} times the head's size "
+                f"({(hi - lo).max():.3g}): the file is damaged",
+                path,
+            )
     center = (lo + hi) / 2
     height = hi[1] - lo[1] or (hi - lo).max()  # a head flat in y is framed by its largest extent
     # Frame the head: 30 degree view, the head's height filling about 80% of the image, from the front.

@@ -5,9 +5,10 @@ SIGTERM that stop a command with that partial file removed."""
 from __future__ import annotations
 
 import errno
+import os
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -25,6 +26,27 @@ def prepare_output(path: str | Path) -> Path:
     return path
 
 
+def refuse_writing_over_inputs(path: str | Path, inputs: Iterable[tuple[str | Path | None, str]]) -> None:
+    """An ``InputError`` when the output ``path`` is a file this command reads (``inputs``: (file, what it
+    is) pairs, None for none): ``render -o ref.mp4 --video ref.mp4`` would replace the user's video (or
+    the speech given with ``--audio``) with the render, once the render is done. Compared as files
+    (``os.path.samefile``), so that another spelling of the path or an input that links to it is seen
+    too; an output that is itself a symbolic link is not checked: the render replaces the link, not the
+    file it points to."""
+    path = Path(path)
+    if path.is_symlink() or not path.is_file():
+        return
+    for file, what in inputs:
+        if file is None:
+            continue
+        try:
+            same = os.path.samefile(path, file)
+        except OSError:  # not on disk (an archive's member, named as the archive shows it)
+            continue
+        if same:
+            raise InputError(f"is {what}, read by this command: give the output another name", path)
+
+
 @contextmanager
 def writing(path: str | Path, what: str) -> Iterator[None]:
     """Turn an ``OSError`` while writing ``what`` to ``path`` into an ``InputError`` naming ``path``."""
@@ -36,9 +58,24 @@ def writing(path: str | Path, what: str) -> Iterator[None]:
             reason = f"{path.parent} does not take new files"  # e.g. /proc, where open() says ENOENT
         elif exc.errno == errno.EISDIR or path.is_dir():
             reason = "a folder of that name is in the way"
+        elif exc.errno == errno.ENAMETOOLONG and len(os.fsencode(path.name)) <= _name_max(path.parent):
+            # The name fits; the hidden partial file's, which adds ".partial" and a dot, does not.
+            reason = (
+                f"its name of {len(os.fsencode(path.name))} bytes leaves no room for the hidden "
+                f".NAME.partial file it is written as first (names here take at most "
+                f"{_name_max(path.parent)} bytes): give a shorter name"
+            )
         else:
             reason = exc.strerror or str(exc).splitlines()[0]
         raise InputError(f"cannot write the {what}: {reason}", path) from None
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name (bytes) ``folder``'s file system takes (255 where it does not say)."""
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # no such folder, or no pathconf (Windows)
+        return 255
 
 
 _stopped_by: list[int] = []  # the signal that stopped the command, once one has
