@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .audio_io import Audio, read_audio
+from .audio_io import Audio, FileAudio, audio_left_in_files, read_audio
 from .errors import InputError
 from .record_log import (
     INVALID_RECORD,
@@ -162,7 +162,11 @@ class DeviceAudioSource:
             )
         except (sd.PortAudioError, ValueError) as exc:
             raise InputError(_device_error(sd, device, exc)) from None
-        log.start(sample_rate, channels, "PCM_16", f"device:{device}")
+        try:
+            log.start(sample_rate, channels, "PCM_16", f"device:{device}")
+        except BaseException:  # a stop that gave up listen's set-up (``_while_stoppable``): nobody has it
+            self.stream.close()
+            raise
 
     def _callback(self, indata, frames, time_info, status) -> None:
         now = self.clock.now_ns()
@@ -209,7 +213,7 @@ class FileAudioSource:
         self._start_ns = 0
         self._thread = threading.Thread(target=self._play, name="audio-file", daemon=True)
         if not start_on_first_packet:
-            self._audio = read_audio(self.path)  # a missing file is an error before recording starts
+            self._audio = _read_audio_file(self.path)  # a missing file is an error before recording starts
 
     def start(self) -> None:
         self._thread.start()
@@ -228,38 +232,58 @@ class FileAudioSource:
                 return
         try:
             check_regular_file(self.path)
-            audio = self._audio or read_audio(self.path)
-        except InputError as exc:
+            audio = self._audio or _read_audio_file(self.path)
+            self.log.start(audio.sample_rate, audio.channels, audio.subtype, f"file:{self.path}")
+            self._play_chunks(audio)
+        except InputError as exc:  # also a file changed or removed while it plays (``FileAudio.blocks``)
             self.error = str(exc)
         except (OSError, MemoryError) as exc:  # too many open files, an I/O error, no memory left
             why = getattr(exc, "strerror", None) or str(exc) or "out of memory"
             self.error = f"{self.path}: cannot read the audio file: {why}"
         if self.error is not None:
             self.log.note({"kind": "audio_error", "message": self.error})
-            return
-        self.log.start(audio.sample_rate, audio.channels, audio.subtype, f"file:{self.path}")
-        chunk = max(1, int(audio.sample_rate * CHUNK_S))
+
+    def _play_chunks(self, audio: Audio) -> None:
+        """Log ``audio`` a chunk at a time, each when its last sample has been played, until it ends or
+        ``stop``. Audio left in its file is read a chunk at a time as it plays."""
         rate = audio.sample_rate
-        for first in range(0, audio.frames, chunk):
-            n = min(chunk, audio.frames - first)
-            # A chunk is "captured" once its last sample has been played.
-            due = self._start_ns + int((first + n) * 1e9 / rate)
-            while not self._stop.is_set():
-                wait = (due - self.clock.now_ns()) / 1e9
-                if wait <= 0:
-                    break
-                time.sleep(min(wait, 0.05))
-            if self._stop.is_set():
-                return
-            self.log.add_chunk(
-                first, self._start_ns + int(first * 1e9 / rate), audio.samples[first : first + n]
-            )
+        chunk = max(1, int(rate * CHUNK_S))
+        if isinstance(audio, FileAudio):
+            chunks = audio.blocks(chunk)
+        else:
+            chunks = (audio.samples[first : first + chunk] for first in range(0, audio.frames, chunk))
+        first = 0
+        try:
+            for samples in chunks:
+                n = len(samples)
+                # A chunk is "captured" once its last sample has been played.
+                due = self._start_ns + int((first + n) * 1e9 / rate)
+                while not self._stop.is_set():
+                    wait = (due - self.clock.now_ns()) / 1e9
+                    if wait <= 0:
+                        break
+                    time.sleep(min(wait, 0.05))
+                if self._stop.is_set():
+                    return
+                self.log.add_chunk(first, self._start_ns + int(first * 1e9 / rate), samples)
+                first += n
+        finally:
+            chunks.close()  # the file of audio left in it, at a stop before its end
 
     def stop(self) -> None:
         """Stop playing (within 0.05 s); playback that was never triggered never opens the file."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join()
+
+
+def _read_audio_file(path: Path) -> Audio:
+    """The audio of an --audio-file: left in its file where ``read_audio`` can (``audio_left_in_files``:
+    WAV, FLAC, OGG), so that an hour of it costs no more memory than a chunk, and the read is a loop of
+    blocks that a stop during ``listen``'s set-up ends at its next step (``live_cli._while_stoppable``);
+    other files (MP3, video) are read whole."""
+    with audio_left_in_files():
+        return read_audio(path)
 
 
 def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str, Any]]:

@@ -27,7 +27,7 @@ from .errors import InputError, S2AError
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
 from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, check_record_start, check_subject, resolve_target
-from .record_log import MAGIC, RECORD_HEADER, LogReader, RecordType
+from .record_log import MAGIC, RECORD_HEADER, LogReader, LogWriter, RecordType
 from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_FLUSH_INTERVAL_S, MAX_STREAMS, LiveRecorder
 from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
@@ -41,10 +41,11 @@ SESSION_LOCK = "listen.lock"
 # A process counts as a session's recorder when it started no later than this after the session did
 # (the tick and boot-time rounding of /proc); one started later got the recorder's pid after it died.
 PID_START_SLACK_S = 2.0
-# While ``listen`` sets up, a first stop signal waits for the bookkeeping under way (making the session
-# folder, its lock and logs: milliseconds) for at most this long (seconds) and then stops it; one that comes
-# later, one in a step that waits (opening the sound device, reading --audio-file) and a second one stop it
-# at once (``_SetUp``).
+# While ``listen`` sets up, stop signals wait for the bookkeeping under way (making the session folder, its
+# lock and logs: milliseconds) for at most this long (seconds) and then stop it; one that comes later or in
+# a step that waits (opening the sound device, reading --audio-file) stops it at once (``_SetUp``). A second
+# one within the bookkeeping waits too: raised there, it could leave a log's writer thread or an open file
+# behind, between its making and its keeping (two quick Ctrl-Cs did, about once in ten).
 SETUP_DEFER_S = 0.2
 
 
@@ -431,8 +432,12 @@ def _lock_session(session_dir: Path) -> tuple[int | None, bool]:
     if fcntl is None:  # pragma: no cover - Windows: recover goes by the session record's pid alone
         return None, made
     fd = os.open(session_dir / SESSION_LOCK, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
-    with contextlib.suppress(OSError):  # a file system without locks: recover goes by the pid then
-        try_lock(fd)
+    try:
+        with contextlib.suppress(OSError):  # a file system without locks: recover goes by the pid then
+            try_lock(fd)
+    except BaseException:  # a stop signal meanwhile: nobody else would close it
+        os.close(fd)
+        raise
     return fd, made
 
 
@@ -594,10 +599,11 @@ class _SetUp:
     """Whether ``listen`` still sets up, and how a stop signal stops it meanwhile (``_stop_signals``): the
     first one is noted and the bookkeeping under way finishes (so that ``discard`` finds what to remove),
     unless the set-up waits (``waiting``: a sound device opening, a long --audio-file read) or has taken
-    longer than ``SETUP_DEFER_S`` (a file system that stalls); a second one raises at once."""
+    longer than ``SETUP_DEFER_S`` (a file system that stalls); so does a second one."""
 
-    def __init__(self) -> None:
+    def __init__(self, stop: threading.Event | None = None) -> None:
         self.caught: list[int] = []  # the stop signals noted, in order
+        self.stop = stop  # a library's stop (``cmd_listen``'s)
         self.active = True
         self.waiting = False
         self.started = time.monotonic()
@@ -606,10 +612,14 @@ class _SetUp:
         """Whether the stop signal just noted in ``caught`` raises at once (and so ends the set-up)."""
         if not (self.active and self.caught):
             return False
-        if self.waiting or len(self.caught) > 1 or time.monotonic() - self.started > SETUP_DEFER_S:
+        if self.waiting or time.monotonic() - self.started > SETUP_DEFER_S:
             self.active = False
             return True
         return False
+
+    def stopped(self) -> bool:
+        """Whether a stop signal or the library's stop came."""
+        return bool(self.caught) or (self.stop is not None and self.stop.is_set())
 
     def wait(self) -> None:
         """The set-up begins a step that waits: a stop signal noted before (in the bookkeeping just done)
@@ -648,15 +658,16 @@ def _stopped_before_recording(signum: int) -> KeyboardInterrupt:
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
-def _keep_stderr(fd: int) -> None:
+def _keep_stderr(fd: int, running: bool = True) -> None:
     """Put the process's stderr back on ``fd`` (a copy of it from before a set-up step that a stop left
     running): the step may have sent it elsewhere, and may do so again while it runs on (sounddevice sends
     it to /dev/null while PortAudio looks for devices, a device that hangs holds it there); the stop's
-    line has to be seen. So ``sys.stderr``, when it is the process's own, writes to a copy of ``fd`` too."""
+    line has to be seen. So ``sys.stderr``, when it is the process's own, writes to a copy of ``fd`` too,
+    while the step still runs (``running``; one that ended leaves the stream as it is, and no copy)."""
     with contextlib.suppress(OSError):
         os.dup2(fd, 2)
     stream = sys.stderr
-    if stream is None or stream is not sys.__stderr__:  # a caller's own stream: theirs to look after
+    if not running or stream is None or stream is not sys.__stderr__:  # over, or a caller's own stream
         return
     with contextlib.suppress(OSError, ValueError, AttributeError):
         if stream.fileno() == 2:
@@ -666,26 +677,63 @@ def _keep_stderr(fd: int) -> None:
             )
 
 
+# After a stop, how long ``listen`` waits for the set-up step it gave up (``_while_stoppable``) to end: a step
+# in Python code (reading --audio-file) ends at its next function call; one that hangs in C (a sound device
+# that never opens) cannot be ended, and is left to a daemon thread that stops what it made if it returns.
+SETUP_ABANDON_S = 0.2
+
+
+# Where a given-up set-up step may be ended (``_while_stoppable``): in this package's code, which closes what
+# it opened when it raises.
+_PACKAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "")
+
+
+class _SetUpAbandoned(BaseException):
+    """Raised inside a set-up step a stop gave up (``_while_stoppable``), to end its thread early."""
+
+
 def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
     """``make()`` (a set-up step that may wait long: a sound device that hangs in opening, an hour of
-    --audio-file read whole) in a thread of its own while this one waits for it, so that a stop signal
-    stops ``listen`` at once (``setup.waiting``): a stop signal reaches Python only between its own
-    steps, never inside a library's call. What ``make`` returns after such a stop is stopped unused (its
-    ``stop``), and the process's stderr is kept where it was (``_keep_stderr``). Off the main thread (no
-    stop signals to wait for) it runs in this one."""
-    if threading.current_thread() is not threading.main_thread():
+    --audio-file read) in a thread of its own while this one waits for it, so that a stop signal stops
+    ``listen`` at once (``setup.waiting``): a stop signal reaches Python only between its own steps, never
+    inside a library's call. After such a stop the step is given up: it raises ``_SetUpAbandoned`` at its
+    next Python function call (a trace of its calls, in its thread only), and ``listen`` waits up to
+    ``SETUP_ABANDON_S`` for it to end, so that a library that called ``cmd_listen`` is left no thread nor
+    open file. A step hung in C (a device that never opens) outlives that wait: a daemon thread holding
+    only the device request, which stops what ``make`` returns if it ever does; the process's stderr is
+    then kept where it was (``_keep_stderr``). Off the main thread (no stop signals to wait for) it runs in
+    this one, unless a library gave ``cmd_listen`` a stop, which is waited for likewise."""
+    if threading.current_thread() is not threading.main_thread() and setup.stop is None:
         return make()
     done: dict[str, Any] = {}
     guard = threading.Lock()
+    abandoned = threading.Event()
+    began = threading.Event()  # the thread runs: set by it first (a stop inside ``start()`` would not know)
+    starting = False
+
+    def give_up(frame, _event, _arg) -> None:
+        """The step's trace of calls (none of lines): once it is given up, its next call of this package's
+        code raises, once (in another library's code it could leave a file opened and not yet kept)."""
+        if abandoned.is_set() and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+            sys.settrace(None)  # its clean-up (``with``, ``finally``) runs untraced
+            raise _SetUpAbandoned
 
     def work() -> None:
+        began.set()
+        if abandoned.is_set():  # given up while it started
+            return
+        sys.settrace(give_up)
         try:
             value = make()
+        except _SetUpAbandoned:
+            return
         except BaseException as exc:  # handed to the waiting thread, which raises it
             done["error"] = exc
             return
+        finally:
+            sys.settrace(None)
         with guard:
-            if not done.get("abandoned"):
+            if not abandoned.is_set():
                 done["value"] = value
                 return
         with contextlib.suppress(Exception):
@@ -698,18 +746,24 @@ def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
         stderr = None
     try:
         setup.wait()
+        starting = True
         thread.start()
         while thread.is_alive():
             thread.join(0.05)
+            if setup.stop is not None and setup.stop.is_set():
+                raise _stopped_before_recording(signal.SIGINT)
     except BaseException:
         with guard:
-            done["abandoned"] = True
+            abandoned.set()
             value = done.pop("value", None)
         if value is not None:
             with contextlib.suppress(Exception):
                 value.stop()
+        # a stop that came inside ``thread.start()`` leaves it starting: it runs, sees it was given up, ends
+        if starting and began.wait(SETUP_ABANDON_S):
+            thread.join(SETUP_ABANDON_S)
         if stderr is not None:
-            _keep_stderr(stderr)
+            _keep_stderr(stderr, thread.is_alive())
         raise
     finally:
         setup.waiting = False
@@ -720,7 +774,11 @@ def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
     return done["value"]
 
 
-def cmd_listen(args: argparse.Namespace) -> int:
+def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
+    """``s2a-capture listen``. ``stop``: a library's stop (``cmd_listen`` run in a thread of its own, where
+    no stop signal reaches it): once set, the recording ends as on SIGINT (the takes are written, 0 is
+    returned), or, set while ``listen`` sets up, the set-up stops and leaves nothing, raising
+    ``KeyboardInterrupt`` as a stop signal does then."""
     if args.duration is not None and not (math.isfinite(args.duration) and 0 < args.duration <= 1e9):
         raise InputError(f"--duration must be a positive number of seconds, not {args.duration}")
     if args.audio_file is not None:
@@ -751,6 +809,8 @@ def cmd_listen(args: argparse.Namespace) -> int:
         if audio_log is not None:
             audio_log.close()
         recorder.close()
+        # a log a stop signal caught between its making and its keeping (``recorder.log``, ``audio_log``)
+        LogWriter.close_open(recorder.session_dir)
         _remove_unstarted_session(recorder.session_dir, made)
         if lock is not None:
             os.close(lock)
@@ -763,10 +823,10 @@ def cmd_listen(args: argparse.Namespace) -> int:
 
     # From before the session folder is made, a stop signal stops the set-up (``_SetUp``): one while the
     # folder, its lock and logs are made (the first milliseconds) is noted, and removes them all once they
-    # are (``discard``), rather than leave a folder without a session record; one in a step that waits, a
-    # later or a second one stops it at once, and ``discard`` removes what there is. One after the set-up
-    # ends the recording cleanly.
-    setup = _SetUp()
+    # are (``discard``), rather than leave a folder without a session record; one in a step that waits or
+    # a later one stops it at once, and ``discard`` removes what there is. One after the set-up ends the
+    # recording cleanly.
+    setup = _SetUp(stop)
     previous: dict[int, Any] = {}
     try:
         try:
@@ -794,9 +854,9 @@ def cmd_listen(args: argparse.Namespace) -> int:
         except BaseException:  # an error, or a stop signal that stopped the set-up at once
             discard()
             raise
-        if setup.caught:  # stopped before the recording began: nothing to keep
+        if setup.stopped():  # stopped before the recording began: nothing to keep
             discard()
-            raise _stopped_before_recording(setup.caught[0])
+            raise _stopped_before_recording(setup.caught[0] if setup.caught else signal.SIGINT)
         if serial_port is not None:
             serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
         progress(f"listening on udp://{format_destination(host, port)} -> {recorder.session_dir}")
@@ -806,7 +866,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
                 source.start()
             if serial_sync is not None:
                 serial_sync.start()
-            recorder.run(args.duration, status=_status_line, on_flush=warnings)
+            recorder.run(args.duration, status=_status_line, on_flush=lambda: _flushed(warnings, setup))
         finally:
             if serial_sync is not None:
                 serial_sync.stop()
@@ -826,21 +886,30 @@ def cmd_listen(args: argparse.Namespace) -> int:
             for s in summaries:
                 s["sync_lines_dropped"] = serial_sync.dropped
         removed = _remove_partial_takes(recorder.session_id, Path(args.out), summaries)
+        # Said with the stop signals still only noted: the takes are written, and a stop now (one more
+        # Ctrl-C, SIGTERM) must not cut their report short nor end listen as interrupted.
+        for folder in removed:
+            progress(f"removed {folder}: a partial take a recover wrote while this session was recording")
+        if removed:
+            for s in summaries:
+                s["removed_partial_takes"] = removed
+        _report(summaries, args.json)
+        problems = _listen_problems(recorder, audio_log, source, summaries, args.out)
     finally:
         if lock is not None:
             os.close(lock)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    for folder in removed:
-        progress(f"removed {folder}: a partial take a recover wrote while this session was recording")
-    if removed:
-        for s in summaries:
-            s["removed_partial_takes"] = removed
-    _report(summaries, args.json)
-    problems = _listen_problems(recorder, audio_log, source, summaries, args.out)
     if problems:
         raise InputError("; ".join(problems), recorder.session_dir)
     return 0
+
+
+def _flushed(warnings: _Warnings, setup: _SetUp) -> None:
+    """After every log flush of the recording: its warnings, and the library's stop (``cmd_listen``)."""
+    warnings()
+    if setup.stop is not None and setup.stop.is_set():
+        warnings.recorder.request_stop()
 
 
 def _audio_source(args: argparse.Namespace, recorder: LiveRecorder, audio_log: AudioLog):

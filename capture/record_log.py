@@ -23,6 +23,7 @@ reason, never as an error; so is a valid record whose content a reader finds is 
 from __future__ import annotations
 
 import errno
+import io
 import json
 import os
 import queue
@@ -308,6 +309,11 @@ def _next_record(f, start: int, size: int, lengths: set[int], block: int = 1 << 
     return None
 
 
+# The ``LogWriter``s not closed yet (``LogWriter.close_open``), from before each opens its file.
+_OPEN: set[LogWriter] = set()
+_OPEN_LOCK = threading.Lock()
+
+
 class LogWriter:
     """Appends records to a log; a background thread writes and fsyncs each handed-over buffer.
 
@@ -325,21 +331,26 @@ class LogWriter:
         self.fsync = fsync
         self.buffer = bytearray()
         self._queue: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        try:
-            if os.fstat(self._fd).st_size == 0:
-                os.write(self._fd, MAGIC)  # a disk that is full already fails here, at the start
-        except OSError:
-            os.close(self._fd)
-            raise
         self.error: OSError | None = None
         self.fsync_failed = False
         self.failed_writes = 0
         self.dropped_bytes = 0
         self.bytes_written = 0
         self._unwritten = b""
+        self._file: io.FileIO | None = None
         self._thread = threading.Thread(target=self._write_loop, name=f"log-{self.path.name}", daemon=True)
-        self._thread.start()
+        with _OPEN_LOCK:  # before the file is open: a stop signal from here on leaves it to ``close_open``
+            _OPEN.add(self)
+        try:
+            # a file object, not a bare descriptor: one a stop signal loses on its way here is closed with it
+            self._file = io.FileIO(self.path, "a")
+            self._fd = self._file.fileno()
+            if os.fstat(self._fd).st_size == 0:
+                os.write(self._fd, MAGIC)  # a disk that is full already fails here, at the start
+            self._thread.start()
+        except OSError:
+            self.close()
+            raise
 
     @property
     def unwritten_bytes(self) -> int:
@@ -401,16 +412,34 @@ class LogWriter:
         self._unwritten = bytes(view)
 
     def close(self) -> None:
-        """Flush, wait for the writer thread, fsync and close the file."""
+        """Flush, wait for the writer thread, fsync and close the file (once; again does nothing)."""
+        with _OPEN_LOCK:
+            if self not in _OPEN:
+                return
+            _OPEN.discard(self)
         self.flush()
         self._queue.put(None)
-        self._thread.join()
+        if self._thread.ident is not None:  # started
+            self._thread.join()
+        if self._file is None:
+            return
         try:
-            os.fsync(self._fd)
+            os.fsync(self._file.fileno())
         except OSError as exc:  # what the kernel held may not be on disk: no "nothing was lost" after this
             self.error = self.error or exc
             self.fsync_failed = True
-        os.close(self._fd)
+        self._file.close()
+
+    @staticmethod
+    def close_open(folder: str | Path) -> None:
+        """Close every writer of a log in ``folder`` that is still open: those a stop signal (an exception
+        at any step of the caller, ``listen``'s set-up) left without an owner to close them, between
+        their making and the caller's keeping them (a writer thread and an open file otherwise)."""
+        folder = Path(folder)
+        with _OPEN_LOCK:
+            left = [w for w in _OPEN if w.path.parent == folder]
+        for writer in left:
+            writer.close()
 
     @property
     def lost_nothing(self) -> bool:

@@ -153,6 +153,10 @@ def _unspecified(host: str) -> bool:
 # new recording once this many packets in a row carry the new rate; until then they are held back, and
 # if the old rate comes back first they are rejected (``rate_changed``: a corrupt or spoofed packet).
 RATE_CHANGE_PACKETS = 3
+# A packet of the old rate among those held back at a new one is late (it leaves them held, see
+# ``LiveRecorder._old_rate_packet``) when its frame time is at most this much (seconds) before theirs; one
+# from later, or from further back, is the old rate coming back.
+LATE_PACKET_S = 0.25
 # A rate within RATE_JITTER (relative) of the stream's is no change of setting but a sender that declares
 # its measured rate (a PC app or script: 58-62 around 60): logged as it comes, the take builder decides.
 RATE_JITTER = 0.08
@@ -234,8 +238,9 @@ class LiveRecorder:
         self.stream_last_ns: list[int] = []
         self.stream_sources: list[Any] = []
         self.evicted_streams = 0
-        # stream key -> (new rate, records of the packets held back at it); see RATE_CHANGE_PACKETS
-        self._rate_pending: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], list[bytes]]] = {}
+        # stream key -> (new rate, records of the packets held back at it, the first one's frame time in
+        # seconds); see RATE_CHANGE_PACKETS
+        self._rate_pending: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], list[bytes], float]] = {}
         self._next_eviction_ns = 0
         # (header, source host) -> its last PORT_HOPS stream ids; the key a port-hopping host goes on in
         self._host_streams: dict[tuple[bytes, Any], list[int]] = {}
@@ -267,15 +272,20 @@ class LiveRecorder:
         except (OSError, OverflowError) as exc:
             sock.close()
             raise InputError(f"cannot listen on UDP {self.bind}:{self.port}: {exc}") from None
+        except BaseException:  # a stop signal (listen's set-up): the socket is not kept yet
+            sock.close()
+            raise
         sock.settimeout(SOCKET_WAKE_S)
         try:
             self.session_dir.mkdir(parents=True, exist_ok=True)
             self.log = LogWriter(self.session_dir / FRAMES_LOG, fsync=self.fsync)
-        except OSError as exc:  # a read-only or full output folder, a file in the way
+        except BaseException as exc:  # a read-only or full output folder, a file in the way; a stop signal
             sock.close()
-            raise InputError(
-                f"cannot write the session log: {exc.strerror or exc}", self.session_dir
-            ) from None
+            if isinstance(exc, OSError):
+                raise InputError(
+                    f"cannot write the session log: {exc.strerror or exc}", self.session_dir
+                ) from None
+            raise
         self.sock = sock
         host, port = sock.getsockname()[:2]
         self.log.put(
@@ -414,7 +424,7 @@ class LiveRecorder:
                                             last_hdr, last_size, last_off, last_sid = key, n, off, sid
                                             last_num, last_den, last_addr = num, den, addr
                                             if pending_rates and skey in pending_rates:
-                                                self._drop_rate_change(skey)
+                                                self._old_rate_packet(skey, fn + sf, num, den)
                         if sid < 0:
                             found = self._classify(view, n, addr, t)
                             if found is None:  # held back (a rate change not yet confirmed)
@@ -500,7 +510,7 @@ class LiveRecorder:
         reason = ll.check_body(view, off, n)
         if reason is not None:
             return reason
-        _, _, num, den = ll._FRAME_TIME.unpack_from(view, off)
+        fn, sf, num, den = ll._FRAME_TIME.unpack_from(view, off)
         header = bytes(view[:off])
         key = self._stream_key(header, addr)
         known = self.streams.get(key)
@@ -508,7 +518,7 @@ class LiveRecorder:
             if (known[2], known[3]) != (num, den) and not close_rates(known[2], known[3], num, den):
                 return self._rate_change(key, known, view, n, num, den, t)
             if key in self._rate_pending:
-                self._drop_rate_change(key)
+                self._old_rate_packet(key, fn + sf, num, den)
             return known
         names = ll.decode_strings(view, off)
         if names is None:
@@ -593,7 +603,8 @@ class LiveRecorder:
             self._drop_rate_change(key)
             held = None
         if held is None:
-            held = ((num, den), [])
+            fn, sf, _, _ = ll._FRAME_TIME.unpack_from(view, off)
+            held = ((num, den), [], (fn + sf) * ll.rate_denominator(den) / num)
             self._rate_pending[key] = held
         if len(held[1]) + 1 < RATE_CHANGE_PACKETS:
             held[1].append(self._frame_record(sid, view, off, n, t))
@@ -611,6 +622,17 @@ class LiveRecorder:
         entry = (sid, off, num, den)
         self.streams[key] = entry
         return entry
+
+    def _old_rate_packet(self, key: bytes, frame: float, num: int, den: int) -> None:
+        """A packet of stream ``key`` at its own rate (``frame``: its frame number and sub-frame) while
+        packets at another rate are held back: the old rate came back, and they were strays
+        (``_drop_rate_change``), unless it is a packet of the old setting from just before them
+        (``LATE_PACKET_S``: late, or the copy of a sender that sends each packet twice), which leaves them
+        held. Before, such a packet at the app's change of setting cost the new setting's first frames."""
+        held = self._rate_pending[key]
+        early_s = held[2] - frame * ll.rate_denominator(den) / num
+        if not 0 < early_s <= LATE_PACKET_S:
+            self._drop_rate_change(key)
 
     def _drop_rate_change(self, key: bytes) -> None:
         """Reject the packets held back at another rate for stream ``key`` (``rate_changed``)."""

@@ -631,8 +631,8 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
     within ``RATE_JITTER`` of each other are one jittering rate (a sender that declares
     its measured rate) when one of them is short (``RATE_HOLD_PACKETS``); runs that each hold are changes
     of setting (24 -> 25, 30 -> 29.97, and back), as is any larger change (30 -> 60), and so is a short
-    steady run that starts the stream before one that holds (``_steady_start``). A jittering stretch is
-    read at the median packet's declared rate."""
+    steady run that starts the stream before one that holds, or ends it after one (``_steady_edge``). A
+    jittering stretch is read at the median packet's declared rate."""
     rate = num / den
     runs = _rate_runs(num, den)
     if not num.size:  # every frame dropped (an implausible rate): one empty stretch, as before
@@ -648,10 +648,15 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
             groups.append([run])
             low = high = r
     stretches: list[tuple[slice, tuple[int, int] | None]] = []
-    if _steady_start(groups[0]):
+    if _steady_edge(groups[0]):
         stretches.append((groups[0][0], None))
         groups[0] = groups[0][1:]
-    for group in groups:
+    steady_end = groups[-1].pop() if _steady_edge(groups[-1][::-1]) else None
+    parts = [part for runs in groups for part in _settings_apart(runs, rate)]
+    for group, lead in parts:
+        if lead:  # the packets mixed at a change of setting: too few for a take, each read at its own rate
+            stretches.append((slice(group[0].start, group[lead].start), None))
+            group = group[lead:]
         shortest = min(run.stop - run.start for run in group)
         # runs that each hold are settings (read at another's rate, a run's frames would sit elsewhere in
         # the day: 24 <-> 25 fps is 4 % of its timecode)
@@ -663,16 +668,39 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
             np.argsort(rate[whole], kind="stable")[(whole.stop - whole.start - 1) // 2]
         )
         stretches.append((whole, (int(num[middle]), int(den[middle]))))
+    if steady_end is not None:
+        stretches.append((steady_end, None))
     return stretches
 
 
-def _steady_start(group: list[slice]) -> bool:
-    """Whether the first runs of a stream's rates (a group of ``_rate_stretches``) begin with a change of
-    setting: a run too short to hold (``RATE_HOLD_PACKETS``) but of at least ``RATE_CHANGE_PACKETS``
-    packets of one rate, as the recorder confirms a change, followed by a run that holds (the app's
-    setting changed right after the stream began). A jittering start differs for a packet or two, or
-    changes again before a run holds; read at the next run's rate, a steady start's frames would sit
-    elsewhere in the day."""
+def _settings_apart(group: list[slice], rate: np.ndarray) -> list[tuple[list[slice], int]]:
+    """A group of ``_rate_stretches`` cut where a run that holds (``RATE_HOLD_PACKETS``) is followed by one
+    of another rate that holds, with nothing between them but runs shorter than ``RATE_CHANGE_PACKETS``:
+    packets of the two rates mixed at a change of setting (a late or duplicated packet of the old setting
+    among the first of the new). Without the cut those few packets made the two settings one jittering
+    rate, read at the median (24 -> 25 fps with one late 24 fps packet placed the 25 fps frames 4 % of the
+    day off). Each part with the number of short runs it begins with (0 for the first), those mixed ones."""
+    cuts = []
+    held = None  # the index of the last run that holds, while only short runs followed it
+    for i, run in enumerate(group):
+        n = run.stop - run.start
+        if n >= RATE_HOLD_PACKETS:
+            if held is not None and rate[run.start] != rate[group[held].start]:
+                cuts.append((held + 1, i - held - 1))
+            held = i
+        elif n >= RATE_CHANGE_PACKETS:
+            held = None
+    bounds = [(0, 0), *cuts, (len(group), 0)]
+    return [(group[a:b], lead) for (a, lead), (b, _) in zip(bounds[:-1], bounds[1:])]
+
+
+def _steady_edge(group: list[slice]) -> bool:
+    """Whether the runs of a stream's rates at its start (a group of ``_rate_stretches``; at its end, the
+    last group's runs reversed) begin with a change of setting: a run too short to hold
+    (``RATE_HOLD_PACKETS``) but of at least ``RATE_CHANGE_PACKETS`` packets of one rate, as the recorder
+    confirms a change, next to a run that holds (the app's setting changed right after the stream began,
+    or just before it stopped). A jittering edge differs for a packet or two, or changes again before a
+    run holds; read at the next run's rate, a steady edge's frames would sit elsewhere in the day."""
     if len(group) < 2:
         return False
     first, second = (run.stop - run.start for run in group[:2])
