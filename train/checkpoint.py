@@ -253,11 +253,6 @@ def load_system(run: str | Path):
     return model, payload
 
 
-# the bytes of the tables a model computes when built rather than loads (Transformer-S2A's position
-# table of arch.max_frames rows): a checkpoint's config may not ask for more
-MAX_COMPUTED_BYTES = 1 << 28
-
-
 def _arch_sizes(arch: Any, at: str = "arch") -> Iterator[tuple[str, int]]:
     """(name, value) of every integer of a config's ``arch`` (its system tables included)."""
     for key, value in arch.items() if isinstance(arch, dict) else ():
@@ -291,7 +286,7 @@ def check_declared_sizes(payload: dict[str, Any], spec, path: Path) -> None:
     as ``_system_sizes`` resolves them from its config) may exceed the number of weights its state_dict
     holds: the model it describes would hold at least that many. Building the model loops over its
     layers and experts, so this comes first. ``max_frames`` sizes a computed table instead
-    (``check_model_shapes``)."""
+    (``model.PositionalEncoding`` refuses one past ``model.MAX_TABLE_BYTES`` before computing it)."""
     weights = sum(v.numel() for v in payload["state_dict"].values() if isinstance(v, torch.Tensor))
     inputs = payload["inputs"]
     sizes = [(f"inputs.{k}", inputs[k]) for k in ("content_dim", "prosody_dim", "out_dim")]
@@ -306,8 +301,8 @@ def check_declared_sizes(payload: dict[str, Any], spec, path: Path) -> None:
 def check_model_shapes(model: torch.nn.Module, state_dict: dict[str, Any], path: Path) -> None:
     """The model a checkpoint's inputs and config build, on the meta device (sizes only, nothing
     allocated), against the weights it holds: every tensor the model loads must have the shape of the
-    stored one, and the tables it computes when built must stay under ``MAX_COMPUTED_BYTES``. The model
-    is built for real after this, so it allocates no more than the checkpoint holds."""
+    stored one (building it has refused a position table past ``model.MAX_TABLE_BYTES``). The model is
+    built for real after this, so it allocates no more than the checkpoint holds."""
     expected = model.state_dict()
     for key, tensor in expected.items():
         theirs = state_dict.get(key)
@@ -318,13 +313,6 @@ def check_model_shapes(model: torch.nn.Module, state_dict: dict[str, Any], path:
                 f"shape {tuple(tensor.shape)})",
                 path,
             )
-    computed = sum(b.numel() * b.element_size() for k, b in model.named_buffers() if k not in expected)
-    if computed > MAX_COMPUTED_BYTES:
-        raise InputError(
-            f"checkpoint's config makes the model compute {computed} bytes of tables when built, more than "
-            f"{MAX_COMPUTED_BYTES} (a malformed arch.max_frames?)",
-            path,
-        )
 
 
 # what inference reads from a checkpoint, with the types it needs

@@ -264,6 +264,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
             emit_json(r)
     else:
         print(format_tables(rows))
+    failed = [r for r in rows if "error" in r]
+    if failed:
+        raise InputError(
+            f"{len(failed)} of {len(rows)} systems failed (compare.json holds the others' results); "
+            f"first: {failed[0]['error']}"
+        )
     return 0
 
 

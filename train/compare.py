@@ -16,7 +16,7 @@ from .checkpoint import LAST, write_json
 from .data import resolve_inputs
 from .ensemble import has_members
 from .evaluate import evaluate
-from .fit import check_outside_dataset, check_resumable, fit
+from .fit import check_feature_masks, check_outside_dataset, check_resumable, fit
 from .systems import build_model
 
 
@@ -29,7 +29,11 @@ def compare(
     say: Callable[[str], None] = progress,
     given_for: Callable[[str], dict[str, Any]] | None = None,
 ) -> list[dict[str, Any]]:
-    """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system.
+    """Train (or resume) ``out/<model>`` for each model and evaluate it; one row per system. A system
+    that fails while training or evaluating (it diverges, meets a damaged sample) gets a row holding its
+    ``error`` and the others go on, so that ``compare.json`` keeps every result computed: one failing
+    system used to stop the command before ``compare.json`` was written, losing the rows of the systems
+    already trained and evaluated.
 
     ``given_for(model)``: the config keys the user set (command line); a run that already exists is
     resumed with its own config and limits, and a given key whose value differs from the run's is
@@ -50,7 +54,9 @@ def compare(
     check_shards(ds, manifest, tuple(dict.fromkeys(("train", "val", split))))
     for name in models:  # every system's settings checked before the first one trains
         cfg = config_for(name)
-        build_model(name, resolve_inputs(manifest, cfg), cfg)
+        spec = resolve_inputs(manifest, cfg)
+        check_feature_masks(cfg, spec)
+        build_model(name, spec, cfg)
         run = out / name
         if given_for is not None and _resumable(run):
             check_resumable(run, given_for(name), f"compare resumes {run}, which")
@@ -62,8 +68,15 @@ def compare(
         if resumable:
             say(f"compare: {run} exists: resuming it with its own config")
         given = given_for(name) if given_for is not None else None
-        summary = fit(ds, run, config_for(name), resume=resumable, say=say, given=given, shards_checked=True)
-        r = evaluate(run, ds, split, say=say)
+        try:
+            summary = fit(
+                ds, run, config_for(name), resume=resumable, say=say, given=given, shards_checked=True
+            )
+            r = evaluate(run, ds, split, say=say)
+        except InputError as exc:
+            say(f"compare: {name} failed: {exc}")
+            rows.append({"model": name, "error": str(exc)})
+            continue
         rows.append(
             {
                 "model": name,
@@ -79,9 +92,10 @@ def compare(
                 **({"style": r["style"]} if "style" in r else {}),
             }
         )
-    blstm = next((r["rtf"] for r in rows if r["model"] == "blstm" and r["rtf"]), None)
+    blstm = next((r["rtf"] for r in rows if r["model"] == "blstm" and r.get("rtf")), None)
     for r in rows:
-        r["speedup_vs_blstm"] = blstm / r["rtf"] if blstm and r["rtf"] else None
+        if "error" not in r:
+            r["speedup_vs_blstm"] = blstm / r["rtf"] if blstm and r["rtf"] else None
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "compare.json", rows)
     return rows
@@ -101,17 +115,21 @@ def format_tables(rows: list[dict[str, Any]]) -> str:
         "Table 1: RMSE (paper scale, mean ± std over utterances)",
         f"{'system':<12} {'entire':>17} {'crucial':>17}",
     ]
+    scored = [r for r in rows if "error" not in r]
     for r in rows:
-        lines.append(f"{r['model']:<12} {_ms(r['rmse_entire']):>17} {_ms(r['rmse_crucial']):>17}")
-    if rows:
-        f = rows[0]["floor"]
+        if "error" in r:
+            lines.append(f"{r['model']:<12} {'failed':>17} {'failed':>17}")
+        else:
+            lines.append(f"{r['model']:<12} {_ms(r['rmse_entire']):>17} {_ms(r['rmse_crucial']):>17}")
+    if scored:
+        f = scored[0]["floor"]
         lines.append(f"{'train mean':<12} {_ms(f['rmse_entire']):>17} {_ms(f['rmse_crucial']):>17}")
         lines += [
             "",
-            f"Table 2: real-time factor ({rows[0]['device']})",
+            f"Table 2: real-time factor ({scored[0]['device']})",
             f"{'system':<12} {'RTF':>10} {'speed-up':>9}",
         ]
-    for r in rows:
+    for r in scored:
         rtf = f"{r['rtf']:.5f}" if r["rtf"] is not None else "n/a"
         sp = f"{r['speedup_vs_blstm']:.2f}x" if r["speedup_vs_blstm"] else "n/a"
         lines.append(f"{r['model']:<12} {rtf:>10} {sp:>9}")

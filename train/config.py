@@ -25,6 +25,14 @@ else:  # pragma: no cover - Python 3.10
 
 MODELS = ("s2a", "s2a-nomoe", "blstm", "nvp3", "nvp9", "ridge")
 MAX_RIDGE_CONTEXT = 60  # ± frames: (2·60 + 1) stacked frames is already far beyond useful
+# PyTorch's generators take seeds below 2**64, and the reader seeds one with seed + epoch: a seed past
+# 2**63 - 1 failed with a traceback at torch.manual_seed, or in a later epoch (as s2a-train ppg's --seed)
+MAX_SEED = 2**63 - 1
+# aug_mixup's Beta(a, a) drawn in float32: below 0.01 a growing share of the draws come out as exactly 0.5
+# (a quarter at 0.001; every window mixed half and half where nearly none should be), under 1e-45 the
+# draw fails with a traceback, past 1e38 (inf in float32) every weight is 1; from 1000 on the weights are
+# 0.5 within 2 %, so larger values change nothing
+MIXUP_RANGE = (0.01, 1000.0)
 INPUTS = ("auto", "ppg", "fbank", "mfcc")
 
 DEFAULTS: dict[str, Any] = {
@@ -212,8 +220,9 @@ def check_config(cfg: dict[str, Any]) -> None:
     for key in ("window", "batch_size", "max_steps", "eval_every", "log_every"):
         if not _is_int(cfg[key]) or cfg[key] < 1:
             raise InputError(f"{key} must be a positive integer, got {cfg[key]!r}", f"config:{key}")
+    if not _is_int(cfg["seed"]) or not 0 <= cfg["seed"] <= MAX_SEED:
+        raise InputError(f"seed must be an integer in 0..2**63 - 1, got {cfg['seed']!r}", "config:seed")
     for key in (
-        "seed",
         "warmup_steps",
         "patience",
         "shuffle_buffer",
@@ -224,6 +233,15 @@ def check_config(cfg: dict[str, Any]) -> None:
     ):
         if not _is_int(cfg[key]) or cfg[key] < 0:
             raise InputError(f"{key} must be a non-negative integer, got {cfg[key]!r}", f"config:{key}")
+    # a mask's draws take (windows x masks x frames) bytes: 10**12 time masks ran out of memory only once
+    # training had started (its run folder written), 10**7 would ask for 38 GB; more masks than a
+    # window's frames mask nothing more
+    if cfg["aug_time_masks"] > cfg["window"]:
+        raise InputError(
+            f"aug_time_masks must be at most window ({cfg['window']}): more masks than frames mask nothing "
+            f"more, got {cfg['aug_time_masks']!r}",
+            "config:aug_time_masks",
+        )
     context = cfg["ridge_context"]
     if not _is_int(context) or not 0 <= context <= MAX_RIDGE_CONTEXT:
         raise InputError(
@@ -250,6 +268,13 @@ def check_config(cfg: dict[str, Any]) -> None:
             raise InputError(
                 f"{key} must be a non-negative number (finite), got {cfg[key]!r}", f"config:{key}"
             )
+    low, high = MIXUP_RANGE
+    if cfg["aug_mixup"] and not low <= cfg["aug_mixup"] <= high:
+        raise InputError(
+            f"aug_mixup must be 0 (off) or in [{low:g}, {high:g}] (Beta(a, a) in float32 is wrong outside), "
+            f"got {cfg['aug_mixup']!r}",
+            "config:aug_mixup",
+        )
     if not is_finite_number(cfg["min_lr_ratio"]) or not 0 <= cfg["min_lr_ratio"] <= 1:
         raise InputError(
             f"min_lr_ratio must be a number in [0, 1], got {cfg['min_lr_ratio']!r}", "config:min_lr_ratio"

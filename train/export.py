@@ -11,7 +11,8 @@ The batch dimension is 1 everywhere. Frames are a dynamic axis, up to the model'
 ``predict`` does). The parity check runs both on random inputs of two lengths and reports the largest
 difference; an output that is not finite (NaN or inf, from either) fails it. The graph is written beside
 ``out`` under a hidden name and renamed over ``out`` only once the parity check has passed. ``out`` may
-not be the checkpoint exported, nor any other PyTorch checkpoint.
+not be the checkpoint exported, nor any other PyTorch checkpoint, nor a file of the run or of a dataset
+folder other than an ONNX model.
 """
 
 from __future__ import annotations
@@ -229,8 +230,9 @@ def largest_difference(got: np.ndarray, ref: np.ndarray) -> float:
 
 
 def check_out(run: str | Path, out: Path) -> None:
-    """Refuse an ONNX path that is a folder, the checkpoint being exported (symbolic links resolved) or
-    any other PyTorch checkpoint (``torch.save`` writes zip archives; ONNX files are protobuf)."""
+    """Refuse an ONNX path that is a folder, the checkpoint being exported (symbolic links resolved), any
+    other PyTorch checkpoint (``torch.save`` writes zip archives; ONNX files are protobuf), or a file of
+    the run or of a dataset that is not an ONNX model (``_toolkit_folder``)."""
     if out.is_dir():
         raise InputError("output path is a folder: give the ONNX file to write", out)
     if not out.exists():
@@ -252,6 +254,50 @@ def check_out(run: str | Path, out: Path) -> None:
             "give another -o (e.g. model.onnx)",
             out,
         )
+    owner = _toolkit_folder(run, out)
+    if owner is not None and head and not _holds_onnx(out, head):
+        raise InputError(
+            f"output path is a file of {owner}, not an ONNX model: it is never replaced (give another -o, "
+            "e.g. model.onnx)",
+            out,
+        )
+
+
+def _toolkit_folder(run: str | Path, out: Path) -> str | None:
+    """What keeps ``out``'s folder when the toolkit does: "the run exported" (its folder or one inside it,
+    an ensemble's members) or "a dataset" (a folder holding manifest.json); None otherwise. Files there
+    (``-o RUN/config.json``, tab-completed; ``RUN/ensemble.json``; ``DS/manifest.json``) were replaced
+    by the graph."""
+    run = Path(run)
+    try:
+        # a checkpoint file given as the run: its folder when that is a run folder (it holds config.json)
+        folder = run if run.is_dir() else run.parent if (run.parent / "config.json").is_file() else None
+        folder = None if folder is None else folder.resolve()
+        parent = out.resolve().parent
+    except (OSError, RuntimeError):  # a symbolic link loop: writing names it
+        return None
+    if folder is not None and (parent == folder or folder in parent.parents):
+        return "the run exported"
+    if (parent / "manifest.json").is_file():
+        return "a dataset"
+    return None
+
+
+def _holds_onnx(path: Path, head: bytes) -> bool:
+    """Whether ``path`` (starting with ``head``) holds an ONNX model: a ``ModelProto`` with an IR version
+    and a graph. Its first field, the IR version, makes it start with byte 0x08, so other files are
+    never read whole."""
+    if head[:1] != b"\x08":
+        return False
+    from google.protobuf.message import DecodeError
+    from onnx import ModelProto
+
+    model = ModelProto()
+    try:
+        model.ParseFromString(path.read_bytes())
+    except (OSError, DecodeError):
+        return False
+    return model.ir_version > 0 and model.HasField("graph")
 
 
 def _check_lengths(limit: int | None) -> tuple[int, int]:

@@ -325,6 +325,17 @@ def check_outside_dataset(out: Path, ds: Path, what: str = "run folder") -> None
         raise InputError(f"{what} {where}: give -o outside the dataset", out)
 
 
+def check_feature_masks(cfg: dict[str, Any], spec) -> None:
+    """No more feature masks than the content input has dims, as no more time masks than the window has
+    frames (config.py): more mask nothing more, and the draws grow with their number."""
+    if cfg["aug_feature_masks"] > spec.content_dim:
+        raise InputError(
+            f"aug_feature_masks must be at most the content input's {spec.content_dim} dims: more masks than "
+            f"dims mask nothing more, got {cfg['aug_feature_masks']!r}",
+            "config:aug_feature_masks",
+        )
+
+
 def _check_before_writing(
     ds: Path, manifest: dict[str, Any], cfg: dict[str, Any], world: int, shards: bool = True
 ):
@@ -333,6 +344,7 @@ def _check_before_writing(
     truncated, foreign; not when the caller checked them: ``shards`` False), so that a refused run writes
     nothing."""
     spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
+    check_feature_masks(cfg, spec)
     _, model_config = build_model(cfg["model"], spec, cfg)
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
     if cfg["model"] == "ridge" and world > 1:
@@ -340,6 +352,17 @@ def _check_before_writing(
     if shards:
         check_shards(ds, manifest, ("train", "val"))
     return spec, model_config
+
+
+def _diverged(cfg: dict[str, Any], last_saved: int | None) -> str:
+    """What a diverged run says after its step: the likely cause, and which checkpoint is left, if any
+    (a run diverging before its first checkpoint has none: there is nothing to resume)."""
+    cause = "the loss or its gradient is not finite"
+    cause += " (lower lr?)" if not cfg["aug_noise"] else " (lower lr or aug_noise?)"
+    if last_saved is None:
+        first = min(cfg["eval_every"], cfg["max_steps"])
+        return f"{cause}; no checkpoint was written before it (the first comes at step {first})"
+    return f"{cause}; {LAST} keeps the checkpoint of step {last_saved}, before it"
 
 
 def complete_config(cfg: Any) -> dict[str, Any]:
@@ -901,9 +924,12 @@ def _fit(
     log = MetricsLog(run, main, None if state is None else step)
     dataset = dataset_entry(ds, watch, cfg)
 
+    last_saved = step if state is not None else None  # the step of the run's last.pt, None before the first
+
     def save(name: str) -> None:
         # a checkpoint holds training on the build the run started on, never a newer one; under DDP the
         # ranks decide together (a rank that stopped alone would leave the others at the gather below)
+        nonlocal last_saved
         watch.check_together(device)
         positions: list[Any] = [[epoch, batch_pos]]
         rngs: list[Any] = [torch.get_rng_state()]
@@ -919,6 +945,8 @@ def _fit(
             p["finished"] = stopped in ("max_steps", "early_stopping")
             p["stopped"] = stopped
             save_checkpoint(p, run / name)
+        if name == LAST:
+            last_saved = step
 
     stopped = None
     t_start = t_log = time.perf_counter()
@@ -946,11 +974,7 @@ def _fit(
                 g["lr"] = lr
             mse, aux, grad_norm, mask = _train_step(net, model, batch, spec, cfg, weights, device)
             if not math.isfinite(float(grad_norm)):  # the same on every rank: gradients are all-reduced
-                raise InputError(
-                    f"training diverged at step {step + 1}: the loss or its gradient is not finite "
-                    f"(lower lr?); {LAST} keeps the last checkpoint before it",
-                    run,
-                )
+                raise InputError(f"training diverged at step {step + 1}: {_diverged(cfg, last_saved)}", run)
             optimizer.step()
             step, batch_pos, session_steps = step + 1, i + 1, session_steps + 1
             frames_since += mask.sum()  # a tensor: no device sync per step

@@ -90,11 +90,24 @@ def check_inputs(
     return mask != 0
 
 
+# the most bytes of the position table a model computes when built (8192 x 256 floats, the default, is
+# 8 MB): more is a mistyped max_frames, never a model (attention over that many frames would not fit)
+MAX_TABLE_BYTES = 1 << 28
+
+
 class PositionalEncoding(nn.Module):
-    """Sinusoidal positions (Vaswani et al.) added to (B, T, d_model)."""
+    """Sinusoidal positions (Vaswani et al.) added to (B, T, d_model). A table past ``MAX_TABLE_BYTES``
+    is refused before it is computed: one of max_frames 100,000,000 took 24 GB and 107 s of a 2-core
+    machine until the kernel killed the process."""
 
     def __init__(self, d_model: int, max_frames: int):
         super().__init__()
+        size = max_frames * d_model * torch.get_default_dtype().itemsize
+        if size > MAX_TABLE_BYTES:
+            raise ValueError(
+                f"max_frames ({max_frames}) x d_model ({d_model}) makes the model compute {size} bytes of "
+                f"tables when built, more than {MAX_TABLE_BYTES}: give a smaller max_frames"
+            )
         pos = torch.arange(max_frames).unsqueeze(1)
         div = torch.exp(torch.arange(0, d_model, 2) * (-math.log(10000.0) / d_model))
         pe = torch.zeros(max_frames, d_model)

@@ -11,6 +11,7 @@ from torch import nn
 
 from capture.errors import InputError
 
+from .config import DEFAULTS
 from .data import InputSpec
 from .model import BLSTM, NVP, BLSTMConfig, NVPConfig, S2AConfig, TransformerS2A
 from .ridge import Ridge
@@ -42,6 +43,17 @@ def did_you_mean(word: str, known) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def _arch_hint(key: str, known) -> str:
+    """The hint for an unknown arch key: a top-level config key (``lr``) written below ``[arch]`` in a
+    TOML file, where every key belongs to the table, is said so; else the closest arch key."""
+    if key in DEFAULTS:
+        return (
+            f" ({key!r} is a config key, not a model setting: in a TOML file every key after an [arch] "
+            "header belongs to that table, so put it above the first table)"
+        )
+    return did_you_mean(key, known)
+
+
 def check_arch(arch: dict[str, Any], where: str = "config:arch") -> None:
     """Refuse ``arch`` keys that no system has and keys of a system's table (``arch.blstm``) that
     system does not have, whichever system is built: a typo shows at once, with the closest key."""
@@ -51,7 +63,7 @@ def check_arch(arch: dict[str, Any], where: str = "config:arch") -> None:
     tables = [t for t in arch if isinstance(arch[t], dict)]
     bad = unknown + sorted(set(tables) - set(ARCH_TABLES))
     if bad:
-        hint = did_you_mean(bad[0], everywhere if bad[0] in unknown else ARCH_TABLES)
+        hint = _arch_hint(bad[0], everywhere if bad[0] in unknown else ARCH_TABLES)
         raise InputError(
             f"unknown arch keys {bad}{hint} (known: {sorted(everywhere)} and tables {sorted(ARCH_TABLES)})",
             where,
@@ -61,7 +73,7 @@ def check_arch(arch: dict[str, Any], where: str = "config:arch") -> None:
         if set(arch[table]) - set(known):
             wrong = sorted(set(arch[table]) - set(known))
             raise InputError(
-                f"unknown arch keys {wrong} for {table}{did_you_mean(wrong[0], known)} (known: {known})",
+                f"unknown arch keys {wrong} for {table}{_arch_hint(wrong[0], known)} (known: {known})",
                 where,
             )
 
