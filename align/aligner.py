@@ -153,8 +153,15 @@ def _content(
     # placement (``timecode_evidence``: its lengths differ by more than ``PAIRED_SLACK_S``).
     placed = placement.confidence >= opts.min_confidence
     longer = 0.0 if placed else abs(length_gap_s)
-    wide = correlation.peak(opts.max_offset_s + max(longer, BEYOND_RANGE_S))
+    reach = opts.max_offset_s + max(longer, BEYOND_RANGE_S)
+    wide = correlation.peak(reach)
     outside = wide is not None and abs(wide.lag_s) > opts.max_offset_s and wide.peak > est.peak
+    # A higher correlation at the edge of that search is the flank of a peak further out: followed to
+    # its top, so that its lag and confidence are measured (a paired take whose face lags by 0.8 s had
+    # its peak cut at 0.75 s, of confidence 0: not credible, and the take kept offset 0 without a flag)
+    while outside and wide.at_edge and reach < correlation.n / ct.ANALYSIS_RATE:
+        reach += BEYOND_RANGE_S
+        wide = correlation.peak(reach) or wide
     judged = est
     if wide is not None and not outside and longer > opts.max_offset_s:
         if np.isfinite(wide.runner_up) and not wide.runner_up <= est.runner_up:

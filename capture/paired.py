@@ -2,7 +2,8 @@
 
 Frame ``i`` covers ``[i/F, (i+1)/F)`` seconds from the start of the audio, so its time is ``i/F``.
 Channel names are kept as given (a rig's own controls, e.g. FACEGOOD's 116); names of Live Link
-channels in any spelling are mapped to the toolkit's canonical ARKit names.
+channels in any spelling are mapped to the toolkit's canonical ARKit names, also when every name carries
+one prefix or suffix around them (``A2F_jawOpen``, ``jawOpen_bs``: repair ``channel_affix``).
 
 The matrix is a ``.npy`` array, a CSV (optional header row of names; comma, semicolon or tab separated)
 or the blendshape JSON that NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``,
@@ -585,6 +586,36 @@ def _clock_like(name: str, values: np.ndarray, fps: float | None) -> str | None:
     return f"{_UNITS[divisor]} at {_rate(column_rate(values)[0] * divisor)} frames per second"
 
 
+# Characters that end a prefix (or begin a suffix) that a rig or exporter puts on every channel name.
+AFFIX_SEPARATORS = "_- "
+
+
+def live_link_under_affix(names: list[str]) -> tuple[list[str], str] | None:
+    """Channel names that are all Live Link names once a prefix or suffix every one of them carries is cut
+    off (``A2F_jawOpen``, ``CTRL_expressions_jawOpen``, ``jawOpen_bs``: exporters and rigs name their
+    curves so), as ``channel_name`` spells them, and the affix for a message (``'A2F_'``); None when some
+    name is no Live Link name that way (a rig's own controls, MetaHuman's ``..._mouthCornerPullL``) or
+    every name is one already. A prefix ends (a suffix begins) at an ``AFFIX_SEPARATORS`` character; the
+    longest that leaves Live Link names is cut."""
+    if all(ch.is_known(n) for n in names):
+        return None
+    heads = _affix_lengths(names)
+    backs = _affix_lengths([n[::-1] for n in names])
+    for head, back in [(h, 0) for h in heads] + [(0, b) for b in backs]:
+        core = [n[head : len(n) - back] for n in names]
+        if all(core) and all(ch.is_known(c) for c in core):
+            return [channel_name(c) for c in core], repr(names[0][:head] or names[0][len(names[0]) - back :])
+    return None
+
+
+def _affix_lengths(names: list[str]) -> list[int]:
+    """The lengths of the prefixes all ``names`` share that end at an ``AFFIX_SEPARATORS`` character,
+    longest first."""
+    first, last = min(names), max(names)
+    shared = next((i for i, (a, b) in enumerate(zip(first, last)) if a != b), min(len(first), len(last)))
+    return [i + 1 for i in range(shared - 1, -1, -1) if first[i] in AFFIX_SEPARATORS]
+
+
 def channel_name(name: str) -> str:
     """A channel's name as the take keeps it: Live Link/ARKit names in canonical spelling (any spelling
     ``capture.channels`` accepts, also under a prefix: ``blendShapes.JawOpen``); a rig's own as given."""
@@ -859,6 +890,16 @@ def read_paired(
             matrix_path,
         )
     given, names = names, [channel_name(n) for n in names]
+    under_affix = live_link_under_affix(given)
+    if under_affix is not None:
+        names, affix = under_affix
+        repair(
+            notes,
+            None,
+            "channel_affix",
+            f"every channel name carries {affix} around a Live Link name ({given[0]!r}): read as "
+            f"{', '.join(names[:3])}{', ...' if len(names) > 3 else ''}",
+        )
     twice = repeated_name(names)
     if twice is not None:  # named as the file names them: jaw_open and blendShapes.JawOpen
         key = twice[0].strip().lower()
@@ -901,6 +942,8 @@ def read_paired(
     take.attach_audio(audio, 0.0, "paired_time_column" if kind == "seconds" else "paired_frame_convention")
     meta.sources.append(source_file(audio_path, "audio"))
     hint = "check --fps"
+    if file_fps is not None:  # an Audio2Face export's exportFps, a .npz's fps: no --fps to check
+        hint = f"check the frame rate the file gives ({_rate(fps)} fps), and that the audio is this file's"
     if renumber and time[0] > LENGTH_MISMATCH_S:
         hint = renumber
     elif kind == "seconds" and abs(paired_excess_s(take) + time[0]) <= LATE_START_S:
@@ -944,22 +987,31 @@ PERCENT_RANGE = (-5.0, 105.0)
 PERCENT_CHANNEL = 1.5
 
 
+# Weights stored as bytes, 0..255 (8-bit quantised exports): the largest value from BYTE_RANGE's bottom
+# (past the middle of the bytes' range: not a 0..100 scale overshooting) to its top, and the same share
+# of the channels that move reaching past PERCENT_CHANNEL.
+BYTE_RANGE = (128.0, 255.0)
+
+
 def _percent_scale(values: np.ndarray) -> str | None:
-    """Why ``values`` (frames x channels) look like weights on a 0..100 scale, or None."""
+    """Why ``values`` (frames x channels) look like weights on a 0..100 scale (or 0..255), or None."""
     finite = np.isfinite(values)
     if not finite.any():
         return None
     top = np.where(finite, values, -np.inf).max(axis=0)
     low = np.where(finite, values, np.inf).min(axis=0)
     moving, large = top > 0.01, top > PERCENT_CHANNEL
-    if top.max() < PERCENT_PEAK or low.min() < PERCENT_RANGE[0] or top.max() > PERCENT_RANGE[1]:
+    if top.max() < PERCENT_PEAK or low.min() < PERCENT_RANGE[0] or top.max() > BYTE_RANGE[1]:
+        return None
+    if PERCENT_RANGE[1] < top.max() < BYTE_RANGE[0]:
         return None
     if 2 * large.sum() < moving.sum():
         return None
+    scale, factor = ("0..100", "0.01") if top.max() <= PERCENT_RANGE[1] else ("0..255", "0.00392157 (1/255)")
     return (
-        f"the weights look like a 0..100 scale, not 0..1 (largest {top.max():.4g}; {large.sum()} of the "
+        f"the weights look like a {scale} scale, not 0..1 (largest {top.max():.4g}; {large.sum()} of the "
         f"{moving.sum()} channels that move reach past {PERCENT_CHANNEL:g}): if so, import again with "
-        "--value-scale 0.01"
+        f"--value-scale {factor}"
     )
 
 

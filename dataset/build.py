@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from capture.atomic import atomic_write, naming_failures, write_json_atomic
+from capture.audio_io import Audio, full_scale
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.command import TimedProgress, sigterm_stops, stops_deferred
 from capture.errors import InputError, S2AError
@@ -348,6 +349,17 @@ def _aligned_folders(
     return [out / n for n in names]
 
 
+def unalignable_takes(errors: list[str]) -> InputError:
+    """The one error for the raw takes align could not use (``errors``: why, for each): all named at once
+    (the first three shown), with the way to build from the others. Before, a build stopped at the first,
+    and a batch of clips with forty silent ones took forty runs to find them."""
+    shown = "; ".join(errors[:3]) + (f"; and {len(errors) - 3} more" if len(errors) > 3 else "")
+    return InputError(
+        f"{len(errors)} raw take(s) cannot be aligned ({shown}): align the takes with s2a-align -o ALIGNED, "
+        "which writes those it can and names the others, and build from ALIGNED; or remove these takes"
+    )
+
+
 def _malformed(field_name: str, what: str, value: Any, folder: str | Path | None) -> InputError:
     """The one-line error for an align field of the wrong type, naming the take's meta.json, as
     ``read_meta`` does for the other fields: a malformed field must not be read as "absent"."""
@@ -460,6 +472,7 @@ def collect_takes(
     # every few seconds
     reading = TimedProgress("reading takes", len(folders), "takes", say)
     aligned_now = 0
+    unalignable: list[str] = []  # why each raw take align cannot use failed
 
     def aligning(message: str) -> None:
         nonlocal aligned_now
@@ -479,7 +492,14 @@ def collect_takes(
                 aligned = [folder]
             else:
                 origin["sha256"] = take_sha256(folder)
-                aligned = _aligned_folders(folder, origin["sha256"], meta, work, aligning)
+                try:
+                    aligned = _aligned_folders(folder, origin["sha256"], meta, work, aligning)
+                except InputError as exc:  # the others are still aligned: every such take is told at once
+                    if _align_module() is None:  # the same for every take: said once
+                        raise
+                    unalignable.append(str(exc))
+                    reading.update(i)
+                    continue
         reading.update(i, meta.id if aligned == [folder] else f"{meta.id} aligned: {len(aligned)} take(s)")
         for af in aligned:
             with _take_read(af):
@@ -542,6 +562,8 @@ def collect_takes(
             if af != folder:
                 st.source["aligned_from_sha256"] = origin["sha256"]
             candidates.append(st)
+    if unalignable:
+        raise unalignable_takes(unalignable)
     warnings += incomplete_segment_warnings(segments) + aligned_twice_warnings(segments)
     warnings += skipped.values()
     # duplicates in id order (the first id is kept), whatever the order of the inputs
@@ -732,6 +754,24 @@ def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
     return total > 0 and float(power[band].sum()) < 1e-5 * total
 
 
+MONO_BLOCK = 1 << 18  # samples mixed to mono at a time
+
+
+def mono_padded(audio: Audio, length: int) -> np.ndarray:
+    """A take's audio as mono float32 in [-1, 1) (channels averaged, as ``Audio.mono_float``), zero-padded
+    to ``length`` samples: filled a block at a time, so that an hour of audio is held once here besides
+    the take's own samples, not three times (``mono_float`` converts, averages and copies all at once)."""
+    out = np.zeros(length, np.float32)
+    x = audio.samples
+    scale = np.float32(full_scale(x))
+    for start in range(0, audio.frames, MONO_BLOCK):
+        part = x[start : start + MONO_BLOCK].astype(np.float32)
+        if scale != 1:
+            part /= scale
+        out[start : start + part.shape[0]] = part.mean(axis=1) if part.shape[1] > 1 else part[:, 0]
+    return out
+
+
 def audio_gain(audio: np.ndarray, sample_rate: int, peak: float | None = None) -> tuple[float, np.ndarray]:
     """The factor that brings float audio past full scale back to a peak of 1 (FLAC would clip it),
     and the stray samples left out of that peak (a bool mask): the 10 ms frames (and the frames either
@@ -891,9 +931,13 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     fps = float(take.meta.fps)
     check_frame_grid(take.time, fps, job.folder)
     sr = job.settings.sample_rate
-    audio = take.audio.mono_float()
+    audio_len = take.audio.frames
+    span = int(round(n * sr / fps))
+    padded = mono_padded(take.audio, max(span, audio_len))
+    take.audio = None  # its samples are in ``padded`` now: an hour of them is 230 MB
+    audio = padded[:audio_len]
     narrow = is_narrowband(audio, sr)
-    peak = float(np.max(np.abs(audio), initial=0.0))
+    peak = max(float(audio.max(initial=0.0)), -float(audio.min(initial=0.0)))
     if peak > MAX_AUDIO_PEAK:  # no recording chain gets there: damaged samples, not a loud take
         at = int(np.argmax(np.abs(audio))) / job.settings.sample_rate
         raise InputError(
@@ -902,11 +946,9 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             job.folder,
         )
     gain, stray = audio_gain(audio, sr, peak)
-    audio_len = audio.shape[0]
-    span = int(round(n * sr / fps))
-    padded = np.zeros(max(span, audio_len), np.float32)
-    padded[:audio_len] = audio * gain
-    padded[:audio_len][stray] = 0.0  # a stray burst (a damaged sample, spread by the resampler): muted
+    if gain != 1.0:
+        audio *= np.float32(gain)
+    audio[stray] = 0.0  # a stray burst (a damaged sample, spread by the resampler): muted
     speech_db = speech_level(padded[:span], sr)
     level = gain_for_level(speech_db, job.settings)
     t = np.arange(n) / fps
@@ -1426,7 +1468,8 @@ def _take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
             f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
             "(no blendshape weight is): masked as unusable"
             + (
-                "; weights on a 0-100 or 0-255 scale? They are 0..1: divide the matrix before importing it"
+                "; weights on a 0-100 or 0-255 scale? They are 0..1: import the take again with "
+                "s2a-capture import --value-scale 0.01 (or 1/255 = 0.00392157)"
                 if scale
                 else ""
             )

@@ -42,6 +42,9 @@ HIST_RATIO = 1.01
 HIST_OUTER_BINS = int(np.ceil(np.log(ANIM_LIMIT / HIST_INNER) / np.log(HIST_RATIO)))  # 162
 HIST_BINS = HIST_INNER_BINS + 2 * HIST_OUTER_BINS
 HIST_LAYOUT = f"linear ±{HIST_INNER} × {HIST_INNER_BINS}, ratio {HIST_RATIO} × {HIST_OUTER_BINS} each side"
+# Frames binned at a time: binning holds several float64 copies of what it bins (an hour of 32 channels at
+# 60 fps binned at once raised a build's peak memory by 155 MB)
+HIST_ROWS = 1 << 14
 MIN_SCALE = 1e-4  # a channel that never moves keeps scale 1 rather than blowing up
 
 
@@ -76,10 +79,11 @@ class ChannelAccumulator:
         self.sumsq += total_sq
         self.min = np.minimum(self.min, x.min(0))
         self.max = np.maximum(self.max, x.max(0))
-        bins = histogram_bins(x)
-        # one bincount for every channel: channel c's bins are offset by c * HIST_BINS
-        flat = (bins + np.arange(self.n) * HIST_BINS).ravel()
-        self.hist += np.bincount(flat, minlength=self.n * HIST_BINS).reshape(self.n, HIST_BINS)
+        offsets = np.arange(self.n) * HIST_BINS
+        for lo in range(0, x.shape[0], HIST_ROWS):  # binned a block of frames at a time (see HIST_ROWS)
+            # one bincount for every channel: channel c's bins are offset by c * HIST_BINS
+            flat = (histogram_bins(x[lo : lo + HIST_ROWS]) + offsets).ravel()
+            self.hist += np.bincount(flat, minlength=self.n * HIST_BINS).reshape(self.n, HIST_BINS)
         if neutral is not None:
             d = x - np.asarray(neutral, np.float64)
             self.own_count += x.shape[0]
