@@ -24,6 +24,7 @@ import numpy as np
 import soundfile as sf
 
 from .atomic import atomic_write
+from .command import stops_deferred
 from .errors import InputError
 from .growing import GrowingRows
 from .numbers import number_array
@@ -239,7 +240,7 @@ def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Au
 
 class _Scratch:
     """Where an import's decoded audio waits until its take is written: WAV files in a hidden folder made
-    when the first one is (in ``folder``, the system's temporary folder when None), removed with them."""
+    in ``folder`` when the first one is, removed with them. None: decoded audio is held whole."""
 
     def __init__(self, folder: Path | None, prefix: str):
         self.folder, self.prefix = folder, prefix
@@ -247,8 +248,10 @@ class _Scratch:
         self._count = 0
 
     def new_file(self) -> Path:
+        assert self.folder is not None
         if self._made is None:
-            self._made = Path(tempfile.mkdtemp(prefix=self.prefix, dir=self.folder))
+            with stops_deferred():  # met between its making and its noting, a stop would leave the folder
+                self._made = Path(tempfile.mkdtemp(prefix=self.prefix, dir=self.folder))
         self._count += 1
         return self._made / f"decoded-{self._count}.wav"
 
@@ -268,20 +271,23 @@ def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-d
     """Within it, ``read_audio`` gives the audio of a file libsndfile reads to its end without an error
     (WAV, FLAC, AIFF, OGG; not MP3) as a ``FileAudio``: its samples are checked a block at a time and
     left in the file, for ``write_audio`` to copy a block at a time (an import holds no take's recorded
-    audio whole: 317 MB an hour at 44.1 kHz int16 mono). Audio FFmpeg decodes (``decode_with_pyav``: a
-    .mov's AAC, an .m4a) is decoded a block at a time into a scratch WAV, in a hidden folder made in
-    ``scratch`` (the system's temporary folder when None) whose name starts with ``prefix``, and given as
+    audio whole: 317 MB an hour at 44.1 kHz int16 mono). Given a ``scratch`` folder (an import's output
+    folder), audio FFmpeg decodes (``decode_with_pyav``: a .mov's AAC, an .m4a) is decoded a block at a
+    time into a scratch WAV, in a hidden folder made there whose name starts with ``prefix``, and given as
     a ``FileAudio`` of it (an import of an hour of 48 kHz stereo AAC peaked at 1.4 GB, now 117 MB); that
     folder is removed when the block ends, however it ends, so such audio must be written within it (read
-    after it, it is an ``InputError``). Float samples past full scale (of a file, or decoded), which
-    ``check_samples`` may repair, are looked at in passes over the file (``_damaged_in_file``)."""
+    after it, it is an ``InputError``). Without one it is held whole: audio read here and used after the
+    block (``listen --audio-file`` plays it later) stays readable. Float samples past full scale (of a
+    file, or decoded), which ``check_samples`` may repair, are looked at in passes over the file
+    (``_damaged_in_file``)."""
     left = _Scratch(None if scratch is None else Path(scratch), prefix)
     token = _LEFT_IN_FILES.set(left)
     try:
         yield
     finally:
-        _LEFT_IN_FILES.reset(token)
-        left.remove()
+        with stops_deferred():  # Ctrl-C, a second one too, cuts no removal short
+            _LEFT_IN_FILES.reset(token)
+            left.remove()
 
 
 def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterator[np.ndarray]:
@@ -298,6 +304,11 @@ def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterato
             yield block
 
 
+# Float subtypes whose samples libsndfile seeks to exactly (a seek into Vorbis or Opus lands up to a few
+# hundred samples off): those whose damaged samples ``_damaged_in_file`` may look for in passes.
+_SEEKS_TO_THE_SAMPLE = ("FLOAT", "DOUBLE")
+
+
 def _left_in_file(
     path: Path, info: Any, dtype: str, subtype: str, repairs: list[dict[str, Any]] | None
 ) -> FileAudio | None:
@@ -306,7 +317,8 @@ def _left_in_file(
     checked kept, to tell the file changed), then float samples given to ``check_samples``, which notes
     them and looks for damaged samples past full scale in passes over the file; None when reading it
     whole decides more: an error of libsndfile (a file cut short), no samples, NaN without ``repairs``
-    (an ``InputError``)."""
+    (an ``InputError``), samples past full scale to repair in a file libsndfile cannot seek to the
+    sample (Vorbis, Opus: the passes read the samples around each candidate where they lie)."""
     frames, bad, peak, crc = 0, 0, 0.0, 0
     try:
         for block in _file_blocks(path, dtype, CHECK_FRAMES, info):
@@ -321,6 +333,8 @@ def _left_in_file(
     except (sf.LibsndfileError, RuntimeError):
         return None
     if frames == 0 or (bad and repairs is None):
+        return None
+    if peak > 1.0 and repairs is not None and info.subtype not in _SEEKS_TO_THE_SAMPLE:
         return None
     kept = np.dtype(dtype)
     if kept.kind != "f":
@@ -363,6 +377,7 @@ class FileAudio(Audio):
         self.sample_rate, self.subtype = whole_sample_rate(sample_rate), subtype
         self._frames, self._channels, self._crc = frames, channels, crc  # as read_audio found them
         self.non_finite, self.peak = non_finite, peak
+        self._scratch = shown is not None  # a scratch file of decoded audio (``_DecodedToFile``), ours
         self._held: np.ndarray | None = None
         # samples set right (frame, channel, value), sorted by frame: applied as blocks are read
         self._mend_at, self._mend_channel = np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -409,6 +424,13 @@ class FileAudio(Audio):
     def nbytes(self) -> int:
         """The size of the samples in memory, read whole."""
         return self.frames * self.channels * self.dtype.itemsize
+
+    def discard(self) -> None:
+        """Audio decoded into a scratch file that will not be used (a .mov's other tracks): the file removed
+        now, not when the import ends (an hour of 48 kHz stereo: 1.4 GB); read after, it is an
+        ``InputError``. A file of the user's is never removed."""
+        if self._scratch:
+            self._read_from.unlink(missing_ok=True)
 
     def mend(self, frames: np.ndarray, channel: int, values: np.ndarray) -> None:
         """Set the samples at ``frames`` of ``channel`` to ``values`` (damaged samples set right) as they
@@ -617,11 +639,11 @@ def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
             if not parts:
                 continue
             cand = np.concatenate(parts)
-            spikes, values = _spikes_in_file(f, c, cand, n)
+            spikes, values, mended = _spikes_in_file(f, c, cand, n)
             if spikes.size:
                 count += int(spikes.size)
                 worst = max(worst, float(np.max(values)))
-                audio.mend(spikes, c, _mended(f, c, spikes, n))
+                audio.mend(spikes, c, mended)
     return count, worst
 
 
@@ -648,8 +670,8 @@ def _lerp(a: np.floating, b: np.floating, t: float) -> float:
 def _window_reads(
     f: sf.SoundFile, c: int, starts: np.ndarray, ends: np.ndarray
 ) -> Iterator[tuple[int, np.ndarray]]:
-    """|x| of channel ``c`` of the file ``f`` over each window [start, end) (overlapping ones merged), NaN
-    or infinite samples read as 0."""
+    """Channel ``c`` of the file ``f`` over each window [start, end) (overlapping ones merged), NaN or
+    infinite samples read as 0."""
     i = 0
     while i < len(starts):
         start, end = int(starts[i]), int(ends[i])
@@ -659,44 +681,31 @@ def _window_reads(
         f.seek(start)
         x = f.read(end - start, dtype="float32", always_2d=True)[:, c]
         x[~np.isfinite(x)] = 0.0
-        yield start, np.abs(x)
+        yield start, x
         i += 1
 
 
-def _spikes_in_file(f: sf.SoundFile, c: int, cand: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _spikes_in_file(
+    f: sf.SoundFile, c: int, cand: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``_isolated`` of the candidates ``cand`` (sorted) of channel ``c`` of the file ``f``, read around
-    each; with their magnitudes."""
+    each; with their magnitudes and the values ``check_samples`` gives them: the interpolation of the
+    nearest samples on either side that are not damaged. Those lie in the window read: two damaged
+    samples are never 4 to 32 apart (each would be over 10 times the other), so one is at most 4 away."""
     reach = int(np.abs(_SPIKE_RING).max())
     starts, ends = np.maximum(cand - reach, 0), np.minimum(cand + reach + 1, n)
-    spikes, values = [], []
-    for start, a in _window_reads(f, c, starts, ends):
+    spikes, values, mended = [], [], []
+    for start, x in _window_reads(f, c, starts, ends):
+        a = np.abs(x)
         here = cand[(cand >= start) & (cand < start + a.size)]
         isolated = _isolated(here, a, start, n)
+        good = np.ones(x.size, bool)
+        good[isolated - start] = False
+        keep = np.flatnonzero(good)
         spikes.append(isolated)
         values.append(a[isolated - start])
-    return np.concatenate(spikes), np.concatenate(values)
-
-
-def _mended(f: sf.SoundFile, c: int, spikes: np.ndarray, n: int) -> np.ndarray:
-    """The values ``check_samples`` gives the damaged samples ``spikes`` (sorted) of channel ``c``: the
-    interpolation of the nearest samples on either side that are not damaged, read from the file ``f``."""
-    damaged = set(spikes.tolist())
-    values = []
-    for s in spikes.tolist():
-        keep = []
-        for step in (-1, 1):
-            i = s + step
-            while i in damaged:
-                i += step
-            if 0 <= i < n:
-                keep.append(i)
-        around = []
-        for i in keep:
-            f.seek(i)
-            v = f.read(1, dtype="float32", always_2d=True)[:, c]
-            around.append(v[0] if np.isfinite(v[0]) else np.float32(0))
-        values.append(np.interp(np.array([s]), np.array(keep), np.array(around, np.float32))[0])
-    return np.array(values).astype(np.float32)
+        mended.append(np.interp(isolated - start, keep, x[keep]).astype(np.float32))
+    return np.concatenate(spikes), np.concatenate(values), np.concatenate(mended)
 
 
 def _wav_data_chunk(path: Path) -> tuple[int, int, int | None] | None:
@@ -1038,11 +1047,12 @@ def decode_with_pyav(
     Audio whose channel count changes mid-stream is mixed to the first frame's (repair
     ``channels_changed``). ``skip_damaged``: a packet FFmpeg cannot decode is silence of its duration.
     The frames are written into one array as they are decoded (``_Samples``): an hour's take is held once.
-    Within ``audio_left_in_files`` they are written a block at a time into a scratch WAV instead, and the
-    audio is a ``FileAudio`` of it (``_decoded_to_file``): the same samples, never held whole."""
+    Within ``audio_left_in_files`` given a scratch folder (an import) they are written a block at a time
+    into a scratch WAV there instead, and the audio is a ``FileAudio`` of it (``_decoded_to_file``): the
+    same samples, never held whole."""
     path = Path(path)
     scratch = _LEFT_IN_FILES.get()
-    if scratch is not None:
+    if scratch is not None and scratch.folder is not None:
         audio = _decoded_to_file(path, stream_index, repairs, skip_damaged, scratch)
         if audio is not None:
             return audio
@@ -1081,7 +1091,8 @@ def _decoded_to_file(
     """``decode_with_pyav``'s audio written a block at a time into a new file of ``scratch`` as it is
     decoded, as a ``FileAudio`` of it naming ``path``: the same samples, repairs and notes, never held
     whole. None (nothing noted, the file removed) when the sample format changes mid-stream, which the
-    whole-array way joins by NumPy's promotion and converts by the last frame's format. Whatever else ends
+    whole-array way joins by NumPy's promotion and converts by the last frame's format, or when the
+    system refuses the scratch file (``_ScratchRefused``): decoded whole then. Whatever else ends
     the decoding (an error, Ctrl-C) removes the file too."""
     found: list[dict[str, Any]] | None = None if repairs is None else []
     sink: _DecodedToFile | None = None
@@ -1091,7 +1102,7 @@ def _decoded_to_file(
         try:
             sink = _DecodedToFile(scratch.new_file(), path, stream)
         except OSError as exc:
-            raise _scratch_refused(scratch.folder or Path(tempfile.gettempdir()), exc, path) from None
+            raise _scratch_refused(scratch.folder, exc, path) from None
         return sink
 
     try:
@@ -1111,9 +1122,14 @@ def _decoded_to_file(
     return audio
 
 
-def _scratch_refused(folder: Path, exc: OSError, source: Path) -> InputError:
-    """The error of a scratch file for ``source``'s decoded audio the system refuses (a full disk)."""
-    return InputError(f"audio could not be decoded into {folder}: {exc.strerror or exc}", source)
+class _ScratchRefused(_NotStreamed):
+    """The system refused the scratch file (a disk too full for the audio twice, a folder gone): decoded
+    whole instead, as before there was a scratch file, so an import that fitted in memory still works."""
+
+
+def _scratch_refused(folder: Path, exc: OSError, source: Path) -> _ScratchRefused:
+    """What ends decoding ``source`` into a scratch file in ``folder`` that the system refuses."""
+    return _ScratchRefused(f"{source}: audio could not be decoded into {folder}: {exc.strerror or exc}")
 
 
 class _DecodedToFile:
@@ -1185,13 +1201,9 @@ class _DecodedToFile:
         self._crc = zlib.crc32(block, self._crc)
         if self._out is None:
             self._open(subtype)
-        assert self._out is not None and self._sink is not None
-        try:
-            self._out.write(block)
-        except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
-            if self._sink.error is None:
-                raise
-        self._refused()
+        out = self._out
+        assert out is not None
+        self._into_file(lambda: out.write(block))
         self._recorded = (block.dtype, subtype)
 
     def _open(self, subtype: str) -> None:
@@ -1203,14 +1215,26 @@ class _DecodedToFile:
             self._file = open(self.scratch, "wb", buffering=1 << 20)
         except OSError as exc:
             raise _scratch_refused(self.scratch.parent, exc, self.source) from None
-        self._sink = _WavSink(self._file)
+        sink = self._sink = _WavSink(self._file)
         # RF64: a size past 4 GB is no error; libsndfile reads it as it reads a WAV
-        self._out = sf.SoundFile(self._sink, "w", self._rate, self.channels, subtype=subtype, format="RF64")
-        self._refused()
+        self._out = self._into_file(
+            lambda: sf.SoundFile(sink, "w", self._rate, self.channels, subtype=subtype, format="RF64")
+        )
 
-    def _refused(self) -> None:
-        if self._sink is not None and self._sink.error is not None:
-            raise _scratch_refused(self.scratch.parent, self._sink.error, self.source)
+    def _into_file(self, call: Callable[[], Any]) -> Any:
+        """``call``'s writing through libsndfile into the scratch file, a write the system refuses (a full
+        disk) an ``InputError``; Ctrl-C or SIGTERM waits until it returns (``stops_deferred``)."""
+        sink = self._sink
+        assert sink is not None
+        try:
+            with stops_deferred():  # met in libsndfile's callback, a stop would be lost there
+                done = call()
+        except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
+            if sink.error is None:
+                raise
+        if sink.error is not None:
+            raise _scratch_refused(self.scratch.parent, sink.error, self.source)
+        return done
 
     def finish(self, frames: int | None, rate: int, sample_format: str) -> FileAudio:
         """The audio decoded (its first ``frames``; None: all) as a ``FileAudio`` of the file; ``rate``
@@ -1227,12 +1251,7 @@ class _DecodedToFile:
         self._write(self._waiting_frames - cut)
         assert self._out is not None and self._file is not None
         out, self._out = self._out, None
-        try:
-            out.close()
-        except (AssertionError, sf.SoundFileError):
-            if self._sink is None or self._sink.error is None:
-                raise
-        self._refused()
+        self._into_file(out.close)
         try:
             self._file.close()
         except OSError as exc:
@@ -1727,12 +1746,18 @@ def write_audio(path: str | Path, audio: Audio) -> None:
     with atomic_write(path, buffering=1 << 20) as f:
         sink = _WavSink(f)
         try:
-            with sf.SoundFile(
-                sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt
-            ) as out:
+            # Ctrl-C or SIGTERM waits for each call of libsndfile to return: met in its callback, it
+            # would be lost there (soundfile's AssertionError instead, or a header never written)
+            with stops_deferred():
+                out = sf.SoundFile(sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt)
+            try:
                 _no_peak_chunk(out)
                 for block in blocks:
-                    out.write(block)
+                    with stops_deferred():
+                        out.write(block)
+            finally:
+                with stops_deferred():
+                    out.close()
         except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
             if sink.error is None:
                 raise

@@ -10,7 +10,7 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .audio_io import audio_left_in_files
 from .channels import is_known
-from .command import emit_json, progress, run
+from .command import emit_json, progress, run, sigterm_stops
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
@@ -213,7 +213,10 @@ def cmd_import(args: argparse.Namespace) -> int:
     timecode_rate = None if args.timecode_rate == "auto" else float(args.timecode_rate)
     litter = Litter()  # what the folders and archives held that is no take, said once at the end
     try:
-        return _import_jobs(args, timecode_rate, litter)
+        # SIGTERM stops it as Ctrl-C does (exit 143): the audio decoded into the output folder, what was
+        # unpacked there and the folder's lock go with it, not left until the next import
+        with sigterm_stops():
+            return _import_jobs(args, timecode_rate, litter)
     finally:
         for line in litter.lines():
             print(f"{PROG}: warning: {line}", file=sys.stderr)

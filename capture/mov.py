@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .audio_io import SILENT_PEAK, Audio, check_samples, decode_with_pyav, finite_peak
+from .audio_io import SILENT_PEAK, Audio, FileAudio, check_samples, decode_with_pyav, finite_peak
 from .errors import InputError
 
 
@@ -120,6 +120,9 @@ def choose_mov_audio(
         "tracks": len(tracks),
         "peaks_dbfs": [round(20 * np.log10(p), 1) if p > 0 else None for p in peaks],
     }
+    for i, track in enumerate(tracks):
+        if i != chosen and isinstance(track, FileAudio):
+            track.discard()  # decoded into a scratch file: not kept on the disk until the import ends
     return check_samples(tracks[chosen], path, repairs), choice
 
 
