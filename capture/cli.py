@@ -70,6 +70,7 @@ WARN_REPAIRS = (
     "bad_values_widespread",
     "bad_timecodes_widespread",
     "channel_typo",
+    "channel_affix",
     "value_range",
 )
 # What a warning adds to a repair's message: what the user may have to do about it.

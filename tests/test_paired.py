@@ -113,6 +113,20 @@ def test_audio2face_json_import_takes_names_and_rate_from_the_file(tmp_path, wav
     assert read_paired(wav, tmp_path / "a2f.json", 30).meta.fps == 30
 
 
+def test_names_mapped_from_under_an_exporters_prefix_are_a_warning(tmp_path, wav):
+    """An export whose pose names all carry one prefix (``A2F_jawOpen``) imports them as the Live Link
+    names they hold: said on stderr, not only in meta.json (a channel's identity changed)."""
+    from capture.channels import ARKIT52
+
+    _a2f_export(tmp_path / "a2f.json", facsNames=[f"A2F_{n}" for n in ARKIT52])
+    proc = run_here(
+        "capture", "import", "--matrix", tmp_path / "a2f.json", "--audio", wav, "-o", tmp_path / "o"
+    )
+    assert proc.returncode == 0, proc.stderr
+    (line,) = [x for x in proc.stderr.splitlines() if "warning:" in x]
+    assert "'A2F_'" in line and "eyeBlinkLeft" in line, line
+
+
 @pytest.mark.parametrize(
     "override, needle",
     [
