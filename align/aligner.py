@@ -159,9 +159,8 @@ def _content(
     # A higher correlation at the edge of that search is the flank of a peak further out: followed to
     # its top, so that its lag and confidence are measured (a paired take whose face lags by 0.8 s had
     # its peak cut at 0.75 s, of confidence 0: not credible, and the take kept offset 0 without a flag)
-    while outside and wide.at_edge and reach < correlation.n / ct.ANALYSIS_RATE:
-        reach += BEYOND_RANGE_S
-        wide = correlation.peak(reach) or wide
+    if outside and wide.at_edge:
+        wide = correlation.widened(reach, BEYOND_RANGE_S)[1] or wide
     judged = est
     if wide is not None and not outside and longer > opts.max_offset_s:
         if np.isfinite(wide.runner_up) and not wide.runner_up <= est.runner_up:

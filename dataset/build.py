@@ -174,6 +174,12 @@ class SourceTake:
     recording: str = ""  # the raw take align cut this one from (its own id when not cut)
     notes: list[str] = field(default_factory=list)  # warnings about the take (align's flags, clipping)
 
+    @property
+    def given(self) -> Path:
+        """The folder to name in a message: the raw take the user gave for one the build aligned (its copy
+        under ``DS/.work/aligned/`` is no folder of theirs), else ``folder``."""
+        return Path(self.source["path"]) if "aligned_from_sha256" in self.source else self.folder
+
 
 RACY_NS = 3_000_000_000  # files modified this recently are hashed afresh (see _file_digests)
 TAKE_SWAP_S = 1.0  # how long a take folder that lost its files while read is waited for (see _take_read)
@@ -578,7 +584,7 @@ def collect_takes(
             continue
         if st.id in by_id:
             raise InputError(
-                f"two different takes share the id {st.id!r} (also {by_id[st.id].folder})", st.folder
+                f"two different takes share the id {st.id!r} (also {by_id[st.id].given})", st.given
             )
         by_id[st.id] = by_sha[st.content_sha256] = st
         takes.append(st)
@@ -671,7 +677,7 @@ def resolve_channels(
             raise InputError(
                 f"take {t.id} lacks {len(missing)} selected channel(s) ({shown}); "
                 "choose --channels varying, all, or a list of its channels",
-                t.folder,
+                t.given,
             )
     lowered = {n.lower() for n in names}
     lacking = [need for need in METRIC_CHANNELS if need.lower() not in lowered]
