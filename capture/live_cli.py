@@ -711,17 +711,21 @@ def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
     began = threading.Event()  # the thread runs: set by it first (a stop inside ``start()`` would not know)
     starting = False
 
-    def give_up(frame, _event, _arg) -> None:
-        """The step's trace of calls (none of lines): once it is given up, its next call of this package's
-        code raises, once (in another library's code it could leave a file opened and not yet kept)."""
-        if abandoned.is_set() and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
-            sys.settrace(None)  # its clean-up (``with``, ``finally``) runs untraced
-            raise _SetUpAbandoned
-
     def work() -> None:
         began.set()
         if abandoned.is_set():  # given up while it started
             return
+        # the thread's own trace (coverage's, a debugger's: ``threading.settrace``), called on as before
+        own = sys.gettrace()
+
+        def give_up(frame, event, arg):
+            """The step's trace of calls: once it is given up, its next call of this package's code
+            raises, once (in another library's code it could leave a file opened and not yet kept)."""
+            if abandoned.is_set() and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+                sys.settrace(own)  # its clean-up (``with``, ``finally``) runs as the rest of the thread
+                raise _SetUpAbandoned
+            return own(frame, event, arg) if own is not None else None
+
         sys.settrace(give_up)
         try:
             value = make()
@@ -731,7 +735,7 @@ def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
             done["error"] = exc
             return
         finally:
-            sys.settrace(None)
+            sys.settrace(own)
         with guard:
             if not abandoned.is_set():
                 done["value"] = value

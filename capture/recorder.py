@@ -192,6 +192,11 @@ PORT_HOP_PACKETS = 120
 MAX_FLUSH_INTERVAL_S = 0.25
 
 
+def _frame_seconds(frame: float, num: int, den: int) -> float:
+    """A frame time (frame number and sub-frame) in seconds at the declared rate ``num/den``."""
+    return frame * ll.rate_denominator(den) / num
+
+
 class LiveRecorder:
     """Receives Live Link packets on a UDP socket and logs them; see the module docstring.
 
@@ -241,6 +246,9 @@ class LiveRecorder:
         # stream key -> (new rate, records of the packets held back at it, the first one's frame time in
         # seconds); see RATE_CHANGE_PACKETS
         self._rate_pending: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], list[bytes], float]] = {}
+        # stream key -> (its rate before its last change, the first frame time at the new one in seconds):
+        # a late packet of the old setting after the change is logged (``_rate_change``), not rejected
+        self._rate_changed: dict[bytes | tuple[bytes, Any], tuple[tuple[int, int], float]] = {}
         self._next_eviction_ns = 0
         # (header, source host) -> its last PORT_HOPS stream ids; the key a port-hopping host goes on in
         self._host_streams: dict[tuple[bytes, Any], list[int]] = {}
@@ -393,6 +401,7 @@ class LiveRecorder:
                         sid = -1
                         if (
                             n == last_size
+                            and not pending_rates  # a packet of the old rate then: ``_old_rate_packet``
                             and addr == last_addr
                             and buf.startswith(last_hdr)
                             and buf[last_off + 16] == count
@@ -598,13 +607,23 @@ class LiveRecorder:
         carry that rate; then the held packets are logged (the take builder starts a new recording where
         the rate changes), the stream goes on at the new rate, and its entry is returned for this packet."""
         sid, off, old_num, old_den = known
+        fn, sf, _, _ = ll._FRAME_TIME.unpack_from(view, off)
+        seconds = _frame_seconds(fn + sf, num, den)
+        before = self._rate_changed.get(key)
+        if (
+            before is not None
+            and close_rates(*before[0], num, den)
+            and 0 < before[1] - seconds <= LATE_PACKET_S
+        ):
+            # a packet of the setting before the last change, from just before it, come late (after the
+            # packets that confirmed it): logged as it is, the take builder puts it with its own setting
+            return known
         held = self._rate_pending.get(key)
         if held is not None and held[0] != (num, den):  # yet another rate: the held packets were strays
             self._drop_rate_change(key)
             held = None
         if held is None:
-            fn, sf, _, _ = ll._FRAME_TIME.unpack_from(view, off)
-            held = ((num, den), [], (fn + sf) * ll.rate_denominator(den) / num)
+            held = ((num, den), [], seconds)
             self._rate_pending[key] = held
         if len(held[1]) + 1 < RATE_CHANGE_PACKETS:
             held[1].append(self._frame_record(sid, view, off, n, t))
@@ -621,6 +640,7 @@ class LiveRecorder:
         self.stream_packets[sid] += len(held[1])
         entry = (sid, off, num, den)
         self.streams[key] = entry
+        self._rate_changed[key] = ((old_num, old_den), held[2])
         return entry
 
     def _old_rate_packet(self, key: bytes, frame: float, num: int, den: int) -> None:
@@ -630,7 +650,7 @@ class LiveRecorder:
         (``LATE_PACKET_S``: late, or the copy of a sender that sends each packet twice), which leaves them
         held. Before, such a packet at the app's change of setting cost the new setting's first frames."""
         held = self._rate_pending[key]
-        early_s = held[2] - frame * ll.rate_denominator(den) / num
+        early_s = held[2] - _frame_seconds(frame, num, den)
         if not 0 < early_s <= LATE_PACKET_S:
             self._drop_rate_change(key)
 
@@ -669,6 +689,7 @@ class LiveRecorder:
         ]
         for key in stray:
             del self.streams[key]
+            self._rate_changed.pop(key, None)
             self._drop_rate_change(key)
         self.evicted_streams += len(stray)
         return bool(stray)

@@ -64,6 +64,7 @@ from .recorder import (
     RATE_CHANGE_PACKETS,
     RATE_JITTER,
     SESSION_SUFFIX,
+    close_rates,
 )
 from .serial_sync import SYNC_HEAD_BYTES, decode_sync_record
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, write_take
@@ -673,13 +674,88 @@ def _rate_stretches(num: np.ndarray, den: np.ndarray) -> list[tuple[slice, tuple
     return stretches
 
 
+# How many runs of one rate (``_rate_runs``) back a late packet of an old rate is looked for its setting.
+LATE_RUNS = 8
+
+
+def _late_packets_placed(num: np.ndarray, den: np.ndarray) -> np.ndarray | None:
+    """An arrival order of a stream's packets (rows) in which those of two settings mixed at a change
+    (a late, reordered or twice-sent packet of the old setting among the first of the new) each go to
+    their own setting's side, or None when no change mixes them; each packet is read at its own declared
+    rate all the same, none moves in time. Left where they came, such packets made a stretch of their own
+    too short for a take (its frames lost), or, three or more in a row, made both settings one jittering
+    rate (24 <-> 25 fps: one of them placed 4 % of the day off). Two cases, in this order:
+
+    - rates further apart (a change the recorder confirms with ``RATE_CHANGE_PACKETS`` packets in a row,
+      and after which it logs a late packet of the old rate, ``recorder.LATE_PACKET_S``): a run shorter
+      than that of a rate seen last in a run of that length, with only the new rate between;
+    - rates within ``RATE_JITTER`` of each other: between two runs (``_rate_runs``) of the two rates that
+      hold (``RATE_HOLD_PACKETS``), runs too short to hold that carry only those two rates."""
+    order = np.arange(num.size)
+
+    def old_first(between: slice, a: int) -> None:
+        """Put the packets of ``between`` at the rate of row ``a`` (arrival order) before the others."""
+        n, d = num[order[between]], den[order[between]]
+        is_new = (n != num[order[a]]) | (d != den[order[a]])
+        order[between] = order[between][np.argsort(is_new, kind="stable")]
+
+    runs = _rate_runs(num, den)
+    if len(runs) > 2:
+        first = np.array([run.start for run in runs])
+        size = np.diff([*first, num.size])
+        rate = num[first] / den[first]
+        far = np.abs(rate[1:] - rate[:-1]) > RATE_JITTER * np.minimum(rate[1:], rate[:-1])
+        # a short run after a far rate, with a run of the length a change is confirmed with among the
+        # LATE_RUNS before it: the only ones that can be late packets (a stream jittering at every packet,
+        # or one whose corrupt rates alternate, has none, and costs no walk back)
+        long_before = np.zeros(len(runs), bool)
+        for k in range(1, LATE_RUNS + 1):
+            long_before[k:] |= size[:-k] >= RATE_CHANGE_PACKETS
+        late = np.flatnonzero((size < RATE_CHANGE_PACKETS) & np.r_[False, far] & long_before)
+    else:
+        late = []
+    for i in late:
+        run = runs[i]
+        new, confirmed = None, 0  # the one other rate back to the last long run of this one
+        for j in range(i - 1, max(i - 1 - LATE_RUNS, -1), -1):
+            other = runs[j]
+            rate_j = (int(num[other.start]), int(den[other.start]))
+            if rate_j == (int(num[run.start]), int(den[run.start])):
+                if other.stop - other.start >= RATE_CHANGE_PACKETS:
+                    if new is not None and confirmed >= RATE_CHANGE_PACKETS:
+                        old_first(slice(other.stop, run.stop), other.start)
+                    break
+                continue
+            if (new is not None and rate_j != new) or close_rates(
+                *rate_j, int(num[run.start]), int(den[run.start])
+            ):
+                break
+            new, confirmed = rate_j, max(confirmed, other.stop - other.start)
+    n, d = num[order], den[order]
+    runs = _rate_runs(n, d)
+    held = None  # the index of the last run that holds
+    for i, run in enumerate(runs):
+        if run.stop - run.start < RATE_HOLD_PACKETS:
+            continue
+        if held is not None and i - held > 1:
+            a, b = runs[held].start, run.start
+            between = slice(runs[held + 1].start, b)
+            rates = {(int(n[k]), int(d[k])) for k in (a, b)}
+            if {(int(x), int(y)) for x, y in zip(n[between], d[between])} <= rates and len(rates) == 2:
+                old_first(between, a)
+        held = i
+    return None if (order == np.arange(num.size)).all() else order
+
+
 def _settings_apart(group: list[slice], rate: np.ndarray) -> list[tuple[list[slice], int]]:
     """A group of ``_rate_stretches`` cut where a run that holds (``RATE_HOLD_PACKETS``) is followed by one
     of another rate that holds, with nothing between them but runs shorter than ``RATE_CHANGE_PACKETS``:
     packets of the two rates mixed at a change of setting (a late or duplicated packet of the old setting
     among the first of the new). Without the cut those few packets made the two settings one jittering
     rate, read at the median (24 -> 25 fps with one late 24 fps packet placed the 25 fps frames 4 % of the
-    day off). Each part with the number of short runs it begins with (0 for the first), those mixed ones."""
+    day off). Each part with the number of short runs it begins with (0 for the first), those mixed ones:
+    since ``_late_packets_placed`` puts packets of only the two rates on their own sides first, those
+    left mixed carry a third rate too."""
     cuts = []
     held = None  # the index of the last run that holds, while only short runs followed it
     for i, run in enumerate(group):
@@ -936,6 +1012,9 @@ def stream_takes(
         rows = rows[plausible]
     num = rows["rate_numerator"].astype(np.int64)
     den = ll.rate_denominator(rows["rate_denominator"].astype(np.int64))
+    order = _late_packets_placed(num, den)
+    if order is not None:  # a late packet of the old setting among the new one's first: back with its own
+        rows, num, den = rows[order], num[order], den[order]
     stretches = _rate_stretches(num, den)
     jitter_notes: dict[int, str] = {}  # stretch start -> its note
     for run, nominal in stretches:

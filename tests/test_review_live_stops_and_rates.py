@@ -17,15 +17,13 @@ import numpy as np
 import pytest
 from conftest import run_here
 from live_helpers import record_packets
+from test_live_leftovers import _packet
 from test_review_listen_setup import _sparse_wav
 
 from capture import build_takes, read_take
 from capture.cli import build_parser
 from capture.live_cli import cmd_listen
-from capture.livelink import frame_block, header_bytes
 from capture.session_takes import RATE_HOLD_PACKETS, _rate_stretches
-
-DEVICE = "5904AA4B-AD9D-43E5-98AB-89AAEB8AB277"
 
 
 def _open_files() -> dict[str, str]:
@@ -173,12 +171,6 @@ def test_a_library_stops_listen_in_its_thread_while_it_records(tmp_path):
     assert not thread.is_alive() and ended == [0]
     (take,) = (p for p in (tmp_path / "out").iterdir() if not p.name.endswith(".recording"))
     assert np.array_equal(read_take(take).values[:, 0], np.arange(30))
-
-
-def _packet(frame: int, num: int, marker: int) -> bytes:
-    values = np.linspace(0.1, 0.7, 61, dtype=np.float32)
-    values[0] = marker
-    return header_bytes(DEVICE, "iPhone") + frame_block(frame, 0.0, num, 1, values)
 
 
 def test_a_steady_short_run_at_the_end_keeps_its_own_rate(tmp_path):

@@ -50,9 +50,24 @@ _NORM = {np.int8: 127.0, np.uint8: 255.0, np.int16: 32767.0, np.uint16: 65535.0}
 _LOOKUP = {n.lower(): n for n in ARKIT52}
 _INDEX = {n: i for i, n in enumerate(ARKIT61)}
 MAX_TARGET_REACH = 100.0  # a morph target may move a vertex at most this many times the head's size
-# a buffer URI that is no relative reference: an absolute path (POSIX, Windows, UNC) or one with a scheme
-_NOT_RELATIVE = re.compile(r"[/\\]|[A-Za-z][A-Za-z0-9+.-]*:")
+# a buffer URI that is no relative reference: one with a scheme (file:, http:, C: too), read as written (a
+# colon percent-encoded, "head%3A1.bin", is part of a file name), or a path, once decoded, that is absolute
+# (POSIX, Windows, UNC: "%2Fetc%2Fhostname" too)
+_SCHEME = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*:")
+_ABSOLUTE = re.compile(r"[/\\]|[A-Za-z]:")
 _PREFIXES = ("arkit", "blendshape", "blendshapes", "bs", "shape", "morph", "target")
+
+
+def _segments(name: str) -> list[str]:
+    """A morph target name's parts between namespace and side separators (``.``, ``:``, ``|``, ``/``)."""
+    return [s for s in re.split(r"[.:|/]", name.strip()) if s]
+
+
+def _blender_copy(name: str) -> bool:
+    """Whether ``name`` ends in the number Blender gives a copy (``jawOpen.001``), which ``arkit_channel``
+    drops: beside the target it copies (or an earlier copy), the copy is the one left unread."""
+    seg = _segments(name)
+    return len(seg) >= 2 and seg[-1].isdigit()
 
 
 def arkit_channel(name: str) -> str | None:
@@ -63,8 +78,7 @@ def arkit_channel(name: str) -> str | None:
     numbered as Maya numbers its blendShape nodes: ``blendShape1_jawOpen``) dropped, as is the number
     Blender gives a duplicate (``jawOpen.001``).
     """
-    seg = re.split(r"[.:|/]", name.strip())
-    seg = [s for s in seg if s]
+    seg = _segments(name)
     while len(seg) >= 2 and seg[-1].isdigit():  # "jawOpen.001"
         seg.pop()
     if not seg:
@@ -159,8 +173,8 @@ class _Gltf:
                 except binascii.Error as exc:
                     raise InputError(f"buffer {i}: data URI is not base64 ({exc})", self.path) from None
             else:
-                uri = unquote(uri)  # a URI: "my%20head.bin" is the file "my head.bin"
-                if _NOT_RELATIVE.match(uri):
+                written, uri = uri, unquote(uri)  # a URI: "my%20head.bin" is the file "my head.bin"
+                if _SCHEME.match(written) or _ABSOLUTE.match(uri):
                     # glTF 2.0 buffers are data URIs or references relative to the .gltf: an absolute path
                     # or another scheme (file:, http:) would read whatever file it names, or nothing
                     raise InputError(
@@ -334,13 +348,23 @@ def _load(g: _Gltf) -> FaceModel:
                 )
             deltas: dict[int, np.ndarray] = {}
             named: dict[int, str] = {}
-            for t, target in enumerate(prim.get("targets", [])):
-                tname = str(pnames[t]) if t < len(pnames) else f"target{t}"
+            targets = prim.get("targets", [])
+            tnames = [str(pnames[t]) if t < len(pnames) else f"target{t}" for t in range(len(targets))]
+            # copies last, in the order of their numbers: one that names the channel another target does
+            # (its original, or an earlier copy) is left unread, not refused
+            copies = [_blender_copy(name) for name in tnames]
+            for t in sorted(
+                range(len(targets)), key=lambda t: (copies[t], tnames[t] if copies[t] else "", t)
+            ):
+                target, tname = targets[t], tnames[t]
                 ch = arkit_channel(tname)
                 if ch is None or "POSITION" not in target:
                     unmapped.add(tname)
                     continue
                 idx = _INDEX[ch]
+                if idx in named and copies[t]:
+                    unmapped.add(tname)
+                    continue
                 if idx in named:
                     raise InputError(f"{where}: morph targets {named[idx]} and {tname} both name {ch}", path)
                 d = g.accessor(target["POSITION"])[:, :3]

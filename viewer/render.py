@@ -74,7 +74,8 @@ class Animation:
         length)."""
         t = np.asarray(t, dtype=np.float64)
         last = self.time.size - 1
-        i = np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, max(last - 1, 0))
+        # from the last frame's time on, the last row: two frames of one time there hold the later one
+        i = np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, last)
         j = np.minimum(i + 1, last)
         span = self.time[j] - self.time[i]
         with np.errstate(invalid="ignore", divide="ignore"):
