@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import collections
 import functools
 import sys
 from pathlib import Path
@@ -288,6 +289,10 @@ def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: 
         failures = sum(
             importer.archive(src) if kind == "archive" else not importer.one(kind, src) for kind, src in jobs
         )
+        if failures > 1:  # a batch's errors, one per file, may be one mistake (no --fps for 200 CSVs)
+            reason, count = importer.reasons.most_common(1)[0]
+            common = f"; {count} of them: {reason}" if count > 1 else ""
+            print(f"{PROG}: {failures} sources failed{common}", file=sys.stderr)
         return 1 if failures else 0
 
 
@@ -301,9 +306,11 @@ class _Importer:
         self.written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
         # --pair-audio: each folder listed once, however many sources
         self.listing = functools.cache(folder_files)
+        self.reasons: collections.Counter[str] = collections.Counter()  # of the sources that failed
 
     def _failed(self, src: Path | str, exc: S2AError, box: Unpacked | None = None) -> None:
         print(f"{PROG}: error: {box.shown(exc) if box else exc}", file=sys.stderr)
+        self.reasons[getattr(exc, "reason", None) or str(exc)] += 1
         if self.args.json:
             emit_json({"source": str(src), "error": box.shown(exc) if box else str(exc)})
 

@@ -15,6 +15,7 @@ class InputError(S2AError):
     def __init__(self, message: str, path: str | Path | None = None, line: int | None = None):
         self.path = str(path) if path is not None else None
         self.line = line
+        self.reason = message  # what is wrong, without the file: alike for many files of one batch
         where = ""
         if self.path is not None:
             where = self.path + (f":{line}" if line is not None else "") + ": "

@@ -472,6 +472,22 @@ def test_pair_audio_imports_a_batch_of_paired_data(samples, tmp_path):
     )
 
 
+def test_a_batch_failing_alike_ends_with_one_line_that_says_so(tmp_path):
+    """A batch whose files all fail for one reason (Audio2Face exports without their rate, imported without
+    --fps) said it once per file and nothing more: 200 lines to read for one mistake. The errors stay, one
+    per file, and a last line counts them with the reason most of them share."""
+    for name in ("line1", "line2", "line3"):
+        sf.write(tmp_path / f"{name}.wav", np.zeros(16000, np.float32), 16000)
+        export = {"exportFps": None, "facsNames": ["jawOpen"], "weightMat": [[0.1]] * 30}
+        (tmp_path / f"{name}.json").write_text(json.dumps(export))
+    (tmp_path / "line4.json").write_text(json.dumps(export | {"exportFps": 30, "weightMat": [[0.1, 0.2]]}))
+    sf.write(tmp_path / "line4.wav", np.zeros(16000, np.float32), 16000)
+    proc = run_here("capture", "import", tmp_path, "-o", tmp_path / "out", "--pair-audio")
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and sum("error:" in line for line in lines) == 4, proc.stderr
+    assert lines[-1] == "s2a-capture: 4 sources failed; 3 of them: no frame rate: give --fps", lines[-1]
+
+
 def test_pair_audio_option_errors(tmp_path):
     (tmp_path / "a.csv").write_text("x")
     one_line_error(
