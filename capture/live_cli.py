@@ -680,7 +680,9 @@ def _keep_stderr(fd: int, running: bool = True) -> None:
 # After a stop, how long ``listen`` waits for the set-up step it gave up (``_while_stoppable``) to end: a step
 # in Python code (reading --audio-file) ends at its next function call; one that hangs in C (a sound device
 # that never opens) cannot be ended, and is left to a daemon thread that stops what it made if it returns.
-SETUP_ABANDON_S = 0.2
+# Milliseconds when the machine is idle; a second covers a loaded one (two test workers on two cores
+# beside the processes they start: 0.2 s was too short about once in ten), and only a hung device waits it.
+SETUP_ABANDON_S = 1.0
 
 
 # Where a given-up set-up step may be ended (``_while_stoppable``): in this package's code, which closes what
@@ -767,7 +769,9 @@ def _while_stoppable(make: Callable[[], Any], setup: _SetUp) -> Any:
         if starting and began.wait(SETUP_ABANDON_S):
             thread.join(SETUP_ABANDON_S)
         if stderr is not None:
-            _keep_stderr(stderr, thread.is_alive())
+            # the command's own stderr (on the main thread) is kept whatever the step did: a stop's line
+            # was lost about once in ten runs when only a step still running was thought able to move it
+            _keep_stderr(stderr, thread.is_alive() or threading.current_thread() is threading.main_thread())
         raise
     finally:
         setup.waiting = False
