@@ -840,7 +840,32 @@ def _note_channels_changed(
         )
 
 
-class _Samples:
+class _DecodedLayout:
+    """What both keepers of decoded frames (``_Samples``, ``_DecodedToFile``) note of their layout: the
+    samples kept, those mixed to the first frame's channel count and where that began, and the last
+    frame's layout (for silence in its place, ``_silence_of``)."""
+
+    def __init__(self) -> None:
+        self.used = 0  # samples kept
+        self.changed, self.first_changed = 0, 0  # samples mixed to the first channel count, where from
+        self.last_channels: int | None = None
+        self.last_dtype: np.dtype | None = None
+
+    def __bool__(self) -> bool:
+        return self.last_dtype is not None
+
+    def _noted(self, arr: np.ndarray, channels: int) -> np.ndarray:
+        """``arr`` noted as the last frame, mixed to ``channels`` when it has other channels
+        (``_one_layout``'s mixing)."""
+        self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
+        if arr.shape[1] == channels:
+            return arr
+        self.first_changed = self.first_changed if self.changed else self.used
+        self.changed += len(arr)
+        return _to_channels(arr, channels)
+
+
+class _Samples(_DecodedLayout):
     """Decoded frames written one after another into one array (frames x channels), as they come: the
     audio is held once, not as a list of chunks and then their join. Each frame is mixed to the first
     frame's channel count (``_one_layout``'s mixing) and the array takes the dtype joining them would give
@@ -848,26 +873,15 @@ class _Samples:
     once; a short guess grows the array in place, and what is not used is given back at the end."""
 
     def __init__(self, expected: int = 0):
+        super().__init__()
         self._rows: GrowingRows | None = None
         self._expected = max(expected, 0)
-        self.used = 0  # samples written
-        self.changed, self.first_changed = 0, 0  # samples mixed to the first channel count, where from
-        self.last_channels: int | None = None  # the layout of the last frame, for silence in its place
-        self.last_dtype: np.dtype | None = None
-
-    def __bool__(self) -> bool:
-        return self.last_dtype is not None
 
     def append(self, arr: np.ndarray) -> None:
-        self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
         if self._rows is None:
             self._rows = self._allocated(arr)
         rows = self._rows
-        channels = rows.array.shape[1]
-        if arr.shape[1] != channels:
-            self.first_changed = self.first_changed if self.changed else self.used
-            self.changed += len(arr)
-            arr = _to_channels(arr, channels)
+        arr = self._noted(arr, rows.array.shape[1])
         if arr.dtype != rows.array.dtype:
             joined = np.result_type(rows.array, arr)
             if joined != rows.array.dtype:
@@ -994,7 +1008,7 @@ def _decode_frames(
     return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged, delay_recorded)
 
 
-def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _Samples | _DecodedToFile) -> np.ndarray:
+def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _DecodedLayout) -> np.ndarray:
     """Silence as long as an undecodable packet (none when its duration is unknown), in the layout of what
     was decoded before it."""
     rate = stream.rate or stream.codec_context.sample_rate
@@ -1132,7 +1146,7 @@ def _scratch_refused(folder: Path, exc: OSError, source: Path) -> _ScratchRefuse
     return _ScratchRefused(f"{source}: audio could not be decoded into {folder}: {exc.strerror or exc}")
 
 
-class _DecodedToFile:
+class _DecodedToFile(_DecodedLayout):
     """Decoded frames written into a scratch WAV a block at a time, as ``_Samples`` would hold them: each
     mixed to the first frame's channel count, converted to the recorded format (``_recorded_samples``),
     NaN or infinite float samples set to 0 and counted, the largest magnitude and the CRC-32 of what is
@@ -1140,12 +1154,9 @@ class _DecodedToFile:
     until the end, for the padding the container's duration cuts there (``_without_padding``)."""
 
     def __init__(self, scratch: Path, source: Path, stream: Any):
+        super().__init__()
         self.scratch, self.source = scratch, source
         self._rate_of: Callable[[], int] = lambda: stream.rate or stream.codec_context.sample_rate
-        self.used = 0  # samples decoded
-        self.changed, self.first_changed = 0, 0  # samples mixed to the first channel count, where from
-        self.last_channels: int | None = None  # the layout of the last chunk, for silence in its place
-        self.last_dtype: np.dtype | None = None
         self.channels = 0
         self._dtype: np.dtype | None = None  # that of every decoded chunk
         self._waiting: list[np.ndarray] = []  # decoded, not yet written
@@ -1159,19 +1170,12 @@ class _DecodedToFile:
         self._recorded: tuple[np.dtype, str] | None = None  # the dtype and subtype written
         self._done = False
 
-    def __bool__(self) -> bool:
-        return self.last_dtype is not None
-
     def append(self, arr: np.ndarray) -> None:
-        self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
         if self._dtype is None:
             self._dtype, self.channels = arr.dtype, arr.shape[1]
         if arr.dtype != self._dtype:
             raise _NotStreamed
-        if arr.shape[1] != self.channels:
-            self.first_changed = self.first_changed if self.changed else self.used
-            self.changed += len(arr)
-            arr = _to_channels(arr, self.channels)
+        arr = self._noted(arr, self.channels)
         self._waiting.append(arr)
         self._waiting_frames += len(arr)
         self.used += len(arr)

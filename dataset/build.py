@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from capture.atomic import atomic_write, naming_failures, write_json_atomic
-from capture.audio_io import Audio, full_scale
+from capture.audio_io import Audio
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.command import TimedProgress, sigterm_stops, stops_deferred
 from capture.errors import InputError, S2AError
@@ -768,13 +768,9 @@ def mono_padded(audio: Audio, length: int) -> np.ndarray:
     to ``length`` samples: filled a block at a time, so that an hour of audio is held once here besides
     the take's own samples, not three times (``mono_float`` converts, averages and copies all at once)."""
     out = np.zeros(length, np.float32)
-    x = audio.samples
-    scale = np.float32(full_scale(x))
     for start in range(0, audio.frames, MONO_BLOCK):
-        part = x[start : start + MONO_BLOCK].astype(np.float32)
-        if scale != 1:
-            part /= scale
-        out[start : start + part.shape[0]] = part.mean(axis=1) if part.shape[1] > 1 else part[:, 0]
+        part = Audio(audio.samples[start : start + MONO_BLOCK], audio.sample_rate, audio.subtype).mono_float()
+        out[start : start + part.size] = part
     return out
 
 

@@ -13,11 +13,9 @@ from dataset.manifest import dataset_folder, read_manifest
 from dataset.torch_dataset import check_shards
 
 from .checkpoint import LAST, write_json
-from .data import resolve_inputs
 from .ensemble import has_members
 from .evaluate import evaluate
-from .fit import check_feature_masks, check_outside_dataset, check_resumable, fit
-from .systems import build_model
+from .fit import check_outside_dataset, check_resumable, checked_model, fit
 
 
 def compare(
@@ -54,9 +52,7 @@ def compare(
     check_shards(ds, manifest, tuple(dict.fromkeys(("train", "val", split))))
     for name in models:  # every system's settings checked before the first one trains
         cfg = config_for(name)
-        spec = resolve_inputs(manifest, cfg)
-        check_feature_masks(cfg, spec)
-        build_model(name, spec, cfg)
+        checked_model(name, manifest, cfg)
         run = out / name
         if given_for is not None and _resumable(run):
             check_resumable(run, given_for(name), f"compare resumes {run}, which")

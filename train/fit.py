@@ -336,6 +336,14 @@ def check_feature_masks(cfg: dict[str, Any], spec) -> None:
         )
 
 
+def checked_model(name: str, manifest: dict[str, Any], cfg: dict[str, Any], where: str = "manifest.json"):
+    """``(inputs, (model, model_config))`` a config makes of a dataset, with what it asks of the inputs
+    checked (``check_feature_masks``): every caller that refuses a config before training (fit, compare)."""
+    spec = resolve_inputs(manifest, cfg, where)
+    check_feature_masks(cfg, spec)
+    return spec, build_model(name, spec, cfg)
+
+
 def _check_before_writing(
     ds: Path, manifest: dict[str, Any], cfg: dict[str, Any], world: int, shards: bool = True
 ):
@@ -343,9 +351,7 @@ def _check_before_writing(
     inputs, the arch keys, the samples against ``max_frames``, ridge under torchrun, the shards (missing,
     truncated, foreign; not when the caller checked them: ``shards`` False), so that a refused run writes
     nothing."""
-    spec = resolve_inputs(manifest, cfg, str(ds / "manifest.json"))
-    check_feature_masks(cfg, spec)
-    _, model_config = build_model(cfg["model"], spec, cfg)
+    spec, (_, model_config) = checked_model(cfg["model"], manifest, cfg, str(ds / "manifest.json"))
     check_sample_frames(manifest, ("train", "val"), model_config, ds / "manifest.json")
     if cfg["model"] == "ridge" and world > 1:
         raise InputError("ridge is solved in closed form: run it without torchrun", "config:model")

@@ -225,8 +225,12 @@ def _face_gaps(model, anims) -> tuple[list[str], list[str]]:
     from capture.channels import ARKIT52
 
     held = set(model.channels)
-    peak = {c: max(float(np.abs(a.weights[:, k]).max()) for a in anims) for k, c in enumerate(ARKIT52)}
-    moved = sorted((c for c in ARKIT52 if c not in held and peak[c] > 1e-6), key=lambda c: -peak[c])
+    peak = {
+        c: max(float(np.abs(a.weights[:, k]).max()) for a in anims)
+        for k, c in enumerate(ARKIT52)
+        if c not in held
+    }
+    moved = sorted((c for c, p in peak.items() if p > 1e-6), key=lambda c: -peak[c])
     if not moved:
         return [], []
     names = ", ".join(moved[:5]) + (f" and {len(moved) - 5} more" if len(moved) > 5 else "")

@@ -303,7 +303,9 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
         held = sorted({m.parts[0] + ("/" if m.is_dir or len(m.parts) > 1 else "") for m in route.listed})
         listed = ", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
         raise InputError(f"holds no {member} (it holds {listed or 'nothing'})", box.name)
-    read = {b for b in route.held_back if _wavs_read(target, box.folder.joinpath(*b[:-1]))}
+    folders = {b[:-1] for b in route.held_back}  # each folder's .movs probed once, however many .wavs
+    reading = {f for f in folders if _wavs_read(target, box.folder.joinpath(*f))}
+    read = {b for b in route.held_back if b[:-1] in reading}
     if read:  # unpacked apart, then moved beside the take's other files
         later = session.stack.enter_context(
             unpacked(archive, litter=Litter(), outer=outer, prefix=_own_prefix(), pick=lambda _: read)
@@ -492,11 +494,11 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
     same = [n for n in audio if PurePosixPath(n).stem == stem]
     wanted = {named, *(same or audio)}
     if not same:
-        owners = {nfc(PurePosixPath(n).stem) for n in audio}
+        owners = {PurePosixPath(n).stem for n in audio}  # by_name's names are NFC already
         wanted |= {
             n
             for n in by_name
-            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and nfc(audio_stem(Path(n))) in owners
+            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and audio_stem(Path(n)) in owners
         }
     return {b for n in wanted for b in by_name.get(n, ())}
 

@@ -58,12 +58,13 @@ def writing(path: str | Path, what: str) -> Iterator[None]:
             reason = f"{path.parent} does not take new files"  # e.g. /proc, where open() says ENOENT
         elif exc.errno == errno.EISDIR or path.is_dir():
             reason = "a folder of that name is in the way"
-        elif exc.errno == errno.ENAMETOOLONG and len(os.fsencode(path.name)) <= _name_max(path.parent):
+        elif exc.errno == errno.ENAMETOOLONG and (size := len(os.fsencode(path.name))) <= (
+            limit := _name_max(path.parent)
+        ):
             # The name fits; the hidden partial file's, which adds ".partial" and a dot, does not.
             reason = (
-                f"its name of {len(os.fsencode(path.name))} bytes leaves no room for the hidden "
-                f".NAME.partial file it is written as first (names here take at most "
-                f"{_name_max(path.parent)} bytes): give a shorter name"
+                f"its name of {size} bytes leaves no room for the hidden .NAME.partial file it is written as "
+                f"first (names here take at most {limit} bytes): give a shorter name"
             )
         else:
             reason = exc.strerror or str(exc).splitlines()[0]
