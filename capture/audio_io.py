@@ -324,10 +324,7 @@ def _left_in_file(
         for block in _file_blocks(path, dtype, CHECK_FRAMES, info):
             frames += len(block)
             if block.dtype.kind == "f":
-                finite = np.isfinite(block)
-                if not finite.all():
-                    bad += int(finite.size - np.count_nonzero(finite))
-                    block[~finite] = 0.0
+                bad += _non_finite_zeroed(block)
                 peak = max(peak, float(block.max()), -float(block.min()))
             crc = zlib.crc32(block, crc)
     except (sf.LibsndfileError, RuntimeError):
@@ -484,6 +481,16 @@ def _non_finite_note(path: Path, count: int) -> dict[str, Any]:
 CHECK_FRAMES = 1 << 16  # frames of float audio checked for NaN at once
 
 
+def _non_finite_zeroed(block: np.ndarray, zero: bool = True) -> int:
+    """How many samples of the float ``block`` are NaN or infinite; set to 0 in place when ``zero``."""
+    finite = np.isfinite(block)
+    if finite.all():
+        return 0
+    if zero:
+        block[~finite] = 0.0
+    return int(finite.size - np.count_nonzero(finite))
+
+
 def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None) -> Audio:
     """Damaged float samples, set right and recorded in ``repairs`` (repair ``bad_audio``): NaN or
     infinite samples are set to 0 (without ``repairs``: an ``InputError``), and isolated samples far past
@@ -501,12 +508,7 @@ def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None
             return audio
         count = 0
         for lo in range(0, audio.frames, CHECK_FRAMES):  # a block at a time: no mask of all the samples
-            block = audio.samples[lo : lo + CHECK_FRAMES]
-            finite = np.isfinite(block)
-            if not finite.all():
-                count += int(finite.size - np.count_nonzero(finite))
-                if repairs is not None:
-                    block[~finite] = 0.0
+            count += _non_finite_zeroed(audio.samples[lo : lo + CHECK_FRAMES], zero=repairs is not None)
         past_full_scale = True  # damaged_samples tells
     if count:
         if repairs is None:
@@ -602,6 +604,8 @@ def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
             high[c] += np.bincount(bits[:, c] >> 16, minlength=1 << 16)
         peaks = np.maximum(peaks, bits.max(axis=0).view(np.float32))
     past = [c for c in range(channels) if peaks[c] > 1.0]  # within full scale: none damaged
+    if not past:
+        return 0, 0.0
     lo_rank, hi_rank, gamma = _level_ranks(n)
     buckets = {}  # (channel, rank): (bucket, rank within it)
     for c in past:
@@ -610,12 +614,11 @@ def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
             bucket = int(np.searchsorted(counts, rank, side="right"))
             buckets[c, rank] = (bucket, rank - (int(counts[bucket - 1]) if bucket else 0))
     low = {(c, b): np.zeros(1 << 16, np.int64) for (c, _), (b, _) in buckets.items()}
-    if past:
-        for block in audio.blocks(CHECK_FRAMES):
-            bits = np.abs(block).view(np.uint32)
-            for (c, b), counts in low.items():
-                column = bits[:, c]
-                counts += np.bincount(column[column >> 16 == b] & 0xFFFF, minlength=1 << 16)
+    for block in audio.blocks(CHECK_FRAMES):
+        bits = np.abs(block).view(np.uint32)
+        for (c, b), counts in low.items():
+            column = bits[:, c]
+            counts += np.bincount(column[column >> 16 == b] & 0xFFFF, minlength=1 << 16)
     thresholds = {}
     for c in past:
         ranked = []
@@ -626,13 +629,12 @@ def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
         thresholds[c] = max(1.0, SPIKE_FACTOR * _lerp(ranked[0], ranked[1], gamma))
     found: dict[int, list[np.ndarray]] = {c: [] for c in past}
     at = 0
-    if past:
-        for block in audio.blocks(CHECK_FRAMES):
-            for c in past:
-                hits = np.flatnonzero(np.abs(block[:, c]) > thresholds[c])
-                if hits.size:
-                    found[c].append(hits + at)
-            at += len(block)
+    for block in audio.blocks(CHECK_FRAMES):
+        for c in past:
+            hits = np.flatnonzero(np.abs(block[:, c]) > thresholds[c])
+            if hits.size:
+                found[c].append(hits + at)
+        at += len(block)
     count, worst = 0, 0.0
     with sf.SoundFile(str(audio._read_from)) as f:
         for c, parts in found.items():

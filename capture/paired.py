@@ -17,6 +17,7 @@ import codecs
 import csv
 import json
 import math
+import os
 import re
 import warnings
 from collections.abc import Callable
@@ -611,8 +612,8 @@ def live_link_under_affix(names: list[str]) -> tuple[list[str], str] | None:
 def _affix_lengths(names: list[str]) -> list[int]:
     """The lengths of the prefixes all ``names`` share that end at an ``AFFIX_SEPARATORS`` character,
     longest first."""
-    first, last = min(names), max(names)
-    shared = next((i for i, (a, b) in enumerate(zip(first, last)) if a != b), min(len(first), len(last)))
+    first = min(names)
+    shared = len(os.path.commonprefix([first, max(names)]))
     return [i + 1 for i in range(shared - 1, -1, -1) if first[i] in AFFIX_SEPARATORS]
 
 
