@@ -19,6 +19,7 @@ from __future__ import annotations
 import struct
 import threading
 import time
+from collections.abc import Sized
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ from .audio_io import Audio, FileAudio, audio_left_in_files, read_audio
 from .errors import InputError
 from .record_log import (
     INVALID_RECORD,
+    RECORD_HEADER,
     LogReader,
     LogWriter,
     RecordType,
@@ -286,19 +288,67 @@ def _read_audio_file(path: Path) -> Audio:
         return read_audio(path)
 
 
-def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str, Any]]:
-    """The audio of a session log: samples, clock ns of the first sample, and a report.
+class SessionAudio:
+    """A session's audio as its log holds it, read a span at a time (``read``): the log's chunks, placed
+    by their sample index, are indexed by where their samples lie in the file, so a take's few minutes of
+    an hour's log cost their own memory only. Samples no chunk holds (``gaps``: a lost callback, a torn
+    tail) read as silence; where chunks overlap, the later one (by sample index, then stamp, then place in
+    the file) wins."""
 
-    Gaps between chunks (a lost callback, a torn tail) are filled with silence and listed in the
-    report; chunks are placed by their sample index, so order in the file does not matter.
-    """
+    def __init__(self, path: Path, fmt: dict[str, Any], chunks: list[tuple[int, int, int, int]]):
+        self.path = path
+        self.sample_rate: int = fmt["sample_rate"]
+        self.channels: int = fmt["channels"]
+        self.subtype: str = fmt["subtype"]
+        self._dtype = _DTYPES[self.subtype]
+        chunks = sorted(chunks)  # (first sample, clock ns, file offset of the samples, samples)
+        self._first = np.array([c[0] for c in chunks], dtype=np.int64)
+        self._end = self._first + np.array([c[3] for c in chunks], dtype=np.int64)
+        self._offset = [c[2] for c in chunks]
+        self.frames = int(self._end.max())
+        self.first_ns = chunks[0][1] - int(chunks[0][0] * 1e9 / self.sample_rate)  # clock ns of sample 0
+        self.gaps: list[dict[str, int]] = []
+        covered = 0
+        for first, end in zip(self._first.tolist(), self._end.tolist(), strict=True):
+            if first > covered:
+                self.gaps.append({"at_sample": covered, "samples": first - covered})
+            covered = max(covered, end)
+
+    def read(self, lo: int = 0, hi: int | None = None) -> Audio:
+        """Samples ``lo`` to ``hi`` (the end by default) of the session's audio, read from the log."""
+        hi = self.frames if hi is None else hi
+        samples = np.zeros((hi - lo, self.channels), dtype=self._dtype.newbyteorder("="))
+        frame_bytes = self._dtype.itemsize * self.channels
+        with open(self.path, "rb") as f:
+            for i in np.flatnonzero((self._first < hi) & (self._end > lo)).tolist():
+                a, b = max(lo, int(self._first[i])), min(hi, int(self._end[i]))
+                f.seek(self._offset[i] + (a - int(self._first[i])) * frame_bytes)
+                body = f.read((b - a) * frame_bytes)
+                if len(body) != (b - a) * frame_bytes:
+                    raise InputError("the audio log was cut short while it was read", self.path)
+                samples[a - lo : b - lo] = np.frombuffer(body, dtype=self._dtype).reshape(-1, self.channels)
+        return Audio(samples, self.sample_rate, self.subtype)
+
+    def gaps_within(self, lo: int, hi: int) -> list[dict[str, int]]:
+        """The ``gaps`` that samples ``lo`` to ``hi`` cross, as sample ranges counted from ``lo``."""
+        cut = [(max(g["at_sample"], lo), min(g["at_sample"] + g["samples"], hi)) for g in self.gaps]
+        return [{"at_sample": a - lo, "samples": b - a} for a, b in cut if a < b]
+
+
+def index_audio_log(path: str | Path) -> tuple[SessionAudio | None, dict[str, Any]]:
+    """The audio of a session log (None without a log, a format or a chunk) and a report: ``chunks``,
+    ``gaps`` (filled with silence when read), ``notes``, ``torn_tail`` and ``log_damage``. Chunks are
+    placed by their sample index, so order in the file does not matter. Only the chunks' places are
+    held: the samples stay in the log until ``SessionAudio.read``."""
     path = Path(path)
     report: dict[str, Any] = {"chunks": 0, "gaps": [], "notes": []}
     if not path.is_file():
-        return None, None, report
+        return None, report
     reader = LogReader(path)
     fmt = None
-    chunks: list[tuple[int, int, bytes, tuple[int, int]]] = []
+    # per chunk: first sample index, clock ns, where its samples lie in the file (a range of offsets) and
+    # its record (offset, size)
+    chunks: list[tuple[int, int, range, tuple[int, int]]] = []
     for payload in reader:
         kind = payload[0]
         if kind == RecordType.AUDIO_FORMAT:
@@ -315,7 +365,8 @@ def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str
                 fmt = data
         elif kind == RecordType.AUDIO and len(payload) >= _AUDIO_HEAD.size:
             _, first, ns = _AUDIO_HEAD.unpack_from(payload)
-            chunks.append((first, ns, bytes(payload[_AUDIO_HEAD.size :]), reader.last))
+            at = reader.last[0] + RECORD_HEADER.size + _AUDIO_HEAD.size
+            chunks.append((first, ns, range(at, reader.last[0] + reader.last[1]), reader.last))
         elif kind == RecordType.NOTE:
             note = json_fields(payload, {"kind": (str,), "message": (str,)})
             if note is None:
@@ -332,28 +383,29 @@ def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str
     if reader.skipped:
         report["log_damage"] = [d.to_json() for d in sorted(reader.skipped, key=lambda d: d.offset)]
     if fmt is None or not chunks:
-        return None, None, report
-    dtype = _DTYPES[fmt["subtype"]]
-    channels = fmt["channels"]
-    chunks.sort()
-    total = max(first + len(body) // (dtype.itemsize * channels) for first, _, body, _ in chunks)
-    samples = np.zeros((total, channels), dtype=dtype.newbyteorder("="))
-    covered = 0
-    for first, _, body, _ in chunks:
-        block = np.frombuffer(body, dtype=dtype).reshape(-1, channels)
-        if first > covered:
-            report["gaps"].append({"at_sample": covered, "samples": first - covered})
-        samples[first : first + len(block)] = block
-        covered = max(covered, first + len(block))
+        return None, report
+    frame_bytes = _DTYPES[fmt["subtype"]].itemsize * fmt["channels"]
+    audio = SessionAudio(
+        path, fmt, [(first, ns, at.start, len(at) // frame_bytes) for first, ns, at, _ in chunks]
+    )
     report["chunks"] = len(chunks)
-    first_ns = chunks[0][1] - int(chunks[0][0] * 1e9 / fmt["sample_rate"])
-    return Audio(samples, fmt["sample_rate"], fmt["subtype"]), first_ns, report
+    report["gaps"] = audio.gaps
+    return audio, report
+
+
+def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str, Any]]:
+    """The whole audio of a session log: samples, clock ns of the first sample, and the report of
+    ``index_audio_log`` (gaps filled with silence)."""
+    audio, report = index_audio_log(path)
+    if audio is None:
+        return None, None, report
+    return audio.read(), audio.first_ns, report
 
 
 def _placeable(
-    chunks: list[tuple[int, int, bytes, tuple[int, int]]], fmt: dict[str, Any], reader: LogReader
-) -> list[tuple[int, int, bytes, tuple[int, int]]]:
-    """The chunks ``read_audio_log`` places by their sample index; the others are counted as damage
+    chunks: list[tuple[int, int, Sized, tuple[int, int]]], fmt: dict[str, Any], reader: LogReader
+) -> list[tuple[int, int, Sized, tuple[int, int]]]:
+    """The chunks ``index_audio_log`` places by their sample index; the others are counted as damage
     (``LogReader.reject``): a body that is no whole number of sample frames, or a first-sample index
     further ahead of the chunk's clock stamp than any recording can put it - a forged index would make
     room for hours of silence. Each chunk's index and stamp give the clock time of sample 0; a sound

@@ -33,12 +33,16 @@ frames; the take's ``meta.extra.frame_clock`` and a ``frame_clock`` repair say s
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
 clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
 fastest), so recorder time ``m`` is take time ``m - offset - frame_time_0``. The audio's first sample,
-stamped on the session clock, lands at ``start_s = audio_first_s - offset - frame_time_0`` and sync
-events likewise.
+stamped on the session clock, lands at ``audio_first_s - offset - frame_time_0`` and sync events
+likewise. A take gets the session's audio from ``AUDIO_MARGIN_S`` plus a frame period before its first
+frame to as long after its last frame's period (``_attach_audio_span``; less at the audio's ends), read
+from the log alone, with ``start_s`` moved by the samples left out before it: each sample keeps its
+take time.
 """
 
 from __future__ import annotations
 
+import math
 import shutil
 import struct
 import tempfile
@@ -49,7 +53,7 @@ import numpy as np
 
 from . import livelink as ll
 from .atomic import write_json_atomic
-from .audio_capture import read_audio_log
+from .audio_capture import SessionAudio, index_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped, missing_frames, repair
 from .errors import InputError, S2AError
@@ -72,6 +76,11 @@ from .timecode import DAY_S, Timecode
 
 MAX_GAP_S = 5.0
 MIN_TAKE_FRAMES = 10
+# A take's audio reaches this far (plus one frame period) before its first frame and after its last
+# frame's period: room for the aligner's default search for the offset between face and audio (align's
+# --max-offset-ms 500, looked at 0.25 s beyond that, and a clap there is judged against the 0.5 s of
+# sound around it), so the offset it can find is the same as with the whole session's audio.
+AUDIO_MARGIN_S = 1.0
 # The phone's frame clock, as ``follow_clock`` reads it: the running median of the frame times over
 # 2 * CLOCK_HALF_WINDOW + 1 packets (arrival order), which a minority of late or stray packets cannot move.
 CLOCK_HALF_WINDOW = MIN_TAKE_FRAMES
@@ -984,13 +993,14 @@ def _time_ordered(r: np.ndarray, ft: np.ndarray, report: dict[str, Any]) -> tupl
 
 
 def stream_takes(
-    log: SessionLog, sid: int, audio=None, audio_first_s: float | None = None, rows: np.ndarray | None = None
+    log: SessionLog, sid: int, audio: SessionAudio | None = None, rows: np.ndarray | None = None
 ) -> tuple[list[Take], dict]:
     """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, rate changes,
     packets of a jittering rate, stray packets and frames, frames sharing a frame time, clock steps forward
     and back, face-lost frames outside the takes,
     frames with an implausible rate, takes that could not be built). ``rows``: the stream's rows when not
-    the log's (a stream merged with its copies from another source, in arrival order)."""
+    the log's (a stream merged with its copies from another source, in arrival order). ``audio``: the
+    session's, of which each take gets its span (``_attach_audio_span``)."""
     rows = log.stream_rows(sid) if rows is None else rows
     info = log.streams.get(sid, {})
     report: dict[str, Any] = {
@@ -1093,7 +1103,7 @@ def stream_takes(
             continue
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
         try:
-            take = _segment_take(log, info, take_id, r, ft, audio, audio_first_s)
+            take = _segment_take(log, info, take_id, r, ft, audio)
             if placed_by_arrival is not None:
                 take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": placed_by_arrival}
                 take.meta.repairs.append(
@@ -1123,8 +1133,7 @@ def _segment_take(
     take_id: str,
     r: np.ndarray,
     ft: np.ndarray,
-    audio=None,
-    audio_first_s: float | None = None,
+    audio: SessionAudio | None = None,
 ) -> Take:
     """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft``."""
     arr = log.seconds(r["arrival_ns"])
@@ -1220,12 +1229,39 @@ def _segment_take(
         "source": info.get("source"),
     }
     take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
-    if audio is not None and audio_first_s is not None:
-        try:
-            take.attach_audio(audio, audio_first_s - offset - float(ft[0]), "recorder_clock")
-        except InputError as exc:  # audio a take cannot hold (NaN samples): the face is kept without it
-            repair(take.meta.repairs, None, "audio_left_out", f"the session's audio is left out: {exc}")
+    if audio is not None:
+        first_s = float(log.seconds(audio.first_ns)) - offset - float(ft[0])  # take time of sample 0
+        _attach_audio_span(take, audio, first_s, period)
     return take
+
+
+def _attach_audio_span(take: Take, audio: SessionAudio, first_s: float, period: float) -> None:
+    """Give ``take`` the span of the session's ``audio`` (sample 0 at take time ``first_s``) from
+    ``AUDIO_MARGIN_S`` plus a frame ``period`` before its first frame to as long after its last frame's
+    period, less where the audio begins or ends; ``start_s`` moves by the samples left out before it, so
+    that each sample keeps its take time. Where the span and the audio do not meet, or the span holds
+    samples a take cannot (NaN), the take is kept without audio and a repair says why. Its audio's
+    place in the session's and the gaps it crosses (silence) go to ``meta.extra``."""
+    rate, margin = audio.sample_rate, AUDIO_MARGIN_S + period
+    lo = max(0, math.floor((float(take.time[0]) - margin - first_s) * rate))
+    hi = min(audio.frames, math.ceil((float(take.time[-1]) + period + margin - first_s) * rate))
+    if hi <= lo:
+        where = f"take time {first_s:.3f} s to {first_s + audio.frames / rate:.3f} s"
+        message = f"the session's audio ({where}) does not reach this take: it has no audio"
+        repair(take.meta.repairs, None, "audio_outside_take", message)
+        return
+    try:
+        take.attach_audio(audio.read(lo, hi), first_s + lo / rate, "recorder_clock")
+    except (InputError, OSError, MemoryError) as exc:  # NaN samples, a log that cannot be read: the face
+        # is kept without audio (the session's audio log keeps it)
+        why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        message = f"the take's span of the session's audio is left out: {why}"
+        repair(take.meta.repairs, None, "audio_left_out", message)
+        return
+    take.meta.extra["session_audio"] = {"first_sample": lo, "session_samples": audio.frames}
+    gaps = audio.gaps_within(lo, hi)
+    if gaps:
+        take.meta.extra["audio_gaps"] = gaps
 
 
 def _unique_id(take_id: str, used: set[str]) -> str:
@@ -1316,7 +1352,9 @@ def build_takes(
     """Write the takes of a session to ``out_dir``; returns one summary dict per take.
 
     The summary holds ``device``, ``subject``, ``frames``, ``dropped_frames``, ``rejected`` (session
-    datagram counts by reason) and the take's ``info`` figures. With no take, one summary with
+    datagram counts by reason) and the take's ``info`` figures (its audio is its own span of the session's)
+    with ``audio_gaps``, the stretches of silence where the audio log lost chunks, counted in the take's
+    audio (the session's with no take). With no take, one summary with
     ``device``/``subject`` None still reports the counts. Each take is built and written on its own:
     one that fails (memory, a full disk) adds a summary with ``path`` None and a one-line ``error``,
     and the others are still written. Marks the session complete afterwards unless a take failed.
@@ -1324,8 +1362,7 @@ def build_takes(
     """
     session_dir = Path(session_dir)
     log = SessionLog(session_dir)
-    audio, audio_first_ns, audio_report = read_audio_log(session_dir / AUDIO_LOG)
-    audio_first_s = float(log.seconds(audio_first_ns)) if audio_first_ns is not None else None
+    audio, audio_report = index_audio_log(session_dir / AUDIO_LOG)
     common: dict[str, Any] = {
         "session": log.session.get("session", session_dir.name),
         "rejected": dict(log.rejected),
@@ -1352,8 +1389,6 @@ def build_takes(
         common["audio_torn_tail"] = audio_report["torn_tail"]
     if "log_damage" in audio_report:
         common["audio_log_damage"] = audio_report["log_damage"]
-    if audio_report.get("gaps"):
-        common["audio_gaps"] = len(audio_report["gaps"])
     errors = [
         n.get("message")
         for n in audio_report.get("notes", []) + log.notes
@@ -1375,7 +1410,7 @@ def build_takes(
                 if len(member) > 1:  # one sender from several sources, in arrival order
                     rows = np.concatenate([log.stream_rows(m) for m in member])
                     rows = rows[np.argsort(rows["arrival_ns"], kind="stable")]
-                takes, report = stream_takes(log, sid, audio, audio_first_s, rows)
+                takes, report = stream_takes(log, sid, audio, rows)
             except (MemoryError, ValueError, OverflowError, OSError, S2AError) as exc:
                 message = f"the takes of stream {sid} could not be built: {type(exc).__name__}: {exc}"
                 failed.append(who | {"error": message})
@@ -1416,11 +1451,15 @@ def build_takes(
                     message = f"{where}: cannot write the take: {getattr(exc, 'strerror', None) or exc}"
                     failed.append(who | {"error": str(exc) if isinstance(exc, S2AError) else message})
                     continue
+                finally:
+                    take.audio = None  # its span of the session's audio is not held past its writing
+                gaps = len(take.meta.extra.get("audio_gaps", []))  # the gaps of the take's own audio
                 summaries.append(
                     take.summary()
                     | common
                     | report
                     | {"device": take.meta.device, "subject": take.meta.subject, "path": str(folder)}
+                    | ({"audio_gaps": gaps} if gaps else {})
                 )
             if not takes:
                 stray_streams += 1
@@ -1431,6 +1470,8 @@ def build_takes(
         summaries.append(
             common | {"device": None, "subject": None, "frames": 0, "dropped_frames": 0, "path": None}
         )
+        if audio_report["gaps"]:
+            summaries[0]["audio_gaps"] = len(audio_report["gaps"])
     # A take that failed is reported in its own summary (path None, "error") after the written ones.
     summaries += [common | {"frames": 0, "dropped_frames": 0, "path": None} | f for f in failed]
     for s in summaries:
