@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from capture.command import emit_json, progress, run, sigterm_stops
+from capture.command import StageParser, emit_json, progress, run, sigterm_stops
 from capture.import_guard import imports_done
 
 from .batch import align_takes
@@ -46,7 +46,7 @@ def _in_range(option: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = StageParser(
         prog=PROG,
         description="Put speech and face on one clock: measure the audio/face offset (timecodes, sync "
         "events, claps, content), correct drift, trim silence by VAD, resample audio to 16 kHz and frames "

@@ -11,7 +11,7 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .audio_io import audio_left_in_files
 from .channels import is_known
-from .command import emit_json, progress, run, sigterm_stops
+from .command import StageParser, emit_json, progress, run, sigterm_stops
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
@@ -79,7 +79,7 @@ WARN_HINTS = {"truncated_row": "an incomplete copy or download? Copy or download
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    parser = StageParser(prog=PROG, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(

@@ -13,9 +13,64 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from .errors import S2AError
+
+
+class StageParser(argparse.ArgumentParser):
+    """The ``ArgumentParser`` of every stage's command line: its usage errors say how to give a file
+    whose name begins with ``-`` (``s2a-train predict RUN -d.wav``), which argparse takes for an option it
+    does not know. Subcommands' parsers are of this class too (argparse makes them of the parent's)."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.given = list(sys.argv[1:] if args is None else args)  # for error(), which is not told them
+        return super().parse_known_args(args, namespace)
+
+    def error(self, message: str):
+        taken = [a for a in _options_given(self) if _file_name_like(a) and not _known_option(a, self)]
+        if taken:
+            name = taken[0]
+            if message.startswith("argument ") and ": expected" in message:  # an option's missing value
+                option = message.removeprefix("argument ").split(":")[0].split("/")[-1]
+                how = f"{option}={name}"
+            else:
+                how = f"-- {name} after the options"
+            message += f" ({name} is taken for an option: for a file of that name, write ./{name}, or {how})"
+        super().error(message)
+
+
+def _options_given(parser: argparse.ArgumentParser) -> list[str]:
+    """The words given to ``parser`` that argparse reads as options (``-`` and what follows ``--`` it
+    does not)."""
+    given = getattr(parser, "given", [])
+    given = given[: given.index("--")] if "--" in given else given
+    return [a for a in given if a.startswith("-") and a != "-"]
+
+
+def _file_name_like(word: str) -> bool:
+    """Whether ``word`` names a file (it has an extension, or a file of that name is here) and is no
+    negative number."""
+    try:
+        float(word)
+        return False
+    except ValueError:
+        return bool(Path(word).suffix) or os.path.lexists(word)
+
+
+def _known_option(word: str, parser: argparse.ArgumentParser) -> bool:
+    """Whether argparse reads ``word`` as an option of ``parser`` or of its subcommands: one of their
+    option strings, an abbreviation of a long one, ``--name=value``, or ``-xVALUE``."""
+    options = []
+    for action in parser._actions:
+        options += action.option_strings
+        if isinstance(action, argparse._SubParsersAction):
+            options += [o for sub in action.choices.values() for a in sub._actions for o in a.option_strings]
+    head = word.split("=", 1)[0]
+    if word.startswith("--"):
+        return any(o.startswith(head) for o in options)
+    return head in options or word[:2] in options
 
 
 def json_safe(value: Any) -> Any:

@@ -711,6 +711,7 @@ class TakeJob:
     settings: FeatureSettings
     work: str
     config_hash: str
+    given: str = ""  # the take the user gave, to name in errors: for one the build aligned, the raw take
 
     @property
     def record(self) -> Path:
@@ -1427,7 +1428,24 @@ def _process_take_timed(job: TakeJob, modules: list[str]) -> dict[str, Any]:
     for module in modules:
         importlib.import_module(module)
     began = time.monotonic()
-    return process_take(job) | {"began_s": began}
+    try:
+        return process_take(job) | {"began_s": began}
+    except InputError as exc:
+        raise _as_given(exc, job) from None
+
+
+def _as_given(exc: InputError, job: TakeJob) -> InputError:
+    """``exc`` naming the take the user gave rather than the copy the build aligned from it under
+    ``DS/.work/aligned/`` (no folder of theirs; a file in it is said after the reason); ``exc`` itself
+    for a take the user gave aligned, or an error about another file."""
+    if exc.path is None or not job.given or Path(job.given) == Path(job.folder):
+        return exc
+    try:
+        inside = Path(exc.path).relative_to(job.folder)
+    except ValueError:
+        return exc
+    where = f" (in {inside} of the copy the build aligned from it)" if inside.parts else ""
+    return InputError(exc.reason + where, job.given, exc.line)
 
 
 def _repair_shards(
@@ -1823,6 +1841,7 @@ def _build(
             options.settings,
             str(work),
             config_hash,
+            str(t.given),
         )
         for t in takes
     ]

@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-from capture.command import Terminated, emit_json, progress, run
+from capture.command import StageParser, Terminated, emit_json, progress, run
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -32,7 +32,7 @@ T = TypeVar("T")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    parser = StageParser(prog=PROG, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(

@@ -223,12 +223,33 @@ def run_checkpoint(run: str | Path) -> Path:
 def load_system(run: str | Path):
     """(model in eval mode, checkpoint payload) of a run; of a cross-validation ensemble's run folder,
     the members' mean (train/ensemble.py)."""
-    from .data import InputSpec
     from .ensemble import ENSEMBLE, load_ensemble
-    from .systems import build_model
 
     if Path(run).is_dir() and (Path(run) / ENSEMBLE).is_file():
-        return load_ensemble(Path(run), load_system)
+        return load_ensemble(Path(run), _load_run)  # a member's last.pt is no ensemble: no hint
+    try:
+        return _load_run(run)
+    except InputError as exc:
+        raise _last_instead(exc, Path(run)) from None
+
+
+def _last_instead(exc: InputError, run: Path) -> InputError:
+    """``exc``, about the best.pt a run folder loads, with how to load its last.pt instead: never done
+    unasked, as it is another model (the last step's weights, not the best on validation)."""
+    if not (run.is_dir() and exc.path == str(run / BEST) and (run / LAST).is_file()):
+        return exc
+    return InputError(
+        f"{exc.reason}; to use the run's last checkpoint instead (the last step's weights, not the best "
+        f"on validation), give {run / LAST} in place of the run folder",
+        exc.path,
+    )
+
+
+def _load_run(run: str | Path):
+    """(model in eval mode, checkpoint payload) of one run folder's checkpoint, or a checkpoint file."""
+    from .data import InputSpec
+    from .systems import build_model
+
     path = run_checkpoint(run)
     payload = load_checkpoint(path)
     check_payload(payload, path)

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from capture.command import emit_json, run, sigterm_stops
+from capture.command import StageParser, emit_json, run, sigterm_stops
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.import_guard import imports_done
@@ -20,6 +20,10 @@ from .precision import PRECISIONS
 _guard = imports_done("train")
 
 PROG = "s2a-train"
+RUN_HELP = (
+    "run folder (its best.pt, else last.pt), or a checkpoint file: RUN/last.pt for the last step's weights "
+    "rather than the best on validation"
+)
 
 
 def _path(text: str) -> Path:
@@ -31,7 +35,7 @@ def _path(text: str) -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    parser = StageParser(prog=PROG, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("fit", help="train a system on a dataset into a run folder")
@@ -47,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_fit)
 
     p = sub.add_parser("eval", help="RMSE (paper scale), per-channel errors, floor and RTF of a run")
-    p.add_argument("run", type=_path, help="run folder (or a checkpoint file)")
+    p.add_argument("run", type=_path, help=RUN_HELP)
     p.add_argument("--data", type=_path, required=True, help="dataset folder")
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
     _precision_option(p)
@@ -56,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_eval)
 
     p = sub.add_parser("predict", help="speech -> Live Link Face CSV")
-    p.add_argument("run", type=_path, help="run folder (or a checkpoint file)")
+    p.add_argument("run", type=_path, help=RUN_HELP)
     p.add_argument("audio", nargs="+", type=Path, help="audio files (any rate; mixed to mono)")
     p.add_argument("-o", "--out", type=_path, required=True, help="CSV (one input) or folder")
     p.add_argument("--ppg-model", type=Path, help="PPG model file when the run's dataset used one")
@@ -133,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_ppg)
 
     p = sub.add_parser("export", help="ONNX export checked against PyTorch with onnxruntime")
-    p.add_argument("run", type=_path, help="run folder (or a checkpoint file)")
+    p.add_argument("run", type=_path, help=RUN_HELP)
     p.add_argument("-o", "--out", type=_path, required=True, help="ONNX file to write")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_export)

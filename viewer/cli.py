@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from capture.command import TimedProgress, emit_json, progress, run
+from capture.command import StageParser, TimedProgress, emit_json, progress, run
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -58,7 +58,7 @@ LIMIT = _number(int, 0, math.inf, "0 or more (0: no curve thumbnails)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__)
+    parser = StageParser(prog=PROG, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(
@@ -338,7 +338,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         vpath = reference_video_of(first.take) if args.video == "auto" else Path(args.video)
         if vpath is None:
             raise InputError("the take names no reference video (--video auto); give the file", args.input)
-    refuse_writing_over_inputs(args.out, _files_read(anims, paths) + [(vpath, "the reference video")])
+    read = _files_read(anims, paths) + [(vpath, "the reference video")]
+    for note in refuse_writing_over_inputs(args.out, read):
+        progress(f"note: {note}")
     model = _face(args.face)
     face_missing, warnings = _face_gaps(model, anims)
     for w in warnings:

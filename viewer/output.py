@@ -14,6 +14,7 @@ from pathlib import Path
 
 from capture.command import Terminated
 from capture.errors import InputError
+from capture.file_lock import try_lock
 from capture.take import make_out_dir
 
 
@@ -26,25 +27,79 @@ def prepare_output(path: str | Path) -> Path:
     return path
 
 
-def refuse_writing_over_inputs(path: str | Path, inputs: Iterable[tuple[str | Path | None, str]]) -> None:
+def refuse_writing_over_inputs(
+    path: str | Path, inputs: Iterable[tuple[str | Path | None, str]]
+) -> list[str]:
     """An ``InputError`` when the output ``path`` is a file this command reads (``inputs``: (file, what it
     is) pairs, None for none): ``render -o ref.mp4 --video ref.mp4`` would replace the user's video (or
     the speech given with ``--audio``) with the render, once the render is done. Compared as files
     (``os.path.samefile``), so that another spelling of the path or an input that links to it is seen
     too; an output that is itself a symbolic link is not checked: the render replaces the link, not the
-    file it points to."""
+    file it points to. Likewise an output that is a hard link to an input under another name: the render
+    is a new file renamed over that name, and the input keeps its content under the name it was read by
+    (unless that is the only name the file has: a bind mount shows one file at two paths). Returns a
+    note for each such link."""
     path = Path(path)
     if path.is_symlink() or not path.is_file():
-        return
+        return []
+    notes = []
     for file, what in inputs:
         if file is None:
             continue
         try:
-            same = os.path.samefile(path, file)
+            if not os.path.samefile(path, file):
+                continue
+            read_as = Path(file).resolve()  # the name whose file the render would replace
+            other_name = path.stat().st_nlink > 1 and not (
+                os.path.samefile(path.parent, read_as.parent)
+                and path.name.casefold() == read_as.name.casefold()
+            )
         except OSError:  # not on disk (an archive's member, named as the archive shows it)
             continue
-        if same:
+        if not other_name:
             raise InputError(f"is {what}, read by this command: give the output another name", path)
+        notes.append(
+            f"{path} is a hard link to {what} ({file}): the render replaces it with a new file, and {file} "
+            "keeps its content"
+        )
+    return list(dict.fromkeys(notes))
+
+
+def lock_partial(tmp: Path, path: Path, attempts: int = 10) -> int:
+    """The partial file ``tmp`` of the video ``path`` opened (created if needed) and locked (``flock``)
+    until the descriptor returned is closed: another command writing ``path`` at once is an
+    ``InputError`` naming ``path``. Opening and locking are two steps: a command that opened ``tmp`` just
+    as the one before it renamed ``tmp`` into place has locked the finished output, not a partial file,
+    and would write into a new ``tmp`` unguarded; it finds the file at ``tmp`` is another one now, and
+    tries again. A file system without locks: the file is written unguarded."""
+    for _ in range(attempts):
+        with writing(path, "video"):
+            fd = os.open(tmp, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            locked = try_lock(fd)
+        except OSError:  # a file system without locks
+            return fd
+        if locked and _is_at(fd, tmp):
+            return fd
+        os.close(fd)
+        if not locked:
+            break
+        # renamed (or replaced) since it was opened: lock the file now at ``tmp``
+    raise InputError(
+        f"another command is writing this video right now (its {tmp.name} is locked): let it finish or give "
+        "another name",
+        path,
+    )
+
+
+def _is_at(fd: int, path: Path) -> bool:
+    """Whether the open file ``fd`` is the file at ``path`` (none there: False)."""
+    try:
+        at = os.stat(path)
+    except FileNotFoundError:
+        return False
+    opened = os.fstat(fd)
+    return (opened.st_ino, opened.st_dev) == (at.st_ino, at.st_dev)
 
 
 @contextmanager

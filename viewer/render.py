@@ -21,11 +21,10 @@ from capture import ARKIT61, Audio, FrameStatus, InputError, Take
 from capture.atomic import atomic_write
 from capture.channels import is_known
 from capture.command import TimedProgress
-from capture.file_lock import try_lock
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
-from .output import raise_if_stopped, writing
+from .output import lock_partial, raise_if_stopped, writing
 from .probe import probe
 
 BACKGROUND = (38, 40, 46)
@@ -405,21 +404,9 @@ def write_mp4(
     tmp = path.with_name(f".{path.name}.partial.mp4")
     render_s = encode_s = 0.0
     rate = _fps_fraction(fps)
-    with writing(path, "video"):
-        lock = os.open(tmp, os.O_RDWR | os.O_CREAT, 0o644)
     # Held until the file is renamed into place: a second render to the same name at once (a batch run
     # twice) wrote into the same partial file, and the first one renamed a mix of both as its output.
-    try:
-        locked = try_lock(lock)
-    except OSError:  # a file system without locks: written as before, unguarded
-        locked = True
-    if not locked:
-        os.close(lock)
-        raise InputError(
-            f"another command is writing this video right now (its {tmp.name} is locked): let it finish "
-            "or give another name",
-            path,
-        )
+    lock = lock_partial(tmp, path)
     try:
         with writing(path, "video"), av.open(str(tmp), "w", format="mp4") as out:
             first = frames(0)
