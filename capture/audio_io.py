@@ -11,6 +11,7 @@ import io
 import math
 import shutil
 import struct
+import sys
 import tempfile
 import zlib
 from collections.abc import Callable, Iterator
@@ -135,7 +136,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the count) is
     read whole, its count corrected (``MpegRun.count_low``). Within ``audio_left_in_files`` (an import),
     audio libsndfile reads cleanly is a ``FileAudio``: checked a block at a time, left in its file; audio
-    FFmpeg decodes is a ``FileAudio`` of the scratch file it was decoded into."""
+    FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file it was decoded into, the same
+    samples and repairs as read whole (``_read_mpeg``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -149,12 +151,9 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
         info = None
     if info is not None:
         if info.subtype.startswith("MPEG_LAYER"):
-            data = path.read_bytes()
-            runs = mpeg_runs(data)
-            # joined files, a change of channels, a frame count too low: libsndfile would stop there
-            if len(runs) > 1 or any(run.count_low for run in runs):
-                return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
-            del data
+            mpeg = _read_mpeg(path, info, repairs)
+            if mpeg is not None:
+                return mpeg
         dtype = _NATIVE.get(info.subtype, "float32")
         subtype = info.subtype if info.subtype in _NATIVE else "FLOAT"
         audio = None
@@ -183,6 +182,97 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
             note_unknown_delay(path, repairs)
         return audio
     return check_samples(decode_with_pyav(path, repairs=repairs), path, repairs)
+
+
+def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> Audio | None:
+    """``read_audio``'s audio of an MPEG audio file (.mp3) when it is not libsndfile's whole read: several
+    files joined, a change of channels, a frame count too low (libsndfile would stop there: decoded by
+    ``_read_joined_mpeg``), or any .mp3 within ``audio_left_in_files`` given a scratch folder (an import):
+    decoded a block at a time into a scratch file there (``_streamed``), the same samples and repairs as
+    read whole. None: read whole by libsndfile."""
+    data = path.read_bytes()
+    runs = mpeg_runs(data)
+    joined = len(runs) > 1 or any(run.count_low for run in runs)
+    skipped = _gapless_skip(data, runs[0]) if runs else 0
+    if not joined:
+        del data  # an hour at 320 kbit/s: 144 MB
+    scratch = _LEFT_IN_FILES.get()
+    if scratch is not None and scratch.folder is not None:
+        audio = _streamed(
+            path,
+            repairs,
+            scratch,
+            lambda found, sink_of: (
+                _read_joined_mpeg(path, data, runs, found, sink_of)
+                if joined
+                else _mpeg_to_file(path, info, skipped, sink_of)
+            ),
+        )
+        if audio is not None:
+            audio = check_samples(audio, path, repairs)
+            if repairs is not None and not joined:  # as read whole, below in read_audio
+                note_unknown_delay(path, repairs)
+            return audio
+    if joined:
+        return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
+    return None
+
+
+def _mpeg_to_file(path: Path, info: Any, skipped: int, sink_of: _SinkOf) -> FileAudio:
+    """An .mp3 libsndfile reads (one file, its frame count right) read a block at a time into a scratch
+    file (``sink_of`` makes it), the same samples as its whole read: after a seek to the start as
+    ``sf.read`` does, each read ending where a decoded frame does (``skipped``: the samples the decoder
+    drops at the start, ``_gapless_skip``). libsndfile's decoder (mpg123) gives samples up to 1 ulp apart
+    after a read that ends within a frame, or without the seek. ``_NotStreamed`` when it does not read it
+    to its end without an error (``_read_cut_short`` says what is wrong, from the whole read), it holds no
+    samples or it was replaced since ``info``."""
+    sink = sink_of(lambda: info.samplerate)
+    size = _MPEG_BLOCK - skipped % _MPEG_BLOCK
+    try:
+        with sf.SoundFile(str(path)) as f:
+            if (f.samplerate, f.channels, f.subtype) != (info.samplerate, info.channels, info.subtype):
+                raise _NotStreamed
+            f.seek(0)
+            while len(block := f.read(size, dtype="float32", always_2d=True)):
+                sink.append(block)
+                size = _MPEG_BLOCK
+    except (sf.LibsndfileError, RuntimeError):
+        raise _NotStreamed from None
+    if not sink.used:
+        raise _NotStreamed
+    return sink.finish(None, info.samplerate, "flt")
+
+
+# Frames of an .mp3 read at once: a whole number of MPEG frames of every layer (384 or 1152 samples, 576
+# for layer III below 32 kHz)
+_MPEG_BLOCK = 1152 * 64
+
+# What mpg123 drops at the start of a file whose LAME tag records the encoder's delay, besides that delay:
+# its synthesis filter bank's (as FFmpeg's 528 + 1)
+_MPG123_GAPLESS_DELAY = 529
+
+
+def _gapless_skip(data: bytes, run: MpegRun) -> int:
+    """The samples libsndfile's decoder (mpg123) drops at the start of the file whose first run is
+    ``run``: when its Xing/Info frame declares a frame count (else none), the decoder's own delay and the
+    encoder's that a LAME tag after it records."""
+    frame = _mpeg_frame(data, run.start)
+    if (
+        frame is None
+        or not _is_file_header(data, run.start, frame)
+        or data.startswith(b"VBRI", run.start + 36)
+    ):
+        return 0
+    text_at = run.start + frame[5][data[run.start + 3] >= 0xC0]
+    flags = data[text_at + 7] if text_at + 8 <= len(data) else 0
+    if not (flags & 1 and _file_header_frames(data, run.start, frame)):
+        return 0
+    lame = (
+        text_at + 8 + 4 * (flags & 1) + 4 * (flags >> 1 & 1) + 100 * (flags >> 2 & 1) + 4 * (flags >> 3 & 1)
+    )
+    if lame + 24 > min(run.start + frame[0], len(data)) or not data[lame]:  # no LAME tag in the frame
+        return _MPG123_GAPLESS_DELAY
+    return _MPG123_GAPLESS_DELAY + (data[lame + 21] << 4 | data[lame + 22] >> 4)
 
 
 def _read_cut_short(path: Path, info: Any, exc: Exception, repairs: list[dict[str, Any]] | None) -> Audio:
@@ -246,6 +336,20 @@ class _Scratch:
         self.folder, self.prefix = folder, prefix
         self._made: Path | None = None
         self._count = 0
+        self._told = False  # that a scratch file was refused
+
+    def refused(self, why: _ScratchRefused) -> None:
+        """Say on stderr, once, that the system refused a scratch file (``why``): the audio it was for is
+        decoded in memory instead, and the import goes on (a disk too full for it fails at the take's
+        own write, which says so)."""
+        if not self._told:
+            self._told = True
+            print(
+                f"s2a-capture: warning: {why}: decoded in memory instead (an hour of 48 kHz stereo takes "
+                "1.4 GB)",
+                file=sys.stderr,
+                flush=True,
+            )
 
     def new_file(self) -> Path:
         assert self.folder is not None
@@ -272,9 +376,11 @@ def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-d
     (WAV, FLAC, AIFF, OGG; not MP3) as a ``FileAudio``: its samples are checked a block at a time and
     left in the file, for ``write_audio`` to copy a block at a time (an import holds no take's recorded
     audio whole: 317 MB an hour at 44.1 kHz int16 mono). Given a ``scratch`` folder (an import's output
-    folder), audio FFmpeg decodes (``decode_with_pyav``: a .mov's AAC, an .m4a) is decoded a block at a
-    time into a scratch WAV, in a hidden folder made there whose name starts with ``prefix``, and given as
-    a ``FileAudio`` of it (an import of an hour of 48 kHz stereo AAC peaked at 1.4 GB, now 117 MB); that
+    folder), audio FFmpeg decodes (``decode_with_pyav``: a .mov's AAC, an .m4a) and MP3 (``_read_mpeg``)
+    is decoded a block at a time into a scratch WAV, in a hidden folder made there whose name starts with
+    ``prefix``, and given as a ``FileAudio`` of it (an import of an hour of 48 kHz stereo AAC peaked at
+    1.4 GB, now 117 MB; of 45 min of 44.1 kHz stereo MP3 at 1.0 GB, now 129 MB); a scratch file the
+    system refuses (a full disk) is said on stderr, once, and the audio held whole instead; that
     folder is removed when the block ends, however it ends, so such audio must be written within it (read
     after it, it is an ``InputError``). Without one it is held whole: audio read here and used after the
     block (``listen --audio-file`` plays it later) stays readable. Float samples past full scale (of a
@@ -919,8 +1025,8 @@ class _Samples(_DecodedLayout):
 class _Decoded:
     """What FFmpeg decoded from one audio stream, before its chunks are joined."""
 
-    chunks: list[np.ndarray] | _Samples | _DecodedToFile  # frames x channels: one per decoded frame, in one
-    # array, or in a scratch file
+    chunks: list[np.ndarray] | _Samples | _DecodedToFile | _JoinedPart  # frames x channels: one per decoded
+    # frame, in one array, in a scratch file, or handed on (a file of a joined .mp3)
     rate: int
     sample_format: str  # FFmpeg's sample format of the last frame, planar or not: s16, s32, u8, flt ...
     last_frame: int  # samples of the last decoded frame
@@ -944,7 +1050,7 @@ def _decode_frames(
     repairs: list[dict[str, Any]] | None,
     skip_damaged: bool = False,
     joined: bool = True,
-    into: Callable[[Any], _DecodedToFile] | None = None,
+    into: Callable[[Any], _DecodedToFile | _JoinedPart] | None = None,
 ) -> _Decoded:
     """Every frame of one audio stream of ``source`` (a file name, or an MP3 held in memory), decoded by
     FFmpeg; an undecodable stream is an ``InputError`` naming ``path`` (with ``skip_damaged``, a packet
@@ -961,7 +1067,7 @@ def _decode_frames(
             if not streams:
                 raise InputError("file has no audio stream", path)
             stream = streams[stream_index]
-            chunks: list[np.ndarray] | _Samples | _DecodedToFile
+            chunks: list[np.ndarray] | _Samples | _DecodedToFile | _JoinedPart
             if into is not None:
                 chunks = into(stream)
             else:
@@ -1010,7 +1116,9 @@ def _decode_frames(
     return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged, delay_recorded)
 
 
-def _silence_of(packet: Any, stream: Any, chunks: list[np.ndarray] | _DecodedLayout) -> np.ndarray:
+def _silence_of(
+    packet: Any, stream: Any, chunks: list[np.ndarray] | _DecodedLayout | _JoinedPart
+) -> np.ndarray:
     """Silence as long as an undecodable packet (none when its duration is unknown), in the layout of what
     was decoded before it."""
     rate = stream.rate or stream.codec_context.sample_rate
@@ -1106,32 +1214,62 @@ def _decoded_to_file(
 ) -> FileAudio | None:
     """``decode_with_pyav``'s audio written a block at a time into a new file of ``scratch`` as it is
     decoded, as a ``FileAudio`` of it naming ``path``: the same samples, repairs and notes, never held
-    whole. None (nothing noted, the file removed) when the sample format changes mid-stream, which the
-    whole-array way joins by NumPy's promotion and converts by the last frame's format, or when the
-    system refuses the scratch file (``_ScratchRefused``): decoded whole then. Whatever else ends
-    the decoding (an error, Ctrl-C) removes the file too."""
-    found: list[dict[str, Any]] | None = None if repairs is None else []
-    sink: _DecodedToFile | None = None
+    whole. None (see ``_streamed``) when the sample format changes mid-stream, which the whole-array way
+    joins by NumPy's promotion and converts by the last frame's format, or when the system refuses the
+    scratch file: decoded whole then."""
 
-    def into(stream: Any) -> _DecodedToFile:
-        nonlocal sink
-        try:
-            sink = _DecodedToFile(scratch.new_file(), path, stream)
-        except OSError as exc:
-            raise _scratch_refused(scratch.folder, exc, path) from None
-        return sink
+    def decode(found: list[dict[str, Any]] | None, sink_of: _SinkOf) -> FileAudio:
+        sinks: list[_DecodedToFile] = []
 
-    try:
+        def into(stream: Any) -> _DecodedToFile:
+            sinks.append(sink_of(lambda: stream.rate or stream.codec_context.sample_rate))
+            return sinks[0]
+
         decoded = _decode_frames(str(path), path, stream_index, found, skip_damaged, into=into)
-        assert sink is not None
+        sink = sinks[0]
         if not sink:
             raise InputError("audio stream holds no samples", path)
         _note_channels_changed(path, found, sink.changed, sink.first_changed, decoded.rate, sink.channels)
-        audio = sink.finish(_without_padding(decoded, sink.used), decoded.rate, decoded.sample_format)
+        return sink.finish(_without_padding(decoded, sink.used), decoded.rate, decoded.sample_format)
+
+    return _streamed(path, repairs, scratch, decode)
+
+
+# makes the scratch file decoded audio is written into, given the function that tells its rate
+_SinkOf = Callable[[Callable[[], int]], "_DecodedToFile"]
+
+
+def _streamed(
+    path: Path,
+    repairs: list[dict[str, Any]] | None,
+    scratch: _Scratch,
+    decode: Callable[[list[dict[str, Any]] | None, _SinkOf], FileAudio],
+) -> FileAudio | None:
+    """The audio ``decode`` writes a block at a time into scratch files of ``scratch`` (it makes them by
+    its second argument, and notes repairs in its first), its repairs then added to ``repairs``. None,
+    nothing noted and its files removed, when it raises ``_NotStreamed``: the caller decodes whole. Then
+    a scratch file the system refused (``_ScratchRefused``: a full disk) is said on stderr, once a block
+    of ``audio_left_in_files``: the audio is held in memory instead. Whatever else ends the decoding (an
+    error, Ctrl-C) removes its files too."""
+    found: list[dict[str, Any]] | None = None if repairs is None else []
+    sinks: list[_DecodedToFile] = []
+
+    def sink_of(rate_of: Callable[[], int]) -> _DecodedToFile:
+        try:
+            sinks.append(_DecodedToFile(scratch.new_file(), path, rate_of))
+        except OSError as exc:
+            raise _scratch_refused(scratch.folder, exc, path) from None
+        return sinks[-1]
+
+    try:
+        audio = decode(found, sink_of)
+    except _ScratchRefused as refused:
+        scratch.refused(refused)
+        return None
     except _NotStreamed:
         return None
     finally:
-        if sink is not None:
+        for sink in sinks:
             sink.close()  # an error, Ctrl-C: the file goes now; done: it stays for the FileAudio
     if repairs is not None and found:
         repairs += found
@@ -1155,10 +1293,10 @@ class _DecodedToFile(_DecodedLayout):
     written kept (for the ``FileAudio`` of the file). The last frame's worth of samples waits in memory
     until the end, for the padding the container's duration cuts there (``_without_padding``)."""
 
-    def __init__(self, scratch: Path, source: Path, stream: Any):
+    def __init__(self, scratch: Path, source: Path, rate_of: Callable[[], int]):
         super().__init__()
         self.scratch, self.source = scratch, source
-        self._rate_of: Callable[[], int] = lambda: stream.rate or stream.codec_context.sample_rate
+        self._rate_of = rate_of  # the rate to write at, asked when the first block is
         self.channels = 0
         self._dtype: np.dtype | None = None  # that of every decoded chunk
         self._waiting: list[np.ndarray] = []  # decoded, not yet written
@@ -1587,15 +1725,20 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
 
 
 def _read_joined_mpeg(
-    path: Path, data: bytes, runs: list[MpegRun], repairs: list[dict[str, Any]] | None
+    path: Path,
+    data: bytes,
+    runs: list[MpegRun],
+    repairs: list[dict[str, Any]] | None,
+    sink_of: _SinkOf | None = None,
 ) -> Audio:
     """An .mp3 made of several files joined end to end (``cat a.mp3 b.mp3``), or whose channel count or
     layer changes mid-stream: each joined file decoded on its own, so each one's encoder delay and padding
     (its LAME tag) is dropped, and the later ones mixed to the first one's channel count (repair
     ``channels_changed``). libsndfile would stop at the first file's frame count or at the first change
     of channels, FFmpeg at the first tag in the middle. A later file that records no delay: see
-    ``_drop_lame_delay``; a file whose Info frame counts too few frames: corrected (``_counted_whole``). A
-    change of sample rate is an ``InputError``."""
+    ``_JoinedPart``; a file whose Info frame counts too few frames: corrected (``_counted_whole``). A
+    change of sample rate is an ``InputError``. ``sink_of``: the frames are written a block at a time into
+    the scratch file it makes (``_streamed``), the audio a ``FileAudio`` of it; else held whole."""
     first = runs[0]
     coded = 0
     for run in runs:
@@ -1608,14 +1751,23 @@ def _read_joined_mpeg(
             )
         coded += run.samples
     starts = [i for i, run in enumerate(runs) if run.new_file] + [len(runs)]
-    chunks: list[np.ndarray] = []
+    kept: list[np.ndarray] | _DecodedToFile = [] if sink_of is None else sink_of(lambda: first.sample_rate)
     sample_format, damaged, last = "flt", 0, len(starts) - 2
     for k, (a, b) in enumerate(zip(starts, starts[1:])):
-        part = io.BytesIO(_counted_whole(data[runs[a].start : runs[b - 1].end], runs[a:b]))
+        part_bytes = _counted_whole(data[runs[a].start : runs[b - 1].end], runs[a:b])
+        at = (kept.used if isinstance(kept, _DecodedToFile) else sum(map(len, kept))) / first.sample_rate
+        part = _JoinedPart(kept)
+        if k and _ends_as_declared(data, runs[starts[k - 1]], runs[a].start):
+            part.drops_lame_delay(data, runs[a], runs[b - 1].end, part_bytes)
         try:
             # the note of an unknown encoder delay is about the start: the first file's
             decoded = _decode_frames(
-                part, path, 0, repairs if k == 0 else None, skip_damaged=True, joined=False
+                io.BytesIO(part_bytes),
+                path,
+                0,
+                repairs if k == 0 else None,
+                skip_damaged=True,
+                into=lambda _stream, part=part: part,
             )
         except InputError:
             if k == 0:
@@ -1624,16 +1776,28 @@ def _read_joined_mpeg(
             damaged += sum(run.frames for run in runs[a:b])
             if k < last:
                 lost = sum(run.samples for run in runs[a:b])
-                chunks.append(np.zeros((lost, chunks[0].shape[1] if chunks else first.channels), np.float32))
+                channels = kept.channels if isinstance(kept, _DecodedToFile) else kept and kept[0].shape[1]
+                kept.append(np.zeros((lost, channels or first.channels), np.float32))
             continue
-        if k and not decoded.delay_recorded and _ends_as_declared(data, runs[starts[k - 1]], runs[a].start):
-            _drop_lame_delay(path, data, runs[a], runs[b - 1].end, decoded.chunks, chunks, repairs)
-        chunks += decoded.chunks
+        if part.delay_unknown and repairs is not None:
+            repairs.append(
+                {
+                    "line": None,
+                    "kind": "encoder_delay_unknown",
+                    "message": f"{path.name}: the MP3 file joined on at {at:.3f} s does not record its "
+                    "encoder's delay (no LAME tag) nor begins as LAME's output does: its priming samples "
+                    "are kept there, so the sound after it may be up to ~50 ms late",
+                }
+            )
         sample_format, damaged = decoded.sample_format, damaged + decoded.damaged
-    if not chunks:
+    if not kept:
         raise InputError("audio stream holds no samples", path)
-    samples, changed, at = _one_layout(chunks)
-    _note_channels_changed(path, repairs, changed, at, first.sample_rate, samples.shape[1])
+    if isinstance(kept, _DecodedToFile):
+        changed, at, channels = kept.changed, kept.first_changed, kept.channels
+    else:
+        samples, changed, at = _one_layout(kept)
+        channels = samples.shape[1]
+    _note_channels_changed(path, repairs, changed, at, first.sample_rate, channels)
     if repairs is not None and damaged:
         repairs.append(
             {
@@ -1643,6 +1807,8 @@ def _read_joined_mpeg(
                 "silence in their place (at the end: left out)",
             }
         )
+    if isinstance(kept, _DecodedToFile):
+        return kept.finish(None, first.sample_rate, sample_format)
     return _in_recorded_format(samples, first.sample_rate, sample_format)
 
 
@@ -1693,44 +1859,56 @@ def _ends_as_declared(data: bytes, previous: MpegRun, start: int) -> bool:
     return False
 
 
-def _drop_lame_delay(
-    path: Path,
-    data: bytes,
-    first: MpegRun,
-    end: int,
-    part: list[np.ndarray],
-    before: list[np.ndarray],
-    repairs: list[dict[str, Any]] | None,
-) -> None:
-    """The priming samples of a joined file after the first (``part``: its decoded chunks, ``data[first.start:
-    end]`` its bytes) that records no encoder delay: LAME's dropped, when its bytes are LAME's and start as
-    an encoder's first frame does (no bit reservoir); any other encoder's kept, noted in ``repairs`` (repair
-    ``encoder_delay_unknown``, saying from which second). ``before``: the chunks of the parts before it."""
-    frame = _mpeg_frame(data, first.start)
-    if (
-        frame is not None
-        and frame[3] == 3
-        and _starts_reservoir(data, first.start, frame)
-        and data.find(_LAME_SIGNATURE, first.start, end) != -1
-    ):
-        drop = LAME_DELAY
-        while drop and part:  # the delay may span frames (576 samples each below 32 kHz)
-            if len(part[0]) > drop:
-                part[0], drop = part[0][drop:], 0
-            else:
-                drop -= len(part.pop(0))
-        return
-    if repairs is not None:
-        at = sum(len(chunk) for chunk in before) / first.sample_rate
-        repairs.append(
-            {
-                "line": None,
-                "kind": "encoder_delay_unknown",
-                "message": f"{path.name}: the MP3 file joined on at {at:.3f} s does not record its encoder's "
-                "delay (no LAME tag) nor begins as LAME's output does: its priming samples are kept there, "
-                "so the sound after it may be up to ~50 ms late",
-            }
-        )
+def _records_delay(part: bytes) -> bool:
+    """Whether the MP3 file ``part`` (its bytes) records its encoder's delay, as FFmpeg decoding it finds
+    (``_delay_recorded``: its first packet's time); True when FFmpeg cannot open it."""
+    import av
+
+    try:
+        with av.open(io.BytesIO(part), format="mp3") as container:
+            stream = container.streams.audio[0]
+            first_pts = next((p.pts for p in container.demux(stream) if p.pts is not None), None)
+            return _delay_recorded(stream, first_pts)
+    except (av.FFmpegError, OSError, ValueError, IndexError):
+        return True
+
+
+class _JoinedPart:
+    """The frames FFmpeg decodes of one file of a joined .mp3, handed on to ``kept`` (the chunks of the
+    files before it, or the scratch file they are written into) as they come, the first ``drop`` samples
+    left out. ``last_channels`` and ``last_dtype``: of its last frame, for ``_silence_of``."""
+
+    def __init__(self, kept: list[np.ndarray] | _DecodedToFile):
+        self.kept, self.drop, self.delay_unknown = kept, 0, False
+        self.last_channels: int | None = None
+        self.last_dtype: np.dtype | None = None
+
+    def drops_lame_delay(self, data: bytes, first: MpegRun, end: int, part: bytes) -> None:
+        """For a joined file after the first (``data[first.start:end]``, ``part`` its bytes as decoded) that
+        records no encoder delay: LAME's delay dropped, when its bytes are LAME's and start as an encoder's
+        first frame does (no bit reservoir); any other encoder's priming kept, ``delay_unknown`` set (for
+        the repair ``encoder_delay_unknown``, saying from which second)."""
+        if _records_delay(part):
+            return
+        frame = _mpeg_frame(data, first.start)
+        if (
+            frame is not None
+            and frame[3] == 3
+            and _starts_reservoir(data, first.start, frame)
+            and data.find(_LAME_SIGNATURE, first.start, end) != -1
+        ):
+            self.drop = LAME_DELAY  # it may span frames (576 samples each below 32 kHz)
+        else:
+            self.delay_unknown = True
+
+    def append(self, arr: np.ndarray) -> None:
+        self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
+        if self.drop:
+            if len(arr) <= self.drop:
+                self.drop -= len(arr)
+                return
+            arr, self.drop = arr[self.drop :], 0
+        self.kept.append(arr)
 
 
 WRITE_FRAMES = 1 << 16  # frames handed to libsndfile per write

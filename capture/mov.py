@@ -98,9 +98,18 @@ def choose_mov_audio(
             count = 1  # a damaged file: decoding says what is wrong with it
     if count <= 1:
         return check_samples(decode_with_pyav(path), path, repairs), None
-    tracks = [decode_with_pyav(path, i) for i in range(count)]
-    peaks = [finite_peak(t) for t in tracks]
-    chosen = next((i for i, p in enumerate(peaks) if p >= SILENT_PEAK), 0)
+    # each track decoded in turn, the one chosen so far kept and every other let go once its peak is
+    # known: two tracks at most on the disk (a scratch file each, 1.4 GB an hour) or in memory, not all
+    peaks: list[float] = []
+    chosen, kept = 0, None
+    for i in range(count):
+        track = decode_with_pyav(path, i)
+        peaks.append(finite_peak(track))
+        if kept is None or (peaks[chosen] < SILENT_PEAK <= peaks[i]):
+            track, kept, chosen = kept, track, i
+        if isinstance(track, FileAudio):
+            track.discard()  # decoded into a scratch file: not kept on the disk until the import ends
+    assert kept is not None
     described = ", ".join(f"{i + 1}: {_describe_peak(p)}" for i, p in enumerate(peaks))
     if peaks[chosen] >= SILENT_PEAK:
         why = "the first that is not silent" if chosen else "the first, which carries sound"
@@ -111,19 +120,16 @@ def choose_mov_audio(
             {
                 "line": None,
                 "kind": "audio_track",
-                "message": f"{path.name} holds {len(tracks)} audio tracks ({described}): track {chosen + 1} "
+                "message": f"{path.name} holds {count} audio tracks ({described}): track {chosen + 1} "
                 f"is used ({why})",
             }
         )
     choice = {
         "track": chosen + 1,
-        "tracks": len(tracks),
+        "tracks": count,
         "peaks_dbfs": [round(20 * np.log10(p), 1) if p > 0 else None for p in peaks],
     }
-    for i, track in enumerate(tracks):
-        if i != chosen and isinstance(track, FileAudio):
-            track.discard()  # decoded into a scratch file: not kept on the disk until the import ends
-    return check_samples(tracks[chosen], path, repairs), choice
+    return check_samples(kept, path, repairs), choice
 
 
 def _describe_peak(peak: float) -> str:

@@ -8,6 +8,7 @@ scratch folder; Ctrl-C during a write of libsndfile's is an interrupt, not a tra
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -17,7 +18,7 @@ import time
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT
+from conftest import ROOT, run_here
 from test_audio_decode_memory import _encoded
 from test_import_decoded_streaming import TAKE_CSV, _float_mov
 
@@ -161,3 +162,96 @@ def test_ctrl_c_while_libsndfile_writes_is_an_interrupt(tmp_path):
     seen = _interrupted(decode, np.linspace(0.002, 0.04, 12))
     assert seen <= {"KeyboardInterrupt", "done"} and "KeyboardInterrupt" in seen, seen
     assert not list(scratch.iterdir())
+
+
+def _three_track_take(samples, folder, seconds: float = 2.0):
+    """A take folder whose .mov holds three 16 kHz stereo tracks: silent, a tone, the tone inverted."""
+    folder.mkdir(parents=True)
+    lines = (samples / TAKE_CSV).read_text().splitlines(keepends=True)
+    (folder / "S07-001.csv").write_text("".join(lines[:241]))
+    t = np.arange(round(seconds * 16000)) / 16000
+    tone = (np.stack([np.sin(2 * np.pi * 220 * t)] * 2, axis=1) * 8000).astype(np.int16)
+    tracks = [Audio(np.zeros_like(tone), 16000), Audio(tone, 16000), Audio(-tone, 16000)]
+    return write_reference_mov(folder / "S07-001.mov", 30, 15, tracks)
+
+
+def _limited(limit: int):
+    """For a subprocess: files past ``limit`` bytes refused by the system (EFBIG: Python ignores SIGXFSZ)."""
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+def test_a_refused_scratch_file_is_said_once_and_the_import_goes_on(samples, tmp_path):
+    """A scratch file the system refuses (here past the process's file size limit, EFBIG: the scratch
+    WAV's RF64 header is 36 bytes longer than the take's audio.wav, so only it is refused) made the import
+    decode in memory without a word: an hour of 48 kHz stereo then needs 1.4 GB. It is said on stderr,
+    once for the three tracks of a .mov, and the take is the one written with the scratch files."""
+    folder = tmp_path / "src" / "S07-001"
+    _three_track_take(samples, folder)
+    run_here("capture", "import", folder.parent, "-o", tmp_path / "free", check=True)
+    free = tmp_path / "free" / "S07-001"
+    limit = (free / "audio.wav").stat().st_size
+    assert max(p.stat().st_size for p in free.iterdir()) == limit  # the largest file written
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "capture", "import", folder.parent, "-o", out]
+    proc = subprocess.run(
+        list(map(str, cmd)), cwd=ROOT, capture_output=True, text=True, preexec_fn=_limited(limit), timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr
+    told = [line for line in proc.stderr.splitlines() if "decoded in memory instead" in line]
+    assert len(told) == 1 and told[0].startswith("s2a-capture: warning: ") and "File too large" in told[0]
+    for name in ("audio.wav", "frames.npz"):
+        assert (out / "S07-001" / name).read_bytes() == (free / name).read_bytes(), name
+    assert {p.name for p in out.iterdir()} == {"S07-001"}
+
+
+def _most_on_disk(folder, step) -> int:
+    """The most bytes the files under ``folder`` held at once while ``step()`` ran (looked at as often as
+    the interpreter lets a thread)."""
+    most, done = 0, threading.Event()
+
+    def watch() -> None:
+        nonlocal most
+        while not done.is_set():
+            total = 0
+            try:
+                for path in folder.rglob("*"):
+                    total += path.stat().st_size
+            except FileNotFoundError:  # removed as it was looked at
+                continue
+            most = max(most, total)
+
+    watcher = threading.Thread(target=watch)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)  # the watcher looks every 0.1 ms of the step's Python code
+    watcher.start()
+    try:
+        step()
+    finally:
+        done.set()
+        watcher.join()
+        sys.setswitchinterval(interval)
+    return most
+
+
+def test_a_mov_of_three_tracks_has_two_on_the_disk_at_most(samples, tmp_path):
+    """The tracks of a .mov were all decoded into scratch files before one was chosen: three tracks of an
+    hour were 3 x 1.4 GB on the disk at once. Each is let go once its peak is known unless it is the
+    one chosen so far (the first silent track until one with sound comes): two at most, the same audio
+    and repair."""
+    mov = _three_track_take(samples, tmp_path / "src", seconds=30.0)
+    track = 30 * 16000 * 2 * 2
+    whole_repairs, left_repairs = [], []
+    write_audio(tmp_path / "whole.wav", choose_mov_audio(mov, whole_repairs)[0])
+    scratch = tmp_path / "out"
+    scratch.mkdir()
+
+    def chosen() -> None:
+        with audio_left_in_files(scratch):
+            audio, choice = choose_mov_audio(mov, left_repairs)
+            write_audio(tmp_path / "left.wav", audio)
+        assert choice["track"] == 2
+
+    most = _most_on_disk(scratch, chosen)
+    assert track < most < 2.25 * track, f"{most} bytes at once, a track {track}"
+    assert left_repairs == whole_repairs
+    assert (tmp_path / "left.wav").read_bytes() == (tmp_path / "whole.wav").read_bytes()
