@@ -34,6 +34,9 @@ WORK = ".work"  # a build's working folder inside the dataset folder
 # that a rebuild processes only the takes that changed; a cache, not a leftover (safe to delete).
 TAKE_RECORDS = "takes"
 LOCK_FILE = ".build.lock"  # held (flock) by the one build writing into a dataset folder
+# the least feature or log-F0 std a manifest may hold (1e-6, less float32 rounding): the build stores 1 for
+# a smaller one, and a smaller one (hand-edited or damaged) would turn the features into infinities
+SMALLEST_STD = 1e-6 * (1 - 2**-23)
 REQUIRED = ("fps", "sample_rate", "channels", "features", "normalization", "splits", "shards", "samples")
 
 
@@ -163,7 +166,8 @@ def normalization_problems(norm: Any, channels: list[str], features: Any) -> lis
     """(field, message) for each problem of ``normalization`` (a manifest's, or the copy a training
     checkpoint keeps) whose ``channels`` and ``features`` passed their checks: the animation offset and
     scale per channel, each feature's mean and std per dimension, with a pitch feature each speaker's
-    log-F0 mean and positive std (the reader would otherwise pass raw log-F0 through)."""
+    log-F0 mean and std (the reader would otherwise pass raw log-F0 through); a std is at least
+    ``SMALLEST_STD``, as the build writes it (it divides)."""
     if not isinstance(norm, dict):
         return [("normalization", "must be a JSON object")]
     out = []
@@ -193,8 +197,8 @@ def normalization_problems(norm: Any, channels: list[str], features: Any) -> lis
             out.append((f"normalization.features.{name}", "must hold lists of numbers mean and std"))
         elif len(st["mean"]) != len(st["std"]) or (name in dims and len(st["mean"]) != dims[name]):
             out.append((f"normalization.features.{name}", f"mean and std must have {dims.get(name)} values"))
-        elif min(st["std"], default=1) <= 0:
-            out.append((f"normalization.features.{name}.std", "must be positive (it divides)"))
+        elif min(st["std"], default=1) < SMALLEST_STD:
+            out.append((f"normalization.features.{name}.std", "must be at least 1e-6 (it divides)"))
     pitch = norm.get("pitch", {})
     if not isinstance(pitch, dict):
         return out + [("normalization.pitch", "must be a JSON object")]
@@ -209,9 +213,14 @@ def normalization_problems(norm: Any, channels: list[str], features: Any) -> lis
             not isinstance(st, dict)
             or not is_finite_number(st.get("mean"))
             or not is_finite_number(st.get("std"))
-            or st["std"] <= 0
+            or st["std"] < SMALLEST_STD
         ):
-            out.append((f"normalization.pitch.speakers.{name}", "must hold a number mean and a positive std"))
+            out.append(
+                (
+                    f"normalization.pitch.speakers.{name}",
+                    "must hold a number mean and a std of at least 1e-6 (it divides)",
+                )
+            )
     return out
 
 
@@ -312,9 +321,14 @@ def load_manifest(ds: str | Path) -> dict[str, Any]:
         raise InputError(f"manifest is not valid JSON: {exc}", path) from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise InputError(f'not a dataset manifest (expected "format": "{FORMAT}")', path)
-    if data.get("schema_version") != SCHEMA_VERSION:
+    version = data.get("schema_version")
+    if not _count(version) or version != SCHEMA_VERSION:
+        if _count(version) and version > SCHEMA_VERSION:
+            why = "a newer toolkit wrote it: read it with that version"
+        else:
+            why = "rebuild it with s2a-dataset build"
         raise InputError(
-            f"manifest schema version {data.get('schema_version')!r}; this reads {SCHEMA_VERSION}", path
+            f"manifest schema version {version!r}, this toolkit reads version {SCHEMA_VERSION} ({why})", path
         )
     return data
 

@@ -17,7 +17,7 @@ import math
 import os
 import tarfile
 import tokenize
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -146,11 +146,13 @@ class ShardWriter:
 class ShardReader:
     """Iterates the samples of a shard with plain ``tarfile`` (streaming, constant memory).
 
-    Yields ``(key, {ext: bytes})`` for each run of consecutive members sharing a key. Raises
-    ``InputError`` naming the shard when the tar is damaged."""
+    Yields ``(key, {ext: bytes})`` for each run of consecutive members sharing a key; with ``exts``,
+    only the members of those extensions (the others are skipped unread, so a reader that does not use
+    the audio does not hold it). Raises ``InputError`` naming the shard when the tar is damaged."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, exts: Collection[str] | None = None):
         self.path = Path(path)
+        self.exts = None if exts is None else frozenset(exts)
 
     def __iter__(self) -> Iterator[tuple[str, dict[str, bytes]]]:
         key: str | None = None
@@ -161,16 +163,18 @@ class ShardReader:
                     if not info.isfile():
                         continue
                     k, ext = split_key(info.name)
-                    f = tar.extractfile(info)
-                    data = f.read() if f is not None else b""
-                    if len(data) != info.size:
-                        raise InputError(f"member {info.name} is truncated", self.path)
                     if k != key:
                         if key is not None:
                             yield key, members
                         key, members = k, {}
                     if ext in members:
                         raise InputError(f"member {info.name} appears twice in a row", self.path)
+                    if self.exts is not None and ext not in self.exts:
+                        continue
+                    f = tar.extractfile(info)
+                    data = f.read() if f is not None else b""
+                    if len(data) != info.size:
+                        raise InputError(f"member {info.name} is truncated", self.path)
                     members[ext] = data
         except FileNotFoundError:
             raise InputError("shard not found", self.path) from None

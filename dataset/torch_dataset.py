@@ -20,10 +20,10 @@ too (at inference every frame is real: a model fed ``mask`` would train on input
 
 Each sample is checked as it is decoded (cheaply: on the arrays already in memory), since the readers
 compare only a shard's size with the manifest, not its sha256: its members are there, its json is an
-object with a usable ``neutral`` and ``speaker``, the animation is (frames, channels) float, the mask
-(frames,) bool and each feature (frames, dim) float, with the manifest's frames, channels and dims, and
-every value is finite (the build writes 0, never NaN, at masked frames). A damaged sample is an
-``InputError`` naming the shard and the sample key.
+object with a usable ``neutral`` and the manifest's ``speaker`` (whose statistics normalise its pitch),
+the animation is (frames, channels) float, the mask (frames,) bool and each feature (frames, dim) float,
+with the manifest's frames, channels and dims, and every value is finite (the build writes 0, never
+NaN, at masked frames). A damaged sample is an ``InputError`` naming the shard and the sample key.
 """
 
 from __future__ import annotations
@@ -159,10 +159,12 @@ class ShardDataset(IterableDataset):
         self.listed: dict[str, set[str]] = {}  # sample keys by shard, as the manifest lists them
         self.frames: dict[str, int] = {}  # frames of each sample, as the manifest lists them
         self.shard_of: dict[str, str] = {}
+        self.speaker_of: dict[str, str] = {}  # whose log-F0 statistics normalise each sample's pitch
         for sample in self.manifest["samples"]:
             self.listed.setdefault(sample["shard"], set()).add(sample["key"])
             self.frames[sample["key"]] = sample["frames"]
             self.shard_of[sample["key"]] = sample["shard"]
+            self.speaker_of[sample["key"]] = sample["speaker"]
         self.window = window
         self.features = list(features) if features is not None else names
         self.shuffle_buffer = _count(shuffle_buffer, "shuffle_buffer", self.ds, 0)
@@ -200,12 +202,18 @@ class ShardDataset(IterableDataset):
         another build, truncated or missing is an error, never silently other samples."""
         check_shard_files(self.ds, self.manifest, self.shards)
 
+    def members_read(self) -> list[str]:
+        """The members of a sample this dataset decodes: the others are skipped unread (a shuffle buffer
+        would otherwise hold every sample's audio, most of its bytes, also with ``audio=False``)."""
+        members = ["json", "anim.npy", "mask.npy", *(f"{name}.npy" for name in self.features)]
+        return [*members, "flac"] if self.audio else members
+
     def _read(self, name: str) -> Iterator[tuple[str, dict[str, bytes]]]:
         """The samples of shard ``name``; a key the manifest does not list for it, or a listed key it
         lacks, is an error."""
         path = self.ds / name
         listed = set(self.listed.get(name, ()))
-        for key, members in ShardReader(path):
+        for key, members in ShardReader(path, self.members_read()):
             if key not in listed:
                 raise _unlisted(self.ds, path, {key})
             listed.discard(key)
@@ -324,8 +332,7 @@ class ShardDataset(IterableDataset):
         """(metadata, animation, mask, {feature: array}) of a sample, checked (see the module doc): a
         shard damaged without changing its size is an error here, never NaN losses, crashes deep in
         training or silently wrong scores."""
-        need = ["json", "anim.npy", "mask.npy", *(f"{name}.npy" for name in self.features)]
-        missing = [m for m in need + (["flac"] if self.audio else []) if m not in members]
+        missing = [m for m in self.members_read() if m not in members]
         if missing:
             raise self.damaged(key, f"lacks the member(s) {', '.join(missing)}")
         try:
@@ -338,8 +345,11 @@ class ShardDataset(IterableDataset):
         neutral = meta.get("neutral")
         if neutral is not None and not (_numbers(neutral) and len(neutral) == n_channels):
             raise self.damaged(key, f"its json's neutral is not null or {n_channels} finite numbers")
-        if meta.get("speaker") is not None and not isinstance(meta["speaker"], str):
-            raise self.damaged(key, "its json's speaker is not a string")
+        speaker = self.speaker_of.get(key)
+        if meta.get("speaker") != speaker:  # its pitch would be raw log-F0, or another speaker's z-score
+            raise self.damaged(
+                key, f"its json's speaker {meta.get('speaker')!r:.40} is not the manifest's {speaker!r}"
+            )
         frames = self.frames.get(key)
         dims = self.manifest["features"]["dims"]
         arrays = {}

@@ -190,7 +190,7 @@ def _dataset_curves(
     thumbs = set(sorted({s["take"] for s in manifest["samples"]})[:limit])
     chunks: dict[str, list[tuple[str, dict[str, np.ndarray]]]] = {}
     for shard in manifest["shards"]:
-        for key, members in ShardReader(ds / shard["name"]):
+        for key, members in ShardReader(ds / shard["name"], ("json", "anim.npy", "mask.npy")):  # no audio
             info = json.loads(members["json"])
             anim = np.load(io.BytesIO(members["anim.npy"]), allow_pickle=False)
             mask = np.load(io.BytesIO(members["mask.npy"]), allow_pickle=False).astype(bool)
