@@ -19,6 +19,7 @@ from __future__ import annotations
 import struct
 import threading
 import time
+import zlib
 from collections.abc import Sized
 from pathlib import Path
 from typing import Any
@@ -293,7 +294,8 @@ class SessionAudio:
     by their sample index, are indexed by where their samples lie in the file, so a take's few minutes of
     an hour's log cost their own memory only. Samples no chunk holds (``gaps``: a lost callback, a torn
     tail) read as silence; where chunks overlap, the later one (by sample index, then stamp, then place in
-    the file) wins."""
+    the file) wins. Each record read is checked against its checksum again: a log changed since it was
+    indexed is an ``InputError``, never other samples read as the indexed ones."""
 
     def __init__(self, path: Path, fmt: dict[str, Any], chunks: list[tuple[int, int, int, int]]):
         self.path = path
@@ -301,7 +303,7 @@ class SessionAudio:
         self.channels: int = fmt["channels"]
         self.subtype: str = fmt["subtype"]
         self._dtype = _DTYPES[self.subtype]
-        chunks = sorted(chunks)  # (first sample, clock ns, file offset of the samples, samples)
+        chunks = sorted(chunks)  # (first sample, clock ns, file offset of the record, samples)
         self._first = np.array([c[0] for c in chunks], dtype=np.int64)
         self._end = self._first + np.array([c[3] for c in chunks], dtype=np.int64)
         self._offset = [c[2] for c in chunks]
@@ -321,12 +323,17 @@ class SessionAudio:
         frame_bytes = self._dtype.itemsize * self.channels
         with open(self.path, "rb") as f:
             for i in np.flatnonzero((self._first < hi) & (self._end > lo)).tolist():
-                a, b = max(lo, int(self._first[i])), min(hi, int(self._end[i]))
-                f.seek(self._offset[i] + (a - int(self._first[i])) * frame_bytes)
-                body = f.read((b - a) * frame_bytes)
-                if len(body) != (b - a) * frame_bytes:
-                    raise InputError("the audio log was cut short while it was read", self.path)
-                samples[a - lo : b - lo] = np.frombuffer(body, dtype=self._dtype).reshape(-1, self.channels)
+                first, end = int(self._first[i]), int(self._end[i])
+                f.seek(self._offset[i])
+                record = f.read(RECORD_HEADER.size + _AUDIO_HEAD.size + (end - first) * frame_bytes)
+                payload = memoryview(record)[RECORD_HEADER.size :]
+                if record[: RECORD_HEADER.size] != RECORD_HEADER.pack(len(payload), zlib.crc32(payload)):
+                    raise InputError("the audio log changed since it was indexed (read it again)", self.path)
+                block = np.frombuffer(payload[_AUDIO_HEAD.size :], dtype=self._dtype).reshape(
+                    -1, self.channels
+                )
+                a, b = max(lo, first), min(hi, end)
+                samples[a - lo : b - lo] = block[a - first : b - first]
         return Audio(samples, self.sample_rate, self.subtype)
 
     def gaps_within(self, lo: int, hi: int) -> list[dict[str, int]]:
@@ -386,7 +393,7 @@ def index_audio_log(path: str | Path) -> tuple[SessionAudio | None, dict[str, An
         return None, report
     frame_bytes = _DTYPES[fmt["subtype"]].itemsize * fmt["channels"]
     audio = SessionAudio(
-        path, fmt, [(first, ns, at.start, len(at) // frame_bytes) for first, ns, at, _ in chunks]
+        path, fmt, [(first, ns, record[0], len(at) // frame_bytes) for first, ns, at, record in chunks]
     )
     report["chunks"] = len(chunks)
     report["gaps"] = audio.gaps

@@ -46,6 +46,7 @@ import math
 import shutil
 import struct
 import tempfile
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +82,11 @@ MIN_TAKE_FRAMES = 10
 # --max-offset-ms 500, looked at 0.25 s beyond that, and a clap there is judged against the 0.5 s of
 # sound around it), so the offset it can find is the same as with the whole session's audio.
 AUDIO_MARGIN_S = 1.0
+# A take's audio starts on a whole multiple of this (s) of the session's audio, the least common multiple of
+# the steps align takes from the audio's first sample (its 16 kHz samples, 10 ms energy steps, 30 and 32 ms
+# speech-detector windows): they fall where they fell in the whole session's audio, so that align finds
+# the same offset and cuts the same samples (off the grid, its content lag moved by up to 4.5 ms).
+AUDIO_SPAN_GRID_S = Fraction(12, 25)
 # The phone's frame clock, as ``follow_clock`` reads it: the running median of the frame times over
 # 2 * CLOCK_HALF_WINDOW + 1 packets (arrival order), which a minority of late or stray packets cannot move.
 CLOCK_HALF_WINDOW = MIN_TAKE_FRAMES
@@ -1237,13 +1243,15 @@ def _segment_take(
 
 def _attach_audio_span(take: Take, audio: SessionAudio, first_s: float, period: float) -> None:
     """Give ``take`` the span of the session's ``audio`` (sample 0 at take time ``first_s``) from
-    ``AUDIO_MARGIN_S`` plus a frame ``period`` before its first frame to as long after its last frame's
-    period, less where the audio begins or ends; ``start_s`` moves by the samples left out before it, so
-    that each sample keeps its take time. Where the span and the audio do not meet, or the span holds
-    samples a take cannot (NaN), the take is kept without audio and a repair says why. Its audio's
-    place in the session's and the gaps it crosses (silence) go to ``meta.extra``."""
+    ``AUDIO_MARGIN_S`` plus a frame ``period`` (and less than ``AUDIO_SPAN_GRID_S``, to start on that grid)
+    before its first frame to as long after its last frame's period, less where the audio begins or ends;
+    ``start_s`` moves by the samples left out before it, so that each sample keeps its take time. Where
+    the span and the audio do not meet, or the span holds samples a take cannot (NaN), the take is kept
+    without audio and a repair says why. Its audio's place in the session's and the gaps it crosses
+    (silence) go to ``meta.extra``."""
     rate, margin = audio.sample_rate, AUDIO_MARGIN_S + period
-    lo = max(0, math.floor((float(take.time[0]) - margin - first_s) * rate))
+    steps = math.floor((float(take.time[0]) - margin - first_s) / AUDIO_SPAN_GRID_S)
+    lo = max(0, math.floor(steps * AUDIO_SPAN_GRID_S * rate))  # exact: a Fraction
     hi = min(audio.frames, math.ceil((float(take.time[-1]) + period + margin - first_s) * rate))
     if hi <= lo:
         where = f"take time {first_s:.3f} s to {first_s + audio.frames / rate:.3f} s"

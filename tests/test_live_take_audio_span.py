@@ -8,20 +8,24 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from fractions import Fraction
 
 import numpy as np
 import pytest
 from live_helpers import record_packets, run_cli
 
-from align.aligner import BEYOND_RANGE_S
+from align.aligner import BEYOND_RANGE_S, align_with_report
+from align.content import ANALYSIS_RATE
 from align.options import AlignOptions
+from align.resample import TARGET_RATE
 from align.transient import CLAP_SURROUNDINGS_S
-from capture import build_takes, read_take
-from capture.audio_capture import CHUNK_S, AudioLog
+from align.vad import LEVEL_FRAME_S
+from capture import ARKIT61, build_takes, read_take
+from capture.audio_capture import CHUNK_S, AudioLog, read_audio_log
 from capture.livelink import frame_block, header_bytes
 from capture.record_log import LogWriter, RecordType, encode_record, json_record
 from capture.recorder import AUDIO_LOG, FRAME_PREFIX, FRAMES_LOG
-from capture.session_takes import AUDIO_MARGIN_S, SessionLog
+from capture.session_takes import AUDIO_MARGIN_S, AUDIO_SPAN_GRID_S, SessionLog
 
 FPS = 60
 PHONE_AHEAD_S = 100.0  # the phone's frame clock runs this far ahead of the session clock
@@ -41,11 +45,18 @@ def session_index(audio: np.ndarray) -> np.ndarray:
 
 
 def write_session(
-    folder, takes: list[tuple[float, int]], audio: tuple[float, float] | None, rate: int = 8000, gaps=()
+    folder,
+    takes: list[tuple[float, int]],
+    audio: tuple[float, float] | None,
+    rate: int = 8000,
+    gaps=(),
+    sound=ramp,
+    mouth=None,
 ):
     """A session folder: per take (session time of its first frame, frames) 60 fps frames arriving on
-    time; with ``audio`` (session time of its first sample, seconds) a stereo ``ramp`` logged in 0.1 s
-    chunks, leaving out the chunks of the sample ranges in ``gaps``."""
+    time; with ``audio`` (session time of its first sample, seconds) a stereo ``sound`` (by default the
+    ``ramp``) logged in 0.1 s chunks, leaving out the chunks of the sample ranges in ``gaps``. ``mouth``:
+    the jawOpen of each frame from its session time (else ``VALUES``)."""
     folder.mkdir(parents=True)
     log = LogWriter(folder / FRAMES_LOG, fsync=False)
     log.put(json_record(RecordType.SESSION, {"session": folder.stem, "clock": {"origin_ns": 0}}))
@@ -56,18 +67,21 @@ def write_session(
         for i in range(frames):
             arrival_ns = round((first + i) / FPS * 1e9 - PHONE_AHEAD_S * 1e9)
             prefix = FRAME_PREFIX.pack(RecordType.FRAME, 0, arrival_ns)
-            log.put(encode_record(prefix + frame_block(first + i, 0.0, FPS, 1, VALUES)))
+            values = VALUES.copy()
+            if mouth is not None:
+                values[ARKIT61.index("jawOpen")] = mouth(arrival_ns / 1e9)
+            log.put(encode_record(prefix + frame_block(first + i, 0.0, FPS, 1, values)))
     log.close()
     if audio is None:
         return
     first_s, seconds = audio
-    sound = AudioLog(folder / AUDIO_LOG, fsync=False)
-    sound.start(rate, 2, "PCM_16", "test")
+    sound_log = AudioLog(folder / AUDIO_LOG, fsync=False)
+    sound_log.start(rate, 2, "PCM_16", "test")
     chunk = int(rate * CHUNK_S)
     for first in range(0, int(rate * seconds), chunk):
         if not any(lo <= first < hi for lo, hi in gaps):
-            sound.add_chunk(first, round((first_s + first / rate) * 1e9), ramp(first, chunk, 2))
-    sound.close()
+            sound_log.add_chunk(first, round((first_s + first / rate) * 1e9), sound(first, chunk, 2))
+    sound_log.close()
 
 
 def takes_of(session, out) -> list[tuple[dict, object]]:
@@ -78,6 +92,15 @@ def test_the_margin_covers_the_aligners_default_search():
     # align searches the offset within --max-offset-ms (default 500 ms), looks 0.25 s beyond it, and judges
     # a clap found there against the 0.5 s of sound around it; each take's audio reaches a frame further
     assert AUDIO_MARGIN_S >= AlignOptions().max_offset_s + max(BEYOND_RANGE_S, CLAP_SURROUNDINGS_S)
+    # and a take's audio starts where each of align's steps from the audio's first sample starts anew: its
+    # 16 kHz samples, 10 ms energy steps, 32 ms level and silero windows and 30 ms WebRTC frames
+    for step in (
+        Fraction(1, TARGET_RATE),
+        Fraction(1, int(ANALYSIS_RATE)),
+        Fraction(str(LEVEL_FRAME_S)),
+        Fraction(3, 100),
+    ):
+        assert (AUDIO_SPAN_GRID_S / step).denominator == 1
 
 
 def test_each_take_gets_only_its_own_span_of_the_session_audio_each_sample_at_its_take_time(tmp_path):
@@ -91,8 +114,12 @@ def test_each_take_gets_only_its_own_span_of_the_session_audio_each_sample_at_it
     for start, (summary, take) in zip(starts, takes, strict=True):
         audio, placed = take.audio, take.meta.audio
         assert placed.start_source == "recorder_clock"
-        # from a margin (and a frame) before the first frame to as long after the last frame's period
-        assert -margin - 1 / rate < placed.start_s <= -margin
+        # from a margin (and a frame, and less than the grid) before the first frame to as long after the
+        # last frame's period; on the grid of the session's audio
+        assert -margin - AUDIO_SPAN_GRID_S - 1 / rate < placed.start_s <= -margin
+        assert (start + placed.start_s) / AUDIO_SPAN_GRID_S == pytest.approx(
+            round((start + placed.start_s) / AUDIO_SPAN_GRID_S)
+        )
         assert placed.start_s + audio.frames / rate == pytest.approx(2.0 + margin, abs=1.5 / rate)
         # sample k sits at take time start_s + k / rate, as it did in the session's audio (sample-exact)
         k = np.arange(audio.frames)
@@ -105,7 +132,7 @@ def test_each_take_gets_only_its_own_span_of_the_session_audio_each_sample_at_it
         assert summary["audio_duration_s"] == round(audio.frames / rate, 6)
         assert summary["audio_start_s"] == placed.start_s and "audio_gaps" not in summary
     info = run_cli("info", "--json", takes[1][0]["path"])
-    assert json.loads(info.stdout)["audio_duration_s"] == takes[1][0]["audio_duration_s"] < 4.1
+    assert json.loads(info.stdout)["audio_duration_s"] == takes[1][0]["audio_duration_s"] < 4.6
 
 
 def test_margins_stop_at_the_audios_ends_and_a_take_the_audio_never_reaches_has_none(tmp_path):
@@ -170,7 +197,7 @@ def test_a_session_recorded_over_udp_keeps_its_audio_in_sync_take_by_take(tmp_pa
         take = read_take(summary["path"])
         extra, start_s = take.meta.extra, take.meta.audio.start_s
         whole_start_s = audio_first_s - extra["clock_offset_s"] - extra["first_frame_number"] / FPS
-        assert take.audio.frames < (1.0 + 2 * (AUDIO_MARGIN_S + 1 / FPS)) * rate + 2
+        assert take.audio.frames < (1.0 + 2 * (AUDIO_MARGIN_S + 1 / FPS) + AUDIO_SPAN_GRID_S) * rate + 2
         first = session_index(take.audio.samples)
         assert first[0] == round((start_s - whole_start_s) * rate) == extra["session_audio"]["first_sample"]
         assert np.array_equal(first, first[0] + np.arange(take.audio.frames))
@@ -194,3 +221,37 @@ def test_a_long_sessions_take_reads_only_its_own_span(tmp_path):
         check=True,
     )
     assert int(proc.stdout) < 20_000  # kB of peak memory added by building the take
+
+
+def syllables(t: np.ndarray) -> np.ndarray:
+    """A speech-like loudness, 0..1, at session times ``t`` (s): syllables at an uneven rate."""
+    return 0.5 + 0.5 * np.sin(2 * np.pi * 3.1 * t + 2 * np.sin(2 * np.pi * 0.37 * t))
+
+
+def test_align_finds_in_a_takes_span_what_it_found_in_the_whole_session_audio(tmp_path):
+    # Noise at a syllable loudness (44.1 kHz), the face's jawOpen following it; the take starts 5.013 s into
+    # the audio. With its span starting anywhere, align's 16 kHz samples and 10 ms energy steps fell
+    # elsewhere than in the whole audio: the aligned take started at -0.008314 s, not 0.008333 s (a frame
+    # apart), and a recorded session's aligned audio differed by up to 1e-3 (rms 0.05). The span starts on
+    # AUDIO_SPAN_GRID_S of the session's audio: the same segment and samples as with the whole audio.
+    rate = 44100
+
+    def sound(first: int, n: int, channels: int) -> np.ndarray:
+        k = np.arange(first, first + n)
+        noise = np.sin(k * 12.9898) * 43758.5453 % 1.0 - 0.5  # the same at each sample index, chunk or not
+        return np.repeat((12000 * syllables(k / rate) * noise)[:, None], channels, 1).astype(np.int16)
+
+    write_session(tmp_path / "c.recording", [(5.013, 180)], (0.0, 12.0), rate, sound=sound, mouth=syllables)
+    ((summary, take),) = takes_of(tmp_path / "c.recording", tmp_path / "out")
+    whole, _, _ = read_audio_log(tmp_path / "c.recording" / AUDIO_LOG)
+    lo = take.meta.extra["session_audio"]["first_sample"]
+    assert take.audio.frames < 6 * rate  # not the 12 s of the session
+    whole_take = read_take(summary["path"])
+    whole_take.attach_audio(whole, take.meta.audio.start_s - lo / rate, "recorder_clock")
+    options = AlignOptions(vad="none")
+    (span_aligned,), span_report = align_with_report(take, options)
+    (whole_aligned,), whole_report = align_with_report(whole_take, options)
+    # the lag within the correlation's 0.1 ms step (its normalisation sees the span, not the session)
+    assert span_report["content_lag_s"] == pytest.approx(whole_report["content_lag_s"], abs=1.5e-4)
+    assert span_report["segment_list"] == whole_report["segment_list"]
+    assert np.allclose(span_aligned.audio.samples, whole_aligned.audio.samples, atol=1e-6)
