@@ -368,6 +368,10 @@ def _timecode_at(meta: TakeMeta, take_time: float) -> str | None:
     return Timecode.from_seconds(tod % 86400.0).format()
 
 
+# repairs of a live take built without audio (capture/session_takes.py), whose messages say why
+LIVE_AUDIO_LEFT_OUT = ("audio_outside_take", "audio_left_out")
+
+
 def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[list[Take], dict[str, Any]]:
     """Align ``take``; returns the aligned segment takes and the take's report (see ``align_take``).
     A take read without its audio is aligned to its audio file read block by block when the call is
@@ -378,7 +382,10 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     tid = meta.id
     audio = audio_of(take)
     if audio is None or meta.audio is None:
-        raise InputError(f"take {tid} has no audio: align needs the speech (import it with --audio)")
+        # a live take the session's audio did not reach, or whose span could not be kept, says why
+        why = [r["message"] for r in meta.repairs if r.get("kind") in LIVE_AUDIO_LEFT_OUT]
+        hint = f" ({why[0]})" if why else " (import it with --audio)"
+        raise InputError(f"take {tid} has no audio: align needs the speech{hint}")
     notes: list[dict[str, Any]] = []
     x = to_16k_mono(audio, tid, notes)
     mix_notes = [{k: v for k, v in n.items() if k != "kind"} for n in notes if n["kind"] == "audio_mix"]
@@ -426,6 +433,11 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
             "imported with (--fps for a matrix), and whether the audio was cut to these frames (silence "
             "before the speech, or its start cut away)"
         )
+    elif meta.audio.start_source == "recorder_clock":
+        # A live take's audio is its span of the session's, cut with a margin on each side on the face's
+        # own clock: longer by design; what counts is the face it leaves without audio.
+        if face_dur - overlap > max(1.0, 0.1 * face_dur):
+            flags.append("duration_mismatch")
     elif not paired and abs(longer) > max(1.0, 0.1 * max(audio_dur, face_dur)):
         flags.append("duration_mismatch")
     clipped = clipped_share(audio)

@@ -20,8 +20,9 @@ from align.options import AlignOptions
 from align.resample import TARGET_RATE
 from align.transient import CLAP_SURROUNDINGS_S
 from align.vad import LEVEL_FRAME_S
-from capture import ARKIT61, build_takes, read_take
+from capture import ARKIT61, Audio, build_takes, read_take
 from capture.audio_capture import CHUNK_S, AudioLog, read_audio_log
+from capture.errors import InputError
 from capture.livelink import frame_block, header_bytes
 from capture.record_log import LogWriter, RecordType, encode_record, json_record
 from capture.recorder import AUDIO_LOG, FRAME_PREFIX, FRAMES_LOG
@@ -150,6 +151,8 @@ def test_margins_stop_at_the_audios_ends_and_a_take_the_audio_never_reaches_has_
     assert none.audio is None and none.meta.audio is None and summary["audio_sample_rate"] is None
     (note,) = none.meta.repairs
     assert note["kind"] == "audio_outside_take" and "-39.000 s to -9.200 s" in note["message"]
+    with pytest.raises(InputError, match=r"has no audio: align needs the speech \(the session's audio \("):
+        align_with_report(none)  # align says why, not "import it with --audio"
     # a session without audio: takes without audio, and nothing to say about it
     write_session(tmp_path / "b.recording", takes[:1], None)
     ((summary, take),) = takes_of(tmp_path / "b.recording", tmp_path / "out-b")
@@ -255,3 +258,11 @@ def test_align_finds_in_a_takes_span_what_it_found_in_the_whole_session_audio(tm
     assert span_report["content_lag_s"] == pytest.approx(whole_report["content_lag_s"], abs=1.5e-4)
     assert span_report["segment_list"] == whole_report["segment_list"]
     assert np.allclose(span_aligned.audio.samples, whole_aligned.audio.samples, atol=1e-6)
+    # the span's margins (2.5 s more audio than the 3 s of face) are by design: no duration_mismatch, as
+    # a face the audio leaves uncovered is
+    assert "duration_mismatch" not in span_report["flags"]
+    cut = read_take(summary["path"])
+    ends = int((1.5 - take.meta.audio.start_s) * rate)  # the audio ends 1.5 s into the 3 s of face
+    short = Audio(take.audio.samples[:ends], rate, take.audio.subtype)
+    cut.attach_audio(short, take.meta.audio.start_s, "recorder_clock")
+    assert "duration_mismatch" in align_with_report(cut, options)[1]["flags"]
