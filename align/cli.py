@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from capture.command import StageParser, emit_json, progress, run, sigterm_stops
+from capture.command import StageParser, add_version, emit_json, jobs_count, progress, run, sigterm_stops
 from capture.import_guard import imports_done
 
 from .batch import align_takes
@@ -16,16 +16,6 @@ from .options import FRAME_CLOCKS, VAD_METHODS, AlignOptions, range_problem
 _guard = imports_done("align")
 
 PROG = "s2a-align"
-
-
-def _jobs(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return n
 
 
 def _in_range(option: str):
@@ -52,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         "events, claps, content), correct drift, trim silence by VAD, resample audio to 16 kHz and frames "
         "onto a uniform grid. Offset sign: offset_s > 0 means the face lags the audio in the raw take.",
     )
+    add_version(p)
     p.add_argument("takes", nargs="+", type=Path, help="take folders, or folders holding them (recursive)")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the aligned takes into")
     p.add_argument("--fps", type=_in_range("--fps"), help="output frame rate (default: each take's own)")
@@ -99,7 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-drift", action="store_true", help="do not correct clock drift")
     p.add_argument("--no-video", action="store_true", help="do not look for a clap in the reference video")
-    p.add_argument("--jobs", "-j", type=_jobs, default=1, help="takes aligned in parallel (processes)")
+    p.add_argument(
+        "-j", "--jobs", type=jobs_count, default=1, metavar="N", help="takes aligned in parallel (processes)"
+    )
     p.add_argument("--force", action="store_true", help="re-align takes whose inputs are unchanged")
     p.add_argument(
         "--skip-without-audio",

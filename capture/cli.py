@@ -1,4 +1,5 @@
-"""``s2a-capture``: import takes, inspect them, write them back as Live Link Face CSV."""
+"""``s2a-capture``: import takes, record them live from the phone (listen, recover, remote, replay),
+simulate them, inspect them, write them back as Live Link Face CSV."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .audio_io import audio_left_in_files
 from .channels import is_known
-from .command import StageParser, emit_json, progress, run, sigterm_stops
+from .command import StageParser, add_version, emit_json, progress, run, sigterm_stops
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
@@ -80,6 +81,7 @@ WARN_HINTS = {"truncated_row": "an incomplete copy or download? Copy or download
 
 def build_parser() -> argparse.ArgumentParser:
     parser = StageParser(prog=PROG, description=__doc__)
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(
@@ -90,7 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("sources", nargs="*", type=Path, help="CSV files, take folders, or folders of them")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the takes into")
-    p.add_argument("--audio", type=Path, help="audio recorded elsewhere (WAV/FLAC/MP3/M4A) for one CSV")
+    p.add_argument(
+        "--audio", metavar="FILE", type=Path, help="audio recorded elsewhere (WAV/FLAC/MP3/M4A) for one CSV"
+    )
     p.add_argument(
         "--pair-audio",
         action="store_true",
@@ -101,11 +105,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--matrix",
+        metavar="FILE",
         type=Path,
         help="generic import: frames x channels weights (.npy, .npz, .csv, or an Audio2Face .json export)",
     )
     p.add_argument(
-        "--names", type=Path, help="generic import: channel names (.txt one per line, a .json list, or .npy)"
+        "--names",
+        metavar="FILE",
+        type=Path,
+        help="generic import: channel names (.txt one per line, a .json list, or .npy)",
     )
     p.add_argument("--fps", type=float, help="generic import: frame rate (a .json gives its own)")
     p.add_argument(
@@ -119,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         help="generic import: multiply the weights by this (0.01 for weights on a 0..100 scale)",
     )
-    p.add_argument("--id", dest="take_id", help="take id (default: from the source's name)")
+    p.add_argument("--id", metavar="ID", dest="take_id", help="take id (default: from the source's name)")
     p.add_argument(
         "--variant",
         choices=("cal", "raw", "plain"),
@@ -147,7 +155,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_import)
 
     p = sub.add_parser("info", help="frames, rate, drops, face-lost frames and audio of takes")
-    p.add_argument("takes", nargs="+", type=Path, help="take folders (ours or the app's) or CSV files")
+    p.add_argument(
+        "takes",
+        nargs="+",
+        type=Path,
+        help="take folders (ours or the app's), CSV files, or folders or zip archives of them",
+    )
     p.add_argument("--json", action="store_true", help="one JSON object per take")
     p.set_defaults(handler=cmd_info)
 

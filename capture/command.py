@@ -4,6 +4,7 @@ progress on stderr. Usage errors exit with 2 (argparse)."""
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import json
 import math
 import os
@@ -19,10 +20,59 @@ from typing import Any
 from .errors import S2AError
 
 
+class _StageHelp(argparse.HelpFormatter):
+    """Help that shows each option's default (``(default: 1)``) unless its text already speaks of it,
+    or the option has none worth saying (unset, off, empty)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (
+            not action.option_strings
+            or "default" in text
+            or default in (None, "", [], argparse.SUPPRESS)
+            or isinstance(default, bool)
+        ):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (list, tuple)) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+class _Subcommands(argparse._SubParsersAction):
+    """Subcommands whose own ``--help`` opens with their one-line help when they have no description."""
+
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        kwargs.setdefault("description", kwargs.get("help"))
+        return super().add_parser(name, **kwargs)
+
+
+# An option named with its unit (``--max-gap-ms``) shows the unit as what it expects: ``--max-gap-ms MS``.
+UNIT_METAVARS = {"-ms": "MS", "-s": "S", "-mb": "MB", "-minutes": "MIN"}
+
+
 class StageParser(argparse.ArgumentParser):
     """The ``ArgumentParser`` of every stage's command line: its usage errors say how to give a file
     whose name begins with ``-`` (``s2a-train predict RUN -d.wav``), which argparse takes for an option it
-    does not know. Subcommands' parsers are of this class too (argparse makes them of the parent's)."""
+    does not know. Subcommands' parsers are of this class too (argparse makes them of the parent's). Its
+    help shows defaults, a subcommand's help opens with its one line, an option named with its unit
+    expects that unit (``UNIT_METAVARS``), and a description taken from a module's docstring loses its
+    reST double backquotes."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _StageHelp)
+        if kwargs.get("description"):
+            kwargs["description"] = kwargs["description"].replace("``", "")
+        super().__init__(*args, **kwargs)
+        self.register("action", "parsers", _Subcommands)
+
+    def add_argument(self, *names: str, **kwargs: Any) -> argparse.Action:
+        takes_value = kwargs.get("action", "store") in ("store", "append") and "choices" not in kwargs
+        unit = next(
+            (u for s, u in UNIT_METAVARS.items() for n in names if n[:2] == "--" and n.endswith(s)), None
+        )
+        if takes_value and unit and "metavar" not in kwargs:
+            kwargs["metavar"] = unit
+        return super().add_argument(*names, **kwargs)
 
     def parse_known_args(self, args=None, namespace=None):
         self.given = list(sys.argv[1:] if args is None else args)  # for error(), which is not told them
@@ -39,6 +89,30 @@ class StageParser(argparse.ArgumentParser):
                 how = f"-- {name} after the options"
             message += f" ({name} is taken for an option: for a file of that name, write ./{name}, or {how})"
         super().error(message)
+
+
+DISTRIBUTION = "s2a-toolkit"  # the name pyproject.toml installs the five commands under
+
+
+def add_version(parser: argparse.ArgumentParser) -> None:
+    """``--version``: the command's name and the installed toolkit's version (package metadata)."""
+    try:
+        version = importlib.metadata.version(DISTRIBUTION)
+    except importlib.metadata.PackageNotFoundError:  # run from a checkout that was never installed
+        version = "unknown (not installed)"
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version}")
+
+
+def jobs_count(text: str) -> int:
+    """An argparse type for ``-j/--jobs``: a whole number of processes, at least 1 (else a usage
+    error)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError("must be at least 1")
+    return n
 
 
 def _options_given(parser: argparse.ArgumentParser) -> list[str]:
@@ -85,8 +159,9 @@ def json_safe(value: Any) -> Any:
 
 
 def emit_json(obj: dict[str, Any]) -> None:
-    """One JSON object on one line of stdout."""
-    sys.stdout.write(json.dumps(obj, allow_nan=False, default=str) + "\n")
+    """One JSON object on one line of stdout, strict: a NaN or infinite number anywhere in it is null
+    (JSON has none; ``allow_nan=False`` alone made one a traceback instead of a result)."""
+    sys.stdout.write(json.dumps(json_safe(obj), allow_nan=False, default=str) + "\n")
     sys.stdout.flush()
 
 

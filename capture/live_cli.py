@@ -89,6 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--bind",
+        metavar="ADDR",
         type=_bind_address,
         default="127.0.0.1",
         help="address to listen on (a LAN address for a phone on Wi-Fi; 0.0.0.0 or :: for all)",
@@ -96,11 +97,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--allow", nargs="+", metavar="ADDR", help="accept packets only from these source addresses"
     )
-    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--duration", metavar="S", type=float, help="stop after this many seconds")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--audio-device", help="record audio from this sound device (index or name)")
     src.add_argument(
-        "--audio-file", type=Path, help="play this sound file as the session audio (tests, replays)"
+        "--audio-device", metavar="DEVICE", help="record audio from this sound device (index or name)"
+    )
+    src.add_argument(
+        "--audio-file",
+        metavar="FILE",
+        type=Path,
+        help="play this sound file as the session audio (tests, replays)",
     )
     p.add_argument(
         "--audio-start",
@@ -108,20 +114,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="listen",
         help="when --audio-file playback starts (first-packet: at the first Live Link packet)",
     )
-    p.add_argument("--audio-rate", type=int, default=48000, help="sound-device sample rate in Hz")
-    p.add_argument("--audio-channels", type=int, default=1, help="sound-device channels")
+    p.add_argument(
+        "--audio-rate", metavar="HZ", type=int, default=48000, help="sound-device sample rate in Hz"
+    )
+    p.add_argument("--audio-channels", metavar="N", type=int, default=1, help="sound-device channels")
     p.add_argument(
         "--serial", metavar="URL", help="sync box: serial device or pyserial URL (socket://, loop://)"
     )
     p.add_argument("--baud", type=int, default=115200, help="serial baud rate")
     p.add_argument(
         "--flush-interval",
+        metavar="S",
         type=_flush_interval,
         default=0.1,
         help=f"seconds between log flushes (at most {MAX_FLUSH_INTERVAL_S:g})",
     )
     p.add_argument(
         "--max-streams",
+        metavar="N",
         type=_stream_slots,
         default=512,
         help=f"most device/subject pairs recorded at once (1..{MAX_STREAMS})",
@@ -145,20 +155,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "replay",
         help="the simulated iPhone: send a take as Live Link packets",
-        description="Send a take (take folder or Live Link Face CSV/take folder) as Live Link UDP packets "
-        "in real time, optionally with seeded loss, reordering, duplication and jitter.",
+        description="Send a take (a take folder, ours or the app's, or a Live Link Face CSV) as Live Link "
+        "UDP packets in real time, optionally with seeded loss, reordering, duplication and jitter.",
     )
-    p.add_argument("take", type=Path, help="a take folder, Live Link Face CSV or take folder")
+    p.add_argument("take", type=Path, help="a take folder (ours or the app's) or a Live Link Face CSV")
     p.add_argument("--to", required=True, metavar="HOST:PORT", help="where the listener is")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = real time)")
     p.add_argument("--loss", type=float, default=0.0, help="probability a packet is lost")
     p.add_argument("--reorder", type=float, default=0.0, help="probability a packet is held back")
     p.add_argument("--duplicate", type=float, default=0.0, help="probability a packet is sent twice")
     p.add_argument("--jitter-ms", type=float, default=0.0, help="uniform extra delay per packet, 0..MS")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fault generator")
+    p.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the fault generator")
     p.add_argument("--device", help="device id to send (default: the take's, or one derived from its id)")
     p.add_argument("--subject", help="subject name to send (default: the take's, or iPhone)")
-    p.add_argument("--audio-out", type=Path, help="write the take's audio here for listen --audio-file")
+    p.add_argument(
+        "--audio-out", metavar="FILE", type=Path, help="write the take's audio here for listen --audio-file"
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_replay)
 
@@ -168,24 +180,34 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Send OSC commands to Live Link Face (formats doc §6) and wait for its replies.",
     )
     p.add_argument("phone", help="the phone's address (HOST or HOST:PORT, OSC port default 8000)")
-    p.add_argument("--reply-host", help="local address the phone answers to (default: the route to it)")
-    p.add_argument("--reply-port", type=int, default=0, help="local UDP port for replies (default: any)")
-    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for each reply")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    remote_options = (
+        ("--reply-host", {"help": "local address the phone answers to (default: the route to it)"}),
+        ("--reply-port", {"type": int, "default": 0, "help": "local UDP port for replies (default: any)"}),
+        (
+            "--timeout",
+            {"metavar": "S", "type": float, "default": 2.0, "help": "seconds to wait for each reply"},
+        ),
+        ("--json", {"action": "store_true", "help": "print the result as JSON"}),
+    )
+    for option, how in remote_options:
+        p.add_argument(option, **how)
     actions = p.add_subparsers(dest="action", required=True)
     a = actions.add_parser("record-start", help="start recording a take on the phone")
-    a.add_argument("slate")
-    a.add_argument("take_number", type=int, metavar="take")
+    a.add_argument("slate", help="the slate name the phone gives the take")
+    a.add_argument("take_number", type=int, metavar="take", help="the take number (1 or more)")
     actions.add_parser("record-stop", help="stop recording; prints the phone's CSV and MOV paths")
     a = actions.add_parser("target", help="stream Live Link to HOST:PORT (clears other targets)")
-    a.add_argument("address", metavar="HOST:PORT")
+    a.add_argument("address", metavar="HOST:PORT", help="where Live Link packets go (this machine's listen)")
     a.add_argument("--keep", action="store_true", help="add to the existing targets instead")
     actions.add_parser("battery", help="battery level")
     actions.add_parser("thermals", help="thermal state")
     a = actions.add_parser("subject", help="set the Live Link subject name")
-    a.add_argument("name")
+    a.add_argument("name", help="the subject name the packets carry")
     actions.add_parser("stream-start", help="start Live Link streaming")
     actions.add_parser("stream-stop", help="stop Live Link streaming")
+    for action in actions.choices.values():  # the options also after the action: remote PHONE battery --json
+        for option, how in remote_options:
+            action.add_argument(option, **how | {"default": argparse.SUPPRESS, "help": argparse.SUPPRESS})
     p.set_defaults(handler=cmd_remote)
 
 

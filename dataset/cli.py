@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-from capture.command import StageParser, Terminated, emit_json, progress, run
+from capture.command import StageParser, Terminated, add_version, emit_json, jobs_count, progress, run
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -33,6 +33,7 @@ T = TypeVar("T")
 
 def build_parser() -> argparse.ArgumentParser:
     parser = StageParser(prog=PROG, description=__doc__)
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(
@@ -54,7 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="comma list of pitch, energy, fbank, mfcc, ppg (default: %(default)s; ppg added by --ppg)",
     )
     p.add_argument("--ppg", default="none", choices=BACKENDS, help="PPG backend (default: none)")
-    p.add_argument("--ppg-model", help="checkpoint (bottleneck) or model file (torchscript, onnx)")
+    p.add_argument(
+        "--ppg-model", metavar="FILE", help="checkpoint (bottleneck) or model file (torchscript, onnx)"
+    )
     p.add_argument("--normalization", default="zscore", choices=KINDS, help="animation normalisation")
     p.add_argument(
         "--level",
@@ -71,10 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--test", nargs="+", default=[], metavar="ID", help="takes, recordings or speakers pinned to test"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the split order")
+    p.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the split order")
     p.add_argument("--shard-mb", type=float, default=256.0, help="size cap of a shard in MB (default 256)")
     p.add_argument("--max-sample-s", type=float, default=30.0, help="longest sample in seconds (default 30)")
-    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("-j", "--jobs", type=jobs_count, default=1, metavar="N", help="worker processes")
     p.add_argument("--keep-work", action="store_true", help="keep DS/.work (per-take cache) after success")
     p.add_argument(
         "--skip-flagged",

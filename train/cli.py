@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from capture.command import StageParser, emit_json, run, sigterm_stops
+from capture.command import StageParser, add_version, emit_json, run, sigterm_stops
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.import_guard import imports_done
@@ -36,23 +36,32 @@ def _path(text: str) -> Path:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = StageParser(prog=PROG, description=__doc__)
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("fit", help="train a system on a dataset into a run folder")
-    p.add_argument("--data", type=_path, required=True, help="dataset folder (s2a-dataset build)")
+    p.add_argument(
+        "--data", metavar="DS", type=_path, required=True, help="dataset folder (s2a-dataset build)"
+    )
     p.add_argument("--model", choices=MODELS, help="system to train (default: the config's, else s2a)")
     p.add_argument("-o", "--out", type=_path, required=True, help="run folder")
-    p.add_argument("--config", type=Path, help="TOML file of config keys (see docs/train.md)")
+    p.add_argument("--config", metavar="FILE", type=Path, help="TOML file of config keys (see docs/train.md)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
-    p.add_argument("--max-steps", type=int, help="optimizer steps (overrides max_steps)")
+    p.add_argument("--max-steps", metavar="N", type=int, help="optimizer steps (overrides max_steps)")
     p.add_argument("--max-minutes", type=float, help="wall-clock limit in minutes (overrides max_minutes)")
+    p.add_argument(
+        "--seed",
+        metavar="N",
+        type=int,
+        help="seed of the initial weights and the batch order (overrides seed)",
+    )
     p.add_argument("--resume", action="store_true", help="continue the run from its last checkpoint")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_fit)
 
     p = sub.add_parser("eval", help="RMSE (paper scale), per-channel errors, floor and RTF of a run")
     p.add_argument("run", type=_path, help=RUN_HELP)
-    p.add_argument("--data", type=_path, required=True, help="dataset folder")
+    p.add_argument("--data", metavar="DS", type=_path, required=True, help="dataset folder")
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
     _precision_option(p)
     _style_option(p, "each utterance's own speaker's, the mean style for a speaker the run did not train on")
@@ -63,7 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", type=_path, help=RUN_HELP)
     p.add_argument("audio", nargs="+", type=Path, help="audio files (any rate; mixed to mono)")
     p.add_argument("-o", "--out", type=_path, required=True, help="CSV (one input) or folder")
-    p.add_argument("--ppg-model", type=Path, help="PPG model file when the run's dataset used one")
+    p.add_argument(
+        "--ppg-model", metavar="FILE", type=Path, help="PPG model file when the run's dataset used one"
+    )
     p.add_argument(
         "--speaker", help="dataset speaker whose pitch statistics to use (default: the utterance's)"
     )
@@ -85,13 +96,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_predict)
 
     p = sub.add_parser("compare", help="train and evaluate several systems; Table 1 and Table 2")
-    p.add_argument("--data", type=_path, required=True, help="dataset folder")
+    p.add_argument("--data", metavar="DS", type=_path, required=True, help="dataset folder")
     p.add_argument("-o", "--out", type=_path, required=True, help="folder for the runs and results")
-    p.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS, help="systems to compare")
-    p.add_argument("--config", type=Path, help="TOML file shared by all systems")
+    p.add_argument(
+        "--models",
+        nargs="+",
+        default=list(MODELS),
+        choices=MODELS,
+        metavar="SYSTEM",
+        help=f"systems to compare, of {', '.join(MODELS)} (default: all)",
+    )
+    p.add_argument("--config", metavar="FILE", type=Path, help="TOML file shared by all systems")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
-    p.add_argument("--max-steps", type=int, help="optimizer steps per system")
+    p.add_argument("--max-steps", metavar="N", type=int, help="optimizer steps per system")
     p.add_argument("--max-minutes", type=float, help="wall-clock limit per system in minutes")
+    p.add_argument("--seed", metavar="N", type=int, help="seed of every system's training (overrides seed)")
     p.add_argument("--split", default="test", help="split to evaluate (default: test)")
     p.add_argument("--json", action="store_true", help="print one JSON line per system")
     p.set_defaults(handler=cmd_compare)
@@ -99,8 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "agreement", help="how well the takes predict each other (ridge, leave one take out): odd takes out"
     )
-    p.add_argument("--data", type=_path, required=True, help="dataset folder")
-    p.add_argument("--config", type=Path, help="TOML file (input, prosody, ridge_context, ridge_alpha)")
+    p.add_argument("--data", metavar="DS", type=_path, required=True, help="dataset folder")
+    p.add_argument(
+        "--config", metavar="FILE", type=Path, help="TOML file (input, prosody, ridge_context, ridge_alpha)"
+    )
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config key")
     p.add_argument(
         "--splits",
@@ -110,11 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
         "not for choosing a model)",
     )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
-    p.set_defaults(handler=cmd_agreement, max_steps=None, max_minutes=None)
+    p.set_defaults(handler=cmd_agreement)
 
     p = sub.add_parser("ppg", help="train the 64-dim bottleneck PPG extractor from phone alignments")
     p.add_argument(
         "--data",
+        metavar="PATH",
         type=_path,
         nargs="+",
         required=True,
@@ -131,8 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
         "by pocketsphinx's bundled English model, for speech without alignments in any language",
     )
     p.add_argument("-o", "--out", type=_path, required=True, help="checkpoint to write (ppg.pt)")
-    p.add_argument("--steps", type=int, default=300, help="optimizer steps (default 300)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", metavar="N", type=int, default=300, help="optimizer steps (default 300)")
+    p.add_argument(
+        "--seed", metavar="N", type=int, default=0, help="seed of the initial weights and the batch order"
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_ppg)
 
@@ -166,23 +190,25 @@ def _config(args: argparse.Namespace, model: str | None = None) -> dict:
     cfg = resolve_config(args.config, args.set)
     if model is not None:
         cfg["model"] = model
-    if args.max_steps is not None:
-        cfg["max_steps"] = args.max_steps
-    if args.max_minutes is not None:
-        cfg["max_minutes"] = args.max_minutes
-    return resolve_config(None, None, base=cfg)
+    return resolve_config(None, None, base=cfg | _options_given(args))
+
+
+# config keys with an option of their own in fit and compare (agreement has none of them)
+CONFIG_OPTIONS = ("max_steps", "max_minutes", "seed")
+
+
+def _options_given(args: argparse.Namespace) -> dict:
+    """The config keys given as options (``--max-steps``, ``--max-minutes``, ``--seed``)."""
+    return {key: getattr(args, key) for key in CONFIG_OPTIONS if getattr(args, key, None) is not None}
 
 
 def _given(args: argparse.Namespace, model: str | None) -> dict:
-    """Only the config keys the user set (``--config``, ``--set``, ``--model``, the limit options):
+    """Only the config keys the user set (``--config``, ``--set``, ``--model``, ``CONFIG_OPTIONS``):
     what a resumed run checks against its own config."""
     given = resolve_config(args.config, args.set, base={}, check=False)
     if model is not None:
         given["model"] = model
-    for key in ("max_steps", "max_minutes"):  # limits given as options count as set by the user
-        if getattr(args, key) is not None:
-            given[key] = getattr(args, key)
-    return given
+    return given | _options_given(args)  # keys given as options count as set by the user
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from capture.command import StageParser, TimedProgress, emit_json, progress, run
+from capture.command import StageParser, TimedProgress, add_version, emit_json, progress, run
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -59,6 +59,7 @@ LIMIT = _number(int, 0, math.inf, "0 or more (0: no curve thumbnails)")
 
 def build_parser() -> argparse.ArgumentParser:
     parser = StageParser(prog=PROG, description=__doc__)
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser(
@@ -107,10 +108,16 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="builtin|FILE.glb",
         help="the face: the built-in head (default) or a glTF/GLB file with ARKit morph targets",
     )
-    p.add_argument("--audio", type=Path, help="speech for a CSV input (a take folder brings its own)")
-    p.add_argument("--size", type=SIZE, default=512, help="panel height and width in pixels (default 512)")
-    p.add_argument("--frame", type=FRAME, help="PNG: frame index of the input (default: widest open jaw)")
-    p.add_argument("--time", type=TIME, help="PNG: seconds after the input's first frame")
+    p.add_argument(
+        "--audio", metavar="FILE", type=Path, help="speech for a CSV input (a take folder brings its own)"
+    )
+    p.add_argument(
+        "--size", metavar="PX", type=SIZE, default=512, help="panel height and width in pixels (default 512)"
+    )
+    p.add_argument(
+        "--frame", metavar="N", type=FRAME, help="PNG: frame index of the input (default: widest open jaw)"
+    )
+    p.add_argument("--time", metavar="S", type=TIME, help="PNG: seconds after the input's first frame")
     p.add_argument("--labels", help="comma list of panel names, one per input (default: take ids)")
     p.add_argument("--no-labels", action="store_true", help="no panel names in side-by-side output")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -130,16 +137,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--channels", default="jawOpen", help="comma list of channels or a set name (default jawOpen)"
     )
-    p.add_argument("--audio", type=Path, help="speech for the first input when it is a CSV")
+    p.add_argument("--audio", metavar="FILE", type=Path, help="speech for the first input when it is a CSV")
     p.add_argument(
         "--vad",
         default="auto",
         choices=VAD_METHODS,
-        help="speech segments: auto = align report, else silero VAD (default)",
+        help="speech segments beneath the curves: auto (the default) takes an aligned take's report, else "
+        "runs silero VAD; or this detector, or none",
     )
     p.add_argument("--labels", help="comma list of legend names, one per input")
-    p.add_argument("--start", type=SECONDS, help="first second shown")
-    p.add_argument("--end", type=SECONDS, help="last second shown")
+    p.add_argument("--start", metavar="S", type=SECONDS, help="first second shown")
+    p.add_argument("--end", metavar="S", type=SECONDS, help="last second shown")
     p.add_argument("--title", help="figure title")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_plot, usage_error=p.error)
@@ -175,9 +183,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="output .html")
     p.add_argument(
-        "--takes", type=Path, nargs="+", default=[], help="aligned take folders whose align reports to show"
+        "--takes",
+        metavar="TAKE",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="aligned take folders whose align reports to show",
     )
-    p.add_argument("--limit", type=LIMIT, default=500, help="at most this many takes get curve thumbnails")
+    p.add_argument(
+        "--limit", metavar="N", type=LIMIT, default=500, help="at most this many takes get curve thumbnails"
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_report)
 
