@@ -134,10 +134,11 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     whose sample rate changes is an ``InputError`` saying where. A later file without a LAME tag loses
     LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``). An
     .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the count) is
-    read whole, its count corrected (``MpegRun.count_low``). Within ``audio_left_in_files`` (an import),
-    audio libsndfile reads cleanly is a ``FileAudio``: checked a block at a time, left in its file; audio
-    FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file it was decoded into, the same
-    samples and repairs as read whole (``_read_mpeg``)."""
+    read whole, its count corrected (``MpegRun.count_low``), and one without a frame count whose length
+    libsndfile estimates short (VBR without a Xing header) as joined files are. Within
+    ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a ``FileAudio``: checked a block
+    at a time, left in its file; audio FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file
+    it was decoded into, the same samples and repairs as read whole (``_read_mpeg``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -151,22 +152,16 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
         info = None
     if info is not None:
         if info.subtype.startswith("MPEG_LAYER"):
-            mpeg = _read_mpeg(path, info, repairs)
-            if mpeg is not None:
-                return mpeg
+            return _read_mpeg(path, info, repairs)
         dtype = _NATIVE.get(info.subtype, "float32")
         subtype = info.subtype if info.subtype in _NATIVE else "FLOAT"
         audio = None
-        if _LEFT_IN_FILES.get() is not None and not info.subtype.startswith("MPEG_LAYER"):
+        if _LEFT_IN_FILES.get() is not None:
             audio = _left_in_file(path, info, dtype, subtype, repairs)
         if audio is None:
-            try:
-                data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
-            except (sf.LibsndfileError, RuntimeError) as exc:
-                return _read_cut_short(path, info, exc, repairs)
-            if data.shape[0] == 0:
-                return _read_unfinished_wav(path, repairs)
-            audio = check_samples(Audio(data, rate, subtype), path, repairs)
+            audio, read = _read_whole(path, info, dtype, subtype, repairs)
+            if not read:
+                return audio
         rate = audio.sample_rate
         declared = wav_declared_frames(path)
         if repairs is not None and declared is not None and declared > audio.frames:
@@ -178,44 +173,76 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
                     f"holds {audio.duration_s:.3f} s (cut short?): the samples present are used",
                 }
             )
-        if repairs is not None and info.subtype.startswith("MPEG_LAYER"):  # mpg123 drops a recorded delay
-            note_unknown_delay(path, repairs)
         return audio
     return check_samples(decode_with_pyav(path, repairs=repairs), path, repairs)
 
 
-def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> Audio | None:
-    """``read_audio``'s audio of an MPEG audio file (.mp3) when it is not libsndfile's whole read: several
-    files joined, a change of channels, a frame count too low (libsndfile would stop there: decoded by
-    ``_read_joined_mpeg``), or any .mp3 within ``audio_left_in_files`` given a scratch folder (an import):
-    decoded a block at a time into a scratch file there (``_streamed``), the same samples and repairs as
-    read whole. None: read whole by libsndfile."""
+def _read_whole(
+    path: Path, info: Any, dtype: str, subtype: str, repairs: list[dict[str, Any]] | None
+) -> tuple[Audio, bool]:
+    """The audio libsndfile reads of ``path`` in one read (``dtype``, as ``subtype``), checked, and True;
+    or what is read in its place (a file cut short, an unfinished WAV: its repairs noted), and False."""
+    try:
+        data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
+    except (sf.LibsndfileError, RuntimeError) as exc:
+        return _read_cut_short(path, info, exc, repairs), False
+    if data.shape[0] == 0:
+        return _read_unfinished_wav(path, repairs), False
+    return check_samples(Audio(data, rate, subtype), path, repairs), True
+
+
+def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> Audio:
+    """``read_audio``'s audio of an MPEG audio file (.mp3): libsndfile's (``_read_by_libsndfile``), unless
+    it would stop early: several files joined, a change of channels, a frame count too low, a length
+    estimated short (``_estimated_short``), or its decoder ended its read at damage, short of the samples
+    the frames code (``_MPG123_DROPS``): then decoded as joined files are (``_read_joined_mpeg``). Within
+    ``audio_left_in_files`` given a scratch folder (an import), decoded a block at a time into a scratch
+    file there (``_streamed``), the same samples and repairs as read whole."""
     data = path.read_bytes()
     runs = mpeg_runs(data)
-    joined = len(runs) > 1 or any(run.count_low for run in runs)
-    skipped = _gapless_skip(data, runs[0]) if runs else 0
-    if not joined:
+    coded = sum(run.samples for run in runs)
+    if not (len(runs) > 1 or any(run.count_low for run in runs) or _estimated_short(info, runs)):
+        skipped = _gapless_skip(data, runs[0]) if runs else 0
         del data  # an hour at 320 kbit/s: 144 MB
+        found: list[dict[str, Any]] | None = None if repairs is None else []
+        audio = _read_by_libsndfile(path, info, skipped, found)
+        if audio.frames + _MPG123_DROPS >= coded:
+            if repairs is not None and found:
+                repairs += found
+            return audio
+        if isinstance(audio, FileAudio):
+            audio.discard()
+        del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
+        data = path.read_bytes()
+        runs = mpeg_runs(data)
     scratch = _LEFT_IN_FILES.get()
     if scratch is not None and scratch.folder is not None:
         audio = _streamed(
-            path,
-            repairs,
-            scratch,
-            lambda found, sink_of: (
-                _read_joined_mpeg(path, data, runs, found, sink_of)
-                if joined
-                else _mpeg_to_file(path, info, skipped, sink_of)
-            ),
+            path, repairs, scratch, lambda found, sink_of: _read_joined_mpeg(path, data, runs, found, sink_of)
         )
         if audio is not None:
-            audio = check_samples(audio, path, repairs)
-            if repairs is not None and not joined:  # as read whole, below in read_audio
-                note_unknown_delay(path, repairs)
+            return check_samples(audio, path, repairs)
+    return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
+
+
+def _read_by_libsndfile(path: Path, info: Any, skipped: int, repairs: list[dict[str, Any]] | None) -> Audio:
+    """An .mp3 read by libsndfile: a block at a time into a scratch file within ``audio_left_in_files``
+    given a scratch folder (``_mpeg_to_file``), else whole; the unrecorded encoder delay noted."""
+    audio: Audio | None = None
+    scratch = _LEFT_IN_FILES.get()
+    if scratch is not None and scratch.folder is not None:
+        audio = _streamed(
+            path, repairs, scratch, lambda _found, sink_of: _mpeg_to_file(path, info, skipped, sink_of)
+        )
+    if audio is None:
+        audio, read = _read_whole(path, info, "float32", "FLOAT", repairs)
+        if not read:
             return audio
-    if joined:
-        return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
-    return None
+    else:
+        audio = check_samples(audio, path, repairs)
+    if repairs is not None:  # mpg123 drops a recorded delay
+        note_unknown_delay(path, repairs)
+    return audio
 
 
 def _mpeg_to_file(path: Path, info: Any, skipped: int, sink_of: _SinkOf) -> FileAudio:
@@ -235,6 +262,8 @@ def _mpeg_to_file(path: Path, info: Any, skipped: int, sink_of: _SinkOf) -> File
             f.seek(0)
             while len(block := f.read(size, dtype="float32", always_2d=True)):
                 sink.append(block)
+                if len(block) < size:  # its end, or an error it resyncs after: the whole read ends there
+                    break
                 size = _MPEG_BLOCK
     except (sf.LibsndfileError, RuntimeError):
         raise _NotStreamed from None
@@ -250,6 +279,19 @@ _MPEG_BLOCK = 1152 * 64
 # What mpg123 drops at the start of a file whose LAME tag records the encoder's delay, besides that delay:
 # its synthesis filter bank's (as FFmpeg's 528 + 1)
 _MPG123_GAPLESS_DELAY = 529
+
+
+# The most samples mpg123 leaves out of those an .mp3's frames code: its own delay, the header frame's and
+# the encoder's delay and padding a LAME tag records (12 bits each)
+_MPG123_DROPS = _MPG123_GAPLESS_DELAY + 1152 + 2 * 4095
+
+
+def _estimated_short(info: Any, runs: list[MpegRun]) -> bool:
+    """Whether libsndfile's length of an .mp3 (``info.frames``: mpg123's estimate from the first frame's
+    bit rate when no header frame counts its frames) falls short of what its frames code (``runs``): a VBR
+    file without a Xing header, or files of other bit rates joined without a tag between them. libsndfile
+    reads no further than its length (a loud start at 192 kbit/s then silence: 1.2 s of 6.5 s read)."""
+    return info.frames + _MPG123_DROPS < sum(run.samples for run in runs)
 
 
 def _gapless_skip(data: bytes, run: MpegRun) -> int:
@@ -1861,12 +1903,15 @@ def _ends_as_declared(data: bytes, previous: MpegRun, start: int) -> bool:
 
 def _records_delay(part: bytes) -> bool:
     """Whether the MP3 file ``part`` (its bytes) records its encoder's delay, as FFmpeg decoding it finds
-    (``_delay_recorded``: its first packet's time); True when FFmpeg cannot open it."""
+    (``_delay_recorded``: its first packet's time), or has none to record (MPEG layer I or II: no
+    priming); True when FFmpeg cannot open it."""
     import av
 
     try:
         with av.open(io.BytesIO(part), format="mp3") as container:
             stream = container.streams.audio[0]
+            if stream.codec_context.name not in PRIMED_CODECS:
+                return True
             first_pts = next((p.pts for p in container.demux(stream) if p.pts is not None), None)
             return _delay_recorded(stream, first_pts)
     except (av.FFmpegError, OSError, ValueError, IndexError):
