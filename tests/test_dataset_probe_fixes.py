@@ -218,13 +218,18 @@ def test_mixed_frame_rates_name_a_take_of_each_rate(root):
     [
         ("--shard-mb", "1e-9", "--shard-mb 1e-09 is under one byte"),
         ("--max-sample-s", "0", "--max-sample-s must be a positive number of seconds"),
-        ("--jobs", "0", "--jobs must be at least 1"),
     ],
 )
 def test_a_wrong_size_option_is_named_alone(takes, root, option, value, named):
     line = _refused(run_here("dataset", "build", takes, "-o", root / "ds_opt", option, value), named)
     others = {"--shard-mb", "--max-sample-s", "--jobs"} - {option}
     assert not any(o in line for o in others), line
+
+
+def test_jobs_below_one_is_a_usage_error_as_in_align(takes, root):
+    proc = run_here("dataset", "build", takes, "-o", root / "ds_opt", "--jobs", "0")
+    assert proc.returncode == 2 and not (root / "ds_opt").exists()
+    assert proc.stderr.splitlines()[-1] == "s2a-dataset build: error: argument -j/--jobs: must be at least 1"
 
 
 def test_pins_that_leave_no_training_take_say_so(takes, root):
