@@ -438,6 +438,16 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
         # own clock: longer by design; what counts is the face it leaves without audio.
         if face_dur - overlap > max(1.0, 0.1 * face_dur):
             flags.append("duration_mismatch")
+            late, early = s0 - ft[0], ft[-1] + period - (s0 + audio_dur)
+            where = [
+                f"starts {late:.2f} s after its first frame" if late > 0 else "",
+                f"ends {early:.2f} s before its last frame ends" if early > 0 else "",
+            ]
+            warnings.append(
+                f"take {tid}: {face_dur - overlap:.2f} s of its {face_dur:.2f} s of face have no audio (the "
+                f"session's audio {' and '.join(w for w in where if w)}): only the {max(overlap, 0):.2f} s "
+                "with audio are kept; start the audio before the phone streams and stop it after"
+            )
     elif not paired and abs(longer) > max(1.0, 0.1 * max(audio_dur, face_dur)):
         flags.append("duration_mismatch")
     clipped = clipped_share(audio)
@@ -516,8 +526,12 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     covered = runs(status_all != UNCOVERED)
     spans = [(s, e) for s, e in covered if e - s >= min_frames]
     if not spans:
+        longest = max((e - s for s, e in covered), default=0) / fps
+        heard = sum(b - a for a, b in speech)
         raise InputError(
-            f"take {tid}: no stretch of at least {opts.min_segment_s:g} s with both speech and a tracked face"
+            f"take {tid}: no stretch of at least {opts.min_segment_s:g} s with both speech and a tracked "
+            f"face (the longest: {longest:.2f} s; {heard:.2f} s of speech in {audio_dur:.2f} s of audio): "
+            "record whole sentences in a take, or align it with a lower --min-segment-s"
         )
     if len(spans) < len(covered):
         flags.append("short_segments_dropped")

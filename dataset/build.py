@@ -542,8 +542,13 @@ def collect_takes(
                     f"take {m.id}: align flagged its audio/face offset ({', '.join(flags)}): check it, or "
                     "build with --skip-flagged"
                 )
-            clipped = _align_record(m, af).get("clipped_audio")
-            if isinstance(clipped, float) and "clipped_audio" in all_flags:
+            record = _align_record(m, af)
+            clipped = record.get("clipped_audio")
+            if af != folder:
+                # aligned here, not by the user: what align warned about the take (with its first segment)
+                if record.get("segment", 1) == 1 and isinstance(record.get("warnings"), list):
+                    notes += [w for w in record["warnings"] if isinstance(w, str)]
+            elif isinstance(clipped, float) and "clipped_audio" in all_flags:
                 notes.append(
                     f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
                     "(its loudest sounds are distorted)"
