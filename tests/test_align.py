@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import run_cli, run_here
 
 from align import AlignOptions, align_take, align_takes, align_with_report, is_aligned
 from capture import Audio, FrameStatus, InputError, Take, read_take, write_take
@@ -406,21 +406,23 @@ def test_cli_aligns_in_parallel_skips_unchanged_and_reports_errors(tmp_path, neu
         assert r["skipped"] is False and len(r["outputs"]) == r["segments"]
     aligned = [read_take(p) for r in reports for p in r["outputs"]]
     assert all(is_aligned(t) for t in aligned)
-    again = run_cli("align", raw, "-o", out, "--json")
+    # the rest in this process: the command line as a user runs it is the parallel run above, and each
+    # subprocess would add an interpreter's start-up
+    again = run_here("align", raw, "-o", out, "--json")
     assert again.returncode == 0
     second = [json.loads(line) for line in again.stdout.splitlines()]
     assert all(r["skipped"] for r in second)
     # a skipped take reports what aligning it reported: the stored report is complete
     assert [r | {"skipped": False} for r in second] == reports
     assert max(r["segments"] for r in reports) > 1  # also when the take was cut into segments
-    changed = run_cli("align", raw, "-o", out, "--json", "--face-lead-ms", "20")
+    changed = run_here("align", raw, "-o", out, "--json", "--face-lead-ms", "20")
     assert not any(json.loads(line)["skipped"] for line in changed.stdout.splitlines())
 
-    bad = run_cli("align", tmp_path / "missing", "-o", out)
+    bad = run_here("align", tmp_path / "missing", "-o", out)
     assert bad.returncode == 1 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
-    usage = run_cli("align", raw, "-o", out, "--vad", "loud")
+    usage = run_here("align", raw, "-o", out, "--vad", "loud")
     assert usage.returncode == 2
-    usage = run_cli("align", raw, "-o", out, "--frame-clock", "sometimes")
+    usage = run_here("align", raw, "-o", out, "--frame-clock", "sometimes")
     assert usage.returncode == 2 and "Traceback" not in usage.stderr
 
 

@@ -4,6 +4,7 @@ a GLB chunk longer than its file, and workers that cannot start under a low ``ul
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import resource
@@ -216,27 +217,35 @@ def test_a_glb_chunk_longer_than_the_file_is_refused(take, tmp_path):
 # -- 5. workers that cannot start under a low open-file limit: one line, whoever notices first -------------
 def test_a_build_with_too_few_file_descriptors_for_its_workers_is_one_line(tmp_path):
     takes = write_aligned_set(tmp_path / "takes", count=6, seconds=2.0)
-    refused = 0
-    for limit in (17, 19, 21, 22, 23):  # here 18-22 fail, each a worker later (the last, 22, mid-start)
-
-        def few_files(limit: int = limit) -> None:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (limit, limit))
-
-        ds = tmp_path / f"ds{limit}"
-        proc = subprocess.run(
-            [sys.executable, "-m", "dataset", "build", takes, "-o", ds, "--jobs", "4"],
-            capture_output=True,
+    # here 18-22 fail, each a worker later (the last, 22, mid-start); the builds run at once (each its own
+    # process with its own limit), as their interpreters' start-ups need not wait for each other
+    builds = {
+        limit: subprocess.Popen(
+            [sys.executable, "-m", "dataset", "build", takes, "-o", tmp_path / f"ds{limit}", "--jobs", "4"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
             text=True,
             cwd=ROOT,
-            timeout=120,
-            preexec_fn=few_files,
+            preexec_fn=functools.partial(resource.setrlimit, resource.RLIMIT_NOFILE, (limit, limit)),
             env={**os.environ, "PYTHONWARNINGS": "ignore"},
         )
-        if proc.returncode == 0:
-            continue
-        refused += 1
-        line = _one_line_error(proc, "cannot start the worker processes (Too many open files)")
-        assert "ulimit -n" in line, (limit, proc.stderr)
+        for limit in (17, 19, 21, 22, 23)
+    }
+    refused = 0
+    try:
+        for limit, build in builds.items():
+            out, err = build.communicate(timeout=120)
+            if build.returncode == 0:
+                continue
+            refused += 1
+            proc = subprocess.CompletedProcess(build.args, build.returncode, out, err)
+            line = _one_line_error(proc, "cannot start the worker processes (Too many open files)")
+            assert "ulimit -n" in line, (limit, proc.stderr)
+    finally:  # none left running after a failure
+        for build in builds.values():
+            if build.poll() is None:
+                build.kill()
+                build.communicate()
     assert refused, "no open-file limit here was too low for 4 workers"
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from conftest import run_cli
+from conftest import run_cli, run_here
 
 from align import align_take, is_aligned
 from capture import Take, read_csv_with_audio, read_paired, write_take
@@ -62,11 +62,13 @@ def test_facegood_dataset_builds_and_validates(samples, tmp_path):
     assert m["fps"] == 30.0 and m["splits"]["test"]["takes"] == ["facegood_1114_3_16"]
     assert any("mouthClose" in w for w in m["warnings"])  # a rig without ARKit's metric channels
     # the speech is voiced Mandarin: a plausible share of voiced frames and F0 range
-    stats = json.loads(run_cli("dataset", "stats", ds, "--json").stdout)
+    # stats and validate in this process: what they find is the subject here (the dataset stage's command
+    # lines run as subprocesses in test_dataset_build.py and the build above)
+    stats = json.loads(run_here("dataset", "stats", ds, "--json").stdout)
     assert stats["hours"] * 3600 > 200
     spk = m["normalization"]["pitch"]["speakers"]["shirley"]
     assert 100 < np.exp(spk["mean"]) < 400 and spk["voiced_frames"] > 1000
-    proc = run_cli("dataset", "validate", ds, "--deep", "--json")
+    proc = run_here("dataset", "validate", ds, "--deep", "--json")
     assert proc.returncode == 0, proc.stdout
     report = json.loads(proc.stdout)
     assert report["valid"]

@@ -6,8 +6,10 @@ import json
 import socket
 import struct
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from conftest import run_here
 from live_helpers import Listener, run_cli, synthetic_take
 
 from capture import FrameStatus, read_take
@@ -31,50 +33,66 @@ def test_sigkill_at_random_moments_loses_no_flushed_frame(tmp_path):
     rng = np.random.default_rng(5)
     take = synthetic_take(200, seed=5)
     header = header_bytes("KILLTEST-DEVICE", "iPhone")
-    for run in range(RUNS):
-        out = tmp_path / f"run{run}"
-        listener = Listener(out, "--flush-interval", "0.1")
-        kill_after = float(rng.uniform(0.2, 1.5))
-        sent_at: list[float] = []
-        start = time.monotonic()
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            i = 0
-            while time.monotonic() - start < kill_after:
-                s.sendto(
-                    header + frame_block(5000 + i, 0.0, 60, 1, take.values[i % 200]),
-                    ("127.0.0.1", listener.port),
-                )
-                sent_at.append(time.monotonic())
-                i += 1
-                time.sleep(max(0.0, start + i / RATE - time.monotonic()))
-            killed_at = time.monotonic()
-            listener.kill()
-        on_disk = _logged_frame_numbers(listener.session_dir)
-        r = run_cli("recover", str(out), "--json")
-        assert r.returncode == 0, r.stderr
-        lines = [json.loads(x) for x in r.stdout.splitlines()]
-        assert len(lines) == 1 and lines[0]["recovered"] is True and lines[0]["clean_end"] is False
-        got = read_take(lines[0]["path"])
-        first = got.meta.extra["first_frame_number"]
-        recovered = set((first + np.flatnonzero(got.frame_status == FrameStatus.TRACKED)).tolist())
-        assert recovered == on_disk, f"run {run}"
-        # Flushed every 0.1 s: everything sent a second before the kill is on disk (generous bound).
-        early = {5000 + k for k, t in enumerate(sent_at) if t < killed_at - 1.0}
-        assert early <= recovered, f"run {run}: {len(early - recovered)} early frames missing"
-        assert recovered <= {5000 + k for k in range(len(sent_at))}
-        lost = len(sent_at) - len(recovered)
-        print(
-            f"run {run}: kill at {kill_after:.2f} s, sent {len(sent_at)}, on disk {len(on_disk)}, lost {lost}"
-        )
-        if run > 0:
-            continue
-        # A second recover has nothing left to do; --all rebuilds the same take.
-        nothing = run_cli("recover", str(out))
-        assert nothing.returncode == 0 and "nothing to recover" in nothing.stderr
-        again = run_cli("recover", str(out), "--all", "--json")
-        assert (
-            again.returncode == 0 and json.loads(again.stdout.splitlines()[0])["frames"] == lines[0]["frames"]
-        )
+    # each run's listener starts (an interpreter's start-up) while the run before it is recovered
+    starting = ThreadPoolExecutor(1)
+    following = starting.submit(Listener, tmp_path / "run0", "--flush-interval", "0.1")
+    try:
+        for run in range(RUNS):
+            out = tmp_path / f"run{run}"
+            listener = following.result()
+            kill_after = float(rng.uniform(0.2, 1.5))
+            sent_at: list[float] = []
+            start = time.monotonic()
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                i = 0
+                while time.monotonic() - start < kill_after:
+                    s.sendto(
+                        header + frame_block(5000 + i, 0.0, 60, 1, take.values[i % 200]),
+                        ("127.0.0.1", listener.port),
+                    )
+                    sent_at.append(time.monotonic())
+                    i += 1
+                    time.sleep(max(0.0, start + i / RATE - time.monotonic()))
+                killed_at = time.monotonic()
+                listener.kill()
+            if run + 1 < RUNS:
+                following = starting.submit(Listener, tmp_path / f"run{run + 1}", "--flush-interval", "0.1")
+            on_disk = _logged_frame_numbers(listener.session_dir)
+            # the first recover is the command line as a user runs it; the others in this process (what
+            # recover does is this test's subject, and each subprocess would add an interpreter's start-up)
+            r = (
+                run_cli("recover", str(out), "--json")
+                if run == 0
+                else run_here("capture", "recover", out, "--json")
+            )
+            assert r.returncode == 0, r.stderr
+            lines = [json.loads(x) for x in r.stdout.splitlines()]
+            assert len(lines) == 1 and lines[0]["recovered"] is True and lines[0]["clean_end"] is False
+            got = read_take(lines[0]["path"])
+            first = got.meta.extra["first_frame_number"]
+            recovered = set((first + np.flatnonzero(got.frame_status == FrameStatus.TRACKED)).tolist())
+            assert recovered == on_disk, f"run {run}"
+            # Flushed every 0.1 s: everything sent a second before the kill is on disk (generous bound).
+            early = {5000 + k for k, t in enumerate(sent_at) if t < killed_at - 1.0}
+            assert early <= recovered, f"run {run}: {len(early - recovered)} early frames missing"
+            assert recovered <= {5000 + k for k in range(len(sent_at))}
+            lost = len(sent_at) - len(recovered)
+            sent = len(sent_at)
+            print(f"run {run}: kill at {kill_after:.2f} s, sent {sent}, on disk {len(on_disk)}, lost {lost}")
+            if run > 0:
+                continue
+            # A second recover has nothing left to do; --all rebuilds the same take.
+            nothing = run_cli("recover", str(out))
+            assert nothing.returncode == 0 and "nothing to recover" in nothing.stderr
+            again = run_cli("recover", str(out), "--all", "--json")
+            assert (
+                again.returncode == 0
+                and json.loads(again.stdout.splitlines()[0])["frames"] == lines[0]["frames"]
+            )
+    finally:  # a listener started for a run that a failure stopped: not left to run out its duration
+        last = following.result()
+        if last.proc.poll() is None:
+            last.kill()
 
 
 def _killed_session(tmp_path, seed: int):

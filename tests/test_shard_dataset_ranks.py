@@ -86,18 +86,19 @@ def test_given_ranks_reach_spawned_dataloader_workers(ds):
 DDP_SCRIPT = """
 import json, sys
 import torch, torch.distributed as dist
-from torch.utils.data import DataLoader
+from torch.utils.data import ChainDataset, DataLoader
 from dataset.torch_dataset import ShardDataset
 
 rank, rendezvous, ds, uneven = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
 early = ShardDataset(ds, "train", window=12)  # made before the process group: resolved when pickled
 dist.init_process_group("gloo", init_method="file://" + rendezvous, rank=rank, world_size=2)
-out = {}
-late = ShardDataset(ds, "train", window=12)
-for name, data in (("early", early), ("late", late)):
-    loader = DataLoader(data, batch_size=None, num_workers=2, multiprocessing_context="spawn")
-    out[name] = [item["key"] for item in loader]
-    out[name + "_len"] = len(data)
+late = ShardDataset(ds, "train", window=13)  # its items' length tells them from early's
+# both read by one pair of spawned workers (each worker's start-up is an interpreter's and PyTorch's)
+both = ChainDataset([early, late])
+loader = DataLoader(both, batch_size=None, num_workers=2, multiprocessing_context="spawn")
+out = {"early": [], "late": [], "early_len": len(early), "late_len": len(late)}
+for item in loader:
+    out["early" if len(item["anim"]) == 12 else "late"].append(item["key"])
 print(json.dumps(out), flush=True)
 out = {}
 # an ordinary epoch loop with a collective per step (as DDP's backward): every rank takes as many steps,

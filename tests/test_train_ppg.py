@@ -25,15 +25,16 @@ from train.ppg_train import find_alignments, frame_labels
 def trained(samples, tmp_path_factory):
     out = tmp_path_factory.mktemp("ppg") / "ppg.pt"
     librivox = samples / "speech" / "pocketsphinx-testdata-librivox"
-    # in this process: ppg's command line runs as a subprocess in test_ppg_robustness.py
-    proc = run_here("train", "ppg", "--data", librivox, "-o", out, "--steps", "100", "--json")
+    # in this process: ppg's command line runs as a subprocess in test_ppg_robustness.py. 50 steps: val
+    # accuracy / majority 3.00-3.17 over seeds 0-2 (3.13-3.67 after 100 steps), against the 2 asked below
+    proc = run_here("train", "ppg", "--data", librivox, "-o", out, "--steps", "50", "--json")
     assert proc.returncode == 0, proc.stderr
     return out, json.loads(proc.stdout)
 
 
 def test_ppg_learns_phones_of_real_speech(samples, trained):
     out, s = trained
-    assert s["utterances"] == 5 and s["steps"] == 100
+    assert s["utterances"] == 5 and s["steps"] == 50
     # on an utterance it never saw, well above always answering the most frequent phone
     assert s["val_accuracy"] > 2 * s["majority_accuracy"]
     wav = sorted((samples / "speech" / "pocketsphinx-testdata-librivox").glob("*.wav"))[0]
@@ -153,7 +154,8 @@ def test_ppg_trained_on_unaligned_mandarin_with_pocketsphinx_labels(samples, tmp
     bottleneck learns those labels better than always guessing the commonest."""
     wav = samples / "paired" / "facegood-audio2face" / "wav"
     out = tmp_path / "ppg.pt"
-    proc = _ppg_from_speech(wav / "1114_2_01.wav", wav / "1114_2_03.wav", out=out, steps=120)
+    # 60 steps: val accuracy 0.12-0.15 above the majority's over seeds 0-2 (0.16-0.18 after 120 steps)
+    proc = _ppg_from_speech(wav / "1114_2_01.wav", wav / "1114_2_03.wav", out=out, steps=60)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["utterances"] >= 15  # about 10 s pieces of two 1.5-3 min takes
