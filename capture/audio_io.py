@@ -137,8 +137,9 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     read whole, its count corrected (``MpegRun.count_low``), and one without a frame count whose length
     libsndfile estimates short (VBR without a Xing header) as joined files are. Within
     ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a ``FileAudio``: checked a block
-    at a time, left in its file; audio FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file
-    it was decoded into, the same samples and repairs as read whole (``_read_mpeg``)."""
+    at a time, left in its file; given a scratch folder there, audio FFmpeg decodes, and any .mp3, is a
+    ``FileAudio`` of the scratch file it was decoded into, the same samples and repairs as read whole
+    (``_read_mpeg``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -201,7 +202,7 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
     data = path.read_bytes()
     runs = mpeg_runs(data)
     coded = sum(run.samples for run in runs)
-    if not (len(runs) > 1 or any(run.count_low for run in runs) or _estimated_short(info, runs)):
+    if not (len(runs) > 1 or any(run.count_low for run in runs) or _estimated_short(info, coded)):
         skipped = _gapless_skip(data, runs[0]) if runs else 0
         del data  # an hour at 320 kbit/s: 144 MB
         found: list[dict[str, Any]] | None = None if repairs is None else []
@@ -215,8 +216,8 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
         data = path.read_bytes()
         runs = mpeg_runs(data)
-    scratch = _LEFT_IN_FILES.get()
-    if scratch is not None and scratch.folder is not None:
+    scratch = _scratch_folder()
+    if scratch is not None:
         audio = _streamed(
             path, repairs, scratch, lambda found, sink_of: _read_joined_mpeg(path, data, runs, found, sink_of)
         )
@@ -229,8 +230,8 @@ def _read_by_libsndfile(path: Path, info: Any, skipped: int, repairs: list[dict[
     """An .mp3 read by libsndfile: a block at a time into a scratch file within ``audio_left_in_files``
     given a scratch folder (``_mpeg_to_file``), else whole; the unrecorded encoder delay noted."""
     audio: Audio | None = None
-    scratch = _LEFT_IN_FILES.get()
-    if scratch is not None and scratch.folder is not None:
+    scratch = _scratch_folder()
+    if scratch is not None:
         audio = _streamed(
             path, repairs, scratch, lambda _found, sink_of: _mpeg_to_file(path, info, skipped, sink_of)
         )
@@ -257,7 +258,7 @@ def _mpeg_to_file(path: Path, info: Any, skipped: int, sink_of: _SinkOf) -> File
     size = _MPEG_BLOCK - skipped % _MPEG_BLOCK
     try:
         with sf.SoundFile(str(path)) as f:
-            if (f.samplerate, f.channels, f.subtype) != (info.samplerate, info.channels, info.subtype):
+            if not _opened_as(f, info):
                 raise _NotStreamed
             f.seek(0)
             while len(block := f.read(size, dtype="float32", always_2d=True)):
@@ -286,12 +287,12 @@ _MPG123_GAPLESS_DELAY = 529
 _MPG123_DROPS = _MPG123_GAPLESS_DELAY + 1152 + 2 * 4095
 
 
-def _estimated_short(info: Any, runs: list[MpegRun]) -> bool:
+def _estimated_short(info: Any, coded: int) -> bool:
     """Whether libsndfile's length of an .mp3 (``info.frames``: mpg123's estimate from the first frame's
-    bit rate when no header frame counts its frames) falls short of what its frames code (``runs``): a VBR
+    bit rate when no header frame counts its frames) falls short of the samples its frames code: a VBR
     file without a Xing header, or files of other bit rates joined without a tag between them. libsndfile
     reads no further than its length (a loud start at 192 kbit/s then silence: 1.2 s of 6.5 s read)."""
-    return info.frames + _MPG123_DROPS < sum(run.samples for run in runs)
+    return info.frames + _MPG123_DROPS < coded
 
 
 def _gapless_skip(data: bytes, run: MpegRun) -> int:
@@ -305,7 +306,7 @@ def _gapless_skip(data: bytes, run: MpegRun) -> int:
         or data.startswith(b"VBRI", run.start + 36)
     ):
         return 0
-    text_at = run.start + frame[5][data[run.start + 3] >= 0xC0]
+    text_at = _xing_at(data, run.start, frame)
     flags = data[text_at + 7] if text_at + 8 <= len(data) else 0
     if not (flags & 1 and _file_header_frames(data, run.start, frame)):
         return 0
@@ -412,6 +413,13 @@ class _Scratch:
 _LEFT_IN_FILES: ContextVar[_Scratch | None] = ContextVar("_LEFT_IN_FILES", default=None)
 
 
+def _scratch_folder() -> _Scratch | None:
+    """Where decoded audio goes a block at a time: the ``_Scratch`` of ``audio_left_in_files`` given a
+    scratch folder (an import); None: it is held whole."""
+    scratch = _LEFT_IN_FILES.get()
+    return scratch if scratch is not None and scratch.folder is not None else None
+
+
 @contextmanager
 def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-decoded-") -> Iterator[None]:
     """Within it, ``read_audio`` gives the audio of a file libsndfile reads to its end without an error
@@ -438,15 +446,16 @@ def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-d
             left.remove()
 
 
+def _opened_as(f: sf.SoundFile, info: Any) -> bool:
+    """Whether ``f`` opened with the rate, channel count and subtype of ``info`` (not replaced since)."""
+    return (f.samplerate, f.channels, f.subtype) == (info.samplerate, info.channels, info.subtype)
+
+
 def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterator[np.ndarray]:
     """The samples of a file libsndfile reads, ``size`` frames (frames x channels) at a time; nothing
     when the file opens with another rate, channel count or subtype than ``info`` (replaced since)."""
     with sf.SoundFile(str(path)) as f:
-        if info is not None and (f.samplerate, f.channels, f.subtype) != (
-            info.samplerate,
-            info.channels,
-            info.subtype,
-        ):
+        if info is not None and not _opened_as(f, info):
             return
         while len(block := f.read(size, dtype=dtype, always_2d=True)):
             yield block
@@ -697,8 +706,15 @@ def finite_peak(audio: Audio) -> float:
     if isinstance(audio, FileAudio) and not audio.held and audio.peak is not None:
         return audio.peak / _SCALE.get(audio.dtype.name, 1.0)
     x = audio.samples
-    finite = np.abs(x[np.isfinite(x)]) if x.dtype.kind == "f" else np.abs(x.astype(np.float64))
-    return float(finite.max(initial=0.0)) / full_scale(x)
+    if x.dtype.kind != "f":  # Python ints: -(-32768) does not wrap
+        return (max(int(x.max()), -int(x.min())) if x.size else 0) / full_scale(x)
+    peak = 0.0
+    for lo in range(0, len(x), CHECK_FRAMES):  # a block at a time: no mask or copy of all the samples
+        block = x[lo : lo + CHECK_FRAMES]
+        finite = block[np.isfinite(block)]
+        if finite.size:
+            peak = max(peak, float(finite.max()), -float(finite.min()))
+    return peak / full_scale(x)
 
 
 # A damaged float sample: past full scale, and over SPIKE_FACTOR times both the take's level (its 99.9th
@@ -925,17 +941,10 @@ def note_unknown_delay(
     packets before it (an MP4 edit list). ``stream``: the file's PyAV audio stream and ``first_pts`` its
     first packet's (None: the file is opened here, as for what libsndfile decoded)."""
     if stream is None:
-        import av
-
-        try:
-            with av.open(str(path)) as container:
-                stream = container.streams.audio[0]
-                note_unknown_delay(path, repairs, stream, next(container.demux(stream)).pts)
-        except (av.FFmpegError, OSError, ValueError, IndexError, StopIteration):
-            pass  # FFmpeg cannot tell: libsndfile read it, and nothing is known of a delay
-        return
-    codec = stream.codec_context.name
-    if codec not in PRIMED_CODECS or _delay_recorded(stream, first_pts):
+        codec = _unknown_delay_codec(str(path))
+    else:
+        codec = None if _delay_known(stream, first_pts) else stream.codec_context.name
+    if codec is None:
         return
     repairs.append(
         {
@@ -948,10 +957,29 @@ def note_unknown_delay(
     )
 
 
-def _delay_recorded(stream: Any, first_pts: int | None) -> bool:
-    """Whether FFmpeg found the encoder's delay recorded in the file, for it to drop: a start after 0 (an
-    MP3's LAME tag) or packets before it (an MP4 edit list)."""
+def _delay_known(stream: Any, first_pts: int | None) -> bool:
+    """Whether the audio of ``stream`` (``first_pts``: its first packet's time) has no encoder delay FFmpeg
+    leaves in: its codec has none (not one of ``PRIMED_CODECS``: PCM, MPEG layer I or II), or FFmpeg found
+    it recorded in the file, for it to drop: a start after 0 (an MP3's LAME tag) or packets before it (an
+    MP4 edit list)."""
+    if stream.codec_context.name not in PRIMED_CODECS:
+        return True
     return (first_pts or 0) < 0 or (stream.start_time or 0) > 0
+
+
+def _unknown_delay_codec(source: str | IO[bytes]) -> str | None:
+    """The codec of the first audio stream of ``source`` (a file name, or an MP3 held in memory) when its
+    encoder's delay is not known (``_delay_known``): FFmpeg's decoder name; None when it is, and when
+    FFmpeg cannot open it (nothing is known of a delay then)."""
+    import av
+
+    try:
+        with av.open(source, format=None if isinstance(source, str) else "mp3") as container:
+            stream = container.streams.audio[0]
+            first_pts = next((p.pts for p in container.demux(stream) if p.pts is not None), None)
+            return None if _delay_known(stream, first_pts) else stream.codec_context.name
+    except (av.FFmpegError, OSError, ValueError, IndexError):
+        return None
 
 
 def _to_channels(samples: np.ndarray, channels: int) -> np.ndarray:
@@ -959,20 +987,6 @@ def _to_channels(samples: np.ndarray, channels: int) -> np.ndarray:
     copies the channel, stereo to mono averages the two)."""
     mixed = samples.mean(axis=1, keepdims=True, dtype=np.float64).astype(samples.dtype)
     return np.repeat(mixed, channels, axis=1)
-
-
-def _one_layout(chunks: list[np.ndarray]) -> tuple[np.ndarray, int, int]:
-    """Decoded chunks (frames x channels) joined, each mixed to the first chunk's channel count; with the
-    number of samples that were mixed and the sample where the first of them starts."""
-    channels = chunks[0].shape[1]
-    changed, first_changed, at = 0, 0, 0
-    for i, arr in enumerate(chunks):
-        if arr.shape[1] != channels:
-            first_changed = first_changed if changed else at
-            changed += len(arr)
-            chunks[i] = _to_channels(arr, channels)
-        at += len(arr)
-    return np.concatenate(chunks, axis=0), changed, first_changed
 
 
 def _note_channels_changed(
@@ -1006,7 +1020,7 @@ class _DecodedLayout:
 
     def _noted(self, arr: np.ndarray, channels: int) -> np.ndarray:
         """``arr`` noted as the last frame, mixed to ``channels`` when it has other channels
-        (``_one_layout``'s mixing)."""
+        (``_to_channels``)."""
         self.last_channels, self.last_dtype = arr.shape[1], arr.dtype
         if arr.shape[1] == channels:
             return arr
@@ -1018,7 +1032,7 @@ class _DecodedLayout:
 class _Samples(_DecodedLayout):
     """Decoded frames written one after another into one array (frames x channels), as they come: the
     audio is held once, not as a list of chunks and then their join. Each frame is mixed to the first
-    frame's channel count (``_one_layout``'s mixing) and the array takes the dtype joining them would give
+    frame's channel count (``_to_channels``) and the array takes the dtype joining them would give
     (``np.concatenate``'s promotion). ``expected``: the samples the stream is thought to hold, to allocate
     once; a short guess grows the array in place, and what is not used is given back at the end."""
 
@@ -1065,16 +1079,15 @@ class _Samples(_DecodedLayout):
 
 @dataclass
 class _Decoded:
-    """What FFmpeg decoded from one audio stream, before its chunks are joined."""
+    """What FFmpeg decoded from one audio stream: where its frames went, and what is known of them."""
 
-    chunks: list[np.ndarray] | _Samples | _DecodedToFile | _JoinedPart  # frames x channels: one per decoded
-    # frame, in one array, in a scratch file, or handed on (a file of a joined .mp3)
+    kept: _Samples | _DecodedToFile | _JoinedPart  # where its frames went: one array, a scratch file, or
+    # handed on (a file of a joined .mp3)
     rate: int
     sample_format: str  # FFmpeg's sample format of the last frame, planar or not: s16, s32, u8, flt ...
     last_frame: int  # samples of the last decoded frame
     declared: int | None  # samples the container declares (AAC only), None when unknown
     damaged: int = 0  # packets FFmpeg could not decode (only when asked to skip them): silence in their place
-    delay_recorded: bool = True  # the file records its encoder's delay, which FFmpeg dropped
 
 
 def _expected_samples(stream: Any) -> int:
@@ -1091,16 +1104,14 @@ def _decode_frames(
     stream_index: int,
     repairs: list[dict[str, Any]] | None,
     skip_damaged: bool = False,
-    joined: bool = True,
     into: Callable[[Any], _DecodedToFile | _JoinedPart] | None = None,
 ) -> _Decoded:
     """Every frame of one audio stream of ``source`` (a file name, or an MP3 held in memory), decoded by
     FFmpeg; an undecodable stream is an ``InputError`` naming ``path`` (with ``skip_damaged``, a packet
     FFmpeg cannot decode is counted and replaced by silence of its duration, so the sound after it keeps its
-    time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``).
-    ``joined``: the frames are written into one array as they are decoded (``_Samples``), else kept as a
-    list of chunks (the joined-MP3 path edits them). ``into``: makes what they are written into, given the
-    stream (``_DecodedToFile``)."""
+    time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``). The
+    frames are written into one array as they are decoded (``_Samples``), or into what ``into`` makes,
+    given the stream: a scratch file (``_DecodedToFile``), a file of a joined .mp3 (``_JoinedPart``)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     try:
@@ -1109,11 +1120,7 @@ def _decode_frames(
             if not streams:
                 raise InputError("file has no audio stream", path)
             stream = streams[stream_index]
-            chunks: list[np.ndarray] | _Samples | _DecodedToFile | _JoinedPart
-            if into is not None:
-                chunks = into(stream)
-            else:
-                chunks = _Samples(_expected_samples(stream)) if joined else []
+            kept = _Samples(_expected_samples(stream)) if into is None else into(stream)
             fmt = "flt"
             last_frame = 0
             first_pts = None
@@ -1126,7 +1133,7 @@ def _decode_frames(
                     if not skip_damaged:
                         raise
                     damaged += 1
-                    chunks.append(_silence_of(packet, stream, chunks))
+                    kept.append(_silence_of(packet, stream, kept))
                     continue
                 for frame in frames:
                     fmt, last_frame = frame.format.name, frame.samples
@@ -1135,7 +1142,7 @@ def _decode_frames(
                         arr = arr.T
                     else:
                         arr = arr.reshape(-1, len(frame.layout.channels))
-                    chunks.append(arr)
+                    kept.append(arr)
             rate = stream.rate or stream.codec_context.sample_rate
             # AAC only: an MP3's duration may be an estimate from its bit rate
             aac = stream.codec_context.name == "aac"
@@ -1144,8 +1151,6 @@ def _decode_frames(
                 if aac and stream.duration and rate
                 else None
             )
-            primed = stream.codec_context.name in PRIMED_CODECS
-            delay_recorded = not primed or _delay_recorded(stream, first_pts)
             if repairs is not None:
                 note_unknown_delay(path, repairs, stream, first_pts)
     except InputError:
@@ -1155,22 +1160,17 @@ def _decode_frames(
         # the text is what tells the user something
         why = getattr(exc, "strerror", None) or str(exc)
         raise InputError(f"audio could not be decoded (a truncated or damaged file?): {why}", path) from None
-    return _Decoded(chunks, rate, fmt.rstrip("p"), last_frame, declared, damaged, delay_recorded)
+    return _Decoded(kept, rate, fmt.rstrip("p"), last_frame, declared, damaged)
 
 
-def _silence_of(
-    packet: Any, stream: Any, chunks: list[np.ndarray] | _DecodedLayout | _JoinedPart
-) -> np.ndarray:
+def _silence_of(packet: Any, stream: Any, kept: _DecodedLayout | _JoinedPart) -> np.ndarray:
     """Silence as long as an undecodable packet (none when its duration is unknown), in the layout of what
     was decoded before it."""
     rate = stream.rate or stream.codec_context.sample_rate
     seconds = float(packet.duration * packet.time_base) if packet.duration and packet.time_base else 0.0
-    if isinstance(chunks, list):
-        channels, dtype = (chunks[-1].shape[1], chunks[-1].dtype) if chunks else (None, None)
-    else:
-        channels, dtype = chunks.last_channels, chunks.last_dtype
-    channels = stream.codec_context.channels if channels is None else channels
-    return np.zeros((round(seconds * rate), channels), np.float32 if dtype is None else dtype)
+    channels = stream.codec_context.channels if kept.last_channels is None else kept.last_channels
+    dtype = np.float32 if kept.last_dtype is None else kept.last_dtype
+    return np.zeros((round(seconds * rate), channels), dtype)
 
 
 def _in_recorded_format(data: np.ndarray, rate: int, sample_format: str) -> Audio:
@@ -1217,13 +1217,13 @@ def decode_with_pyav(
     into a scratch WAV there instead, and the audio is a ``FileAudio`` of it (``_decoded_to_file``): the
     same samples, never held whole."""
     path = Path(path)
-    scratch = _LEFT_IN_FILES.get()
-    if scratch is not None and scratch.folder is not None:
+    scratch = _scratch_folder()
+    if scratch is not None:
         audio = _decoded_to_file(path, stream_index, repairs, skip_damaged, scratch)
         if audio is not None:
             return audio
     decoded = _decode_frames(str(path), path, stream_index, repairs, skip_damaged)
-    samples = decoded.chunks
+    samples = decoded.kept
     assert isinstance(samples, _Samples)
     if not samples:
         raise InputError("audio stream holds no samples", path)
@@ -1243,8 +1243,9 @@ def _without_padding(decoded: _Decoded, used: int) -> int | None:
 
 
 class _NotStreamed(Exception):
-    """Decoded audio ``_DecodedToFile`` cannot write as the whole-array way would hold it (its sample
-    format changes mid-stream): decoded whole instead."""
+    """Audio that cannot be written into a scratch file as reading it whole would give it (a sample format
+    that changes mid-stream, no sample rate, libsndfile's read of an .mp3 ending in an error, no samples):
+    read whole instead, which says what is wrong."""
 
 
 def _decoded_to_file(
@@ -1553,10 +1554,16 @@ def _tag_bytes(data: bytes, pos: int) -> int:
 _XING_TEXTS = (b"Xing", b"Info")
 
 
+def _xing_at(data: bytes, pos: int, frame: _MpegFrame) -> int:
+    """Where the text of a Xing/Info header would start in the frame at ``pos`` (after its side
+    information, which is shorter in a mono frame)."""
+    return pos + frame[5][data[pos + 3] >= 0xC0]
+
+
 def _is_file_header(data: bytes, pos: int, frame: _MpegFrame) -> bool:
     """Whether the frame at ``pos`` is the Xing/Info (LAME) or VBRI frame an encoder writes first, holding
     the file's frame count (no sound). One in the middle of a stream is where another file was joined on."""
-    text_at = pos + frame[5][data[pos + 3] >= 0xC0]
+    text_at = _xing_at(data, pos, frame)
     return data.startswith(_XING_TEXTS, text_at) or data.startswith(b"VBRI", pos + 36)
 
 
@@ -1564,7 +1571,7 @@ def _file_header_frames(data: bytes, pos: int, frame: _MpegFrame) -> int:
     """The frames a file's Xing/Info or VBRI frame at ``pos`` declares follow it; 0 when it does not say."""
     if data.startswith(b"VBRI", pos + 36):
         return int.from_bytes(data[pos + 50 : pos + 54], "big")
-    text_at = pos + frame[5][data[pos + 3] >= 0xC0]
+    text_at = _xing_at(data, pos, frame)
     flags = data[text_at + 4 : text_at + 8]
     return int.from_bytes(data[text_at + 8 : text_at + 12], "big") if flags[3:] and flags[3] & 1 else 0
 
@@ -1574,7 +1581,7 @@ def _file_header_bytes(data: bytes, pos: int, frame: _MpegFrame) -> int:
     LAME; some writers count the ID3v2 tag before it too); 0 when it does not say."""
     if data.startswith(b"VBRI", pos + 36):
         return 0  # its byte count's extent varies between writers: not used
-    text_at = pos + frame[5][data[pos + 3] >= 0xC0]
+    text_at = _xing_at(data, pos, frame)
     flags = data[text_at + 4 : text_at + 8]
     if not (flags[3:] and flags[3] & 2):
         return 0
@@ -1780,7 +1787,8 @@ def _read_joined_mpeg(
     of channels, FFmpeg at the first tag in the middle. A later file that records no delay: see
     ``_JoinedPart``; a file whose Info frame counts too few frames: corrected (``_counted_whole``). A
     change of sample rate is an ``InputError``. ``sink_of``: the frames are written a block at a time into
-    the scratch file it makes (``_streamed``), the audio a ``FileAudio`` of it; else held whole."""
+    the scratch file it makes (``_streamed``), the audio a ``FileAudio`` of it; else into one array as they
+    come (``_Samples``: held once)."""
     first = runs[0]
     coded = 0
     for run in runs:
@@ -1793,11 +1801,11 @@ def _read_joined_mpeg(
             )
         coded += run.samples
     starts = [i for i, run in enumerate(runs) if run.new_file] + [len(runs)]
-    kept: list[np.ndarray] | _DecodedToFile = [] if sink_of is None else sink_of(lambda: first.sample_rate)
+    kept = _Samples(coded) if sink_of is None else sink_of(lambda: first.sample_rate)
     sample_format, damaged, last = "flt", 0, len(starts) - 2
     for k, (a, b) in enumerate(zip(starts, starts[1:])):
         part_bytes = _counted_whole(data[runs[a].start : runs[b - 1].end], runs[a:b])
-        at = (kept.used if isinstance(kept, _DecodedToFile) else sum(map(len, kept))) / first.sample_rate
+        at = kept.used / first.sample_rate
         part = _JoinedPart(kept)
         if k and _ends_as_declared(data, runs[starts[k - 1]], runs[a].start):
             part.drops_lame_delay(data, runs[a], runs[b - 1].end, part_bytes)
@@ -1818,8 +1826,7 @@ def _read_joined_mpeg(
             damaged += sum(run.frames for run in runs[a:b])
             if k < last:
                 lost = sum(run.samples for run in runs[a:b])
-                channels = kept.channels if isinstance(kept, _DecodedToFile) else kept and kept[0].shape[1]
-                kept.append(np.zeros((lost, channels or first.channels), np.float32))
+                kept.append(np.zeros((lost, kept.channels if kept else first.channels), np.float32))
             continue
         if part.delay_unknown and repairs is not None:
             repairs.append(
@@ -1834,12 +1841,7 @@ def _read_joined_mpeg(
         sample_format, damaged = decoded.sample_format, damaged + decoded.damaged
     if not kept:
         raise InputError("audio stream holds no samples", path)
-    if isinstance(kept, _DecodedToFile):
-        changed, at, channels = kept.changed, kept.first_changed, kept.channels
-    else:
-        samples, changed, at = _one_layout(kept)
-        channels = samples.shape[1]
-    _note_channels_changed(path, repairs, changed, at, first.sample_rate, channels)
+    _note_channels_changed(path, repairs, kept.changed, kept.first_changed, first.sample_rate, kept.channels)
     if repairs is not None and damaged:
         repairs.append(
             {
@@ -1851,7 +1853,7 @@ def _read_joined_mpeg(
         )
     if isinstance(kept, _DecodedToFile):
         return kept.finish(None, first.sample_rate, sample_format)
-    return _in_recorded_format(samples, first.sample_rate, sample_format)
+    return _in_recorded_format(kept.take(), first.sample_rate, sample_format)
 
 
 # What FFmpeg decodes from a LAME-encoded MP3 that does not record its delay (no LAME tag) starts this many
@@ -1872,7 +1874,7 @@ def _counted_whole(part: bytes, runs: list[MpegRun]) -> bytes:
     frame = _mpeg_frame(part, 0)
     if not runs[0].count_low or frame is None:
         return part
-    at = frame[5][part[3] >= 0xC0] + 8
+    at = _xing_at(part, 0, frame) + 8
     frames = sum(run.frames for run in runs) - 1  # its Info frame holds no sound
     return part[:at] + frames.to_bytes(4, "big") + part[at + 4 :]
 
@@ -1901,29 +1903,12 @@ def _ends_as_declared(data: bytes, previous: MpegRun, start: int) -> bool:
     return False
 
 
-def _records_delay(part: bytes) -> bool:
-    """Whether the MP3 file ``part`` (its bytes) records its encoder's delay, as FFmpeg decoding it finds
-    (``_delay_recorded``: its first packet's time), or has none to record (MPEG layer I or II: no
-    priming); True when FFmpeg cannot open it."""
-    import av
-
-    try:
-        with av.open(io.BytesIO(part), format="mp3") as container:
-            stream = container.streams.audio[0]
-            if stream.codec_context.name not in PRIMED_CODECS:
-                return True
-            first_pts = next((p.pts for p in container.demux(stream) if p.pts is not None), None)
-            return _delay_recorded(stream, first_pts)
-    except (av.FFmpegError, OSError, ValueError, IndexError):
-        return True
-
-
 class _JoinedPart:
-    """The frames FFmpeg decodes of one file of a joined .mp3, handed on to ``kept`` (the chunks of the
-    files before it, or the scratch file they are written into) as they come, the first ``drop`` samples
-    left out. ``last_channels`` and ``last_dtype``: of its last frame, for ``_silence_of``."""
+    """The frames FFmpeg decodes of one file of a joined .mp3, handed on to ``kept`` (the array or the
+    scratch file the files before it went into) as they come, the first ``drop`` samples left out.
+    ``last_channels`` and ``last_dtype``: of its last frame, for ``_silence_of``."""
 
-    def __init__(self, kept: list[np.ndarray] | _DecodedToFile):
+    def __init__(self, kept: _Samples | _DecodedToFile | list[np.ndarray]):
         self.kept, self.drop, self.delay_unknown = kept, 0, False
         self.last_channels: int | None = None
         self.last_dtype: np.dtype | None = None
@@ -1933,7 +1918,7 @@ class _JoinedPart:
         records no encoder delay: LAME's delay dropped, when its bytes are LAME's and start as an encoder's
         first frame does (no bit reservoir); any other encoder's priming kept, ``delay_unknown`` set (for
         the repair ``encoder_delay_unknown``, saying from which second)."""
-        if _records_delay(part):
+        if _unknown_delay_codec(io.BytesIO(part)) is None:  # recorded, or none to record (no priming)
             return
         frame = _mpeg_frame(data, first.start)
         if (

@@ -109,6 +109,7 @@ def choose_mov_audio(
             track, kept, chosen = kept, track, i
         if isinstance(track, FileAudio):
             track.discard()  # decoded into a scratch file: not kept on the disk until the import ends
+        del track  # let go before the next is decoded
     assert kept is not None
     described = ", ".join(f"{i + 1}: {_describe_peak(p)}" for i, p in enumerate(peaks))
     if peaks[chosen] >= SILENT_PEAK:

@@ -20,8 +20,9 @@ from capture import Audio, InputError
 from capture.audio_io import (
     _decode_frames,
     _in_recorded_format,
-    _one_layout,
+    _JoinedPart,
     _Samples,
+    _to_channels,
     check_samples,
     decode_with_pyav,
 )
@@ -57,12 +58,29 @@ def _encoded(codec: str, container: str, sample_format: str, channels: int, seco
     return out.getvalue()
 
 
+def _one_layout(chunks: list[np.ndarray]) -> tuple[np.ndarray, int, int]:
+    """How decoded chunks were joined before (``np.concatenate``), each mixed to the first chunk's channel
+    count; with the number of samples that were mixed and the sample where the first of them starts."""
+    channels = chunks[0].shape[1]
+    changed, first_changed, at = 0, 0, 0
+    for i, arr in enumerate(chunks):
+        if arr.shape[1] != channels:
+            first_changed = first_changed if changed else at
+            changed += len(arr)
+            chunks[i] = _to_channels(arr, channels)
+        at += len(arr)
+    return np.concatenate(chunks, axis=0), changed, first_changed
+
+
 def _joined_chunks(path: Path, skip_damaged: bool = False):
     """What decoding gave before: the decoded chunks joined (``_one_layout``), the AAC padding cut, in the
     recorded format; with the repairs noted."""
     repairs: list = []
-    decoded = _decode_frames(str(path), path, 0, repairs, skip_damaged, joined=False)
-    data, changed, _ = _one_layout(decoded.chunks)
+    chunks: list[np.ndarray] = []  # each decoded frame as it comes
+    decoded = _decode_frames(
+        str(path), path, 0, repairs, skip_damaged, into=lambda _stream: _JoinedPart(chunks)
+    )
+    data, changed, _ = _one_layout(chunks)
     if decoded.declared is not None and 0 < data.shape[0] - decoded.declared < decoded.last_frame:
         data = data[: decoded.declared]
     return _in_recorded_format(data, decoded.rate, decoded.sample_format), changed

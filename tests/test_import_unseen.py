@@ -126,9 +126,11 @@ def test_timecode_rate_can_be_given(tmp_path):
 
 def test_real_samples_keep_the_apps_60_fps_timecode(samples):
     """Every real CSV (30 and 60 rows/s, drops, face-lost rows) reads as before: FF at 60."""
-    csvs = sorted(
-        p for p in samples.rglob("*.csv") if p.name != "frame_log.csv" and "Timecode" in p.open().readline()
-    )
+    csvs = []
+    for p in sorted(samples.rglob("*.csv")):
+        with p.open() as f:  # closed: no file left to the collector
+            if p.name != "frame_log.csv" and "Timecode" in f.readline():
+                csvs.append(p)
     assert len(csvs) >= 4
     for path in csvs:
         auto, app = read_livelink_csv(path), read_livelink_csv(path, timecode_rate=60)
