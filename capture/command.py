@@ -79,16 +79,38 @@ class StageParser(argparse.ArgumentParser):
         return super().parse_known_args(args, namespace)
 
     def error(self, message: str):
-        taken = [a for a in _options_given(self) if _file_name_like(a) and not _known_option(a, self)]
-        if taken:
-            name = taken[0]
-            if message.startswith("argument ") and ": expected" in message:  # an option's missing value
-                option = message.removeprefix("argument ").split(":")[0].split("/")[-1]
-                how = f"{option}={name}"
-            else:
-                how = f"-- {name} after the options"
-            message += f" ({name} is taken for an option: for a file of that name, write ./{name}, or {how})"
-        super().error(message)
+        super().error(message + _leading_dash_hint(self, message))
+
+
+def _leading_dash_hint(parser: argparse.ArgumentParser, message: str) -> str:
+    """`` (-d.wav is taken for an option: ...)``: how to give the file named like an option that
+    ``parser`` was given, or ``""`` when it was given none. Written as ``--out=-d.wav`` only for the
+    option the ``message`` says lacks its value, and only when that name followed it."""
+    given = getattr(parser, "given", [])
+    given = given[: given.index("--")] if "--" in given else given  # what follows ``--`` is no option
+    # argparse reads ``-`` and a word with a space (``-my take.csv``) as no option
+    taken = [
+        a
+        for a in given
+        if a.startswith("-")
+        and a != "-"
+        and " " not in a
+        and _file_name_like(a)
+        and not _known_option(a, parser)
+    ]
+    if not taken:
+        return ""
+    name, how = taken[0], f", or -- {taken[0]} after the options"
+    if message.startswith("argument ") and ": expected" in message:  # an option's missing value
+        options = message.removeprefix("argument ").split(":")[0].split("/")
+        values = [b for a, b in zip(given, given[1:]) if b in taken and _abbreviates(a, options)]
+        name, how = (values[0], f", or {options[-1]}={values[0]}") if values else (name, "")
+    return f" ({name} is taken for an option: for a file of that name, write ./{name}{how})"
+
+
+def _abbreviates(word: str, options: list[str]) -> bool:
+    """Whether ``word`` names one of ``options`` (a long one may be abbreviated, as argparse allows)."""
+    return word in options or (word.startswith("--") and any(o.startswith(word) for o in options))
 
 
 DISTRIBUTION = "s2a-toolkit"  # the name pyproject.toml installs the five commands under
@@ -115,14 +137,6 @@ def jobs_count(text: str) -> int:
     return n
 
 
-def _options_given(parser: argparse.ArgumentParser) -> list[str]:
-    """The words given to ``parser`` that argparse reads as options (``-`` and what follows ``--`` it
-    does not)."""
-    given = getattr(parser, "given", [])
-    given = given[: given.index("--")] if "--" in given else given
-    return [a for a in given if a.startswith("-") and a != "-"]
-
-
 def _file_name_like(word: str) -> bool:
     """Whether ``word`` names a file (it has an extension, or a file of that name is here) and is no
     negative number."""
@@ -134,21 +148,31 @@ def _file_name_like(word: str) -> bool:
 
 
 def _known_option(word: str, parser: argparse.ArgumentParser) -> bool:
-    """Whether argparse reads ``word`` as an option of ``parser`` or of its subcommands: one of their
-    option strings, an abbreviation of a long one, ``--name=value``, or ``-xVALUE``."""
-    options = []
-    for action in parser._actions:
-        options += action.option_strings
-        if isinstance(action, argparse._SubParsersAction):
-            options += [o for sub in action.choices.values() for a in sub._actions for o in a.option_strings]
+    """Whether argparse reads ``word`` as an option of ``parser`` or of its subcommands (at any depth:
+    ``remote PHONE target --keep``): one of their option strings, an abbreviation of a long one,
+    ``--name=value``, or ``-xVALUE``."""
+    options = list(_option_strings(parser))
     head = word.split("=", 1)[0]
     if word.startswith("--"):
         return any(o.startswith(head) for o in options)
     return head in options or word[:2] in options
 
 
+def _option_strings(parser: argparse.ArgumentParser) -> Iterator[str]:
+    """The option strings of ``parser`` and of its subcommands' parsers, theirs too."""
+    for action in parser._actions:
+        yield from action.option_strings
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _option_strings(sub)
+
+
 def json_safe(value: Any) -> Any:
-    """``value`` with NaN and infinite numbers as ``None`` (nested in dicts and lists): strict JSON."""
+    """``value`` with NaN and infinite numbers as ``None`` (nested in dicts and lists): strict JSON. A
+    NumPy number or array is its Python number or list (``json.dumps`` wrote it as a string, ``"nan"``
+    too)."""
+    if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):
+        value = value.tolist()
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):

@@ -85,7 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for the takes and the session log")
     p.add_argument(
-        "--port", type=int, default=DEFAULT_PORT, help="UDP port (default 11111; 0 = any free port)"
+        "--port", type=int, default=DEFAULT_PORT, help="UDP port (default: 11111; 0 = any free port)"
     )
     p.add_argument(
         "--bind",
@@ -180,12 +180,28 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Send OSC commands to Live Link Face (formats doc §6) and wait for its replies.",
     )
     p.add_argument("phone", help="the phone's address (HOST or HOST:PORT, OSC port default 8000)")
-    remote_options = (
-        ("--reply-host", {"help": "local address the phone answers to (default: the route to it)"}),
-        ("--reply-port", {"type": int, "default": 0, "help": "local UDP port for replies (default: any)"}),
+    remote_options = (  # each help says its default: an action's --help shows them without one
+        (
+            "--reply-host",
+            {"metavar": "ADDR", "help": "local address the phone answers to (default: the route to it)"},
+        ),
+        (
+            "--reply-port",
+            {
+                "metavar": "PORT",
+                "type": int,
+                "default": 0,
+                "help": "local UDP port for replies (default: any)",
+            },
+        ),
         (
             "--timeout",
-            {"metavar": "S", "type": float, "default": 2.0, "help": "seconds to wait for each reply"},
+            {
+                "metavar": "S",
+                "type": float,
+                "default": 2.0,
+                "help": "seconds to wait for each reply (default: 2)",
+            },
         ),
         ("--json", {"action": "store_true", "help": "print the result as JSON"}),
     )
@@ -206,8 +222,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     actions.add_parser("stream-start", help="start Live Link streaming")
     actions.add_parser("stream-stop", help="stop Live Link streaming")
     for action in actions.choices.values():  # the options also after the action: remote PHONE battery --json
-        for option, how in remote_options:
-            action.add_argument(option, **how | {"default": argparse.SUPPRESS, "help": argparse.SUPPRESS})
+        for option, how in remote_options:  # (its default would replace the value given before the action)
+            action.add_argument(option, **how | {"default": argparse.SUPPRESS})
     p.set_defaults(handler=cmd_remote)
 
 

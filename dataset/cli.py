@@ -66,8 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
         "default), a target in dBFS (-23), or none (features at the recorded level)",
     )
     p.add_argument("--split-by", default="take", choices=("take", "speaker"), help="unit of the splits")
-    p.add_argument("--val-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
-    p.add_argument("--test-fraction", type=float, default=0.1, help="share of total duration (default 0.1)")
+    p.add_argument("--val-fraction", type=float, default=0.1, help="share of total duration (default: 0.1)")
+    p.add_argument("--test-fraction", type=float, default=0.1, help="share of total duration (default: 0.1)")
     p.add_argument(
         "--val", nargs="+", default=[], metavar="ID", help="takes, recordings or speakers pinned to val"
     )
@@ -75,8 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--test", nargs="+", default=[], metavar="ID", help="takes, recordings or speakers pinned to test"
     )
     p.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the split order")
-    p.add_argument("--shard-mb", type=float, default=256.0, help="size cap of a shard in MB (default 256)")
-    p.add_argument("--max-sample-s", type=float, default=30.0, help="longest sample in seconds (default 30)")
+    p.add_argument("--shard-mb", type=float, default=256.0, help="size cap of a shard in MB (default: 256)")
+    p.add_argument("--max-sample-s", type=float, default=30.0, help="longest sample in seconds (default: 30)")
     p.add_argument("-j", "--jobs", type=jobs_count, default=1, metavar="N", help="worker processes")
     p.add_argument("--keep-work", action="store_true", help="keep DS/.work (per-take cache) after success")
     p.add_argument(

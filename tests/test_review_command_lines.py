@@ -16,14 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
-
-STAGES = {
-    "s2a-capture": "capture",
-    "s2a-align": "align",
-    "s2a-dataset": "dataset",
-    "s2a-train": "train",
-    "s2a-view": "viewer",
-}
+from test_docs_commands import STAGES  # each command's stage
 
 
 def _walk(parser: argparse.ArgumentParser, words: tuple[str, ...], found: dict) -> None:

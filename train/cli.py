@@ -153,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
         "by pocketsphinx's bundled English model, for speech without alignments in any language",
     )
     p.add_argument("-o", "--out", type=_path, required=True, help="checkpoint to write (ppg.pt)")
-    p.add_argument("--steps", metavar="N", type=int, default=300, help="optimizer steps (default 300)")
+    p.add_argument("--steps", metavar="N", type=int, default=300, help="optimizer steps (default: 300)")
     p.add_argument(
         "--seed", metavar="N", type=int, default=0, help="seed of the initial weights and the batch order"
     )

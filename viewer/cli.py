@@ -112,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--audio", metavar="FILE", type=Path, help="speech for a CSV input (a take folder brings its own)"
     )
     p.add_argument(
-        "--size", metavar="PX", type=SIZE, default=512, help="panel height and width in pixels (default 512)"
+        "--size", metavar="PX", type=SIZE, default=512, help="panel height and width in pixels (default: 512)"
     )
     p.add_argument(
         "--frame", metavar="N", type=FRAME, help="PNG: frame index of the input (default: widest open jaw)"
@@ -135,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="output .png or .svg")
     p.add_argument(
-        "--channels", default="jawOpen", help="comma list of channels or a set name (default jawOpen)"
+        "--channels", default="jawOpen", help="comma list of channels or a set name (default: jawOpen)"
     )
     p.add_argument("--audio", metavar="FILE", type=Path, help="speech for the first input when it is a CSV")
     p.add_argument(
@@ -202,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--names",
         choices=("arkit", "pascal", "suffix"),
         default="arkit",
-        help="target name style: jawOpen, JawOpen, or eyeBlink_L (default arkit)",
+        help="target name style: jawOpen, JawOpen, or eyeBlink_L (default: arkit)",
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_export_face)

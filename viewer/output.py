@@ -76,11 +76,15 @@ def lock_partial(tmp: Path, path: Path, attempts: int = 10) -> int:
         with writing(path, "video"):
             fd = os.open(tmp, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            locked = try_lock(fd)
-        except OSError:  # a file system without locks
-            return fd
-        if locked and _is_at(fd, tmp):
-            return fd
+            try:
+                locked = try_lock(fd)
+            except OSError:  # a file system without locks
+                return fd
+            if locked and _is_at(fd, tmp):
+                return fd
+        except BaseException:  # a stop signal (or a failing stat): the descriptor is not left open
+            os.close(fd)
+            raise
         os.close(fd)
         if not locked:
             break
