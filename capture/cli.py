@@ -28,6 +28,7 @@ from .importer import (
 )
 from .live_cli import register as register_live
 from .paired import read_paired
+from .recorder import SESSION_SUFFIX
 from .simulate.cli import register as register_simulate
 from .take import (
     FrameStatus,
@@ -523,6 +524,12 @@ def cmd_info(args: argparse.Namespace) -> int:
     litter = Litter()  # what the folders held that is no take, said once at the end
     try:
         for path in args.takes:
+            if path.is_dir() and path.name.endswith(SESSION_SUFFIX):  # ``info live/*`` meets the logs
+                why = "is a listen session's log folder, not a take: its takes are written beside it"
+                if len(args.takes) == 1:
+                    raise InputError(f"{why} (s2a-capture recover {path} rebuilds them)", path)
+                print(f"{PROG}: warning: {path}: {why}: skipped", file=sys.stderr)
+                continue
             takes = _load_for_info(path, litter)
             if not takes:
                 raise InputError("no takes found", path)

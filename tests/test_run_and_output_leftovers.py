@@ -5,6 +5,7 @@ and a raw take the build aligned that fails after alignment."""
 
 from __future__ import annotations
 
+import json
 import os
 
 import numpy as np
@@ -237,3 +238,19 @@ def test_a_raw_take_that_fails_after_the_build_aligned_it_is_named_as_the_user_g
     given = (tmp_path / "takes" / "t0").resolve()
     assert line.startswith(f"s2a-dataset: error: {given}: audio holds a sample of 4.98e+03 at 0.500 s"), line
     assert ".work" not in line
+
+
+# ------------------------------------------------------------------------ info on a listen output folder
+
+
+def test_info_over_a_listen_folder_skips_the_session_log_with_a_word(tmp_path, sim_take):
+    """``s2a-capture info live/*`` met the session's log folder first (``NAME.recording`` sorts before
+    ``NAME_Ann_...``) and stopped there with "no takes found", printing nothing of the takes beside it."""
+    log = tmp_path / "s1.recording"
+    log.mkdir()
+    proc = run_cli("capture", "info", log, sim_take, "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert [json.loads(line)["path"] for line in proc.stdout.splitlines()] == [str(sim_take)]
+    assert f"warning: {log}: is a listen session's log folder, not a take" in proc.stderr
+    proc = run_cli("capture", "info", log)  # alone: an error that says where the takes are
+    assert proc.returncode == 1 and f"s2a-capture recover {log} rebuilds them" in proc.stderr

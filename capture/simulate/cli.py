@@ -21,17 +21,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         "The same arguments and seed give byte-identical output.",
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="folder to write the take folders into")
-    p.add_argument("--speakers", type=int, default=1, help="number of simulated speakers (default 1)")
-    p.add_argument("--takes", type=int, default=1, help="number of takes in all (default 1)")
-    p.add_argument("--seconds", type=float, default=20.0, help="length of each take in seconds (default 20)")
-    p.add_argument("--fps", type=int, default=60, help="blendshape frame rate: 60 or 30 (default 60)")
+    p.add_argument("--speakers", metavar="N", type=int, default=1, help="number of simulated speakers")
+    p.add_argument("--takes", metavar="N", type=int, default=1, help="number of takes in all")
+    p.add_argument("--seconds", metavar="S", type=float, default=20.0, help="length of each take in seconds")
+    p.add_argument("--fps", type=int, default=60, help="blendshape frame rate: 60 or 30")
     p.add_argument(
         "--language",
         default="en",
         help=f"phone inventory: {', '.join(f'{k} ({v.description})' for k, v in INVENTORIES.items())}",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--sample-rate", type=int, default=16000, help="audio rate in Hz (default 16000)")
+    p.add_argument("--seed", metavar="N", type=int, default=0, help="random seed")
+    p.add_argument("--sample-rate", metavar="HZ", type=int, default=16000, help="audio rate in Hz")
     p.add_argument("--mov", action="store_true", help="also write the reference .mov and frame_log.csv")
     p.add_argument(
         "--without",
