@@ -142,19 +142,32 @@ def _packet(frame: int, num: int, marker: int) -> bytes:
     return header_bytes(DEVICE, "iPhone") + frame_block(frame, 0.0, num, 1, values)
 
 
-def test_a_steady_short_run_at_the_start_keeps_its_own_rate(tmp_path):
-    # The app streamed at 24 fps for half a second, then its setting went to 25 (a restart). Before, the
-    # 12 frames at 24 fps were read as jitter at 25 fps: a take placed at 09:36:00 instead of 10:00:00.
-    packets = [_packet(24 * 36000 + i, 24, i) for i in range(12)]
-    packets += [_packet(25 * 36000 + 13 + i, 25, 12 + i) for i in range(200)]
+# The app streamed at 24 fps for half a second, then its setting went to 25 (a restart). Before, the 12
+# frames at 24 fps were read as jitter at 25 fps: a take placed at 09:36:00 instead of 10:00:00. At a
+# stream's END likewise: 25 fps, then 24 (a restart) and 12 packets later the stream stopped; before, a take
+# of 212 frames at 25 fps whose last 12 sat 4 % of the day off (10:24 instead of 10:00), with a jitter note.
+@pytest.mark.parametrize(
+    "runs, second_starts, short",
+    [
+        (((24, 0, 12), (25, 13, 200)), 36000.52, 0),  # (rate, first frame after 10:00, frames) per run
+        (((25, 0, 200), (24, 200, 12)), 36000 + 200 / 24, 1),
+    ],
+    ids=["start", "end"],
+)
+def test_a_steady_short_run_keeps_its_own_rate(tmp_path, runs, second_starts, short):
+    packets, marker = [], 0
+    for rate, first, frames in runs:
+        packets += [_packet(rate * 36000 + first + i, rate, marker + i) for i in range(frames)]
+        marker += frames
     lines = build_takes(record_packets(tmp_path, "steady", packets).session_dir, tmp_path / "takes")
-    assert [line["frames"] for line in lines] == [12, 200]
+    assert [line["frames"] for line in lines] == [frames for _, _, frames in runs]
     assert lines[0]["rate_changes"] == 1 and "rate_jitter_packets" not in lines[0]
-    first, second = (read_take(line["path"]) for line in lines)
-    assert (first.meta.fps, second.meta.fps) == (24, 25)
-    assert first.meta.csv["start_seconds_of_day"] == pytest.approx(36000.0)
-    assert second.meta.csv["start_seconds_of_day"] == pytest.approx(36000.52)
-    assert np.array_equal(first.values[:, 0], np.arange(12))
+    takes = [read_take(line["path"]) for line in lines]
+    assert tuple(t.meta.fps for t in takes) == tuple(rate for rate, _, _ in runs)
+    assert takes[0].meta.csv["start_seconds_of_day"] == pytest.approx(36000.0)
+    assert takes[1].meta.csv["start_seconds_of_day"] == pytest.approx(second_starts)
+    before = sum(frames for _, _, frames in runs[:short])  # the short run's first marker
+    assert np.array_equal(takes[short].values[:, 0], before + np.arange(12))
 
 
 def test_a_jittering_start_before_a_steady_run_is_still_jitter(tmp_path):
