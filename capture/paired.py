@@ -612,8 +612,8 @@ def live_link_under_affix(names: list[str]) -> tuple[list[str], str] | None:
 def _affix_lengths(names: list[str]) -> list[int]:
     """The lengths of the prefixes all ``names`` share that end at an ``AFFIX_SEPARATORS`` character,
     longest first."""
-    first = min(names)
-    shared = len(os.path.commonprefix([first, max(names)]))
+    first = names[0]
+    shared = len(os.path.commonprefix(names))
     return [i + 1 for i in range(shared - 1, -1, -1) if first[i] in AFFIX_SEPARATORS]
 
 
@@ -1002,15 +1002,16 @@ def _percent_scale(values: np.ndarray) -> str | None:
     top = np.where(finite, values, -np.inf).max(axis=0)
     low = np.where(finite, values, np.inf).min(axis=0)
     moving, large = top > 0.01, top > PERCENT_CHANNEL
-    if top.max() < PERCENT_PEAK or low.min() < PERCENT_RANGE[0] or top.max() > BYTE_RANGE[1]:
+    peak = top.max()
+    if peak < PERCENT_PEAK or low.min() < PERCENT_RANGE[0] or peak > BYTE_RANGE[1]:
         return None
-    if PERCENT_RANGE[1] < top.max() < BYTE_RANGE[0]:
+    if PERCENT_RANGE[1] < peak < BYTE_RANGE[0]:
         return None
     if 2 * large.sum() < moving.sum():
         return None
-    scale, factor = ("0..100", "0.01") if top.max() <= PERCENT_RANGE[1] else ("0..255", "0.00392157 (1/255)")
+    scale, factor = ("0..100", "0.01") if peak <= PERCENT_RANGE[1] else ("0..255", "0.00392157 (1/255)")
     return (
-        f"the weights look like a {scale} scale, not 0..1 (largest {top.max():.4g}; {large.sum()} of the "
+        f"the weights look like a {scale} scale, not 0..1 (largest {peak:.4g}; {large.sum()} of the "
         f"{moving.sum()} channels that move reach past {PERCENT_CHANNEL:g}): if so, import again with "
         f"--value-scale {factor}"
     )

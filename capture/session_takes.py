@@ -731,19 +731,18 @@ def _late_packets_placed(num: np.ndarray, den: np.ndarray) -> np.ndarray | None:
         late = []
     for i in late:
         run = runs[i]
+        own = (int(num[run.start]), int(den[run.start]))
         new, confirmed = None, 0  # the one other rate back to the last long run of this one
         for j in range(i - 1, max(i - 1 - LATE_RUNS, -1), -1):
             other = runs[j]
             rate_j = (int(num[other.start]), int(den[other.start]))
-            if rate_j == (int(num[run.start]), int(den[run.start])):
+            if rate_j == own:
                 if other.stop - other.start >= RATE_CHANGE_PACKETS:
                     if new is not None and confirmed >= RATE_CHANGE_PACKETS:
                         old_first(slice(other.stop, run.stop), other.start)
                     break
                 continue
-            if (new is not None and rate_j != new) or close_rates(
-                *rate_j, int(num[run.start]), int(den[run.start])
-            ):
+            if (new is not None and rate_j != new) or close_rates(*rate_j, *own):
                 break
             new, confirmed = rate_j, max(confirmed, other.stop - other.start)
     n, d = num[order], den[order]
