@@ -308,7 +308,7 @@ def _gapless_skip(data: bytes, run: MpegRun) -> int:
         return 0
     text_at = _xing_at(data, run.start, frame)
     flags = data[text_at + 7] if text_at + 8 <= len(data) else 0
-    if not (flags & 1 and _file_header_frames(data, run.start, frame)):
+    if not _file_header_frames(data, run.start, frame):  # it checks the flag of a frame count
         return 0
     lame = (
         text_at + 8 + 4 * (flags & 1) + 4 * (flags >> 1 & 1) + 100 * (flags >> 2 & 1) + 4 * (flags >> 3 & 1)
@@ -1908,7 +1908,7 @@ class _JoinedPart:
     scratch file the files before it went into) as they come, the first ``drop`` samples left out.
     ``last_channels`` and ``last_dtype``: of its last frame, for ``_silence_of``."""
 
-    def __init__(self, kept: _Samples | _DecodedToFile | list[np.ndarray]):
+    def __init__(self, kept: _Samples | _DecodedToFile):
         self.kept, self.drop, self.delay_unknown = kept, 0, False
         self.last_channels: int | None = None
         self.last_dtype: np.dtype | None = None
