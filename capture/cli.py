@@ -323,10 +323,11 @@ class _Importer:
         self.reasons: collections.Counter[str] = collections.Counter()  # of the sources that failed
 
     def _failed(self, src: Path | str, exc: S2AError, box: Unpacked | None = None) -> None:
-        print(f"{PROG}: error: {box.shown(exc) if box else exc}", file=sys.stderr)
+        shown = box.shown(exc) if box else str(exc)
+        print(f"{PROG}: error: {shown}", file=sys.stderr)
         self.reasons[getattr(exc, "reason", None) or str(exc)] += 1
         if self.args.json:
-            emit_json({"source": str(src), "error": box.shown(exc) if box else str(exc)})
+            emit_json({"source": str(src), "error": shown})
 
     def archive(self, archive: Path, outer: Unpacked | None = None) -> int:
         """Import the takes a zip archive holds (and those of the archives in it, one level down: a

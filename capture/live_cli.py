@@ -696,7 +696,7 @@ def _stopped_before_recording(signum: int) -> KeyboardInterrupt:
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
-def _keep_stderr(fd: int, running: bool = True) -> None:
+def _keep_stderr(fd: int, running: bool) -> None:
     """Put the process's stderr back on ``fd`` (a copy of it from before a set-up step that a stop left
     running): the step may have sent it elsewhere, and may do so again while it runs on (sounddevice sends
     it to /dev/null while PortAudio looks for devices, a device that hangs holds it there); the stop's
