@@ -288,6 +288,7 @@ def _report(summaries: list[dict], as_json: bool) -> None:
     said: set[tuple[Any, str]] = set()
 
     def warnings(s: dict) -> list[str]:
+        s = s | s.get("stream_counts", {})  # a stream's warnings give its totals (its takes have their own)
         own = set(_warnings({k: s[k] for k in _STREAM_WARNINGS if k in s}))
         keys = [((s.get("device"), s.get("subject")) if line in own else None, line) for line in _warnings(s)]
         new = [key for key in keys if key not in said]
@@ -1091,12 +1092,25 @@ def parse_phone(text: str) -> tuple[str, int]:
 
 
 def cmd_remote(args: argparse.Namespace) -> int:
+    """``s2a-capture remote``. With ``--json`` a failure (a bad argument, a phone that does not answer) is
+    one JSON line too, with ``error``, as ``import --json`` gives it: a script reads one line per call."""
+    result: dict = {"phone": args.phone, "action": args.action}  # the phone as given until it is parsed
+    try:
+        return _remote(args, result)
+    except S2AError as exc:
+        if args.json:
+            emit_json(result | {"error": str(exc)})
+        raise
+
+
+def _remote(args: argparse.Namespace, result: dict) -> int:
+    """``cmd_remote``'s work, filling ``result`` (the JSON line) as it goes."""
     host, port = parse_phone(args.phone)
+    result["phone"] = format_destination(host, port)
     if not 0 <= args.reply_port <= 65535:
         raise InputError(f"--reply-port {args.reply_port} is out of range (0..65535)")
     if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
         raise InputError(f"--timeout must be in (0, 3600] seconds, not {args.timeout}")
-    result: dict = {"phone": format_destination(host, port), "action": args.action}
     # Every argument is checked before anything is sent: a bad one must not leave the phone half-told
     # (target: its Live Link targets cleared and no new one added).
     if args.action == "record-start":

@@ -48,7 +48,7 @@ import struct
 import tempfile
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -77,6 +77,14 @@ from .timecode import DAY_S, Timecode
 
 MAX_GAP_S = 5.0
 MIN_TAKE_FRAMES = 10
+# What a stream's packets add to the counts of the take that holds their frames (``stream_takes``; a copy
+# and a frame sharing its frame time that is dropped are counted with the frame kept for them), besides
+# its ``packets`` and ``rate_jitter_packets``. The stream's totals stay in its report.
+TALLY = ("duplicates", "out_of_order", "same_time_frames", "same_time_dropped")
+# The counts each take has of its own, of the stream's report (the stream's totals: ``stream_counts``).
+TAKE_COUNTS = ("packets", *TALLY, "clock_steps_back", "rate_jitter_packets")
+# The counts of a stream that are its own, not its takes' (a restart, a clock step forward is between takes).
+STREAM_WIDE = ("restarts", "rate_changes", "stray_packets", "clock_steps", "senders")
 # A take's audio reaches this far (plus one frame period) before its first frame and after its last
 # frame's period: room for the aligner's default search for the offset between face and audio (align's
 # --max-offset-ms 500, looked at 0.25 s beyond that, and a clap there is judged against the 0.5 s of
@@ -969,43 +977,77 @@ def _step_back_note(step: tuple[float, float, float], frame_time: np.ndarray) ->
     )
 
 
-def _time_ordered(r: np.ndarray, ft: np.ndarray, report: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
-    """A recording's frames (arrival order) in frame-time order. Copies of one datagram (the frame block
-    byte for byte) are ``duplicates``: the first arrival is kept. Frames that share a frame time with
-    another frame but not its values (``same_time_frames``) are frames of a sender ticking faster than its
-    frame clock when they are ``SHARED_TIME_FRACTION`` of the recording or more: spread evenly over the
-    frame period in arrival order. A few are kept only first (``same_time_dropped``), never silently."""
+def _fold(tally: np.ndarray, gone: np.ndarray, into: np.ndarray, count: str) -> None:
+    """Add the tallies of the frames ``gone`` (dropped) to those of the frames ``into`` they are counted
+    with, and one ``count`` for each."""
+    np.add.at(tally, into, tally[gone])
+    np.add.at(tally[:, TALLY.index(count)], into, 1)
+
+
+def _time_ordered(
+    r: np.ndarray, ft: np.ndarray, tally: np.ndarray, report: dict[str, Any]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A recording's frames (arrival order) in frame-time order, with their ``tally`` rows (``TALLY``). Copies
+    of one datagram (the frame block byte for byte) are ``duplicates``: the first arrival is kept. Frames
+    that share a frame time with another frame but not its values (``same_time_frames``) are frames of a
+    sender ticking faster than its frame clock when they are ``SHARED_TIME_FRACTION`` of the recording or
+    more: spread evenly over the frame period in arrival order. A few are kept only first
+    (``same_time_dropped``), never silently. A dropped frame's tally goes to the frame kept for it, so that
+    the take holding that frame counts it."""
     order = np.argsort(ft, kind="stable")  # arrival order within a frame time
-    r, ft = r[order], ft[order]
+    r, ft, tally = r[order], ft[order], tally[order]
     rank, size = _rank_in_time(ft)
     if not rank.any():
-        return r, ft
+        return r, ft, tally
     shared = np.flatnonzero(size > 1)
-    _, first = np.unique(_frame_blocks(r[shared]), return_index=True)  # equal blocks: equal frame times
-    copy = np.zeros(ft.size, bool)
-    copy[shared] = True
-    copy[shared[first]] = False
+    # equal blocks: equal frame times
+    _, first, group = np.unique(_frame_blocks(r[shared]), return_index=True, return_inverse=True)
+    kept = shared[first[group]]  # the frame kept for each shared one (itself when it is no copy)
+    copy = kept != shared
+    _fold(tally, shared[copy], kept[copy], "duplicates")
     report["duplicates"] += int(np.count_nonzero(copy))
-    r, ft = r[~copy], ft[~copy]
+    keep = np.ones(ft.size, bool)
+    keep[shared[copy]] = False
+    r, ft, tally = r[keep], ft[keep], tally[keep]
     rank, size = _rank_in_time(ft)
-    same_time = int(np.count_nonzero(rank))
-    report["same_time_frames"] += same_time
-    if same_time >= SHARED_TIME_FRACTION * ft.size:
+    same = np.flatnonzero(rank)
+    tally[same, TALLY.index("same_time_frames")] += 1
+    report["same_time_frames"] += same.size
+    if same.size >= SHARED_TIME_FRACTION * ft.size:
         period = _declared_period(r)
-        return r, ft + rank / size * period
-    report["same_time_dropped"] += same_time
-    return r[rank == 0], ft[rank == 0]
+        return r, ft + rank / size * period, tally
+    _fold(tally, same, same - rank[same], "same_time_dropped")  # counted with the first of its frame time
+    report["same_time_dropped"] += same.size
+    return r[rank == 0], ft[rank == 0], tally[rank == 0]
 
 
-def stream_takes(
-    log: SessionLog, sid: int, audio: SessionAudio | None = None, rows: np.ndarray | None = None
-) -> tuple[list[Take], dict]:
+class StreamTake(NamedTuple):
+    """A take of a stream (``stream_takes``) with its own ``counts`` (``TAKE_COUNTS``) and
+    where the session's audio lies on its time line (``attach_session_audio``, done just before it is
+    written: one take's span of the audio in memory at a time)."""
+
+    take: Take
+    counts: dict[str, int]
+    clock_offset_s: float  # recorder clock minus phone frame time
+    first_frame_s: float  # the phone's frame time of the take's first frame
+    period: float  # the take's frame period (s)
+
+
+def attach_session_audio(built: StreamTake, log: SessionLog, audio: SessionAudio) -> None:
+    """Give the take its span of the session's ``audio`` (``_attach_audio_span``)."""
+    first_s = float(log.seconds(audio.first_ns)) - built.clock_offset_s - built.first_frame_s  # of sample 0
+    _attach_audio_span(built.take, audio, first_s, built.period)
+
+
+def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> tuple[list[StreamTake], dict]:
     """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, rate changes,
     packets of a jittering rate, stray packets and frames, frames sharing a frame time, clock steps forward
     and back, face-lost frames outside the takes,
     frames with an implausible rate, takes that could not be built). ``rows``: the stream's rows when not
-    the log's (a stream merged with its copies from another source, in arrival order). ``audio``: the
-    session's, of which each take gets its span (``_attach_audio_span``)."""
+    the log's (a stream merged with its copies from another source, in arrival order). The takes have no
+    audio yet (``attach_session_audio``); each has its own ``TAKE_COUNTS`` of the report's: the packets of
+    its frames, with the copies and the dropped frames of its frame times, and the steps back of the clock
+    within it."""
     rows = log.stream_rows(sid) if rows is None else rows
     info = log.streams.get(sid, {})
     report: dict[str, Any] = {
@@ -1030,6 +1072,7 @@ def stream_takes(
     order = _late_packets_placed(num, den)
     if order is not None:  # a late packet of the old setting among the new one's first: back with its own
         rows, num, den = rows[order], num[order], den[order]
+    tally = np.zeros((rows.size, len(TALLY)), np.int32)  # per row: what it adds to its take's counts
     stretches = _rate_stretches(num, den)
     jitter_notes: dict[int, str] = {}  # stretch start -> its note
     for run, nominal in stretches:
@@ -1071,8 +1114,9 @@ def stream_takes(
     # Per recording: duplicates dropped, frames put in frame-time order, cut where the phone's clock
     # stepped forward and into segments of the frames with a face; the no-face frames between a segment's
     # first and last face frame belong to it.
-    # Segments: (rows, frame times, why placed by arrival or None, notes for the take).
-    segments: list[tuple[np.ndarray, np.ndarray, str | None, list[tuple[str, str]]]] = []
+    # Segments: (rows, frame times, why placed by arrival or None, notes for the take, its rows' tally,
+    # steps back of the clock within it).
+    segments: list[tuple[np.ndarray, np.ndarray, str | None, list[tuple[str, str]], np.ndarray, int]] = []
     face_lost = int(stray_rows.size) - stray_faces
     for idx, ft, placed_by_arrival, rate_note in recordings:
         backs: list[tuple[float, float, float]] = []
@@ -1080,27 +1124,28 @@ def stream_takes(
             ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx]))
             report["clock_steps_back"] += len(backs)
         prior_max = np.maximum.accumulate(ft)
-        report["out_of_order"] += int(np.count_nonzero(ft[1:] < prior_max[:-1]))
-        r, ft = _time_ordered(rows[idx], ft, report)
+        late = idx[1:][ft[1:] < prior_max[:-1]]
+        tally[late, TALLY.index("out_of_order")] = 1
+        report["out_of_order"] += late.size
+        r, ft, t = _time_ordered(rows[idx], ft, tally[idx], report)
         steps = [] if placed_by_arrival is not None else _clock_steps(ft, log.seconds(r["arrival_ns"]))
         report["clock_steps"] += len(steps)
         for part in np.split(np.arange(ft.size), steps):
-            rp, fp = r[part], ft[part]
+            rp, fp, tp = r[part], ft[part], t[part]
             face_rows = np.flatnonzero(rp["count"] != 0)
             face_lost += int(rp.size - face_rows.size)
             for s in _segments(fp[face_rows]) if face_rows.size else []:
                 seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
+                within = [back for back in backs if fp[seg][0] <= back[0] <= fp[seg][-1]]
                 notes = [("rate_jitter", rate_note)] if rate_note else []
-                notes += [
-                    _step_back_note(back, fp[seg]) for back in backs if fp[seg][0] <= back[0] <= fp[seg][-1]
-                ]
-                segments.append((rp[seg], fp[seg], placed_by_arrival, notes))
-    takes: list[Take] = []
+                notes += [_step_back_note(back, fp[seg]) for back in within]
+                segments.append((rp[seg], fp[seg], placed_by_arrival, notes, tp[seg], len(within)))
+    takes: list[StreamTake] = []
     stray_frames, lost_in_takes = stray_faces, 0
     errors = []
     session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
     base_id = f"{session}_{info.get('subject')}_{(info.get('device') or '')[:8]}"
-    for k, (r, ft, placed_by_arrival, notes) in enumerate(segments):
+    for k, (r, ft, placed_by_arrival, notes, t, backs_within) in enumerate(segments):
         lost = r["count"] == 0
         n_lost = int(np.count_nonzero(lost))
         if r.size - n_lost < MIN_TAKE_FRAMES:
@@ -1108,7 +1153,8 @@ def stream_takes(
             continue
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
         try:
-            take = _segment_take(log, info, take_id, r, ft, audio)
+            built = _segment_take(log, info, take_id, r, ft)
+            take = built.take
             if placed_by_arrival is not None:
                 take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": placed_by_arrival}
                 take.meta.repairs.append(
@@ -1120,7 +1166,12 @@ def stream_takes(
                 )
             for kind, message in notes:
                 repair(take.meta.repairs, None, kind, message)
-            takes.append(take)
+            counts = dict(zip(TALLY, t.sum(axis=0).tolist(), strict=True))
+            counts["packets"] = r.size + counts["duplicates"] + counts["same_time_dropped"]
+            counts["clock_steps_back"] = backs_within
+            if "rate_jitter_packets" in report:  # a recording's packets are all of one stretch of rates
+                counts["rate_jitter_packets"] = counts["packets"] if "rate_jitter" in dict(notes) else 0
+            takes.append(built._replace(counts=counts))
         except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
             errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
             continue
@@ -1138,9 +1189,9 @@ def _segment_take(
     take_id: str,
     r: np.ndarray,
     ft: np.ndarray,
-    audio: SessionAudio | None = None,
-) -> Take:
-    """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft``."""
+) -> StreamTake:
+    """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft`` (no counts
+    yet, no audio: ``attach_session_audio``)."""
     arr = log.seconds(r["arrival_ns"])
     lost = r["count"] == 0
     values = r["values"].astype(np.float32)
@@ -1234,10 +1285,7 @@ def _segment_take(
         "source": info.get("source"),
     }
     take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
-    if audio is not None:
-        first_s = float(log.seconds(audio.first_ns)) - offset - float(ft[0])  # take time of sample 0
-        _attach_audio_span(take, audio, first_s, period)
-    return take
+    return StreamTake(take, {}, offset, float(ft[0]), period)
 
 
 def _attach_audio_span(take: Take, audio: SessionAudio, first_s: float, period: float) -> None:
@@ -1359,10 +1407,12 @@ def build_takes(
     """Write the takes of a session to ``out_dir``; returns one summary dict per take.
 
     The summary holds ``device``, ``subject``, ``frames``, ``dropped_frames``, ``rejected`` (session
-    datagram counts by reason) and the take's ``info`` figures (its audio is its own span of the session's)
-    with ``audio_gaps``, the stretches of silence where the audio log lost chunks, counted in the take's
-    audio (the session's with no take). With no take, one summary with
-    ``device``/``subject`` None still reports the counts. Each take is built and written on its own:
+    datagram counts by reason), its stream's report with the take's own ``TAKE_COUNTS`` (the stream's
+    totals of those in ``stream_counts``), and the take's ``info``
+    figures (its audio is its own span of the session's, read just before the take is written) with
+    ``audio_gaps``, the stretches of silence where the audio log lost chunks, counted in the take's audio
+    (the session's with no take). With no take, one summary with ``device``/``subject`` None still
+    reports the counts. Each take is built and written on its own:
     one that fails (memory, a full disk) adds a summary with ``path`` None and a one-line ``error``,
     and the others are still written. Marks the session complete afterwards unless a take failed.
     Take folder names are unique in the session (``-2``, ``-3``... when two streams' names collide).
@@ -1417,7 +1467,7 @@ def build_takes(
                 if len(member) > 1:  # one sender from several sources, in arrival order
                     rows = np.concatenate([log.stream_rows(m) for m in member])
                     rows = rows[np.argsort(rows["arrival_ns"], kind="stable")]
-                takes, report = stream_takes(log, sid, audio, rows)
+                takes, report = stream_takes(log, sid, rows)
             except (MemoryError, ValueError, OverflowError, OSError, S2AError) as exc:
                 message = f"the takes of stream {sid} could not be built: {type(exc).__name__}: {exc}"
                 failed.append(who | {"error": message})
@@ -1425,33 +1475,21 @@ def build_takes(
             if sid in senders:
                 report["senders"] = senders[sid]
             failed += [who | {"error": e} for e in report.pop("errors", [])]
-            for take in takes:
+            # the stream's totals of the counts each take has its own of
+            totals = {"stream_counts": {k: report[k] for k in TAKE_COUNTS if k in report}}
+            for built in takes:
+                take = built.take
                 take.meta.id = _unique_id(take.meta.id, used)
                 take.meta.extra["rejected"] = dict(log.rejected)
                 take.meta.extra["recovered"] = recovered
-                take.meta.extra |= {
-                    k: report[k]
-                    for k in (
-                        "packets",
-                        "duplicates",
-                        "out_of_order",
-                        "restarts",
-                        "rate_changes",
-                        "stray_packets",
-                        "same_time_frames",
-                        "same_time_dropped",
-                        "clock_steps",
-                        "clock_steps_back",
-                        "rate_jitter_packets",
-                        "senders",
-                    )
-                    if k in report
-                }
+                take.meta.extra |= {k: report[k] for k in STREAM_WIDE if k in report} | built.counts | totals
                 if log.torn_tail is not None:
                     take.meta.extra["torn_tail"] = log.torn_tail.to_json()
                 if log.damage:
                     take.meta.extra["log_damage"] = common["log_damage"]
                 try:
+                    if audio is not None:  # one take's span of the session's audio in memory at a time
+                        attach_session_audio(built, log, audio)
                     folder = write_take(take, out_dir)
                 except (OSError, S2AError) as exc:  # a full disk, a read-only folder: this take only
                     where = Path(out_dir) / take.meta.id
@@ -1465,6 +1503,8 @@ def build_takes(
                     take.summary()
                     | common
                     | report
+                    | built.counts
+                    | totals
                     | {"device": take.meta.device, "subject": take.meta.subject, "path": str(folder)}
                     | ({"audio_gaps": gaps} if gaps else {})
                 )
