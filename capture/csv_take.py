@@ -41,22 +41,30 @@ number_format  cells written as a spreadsheet's locale writes numbers were read 
                a cell written two ways counts in both): a quoted decimal comma (``"0,1421"``), a U+2212
                minus sign, no-break or narrow spaces
 timecode_format timecodes without zero padding (``12:28:1:03.060``) were read (one note); FF at 60.000
-               (never the app's) was read as the next second's frame 0 (another note)
+               (never the app's) was read as the next second's frame 0 (another note); clock times
+               ``HH:MM:SS.fff`` (another writer's) were read as seconds (another note)
 index_column   pandas' index column before Timecode (header ``""`` or ``Unnamed: 0``) was dropped
 bad_values_widespread, bad_timecodes_widespread  most frames lost their values, or over 5 % of the rows
                their timecodes (a file read wrongly, not a damaged row: import prints it as a warning)
 timecode_rate  FF counts at a lower rate than the app's 60 (another writer of the format): times were
-               read as FF/rate (``read_timecode_rate``); or FF fits no standard rate (read at 60)
+               read as FF/rate (``read_timecode_rate``); or FF fits no standard rate (read at 60);
+               or drop-frame timecodes (``HH:MM:SS;FF`` on every row, at 30 or 60) were read as frames
+               counted at 29.97 or 59.94 fps (``drop_frame_seconds``), not as labels with gaps
 ============== ================================================================================
 
 Notes, which ``strict=True`` lets pass (nothing was changed): ``trailing_comma`` (every line ends with a
 comma), ``unknown_columns`` (header names that are not Live Link channels, kept under their own names),
 ``row_rate_change`` (the rows come at another rate for a while: ``note_row_rate_changes``), ``text_column``
 (a column that is no channel holds text: left out if it holds no number, else NaN there; never a frame's
-damage), ``channel_typo`` (a column named close to a channel the header lacks), ``value_range`` (channel
-values beyond ``VALUE_LIMIT``), ``gap`` (no rows for ``GAP_NOTE_S`` or more).
+damage), ``channel_typo`` (a column named close to a channel the header lacks), ``empty_channel``
+(channels with no value on any row, as a writer of the 52 shapes alone leaves the head and eye angles:
+left out, and no frame's damage), ``value_range`` (channel values beyond ``VALUE_LIMIT``), ``gap`` (no
+rows for ``GAP_NOTE_S`` or more).
 
-Errors: missing, empty or binary file, or UTF-16 text (``utf16_csv_error``); a header that is not a Live
+Errors: missing, empty or binary file (a run of NUL bytes to its end, as a power loss leaves, is no
+binary: the row it cuts is a ``truncated_row``), or UTF-16 text, with or without its byte-order mark
+(``utf16_csv_error``); a Timecode column of plain numbers (another tool's seconds or frame numbers:
+import it as paired data); a header that is not a Live
 Link Face header (one separated by ``;`` or tabs says to export it with commas), or that names a column
 twice or leaves one empty (saying how to fix it); the header again further down (two files joined); no
 usable data rows (naming the first rejected row); values written with unquoted decimal commas (``0,1421``
@@ -92,6 +100,8 @@ from .timecode import (
     CSV_TIMECODE_RATE,
     Timecode,
     at_timecode_rate,
+    clock_seconds,
+    drop_frame_seconds,
     fixed_width_seconds,
     timecode_frames,
     timecode_rate_of,
@@ -123,6 +133,7 @@ class CsvRows:
     repairs: list[dict[str, Any]] = field(default_factory=list)
     line_ending: str = "\n"
     lines: np.ndarray | None = None  # each row's line in the file, when the careful parser read it
+    drop_frame: bool = False  # every timecode written HH:MM:SS;FF, the drop-frame notation
 
 
 def repair(repairs: list, line: int | None, kind: str, message: str) -> None:
@@ -180,14 +191,28 @@ def app_header_separator(line: str) -> str | None:
 _UTF16_BOMS = ((b"\xff\xfe", "utf-16-le"), (b"\xfe\xff", "utf-16-be"))
 
 
+def _utf16_without_mark(head: bytes) -> str | None:
+    """The codec of ASCII text saved as UTF-16 without its byte-order mark (Python's ``utf-16-le``,
+    .NET's ``UnicodeEncoding`` without a preamble), from its first bytes: every other byte is NUL."""
+    pairs = head[:64]
+    if len(pairs) < 8 or pairs.count(0) != len(pairs) // 2:
+        return None
+    if not pairs[1::2].strip(b"\0"):
+        return "utf-16-le"
+    return "utf-16-be" if not pairs[::2].strip(b"\0") else None
+
+
 def utf16_csv_error(head: bytes, path: str | Path) -> InputError | None:
     """The error for a Live Link Face CSV saved as UTF-16 text with its byte-order mark (Windows'
     "Unicode" text; Excel's "Unicode Text", which also puts tabs between the fields), from its first
     bytes; None for any other file. One message wherever the file is met: loose or in a take folder."""
     codec = next((codec for bom, codec in _UTF16_BOMS if head.startswith(bom)), None)
+    start = 2
+    if codec is None:
+        codec, start = _utf16_without_mark(head), 0
     if codec is None:
         return None
-    text = head[2 : len(head) // 2 * 2].decode(codec, "replace")
+    text = head[start : len(head) // 2 * 2].decode(codec, "replace")
     sep = app_header_separator(next((line for line in text_lines(text) if line.strip()), ""))
     if sep is None:
         return None
@@ -286,9 +311,24 @@ def _read_head(path: Path) -> bytes:
     utf16 = utf16_csv_error(head, path)
     if utf16 is not None:
         raise utf16
-    if b"\x00" in head:
+    if b"\x00" in head and not _zero_tail(path, head):
         raise InputError("binary data, not a CSV text file", path, 1)
     return head
+
+
+def _zero_tail(path: Path, head: bytes) -> bool:
+    """Whether the NUL bytes in a file's first bytes (``head``) start a run of them to its end, after
+    text: what a phone's file system leaves of a recording cut by a power loss (the file's length written,
+    its last blocks not). The rows before it are read, the row the run cuts is a ``truncated_row``."""
+    first = head.index(b"\x00")
+    if not head[:first].strip() or head[first:].count(0) != len(head) - first:
+        return False
+    with open(path, "rb") as f:
+        f.seek(len(head))
+        while block := f.read(1 << 20):
+            if block.count(0) != len(block):
+                return False
+    return True
 
 
 def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
@@ -964,6 +1004,7 @@ class _RowReader:
         self.comma_rows = 0  # rows whose comma ending the line was dropped (``trailing_comma``)
         self.index_start = 0  # what pandas' index column counts from (0, or 1 when its first row says so)
         self.split_fields = 0  # fields of the first row whose values split at unquoted decimal commas
+        self.written = np.zeros(len(header.columns), dtype=bool)  # a column held a cell that is no number
 
     def read(self, number: int, line: str) -> None:
         """Read line ``number`` of the file (a row, a blank line, or a damaged one)."""
@@ -1013,17 +1054,9 @@ class _RowReader:
                 message = f"row has {len(fields)} fields, expected {ncols}: dropped"
                 repair(self.repairs, number, "wrong_fields", message)
             return
-        try:
-            timecode = Timecode.parse(fields[0])
-        except ValueError as exc:
-            repair(self.repairs, number, "bad_timecode", f"{exc}: row dropped")
-            seen.setdefault("bad_timecode", _Seen()).add(fields[0], number)
+        tod = self.time_of_day(number, fields[0])
+        if tod is None:
             return
-        if not Timecode.is_zero_padded(fields[0]):
-            seen.setdefault("unpadded", _Seen()).add(fields[0], number)
-        if timecode.is_whole_second:
-            seen.setdefault("whole_second", _Seen()).add(fields[0], number)
-        tod = timecode.seconds_of_day
         cells = fields[2:]
         vals = [] if lost else _row_values(line, cells, columns, number, seen)
         # Count 0 is the app's face-lost marker; a writer that fills the row with zeros, or (pandas, a
@@ -1044,6 +1077,7 @@ class _RowReader:
                 vals[i] = math.nan
                 if self.is_channel[i]:
                     bad.append(i)
+                    self.written[i] |= bool(cells[i].strip())
                 elif cells[i].strip():  # another column's non-number is no channel's damage (_other_columns)
                     seen.setdefault(f"text {columns[i]}", _Seen()).add(cells[i], number)
         if bad:
@@ -1058,6 +1092,28 @@ class _RowReader:
                 + f" ({_shown(cells[bad[0]])}): set to NaN, frame marked invalid",
             )
         self._add(number, tod, vals, row_status)
+
+    def time_of_day(self, number: int, cell: str) -> float | None:
+        """Seconds since midnight of a row's timecode cell (the app's ``HH:MM:SS:FF.fff``, or a clock time
+        ``HH:MM:SS.fff`` as other writers put there), each unusual way of writing it counted in ``seen``;
+        None for a cell that is neither (the row is dropped with a repair)."""
+        seen = self.seen
+        try:
+            timecode = Timecode.parse(cell)
+        except ValueError as exc:
+            if (clock := clock_seconds(cell)) is not None:
+                seen.setdefault("clock_time", _Seen()).add(cell, number)
+                return clock
+            repair(self.repairs, number, "bad_timecode", f"{exc}: row dropped")
+            seen.setdefault("bad_timecode", _Seen()).add(cell, number)
+            return None
+        if not Timecode.is_zero_padded(cell):
+            seen.setdefault("unpadded", _Seen()).add(cell, number)
+        if ";" in cell:
+            seen.setdefault("drop_frame", _Seen()).add(cell, number)
+        if timecode.is_whole_second:
+            seen.setdefault("whole_second", _Seen()).add(cell, number)
+        return timecode.seconds_of_day
 
     def _add(self, number: int, tod: float, vals: list[float] | None, status: int) -> None:
         i = self.n
@@ -1095,11 +1151,13 @@ def _finish(
         first = repairs[0]
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
     if not times.size:
+        _refuse_plain_number_times(seen.get("bad_timecode"), data_rows, path)
         rejected = [r for r in repairs if r["kind"] != "bom"]
         if rejected:
             first = rejected[0]
             raise InputError(f"no usable data rows; the first: {first['message']}", path, first["line"])
         raise InputError("no data rows after the header", path)
+    values, columns, is_channel = _empty_channels(reader, values, status, numbers)
     _warn_widespread(seen, times.size, data_rows, repairs)
     t = unwrap_midnight(times)
     keep = np.ones(t.size, dtype=bool)
@@ -1141,10 +1199,32 @@ def _finish(
     if header.trailing_comma:  # after the strict check: nothing was changed, so strict mode reads it too
         lines_with = "every line ends" if reader.comma_rows else "the header ends"
         repair(repairs, 1, "trailing_comma", f"{lines_with} with a comma: no column, ignored")
-    values, columns = _other_columns(values, header.columns, reader.is_channel, status, seen, repairs)
+    values, columns = _other_columns(values, columns, is_channel, status, seen, repairs)
     if not keep.all():
         t, values, status, numbers = t[keep], values[keep], status[keep], numbers[keep]
-    return CsvRows(path, header.count_name, columns, t, values, status, repairs, line_ending, numbers)
+    drop_frame = "drop_frame" in seen and seen["drop_frame"].count == times.size
+    return CsvRows(
+        path, header.count_name, columns, t, values, status, repairs, line_ending, numbers, drop_frame
+    )
+
+
+def _refuse_plain_number_times(bad: _Seen | None, data_rows: int, path: Path) -> None:
+    """The error for a file in the app's layout whose every row's Timecode is a plain number (seconds or
+    a frame number, as other tools write their times): it says how to import it as paired data."""
+    if bad is None or bad.count != data_rows or not plain_number(bad.text):
+        return
+    try:
+        float(bad.text)
+    except ValueError:
+        return
+    raise InputError(
+        f"its Timecode column holds plain numbers ({_shown(bad.text)} on line {bad.line}), not the app's "
+        "HH:MM:SS:FF.fff timecodes: another tool's CSV in the app's layout. Import it as paired data with "
+        "its audio: --matrix FILE --audio AUDIO (times in seconds are read as such; add --fps for frame "
+        "numbers)",
+        path,
+        bad.line,
+    )
 
 
 def _row_values(
@@ -1190,6 +1270,15 @@ def _note_read_with_repairs(
             f"{counted(s.count, 'timecode')} written without zero padding ({s.first()}): read as {padded} "
             "would be",
         )
+    if "clock_time" in seen:
+        s = seen["clock_time"]
+        repair(
+            repairs,
+            s.line,
+            "timecode_format",
+            f"{counted(s.count, 'timecode')} written as a clock time HH:MM:SS.fff ({s.first()}), not the "
+            "app's HH:MM:SS:FF.fff: read as seconds and their fraction",
+        )
     if "whole_second" in seen:
         s = seen["whole_second"]
         repair(
@@ -1211,6 +1300,41 @@ def _note_read_with_repairs(
             )
         else:
             repair(repairs, 1, "index_column", f"{what} counting the rows from {index_start}: dropped")
+
+
+def _empty_channels(
+    reader: _RowReader, values: np.ndarray, status: np.ndarray, numbers: np.ndarray
+) -> tuple[np.ndarray, list[str], list[bool]]:
+    """The values, columns and which are channels, without the channel columns whose every cell on the
+    rows with values is empty (a writer that leaves the head and eye angles empty: those channels have
+    no data), each left out with a note (kind ``empty_channel``); never all of them. The rows they alone
+    made BAD_VALUE are tracked again, their ``bad_value`` repairs withdrawn."""
+    columns, is_channel, repairs, seen = reader.header.columns, reader.is_channel, reader.repairs, reader.seen
+    rows = np.flatnonzero(status != FrameStatus.FACE_LOST)
+    # candidates first (no number in the first row with values), then each checked: no copy of the array
+    candidates = [] if not rows.size else np.flatnonzero(np.isnan(values[rows[0]]) & ~reader.written)
+    empty = [j for j in candidates if is_channel[j] and np.isnan(values[rows, j]).all()]
+    if not empty or len(empty) == sum(is_channel):
+        return values, columns, is_channel
+    keep = [j for j in range(len(columns)) if j not in empty]
+    values = values[:, keep]
+    names = [columns[j] for j in empty]
+    columns, is_channel = [columns[j] for j in keep], [is_channel[j] for j in keep]
+    message = f"{counted(len(names), 'channel')} with no value on any row ({', '.join(names)}): left out"
+    repair(repairs, 1, "empty_channel", message)
+    bad = np.flatnonzero(status == FrameStatus.BAD_VALUE)
+    channels = np.flatnonzero(is_channel)
+    restored = bad[~np.isnan(values[np.ix_(bad, channels)]).any(axis=1)]
+    if restored.size:
+        status[restored] = FrameStatus.TRACKED
+        lines = set(numbers[restored].tolist())
+        repairs[:] = [r for r in repairs if not (r["kind"] == "bad_value" and r["line"] in lines)]
+        was = seen.pop("bad_value")
+        left = np.flatnonzero(status == FrameStatus.BAD_VALUE)
+        if left.size:  # the first of the others, its column named (the text is not kept)
+            column = columns[channels[np.isnan(values[left[0], channels]).argmax()]]
+            seen["bad_value"] = _Seen(was.count - restored.size, "?", int(numbers[left[0]]), column)
+    return values, columns, is_channel
 
 
 def _warn_widespread(seen: dict[str, _Seen], frames: int, data_rows: int, repairs: list) -> None:
@@ -1454,6 +1578,15 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
         rows.seconds_of_day = at_timecode_rate(t, rate)
         message = f"timecode frames (FF) count at {rate:g} fps, not the app's {CSV_TIMECODE_RATE:g} ({seen})"
         repair(rows.repairs, None, "timecode_rate", f"{message}: times read as FF/{rate:g}")
+    if rows.drop_frame and (real := drop_frame_seconds(rows.seconds_of_day, rate)) is not None:
+        rows.seconds_of_day = real
+        repair(
+            rows.repairs,
+            None,
+            "timecode_rate",
+            f"drop-frame timecodes (HH:MM:SS;FF) at {rate * 1000 / 1001:.2f} fps: the labels each minute "
+            "skips are no dropped frames, times read as frames counted at that rate",
+        )
     return rate
 
 

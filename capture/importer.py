@@ -328,6 +328,8 @@ def import_source(
             ),
             source,
         )
+    if (utf16 := utf16_csv_error(head or b"", source)) is not None:  # also without its byte-order mark
+        raise utf16
     livelink = is_livelink_csv(source, head)
     if livelink and bom_codec(head or b""):
         raise utf16_csv_error(head or b"", source) or InputError(

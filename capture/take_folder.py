@@ -34,7 +34,7 @@ from .audio_io import Audio, read_audio
 from .csv_take import STANDARD_FPS, read_csv_rows, read_livelink_csv, split_variant, text_lines
 from .errors import InputError
 from .mov import MovInfo, choose_mov_audio, probe_mov
-from .paired import note_length_mismatch
+from .paired import bom_codec, note_length_mismatch
 from .take import FrameStatus, Take, safe_id, source_file
 from .timecode import DAY_S, Timecode
 from .transfer_litter import icloud_error, is_litter, not_downloaded
@@ -93,11 +93,22 @@ class FrameLog:
         return stated if not fitting or stated in fitting else min(fitting, key=lambda r: fits[r] * r)
 
 
+def _app_text(raw: bytes, errors: str = "strict") -> str:
+    """The text of one of the app's JSON or log files as a copy may have left it: UTF-8 (the app's), a
+    byte-order mark skipped (a Windows editor's "UTF-8 with BOM"), or UTF-16 with its mark (Notepad's
+    "Unicode"); a run of NUL bytes ending the file (a power loss: its last blocks never written) left
+    out."""
+    codec = bom_codec(raw)
+    if codec is not None:
+        return raw.decode(codec, errors)
+    return raw.rstrip(b"\0").decode("utf-8-sig", errors)
+
+
 def read_frame_log(path: str | Path, repairs: list[dict[str, Any]]) -> FrameLog:
     """Parse ``frame_log.csv`` (no header): ``type,index,num,den,timecode[,dropped]``."""
     path = Path(path)
     kinds, idx, times, tcs, dropped = [], [], [], [], []
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = _app_text(path.read_bytes(), errors="replace")
     for number, line in enumerate(text_lines(text), start=1):
         if not line.strip():
             continue
@@ -137,11 +148,21 @@ def is_take_folder(folder: str | Path) -> bool:
     if not folder.is_dir():
         return False
     waiting = _placeholders(folder)
-    if any((folder / m).is_file() or m in waiting for m in TAKE_FOLDER_MARKERS):
+    if any(app_file_in(folder, m) is not None or m in waiting for m in TAKE_FOLDER_MARKERS):
         return True
     return bool(_files_ending(folder, ".mov") or _waiting_ending(waiting, ".mov")) and bool(
         _blendshape_csvs(folder) or _waiting_ending(waiting, ".csv")
     )
+
+
+def app_file_in(folder: Path, name: str) -> Path | None:
+    """The app's file ``name`` (lower case, as the app writes it) in ``folder``, spelled in any case
+    (``TAKE.JSON``, ``Frame_Log.csv`` from a copy that changed the case, as the take's ``.CSV`` and ``.MOV``
+    are found), or None. Of several spellings the app's own wins; several others are none of them."""
+    if (folder / name).is_file():
+        return folder / name
+    alike = [p for p in folder.iterdir() if p.name.lower() == name and not is_litter(p) and p.is_file()]
+    return alike[0] if len(alike) == 1 else None
 
 
 def _files_ending(folder: Path, suffix: str) -> list[Path]:
@@ -269,7 +290,7 @@ def _load_json(path: Path, repairs: list[dict[str, Any]]) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(_app_text(path.read_bytes()))
         if not isinstance(data, dict):
             raise ValueError("not a JSON object")
         bad: list[str] = []
@@ -390,7 +411,8 @@ def _take_names(folder: Path) -> set[str]:
     and ``identifier`` from take.json, and the folder's name; in NFC (``nfc``)."""
     names = {folder_name(folder), *(p.stem for p in _files_ending(folder, ".mov"))}
     names |= {Path(n).stem for n in _waiting_ending(_placeholders(folder), ".mov")}
-    app_take = _load_json(folder / "take.json", [])
+    take_json = app_file_in(folder, "take.json")
+    app_take = {} if take_json is None else _load_json(take_json, [])
     identifier = _field(app_take, "identifier")
     if isinstance(identifier, str):
         names.add(identifier)
@@ -436,7 +458,7 @@ def choose_csv(folder: Path, variant: str | None) -> tuple[Path, Path | None]:
         by_variant.setdefault(f.variant, []).append(f)
     neutrals = by_variant.pop("neutral", None)
     if not by_variant:
-        hint = " (a MetaHuman Animator depth take has none)" if (folder / "depth_data.bin").exists() else ""
+        hint = " (a MetaHuman Animator depth take has none)" if app_file_in(folder, "depth_data.bin") else ""
         raise InputError(f"take folder holds no blendshape CSV{hint}", folder)
     if variant is not None:
         key = None if variant == "plain" else variant
@@ -570,7 +592,7 @@ def read_take_folder(
 
     def app_file(name: str) -> Path | None:
         """One of the app's files of this take; none in a folder of several takes."""
-        return folder / name if own and (folder / name).is_file() else None
+        return app_file_in(folder, name) if own else None
 
     def app_json(name: str) -> dict[str, Any]:
         path = app_file(name)

@@ -29,6 +29,18 @@ MIN_WHOLE_SECONDS = 2
 # one digit are read too: scripts write f"{h}:{m}:{s}:{ff}" (``12:28:1:03.060``); ``is_zero_padded`` tells.
 _TIMECODE = re.compile(r"^\s*(\d{1,2}):(\d{1,2}):(\d{1,2})[:;](\d{1,3}(?:\.\d*)?)\s*$", re.ASCII)
 _PADDED = re.compile(r"^\s*\d{1,2}:\d{2}:\d{2}[:;]", re.ASCII)
+# A time of day as other tools write it in the Timecode column: seconds with a decimal fraction, no frames.
+_CLOCK_TIME = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2}\.\d+)\s*$", re.ASCII)
+
+
+def clock_seconds(text: str) -> float | None:
+    """Seconds since midnight of a time written ``HH:MM:SS.fff`` (seconds and their fraction, as other
+    writers of the app's CSV layout put a clock time in its Timecode column), or None for other text."""
+    m = _CLOCK_TIME.match(text)
+    if not m:
+        return None
+    h, mi, s = int(m.group(1)), int(m.group(2)), float(m.group(3))
+    return h * 3600 + mi * 60 + s if h <= 23 and mi <= 59 and s < 60 else None
 
 
 @dataclass(frozen=True)
@@ -132,6 +144,28 @@ def at_timecode_rate(seconds_of_day: np.ndarray, rate: float) -> np.ndarray:
     """Times of day read with FF at 60 fps, re-read with FF counted at ``rate`` frames per second."""
     whole, frames = timecode_frames(seconds_of_day)
     return whole + frames / rate
+
+
+# Drop-frame counts (``HH:MM:SS;FF``): at these nominal rates the labels of the first frames of each minute
+# are skipped, but of every tenth minute, so that the labels keep up with the NTSC rate (N * 1000/1001).
+DROP_FRAME_LABELS = {30.0: 2, 60.0: 4}
+
+
+def drop_frame_seconds(label_seconds: np.ndarray, rate: float) -> np.ndarray | None:
+    """Times (s) of frames labelled with drop-frame timecodes, given their labels read as seconds at the
+    nominal ``rate`` (30 or 60): frame count over the NTSC rate. None when a label is one a drop-frame count
+    skips (a writer using ``;`` without counting so): the labels are then read as they stand."""
+    drop = DROP_FRAME_LABELS.get(rate)
+    if drop is None:
+        return None
+    labels = np.asarray(label_seconds, dtype=np.float64) * rate
+    minutes = np.floor(labels / (60 * rate) + 1e-9)
+    frame_in_minute = labels - minutes * 60 * rate
+    skipped = (frame_in_minute < drop - 1e-6) & (minutes % 10 != 0)
+    if skipped.any():
+        return None
+    frames = labels - drop * (minutes - minutes // 10)
+    return frames / (rate * 1000 / 1001)
 
 
 def whole_seconds(seconds_of_day: np.ndarray) -> int:
