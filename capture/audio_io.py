@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import math
+import mmap
 import shutil
 import struct
 import sys
@@ -17,7 +18,7 @@ import zlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -132,10 +133,13 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     files joined end to end (``cat a.mp3 b.mp3``) is read whole, each file without its own encoder delay
     and padding, the later ones mixed to the first one's channel count (repair ``channels_changed``); one
     whose sample rate changes is an ``InputError`` saying where. A later file without a LAME tag loses
-    LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``). An
-    .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the count) is
-    read whole, its count corrected (``MpegRun.count_low``), and one without a frame count whose length
-    libsndfile estimates short (VBR without a Xing header) as joined files are. Within
+    LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``), and
+    its padding (noted when a file follows it: the sound after it may be up to a frame late). Frames lost
+    at damage inside an .mp3 are put back as silence of their length, so the sound after it keeps its time
+    (repair ``bad_audio``: where, how much, and, when their number is estimated, the most the sound after
+    it may be shifted). An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would
+    stop at the count) is read whole, its count corrected (``MpegRun.count_low``), and one without a frame
+    count whose length libsndfile estimates short (VBR without a Xing header) as joined files are. Within
     ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a ``FileAudio``: checked a block
     at a time, left in its file; given a scratch folder there, audio FFmpeg decodes, and any .mp3, is a
     ``FileAudio`` of the scratch file it was decoded into, the same samples and repairs as read whole
@@ -148,7 +152,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     if not path.is_file():
         raise InputError("not a regular file (a device or a pipe?): give an audio file", path)
     try:
-        info = sf.info(str(path))
+        with _libsndfile_source(path) as source:
+            info = sf.info(source)
     except (sf.LibsndfileError, RuntimeError, TypeError):
         info = None
     if info is not None:
@@ -184,7 +189,8 @@ def _read_whole(
     """The audio libsndfile reads of ``path`` in one read (``dtype``, as ``subtype``), checked, and True;
     or what is read in its place (a file cut short, an unfinished WAV: its repairs noted), and False."""
     try:
-        data, rate = sf.read(str(path), dtype=dtype, always_2d=True)
+        with _libsndfile_source(path) as source:
+            data, rate = sf.read(source, dtype=dtype, always_2d=True)
     except (sf.LibsndfileError, RuntimeError) as exc:
         return _read_cut_short(path, info, exc, repairs), False
     if data.shape[0] == 0:
@@ -196,26 +202,35 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
     """``read_audio``'s audio of an MPEG audio file (.mp3): libsndfile's (``_read_by_libsndfile``), unless
     it would stop early: several files joined, a change of channels, a frame count too low, a length
     estimated short (``_estimated_short``), or its decoder ended its read at damage, short of the samples
-    the frames code (``_MPG123_DROPS``): then decoded as joined files are (``_read_joined_mpeg``). Within
-    ``audio_left_in_files`` given a scratch folder (an import), decoded a block at a time into a scratch
-    file there (``_streamed``), the same samples and repairs as read whole."""
-    data = path.read_bytes()
-    runs = mpeg_runs(data)
-    coded = sum(run.samples for run in runs)
-    if not (len(runs) > 1 or any(run.count_low for run in runs) or _estimated_short(info, coded)):
-        skipped = _gapless_skip(data, runs[0]) if runs else 0
-        del data  # an hour at 320 kbit/s: 144 MB
-        found: list[dict[str, Any]] | None = None if repairs is None else []
-        audio = _read_by_libsndfile(path, info, skipped, found)
-        if audio.frames + _MPG123_DROPS >= coded:
-            if repairs is not None and found:
-                repairs += found
-            return audio
-        if isinstance(audio, FileAudio):
-            audio.discard()
-        del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
-        data = path.read_bytes()
+    the frames code (``_MPG123_DROPS``), or frames were lost at damage (``MpegRun.losses``: put back as
+    silence, so the sound after it keeps its time): then decoded as joined files are
+    (``_read_joined_mpeg``). Within ``audio_left_in_files`` given a scratch folder (an import), decoded a
+    block at a time into a scratch file there (``_streamed``), the same samples and repairs as read whole.
+    Its frames are found in the file mapped (``_MappedFile``), a few MB of it held at a time."""
+    # mapped, not read whole: a 60 MB cover picture, an hour at 320 kbit/s (144 MB)
+    with _MappedFile.of(path) as data:
         runs = mpeg_runs(data)
+        coded = sum(run.samples for run in runs)
+        lost = any(loss.frames for run in runs for loss in run.losses)
+        if not (len(runs) > 1 or lost or any(run.count_low for run in runs) or _estimated_short(info, coded)):
+            skipped = _gapless_skip(data, runs[0]) if runs else 0
+            found: list[dict[str, Any]] | None = None if repairs is None else []
+            audio = _read_by_libsndfile(path, info, skipped, found)
+            if audio.frames + _MPG123_DROPS >= coded:
+                if repairs is not None and found:
+                    repairs += found
+                return audio
+            if isinstance(audio, FileAudio):
+                audio.discard()
+            del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
+        return _read_joined_mpeg_checked(path, data, runs, repairs)
+
+
+def _read_joined_mpeg_checked(
+    path: Path, data: bytes | _MappedFile, runs: list[MpegRun], repairs: list[dict[str, Any]] | None
+) -> Audio:
+    """``_read_joined_mpeg``'s audio, checked: into a scratch file within ``audio_left_in_files`` given a
+    scratch folder (``_streamed``), else into memory."""
     scratch = _scratch_folder()
     if scratch is not None:
         audio = _streamed(
@@ -257,7 +272,7 @@ def _mpeg_to_file(path: Path, info: Any, skipped: int, sink_of: _SinkOf) -> File
     sink = sink_of(lambda: info.samplerate)
     size = _MPEG_BLOCK - skipped % _MPEG_BLOCK
     try:
-        with sf.SoundFile(str(path)) as f:
+        with _libsndfile_source(path) as source, sf.SoundFile(source) as f:
             if not _opened_as(f, info):
                 raise _NotStreamed
             f.seek(0)
@@ -444,6 +459,58 @@ def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-d
         with stops_deferred():  # Ctrl-C, a second one too, cuts no removal short
             _LEFT_IN_FILES.reset(token)
             left.remove()
+
+
+# An ID3v2 tag at the start of an MPEG audio file larger than this (a cover picture) is not shown to
+# libsndfile: its decoder (mpg123) reads the whole tag into memory, on each open (a 60 MB picture: 61 MB)
+_BIG_TAG = 1 << 20
+
+
+@contextmanager
+def _libsndfile_source(path: Path) -> Iterator[str | IO[bytes]]:
+    """What libsndfile is to open of ``path``: its name; for an .mp3 starting with a tag over ``_BIG_TAG``,
+    the file from its first frame on (``_AfterTag``)."""
+    try:
+        with open(path, "rb") as f:
+            skip = _tag_bytes(f.read(10), 0)
+            f.seek(skip)
+            after = _mpeg_frame(f.read(4), 0) if skip > _BIG_TAG and _mpeg_frame_table() else None
+        view = _AfterTag(open(path, "rb"), skip) if after is not None else None  # noqa: SIM115
+    except OSError:  # unreadable: libsndfile says so
+        view = None
+    if view is None:
+        yield str(path)
+        return
+    with view:
+        yield view
+
+
+class _AfterTag(io.RawIOBase):
+    """A file read from ``start`` on, as if its bytes began there."""
+
+    def __init__(self, file: IO[bytes], start: int):
+        super().__init__()
+        self.file, self.start = file, start
+        file.seek(start)
+
+    def close(self) -> None:
+        self.file.close()
+        super().close()
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        return self.file.readinto(buffer)  # type: ignore[attr-defined]
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        return self.file.seek(offset + self.start if whence == io.SEEK_SET else offset, whence) - self.start
+
+    def tell(self) -> int:
+        return self.file.tell() - self.start
 
 
 def _opened_as(f: sf.SoundFile, info: Any) -> bool:
@@ -1476,6 +1543,36 @@ class _DecodedToFile(_DecodedLayout):
         self.scratch.unlink(missing_ok=True)
 
 
+class _MappedFile(mmap.mmap):
+    """A file's bytes mapped read-only, as ``bytes`` to the frame scan (indexing, slices, ``find``,
+    ``startswith``) without reading it whole: ``release`` gives back the pages read before a position
+    (read again from the file if looked at again), so a scan holds a few MB of any file."""
+
+    @classmethod
+    @contextmanager
+    def of(cls, path: Path) -> Iterator[_MappedFile | bytes]:
+        with open(path, "rb") as f:
+            try:
+                mapped = cls(f.fileno(), 0, access=mmap.ACCESS_READ)
+            except (ValueError, OSError):  # empty, or a file system that maps none: read whole
+                yield f.read()
+                return
+        with mapped:
+            yield mapped
+
+    def startswith(self, prefix: bytes | tuple[bytes, ...], start: int = 0) -> bool:
+        texts = prefix if isinstance(prefix, tuple) else (prefix,)
+        return any(self[start : start + len(text)] == text for text in texts)
+
+    def release(self, before: int) -> None:
+        if hasattr(mmap, "MADV_DONTNEED"):
+            self.madvise(mmap.MADV_DONTNEED, 0, before - before % mmap.PAGESIZE)
+
+
+# Bytes the frame scan reads between releases of a mapped file's pages (``_MappedFile.release``)
+_SCAN_HELD = 8 << 20
+
+
 # MPEG audio frame headers (ISO/IEC 11172-3, 13818-3 and the MPEG 2.5 extension): 11 sync bits, then the
 # version (2 bits: 3 MPEG-1, 2 MPEG-2, 0 MPEG-2.5), layer (3 - bits), CRC flag; bitrate index, sample rate
 # index, padding, private bit; channel mode (3: mono), mode extension, flags. Bit rates in kbit/s.
@@ -1685,15 +1782,34 @@ class MpegRun:
     samples: int
     new_file: bool
     count_low: bool = False
+    losses: list[MpegLoss] = field(default_factory=list)
+
+    @property
+    def frame_samples(self) -> int:
+        return 384 if self.layer == 1 else 1152 if self.sample_rate >= 32000 else 576
 
     @property
     def frames(self) -> int:
-        return self.samples // (384 if self.layer == 1 else 1152 if self.sample_rate >= 32000 else 576)
+        return self.samples // self.frame_samples
 
 
-def mpeg_runs(data: bytes) -> list[MpegRun]:
+@dataclass
+class MpegLoss:
+    """Damaged bytes inside a run of MPEG frames (``start`` to ``end``) where no frame header is found:
+    ``frames`` frames lost there, ``coded`` samples (per channel) coded in the run before them. ``exact``:
+    their number is known (see ``_count_lost``), else estimated from the bytes damaged."""
+
+    start: int
+    end: int
+    coded: int
+    frames: int = 0
+    exact: bool = False
+
+
+def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
     """The runs of frames of an MPEG audio stream (an .mp3's bytes), split where another file was joined
-    on or where the sample rate, channel count or layer changes; tags skipped. One run: a plain file."""
+    on or where the sample rate, channel count or layer changes; tags skipped. One run: a plain file.
+    Damage inside a run, where frames may have been lost, is in its ``losses``."""
     table = _mpeg_frame_table()
     runs: list[MpegRun] = []
     pos, n, after_tag, tag_start = 0, len(data), True, 0
@@ -1702,6 +1818,7 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
     last_frame, counted = _NO_COUNT, 0  # the frames its file's Xing/Info header declares, and those seen
     file_ends: tuple[int, ...] = ()  # where the bytes its header declares end (see _count_low)
     file_run = 0  # the run its header begins
+    released = 0  # the pages of a mapped file before it given back
     while pos < n - 6:  # a header and its CRC: no frame of sound ends within the last bytes
         frame = table.get(data[pos + 1] << 8 | data[pos + 2]) if data[pos] == 0xFF else None
         if frame is None:
@@ -1712,9 +1829,14 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
             found = _resync(data, pos + 1)  # stray bytes inside a file: not a join
             if found is None:
                 break
+            if runs and not after_tag:
+                _note_damage(data, runs[-1], end, found, coded)
             pos = found
             continue
         size, samples = frame[0], frame[1]
+        if pos > released + _SCAN_HELD and isinstance(data, _MappedFile):
+            released = pos - _SCAN_HELD // 2  # a look back (a file's header frame) reads its page again
+            data.release(released)
         mono = data[pos + 3] >= 0xC0
         # a header frame holds no sound: its side information is zeros (a cheap test first, once per frame)
         header = not data[pos + frame[6]] and _is_file_header(data, pos, frame)
@@ -1765,12 +1887,51 @@ def mpeg_runs(data: bytes) -> list[MpegRun]:
             found = _resync(data, pos + 1)
             if found is None:
                 break
+            _note_damage(data, runs[-1], end, found, coded)
             pos = found
             continue
         pos, after_tag = pos + size, False
     if runs:
         runs[-1].end, runs[-1].samples = min(end, n), coded
+    _count_lost(data, runs)
     return runs
+
+
+def _note_damage(data: bytes, run: MpegRun, end: int, found: int, coded: int) -> None:
+    """Stray bytes from ``end`` (where the run's last frame ends, ``coded`` samples in) to a frame at
+    ``found``: damage, frames may be lost there (not before a tag: the end of a file)."""
+    if not _tag_bytes(data, found):
+        run.losses.append(MpegLoss(end, found, coded))
+
+
+def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
+    """The frames lost at each damage of ``runs`` (``MpegRun.losses``), each estimated from the bytes
+    damaged at its run's mean bytes per frame (frames overwritten at a constant bit rate: exact, up to the
+    padding byte); then, in a file whose Xing/Info frame declares its frame count (not too low), set to
+    the count less the frames found when the estimates agree with it (a file cut short as well: they do
+    not), exact when damaged once or the estimates add up to it."""
+    starts = [i for i, run in enumerate(runs) if run.new_file] + [len(runs)]
+    for a, b in zip(starts, starts[1:]):
+        losses = [loss for run in runs[a:b] for loss in run.losses]
+        if not losses:
+            continue
+        for run in runs[a:b]:
+            damaged = sum(loss.end - loss.start for loss in run.losses)
+            per_frame = (run.end - run.start - damaged) / max(run.frames, 1)
+            for loss in run.losses:
+                loss.frames = round((loss.end - loss.start) / per_frame)
+        frame = _mpeg_frame(data, runs[a].start)
+        if frame is None or runs[a].count_low or not _is_file_header(data, runs[a].start, frame):
+            continue
+        declared = _file_header_frames(data, runs[a].start, frame)
+        lost = declared - (sum(run.frames for run in runs[a:b]) - 1)  # its header frame holds no sound
+        estimated = sum(loss.frames for loss in losses)
+        if not declared or lost < 0 or abs(lost - estimated) > max(1, estimated // 2):
+            continue
+        largest = max(losses, key=lambda loss: loss.end - loss.start)
+        largest.frames = max(0, largest.frames + lost - estimated)
+        for loss in losses:
+            loss.exact = len(losses) == 1 or estimated == lost
 
 
 def _read_joined_mpeg(
@@ -1804,8 +1965,8 @@ def _read_joined_mpeg(
     kept = _Samples(coded) if sink_of is None else sink_of(lambda: first.sample_rate)
     sample_format, damaged, last = "flt", 0, len(starts) - 2
     for k, (a, b) in enumerate(zip(starts, starts[1:])):
-        part_bytes = _counted_whole(data[runs[a].start : runs[b - 1].end], runs[a:b])
         at = kept.used / first.sample_rate
+        part_bytes = _counted_whole(_mended(data, runs[a:b], path, at, repairs), runs[a:b])
         part = _JoinedPart(kept)
         if k and _ends_as_declared(data, runs[starts[k - 1]], runs[a].start):
             part.drops_lame_delay(data, runs[a], runs[b - 1].end, part_bytes)
@@ -1838,6 +1999,8 @@ def _read_joined_mpeg(
                     "are kept there, so the sound after it may be up to ~50 ms late",
                 }
             )
+        if part.padding_unknown and k < last and repairs is not None:
+            repairs.append(_padding_kept_note(path, at, kept.used / first.sample_rate, runs[a]))
         sample_format, damaged = decoded.sample_format, damaged + decoded.damaged
     if not kept:
         raise InputError("audio stream holds no samples", path)
@@ -1865,6 +2028,76 @@ LAME_DELAY = 576 + 529
 # its bit reservoir) with its name and version, "LAME3.100UUUU...": what tells its output without a tag.
 # Its name only: the version may be left out (too few bits) or cut by the next frame's header
 _LAME_SIGNATURE = b"LAME"
+
+
+def _mended(
+    data: bytes, runs: list[MpegRun], path: Path, at: float, repairs: list[dict[str, Any]] | None
+) -> bytes:
+    """The bytes of one file of an .mp3 (``runs``: its runs; it starts ``at`` seconds in), each damage
+    where frames were lost (``MpegRun.losses``) replaced by as many silent frames: the sound after it keeps
+    its time. Each noted in ``repairs`` (repair ``bad_audio``): where, how long, and when the frames lost
+    were counted from the damaged bytes, by how much the sound after it may be shifted."""
+    # views of the file's bytes and silent frames: copied once, when joined (an hour: 144 MB)
+    pieces: list[bytes | memoryview] = []
+    pos = runs[0].start
+    skip = _gapless_skip(data, runs[0])  # its header frame and encoder delay, not decoded as sound
+    coded = -(skip + runs[0].frame_samples if skip else 0)  # samples (per channel) before the run's
+    for run in runs:
+        for loss in run.losses:
+            if not loss.frames:
+                continue
+            pieces += [memoryview(data)[pos : loss.start], _silent_frame(data, run.start) * loss.frames]
+            pos = loss.end
+            if repairs is not None:
+                repairs.append(_loss_note(path, at + (coded + loss.coded) / run.sample_rate, loss, run))
+            coded += loss.frames * run.frame_samples
+        coded += run.samples
+    if not pieces:
+        return data[pos : runs[-1].end]
+    mended = b"".join([*pieces, memoryview(data)[pos : runs[-1].end]])
+    pieces.clear()  # the views of a mapped file: it closes once they are gone
+    return mended
+
+
+def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[str, Any]:
+    """The repair ``bad_audio`` of the frames of ``run`` lost at ``loss``, ``start`` seconds in."""
+    lost = loss.frames * run.frame_samples
+    message = (
+        f"{path.name}: damaged MPEG audio at {start:.3f} s: {loss.frames} frame(s) lost there ({lost} "
+        f"samples, {1000 * lost / run.sample_rate:.0f} ms), put back as silence, so the sound after it "
+        "keeps its time"
+    )
+    if not loss.exact:
+        shift = (run.frame_samples if loss.frames == 1 else lost) / run.sample_rate
+        message += (
+            f"; their number is estimated from the bytes damaged: the sound after "
+            f"{start + lost / run.sample_rate:.3f} s may be shifted by up to {1000 * shift:.0f} ms"
+        )
+    return {"line": None, "kind": "bad_audio", "message": message}
+
+
+def _silent_frame(data: bytes, pos: int) -> bytes:
+    """A frame of silence of the format of the frame at ``pos``: its header without CRC nor padding, the
+    rest zeros (no bits of sound: layer III side information of zeros, no layer I/II allocations)."""
+    head = bytes([0xFF, data[pos + 1] | 1, data[pos + 2] & ~2 & 0xFF, data[pos + 3]])
+    frame = _mpeg_frame(head, 0)
+    assert frame is not None  # a confirmed frame's header, less CRC and padding
+    return head + bytes(frame[0] - 4)
+
+
+def _padding_kept_note(path: Path, at: float, end: float, first: MpegRun) -> dict[str, Any]:
+    """The note (repair ``encoder_delay_unknown``) of a joined file (from ``at`` to ``end`` seconds, its
+    first run ``first``) without a LAME tag, another after it: its end keeps its encoder's padding. LAME
+    pads the samples it encodes after its 576 of delay to a whole frame, a frame more when that pads fewer
+    than 576 (measured at 16 and 44.1 kHz): FFmpeg keeps up to a frame and 47 samples of it."""
+    most = first.frame_samples + 576 - _MPG123_GAPLESS_DELAY
+    return {
+        "line": None,
+        "kind": "encoder_delay_unknown",
+        "message": f"{path.name}: the MP3 file joined on at {at:.3f} s does not record its encoder's padding "
+        f"(no LAME tag): its end keeps it, so the file joined on after it at {end:.3f} s may be up to "
+        f"{1000 * most / first.sample_rate:.0f} ms late",
+    }
 
 
 def _counted_whole(part: bytes, runs: list[MpegRun]) -> bytes:
@@ -1909,7 +2142,7 @@ class _JoinedPart:
     ``last_channels`` and ``last_dtype``: of its last frame, for ``_silence_of``."""
 
     def __init__(self, kept: _Samples | _DecodedToFile):
-        self.kept, self.drop, self.delay_unknown = kept, 0, False
+        self.kept, self.drop, self.delay_unknown, self.padding_unknown = kept, 0, False, False
         self.last_channels: int | None = None
         self.last_dtype: np.dtype | None = None
 
@@ -1917,9 +2150,11 @@ class _JoinedPart:
         """For a joined file after the first (``data[first.start:end]``, ``part`` its bytes as decoded) that
         records no encoder delay: LAME's delay dropped, when its bytes are LAME's and start as an encoder's
         first frame does (no bit reservoir); any other encoder's priming kept, ``delay_unknown`` set (for
-        the repair ``encoder_delay_unknown``, saying from which second)."""
+        the repair ``encoder_delay_unknown``, saying from which second). Its padding, at its end, is kept:
+        ``padding_unknown``."""
         if _unknown_delay_codec(io.BytesIO(part)) is None:  # recorded, or none to record (no priming)
             return
+        self.padding_unknown = True  # not recorded either
         frame = _mpeg_frame(data, first.start)
         if (
             frame is not None
