@@ -7,6 +7,7 @@ is granted and nothing is ever held.
 from __future__ import annotations
 
 import errno
+import itertools
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -20,6 +21,7 @@ try:
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
+NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)  # Windows has none
 HELD = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)  # what flock says when another process holds it
 
 
@@ -116,28 +118,54 @@ def holding(
 
 
 def _lock(path: Path, refused: Callable[[str], Exception], optional: bool) -> tuple[int, bool] | None:
-    while True:
+    try:
+        taken = lock_in_place(path, os.O_RDWR | os.O_CREAT | NOFOLLOW)
+    except OSError:  # not opened, or a file system without locks
+        if optional:
+            return None
+        raise
+    if taken is None:
+        raise refused(lock_holder(path))
+    return taken
+
+
+class NoLocks(OSError):
+    """The file system takes no locks (``flock`` refused for another reason than a holder)."""
+
+
+def lock_in_place(path: Path, flags: int, attempts: int | None = None) -> tuple[int, bool] | None:
+    """The file at ``path`` opened (``os.open`` with ``flags``, created with mode 0o644 by ``O_CREAT``) and
+    locked exclusively without waiting: its descriptor and whether this call created the file; None when
+    another process holds the lock. Opening and locking are two steps: the one who held it may have
+    removed or renamed the file between them (its work done), leaving the lock on a file no longer at
+    ``path``; the file now there is then opened and locked instead, up to ``attempts`` times (None: until
+    one holds; then None). The open's ``OSError`` is raised, as ``NoLocks`` is on a file system without
+    locks; the descriptor is never left open, also when a stop signal raises on the way."""
+    tries = itertools.count() if attempts is None else range(attempts)
+    for _ in tries:
         created = not os.path.lexists(path)
+        fd = os.open(path, flags, 0o644)
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-        except OSError:
-            if optional:
-                return None
-            raise
-        try:
-            locked = try_lock(fd)
-        except OSError:  # a file system without locks
+            try:
+                locked = try_lock(fd)
+            except OSError as exc:
+                raise NoLocks(exc.errno, exc.strerror) from exc
+            if locked and _is_at(fd, path, follow_symlinks=not flags & NOFOLLOW):
+                return fd, created
+        except BaseException:
             os.close(fd)
-            if optional:
-                return None
             raise
+        os.close(fd)
         if not locked:
-            os.close(fd)
-            raise refused(lock_holder(path))
-        try:
-            same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            return fd, created
-        os.close(fd)  # its holder removed the file as this one opened it: lock the file now at that path
+            return None
+    return None
+
+
+def _is_at(fd: int, path: Path, follow_symlinks: bool) -> bool:
+    """Whether the open file ``fd`` is the file at ``path`` (none there: False)."""
+    try:
+        at = os.stat(path, follow_symlinks=follow_symlinks)
+    except FileNotFoundError:
+        return False
+    opened = os.fstat(fd)
+    return (opened.st_ino, opened.st_dev) == (at.st_ino, at.st_dev)

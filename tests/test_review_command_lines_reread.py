@@ -9,6 +9,7 @@ import os
 import pytest
 from conftest import run_cli
 
+import capture.file_lock
 import viewer.output
 from capture.file_lock import try_lock
 from viewer.cli import build_parser
@@ -49,12 +50,12 @@ def test_a_stop_while_the_partial_file_is_locked_lets_the_lock_go(tmp_path, monk
         try_lock(fd, shared)  # the real lock, then the signal's exception
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(viewer.output, "try_lock", lock_then_stopped)
+    monkeypatch.setattr(capture.file_lock, "try_lock", lock_then_stopped)
     before = len(os.listdir("/proc/self/fd"))
     with pytest.raises(KeyboardInterrupt):
         viewer.output.lock_partial(tmp, out)
     assert len(os.listdir("/proc/self/fd")) == before
-    monkeypatch.setattr(viewer.output, "try_lock", try_lock)
+    monkeypatch.setattr(capture.file_lock, "try_lock", try_lock)
     os.close(viewer.output.lock_partial(tmp, out))  # not refused
 
 

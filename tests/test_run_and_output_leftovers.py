@@ -16,6 +16,7 @@ from dataset_helpers import make_aligned_take, write_aligned_set
 from test_review_viewer_unseen import _short_csv
 from test_train_pipeline import TINY
 
+import capture.file_lock
 import viewer.output
 import viewer.render
 from capture import Audio, write_take
@@ -41,7 +42,7 @@ def _finishing_first(monkeypatch, tmp, out) -> None:
             renamed.append(out)
         return try_lock(fd, shared)
 
-    monkeypatch.setattr(viewer.output, "try_lock", lock_after_the_rename)
+    monkeypatch.setattr(capture.file_lock, "try_lock", lock_after_the_rename)
 
 
 def _locked_by_another(path) -> bool:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from capture.command import Terminated
 from capture.errors import InputError
-from capture.file_lock import try_lock
+from capture.file_lock import NoLocks, lock_in_place
 from capture.take import make_out_dir
 
 
@@ -68,42 +68,22 @@ def refuse_writing_over_inputs(
 def lock_partial(tmp: Path, path: Path, attempts: int = 10) -> int:
     """The partial file ``tmp`` of the video ``path`` opened (created if needed) and locked (``flock``)
     until the descriptor returned is closed: another command writing ``path`` at once is an
-    ``InputError`` naming ``path``. Opening and locking are two steps: a command that opened ``tmp`` just
-    as the one before it renamed ``tmp`` into place has locked the finished output, not a partial file,
-    and would write into a new ``tmp`` unguarded; it finds the file at ``tmp`` is another one now, and
-    tries again. A file system without locks: the file is written unguarded."""
-    for _ in range(attempts):
-        with writing(path, "video"):
-            fd = os.open(tmp, os.O_RDWR | os.O_CREAT, 0o644)
+    ``InputError`` naming ``path``. A command that opened ``tmp`` just as the one before it renamed ``tmp``
+    into place locks the file at ``tmp`` anew (``lock_in_place``), not the finished output. A file system
+    without locks: the file is written unguarded."""
+    flags = os.O_RDWR | os.O_CREAT
+    with writing(path, "video"):
         try:
-            try:
-                locked = try_lock(fd)
-            except OSError:  # a file system without locks
-                return fd
-            if locked and _is_at(fd, tmp):
-                return fd
-        except BaseException:  # a stop signal (or a failing stat): the descriptor is not left open
-            os.close(fd)
-            raise
-        os.close(fd)
-        if not locked:
-            break
-        # renamed (or replaced) since it was opened: lock the file now at ``tmp``
-    raise InputError(
-        f"another command is writing this video right now (its {tmp.name} is locked): let it finish or give "
-        "another name",
-        path,
-    )
-
-
-def _is_at(fd: int, path: Path) -> bool:
-    """Whether the open file ``fd`` is the file at ``path`` (none there: False)."""
-    try:
-        at = os.stat(path)
-    except FileNotFoundError:
-        return False
-    opened = os.fstat(fd)
-    return (opened.st_ino, opened.st_dev) == (at.st_ino, at.st_dev)
+            taken = lock_in_place(tmp, flags, attempts)
+        except NoLocks:
+            return os.open(tmp, flags, 0o644)
+    if taken is None:
+        raise InputError(
+            f"another command is writing this video right now (its {tmp.name} is locked): let it finish or "
+            "give another name",
+            path,
+        )
+    return taken[0]
 
 
 @contextmanager

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from capture import Audio
 from capture.atomic import atomic_write
 from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError
@@ -80,17 +81,31 @@ def selected_channels(spec: str, anims: Sequence[Animation]) -> tuple[list[str],
     return names, repeated
 
 
-def energy_segments(x: np.ndarray, rate: int, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
+def audio_frames(audio: Audio, size: int) -> Iterator[np.ndarray]:
+    """The mono float32 samples of ``audio`` (``Audio.mono_float``) as rows of ``size``, in order, the last
+    partial row left out: a block of the file at a time (all of them as float, and copies, took 2.5 GB
+    for two hours at 16 kHz)."""
+    from align.resample import mono_blocks
+
+    rest = np.zeros(0, np.float32)
+    for block in mono_blocks(audio):
+        x = np.concatenate([rest, block])
+        n = x.size // size
+        yield x[: n * size].reshape(n, size)
+        rest = x[n * size :]
+
+
+def energy_segments(audio: Audio, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
     """Speech-like stretches by frame energy: 20 ms frames above the 20th-percentile level + 15 dB."""
-    hop = max(1, int(rate * 0.02))
-    n = x.size // hop
-    if n == 0:
+    hop = max(1, int(audio.sample_rate * 0.02))
+    power = [np.mean(f.astype(np.float64) ** 2, axis=1) for f in audio_frames(audio, hop)]
+    e = 10 * np.log10(np.concatenate([np.zeros(0), *power]) + 1e-10)
+    if e.size == 0:
         return []
-    e = 10 * np.log10(np.mean(x[: n * hop].reshape(n, hop).astype(np.float64) ** 2, axis=1) + 1e-10)
     flags = e > np.percentile(e, 20) + 15.0
     from align.vad import runs_to_segments
 
-    return runs_to_segments(flags, hop / rate, min_silence_s, 0.1)
+    return runs_to_segments(flags, hop / audio.sample_rate, min_silence_s, 0.1)
 
 
 def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[float, float]], str]:
@@ -115,10 +130,10 @@ def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[f
         except (ImportError, InputError) as exc:
             if method != "auto":
                 raise InputError(f"--vad {method} is not available here: {exc}") from None
-    x = anim.audio.mono_float()
-    segs = energy_segments(x, anim.audio.sample_rate)
+    segs = energy_segments(anim.audio)
     off = anim.audio_start_s
-    return [(a + off, b + off) for a, b in segs], "loud (energy threshold, fallback: no VAD model)"
+    why = "no VAD model" if method == "auto" else f"as --vad {method} asks"  # there may well be one
+    return [(a + off, b + off) for a, b in segs], f"loud (energy threshold, fallback: {why})"
 
 
 # Fonts with Chinese, Japanese and Korean characters, as common systems install them: matplotlib's own
@@ -237,13 +252,15 @@ def plot_curves(
         vad_label = ""
         if voice is not None:
             ax = axes[-1]
-            x = voice.audio.mono_float()
             sr = voice.audio.sample_rate
-            step = max(1, x.size // 20000)  # enough points for the envelope, few for the SVG
-            n = x.size // step
-            blocks = x[: n * step].reshape(n, step)
-            tt = voice.audio_start_s - voice.t0 + voice.offset_s + np.arange(n) * step / sr
-            ax.fill_between(tt, blocks.min(axis=1), blocks.max(axis=1), color="0.35", lw=0)
+            step = max(1, voice.audio.frames // 20000)  # enough points for the envelope, few for the SVG
+            lows, highs = [np.zeros(0, np.float32)], [np.zeros(0, np.float32)]
+            for block in audio_frames(voice.audio, step):
+                lows.append(block.min(axis=1))
+                highs.append(block.max(axis=1))
+            low, high = np.concatenate(lows), np.concatenate(highs)
+            tt = voice.audio_start_s - voice.t0 + voice.offset_s + np.arange(low.size) * step / sr
+            ax.fill_between(tt, low, high, color="0.35", lw=0)
             t_max = max(t_max, float(tt[-1]) if tt.size else 0.0)
             segments, vad_label = speech_segments(voice, vad)
             for j, (a, b) in enumerate(segments):
@@ -258,7 +275,7 @@ def plot_curves(
             ax.set_ylabel(f"speech\n{voice.label}", rotation=0, ha="right", va="center")
             if segments:
                 ax.legend(loc="upper right", fontsize="small")
-            lim = float(np.max(np.abs(x))) or 1.0
+            lim = float(max(-low.min(initial=0.0), high.max(initial=0.0))) or 1.0
             ax.set_ylim(-lim * 1.05, lim * 1.05)
             ax.set_yticks([])
         axes[-1].set_xlabel("time (s)")

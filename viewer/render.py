@@ -20,7 +20,7 @@ import numpy as np
 from capture import ARKIT61, Audio, FrameStatus, InputError, Take
 from capture.atomic import atomic_write
 from capture.channels import is_known
-from capture.command import TimedProgress
+from capture.command import TimedProgress, stops_deferred
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
@@ -100,7 +100,7 @@ def load_animation(
     A folder holding several takes is an ``InputError`` that starts with ``one_take``.
     """
     take, warnings, audio_file = read_input(path, one_take, audio, audio_flag)
-    weights = weights_from_values(take.values.astype(np.float64), take.meta.channels)
+    weights = weights_from_values(take.values, take.meta.channels)
     other_cols = [j for j, c in enumerate(take.meta.channels) if not is_known(c)]
     others = take.values[:, other_cols].astype(np.float64)
     ok = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
@@ -406,10 +406,16 @@ def write_mp4(
     rate = _fps_fraction(fps)
     # Held until the file is renamed into place: a second render to the same name at once (a batch run
     # twice) wrote into the same partial file, and the first one renamed a mix of both as its output.
-    lock = lock_partial(tmp, path)
+    # Taken inside the ``try``, with a stop held back until ``lock`` holds it: one landing between the
+    # lock and the ``try`` left the lock held and the partial file behind.
+    lock = None
     try:
+        with stops_deferred():
+            lock = lock_partial(tmp, path)
         with writing(path, "video"), av.open(str(tmp), "w", format="mp4") as out:
+            t = time.perf_counter()
             first = frames(0)
+            render_s = time.perf_counter() - t  # the first frame's too: a 1-frame video said 0 ms a frame
             h, w = first.shape[:2]
             vs = out.add_stream("libx264", rate=rate)
             vs.width, vs.height = w - w % 2, h - h % 2
@@ -463,10 +469,12 @@ def write_mp4(
         with writing(path, "video"):
             tmp.replace(path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if lock is not None:  # else another render's partial file, or none
+            tmp.unlink(missing_ok=True)
         raise
     finally:
-        os.close(lock)
+        if lock is not None:
+            os.close(lock)
     return {"render_s": render_s, "encode_s": encode_s, "width": w - w % 2, "height": h - h % 2}
 
 
