@@ -5,18 +5,20 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 from capture.command import StageParser, add_version, emit_json, run, sigterm_stops
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
-from capture.import_guard import imports_done
+from capture.import_guard import guard_imports, imports_done
 
+from .choices import PRECISIONS
 from .config import MODELS, resolve_config
-from .precision import PRECISIONS
 
-# The command's imports are done: Ctrl-C is its own from here (capture.import_guard).
+# The command's imports are done: Ctrl-C is its own from here (capture.import_guard). PyTorch is not
+# among them: each command imports what it needs (_command_imports), so --help and usage errors are fast.
 _guard = imports_done("train")
 
 PROG = "s2a-train"
@@ -211,8 +213,20 @@ def _given(args: argparse.Namespace, model: str | None) -> dict:
     return given | _options_given(args)  # keys given as options count as set by the user
 
 
+@contextmanager
+def _command_imports() -> Iterator[None]:
+    """Around a command's own imports (PyTorch's 1-2 s): Ctrl-C there stops the command quietly, as it
+    does while this module imports (capture.import_guard), rather than leaving a half-imported library."""
+    guard_imports()
+    try:
+        yield
+    finally:
+        imports_done("train")
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
-    from .fit import fit
+    with _command_imports():
+        from .fit import fit
 
     cfg = _config(args, args.model)
     summary = fit(args.data, args.out, cfg, resume=args.resume, given=_given(args, args.model))
@@ -240,7 +254,8 @@ def _leave_distributed_process() -> None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from .evaluate import evaluate, format_result
+    with _command_imports():
+        from .evaluate import evaluate, format_result
 
     result = evaluate(args.run, args.data, args.split, precision=args.precision, style=args.style)
     if args.json:
@@ -251,7 +266,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
-    from .predict import predict
+    with _command_imports():
+        from .predict import predict
 
     results = predict(
         args.run,
@@ -279,7 +295,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import compare, format_tables
+    with _command_imports():
+        from .compare import compare, format_tables
 
     rows = compare(
         args.data,
@@ -304,7 +321,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_agreement(args: argparse.Namespace) -> int:
-    from .agreement import format_agreement, take_agreement
+    with _command_imports():
+        from .agreement import format_agreement, take_agreement
 
     result = take_agreement(args.data, _config(args), tuple(args.splits))
     if args.json:
@@ -315,7 +333,8 @@ def cmd_agreement(args: argparse.Namespace) -> int:
 
 
 def cmd_ppg(args: argparse.Namespace) -> int:
-    from .ppg_train import train_ppg
+    with _command_imports():
+        from .ppg_train import train_ppg
 
     summary = train_ppg(args.data, args.out, steps=args.steps, seed=args.seed, labels=args.labels)
     if args.json:
@@ -330,7 +349,8 @@ def cmd_ppg(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .export import export_onnx
+    with _command_imports():
+        from .export import export_onnx
 
     summary = export_onnx(args.run, args.out)
     if args.json:

@@ -15,7 +15,8 @@ import torch
 
 from capture.errors import InputError
 
-PRECISIONS = ("fp32", "bf16")
+from .choices import PRECISIONS
+
 _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 
 

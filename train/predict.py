@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -341,7 +342,7 @@ def predict(
     folder = out.parent if single else out
     make_out_dir(folder)
     paths = csv_paths(audios, out, single)
-    _refuse_overwriting_an_input(audios, paths)
+    _refuse_replacing(audios, paths)
     results = []
     for a, path in zip(map(Path, audios), paths):
         try:  # one unreadable file is reported and the others are still predicted
@@ -386,10 +387,12 @@ def _silence_words(peak_dbfs: float | None, dc_dbfs: float | None) -> str:
     return f" once its constant offset of {dc_dbfs:.1f} dBFS is removed"
 
 
-def _refuse_overwriting_an_input(audios: list[str | Path], paths: list[Path]) -> None:
-    """An output CSV that is one of the audio files (``predict run voice.csv -o voice.csv``, or a folder
-    receiving ``x.csv`` that holds the audio ``x.csv``) would replace the recording with its animation:
-    refused before any file is written."""
+def _refuse_replacing(audios: list[str | Path], paths: list[Path]) -> None:
+    """Refused before any file is written: an output CSV that is one of the audio files (``predict run
+    voice.csv -o voice.csv``, or a folder receiving ``x.csv`` that holds the audio ``x.csv``), which would
+    replace the recording with its animation; and an existing CSV whose mode has no write bit (``chmod
+    a-w``: kept on purpose), which the atomic rename writing the new one would replace all the same (a
+    rename asks the folder's permission, not the file's; root's ``os.access`` allows any file)."""
     inputs = {}  # (device, inode) → audio file: one stat a file, however long the batch
     for a in map(Path, audios):
         if a.is_file():
@@ -401,6 +404,12 @@ def _refuse_overwriting_an_input(audios: list[str | Path], paths: list[Path]) ->
             if (st.st_dev, st.st_ino) in inputs:
                 a = inputs[(st.st_dev, st.st_ino)]
                 raise InputError(f"output CSV is the audio file {a} itself: choose another -o", path)
+            if not st.st_mode & 0o222:
+                raise InputError(
+                    f"output CSV exists and is read-only ({stat.filemode(st.st_mode)}): not replaced; "
+                    "make it writable or choose another -o",
+                    path,
+                )
 
 
 def _neutral_pose(info: dict[str, Any], neutral: str | Path | None, say) -> np.ndarray | None:
