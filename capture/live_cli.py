@@ -1093,13 +1093,14 @@ def parse_phone(text: str) -> tuple[str, int]:
 
 def cmd_remote(args: argparse.Namespace) -> int:
     """``s2a-capture remote``. With ``--json`` a failure (a bad argument, a phone that does not answer) is
-    one JSON line too, with ``error``, as ``import --json`` gives it: a script reads one line per call."""
+    one JSON line too, with ``error``, as ``import --json`` gives it: a script reads one line per call (Ctrl-C
+    too: ``error`` "interrupted", exit code 130)."""
     result: dict = {"phone": args.phone, "action": args.action}  # the phone as given until it is parsed
     try:
         return _remote(args, result)
-    except S2AError as exc:
+    except (S2AError, KeyboardInterrupt) as exc:  # Ctrl-C while the phone is awaited: "interrupted"
         if args.json:
-            emit_json(result | {"error": str(exc)})
+            emit_json(result | {"error": str(exc) if isinstance(exc, S2AError) else "interrupted"})
         raise
 
 

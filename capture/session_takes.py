@@ -83,8 +83,22 @@ MIN_TAKE_FRAMES = 10
 TALLY = ("duplicates", "out_of_order", "same_time_frames", "same_time_dropped")
 # The counts each take has of its own, of the stream's report (the stream's totals: ``stream_counts``).
 TAKE_COUNTS = ("packets", *TALLY, "clock_steps_back", "rate_jitter_packets")
-# The counts of a stream that are its own, not its takes' (a restart, a clock step forward is between takes).
-STREAM_WIDE = ("restarts", "rate_changes", "stray_packets", "clock_steps", "senders")
+# The counts of a stream's report a take's metadata holds, in this order: its ``TAKE_COUNTS`` (its own) and
+# the stream's (a restart, a clock step forward is between takes).
+REPORTED = (
+    "packets",
+    "duplicates",
+    "out_of_order",
+    "restarts",
+    "rate_changes",
+    "stray_packets",
+    "same_time_frames",
+    "same_time_dropped",
+    "clock_steps",
+    "clock_steps_back",
+    "rate_jitter_packets",
+    "senders",
+)
 # A take's audio reaches this far (plus one frame period) before its first frame and after its last
 # frame's period: room for the aligner's default search for the offset between face and audio (align's
 # --max-offset-ms 500, looked at 0.25 s beyond that, and a clap there is judged against the 0.5 s of
@@ -1022,21 +1036,33 @@ def _time_ordered(
 
 
 class StreamTake(NamedTuple):
-    """A take of a stream (``stream_takes``) with its own ``counts`` (``TAKE_COUNTS``) and
-    where the session's audio lies on its time line (``attach_session_audio``, done just before it is
-    written: one take's span of the audio in memory at a time)."""
+    """A take of a stream (``stream_takes``) with its own ``counts`` (``TAKE_COUNTS``), where the
+    session's audio lies on its time line and the notes on its frame clock (``finish_take``, done just
+    before it is written: one take's span of the audio in memory at a time)."""
 
     take: Take
     counts: dict[str, int]
     clock_offset_s: float  # recorder clock minus phone frame time
     first_frame_s: float  # the phone's frame time of the take's first frame
     period: float  # the take's frame period (s)
+    placed_by_arrival: str | None = None  # why its frames are placed by arrival time
+    notes: tuple[tuple[str, str], ...] = ()  # repairs (kind, message): a jittering rate, steps back
 
 
-def attach_session_audio(built: StreamTake, log: SessionLog, audio: SessionAudio) -> None:
-    """Give the take its span of the session's ``audio`` (``_attach_audio_span``)."""
-    first_s = float(log.seconds(audio.first_ns)) - built.clock_offset_s - built.first_frame_s  # of sample 0
-    _attach_audio_span(built.take, audio, first_s, built.period)
+def finish_take(built: StreamTake, log: SessionLog, audio: SessionAudio | None) -> None:
+    """Give the take its span of the session's ``audio`` (``_attach_audio_span``), then the notes on its
+    frame clock: its metadata as when the audio was attached as the take was built (its keys, its repairs
+    in that order)."""
+    take = built.take
+    if audio is not None:
+        first_s = float(log.seconds(audio.first_ns)) - built.clock_offset_s - built.first_frame_s  # sample 0
+        _attach_audio_span(take, audio, first_s, built.period)
+    if built.placed_by_arrival is not None:
+        take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": built.placed_by_arrival}
+        message = f"frames placed by arrival time: {built.placed_by_arrival}"
+        take.meta.repairs.append({"line": None, "kind": "frame_clock", "message": message})
+    for kind, message in built.notes:
+        repair(take.meta.repairs, None, kind, message)
 
 
 def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> tuple[list[StreamTake], dict]:
@@ -1045,9 +1071,9 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
     and back, face-lost frames outside the takes,
     frames with an implausible rate, takes that could not be built). ``rows``: the stream's rows when not
     the log's (a stream merged with its copies from another source, in arrival order). The takes have no
-    audio yet (``attach_session_audio``); each has its own ``TAKE_COUNTS`` of the report's: the packets of
-    its frames, with the copies and the dropped frames of its frame times, and the steps back of the clock
-    within it."""
+    audio and no notes on their clock yet (``finish_take``); each has its own ``TAKE_COUNTS`` of the
+    report's: the packets of its frames, with the copies and the dropped frames of its frame times, and the
+    steps back of the clock within it."""
     rows = log.stream_rows(sid) if rows is None else rows
     info = log.streams.get(sid, {})
     report: dict[str, Any] = {
@@ -1154,24 +1180,14 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
         try:
             built = _segment_take(log, info, take_id, r, ft)
-            take = built.take
-            if placed_by_arrival is not None:
-                take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": placed_by_arrival}
-                take.meta.repairs.append(
-                    {
-                        "line": None,
-                        "kind": "frame_clock",
-                        "message": f"frames placed by arrival time: {placed_by_arrival}",
-                    }
-                )
-            for kind, message in notes:
-                repair(take.meta.repairs, None, kind, message)
             counts = dict(zip(TALLY, t.sum(axis=0).tolist(), strict=True))
             counts["packets"] = r.size + counts["duplicates"] + counts["same_time_dropped"]
             counts["clock_steps_back"] = backs_within
             if "rate_jitter_packets" in report:  # a recording's packets are all of one stretch of rates
                 counts["rate_jitter_packets"] = counts["packets"] if "rate_jitter" in dict(notes) else 0
-            takes.append(built._replace(counts=counts))
+            takes.append(
+                built._replace(counts=counts, placed_by_arrival=placed_by_arrival, notes=tuple(notes))
+            )
         except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
             errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
             continue
@@ -1191,7 +1207,7 @@ def _segment_take(
     ft: np.ndarray,
 ) -> StreamTake:
     """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft`` (no counts
-    yet, no audio: ``attach_session_audio``)."""
+    yet, no audio: ``finish_take``)."""
     arr = log.seconds(r["arrival_ns"])
     lost = r["count"] == 0
     values = r["values"].astype(np.float32)
@@ -1480,16 +1496,17 @@ def build_takes(
             for built in takes:
                 take = built.take
                 take.meta.id = _unique_id(take.meta.id, used)
-                take.meta.extra["rejected"] = dict(log.rejected)
-                take.meta.extra["recovered"] = recovered
-                take.meta.extra |= {k: report[k] for k in STREAM_WIDE if k in report} | built.counts | totals
-                if log.torn_tail is not None:
-                    take.meta.extra["torn_tail"] = log.torn_tail.to_json()
-                if log.damage:
-                    take.meta.extra["log_damage"] = common["log_damage"]
+                counts = report | built.counts
                 try:
-                    if audio is not None:  # one take's span of the session's audio in memory at a time
-                        attach_session_audio(built, log, audio)
+                    # its audio read now (one take's span in memory at a time), its metadata in the old order
+                    finish_take(built, log, audio)
+                    take.meta.extra["rejected"] = dict(log.rejected)
+                    take.meta.extra["recovered"] = recovered
+                    take.meta.extra |= {k: counts[k] for k in REPORTED if k in counts} | totals
+                    if log.torn_tail is not None:
+                        take.meta.extra["torn_tail"] = log.torn_tail.to_json()
+                    if log.damage:
+                        take.meta.extra["log_damage"] = common["log_damage"]
                     folder = write_take(take, out_dir)
                 except (OSError, S2AError) as exc:  # a full disk, a read-only folder: this take only
                     where = Path(out_dir) / take.meta.id
