@@ -255,14 +255,16 @@ def align_takes(
     skip_without_audio: bool = False,
     prune: bool = False,
     on_message: Callable[[str], None] | None = None,
+    on_warning: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Align every take under ``paths`` (take folders, searched recursively) into ``out_dir`` with
     ``jobs`` worker processes; returns one report dict per take, in input order. ``on_report`` is
     called with each report as it is ready. One run at a time writes into ``out_dir`` (``output_lock``;
     another is an ``InputError``). At the end, aligned takes in ``out_dir`` whose raw take is gone
-    (``orphans``) are named in one message to ``on_message`` ("warning: ..."), or removed with
-    ``prune`` (and named as removed); those whose raw take cannot be reached (``unreachable``) are named
-    in another warning and never removed."""
+    (``orphans``) are named in one warning to ``on_warning``, or removed with ``prune`` (and named as
+    removed to ``on_message``); those whose raw take cannot be reached (``unreachable``) are named in
+    another warning and never removed. The texts are bare: whoever prints them says what they are
+    (``s2a-align: warning: ...``)."""
     opts = options or AlignOptions()
     opts.validate()
     out_dir = Path(out_dir)
@@ -281,8 +283,8 @@ def align_takes(
         found, away = lost[GONE], lost[UNREACHABLE]
         if away:
             _say(
-                on_message,
-                f"warning: {_count(away)} in {out_dir} {'comes' if len(away) == 1 else 'come'} from raw "
+                on_warning,
+                f"{_count(away)} in {out_dir} {'comes' if len(away) == 1 else 'come'} from raw "
                 f"takes that are not reachable (the folder that held them is not there: a drive not "
                 f"mounted, or a share mounted at another path?): {_names(away)}; kept"
                 f"{', also with --prune' if prune else ''}: "
@@ -296,11 +298,11 @@ def align_takes(
                     f"removed {_count(removed)} from {out_dir} whose raw take is gone: {_names(removed)}",
                 )
             if failed:
-                _say(on_message, f"warning: could not remove {_names(failed)} from {out_dir}: {failed[0][2]}")
+                _say(on_warning, f"could not remove {_names(failed)} from {out_dir}: {failed[0][2]}")
         elif found:
             _say(
-                on_message,
-                f"warning: {_count(found)} in {out_dir} {'comes' if len(found) == 1 else 'come'} from raw "
+                on_warning,
+                f"{_count(found)} in {out_dir} {'comes' if len(found) == 1 else 'come'} from raw "
                 f"takes that are gone (not among this run's takes, not on disk): {_names(found)}; "
                 "s2a-dataset build would still use them: align again with --prune to remove them",
             )

@@ -6,7 +6,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from capture.command import StageParser, add_version, emit_json, jobs_count, progress, run, sigterm_stops
+from capture.command import (
+    StageParser,
+    add_version,
+    emit_json,
+    jobs_count,
+    progress,
+    run,
+    sigterm_stops,
+    warn,
+)
 from capture.import_guard import imports_done
 
 from .batch import align_takes
@@ -157,7 +166,7 @@ def _main(args: argparse.Namespace) -> int:
         elif not args.json:
             progress(_summary(r))
             for warning in r.get("warnings") or []:
-                progress(f"{PROG}: warning: {warning}")
+                warn(warning)
 
     with sigterm_stops():  # as Ctrl-C: workers stopped, takes aligned so far kept; exit 143
         reports = align_takes(
@@ -170,6 +179,7 @@ def _main(args: argparse.Namespace) -> int:
             skip_without_audio=args.skip_without_audio,
             prune=args.prune,
             on_message=lambda message: progress(f"{PROG}: {message}"),  # stderr, with --json too
+            on_warning=warn,
         )
     return 1 if any("error" in r for r in reports) else 0
 

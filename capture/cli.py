@@ -12,7 +12,7 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .audio_io import audio_left_in_files
 from .channels import is_known
-from .command import StageParser, add_version, emit_json, progress, run, sigterm_stops
+from .command import StageParser, add_version, emit_json, progress, run, sigterm_stops, warn
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
@@ -55,10 +55,14 @@ TIMECODE_RATE_CHOICES = ("auto", *(f"{r:g}" for r in (*OTHER_TIMECODE_RATES, CSV
 # Repairs and notes that ask the user to act, printed as warnings by import (the others are counted in
 # the summary and listed in meta.json): a timecode rate guessed or named, audio and frames of different
 # lengths (a wrong --fps, or the audio of another take), a WAV cut short, a take folder without audio, a
-# time column read as frame numbers, frame numbers read as counting from 1, weights on a 0..100 scale,
-# --first-frame given for a file of a batch without a frame-number column, a CSV's last row cut short,
-# most of a CSV's frames without values or many of its rows without a timecode (a file read wrongly), a
-# column named like a channel the CSV lacks (a typo), channel values no face makes (a typing slip).
+# time column read as frame numbers or in a unit its name does not give, frame numbers read as counting
+# from 1, weights on a 0..100 scale, --first-frame given for a file of a batch without a frame-number
+# column, a CSV's last row cut short, most of a CSV's frames without values or many of its rows without
+# a timecode (a file read wrongly), a column named like a channel the CSV lacks (a typo), channel values
+# no face makes (a typing slip), a channel left out for having no value on any row; and what may move the
+# sound against the face or changed what is heard: damaged audio mended (silence in place of lost MP3
+# frames, perhaps shifting the sound after it), an encoder delay the file does not record, a channel
+# count changing mid-stream (files joined).
 WARN_REPAIRS = (
     "timecode_rate",
     "length_mismatch",
@@ -66,6 +70,7 @@ WARN_REPAIRS = (
     "unfinished_audio",
     "no_audio",
     "frame_numbers",
+    "time_unit",
     "frame_numbers_from_1",
     "percent_scale",
     "first_frame_ignored",
@@ -75,6 +80,10 @@ WARN_REPAIRS = (
     "channel_typo",
     "channel_affix",
     "value_range",
+    "empty_channel",
+    "bad_audio",
+    "encoder_delay_unknown",
+    "channels_changed",
 )
 # What a warning adds to a repair's message: what the user may have to do about it.
 WARN_HINTS = {"truncated_row": "an incomplete copy or download? Copy or download the file again"}
@@ -208,10 +217,7 @@ def _of_variant(sources: list[Path], variant: str, box: Unpacked | None = None) 
             kept.append(src)
         else:
             shown = box.shown(src) if box else src
-            print(
-                f"{PROG}: warning: {shown}: the {own} CSV of its take, not --variant {variant}: skipped",
-                file=sys.stderr,
-            )
+            warn(f"{shown}: the {own} CSV of its take, not --variant {variant}: skipped")
     if sources and not kept:
         raise InputError(f"no {variant} CSV among the sources (--variant {variant})")
     return kept
@@ -235,7 +241,7 @@ def cmd_import(args: argparse.Namespace) -> int:
             return _import_jobs(args, timecode_rate, litter)
     finally:
         for line in litter.lines():
-            print(f"{PROG}: warning: {line}", file=sys.stderr)
+            warn(line)
 
 
 def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: Litter) -> int:
@@ -389,7 +395,7 @@ class _Importer:
                         audio, why = audio_beside(src, listing(src.parent)) if src.is_file() else (None, None)
                         pairing = args.audio_pairing if audio is not None else "first-row"
                         if why:
-                            print(f"{PROG}: warning: {shown}: {why}: imported without audio", file=sys.stderr)
+                            warn(f"{shown}: {why}: imported without audio")
                     take = import_source(
                         src,
                         audio,
@@ -404,10 +410,7 @@ class _Importer:
                         first_frame_strict=not args.pair_audio,
                     )
                     for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
-                        print(
-                            f"{PROG}: warning: {shown}: {flag} ignored: a Live Link Face take {why}",
-                            file=sys.stderr,
-                        )
+                        warn(f"{shown}: {flag} ignored: a Live Link Face take {why}")
                     if args.take_id:
                         take.meta.id = args.take_id
                 if box:
@@ -420,7 +423,7 @@ class _Importer:
         for repair in take.meta.repairs:
             if repair["kind"] in WARN_REPAIRS:
                 hint = f" ({WARN_HINTS[repair['kind']]})" if repair["kind"] in WARN_HINTS else ""
-                print(f"{PROG}: warning: {shown}: {repair['message']}{hint}", file=sys.stderr)
+                warn(f"{shown}: {repair['message']}{hint}")
         summary = take.summary() | {"path": str(folder), "source": str(shown)}
         if args.json:
             emit_json(summary)
@@ -452,7 +455,7 @@ def _unique_id(take: Take, src: Path, written: dict[str, Path], out: Path) -> No
         )
         message = f"take id {base!r} is {holder}: written as {name!r}"
         take.meta.repairs.append({"line": None, "kind": "renamed_id", "message": message})
-        print(f"{PROG}: warning: {src}: {message}", file=sys.stderr)
+        warn(f"{src}: {message}")
         take.meta.id = name
     _say_if_replaced(out / name, take, src)
     written[name.casefold()] = src
@@ -467,10 +470,7 @@ def _say_if_replaced(folder: Path, take: Take, src: Path) -> None:
         return
     now = take.meta.sources
     if before and now and before[0].path == now[0].path and before[0].sha256 != now[0].sha256:
-        print(
-            f"{PROG}: warning: {src}: replaces {folder}, imported from it before its contents changed",
-            file=sys.stderr,
-        )
+        warn(f"{src}: replaces {folder}, imported from it before its contents changed")
 
 
 def _occupant(folder: Path, take: Take) -> str | None:
@@ -529,7 +529,7 @@ def cmd_info(args: argparse.Namespace) -> int:
                 why = "is a listen session's log folder, not a take: its takes are written beside it"
                 if len(args.takes) == 1:
                     raise InputError(f"{why} (s2a-capture recover {path} rebuilds them)", path)
-                print(f"{PROG}: warning: {path}: {why}: skipped", file=sys.stderr)
+                warn(f"{path}: {why}: skipped")
                 continue
             takes = _load_for_info(path, litter)
             if not takes:
@@ -538,7 +538,7 @@ def cmd_info(args: argparse.Namespace) -> int:
                 _print_summary(take.summary() | {"path": str(path)}, args.json)
     finally:
         for line in litter.lines():
-            print(f"{PROG}: warning: {line}", file=sys.stderr)
+            warn(line)
     return 0
 
 
@@ -564,10 +564,10 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     rows = int((take.frame_status != FrameStatus.DROPPED).sum())
     bad = int(nonfinite_frames(take).sum())
     if bad:
-        progress(f"warning: {take.meta.id}: {bad} frames with NaN/inf values written as face-lost rows")
+        warn(f"{take.meta.id}: {bad} frames with NaN/inf values written as face-lost rows")
     if others:
-        progress(
-            f"warning: {take.meta.id}: {len(others)} of its {len(take.meta.channels)} channels are not Live "
+        warn(
+            f"{take.meta.id}: {len(others)} of its {len(take.meta.channels)} channels are not Live "
             f"Link Face channels and are left out of the CSV ({shown})"
         )
     summary = {

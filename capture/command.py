@@ -194,6 +194,19 @@ def progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+# The program of the stage whose command line runs (``run`` sets it): what ``warn`` names. Outside one
+# (a library call, a worker process started afresh) its warnings are the toolkit's.
+_program = "s2a"
+
+
+def warn(message: str) -> None:
+    """``message`` as a warning on stderr, named by the running stage's program as argparse names its
+    errors: ``s2a-capture: warning: message``, whose origin a pipeline's log that several stages write
+    to still shows. The prefix is added here, where the line is printed; a library function returning
+    warnings as text keeps them without it."""
+    progress(f"{_program}: warning: {message}")
+
+
 # Seconds between two lines of a long job's progress; this environment variable changes it (a test's
 # small input reports within its run, a batch log may want fewer lines).
 PROGRESS_INTERVAL_S = 5.0
@@ -385,8 +398,11 @@ def run(
     main: Callable[[argparse.Namespace], int],
     argv: Sequence[str] | None,
 ) -> int:
-    """Parse ``argv`` and run ``main``; the toolkit's own errors become one line and exit code 1."""
+    """Parse ``argv`` and run ``main``; the toolkit's own errors become one line and exit code 1.
+    ``prog`` names the warnings ``warn`` prints meanwhile."""
+    global _program
     args = parser.parse_args(argv)
+    outer, _program = _program, prog
     try:
         return main(args)
     except S2AError as exc:
@@ -410,6 +426,8 @@ def run(
         detail = str(exc).strip().splitlines()
         print(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}", file=sys.stderr)
         return 1
+    finally:
+        _program = outer  # a command run from another's process (a test's) leaves the name as it was
 
 
 @contextmanager

@@ -29,6 +29,7 @@ import numpy as np
 from . import channels as ch
 from .audio_io import read_audio
 from .csv_take import (
+    COUNT_NAMES,
     MAX_GAP_S,
     NTSC_FPS,
     NTSC_TOLERANCE,
@@ -831,6 +832,16 @@ def read_paired(
     kind, clock, columns, clock_name, notes = _frame_clock(
         names, matrix, fps if fps is not None else file_fps, matrix_path
     )
+    counts = [j for j, n in enumerate(names) if n.strip().lower() == COUNT_NAMES[0].lower()]
+    if counts:  # a Live Link Face CSV's layout read as paired data: its count column is no channel
+        columns = sorted({*columns, *counts})
+        repair(
+            notes,
+            None,
+            "count_column",
+            f"column {names[counts[0]]!r} left out: the Live Link Face app's count of the values on a row, "
+            "not a channel",
+        )
     if columns:
         names = [n for j, n in enumerate(names) if j not in columns]
         matrix = np.delete(matrix, columns, axis=1)

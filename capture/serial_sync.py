@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from .command import progress
+from .command import warn
 from .errors import InputError
 from .record_log import RecordType, encode_record
 from .session_clock import SessionClock
@@ -164,9 +164,9 @@ class SerialSync:
             self.dropped += 1
             if self.dropped == 1:
                 with contextlib.suppress(OSError):  # stderr that cannot be written must not stop the reading
-                    progress(
-                        f"warning: the serial sync box sent a line that is not text ({exc}): such lines are "
-                        "dropped (line noise or a wrong --baud?)"
+                    warn(
+                        f"the serial sync box sent a line that is not text ({exc}): such lines are dropped "
+                        "(line noise or a wrong --baud?)"
                     )
             return
         if event is not None:
