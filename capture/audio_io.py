@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import io
 import math
-import mmap
+import os
 import shutil
 import struct
 import sys
@@ -202,17 +202,19 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
     """``read_audio``'s audio of an MPEG audio file (.mp3): libsndfile's (``_read_by_libsndfile``), unless
     it would stop early: several files joined, a change of channels, a frame count too low, a length
     estimated short (``_estimated_short``), or its decoder ended its read at damage, short of the samples
-    the frames code (``_MPG123_DROPS``), or frames were lost at damage (``MpegRun.losses``: put back as
-    silence, so the sound after it keeps its time): then decoded as joined files are
-    (``_read_joined_mpeg``). Within ``audio_left_in_files`` given a scratch folder (an import), decoded a
-    block at a time into a scratch file there (``_streamed``), the same samples and repairs as read whole.
-    Its frames are found in the file mapped (``_MappedFile``), a few MB of it held at a time."""
-    # mapped, not read whole: a 60 MB cover picture, an hour at 320 kbit/s (144 MB)
-    with _MappedFile.of(path) as data:
+    the frames code (``_MPG123_DROPS``), its length is over twice theirs (a Xing/Info frame count of
+    2**32 - 1: libsndfile's read would ask for an array of that length, 9 TiB), or frames were lost at
+    damage (``MpegRun.losses``: put back as silence, so the sound after it keeps its time): then decoded
+    as joined files are (``_read_joined_mpeg``). Within ``audio_left_in_files`` given a scratch folder (an
+    import), decoded a block at a time into a scratch file there (``_streamed``), the same samples and
+    repairs as read whole. Its frames are found in the file read a block at a time (``_FileBytes``), not
+    whole."""
+    with _FileBytes.of(path) as data:  # not read whole: a 60 MB cover picture, an hour at 320 kbit/s
         runs = mpeg_runs(data)
         coded = sum(run.samples for run in runs)
         lost = any(loss.frames for run in runs for loss in run.losses)
-        if not (len(runs) > 1 or lost or any(run.count_low for run in runs) or _estimated_short(info, coded)):
+        counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
+        if not (len(runs) > 1 or lost or counts_wrong or _estimated_short(info, coded)):
             skipped = _gapless_skip(data, runs[0]) if runs else 0
             found: list[dict[str, Any]] | None = None if repairs is None else []
             audio = _read_by_libsndfile(path, info, skipped, found)
@@ -227,7 +229,7 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
 
 
 def _read_joined_mpeg_checked(
-    path: Path, data: bytes | _MappedFile, runs: list[MpegRun], repairs: list[dict[str, Any]] | None
+    path: Path, data: bytes | _FileBytes, runs: list[MpegRun], repairs: list[dict[str, Any]] | None
 ) -> Audio:
     """``_read_joined_mpeg``'s audio, checked: into a scratch file within ``audio_left_in_files`` given a
     scratch folder (``_streamed``), else into memory."""
@@ -1543,34 +1545,84 @@ class _DecodedToFile(_DecodedLayout):
         self.scratch.unlink(missing_ok=True)
 
 
-class _MappedFile(mmap.mmap):
-    """A file's bytes mapped read-only, as ``bytes`` to the frame scan (indexing, slices, ``find``,
-    ``startswith``) without reading it whole: ``release`` gives back the pages read before a position
-    (read again from the file if looked at again), so a scan holds a few MB of any file."""
+class _FileBytes:
+    """A file's bytes as ``bytes`` to the frame scan (indexing, slices, ``find``, ``startswith``), read a
+    block of ``_SCAN_BLOCK`` at a time, not whole (a 60 MB cover picture, an hour at 320 kbit/s: 144 MB)
+    nor mapped: a file another program cuts short while it is read is an ``InputError`` saying so (a
+    mapped file's pages past its new end kill the process: SIGBUS)."""
+
+    def __init__(self, file: IO[bytes], path: Path):
+        self.file, self.path, self.size = file, path, os.fstat(file.fileno()).st_size
+        self.block, self.block_at = b"", 0  # the block read last, and where it starts
 
     @classmethod
     @contextmanager
-    def of(cls, path: Path) -> Iterator[_MappedFile | bytes]:
+    def of(cls, path: Path) -> Iterator[_FileBytes]:
         with open(path, "rb") as f:
-            try:
-                mapped = cls(f.fileno(), 0, access=mmap.ACCESS_READ)
-            except (ValueError, OSError):  # empty, or a file system that maps none: read whole
-                yield f.read()
-                return
-        with mapped:
-            yield mapped
+            yield cls(f, path)
+
+    def __len__(self) -> int:
+        return self.size
+
+    def __getitem__(self, at: int | slice) -> Any:
+        if isinstance(at, slice):
+            start, stop, _ = at.indices(self.size)
+            return self._bytes(start, stop)
+        at += self.size if at < 0 else 0
+        i = at - self.block_at
+        if not 0 <= i < len(self.block):
+            if not 0 <= at < self.size:
+                raise IndexError("index out of range")
+            i = at - self._load(at)
+        return self.block[i]
+
+    def find(self, sub: bytes, start: int, end: int | None = None) -> int:
+        end = self.size if end is None else min(end, self.size)
+        while start < end:
+            stop = min(start + _SCAN_BLOCK - len(sub) + 1, end)  # what it reads fits in a block
+            found = self._bytes(start, min(stop + len(sub) - 1, end)).find(sub)
+            if found != -1:
+                return start + found
+            start = stop
+        return -1
 
     def startswith(self, prefix: bytes | tuple[bytes, ...], start: int = 0) -> bool:
         texts = prefix if isinstance(prefix, tuple) else (prefix,)
-        return any(self[start : start + len(text)] == text for text in texts)
+        return any(self._bytes(start, start + len(text)) == text for text in texts)
 
-    def release(self, before: int) -> None:
-        if hasattr(mmap, "MADV_DONTNEED"):
-            self.madvise(mmap.MADV_DONTNEED, 0, before - before % mmap.PAGESIZE)
+    def _bytes(self, start: int, stop: int) -> bytes:
+        stop = min(stop, self.size)
+        if stop <= start:
+            return b""
+        if stop - start > _SCAN_BLOCK:  # a file's part, to decode: read alone
+            return self._read(start, stop - start)
+        if not (self.block_at <= start and stop <= self.block_at + len(self.block)):
+            self._load(start)
+        return self.block[start - self.block_at : stop - self.block_at]
+
+    def _load(self, at: int) -> int:
+        """Reads the block starting at ``at`` (with the bytes a frame header's look ahead needs); where."""
+        self.block, self.block_at = b"", at  # the one before it given back first
+        self.block = self._read(at, _SCAN_BLOCK + _SCAN_OVERLAP)
+        return at
+
+    def _read(self, at: int, size: int) -> bytes:
+        self.file.seek(at)
+        got = self.file.read(min(size, self.size - at))
+        if len(got) < min(size, self.size - at):
+            raise InputError(
+                f"the file got shorter while it was read ({self.size} bytes, now "
+                f"{os.fstat(self.file.fileno()).st_size}): is another program writing it? Read it again "
+                "once it is written",
+                self.path,
+            )
+        return got
 
 
-# Bytes the frame scan reads between releases of a mapped file's pages (``_MappedFile.release``)
-_SCAN_HELD = 8 << 20
+# Bytes of a file the frame scan holds at a time (``_FileBytes``), and the bytes after them read with
+# them: a frame header and what its look ahead reads (a Xing/Info header, the next frame's header)
+_SCAN_BLOCK = 2 << 20
+_SCAN_OVERLAP = 4096
 
 
 # MPEG audio frame headers (ISO/IEC 11172-3, 13818-3 and the MPEG 2.5 extension): 11 sync bits, then the
@@ -1676,14 +1728,20 @@ def _file_header_frames(data: bytes, pos: int, frame: _MpegFrame) -> int:
 def _file_header_bytes(data: bytes, pos: int, frame: _MpegFrame) -> int:
     """The bytes a file's Xing/Info frame at ``pos`` declares its stream holds (from that frame on: FFmpeg,
     LAME; some writers count the ID3v2 tag before it too); 0 when it does not say."""
+    at = _byte_count_at(data, pos, frame)
+    return int.from_bytes(data[at : at + 4], "big") if at else 0
+
+
+def _byte_count_at(data: bytes, pos: int, frame: _MpegFrame) -> int:
+    """Where the byte count of a file's Xing/Info frame at ``pos`` lies (``_file_header_bytes``); 0 when
+    it declares none."""
     if data.startswith(b"VBRI", pos + 36):
         return 0  # its byte count's extent varies between writers: not used
     text_at = _xing_at(data, pos, frame)
     flags = data[text_at + 4 : text_at + 8]
     if not (flags[3:] and flags[3] & 2):
         return 0
-    at = text_at + 8 + (4 if flags[3] & 1 else 0)  # after the frame count, when there is one
-    return int.from_bytes(data[at : at + 4], "big")
+    return text_at + 8 + (4 if flags[3] & 1 else 0)  # after the frame count, when there is one
 
 
 def _count_low(data: bytes, pos: int, size: int, file_ends: tuple[int, ...]) -> bool:
@@ -1806,7 +1864,7 @@ class MpegLoss:
     exact: bool = False
 
 
-def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
+def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
     """The runs of frames of an MPEG audio stream (an .mp3's bytes), split where another file was joined
     on or where the sample rate, channel count or layer changes; tags skipped. One run: a plain file.
     Damage inside a run, where frames may have been lost, is in its ``losses``."""
@@ -1818,7 +1876,6 @@ def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
     last_frame, counted = _NO_COUNT, 0  # the frames its file's Xing/Info header declares, and those seen
     file_ends: tuple[int, ...] = ()  # where the bytes its header declares end (see _count_low)
     file_run = 0  # the run its header begins
-    released = 0  # the pages of a mapped file before it given back
     while pos < n - 6:  # a header and its CRC: no frame of sound ends within the last bytes
         frame = table.get(data[pos + 1] << 8 | data[pos + 2]) if data[pos] == 0xFF else None
         if frame is None:
@@ -1834,9 +1891,6 @@ def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
             pos = found
             continue
         size, samples = frame[0], frame[1]
-        if pos > released + _SCAN_HELD and isinstance(data, _MappedFile):
-            released = pos - _SCAN_HELD // 2  # a look back (a file's header frame) reads its page again
-            data.release(released)
         mono = data[pos + 3] >= 0xC0
         # a header frame holds no sound: its side information is zeros (a cheap test first, once per frame)
         header = not data[pos + frame[6]] and _is_file_header(data, pos, frame)
@@ -1866,13 +1920,15 @@ def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
             # last, uncounted (a partial frame there is a cut tail, left to the decoder as before)
             last_frame = _NO_COUNT
             runs[file_run].count_low = _stops_at_count(data, runs[file_run].start)
-        new_file = not runs or after_tag or header or past_count or frame[3] != runs[-1].layer
+        joined = not runs or after_tag or header or past_count  # a file's first frame
+        new_file = joined or frame[3] != runs[-1].layer
         if not new_file and frame[4] | mono == run_format:
             end, coded = pos + size, coded + samples
-        elif new_file or _confirmed(data, pos, frame, end_confirms=False):
-            # a change of channels whose sound starts in the frame's own bytes: an encoder's first frame
-            # (an encoder cannot change channels mid-stream), so another file, joined on bare: its priming
-            # is dropped or noted as a later file's
+        elif joined or _confirmed(data, pos, frame, end_confirms=False):
+            # a change of layer or channels needs a frame of its format after it (a header in damaged bytes
+            # has none: no file of another rate to refuse). A change of channels whose sound starts in the
+            # frame's own bytes: an encoder's first frame (an encoder cannot change channels mid-stream), so
+            # another file, joined on bare: its priming is dropped or noted as a later file's
             new_file = new_file or _starts_reservoir(data, pos, frame)
             if runs:
                 runs[-1].end, runs[-1].samples = end, coded
@@ -1883,7 +1939,7 @@ def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
                 last_frame, counted = (_file_header_frames(data, pos, frame) if header else 0) or _NO_COUNT, 0
                 declared = _file_header_bytes(data, pos, frame) if header else 0
                 file_ends = (pos + declared, (tag_start if after_tag else pos) + declared) if declared else ()
-        else:  # a lone header of another format (damage): stray bytes
+        else:  # a lone header of another format or layer (damage): stray bytes
             found = _resync(data, pos + 1)
             if found is None:
                 break
@@ -1899,8 +1955,13 @@ def mpeg_runs(data: bytes | _MappedFile) -> list[MpegRun]:
 
 def _note_damage(data: bytes, run: MpegRun, end: int, found: int, coded: int) -> None:
     """Stray bytes from ``end`` (where the run's last frame ends, ``coded`` samples in) to a frame at
-    ``found``: damage, frames may be lost there (not before a tag: the end of a file)."""
-    if not _tag_bytes(data, found):
+    ``found``: damage, frames may be lost there (not before a tag: the end of a file). A lone header of
+    another format at ``found`` resyncs on from it: the same damage, running on."""
+    if _tag_bytes(data, found):
+        return
+    if run.losses and run.losses[-1].start == end:
+        run.losses[-1].end = found
+    else:
         run.losses.append(MpegLoss(end, found, coded))
 
 
@@ -2037,26 +2098,37 @@ def _mended(
     where frames were lost (``MpegRun.losses``) replaced by as many silent frames: the sound after it keeps
     its time. Each noted in ``repairs`` (repair ``bad_audio``): where, how long, and when the frames lost
     were counted from the damaged bytes, by how much the sound after it may be shifted."""
-    # views of the file's bytes and silent frames: copied once, when joined (an hour: 144 MB)
-    pieces: list[bytes | memoryview] = []
-    pos = runs[0].start
+    mended, pos = bytearray(), runs[0].start
     skip = _gapless_skip(data, runs[0])  # its header frame and encoder delay, not decoded as sound
     coded = -(skip + runs[0].frame_samples if skip else 0)  # samples (per channel) before the run's
     for run in runs:
         for loss in run.losses:
             if not loss.frames:
                 continue
-            pieces += [memoryview(data)[pos : loss.start], _silent_frame(data, run.start) * loss.frames]
+            mended += data[pos : loss.start]
+            mended += _silent_frame(data, run.start) * loss.frames
             pos = loss.end
             if repairs is not None:
                 repairs.append(_loss_note(path, at + (coded + loss.coded) / run.sample_rate, loss, run))
             coded += loss.frames * run.frame_samples
         coded += run.samples
-    if not pieces:
+    if not mended:
         return data[pos : runs[-1].end]
-    mended = b"".join([*pieces, memoryview(data)[pos : runs[-1].end]])
-    pieces.clear()  # the views of a mapped file: it closes once they are gone
-    return mended
+    mended += data[pos : runs[-1].end]
+    _move_bytes_declared(mended, len(mended) - (runs[-1].end - runs[0].start))
+    return bytes(mended)
+
+
+def _move_bytes_declared(part: bytearray, change: int) -> None:
+    """Moves the byte count the Xing/Info frame of ``part`` (one file of an .mp3, from its first frame)
+    declares by ``change``, the bytes its silent frames put in less the damaged ones they replace: FFmpeg
+    trims no encoder padding from a file over 1/16 longer than it declares (a "concatenated file"; 6
+    frames put in a 1 s file at 32 kbit/s: 875 samples more, none said)."""
+    frame = _mpeg_frame(part, 0)
+    at = _byte_count_at(part, 0, frame) if frame is not None and _is_file_header(part, 0, frame) else 0
+    if at:
+        declared = int.from_bytes(part[at : at + 4], "big") + change
+        part[at : at + 4] = min(max(declared, 0), 2**32 - 1).to_bytes(4, "big")
 
 
 def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[str, Any]:

@@ -4,8 +4,8 @@ file at 128 kbit/s: 2 frames, the sound after them 52 ms early, the face frames 
 repair said so). The frame scan finds where its frames were lost (``MpegRun.losses``) and how many (the
 frames a Xing/Info frame declares less those found, else estimated from the bytes damaged), and puts as
 many silent frames there: the audio keeps its length and every later sample its time (repair
-``bad_audio``). The scan maps the file (``_MappedFile``), not read whole: a 60 MB cover picture or an hour
-at 320 kbit/s (144 MB) held as bytes."""
+``bad_audio``). The scan reads the file a block at a time (``_FileBytes``), not whole: a 60 MB cover
+picture or an hour at 320 kbit/s (144 MB) held as bytes."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from test_audio_mp3_later_parts import mp3_bytes
 from test_import_decoded_streaming import TAKE_CSV
 
 from capture import read_audio
-from capture.audio_io import _MappedFile, mpeg_runs, write_audio
+from capture.audio_io import _FileBytes, mpeg_runs, write_audio
 
 
 def _speech_like(seconds: float, rate: int) -> np.ndarray:
@@ -175,13 +175,14 @@ def test_an_mp3_with_a_big_cover_picture_is_imported_without_holding_it(tmp_path
 
 
 def test_the_frame_scan_of_a_long_mp3_holds_a_few_mb(tmp_path):
-    """The frames of 40 MB at 320 kbit/s (17 min) scanned from the mapped file: the pages read are given
-    back as it goes (40 MB held read whole), the runs found the same as in its bytes read whole."""
+    """The frames of 40 MB at 320 kbit/s (17 min) scanned from the file a block at a time (frames across
+    each block's end): one block held (40 MB read whole), the runs found the same as in its bytes read
+    whole."""
     one = mp3_bytes(_speech_like(3.0, 44100), 44100, 2, 320000, write_xing="0")
     (run,) = mpeg_runs(one)
     data = one[: run.end] + one[run.start : run.end] * (40_000_000 // (run.end - run.start))
     path = _write(tmp_path / "long.mp3", data)
-    script = "with aio._MappedFile.of(Path(sys.argv[1])) as data: runs = aio.mpeg_runs(data)"
-    assert _peak_growth_kb(script, path) < 16_000
-    with _MappedFile.of(path) as mapped:
-        assert mpeg_runs(mapped) == mpeg_runs(data)
+    script = "with aio._FileBytes.of(Path(sys.argv[1])) as data: runs = aio.mpeg_runs(data)"
+    assert _peak_growth_kb(script, path) < 8_000
+    with _FileBytes.of(path) as blocks:
+        assert mpeg_runs(blocks) == mpeg_runs(data)
