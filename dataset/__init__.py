@@ -3,53 +3,51 @@ manifest, validation and statistics. ``ShardDataset`` (PyTorch) lives in ``datas
 so that importing this package does not import torch."""
 
 # capture, imported first, guards the imports of a stage command against Ctrl-C (capture.import_guard); the
-# guard ends once the command's own module (cli.py) has imported, after this package's imports.
+# guard ends once the command's own module (cli.py) has imported, after the modules it imports.
 import capture.import_guard  # noqa: F401  # isort: skip
 
-from .build import BuildOptions, build_dataset, collect_takes, plan_shards, take_sha256
-from .features import DEFAULT_FEATURES, FEATURES, FeatureSettings, compute_features, parse_features
-from .manifest import MANIFEST_FILE, read_manifest, write_manifest
-from .normalize import ChannelAccumulator, FeatureNormalizer, Normalizer, fit_normalizer
-from .pitch import PitchSettings, track_pitch
-from .ppg import BACKENDS, PPGResult, make_extractor
-from .qa import CHECKS, VALIDATORS, Problem, Report, validate
-from .shards import ShardInfo, ShardReader, ShardWriter
-from .splits import SPLITS, SplitRule, assign_splits
-from .stats import dataset_stats
+from capture.lazy_package import lazy_package
 
-__all__ = [
-    "BACKENDS",
-    "BuildOptions",
-    "CHECKS",
-    "ChannelAccumulator",
-    "DEFAULT_FEATURES",
-    "FEATURES",
-    "FeatureNormalizer",
-    "FeatureSettings",
-    "MANIFEST_FILE",
-    "Normalizer",
-    "PPGResult",
-    "PitchSettings",
-    "Problem",
-    "Report",
-    "SPLITS",
-    "ShardInfo",
-    "ShardReader",
-    "ShardWriter",
-    "SplitRule",
-    "VALIDATORS",
-    "assign_splits",
-    "build_dataset",
-    "collect_takes",
-    "compute_features",
-    "dataset_stats",
-    "fit_normalizer",
-    "make_extractor",
-    "parse_features",
-    "plan_shards",
-    "read_manifest",
-    "take_sha256",
-    "track_pitch",
-    "validate",
-    "write_manifest",
-]
+# The names below are imported on first use (PEP 562): a DataLoader worker started by "spawn" or
+# "forkserver" imports dataset.torch_dataset, and with an eager package it paid for the build, its
+# features, PPG and pitch tracking and the validator too. s2a-dataset's cli.py imports what it needs
+# itself, under the guard.
+__all__ = lazy_package(
+    __name__,
+    {
+        "BuildOptions": "build",
+        "build_dataset": "build",
+        "collect_takes": "build",
+        "plan_shards": "build",
+        "take_sha256": "build",
+        "DEFAULT_FEATURES": "features",
+        "FEATURES": "features",
+        "FeatureSettings": "features",
+        "compute_features": "features",
+        "parse_features": "features",
+        "MANIFEST_FILE": "manifest",
+        "read_manifest": "manifest",
+        "write_manifest": "manifest",
+        "ChannelAccumulator": "normalize",
+        "FeatureNormalizer": "normalize",
+        "Normalizer": "normalize",
+        "fit_normalizer": "normalize",
+        "PitchSettings": "pitch",
+        "track_pitch": "pitch",
+        "BACKENDS": "ppg",
+        "PPGResult": "ppg",
+        "make_extractor": "ppg",
+        "CHECKS": "qa",
+        "VALIDATORS": "qa",
+        "Problem": "qa",
+        "Report": "qa",
+        "validate": "qa",
+        "ShardInfo": "shards",
+        "ShardReader": "shards",
+        "ShardWriter": "shards",
+        "SPLITS": "splits",
+        "SplitRule": "splits",
+        "assign_splits": "splits",
+        "dataset_stats": "stats",
+    },
+)

@@ -91,7 +91,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check a dataset against its manifest; exit 1 when invalid")
     p.add_argument("dataset", type=Path, help="dataset folder (or its manifest.json)")
     p.add_argument(
-        "--deep", action="store_true", help="also verify every shard's sha256 and decode all audio"
+        "--deep",
+        action="store_true",
+        help="also decode all audio and recompute the statistics the manifest holds (every shard's sha256 "
+        "is checked without it)",
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(handler=cmd_validate)
@@ -155,8 +158,8 @@ def cmd_build(args: argparse.Namespace) -> int:
             + (" (up to date)" if summary["up_to_date"] else "")
             + (f" (repaired {', '.join(summary['repaired'])})" if summary.get("repaired") else "")
         )
-        for w in grouped_warnings(summary["warnings"]):
-            print(f"warning: {w}")
+        for w in grouped_warnings(summary["warnings"]):  # about its inputs: stderr, as every stage's
+            progress(f"{PROG}: warning: {w}")
     return 0
 
 

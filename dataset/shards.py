@@ -61,7 +61,7 @@ def json_bytes(data: Any) -> bytes:
 
 
 class _HashingFile(io.RawIOBase):
-    """A write-only file that hashes and counts what passes through."""
+    """A file that hashes and counts what passes through it, written or read."""
 
     def __init__(self, f):
         self.f = f
@@ -71,14 +71,25 @@ class _HashingFile(io.RawIOBase):
     def writable(self) -> bool:
         return True
 
+    def readable(self) -> bool:
+        return True
+
     def tell(self) -> int:
         return self.bytes
 
-    def write(self, b) -> int:
-        self.f.write(b)
+    def _passed(self, b) -> None:
         self.sha.update(b)
         self.bytes += len(b)
+
+    def write(self, b) -> int:
+        self.f.write(b)
+        self._passed(b)
         return len(b)
+
+    def read(self, size: int = -1) -> bytes:
+        b = self.f.read(size)
+        self._passed(b)
+        return b
 
 
 @dataclass
@@ -148,40 +159,59 @@ class ShardReader:
 
     Yields ``(key, {ext: bytes})`` for each run of consecutive members sharing a key; with ``exts``,
     only the members of those extensions (the others are skipped unread, so a reader that does not use
-    the audio does not hold it). Raises ``InputError`` naming the shard when the tar is damaged."""
+    the audio does not hold it). Raises ``InputError`` naming the shard when the tar is damaged, a
+    member appears twice in a sample (whether read or skipped) or, with ``sha256`` (the manifest's), when
+    the shard read to its end hashes otherwise (after its last sample: the bytes are hashed as they
+    stream by; a reader that stops early checks nothing). ``digest`` is then the shard's sha256."""
 
-    def __init__(self, path: str | Path, exts: Collection[str] | None = None):
+    def __init__(self, path: str | Path, exts: Collection[str] | None = None, sha256: str | None = None):
         self.path = Path(path)
         self.exts = None if exts is None else frozenset(exts)
+        self.sha256 = sha256
+        self.digest: str | None = None
 
     def __iter__(self) -> Iterator[tuple[str, dict[str, bytes]]]:
         key: str | None = None
         members: dict[str, bytes] = {}
+        seen: set[str] = set()  # the extensions of the sample's members, read or skipped
         try:
-            with tarfile.open(self.path, mode="r|") as tar:
-                for info in tar:
-                    if not info.isfile():
-                        continue
-                    k, ext = split_key(info.name)
-                    if k != key:
-                        if key is not None:
-                            yield key, members
-                        key, members = k, {}
-                    if ext in members:
-                        raise InputError(f"member {info.name} appears twice in a row", self.path)
-                    if self.exts is not None and ext not in self.exts:
-                        continue
-                    f = tar.extractfile(info)
-                    data = f.read() if f is not None else b""
-                    if len(data) != info.size:
-                        raise InputError(f"member {info.name} is truncated", self.path)
-                    members[ext] = data
+            with open(self.path, "rb") as raw:
+                stream = _HashingFile(raw) if self.sha256 is not None else raw
+                with tarfile.open(fileobj=stream, mode="r|") as tar:
+                    for info in tar:
+                        if not info.isfile():
+                            continue
+                        k, ext = split_key(info.name)
+                        if k != key:
+                            if key is not None:
+                                yield key, members
+                            key, members, seen = k, {}, set()
+                        if ext in seen:
+                            raise InputError(f"member {info.name} appears twice in a row", self.path)
+                        seen.add(ext)
+                        if self.exts is not None and ext not in self.exts:
+                            continue
+                        f = tar.extractfile(info)
+                        data = f.read() if f is not None else b""
+                        if len(data) != info.size:
+                            raise InputError(f"member {info.name} is truncated", self.path)
+                        members[ext] = data
+                if isinstance(stream, _HashingFile):
+                    while stream.read(1 << 20):  # the end-of-archive blocks and padding tarfile left unread
+                        pass
+                    self.digest = stream.sha.hexdigest()
         except FileNotFoundError:
             raise InputError("shard not found", self.path) from None
         except (tarfile.TarError, EOFError, OSError) as exc:
             raise InputError(f"shard is not a readable tar ({exc})", self.path) from None
         if key is not None:
             yield key, members
+        if self.digest is not None and self.digest != self.sha256:
+            raise InputError(
+                f"sha256 {self.digest[:16]}... differs from the manifest's {self.sha256[:16]}...: its bytes "
+                f"changed since the build (a damaged shard? s2a-dataset validate {self.path.parent})",
+                self.path,
+            )
 
 
 # NumPy reads version 3.0 (2.0 with a UTF-8 header, for non-latin-1 field names) only privately

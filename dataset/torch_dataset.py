@@ -18,12 +18,17 @@ marked unusable, a lost face or bad values), for losses and metrics; and ``prese
 sample (False on padding only), for a model's input, whose audio features are real at unusable frames
 too (at inference every frame is real: a model fed ``mask`` would train on inputs it never sees).
 
-Each sample is checked as it is decoded (cheaply: on the arrays already in memory), since the readers
-compare only a shard's size with the manifest, not its sha256: its members are there, its json is an
-object with a usable ``neutral`` and the manifest's ``speaker`` (whose statistics normalise its pitch),
-the animation is (frames, channels) float, the mask (frames,) bool and each feature (frames, dim) float,
-with the manifest's frames, channels and dims, and every value is finite (the build writes 0, never
-NaN, at masked frames). A damaged sample is an ``InputError`` naming the shard and the sample key.
+A shard read to its end is hashed as it streams by and compared with the manifest's sha256: one whose
+bytes changed (a flipped bit in a finite value) is an ``InputError`` naming it, after its last sample
+(``verify_sha256=False``: not hashed). A process hashes a shard once, while its file stays the same
+(inode, modification time, size): a shard read in every epoch costs the hashing in the first only. A
+reader that leaves a shard early (its end is another reader's) hashes nothing, and a changed sample is
+read before the shard's end: so each sample is also checked as it is decoded (cheaply: on the arrays
+already in memory): its members are there, its json is an object with a usable ``neutral`` and the
+manifest's ``speaker`` (whose statistics normalise its pitch), the animation is (frames, channels)
+float, the mask (frames,) bool and each feature (frames, dim) float, with the manifest's frames,
+channels and dims, and every value is finite (the build writes 0, never NaN, at masked frames). A
+damaged sample is an ``InputError`` naming the shard and the sample key.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import json
 import operator
 import random
 import tarfile
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -47,6 +53,20 @@ from .manifest import _numbers, dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
 from .shards import ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
+
+# The shards this process read to their end with the manifest's sha256, by path, sha256 and file identity
+# (inode, modification time, size): one read in every epoch is hashed in the first only, and again once
+# its file changes.
+_HASHED: set[tuple[Any, ...]] = set()
+
+
+def _file_identity(path: Path) -> tuple[int, int, int] | tuple[()]:
+    """(inode, modification time in ns, size) of ``path``; () when it cannot be read (the reader says why)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return ()
+    return st.st_ino, st.st_mtime_ns, st.st_size
 
 
 def _distributed() -> tuple[int, int] | None:
@@ -92,8 +112,9 @@ class ShardDataset(IterableDataset):
     number of samples per epoch (the epoch's samples divided into equal contiguous runs, the remainder
     dropped; a rank's DataLoader workers split its run by position, so with one ``batch_size`` every
     rank also makes as many batches), for a loop with a collective per step; default: ranks read whole
-    shards, and may yield different numbers. An ``IterableDataset``: no random access
-    (``__getitem__``); ``len()`` is this rank's number of samples in the current epoch.
+    shards, and may yield different numbers. ``verify_sha256``: compare each shard read to its end
+    with the manifest's sha256 (default: on; see the module doc). An ``IterableDataset``: no random
+    access (``__getitem__``); ``len()`` is this rank's number of samples in the current epoch.
     """
 
     # a level (ranks, a rank's workers) divides whole shards among its readers (else sample by sample)
@@ -115,6 +136,7 @@ class ShardDataset(IterableDataset):
         rank: int | None = None,
         world_size: int | None = None,
         even_ranks: bool = False,
+        verify_sha256: bool = True,
     ):
         super().__init__()
         self.ds = dataset_dir(ds)
@@ -157,6 +179,7 @@ class ShardDataset(IterableDataset):
         self.shards = [s["name"] for s in shards_of(self.manifest, split)]
         self.check_shards()
         self.listed: dict[str, set[str]] = {}  # sample keys by shard, as the manifest lists them
+        self.sha256_of = {s["name"]: s["sha256"] for s in self.manifest["shards"]}
         self.frames: dict[str, int] = {}  # frames of each sample, as the manifest lists them
         self.shard_of: dict[str, str] = {}
         self.speaker_of: dict[str, str] = {}  # whose log-F0 statistics normalise each sample's pitch
@@ -171,6 +194,7 @@ class ShardDataset(IterableDataset):
         self.seed = _count(seed, "seed", self.ds, None)
         self.shuffle_shards = self.shuffle_buffer > 1 if shuffle_shards is None else bool(shuffle_shards)
         self.even_ranks = bool(even_ranks)
+        self.verify_sha256 = bool(verify_sha256)
         # the epoch in shared memory: DataLoader workers (persistent ones too, forked or spawned) hold
         # copies of this object but read the one value, at the start of each pass
         self._epoch = torch.zeros(1, dtype=torch.int64).share_memory_()
@@ -213,13 +237,18 @@ class ShardDataset(IterableDataset):
         lacks, is an error."""
         path = self.ds / name
         listed = set(self.listed.get(name, ()))
-        for key, members in ShardReader(path, self.members_read()):
+        sha256 = self.sha256_of[name] if self.verify_sha256 else None
+        hashed = (str(path), sha256, *_file_identity(path))
+        reader = ShardReader(path, self.members_read(), None if hashed in _HASHED else sha256)
+        for key, members in reader:
             if key not in listed:
                 raise _unlisted(self.ds, path, {key})
             listed.discard(key)
             yield key, members
         if listed:
             raise _lacking(self.ds, path, listed)
+        if reader.digest is not None:  # read to its end, its sha256 the manifest's
+            _HASHED.add(hashed)
 
     @property
     def epoch(self) -> int:
@@ -457,8 +486,8 @@ def check_shard_files(ds: Path, manifest: dict[str, Any], names: list[str]) -> N
 
 def check_shards(ds: Path, manifest: dict[str, Any], splits: tuple[str, ...]) -> None:
     """The shards of ``splits`` are there with the manifest's size and hold the samples it lists for
-    them, from their tar headers alone (the members' data are skipped): what the reader would find at
-    the first batch or validation, found before a run writes anything."""
+    them, each member once, from their tar headers alone (the members' data are skipped): what the
+    reader would find at the first batch or validation, found before a run writes anything."""
     names = [s["name"] for split in splits for s in shards_of(manifest, split)]
     check_shard_files(ds, manifest, names)
     listed: dict[str, set[str]] = {}
@@ -468,11 +497,15 @@ def check_shards(ds: Path, manifest: dict[str, Any], splits: tuple[str, ...]) ->
         path = ds / name
         try:
             with tarfile.open(path, mode="r:") as tar:
-                found = {split_key(member.name)[0] for member in tar if member.isfile()}
+                members = [member.name for member in tar if member.isfile()]
         except (tarfile.TarError, EOFError, OSError) as exc:
             raise InputError(
                 f"shard is not a readable tar ({exc}): s2a-dataset validate {ds}", path
             ) from None
+        twice = sorted(member for member, n in Counter(members).items() if n > 1)
+        if twice:
+            raise InputError(f"member {twice[0]} appears twice: s2a-dataset validate {ds}", path)
+        found = {split_key(member)[0] for member in members}
         wanted = listed.get(name, set())
         if found - wanted:
             raise _unlisted(ds, path, found - wanted)

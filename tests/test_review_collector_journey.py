@@ -71,5 +71,5 @@ def test_a_build_that_aligns_a_raw_live_take_passes_on_what_align_warned(tmp_pat
     (take,) = build_takes(session, tmp_path / "takes")
     r = run_cli("dataset", "build", take["path"], "-o", tmp_path / "ds")
     assert r.returncode == 0, r.stderr
-    # the build's summary and warnings go to stdout
-    assert "3.00 s of its 8.00 s of face have no audio (the session's audio starts 3.00 s after" in r.stdout
+    # the build's summary goes to stdout, its warnings to stderr
+    assert "3.00 s of its 8.00 s of face have no audio (the session's audio starts 3.00 s after" in r.stderr
