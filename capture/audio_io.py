@@ -12,7 +12,6 @@ import math
 import os
 import shutil
 import struct
-import sys
 import tempfile
 import zlib
 from collections.abc import Callable, Iterator
@@ -26,7 +25,7 @@ import numpy as np
 import soundfile as sf
 
 from .atomic import atomic_write
-from .command import stops_deferred
+from .command import stops_deferred, warn
 from .errors import InputError
 from .growing import GrowingRows
 from .numbers import number_array
@@ -404,12 +403,7 @@ class _Scratch:
         own write, which says so)."""
         if not self._told:
             self._told = True
-            print(
-                f"s2a-capture: warning: {why}: decoded in memory instead (an hour of 48 kHz stereo takes "
-                "1.4 GB)",
-                file=sys.stderr,
-                flush=True,
-            )
+            warn(f"{why}: decoded in memory instead (an hour of 48 kHz stereo takes 1.4 GB)")
 
     def new_file(self) -> Path:
         assert self.folder is not None

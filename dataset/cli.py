@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-from capture.command import StageParser, Terminated, add_version, emit_json, jobs_count, progress, run
+from capture.command import StageParser, Terminated, add_version, emit_json, jobs_count, progress, run, warn
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -159,7 +159,7 @@ def cmd_build(args: argparse.Namespace) -> int:
             + (f" (repaired {', '.join(summary['repaired'])})" if summary.get("repaired") else "")
         )
         for w in grouped_warnings(summary["warnings"]):  # about its inputs: stderr, as every stage's
-            progress(f"{PROG}: warning: {w}")
+            warn(w)
     return 0
 
 
