@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import S2AError
+from .import_guard import COMMANDS, running_command
 
 
 class _StageHelp(argparse.HelpFormatter):
@@ -194,9 +195,10 @@ def progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-# The program of the stage whose command line runs (``run`` sets it): what ``warn`` names. Outside one
-# (a library call, a worker process started afresh) its warnings are the toolkit's.
-_program = "s2a"
+# The program of the stage whose command line runs (``run`` sets it): what ``warn`` names. Outside
+# ``run``, the command this process is (a worker process a command started afresh: capture.import_guard
+# knows it by its arguments), else the toolkit's.
+_program: str | None = None
 
 
 def warn(message: str) -> None:
@@ -204,7 +206,12 @@ def warn(message: str) -> None:
     errors: ``s2a-capture: warning: message``, whose origin a pipeline's log that several stages write
     to still shows. The prefix is added here, where the line is printed; a library function returning
     warnings as text keeps them without it."""
-    progress(f"{_program}: warning: {message}")
+    progress(f"{_program or _command_program()}: warning: {message}")
+
+
+def _command_program() -> str:
+    stage = running_command()
+    return COMMANDS[stage] if stage else "s2a"
 
 
 # Seconds between two lines of a long job's progress; this environment variable changes it (a test's

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource, check_regular_file
-from .command import Terminated, emit_json, progress
+from .command import Terminated, emit_json, progress, warn
 from .errors import InputError, S2AError
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
@@ -299,14 +299,14 @@ def _report(summaries: list[dict], as_json: bool) -> None:
         if as_json:  # stdout stays one JSON object per line; the warnings go to stderr as well
             emit_json(s)
             for line in warnings(s):
-                _tell(f"{s.get('path')}: {line}")
+                warn(_printable(f"{s.get('path')}: {line}"))
             continue
         if s.get("error"):
             _tell(f"{s.get('device')} / {s.get('subject')}: {s['error']}")
             continue
         if s.get("path") is None:
             _tell(f"no take recorded; rejected datagrams: {s.get('rejected')}")
-            for line in warnings(s) + _rejection_hints(s.get("rejected") or {}):
+            for line in [f"warning: {w}" for w in warnings(s)] + _rejection_hints(s.get("rejected") or {}):
                 _tell(f"  {line}")
             hinted = True
             continue
@@ -319,7 +319,7 @@ def _report(summaries: list[dict], as_json: bool) -> None:
         if "torn_tail" in s:
             _tell(f"  torn log tail discarded: {s['torn_tail']}")
         for line in warnings(s):
-            _tell(f"  {line}")
+            _tell(f"  warning: {line}")
     # A stream rejected whole beside one that made takes (or with --json): say once what it means.
     hints = [] if hinted or not summaries else _rejection_hints(summaries[0].get("rejected") or {})
     if hints:
@@ -338,61 +338,62 @@ def _rejection_hints(rejected: dict[str, int]) -> list[str]:
 
 
 def _warnings(s: dict) -> list[str]:
-    """What in a take's summary the person recording should hear about even with --json."""
-    lines = [f"warning: {e}" for e in s.get("errors") or []]  # audio and sync-box failures
+    """What in a take's summary the person recording should hear about even with --json, as warnings
+    without their prefix (``_report`` says how each is printed)."""
+    lines = list(s.get("errors") or [])  # audio and sync-box failures
     if "frame_clock" in s:
-        lines.append(f"warning: frames placed by arrival time: {s['frame_clock']['reason']}")
+        lines.append(f"frames placed by arrival time: {s['frame_clock']['reason']}")
     if s.get("same_time_dropped"):
         lines.append(
-            f"warning: {s['same_time_dropped']} frames repeat the frame time of another frame with other "
+            f"{s['same_time_dropped']} frames repeat the frame time of another frame with other "
             "values: the first of each frame time is kept, the others are only in the session log"
         )
     elif s.get("same_time_frames"):
         lines.append(
-            f"warning: {s['same_time_frames']} frames share their frame time with another frame (the sender "
+            f"{s['same_time_frames']} frames share their frame time with another frame (the sender "
             "sends more frames than its frame clock tells apart): spread evenly over their frame period"
         )
     if s.get("clock_steps"):
         lines.append(
-            f"warning: the frame clock jumped forward {s['clock_steps']} time(s) while packets kept coming "
+            f"the frame clock jumped forward {s['clock_steps']} time(s) while packets kept coming "
             "(a clock correction, no lost frames): the stream is cut there, each part on its own clock"
         )
     if s.get("clock_steps_back"):
         lines.append(
-            f"warning: the phone's clock stepped back {s['clock_steps_back']} time(s) while packets kept "
+            f"the phone's clock stepped back {s['clock_steps_back']} time(s) while packets kept "
             "coming (a timecode re-sync): the frames after each step are placed where they arrived (see the "
             "take's clock_step_back repair)"
         )
     if s.get("rate_jitter_packets"):
         lines.append(
-            f"warning: {s['rate_jitter_packets']} packets declared a frame rate that wavered around one "
+            f"{s['rate_jitter_packets']} packets declared a frame rate that wavered around one "
             "value (a sender reporting its measured rate): read at the rate most packets declared"
         )
     if s.get("receive_queue_drops"):
         lines.append(
-            f"warning: {s['receive_queue_drops']} datagrams reached this computer but were dropped before "
+            f"{s['receive_queue_drops']} datagrams reached this computer but were dropped before "
             "listen read them (its receive queue was full: listen was suspended or fell behind in a burst); "
             "the takes lack their frames. A larger queue rides out bursts: sysctl -w "
             "net.core.rmem_max=8388608"
         )
     if s.get("senders"):
         lines.append(
-            f"warning: {len(s['senders'])} senders ({', '.join(s['senders'])}) sent device "
+            f"{len(s['senders'])} senders ({', '.join(s['senders'])}) sent device "
             f"{s.get('device')} / subject {s.get('subject')} at the same time: each is a stream of its own "
             "(take names -2, -3...); give them different subjects"
         )
     for key, what in (("log_damage", "frame log"), ("audio_log_damage", "audio log")):
         if s.get(key):
             lost = sum(d["bytes_discarded"] for d in s[key])
-            lines.append(f"warning: {len(s[key])} damaged stretch(es) of the {what} skipped ({lost} bytes)")
+            lines.append(f"{len(s[key])} damaged stretch(es) of the {what} skipped ({lost} bytes)")
     return lines
 
 
-def _say(message: str) -> None:
-    """``progress`` for while recording: stderr that cannot be written (a closed terminal, a full
-    disk) must not stop the recording."""
+def _say(message: str, say: Callable[[str], None] = progress) -> None:
+    """``progress`` (or ``warn``: ``say``) for while recording: stderr that cannot be written (a closed
+    terminal, a full disk) must not stop the recording."""
     with contextlib.suppress(OSError):
-        progress(message)
+        say(message)
 
 
 def _status_line(counts: dict) -> None:
@@ -431,7 +432,7 @@ class _Warnings:
                 if isinstance(problem, OSError):
                     problem = f"cannot write the {what} ({problem.strerror or problem}); recording goes on, "
                     problem += "holding what cannot be written in memory"
-                _say(f"warning: {problem}")
+                _say(problem, warn)
 
 
 def _check_audio_file(path: Path, first_packet: bool) -> None:
@@ -452,7 +453,7 @@ def _check_audio_file(path: Path, first_packet: bool) -> None:
     elif not path.parent.is_dir():
         raise InputError("audio file not found (nor its folder)", path)
     else:
-        progress(f"warning: {path} does not exist yet: it has to be there when the first packet arrives")
+        warn(f"{path} does not exist yet: it has to be there when the first packet arrives")
 
 
 def _lock_session(session_dir: Path) -> tuple[int | None, bool]:
@@ -614,7 +615,7 @@ def _remove_partial_takes(session_id: str, out_dir: Path, summaries: list[dict])
         try:
             shutil.rmtree(folder)
         except OSError as exc:
-            _say(f"warning: {folder}: cannot remove this partial take of a recover: {exc.strerror or exc}")
+            _say(f"{folder}: cannot remove this partial take of a recover: {exc.strerror or exc}", warn)
             continue
         removed.append(str(folder))
     return removed
@@ -982,9 +983,10 @@ def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[
             continue
         if writer.lost_nothing:  # the disk had room again: what was held reached it
             _say(
-                f"warning: writing the {what} failed {writer.failed_writes} time(s) "
+                f"writing the {what} failed {writer.failed_writes} time(s) "
                 f"({writer.error.strerror or writer.error}), but nothing was lost: every byte held in memory "
-                "reached the disk later"
+                "reached the disk later",
+                warn,
             )
         else:
             problems.append(writer.failure(what))
@@ -1062,7 +1064,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             f"{report.lost} lost, {report.duplicated} duplicated, {report.reordered} reordered"
         )
     if report.bad_values:
-        progress(f"warning: {report.bad_values} frames with NaN/inf values sent as no-face packets")
+        warn(f"{report.bad_values} frames with NaN/inf values sent as no-face packets")
     return 0
 
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 import socket
 import struct
-import sys
 import time
 from typing import Any
 
+from .command import warn
 from .errors import InputError
 
 DEFAULT_OSC_PORT = 8000
@@ -231,10 +231,9 @@ class PhoneRemote:
         except Exception as exc:  # python-osc raises its own parse errors: ignore foreign datagrams
             self.ignored_datagrams += 1
             if self.ignored_datagrams == 1:
-                print(
-                    f"s2a-capture: warning: a datagram on the reply port {self.reply_port} is not OSC "
-                    f"({str(exc)[:200]}): ignored, as are any more such",
-                    file=sys.stderr,
+                warn(
+                    f"a datagram on the reply port {self.reply_port} is not OSC ({str(exc)[:200]}): ignored, "
+                    "as are any more such"
                 )
             return []
 

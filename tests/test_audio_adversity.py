@@ -194,7 +194,7 @@ def ridge_run(tmp_path_factory):
     return root
 
 
-def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp_path):
+def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp_path, capsys):
     voice = 0.3 * _voice(16000, 2.0)
     voice[5000:5011] = np.nan
     sf.write(tmp_path / "nan.wav", voice, 16000, subtype="FLOAT")
@@ -208,8 +208,8 @@ def test_predict_repairs_nan_samples_and_warns_about_silent_audio(ridge_run, tmp
     ]
     assert not nan["silent"] and nan["speech_level_dbfs"] is not None
     assert silent["silent"] and silent["peak_dbfs"] is None and silent["repairs"] == []
-    text = "\n".join(said)
-    assert "warning: " in text and "nan.wav: 11 NaN or infinite samples set to 0 (bad_audio" in text
+    text = capsys.readouterr().err  # the warnings, on stderr
+    assert "s2a: warning: " in text and "nan.wav: 11 NaN or infinite samples set to 0 (bad_audio" in text
     assert "silent.wav: the audio is silent (all zero): no speech to animate, the face stays still" in text
     # a constant offset is no sound either, but not "all zero"
     assert dc["silent"] and dc["peak_dbfs"] is None and dc["dc_offset_dbfs"] == -6.0

@@ -280,7 +280,7 @@ def test_audio_file_that_cannot_be_opened_for_want_of_descriptors_is_never_silen
     wav = _wav(tmp_path)
     lines, err, code = _listen(tmp_path, "no_fds", "--audio-file", str(wav), "--audio-start", "first-packet")
     assert "Traceback" not in err and "Exception in thread" not in err, err
-    assert f"warning: {wav}: cannot read the audio file: Too many open files" in err.splitlines()
+    assert f"s2a-capture: warning: {wav}: cannot read the audio file: Too many open files" in err.splitlines()
     assert code == 1 and len(lines) == 1  # the take is written all the same
     last = err.splitlines()[-1]
     assert last.startswith("s2a-capture: error: ") and "no audio was recorded: " in last

@@ -136,7 +136,8 @@ def test_recover_skips_a_damaged_record_mid_log(tmp_path):
     assert r.returncode == 0, r.stderr
     line = json.loads(r.stdout.splitlines()[0])
     assert line["log_damage"] == [{"offset": damaged, "bytes_discarded": 8 + 272, "reason": "checksum"}]
-    assert "warning: 1 damaged stretch(es) of the frame log skipped (280 bytes)" in r.stderr
+    damage = "1 damaged stretch(es) of the frame log skipped (280 bytes)"
+    assert f"s2a-capture: warning: {line['path']}: {damage}" in r.stderr.splitlines(), r.stderr
     assert "torn_tail" not in line
     assert line["frames"] == 120 and line["valid_frames"] == 119 and line["dropped_frames"] == 1
     back = read_take(line["path"])

@@ -160,7 +160,7 @@ def test_full_disk_while_recording_is_a_warning_then_one_error(tmp_path):
     _, err = proc.communicate(timeout=60)
     lines = err.splitlines()
     assert proc.returncode == 1 and "Traceback" not in err, err
-    assert sum(x.startswith("warning: cannot write the log") for x in lines) == 1, err
+    assert sum(x.startswith("s2a-capture: warning: cannot write the log") for x in lines) == 1, err
     session = next(out.glob("*.recording"))
     assert lines[-1].startswith(f"s2a-capture: error: {session}: writing the recorder log failed"), err
     assert "1 take(s) not written" in lines[-1]
@@ -206,12 +206,12 @@ def test_missing_audio_file_is_never_silent(tmp_path):
     cmd = [sys.executable, "-m", "capture", "listen", "-o", str(tmp_path / "out"), "--port", "0"]
     cmd += ["--duration", "60", "--json", "--audio-file", str(wav), "--audio-start", "first-packet"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stderr.readline().startswith(f"warning: {wav} does not exist yet")
+    assert proc.stderr.readline().startswith(f"s2a-capture: warning: {wav} does not exist yet")
     port = int(proc.stderr.readline().split("udp://127.0.0.1:")[1].split(" ")[0])
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         for p in _packets("A", "iPhone", range(30)):
             s.sendto(p, ("127.0.0.1", port))
-    assert proc.stderr.readline().startswith("warning: ")  # at the first packet, while recording
+    assert proc.stderr.readline().startswith("s2a-capture: warning: ")  # at the first packet, while recording
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1 and "Traceback" not in err

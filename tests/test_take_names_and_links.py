@@ -130,7 +130,7 @@ def test_plot_of_a_take_named_in_chinese_warns_once_of_characters_no_font_has(tm
         []
         if installed
         else [
-            "warning: no installed font has '你好说话' (drawn as boxes): "
+            "s2a-view: warning: no installed font has '你好说话' (drawn as boxes): "
             "install one that has them, such as Noto Sans CJK"
         ]
     ), proc.stderr

@@ -133,7 +133,7 @@ def test_a_training_take_removed_mid_run_stops_the_run_with_one_line(builds, tmp
     assert load_checkpoint(run / "last.pt")["step"] == 4  # the checkpoints are kept
 
 
-def test_a_rebuild_of_the_val_take_stops_the_run_and_resume_restarts_best_val(builds, tmp_path):
+def test_a_rebuild_of_the_val_take_stops_the_run_and_resume_restarts_best_val(builds, tmp_path, capsys):
     """Only take03's values change: fit used to go on validating on the new build (val_mse 1.24 ->
     0.54, best.pt chosen across two validation sets). It stops; --resume continues on the new build
     with a warning, best_val starting again."""
@@ -150,18 +150,18 @@ def test_a_rebuild_of_the_val_take_stops_the_run_and_resume_restarts_best_val(bu
     before = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in before if "val_mse" in r] == [2, 4]  # no validation on the new build
 
-    lines.clear()
+    capsys.readouterr()
     fit(ds, run, _cfg("max_steps=6", "eval_every=2"), resume=True, say=lines.append)
-    warning = [x for x in lines if x.startswith("warning: the takes that validate this run changed")]
+    said = capsys.readouterr().err.splitlines()  # a library call's warnings are the toolkit's
+    warning = [x for x in said if x.startswith("s2a: warning: the takes that validate this run changed")]
     assert len(warning) == 1 and "take03 changed" in warning[0] and "best_val restarts" in warning[0]
     vals = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
     last = [r for r in vals if "val_mse" in r][-1]
     assert last["step"] == 6 and last["best_val_mse"] == last["val_mse"]  # not the old set's best
     assert load_checkpoint(run / "best.pt")["step"] == 6
     # the new checkpoint records the new build: resuming again warns no more
-    lines.clear()
     fit(ds, run, _cfg("max_steps=8", "eval_every=2"), resume=True, say=lines.append)
-    assert not [x for x in lines if x.startswith("warning:")]
+    assert "warning:" not in capsys.readouterr().err
 
 
 def test_a_shard_that_differs_from_an_unchanged_manifest_keeps_its_message(builds, tmp_path):
@@ -203,11 +203,12 @@ def test_the_checkpoint_records_the_build_and_the_runs_takes(builds):
     assert info["manifest_sha256"] == hashlib.sha256((builds["a"] / "manifest.json").read_bytes()).hexdigest()
 
 
-def test_eval_on_a_dataset_whose_test_split_holds_a_training_take_warns(builds):
+def test_eval_on_a_dataset_whose_test_split_holds_a_training_take_warns(builds, capsys):
     lines: list[str] = []
     r = evaluate(builds["run"], builds["leak"], rtf_seconds=0.2, say=lines.append)
     assert r["leaked_takes"] == ["take00"]
-    assert any(x.startswith("warning: 1 evaluated take(s) trained or validated this run") for x in lines)
+    said = capsys.readouterr().err.splitlines()
+    assert any(x.startswith("s2a: warning: 1 evaluated take(s) trained or validated this run") for x in said)
     clean = evaluate(builds["run"], builds["a"], rtf_seconds=0.2, say=lines.append)
     assert clean["leaked_takes"] == []
     # its own val split is no leak; the command line's JSON carries the field, stderr the warning

@@ -247,7 +247,7 @@ def test_rows_the_reader_dropped_are_warned_about(samples, tmp_path):
     csv.write_text("".join(lines), encoding="utf-8")
     proc = run_here("viewer", "plot", csv, "-o", tmp_path / "p.png", "--json")
     assert proc.returncode == 0, proc.stderr
-    warnings = [w for w in proc.stderr.splitlines() if w.startswith("warning:")]
+    warnings = [w for w in proc.stderr.splitlines() if w.startswith("s2a-view: warning:")]
     assert f"warning: {csv}:4: timecode 'garbage'" in proc.stderr
     assert f"warning: {csv}:7: row has 10 fields" in proc.stderr and "(and 1 more like it)" in proc.stderr
     assert len(warnings) == 2

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from capture.command import progress
+from capture.command import progress, warn
 from capture.errors import InputError
 from dataset.manifest import dataset_folder, read_manifest
 from dataset.normalize import Normalizer
@@ -223,7 +223,8 @@ def evaluate(
     """Metrics of a run on a dataset split (see module doc), computed at ``precision``
     (train/precision.py). A run with speaker styles animates each utterance in its own speaker's style
     (the mean style for a speaker it did not train on), or every utterance in ``style`` (a speaker of
-    the run or ``"mean"``)."""
+    the run or ``"mean"``). Notes go to ``say``; a leak (``leaked_takes``) is also a warning on stderr
+    (``warn``)."""
     model, payload = load_system(run)
     note = training_note(run, payload)
     if note is not None:
@@ -316,7 +317,7 @@ def evaluate(
             f"{len(leaked)} evaluated take(s) trained or validated this run: these {split} scores are not "
             "held out"
         )
-        say(f"warning: {result['leak_note']}: {', '.join(leaked)}")
+        warn(f"{result['leak_note']}: {', '.join(leaked)}")
     result.update(tally.summary())
     fl = floor.summary()
     result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}

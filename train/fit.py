@@ -16,7 +16,6 @@ import hashlib
 import json
 import math
 import os
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -27,7 +26,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
-from capture.command import json_safe, progress
+from capture.command import json_safe, progress, warn
 from capture.errors import InputError
 from dataset.manifest import MANIFEST_FILE, dataset_folder
 from dataset.torch_dataset import check_shards
@@ -412,6 +411,7 @@ def fit(
     set) must then agree with the saved config. ``stop_after_steps`` ends this session after that many
     steps with a checkpoint, as if the process had been stopped (the run is then resumable).
     ``shards_checked``: the caller has checked the dataset's shards (``compare``), not done again.
+    Progress and notes go to ``say``, warnings to stderr through ``warn`` (named by the running command).
 
     Under torchrun the process group is created here and destroyed on the way out: a process that
     exits with gloo's worker threads still alive is aborted by the C++ runtime."""
@@ -738,7 +738,7 @@ class MetricsLog:
         if issubclass(args.exc_type, OSError) and type(args.thread).__module__.startswith("tensorboard"):
             error = write_error(args.exc_value, self.events, "TensorBoard events")
             with contextlib.suppress(OSError, ValueError):  # stderr closed by a caller: still no traceback
-                print(f"s2a-train: warning: {error}", file=sys.stderr, flush=True)
+                warn(str(error))
         else:
             self._hook(args)
 
@@ -864,6 +864,7 @@ def _fit(
     manifest = watch.manifest
     main = rank == 0
     say = say if main else (lambda _m: None)
+    warning = warn if main else (lambda _m: None)  # said once, by the rank that speaks
     state = None
     # every check before anything is written: a refused run leaves its folder (and config.json) as it was
     if resume:
@@ -897,13 +898,13 @@ def _fit(
             state, model, optimizer, rank, world, run / LAST
         )
         if train_changed:
-            say(
-                f"warning: the dataset's takes that train this run changed since {LAST} "
+            warning(
+                f"the dataset's takes that train this run changed since {LAST} "
                 f"({'; '.join(train_changed)}): training goes on with them as they are now"
             )
         if val_changed:  # scores of two validation sets do not compare: the best so far starts again
-            say(
-                f"warning: the takes that validate this run changed since {LAST} "
+            warning(
+                f"the takes that validate this run changed since {LAST} "
                 f"({'; '.join(val_changed)}): best_val restarts (was {_show(best_val)}), and the next "
                 f"validation writes {BEST}; patience counts afresh"
             )

@@ -33,7 +33,7 @@ import torch.nn.functional as F
 
 from align.resample import to_16k_mono
 from capture import find_takes, read_audio, read_take
-from capture.command import progress
+from capture.command import progress, warn
 from capture.errors import InputError
 from capture.importer import AUDIO_SUFFIXES as SPEECH_SUFFIXES
 from capture.paired import read_text
@@ -349,7 +349,7 @@ def train_ppg(
     every take folder and audio file, labelled by phone-loop recognition) and save it to ``out``. Every
     tenth utterance (at least one when there are two or more) is held out for the frame accuracy.
     Utterances without any phone frame are skipped; this and other doubts about the alignments are
-    said as warnings and listed in the summary."""
+    printed as warnings (``warn``: stderr, named by the running command) and listed in the summary."""
     if labels not in LABELS:
         raise InputError(f"--labels must be one of {', '.join(LABELS)}, not {labels!r}")
     if steps < 1:
@@ -398,7 +398,7 @@ def train_ppg(
             )
         utts.append((torch.from_numpy(fbank), torch.from_numpy(ids)))
     for w in warnings:
-        say(f"warning: {w}")
+        warn(w)
     if not utts:
         if labels == "pocketsphinx":
             raise InputError("pocketsphinx recognised no phones in the audio (silence or noise?)", paths[0])

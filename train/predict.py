@@ -29,7 +29,7 @@ from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, 
 from capture.atomic import atomic_write
 from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
-from capture.command import TimedProgress, duration_words, progress
+from capture.command import TimedProgress, duration_words, progress, warn
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.take import make_out_dir, sha256_file
@@ -293,7 +293,8 @@ def predict(
     raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``; ``neutral``:
     the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral;
     ``count_name``: the CSV's second column, one of ``COUNT_NAMES`` (None: ``BlendShapeCount``).
-    ``audios``: a list of audio files, or one file (a ``str`` or ``Path``)."""
+    ``audios``: a list of audio files, or one file (a ``str`` or ``Path``). Progress and notes go to
+    ``say``, warnings to stderr through ``warn`` (named by the running command)."""
     if count_name is not None and count_name not in COUNT_NAMES:
         raise InputError(f"count name must be one of {', '.join(COUNT_NAMES)}, not {count_name!r}")
     if isinstance(audios, (str, os.PathLike)):
@@ -325,10 +326,7 @@ def predict(
     blendshapes = [i for i, c in enumerate(channels) if c.lower() in BLENDSHAPES_LOWER]
     if arkit and len(arkit) < len(channels):
         others = [c for c in channels if not is_known(c)]
-        say(
-            f"warning: {len(others)} channel(s) of the run are no ARKit name and are not in the CSV: "
-            f"{others[:5]}"
-        )
+        warn(f"{len(others)} channel(s) of the run are no ARKit name and are not in the CSV: {others[:5]}")
     pose = _neutral_pose(info, neutral, say)
     if count_name is not None and not arkit:
         say("note: the run writes rig CSVs (a time column, no BlendShapeCount): --count-name ignored")
@@ -364,10 +362,10 @@ def predict(
                 "phone codec?): its features lack the upper bands the run was trained on"
             )
         for r in result["repairs"]:
-            say(f"warning: {a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
+            warn(f"{a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
         if result["silent"]:
             quiet = _silence_words(result["peak_dbfs"], result["dc_offset_dbfs"])
-            say(f"warning: {a}: the audio is silent{quiet}: no speech to animate, the face stays still")
+            warn(f"{a}: the audio is silent{quiet}: no speech to animate, the face stays still")
         if spec.styles:
             result["style"] = style or (speaker if speaker in spec.styles else MEAN)
         results.append(result)

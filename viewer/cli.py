@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from capture.command import StageParser, TimedProgress, add_version, emit_json, progress, run
+from capture.command import StageParser, TimedProgress, add_version, emit_json, progress, run, warn
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -226,7 +226,7 @@ def _warn(anims) -> None:
     """What reading, bridging and clamping the inputs changed, one warning line each."""
     for a in anims:
         for w in a.warnings:
-            progress(f"warning: {w}")
+            warn(w)
 
 
 def _face_gaps(model, anims) -> tuple[list[str], list[str]]:
@@ -314,7 +314,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             f"--compare-offset gives {len(args.compare_offset)} offsets for {len(args.compare)} inputs"
         )
     if args.video_start is not None and not args.video:
-        progress("warning: --video-start places a reference video: without --video it is ignored")
+        warn("--video-start places a reference video: without --video it is ignored")
     one = "render shows one take per input"
     anims = [load_animation(args.input, args.audio, one_take=one)]
     anims += [load_animation(c, one_take=one, audio_flag=None) for c in args.compare]
@@ -359,7 +359,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     model = _face(args.face)
     face_missing, warnings = _face_gaps(model, anims)
     for w in warnings:
-        progress(f"warning: {w}")
+        warn(w)
     probe()  # in a subprocess: without GL, say what to install instead of crashing
     video = None
     if vpath is not None:
@@ -368,7 +368,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         if video.duration_s is not None:
             v0 = start - first.t0
             for w in _outside(f"{vpath} (video)", v0, v0 + video.duration_s, *shown, "its panel stays black"):
-                progress(f"warning: {w}")
+                warn(w)
 
     def frame_width(size: int) -> int:
         return size * len(anims) + (video.width_for(size) if video is not None else 0)
@@ -419,7 +419,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 a0 = voice.audio_start_s - (voice.t0 - voice.offset_s)  # seconds into the video
                 a1 = a0 + voice.audio.frames / voice.audio.sample_rate
                 for w in _outside(f"{voice.audio_file} (audio)", a0, a1, *shown, "the video is silent"):
-                    progress(f"warning: {w}")
+                    warn(w)
                 if (to := aac_rate(rate)) != rate:
                     progress(f"note: {voice.audio_file}: {rate} Hz audio resampled to {to} Hz for AAC")
                     samples, rate = resample_speech(samples, rate, to), to
@@ -487,12 +487,12 @@ def cmd_plot(args: argparse.Namespace) -> int:
     _warn(anims)
     summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
     for name in summary["repeated_channels"]:
-        progress(f"warning: --channels names {name} more than once: drawn once")
+        warn(f"--channels names {name} more than once: drawn once")
     for label in summary["inputs_without_these_channels"]:
-        progress(f"warning: {label} holds none of the channels plotted ({', '.join(summary['channels'])})")
+        warn(f"{label} holds none of the channels plotted ({', '.join(summary['channels'])})")
     if summary["undrawable_characters"]:
-        progress(
-            f"warning: no installed font has {summary['undrawable_characters']!r} (drawn as boxes): "
+        warn(
+            f"no installed font has {summary['undrawable_characters']!r} (drawn as boxes): "
             "install one that has them, such as Noto Sans CJK"
         )
     if args.json:
@@ -516,10 +516,10 @@ def cmd_stream(args: argparse.Namespace) -> int:
     packet_names(take, args.device, args.subject)  # names too long for a datagram: before any output
     take, outside = prepared_for_stream(take)
     for w in warnings:
-        progress(f"warning: {w}")
+        warn(w)
     if outside:
-        progress(
-            f"warning: {outside} blendshape value(s) outside 0..1 are sent as they are (the phone sends "
+        warn(
+            f"{outside} blendshape value(s) outside 0..1 are sent as they are (the phone sends "
             "up to 1.05; a rig may expect 0..1)"
         )
     if not args.json:
@@ -532,8 +532,8 @@ def cmd_stream(args: argparse.Namespace) -> int:
     else:
         progress(f"sent {summary['frames']} frames in {summary['duration_s']:.2f} s")
     if summary["bad_values"]:
-        progress(
-            f"warning: {summary['bad_values']} frames with NaN/inf values sent as no-face packets "
+        warn(
+            f"{summary['bad_values']} frames with NaN/inf values sent as no-face packets "
             f"(values beyond ±{ABSURD:g} count as such)"
         )
     return 0
@@ -570,9 +570,9 @@ def cmd_report(args: argparse.Namespace) -> int:
         summary["warnings"] = [shown(w) for w in summary["warnings"]]
         summary["unreadable"] = [{k: shown(v) for k, v in u.items()} for u in summary["unreadable"]]
     for w in summary["warnings"]:
-        progress(f"warning: {w}")
+        warn(w)
     for u in summary["unreadable"]:
-        progress(f"warning: {u['error']}: listed as unreadable")
+        warn(f"{u['error']}: listed as unreadable")
     if summary["thumbnails"] < summary["takes"] and args.limit < summary["takes"]:
         progress(f"note: --limit {args.limit}: curve thumbnails for {args.limit} of {summary['takes']} takes")
     if args.json:
