@@ -49,7 +49,8 @@ bad_values_widespread, bad_timecodes_widespread  most frames lost their values, 
 timecode_rate  FF counts at a lower rate than the app's 60 (another writer of the format): times were
                read as FF/rate (``read_timecode_rate``); or FF fits no standard rate (read at 60);
                or drop-frame timecodes (``HH:MM:SS;FF`` on every row, at 30 or 60) were read as frames
-               counted at 29.97 or 59.94 fps (``drop_frame_seconds``), not as labels with gaps
+               counted at 29.97 or 59.94 fps from the first row's label (``drop_frame_seconds``), not
+               as labels with gaps
 ============== ================================================================================
 
 Notes, which ``strict=True`` lets pass (nothing was changed): ``trailing_comma`` (every line ends with a
@@ -58,8 +59,8 @@ comma), ``unknown_columns`` (header names that are not Live Link channels, kept 
 (a column that is no channel holds text: left out if it holds no number, else NaN there; never a frame's
 damage), ``channel_typo`` (a column named close to a channel the header lacks), ``empty_channel``
 (channels with no value on any row, as a writer of the 52 shapes alone leaves the head and eye angles:
-left out, and no frame's damage), ``value_range`` (channel values beyond ``VALUE_LIMIT``), ``gap`` (no
-rows for ``GAP_NOTE_S`` or more).
+left out, and no frame's damage; in a take of one row with values they are that frame's), ``value_range``
+(channel values beyond ``VALUE_LIMIT``), ``gap`` (no rows for ``GAP_NOTE_S`` or more).
 
 Errors: missing, empty or binary file (a run of NUL bytes to its end, as a power loss leaves, is no
 binary: the row it cuts is a ``truncated_row``), or UTF-16 text, with or without its byte-order mark
@@ -335,6 +336,8 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     """Parse a Live Link Face CSV into rows (times of day in seconds, values, per-row status)."""
     path = Path(path)
     head = _read_head(path)
+    if b"\x00" in head:  # NUL bytes from there to the end (_zero_tail): the text before, the run as one byte
+        return _read_careful(path, strict, head[: head.index(b"\x00") + 1])
     bom = head.startswith(b"\xef\xbb\xbf")
     first, _, rest = head[3 if bom else 0 :].partition(b"\n")
     # pyarrow reading no rows can abort the process at exit (apache/arrow#38676): the careful parser
@@ -941,8 +944,9 @@ BAD_VALUE_SHARE = 0.5
 BAD_TIMECODE_SHARE = 0.05
 
 
-def _read_careful(path: Path, strict: bool) -> CsvRows:
-    raw = path.read_bytes()
+def _read_careful(path: Path, strict: bool, raw: bytes | None = None) -> CsvRows:
+    """The careful parser's rows of the file (of its bytes ``raw``, when given)."""
+    raw = path.read_bytes() if raw is None else raw
     repairs: list[dict[str, Any]] = []
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
@@ -1005,6 +1009,7 @@ class _RowReader:
         self.index_start = 0  # what pandas' index column counts from (0, or 1 when its first row says so)
         self.split_fields = 0  # fields of the first row whose values split at unquoted decimal commas
         self.written = np.zeros(len(header.columns), dtype=bool)  # a column held a cell that is no number
+        self.first_bad: dict[int, tuple[str, int]] = {}  # each channel's first cell no number, and its line
 
     def read(self, number: int, line: str) -> None:
         """Read line ``number`` of the file (a row, a blank line, or a damaged one)."""
@@ -1078,6 +1083,7 @@ class _RowReader:
                 if self.is_channel[i]:
                     bad.append(i)
                     self.written[i] |= bool(cells[i].strip())
+                    self.first_bad.setdefault(i, (cells[i], number))
                 elif cells[i].strip():  # another column's non-number is no channel's damage (_other_columns)
                     seen.setdefault(f"text {columns[i]}", _Seen()).add(cells[i], number)
         if bad:
@@ -1147,8 +1153,11 @@ def _finish(
             split.line,
         )
     _note_read_with_repairs(seen, header, reader.index_start, repairs)
-    if strict and repairs:
-        first = repairs[0]
+    # before the strict check: a channel no row fills is a note (nothing was changed), its cells no damage
+    values, columns, is_channel = _empty_channels(reader, values, status, numbers)
+    changed = [r for r in repairs if r["kind"] != "empty_channel"]
+    if strict and changed:
+        first = changed[0]
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
     if not times.size:
         _refuse_plain_number_times(seen.get("bad_timecode"), data_rows, path)
@@ -1157,7 +1166,6 @@ def _finish(
             first = rejected[0]
             raise InputError(f"no usable data rows; the first: {first['message']}", path, first["line"])
         raise InputError("no data rows after the header", path)
-    values, columns, is_channel = _empty_channels(reader, values, status, numbers)
     _warn_widespread(seen, times.size, data_rows, repairs)
     t = unwrap_midnight(times)
     keep = np.ones(t.size, dtype=bool)
@@ -1308,11 +1316,12 @@ def _empty_channels(
     """The values, columns and which are channels, without the channel columns whose every cell on the
     rows with values is empty (a writer that leaves the head and eye angles empty: those channels have
     no data), each left out with a note (kind ``empty_channel``); never all of them. The rows they alone
-    made BAD_VALUE are tracked again, their ``bad_value`` repairs withdrawn."""
+    made BAD_VALUE are tracked again, their ``bad_value`` repairs withdrawn. A take of one row with values
+    keeps them: its empty cell is as likely that row's damage."""
     columns, is_channel, repairs, seen = reader.header.columns, reader.is_channel, reader.repairs, reader.seen
     rows = np.flatnonzero(status != FrameStatus.FACE_LOST)
     # candidates first (no number in the first row with values), then each checked: no copy of the array
-    candidates = [] if not rows.size else np.flatnonzero(np.isnan(values[rows[0]]) & ~reader.written)
+    candidates = [] if rows.size < 2 else np.flatnonzero(np.isnan(values[rows[0]]) & ~reader.written)
     empty = [j for j in candidates if is_channel[j] and np.isnan(values[rows, j]).all()]
     if not empty or len(empty) == sum(is_channel):
         return values, columns, is_channel
@@ -1330,10 +1339,11 @@ def _empty_channels(
         lines = set(numbers[restored].tolist())
         repairs[:] = [r for r in repairs if not (r["kind"] == "bad_value" and r["line"] in lines)]
         was = seen.pop("bad_value")
-        left = np.flatnonzero(status == FrameStatus.BAD_VALUE)
-        if left.size:  # the first of the others, its column named (the text is not kept)
-            column = columns[channels[np.isnan(values[left[0], channels]).argmax()]]
-            seen["bad_value"] = _Seen(was.count - restored.size, "?", int(numbers[left[0]]), column)
+        # the first of the others: a kept channel's first cell no number (the rows before it are restored)
+        kept = [(line, j, text) for j, (text, line) in reader.first_bad.items() if j not in empty]
+        if kept:
+            line, j, text = min(kept)
+            seen["bad_value"] = _Seen(was.count - restored.size, text, line, reader.header.columns[j])
     return values, columns, is_channel
 
 
@@ -1585,7 +1595,8 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
             None,
             "timecode_rate",
             f"drop-frame timecodes (HH:MM:SS;FF) at {rate * 1000 / 1001:.2f} fps: the labels each minute "
-            "skips are no dropped frames, times read as frames counted at that rate",
+            "skips are no dropped frames, times read as frames counted at that rate from the first row's "
+            "label",
         )
     return rate
 

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import os
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from .command import warn
 from .csv_take import app_header_separator, read_livelink_csv, utf16_csv_error
 from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
@@ -45,7 +45,7 @@ A2F_SUFFIX = "_bsweight"
 
 def warn_skipped(path: Path, why: str) -> None:
     """Say on stderr that a file found in a folder is left out, and why."""
-    print(f"s2a-capture: warning: {path}: {why}: skipped", file=sys.stderr)
+    warn(f"{path}: {why}: skipped")
 
 
 def find_sources(
@@ -79,7 +79,7 @@ def find_sources(
             raise InputError("no such file or folder", p)
     if litter is None:
         for line in tally.lines():
-            print(f"s2a-capture: warning: {line}", file=sys.stderr)
+            warn(line)
     return found
 
 

@@ -153,8 +153,10 @@ DROP_FRAME_LABELS = {30.0: 2, 60.0: 4}
 
 def drop_frame_seconds(label_seconds: np.ndarray, rate: float) -> np.ndarray | None:
     """Times (s) of frames labelled with drop-frame timecodes, given their labels read as seconds at the
-    nominal ``rate`` (30 or 60): frame count over the NTSC rate. None when a label is one a drop-frame count
-    skips (a writer using ``;`` without counting so): the labels are then read as they stand."""
+    nominal ``rate`` (30 or 60): the first frame at its label as written (where the take folder's
+    ``frame_log.csv`` and ``.mov`` timecodes, read as written, put it too), each later one frames counted
+    at the NTSC rate after it. None when a label is one a drop-frame count skips (a writer using ``;``
+    without counting so): the labels are then read as they stand."""
     drop = DROP_FRAME_LABELS.get(rate)
     if drop is None:
         return None
@@ -165,7 +167,7 @@ def drop_frame_seconds(label_seconds: np.ndarray, rate: float) -> np.ndarray | N
     if skipped.any():
         return None
     frames = labels - drop * (minutes - minutes // 10)
-    return frames / (rate * 1000 / 1001)
+    return float(label_seconds[0]) + (frames - frames[0]) / (rate * 1000 / 1001)
 
 
 def whole_seconds(seconds_of_day: np.ndarray) -> int:
