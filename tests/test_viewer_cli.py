@@ -206,9 +206,7 @@ def test_plot_png_and_svg(samples, short_take, prediction_csv, tmp_path):
             "--json",
         )
     )
-    assert s["inputs"] == ["recording", "prediction"] and s["vad"].startswith(
-        "loud (energy threshold, fallback"
-    )
+    assert s["inputs"] == ["recording", "prediction"] and s["vad"] == "loud (energy threshold)"
     root = ET.parse(svg).getroot()
     assert root.tag.endswith("svg")
     text = svg.read_text()

@@ -113,5 +113,5 @@ def test_energy_segments_asked_for_are_not_called_a_fallback_for_want_of_a_model
     speech = (8000 * np.sin(2 * np.pi * 200 * t) * (t > 3) * (t < 6)).astype(np.int16)
     anim.audio, anim.audio_start_s = Audio(speech[:, None], rate, "PCM_16"), anim.t0
     segments, label = speech_segments(anim, "energy")
-    assert label == "loud (energy threshold, fallback: as --vad energy asks)", label
+    assert label == "loud (energy threshold)", label
     assert len(segments) == 1 and abs(segments[0][0] - anim.t0 - 3) < 0.05, segments

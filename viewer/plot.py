@@ -81,10 +81,10 @@ def selected_channels(spec: str, anims: Sequence[Animation]) -> tuple[list[str],
     return names, repeated
 
 
-def audio_frames(audio: Audio, size: int) -> Iterator[np.ndarray]:
+def audio_frames(audio: Audio, size: int, tail: bool = False) -> Iterator[np.ndarray]:
     """The mono float32 samples of ``audio`` (``Audio.mono_float``) as rows of ``size``, in order, the last
-    partial row left out: a block of the file at a time (all of them as float, and copies, took 2.5 GB
-    for two hours at 16 kHz)."""
+    partial row left out (with ``tail``: last, as a row of its own length): a block of the file at a time
+    (all of them as float, and copies, took 2.5 GB for two hours at 16 kHz)."""
     from align.resample import mono_blocks
 
     rest = np.zeros(0, np.float32)
@@ -93,6 +93,8 @@ def audio_frames(audio: Audio, size: int) -> Iterator[np.ndarray]:
         n = x.size // size
         yield x[: n * size].reshape(n, size)
         rest = x[n * size :]
+    if tail and rest.size:
+        yield rest.reshape(1, rest.size)
 
 
 def energy_segments(audio: Audio, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
@@ -132,8 +134,8 @@ def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[f
                 raise InputError(f"--vad {method} is not available here: {exc}") from None
     segs = energy_segments(anim.audio)
     off = anim.audio_start_s
-    why = "no VAD model" if method == "auto" else f"as --vad {method} asks"  # there may well be one
-    return [(a + off, b + off) for a, b in segs], f"loud (energy threshold, fallback: {why})"
+    fallback = ", fallback: no VAD model" if method == "auto" else ""  # --vad energy: asked for
+    return [(a + off, b + off) for a, b in segs], f"loud (energy threshold{fallback})"
 
 
 # Fonts with Chinese, Japanese and Korean characters, as common systems install them: matplotlib's own
@@ -255,9 +257,12 @@ def plot_curves(
             sr = voice.audio.sample_rate
             step = max(1, voice.audio.frames // 20000)  # enough points for the envelope, few for the SVG
             lows, highs = [np.zeros(0, np.float32)], [np.zeros(0, np.float32)]
-            for block in audio_frames(voice.audio, step):
-                lows.append(block.min(axis=1))
-                highs.append(block.max(axis=1))
+            peak = 0.0  # of every sample: the last few, left out of the envelope, too
+            for block in audio_frames(voice.audio, step, tail=True):
+                peak = max(peak, float(np.abs(block).max(initial=0.0)))
+                if block.shape[1] == step:
+                    lows.append(block.min(axis=1))
+                    highs.append(block.max(axis=1))
             low, high = np.concatenate(lows), np.concatenate(highs)
             tt = voice.audio_start_s - voice.t0 + voice.offset_s + np.arange(low.size) * step / sr
             ax.fill_between(tt, low, high, color="0.35", lw=0)
@@ -275,7 +280,7 @@ def plot_curves(
             ax.set_ylabel(f"speech\n{voice.label}", rotation=0, ha="right", va="center")
             if segments:
                 ax.legend(loc="upper right", fontsize="small")
-            lim = float(max(-low.min(initial=0.0), high.max(initial=0.0))) or 1.0
+            lim = peak or 1.0
             ax.set_ylim(-lim * 1.05, lim * 1.05)
             ax.set_yticks([])
         axes[-1].set_xlabel("time (s)")
