@@ -21,14 +21,14 @@ too (at inference every frame is real: a model fed ``mask`` would train on input
 A shard read to its end is hashed as it streams by and compared with the manifest's sha256: one whose
 bytes changed (a flipped bit in a finite value) is an ``InputError`` naming it, after its last sample
 (``verify_sha256=False``: not hashed). A process hashes a shard once, while its file stays the same
-(inode, modification time, size): a shard read in every epoch costs the hashing in the first only. A
-reader that leaves a shard early (its end is another reader's) hashes nothing, and a changed sample is
-read before the shard's end: so each sample is also checked as it is decoded (cheaply: on the arrays
-already in memory): its members are there, its json is an object with a usable ``neutral`` and the
-manifest's ``speaker`` (whose statistics normalise its pitch), the animation is (frames, channels)
-float, the mask (frames,) bool and each feature (frames, dim) float, with the manifest's frames,
-channels and dims, and every value is finite (the build writes 0, never NaN, at masked frames). A
-damaged sample is an ``InputError`` naming the shard and the sample key.
+(inode, size, modification and change times): a shard read in every epoch costs the hashing in the
+first only. A reader that leaves a shard early (its end is another reader's) hashes nothing, and a
+changed sample is read before the shard's end: so each sample is also checked as it is decoded
+(cheaply: on the arrays already in memory): its members are there, its json is an object with a usable
+``neutral`` and the manifest's ``speaker`` (whose statistics normalise its pitch), the animation is
+(frames, channels) float, the mask (frames,) bool and each feature (frames, dim) float, with the
+manifest's frames, channels and dims, and every value is finite (the build writes 0, never NaN, at
+masked frames). A damaged sample is an ``InputError`` naming the shard and the sample key.
 """
 
 from __future__ import annotations
@@ -55,18 +55,20 @@ from .shards import ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
 
 # The shards this process read to their end with the manifest's sha256, by path, sha256 and file identity
-# (inode, modification time, size): one read in every epoch is hashed in the first only, and again once
-# its file changes.
+# (device, inode, size, modification and change times): one read in every epoch is hashed in the first
+# only, and again once its file changes.
 _HASHED: set[tuple[Any, ...]] = set()
 
 
-def _file_identity(path: Path) -> tuple[int, int, int] | tuple[()]:
-    """(inode, modification time in ns, size) of ``path``; () when it cannot be read (the reader says why)."""
+def _file_identity(path: Path) -> tuple[int, ...]:
+    """(device, inode, size, modification and change times in ns) of ``path``; () when it cannot be read
+    (the reader says why). The change time, which no one can set, tells a file rewritten in place or
+    replaced with its size and modification time kept (``cp -p``, ``touch -r``) from the one hashed."""
     try:
         st = path.stat()
     except OSError:
         return ()
-    return st.st_ino, st.st_mtime_ns, st.st_size
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
 
 
 def _distributed() -> tuple[int, int] | None:
