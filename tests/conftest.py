@@ -65,10 +65,18 @@ def run_cli(module: str, *args: str, check: bool = False) -> subprocess.Complete
     return proc
 
 
+# The end of a rank's script: without interpreter shutdown, as train.cli._leave_distributed_process ends
+# a torchrun worker (gloo's threads releasing the last collective's tensors while Python shuts down
+# abort the process, "terminate called without an active exception", on a busy machine).
+_LEAVE_RANK = "\nimport os as _os, sys as _sys\n_sys.stdout.flush()\n_sys.stderr.flush()\n_os._exit(0)\n"
+
+
 def run_gloo_ranks(script: str, args: list[str], timeout: float = 300) -> list[list[str]]:
     """``python -c script RANK *args`` for ranks 0 and 1 at once (a gloo group on loopback, as the
     script sets it up); the JSON lines (``{...}``) each printed, every rank having printed some and
-    exited with 0."""
+    exited with 0. A rank that ran the script to its end leaves as s2a-train's ranks do
+    (``_LEAVE_RANK``)."""
+    script += _LEAVE_RANK
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     if sys.platform.startswith("linux"):  # gloo on loopback: no dependence on what the hostname resolves to
         env["GLOO_SOCKET_IFNAME"] = "lo"

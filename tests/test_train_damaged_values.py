@@ -5,12 +5,14 @@ traceback or an overwritten checkpoint.
 
 The fit, eval and export commands run in-process (``train.cli.main``) on one tiny dataset and run; the
 damaged copies rewrite single tar members in place, as a bit flip or a careless edit would (the shard
-keeps its size, so only ``s2a-dataset validate``'s sha256 would notice)."""
+keeps its size; the readers' sha256 of the shard would notice first, so the manifest's is made to
+match: each sample's own checks are tested, as for a build that wrote the damage)."""
 
 from __future__ import annotations
 
 import hashlib
 import io
+import json
 import shutil
 import tarfile
 from pathlib import Path
@@ -97,7 +99,8 @@ def _reshaped(data: bytes, shape: tuple[int, ...]) -> bytes:
 
 def _damaged(base, tmp_path: Path, shard: str, member: str, change) -> Path:
     """A copy of the dataset with ``member`` of ``shard`` rewritten in place by ``change`` (bytes →
-    bytes of the same length)."""
+    bytes of the same length), the manifest's sha256 of the shard made to match (as a build that wrote
+    the damage would have: the checks of each sample, not the shard's checksum, are what is tested)."""
     ds = tmp_path / "ds"
     shutil.copytree(base["ds"], ds)
     path = ds / shard
@@ -111,6 +114,10 @@ def _damaged(base, tmp_path: Path, shard: str, member: str, change) -> Path:
         f.seek(info.offset_data)
         f.write(new)
     assert path.stat().st_size == size
+    manifest = json.loads((ds / "manifest.json").read_text())
+    (entry,) = [s for s in manifest["shards"] if s["name"] == shard]
+    entry["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    (ds / "manifest.json").write_text(json.dumps(manifest))
     return ds
 
 
