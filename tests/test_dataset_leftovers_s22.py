@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 import tarfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -195,3 +196,24 @@ def test_validate_reports_a_member_twice(ds):
     problems = [(p.code, p.location) for p in report.problems]
     assert ("shard_unreadable", shard.name) in problems and not report.valid
     assert json.loads(json.dumps(report.to_json()))["valid"] is False
+
+
+# -- review: a shard replaced with cp -p is hashed again -------------------------------------------------
+def test_a_shard_replaced_by_cp_p_with_its_size_and_mtime_is_hashed_again(ds, tmp_path):
+    """A damaged copy given the shard's modification time, copied over it with ``cp -p``: same path,
+    inode, size and mtime; only the change time tells the file is not the one hashed in epoch 0."""
+    shard = _train_shard(ds)
+    damaged = tmp_path / shard.name
+    shutil.copyfile(shard, damaged)
+    _flip_a_finite_value(damaged)
+    kept = shard.stat()
+    subprocess.run(["touch", "-r", str(shard), str(damaged)], check=True)
+    data = ShardDataset(ds, "train")
+    assert len(list(data)) == 6  # epoch 0: the shard hashed, the manifest's
+    time.sleep(0.02)  # past the file system's clock tick
+    subprocess.run(["cp", "-p", str(damaged), str(shard)], check=True)
+    now = shard.stat()
+    assert (now.st_ino, now.st_size, now.st_mtime_ns) == (kept.st_ino, kept.st_size, kept.st_mtime_ns)
+    with pytest.raises(InputError, match="differs from the manifest's") as caught:
+        list(data)
+    assert caught.value.path == str(shard)
