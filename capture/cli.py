@@ -529,7 +529,7 @@ def cmd_info(args: argparse.Namespace) -> int:
                 why = "is a listen session's log folder, not a take: its takes are written beside it"
                 if len(args.takes) == 1:
                     raise InputError(f"{why} (s2a-capture recover {path} rebuilds them)", path)
-                warn(f"{path}: {why}: skipped")
+                warn_skipped(path, why)
                 continue
             takes = _load_for_info(path, litter)
             if not takes:

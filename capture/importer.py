@@ -332,7 +332,7 @@ def import_source(
         raise utf16
     livelink = is_livelink_csv(source, head)
     if livelink and bom_codec(head or b""):
-        raise utf16_csv_error(head or b"", source) or InputError(
+        raise InputError(  # utf16_csv_error (above) found no message of its own for it
             "a Live Link Face CSV saved as UTF-16 text: save it as UTF-8 (as the app writes it)", source
         )
     if not livelink:

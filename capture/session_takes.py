@@ -1060,7 +1060,7 @@ def finish_take(built: StreamTake, log: SessionLog, audio: SessionAudio | None) 
     if built.placed_by_arrival is not None:
         take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": built.placed_by_arrival}
         message = f"frames placed by arrival time: {built.placed_by_arrival}"
-        take.meta.repairs.append({"line": None, "kind": "frame_clock", "message": message})
+        repair(take.meta.repairs, None, "frame_clock", message)
     for kind, message in built.notes:
         repair(take.meta.repairs, None, kind, message)
 
@@ -1519,8 +1519,7 @@ def build_takes(
                 summaries.append(
                     take.summary()
                     | common
-                    | report
-                    | built.counts
+                    | counts  # the stream's report with the take's own counts
                     | totals
                     | {"device": take.meta.device, "subject": take.meta.subject, "path": str(folder)}
                     | ({"audio_gaps": gaps} if gaps else {})

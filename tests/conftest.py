@@ -7,6 +7,7 @@ import gc
 import importlib
 import io
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -63,6 +64,28 @@ def run_cli(module: str, *args: str, check: bool = False) -> subprocess.Complete
     if check and proc.returncode != 0:
         raise AssertionError(f"{module} {args} failed ({proc.returncode}):\n{proc.stderr}")
     return proc
+
+
+def run_python(code: str, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """``python -c code *args`` in the checkout, its output captured as text."""
+    return subprocess.run(
+        [sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout
+    )
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    """A real dataset of five 2 s takes (``dataset_helpers.build_five_take_dataset``), built once per
+    test module (a module may define its own)."""
+    from dataset_helpers import build_five_take_dataset
+
+    return build_five_take_dataset(tmp_path_factory.mktemp("five_takes"))
+
+
+@pytest.fixture
+def ds(built, tmp_path) -> Path:
+    """A copy of ``built`` to damage."""
+    return Path(shutil.copytree(built, tmp_path / "ds", ignore=shutil.ignore_patterns(".work")))
 
 
 # The end of a rank's script: without interpreter shutdown, as train.cli._leave_distributed_process ends

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import ROOT, run_here
-from dataset_helpers import build_five_take_dataset, make_aligned_take
+from dataset_helpers import make_aligned_take
 from test_import_guard_window import CHECK
 
 from capture import write_take
@@ -78,16 +78,6 @@ def test_build_says_its_warnings_on_stderr_and_its_result_on_stdout(tmp_path):
 
 
 # -- 3. a shard's bytes checked against the manifest's sha256 as it is read --------------------------------
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    return build_five_take_dataset(tmp_path_factory.mktemp("s22"))
-
-
-@pytest.fixture
-def ds(built, tmp_path) -> Path:
-    return Path(shutil.copytree(built, tmp_path / "ds", ignore=shutil.ignore_patterns(".work")))
-
-
 def _train_shard(ds: Path) -> Path:
     (shard,) = [s["name"] for s in read_manifest(ds)["shards"] if s["split"] == "train"]
     return ds / shard

@@ -6,11 +6,8 @@ the note saying its count was exact)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
-from conftest import ROOT
+from conftest import run_python
 from test_audio_mp3_later_parts import mp3_bytes
 from test_import_mp3_damage import _damaged, _lag, _mp3, _speech_like, _write
 
@@ -28,9 +25,7 @@ def test_an_mp3_cut_short_by_another_program_while_scanned_is_an_error_not_a_cra
         "with opened.of(path) as data:\n    os.truncate(path, 1000)\n"
         "    try:\n        aio.mpeg_runs(data)\n    except aio.InputError as exc:\n        print(exc)\n"
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", code, str(path)], capture_output=True, text=True, cwd=ROOT, timeout=60
-    )
+    proc = run_python(code, str(path))
     assert proc.returncode == 0, proc.returncode  # -7: SIGBUS
     assert "got shorter while it was read" in proc.stdout and "another program" in proc.stdout
 

@@ -5,12 +5,10 @@ clock, to the warning quoting a damaged cell, and to a take of one row."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import run_python
 from test_readers_review_s22 import drop_frame_label, rows, write_csv
 
 from capture import Audio, InputError, read_livelink_csv, read_take_folder, write_reference_mov
@@ -106,9 +104,7 @@ def test_a_long_nul_run_after_a_short_take_is_not_read_as_text(tmp_path):
         "grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before\n"
         "print(json.dumps([take.time.size, [r['kind'] for r in take.meta.repairs], grown]))\n"
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", script, str(path)], capture_output=True, text=True, cwd=ROOT, timeout=60
-    )
+    proc = run_python(script, str(path))
     assert proc.returncode == 0, proc.stderr
     frames, kinds, grown_kib = json.loads(proc.stdout)
     assert frames == 20 and kinds == ["truncated_row"]

@@ -8,29 +8,16 @@ from __future__ import annotations
 
 import io
 import json
-import shutil
 import tarfile
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
-from dataset_helpers import build_five_take_dataset
 
 from capture.errors import InputError
 from dataset.shards import ShardReader
 from dataset.torch_dataset import ShardDataset
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    return build_five_take_dataset(tmp_path_factory.mktemp("consumers"))
-
-
-@pytest.fixture
-def ds(built, tmp_path) -> Path:
-    """A copy of the dataset to damage."""
-    return Path(shutil.copytree(built, tmp_path / "ds", ignore=shutil.ignore_patterns(".work")))
 
 
 def _edit_manifest(ds: Path, edit) -> None:

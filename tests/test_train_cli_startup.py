@@ -5,25 +5,19 @@ And ``predict`` does not replace an existing read-only CSV (its atomic rename wo
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT
+from conftest import run_python
 from dataset_helpers import build_five_take_dataset
 
 
-def _python(code: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT, timeout=120
-    )
-
-
 def test_the_command_line_module_imports_no_torch():
-    proc = _python("import sys, train.cli; print(sorted(m for m in ('torch', 'scipy') if m in sys.modules))")
+    proc = run_python(
+        "import sys, train.cli; print(sorted(m for m in ('torch', 'scipy') if m in sys.modules))", timeout=120
+    )
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
 
 
@@ -49,7 +43,7 @@ print("exit", code, signal.getsignal(signal.SIGINT) is signal.default_int_handle
 
 
 def test_a_commands_own_imports_are_guarded_against_ctrl_c(tmp_path):
-    proc = _python(GUARDED, str(tmp_path / "none"))
+    proc = run_python(GUARDED, str(tmp_path / "none"), timeout=120)
     before, *during, end = proc.stdout.splitlines()
     # evaluate (with PyTorch) loads under the guard: among train.cli's imports, or the command's own ...
     assert before == "train.evaluate True" or "train.evaluate True" in during, proc.stdout + proc.stderr
@@ -100,5 +94,5 @@ def test_the_package_offers_its_names_as_before():
         "import dataset\n"
         "assert all(hasattr(dataset, name) for name in dataset.__all__)\n"
     )
-    proc = _python(code)
+    proc = run_python(code, timeout=120)
     assert proc.returncode == 0, proc.stderr
