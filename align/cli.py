@@ -185,7 +185,7 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser(), _main, argv)
+    return run(PROG, build_parser, _main, argv)
 
 
 if __name__ == "__main__":

@@ -585,7 +585,7 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+    return run(PROG, build_parser, lambda a: a.handler(a), argv)
 
 
 if __name__ == "__main__":

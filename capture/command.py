@@ -401,17 +401,17 @@ def out_of_memory(exc: BaseException) -> bool:
 
 def run(
     prog: str,
-    parser: argparse.ArgumentParser,
+    build_parser: Callable[[], argparse.ArgumentParser],
     main: Callable[[argparse.Namespace], int],
     argv: Sequence[str] | None,
 ) -> int:
-    """Parse ``argv`` and run ``main``; the toolkit's own errors become one line and exit code 1.
-    ``prog`` names the warnings ``warn`` prints meanwhile."""
+    """Build the parser, parse ``argv`` and run ``main``; the toolkit's own errors become one line and
+    exit code 1. ``prog`` names the warnings ``warn`` prints meanwhile. The parser is built inside, so
+    that Ctrl-C while it is (reading the package's version from its metadata) is one line too."""
     global _program
-    args = parser.parse_args(argv)
     outer, _program = _program, prog
     try:
-        return main(args)
+        return main(build_parser().parse_args(argv))
     except S2AError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1

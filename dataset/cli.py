@@ -254,7 +254,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(PROG, build_parser(), lambda a: a.handler(a), argv)
+    return run(PROG, build_parser, lambda a: a.handler(a), argv)
 
 
 if __name__ == "__main__":

@@ -100,7 +100,7 @@ def test_warnings_of_paired_import_and_export_name_the_program(tmp_path):
 def test_warn_names_the_stage_whose_command_runs(capsys):
     """``warn`` prefixes the program ``run`` was given while its command runs, the toolkit's name outside
     one (a library call)."""
-    assert run("s2a-align", StageParser(prog="s2a-align"), lambda args: warn("inside") or 0, []) == 0
+    assert run("s2a-align", lambda: StageParser(prog="s2a-align"), lambda args: warn("inside") or 0, []) == 0
     warn("outside")
     assert capsys.readouterr().err.splitlines() == ["s2a-align: warning: inside", "s2a: warning: outside"]
 

@@ -530,6 +530,19 @@ def test_sigterm_stops_a_fit_as_ctrl_c_does(ds, tmp_path):
     assert resumed.returncode == 0, resumed.stderr
 
 
+def test_ctrl_c_while_the_parser_is_built_is_one_line(capsys):
+    """Ctrl-C after the command's imports but while its parser is built (reading the package's version
+    from its metadata, a slow read on a busy machine) printed a KeyboardInterrupt traceback (CI, 0.2 s
+    into s2a-train): the parser is built inside run's handling."""
+    from capture.command import run
+
+    def interrupted_parser():
+        raise KeyboardInterrupt
+
+    assert run("s2a-x", interrupted_parser, lambda _a: 0, []) == 130
+    assert capsys.readouterr().err == "s2a-x: interrupted\n"
+
+
 @pytest.mark.parametrize(
     "exc",
     [
@@ -545,8 +558,8 @@ def test_running_out_of_memory_is_one_line(exc, capsys):
     def handler(_args):
         raise exc
 
-    assert run("s2a-x", argparse.ArgumentParser(), handler, []) == 1
+    assert run("s2a-x", argparse.ArgumentParser, handler, []) == 1
     err = capsys.readouterr().err
     assert err.startswith("s2a-x: error: out of memory") and len(err.splitlines()) == 1, err
     with pytest.raises(RuntimeError, match="another"):  # any other RuntimeError stays a bug to report
-        run("s2a-x", argparse.ArgumentParser(), lambda _a: (_ for _ in ()).throw(RuntimeError("another")), [])
+        run("s2a-x", argparse.ArgumentParser, lambda _a: (_ for _ in ()).throw(RuntimeError("another")), [])

@@ -367,7 +367,7 @@ def _handle(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(PROG, build_parser(), _handle, argv)
+    return run(PROG, build_parser, _handle, argv)
 
 
 if __name__ == "__main__":

@@ -628,7 +628,7 @@ def _stoppable(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser(), _stoppable, argv)
+    return run(PROG, build_parser, _stoppable, argv)
 
 
 if __name__ == "__main__":
