@@ -20,13 +20,13 @@ import struct
 import threading
 import time
 import zlib
-from collections.abc import Sized
+from collections.abc import Iterator, Sized
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .audio_io import Audio, FileAudio, audio_left_in_files, read_audio
+from .audio_io import CHECK_FRAMES, Audio, FileAudio, audio_left_in_files, read_audio
 from .errors import InputError
 from .record_log import (
     INVALID_RECORD,
@@ -336,10 +336,36 @@ class SessionAudio:
                 samples[a - lo : b - lo] = block[a - first : b - first]
         return Audio(samples, self.sample_rate, self.subtype)
 
+    def span(self, lo: int, hi: int) -> Audio:
+        """Samples ``lo`` to ``hi`` as ``read`` gives them, left in the log (``LoggedSpan``: a take's span
+        is written a block at a time, never held whole); each record's checksum is checked here, as by
+        ``read``. Float samples that are NaN or infinite are read whole, for ``Take.attach_audio`` to
+        refuse as it does any audio holding them."""
+        span = LoggedSpan(self, lo, hi)
+        for block in span.blocks(CHECK_FRAMES):
+            if block.dtype.kind == "f" and not np.isfinite(block).all():
+                return self.read(lo, hi)
+        return span
+
     def gaps_within(self, lo: int, hi: int) -> list[dict[str, int]]:
         """The ``gaps`` that samples ``lo`` to ``hi`` cross, as sample ranges counted from ``lo``."""
         cut = [(max(g["at_sample"], lo), min(g["at_sample"] + g["samples"], hi)) for g in self.gaps]
         return [{"at_sample": a - lo, "samples": b - a} for a, b in cut if a < b]
+
+
+class LoggedSpan(FileAudio):
+    """A span of a session's audio (``SessionAudio.span``) left in its log: ``write_audio`` copies it a
+    block at a time, as it does audio left in its file (its samples, asked for, are read whole)."""
+
+    def __init__(self, audio: SessionAudio, lo: int, hi: int):
+        dtype = audio._dtype.newbyteorder("=")
+        super().__init__(audio.path, audio.sample_rate, audio.subtype, dtype, hi - lo, audio.channels, 0)
+        self._audio, self._lo = audio, lo
+
+    def blocks(self, size: int) -> Iterator[np.ndarray]:
+        end = self._lo + self.frames
+        for at in range(self._lo, end, size):
+            yield self._audio.read(at, min(at + size, end)).samples
 
 
 def index_audio_log(path: str | Path) -> tuple[SessionAudio | None, dict[str, Any]]:

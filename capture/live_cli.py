@@ -266,31 +266,29 @@ def _tell(message: str) -> None:
     progress(_printable(message))
 
 
-# The summary keys of the warnings that are about one stream, not the whole session (``_report``).
-_STREAM_WARNINGS = (
-    "device",
-    "subject",
-    "frame_clock",
-    "same_time_dropped",
-    "same_time_frames",
-    "clock_steps",
-    "clock_steps_back",
-    "rate_jitter_packets",
-    "senders",
-)
+# The summary keys of the warnings that are about one take (its own counts, ``session_takes.TAKE_COUNTS``)
+# and about its whole stream (``_report``).
+_TAKE_WARNINGS = ("same_time_dropped", "same_time_frames", "clock_steps_back", "rate_jitter_packets")
+_STREAM_WARNINGS = ("device", "subject", "frame_clock", "clock_steps", "senders", "packets_outside_takes")
 
 
 def _report(summaries: list[dict], as_json: bool) -> None:
     hinted = False
     # a session's warnings (audio, the receive queue) are in every take's summary, a stream's in each of its
     # takes': each said once, a stream's once per stream (two phones whose clocks both stepped back once
-    # get a line each)
+    # get a line each), and a take's with its own counts, for each take it happened in
     said: set[tuple[Any, str]] = set()
 
     def warnings(s: dict) -> list[str]:
-        s = s | s.get("stream_counts", {})  # a stream's warnings give its totals (its takes have their own)
-        own = set(_warnings({k: s[k] for k in _STREAM_WARNINGS if k in s}))
-        keys = [((s.get("device"), s.get("subject")) if line in own else None, line) for line in _warnings(s)]
+        of_take = set(_warnings({k: s[k] for k in _TAKE_WARNINGS if k in s}))
+        of_stream = set(_warnings({k: s[k] for k in _STREAM_WARNINGS if k in s}))
+
+        def whose(line: str) -> Any:
+            if line in of_take:
+                return "take", s.get("path")
+            return (s.get("device"), s.get("subject")) if line in of_stream else None
+
+        keys = [(whose(line), line) for line in _warnings(s)]
         new = [key for key in keys if key not in said]
         said.update(new)
         return [line for _, line in new]
@@ -368,6 +366,12 @@ def _warnings(s: dict) -> list[str]:
         lines.append(
             f"{s['rate_jitter_packets']} packets declared a frame rate that wavered around one "
             "value (a sender reporting its measured rate): read at the rate most packets declared"
+        )
+    if s.get("packets_outside_takes"):
+        lines.append(
+            f"{s['packets_outside_takes']} packets of device {s.get('device')} / subject {s.get('subject')} "
+            "are in no take (stray frame numbers, no face before, between or after takes, too few frames "
+            "for a take): they stay in the session log, counted in the takes' stream_counts"
         )
     if s.get("receive_queue_drops"):
         lines.append(

@@ -18,6 +18,8 @@ from .errors import InputError
 
 DEFAULT_OSC_PORT = 8000
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1  # OSC 'i' arguments are 32-bit (formats doc §6: <take:i>)
+# The thermal states ``/Thermals <i>`` reports (iOS ProcessInfo.ThermalState): 0 nominal .. 3 critical.
+THERMAL_STATES = ("nominal", "fair", "serious", "critical")
 BUNDLE_TAG = b"#bundle\0"
 MAX_BUNDLE_DEPTH = 8  # bundles within bundles a reply may nest
 
@@ -288,15 +290,16 @@ class PhoneRemote:
         raise self.unexpected("/Battery", args)
 
     def thermals(self) -> int:
-        """Thermal state (0 nominal, 1 fair, 2 serious, 3 critical): an OSC integer (a float only
-        when whole; 2.7 is no thermal state)."""
+        """Thermal state (``THERMAL_STATES``: 0 nominal, 1 fair, 2 serious, 3 critical): an OSC integer (a
+        float only when whole; 2.7 is no thermal state, nor is 7 or -1)."""
         args = self.request("/ThermalsQuery", "/Thermals")
         value = args[0] if args else None
         if isinstance(value, float) and value.is_integer():
             value = int(value)
-        if isinstance(value, int) and not isinstance(value, bool):
+        if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(THERMAL_STATES):
             return value
-        raise self.unexpected("/Thermals", args)
+        states = ", ".join(f"{i} {name}" for i, name in enumerate(THERMAL_STATES))
+        raise self.unexpected("/Thermals", args, f" (the thermal states are {states})")
 
     def set_livelink_target(self, host: str, port: int, clear: bool = True) -> None:
         """Make the phone stream Live Link to ``host:port`` (after clearing other targets). ``host``

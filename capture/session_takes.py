@@ -35,9 +35,9 @@ clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the pack
 fastest), so recorder time ``m`` is take time ``m - offset - frame_time_0``. The audio's first sample,
 stamped on the session clock, lands at ``audio_first_s - offset - frame_time_0`` and sync events
 likewise. A take gets the session's audio from ``AUDIO_MARGIN_S`` plus a frame period before its first
-frame to as long after its last frame's period (``_attach_audio_span``; less at the audio's ends), read
-from the log alone, with ``start_s`` moved by the samples left out before it: each sample keeps its
-take time.
+frame to as long after its last frame's period (``_attach_audio_span``; less at the audio's ends),
+copied from the log into the take's WAV a block at a time (``SessionAudio.span``), with ``start_s`` moved
+by the samples left out before it: each sample keeps its take time.
 """
 
 from __future__ import annotations
@@ -999,9 +999,10 @@ def _fold(tally: np.ndarray, gone: np.ndarray, into: np.ndarray, count: str) -> 
 
 
 def _time_ordered(
-    r: np.ndarray, ft: np.ndarray, tally: np.ndarray, report: dict[str, Any]
+    rows: np.ndarray, idx: np.ndarray, ft: np.ndarray, tally: np.ndarray, report: dict[str, Any]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A recording's frames (arrival order) in frame-time order, with their ``tally`` rows (``TALLY``). Copies
+    """A recording's frames (``rows[idx]``, arrival order) in frame-time order, as indices into ``rows``
+    (a recording's rows are not copied), with their ``tally`` rows (``TALLY``). Copies
     of one datagram (the frame block byte for byte) are ``duplicates``: the first arrival is kept. Frames
     that share a frame time with another frame but not its values (``same_time_frames``) are frames of a
     sender ticking faster than its frame clock when they are ``SHARED_TIME_FRACTION`` of the recording or
@@ -1009,47 +1010,57 @@ def _time_ordered(
     (``same_time_dropped``), never silently. A dropped frame's tally goes to the frame kept for it, so that
     the take holding that frame counts it."""
     order = np.argsort(ft, kind="stable")  # arrival order within a frame time
-    r, ft, tally = r[order], ft[order], tally[order]
+    idx, ft, tally = idx[order], ft[order], tally[order]
     rank, size = _rank_in_time(ft)
     if not rank.any():
-        return r, ft, tally
+        return idx, ft, tally
     shared = np.flatnonzero(size > 1)
     # equal blocks: equal frame times
-    _, first, group = np.unique(_frame_blocks(r[shared]), return_index=True, return_inverse=True)
+    _, first, group = np.unique(_frame_blocks(rows[idx[shared]]), return_index=True, return_inverse=True)
     kept = shared[first[group]]  # the frame kept for each shared one (itself when it is no copy)
     copy = kept != shared
     _fold(tally, shared[copy], kept[copy], "duplicates")
     report["duplicates"] += int(np.count_nonzero(copy))
     keep = np.ones(ft.size, bool)
     keep[shared[copy]] = False
-    r, ft, tally = r[keep], ft[keep], tally[keep]
+    idx, ft, tally = idx[keep], ft[keep], tally[keep]
     rank, size = _rank_in_time(ft)
     same = np.flatnonzero(rank)
     tally[same, TALLY.index("same_time_frames")] += 1
     report["same_time_frames"] += same.size
     if same.size >= SHARED_TIME_FRACTION * ft.size:
-        period = _declared_period(r)
-        return r, ft + rank / size * period, tally
+        period = _declared_period(rows[idx[:1]])
+        return idx, ft + rank / size * period, tally
     _fold(tally, same, same - rank[same], "same_time_dropped")  # counted with the first of its frame time
     report["same_time_dropped"] += same.size
-    return r[rank == 0], ft[rank == 0], tally[rank == 0]
+    return idx[rank == 0], ft[rank == 0], tally[rank == 0]
 
 
 class StreamTake(NamedTuple):
-    """A take of a stream (``stream_takes``) with its own ``counts`` (``TAKE_COUNTS``), where the
-    session's audio lies on its time line and the notes on its frame clock (``finish_take``, done just
-    before it is written: one take's span of the audio in memory at a time)."""
+    """A take of a stream (``stream_takes``) before its frames are built: the stream's rows, the take's
+    among them (frame-time order) with their frame times, and its own ``counts`` (``TAKE_COUNTS``).
+    ``_segment_take`` makes its frames and ``finish_take`` gives it its span of the session's audio and the
+    notes on its frame clock, just before it is written: one take's frames in memory at a time."""
 
-    take: Take
+    take_id: str
+    rows: np.ndarray  # the stream's rows (``ROW_DTYPE``) as ``stream_takes`` read them
+    index: np.ndarray  # the take's rows among them, in frame-time order
+    frame_time: np.ndarray  # their phone frame times (s)
     counts: dict[str, int]
-    clock_offset_s: float  # recorder clock minus phone frame time
-    first_frame_s: float  # the phone's frame time of the take's first frame
-    period: float  # the take's frame period (s)
     placed_by_arrival: str | None = None  # why its frames are placed by arrival time
     notes: tuple[tuple[str, str], ...] = ()  # repairs (kind, message): a jittering rate, steps back
 
 
-def finish_take(built: StreamTake, log: SessionLog, audio: SessionAudio | None) -> None:
+class BuiltTake(NamedTuple):
+    """A take's frames (``_segment_take``) and where the session's audio lies on its time line."""
+
+    take: Take
+    clock_offset_s: float  # recorder clock minus phone frame time
+    first_frame_s: float  # the phone's frame time of the take's first frame
+    period: float  # the take's frame period (s)
+
+
+def finish_take(built: BuiltTake, planned: StreamTake, log: SessionLog, audio: SessionAudio | None) -> None:
     """Give the take its span of the session's ``audio`` (``_attach_audio_span``), then the notes on its
     frame clock: its metadata as when the audio was attached as the take was built (its keys, its repairs
     in that order)."""
@@ -1057,11 +1068,11 @@ def finish_take(built: StreamTake, log: SessionLog, audio: SessionAudio | None) 
     if audio is not None:
         first_s = float(log.seconds(audio.first_ns)) - built.clock_offset_s - built.first_frame_s  # sample 0
         _attach_audio_span(take, audio, first_s, built.period)
-    if built.placed_by_arrival is not None:
-        take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": built.placed_by_arrival}
-        message = f"frames placed by arrival time: {built.placed_by_arrival}"
+    if planned.placed_by_arrival is not None:
+        take.meta.extra["frame_clock"] = {"placed_by": "arrival", "reason": planned.placed_by_arrival}
+        message = f"frames placed by arrival time: {planned.placed_by_arrival}"
         repair(take.meta.repairs, None, "frame_clock", message)
-    for kind, message in built.notes:
+    for kind, message in planned.notes:
         repair(take.meta.repairs, None, kind, message)
 
 
@@ -1069,9 +1080,9 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
     """The takes of one stream, and a report (packets, duplicates, out-of-order, restarts, rate changes,
     packets of a jittering rate, stray packets and frames, frames sharing a frame time, clock steps forward
     and back, face-lost frames outside the takes,
-    frames with an implausible rate, takes that could not be built). ``rows``: the stream's rows when not
+    frames with an implausible rate). ``rows``: the stream's rows when not
     the log's (a stream merged with its copies from another source, in arrival order). The takes have no
-    audio and no notes on their clock yet (``finish_take``); each has its own ``TAKE_COUNTS`` of the
+    frames yet (``_segment_take``, then ``finish_take``); each has its own ``TAKE_COUNTS`` of the
     report's: the packets of its frames, with the copies and the dropped frames of its frame times, and the
     steps back of the clock within it."""
     rows = log.stream_rows(sid) if rows is None else rows
@@ -1140,25 +1151,25 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
     # Per recording: duplicates dropped, frames put in frame-time order, cut where the phone's clock
     # stepped forward and into segments of the frames with a face; the no-face frames between a segment's
     # first and last face frame belong to it.
-    # Segments: (rows, frame times, why placed by arrival or None, notes for the take, its rows' tally,
+    # Segments: (row indices, frame times, why placed by arrival or None, notes for the take, its rows' tally,
     # steps back of the clock within it).
     segments: list[tuple[np.ndarray, np.ndarray, str | None, list[tuple[str, str]], np.ndarray, int]] = []
     face_lost = int(stray_rows.size) - stray_faces
     for idx, ft, placed_by_arrival, rate_note in recordings:
         backs: list[tuple[float, float, float]] = []
         if placed_by_arrival is None:  # frames after a small step back of the clock: where they arrived
-            ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx]))
+            ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx[:1]]))
             report["clock_steps_back"] += len(backs)
         prior_max = np.maximum.accumulate(ft)
         late = idx[1:][ft[1:] < prior_max[:-1]]
         tally[late, TALLY.index("out_of_order")] = 1
         report["out_of_order"] += late.size
-        r, ft, t = _time_ordered(rows[idx], ft, tally[idx], report)
-        steps = [] if placed_by_arrival is not None else _clock_steps(ft, log.seconds(r["arrival_ns"]))
+        idx, ft, t = _time_ordered(rows, idx, ft, tally[idx], report)
+        steps = [] if placed_by_arrival is not None else _clock_steps(ft, arrival[idx])
         report["clock_steps"] += len(steps)
         for part in np.split(np.arange(ft.size), steps):
-            rp, fp, tp = r[part], ft[part], t[part]
-            face_rows = np.flatnonzero(rp["count"] != 0)
+            rp, fp, tp = idx[part], ft[part], t[part]
+            face_rows = np.flatnonzero(rows["count"][rp] != 0)
             face_lost += int(rp.size - face_rows.size)
             for s in _segments(fp[face_rows]) if face_rows.size else []:
                 seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
@@ -1168,34 +1179,23 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
                 segments.append((rp[seg], fp[seg], placed_by_arrival, notes, tp[seg], len(within)))
     takes: list[StreamTake] = []
     stray_frames, lost_in_takes = stray_faces, 0
-    errors = []
     session = log.session.get("session", log.dir.name.removesuffix(SESSION_SUFFIX))
     base_id = f"{session}_{info.get('subject')}_{(info.get('device') or '')[:8]}"
-    for k, (r, ft, placed_by_arrival, notes, t, backs_within) in enumerate(segments):
-        lost = r["count"] == 0
-        n_lost = int(np.count_nonzero(lost))
-        if r.size - n_lost < MIN_TAKE_FRAMES:
-            stray_frames += r.size - n_lost
+    for k, (seg_rows, ft, placed_by_arrival, notes, t, backs_within) in enumerate(segments):
+        n_lost = int(np.count_nonzero(rows["count"][seg_rows] == 0))
+        if seg_rows.size - n_lost < MIN_TAKE_FRAMES:
+            stray_frames += seg_rows.size - n_lost
             continue
         take_id = base_id + (f"_{k + 1}" if len(segments) > 1 else "")
-        try:
-            built = _segment_take(log, info, take_id, r, ft)
-            counts = dict(zip(TALLY, t.sum(axis=0).tolist(), strict=True))
-            counts["packets"] = r.size + counts["duplicates"] + counts["same_time_dropped"]
-            counts["clock_steps_back"] = backs_within
-            if "rate_jitter_packets" in report:  # a recording's packets are all of one stretch of rates
-                counts["rate_jitter_packets"] = counts["packets"] if "rate_jitter" in dict(notes) else 0
-            takes.append(
-                built._replace(counts=counts, placed_by_arrival=placed_by_arrival, notes=tuple(notes))
-            )
-        except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
-            errors.append(f"take {safe_id(take_id)} could not be built: {type(exc).__name__}: {exc}")
-            continue
+        counts = dict(zip(TALLY, t.sum(axis=0).tolist(), strict=True))
+        counts["packets"] = seg_rows.size + counts["duplicates"] + counts["same_time_dropped"]
+        counts["clock_steps_back"] = backs_within
+        if "rate_jitter_packets" in report:  # a recording's packets are all of one stretch of rates
+            counts["rate_jitter_packets"] = counts["packets"] if "rate_jitter" in dict(notes) else 0
+        takes.append(StreamTake(take_id, rows, seg_rows, ft, counts, placed_by_arrival, tuple(notes)))
         lost_in_takes += n_lost
     report["stray_frames"] = stray_frames
     report["face_lost_outside_takes"] = face_lost - lost_in_takes
-    if errors:
-        report["errors"] = errors
     return takes, report
 
 
@@ -1205,7 +1205,7 @@ def _segment_take(
     take_id: str,
     r: np.ndarray,
     ft: np.ndarray,
-) -> StreamTake:
+) -> BuiltTake:
     """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft`` (no counts
     yet, no audio: ``finish_take``)."""
     arr = log.seconds(r["arrival_ns"])
@@ -1301,7 +1301,7 @@ def _segment_take(
         "source": info.get("source"),
     }
     take = Take(meta, t_full, v_full, s_full, arrival_s=arrival_full)
-    return StreamTake(take, {}, offset, float(ft[0]), period)
+    return BuiltTake(take, offset, float(ft[0]), period)
 
 
 def _attach_audio_span(take: Take, audio: SessionAudio, first_s: float, period: float) -> None:
@@ -1322,7 +1322,7 @@ def _attach_audio_span(take: Take, audio: SessionAudio, first_s: float, period: 
         repair(take.meta.repairs, None, "audio_outside_take", message)
         return
     try:
-        take.attach_audio(audio.read(lo, hi), first_s + lo / rate, "recorder_clock")
+        take.attach_audio(audio.span(lo, hi), first_s + lo / rate, "recorder_clock")
     except (InputError, OSError, MemoryError) as exc:  # NaN samples, a log that cannot be read: the face
         # is kept without audio (the session's audio log keeps it)
         why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
@@ -1424,8 +1424,10 @@ def build_takes(
 
     The summary holds ``device``, ``subject``, ``frames``, ``dropped_frames``, ``rejected`` (session
     datagram counts by reason), its stream's report with the take's own ``TAKE_COUNTS`` (the stream's
-    totals of those in ``stream_counts``), and the take's ``info``
-    figures (its audio is its own span of the session's, read just before the take is written) with
+    totals of those in ``stream_counts``; ``packets_outside_takes``: the stream's packets in none of its
+    takes), and the take's ``info``
+    figures (its frames built and its audio, its own span of the session's, copied from the log a block at
+    a time, just before the take is written) with
     ``audio_gaps``, the stretches of silence where the audio log lost chunks, counted in the take's audio
     (the session's with no take). With no take, one summary with ``device``/``subject`` None still
     reports the counts. Each take is built and written on its own:
@@ -1490,16 +1492,27 @@ def build_takes(
                 continue
             if sid in senders:
                 report["senders"] = senders[sid]
-            failed += [who | {"error": e} for e in report.pop("errors", [])]
             # the stream's totals of the counts each take has its own of
             totals = {"stream_counts": {k: report[k] for k in TAKE_COUNTS if k in report}}
-            for built in takes:
+            # what the user sees of the packets in no take (stray, no face outside the takes, too few)
+            outside = {"packets_outside_takes": report["packets"] - sum(p.counts["packets"] for p in takes)}
+            for planned in takes:
+                try:  # its frames built now: one take's in memory at a time
+                    built = _segment_take(
+                        log, info, planned.take_id, planned.rows[planned.index], planned.frame_time
+                    )
+                except (MemoryError, ValueError, OverflowError, S2AError) as exc:  # one take, not the session
+                    message = (
+                        f"take {safe_id(planned.take_id)} could not be built: {type(exc).__name__}: {exc}"
+                    )
+                    failed.append(who | {"error": message})
+                    continue
                 take = built.take
                 take.meta.id = _unique_id(take.meta.id, used)
-                counts = report | built.counts
+                counts = report | planned.counts
                 try:
-                    # its audio read now (one take's span in memory at a time), its metadata in the old order
-                    finish_take(built, log, audio)
+                    # its audio now (copied from the log a block at a time), its metadata in the old order
+                    finish_take(built, planned, log, audio)
                     take.meta.extra["rejected"] = dict(log.rejected)
                     take.meta.extra["recovered"] = recovered
                     take.meta.extra |= {k: counts[k] for k in REPORTED if k in counts} | totals
@@ -1521,6 +1534,7 @@ def build_takes(
                     | common
                     | counts  # the stream's report with the take's own counts
                     | totals
+                    | outside
                     | {"device": take.meta.device, "subject": take.meta.subject, "path": str(folder)}
                     | ({"audio_gaps": gaps} if gaps else {})
                 )
