@@ -389,7 +389,8 @@ def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict
         if lines.has_cr:
             return None
         screened = lines.with_other_bytes(quotes=True)
-        read = _read_screened(lines, screened, header, mapped)
+        # none to leave out: the lines are those just read (a quoted cell no number: not read twice)
+        read = _read_screened(lines, screened, header, mapped) if screened.size else None
         if read is None:  # then also without those holding a quote: a quoted cell no number ("0,1421")
             with_quotes = lines.with_other_bytes(quotes=False)
             if with_quotes.size == screened.size:  # no line holds a quote
@@ -1010,6 +1011,8 @@ class _RowReader:
         self.split_fields = 0  # fields of the first row whose values split at unquoted decimal commas
         self.written = np.zeros(len(header.columns), dtype=bool)  # a column held a cell that is no number
         self.first_bad: dict[int, tuple[str, int]] = {}  # each channel's first cell no number, and its line
+        # by line, a damaged row's first cell no number but written (column, text), when it has blank ones too
+        self.first_written: dict[int, tuple[int, str]] = {}
 
     def read(self, number: int, line: str) -> None:
         """Read line ``number`` of the file (a row, a blank line, or a damaged one)."""
@@ -1089,14 +1092,11 @@ class _RowReader:
         if bad:
             row_status = FrameStatus.BAD_VALUE
             seen.setdefault("bad_value", _Seen()).add(cells[bad[0]], number, columns[bad[0]])
-            repair(
-                self.repairs,
-                number,
-                "bad_value",
-                f"non-numeric, non-finite or out-of-range value in {', '.join(columns[i] for i in bad[:5])}"
-                + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
-                + f" ({_shown(cells[bad[0]])}): set to NaN, frame marked invalid",
-            )
+            written = [i for i in bad if cells[i].strip()]
+            if written and len(written) < len(bad):  # blank ones may be a channel left out (_empty_channels)
+                self.first_written[number] = (written[0], cells[written[0]])
+            names = [columns[i] for i in bad]
+            repair(self.repairs, number, "bad_value", _bad_value_message(names, cells[bad[0]]))
         self._add(number, tod, vals, row_status)
 
     def time_of_day(self, number: int, cell: str) -> float | None:
@@ -1127,6 +1127,15 @@ class _RowReader:
         if vals is not None:
             self.values[i] = vals
         self.n += 1
+
+
+def _bad_value_message(names: list[str], cell: str) -> str:
+    """A damaged row's ``bad_value`` note: the channels whose cells are no number, the first one's text."""
+    more = f" and {len(names) - 5} more" if len(names) > 5 else ""
+    return (
+        f"non-numeric, non-finite or out-of-range value in {', '.join(names[:5])}{more} ({_shown(cell)}): "
+        "set to NaN, frame marked invalid"
+    )
 
 
 def _finish(
@@ -1316,8 +1325,8 @@ def _empty_channels(
     """The values, columns and which are channels, without the channel columns whose every cell on the
     rows with values is empty (a writer that leaves the head and eye angles empty: those channels have
     no data), each left out with a note (kind ``empty_channel``); never all of them. The rows they alone
-    made BAD_VALUE are tracked again, their ``bad_value`` repairs withdrawn. A take of one row with values
-    keeps them: its empty cell is as likely that row's damage."""
+    made BAD_VALUE are tracked again, their ``bad_value`` repairs withdrawn; the others' name the channels
+    kept only. A take of one row with values keeps them: its empty cell is as likely that row's damage."""
     columns, is_channel, repairs, seen = reader.header.columns, reader.is_channel, reader.repairs, reader.seen
     rows = np.flatnonzero(status != FrameStatus.FACE_LOST)
     # candidates first (no number in the first row with values), then each checked: no copy of the array
@@ -1333,11 +1342,11 @@ def _empty_channels(
     repair(repairs, 1, "empty_channel", message)
     bad = np.flatnonzero(status == FrameStatus.BAD_VALUE)
     channels = np.flatnonzero(is_channel)
-    restored = bad[~np.isnan(values[np.ix_(bad, channels)]).any(axis=1)]
+    damaged = np.isnan(values[np.ix_(bad, channels)])
+    restored = bad[~damaged.any(axis=1)]
+    _renote_bad_values(reader, numbers[bad], damaged, [keep[j] for j in channels])
     if restored.size:
         status[restored] = FrameStatus.TRACKED
-        lines = set(numbers[restored].tolist())
-        repairs[:] = [r for r in repairs if not (r["kind"] == "bad_value" and r["line"] in lines)]
         was = seen.pop("bad_value")
         # the first of the others: a kept channel's first cell no number (the rows before it are restored)
         kept = [(line, j, text) for j, (text, line) in reader.first_bad.items() if j not in empty]
@@ -1345,6 +1354,26 @@ def _empty_channels(
             line, j, text = min(kept)
             seen["bad_value"] = _Seen(was.count - restored.size, text, line, reader.header.columns[j])
     return values, columns, is_channel
+
+
+def _renote_bad_values(reader: _RowReader, lines: np.ndarray, damaged: np.ndarray, kept: list[int]) -> None:
+    """The ``bad_value`` notes of the damaged rows on ``lines`` name only the channels kept (``kept``: their
+    columns in the header; ``damaged``: which of them hold no number, rows x kept), quoting the first of
+    those cells (blank, or the row's first cell written: ``first_written``); the rows without any lose
+    their note."""
+    row_of = {int(line): k for k, line in enumerate(lines.tolist())}
+    notes = []
+    for note in reader.repairs:
+        k = row_of.get(note["line"]) if note["kind"] == "bad_value" else None
+        if k is not None:
+            columns = [kept[j] for j in np.flatnonzero(damaged[k])]
+            if not columns:
+                continue  # tracked again (_empty_channels)
+            first, text = reader.first_written.get(note["line"], (None, ""))
+            names = [reader.header.columns[j] for j in columns]
+            note["message"] = _bad_value_message(names, text if first == columns[0] else "")
+        notes.append(note)
+    reader.repairs[:] = notes
 
 
 def _warn_widespread(seen: dict[str, _Seen], frames: int, data_rows: int, repairs: list) -> None:
@@ -1631,8 +1660,9 @@ def rows_to_take(
     values = rows.values
     if moved.size:
         values[:, moved] = values[:, take_cols_arr[moved]]
-    tracked = rows.status == FrameStatus.TRACKED
-    fps, period = detect_fps(rows.seconds_of_day[tracked] if tracked.sum() > 1 else rows.seconds_of_day)
+    # every row's timecode, damaged and face-lost rows' too: a take whose rows are mostly damaged has its
+    # rate, not the one its few intact rows come at
+    fps, period = detect_fps(rows.seconds_of_day)
     repairs = list(rows.repairs)
     note_far_values(rows, values[:, : len(known)], channels[: len(known)], repairs)
     note_gaps(rows, period, repairs)

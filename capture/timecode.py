@@ -9,6 +9,10 @@ beyond the rate the timecode is out of range.
 Other writers of the format count FF at the take's own rate (formats doc §8): ``timecode_rate_of``
 recognises them and ``at_timecode_rate`` re-reads their times.
 ``frame_log.csv`` may also use the drop-frame separator ``;`` (iPhone timecode itself never drops).
+Rows whose every timecode is written ``HH:MM:SS;FF`` at 30 or 60 fps are taken at the separator's word
+(SMPTE's mark of a drop-frame count): frames counted at 29.97 or 59.94 fps from the first row's label,
+unless a label is one such a count skips (``drop_frame_seconds``). Within a minute drop-frame and plain
+labels are the same, so a take that crosses no minute start where the count skips cannot show it either way.
 """
 
 from __future__ import annotations
@@ -156,7 +160,9 @@ def drop_frame_seconds(label_seconds: np.ndarray, rate: float) -> np.ndarray | N
     nominal ``rate`` (30 or 60): the first frame at its label as written (where the take folder's
     ``frame_log.csv`` and ``.mov`` timecodes, read as written, put it too), each later one frames counted
     at the NTSC rate after it. None when a label is one a drop-frame count skips (a writer using ``;``
-    without counting so): the labels are then read as they stand."""
+    without counting so): the labels are then read as they stand. Labels that cross no minute start where
+    the count skips (every minute's but every tenth's) are the same in either count: the ``;`` decides.
+    """
     drop = DROP_FRAME_LABELS.get(rate)
     if drop is None:
         return None
