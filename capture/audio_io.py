@@ -7,6 +7,7 @@ a take's audio round-trips exactly.
 
 from __future__ import annotations
 
+import bisect
 import io
 import math
 import os
@@ -18,6 +19,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
+from itertools import accumulate
 from pathlib import Path
 from typing import IO, Any
 
@@ -136,13 +138,16 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     its padding (noted when a file follows it: the sound after it may be up to a frame late). Frames lost
     at damage inside an .mp3 are put back as silence of their length, so the sound after it keeps its time
     (repair ``bad_audio``: where, how much, and, when their number is estimated, the most the sound after
-    it may be shifted). An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would
-    stop at the count) is read whole, its count corrected (``MpegRun.count_low``), and one without a frame
-    count whose length libsndfile estimates short (VBR without a Xing header) as joined files are. Within
-    ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a ``FileAudio``: checked a block
-    at a time, left in its file; given a scratch folder there, audio FFmpeg decodes, and any .mp3, is a
-    ``FileAudio`` of the scratch file it was decoded into, the same samples and repairs as read whole
-    (``_read_mpeg``)."""
+    it may be shifted); damage running to its end (its last frames, into its end tags) leaves it short,
+    noted (repair ``bad_audio``: by how much). An .mp3 whose Xing/Info frame counts fewer frames than it
+    holds (libsndfile would stop at the count), or none though its LAME tag records the encoder's delay
+    (libsndfile would keep the delay), is read whole, its count corrected (``MpegRun.count_low``), and one
+    without a frame count whose length libsndfile estimates short (VBR without a Xing header) as joined
+    files are. A file starting with an ID3v2 tag over ``_BIG_TAG`` (a cover picture) is read from after
+    it, by libsndfile and FFmpeg alike. Within ``audio_left_in_files`` (an import), audio libsndfile reads
+    cleanly is a ``FileAudio``: checked a block at a time, left in its file; given a scratch folder there,
+    audio FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file it was decoded into, the
+    same samples and repairs as read whole (``_read_mpeg``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -211,7 +216,7 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
     with _FileBytes.of(path) as data:  # not read whole: a 60 MB cover picture, an hour at 320 kbit/s
         runs = mpeg_runs(data)
         coded = sum(run.samples for run in runs)
-        lost = any(loss.frames for run in runs for loss in run.losses)
+        lost = any(loss.frames and not loss.ends for run in runs for loss in run.losses)
         counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
         if not (len(runs) > 1 or lost or counts_wrong or _estimated_short(info, coded)):
             skipped = _gapless_skip(data, runs[0]) if runs else 0
@@ -220,11 +225,24 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
             if audio.frames + _MPG123_DROPS >= coded:
                 if repairs is not None and found:
                     repairs += found
+                if repairs is not None and runs:
+                    repairs += _end_notes(path, data, runs[0])
                 return audio
             if isinstance(audio, FileAudio):
                 audio.discard()
             del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
         return _read_joined_mpeg_checked(path, data, runs, repairs)
+
+
+def _end_notes(path: Path, data: bytes | _FileBytes, run: MpegRun) -> list[dict[str, Any]]:
+    """The repairs ``bad_audio`` (``_loss_note``) of the frames lost at the end of a one-run .mp3 that
+    libsndfile reads (the only frames it lost: ``_read_mpeg``)."""
+    before = _dropped_at_start(data, run)
+    return [
+        _loss_note(path, (loss.coded - before) / run.sample_rate, loss, run)
+        for loss in run.losses
+        if loss.frames and loss.ends
+    ]
 
 
 def _read_joined_mpeg_checked(
@@ -311,10 +329,11 @@ def _estimated_short(info: Any, coded: int) -> bool:
     return info.frames + _MPG123_DROPS < coded
 
 
-def _gapless_skip(data: bytes, run: MpegRun) -> int:
+def _gapless_skip(data: bytes | _FileBytes, run: MpegRun, counted: bool = False) -> int:
     """The samples libsndfile's decoder (mpg123) drops at the start of the file whose first run is
-    ``run``: when its Xing/Info frame declares a frame count (else none), the decoder's own delay and the
-    encoder's that a LAME tag after it records."""
+    ``run``: when its Xing/Info frame declares a frame count (else none; ``counted``: as if it did, its
+    count set right, ``_counted_whole``), the decoder's own delay and the encoder's that a LAME tag after
+    it records."""
     frame = _mpeg_frame(data, run.start)
     if (
         frame is None
@@ -322,16 +341,44 @@ def _gapless_skip(data: bytes, run: MpegRun) -> int:
         or data.startswith(b"VBRI", run.start + 36)
     ):
         return 0
-    text_at = _xing_at(data, run.start, frame)
-    flags = data[text_at + 7] if text_at + 8 <= len(data) else 0
-    if not _file_header_frames(data, run.start, frame):  # it checks the flag of a frame count
+    if not (counted or _file_header_frames(data, run.start, frame)):  # it checks the flag of a frame count
         return 0
+    lame = _lame_tag_at(data, run.start, frame)
+    if not lame:
+        return _MPG123_GAPLESS_DELAY
+    return _MPG123_GAPLESS_DELAY + (data[lame + 21] << 4 | data[lame + 22] >> 4)
+
+
+def _dropped_at_start(data: bytes | _FileBytes, run: MpegRun, counted: bool = False) -> int:
+    """The samples of the file whose first run is ``run`` that are not decoded as sound: its header frame's
+    and the encoder's delay (``_gapless_skip``)."""
+    skip = _gapless_skip(data, run, counted)
+    return skip + run.frame_samples if skip else 0
+
+
+def _lame_tag_at(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> int:
+    """Where the LAME tag after the Xing/Info header of the frame at ``pos`` starts (its encoder's version,
+    then at 21 its delay and padding, 12 bits each); 0 when the frame holds none."""
+    text_at = _xing_at(data, pos, frame)
+    flags = data[text_at + 7] if text_at + 8 <= len(data) else 0
     lame = (
         text_at + 8 + 4 * (flags & 1) + 4 * (flags >> 1 & 1) + 100 * (flags >> 2 & 1) + 4 * (flags >> 3 & 1)
     )
-    if lame + 24 > min(run.start + frame[0], len(data)) or not data[lame]:  # no LAME tag in the frame
-        return _MPG123_GAPLESS_DELAY
-    return _MPG123_GAPLESS_DELAY + (data[lame + 21] << 4 | data[lame + 22] >> 4)
+    return 0 if lame + 24 > min(pos + frame[0], len(data)) or not data[lame] else lame
+
+
+# The encoder versions a LAME tag starts with whose delay and padding FFmpeg drops (LAME's, FFmpeg's own)
+_GAPLESS_ENCODERS = (b"LAME", b"Lavf", b"Lavc")
+
+
+def _uncounted_gapless(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the Xing/Info frame at ``pos`` declares no frame count (0, or no field for it), though the
+    LAME tag after it records the encoder's delay and padding: without a count, libsndfile's decoder keeps
+    both (the sound 1105 samples late, 25 ms at 44.1 kHz, unnoted: FFmpeg finds the delay recorded)."""
+    if data.startswith(b"VBRI", pos + 36) or _file_header_frames(data, pos, frame):
+        return False
+    lame = _lame_tag_at(data, pos, frame)
+    return bool(lame) and data.startswith(_GAPLESS_ENCODERS, lame)
 
 
 def _read_cut_short(path: Path, info: Any, exc: Exception, repairs: list[dict[str, Any]] | None) -> Audio:
@@ -479,6 +526,18 @@ def _libsndfile_source(path: Path) -> Iterator[str | IO[bytes]]:
         return
     with view:
         yield view
+
+
+def _ffmpeg_source(path: Path) -> str:
+    """What FFmpeg is to open of ``path``: its name; for a file starting with an ID3v2 tag over ``_BIG_TAG``,
+    the file from after the tag on (FFmpeg's ``subfile`` protocol): FFmpeg reads a picture in a tag whole
+    (a 48 MB cover: 50 MB more, in an .mp3's check of its encoder delay or a raw .aac's decoding)."""
+    try:
+        with open(path, "rb") as f:
+            skip = _tag_bytes(f.read(10), 0)
+    except OSError:  # unreadable: FFmpeg says so
+        skip = 0
+    return f"subfile,,start,{skip},end,0,,:file:{path.absolute()}" if skip > _BIG_TAG else str(path)
 
 
 class _AfterTag(io.RawIOBase):
@@ -1004,7 +1063,7 @@ def note_unknown_delay(
     packets before it (an MP4 edit list). ``stream``: the file's PyAV audio stream and ``first_pts`` its
     first packet's (None: the file is opened here, as for what libsndfile decoded)."""
     if stream is None:
-        codec = _unknown_delay_codec(str(path))
+        codec = _unknown_delay_codec(_ffmpeg_source(path))
     else:
         codec = None if _delay_known(stream, first_pts) else stream.codec_context.name
     if codec is None:
@@ -1030,14 +1089,14 @@ def _delay_known(stream: Any, first_pts: int | None) -> bool:
     return (first_pts or 0) < 0 or (stream.start_time or 0) > 0
 
 
-def _unknown_delay_codec(source: str | IO[bytes]) -> str | None:
-    """The codec of the first audio stream of ``source`` (a file name, or an MP3 held in memory) when its
-    encoder's delay is not known (``_delay_known``): FFmpeg's decoder name; None when it is, and when
-    FFmpeg cannot open it (nothing is known of a delay then)."""
+def _unknown_delay_codec(source: str) -> str | None:
+    """The codec of the first audio stream of the file ``source`` when its encoder's delay is not known
+    (``_delay_known``): FFmpeg's decoder name; None when it is, and when FFmpeg cannot open it (nothing is
+    known of a delay then)."""
     import av
 
     try:
-        with av.open(source, format=None if isinstance(source, str) else "mp3") as container:
+        with av.open(source) as container:
             stream = container.streams.audio[0]
             first_pts = next((p.pts for p in container.demux(stream) if p.pts is not None), None)
             return None if _delay_known(stream, first_pts) else stream.codec_context.name
@@ -1162,23 +1221,25 @@ def _expected_samples(stream: Any) -> int:
 
 
 def _decode_frames(
-    source: str | IO[bytes],
+    source: str | IO[bytes] | _MendedPart,
     path: Path,
     stream_index: int,
     repairs: list[dict[str, Any]] | None,
     skip_damaged: bool = False,
     into: Callable[[Any], _DecodedToFile | _JoinedPart] | None = None,
 ) -> _Decoded:
-    """Every frame of one audio stream of ``source`` (a file name, or an MP3 held in memory), decoded by
-    FFmpeg; an undecodable stream is an ``InputError`` naming ``path`` (with ``skip_damaged``, a packet
-    FFmpeg cannot decode is counted and replaced by silence of its duration, so the sound after it keeps its
-    time). ``repairs``: where the note of an unrecorded encoder delay goes (``note_unknown_delay``). The
-    frames are written into one array as they are decoded (``_Samples``), or into what ``into`` makes,
-    given the stream: a scratch file (``_DecodedToFile``), a file of a joined .mp3 (``_JoinedPart``)."""
+    """Every frame of one audio stream of ``source`` (a file name, a file-like object, or a file of an
+    .mp3 as ``_mended`` gives it), decoded by FFmpeg; an undecodable stream is an ``InputError`` naming
+    ``path`` (with ``skip_damaged``, a packet FFmpeg cannot decode is counted and replaced by silence of
+    its duration, so the sound after it keeps its time). ``repairs``: where the note of an unrecorded
+    encoder delay goes (``note_unknown_delay``). The frames are written into one array as they are
+    decoded (``_Samples``), or into what ``into`` makes, given the stream: a scratch file
+    (``_DecodedToFile``), a file of a joined .mp3 (``_JoinedPart``: told the stream and its first
+    packet's time before that packet is decoded, ``_JoinedPart.opened``)."""
     import av  # imported here: only needed for containers soundfile cannot read
 
     try:
-        with av.open(source, format=None if isinstance(source, str) else "mp3") as container:
+        with av.open(source, format="mp3" if isinstance(source, _MendedPart) else None) as container:
             streams = container.streams.audio
             if not streams:
                 raise InputError("file has no audio stream", path)
@@ -1189,6 +1250,8 @@ def _decode_frames(
             first_pts = None
             damaged = 0
             for packet in container.demux(stream):
+                if first_pts is None and packet.pts is not None and isinstance(kept, _JoinedPart):
+                    kept.opened(stream, packet.pts)
                 first_pts = packet.pts if first_pts is None else first_pts
                 try:
                     frames = packet.decode()
@@ -1285,7 +1348,7 @@ def decode_with_pyav(
         audio = _decoded_to_file(path, stream_index, repairs, skip_damaged, scratch)
         if audio is not None:
             return audio
-    decoded = _decode_frames(str(path), path, stream_index, repairs, skip_damaged)
+    decoded = _decode_frames(_ffmpeg_source(path), path, stream_index, repairs, skip_damaged)
     samples = decoded.kept
     assert isinstance(samples, _Samples)
     if not samples:
@@ -1331,7 +1394,7 @@ def _decoded_to_file(
             sinks.append(sink_of(lambda: stream.rate or stream.codec_context.sample_rate))
             return sinks[0]
 
-        decoded = _decode_frames(str(path), path, stream_index, found, skip_damaged, into=into)
+        decoded = _decode_frames(_ffmpeg_source(path), path, stream_index, found, skip_damaged, into=into)
         sink = sinks[0]
         if not sink:
             raise InputError("audio stream holds no samples", path)
@@ -1856,6 +1919,8 @@ class MpegLoss:
     coded: int
     frames: int = 0
     exact: bool = False
+    # it runs to the end of the data, or to tags that end it: nothing after it to keep on time
+    ends: bool = False
 
 
 def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
@@ -1878,10 +1943,10 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
                 pos, after_tag, tag_start = pos + skip, True, pos if not after_tag else tag_start
                 continue
             found = _resync(data, pos + 1)  # stray bytes inside a file: not a join
-            if found is None:
-                break
             if runs and not after_tag:
                 _note_damage(data, runs[-1], end, found, coded)
+            if found is None:
+                break
             pos = found
             continue
         size, samples = frame[0], frame[1]
@@ -1931,13 +1996,15 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
             if new_file:
                 file_run = len(runs) - 1
                 last_frame, counted = (_file_header_frames(data, pos, frame) if header else 0) or _NO_COUNT, 0
+                # read whole, its count set (``_counted_whole``): FFmpeg drops the delay and padding then
+                runs[-1].count_low = header and _uncounted_gapless(data, pos, frame)
                 declared = _file_header_bytes(data, pos, frame) if header else 0
                 file_ends = (pos + declared, (tag_start if after_tag else pos) + declared) if declared else ()
         else:  # a lone header of another format or layer (damage): stray bytes
             found = _resync(data, pos + 1)
+            _note_damage(data, runs[-1], end, found, coded)
             if found is None:
                 break
-            _note_damage(data, runs[-1], end, found, coded)
             pos = found
             continue
         pos, after_tag = pos + size, False
@@ -1947,16 +2014,33 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
     return runs
 
 
-def _note_damage(data: bytes, run: MpegRun, end: int, found: int, coded: int) -> None:
+def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:
     """Stray bytes from ``end`` (where the run's last frame ends, ``coded`` samples in) to a frame at
-    ``found``: damage, frames may be lost there (not before a tag: the end of a file). A lone header of
-    another format at ``found`` resyncs on from it: the same damage, running on."""
-    if _tag_bytes(data, found):
+    ``found``: damage, frames may be lost there. Up to the end of the data (``found`` None: to the tags
+    that end it, ``_end_tags_at``) or to tags that end it: damage at its end (``MpegLoss.ends``); not before
+    a tag a file joined on begins with (the end of a file). A lone header of another format at ``found``
+    resyncs on from it: the same damage, running on."""
+    ends = found is None or bool(_tag_bytes(data, found))
+    if found is not None and ends and not _ends_stream(data, found):
         return
+    stop = max(_end_tags_at(data), end) if found is None else found
     if run.losses and run.losses[-1].start == end:
-        run.losses[-1].end = found
-    else:
-        run.losses.append(MpegLoss(end, found, coded))
+        run.losses[-1].end, run.losses[-1].ends = stop, ends
+    elif stop > end:
+        run.losses.append(MpegLoss(end, stop, coded, ends=ends))
+
+
+def _end_tags_at(data: bytes | _FileBytes) -> int:
+    """Where the tags at the end of an .mp3 start (an ID3v1 tag, the extended one before it, an APEv2 tag
+    before them); its length when it ends in none."""
+    end = len(data)
+    if end >= 128 and data.startswith(b"TAG", end - 128):
+        end -= 128
+        end -= 227 if end >= 227 and data.startswith(b"TAG+", end - 227) else 0
+    if end >= 32 and data.startswith(b"APETAGEX", end - 32):
+        size, flags = struct.unpack("<4xI4xI", data[end - 24 : end - 8])
+        end = max(end - size - 32 * (flags >> 31), 0)  # its items and footer, its header when it has one
+    return end
 
 
 def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
@@ -1971,7 +2055,7 @@ def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
         if not losses:
             continue
         for run in runs[a:b]:
-            damaged = sum(loss.end - loss.start for loss in run.losses)
+            damaged = sum(loss.end - loss.start for loss in run.losses if not loss.ends)  # within the run
             per_frame = (run.end - run.start - damaged) / max(run.frames, 1)
             for loss in run.losses:
                 loss.frames = round((loss.end - loss.start) / per_frame)
@@ -1980,6 +2064,12 @@ def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
             continue
         declared = _file_header_frames(data, runs[a].start, frame)
         lost = declared - (sum(run.frames for run in runs[a:b]) - 1)  # its header frame holds no sound
+        if declared and lost >= 0 and losses[-1].ends:  # its end: what the count misses past the others
+            end = losses.pop()
+            end.frames, end.exact = max(lost - sum(loss.frames for loss in losses), 0), True
+            lost -= end.frames
+            if not losses:
+                continue
         estimated = sum(loss.frames for loss in losses)
         if not declared or lost < 0 or abs(lost - estimated) > max(1, estimated // 2):
             continue
@@ -1991,7 +2081,7 @@ def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
 
 def _read_joined_mpeg(
     path: Path,
-    data: bytes,
+    data: bytes | _FileBytes,
     runs: list[MpegRun],
     repairs: list[dict[str, Any]] | None,
     sink_of: _SinkOf | None = None,
@@ -2021,14 +2111,15 @@ def _read_joined_mpeg(
     sample_format, damaged, last = "flt", 0, len(starts) - 2
     for k, (a, b) in enumerate(zip(starts, starts[1:])):
         at = kept.used / first.sample_rate
-        part_bytes = _counted_whole(_mended(data, runs[a:b], path, at, repairs), runs[a:b])
+        mended = _mended(data, runs[a:b], path, at, repairs)
+        _counted_whole(mended, data, runs[a:b])
         part = _JoinedPart(kept)
         if k and _ends_as_declared(data, runs[starts[k - 1]], runs[a].start):
-            part.drops_lame_delay(data, runs[a], runs[b - 1].end, part_bytes)
+            part.drops_lame_delay(data, runs[a], runs[b - 1].end)
         try:
             # the note of an unknown encoder delay is about the start: the first file's
             decoded = _decode_frames(
-                io.BytesIO(part_bytes),
+                mended,
                 path,
                 0,
                 repairs if k == 0 else None,
@@ -2086,48 +2177,110 @@ _LAME_SIGNATURE = b"LAME"
 
 
 def _mended(
-    data: bytes, runs: list[MpegRun], path: Path, at: float, repairs: list[dict[str, Any]] | None
-) -> bytes:
-    """The bytes of one file of an .mp3 (``runs``: its runs; it starts ``at`` seconds in), each damage
-    where frames were lost (``MpegRun.losses``) replaced by as many silent frames: the sound after it keeps
-    its time. Each noted in ``repairs`` (repair ``bad_audio``): where, how long, and when the frames lost
-    were counted from the damaged bytes, by how much the sound after it may be shifted."""
-    mended, pos = bytearray(), runs[0].start
-    skip = _gapless_skip(data, runs[0])  # its header frame and encoder delay, not decoded as sound
-    coded = -(skip + runs[0].frame_samples if skip else 0)  # samples (per channel) before the run's
+    data: bytes | _FileBytes, runs: list[MpegRun], path: Path, at: float, repairs: list[dict[str, Any]] | None
+) -> _MendedPart:
+    """One file of an .mp3 (``runs``: its runs; it starts ``at`` seconds in) as FFmpeg is to decode it,
+    each damage where frames were lost (``MpegRun.losses``) replaced by as many silent frames: the sound
+    after it keeps its time. Each noted in ``repairs`` (repair ``bad_audio``): where, how long, and when the
+    frames lost were counted from the damaged bytes, by how much the sound after it may be shifted."""
+    pieces: list[range | tuple[bytes, int]] = []
+    pos = runs[0].start
+    coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's
     for run in runs:
         for loss in run.losses:
             if not loss.frames:
                 continue
-            mended += data[pos : loss.start]
-            mended += _silent_frame(data, run.start) * loss.frames
-            pos = loss.end
             if repairs is not None:
                 repairs.append(_loss_note(path, at + (coded + loss.coded) / run.sample_rate, loss, run))
+            if loss.ends:  # nothing after it to keep on time
+                continue
+            pieces += [range(pos, loss.start), (_silent_frame(data, run.start), loss.frames)]
+            pos = loss.end
             coded += loss.frames * run.frame_samples
         coded += run.samples
-    if not mended:
-        return data[pos : runs[-1].end]
-    mended += data[pos : runs[-1].end]
-    _move_bytes_declared(mended, len(mended) - (runs[-1].end - runs[0].start))
-    return bytes(mended)
+    part = _MendedPart(data, [*pieces, range(pos, runs[-1].end)])
+    if pieces:
+        _move_bytes_declared(part, data, runs[0].start, part.size - (runs[-1].end - runs[0].start))
+    return part
 
 
-def _move_bytes_declared(part: bytearray, change: int) -> None:
-    """Moves the byte count the Xing/Info frame of ``part`` (one file of an .mp3, from its first frame)
-    declares by ``change``, the bytes its silent frames put in less the damaged ones they replace: FFmpeg
-    trims no encoder padding from a file over 1/16 longer than it declares (a "concatenated file"; 6
-    frames put in a 1 s file at 32 kbit/s: 875 samples more, none said)."""
-    frame = _mpeg_frame(part, 0)
-    at = _byte_count_at(part, 0, frame) if frame is not None and _is_file_header(part, 0, frame) else 0
+class _MendedPart:
+    """One file of an .mp3 as FFmpeg is given it (``_mended``): ``pieces``, in order, each a range of the
+    bytes of ``data`` (the file, read a block at a time: ``_FileBytes``) or a silent frame and how many
+    times it is put in, and ``patches`` (where, bytes) written over them (its Xing/Info frame's counts).
+    Read as FFmpeg asks for it (a file-like object), never held whole: a damaged or joined hour at 320
+    kbit/s held its 144 MB twice."""
+
+    def __init__(self, data: bytes | _FileBytes, pieces: list[range | tuple[bytes, int]]):
+        self.data, self.pieces = data, pieces
+        self.starts = list(accumulate((_piece_size(piece) for piece in pieces), initial=0))
+        self.size, self.pos = self.starts[-1], 0
+        self.patches: list[tuple[int, bytes]] = []
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def tell(self) -> int:
+        return self.pos
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        self.pos = max(offset + (0, self.pos, self.size)[whence], 0)
+        return self.pos
+
+    def read(self, size: int = -1) -> bytes:
+        start = self.pos
+        end = self.size if size < 0 else min(start + size, self.size)
+        out = bytearray()
+        i = bisect.bisect_right(self.starts, start) - 1
+        while start < end and i < len(self.pieces):
+            piece, lo = self.pieces[i], start - self.starts[i]
+            hi = min(end, self.starts[i + 1]) - self.starts[i]
+            if isinstance(piece, range):
+                out += self.data[piece.start + lo : piece.start + hi]
+            else:  # frames lo // n to (hi - 1) // n of the silent ones
+                n = len(piece[0])
+                out += (piece[0] * ((hi - 1) // n - lo // n + 1))[lo % n : lo % n + hi - lo]
+            start, i = self.starts[i] + hi, i + 1
+        for at, value in self.patches:
+            lo, hi = max(at, self.pos), min(at + len(value), self.pos + len(out))
+            if lo < hi:
+                out[lo - self.pos : hi - self.pos] = value[lo - at : hi - at]
+        self.pos += len(out)
+        return bytes(out)
+
+
+def _piece_size(piece: range | tuple[bytes, int]) -> int:
+    return len(piece) if isinstance(piece, range) else len(piece[0]) * piece[1]
+
+
+def _move_bytes_declared(part: _MendedPart, data: bytes | _FileBytes, start: int, change: int) -> None:
+    """Moves the byte count the Xing/Info frame of ``part`` (one file of an .mp3, from its first frame, at
+    ``start`` in ``data``) declares by ``change``, the bytes its silent frames put in less the damaged ones
+    they replace: FFmpeg trims no encoder padding from a file over 1/16 longer than it declares (a
+    "concatenated file"; 6 frames put in a 1 s file at 32 kbit/s: 875 samples more, none said)."""
+    frame = _mpeg_frame(data, start)
+    at = (
+        _byte_count_at(data, start, frame) if frame is not None and _is_file_header(data, start, frame) else 0
+    )
     if at:
-        declared = int.from_bytes(part[at : at + 4], "big") + change
-        part[at : at + 4] = min(max(declared, 0), 2**32 - 1).to_bytes(4, "big")
+        declared = int.from_bytes(data[at : at + 4], "big") + change
+        part.patches.append((at - start, min(max(declared, 0), 2**32 - 1).to_bytes(4, "big")))
 
 
 def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[str, Any]:
     """The repair ``bad_audio`` of the frames of ``run`` lost at ``loss``, ``start`` seconds in."""
     lost = loss.frames * run.frame_samples
+    if loss.ends:
+        about = "up to" if loss.exact else "about"  # the encoder's padding may be in them
+        message = (
+            f"{path.name}: damaged MPEG audio at its end, from {start:.3f} s: {loss.frames} frame(s) lost "
+            f"there{'' if loss.exact else ' (estimated from the bytes damaged)'}: the audio ends {about} "
+            f"{1000 * lost / run.sample_rate:.0f} ms short (no sound after it to keep on time)"
+        )
+        return {"line": None, "kind": "bad_audio", "message": message}
     message = (
         f"{path.name}: damaged MPEG audio at {start:.3f} s: {loss.frames} frame(s) lost there ({lost} "
         f"samples, {1000 * lost / run.sample_rate:.0f} ms), put back as silence, so the sound after it "
@@ -2166,16 +2319,26 @@ def _padding_kept_note(path: Path, at: float, end: float, first: MpegRun) -> dic
     }
 
 
-def _counted_whole(part: bytes, runs: list[MpegRun]) -> bytes:
-    """The bytes of one file of a joined .mp3 (``runs``: its runs), with the frame count its Xing/Info
-    frame declares set to the frames it holds when that count is low (``MpegRun.count_low``): FFmpeg
-    trims the encoder's padding where the count ends."""
-    frame = _mpeg_frame(part, 0)
+def _counted_whole(part: _MendedPart, data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
+    """One file of a joined .mp3 (``runs``: its runs, in ``data``; ``part``: as FFmpeg is given it), the
+    frame count its Xing/Info frame declares set to the frames it holds when that count is low
+    (``MpegRun.count_low``): FFmpeg trims the encoder's padding where the count ends. One with no field
+    for a count gets one after its flags, the rest of its frame moved on by 4 bytes when they end it in
+    zeros (LAME's tag leaves the rest of the frame empty)."""
+    start = runs[0].start
+    frame = _mpeg_frame(data, start)
     if not runs[0].count_low or frame is None:
-        return part
-    at = _xing_at(part, 0, frame) + 8
-    frames = sum(run.frames for run in runs) - 1  # its Info frame holds no sound
-    return part[:at] + frames.to_bytes(4, "big") + part[at + 4 :]
+        return
+    filled = sum(loss.frames for run in runs for loss in run.losses if not loss.ends)  # silent, put in
+    count = (sum(run.frames for run in runs) + filled - 1).to_bytes(4, "big")  # its Info frame: no sound
+    flags_at, end = _xing_at(data, start, frame) + 7, start + frame[0]
+    if data[flags_at] & 1:
+        part.patches.append((flags_at + 1 - start, count))
+    elif data[end - 4 : end] == bytes(4):
+        part.seek(flags_at + 1 - start)  # through its patches: a byte count moved (``_move_bytes_declared``)
+        moved = part.read(end - 4 - flags_at - 1)
+        part.seek(0)
+        part.patches.append((flags_at - start, bytes([data[flags_at] | 1]) + count + moved))
 
 
 def _ends_as_declared(data: bytes, previous: MpegRun, start: int) -> bool:
@@ -2211,15 +2374,23 @@ class _JoinedPart:
         self.kept, self.drop, self.delay_unknown, self.padding_unknown = kept, 0, False, False
         self.last_channels: int | None = None
         self.last_dtype: np.dtype | None = None
+        self._later: tuple[bytes | _FileBytes, MpegRun, int] | None = None  # see drops_lame_delay
 
-    def drops_lame_delay(self, data: bytes, first: MpegRun, end: int, part: bytes) -> None:
-        """For a joined file after the first (``data[first.start:end]``, ``part`` its bytes as decoded) that
-        records no encoder delay: LAME's delay dropped, when its bytes are LAME's and start as an encoder's
-        first frame does (no bit reservoir); any other encoder's priming kept, ``delay_unknown`` set (for
-        the repair ``encoder_delay_unknown``, saying from which second). Its padding, at its end, is kept:
+    def drops_lame_delay(self, data: bytes | _FileBytes, first: MpegRun, end: int) -> None:
+        """A joined file after the first (``data[first.start:end]``): when FFmpeg has opened it to decode
+        it (``opened``), its encoder delay is looked at."""
+        self._later = (data, first, end)
+
+    def opened(self, stream: Any, first_pts: int | None) -> None:
+        """FFmpeg's ``stream`` of a later joined file (``drops_lame_delay``), ``first_pts`` its first
+        packet's time, before that packet is decoded: when the file records no encoder delay
+        (``_delay_known``), LAME's delay dropped, when its bytes are LAME's and start as an encoder's first
+        frame does (no bit reservoir); any other encoder's priming kept, ``delay_unknown`` set (for the
+        repair ``encoder_delay_unknown``, saying from which second). Its padding, at its end, is kept:
         ``padding_unknown``."""
-        if _unknown_delay_codec(io.BytesIO(part)) is None:  # recorded, or none to record (no priming)
+        if self._later is None or _delay_known(stream, first_pts):  # recorded, or none to record
             return
+        data, first, end = self._later
         self.padding_unknown = True  # not recorded either
         frame = _mpeg_frame(data, first.start)
         if (
