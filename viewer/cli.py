@@ -135,7 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="output .png or .svg")
     p.add_argument(
-        "--channels", default="jawOpen", help="comma list of channels or a set name (default: jawOpen)"
+        "--channels",
+        help="comma list of channels or a set name (default: jawOpen; when no input holds it, the mouth "
+        "channel that moves most)",
     )
     p.add_argument("--audio", metavar="FILE", type=Path, help="speech for the first input when it is a CSV")
     p.add_argument(
@@ -335,12 +337,13 @@ def cmd_render(args: argparse.Namespace) -> int:
             a.label = name
     else:
         distinct_labels(anims, paths)
+    why = None  # how the frame shown was picked, when jawOpen could not pick it
     if suffix == ".mp4":
         shown = (0.0, span)
     elif args.time is not None:
         shown = (args.time, args.time)
     else:
-        k = args.frame if args.frame is not None else default_frame(first)
+        k, why = (args.frame, None) if args.frame is not None else default_frame(first)
         shown = (float(first.time[k] - first.t0),) * 2
     for i, (a, path) in enumerate(zip(anims[1:], paths[1:])):
         a.offset_s = args.compare_offset[i] if args.compare_offset else place_on_parent_clock(first, a)
@@ -402,6 +405,8 @@ def cmd_render(args: argparse.Namespace) -> int:
             img = render_frame(renderer, anims, t_rel, video, labels)
             raise_if_stopped()
             write_image(args.out, img)
+            if why is not None:  # once the image is written: an error stays the one line it is
+                progress(f"note: {args.input} {why}")
             summary |= {
                 "output": str(args.out),
                 "time_s": round(t_rel, 6),
@@ -415,15 +420,14 @@ def cmd_render(args: argparse.Namespace) -> int:
             speech = speech_for_video(anims, n / fps)
             audio = None
             if speech is not None:
-                voice, samples, rate = speech
+                voice, audio = speech
                 a0 = voice.audio_start_s - (voice.t0 - voice.offset_s)  # seconds into the video
                 a1 = a0 + voice.audio.frames / voice.audio.sample_rate
                 for w in _outside(f"{voice.audio_file} (audio)", a0, a1, *shown, "the video is silent"):
                     warn(w)
-                if (to := aac_rate(rate)) != rate:
-                    progress(f"note: {voice.audio_file}: {rate} Hz audio resampled to {to} Hz for AAC")
-                    samples, rate = resample_speech(samples, rate, to), to
-                audio = (samples, rate)
+                if (to := aac_rate(audio.rate)) != audio.rate:
+                    progress(f"note: {voice.audio_file}: {audio.rate} Hz audio resampled to {to} Hz for AAC")
+                    audio = resample_speech(audio, to)
             t_start = time.perf_counter()
             frames_done = TimedProgress(f"render: {args.out.name}", n, "frames")
 
@@ -444,7 +448,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 "height": timing["height"],
                 "audio": audio is not None,
                 "audio_from": str(speech[0].audio_file) if speech is not None else None,
-                "audio_rate": audio[1] if audio is not None else None,
+                "audio_rate": audio.rate if audio is not None else None,
                 "render_ms_per_frame": round(1000 * timing["render_s"] / n, 2),
                 "encode_ms_per_frame": round(1000 * timing["encode_s"] / n, 2),
                 "frames_per_s": round(n / total, 2),
@@ -486,6 +490,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     prepare_output(args.out)
     _warn(anims)
     summary = plot_curves(anims, args.out, args.channels, args.vad, args.start, args.end, title=args.title)
+    if summary["channel_note"]:
+        progress(f"note: {summary['channel_note']}")
     for name in summary["repeated_channels"]:
         warn(f"--channels names {name} more than once: drawn once")
     for label in summary["inputs_without_these_channels"]:

@@ -24,7 +24,7 @@ from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError
 
 from .output import writing
-from .render import Animation
+from .render import Animation, holds_channel, in_rows, most_moving_mouth
 
 VAD_METHODS = ("auto", "silero", "webrtc", "energy", "none")
 
@@ -35,18 +35,10 @@ def _index(name: str) -> int:
     return ARKIT61.index(canonical(name))
 
 
-def _holds(anim: Animation, name: str) -> bool:
-    """Whether ``anim``'s take has channel ``name`` (a Live Link channel in any spelling, or another)."""
-    if name in anim.others:
-        return True
-    channels = anim.take.meta.channels if anim.take is not None else []
-    return any(is_known(c) and canonical(c) == name for c in channels)
-
-
 def curve(anim: Animation, name: str) -> np.ndarray | None:
     """Values of channel ``name`` (canonical when a Live Link channel) over ``anim``'s frames; None when
     its take has no such channel."""
-    if not _holds(anim, name):
+    if not holds_channel(anim, name):
         return None
     return anim.others[name] if name in anim.others else anim.weights[:, _index(name)]
 
@@ -59,7 +51,7 @@ def selected_channels(spec: str, anims: Sequence[Animation]) -> tuple[list[str],
     is_set = spec.strip().lower() in CHANNEL_SETS
     repeated: list[str] = []
     if is_set:
-        names = [n for n in channel_set(spec) if any(_holds(a, n) for a in anims)]
+        names = [n for n in channel_set(spec) if any(holds_channel(a, n) for a in anims)]
         missing = [] if names else [spec.strip()]
     else:
         names = [canonical(n) if is_known(n) else n for n in (p.strip() for p in spec.split(",")) if n]
@@ -67,18 +59,45 @@ def selected_channels(spec: str, anims: Sequence[Animation]) -> tuple[list[str],
             raise InputError(f"empty channel selection {spec!r}")
         repeated = list(dict.fromkeys(n for n in names if names.count(n) > 1))
         names = list(dict.fromkeys(names))  # in the order first named
-        missing = [n for n in names if not any(_holds(a, n) for a in anims)]
+        missing = [n for n in names if not any(holds_channel(a, n) for a in anims)]
     if missing:
         what = f"a channel of set {missing[0]!r}" if is_set else f"channel {missing[0]!r}"
-        others = sorted({n for a in anims for n in a.others})
-        held = ""
-        if others:
-            more = ", ..." if len(others) > 5 else ""
-            held = f" (they hold {len(others)} rig controls: {', '.join(others[:5])}{more})"
         raise InputError(
-            f"no input holds {what}{held}; name channels of the inputs, or a set ({', '.join(CHANNEL_SETS)})"
+            f"no input holds {what}{_rig_controls(anims)}; name channels of the inputs, or a set "
+            f"({', '.join(CHANNEL_SETS)})"
         )
     return names, repeated
+
+
+def _rig_controls(anims: Sequence[Animation]) -> str:
+    """' (they hold N rig controls: a, b, ...)' when the inputs hold channels that are not Live Link's."""
+    others = sorted({n for a in anims for n in a.others})
+    if not others:
+        return ""
+    more = ", ..." if len(others) > 5 else ""
+    return f" (they hold {len(others)} rig controls: {', '.join(others[:5])}{more})"
+
+
+DEFAULT_CHANNEL = "jawOpen"
+
+
+def default_channel(anims: Sequence[Animation]) -> tuple[str, str | None]:
+    """The channel plotted when none is named: jawOpen, and None. When no input holds jawOpen (a rig's
+    export without it, which was an error that did not say jawOpen was only the default), the mouth
+    channel that moves most (``most_moving_mouth``), and a note saying so."""
+    if any(holds_channel(a, DEFAULT_CHANNEL) for a in anims):
+        return DEFAULT_CHANNEL, None
+    mouth = most_moving_mouth(anims)
+    if mouth is None:
+        raise InputError(
+            f"no input holds {DEFAULT_CHANNEL}, the default channel, and no mouth channel of theirs moves"
+            f"{_rig_controls(anims)}: give --channels, channels of the inputs or a set "
+            f"({', '.join(CHANNEL_SETS)})"
+        )
+    return mouth, (
+        f"no input holds {DEFAULT_CHANNEL}, the default channel: plotted {mouth}, the mouth channel that "
+        "moves most; give --channels to choose"
+    )
 
 
 def audio_frames(audio: Audio, size: int, tail: bool = False) -> Iterator[np.ndarray]:
@@ -87,14 +106,7 @@ def audio_frames(audio: Audio, size: int, tail: bool = False) -> Iterator[np.nda
     (all of them as float, and copies, took 2.5 GB for two hours at 16 kHz)."""
     from align.resample import mono_blocks
 
-    rest = np.zeros(0, np.float32)
-    for block in mono_blocks(audio):
-        x = np.concatenate([rest, block])
-        n = x.size // size
-        yield x[: n * size].reshape(n, size)
-        rest = x[n * size :]
-    if tail and rest.size:
-        yield rest.reshape(1, rest.size)
+    return in_rows(mono_blocks(audio), size, tail)
 
 
 def energy_segments(audio: Audio, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
@@ -179,7 +191,7 @@ def labels_in_any_script(plt: Any) -> Iterator[list[str]]:
 def plot_curves(
     anims: Sequence[Animation],
     out: str | Path,
-    channels: str = "jawOpen",
+    channels: str | None = None,
     vad: str = "auto",
     start_s: float | None = None,
     end_s: float | None = None,
@@ -201,6 +213,9 @@ def plot_curves(
         raise InputError("the plot is written as .png or .svg", out)
     if not anims:
         raise InputError("nothing to plot")
+    fallback = None
+    if channels is None:
+        channels, fallback = default_channel(anims)
     names, repeated = selected_channels(channels, anims)
     for flag, v in (("--start", start_s), ("--end", end_s)):
         if v is not None and not math.isfinite(v):
@@ -303,6 +318,7 @@ def plot_curves(
         "inputs": [a.label for a in anims],
         "inputs_without_these_channels": silent,  # drawn nowhere: they hold none of the channels
         "channels": names,
+        "channel_note": fallback,  # what was plotted instead of the default channel, and why
         "repeated_channels": repeated,  # named more than once in --channels, drawn once
         "undrawable_characters": "".join(undrawable),  # in labels, no installed font has them: boxes
         "duration_s": round(t_max, 6),

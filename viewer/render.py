@@ -7,10 +7,11 @@ prediction, or a face and the take's reference video) at the animation's frame r
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -19,7 +20,7 @@ import numpy as np
 
 from capture import ARKIT61, Audio, FrameStatus, InputError, Take
 from capture.atomic import atomic_write
-from capture.channels import is_known
+from capture.channels import canonical, is_known
 from capture.command import TimedProgress, stops_deferred
 
 from .face import FaceModel, vertex_normals, weights_from_values
@@ -33,7 +34,8 @@ BACKGROUND = (38, 40, 46)
 # a frame (8192x4352): x264 encodes larger frames, but players and browsers may refuse to decode them.
 H264_MAX_SIDE = 16384
 H264_MAX_MACROBLOCKS = 139264
-AUDIO_BLOCK = 1 << 20  # samples of a video's speech converted to mono float at a time (audio_for_span)
+AUDIO_BLOCK = 1 << 20  # samples of silence around a video's speech given at a time (span_blocks)
+AAC_FRAME = 1024  # samples per audio frame given to the AAC encoder
 
 
 @dataclass
@@ -294,10 +296,42 @@ def reference_video_of(take: Take | None) -> Path | None:
     return None
 
 
-def default_frame(anim: Animation) -> int:
-    """The frame to show when none is asked for: the widest open jaw (a face mid-speech)."""
-    jaw = anim.weights[:, 17]  # jawOpen in ARKIT61 order
-    return int(np.argmax(jaw)) if np.any(jaw != 0) else 0
+MOUTH_CHANNELS = tuple(c for c in ARKIT61[:52] if c.startswith(("jaw", "mouth")))
+
+
+def holds_channel(anim: Animation, name: str) -> bool:
+    """Whether ``anim``'s take has channel ``name`` (a Live Link channel in any spelling, or another)."""
+    if name in anim.others:
+        return True
+    channels = anim.take.meta.channels if anim.take is not None else []
+    return any(is_known(c) and canonical(c) == name for c in channels)
+
+
+def most_moving_mouth(anims: Sequence[Animation]) -> str | None:
+    """The jaw or mouth blendshape whose values span the widest range in any of ``anims``; None when none
+    of them moves."""
+    spans = {c: max(float(np.ptp(a.weights[:, ARKIT61.index(c)])) for a in anims) for c in MOUTH_CHANNELS}
+    widest = max(spans, key=spans.__getitem__)
+    return widest if spans[widest] > 0 else None
+
+
+def default_frame(anim: Animation) -> tuple[int, str | None]:
+    """The frame to show when none is asked for: the widest open jaw (a face mid-speech), and None. An
+    input whose jawOpen is missing or 0 throughout (a rig's export without it) showed frame 0 without a
+    word: its frame is then the highest value of the mouth channel that moves most (``most_moving_mouth``;
+    frame 0 when none moves), and a note saying so is returned with it."""
+    jaw = anim.weights[:, ARKIT61.index("jawOpen")]
+    if np.any(jaw != 0):
+        return int(np.argmax(jaw)), None
+    why = "has jawOpen at 0 on every frame" if holds_channel(anim, "jawOpen") else "holds no jawOpen"
+    mouth = most_moving_mouth([anim])
+    if mouth is None:
+        return 0, f"{why} and no mouth channel moves: frame 0 shown; give --frame or --time to pick one"
+    k = int(np.argmax(anim.weights[:, ARKIT61.index(mouth)]))
+    return k, (
+        f"{why}: frame {k} shown, where {mouth} (the mouth channel that moves most) is highest; give --frame "
+        "or --time to pick another"
+    )
 
 
 def render_frame(
@@ -319,38 +353,94 @@ def render_frame(
     return np.hstack(panels)
 
 
-def audio_for_span(anim: Animation, t0: float, duration_s: float) -> tuple[np.ndarray, int] | None:
-    """Mono float32 samples of ``anim``'s audio from take time ``t0`` for ``duration_s`` (zero-padded).
+def in_rows(blocks: Iterable[np.ndarray], size: int, tail: bool = False) -> Iterator[np.ndarray]:
+    """Samples given in ``blocks`` (1-D, any lengths) as rows of ``size``, in order, a block's rows at a
+    time: the last partial row left out (with ``tail``: last, as a row of its own length)."""
+    rest = np.zeros(0, np.float32)
+    for block in blocks:
+        x = np.concatenate([rest, block]) if rest.size else block  # a block in one piece: no copy
+        n = x.size // size
+        yield x[: n * size].reshape(n, size)
+        rest = x[n * size :]
+    if tail and rest.size:
+        yield rest.reshape(1, rest.size)
 
-    Only the span is converted, a block at a time: the whole take as float (``Audio.mono_float``, which
-    makes two copies on the way) cost 3 float copies of an hour of speech (2 GB at 48 kHz) beside the
-    one kept for the video."""
+
+@dataclass
+class Speech:
+    """A video's sound: ``frames`` mono float32 samples at ``rate`` Hz, given a block at a time by
+    ``blocks`` (one pass), so that the sound of a long take is never whole in memory as float."""
+
+    blocks: Iterable[np.ndarray]
+    rate: int
+    frames: int
+
+    @classmethod
+    def whole(cls, samples: np.ndarray, rate: int) -> Speech:
+        """Samples already in memory, as one block."""
+        samples = np.asarray(samples, np.float32)
+        return cls([samples], rate, samples.size)
+
+
+def _silence(count: int) -> Iterator[np.ndarray]:
+    """``count`` zero samples, at most ``AUDIO_BLOCK`` a block."""
+    zeros = np.zeros(min(count, AUDIO_BLOCK), np.float32)
+    for start in range(0, count, AUDIO_BLOCK):
+        yield zeros[: min(AUDIO_BLOCK, count - start)]
+
+
+def span_blocks(anim: Animation, t0: float, duration_s: float) -> Speech | None:
+    """``anim``'s audio from take time ``t0`` for ``duration_s`` as mono float32 ``Speech``, zero-padded
+    where the audio does not reach. Only the span is converted, a block at a time as it is asked for
+    (``align.resample.mono_blocks``, the samples of ``Audio.mono_float``): the whole take as float cost
+    3 copies of an hour of speech (2 GB at 48 kHz), and the span's float copy held for the encoder
+    still 460 MB for two hours at 16 kHz."""
+    from align.resample import mono_blocks
+
     if anim.audio is None:
         return None
     audio = anim.audio
     rate = audio.sample_rate
     first = int(round((t0 - anim.audio_start_s) * rate))
     n = int(round(duration_s * rate))
-    out = np.zeros(n, np.float32)
     lo, hi = max(first, 0), min(first + n, audio.frames)
-    for start in range(lo, hi, AUDIO_BLOCK):
-        stop = min(start + AUDIO_BLOCK, hi)
-        block = Audio(audio.samples[start:stop], rate, audio.subtype)
-        out[start - first : stop - first] = block.mono_float()
-    return out, rate
+    heard = max(hi - lo, 0)
+    before = lo - first if heard else n
+
+    def blocks() -> Iterator[np.ndarray]:
+        yield from _silence(before)
+        if heard:
+            span = copy.copy(audio)  # a view of the span: a new Audio would check its samples again
+            span.samples = audio.samples[lo:hi]
+            yield from mono_blocks(span)
+        yield from _silence(n - before - heard)
+
+    return Speech(blocks(), rate, n)
 
 
-def speech_for_video(
-    anims: Sequence[Animation], duration_s: float
-) -> tuple[Animation, np.ndarray, int] | None:
-    """The speech of the first input that has audio, for a video of ``duration_s`` s: that input, its
-    mono samples and their rate. An input shown ``offset_s`` after the first one is at its take time
-    ``t0 - offset_s`` when the video starts, so its sound is cut from there and stays with its face."""
+def audio_for_span(anim: Animation, t0: float, duration_s: float) -> tuple[np.ndarray, int] | None:
+    """``span_blocks`` in one array: (mono float32 samples, their rate)."""
+    speech = span_blocks(anim, t0, duration_s)
+    if speech is None:
+        return None
+    out = np.empty(speech.frames, np.float32)
+    at = 0
+    for block in speech.blocks:
+        out[at : at + block.size] = block
+        at += block.size
+    return out, speech.rate
+
+
+def speech_for_video(anims: Sequence[Animation], duration_s: float) -> tuple[Animation, Speech] | None:
+    """The speech of the first input that has audio, for a video of ``duration_s`` s: that input and its
+    ``Speech``. An input shown ``offset_s`` after the first one is at its take time ``t0 - offset_s``
+    when the video starts, so its sound is cut from there and stays with its face."""
     voice = next((a for a in anims if a.audio is not None), None)
     if voice is None:
         return None
-    samples, rate = audio_for_span(voice, voice.t0 - voice.offset_s, duration_s)
-    return voice, samples, rate
+    speech = span_blocks(voice, voice.t0 - voice.offset_s, duration_s)
+    assert speech is not None
+    return voice, speech
 
 
 def aac_rate(rate: int) -> int:
@@ -364,12 +454,20 @@ def aac_rate(rate: int) -> int:
     return next((r for r in rates if r > rate), rates[-1])
 
 
-def resample_speech(samples: np.ndarray, rate: int, to: int) -> np.ndarray:
-    """Mono float32 ``samples`` at ``rate`` resampled to ``to`` Hz with soxr, as align resamples speech
-    (``align/resample.py`` says why soxr)."""
+def resample_speech(speech: Speech, to: int) -> Speech:
+    """``speech`` resampled to ``to`` Hz with soxr, as align resamples speech (``align/resample.py`` says
+    why soxr), a block at a time as it is asked for: libsoxr's stream gives the samples of
+    ``soxr.resample`` on the whole."""
     import soxr
 
-    return soxr.resample(samples, rate, to, quality="VHQ").astype(np.float32)
+    stream = soxr.ResampleStream(speech.rate, to, 1, dtype="float32", quality="VHQ")
+
+    def blocks() -> Iterator[np.ndarray]:
+        for block in speech.blocks:
+            yield stream.resample_chunk(block, last=False)
+        yield stream.resample_chunk(np.zeros(0, np.float32), last=True)
+
+    return Speech(blocks(), to, round(speech.frames * to / speech.rate))
 
 
 def mp4_frame_fits(width: int, height: int) -> bool:
@@ -387,10 +485,11 @@ def write_mp4(
     frames: Callable[[int], np.ndarray],
     count: int,
     fps: float,
-    audio: tuple[np.ndarray, int] | None,
+    audio: Speech | tuple[np.ndarray, int] | None,
     on_frame: Callable[[int], None] | None = None,
 ) -> dict:
-    """Encode ``count`` frames (``frames(k)`` → RGB uint8) as H.264 at ``fps`` with AAC audio.
+    """Encode ``count`` frames (``frames(k)`` → RGB uint8) as H.264 at ``fps`` with AAC audio (a
+    ``Speech`` encoded as its blocks come, or samples and their rate).
 
     Written as ``.NAME.partial.mp4`` beside ``path``, locked (``flock``) until it is renamed into place:
     another render to the same ``path`` meanwhile is an ``InputError`` that leaves it alone.
@@ -401,6 +500,8 @@ def write_mp4(
     import av
 
     path = Path(path)
+    if isinstance(audio, tuple):
+        audio = Speech.whole(*audio)
     tmp = path.with_name(f".{path.name}.partial.mp4")
     render_s = encode_s = 0.0
     rate = _fps_fraction(fps)
@@ -423,7 +524,7 @@ def write_mp4(
             vs.options = {"crf": "20", "preset": "veryfast"}
             astream = None
             if audio is not None:
-                astream = out.add_stream("aac", rate=audio[1], layout="mono")
+                astream = out.add_stream("aac", rate=audio.rate, layout="mono")
             for k in range(count):
                 t = time.perf_counter()
                 img = first if k == 0 else frames(k)
@@ -444,19 +545,19 @@ def write_mp4(
                 for packet in vs.encode():
                     out.mux(packet)
             if astream is not None:
-                samples, sr = audio
-                chunk = 1024
-                job.step("audio", math.ceil(samples.size / sr), "s")
-                for i in range(0, samples.size, chunk):
-                    raise_if_stopped()  # a Ctrl-C here stopped only after the whole audio (30 s an hour)
-                    job.update(i // sr)
-                    block = samples[i : i + chunk][None, :].astype(np.float32)
-                    af = av.AudioFrame.from_ndarray(block, format="flt", layout="mono")
-                    af.sample_rate = sr
-                    af.pts = i
-                    af.time_base = Fraction(1, sr)
-                    for packet in astream.encode(af):
-                        out.mux(packet)
+                sr, at = audio.rate, 0
+                job.step("audio", math.ceil(audio.frames / sr), "s")
+                for rows in in_rows(audio.blocks, AAC_FRAME, tail=True):
+                    for row in rows:
+                        raise_if_stopped()  # a Ctrl-C here stopped only after the whole audio (30 s an hour)
+                        job.update(at // sr)
+                        af = av.AudioFrame.from_ndarray(row[None, :], format="flt", layout="mono")
+                        af.sample_rate = sr
+                        af.pts = at
+                        af.time_base = Fraction(1, sr)
+                        for packet in astream.encode(af):
+                            out.mux(packet)
+                        at += row.size
                 for packet in astream.encode():
                     out.mux(packet)
                 job.update(job.total)
