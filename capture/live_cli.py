@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource, check_regular_file
-from .command import Terminated, emit_json, progress, warn
+from .command import Terminated, emit_json, progress, sigterm_stops, warn
 from .errors import InputError, S2AError
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
@@ -31,7 +31,7 @@ from .record_log import MAGIC, RECORD_HEADER, LogReader, LogWriter, RecordType
 from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_FLUSH_INTERVAL_S, MAX_STREAMS, LiveRecorder
 from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
-from .session_takes import build_takes, find_sessions
+from .session_takes import TAKE_COUNTS, build_takes, find_sessions
 from .take import Take, is_take_dir, read_meta, read_take
 from .workers import process_runs
 
@@ -266,9 +266,8 @@ def _tell(message: str) -> None:
     progress(_printable(message))
 
 
-# The summary keys of the warnings that are about one take (its own counts, ``session_takes.TAKE_COUNTS``)
-# and about its whole stream (``_report``).
-_TAKE_WARNINGS = ("same_time_dropped", "same_time_frames", "clock_steps_back", "rate_jitter_packets")
+# The summary keys of the warnings that are about its whole stream (``_report``); those of a take's own
+# counts (``TAKE_COUNTS``) are about that take.
 _STREAM_WARNINGS = ("device", "subject", "frame_clock", "clock_steps", "senders", "packets_outside_takes")
 
 
@@ -280,7 +279,7 @@ def _report(summaries: list[dict], as_json: bool) -> None:
     said: set[tuple[Any, str]] = set()
 
     def warnings(s: dict) -> list[str]:
-        of_take = set(_warnings({k: s[k] for k in _TAKE_WARNINGS if k in s}))
+        of_take = set(_warnings({k: s[k] for k in TAKE_COUNTS if k in s}))
         of_stream = set(_warnings({k: s[k] for k in _STREAM_WARNINGS if k in s}))
 
         def whose(line: str) -> Any:
@@ -1003,6 +1002,13 @@ def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
+    # SIGTERM stops it as Ctrl-C does (exit 143): the take being written goes with its partial folder and
+    # its half-written audio, not left beside the takes until that take is written again
+    with sigterm_stops():
+        return _recover(args)
+
+
+def _recover(args: argparse.Namespace) -> int:
     sessions = find_sessions(args.dir, include_complete=args.all)
     if not sessions:
         if not find_sessions(args.dir, include_complete=True):  # a wrong folder, not a finished one

@@ -1206,8 +1206,8 @@ def _segment_take(
     r: np.ndarray,
     ft: np.ndarray,
 ) -> BuiltTake:
-    """The take of one segment: rows ``r`` (frame-number order) with phone frame times ``ft`` (no counts
-    yet, no audio: ``finish_take``)."""
+    """The frames of one segment's take: rows ``r`` (frame-time order) with phone frame times ``ft`` (its
+    counts are its ``StreamTake``'s; its audio and the notes on its clock come with ``finish_take``)."""
     arr = log.seconds(r["arrival_ns"])
     lost = r["count"] == 0
     values = r["values"].astype(np.float32)
