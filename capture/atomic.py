@@ -126,8 +126,9 @@ def all_or_none() -> Iterator[None]:
 def _folder_in_place(target: Path) -> Iterator[Path]:
     clear_leftovers(target)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
-    lock = _hold(tmp)
+    lock = None
     try:
+        lock = _hold(tmp)  # inside: a Ctrl-C while it locks removes the folder just made too
         yield tmp
         os.chmod(tmp, 0o755)
         if os.path.lexists(target) and _exchange(tmp, target):
