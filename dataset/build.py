@@ -766,17 +766,18 @@ def is_narrowband(audio: np.ndarray, sample_rate: int) -> bool:
     return total > 0 and float(power[band].sum()) < 1e-5 * total
 
 
-MONO_BLOCK = 1 << 18  # samples mixed to mono at a time
-
-
 def mono_padded(audio: Audio, length: int) -> np.ndarray:
     """A take's audio as mono float32 in [-1, 1) (channels averaged, as ``Audio.mono_float``), zero-padded
-    to ``length`` samples: filled a block at a time, so that an hour of audio is held once here besides
-    the take's own samples, not three times (``mono_float`` converts, averages and copies all at once)."""
+    to ``length`` samples: filled a block at a time (``align.resample.mono_blocks``), so that an hour of
+    audio is held once here besides the take's own samples, not three times (``mono_float`` converts,
+    averages and copies all at once)."""
+    from align.resample import mono_blocks
+
     out = np.zeros(length, np.float32)
-    for start in range(0, audio.frames, MONO_BLOCK):
-        part = Audio(audio.samples[start : start + MONO_BLOCK], audio.sample_rate, audio.subtype).mono_float()
-        out[start : start + part.size] = part
+    at = 0
+    for part in mono_blocks(audio):
+        out[at : at + part.size] = part
+        at += part.size
     return out
 
 

@@ -137,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--channels",
         help="comma list of channels or a set name (default: jawOpen; when no input holds it, the mouth "
-        "channel that moves most)",
+        "channel that moves most, lips parting first)",
     )
     p.add_argument("--audio", metavar="FILE", type=Path, help="speech for the first input when it is a CSV")
     p.add_argument(
@@ -346,7 +346,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         k, why = (args.frame, None) if args.frame is not None else default_frame(first)
         shown = (float(first.time[k] - first.t0),) * 2
     for i, (a, path) in enumerate(zip(anims[1:], paths[1:])):
-        a.offset_s = args.compare_offset[i] if args.compare_offset else place_on_parent_clock(first, a)
+        a.offset_s = args.compare_offset[i] if args.compare_offset else place_on_parent_clock(first, a, path)
         end = a.offset_s + float(a.time[-1] - a.t0)
         held = "its first frame" if a.offset_s > shown[1] else "its last frame"
         a.warnings += _outside(f"{path} (compare)", a.offset_s, end, *shown, f"its face stays at {held}")
@@ -481,8 +481,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
         anims.append(
             load_animation(path, audio, label, one, clamp=False, audio_flag="--audio" if i == 0 else None)
         )
-    for a in anims[1:]:
-        a.offset_s = place_on_parent_clock(anims[0], a)
+    for a, path in zip(anims[1:], args.inputs[1:]):
+        a.offset_s = place_on_parent_clock(anims[0], a, path)
     if not labels:
         distinct_labels(anims, args.inputs)  # a raw take and its aligned copy share their take id
     if args.out.suffix.lower() not in (".png", ".svg"):

@@ -675,13 +675,18 @@ def clamp_blendshapes(
     return count
 
 
+def with_face(take: Take) -> np.ndarray:
+    """Per frame: whether it holds a face (not dropped, not face lost)."""
+    return (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
+
+
 def prepared_for_stream(take: Take) -> tuple[Take, int]:
     """``take`` as it may be sent to Unreal: frames with bad values marked BAD_VALUE (sent as no-face
     packets, counted in ``bad_values``). Returns it and how many blendshape weights of the frames sent
     with values lie outside 0..1: those are sent as they are, as the phone sends them (ARKit reaches
     1.05), and the caller warns about them."""
     bad = bad_frames(take.values, take.meta.channels)
-    sent = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
+    sent = with_face(take)
     status = take.frame_status.copy()
     status[bad & sent] = FrameStatus.BAD_VALUE
     take.frame_status = status

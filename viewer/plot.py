@@ -24,7 +24,7 @@ from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError
 
 from .output import writing
-from .render import Animation, holds_channel, in_rows, most_moving_mouth
+from .render import MOVING_MOUTH, Animation, holds_channel, in_rows, most_moving_mouth
 
 VAD_METHODS = ("auto", "silero", "webrtc", "energy", "none")
 
@@ -84,7 +84,7 @@ DEFAULT_CHANNEL = "jawOpen"
 def default_channel(anims: Sequence[Animation]) -> tuple[str, str | None]:
     """The channel plotted when none is named: jawOpen, and None. When no input holds jawOpen (a rig's
     export without it, which was an error that did not say jawOpen was only the default), the mouth
-    channel that moves most (``most_moving_mouth``), and a note saying so."""
+    channel that moves most, lips parting first (``most_moving_mouth``), and a note saying so."""
     if any(holds_channel(a, DEFAULT_CHANNEL) for a in anims):
         return DEFAULT_CHANNEL, None
     mouth = most_moving_mouth(anims)
@@ -95,8 +95,8 @@ def default_channel(anims: Sequence[Animation]) -> tuple[str, str | None]:
             f"({', '.join(CHANNEL_SETS)})"
         )
     return mouth, (
-        f"no input holds {DEFAULT_CHANNEL}, the default channel: plotted {mouth}, the mouth channel that "
-        "moves most; give --channels to choose"
+        f"no input holds {DEFAULT_CHANNEL}, the default channel: plotted {mouth}, {MOVING_MOUTH}; give "
+        "--channels to choose"
     )
 
 

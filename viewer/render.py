@@ -1,8 +1,9 @@
 """Rendering faces offscreen with pyvista (VTK, EGL), frames → MP4 with PyAV, audio muxed in.
 
 ``FaceRenderer`` keeps one VTK scene per face model and re-poses its meshes each frame (about 10 ms
-for a 256 px frame here). ``render_video`` renders one or more panels side by side (a recording and a
-prediction, or a face and the take's reference video) at the animation's frame rate on one clock.
+for a 256 px frame here). ``render_frame`` renders one or more panels side by side (a recording and a
+prediction, or a face and the take's reference video) on one clock; ``write_mp4`` encodes such frames at
+the animation's frame rate with the speech (``Speech``), a block of it at a time.
 """
 
 from __future__ import annotations
@@ -18,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from capture import ARKIT61, Audio, FrameStatus, InputError, Take
+from capture import ARKIT61, Audio, InputError, Take
 from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
 from capture.command import TimedProgress, stops_deferred
 
 from .face import FaceModel, vertex_normals, weights_from_values
-from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input
+from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input, with_face
 from .output import lock_partial, raise_if_stopped, writing
 from .probe import probe
 
@@ -105,7 +106,7 @@ def load_animation(
     weights = weights_from_values(take.values, take.meta.channels)
     other_cols = [j for j, c in enumerate(take.meta.channels) if not is_known(c)]
     others = take.values[:, other_cols].astype(np.float64)
-    ok = (take.frame_status != FrameStatus.DROPPED) & (take.frame_status != FrameStatus.FACE_LOST)
+    ok = with_face(take)
     bad = ok & bad_frames(weights, ARKIT61)  # by the face's channels: the others are only plotted
     ok &= ~bad
     if not ok.any():
@@ -217,14 +218,23 @@ def label_image(img: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def place_on_parent_clock(first: Animation, other: Animation) -> float:
+def place_on_parent_clock(first: Animation, other: Animation, where: Path | None = None) -> float:
     """Seconds after ``first``'s first frame at which ``other`` starts: an aligned segment of ``first``
-    (align report parent = ``first``'s take) starts at its segment start; anything else with it."""
-    report = (other.take.meta.extra.get("align") if other.take is not None else None) or {}
-    parent = (report.get("parent") or {}).get("id")
-    if first.take is not None and parent == first.take.meta.id and report.get("segment_start_s") is not None:
-        return float(report["segment_start_s"]) - first.t0
-    return 0.0
+    (align report parent = ``first``'s take, an object with its id or the id alone, read as the dataset
+    reads it: ``dataset.build.recording_of``) starts at its segment start; anything else with it. A
+    malformed report is a one-line error naming ``where``, the input ``other`` was read from."""
+    from dataset.build import recording_of
+
+    if first.take is None or other.take is None:
+        return 0.0
+    try:
+        parent = recording_of(other.take.meta)
+    except InputError as exc:
+        raise InputError(str(exc), where) from None
+    start = (other.take.meta.extra.get("align") or {}).get("segment_start_s")
+    if parent != first.take.meta.id or not isinstance(start, (int, float)) or not math.isfinite(start):
+        return 0.0
+    return float(start) - first.t0
 
 
 def distinct_labels(anims: Sequence[Animation], paths: Sequence[Path]) -> None:
@@ -307,30 +317,47 @@ def holds_channel(anim: Animation, name: str) -> bool:
     return any(is_known(c) and canonical(c) == name for c in channels)
 
 
+# The lips parting, which opens the mouth with the jaw: a smile or a pucker moves as far (the widest
+# range of the mouth's channels in all four sample takes) with the mouth about closed.
+OPENING_MOUTH = ("mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft", "mouthUpperUpRight")
+MOVING_MOUTH = "the mouth channel that moves most, lips parting first"  # most_moving_mouth's choice, said
+
+
 def most_moving_mouth(anims: Sequence[Animation]) -> str | None:
-    """The jaw or mouth blendshape whose values span the widest range in any of ``anims``; None when none
-    of them moves."""
-    spans = {c: max(float(np.ptp(a.weights[:, ARKIT61.index(c)])) for a in anims) for c in MOUTH_CHANNELS}
-    widest = max(spans, key=spans.__getitem__)
-    return widest if spans[widest] > 0 else None
+    """The blendshape opening the mouth (``OPENING_MOUTH``) whose values span the widest range in any of
+    ``anims``, or when none of those moves, the jaw or mouth one; None when none of them moves."""
+    for names in (OPENING_MOUTH, MOUTH_CHANNELS):
+        spans = {c: max(float(np.ptp(a.weights[:, ARKIT61.index(c)])) for a in anims) for c in names}
+        widest = max(spans, key=spans.__getitem__)
+        if spans[widest] > 0:
+            return widest
+    return None
 
 
 def default_frame(anim: Animation) -> tuple[int, str | None]:
     """The frame to show when none is asked for: the widest open jaw (a face mid-speech), and None. An
     input whose jawOpen is missing or 0 throughout (a rig's export without it) showed frame 0 without a
-    word: its frame is then the highest value of the mouth channel that moves most (``most_moving_mouth``;
-    frame 0 when none moves), and a note saying so is returned with it."""
+    word: its frame is then the highest value of ``most_moving_mouth``'s channel (the first frame when
+    none moves), and a note saying so is returned with it. A frame without a face (its values bridged from
+    the frames around it) is not picked: frame 0 of a take whose face was lost at its start was.
+    """
+    seen = with_face(anim.take) if anim.take is not None else np.ones(anim.time.size, bool)
+
+    def highest(channel: str) -> int:
+        return int(np.argmax(np.where(seen, anim.weights[:, ARKIT61.index(channel)], -np.inf)))
+
     jaw = anim.weights[:, ARKIT61.index("jawOpen")]
     if np.any(jaw != 0):
-        return int(np.argmax(jaw)), None
+        return highest("jawOpen"), None
     why = "has jawOpen at 0 on every frame" if holds_channel(anim, "jawOpen") else "holds no jawOpen"
     mouth = most_moving_mouth([anim])
     if mouth is None:
-        return 0, f"{why} and no mouth channel moves: frame 0 shown; give --frame or --time to pick one"
-    k = int(np.argmax(anim.weights[:, ARKIT61.index(mouth)]))
+        k = int(np.argmax(seen))  # the first frame with a face
+        return k, f"{why} and no mouth channel moves: frame {k} shown; give --frame or --time to pick one"
+    k = highest(mouth)
     return k, (
-        f"{why}: frame {k} shown, where {mouth} (the mouth channel that moves most) is highest; give --frame "
-        "or --time to pick another"
+        f"{why}: frame {k} shown, where {mouth} ({MOVING_MOUTH}) is highest; give --frame or --time to pick "
+        "another"
     )
 
 
@@ -467,7 +494,7 @@ def resample_speech(speech: Speech, to: int) -> Speech:
             yield stream.resample_chunk(block, last=False)
         yield stream.resample_chunk(np.zeros(0, np.float32), last=True)
 
-    return Speech(blocks(), to, round(speech.frames * to / speech.rate))
+    return Speech(blocks(), to, math.floor(speech.frames * to / speech.rate + 0.5))  # libsoxr's count
 
 
 def mp4_frame_fits(width: int, height: int) -> bool:
