@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from capture import ARKIT61, Audio, FrameStatus, LiveRecorder, Take, TakeMeta
+from capture.record_log import LogReader, RecordType
 
 START_S = 10 * 3600 + 0.3 / 60  # 10:00:00 plus 0.3 frames at 60 fps
 
@@ -70,6 +71,19 @@ class Listener:
     def kill(self) -> None:
         self.proc.kill()
         self.proc.communicate(timeout=30)
+
+
+def wait_for_logged_frames(session_dir: Path, frames: int, timeout: float = 60.0) -> None:
+    """Wait until the frames log of a recording session holds ``frames`` frame records (a listener
+    writes them a moment after they arrive: on a loaded machine, longer)."""
+    deadline = time.monotonic() + timeout
+    logged = 0
+    while time.monotonic() < deadline:
+        logged = sum(p[0] == RecordType.FRAME for p in LogReader(session_dir / "frames.log"))
+        if logged >= frames:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"{logged} of {frames} frames logged in {timeout} s")
 
 
 def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-from live_helpers import Listener, run_cli, synthetic_take
+from live_helpers import Listener, run_cli, synthetic_take, wait_for_logged_frames
 from test_osc_remote import FakePhone
 
 from capture import InputError, read_take, write_take
@@ -83,7 +83,7 @@ def test_recover_leaves_a_session_that_is_still_recording_alone(tmp_path):
     listener = Listener(out)
     try:
         _send(listener.port, range(1000, 1060))
-        time.sleep(0.4)  # flushed
+        wait_for_logged_frames(listener.session_dir, 60)
         for extra in ([], ["--all"]):
             r = run_cli("recover", str(out), "--json", *extra)
             assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
@@ -94,7 +94,7 @@ def test_recover_leaves_a_session_that_is_still_recording_alone(tmp_path):
             assert f"skipping {listener.session_dir}: still being recorded" in r.stderr
         assert not (listener.session_dir / "complete.json").exists() and _takes(out) == []
         _send(listener.port, range(1060, 1120))
-        time.sleep(0.4)
+        wait_for_logged_frames(listener.session_dir, 120)
     finally:
         listener.kill()  # the crash after which recover must still find the session
     r = run_cli("recover", str(out), "--json")

@@ -82,7 +82,9 @@ def test_a_short_pylivelinkface_stream_is_placed_by_arrival(tmp_path):
     head = header_bytes("$" + "A" * 35, "Player")
     values = [np.full(61, i / 1000, np.float32) for i in range(n)]
     packets = [head + frame_block(frame(3600.25 + i / 60), 0.4730, 60, 1, v) for i, v in enumerate(values)]
+    began = time.monotonic()
     rec = record_packets(tmp_path, "pyllf", packets, rate=60.0)
+    sending = time.monotonic() - began  # 1.5 s and more: a loaded machine's sender falls behind
     assert rec.accepted == n
     (line,) = build_takes(rec.session_dir, tmp_path)
     assert line["frame_clock"]["placed_by"] == "arrival" and "milliseconds" in line["frame_clock"]["reason"]
@@ -91,7 +93,7 @@ def test_a_short_pylivelinkface_stream_is_placed_by_arrival(tmp_path):
     tracked = take.frame_status == FrameStatus.TRACKED
     assert take.meta.fps == 60 and tracked.sum() == n
     np.testing.assert_allclose(take.values[tracked, 0], np.arange(n) / 1000, atol=1e-6)
-    assert 1.2 < take.duration_s < 2.2  # real time, not 16x
+    assert 1.2 < take.duration_s < sending  # real time (as the packets came), not 16x
 
 
 # -- 3. a forward step of the phone's clock is no network loss ---------------------------------------------
