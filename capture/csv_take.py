@@ -1326,7 +1326,8 @@ def _empty_channels(
     rows with values is empty (a writer that leaves the head and eye angles empty: those channels have
     no data), each left out with a note (kind ``empty_channel``); never all of them. The rows they alone
     made BAD_VALUE are tracked again, their ``bad_value`` repairs withdrawn; the others' name the channels
-    kept only. A take of one row with values keeps them: its empty cell is as likely that row's damage."""
+    kept only, as does the first damaged cell ``seen`` quotes (``_warn_widespread``). A take of one row with
+    values keeps them: its empty cell is as likely that row's damage."""
     columns, is_channel, repairs, seen = reader.header.columns, reader.is_channel, reader.repairs, reader.seen
     rows = np.flatnonzero(status != FrameStatus.FACE_LOST)
     # candidates first (no number in the first row with values), then each checked: no copy of the array
@@ -1343,12 +1344,16 @@ def _empty_channels(
     bad = np.flatnonzero(status == FrameStatus.BAD_VALUE)
     channels = np.flatnonzero(is_channel)
     damaged = np.isnan(values[np.ix_(bad, channels)])
-    restored = bad[~damaged.any(axis=1)]
-    _renote_bad_values(reader, numbers[bad], damaged, [keep[j] for j in channels])
-    if restored.size:
-        status[restored] = FrameStatus.TRACKED
+    still = damaged.any(axis=1)
+    restored = bad[~still]
+    _renote_bad_values(
+        reader, numbers[bad[still]], damaged[still], numbers[restored], [keep[j] for j in channels]
+    )
+    status[restored] = FrameStatus.TRACKED
+    if bad.size:
         was = seen.pop("bad_value")
-        # the first of the others: a kept channel's first cell no number (the rows before it are restored)
+        # the first of the others: a kept channel's first cell no number (the rows before it are tracked
+        # again), not the blank cell of a channel left out, whether or not any row is tracked again
         kept = [(line, j, text) for j, (text, line) in reader.first_bad.items() if j not in empty]
         if kept:
             line, j, text = min(kept)
@@ -1356,20 +1361,24 @@ def _empty_channels(
     return values, columns, is_channel
 
 
-def _renote_bad_values(reader: _RowReader, lines: np.ndarray, damaged: np.ndarray, kept: list[int]) -> None:
-    """The ``bad_value`` notes of the damaged rows on ``lines`` name only the channels kept (``kept``: their
-    columns in the header; ``damaged``: which of them hold no number, rows x kept), quoting the first of
-    those cells (blank, or the row's first cell written: ``first_written``); the rows without any lose
-    their note."""
-    row_of = {int(line): k for k, line in enumerate(lines.tolist())}
+def _renote_bad_values(
+    reader: _RowReader, lines: np.ndarray, damaged: np.ndarray, restored: np.ndarray, kept: list[int]
+) -> None:
+    """The ``bad_value`` notes of the rows still damaged, on ``lines``, name only the channels kept
+    (``kept``: their columns in the header; ``damaged``: which of them hold no number, rows x kept), quoting
+    the first of those cells (blank, or the row's first cell written: ``first_written``); the rows tracked
+    again, on ``restored``, lose their note. Only the rows still damaged are looked at one by one."""
+    row_of = {line: k for k, line in enumerate(lines.tolist())}
+    gone = set(restored.tolist())
     notes = []
     for note in reader.repairs:
-        k = row_of.get(note["line"]) if note["kind"] == "bad_value" else None
+        line = note["line"] if note["kind"] == "bad_value" else None
+        if line in gone:
+            continue
+        k = row_of.get(line)
         if k is not None:
             columns = [kept[j] for j in np.flatnonzero(damaged[k])]
-            if not columns:
-                continue  # tracked again (_empty_channels)
-            first, text = reader.first_written.get(note["line"], (None, ""))
+            first, text = reader.first_written.get(line, (None, ""))
             names = [reader.header.columns[j] for j in columns]
             note["message"] = _bad_value_message(names, text if first == columns[0] else "")
         notes.append(note)
