@@ -203,46 +203,36 @@ def _read_whole(
 
 
 def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> Audio:
-    """``read_audio``'s audio of an MPEG audio file (.mp3): libsndfile's (``_read_by_libsndfile``), unless
-    it would stop early: several files joined, a change of channels, a frame count too low, a length
-    estimated short (``_estimated_short``), or its decoder ended its read at damage, short of the samples
-    the frames code (``_MPG123_DROPS``), its length is over twice theirs (a Xing/Info frame count of
-    2**32 - 1: libsndfile's read would ask for an array of that length, 9 TiB), or frames were lost at
-    damage (``MpegRun.losses``: put back as silence, so the sound after it keeps its time): then decoded
-    as joined files are (``_read_joined_mpeg``). Within ``audio_left_in_files`` given a scratch folder (an
-    import), decoded a block at a time into a scratch file there (``_streamed``), the same samples and
-    repairs as read whole. Its frames are found in the file read a block at a time (``_FileBytes``), not
-    whole."""
+    """``read_audio``'s audio of an MPEG audio file (.mp3): libsndfile's (``_read_by_libsndfile``), unless it
+    would stop early: several files joined, a change of channels, a frame count too low, a length estimated
+    short (``_estimated_short``), or its decoder ended its read at damage, short of the samples the frames
+    code (``_MPG123_DROPS``; a frame with no frame count), its length is over twice theirs (a Xing/Info frame
+    count of 2**32 - 1: libsndfile's read would ask for an array of that length, 9 TiB), or frames were lost
+    at damage (``MpegRun.losses``: put back as silence, so the sound after it keeps its time), or bytes other
+    than tags follow its last frame (damage at its end, zeros, junk: ``MpegLoss.ends``): then decoded as
+    joined files are (``_read_joined_mpeg``). Within ``audio_left_in_files`` given a scratch folder (an
+    import), decoded a block at a time into a scratch file there (``_streamed``), the same samples and repairs
+    as read whole. Its frames are found in the file read a block at a time (``_FileBytes``), not whole."""
     with _FileBytes.of(path) as data:  # not read whole: a 60 MB cover picture, an hour at 320 kbit/s
         runs = mpeg_runs(data)
         coded = sum(run.samples for run in runs)
-        lost = any(loss.frames and not loss.ends for run in runs for loss in run.losses)
+        # damage, or bytes after its last frame (libsndfile's decoder gives up on 1 KB of zeros, said to be
+        # cut short: FFmpeg is given its frames only)
+        lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
         counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
-        if not (len(runs) > 1 or lost or counts_wrong or _estimated_short(info, coded)):
-            skipped = _gapless_skip(data, runs[0]) if runs else 0
+        skipped = _gapless_skip(data, runs[0]) if runs else 0
+        drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
+        if not (len(runs) > 1 or lost or counts_wrong or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
             audio = _read_by_libsndfile(path, info, skipped, found)
-            if audio.frames + _MPG123_DROPS >= coded:
+            if audio.frames + drops >= coded:
                 if repairs is not None and found:
                     repairs += found
-                if repairs is not None and runs:
-                    repairs += _end_notes(path, data, runs[0])
                 return audio
             if isinstance(audio, FileAudio):
                 audio.discard()
             del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
         return _read_joined_mpeg_checked(path, data, runs, repairs)
-
-
-def _end_notes(path: Path, data: bytes | _FileBytes, run: MpegRun) -> list[dict[str, Any]]:
-    """The repairs ``bad_audio`` (``_loss_note``) of the frames lost at the end of a one-run .mp3 that
-    libsndfile reads (the only frames it lost: ``_read_mpeg``)."""
-    before = _dropped_at_start(data, run)
-    return [
-        _loss_note(path, (loss.coded - before) / run.sample_rate, loss, run)
-        for loss in run.losses
-        if loss.frames and loss.ends
-    ]
 
 
 def _read_joined_mpeg_checked(
@@ -321,12 +311,14 @@ _MPG123_GAPLESS_DELAY = 529
 _MPG123_DROPS = _MPG123_GAPLESS_DELAY + 1152 + 2 * 4095
 
 
-def _estimated_short(info: Any, coded: int) -> bool:
+def _estimated_short(info: Any, coded: int, drops: int) -> bool:
     """Whether libsndfile's length of an .mp3 (``info.frames``: mpg123's estimate from the first frame's
-    bit rate when no header frame counts its frames) falls short of the samples its frames code: a VBR
-    file without a Xing header, or files of other bit rates joined without a tag between them. libsndfile
-    reads no further than its length (a loud start at 192 kbit/s then silence: 1.2 s of 6.5 s read)."""
-    return info.frames + _MPG123_DROPS < coded
+    bit rate when no header frame counts its frames) falls short of the samples its frames code by more
+    than mpg123 ``drops`` (``_MPG123_DROPS`` when a header counts its frames, else a frame: 8869 of 17856
+    samples of a 1.6 s VBR file at 11 kHz were read, unnoted, within ``_MPG123_DROPS``): a VBR file without
+    a Xing header, or files of other bit rates joined without a tag between them. libsndfile reads no
+    further than its length (a loud start at 192 kbit/s then silence: 1.2 s of 6.5 s read)."""
+    return info.frames + drops < coded
 
 
 def _gapless_skip(data: bytes | _FileBytes, run: MpegRun, counted: bool = False) -> int:
@@ -529,15 +521,19 @@ def _libsndfile_source(path: Path) -> Iterator[str | IO[bytes]]:
 
 
 def _ffmpeg_source(path: Path) -> str:
-    """What FFmpeg is to open of ``path``: its name; for a file starting with an ID3v2 tag over ``_BIG_TAG``,
-    the file from after the tag on (FFmpeg's ``subfile`` protocol): FFmpeg reads a picture in a tag whole
-    (a 48 MB cover: 50 MB more, in an .mp3's check of its encoder delay or a raw .aac's decoding)."""
+    """What FFmpeg is to open of ``path``: the file, named for FFmpeg's ``file`` protocol (a plain name
+    with a colon, "take:1.aac", FFmpeg takes for another protocol's: "Protocol not found"); for a file
+    starting with an ID3v2 tag over ``_BIG_TAG``, the file from after the tag on (its ``subfile``
+    protocol, which reads its options up to ",,", then the file's name as it is): FFmpeg reads a picture
+    in a tag whole (a 48 MB cover: 50 MB more, in an .mp3's check of its encoder delay or a raw .aac's
+    decoding)."""
     try:
         with open(path, "rb") as f:
             skip = _tag_bytes(f.read(10), 0)
     except OSError:  # unreadable: FFmpeg says so
         skip = 0
-    return f"subfile,,start,{skip},end,0,,:file:{path.absolute()}" if skip > _BIG_TAG else str(path)
+    name = f"file:{path.absolute()}"
+    return f"subfile,,start,{skip},end,0,,:{name}" if skip > _BIG_TAG else name
 
 
 class _AfterTag(io.RawIOBase):
@@ -1279,12 +1275,18 @@ def _decode_frames(
             )
             if repairs is not None:
                 note_unknown_delay(path, repairs, stream, first_pts)
+        failed = source.failed if isinstance(source, _MendedPart) else None
+        if failed is not None:  # FFmpeg took it for the end of the file
+            raise failed
     except InputError:
         raise
     except (av.FFmpegError, OSError, ValueError) as exc:
+        failed = source.failed if isinstance(source, _MendedPart) else None
+        if failed is not None and not isinstance(failed, OSError):  # FFmpeg's error is of no bytes read
+            raise failed from None
         # FFmpeg's errors carry its own negative error code ("[Errno 1094995529] Invalid data found ..."):
         # the text is what tells the user something
-        why = getattr(exc, "strerror", None) or str(exc)
+        why = getattr(failed or exc, "strerror", None) or str(failed or exc)
         raise InputError(f"audio could not be decoded (a truncated or damaged file?): {why}", path) from None
     return _Decoded(kept, rate, fmt.rstrip("p"), last_frame, declared, damaged)
 
@@ -1662,6 +1664,10 @@ class _FileBytes:
         self.block, self.block_at = b"", at  # the one before it given back first
         self.block = self._read(at, _SCAN_BLOCK + _SCAN_OVERLAP)
         return at
+
+    def shrunk(self) -> bool:
+        """Whether the file is now shorter than when it was opened (``_read`` fails)."""
+        return os.fstat(self.file.fileno()).st_size < self.size
 
     def _read(self, at: int, size: int) -> bytes:
         self.file.seek(at)
@@ -2043,12 +2049,20 @@ def _end_tags_at(data: bytes | _FileBytes) -> int:
     return end
 
 
-def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
+def _starts_sync(data: bytes | _FileBytes, pos: int) -> bool:
+    """Whether the bytes at ``pos`` start with a frame header's sync (11 bits set)."""
+    head = data[pos : pos + 2]
+    return len(head) == 2 and head[0] == 0xFF and head[1] >= 0xE0
+
+
+def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
     """The frames lost at each damage of ``runs`` (``MpegRun.losses``), each estimated from the bytes
     damaged at its run's mean bytes per frame (frames overwritten at a constant bit rate: exact, up to the
-    padding byte); then, in a file whose Xing/Info frame declares its frame count (not too low), set to
-    the count less the frames found when the estimates agree with it (a file cut short as well: they do
-    not), exact when damaged once or the estimates add up to it."""
+    padding byte; running to the end of the data or its tags, only when they start with a frame's sync, a
+    damaged header: else they are what follows the last frame, zeros, junk, a Lyrics3 tag, no frame lost);
+    then, in a file whose Xing/Info frame declares its frame count (not too low), set to the count less the
+    frames found when the estimates agree with it (a file cut short as well: they do not), exact when
+    damaged once or the estimates add up to it; damage at its end, to what the count misses."""
     starts = [i for i, run in enumerate(runs) if run.new_file] + [len(runs)]
     for a, b in zip(starts, starts[1:]):
         losses = [loss for run in runs[a:b] for loss in run.losses]
@@ -2058,7 +2072,9 @@ def _count_lost(data: bytes, runs: list[MpegRun]) -> None:
             damaged = sum(loss.end - loss.start for loss in run.losses if not loss.ends)  # within the run
             per_frame = (run.end - run.start - damaged) / max(run.frames, 1)
             for loss in run.losses:
-                loss.frames = round((loss.end - loss.start) / per_frame)
+                # at the end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no frames
+                seen = not loss.ends or _starts_sync(data, loss.start)
+                loss.frames = round((loss.end - loss.start) / per_frame) if seen else 0
         frame = _mpeg_frame(data, runs[a].start)
         if frame is None or runs[a].count_low or not _is_file_header(data, runs[a].start, frame):
             continue
@@ -2127,8 +2143,8 @@ def _read_joined_mpeg(
                 into=lambda _stream, part=part: part,
             )
         except InputError:
-            if k == 0:
-                raise
+            if k == 0 or mended.failed is not None or isinstance(data, _FileBytes) and data.shrunk():
+                raise  # the file, not the part: unread (cut short as it is read, unreadable)
             # too short for FFmpeg to open (a file cut short): silence in its place, unless it ends the audio
             damaged += sum(run.frames for run in runs[a:b])
             if k < last:
@@ -2181,8 +2197,9 @@ def _mended(
 ) -> _MendedPart:
     """One file of an .mp3 (``runs``: its runs; it starts ``at`` seconds in) as FFmpeg is to decode it,
     each damage where frames were lost (``MpegRun.losses``) replaced by as many silent frames: the sound
-    after it keeps its time. Each noted in ``repairs`` (repair ``bad_audio``): where, how long, and when the
-    frames lost were counted from the damaged bytes, by how much the sound after it may be shifted."""
+    after it keeps its time (damage at its end, ``MpegLoss.ends``, left out: no sound after it). Each noted
+    in ``repairs`` (repair ``bad_audio``): where, how long, and when the frames lost were counted from the
+    damaged bytes, by how much the sound after it may be shifted."""
     pieces: list[range | tuple[bytes, int]] = []
     pos = runs[0].start
     coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's
@@ -2209,13 +2226,16 @@ class _MendedPart:
     bytes of ``data`` (the file, read a block at a time: ``_FileBytes``) or a silent frame and how many
     times it is put in, and ``patches`` (where, bytes) written over them (its Xing/Info frame's counts).
     Read as FFmpeg asks for it (a file-like object), never held whole: a damaged or joined hour at 320
-    kbit/s held its 144 MB twice."""
+    kbit/s held its 144 MB twice. ``failed``: what a read raised (the file cut short as it is read,
+    Ctrl-C), raised again once FFmpeg stops (``_decode_frames``): raised to FFmpeg, PyAV printed it and
+    may drop it, the decoding ended there as if the file did (Ctrl-C: the audio returned short)."""
 
     def __init__(self, data: bytes | _FileBytes, pieces: list[range | tuple[bytes, int]]):
         self.data, self.pieces = data, pieces
         self.starts = list(accumulate((_piece_size(piece) for piece in pieces), initial=0))
         self.size, self.pos = self.starts[-1], 0
         self.patches: list[tuple[int, bytes]] = []
+        self.failed: BaseException | None = None
 
     def readable(self) -> bool:
         return True
@@ -2231,6 +2251,14 @@ class _MendedPart:
         return self.pos
 
     def read(self, size: int = -1) -> bytes:
+        if self.failed is None:
+            try:
+                return self._read(size)
+            except BaseException as exc:  # raised again once FFmpeg stops
+                self.failed = exc
+        return b""  # the end, to FFmpeg
+
+    def _read(self, size: int) -> bytes:
         start = self.pos
         end = self.size if size < 0 else min(start + size, self.size)
         out = bytearray()

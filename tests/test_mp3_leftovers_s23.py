@@ -16,7 +16,7 @@ import io
 import av
 import numpy as np
 import pytest
-from test_audio_mp3_later_parts import lag, mp3_bytes
+from test_audio_mp3_later_parts import frame_starts, lag, mp3_bytes
 from test_import_mp3_damage import _damaged, _mp3, _peak_growth_kb, _speech_like, _write
 
 from capture import read_audio
@@ -89,15 +89,19 @@ def test_an_info_frame_without_a_frame_count_still_drops_lames_delay(tmp_path, f
     ids=["counted", "estimated_before_id3v1"],
 )
 def test_damage_running_into_the_end_of_an_mp3_is_said(tmp_path, xing, tail, said):
-    """Random bytes over its last frame's header, up to its end (700 bytes: the audio 925 samples, 21 ms,
-    short) or to an ID3v1 tag (2000 bytes, no Xing frame: 4608 samples short), with no repair. Nothing
-    after it to keep on time, so it is not filled: a ``bad_audio`` repair says from where and by how much
-    it is short (the frames its Info frame counts less those found, else estimated from the bytes
-    damaged); the rest is as read before."""
+    """Random bytes over its last frames, up to its end (700 bytes: the audio 925 samples, 21 ms, short) or
+    to an ID3v1 tag (2000 bytes from a frame's header, its sync kept, its bit rate broken; no Xing frame:
+    4608 samples short), with no repair. Nothing after it to keep on time, so it is not filled: a
+    ``bad_audio`` repair says from where and by how much it is short (the frames its Info frame counts
+    less those found, else estimated from the bytes damaged, when they start as a frame does: random
+    bytes there, no sync, are junk after the last frame, no loss); the rest is as read before."""
     data = _mp3(44100, 1, 128000, xing)
     whole = read_audio(_write(tmp_path / "whole.mp3", data), []).mono_float()
     damaged = 700 if xing else 2000
     noise = np.random.default_rng(3).integers(0, 256, damaged, dtype=np.uint8).tobytes()
+    if not xing:  # from the header of the frame the damage starts in: a sync with no frame after it
+        at = min(pos for pos in frame_starts(data) if pos >= len(data) - damaged)
+        damaged, noise = len(data) - at, b"\xff\xfb\xf0" + noise[3 : len(data) - at]
     repairs: list = []
     path = _write(tmp_path / "damaged.mp3", data[:-damaged] + noise + tail)
     audio = read_audio(path, repairs).mono_float()
