@@ -359,10 +359,6 @@ def _lame_tag_at(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> int:
     return 0 if lame + 24 > min(pos + frame[0], len(data)) or not data[lame] else lame
 
 
-# The encoder versions a LAME tag starts with whose delay and padding FFmpeg drops (LAME's, FFmpeg's own)
-_GAPLESS_ENCODERS = (b"LAME", b"Lavf", b"Lavc")
-
-
 def _uncounted_gapless(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
     """Whether the Xing/Info frame at ``pos`` declares no frame count (0, or no field for it), though the
     LAME tag after it records the encoder's delay and padding: without a count, libsndfile's decoder keeps
@@ -501,23 +497,42 @@ def audio_left_in_files(scratch: str | Path | None = None, prefix: str = ".s2a-d
 _BIG_TAG = 1 << 20
 
 
-@contextmanager
-def _libsndfile_source(path: Path) -> Iterator[str | IO[bytes]]:
-    """What libsndfile is to open of ``path``: its name; for an .mp3 starting with a tag over ``_BIG_TAG``,
-    the file from its first frame on (``_AfterTag``)."""
+def _big_tag(path: Path) -> int:
+    """The bytes of the ID3v2 tag ``path`` starts with when over ``_BIG_TAG`` (a cover picture), else 0
+    (also when it cannot be read: the decoder says so)."""
     try:
         with open(path, "rb") as f:
-            skip = _tag_bytes(f.read(10), 0)
-            f.seek(skip)
-            after = _mpeg_frame(f.read(4), 0) if skip > _BIG_TAG and _mpeg_frame_table() else None
-        view = _AfterTag(open(path, "rb"), skip) if after is not None else None  # noqa: SIM115
-    except OSError:  # unreadable: libsndfile says so
+            size = _tag_bytes(f.read(10), 0)
+    except OSError:
+        return 0
+    return size if size > _BIG_TAG else 0
+
+
+@contextmanager
+def _libsndfile_source(path: Path) -> Iterator[bytes | IO[bytes]]:
+    """What libsndfile is to open of ``path``: its name (``_libsndfile_name``); for an .mp3 starting with
+    a tag over ``_BIG_TAG`` (``_big_tag``), the file from its first frame on (``_AfterTag``)."""
+    view = None
+    if skip := _big_tag(path):
+        try:
+            view = _AfterTag(open(path, "rb"), skip)  # noqa: SIM115
+        except OSError:  # unreadable: libsndfile says so
+            pass
+    if view is not None and (not _mpeg_frame_table() or _mpeg_frame(view.read(4), 0) is None):
+        view.close()  # no MPEG audio after it: libsndfile reads the file as it is
         view = None
     if view is None:
-        yield str(path)
+        yield _libsndfile_name(path)
         return
+    view.seek(0)
     with view:
         yield view
+
+
+def _libsndfile_name(path: Path) -> bytes:
+    """``path`` as libsndfile is to open it: its bytes (soundfile encodes a name given as text to UTF-8,
+    which fails on a name that is not UTF-8, held by Python as surrogate escapes)."""
+    return os.fsencode(path)
 
 
 def _ffmpeg_source(path: Path) -> str:
@@ -527,13 +542,9 @@ def _ffmpeg_source(path: Path) -> str:
     protocol, which reads its options up to ",,", then the file's name as it is): FFmpeg reads a picture
     in a tag whole (a 48 MB cover: 50 MB more, in an .mp3's check of its encoder delay or a raw .aac's
     decoding)."""
-    try:
-        with open(path, "rb") as f:
-            skip = _tag_bytes(f.read(10), 0)
-    except OSError:  # unreadable: FFmpeg says so
-        skip = 0
     name = f"file:{path.absolute()}"
-    return f"subfile,,start,{skip},end,0,,:{name}" if skip > _BIG_TAG else name
+    skip = _big_tag(path)
+    return f"subfile,,start,{skip},end,0,,:{name}" if skip else name
 
 
 class _AfterTag(io.RawIOBase):
@@ -572,7 +583,7 @@ def _opened_as(f: sf.SoundFile, info: Any) -> bool:
 def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterator[np.ndarray]:
     """The samples of a file libsndfile reads, ``size`` frames (frames x channels) at a time; nothing
     when the file opens with another rate, channel count or subtype than ``info`` (replaced since)."""
-    with sf.SoundFile(str(path)) as f:
+    with sf.SoundFile(_libsndfile_name(path)) as f:
         if info is not None and not _opened_as(f, info):
             return
         while len(block := f.read(size, dtype=dtype, always_2d=True)):
@@ -918,7 +929,7 @@ def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
                 found[c].append(hits + at)
         at += len(block)
     count, worst = 0, 0.0
-    with sf.SoundFile(str(audio._read_from)) as f:
+    with sf.SoundFile(_libsndfile_name(audio._read_from)) as f:
         for c, parts in found.items():
             if not parts:
                 continue
@@ -1649,6 +1660,11 @@ class _FileBytes:
         texts = prefix if isinstance(prefix, tuple) else (prefix,)
         return any(self._bytes(start, start + len(text)) == text for text in texts)
 
+    def aside(self, start: int, stop: int) -> bytes:
+        """The bytes from ``start`` to ``stop``, the block held kept (a look elsewhere while a part is
+        decoded from it: reading the block again would read 2 MB more)."""
+        return self._read(start, max(min(stop, self.size) - start, 0))
+
     def _bytes(self, start: int, stop: int) -> bytes:
         stop = min(stop, self.size)
         if stop <= start:
@@ -2190,6 +2206,11 @@ LAME_DELAY = 576 + 529
 # its bit reservoir) with its name and version, "LAME3.100UUUU...": what tells its output without a tag.
 # Its name only: the version may be left out (too few bits) or cut by the next frame's header
 _LAME_SIGNATURE = b"LAME"
+# It lies in a file's last frames: looked for in its last bytes only (the frames before, the bit reservoir
+# of the last one: a few KB at most), not in a whole hour of it
+_LAME_SIGNATURE_SPAN = 1 << 14
+# The encoder versions a LAME tag starts with whose delay and padding FFmpeg drops (LAME's, FFmpeg's own)
+_GAPLESS_ENCODERS = (_LAME_SIGNATURE, b"Lavf", b"Lavc")
 
 
 def _mended(
@@ -2421,11 +2442,12 @@ class _JoinedPart:
         data, first, end = self._later
         self.padding_unknown = True  # not recorded either
         frame = _mpeg_frame(data, first.start)
+        last = max(first.start, end - _LAME_SIGNATURE_SPAN)  # its last frames
         if (
             frame is not None
             and frame[3] == 3
             and _starts_reservoir(data, first.start, frame)
-            and data.find(_LAME_SIGNATURE, first.start, end) != -1
+            and _LAME_SIGNATURE in (data[last:end] if isinstance(data, bytes) else data.aside(last, end))
         ):
             self.drop = LAME_DELAY  # it may span frames (576 samples each below 32 kHz)
         else:
@@ -2459,19 +2481,24 @@ def write_audio(path: str | Path, audio: Audio) -> None:
     fmt = "RF64" if nbytes > 0xFFFF0000 else "WAV"
     with atomic_write(path, buffering=1 << 20) as f:
         sink = _WavSink(f)
+        out: sf.SoundFile | None = None
         try:
             # Ctrl-C or SIGTERM waits for each call of libsndfile to return: met in its callback, it
-            # would be lost there (soundfile's AssertionError instead, or a header never written)
-            with stops_deferred():
-                out = sf.SoundFile(sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt)
+            # would be lost there (soundfile's AssertionError instead, or a header never written); met
+            # while it opens the file, it is closed all the same (else later, into the closed output)
             try:
+                with stops_deferred():
+                    out = sf.SoundFile(
+                        sink, "w", audio.sample_rate, channels, subtype=audio.subtype, format=fmt
+                    )
                 _no_peak_chunk(out)
                 for block in blocks:
                     with stops_deferred():
                         out.write(block)
             finally:
-                with stops_deferred():
-                    out.close()
+                if out is not None:
+                    with stops_deferred():
+                        out.close()
         except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
             if sink.error is None:
                 raise
