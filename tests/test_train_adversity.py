@@ -444,7 +444,8 @@ def test_ctrl_c_while_pytorch_loads_stops_without_a_traceback(tmp_path):
     command = ["s2a-train", "fit", "--data", str(tmp_path / "none"), "-o", str(tmp_path / "run")]
     as_console_script = (
         f"import sys; sys.argv[:] = {command!r}; print('started', flush=True); "
-        "import runpy; runpy.run_module('train', run_name='__main__', alter_sys=True)"
+        "from train.cli import main; sys.exit(main())"  # as pip's s2a-train script (runpy's alter_sys
+        # renamed argv[0] to train/__main__.py: the command's own PyTorch import went unguarded)
     )
     for delay in (0.2, 0.5, 0.9):
         proc = subprocess.Popen(
