@@ -38,6 +38,7 @@ class RecordedAudio:
         self.subtype, self.dtype = subtype, np.dtype(dtype)
         self._audio: Audio | None = None
         self._file: sf.SoundFile | None = None
+        self._path: Path | None = None  # the file's name (``_file.name`` is the bytes it was opened by)
         self._stamp: tuple[int, int, int] | None = None  # the file's (inode, size, mtime) when opened
 
     @classmethod
@@ -58,11 +59,13 @@ class RecordedAudio:
         if not path.is_file():
             return None
         try:
-            f = sf.SoundFile(str(path))
+            f = sf.SoundFile(
+                os.fsencode(path)
+            )  # bytes: soundfile encodes text as UTF-8, not a name that is not
         except (sf.LibsndfileError, RuntimeError, TypeError, OSError):
             return None
         held = cls(f.samplerate, f.channels, f.frames, f.subtype, _NATIVE.get(f.subtype, "float32"))
-        held._file = f
+        held._file, held._path = f, path
         try:
             held._stamp = _stamp(path)
         except OSError:
@@ -97,23 +100,23 @@ class RecordedAudio:
             try:
                 block = self._file.read(size, dtype=self.dtype.name, always_2d=True)
             except (sf.LibsndfileError, RuntimeError) as exc:
-                raise InputError(f"audio is unreadable: {exc}", self._file.name) from None
+                raise InputError(f"audio is unreadable: {exc}", self._path) from None
             if block.shape[0] != min(size, self.frames - lo):  # cut short or rewritten while being read
                 raise InputError(
                     f"audio ends after {lo + block.shape[0]} of its {self.frames} samples (changed while it "
                     "was read?)",
-                    self._file.name,
+                    self._path,
                 )
             yield block
         # each pass ends here: one through the file rewritten in place since it was opened (an editor
         # saving over it) would mix two recordings into one result, each pass deciding on another
         try:
-            same = _stamp(Path(self._file.name)) == self._stamp
+            same = _stamp(self._path) == self._stamp
         except OSError:
             same = False
         if not same:
             raise InputError(
-                "audio changed while it was read (rewritten or replaced?): align it again", self._file.name
+                "audio changed while it was read (rewritten or replaced?): align it again", self._path
             )
 
     def mono_blocks(self, size: int) -> Iterator[np.ndarray]:

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import maximum_filter1d
 
+from capture.mov import opencv_name
+
 from .resample import TARGET_RATE
 
 # Above 2 kHz; causal, but its group delay there is a fraction of a millisecond (onsets stay put).
@@ -145,7 +147,8 @@ def video_motion(path: str | Path, size: int = 64) -> np.ndarray:
     (the first is 0). Read with OpenCV; frames are shrunk to ``size`` pixels wide and made grey."""
     import cv2
 
-    cap = cv2.VideoCapture(str(path))
+    with opencv_name(path) as name:
+        cap = cv2.VideoCapture(name)
     if not cap.isOpened():
         return np.zeros(0)
     prev = None

@@ -6,7 +6,9 @@ the same kind of file; the simulated iPhone and the tests use it to stand in for
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -38,6 +40,32 @@ class MovInfo:
         return round(self.video_fps) if self.video_fps else None
 
 
+def ffmpeg_name(path: str | Path) -> str:
+    """``path`` as FFmpeg (PyAV) is to open or write it: absolute, for its ``file`` protocol (a relative name
+    with a colon, "take:1.mov", or a hidden ".take:1.mp4.partial.mp4", FFmpeg reads as another
+    protocol's: "Protocol not found")."""
+    return f"file:{Path(path).absolute()}"
+
+
+@contextmanager
+def opencv_name(path: str | Path) -> Iterator[str]:
+    """A name OpenCV opens as ``path``, held while the block runs: ``/proc/self/fd/N`` of the file opened
+    here (OpenCV crashed, segmentation fault, on a name that is not UTF-8, and its FFmpeg reads a relative
+    name with a colon as a protocol); the absolute name where there is no ``/proc``."""
+    if not os.path.isdir("/proc/self/fd"):
+        yield str(Path(path).absolute())
+        return
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a named pipe: not waited on
+    except OSError:
+        yield str(Path(path).absolute())  # not there or unreadable: OpenCV says it does not open
+        return
+    try:
+        yield f"/proc/self/fd/{fd}"
+    finally:
+        os.close(fd)
+
+
 def probe_mov(path: str | Path) -> MovInfo:
     """Timecode and stream timing of a ``.mov`` without decoding it; no width and height for a video
     stream of a codec FFmpeg does not know."""
@@ -47,7 +75,7 @@ def probe_mov(path: str | Path) -> MovInfo:
     if not path.is_file():
         raise InputError("video file not found", path)
     try:
-        with av.open(str(path)) as c:
+        with av.open(ffmpeg_name(path)) as c:
             timecode = c.metadata.get("timecode")
             fps = frames = width = height = None
             v_start = a_start = 0.0
@@ -160,7 +188,7 @@ def write_reference_mov(
     path = Path(path)
     width, height = size
     rate = Fraction(fps).limit_denominator(1001)
-    with av.open(str(path), "w", format="mov") as c:
+    with av.open(ffmpeg_name(path), "w", format="mov") as c:
         v = c.add_stream("mjpeg", rate=rate)
         v.width, v.height, v.pix_fmt = width, height, "yuvj420p"
         if timecode:

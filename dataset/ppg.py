@@ -142,7 +142,8 @@ class TorchScriptExtractor:
         if not self.path.is_file():
             raise InputError("TorchScript model not found", self.path)
         try:
-            self.model = torch.jit.load(str(self.path), map_location="cpu").eval()
+            with open(self.path, "rb") as f:  # open here: torch's C++ takes a name as UTF-8 (fails if not)
+                self.model = torch.jit.load(f, map_location="cpu").eval()
         except Exception as exc:
             raise InputError(f"not a TorchScript model ({str(exc).splitlines()[0]})", self.path) from None
         self.phones = None
@@ -191,7 +192,9 @@ class OnnxExtractor:
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
         try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+            # its bytes: onnxruntime takes a name as UTF-8 and refused a model whose name is not
+            model = self.path.read_bytes()
+            self.session = ort.InferenceSession(model, opts, providers=["CPUExecutionProvider"])
         except Exception as exc:
             raise InputError(f"not a usable ONNX model ({str(exc).splitlines()[0]})", self.path) from None
         self._input = self.session.get_inputs()[0].name

@@ -123,12 +123,14 @@ def export_onnx(
     tmp = partial_path(out)  # renamed over out once the parity check passes; removed otherwise
     try:
         try:
-            with warnings.catch_warnings():
+            # written to and read from open files: torch's, onnx's and onnxruntime's C++ take a name as
+            # UTF-8, and failed (TypeError) on a name that is not (Python holds it as surrogate escapes)
+            with warnings.catch_warnings(), open(tmp, "wb") as f:
                 warnings.simplefilter("ignore")
                 torch.onnx.export(
                     wrapper,
                     tuple(example.values()),
-                    str(tmp),
+                    f,
                     input_names=names,
                     output_names=["animation"],
                     dynamic_axes={**{n: {1: "frames"} for n in names}, "animation": {1: "frames"}},
@@ -142,7 +144,7 @@ def export_onnx(
         annotate(tmp, payload, names, limit)
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
-        session = ort.InferenceSession(str(tmp), options, providers=["CPUExecutionProvider"])
+        session = ort.InferenceSession(tmp.read_bytes(), options, providers=["CPUExecutionProvider"])
         worst = 0.0
         for seed, frames in enumerate(lengths, 1):
             x = _inputs(spec, frames, seed)
@@ -202,7 +204,8 @@ def annotate(path: Path, payload: dict[str, Any], names: list[str], limit: int |
     dimension at 1 as the inputs' is (the tracer leaves it a symbol, ``Whereanimation_dim_0``)."""
     import onnx
 
-    graph = onnx.load(str(path))
+    with open(path, "rb") as f:
+        graph = onnx.load(f)
     for key, value in onnx_metadata(payload, limit).items():
         graph.metadata_props.add(key=key, value=value)
     channels = len(payload["dataset"]["channels"])
@@ -217,7 +220,8 @@ def annotate(path: Path, payload: dict[str, Any], names: list[str], limit: int |
     batch = graph.graph.output[0].type.tensor_type.shape.dim[0]
     batch.ClearField("dim_param")
     batch.dim_value = 1
-    onnx.save(graph, str(path))
+    with open(path, "wb") as f:
+        onnx.save(graph, f)
 
 
 def largest_difference(got: np.ndarray, ref: np.ndarray) -> float:

@@ -23,6 +23,7 @@ from capture import ARKIT61, Audio, InputError, Take
 from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
 from capture.command import TimedProgress, stops_deferred
+from capture.mov import ffmpeg_name, opencv_name
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input, with_face
@@ -256,7 +257,8 @@ class ReferenceVideo:
 
         self.cv2 = cv2
         self.path = Path(path)
-        self.cap = cv2.VideoCapture(str(path))
+        with opencv_name(path) as name:  # read through a descriptor of its own once opened
+            self.cap = cv2.VideoCapture(name)
         if not self.cap.isOpened():
             raise InputError("video could not be opened", path)
         self.fps = self.cap.get(cv2.CAP_PROP_FPS) or 30.0
@@ -540,7 +542,7 @@ def write_mp4(
     try:
         with stops_deferred():
             lock = lock_partial(tmp, path)
-        with writing(path, "video"), av.open(str(tmp), "w", format="mp4") as out:
+        with writing(path, "video"), av.open(ffmpeg_name(tmp), "w", format="mp4") as out:
             t = time.perf_counter()
             first = frames(0)
             render_s = time.perf_counter() - t  # the first frame's too: a 1-frame video said 0 ms a frame
