@@ -112,7 +112,8 @@ from .timecode import (
 
 COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
 VARIANTS = ("cal", "raw", "neutral")
-_VARIANT_RE = re.compile(r"^(?P<prefix>.*?)(?:_(?P<variant>cal|raw|neutral))?$", re.IGNORECASE)
+# a name may hold any character, a newline too (DOTALL; fullmatch: ``$`` matches before a last newline)
+_VARIANT_RE = re.compile(r"(?P<prefix>.*?)(?:_(?P<variant>cal|raw|neutral))?", re.IGNORECASE | re.DOTALL)
 STANDARD_FPS = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
 # NTSC rates (N * 1000/1001), and how close a take's rate must come to one to be it rather than N.
 NTSC_FPS = {std: std * 1000 / 1001 for std in (24.0, 30.0, 60.0)}
@@ -1592,7 +1593,7 @@ def fill_dropped(
 
 def split_variant(stem: str) -> tuple[str, str | None]:
     """``MySlate_166_iPhone_cal`` → (``MySlate_166_iPhone``, ``cal``)."""
-    m = _VARIANT_RE.match(stem)
+    m = _VARIANT_RE.fullmatch(stem)
     assert m is not None
     variant = m.group("variant")
     return m.group("prefix"), variant.lower() if variant else None

@@ -156,3 +156,18 @@ def test_align_reads_the_motion_of_a_video_named_not_utf8(colon_take):
     assert proc.returncode == 0 and proc.stdout.split() == ["132"], (
         proc.stderr
     )  # was: -11, segmentation fault
+
+
+def test_a_take_named_with_a_newline_imports(tmp_path, samples):
+    """A newline in a take's name (a file system allows it) was an AssertionError traceback: the take's
+    name split from its variant suffix (``_cal``) with ``.`` that does not match a newline."""
+    from capture.csv_take import split_variant
+
+    assert split_variant("a\nb") == ("a\nb", None)
+    assert split_variant("a\nb_cal") == ("a\nb", "cal")
+    assert split_variant("MySlate_166_iPhone_cal") == ("MySlate_166_iPhone", "cal")
+    assert split_variant("take\n") == ("take\n", None)
+    csv = tmp_path / "S07\nsecond line.csv"
+    shutil.copy(samples / "livelinkface" / "alexdjulin_S07" / "S07-001.csv", csv)
+    proc = run_cli("capture", "import", csv, "-o", tmp_path / "out", "--json")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
