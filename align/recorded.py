@@ -19,6 +19,7 @@ import numpy as np
 import soundfile as sf
 
 from capture import Audio, InputError, Take
+from capture.audio_io import libsndfile_name
 from capture.take import AudioInfo
 
 # The WAV sample formats read as read_audio reads them (PCM_24 widened to int32): the subtypes write_take
@@ -59,9 +60,7 @@ class RecordedAudio:
         if not path.is_file():
             return None
         try:
-            f = sf.SoundFile(
-                os.fsencode(path)
-            )  # bytes: soundfile encodes text as UTF-8, not a name that is not
+            f = sf.SoundFile(libsndfile_name(path))
         except (sf.LibsndfileError, RuntimeError, TypeError, OSError):
             return None
         held = cls(f.samplerate, f.channels, f.frames, f.subtype, _NATIVE.get(f.subtype, "float32"))

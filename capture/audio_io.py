@@ -510,7 +510,7 @@ def _big_tag(path: Path) -> int:
 
 @contextmanager
 def _libsndfile_source(path: Path) -> Iterator[bytes | IO[bytes]]:
-    """What libsndfile is to open of ``path``: its name (``_libsndfile_name``); for an .mp3 starting with
+    """What libsndfile is to open of ``path``: its name (``libsndfile_name``); for an .mp3 starting with
     a tag over ``_BIG_TAG`` (``_big_tag``), the file from its first frame on (``_AfterTag``)."""
     view = None
     if skip := _big_tag(path):
@@ -522,17 +522,24 @@ def _libsndfile_source(path: Path) -> Iterator[bytes | IO[bytes]]:
         view.close()  # no MPEG audio after it: libsndfile reads the file as it is
         view = None
     if view is None:
-        yield _libsndfile_name(path)
+        yield libsndfile_name(path)
         return
     view.seek(0)
     with view:
         yield view
 
 
-def _libsndfile_name(path: Path) -> bytes:
+def libsndfile_name(path: Path) -> bytes:
     """``path`` as libsndfile is to open it: its bytes (soundfile encodes a name given as text to UTF-8,
     which fails on a name that is not UTF-8, held by Python as surrogate escapes)."""
     return os.fsencode(path)
+
+
+def ffmpeg_name(path: str | Path) -> str:
+    """``path`` as FFmpeg (PyAV) is to open or write it: absolute, for its ``file`` protocol (a relative name
+    with a colon, "take:1.mov", or a hidden ".take:1.mp4.partial.mp4", FFmpeg reads as another
+    protocol's: "Protocol not found")."""
+    return f"file:{Path(path).absolute()}"
 
 
 def _ffmpeg_source(path: Path) -> str:
@@ -542,7 +549,7 @@ def _ffmpeg_source(path: Path) -> str:
     protocol, which reads its options up to ",,", then the file's name as it is): FFmpeg reads a picture
     in a tag whole (a 48 MB cover: 50 MB more, in an .mp3's check of its encoder delay or a raw .aac's
     decoding)."""
-    name = f"file:{path.absolute()}"
+    name = ffmpeg_name(path)
     skip = _big_tag(path)
     return f"subfile,,start,{skip},end,0,,:{name}" if skip else name
 
@@ -583,7 +590,7 @@ def _opened_as(f: sf.SoundFile, info: Any) -> bool:
 def _file_blocks(path: Path, dtype: str, size: int, info: Any = None) -> Iterator[np.ndarray]:
     """The samples of a file libsndfile reads, ``size`` frames (frames x channels) at a time; nothing
     when the file opens with another rate, channel count or subtype than ``info`` (replaced since)."""
-    with sf.SoundFile(_libsndfile_name(path)) as f:
+    with sf.SoundFile(libsndfile_name(path)) as f:
         if info is not None and not _opened_as(f, info):
             return
         while len(block := f.read(size, dtype=dtype, always_2d=True)):
@@ -929,7 +936,7 @@ def _damaged_in_file(audio: FileAudio) -> tuple[int, float]:
                 found[c].append(hits + at)
         at += len(block)
     count, worst = 0, 0.0
-    with sf.SoundFile(_libsndfile_name(audio._read_from)) as f:
+    with sf.SoundFile(libsndfile_name(audio._read_from)) as f:
         for c, parts in found.items():
             if not parts:
                 continue

@@ -16,7 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from .audio_io import SILENT_PEAK, Audio, FileAudio, check_samples, decode_with_pyav, finite_peak
+from .audio_io import (
+    SILENT_PEAK,
+    Audio,
+    FileAudio,
+    check_samples,
+    decode_with_pyav,
+    ffmpeg_name,
+    finite_peak,
+)
 from .errors import InputError
 
 
@@ -38,13 +46,6 @@ class MovInfo:
         """The rate the video's timecode counts frames at: its frame rate, whole (iPhone timecode is 30
         or 60 fps and never drop-frame, formats doc §0.11), or None when the file gives no rate."""
         return round(self.video_fps) if self.video_fps else None
-
-
-def ffmpeg_name(path: str | Path) -> str:
-    """``path`` as FFmpeg (PyAV) is to open or write it: absolute, for its ``file`` protocol (a relative name
-    with a colon, "take:1.mov", or a hidden ".take:1.mp4.partial.mp4", FFmpeg reads as another
-    protocol's: "Protocol not found")."""
-    return f"file:{Path(path).absolute()}"
 
 
 @contextmanager

@@ -21,9 +21,10 @@ import numpy as np
 
 from capture import ARKIT61, Audio, InputError, Take
 from capture.atomic import atomic_write
+from capture.audio_io import ffmpeg_name
 from capture.channels import canonical, is_known
 from capture.command import TimedProgress, stops_deferred
-from capture.mov import ffmpeg_name, opencv_name
+from capture.mov import opencv_name
 
 from .face import FaceModel, vertex_normals, weights_from_values
 from .inputs import ABSURD, bad_frames, clamp_blendshapes, read_input, with_face
