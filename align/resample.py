@@ -165,12 +165,16 @@ def mono_mix(audio: Audio | RecordedAudio) -> tuple[np.ndarray, dict[str, Any] |
     every channel of an hour at 48 kHz stereo took 1.4 GB."""
     source = recorded(audio)
     mix = _Mix(None, None) if source.channels < 2 else _mix_of(source)
-    x = np.empty(source.frames, np.float32)
+    return gathered(mix_blocks(source, mix, _CHUNK), np.empty(source.frames, np.float32)), mix.note
+
+
+def gathered(blocks: Iterable[np.ndarray], out: np.ndarray) -> np.ndarray:
+    """``out``, with ``blocks`` written into it one after another from its start (the rest as it was)."""
     at = 0
-    for block in mix_blocks(source, mix, _CHUNK):
-        x[at : at + block.size] = block
+    for block in blocks:
+        out[at : at + block.size] = block
         at += block.size
-    return x, mix.note
+    return out
 
 
 @dataclass
@@ -381,12 +385,7 @@ def _resampled(blocks: Iterable[np.ndarray], rate: int, frames: int) -> np.ndarr
     import soxr
 
     if rate == TARGET_RATE:
-        y = np.empty(frames, np.float32)
-        at = 0
-        for block in blocks:
-            y[at : at + block.size] = block
-            at += block.size
-        return y
+        return gathered(blocks, np.empty(frames, np.float32))
     stream = soxr.ResampleStream(rate, TARGET_RATE, 1, dtype="float32", quality="VHQ")
     y = np.empty(round(frames * TARGET_RATE / rate) + 16, np.float32)  # soxr gives the rounded length
     at = 0

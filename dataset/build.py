@@ -771,14 +771,9 @@ def mono_padded(audio: Audio, length: int) -> np.ndarray:
     to ``length`` samples: filled a block at a time (``align.resample.mono_blocks``), so that an hour of
     audio is held once here besides the take's own samples, not three times (``mono_float`` converts,
     averages and copies all at once)."""
-    from align.resample import mono_blocks
+    from align.resample import gathered, mono_blocks
 
-    out = np.zeros(length, np.float32)
-    at = 0
-    for part in mono_blocks(audio):
-        out[at : at + part.size] = part
-        at += part.size
-    return out
+    return gathered(mono_blocks(audio), np.zeros(length, np.float32))
 
 
 def audio_gain(audio: np.ndarray, sample_rate: int, peak: float | None = None) -> tuple[float, np.ndarray]:

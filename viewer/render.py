@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture import ARKIT61, Audio, InputError, Take
+from capture import ARKIT52, ARKIT61, Audio, InputError, Take
 from capture.atomic import atomic_write
 from capture.audio_io import ffmpeg_name
 from capture.channels import canonical, is_known
@@ -309,7 +309,7 @@ def reference_video_of(take: Take | None) -> Path | None:
     return None
 
 
-MOUTH_CHANNELS = tuple(c for c in ARKIT61[:52] if c.startswith(("jaw", "mouth")))
+MOUTH_CHANNELS = tuple(c for c in ARKIT52 if c.startswith(("jaw", "mouth")))
 
 
 def holds_channel(anim: Animation, name: str) -> bool:
@@ -450,15 +450,12 @@ def span_blocks(anim: Animation, t0: float, duration_s: float) -> Speech | None:
 
 def audio_for_span(anim: Animation, t0: float, duration_s: float) -> tuple[np.ndarray, int] | None:
     """``span_blocks`` in one array: (mono float32 samples, their rate)."""
+    from align.resample import gathered
+
     speech = span_blocks(anim, t0, duration_s)
     if speech is None:
         return None
-    out = np.empty(speech.frames, np.float32)
-    at = 0
-    for block in speech.blocks:
-        out[at : at + block.size] = block
-        at += block.size
-    return out, speech.rate
+    return gathered(speech.blocks, np.empty(speech.frames, np.float32)), speech.rate
 
 
 def speech_for_video(anims: Sequence[Animation], duration_s: float) -> tuple[Animation, Speech] | None:
