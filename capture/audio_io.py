@@ -1264,9 +1264,10 @@ def _decode_frames(
             first_pts = None
             damaged = 0
             for packet in container.demux(stream):
-                if first_pts is None and packet.pts is not None and isinstance(kept, _JoinedPart):
-                    kept.opened(stream, packet.pts)
-                first_pts = packet.pts if first_pts is None else first_pts
+                if first_pts is None and packet.pts is not None:
+                    first_pts = packet.pts
+                    if isinstance(kept, _JoinedPart):
+                        kept.opened(stream, first_pts)
                 try:
                     frames = packet.decode()
                 except av.InvalidDataError:
