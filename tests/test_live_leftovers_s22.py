@@ -8,6 +8,7 @@ import os
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -139,6 +140,20 @@ BUILD_PEAK = (
 )
 
 
+def built_with_peak(session: Path, out: Path) -> tuple[int, int]:
+    """The takes ``build_takes`` writes of ``session`` in a fresh process, and the kB it adds to its peak."""
+    proc = subprocess.run(
+        [sys.executable, "-c", BUILD_PEAK, str(session), str(out)], capture_output=True, text=True, check=True
+    )
+    built, added_kb = map(int, proc.stdout.split())
+    return built, added_kb
+
+
+def take_span_kb(seconds: float, rate: int) -> float:
+    """The kB of a ``seconds`` take's audio span (its margins and grid too) of 16-bit stereo at ``rate``."""
+    return (seconds + 2 * (AUDIO_MARGIN_S + 1 / FPS) + float(AUDIO_SPAN_GRID_S)) * rate * 4 / 1024
+
+
 @pytest.mark.skipif(not os.access("/proc/self/clear_refs", os.W_OK), reason="needs Linux's clear_refs")
 def test_one_takes_span_of_the_session_audio_in_memory_at_a_time(tmp_path):
     """Five 30 s takes of one phone and 48 kHz stereo audio (6.2 MB per take's span): every span was read
@@ -148,12 +163,6 @@ def test_one_takes_span_of_the_session_audio_in_memory_at_a_time(tmp_path):
     write_session(
         tmp_path / "s.recording", [(s, seconds * FPS) for s in starts], (0.0, starts[-1] + 40), rate
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", BUILD_PEAK, str(tmp_path / "s.recording"), str(tmp_path / "out")],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    built, added_kb = map(int, proc.stdout.split())
-    span_kb = (seconds + 2 * (AUDIO_MARGIN_S + 1 / FPS) + float(AUDIO_SPAN_GRID_S)) * rate * 4 / 1024
+    built, added_kb = built_with_peak(tmp_path / "s.recording", tmp_path / "out")
+    span_kb = take_span_kb(seconds, rate)
     assert built == takes and added_kb < 4 * span_kb, (added_kb, span_kb)

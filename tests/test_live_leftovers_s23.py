@@ -7,20 +7,17 @@ from __future__ import annotations
 import json
 import os
 import socket
-import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 from live_helpers import Listener, run_cli
-from test_live_leftovers_s22 import BUILD_PEAK
+from test_live_leftovers_s22 import built_with_peak, take_span_kb
 from test_live_take_audio_span import write_session
 from test_osc_remote import FakePhone
 
 from capture import read_take
 from capture.livelink import frame_block, header_bytes, no_face_packet
-from capture.session_takes import AUDIO_MARGIN_S, AUDIO_SPAN_GRID_S
 
 FPS = 60
 HEADER = header_bytes("PHONE-1", "Ann")
@@ -130,14 +127,8 @@ def test_a_takes_audio_is_written_without_holding_its_span(tmp_path):
     starts = [2.0 + k * (seconds + 6.0) for k in range(takes)]
     session = tmp_path / "s.recording"
     write_session(session, [(s, seconds * FPS) for s in starts], (0.0, starts[-1] + seconds + 2), rate)
-    proc = subprocess.run(
-        [sys.executable, "-c", BUILD_PEAK, str(session), str(tmp_path / "out")],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    built, added_kb = map(int, proc.stdout.split())
-    span_kb = (seconds + 2 * (AUDIO_MARGIN_S + 1 / FPS) + float(AUDIO_SPAN_GRID_S)) * rate * 4 / 1024
+    built, added_kb = built_with_peak(session, tmp_path / "out")
+    span_kb = take_span_kb(seconds, rate)
     assert built == takes and added_kb < 1.5 * span_kb, (added_kb, span_kb)
     take = read_take(tmp_path / "out" / "s_Ann_PHONE_2")  # its audio as before: its own span
     assert take.audio.frames == take.meta.audio.samples and take.audio.samples.dtype == np.int16
