@@ -38,6 +38,13 @@ MOUTH_OPENING = {
     "jaw_open": 1.0,
     "mouth_lowerlipdepress_l": 0.5,
     "mouth_lowerlipdepress_r": 0.5,
+    # Viseme curves of the MPEG-4 set lip-sync generators write (CRI LipSync's "Mpeg4-Visemes Animation
+    # Curve File": time,PP,FF,TH,DD,kk,CH,SS,nn,RR,aa,E,ih,oh,ou,...; Oculus OVRLipSync's visemes, named
+    # viseme_aa, viseme_PP on avatars): aa is the open jaw, PP the closed lips.
+    "aa": 1.0,
+    "pp": -1.0,
+    "viseme_aa": 1.0,
+    "viseme_pp": -1.0,
 }
 
 
@@ -62,7 +69,7 @@ def mouth_opening(values: np.ndarray, valid: np.ndarray, picks: list[tuple[int, 
         spread = float(np.std(x))
         if not np.isfinite(spread) or spread < 1e-6:
             continue
-        out += weight * (values[:, col] - np.mean(x)) / spread
+        out[valid] += weight * (x - np.mean(x)) / spread  # not frames of NaN or inf: noise on stderr
         used += 1
     out[~valid] = np.nan
     return out if used else np.full(values.shape[0], np.nan)

@@ -36,6 +36,7 @@ from .csv_take import (
     STANDARD_TOLERANCE,
     fill_dropped,
     nearest_standard,
+    note_channel_typos,
     plain_number,
     repair,
 )
@@ -917,6 +918,7 @@ def read_paired(
         key = twice[0].strip().lower()
         first, second = [g for g, n in zip(given, names) if n.strip().lower() == key][:2]
         raise InputError(f"channels {first!r} and {second!r} are the same channel", matrix_path)
+    _note_misnamed_channels(names, notes)
     with np.errstate(over="ignore"):  # beyond float32: inf, a BAD_VALUE frame
         values = matrix.astype(np.float32)
     status = np.where(np.isfinite(values).all(axis=1), FrameStatus.TRACKED, FrameStatus.BAD_VALUE).astype(
@@ -965,6 +967,17 @@ def read_paired(
         )
     note_length_mismatch(take, hint)
     return take
+
+
+def _note_misnamed_channels(names: list[str], notes: list[dict]) -> None:
+    """In an ARKit layout (Live Link channels outnumber the other names), say which name that is no
+    channel is close to one the file lacks (``jawOpen_L``, ``JawOpne`` without ``jawOpen``: repair
+    ``channel_typo``, a warning of import), as for the app's CSV; the column keeps its name. A rig's own
+    controls (FACEGOOD's ``mouth_press_l``, ``tongue_u``) are not ARKit names misspelt: not looked at."""
+    known = [n for n in names if ch.is_known(n)]
+    unknown = [n for n in names if not ch.is_known(n)]
+    if unknown and len(known) > len(unknown):
+        note_channel_typos(known, unknown, notes)
 
 
 def _check_rate(fps: float, path, hint: str) -> None:

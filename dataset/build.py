@@ -101,6 +101,9 @@ MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
 SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
 MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
+# A take with more frames beyond ANIM_LIMIT than this share has its weights on another scale (0..100,
+# 0..255): not a glitch, and its quiet frames within reach are as wrong, so none of its frames is usable.
+WRONG_SCALE_SHARE = 0.1
 CONTENT_FEATURES = ("fbank", "mfcc", "ppg")
 MAX_AUDIO_PEAK = 1000.0  # float audio this far past full scale (60 dB) is damaged, not loud
 STRAY_FACTOR = 10.0  # 10 ms frames past full scale this far above the take's loud-frame RMS are stray
@@ -959,7 +962,10 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     in_audio = t < audio_len / sr
     finite = np.all(np.isfinite(values), axis=1)
     in_range = np.all(np.abs(np.where(np.isfinite(values), values, 0.0)) <= ANIM_LIMIT, axis=1)
-    mask = np.isin(take.frame_status, USABLE_STATUS) & finite & in_range & in_audio
+    out_of_range = int((finite & ~in_range).sum())
+    wrong_scale = out_of_range > WRONG_SCALE_SHARE * n
+    beyond = np.isfinite(values) & (np.abs(values) > ANIM_LIMIT)  # per value: which channels, which sign
+    mask = np.isin(take.frame_status, USABLE_STATUS) & finite & in_range & in_audio & (not wrong_scale)
     anim = np.where(mask[:, None], values, 0.0).astype(np.float32)
     feats, phones = compute_features(
         padded[:span],
@@ -1063,7 +1069,10 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "config_hash": job.config_hash,
         "frames": n,
         "usable_frames": int(mask.sum()),
-        "out_of_range_frames": int((finite & ~in_range).sum()),
+        "out_of_range_frames": out_of_range,
+        "out_of_range_channels": [job.channels[j] for j in np.flatnonzero(beyond.any(axis=0))],
+        "out_of_range_below": bool((values[beyond] < 0).any()),
+        "wrong_scale": wrong_scale,
         "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == FrameStatus.INTERPOLATED))),
         "narrowband": narrow,
         "neutral_nonfinite": neutral_nonfinite,
@@ -1484,13 +1493,23 @@ def _take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     """What the build warns about one processed take (its record from ``process_take``)."""
     notes: list[str] = []
     if r.get("out_of_range_frames"):
-        scale = r["out_of_range_frames"] > 0.1 * r["frames"]  # not a glitch: the values' scale is wrong
+        scale = r["out_of_range_frames"] > WRONG_SCALE_SHARE * r["frames"]  # not a glitch
+        where = r.get("out_of_range_channels", [])
+        where = f" in {', '.join(where[:3])}{', ...' if len(where) > 3 else ''}" if where else ""
+        # Weights on 0..100 or 0..255 are never far below 0: such a column is no weight at all (a level in
+        # dB, as CRI LipSync's `Vol`), which --value-scale would only hide.
+        remedy = (
+            "values far below 0 are no weights on another scale (a level in dB?): leave those channels out "
+            "of --channels"
+            if r.get("out_of_range_below")
+            else "weights on a 0-100 or 0-255 scale? They are 0..1: import the take again with "
+            "s2a-capture import --value-scale 0.01 (or 1/255 = 0.00392157)"
+        )
         notes.append(
-            f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g} "
-            "(no blendshape weight is): masked as unusable"
+            f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g}"
+            f"{where} (no blendshape weight is): masked as unusable"
             + (
-                "; weights on a 0-100 or 0-255 scale? They are 0..1: import the take again with "
-                "s2a-capture import --value-scale 0.01 (or 1/255 = 0.00392157)"
+                f", and so are its other frames (their values are on that scale too); {remedy}"
                 if scale
                 else ""
             )
