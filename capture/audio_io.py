@@ -28,7 +28,7 @@ import soundfile as sf
 
 from .atomic import atomic_write
 from .command import stops_deferred, warn
-from .errors import InputError
+from .errors import InputError, printable
 from .growing import GrowingRows
 from .numbers import number_array
 
@@ -139,12 +139,14 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     at damage inside an .mp3 are put back as silence of their length, so the sound after it keeps its time
     (repair ``bad_audio``: where, how much, and, when their number is estimated, the most the sound after
     it may be shifted); damage running to its end (its last frames, into its end tags) leaves it short,
-    noted (repair ``bad_audio``: by how much). An .mp3 whose Xing/Info frame counts fewer frames than it
-    holds (libsndfile would stop at the count), or none though its LAME tag records the encoder's delay
-    (libsndfile would keep the delay), is read whole, its count corrected (``MpegRun.count_low``), and one
-    without a frame count whose length libsndfile estimates short (VBR without a Xing header) as joined
-    files are. A file starting with an ID3v2 tag over ``_BIG_TAG`` (a cover picture) is read from after
-    it, by libsndfile and FFmpeg alike. Within ``audio_left_in_files`` (an import), audio libsndfile reads
+    noted (repair ``bad_audio``: by how much); damage running to a file joined on is put back as inside
+    (counted by the file's Info frame, or estimated when its bytes start as a frame does), else noted with
+    the frames it could hold. An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile
+    would stop at the count), or none though its LAME tag records the encoder's delay (libsndfile would
+    keep the delay), is read whole, its count corrected (``MpegRun.count_low``), and one without a frame
+    count whose length libsndfile estimates short (VBR without a Xing header) as joined files are. A file
+    starting with an ID3v2 tag over ``_BIG_TAG`` (a cover picture) is read from after it, by libsndfile
+    and FFmpeg alike. Within ``audio_left_in_files`` (an import), audio libsndfile reads
     cleanly is a ``FileAudio``: checked a block at a time, left in its file; given a scratch folder there,
     audio FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file it was decoded into, the
     same samples and repairs as read whole (``_read_mpeg``)."""
@@ -179,8 +181,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
                 {
                     "line": None,
                     "kind": "truncated_audio",
-                    "message": f"{path.name}: header declares {declared / rate:.3f} s of audio, the file "
-                    f"holds {audio.duration_s:.3f} s (cut short?): the samples present are used",
+                    "message": f"{shown_name(path)}: header declares {declared / rate:.3f} s of audio, "
+                    f"the file holds {audio.duration_s:.3f} s (cut short?): the samples present are used",
                 }
             )
         return audio
@@ -209,7 +211,8 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
     code (``_MPG123_DROPS``; a frame with no frame count), its length is over twice theirs (a Xing/Info frame
     count of 2**32 - 1: libsndfile's read would ask for an array of that length, 9 TiB), or frames were lost
     at damage (``MpegRun.losses``: put back as silence, so the sound after it keeps its time), or bytes other
-    than tags follow its last frame (damage at its end, zeros, junk: ``MpegLoss.ends``): then decoded as
+    than tags follow its last frame (damage at its end, zeros, junk: ``MpegLoss.ends``), or its first frame
+    is a VBRI frame (mpg123 decodes it as a frame of silence): then decoded as
     joined files are (``_read_joined_mpeg``). Within ``audio_left_in_files`` given a scratch folder (an
     import), decoded a block at a time into a scratch file there (``_streamed``), the same samples and repairs
     as read whole. Its frames are found in the file read a block at a time (``_FileBytes``), not whole."""
@@ -220,9 +223,11 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         # cut short: FFmpeg is given its frames only)
         lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
         counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
+        # a VBRI frame (Fraunhofer's encoders): mpg123 decodes it as a frame of silence, FFmpeg skips it
+        vbri = bool(runs) and _dropped_at_start(data, runs[0]) == runs[0].frame_samples
         skipped = _gapless_skip(data, runs[0]) if runs else 0
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
-        if not (len(runs) > 1 or lost or counts_wrong or _estimated_short(info, coded, drops)):
+        if not (len(runs) > 1 or lost or counts_wrong or vbri or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
             audio = _read_by_libsndfile(path, info, skipped, found)
             if audio.frames + drops >= coded:
@@ -342,10 +347,15 @@ def _gapless_skip(data: bytes | _FileBytes, run: MpegRun, counted: bool = False)
 
 
 def _dropped_at_start(data: bytes | _FileBytes, run: MpegRun, counted: bool = False) -> int:
-    """The samples of the file whose first run is ``run`` that are not decoded as sound: its header frame's
-    and the encoder's delay (``_gapless_skip``)."""
+    """The samples of the file whose first run is ``run`` that FFmpeg does not decode as sound: its header
+    frame's and the encoder's delay (``_gapless_skip``); a VBRI frame's that declares a frame count (its
+    encoder's delay kept)."""
     skip = _gapless_skip(data, run, counted)
-    return skip + run.frame_samples if skip else 0
+    if skip:
+        return skip + run.frame_samples
+    frame = _mpeg_frame(data, run.start)
+    vbri = frame is not None and _begins_file(data, run.start) and data.startswith(b"VBRI", run.start + 36)
+    return run.frame_samples if vbri and _file_header_frames(data, run.start, frame) else 0
 
 
 def _lame_tag_at(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> int:
@@ -389,7 +399,7 @@ def _read_cut_short(path: Path, info: Any, exc: Exception, repairs: list[dict[st
         {
             "line": None,
             "kind": "truncated_audio",
-            "message": f"{path.name}: header declares {info.frames / info.samplerate:.3f} s of audio, "
+            "message": f"{shown_name(path)}: header declares {info.frames / info.samplerate:.3f} s of audio, "
             f"the file holds {audio.duration_s:.3f} s ({exc}; cut short?): the samples present are used, "
             "the packet cut through as silence",
         }
@@ -415,8 +425,8 @@ def _read_unfinished_wav(path: Path, repairs: list[dict[str, Any]] | None) -> Au
         {
             "line": None,
             "kind": "unfinished_audio",
-            "message": f"{path.name}: the WAV header declares no samples (a recorder that did not finish the "
-            f"file?): the {audio.duration_s:.3f} s of samples after it are used",
+            "message": f"{shown_name(path)}: the WAV header declares no samples (a recorder that did not "
+            f"finish the file?): the {audio.duration_s:.3f} s of samples after it are used",
         }
     )
     return audio
@@ -527,6 +537,11 @@ def _libsndfile_source(path: Path) -> Iterator[bytes | IO[bytes]]:
     view.seek(0)
     with view:
         yield view
+
+
+def shown_name(path: Path) -> str:
+    """``path``'s name as a message shows it (``caf\\xe9.mp3``: see ``printable``)."""
+    return printable(path.name)
 
 
 def libsndfile_name(path: Path) -> bytes:
@@ -767,7 +782,7 @@ def _non_finite_note(path: Path, count: int) -> dict[str, Any]:
     return {
         "line": None,
         "kind": "bad_audio",
-        "message": f"{path.name}: {count} NaN or infinite samples set to 0",
+        "message": f"{shown_name(path)}: {count} NaN or infinite samples set to 0",
     }
 
 
@@ -828,8 +843,8 @@ def check_samples(audio: Audio, path: Path, repairs: list[dict[str, Any]] | None
             {
                 "line": None,
                 "kind": "bad_audio",
-                "message": f"{path.name}: {found} isolated sample(s) up to {worst:.3g}, past full scale and "
-                f"over {SPIKE_FACTOR:g} times the signal around them (damaged), replaced by the "
+                "message": f"{shown_name(path)}: {found} isolated sample(s) up to {worst:.3g}, past full "
+                f"scale and over {SPIKE_FACTOR:g} times the signal around them (damaged), replaced by the "
                 "interpolation of their neighbours",
             }
         )
@@ -1077,20 +1092,38 @@ def note_unknown_delay(
     packets before it (an MP4 edit list). ``stream``: the file's PyAV audio stream and ``first_pts`` its
     first packet's (None: the file is opened here, as for what libsndfile decoded)."""
     if stream is None:
-        codec = _unknown_delay_codec(_ffmpeg_source(path))
+        unknown = _unknown_delay_codec(_ffmpeg_source(path))
     else:
-        codec = None if _delay_known(stream, first_pts) else stream.codec_context.name
-    if codec is None:
+        unknown = None if _delay_known(stream, first_pts) else _codec_and_rate(stream)
+    if unknown is None:
         return
+    codec, rate = unknown
     repairs.append(
         {
             "line": None,
             "kind": "encoder_delay_unknown",
-            "message": f"{path.name}: {codec.removesuffix('float').upper()} audio whose file does not record "
-            "the encoder's delay (raw ADTS .aac, an MP3 without a LAME tag): its priming samples are kept, "
-            "so the audio may start up to ~50 ms late; s2a-align measures the offset",
+            "message": f"{shown_name(path)}: {codec.removesuffix('float').upper()} audio whose file does not "
+            "record the encoder's delay (raw ADTS .aac, an MP3 without a LAME tag): its priming samples are "
+            f"kept, so the audio may start up to ~{_priming_ms(rate)} ms late; s2a-align measures the offset",
         }
     )
+
+
+# The most samples of an encoder's priming a decoder may keep: Apple's AAC encoder's 2112 (FFmpeg's AAC
+# encoder primes 1024, LAME's output decodes 1105 before its sound)
+_PRIMING_MOST = 2112
+
+
+def _priming_ms(rate: int) -> int:
+    """How late (ms) the sound may start in audio at ``rate`` Hz whose encoder's priming is kept: its
+    samples are as many at any rate (at 16 kHz raw AAC was 64 ms late, LAME's MP3 69 ms, 138 ms at 8
+    kHz); said as ~50 ms at 44.1 and 48 kHz."""
+    return max(50, math.ceil(1000 * _PRIMING_MOST / rate)) if rate > 0 else 50
+
+
+def _codec_and_rate(stream: Any) -> tuple[str, int]:
+    """The decoder name and sample rate of a PyAV audio ``stream`` (0: not known)."""
+    return stream.codec_context.name, stream.codec_context.sample_rate or 0
 
 
 def _delay_known(stream: Any, first_pts: int | None) -> bool:
@@ -1103,17 +1136,17 @@ def _delay_known(stream: Any, first_pts: int | None) -> bool:
     return (first_pts or 0) < 0 or (stream.start_time or 0) > 0
 
 
-def _unknown_delay_codec(source: str) -> str | None:
+def _unknown_delay_codec(source: str) -> tuple[str, int] | None:
     """The codec of the first audio stream of the file ``source`` when its encoder's delay is not known
-    (``_delay_known``): FFmpeg's decoder name; None when it is, and when FFmpeg cannot open it (nothing is
-    known of a delay then)."""
+    (``_delay_known``): FFmpeg's decoder name, and its sample rate; None when it is, and when FFmpeg
+    cannot open it (nothing is known of a delay then)."""
     import av
 
     try:
         with av.open(source) as container:
             stream = container.streams.audio[0]
             first_pts = next((p.pts for p in container.demux(stream) if p.pts is not None), None)
-            return None if _delay_known(stream, first_pts) else stream.codec_context.name
+            return None if _delay_known(stream, first_pts) else _codec_and_rate(stream)
     except (av.FFmpegError, OSError, ValueError, IndexError):
         return None
 
@@ -1133,7 +1166,7 @@ def _note_channels_changed(
             {
                 "line": None,
                 "kind": "channels_changed",
-                "message": f"{path.name}: the audio's channel count changes mid-stream (from "
+                "message": f"{shown_name(path)}: the audio's channel count changes mid-stream (from "
                 f"{at / rate:.3f} s): {changed} samples were mixed to the first frame's "
                 f"{channels} channel(s)",
             }
@@ -1951,6 +1984,18 @@ class MpegLoss:
     exact: bool = False
     # it runs to the end of the data, or to tags that end it: nothing after it to keep on time
     ends: bool = False
+    # it runs to the tag or Xing/Info frame a file joined on begins with: its file's last frames, counted
+    # as at the end (from the count its own Xing/Info frame declares), put back as silence (sound follows)
+    before_join: bool = False
+    # before a file joined on, bytes that start no frame and no frame count to tell whether they held any
+    # (damage, or a tag not known here: Lyrics3, an APE tag with no header): the frames they could hold,
+    # said, none put back
+    unsure: int = 0
+
+    @property
+    def last(self) -> bool:
+        """Whether it runs to where its file's frames end (the end of the data, tags, a file joined on)."""
+        return self.ends or self.before_join
 
 
 def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
@@ -2047,17 +2092,26 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
 def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:
     """Stray bytes from ``end`` (where the run's last frame ends, ``coded`` samples in) to a frame at
     ``found``: damage, frames may be lost there. Up to the end of the data (``found`` None: to the tags
-    that end it, ``_end_tags_at``) or to tags that end it: damage at its end (``MpegLoss.ends``); not before
-    a tag a file joined on begins with (the end of a file). A lone header of another format at ``found``
-    resyncs on from it: the same damage, running on."""
-    ends = found is None or bool(_tag_bytes(data, found))
-    if found is not None and ends and not _ends_stream(data, found):
-        return
+    that end it, ``_end_tags_at``) or to tags that end it: damage at its end (``MpegLoss.ends``); up to a
+    tag or a Xing/Info frame a file joined on begins with (the damage may have wiped its tag's header):
+    damage at its file's end, the sound after it kept on time (``MpegLoss.before_join``). A lone header of
+    another format at ``found`` resyncs on from it: the same damage, running on."""
+    tag = found is not None and bool(_tag_bytes(data, found))
+    ends = found is None or tag and _ends_stream(data, found)
+    joined = not ends and found is not None and (tag or _begins_file(data, found))
     stop = max(_end_tags_at(data), end) if found is None else found
     if run.losses and run.losses[-1].start == end:
-        run.losses[-1].end, run.losses[-1].ends = stop, ends
+        loss = run.losses[-1]
+        loss.end, loss.ends, loss.before_join = stop, ends, joined
     elif stop > end:
-        run.losses.append(MpegLoss(end, stop, coded, ends=ends))
+        run.losses.append(MpegLoss(end, stop, coded, ends=ends, before_join=joined))
+
+
+def _begins_file(data: bytes | _FileBytes, pos: int) -> bool:
+    """Whether the frame at ``pos`` is a file's Xing/Info or VBRI frame (``_is_file_header``): its side
+    information zeros, no sound."""
+    frame = _mpeg_frame(data, pos)
+    return frame is not None and not data[pos + frame[6]] and _is_file_header(data, pos, frame)
 
 
 def _end_tags_at(data: bytes | _FileBytes) -> int:
@@ -2082,8 +2136,9 @@ def _starts_sync(data: bytes | _FileBytes, pos: int) -> bool:
 def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
     """The frames lost at each damage of ``runs`` (``MpegRun.losses``), each estimated from the bytes
     damaged at its run's mean bytes per frame (frames overwritten at a constant bit rate: exact, up to the
-    padding byte; running to the end of the data or its tags, only when they start with a frame's sync, a
-    damaged header: else they are what follows the last frame, zeros, junk, a Lyrics3 tag, no frame lost);
+    padding byte; running to the end of the data, its tags or a file joined on, only when they start with a
+    frame's sync, a damaged header: else they are what follows the last frame, zeros, junk, a Lyrics3 tag,
+    no frame lost, and before a file joined on what they could hold is said, ``MpegLoss.unsure``);
     then, in a file whose Xing/Info frame declares its frame count (not too low), set to the count less the
     frames found when the estimates agree with it (a file cut short as well: they do not), exact when
     damaged once or the estimates add up to it; damage at its end, to what the count misses."""
@@ -2092,21 +2147,30 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         losses = [loss for run in runs[a:b] for loss in run.losses]
         if not losses:
             continue
+        overwritten = _overwritten(data, runs[a], max(runs[b - 1].end, losses[-1].end))
         for run in runs[a:b]:
-            damaged = sum(loss.end - loss.start for loss in run.losses if not loss.ends)  # within the run
+            damaged = sum(loss.end - loss.start for loss in run.losses if not loss.last)  # within the run
             per_frame = (run.end - run.start - damaged) / max(run.frames, 1)
             for loss in run.losses:
-                # at the end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no frames
-                seen = not loss.ends or _starts_sync(data, loss.start)
-                loss.frames = round((loss.end - loss.start) / per_frame) if seen else 0
+                # at a file's end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no
+                # frames; before a file joined on, said as what they could hold
+                estimate = round((loss.end - loss.start) / per_frame)
+                seen = not loss.last or overwritten or _starts_sync(data, loss.start)
+                loss.frames = estimate if seen else 0
+                loss.unsure = estimate if loss.before_join and not seen else 0
         frame = _mpeg_frame(data, runs[a].start)
         if frame is None or runs[a].count_low or not _is_file_header(data, runs[a].start, frame):
             continue
         declared = _file_header_frames(data, runs[a].start, frame)
         lost = declared - (sum(run.frames for run in runs[a:b]) - 1)  # its header frame holds no sound
-        if declared and lost >= 0 and losses[-1].ends:  # its end: what the count misses past the others
+        if overwritten and lost < sum(loss.frames for loss in losses):
+            # fewer than the bytes damaged held: the count is too low (a file edited after encoding), the
+            # damage hid it from ``mpeg_runs``: read whole, its count set (``_counted_whole``)
+            runs[a].count_low = True
+            continue
+        if declared and lost >= 0 and losses[-1].last:  # its end: what the count misses past the others
             end = losses.pop()
-            end.frames, end.exact = max(lost - sum(loss.frames for loss in losses), 0), True
+            end.frames, end.exact, end.unsure = max(lost - sum(loss.frames for loss in losses), 0), True, 0
             lost -= end.frames
             if not losses:
                 continue
@@ -2117,6 +2181,21 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         largest.frames = max(0, largest.frames + lost - estimated)
         for loss in losses:
             loss.exact = len(losses) == 1 or estimated == lost
+
+
+def _overwritten(data: bytes | _FileBytes, first: MpegRun, end: int) -> bool:
+    """Whether the damage of the file whose first run is ``first``, its frames and damage ending at ``end``,
+    overwrote its frames' bytes (none cut out nor put in), their bit rate constant: its Info frame (not
+    Xing: LAME's mark of a constant bit rate) declares a byte count it ends at. The frames lost are then
+    what the bytes damaged hold, exactly (``_count_lost``), bytes at its end that start no frame too."""
+    frame = _mpeg_frame(data, first.start)
+    return (
+        frame is not None
+        and _is_file_header(data, first.start, frame)
+        and data.startswith(b"Info", _xing_at(data, first.start, frame))
+        and bool(_file_header_bytes(data, first.start, frame))
+        and _ends_as_declared(data, first, end)
+    )
 
 
 def _read_joined_mpeg(
@@ -2180,9 +2259,10 @@ def _read_joined_mpeg(
                 {
                     "line": None,
                     "kind": "encoder_delay_unknown",
-                    "message": f"{path.name}: the MP3 file joined on at {at:.3f} s does not record its "
-                    "encoder's delay (no LAME tag) nor begins as LAME's output does: its priming samples "
-                    "are kept there, so the sound after it may be up to ~50 ms late",
+                    "message": f"{shown_name(path)}: the MP3 file joined on at {at:.3f} s does not record "
+                    "its encoder's delay (no LAME tag) nor begins as LAME's output does: its priming "
+                    "samples are kept there, so the sound after it may be up to "
+                    f"~{_priming_ms(first.sample_rate)} ms late",
                 }
             )
         if part.padding_unknown and k < last and repairs is not None:
@@ -2196,7 +2276,7 @@ def _read_joined_mpeg(
             {
                 "line": None,
                 "kind": "bad_audio",
-                "message": f"{path.name}: {damaged} damaged MPEG audio frame(s) could not be decoded: "
+                "message": f"{shown_name(path)}: {damaged} damaged MPEG audio frame(s) could not be decoded: "
                 "silence in their place (at the end: left out)",
             }
         )
@@ -2234,11 +2314,11 @@ def _mended(
     coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's
     for run in runs:
         for loss in run.losses:
-            if not loss.frames:
+            if not (loss.frames or loss.unsure):
                 continue
             if repairs is not None:
                 repairs.append(_loss_note(path, at + (coded + loss.coded) / run.sample_rate, loss, run))
-            if loss.ends:  # nothing after it to keep on time
+            if loss.ends or not loss.frames:  # nothing after it to keep on time, or none known lost
                 continue
             pieces += [range(pos, loss.start), (_silent_frame(data, run.start), loss.frames)]
             pos = loss.end
@@ -2246,6 +2326,8 @@ def _mended(
         coded += run.samples
     part = _MendedPart(data, [*pieces, range(pos, runs[-1].end)])
     if pieces:
+        # damage up to a file joined on (``MpegLoss.before_join``) lies past the file's frames, over its
+        # last ones and maybe the next file's tag: the byte count grows by the frames put in
         _move_bytes_declared(part, data, runs[0].start, part.size - (runs[-1].end - runs[0].start))
     return part
 
@@ -2330,16 +2412,25 @@ def _move_bytes_declared(part: _MendedPart, data: bytes | _FileBytes, start: int
 def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[str, Any]:
     """The repair ``bad_audio`` of the frames of ``run`` lost at ``loss``, ``start`` seconds in."""
     lost = loss.frames * run.frame_samples
+    if loss.unsure:
+        most = loss.unsure * run.frame_samples
+        message = (
+            f"{shown_name(path)}: {loss.end - loss.start} bytes that start no MPEG frame (damage, or a tag "
+            f"not known here) lie between the file ending at {start:.3f} s and the file joined on after it: "
+            f"if they were frames, up to {loss.unsure} frame(s) ({1000 * most / run.sample_rate:.0f} ms) of "
+            "its sound are missing there, the sound after it that much early"
+        )
+        return {"line": None, "kind": "bad_audio", "message": message}
     if loss.ends:
         about = "up to" if loss.exact else "about"  # the encoder's padding may be in them
         message = (
-            f"{path.name}: damaged MPEG audio at its end, from {start:.3f} s: {loss.frames} frame(s) lost "
-            f"there{'' if loss.exact else ' (estimated from the bytes damaged)'}: the audio ends {about} "
-            f"{1000 * lost / run.sample_rate:.0f} ms short (no sound after it to keep on time)"
+            f"{shown_name(path)}: damaged MPEG audio at its end, from {start:.3f} s: {loss.frames} frame(s) "
+            f"lost there{'' if loss.exact else ' (estimated from the bytes damaged)'}: the audio ends "
+            f"{about} {1000 * lost / run.sample_rate:.0f} ms short (no sound after it to keep on time)"
         )
         return {"line": None, "kind": "bad_audio", "message": message}
     message = (
-        f"{path.name}: damaged MPEG audio at {start:.3f} s: {loss.frames} frame(s) lost there ({lost} "
+        f"{shown_name(path)}: damaged MPEG audio at {start:.3f} s: {loss.frames} frame(s) lost there ({lost} "
         f"samples, {1000 * lost / run.sample_rate:.0f} ms), put back as silence, so the sound after it "
         "keeps its time"
     )
@@ -2370,9 +2461,9 @@ def _padding_kept_note(path: Path, at: float, end: float, first: MpegRun) -> dic
     return {
         "line": None,
         "kind": "encoder_delay_unknown",
-        "message": f"{path.name}: the MP3 file joined on at {at:.3f} s does not record its encoder's padding "
-        f"(no LAME tag): its end keeps it, so the file joined on after it at {end:.3f} s may be up to "
-        f"{1000 * most / first.sample_rate:.0f} ms late",
+        "message": f"{shown_name(path)}: the MP3 file joined on at {at:.3f} s does not record its encoder's "
+        f"padding (no LAME tag): its end keeps it, so the file joined on after it at {end:.3f} s may be up "
+        f"to {1000 * most / first.sample_rate:.0f} ms late",
     }
 
 

@@ -17,7 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from .errors import S2AError
+from .errors import S2AError, printable
 from .import_guard import COMMANDS, running_command
 
 
@@ -191,8 +191,8 @@ def emit_json(obj: dict[str, Any]) -> None:
 
 
 def progress(message: str) -> None:
-    """Human-readable progress on stderr."""
-    print(message, file=sys.stderr, flush=True)
+    """Human-readable progress on stderr (a name's bytes that are not UTF-8 as ``\\xff``)."""
+    print(printable(message), file=sys.stderr, flush=True)
 
 
 # The program of the stage whose command line runs (``run`` sets it): what ``warn`` names. Outside
@@ -413,7 +413,7 @@ def run(
     try:
         return main(build_parser().parse_args(argv))
     except S2AError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+        print(printable(f"{prog}: error: {exc}"), file=sys.stderr)
         return 1
     except Terminated:
         print(f"{prog}: terminated (SIGTERM)", file=sys.stderr)
@@ -425,7 +425,7 @@ def run(
         return 0
     except OSError as exc:  # the file system refused (read-only, no permission, a file in the way, full)
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(printable(f"{prog}: error: {where}{exc.strerror or exc}"), file=sys.stderr)
         return 1
     except (MemoryError, RuntimeError) as exc:
         if not out_of_memory(exc):

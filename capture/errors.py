@@ -5,6 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def printable(text: str) -> str:
+    """``text`` as a message shows it: the bytes of a file name that are not UTF-8 (held by Python as
+    surrogate escapes, printed as ``\\udcff``) as ``\\xff``, as Python shows bytes (``caf\\xe9.mp3``)."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a surrogate no file name's bytes give
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 class S2AError(Exception):
     """Base of every error the toolkit raises for bad input or a failed check."""
 
@@ -18,5 +27,5 @@ class InputError(S2AError):
         self.reason = message  # what is wrong, without the file: alike for many files of one batch
         where = ""
         if self.path is not None:
-            where = self.path + (f":{line}" if line is not None else "") + ": "
+            where = printable(self.path) + (f":{line}" if line is not None else "") + ": "
         super().__init__(where + message)

@@ -18,7 +18,7 @@ from conftest import SAMPLES, run_cli, run_python
 from test_audio_mp3_later_parts import mp3_bytes
 from test_import_decoded_streaming import TAKE_CSV
 
-from capture.audio_io import audio_left_in_files, read_audio, write_audio
+from capture.audio_io import audio_left_in_files, read_audio, shown_name, write_audio
 
 _ODD = b"x\xff\xfe"  # not UTF-8
 
@@ -69,7 +69,10 @@ def test_audio_named_in_bytes_that_are_not_utf8_reads_and_writes_as_named_in_asc
                     write_audio(out, read_audio(path, repairs))
             else:
                 write_audio(out, read_audio(path, repairs))
-            written[name] = (out.read_bytes(), [r["message"].replace(path.name, "NAME") for r in repairs])
+            written[name] = (
+                out.read_bytes(),
+                [r["message"].replace(shown_name(path), "NAME") for r in repairs],
+            )
         assert written["odd"] == written["plain"], kind
 
 
