@@ -14,14 +14,15 @@ multi-threaded CSV engine with fixed column types; the careful parser reads line
 it can, records each repair with its line in the take's metadata, and raises ``InputError`` naming the
 file and line for what it cannot repair. A long file with a few damaged rows takes both: pyarrow reads
 the rows it can, the careful parser's per-row logic only the lines pyarrow cannot take (``_read_mended``),
-so that a cut-short last line costs what the intact file does. Files a spreadsheet or script re-saved
-whole (a BOM, CRLF, a comma ending every line, pandas' index column, quoted header names, every cell or
-the timecodes in quotes) are read so too, and so are quotes first met further on (later rows re-saved, a
-quoted cell here and there); a line ending at a lone CR, or more than half the lines to read line by
-line, sends a file to the careful parser whole. pyarrow reads a long file a part at a time
-(``PART_BYTES``), with quoting on in the parts holding a quote, writing each part's values into one
-array and giving back its mapped pages once read, so that the parse of an hour holds little more than
-its result.
+so that a cut-short last line costs what the intact file does; a cell of a number's bytes that is no
+number (``-``, ``0.1.2``, ``1e``: pyarrow names it, a scan of the file finds its lines) and a channel no
+row fills are read so too. Files a spreadsheet or script re-saved whole (a BOM, CRLF, a comma ending
+every line, pandas' index column, quoted header names, every cell or the timecodes in quotes) are read so
+too, and so are quotes first met further on (later rows re-saved, a quoted cell here and there); a line
+ending at a lone CR, or more than half the lines to read line by line, sends a file to the careful parser
+whole. pyarrow reads a long file a part at a time (``PART_BYTES``), with quoting on in the parts holding a
+quote, writing each part's values into one array and giving back its mapped pages once read, so that the
+parse of an hour holds little more than its result.
 
 Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``):
 
@@ -384,26 +385,38 @@ def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict
     crlf = b"\r\n" in data.slice(0, min(data.size, 65536)).to_pybytes()
     resaved = bom or crlf or header.trailing_comma or header.index_column is not None
     lines, screened = None, np.empty(0, np.int64)
-    read = _arrow_rows([data.slice(body_start)], header, mapped)
+    invalid: list[str] = []  # the cells pyarrow named no number, read after read
+    read = _arrow_rows([data.slice(body_start)], header, mapped, invalid)
     if read is None:  # a cell that is no number: again without the lines holding a non-number byte
         lines = _Lines(data, mapped.release)
         if lines.has_cr:
             return None
         screened = lines.with_other_bytes(quotes=True)
         # none to leave out: the lines are those just read (a quoted cell no number: not read twice)
-        read = _read_screened(lines, screened, header, mapped) if screened.size else None
+        read = _read_screened(lines, screened, header, mapped, invalid) if screened.size else None
         if read is None:  # then also without those holding a quote: a quoted cell no number ("0,1421")
             with_quotes = lines.with_other_bytes(quotes=False)
-            if with_quotes.size == screened.size:  # no line holds a quote
+            if with_quotes.size > screened.size:
+                screened = with_quotes
+                read = _read_screened(lines, screened, header, mapped, invalid)
+        # then also without the lines holding a cell pyarrow named, made of a number's bytes only ("-",
+        # "0.1.2", "1e"), each met found in one scan of the file
+        for _ in range(MAX_NUMBER_LIKE):
+            if read is not None or not invalid:
+                break
+            holding = np.union1d(screened, _lines_holding(lines, mapped, invalid))
+            invalid.clear()
+            if holding.size == screened.size:  # none found (a quoted one): the careful parser reads it
                 return None
-            screened = with_quotes
-            read = _read_screened(lines, screened, header, mapped)
-            if read is None:
-                return None
+            screened = holding
+            read = _read_screened(lines, screened, header, mapped, invalid)
+        if read is None:
+            return None
     rows, odd, quoted = read
     del read
-    # quotes (pyarrow may carry one left open into the next line): the rows are matched to the lines
-    if lines is None and not (resaved or quoted) and not rows[3].any():
+    # quotes (pyarrow may carry one left open into the next line): the rows are matched to the lines; a
+    # channel empty on every row: the careful parser's checks leave it out (_read_mended)
+    if lines is None and not (resaved or quoted) and not rows[3].any() and not rows[5].any():
         plain = _plain_rows(path, header, *rows[:3], odd)
         if plain is not None:
             return plain
@@ -419,7 +432,7 @@ def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict
         # line: 4-8x the time and 1.7x the peak of an hour).
         del rows
         screened = lines.with_other_bytes(quotes=False)
-        read = _read_screened(lines, screened, header, mapped)
+        read = _read_screened(lines, screened, header, mapped, [])
         if read is not None:
             rows, odd, _ = read
             del read
@@ -427,9 +440,27 @@ def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict
     return mended
 
 
+# How many cells pyarrow names no number though made of a number's bytes (``-``, ``0.1.2``) the lines
+# holding them are looked for: pyarrow names one at a time, each costs a read of the file.
+MAX_NUMBER_LIKE = 8
+
+
+def _lines_holding(lines: _Lines, mapped: _MappedFile, cells: list[str]) -> np.ndarray:
+    """The data lines holding one of ``cells`` as a whole value cell (after a comma, before a comma or the
+    line's end), found by one scan of the mapped file per cell."""
+    offset = lines.bytes.ctypes.data - mapped.start  # the byte-order mark before the lines, if any
+    found = []
+    for cell in set(cells):
+        pattern = re.compile(b"," + re.escape(cell.encode()) + rb"(?=[,\r\n]|\Z)")
+        found += [m.start() - offset for m in pattern.finditer(mapped.map)]
+    mapped.release(mapped.start, len(mapped.map))
+    numbers = np.searchsorted(lines.starts, np.asarray(found, np.int64), side="right")
+    return np.unique(numbers[numbers > 1])  # the header is no data line
+
+
 def _read_screened(
-    lines: _Lines, screened: np.ndarray, header: CsvHeader, mapped: _MappedFile
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], list[str], bool] | None:
+    lines: _Lines, screened: np.ndarray, header: CsvHeader, mapped: _MappedFile, invalid: list[str]
+) -> _ArrowRead | None:
     """``_arrow_rows`` of the data lines but ``screened``; ``None`` when it cannot read them, or when they
     leave too many lines (``MAX_MENDED_SHARE``) or pieces (``MAX_PIECES``) for the careful parser."""
     import pyarrow as pa
@@ -441,7 +472,7 @@ def _read_screened(
         return None
     if len(pieces) > 1 and lines.bytes.size <= JOIN_PIECES_BYTES:  # one read: each costs pyarrow's setup
         pieces = [pa.py_buffer(b"".join(piece.to_pybytes() for piece in pieces))]
-    return _arrow_rows(pieces, header, mapped)
+    return _arrow_rows(pieces, header, mapped, invalid)
 
 
 class _MappedFile:
@@ -495,14 +526,23 @@ def _parts(piece: Any) -> Iterator[Any]:
     yield piece.slice(at)
 
 
+# pyarrow's rows (times, values, status, trouble, pandas' index or None, the columns of empty cells only),
+# the text of the lines it skipped, and whether a part was read with quoting on
+_ArrowRead = tuple[
+    tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray], list[str], bool
+]
+
+
 def _arrow_rows(
-    pieces: list[Any], header: CsvHeader, mapped: _MappedFile
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], list[str], bool] | None:
+    pieces: list[Any], header: CsvHeader, mapped: _MappedFile, invalid: list[str]
+) -> _ArrowRead | None:
     """pyarrow's rows of whole lines of the file (``_table_rows``, read part by part: ``_parts``, each
     part's mapped pages given back once read), the text of the lines it skipped, and whether a part was
     read with quoting on (one holding a quote: a spreadsheet's re-save of the whole file or of its later
     rows, a quoted cell anywhere; the others are read without, the least work); ``None`` as for
-    ``_arrow_read``, or when it reads no row."""
+    ``_arrow_read`` (the cell it could not convert added to ``invalid``), or when it reads no row. The
+    columns whose every cell is empty (a channel the writer left out) make no row trouble; in a part where
+    other columns are empty too, every row is (the careful parser reads them)."""
     import pyarrow as pa
 
     odd: list[str] = []
@@ -511,7 +551,7 @@ def _arrow_rows(
     for piece in pieces:
         for part in _parts(piece):
             quotes = mapped.holds_quote(part)
-            table = _arrow_read(part, header, quotes, odd)
+            table = _arrow_read(part, header, quotes, odd, invalid)
             if table is None:
                 return None
             quoted |= quotes
@@ -524,10 +564,14 @@ def _arrow_rows(
             pa.default_memory_pool().release_unused()  # what pyarrow's allocator would keep for reuse
     if not values.n:
         return None
+    blank = np.logical_and.reduce([part[4] for part in parts])
+    for part in parts:
+        if (part[4] != blank).any():
+            part[2][:] = True
     times, status, trouble, index = (
         np.concatenate([part[k] for part in parts]) if parts[0][k] is not None else None for k in range(4)
     )
-    return (times, values.trimmed(), status, trouble, index), odd, quoted
+    return (times, values.trimmed(), status, trouble, index, blank), odd, quoted
 
 
 # The share of rows the first part's bytes per row foretell that the values' array is allocated for beyond
@@ -578,13 +622,14 @@ def _arrow_names(header: CsvHeader) -> list[str]:
     return names + ["comma"] if header.trailing_comma else names
 
 
-def _arrow_read(piece: Any, header: CsvHeader, quoted: bool, odd: list[str]) -> Any:
+def _arrow_read(piece: Any, header: CsvHeader, quoted: bool, odd: list[str], invalid: list[str]) -> Any:
     """pyarrow's table of whole lines of the file (``piece``: a buffer of whole lines); the text of the
     lines it skipped for another number of fields than the header's is added to ``odd``. ``None`` when a
     cell is no number, or a skipped line is not UTF-8. ``quoted``: cells may be in quotes, which go as the
     careful parser's csv module takes them (a quote opening a cell, ``""`` within one); a quote left open,
     which pyarrow carries into the next line, leaves fewer rows than lines (``_read_mended`` gives up, and
-    ``_read_fast`` reads the file again without the lines holding a quote)."""
+    ``_read_fast`` reads the file again without the lines holding a quote). A value cell pyarrow cannot
+    convert is added to ``invalid`` (its error names the first it meets); only an empty one is null."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
@@ -615,25 +660,30 @@ def _arrow_read(piece: Any, header: CsvHeader, quoted: bool, odd: list[str]) -> 
                 quote_char='"' if quoted else False, invalid_row_handler=on_invalid
             ),
             convert_options=pacsv.ConvertOptions(
-                column_types=types, strings_can_be_null=False, check_utf8=False
+                column_types=types, null_values=[""], strings_can_be_null=False, check_utf8=False
             ),
         )
-    except (pa.ArrowException, UnicodeDecodeError, OSError):
+    except (pa.ArrowException, UnicodeDecodeError, OSError) as exc:
+        if (cell := _INVALID_VALUE.search(str(exc))) is not None:
+            invalid.append(cell.group(1))
         return None
     finally:
         sys.unraisablehook = previous_hook
     return None if undecodable else table
 
 
+_INVALID_VALUE = re.compile(r"conversion error to double: invalid value '(.*)'$", re.DOTALL)
+
+
 def _table_rows(
     table: Any, header: CsvHeader, values: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
     """Times of day and status of pyarrow's rows (their values written into ``values``, rows x columns),
     which of them the careful parser must read instead (``trouble``: a timecode not in the app's exact
     layout (or at FF 60.000), an empty, NaN or infinite cell or one beyond float32, a count that is none a
     row may carry (0 over values not all 0), a cell where the comma ending every line should leave none),
-    and the number in pandas' index column (-1 where it is not written as ``str`` writes a number; None
-    without that column)."""
+    the number in pandas' index column (-1 where it is not written as ``str`` writes a number; None
+    without that column), and which columns hold empty cells only (``blank``: no row's trouble)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
@@ -663,9 +713,12 @@ def _table_rows(
     # NaN, infinite (beyond float32 once narrowed) and float32's largest, which 3.4028235e38 (beyond it)
     # also rounds to: the careful parser decides those rows. The common file has none: three passes over
     # the values, no per-row mask.
+    blank = np.array([table.column(f"v{i}").null_count == n for i in range(len(columns))], bool)
     if not np.isfinite(values).all() or values.max() >= _FLOAT32_MAX or values.min() <= -_FLOAT32_MAX:
         with np.errstate(invalid="ignore"):
-            trouble |= ~(np.abs(values) < _FLOAT32_MAX).all(axis=1)
+            damaged = ~(np.abs(values) < _FLOAT32_MAX)
+        damaged[:, blank] = False
+        trouble |= damaged.any(axis=1)
     count = table.column("count").combine_chunks()
     digits = _only_digits(count)
     if digits.all():
@@ -687,7 +740,7 @@ def _table_rows(
     index = (
         _index_numbers(table.column("index").combine_chunks()) if header.index_column is not None else None
     )
-    return times, status, trouble, index
+    return times, status, trouble, index, blank
 
 
 def _index_numbers(cells: Any) -> np.ndarray:
@@ -829,18 +882,24 @@ def _read_mended(
     lines: _Lines,
     screened: np.ndarray,
     odd: list[str],
-    table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
+    table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray],
     bom: bool,
     line_ending: str,
     strict: bool,
 ) -> CsvRows | None:
     """The rows of pyarrow's table that need no repair, and the lines it could not take read by the careful
     parser's per-row logic (``_RowReader``), merged in file order: the careful parser's result at the cost
-    of reading these lines. ``None`` when the table's rows cannot be matched to the file's lines, or when
-    most lines would have to be read line by line."""
-    times, values, status, trouble, index = table
+    of reading these lines. ``None`` when the table's rows cannot be matched to the file's lines, when
+    most lines would have to be read line by line, or when the careful parser's checks would not leave out
+    every channel pyarrow's rows leave empty (``_empty_channels``: a row read here has a cell there, or
+    too few rows have values, or every channel is empty)."""
+    times, values, status, trouble, index, blank = table
     numbers, skipped = lines.table_lines(odd, screened)
     if numbers.size != times.size:
+        return None
+    is_channel = np.array([ch.is_known(c) for c in header.columns], bool)
+    empty = blank & is_channel
+    if empty.any() and ((empty == is_channel).all() or int((~trouble).sum()) < 2):
         return None
     again = np.union1d(np.union1d(skipped, screened), numbers[trouble])
     if again.size > MAX_MENDED_SHARE * (lines.count - 1):
@@ -873,6 +932,8 @@ def _read_mended(
         if data_lines is not None:
             reader.data_rows = int(np.searchsorted(data_lines, number))  # data lines before this one
         reader.read(number, lines.text(number))
+    if empty.any() and (reader.written[empty].any() or not np.isnan(reader.values[: reader.n, empty]).all()):
+        return None
     good = ~trouble
     n_good, n = int(good.sum()), reader.n
     data_rows = data_lines.size if data_lines is not None else n_good + reader.data_rows
@@ -1496,8 +1557,16 @@ def nearest_standard(rate: float) -> float | None:
     return std if abs(rate - std) / std < STANDARD_TOLERANCE else None
 
 
-def detect_fps(times: np.ndarray) -> tuple[float, float]:
+# Row steps beside a row with values that the frame rate is measured on (else on every row step).
+MIN_RATE_STEPS = 10
+
+
+def detect_fps(times: np.ndarray, with_values: np.ndarray | None = None) -> tuple[float, float]:
     """Nominal frame rate and the measured median frame period (s) from row times.
+
+    ``with_values`` (a mask of the rows): the period is the median of the steps next to a row with
+    values, when there are ``MIN_RATE_STEPS`` of them: a take whose face is lost for most of it, its
+    face-lost rows written at another (a slower) cadence than its tracked ones, has the tracked rows' rate.
 
     The nominal rate snaps to the nearest standard rate when within 3 % (the app writes 59.90 rows/s for
     "60"). The phone's own rates are 30 and 60 (formats doc §0.11): a Live Link Face take whose rows come
@@ -1506,7 +1575,12 @@ def detect_fps(times: np.ndarray) -> tuple[float, float]:
     """
     if times.size < 2:
         return 60.0, 1 / 60.0
-    period = float(np.median(np.diff(times)))
+    steps = np.diff(times)
+    if with_values is not None:
+        beside = with_values[:-1] | with_values[1:]
+        if int(beside.sum()) >= MIN_RATE_STEPS:
+            steps = steps[beside]
+    period = float(np.median(steps))
     rate = 1.0 / period
     return nearest_standard(rate) or round(rate, 3), period
 
@@ -1670,9 +1744,9 @@ def rows_to_take(
     values = rows.values
     if moved.size:
         values[:, moved] = values[:, take_cols_arr[moved]]
-    # every row's timecode, damaged and face-lost rows' too: a take whose rows are mostly damaged has its
-    # rate, not the one its few intact rows come at
-    fps, period = detect_fps(rows.seconds_of_day)
+    # every row's timecode, damaged rows' too (a take whose rows are mostly damaged has its rate, not the
+    # one its few intact rows come at), face-lost rows' beside them (not those of a long loss alone)
+    fps, period = detect_fps(rows.seconds_of_day, rows.status != FrameStatus.FACE_LOST)
     repairs = list(rows.repairs)
     note_far_values(rows, values[:, : len(known)], channels[: len(known)], repairs)
     note_gaps(rows, period, repairs)
