@@ -338,13 +338,15 @@ class SessionAudio:
 
     def span(self, lo: int, hi: int) -> Audio:
         """Samples ``lo`` to ``hi`` as ``read`` gives them, left in the log (``LoggedSpan``: a take's span
-        is written a block at a time, never held whole); each record's checksum is checked here, as by
-        ``read``. Float samples that are NaN or infinite are read whole, for ``Take.attach_audio`` to
-        refuse as it does any audio holding them."""
+        is written a block at a time, never held whole, each record's checksum checked as it is copied).
+        Float samples are read once here first, a block at a time: a span holding NaN or infinite samples,
+        which no take holds, is an ``InputError`` before the take is written (integer samples are read
+        only as they are copied)."""
         span = LoggedSpan(self, lo, hi)
-        for block in span.blocks(CHECK_FRAMES):
-            if block.dtype.kind == "f" and not np.isfinite(block).all():
-                return self.read(lo, hi)
+        if span.dtype.kind == "f":
+            bad = sum(int(np.count_nonzero(~np.isfinite(block))) for block in span.blocks(CHECK_FRAMES))
+            if bad:
+                raise InputError(f"the span holds {bad} NaN or infinite sample(s)", self.path)
         return span
 
     def gaps_within(self, lo: int, hi: int) -> list[dict[str, int]]:
@@ -424,15 +426,6 @@ def index_audio_log(path: str | Path) -> tuple[SessionAudio | None, dict[str, An
     report["chunks"] = len(chunks)
     report["gaps"] = audio.gaps
     return audio, report
-
-
-def read_audio_log(path: str | Path) -> tuple[Audio | None, int | None, dict[str, Any]]:
-    """The whole audio of a session log: samples, clock ns of the first sample, and the report of
-    ``index_audio_log`` (gaps filled with silence)."""
-    audio, report = index_audio_log(path)
-    if audio is None:
-        return None, None, report
-    return audio.read(), audio.first_ns, report
 
 
 def _placeable(

@@ -49,14 +49,27 @@ PID_START_SLACK_S = 2.0
 SETUP_DEFER_S = 0.2
 
 
-def _stream_slots(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
-    if not 1 <= n <= MAX_STREAMS:
-        raise argparse.ArgumentTypeError(f"must be in 1..{MAX_STREAMS}, not {n}")
-    return n
+def _whole_number_in(low: int, high: int):
+    """An argparse type: a whole number in ``low``..``high`` (else a usage error)."""
+
+    def whole_number(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+        if not low <= n <= high:
+            raise argparse.ArgumentTypeError(f"must be in {low}..{high}, not {n}")
+        return n
+
+    return whole_number
+
+
+_stream_slots = _whole_number_in(1, MAX_STREAMS)
+# A sound device's rate and channels as the audio log and a WAV header hold them: a negative rate (a
+# negative buffer size) or a channel count past a C int was a traceback of the sound library (cffi's
+# OverflowError), not PortAudio's one-line refusal.
+_audio_rate = _whole_number_in(1, (1 << 32) - 1)
+_audio_channels = _whole_number_in(1, (1 << 16) - 1)
 
 
 def _flush_interval(text: str) -> float:
@@ -115,9 +128,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="when --audio-file playback starts (first-packet: at the first Live Link packet)",
     )
     p.add_argument(
-        "--audio-rate", metavar="HZ", type=int, default=48000, help="sound-device sample rate in Hz"
+        "--audio-rate", metavar="HZ", type=_audio_rate, default=48000, help="sound-device sample rate in Hz"
     )
-    p.add_argument("--audio-channels", metavar="N", type=int, default=1, help="sound-device channels")
+    p.add_argument(
+        "--audio-channels", metavar="N", type=_audio_channels, default=1, help="sound-device channels"
+    )
     p.add_argument(
         "--serial", metavar="URL", help="sync box: serial device or pyserial URL (socket://, loop://)"
     )
@@ -994,7 +1009,14 @@ def _listen_problems(recorder: LiveRecorder, audio_log, source, summaries: list[
         else:
             problems.append(writer.failure(what))
     if source is not None and source.error:
-        problems.append(f"no audio was recorded: {source.error}")
+        if audio_log is not None and audio_log.format is not None and audio_log.samples:
+            # a file changed or cut short while it played: the takes hold the audio up to there
+            seconds = audio_log.samples / audio_log.format["sample_rate"]
+            problems.append(
+                f"the audio failed after {seconds:.1f} s of it (the takes hold those): {source.error}"
+            )
+        else:
+            problems.append(f"no audio was recorded: {source.error}")
     failed = sum(1 for s in summaries if s.get("error"))
     if failed:
         problems.append(f"{failed} take(s) not written (run s2a-capture recover on {out} to retry)")

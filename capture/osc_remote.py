@@ -22,6 +22,9 @@ INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1  # OSC 'i' arguments are 32-bit (form
 THERMAL_STATES = ("nominal", "fair", "serious", "critical")
 BUNDLE_TAG = b"#bundle\0"
 MAX_BUNDLE_DEPTH = 8  # bundles within bundles a reply may nest
+# A reply that did not come names the other messages the phone sent meanwhile: at most this many, each
+# address cut to this many characters
+MAX_SHOWN_OTHERS, MAX_SHOWN_ADDRESS = 5, 60
 
 
 def osc_text(value: str, what: str) -> str:
@@ -202,16 +205,24 @@ class PhoneRemote:
         self.send_datagram(self.message(address, *args))
 
     def wait_for(self, address: str) -> list[Any]:
-        """Arguments of the next message with ``address``; ``InputError`` after the timeout."""
+        """Arguments of the next message with ``address``; ``InputError`` after the timeout, naming the
+        other messages that came meanwhile (a phone that answered, but not this)."""
         deadline = time.monotonic() + self.timeout_s
+        others: dict[str, None] = {}  # addresses of the other messages, in the order they came
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
                 n = self.ignored_datagrams
                 ignored = f"; {n} datagram(s) that were not OSC were ignored" if n else ""
+                if others:
+                    # (escaped: what a sender chose, kept to one line and off the terminal's controls)
+                    cut = [a[:MAX_SHOWN_ADDRESS] for a in list(others)[:MAX_SHOWN_OTHERS]]
+                    shown = ", ".join(a.encode("unicode_escape").decode("ascii") for a in cut)
+                    why = f": it sent {shown}{' ...' if len(others) > MAX_SHOWN_OTHERS else ''} instead"
+                else:
+                    why = " (is Live Link Face running with OSC enabled on that port?)"
                 raise InputError(
-                    f"no {address} from the phone at {self.shown()} within {self.timeout_s:g} s "
-                    f"(is Live Link Face running with OSC enabled on that port?){ignored}"
+                    f"no {address} from the phone at {self.shown()} within {self.timeout_s:g} s{why}{ignored}"
                 )
             self.sock.settimeout(left)
             try:
@@ -223,6 +234,8 @@ class PhoneRemote:
             for msg in self._messages(data):
                 if msg.address == address:
                     return list(msg.params)
+                if len(others) <= MAX_SHOWN_OTHERS:  # one more tells that there were more
+                    others[msg.address] = None
 
     def _messages(self, data: bytes) -> list[Any]:
         """The OSC messages of a datagram: itself, or those of a bundle (OSC 1.0 lets a sender wrap its

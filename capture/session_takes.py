@@ -1464,11 +1464,14 @@ def build_takes(
         common["audio_torn_tail"] = audio_report["torn_tail"]
     if "log_damage" in audio_report:
         common["audio_log_damage"] = audio_report["log_damage"]
-    errors = [
-        n.get("message")
-        for n in audio_report.get("notes", []) + log.notes
-        if n.get("kind", "").endswith("error")
-    ]
+    # (an audio source's failure is noted in both logs: said once)
+    errors = list(
+        dict.fromkeys(
+            n.get("message")
+            for n in audio_report.get("notes", []) + log.notes
+            if n.get("kind", "").endswith("error")
+        )
+    )
     if errors:
         common["errors"] = errors
     summaries: list[dict[str, Any]] = []

@@ -17,7 +17,7 @@ import pytest
 from live_helpers import record_packets, synthetic_take
 
 from capture import build_takes, read_take
-from capture.audio_capture import AudioLog, read_audio_log
+from capture.audio_capture import AudioLog, index_audio_log
 from capture.audio_io import decode_with_pyav
 from capture.errors import InputError
 from capture.livelink import frame_block, header_bytes
@@ -111,8 +111,9 @@ def test_audio_log_records_with_content_no_recorder_writes_are_counted_as_damage
     log.writer.put(encode_record(b"\x06" + b"\xff"))
     log.writer.put(encode_record(b"\x09" + b"7"))
     log.close()
-    audio, first_ns, report = read_audio_log(path)
-    assert audio.frames == 16000 and audio.sample_rate == 16000 and first_ns == 10**12
+    logged, report = index_audio_log(path)
+    audio = logged.read()
+    assert audio.frames == 16000 and audio.sample_rate == 16000 and logged.first_ns == 10**12
     assert np.array_equal(audio.samples[1600:3200, 0], chunk[:, 0])
     assert [d["reason"] for d in report["log_damage"]] == [INVALID_RECORD] * 6 and not report["gaps"]
 

@@ -21,7 +21,7 @@ from align.resample import TARGET_RATE
 from align.transient import CLAP_SURROUNDINGS_S
 from align.vad import LEVEL_FRAME_S
 from capture import ARKIT61, Audio, build_takes, read_take
-from capture.audio_capture import CHUNK_S, AudioLog, read_audio_log
+from capture.audio_capture import CHUNK_S, AudioLog, index_audio_log
 from capture.errors import InputError
 from capture.livelink import frame_block, header_bytes
 from capture.record_log import LogWriter, RecordType, encode_record, json_record
@@ -246,7 +246,7 @@ def test_align_finds_in_a_takes_span_what_it_found_in_the_whole_session_audio(tm
 
     write_session(tmp_path / "c.recording", [(5.013, 180)], (0.0, 12.0), rate, sound=sound, mouth=syllables)
     ((summary, take),) = takes_of(tmp_path / "c.recording", tmp_path / "out")
-    whole, _, _ = read_audio_log(tmp_path / "c.recording" / AUDIO_LOG)
+    whole = index_audio_log(tmp_path / "c.recording" / AUDIO_LOG)[0].read()
     lo = take.meta.extra["session_audio"]["first_sample"]
     assert take.audio.frames < 6 * rate  # not the 12 s of the session
     whole_take = read_take(summary["path"])

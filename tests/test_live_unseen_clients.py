@@ -19,7 +19,7 @@ import pytest
 from live_helpers import Listener, start_recorder
 
 from capture import FrameStatus, build_takes, read_take
-from capture.audio_capture import AudioLog, DeviceAudioSource, read_audio_log
+from capture.audio_capture import AudioLog, DeviceAudioSource, index_audio_log
 from capture.livelink import frame_block, header_bytes
 from capture.recorder import PORT_HOPS
 from capture.session_clock import SessionClock
@@ -203,6 +203,6 @@ def test_a_sound_cards_implausible_capture_times_do_not_move_the_audio(tmp_path,
     )
     after = source.clock.now_ns()
     log.close()
-    audio, first_ns, _ = read_audio_log(tmp_path / "audio.log")
-    assert audio.frames == frames
-    assert before - delay * 1e9 - 1e6 <= first_ns <= after - delay * 1e9 + 1e6
+    audio, _ = index_audio_log(tmp_path / "audio.log")
+    assert audio.read().frames == frames
+    assert before - delay * 1e9 - 1e6 <= audio.first_ns <= after - delay * 1e9 + 1e6
