@@ -115,7 +115,10 @@ class Plan:
 
 
 FULL = Plan(8, 8, 5, 30.0, 6, 3, 400, 10.0, 400, None, 5.0, True, 2, 2)
-QUICK = Plan(4, 4, 2, 8.0, 2, 1, 20, 10.0, 4, 4, 0.5, False, 1, 1)
+# A --quick run's time is the start-up of its stage commands (PyTorch, torch._dynamo, scipy.signal: 2-3 s of
+# each), not its data: 6 s takes instead of 8 saved nothing measurable. The PPG extractor's steps, on the
+# longest chain of commands (simulate, ppg, build, fit, eval), cost 0.05 s each.
+QUICK = Plan(4, 4, 2, 8.0, 2, 1, 5, 10.0, 4, 4, 0.5, False, 1, 1)
 
 
 def say(msg: str) -> None:
