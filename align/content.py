@@ -38,14 +38,13 @@ MOUTH_OPENING = {
     "jaw_open": 1.0,
     "mouth_lowerlipdepress_l": 0.5,
     "mouth_lowerlipdepress_r": 0.5,
-    # Viseme curves of the MPEG-4 set lip-sync generators write (CRI LipSync's "Mpeg4-Visemes Animation
-    # Curve File": time,PP,FF,TH,DD,kk,CH,SS,nn,RR,aa,E,ih,oh,ou,...; Oculus OVRLipSync's visemes, named
-    # viseme_aa, viseme_PP on avatars): aa is the open jaw, PP the closed lips.
-    "aa": 1.0,
-    "pp": -1.0,
-    "viseme_aa": 1.0,
-    "viseme_pp": -1.0,
 }
+# Viseme curves of the MPEG-4 set lip-sync generators write (CRI LipSync's "Mpeg4-Visemes Animation Curve
+# File": time,PP,FF,TH,DD,kk,CH,SS,nn,RR,aa,E,ih,oh,ou,...; Oculus OVRLipSync's visemes, named viseme_aa,
+# viseme_PP on avatars): aa is the open jaw, PP the closed lips. Only for a take with none of the channels
+# above (an avatar's take may hold both: ARKit's 52 beside viseme_*, VRM's aa beside jawOpen): the jaw's
+# own curve is then the evidence, as before visemes counted.
+VISEME_OPENING = {"aa": 1.0, "pp": -1.0, "viseme_aa": 1.0, "viseme_pp": -1.0}
 
 
 def mouth_channels(channels: list[str]) -> list[tuple[int, float]]:
@@ -54,6 +53,8 @@ def mouth_channels(channels: list[str]) -> list[tuple[int, float]]:
     found = [(lowered.index(n), w) for n, w in MOUTH_OPENING.items() if n in lowered]
     if not found:
         found = [(i, 1.0) for i, c in enumerate(lowered) if "jaw" in c and "open" in c]
+    if not found:
+        found = [(lowered.index(n), w) for n, w in VISEME_OPENING.items() if n in lowered]
     return found
 
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.audio_io import Audio
-from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
+from capture.channels import CHANNEL_SETS, ROTATIONS, canonical, channel_set, is_known
 from capture.command import TimedProgress, sigterm_stops, stops_deferred
 from capture.errors import InputError, S2AError
 from capture.file_lock import holding
@@ -95,15 +95,20 @@ from .qa import ANIM_LIMIT, BASE_MEMBERS
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits, pinned_groups, speaker_key
 
-DATASET_VERSION = "1"
+# Part of every take's cache key and of the build's fingerprint: raised when what a take gives the dataset
+# changes for the same input, so that a rebuild into an existing folder processes its takes again rather
+# than keeping their earlier results (2: a take whose weights are on another scale gives none of its frames).
+DATASET_VERSION = "2"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
 MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets are mostly not measured
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both
 SHARD_NAME = re.compile(r"^(train|val|test)-\d{6}\.tar$")
 MIN_USABLE_SHARE = 0.5  # a take with fewer usable frames than this share of its frames is warned about
-# A take with more frames beyond ANIM_LIMIT than this share has its weights on another scale (0..100,
-# 0..255): not a glitch, and its quiet frames within reach are as wrong, so none of its frames is usable.
+# A take with more frames beyond ANIM_LIMIT than this share, a channel beyond it also past WEIGHT_REACH in
+# over a tenth of the frames within it (``on_another_scale``), has values on another scale (0..100, 0..255,
+# degrees, dB): not a glitch, and its quiet frames within reach are as wrong, so none of its frames is usable.
 WRONG_SCALE_SHARE = 0.1
+WEIGHT_REACH = 1.5  # a weight (0..1, the app's within about ±1.05) or an angle in radians stays within it
 CONTENT_FEATURES = ("fbank", "mfcc", "ppg")
 MAX_AUDIO_PEAK = 1000.0  # float audio this far past full scale (60 dB) is damaged, not loud
 STRAY_FACTOR = 10.0  # 10 ms frames past full scale this far above the take's loud-frame RMS are stray
@@ -924,6 +929,18 @@ def take_transcript(take: Take) -> str | None:
     return text if isinstance(text, str) and text.strip() else None
 
 
+def on_another_scale(values: np.ndarray, beyond: np.ndarray, within: np.ndarray) -> bool:
+    """Whether a channel with values ``beyond`` ANIM_LIMIT (frames x channels) is on another scale than
+    weights: it has no frame ``within`` reach, or passes WEIGHT_REACH in more than a tenth of them (a
+    percent scale's quiet frames, degrees of a small turn). A tracker's glitch, however long, leaves the
+    channel's other frames the weights they were."""
+    for col in np.flatnonzero(beyond.any(axis=0)):
+        near = np.abs(values[within, col])
+        if not near.size or np.quantile(near, 0.9) > WEIGHT_REACH:
+            return True
+    return False
+
+
 def process_take(job: TakeJob) -> dict[str, Any]:
     """Features, samples and statistics of one take; returns its record (cached on disk)."""
     rec = _record_is_current(job)
@@ -961,10 +978,10 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     t = np.arange(n) / fps
     in_audio = t < audio_len / sr
     finite = np.all(np.isfinite(values), axis=1)
-    in_range = np.all(np.abs(np.where(np.isfinite(values), values, 0.0)) <= ANIM_LIMIT, axis=1)
-    out_of_range = int((finite & ~in_range).sum())
-    wrong_scale = out_of_range > WRONG_SCALE_SHARE * n
     beyond = np.isfinite(values) & (np.abs(values) > ANIM_LIMIT)  # per value: which channels, which sign
+    in_range = ~beyond.any(axis=1)
+    out_of_range = int((finite & ~in_range).sum())
+    wrong_scale = out_of_range > WRONG_SCALE_SHARE * n and on_another_scale(values, beyond, finite & in_range)
     mask = np.isin(take.frame_status, USABLE_STATUS) & finite & in_range & in_audio & (not wrong_scale)
     anim = np.where(mask[:, None], values, 0.0).astype(np.float32)
     feats, phones = compute_features(
@@ -1493,18 +1510,27 @@ def _take_warnings(r: dict[str, Any], options: BuildOptions) -> list[str]:
     """What the build warns about one processed take (its record from ``process_take``)."""
     notes: list[str] = []
     if r.get("out_of_range_frames"):
-        scale = r["out_of_range_frames"] > WRONG_SCALE_SHARE * r["frames"]  # not a glitch
-        where = r.get("out_of_range_channels", [])
-        where = f" in {', '.join(where[:3])}{', ...' if len(where) > 3 else ''}" if where else ""
+        scale = r.get("wrong_scale", False)  # not a glitch
+        channels = r.get("out_of_range_channels", [])
+        where = f" in {', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}" if channels else ""
+        angles = [c for c in channels if c in ROTATIONS]
         # Weights on 0..100 or 0..255 are never far below 0: such a column is no weight at all (a level in
-        # dB, as CRI LipSync's `Vol`), which --value-scale would only hide.
-        remedy = (
-            "values far below 0 are no weights on another scale (a level in dB?): leave those channels out "
-            "of --channels"
-            if r.get("out_of_range_below")
-            else "weights on a 0-100 or 0-255 scale? They are 0..1: import the take again with "
-            "s2a-capture import --value-scale 0.01 (or 1/255 = 0.00392157)"
-        )
+        # dB, as CRI LipSync's `Vol`; an angle in degrees), which --value-scale would only hide.
+        if angles:
+            remedy = (
+                f"{', '.join(angles)} in degrees? Live Link's head and eye angles are radians: convert them, "
+                "or leave them out of --channels"
+            )
+        elif r.get("out_of_range_below"):
+            remedy = (
+                "values far below 0 are no weights on another scale (a level in dB?): leave those channels "
+                "out of --channels"
+            )
+        else:
+            remedy = (
+                "weights on a 0-100 or 0-255 scale? They are 0..1: import the take again with "
+                "s2a-capture import --value-scale 0.01 (or 1/255 = 0.00392157)"
+            )
         notes.append(
             f"take {r['take']}: {r['out_of_range_frames']} frame(s) hold values beyond +-{ANIM_LIMIT:g}"
             f"{where} (no blendshape weight is): masked as unusable"
