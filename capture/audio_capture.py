@@ -289,6 +289,10 @@ def _read_audio_file(path: Path) -> Audio:
         return read_audio(path)
 
 
+class AudioLogChanged(InputError):
+    """A session's audio log whose records are no longer those ``index_audio_log`` indexed: read it again."""
+
+
 class SessionAudio:
     """A session's audio as its log holds it, read a span at a time (``read``): the log's chunks, placed
     by their sample index, are indexed by where their samples lie in the file, so a take's few minutes of
@@ -328,7 +332,9 @@ class SessionAudio:
                 record = f.read(RECORD_HEADER.size + _AUDIO_HEAD.size + (end - first) * frame_bytes)
                 payload = memoryview(record)[RECORD_HEADER.size :]
                 if record[: RECORD_HEADER.size] != RECORD_HEADER.pack(len(payload), zlib.crc32(payload)):
-                    raise InputError("the audio log changed since it was indexed (read it again)", self.path)
+                    raise AudioLogChanged(
+                        "the audio log changed since it was indexed (read it again)", self.path
+                    )
                 block = np.frombuffer(payload[_AUDIO_HEAD.size :], dtype=self._dtype).reshape(
                     -1, self.channels
                 )
@@ -341,12 +347,13 @@ class SessionAudio:
         is written a block at a time, never held whole, each record's checksum checked as it is copied).
         Float samples are read once here first, a block at a time: a span holding NaN or infinite samples,
         which no take holds, is an ``InputError`` before the take is written (integer samples are read
-        only as they are copied)."""
+        only as they are copied). That error names no file: a take's repair keeps it in its ``take.json``,
+        which is not to depend on the path ``recover`` was given."""
         span = LoggedSpan(self, lo, hi)
         if span.dtype.kind == "f":
             bad = sum(int(np.count_nonzero(~np.isfinite(block))) for block in span.blocks(CHECK_FRAMES))
             if bad:
-                raise InputError(f"the span holds {bad} NaN or infinite sample(s)", self.path)
+                raise InputError(f"the span holds {bad} NaN or infinite sample(s)")
         return span
 
     def gaps_within(self, lo: int, hi: int) -> list[dict[str, int]]:

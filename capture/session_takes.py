@@ -54,7 +54,7 @@ import numpy as np
 
 from . import livelink as ll
 from .atomic import write_json_atomic
-from .audio_capture import SessionAudio, index_audio_log
+from .audio_capture import AudioLogChanged, SessionAudio, index_audio_log
 from .channels import ARKIT61
 from .csv_take import detect_fps, fill_dropped, missing_frames, repair
 from .errors import InputError, S2AError
@@ -1323,6 +1323,8 @@ def _attach_audio_span(take: Take, audio: SessionAudio, first_s: float, period: 
         return
     try:
         take.attach_audio(audio.span(lo, hi), first_s + lo / rate, "recorder_clock")
+    except AudioLogChanged:  # the take fails, as when the log changes while it is copied: recover retries
+        raise
     except (InputError, OSError, MemoryError) as exc:  # NaN samples, a log that cannot be read: the face
         # is kept without audio (the session's audio log keeps it)
         why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
