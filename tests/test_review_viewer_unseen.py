@@ -25,7 +25,7 @@ from viewer.cli import _face_gaps
 from viewer.face import builtin_face
 from viewer.gltf import arkit_channel, load_gltf
 from viewer.output import stopped_by_signals, stops_between_frames
-from viewer.render import Animation, audio_for_span, load_animation, write_image, write_mp4
+from viewer.render import Animation, Speech, load_animation, span_blocks, write_image, write_mp4
 
 CSV = "livelinkface/alexdjulin_S07/S07-001.csv"  # jawOpen moves from its first row
 
@@ -139,16 +139,17 @@ def test_speech_for_a_span_is_cut_before_it_is_converted():
     anim = Animation("a", 60.0, np.arange(10) / 60, np.zeros((10, 61)), audio=stereo, audio_start_s=-0.5)
     tracemalloc.start()
     try:
-        samples, rate = audio_for_span(anim, 10.0, 1.0)
+        speech = span_blocks(anim, 10.0, 1.0)
+        samples = np.concatenate(list(speech.blocks))
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
     assert peak < 8 * samples.nbytes, peak  # the whole take as float is 60 times the span
     whole = stereo.mono_float()
     np.testing.assert_array_equal(samples, whole[int(10.5 * 48000) :][:48000])
-    edges, _ = audio_for_span(anim, 59.0, 2.0)  # past the end: zero-padded
+    edges = np.concatenate(list(span_blocks(anim, 59.0, 2.0).blocks))  # past the end: zero-padded
     np.testing.assert_array_equal(edges[:24000], whole[-24000:])
-    assert not edges[24000:].any() and rate == 48000
+    assert not edges[24000:].any() and speech.rate == 48000
 
 
 def test_a_second_render_to_the_same_video_at_once_leaves_the_first_alone(tmp_path):
@@ -183,7 +184,7 @@ def test_a_stop_during_the_audio_stops_before_the_rest_of_it_is_encoded(tmp_path
             lambda k: np.zeros((16, 16, 3), np.uint8),
             2,
             30.0,
-            (speech, 16000),
+            Speech([speech], 16000, speech.size),
             last_frame,
         )
     assert list(tmp_path.iterdir()) == []

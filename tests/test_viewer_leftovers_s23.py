@@ -15,7 +15,7 @@ from conftest import run_here
 import viewer.render
 from align import resample
 from capture import Audio
-from viewer.render import OPENING_MOUTH, Animation, audio_for_span, speech_for_video, write_mp4
+from viewer.render import OPENING_MOUTH, Animation, Speech, span_blocks, speech_for_video, write_mp4
 
 CSV = "livelinkface/alexdjulin_S07/S07-001.csv"  # jawOpen and mouthFunnel move from its first rows
 FRAME = np.zeros((16, 16, 3), np.uint8)
@@ -28,6 +28,11 @@ def _speaking(seconds: float, rate: int = 16000, start_s: float = -0.25) -> Anim
     return Animation(
         "a", 2 / seconds, np.array([0.0, seconds]), np.zeros((2, 61)), Audio(pcm, rate, "PCM_16"), start_s
     )
+
+
+def _span(anim: Animation, t0: float, seconds: float) -> np.ndarray:
+    """``anim``'s speech from take time ``t0`` for ``seconds``, its blocks joined into one array."""
+    return np.concatenate(list(span_blocks(anim, t0, seconds).blocks))
 
 
 def _traced_peak(step) -> int:
@@ -44,15 +49,14 @@ def test_a_videos_speech_is_encoded_a_block_at_a_time(tmp_path, monkeypatch):
     (460 MB for 2 h at 16 kHz): its traced peak grew by that. Now a block is converted as the encoder
     asks for it: the peak does not grow with the speech's length (blocks made small here, so that a few
     seconds hold many of them). The whole-array way, measured the same way, grows by the float copy."""
-    from viewer.render import Speech
-
     monkeypatch.setattr(resample, "_CHUNK", 8192)
     monkeypatch.setattr(viewer.render, "AUDIO_BLOCK", 8192)
 
     def encode(anim: Animation, seconds: float, held: bool) -> None:
         voice, speech = speech_for_video([anim], seconds)
         if held:
-            speech = Speech.whole(*audio_for_span(voice, 0.0, seconds))
+            whole = _span(voice, 0.0, seconds)
+            speech = Speech([whole], speech.rate, whole.size)
         write_mp4(tmp_path / f"{seconds}_{held}.mp4", lambda k: FRAME, 2, anim.fps, speech)
 
     streamed, whole = {}, {}
@@ -69,12 +73,11 @@ def test_a_videos_speech_is_encoded_a_block_at_a_time(tmp_path, monkeypatch):
 def test_speech_in_blocks_of_any_size_encodes_to_the_stream_of_one_block(tmp_path):
     """The AAC encoder takes 1024 samples a frame: blocks whose ends fall inside a frame are joined, so
     the file is byte for byte the one of the whole array."""
-    from viewer.render import Speech
-
-    samples, rate = audio_for_span(_speaking(3.0), 0.0, 3.0)
+    rate = 16000
+    samples = _span(_speaking(3.0, rate), 0.0, 3.0)
     cuts = [0, 1000, 1001, 7777, 20480, 30000, samples.size]
     blocks = [samples[a:b] for a, b in zip(cuts, cuts[1:])]
-    write_mp4(tmp_path / "whole.mp4", lambda k: FRAME, 2, 1.0, (samples, rate))
+    write_mp4(tmp_path / "whole.mp4", lambda k: FRAME, 2, 1.0, Speech([samples], rate, samples.size))
     write_mp4(tmp_path / "blocks.mp4", lambda k: FRAME, 2, 1.0, Speech(blocks, rate, samples.size))
     assert (tmp_path / "blocks.mp4").read_bytes() == (tmp_path / "whole.mp4").read_bytes()
 
@@ -82,8 +85,6 @@ def test_speech_in_blocks_of_any_size_encodes_to_the_stream_of_one_block(tmp_pat
 @pytest.mark.parametrize("t0, seconds", [(-1.0, 0.5), (-0.5, 1.0), (0.3, 0.4), (1.5, 1.0), (4.0, 1.0)])
 def test_the_span_in_blocks_is_the_cut_of_the_whole_speech_zero_padded(monkeypatch, t0, seconds):
     """Before the speech, across its start, inside it, across its end and after it."""
-    from viewer.render import span_blocks
-
     monkeypatch.setattr(resample, "_CHUNK", 4096)
     monkeypatch.setattr(viewer.render, "AUDIO_BLOCK", 4096)
     anim = _speaking(2.0, 8000, start_s=0.0)
@@ -97,9 +98,9 @@ def test_the_span_in_blocks_is_the_cut_of_the_whole_speech_zero_padded(monkeypat
 
 def test_speech_resampled_for_aac_a_block_at_a_time_is_soxrs_whole_resampling():
     """Speech at a rate AAC does not take (37.8 kHz) was resampled whole; now as its blocks come."""
-    from viewer.render import Speech, resample_speech
+    from viewer.render import resample_speech
 
-    x = audio_for_span(_speaking(3.0, 37800), 0.0, 3.0)[0]
+    x = _span(_speaking(3.0, 37800), 0.0, 3.0)
     blocks = [x[i : i + 10_000] for i in range(0, x.size, 10_000)]
     speech = resample_speech(Speech(blocks, 37800, x.size), 44100)
     got = np.concatenate(list(speech.blocks))
@@ -181,6 +182,7 @@ def test_the_speech_of_many_channels_with_a_short_last_block_is_cut(monkeypatch)
     monkeypatch.setattr(viewer.render, "AUDIO_BLOCK", 4096)
     x = np.random.default_rng(3).normal(0, 0.1, (4096 + 10, 70)).astype(np.float32)
     anim = Animation("a", 60.0, np.arange(2) / 60, np.zeros((2, 61)), Audio(x, 48000))
-    samples, rate = audio_for_span(anim, 0.0, 0.2)
+    speech = span_blocks(anim, 0.0, 0.2)
+    samples = np.concatenate(list(speech.blocks))
     np.testing.assert_array_equal(samples[: x.shape[0]], anim.audio.mono_float())
-    assert rate == 48000 and not samples[x.shape[0] :].any()
+    assert speech.rate == 48000 and not samples[x.shape[0] :].any()

@@ -171,11 +171,27 @@ def run_split_keys(payload: dict[str, Any], manifest: dict[str, Any], split: str
     return chosen
 
 
+def run_channel_columns(channels: list[str], run_channels: list[str], where: Path) -> list[int]:
+    """The dataset's columns (``channels``) of the run's channels, in the run's order: a dataset built
+    with more channels than the run (arkit52 for a pronunciation32 run), or with the run's in another
+    order, is scored on the run's. One that lacks any of the run's channels is refused, naming them."""
+    column = {c: j for j, c in enumerate(channels)}
+    missing = [c for c in run_channels if c not in column]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise InputError(
+            f"dataset lacks {len(missing)} of the {len(run_channels)} channels the run was trained on "
+            f"({shown}): build it with the run's channels (s2a-dataset build --channels)",
+            where,
+        )
+    return [column[c] for c in run_channels]
+
+
 def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec: InputSpec, where: Path):
-    """Refuse a dataset whose channels, frame rate or input features are not the run's (``info``: the
-    checkpoint's ``dataset``). Its normalisation may differ: evaluation uses the run's."""
-    if manifest["channels"] != info["channels"]:
-        raise InputError("dataset channels differ from the channels the run was trained on", where)
+    """Refuse a dataset whose frame rate or input features are not the run's, or that lacks some of the
+    run's channels (``info``: the checkpoint's ``dataset``). Its normalisation may differ: evaluation
+    uses the run's."""
+    run_channel_columns(manifest["channels"], info["channels"], where)
     if manifest["fps"] != info["fps"]:
         raise InputError(f"dataset is at {manifest['fps']:g} fps, the run at {info['fps']:g} fps", where)
     features = manifest.get("features")
@@ -235,8 +251,16 @@ def evaluate(
     info = payload["dataset"]
     ds = dataset_folder(ds)  # the folder or its manifest.json; another file is named, not taken for it
     manifest = read_manifest(ds)
-    channels = manifest["channels"]
     check_dataset_fits_run(manifest, info, spec, ds / "manifest.json")
+    channels = list(info["channels"])  # scored: the run's, picked from the dataset's by name
+    columns = run_channel_columns(manifest["channels"], channels, ds / "manifest.json")
+    picked = None if columns == list(range(len(manifest["channels"]))) else columns
+    if picked is not None:
+        say(
+            f"note: the dataset holds {len(manifest['channels'])} channels, the run {len(channels)}"
+            f"{' in another order' if len(columns) == len(manifest['channels']) else ''}: "
+            "the run's channels are scored"
+        )
     own_keys = run_split_keys(payload, manifest, split, ds / "manifest.json")
     if own_keys is None and split not in {s["split"] for s in manifest["shards"]}:
         raise InputError(f"dataset has no {split!r} split", ds / "manifest.json")
@@ -281,7 +305,11 @@ def evaluate(
         if not np.all(np.isfinite(pred_norm)):
             raise InputError(NOT_FINITE, checkpoint_path(run))
         true = item["anim"].numpy().astype(np.float64)
-        pred = animation.inverse(pred_norm, item["neutral"])
+        neutral = item["neutral"]
+        if picked is not None:
+            true = true[:, picked]
+            neutral = None if neutral is None else neutral[picked]
+        pred = animation.inverse(pred_norm, neutral)
         tally.add(pred, true, mask)
         floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
         if longest is None or mask.shape[0] > longest["mask"].shape[1]:

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from align.clipping import CLIPPED_AUDIO_SHARE, clipped_share
 from align.resample import TARGET_RATE, mono_mean, to_16k_mono
 from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, read_take, write_livelink_csv
 from capture.atomic import atomic_write
@@ -361,6 +362,11 @@ def predict(
                 f"note: {a}: no energy above {NARROWBAND_HZ / 1000:g} kHz (recorded at 8 kHz, or through a "
                 "phone codec?): its features lack the upper bands the run was trained on"
             )
+        if result["clipped_audio"] > CLIPPED_AUDIO_SHARE:
+            warn(
+                f"{a}: {result['clipped_audio']:.2%} of the audio samples are clipped (held flat at full "
+                "scale): its loudest sounds are distorted, and so is their animation"
+            )
         for r in result["repairs"]:
             warn(f"{a}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
         if result["silent"]:
@@ -459,6 +465,7 @@ def _predict_one(
     # without its DC offset, which is no sound; counted in blocks
     audio = to_16k_mono(raw, str(a), on_block=_counted(job, "16 kHz mono audio"))
     dc = abs(mono_mean(raw))  # block by block: no float32 copy of the file's samples
+    clipped_audio = clipped_share(raw)  # on the recorded samples: resampling smears the flat tops
     del raw  # the recorded samples (317 MB for an hour at 44.1 kHz) are not needed any more
     narrow = is_narrowband(audio, TARGET_RATE)
     peak = float(np.maximum(audio.max(initial=0.0), -audio.min(initial=0.0)))  # max |x|, no copy
@@ -491,6 +498,7 @@ def _predict_one(
         "peak_dbfs": round(20 * math.log10(peak), 1) if peak > 0 else None,
         "dc_offset_dbfs": round(20 * math.log10(dc), 1) if dc > 0 else None,
         "speech_level_dbfs": None if level is None else round(level, 1),
+        "clipped_audio": round(clipped_audio, 6),  # share of samples held flat at full scale
         "repairs": [{"kind": r["kind"], "message": r["message"]} for r in repairs],
     }
 

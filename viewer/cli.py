@@ -419,7 +419,9 @@ def cmd_render(args: argparse.Namespace) -> int:
             fps = first.fps
             speech = speech_for_video(anims, n / fps)
             audio = None
-            if speech is not None:
+            if speech is None:
+                progress(f"note: no input has audio: {args.out} is silent (--audio FILE: a CSV's speech)")
+            else:
                 voice, audio = speech
                 a0 = voice.audio_start_s - (voice.t0 - voice.offset_s)  # seconds into the video
                 a1 = a0 + voice.audio.frames / voice.audio.sample_rate

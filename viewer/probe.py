@@ -2,7 +2,8 @@
 (segfault) when no OpenGL driver is present, and a crash must become a message, not a traceback.
 
 The child renders a tiny sphere with each candidate VTK window class (EGL first, then OSMesa, which
-needs the ``vtk-osmesa`` wheel) and reports the first that draws something. The parent then sets
+needs the ``vtk-osmesa`` wheel; one that ``VTK_DEFAULT_OPENGL_WINDOW`` names before them, with a warning
+when it fails and another works) and reports the first that draws something. The parent then sets
 ``VTK_DEFAULT_OPENGL_WINDOW`` to it before VTK opens a window.
 """
 
@@ -13,6 +14,7 @@ import os
 import subprocess
 import sys
 
+from capture.command import warn
 from capture.errors import S2AError
 
 WINDOW_ENV = "VTK_DEFAULT_OPENGL_WINDOW"
@@ -55,8 +57,10 @@ def probe(timeout_s: float = 120.0) -> dict:
     if _RESULT is not None:
         return _RESULT
     tried = []
+    # a window class the environment asks for (set for on-screen VTK, or misspelt) is tried first; when
+    # it cannot render offscreen the candidates follow, so that it is named instead of blamed on drivers
     requested = os.environ.get(WINDOW_ENV)
-    for window in (requested,) if requested else CANDIDATES:
+    for window in dict.fromkeys((requested, *CANDIDATES) if requested else CANDIDATES):
         code = f"from viewer.probe import _child; _child({window!r})"
         try:
             proc = subprocess.run(
@@ -69,6 +73,9 @@ def probe(timeout_s: float = 120.0) -> dict:
         if proc.returncode == 0 and line.startswith("{"):
             info = json.loads(line)
             if info.get("nonblank") and info.get("window") == window:
+                if tried and requested:
+                    why = tried[0].removeprefix(f"{requested}: ")
+                    warn(f"{WINDOW_ENV}={requested} cannot render offscreen here ({why}): using {window}")
                 _RESULT = info
                 os.environ[WINDOW_ENV] = window
                 return info

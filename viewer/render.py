@@ -405,12 +405,6 @@ class Speech:
     rate: int
     frames: int
 
-    @classmethod
-    def whole(cls, samples: np.ndarray, rate: int) -> Speech:
-        """Samples already in memory, as one block."""
-        samples = np.asarray(samples, np.float32)
-        return cls([samples], rate, samples.size)
-
 
 def _silence(count: int) -> Iterator[np.ndarray]:
     """``count`` zero samples, at most ``AUDIO_BLOCK`` a block."""
@@ -446,16 +440,6 @@ def span_blocks(anim: Animation, t0: float, duration_s: float) -> Speech | None:
         yield from _silence(n - before - heard)
 
     return Speech(blocks(), rate, n)
-
-
-def audio_for_span(anim: Animation, t0: float, duration_s: float) -> tuple[np.ndarray, int] | None:
-    """``span_blocks`` in one array: (mono float32 samples, their rate)."""
-    from align.resample import gathered
-
-    speech = span_blocks(anim, t0, duration_s)
-    if speech is None:
-        return None
-    return gathered(speech.blocks, np.empty(speech.frames, np.float32)), speech.rate
 
 
 def speech_for_video(anims: Sequence[Animation], duration_s: float) -> tuple[Animation, Speech] | None:
@@ -512,11 +496,11 @@ def write_mp4(
     frames: Callable[[int], np.ndarray],
     count: int,
     fps: float,
-    audio: Speech | tuple[np.ndarray, int] | None,
+    audio: Speech | None,
     on_frame: Callable[[int], None] | None = None,
 ) -> dict:
     """Encode ``count`` frames (``frames(k)`` → RGB uint8) as H.264 at ``fps`` with AAC audio (a
-    ``Speech`` encoded as its blocks come, or samples and their rate).
+    ``Speech``, encoded as its blocks come; None: no sound track).
 
     Written as ``.NAME.partial.mp4`` beside ``path``, locked (``flock``) until it is renamed into place:
     another render to the same ``path`` meanwhile is an ``InputError`` that leaves it alone.
@@ -527,8 +511,6 @@ def write_mp4(
     import av
 
     path = Path(path)
-    if isinstance(audio, tuple):
-        audio = Speech.whole(*audio)
     tmp = path.with_name(f".{path.name}.partial.mp4")
     render_s = encode_s = 0.0
     rate = _fps_fraction(fps)
