@@ -43,7 +43,9 @@ number_format  cells written as a spreadsheet's locale writes numbers were read 
                minus sign, no-break or narrow spaces
 timecode_format timecodes without zero padding (``12:28:1:03.060``) were read (one note); FF at 60.000
                (never the app's) was read as the next second's frame 0 (another note); clock times
-               ``HH:MM:SS.fff`` (another writer's) were read as seconds (another note)
+               ``HH:MM:SS.fff`` (another writer's) were read as seconds (another note); ``FF.mmm`` with
+               the milliseconds of the second after the dot on every row (NeuroSync Player's) was read as
+               seconds and milliseconds (another note)
 index_column   pandas' index column before Timecode (header ``""`` or ``Unnamed: 0``) was dropped
 bad_values_widespread, bad_timecodes_widespread  most frames lost their values, or over 5 % of the rows
                their timecodes (a file read wrongly, not a damaged row: import prints it as a warning)
@@ -105,6 +107,7 @@ from .timecode import (
     clock_seconds,
     drop_frame_seconds,
     fixed_width_seconds,
+    millisecond_seconds,
     timecode_frames,
     timecode_rate_of,
     unwrap_midnight,
@@ -1565,8 +1568,10 @@ def detect_fps(times: np.ndarray, with_values: np.ndarray | None = None) -> tupl
     """Nominal frame rate and the measured median frame period (s) from row times.
 
     ``with_values`` (a mask of the rows): the period is the median of the steps next to a row with
-    values, when there are ``MIN_RATE_STEPS`` of them: a take whose face is lost for most of it, its
-    face-lost rows written at another (a slower) cadence than its tracked ones, has the tracked rows' rate.
+    values, when there are ``MIN_RATE_STEPS`` of them and it is the shorter: a take whose face is lost for
+    most of it, its face-lost rows written at a slower cadence than its tracked ones, has the tracked rows'
+    rate; one whose tracked rows were dropped (every other one, at the phone's busiest) keeps the rate of
+    its face-lost rows (dropped rows only lengthen the steps).
 
     The nominal rate snaps to the nearest standard rate when within 3 % (the app writes 59.90 rows/s for
     "60"). The phone's own rates are 30 and 60 (formats doc §0.11): a Live Link Face take whose rows come
@@ -1576,11 +1581,11 @@ def detect_fps(times: np.ndarray, with_values: np.ndarray | None = None) -> tupl
     if times.size < 2:
         return 60.0, 1 / 60.0
     steps = np.diff(times)
+    period = float(np.median(steps))
     if with_values is not None:
         beside = with_values[:-1] | with_values[1:]
         if int(beside.sum()) >= MIN_RATE_STEPS:
-            steps = steps[beside]
-    period = float(np.median(steps))
+            period = min(period, float(np.median(steps[beside])))
     rate = 1.0 / period
     return nearest_standard(rate) or round(rate, 3), period
 
@@ -1619,17 +1624,21 @@ def row_rate_changes(times: np.ndarray, period: float) -> list[tuple[int, int, f
 
 
 def note_row_rate_changes(times: np.ndarray, fps: float, period: float, repairs: list) -> None:
-    """Say where the rows come at another rate than the take's (repair ``row_rate_change``). The frames
-    stay as they are: a slower stretch's rows with DROPPED frames between them."""
+    """Say where the rows come at another rate than the take's (repair ``row_rate_change``), or unevenly
+    at its rate (most steps half a frame or more off one period). The frames stay as they are: a slower
+    stretch's rows with DROPPED frames between them."""
     stretches = row_rate_changes(times, period)
     for first, last, rate in stretches[:3]:
         until = "the end" if last == times.size - 1 else f"{times[last] - times[0]:.1f} s"
         gaps = int(missing_frames(times[first : last + 1], period).sum())
+        how = f"at {rate:g}/s, not {fps:g}/s"
+        if round(rate, 1) == round(fps, 1):
+            how = f"unevenly (most steps half a frame or more off 1/{fps:g} s, {rate:g} rows/s in all)"
         repair(
             repairs,
             None,
             "row_rate_change",
-            f"rows come at {rate:g}/s, not {fps:g}/s, from about {times[first] - times[0]:.1f} s "
+            f"rows come {how}, from about {times[first] - times[0]:.1f} s "
             f"({fields_tc(times[first])}) to {until}"
             + (f": {gaps} DROPPED frames between them" if gaps else ""),
         )
@@ -1676,8 +1685,24 @@ def split_variant(stem: str) -> tuple[str, str | None]:
 def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
     """The rate the CSV's FF field counts at: ``rate`` if given, else the one ``timecode_rate_of``
     finds. Rows counted at another rate than the app's 60 get their times re-read at it (repair
-    ``timecode_rate``); a rate FF passes is an ``InputError``."""
+    ``timecode_rate``); a rate FF passes is an ``InputError``. Rows whose part after the dot is the
+    milliseconds of the second (NeuroSync Player's: ``millisecond_seconds``) are read so, at 60 (repair
+    ``timecode_format``)."""
     t = rows.seconds_of_day
+    if rate in (None, CSV_TIMECODE_RATE) and not rows.drop_frame:
+        in_milliseconds = millisecond_seconds(t)
+        if in_milliseconds is not None:
+            rows.seconds_of_day = in_milliseconds
+            repair(
+                rows.repairs,
+                None,
+                "timecode_format",
+                f"timecodes written HH:MM:SS:FF.mmm with the milliseconds of the second after the dot (the "
+                f"first: {fields_tc(t[0])}; on all {t.size} rows FF is within a frame of them at "
+                f"{CSV_TIMECODE_RATE:g} fps, as NeuroSync Player writes them), not the app's sub-frame: "
+                "read as seconds and milliseconds",
+            )
+            return CSV_TIMECODE_RATE
     top = float(timecode_frames(t)[1].max())
     if rate is None:
         rate = timecode_rate_of(t)
@@ -1902,6 +1927,10 @@ def read_livelink_csv(
     detected = [r for r in take.meta.repairs if r["kind"] == "timecode_rate"]
     if strict and timecode_rate is None and detected:  # a guess, which strict mode does not make
         raise InputError(f"{detected[0]['message']} (strict mode: give --timecode-rate)", path)
+    # strict mode refused the careful parser's timecode_format notes before: this is the milliseconds' one
+    in_milliseconds = [r for r in take.meta.repairs if r["kind"] == "timecode_format"]
+    if strict and in_milliseconds:
+        raise InputError(f"{in_milliseconds[0]['message']} (strict mode)", path)
     return take
 
 

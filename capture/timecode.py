@@ -13,6 +13,8 @@ Rows whose every timecode is written ``HH:MM:SS;FF`` at 30 or 60 fps are taken a
 (SMPTE's mark of a drop-frame count): frames counted at 29.97 or 59.94 fps from the first row's label,
 unless a label is one such a count skips (``drop_frame_seconds``). Within a minute drop-frame and plain
 labels are the same, so a take that crosses no minute start where the count skips cannot show it either way.
+NeuroSync Player writes the milliseconds of the second after the dot (``00:00:01:03.050`` is 1.050 s):
+``millisecond_seconds`` recognises its rows, whose FF agrees with them, and re-reads their times.
 """
 
 from __future__ import annotations
@@ -174,6 +176,30 @@ def drop_frame_seconds(label_seconds: np.ndarray, rate: float) -> np.ndarray | N
         return None
     frames = labels - drop * (minutes - minutes // 10)
     return float(label_seconds[0]) + (frames - frames[0]) / (rate * 1000 / 1001)
+
+
+# Rows a take must hold before the part of its timecodes after the dot may be read as milliseconds: a row of
+# the app's may look so by chance (about 1 in 30), ten in a row cannot (its sub-frame creeps 0.0016 a row).
+MIN_MILLISECOND_ROWS = 10
+
+
+def millisecond_seconds(seconds_of_day: np.ndarray) -> np.ndarray | None:
+    """Times of day of timecodes written ``HH:MM:SS:FF.mmm`` with ``.mmm`` the milliseconds of the second,
+    not the sub-frame (NeuroSync Player's CSVs), from their times read as the app's (sorted); None unless
+    at least ``MIN_MILLISECOND_ROWS`` rows all read so: three decimals, whose milliseconds put the row
+    within a frame of its FF at 60 fps. (The app's sub-frame stays near one value while FF runs through the
+    second, so that its rows agree with FF one in about 30, never ten in a row.)"""
+    t = np.asarray(seconds_of_day, dtype=np.float64)
+    if t.size < MIN_MILLISECOND_ROWS:
+        return None
+    whole, frames = timecode_frames(t)
+    milli_frames = np.rint(frames * 1000)
+    if np.abs(frames * 1000 - milli_frames).max() > 1e-3:
+        return None  # not three decimals
+    ff, milliseconds = np.divmod(milli_frames, 1000)
+    if np.abs(milliseconds * CSV_TIMECODE_RATE / 1000 - ff).max() > 1:
+        return None
+    return whole + milliseconds / 1000
 
 
 def whole_seconds(seconds_of_day: np.ndarray) -> int:
