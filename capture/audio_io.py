@@ -223,8 +223,7 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         # cut short: FFmpeg is given its frames only)
         lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
         counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
-        # a VBRI frame (Fraunhofer's encoders): mpg123 decodes it as a frame of silence, FFmpeg skips it
-        vbri = bool(runs) and _dropped_at_start(data, runs[0]) == runs[0].frame_samples
+        vbri = bool(runs) and _begins_with_vbri(data, runs[0])
         skipped = _gapless_skip(data, runs[0]) if runs else 0
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
         if not (len(runs) > 1 or lost or counts_wrong or vbri or _estimated_short(info, coded, drops)):
@@ -353,9 +352,19 @@ def _dropped_at_start(data: bytes | _FileBytes, run: MpegRun, counted: bool = Fa
     skip = _gapless_skip(data, run, counted)
     if skip:
         return skip + run.frame_samples
+    return run.frame_samples if _begins_with_vbri(data, run) else 0
+
+
+def _begins_with_vbri(data: bytes | _FileBytes, run: MpegRun) -> bool:
+    """Whether the file whose first run is ``run`` begins with a VBRI frame (Fraunhofer's encoders) that
+    declares a frame count: FFmpeg skips it, mpg123 (libsndfile) decodes it as a frame of silence."""
     frame = _mpeg_frame(data, run.start)
-    vbri = frame is not None and _begins_file(data, run.start) and data.startswith(b"VBRI", run.start + 36)
-    return run.frame_samples if vbri and _file_header_frames(data, run.start, frame) else 0
+    return (
+        frame is not None
+        and _begins_file(data, run.start)
+        and data.startswith(b"VBRI", run.start + 36)
+        and bool(_file_header_frames(data, run.start, frame))
+    )
 
 
 def _lame_tag_at(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> int:
@@ -1988,8 +1997,8 @@ class MpegLoss:
     # as at the end (from the count its own Xing/Info frame declares), put back as silence (sound follows)
     before_join: bool = False
     # before a file joined on, bytes that start no frame and no frame count to tell whether they held any
-    # (damage, or a tag not known here: Lyrics3, an APE tag with no header): the frames they could hold,
-    # said, none put back
+    # (damage, or a tag not known here; not a Lyrics3 tag nor an APE tag without a header, ``_lone_tag``):
+    # the frames they could hold, said, none put back
     unsure: int = 0
 
     @property
@@ -2135,7 +2144,7 @@ def _starts_sync(data: bytes | _FileBytes, pos: int) -> bool:
 
 def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
     """The frames lost at each damage of ``runs`` (``MpegRun.losses``), each estimated from the bytes
-    damaged at its run's mean bytes per frame (frames overwritten at a constant bit rate: exact, up to the
+    damaged at its file's mean bytes per frame (frames overwritten at a constant bit rate: exact, up to the
     padding byte; running to the end of the data, its tags or a file joined on, only when they start with a
     frame's sync, a damaged header: else they are what follows the last frame, zeros, junk, a Lyrics3 tag,
     no frame lost, and before a file joined on what they could hold is said, ``MpegLoss.unsure``);
@@ -2148,16 +2157,20 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         if not losses:
             continue
         overwritten = _overwritten(data, runs[a], max(runs[b - 1].end, losses[-1].end))
+        # the file's mean bytes per frame (a run may be one frame: a lone header damage left of another
+        # format); damage between a run's frames is within its bytes, at its end (before the next run) not
+        within = sum(loss.end - loss.start for run in runs[a:b] for loss in run.losses if loss.end <= run.end)
+        frame_bytes = sum(run.end - run.start for run in runs[a:b]) - within
+        per_frame = frame_bytes / sum(max(run.frames, 1) for run in runs[a:b])
         for run in runs[a:b]:
-            damaged = sum(loss.end - loss.start for loss in run.losses if not loss.last)  # within the run
-            per_frame = (run.end - run.start - damaged) / max(run.frames, 1)
             for loss in run.losses:
                 # at a file's end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no
                 # frames; before a file joined on, said as what they could hold
                 estimate = round((loss.end - loss.start) / per_frame)
                 seen = not loss.last or overwritten or _starts_sync(data, loss.start)
                 loss.frames = estimate if seen else 0
-                loss.unsure = estimate if loss.before_join and not seen else 0
+                unknown = not (seen or _lone_tag(data, loss.start, loss.end))
+                loss.unsure = estimate if loss.before_join and unknown else 0
         frame = _mpeg_frame(data, runs[a].start)
         if frame is None or runs[a].count_low or not _is_file_header(data, runs[a].start, frame):
             continue
@@ -2181,6 +2194,18 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         largest.frames = max(0, largest.frames + lost - estimated)
         for loss in losses:
             loss.exact = len(losses) == 1 or estimated == lost
+
+
+def _lone_tag(data: bytes | _FileBytes, start: int, end: int) -> bool:
+    """Whether the bytes from ``start`` to ``end`` (before a file joined on) are a tag ``_tag_bytes`` does
+    not tell from its start: a Lyrics3 tag ("LYRICSBEGIN" first), or an APE tag without a header (its
+    footer, ending them, counts them all)."""
+    if data.startswith(b"LYRICSBEGIN", start):
+        return True
+    if end - start < 32 or not data.startswith(b"APETAGEX", end - 32):
+        return False
+    (size,) = struct.unpack("<4xI", data[end - 24 : end - 16])  # its items and footer
+    return size == end - start
 
 
 def _overwritten(data: bytes | _FileBytes, first: MpegRun, end: int) -> bool:
