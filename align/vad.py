@@ -7,15 +7,17 @@ the optional ``webrtcvad-wheels`` package). ``none``: no detection, the whole au
 
 Both detectors are trained on speech at ordinary recording levels and lose quiet speech: a simulated
 take (silero) at a peak of -55 dBFS kept 286 of its 353 frames, at -60 dBFS 88, at -65 dBFS none ("no
-speech"). So they run on a copy of the audio raised to ``VAD_LEVEL_DBFS`` when its speech is quieter
-than that (``vad_gain``); the detectors only say where the speech is, and the audio written keeps its
-level.
+speech"). So they are given the audio raised to ``VAD_LEVEL_DBFS`` when its speech is quieter than
+that (``vad_gain``), a block at a time (``detector_blocks``: no raised copy of the take); the detectors
+only say where the speech is, and the audio written keeps its level.
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterable, Iterator
 from importlib import resources
+from typing import Any
 
 import numpy as np
 
@@ -70,44 +72,106 @@ def _sequence_model(silero_vad):
     return ("onnx", silero_vad.SileroVADSequence(str(path)))
 
 
-def silero_segments(x: np.ndarray, min_silence_s: float = 0.3) -> list[tuple[float, float]]:
-    """Speech segments (start_s, end_s) of 16 kHz mono float32 audio by silero-vad (32 ms windows)."""
-    kind, model = _silero_model()
-    audio = np.ascontiguousarray(x, dtype=np.float32)
-    settings = {
-        "sampling_rate": TARGET_RATE,
-        "min_silence_duration_ms": int(min_silence_s * 1000),
-        "speech_pad_ms": 0,
-    }
+# Samples the detectors are given at a time (raised by the gain a block at a time: the raised copy of
+# all of a 2 h take was 460 MB, and twice that while it was clipped): 512 of silero's 512-sample windows,
+# the sequence model's own block, so that it runs the very calls it ran on the whole array.
+DETECTOR_BLOCK = 512 * 512
+
+
+def detector_blocks(x: np.ndarray, gain: float = 1.0, size: int = DETECTOR_BLOCK) -> Iterator[np.ndarray]:
+    """``x`` as float32 blocks of ``size`` samples (the last shorter), raised by ``gain`` and clipped to
+    [-1, 1] when it is not 1: sample for sample the whole array raised and clipped, one block at a time."""
+    for lo in range(0, x.size, size):
+        block = x[lo : lo + size]
+        if gain != 1.0:
+            block = np.clip(block * np.float32(gain), -1.0, 1.0)
+        yield np.ascontiguousarray(block, dtype=np.float32)
+
+
+def silero_segments(
+    x: np.ndarray, min_silence_s: float = 0.3, gain: float = 1.0
+) -> list[tuple[float, float]]:
+    """Speech segments (start_s, end_s) of 16 kHz mono float32 audio, raised by ``gain`` for the detector
+    (``detector_blocks``), by silero-vad (32 ms windows). The model's state runs on from block to block:
+    the probabilities, and so the segments, are those of the whole array in one call."""
+    kind, model = _silero_model()  # first: it imports the package with the caller's torch threads kept
+    from silero_vad import get_speech_timestamps_from_probs
+
     if kind == "onnx":
-        from silero_vad import get_speech_timestamps_sequence
-
-        stamps = get_speech_timestamps_sequence(audio, model, **settings)
+        probs = _sequence_probs(model, detector_blocks(x, gain))
     else:
-        import torch
-        from silero_vad import get_speech_timestamps
-
-        # Takes run in parallel processes; one thread each is fastest overall (the caller keeps its own).
-        with torch.inference_mode(), torch_threads(1):
-            stamps = get_speech_timestamps(torch.from_numpy(audio), model, **settings)
-        model.reset_states()
+        probs = _torch_probs(model, detector_blocks(x, gain))
+    stamps = get_speech_timestamps_from_probs(
+        probs,
+        sampling_rate=TARGET_RATE,
+        min_silence_duration_ms=int(min_silence_s * 1000),
+        speech_pad_ms=0,
+        audio_length_samples=x.size,
+    )
     return [(s["start"] / TARGET_RATE, s["end"] / TARGET_RATE) for s in stamps]
 
 
+def _sequence_probs(model: Any, blocks: Iterable[np.ndarray]) -> np.ndarray:
+    """Per-window speech probabilities of the sequence model over ``blocks`` (``DETECTOR_BLOCK`` samples,
+    the last shorter), one ONNX call a block as ``SileroVADSequence.audio_forward`` makes them (its
+    ``frame_blocks``), the state and each window's context carried on from the block before."""
+    from silero_vad.sequence_vad import RATE_CONFIG, frame_blocks
+
+    window, context = RATE_CONFIG[TARGET_RATE]
+    hidden, cell = np.zeros((1, 1, 128), np.float32), np.zeros((1, 1, 128), np.float32)
+    before = np.zeros(context, np.float32)  # the end of the last window of the block before
+    probs = [np.zeros(0, np.float32)]
+    for block in blocks:
+        for frames in frame_blocks(block, window, context, DETECTOR_BLOCK // window):
+            frames[0, :context] = before
+            before = frames[-1, -context:].copy()
+            values, hidden, cell = model.session.run(
+                ["speech_probs", "hn", "cn"], {"input": frames, "h": hidden, "c": cell}
+            )
+            probs.append(values.reshape(-1))
+    return np.concatenate(probs)  # float32, as audio_forward gives them (compared as float32)
+
+
+def _torch_probs(model: Any, blocks: Iterable[np.ndarray]) -> list[float]:
+    """Per-window speech probabilities of the TorchScript model over ``blocks`` (whole windows but the
+    last), window by window as ``silero_vad.get_speech_timestamps`` steps it, the last zero-padded."""
+    import torch
+
+    window = 512
+    probs: list[float] = []
+    # Takes run in parallel processes; one thread each is fastest overall (the caller keeps its own).
+    with torch.inference_mode(), torch_threads(1):
+        model.reset_states()
+        for block in blocks:
+            for lo in range(0, block.size, window):
+                chunk = block[lo : lo + window]
+                if chunk.size < window:
+                    chunk = np.concatenate([chunk, np.zeros(window - chunk.size, np.float32)])
+                probs.append(model(torch.from_numpy(chunk), TARGET_RATE).item())
+        model.reset_states()
+    return probs
+
+
+WEBRTC_FRAME = TARGET_RATE * 30 // 1000  # 30 ms
+
+
 def webrtc_segments(
-    x: np.ndarray, aggressiveness: int = 2, min_silence_s: float = 0.3
+    x: np.ndarray, aggressiveness: int = 2, min_silence_s: float = 0.3, gain: float = 1.0
 ) -> list[tuple[float, float]]:
-    """Speech segments (start_s, end_s) of 16 kHz mono float32 audio by the WebRTC detector (30 ms frames)."""
+    """Speech segments (start_s, end_s) of 16 kHz mono float32 audio, raised by ``gain`` for the detector
+    (``detector_blocks``), by the WebRTC detector (30 ms frames), made 16-bit a block at a time (the
+    int16 copy of a 2 h take and its float temporaries took 870 MB)."""
     try:
         import webrtcvad
     except ImportError:
         raise InputError("--vad webrtc needs the package webrtcvad (pip install webrtcvad-wheels)") from None
     vad = webrtcvad.Vad(aggressiveness)
-    hop = TARGET_RATE * 30 // 1000
-    pcm = np.clip(np.rint(x * 32768.0), -32768, 32767).astype("<i2")
-    n = pcm.size // hop
-    flags = np.array([vad.is_speech(pcm[i * hop : (i + 1) * hop].tobytes(), TARGET_RATE) for i in range(n)])
-    return runs_to_segments(flags, 0.03, min_silence_s, min_speech_s=0.09)
+    hop = WEBRTC_FRAME
+    flags: list[bool] = []
+    for block in detector_blocks(x[: x.size // hop * hop], gain, DETECTOR_BLOCK // hop * hop):
+        pcm = np.clip(np.rint(block * 32768.0), -32768, 32767).astype("<i2")
+        flags += [vad.is_speech(pcm[i : i + hop].tobytes(), TARGET_RATE) for i in range(0, pcm.size, hop)]
+    return runs_to_segments(np.array(flags), 0.03, min_silence_s, min_speech_s=0.09)
 
 
 def runs_to_segments(
@@ -153,15 +217,13 @@ def vad_gain(x: np.ndarray, level_dbfs: float | None = None) -> float:
 
 def speech_segments(x: np.ndarray, method: str, gain: float | None = None) -> list[tuple[float, float]]:
     """Speech segments (start_s, end_s) of 16 kHz mono audio; ``method`` is silero, webrtc or none.
-    Quiet audio is raised for the detector by ``gain`` (default ``vad_gain(x)``); ``x`` itself is not
-    changed."""
+    Quiet audio is raised for the detector by ``gain`` (default ``vad_gain(x)``) a block at a time
+    (``detector_blocks``); ``x`` itself is not changed, nor copied whole."""
     if method == "none":
         return [(0.0, x.size / TARGET_RATE)]
     gain = vad_gain(x) if gain is None else gain
-    if gain != 1.0:
-        x = np.clip(x * np.float32(gain), -1.0, 1.0).astype(np.float32)
     if method == "silero":
-        return silero_segments(x)
+        return silero_segments(x, gain=gain)
     if method == "webrtc":
-        return webrtc_segments(x)
+        return webrtc_segments(x, gain=gain)
     return [(0.0, x.size / TARGET_RATE)]
