@@ -4,8 +4,8 @@
 usable frames of an utterance (the dataset's raw samples, normalised and de-normalised with the RUN's
 statistics, so that a dataset built with other statistics gives the same numbers; the model reads
 every frame, unusable ones included, as ``s2a-train predict`` does, and only the usable ones are
-scored): ``entire`` over every channel of the dataset, ``crucial`` over jawOpen and mouthClose (paper
-Table 1). Reported as
+scored): ``entire`` over every channel of the run (picked by name from the dataset's), ``crucial`` over
+jawOpen and mouthClose (paper Table 1). Reported as
 mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
 floor predicts every frame as the training split's per-channel mean (from the manifest). ``rtf`` =
 seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
@@ -187,11 +187,13 @@ def run_channel_columns(channels: list[str], run_channels: list[str], where: Pat
     return [column[c] for c in run_channels]
 
 
-def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec: InputSpec, where: Path):
+def check_dataset_fits_run(
+    manifest: dict[str, Any], info: dict[str, Any], spec: InputSpec, where: Path
+) -> list[int]:
     """Refuse a dataset whose frame rate or input features are not the run's, or that lacks some of the
-    run's channels (``info``: the checkpoint's ``dataset``). Its normalisation may differ: evaluation
-    uses the run's."""
-    run_channel_columns(manifest["channels"], info["channels"], where)
+    run's channels (``info``: the checkpoint's ``dataset``); returns the dataset's columns of the run's
+    channels (``run_channel_columns``). Its normalisation may differ: evaluation uses the run's."""
+    columns = run_channel_columns(manifest["channels"], info["channels"], where)
     if manifest["fps"] != info["fps"]:
         raise InputError(f"dataset is at {manifest['fps']:g} fps, the run at {info['fps']:g} fps", where)
     features = manifest.get("features")
@@ -213,6 +215,7 @@ def check_dataset_fits_run(manifest: dict[str, Any], info: dict[str, Any], spec:
                 "features would not match (build the dataset with the run's --ppg-model)",
                 where,
             )
+    return columns
 
 
 def _ppg_model(features: dict[str, Any]) -> tuple[Any, Any]:
@@ -251,9 +254,8 @@ def evaluate(
     info = payload["dataset"]
     ds = dataset_folder(ds)  # the folder or its manifest.json; another file is named, not taken for it
     manifest = read_manifest(ds)
-    check_dataset_fits_run(manifest, info, spec, ds / "manifest.json")
+    columns = check_dataset_fits_run(manifest, info, spec, ds / "manifest.json")
     channels = list(info["channels"])  # scored: the run's, picked from the dataset's by name
-    columns = run_channel_columns(manifest["channels"], channels, ds / "manifest.json")
     picked = None if columns == list(range(len(manifest["channels"]))) else columns
     if picked is not None:
         say(
@@ -350,7 +352,7 @@ def evaluate(
     fl = floor.summary()
     result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}
     if tally.crucial is None:
-        result["note"] = "the dataset lacks jawOpen or mouthClose: no crucial RMSE"
+        result["note"] = "the run's channels lack jawOpen or mouthClose: no crucial RMSE"
     if spec.styles:
         result["style"] = {
             "styles": list(spec.styles),
