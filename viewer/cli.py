@@ -514,7 +514,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
     from capture.replay import check_speed, packet_names, parse_destination
 
     from .inputs import ABSURD, livelink_coverage, missing_face_channels, prepared_for_stream
-    from .stream import load_take, stream_take
+    from .stream import load_take, speech_player, stream_take
 
     parse_destination(args.to)  # a malformed destination or speed is reported before any file is read
     check_speed(args.speed)
@@ -530,9 +530,10 @@ def cmd_stream(args: argparse.Namespace) -> int:
             f"{outside} blendshape value(s) outside 0..1 are sent as they are (the phone sends "
             "up to 1.05; a rig may expect 0..1)"
         )
+    player = speech_player(take, args.speed) if args.audio is not None else None
     if not args.json:
         progress(f"streaming {take.meta.id} to {args.to} ({take.duration_s / args.speed:.1f} s)")
-    summary = stream_take(take, args.to, args.speed, args.audio is not None, args.subject, args.device)
+    summary = stream_take(take, args.to, args.speed, player, args.subject, args.device)
     summary["outside_0_1"] = outside
     summary["audio_file"] = str(speech_file) if summary["audio"] and speech_file else None
     if args.json:

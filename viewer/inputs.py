@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator, Sequence
@@ -64,7 +65,7 @@ def take_source(path: str | Path, one_take: str, shown: str | None = None) -> Pa
     if is_take_dir(path) or path.is_file():
         return path
     if not path.is_dir():
-        raise InputError("no such take folder or CSV file", path)
+        raise InputError(_missing_take(path), path)
     if is_take_folder(path) and not takes_side_by_side(path):  # several takes side by side: listed below
         return path
     found = [(f"{p.relative_to(path)}/", p) for p in find_takes([path])]
@@ -94,6 +95,22 @@ def take_source(path: str | Path, one_take: str, shown: str | None = None) -> Pa
         )
     how = "name one of them" + (f" as {shown}/{names[0].rstrip('/')}" if shown else "")
     raise InputError(f"{one_take}; found {len(found)} takes under it ({shown_names}): {how}", path)
+
+
+def _missing_take(path: Path) -> str:
+    """Why ``path``, which does not exist, names no take: a take align cut into segments is only its
+    segments (``ID.seg01``, ``ID.seg02``), which are named."""
+    from align.batch import SEGMENT_SUFFIX  # align's imports only for this message
+
+    try:
+        segment = re.compile(re.escape(path.name) + SEGMENT_SUFFIX)
+        segments = sorted(p.name for p in path.parent.iterdir() if segment.fullmatch(p.name))
+    except OSError:  # no such parent folder either
+        segments = []
+    if not segments:
+        return "no such take folder or CSV file"
+    shown = ", ".join(segments[:3]) + (f" and {len(segments) - 3} more" if len(segments) > 3 else "")
+    return f"no such take folder: align cut this take into {len(segments)} segment(s) ({shown}): name one"
 
 
 def read_input(

@@ -42,15 +42,29 @@ class AudioPlayer:
         self.sd.wait()
 
 
+def speech_player(take: Take, speed: float) -> AudioPlayer:
+    """A player of ``take``'s speech from its first frame on, its output device checked: asked for
+    before the stream is announced, so that a missing device or speech is an error before anything
+    is said to stream or sent."""
+    if speed != 1.0:
+        raise InputError("--audio plays the speech in real time: use it with --speed 1")
+    a = rebased_audio(take)
+    if a is None:
+        raise InputError(f"take {take.meta.id} has no audio to play (give one with --audio FILE)")
+    first = float(take.time[0])  # the first packet is the take's first frame
+    return AudioPlayer(a.mono_float()[int(round(first * a.sample_rate)) :], a.sample_rate)
+
+
 def stream_take(
     take: Take,
     destination: str,
     speed: float = 1.0,
-    audio: bool = False,
+    player: AudioPlayer | None = None,
     subject: str | None = None,
     device: str | None = None,
 ) -> dict:
-    """Send ``take`` to ``destination`` (``HOST:PORT``); blocks for the take's duration / speed.
+    """Send ``take`` to ``destination`` (``HOST:PORT``), ``player`` (``speech_player``) playing its
+    speech; blocks for the take's duration / speed.
 
     Returns what was sent: ``packets_sent``, of which ``frames`` carried face values and ``no_face``
     were no-face packets (``face_lost``: frames the tracker lost; ``bad_values``: frames holding NaN,
@@ -59,16 +73,6 @@ def stream_take(
     host, port = parse_destination(destination)
     check_speed(speed)
     packet_names(take, device, subject)  # names too long for a datagram: an error before any sound
-    player = None
-    if audio:
-        if speed != 1.0:
-            raise InputError("--audio plays the speech in real time: use it with --speed 1")
-        a = rebased_audio(take)
-        if a is None:
-            raise InputError(f"take {take.meta.id} has no audio to play (give one with --audio FILE)")
-        first = float(take.time[0])  # the first packet is the take's first frame
-        x = a.mono_float()[int(round(first * a.sample_rate)) :]
-        player = AudioPlayer(x, a.sample_rate)
     if player is not None:
         # replay_take sends its first packet as soon as its socket is open: start the sound just before.
         player.start()
