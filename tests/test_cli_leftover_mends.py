@@ -112,7 +112,11 @@ def test_a_program_that_imports_the_stages_keeps_its_own_ctrl_c(tmp_path):
     time.sleep(0.1)
     proc.send_signal(signal.SIGINT)
     _out, err = proc.communicate(timeout=60)
-    assert proc.returncode in (1, -signal.SIGINT) and "KeyboardInterrupt" in err, err
+    # Python's own traceback, not a command's one line: a KeyboardInterrupt, or, when it lands while a C
+    # extension imports (NumPy's), the ImportError that extension makes of it (seen on a loaded machine)
+    assert proc.returncode in (1, -signal.SIGINT), err
+    assert "KeyboardInterrupt" in err or "ImportError" in err, err
+    assert "interrupted" not in err, err
 
 
 # -- 2. option values out of their range: usage errors (exit 2); input problems stay exit 1 ---------------
