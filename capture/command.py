@@ -435,6 +435,16 @@ def run(
         return 1
     finally:
         _program = outer  # a command run from another's process (a test's) leaves the name as it was
+        _forget_interrupts_of_executed_text()
+
+
+def _forget_interrupts_of_executed_text() -> None:
+    """The exit code ``run`` returns is the process's. CPython notes a KeyboardInterrupt that ends code
+    run from text (``exec`` of a string: every dataclass and namedtuple a module defines as it is
+    imported) and, at exit, kills the process with SIGINT (returncode -2) whatever the exit code, even
+    when the interrupt was handled (``run``'s one line) or a library's import swallowed it. Running text
+    that ends normally clears that note (CPython 3.8+, ``run_eval_code_obj``)."""
+    exec("None")
 
 
 @contextmanager
