@@ -68,21 +68,25 @@ def write_aligned_set(root: Path, count: int = 6, speakers: int = 2, seconds: fl
     return root
 
 
-def build_five_take_dataset(root: Path, gap: tuple[int, int] | None = None) -> Path:
-    """``root/ds``: five aligned 2 s takes of two speakers, pitch, energy and filter banks, 1 s samples;
-    take03 validates, take04 tests, take00-02 train (the train stage's small adversity datasets).
-    ``gap``: frames where each take lost the face (``make_aligned_take``)."""
+def build_take_split(takes: Path, out: Path, **options) -> Path:
+    """``out``: the dataset of the aligned takes in ``takes`` as the train stage's small datasets are built:
+    pitch, energy and filter banks, 1 s samples, take03 validates, take04 tests, the others train;
+    ``options``: other ``BuildOptions`` (``channels``, ``normalization``)."""
     from dataset import BuildOptions, build_dataset
     from dataset.splits import SplitRule
 
+    split = SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",))
+    options = BuildOptions(features=("pitch", "energy", "fbank"), split=split, max_sample_s=1.0, **options)
+    build_dataset([takes], out, options, say=lambda _m: None)
+    return out
+
+
+def build_five_take_dataset(root: Path, gap: tuple[int, int] | None = None) -> Path:
+    """``root/ds``: five aligned 2 s takes of two speakers (``build_take_split``: take03 validates, take04
+    tests, take00-02 train; the train stage's small adversity datasets). ``gap``: frames where each take lost
+    the face (``make_aligned_take``)."""
     takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0, gap=gap)
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"),
-        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
-        max_sample_s=1.0,
-    )
-    build_dataset([takes], root / "ds", options, say=lambda _m: None)
-    return root / "ds"
+    return build_take_split(takes, root / "ds")
 
 
 def build_default_dataset(root: Path) -> Path:

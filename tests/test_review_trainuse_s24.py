@@ -12,23 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import run_cli
-from dataset_helpers import make_aligned_take
+from dataset_helpers import build_take_split, make_aligned_take
 
 from capture import write_take
-from dataset import BuildOptions, build_dataset
-from dataset.splits import SplitRule
-
-
-def _build(takes: Path, out: Path, channels: str) -> Path:
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"),
-        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
-        max_sample_s=1.0,
-        channels=channels,
-        normalization="neutral",
-    )
-    build_dataset([takes], out, options, say=lambda _m: None)
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -40,9 +26,16 @@ def work(tmp_path_factory) -> Path:
         take = make_aligned_take(f"take{i:02d}", 2.0, subject=f"spk{i % 2}", seed=i, neutral=True)
         take.neutral = (0.004 * (1 + np.arange(take.values.shape[1])) * (1 + 0.3 * i)).astype(np.float32)
         write_take(take, root / "takes")
-    _build(root / "takes", root / "jaw", "jawOpen,mouthClose")
-    _build(root / "takes", root / "wide", "mouthFunnel,mouthClose,jawOpen,mouthSmileLeft")
-    _build(root / "takes", root / "funnel", "mouthFunnel,mouthSmileLeft")
+    build_take_split(root / "takes", root / "jaw", channels="jawOpen,mouthClose", normalization="neutral")
+    build_take_split(
+        root / "takes",
+        root / "wide",
+        channels="mouthFunnel,mouthClose,jawOpen,mouthSmileLeft",
+        normalization="neutral",
+    )
+    build_take_split(
+        root / "takes", root / "funnel", channels="mouthFunnel,mouthSmileLeft", normalization="neutral"
+    )
     for ds in ("jaw", "funnel"):
         run_cli("train", "fit", "--data", root / ds, "--model", "ridge", "-o", root / f"run_{ds}", check=True)
     return root

@@ -17,21 +17,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import ROOT, run_cli
-from dataset_helpers import write_aligned_set
-
-from dataset import BuildOptions, build_dataset
-from dataset.splits import SplitRule
-
-
-def _build(takes: Path, out: Path, channels: str) -> Path:
-    options = BuildOptions(
-        features=("pitch", "energy", "fbank"),
-        split=SplitRule("take", 0.1, 0.1, 0, ("take03",), ("take04",)),
-        max_sample_s=1.0,
-        channels=channels,
-    )
-    build_dataset([takes], out, options, say=lambda _m: None)
-    return out
+from dataset_helpers import build_take_split, write_aligned_set
 
 
 @pytest.fixture(scope="module")
@@ -40,10 +26,10 @@ def work(tmp_path_factory) -> Path:
     mouthClose."""
     root = tmp_path_factory.mktemp("trainuse")
     takes = write_aligned_set(root / "takes", count=5, speakers=2, seconds=2.0)
-    _build(takes, root / "jaw", "jawOpen,mouthClose")
-    _build(takes, root / "jaw_swapped", "mouthClose,jawOpen")
-    _build(takes, root / "mouth", "jawOpen,mouthClose,mouthFunnel")
-    _build(takes, root / "funnel", "jawOpen,mouthFunnel")
+    build_take_split(takes, root / "jaw", channels="jawOpen,mouthClose")
+    build_take_split(takes, root / "jaw_swapped", channels="mouthClose,jawOpen")
+    build_take_split(takes, root / "mouth", channels="jawOpen,mouthClose,mouthFunnel")
+    build_take_split(takes, root / "funnel", channels="jawOpen,mouthFunnel")
     run_cli("train", "fit", "--data", root / "jaw", "--model", "ridge", "-o", root / "run", check=True)
     return root
 
