@@ -361,7 +361,7 @@ def _begins_with_vbri(data: bytes | _FileBytes, run: MpegRun) -> bool:
     frame = _mpeg_frame(data, run.start)
     return (
         frame is not None
-        and _begins_file(data, run.start)
+        and not data[run.start + frame[6]]  # no sound (``_begins_file``, the frame parsed once)
         and data.startswith(b"VBRI", run.start + 36)
         and bool(_file_header_frames(data, run.start, frame))
     )
@@ -2118,7 +2118,8 @@ def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | 
 
 def _begins_file(data: bytes | _FileBytes, pos: int) -> bool:
     """Whether the frame at ``pos`` is a file's Xing/Info or VBRI frame (``_is_file_header``): its side
-    information zeros, no sound."""
+    information zeros, no sound. ``mpeg_runs`` makes the same test inline, its frame at hand (once per frame:
+    no call, no second parse of the header)."""
     frame = _mpeg_frame(data, pos)
     return frame is not None and not data[pos + frame[6]] and _is_file_header(data, pos, frame)
 

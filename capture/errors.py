@@ -14,6 +14,11 @@ def printable(text: str) -> str:
         return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
+def first_few(names, most: int = 5) -> str:
+    """The first ``most`` of ``names``, comma-separated, and how many more there are (``a, b and 3 more``)."""
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
 class S2AError(Exception):
     """Base of every error the toolkit raises for bad input or a failed check."""
 

@@ -929,12 +929,12 @@ def take_transcript(take: Take) -> str | None:
     return text if isinstance(text, str) and text.strip() else None
 
 
-def on_another_scale(values: np.ndarray, beyond: np.ndarray, within: np.ndarray) -> bool:
-    """Whether a channel with values ``beyond`` ANIM_LIMIT (frames x channels) is on another scale than
+def on_another_scale(values: np.ndarray, columns: np.ndarray, within: np.ndarray) -> bool:
+    """Whether one of ``columns`` (the channels with values beyond ANIM_LIMIT) is on another scale than
     weights: it has no frame ``within`` reach, or passes WEIGHT_REACH in more than a tenth of them (a
     percent scale's quiet frames, degrees of a small turn). A tracker's glitch, however long, leaves the
     channel's other frames the weights they were."""
-    for col in np.flatnonzero(beyond.any(axis=0)):
+    for col in columns:
         near = np.abs(values[within, col])
         if not near.size or np.quantile(near, 0.9) > WEIGHT_REACH:
             return True
@@ -977,11 +977,16 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     level = gain_for_level(speech_db, job.settings)
     t = np.arange(n) / fps
     in_audio = t < audio_len / sr
-    finite = np.all(np.isfinite(values), axis=1)
-    beyond = np.isfinite(values) & (np.abs(values) > ANIM_LIMIT)  # per value: which channels, which sign
+    finite_values = np.isfinite(values)
+    finite = finite_values.all(axis=1)
+    beyond = finite_values & (np.abs(values) > ANIM_LIMIT)  # per value: which channels, which sign
+    del finite_values
     in_range = ~beyond.any(axis=1)
+    beyond_columns = np.flatnonzero(beyond.any(axis=0))
     out_of_range = int((finite & ~in_range).sum())
-    wrong_scale = out_of_range > WRONG_SCALE_SHARE * n and on_another_scale(values, beyond, finite & in_range)
+    wrong_scale = out_of_range > WRONG_SCALE_SHARE * n and on_another_scale(
+        values, beyond_columns, finite & in_range
+    )
     mask = np.isin(take.frame_status, USABLE_STATUS) & finite & in_range & in_audio & (not wrong_scale)
     anim = np.where(mask[:, None], values, 0.0).astype(np.float32)
     feats, phones = compute_features(
@@ -1087,7 +1092,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
         "frames": n,
         "usable_frames": int(mask.sum()),
         "out_of_range_frames": out_of_range,
-        "out_of_range_channels": [job.channels[j] for j in np.flatnonzero(beyond.any(axis=0))],
+        "out_of_range_channels": [job.channels[j] for j in beyond_columns],
         "out_of_range_below": bool((values[beyond] < 0).any()),
         "wrong_scale": wrong_scale,
         "interpolated_frames": int(np.count_nonzero(mask & (take.frame_status == FrameStatus.INTERPOLATED))),

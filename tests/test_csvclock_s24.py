@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import run_cli
-from test_readers_review_s22 import write_csv
+from test_readers_review_s22 import rows_at, write_csv
 
 from capture import channels as ch
 from capture import read_livelink_csv
@@ -180,10 +180,7 @@ def test_tracked_rows_dropped_at_half_the_cadence_do_not_set_the_rate(tmp_path: 
     tracked = [t0 + i / 30 for i in range(300)]
     lost = [tracked[-1] + (i + 1) / 60 for i in range(1200)]
     after = [lost[-1] + (i + 1) / 60 for i in range(120)]
-    row = ",".join(f"{0.1:.10f}" for _ in range(61))
-    lines = [f"{Timecode.from_seconds(t).format()},61,{row}" for t in tracked]
-    lines += [f"{Timecode.from_seconds(t).format()},0" for t in lost]
-    lines += [f"{Timecode.from_seconds(t).format()},61,{row}" for t in after]
+    lines = rows_at(tracked) + rows_at(lost, tracked=False) + rows_at(after)
     take = read_livelink_csv(write_csv(tmp_path / "MySlate_8_iPhone.csv", lines))
     assert take.meta.fps == 60.0  # was 30
     assert np.allclose(np.diff(take.time), 1 / 60, atol=2e-3)  # one frame per 1/60 s, none shared

@@ -26,6 +26,12 @@ def rows(n: int, fps: float = 60.0, t0: float = T0, times=None) -> list[str]:
     return [f"{tc},{len(CSV_ORDER)},{values}" for tc in cells]
 
 
+def rows_at(seconds, tracked: bool = True) -> list[str]:
+    """Rows at these times of day: tracked (as ``rows`` writes them) or face lost (count 0, no values)."""
+    cells = [Timecode.from_seconds(t).format() for t in seconds]
+    return rows(len(cells), times=cells) if tracked else [f"{tc},0" for tc in cells]
+
+
 def write_csv(path: Path, lines: list[str]) -> Path:
     path.write_text("".join(line + "\n" for line in [HEADER, *lines]))
     return path

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_csv_long_damaged import ROWS, SAMPLE, assert_same, long_take, read_counting_careful_lines, write
-from test_readers_review_s22 import rows, write_csv
+from test_readers_review_s22 import rows, rows_at, write_csv
 
 from capture import read_livelink_csv
 from capture.csv_take import _read_careful, read_csv_rows
@@ -107,10 +107,7 @@ def test_face_lost_rows_at_half_the_cadence_do_not_set_the_rate(tmp_path: Path) 
     tracked = [t0 + i / 60 for i in range(120)]  # 2 s tracked
     lost = [tracked[-1] + (i + 1) / 30 for i in range(240)]  # 8 s lost, 30 rows/s
     after = [lost[-1] + (i + 1) / 60 for i in range(60)]  # 1 s tracked
-    values = ",".join(f"{0.1:.10f}" for _ in range(61))
-    lines = [f"{Timecode.from_seconds(t).format()},61,{values}" for t in tracked]
-    lines += [f"{Timecode.from_seconds(t).format()},0" for t in lost]
-    lines += [f"{Timecode.from_seconds(t).format()},61,{values}" for t in after]
+    lines = rows_at(tracked) + rows_at(lost, tracked=False) + rows_at(after)
     take = read_livelink_csv(write_csv(tmp_path / "MySlate_7_iPhone.csv", lines))
     assert take.meta.fps == 60.0  # was 30
     assert np.allclose(np.diff(take.time), 1 / 60, atol=2e-3)  # one frame per 1/60 s, none shared

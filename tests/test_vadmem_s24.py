@@ -8,14 +8,13 @@ whole-array functions here."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import warnings
 
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import ROOT
+from conftest import run_python
 
 from align import vad
 from align.resample import TARGET_RATE, to_16k_mono
@@ -57,13 +56,7 @@ for method in sys.argv[2:]:
 def test_the_detectors_hold_no_copy_of_a_long_take(samples):
     """20 min of quiet speech (73 MB of float32 at 16 kHz): the whole-array code raised its peak by two
     copies of it for either detector (147 MB and 219 MB measured); now by a few blocks (9 MB, 0 MB)."""
-    proc = subprocess.run(
-        [sys.executable, "-c", DETECTOR_PEAK, str(samples / NEUROSYNC), "silero", "webrtc"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=300,
-    )
+    proc = run_python(DETECTOR_PEAK, str(samples / NEUROSYNC), "silero", "webrtc", timeout=300)
     assert proc.returncode == 0, proc.stderr
     held_kb = 20 * 60 * TARGET_RATE * 4 // 1024
     for line in proc.stdout.splitlines():
@@ -82,13 +75,7 @@ CHILD_PEAK = (
 
 def _plot_peak_kb(csv, wav, out, vad_method: str) -> int:
     plot = [sys.executable, "-m", "viewer", "plot", csv, "--audio", wav, "-o", out, "--vad", vad_method]
-    proc = subprocess.run(
-        [sys.executable, "-c", CHILD_PEAK, *map(str, plot)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=300,
-    )
+    proc = run_python(CHILD_PEAK, *map(str, plot), timeout=300)
     assert proc.returncode == 0, proc.stderr
     return int(proc.stdout.split()[-1])
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from capture.command import progress, warn
-from capture.errors import InputError
+from capture.errors import InputError, first_few
 from dataset.manifest import dataset_folder, read_manifest
 from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
@@ -178,10 +178,9 @@ def run_channel_columns(channels: list[str], run_channels: list[str], where: Pat
     column = {c: j for j, c in enumerate(channels)}
     missing = [c for c in run_channels if c not in column]
     if missing:
-        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
         raise InputError(
             f"dataset lacks {len(missing)} of the {len(run_channels)} channels the run was trained on "
-            f"({shown}): build it with the run's channels (s2a-dataset build --channels)",
+            f"({first_few(missing)}): build it with the run's channels (s2a-dataset build --channels)",
             where,
         )
     return [column[c] for c in run_channels]

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
-from capture.errors import InputError
+from capture.errors import InputError, first_few
 from capture.take import sha256_file
 from dataset.manifest import FORMAT, SCHEMA_VERSION, manifest_path, manifest_problems, read_manifest
 
@@ -105,24 +105,19 @@ def recorded_takes(info: Any) -> dict[str, Any] | None:
     return {"train": list(takes["train"]), "val": list(takes["val"]), "sha256": dict(sha)}
 
 
-def _names(takes: list[str], most: int = 3) -> str:
-    shown = ", ".join(takes[:most])
-    return shown + (f" and {len(takes) - most} more" if len(takes) > most else "")
-
-
 def take_changes(old: dict[str, Any], new: dict[str, Any], split: str) -> list[str]:
     """How the ``split`` ("train" or "val") takes of two ``run_takes`` records differ, in words: takes
     gone, added, or whose contents changed (their sha256, where both records have it)."""
     before, after = set(old[split]), set(new[split])
     out = []
     if before - after:
-        out.append(f"{split} take(s) {_names(sorted(before - after))} gone")
+        out.append(f"{split} take(s) {first_few(sorted(before - after), 3)} gone")
     if after - before:
-        out.append(f"{split} take(s) {_names(sorted(after - before))} added")
+        out.append(f"{split} take(s) {first_few(sorted(after - before), 3)} added")
     was, now = old.get("sha256", {}), new.get("sha256", {})
     edited = [t for t in sorted(before & after) if t in was and t in now and was[t] != now[t]]
     if edited:
-        out.append(f"{split} take(s) {_names(edited)} changed")
+        out.append(f"{split} take(s) {first_few(edited, 3)} changed")
     return out
 
 

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from capture.command import StageParser, TimedProgress, add_version, emit_json, progress, run, warn
-from capture.errors import InputError
+from capture.errors import InputError, first_few
 from capture.import_guard import imports_done
 
 from .output import (
@@ -250,7 +250,7 @@ def _face_gaps(model, anims) -> tuple[list[str], list[str]]:
     moved = sorted((c for c, p in peak.items() if p > 1e-6), key=lambda c: -peak[c])
     if not moved:
         return [], []
-    names = ", ".join(moved[:5]) + (f" and {len(moved) - 5} more" if len(moved) > 5 else "")
+    names = first_few(moved)
     unread = model.extra.get("unmapped", [])
     hint = f"; its morph targets not matched to one: {', '.join(unread[:5])}" if unread else ""
     hint += f" (and {len(unread) - 5} more)" if len(unread) > 5 else ""

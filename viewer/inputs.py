@@ -39,7 +39,7 @@ from capture import Take, find_sources, find_takes, import_source, is_take_folde
 from capture.channels import ARKIT52, canonical, is_known
 from capture.command import stops_deferred
 from capture.csv_take import split_variant
-from capture.errors import InputError, S2AError
+from capture.errors import InputError, S2AError, first_few
 from capture.importer import AUDIO_SUFFIXES, audio_beside, audio_stem, is_livelink_csv, warn_skipped
 from capture.mov import probe_mov
 from capture.paired import NoFrameRate
@@ -86,7 +86,7 @@ def take_source(path: str | Path, one_take: str, shown: str | None = None) -> Pa
         raise InputError("holds no take folder or Live Link Face CSV", path)
     if len(found) == 1:
         return found[0][1]
-    shown_names = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    shown_names = first_few(names)
     if not found:  # archives in an archive: each is named as a path into the outer one
         raise InputError(
             f"holds no take of its own, but {len(names)} zip archive(s) ({shown_names}): name one "
@@ -109,7 +109,7 @@ def _missing_take(path: Path) -> str:
         segments = []
     if not segments:
         return "no such take folder or CSV file"
-    shown = ", ".join(segments[:3]) + (f" and {len(segments) - 3} more" if len(segments) > 3 else "")
+    shown = first_few(segments, 3)
     return f"no such take folder: align cut this take into {len(segments)} segment(s) ({shown}): name one"
 
 
@@ -318,7 +318,7 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
         )
     if not target.exists():
         held = sorted({m.parts[0] + ("/" if m.is_dir or len(m.parts) > 1 else "") for m in route.listed})
-        listed = ", ".join(held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
+        listed = first_few(held)
         raise InputError(f"holds no {member} (it holds {listed or 'nothing'})", box.name)
     folders = {b[:-1] for b in route.held_back}  # each folder's .movs probed once, however many .wavs
     reading = {f for f in folders if _wavs_read(target, box.folder.joinpath(*f))}
@@ -665,7 +665,7 @@ def missing_face_channels(take: Take, path: str | Path) -> list[str]:
     missing = [c for c in ARKIT52 if c not in held]
     if not missing or not held:  # a take of no Live Link channel is refused (livelink_coverage)
         return []
-    shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+    shown = first_few(missing)
     return [f"{path}: {len(missing)} face channel(s) not in the take, shown at 0: {shown}"]
 
 
