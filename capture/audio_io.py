@@ -1592,25 +1592,27 @@ class _DecodedToFile(_DecodedLayout):
         except OSError as exc:
             raise _scratch_refused(self.scratch.parent, exc, self.source) from None
         sink = self._sink = _WavSink(self._file)
-        # RF64: a size past 4 GB is no error; libsndfile reads it as it reads a WAV
-        self._out = self._into_file(
-            lambda: sf.SoundFile(sink, "w", self._rate, self.channels, subtype=subtype, format="RF64")
-        )
 
-    def _into_file(self, call: Callable[[], Any]) -> Any:
+        def opened() -> None:
+            # RF64: a size past 4 GB is no error; libsndfile reads it as it reads a WAV
+            self._out = sf.SoundFile(sink, "w", self._rate, self.channels, subtype=subtype, format="RF64")
+
+        self._into_file(opened)
+
+    def _into_file(self, call: Callable[[], None]) -> None:
         """``call``'s writing through libsndfile into the scratch file, a write the system refuses (a full
-        disk) an ``InputError``; Ctrl-C or SIGTERM waits until it returns (``stops_deferred``)."""
+        disk) an ``InputError``; Ctrl-C or SIGTERM waits until it returns (``stops_deferred``), and is met
+        as it does: what ``call`` makes is kept within it (``self._out``), else it would be lost."""
         sink = self._sink
         assert sink is not None
         try:
             with stops_deferred():  # met in libsndfile's callback, a stop would be lost there
-                done = call()
+                call()
         except (AssertionError, sf.SoundFileError):  # soundfile's check that every frame was written
             if sink.error is None:
                 raise
         if sink.error is not None:
             raise _scratch_refused(self.scratch.parent, sink.error, self.source)
-        return done
 
     def finish(self, frames: int | None, rate: int, sample_format: str) -> FileAudio:
         """The audio decoded (its first ``frames``; None: all) as a ``FileAudio`` of the file; ``rate``
@@ -1626,8 +1628,8 @@ class _DecodedToFile(_DecodedLayout):
             raise _NotStreamed  # silence only (decoded as float), or frames of a format not listed
         self._write(self._waiting_frames - cut)
         assert self._out is not None and self._file is not None
-        out, self._out = self._out, None
-        self._into_file(out.close)
+        self._into_file(self._out.close)
+        self._out = None
         try:
             self._file.close()
         except OSError as exc:
@@ -1654,7 +1656,8 @@ class _DecodedToFile(_DecodedLayout):
             return
         try:
             if self._out is not None:
-                self._out.close()
+                with stops_deferred():  # met in libsndfile's callback, a stop would be lost there
+                    self._out.close()
         except (AssertionError, sf.SoundFileError):
             pass  # a full disk: the file goes all the same
         if self._file is not None:
