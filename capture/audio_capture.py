@@ -368,7 +368,8 @@ class LoggedSpan(FileAudio):
 
     def __init__(self, audio: SessionAudio, lo: int, hi: int):
         dtype = audio._dtype.newbyteorder("=")
-        super().__init__(audio.path, audio.sample_rate, audio.subtype, dtype, hi - lo, audio.channels, 0)
+        crcs = np.zeros(0, np.uint32)  # its blocks are checked against the log's own checksums
+        super().__init__(audio.path, audio.sample_rate, audio.subtype, dtype, hi - lo, audio.channels, crcs)
         self._audio, self._lo = audio, lo
 
     def blocks(self, size: int) -> Iterator[np.ndarray]:

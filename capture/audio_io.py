@@ -228,7 +228,7 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
         if not (len(runs) > 1 or lost or counts_wrong or vbri or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
-            audio = _read_by_libsndfile(path, info, skipped, found)
+            audio = _read_by_libsndfile(path, info, skipped, found, not runs and _untagged_free_format(data))
             if audio.frames + drops >= coded:
                 if repairs is not None and found:
                     repairs += found
@@ -254,9 +254,13 @@ def _read_joined_mpeg_checked(
     return check_samples(_read_joined_mpeg(path, data, runs, repairs), path, repairs)
 
 
-def _read_by_libsndfile(path: Path, info: Any, skipped: int, repairs: list[dict[str, Any]] | None) -> Audio:
+def _read_by_libsndfile(
+    path: Path, info: Any, skipped: int, repairs: list[dict[str, Any]] | None, free_format: bool = False
+) -> Audio:
     """An .mp3 read by libsndfile: a block at a time into a scratch file within ``audio_left_in_files``
-    given a scratch folder (``_mpeg_to_file``), else whole; the unrecorded encoder delay noted."""
+    given a scratch folder (``_mpeg_to_file``), else whole; the unrecorded encoder delay noted (also of
+    ``free_format`` audio without a Xing/Info frame, ``_untagged_free_format``, which FFmpeg cannot open
+    to tell)."""
     audio: Audio | None = None
     scratch = _scratch_folder()
     if scratch is not None:
@@ -269,9 +273,33 @@ def _read_by_libsndfile(path: Path, info: Any, skipped: int, repairs: list[dict[
             return audio
     else:
         audio = check_samples(audio, path, repairs)
-    if repairs is not None:  # mpg123 drops a recorded delay
+    if repairs is not None and free_format:
+        repairs.append(_unknown_delay_note(path, "mp3", info.samplerate))
+    elif repairs is not None:  # mpg123 drops a recorded delay
         note_unknown_delay(path, repairs)
     return audio
+
+
+def _untagged_free_format(data: bytes | _FileBytes) -> bool:
+    """Whether an .mp3 (``data``, its tags first skipped) starts with a layer III frame in free format (bit
+    rate index 0: no header says its frames' size, ``mpeg_runs`` finds none, FFmpeg cannot open it) that
+    is no Xing/Info frame: no LAME tag records the encoder's delay, which libsndfile's decoder keeps
+    (LAME's output 1105 samples late)."""
+    pos = 0
+    while skip := _tag_bytes(data, pos):
+        pos += skip
+    head = data[pos : pos + 4]
+    if (
+        len(head) < 4
+        or not _starts_sync(head, 0)
+        or head[1] >> 1 & 3 != 1
+        or head[2] >> 4
+        or head[1] >> 3 & 3 == 1
+    ):
+        return False  # not layer III (bits 01), a bit rate in the header, or the reserved version
+    side = (32, 17) if head[1] >> 3 & 3 == 3 else (17, 9)  # MPEG-1, else MPEG-2 and 2.5: stereo, mono
+    text_at = pos + 4 + (0 if head[1] & 1 else 2) + side[head[3] >> 6 == 3]
+    return not data.startswith(_XING_TEXTS, text_at)
 
 
 def _mpeg_to_file(path: Path, info: Any, skipped: int, sink_of: _SinkOf) -> FileAudio:
@@ -347,8 +375,7 @@ def _gapless_skip(data: bytes | _FileBytes, run: MpegRun, counted: bool = False)
 
 def _dropped_at_start(data: bytes | _FileBytes, run: MpegRun, counted: bool = False) -> int:
     """The samples of the file whose first run is ``run`` that FFmpeg does not decode as sound: its header
-    frame's and the encoder's delay (``_gapless_skip``); a VBRI frame's that declares a frame count (its
-    encoder's delay kept)."""
+    frame's and the encoder's delay (``_gapless_skip``); a VBRI frame's (its encoder's delay kept)."""
     skip = _gapless_skip(data, run, counted)
     if skip:
         return skip + run.frame_samples
@@ -356,14 +383,14 @@ def _dropped_at_start(data: bytes | _FileBytes, run: MpegRun, counted: bool = Fa
 
 
 def _begins_with_vbri(data: bytes | _FileBytes, run: MpegRun) -> bool:
-    """Whether the file whose first run is ``run`` begins with a VBRI frame (Fraunhofer's encoders) that
-    declares a frame count: FFmpeg skips it, mpg123 (libsndfile) decodes it as a frame of silence."""
+    """Whether the file whose first run is ``run`` begins with a VBRI frame (Fraunhofer's encoders): mpg123
+    (libsndfile) decodes it as a frame of silence, and FFmpeg too when it declares no frame nor byte
+    count; ``_mended`` leaves it out of what FFmpeg is given."""
     frame = _mpeg_frame(data, run.start)
     return (
         frame is not None
         and not data[run.start + frame[6]]  # no sound (``_begins_file``, the frame parsed once)
         and data.startswith(b"VBRI", run.start + 36)
-        and bool(_file_header_frames(data, run.start, frame))
     )
 
 
@@ -630,20 +657,20 @@ def _left_in_file(
     path: Path, info: Any, dtype: str, subtype: str, repairs: list[dict[str, Any]] | None
 ) -> FileAudio | None:
     """``read_audio``'s audio of a file libsndfile reads, checked a block at a time and left in the file
-    (NaN or infinite float samples counted, set to 0 when it is copied; the CRC-32 of the samples so
+    (NaN or infinite float samples counted, set to 0 when it is copied; the CRC-32s of the samples so
     checked kept, to tell the file changed), then float samples given to ``check_samples``, which notes
     them and looks for damaged samples past full scale in passes over the file; None when reading it
     whole decides more: an error of libsndfile (a file cut short), no samples, NaN without ``repairs``
     (an ``InputError``), samples past full scale to repair in a file libsndfile cannot seek to the
     sample (Vorbis, Opus: the passes read the samples around each candidate where they lie)."""
-    frames, bad, peak, crc = 0, 0, 0.0, 0
+    frames, bad, peak, crcs = 0, 0, 0.0, _BlockCrcs()
     try:
         for block in _file_blocks(path, dtype, CHECK_FRAMES, info):
             frames += len(block)
             if block.dtype.kind == "f":
                 bad += _non_finite_zeroed(block)
                 peak = max(peak, float(block.max()), -float(block.min()))
-            crc = zlib.crc32(block, crc)
+            crcs.add(block)
     except (sf.LibsndfileError, RuntimeError):
         return None
     if frames == 0 or (bad and repairs is None):
@@ -652,20 +679,45 @@ def _left_in_file(
         return None
     kept = np.dtype(dtype)
     if kept.kind != "f":
-        return FileAudio(path, info.samplerate, subtype, kept, frames, info.channels, crc)
+        return FileAudio(path, info.samplerate, subtype, kept, frames, info.channels, crcs.done())
     audio = FileAudio(
-        path, info.samplerate, subtype, kept, frames, info.channels, crc, non_finite=bad, peak=peak
+        path, info.samplerate, subtype, kept, frames, info.channels, crcs.done(), non_finite=bad, peak=peak
     )
     return check_samples(audio, path, repairs)
+
+
+class _BlockCrcs:
+    """The CRC-32s of samples (frames x channels) given in blocks of any size, one per ``CHECK_FRAMES``
+    frames (the last of fewer): what ``FileAudio`` keeps of the samples it checked (an hour of 48 kHz
+    audio: 2637 of them), to tell each of its blocks read again."""
+
+    def __init__(self) -> None:
+        self._crcs: list[int] = []
+        self._crc, self._frames = 0, 0  # of the block being filled
+
+    def add(self, samples: np.ndarray) -> None:
+        while len(samples):
+            part = samples[: CHECK_FRAMES - self._frames]
+            self._crc = zlib.crc32(np.ascontiguousarray(part), self._crc)
+            self._frames += len(part)
+            samples = samples[len(part) :]
+            if self._frames == CHECK_FRAMES:
+                self._crcs.append(self._crc)
+                self._crc, self._frames = 0, 0
+
+    def done(self) -> np.ndarray:
+        """The CRC-32s, the block filled last included."""
+        return np.array(self._crcs + ([self._crc] if self._frames else []), np.uint32)
 
 
 class FileAudio(Audio):
     """Audio left in its file (``audio_left_in_files``), read a block at a time when it is written
     (``write_audio``) and read whole only when ``samples`` is asked for. Float samples that are NaN or
     infinite are read as 0 (``read_audio``'s repair). A file whose samples changed since they were read
-    (their count or their CRC-32: also a file rewritten in place to the same size and modification time)
-    or that was removed is an ``InputError`` once it is read again: the audio is never other than the
-    one checked. A file only touched, or replaced by a copy of the same samples, is read as it was.
+    (their count or the CRC-32 of a block of them, ``crcs``: also a file rewritten in place to the same
+    size and modification time) or that was removed is an ``InputError`` once the changed block is read
+    again, before any of its samples is given: the audio is never other than the one checked. A file only
+    touched, or replaced by a copy of the same samples, is read as it was.
 
     ``shown``: the file to name instead of ``path`` (the source of audio decoded into a scratch file).
     ``non_finite``: the NaN or infinite float samples found when it was checked (read as 0), and
@@ -680,7 +732,7 @@ class FileAudio(Audio):
         dtype: np.dtype,
         frames: int,
         channels: int,
-        crc: int,
+        crcs: np.ndarray,
         *,
         shown: Path | None = None,
         non_finite: int = 0,
@@ -689,7 +741,8 @@ class FileAudio(Audio):
         self.path, self.dtype = path if shown is None else shown, dtype  # as given, to name it
         self._read_from = path.absolute()  # where it is, whatever the working folder is later
         self.sample_rate, self.subtype = whole_sample_rate(sample_rate), subtype
-        self._frames, self._channels, self._crc = frames, channels, crc  # as read_audio found them
+        # as read_audio found them: the CRC-32 of each CHECK_FRAMES frames (``_BlockCrcs``)
+        self._frames, self._channels, self._crcs = frames, channels, crcs
         self.non_finite, self.peak = non_finite, peak
         self._scratch = shown is not None  # a scratch file of decoded audio (``_DecodedToFile``), ours
         self._held: np.ndarray | None = None
@@ -762,28 +815,53 @@ class FileAudio(Audio):
             block[self._mend_at[lo:hi] - start, self._mend_channel[lo:hi]] = self._mend_value[lo:hi]
 
     def blocks(self, size: int) -> Iterator[np.ndarray]:
-        """The samples, ``size`` frames at a time, as ``read_audio`` checked them (NaN set to 0); the
-        file's change is told after its last block (its CRC-32), before a write of them completes."""
-        changed = InputError("audio file changed since it was read: import it again", self.path)
-        frames, crc = 0, 0
+        """The samples, ``size`` frames at a time (the last block fewer), as ``read_audio`` checked them
+        (NaN set to 0). The file changed since is told at its first changed block (``_checked_blocks``),
+        after every sample before it is given (a block of fewer frames then), never one of the new."""
+        waiting = np.zeros((0, self._channels), self.dtype)  # checked, fewer than ``size`` frames
+        try:
+            for block in self._checked_blocks():
+                if len(waiting):
+                    block = np.concatenate([waiting, block])
+                whole = len(block) - len(block) % size
+                for at in range(0, whole, size):
+                    yield block[at : at + size]
+                waiting = block[whole:]
+        except InputError:
+            if len(waiting):
+                yield waiting
+            raise
+        if len(waiting):
+            yield waiting
+
+    def _checked_blocks(self) -> Iterator[np.ndarray]:
+        """The samples, ``CHECK_FRAMES`` frames at a time, each compared with the CRC-32 kept of it before
+        it is given: a file rewritten in place, cut short, grown or removed since it was checked is an
+        ``InputError`` at its first block that differs, naming the time from which it does."""
+        frames, same = 0, True
         try:
             with open(self._read_from, "rb"):  # removed, or unreadable: the system's own words
                 pass
-            for block in _file_blocks(self._read_from, self.dtype.name, size):
-                frames += len(block)
-                if frames > self._frames or block.shape[1] != self._channels:
-                    raise changed
+            for i, block in enumerate(_file_blocks(self._read_from, self.dtype.name, CHECK_FRAMES)):
                 if block.dtype.kind == "f":
                     block[~np.isfinite(block)] = 0.0
-                crc = zlib.crc32(block, crc)
-                self._mended(block, frames - len(block))
+                same = i < len(self._crcs) and block.shape[1] == self._channels
+                if not (same and zlib.crc32(block) == self._crcs[i]):
+                    same = False
+                    break
+                self._mended(block, frames)
+                frames += len(block)
                 yield block
         except OSError as exc:
             raise InputError(f"audio file cannot be read again: {exc.strerror or exc}", self.path) from None
         except (sf.LibsndfileError, RuntimeError) as exc:
             raise InputError(f"audio file cannot be read again: {exc}", self.path) from None
-        if frames != self._frames or crc != self._crc:
-            raise changed
+        if not same or frames != self._frames:
+            raise InputError(
+                "audio file changed since it was read: import it again (its samples differ from "
+                f"{frames / self.sample_rate:.1f} s on)",
+                self.path,
+            )
 
 
 def _non_finite_note(path: Path, count: int) -> dict[str, Any]:
@@ -1106,16 +1184,19 @@ def note_unknown_delay(
         unknown = None if _delay_known(stream, first_pts) else _codec_and_rate(stream)
     if unknown is None:
         return
-    codec, rate = unknown
-    repairs.append(
-        {
-            "line": None,
-            "kind": "encoder_delay_unknown",
-            "message": f"{shown_name(path)}: {codec.removesuffix('float').upper()} audio whose file does not "
-            "record the encoder's delay (raw ADTS .aac, an MP3 without a LAME tag): its priming samples are "
-            f"kept, so the audio may start up to ~{_priming_ms(rate)} ms late; s2a-align measures the offset",
-        }
-    )
+    repairs.append(_unknown_delay_note(path, *unknown))
+
+
+def _unknown_delay_note(path: Path, codec: str, rate: int) -> dict[str, Any]:
+    """The repair ``encoder_delay_unknown`` of ``note_unknown_delay``: audio of FFmpeg's decoder ``codec``
+    at ``rate`` Hz (0: not known) keeps its priming."""
+    return {
+        "line": None,
+        "kind": "encoder_delay_unknown",
+        "message": f"{shown_name(path)}: {codec.removesuffix('float').upper()} audio whose file does not "
+        "record the encoder's delay (raw ADTS .aac, an MP3 without a LAME tag): its priming samples are "
+        f"kept, so the audio may start up to ~{_priming_ms(rate)} ms late; s2a-align measures the offset",
+    }
 
 
 # The most samples of an encoder's priming a decoder may keep: Apple's AAC encoder's 2112 (FFmpeg's AAC
@@ -1521,7 +1602,7 @@ def _scratch_refused(folder: Path, exc: OSError, source: Path) -> _ScratchRefuse
 class _DecodedToFile(_DecodedLayout):
     """Decoded frames written into a scratch WAV a block at a time, as ``_Samples`` would hold them: each
     mixed to the first frame's channel count, converted to the recorded format (``_recorded_samples``),
-    NaN or infinite float samples set to 0 and counted, the largest magnitude and the CRC-32 of what is
+    NaN or infinite float samples set to 0 and counted, the largest magnitude and the CRC-32s of what is
     written kept (for the ``FileAudio`` of the file). The last frame's worth of samples waits in memory
     until the end, for the padding the container's duration cuts there (``_without_padding``)."""
 
@@ -1538,7 +1619,7 @@ class _DecodedToFile(_DecodedLayout):
         self._sink: _WavSink | None = None
         self._out: sf.SoundFile | None = None
         self._rate = 0
-        self._crc, self._bad, self._peak = 0, 0, 0.0
+        self._crcs, self._bad, self._peak = _BlockCrcs(), 0, 0.0
         self._recorded: tuple[np.dtype, str] | None = None  # the dtype and subtype written
         self._done = False
 
@@ -1574,7 +1655,7 @@ class _DecodedToFile(_DecodedLayout):
                 block[~finite] = 0.0
         if len(block):
             self._peak = max(self._peak, float(block.max()), -float(block.min()))
-        self._crc = zlib.crc32(block, self._crc)
+        self._crcs.add(block)
         if self._out is None:
             self._open(subtype)
         out = self._out
@@ -1644,7 +1725,7 @@ class _DecodedToFile(_DecodedLayout):
             np.dtype(dtype),
             frames,
             self.channels,
-            self._crc,
+            self._crcs.done(),
             shown=self.source,
             non_finite=self._bad,
             peak=self._peak,
@@ -1985,7 +2066,8 @@ class MpegRun:
 
 @dataclass
 class MpegLoss:
-    """Damaged bytes inside a run of MPEG frames (``start`` to ``end``) where no frame header is found:
+    """Damaged bytes inside a run of MPEG frames (``start`` to ``end``), or before a file's first frame
+    (where they start as a frame's header does: ``coded`` 0), where no frame header is found:
     ``frames`` frames lost there, ``coded`` samples (per channel) coded in the run before them. ``exact``:
     their number is known (see ``_count_lost``), else estimated from the bytes damaged."""
 
@@ -2022,16 +2104,22 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
     last_frame, counted = _NO_COUNT, 0  # the frames its file's Xing/Info header declares, and those seen
     file_ends: tuple[int, ...] = ()  # where the bytes its header declares end (see _count_low)
     file_run = 0  # the run its header begins
+    lead: int | None = None  # where stray bytes before a file's first frame start (after a tag, the data's)
     while pos < n - 6:  # a header and its CRC: no frame of sound ends within the last bytes
         frame = table.get(data[pos + 1] << 8 | data[pos + 2]) if data[pos] == 0xFF else None
+        if frame is not None and (after_tag or not runs) and _stray_first(data, pos, frame):
+            frame = None
         if frame is None:
             skip = _tag_bytes(data, pos)
             if skip:
                 pos, after_tag, tag_start = pos + skip, True, pos if not after_tag else tag_start
+                lead = None
                 continue
             found = _resync(data, pos + 1)  # stray bytes inside a file: not a join
             if runs and not after_tag:
                 _note_damage(data, runs[-1], end, found, coded)
+            elif lead is None:
+                lead = pos
             if found is None:
                 break
             pos = found
@@ -2080,6 +2168,10 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
                 runs[-1].end, runs[-1].samples = end, coded
             runs.append(MpegRun(pos, pos + size, frame[2], 1 if mono else 2, frame[3], samples, new_file))
             run_format, end, coded = frame[4] | mono, pos + size, samples
+            if joined and lead is not None and _starts_sync(data, lead):
+                # its first frames' bytes damaged, their header's sync left: frames lost before its first
+                runs[-1].losses.append(MpegLoss(lead, pos, 0))
+            lead = None
             if new_file:
                 file_run = len(runs) - 1
                 last_frame, counted = (_file_header_frames(data, pos, frame) if header else 0) or _NO_COUNT, 0
@@ -2099,6 +2191,18 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
         runs[-1].end, runs[-1].samples = min(end, n), coded
     _count_lost(data, runs)
     return runs
+
+
+def _stray_first(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the header at ``pos``, where a file's first frame would be (after a tag, at the data's
+    start), was formed by damage over that frame: no frame of its format follows it, the next that is
+    followed by one (``_resync``) is of another sample rate, and it is no file's header frame. Taken for a
+    file's first frame, it made the file one joined to a file at another rate: refused."""
+    if _confirmed(data, pos, frame) or _begins_file(data, pos):
+        return False
+    found = _resync(data, pos + 1)
+    after = None if found is None else _mpeg_frame(data, found)
+    return after is not None and after[2] != frame[2]
 
 
 def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:
@@ -2163,7 +2267,12 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         overwritten = _overwritten(data, runs[a], max(runs[b - 1].end, losses[-1].end))
         # the file's mean bytes per frame (a run may be one frame: a lone header damage left of another
         # format); damage between a run's frames is within its bytes, at its end (before the next run) not
-        within = sum(loss.end - loss.start for run in runs[a:b] for loss in run.losses if loss.end <= run.end)
+        within = sum(
+            loss.end - loss.start
+            for run in runs[a:b]
+            for loss in run.losses
+            if run.start <= loss.start and loss.end <= run.end
+        )
         frame_bytes = sum(run.end - run.start for run in runs[a:b]) - within
         per_frame = frame_bytes / sum(max(run.frames, 1) for run in runs[a:b])
         for run in runs[a:b]:
@@ -2340,6 +2449,9 @@ def _mended(
     damaged bytes, by how much the sound after it may be shifted."""
     pieces: list[range | tuple[bytes, int]] = []
     pos = runs[0].start
+    vbri = _mpeg_frame(data, pos) if _begins_with_vbri(data, runs[0]) else None
+    if vbri is not None:  # no sound: left out (FFmpeg decodes one declaring no count as silence)
+        pos += vbri[0]
     coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's
     for run in runs:
         for loss in run.losses:
@@ -2349,7 +2461,8 @@ def _mended(
                 repairs.append(_loss_note(path, at + (coded + loss.coded) / run.sample_rate, loss, run))
             if loss.ends or not loss.frames:  # nothing after it to keep on time, or none known lost
                 continue
-            pieces += [range(pos, loss.start), (_silent_frame(data, run.start), loss.frames)]
+            # (damage before the file's first frame: the silence before it)
+            pieces += [range(pos, max(pos, loss.start)), (_silent_frame(data, run.start), loss.frames)]
             pos = loss.end
             coded += loss.frames * run.frame_samples
         coded += run.samples
