@@ -242,7 +242,7 @@ def exact_rate(fps: float | None) -> float | None:
 
 def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
     """Weights, pose names and frame rate of an Audio2Face blendshape export (JSON)."""
-    data = _json_of(lambda: path.read_text(encoding="utf-8-sig"), path)
+    data = _json_of(lambda: read_text(path), path)  # Windows tools save "Unicode" (UTF-16) text too
     if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
         raise InputError("not an Audio2Face blendshape export (no weightMat and facsNames)", path)
     names, rows, fps = data["facsNames"], data["weightMat"], data.get("exportFps")

@@ -115,6 +115,12 @@ def member_parts(info: zipfile.ZipInfo, archive: Path) -> tuple[str, ...]:
     return parts
 
 
+def is_folder(info: zipfile.ZipInfo) -> bool:
+    """Whether a member is a folder: its name ends with a separator, ``/`` or, from some Windows writers,
+    ``\\`` (zipfile's ``is_dir`` sees only ``/``)."""
+    return member_name(info).endswith("/")
+
+
 def _is_link(info: zipfile.ZipInfo) -> bool:
     return stat.S_ISLNK(info.external_attr >> 16)
 
@@ -148,7 +154,7 @@ def _plan(zf: zipfile.ZipFile, archive: Path, litter: Litter, readable: bool = T
         if _is_link(info):
             continue  # a link is no take file; following one could reach outside the folder
         key = "/".join(parts)
-        if key in seen and not info.is_dir():
+        if key in seen and not is_folder(info):
             raise InputError(f"holds two members named {key}: unzip it and keep the right one", archive)
         seen[key] = info
         plan.append((info, parts))
@@ -170,7 +176,7 @@ def _check_readable(info: zipfile.ZipInfo, parts: tuple[str, ...], archive: Path
 
 def _picked(plan: Plan, pick: Pick, archive: Path) -> Plan:
     """The members of ``plan`` that ``pick`` wants, their bytes checked (``_check_readable``)."""
-    wanted = set(pick([Member(parts, info.is_dir()) for info, parts in plan]))
+    wanted = set(pick([Member(parts, is_folder(info)) for info, parts in plan]))
     plan = [(info, parts) for info, parts in plan if parts in wanted]
     for info, parts in plan:
         _check_readable(info, parts, archive)
@@ -178,7 +184,7 @@ def _picked(plan: Plan, pick: Pick, archive: Path) -> Plan:
 
 
 def _check_room(plan: Plan, into: Path, archive: Path) -> None:
-    need = sum(info.file_size for info, _ in plan if not info.is_dir())
+    need = sum(info.file_size for info, _ in plan if not is_folder(info))
     free = shutil.disk_usage(into).free
     if need + SPARE_BYTES > free:
         raise InputError(
@@ -243,7 +249,7 @@ def unpacked(
 def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, archive: str) -> None:
     name = member_name(info)
     try:
-        if info.is_dir():
+        if is_folder(info):
             target.mkdir(parents=True, exist_ok=True)
             return
         target.parent.mkdir(parents=True, exist_ok=True)

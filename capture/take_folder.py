@@ -158,11 +158,23 @@ def is_take_folder(folder: str | Path) -> bool:
 def app_file_in(folder: Path, name: str) -> Path | None:
     """The app's file ``name`` (lower case, as the app writes it) in ``folder``, spelled in any case
     (``TAKE.JSON``, ``Frame_Log.csv`` from a copy that changed the case, as the take's ``.CSV`` and ``.MOV``
-    are found), or None. Of several spellings the app's own wins; several others are none of them."""
+    are found), else its one copy (``take (1).json``, ``without_copy``), or None. Of several spellings the
+    app's own wins; several others are none of them."""
     if (folder / name).is_file():
         return folder / name
-    alike = [p for p in folder.iterdir() if p.name.lower() == name and not is_litter(p) and p.is_file()]
+    files = [p for p in folder.iterdir() if not is_litter(p) and p.is_file()]
+    alike = [p for p in files if p.name.lower() == name]
+    if not alike:  # a take folder whose every file a transfer renamed (``take (1).json``)
+        alike = [p for p in files if without_copy(p.name).lower() == name]
     return alike[0] if len(alike) == 1 else None
+
+
+def without_copy(name: str) -> str:
+    """``name`` less what a copy added to it (``_COPY_RE``): ``take (1).json`` -> ``take.json``; AirDrop
+    and Finder so rename every file of a take folder received where one of its names is taken."""
+    path = Path(name)
+    m = _COPY_RE.match(path.stem)
+    return m.group("stem") + path.suffix if m else name
 
 
 def _files_ending(folder: Path, suffix: str) -> list[Path]:
@@ -174,7 +186,7 @@ def _files_ending(folder: Path, suffix: str) -> list[Path]:
 
 
 def _blendshape_csvs(folder: Path) -> list[Path]:
-    return [p for p in _files_ending(folder, ".csv") if p.name.lower() != "frame_log.csv"]
+    return [p for p in _files_ending(folder, ".csv") if without_copy(p.name).lower() != "frame_log.csv"]
 
 
 def _placeholders(folder: Path) -> dict[str, Path]:
@@ -186,7 +198,9 @@ def _placeholders(folder: Path) -> dict[str, Path]:
 def _waiting_ending(waiting: dict[str, Path], suffix: str) -> list[str]:
     """The names among ``waiting`` (``_placeholders``) with the suffix in any case (``frame_log.csv``
     left out)."""
-    return [n for n in waiting if Path(n).suffix.lower() == suffix and n.lower() != "frame_log.csv"]
+    return [
+        n for n in waiting if Path(n).suffix.lower() == suffix and without_copy(n).lower() != "frame_log.csv"
+    ]
 
 
 # The app's files a take is read from besides its CSVs and media (``read_take_folder``).
@@ -208,7 +222,7 @@ def refuse_placeholders(folder: Path, audio_given: bool = False, variant: str | 
 def _refuse_app_placeholders(folder: Path) -> None:
     """Refuse a take folder holding an iCloud placeholder of one of ``APP_FILES``."""
     for name, placeholder in sorted(_placeholders(folder).items()):
-        if name.lower() in APP_FILES:
+        if without_copy(name).lower() in APP_FILES:
             raise icloud_error(placeholder, folder)
 
 
