@@ -411,6 +411,8 @@ class _Importer:
                     )
                     for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
                         warn(f"{shown}: {flag} ignored: a Live Link Face take {why}")
+                    if not args.pair_audio and audio is None and take.audio is None and src.is_file():
+                        _say_audio_not_paired(src, shown, listing(src.parent))
                     if args.take_id:
                         take.meta.id = args.take_id
                 if box:
@@ -435,6 +437,17 @@ class _Importer:
                 f"{summary['repairs']} repairs"
             )
         return True
+
+
+def _say_audio_not_paired(src: Path, shown: Path | str, files: list[Path]) -> None:
+    """Warn that a CSV imported without audio has an audio file beside it that ``--pair-audio`` would
+    pair with it (``audio_beside``): a take without audio cannot be aligned, and nothing said why."""
+    try:
+        beside, _ = audio_beside(src, files)
+    except S2AError:  # an iCloud placeholder of it: --pair-audio says so
+        return
+    if beside is not None:
+        warn(f"{shown}: {beside.name} beside it is not used: add --pair-audio to import it with its audio")
 
 
 def _unique_id(take: Take, src: Path, written: dict[str, Path], out: Path) -> None:
