@@ -22,6 +22,7 @@ predicted jawOpen from 0.061 to 0.089. They are removed by a zero-phase high-pas
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from capture import Audio, InputError
-from capture.audio_io import full_scale
+from capture.audio_io import FileAudio, full_scale
 
 from .recorded import RecordedAudio, recorded
 
@@ -163,7 +164,7 @@ def mono_mix(audio: Audio | RecordedAudio) -> tuple[np.ndarray, dict[str, Any] |
 
     The channels are measured and mixed a block at a time (``mix_blocks``): the float32 copies of
     every channel of an hour at 48 kHz stereo took 1.4 GB."""
-    source = recorded(audio)
+    source = _recorded(audio)
     mix = _Mix(None, None) if source.channels < 2 else _mix_of(source)
     return gathered(mix_blocks(source, mix, _CHUNK), np.empty(source.frames, np.float32)), mix.note
 
@@ -319,6 +320,13 @@ def _mix_of(source: RecordedAudio) -> _Mix:
     return _Mix(used, note)
 
 
+def _highpass() -> np.ndarray:
+    """``remove_rumble``'s high-pass at ``HIGHPASS_HZ`` as second-order sections."""
+    from scipy.signal import butter  # here: scipy.signal adds 0.5 s to every command's start
+
+    return butter(2, HIGHPASS_HZ, btype="highpass", fs=TARGET_RATE, output="sos")
+
+
 def remove_rumble(
     x: np.ndarray, out: np.ndarray | None = None, tick: Callable[[], None] | None = None
 ) -> np.ndarray:
@@ -334,13 +342,9 @@ def remove_rumble(
     if n < 64:
         y[:] = np.ascontiguousarray(x - np.mean(x, dtype=np.float64), dtype=np.float32)
         return y
-    from scipy.signal import (
-        butter,
-        sosfilt,
-        sosfilt_zi,
-    )  # here: scipy.signal adds 0.5 s to every command's start
+    from scipy.signal import sosfilt, sosfilt_zi
 
-    sos = butter(2, HIGHPASS_HZ, btype="highpass", fs=TARGET_RATE, output="sos")
+    sos = _highpass()
     zi = sosfilt_zi(sos) * float(x[0])
     for lo in range(0, n, _CHUNK):  # each block is read (as float64) before its place in y is written
         part, zi = sosfilt(sos, np.asarray(x[lo : lo + _CHUNK], dtype=np.float64), zi=zi)
@@ -357,10 +361,74 @@ def remove_rumble(
     return y
 
 
+# Samples after a block that ``rumble_removed`` runs the backward pass over before the block, from rest:
+# the high-pass forgets where it started in a time constant of 144 samples (9 ms at 25 Hz); after 57 of
+# them what is left of the start is 1e-25 of the signal, far below float32's (or float64's) precision.
+RUMBLE_MARGIN = 1 << 13
+
+
+def rumble_removed(blocks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """``remove_rumble`` of the 16 kHz samples given in ``blocks`` (in order, any lengths), given a block of
+    ``_CHUNK`` samples at a time (the last shorter), never all of them at once. The forward pass runs on
+    from block to block as remove_rumble's does; the backward pass, which starts at the end, runs over
+    each block from ``RUMBLE_MARGIN`` samples after it, from rest (overlap-save): the samples are
+    remove_rumble's to float precision, those of the last block and its margin exactly."""
+    from scipy.signal import sosfilt, sosfilt_zi
+
+    blocks = iter(blocks)
+    start: list[np.ndarray] = [np.zeros(0, np.float32)]
+    while sum(b.size for b in start) < 64 and (block := next(blocks, None)) is not None:
+        start.append(block)
+    first = np.concatenate(start)
+    if first.size < 64:  # remove_rumble takes the mean off so few samples
+        if first.size:
+            yield remove_rumble(first)
+        return
+    sos = _highpass()
+    zi = sosfilt_zi(sos) * float(first[0])
+    ahead = np.zeros(0, np.float32)  # filtered forward, not yet backward
+    for block in itertools.chain([first], blocks):
+        part, zi = sosfilt(sos, np.asarray(block, dtype=np.float64), zi=zi)
+        ahead = np.concatenate([ahead, part.astype(np.float32)])
+        while ahead.size >= _CHUNK + RUMBLE_MARGIN:
+            yield _backward(sos, ahead[: _CHUNK + RUMBLE_MARGIN])[:_CHUNK]
+            ahead = ahead[_CHUNK:]
+    if ahead.size:
+        yield _backward(sos, ahead)  # from the end, as remove_rumble starts it
+
+
+def _backward(sos: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``y`` (float32) through the high-pass ``sos`` backward in time from rest, as float32."""
+    from scipy.signal import sosfilt
+
+    part = sosfilt(sos, y[::-1].astype(np.float64), zi=np.zeros((sos.shape[0], 2)))[0]
+    return part[::-1].astype(np.float32)
+
+
 def mono_blocks(audio: Audio | RecordedAudio) -> Iterator[np.ndarray]:
     """``audio.mono_float()`` in blocks of ``_CHUNK`` frames: the same float32 samples (mono_float works
     frame by frame), without an hour of them at the file's rate in memory at once."""
-    return recorded(audio).mono_blocks(_CHUNK)
+    return _recorded(audio).mono_blocks(_CHUNK)
+
+
+class _LeftInFile(RecordedAudio):
+    """A ``FileAudio`` (audio left in its file: ``capture.audio_io.audio_left_in_files``) as recorded
+    samples, its blocks read from the file (``FileAudio.blocks``: checked to be the samples read)."""
+
+    def __init__(self, audio: FileAudio):
+        super().__init__(audio.sample_rate, audio.channels, audio.frames, audio.subtype, audio.dtype.name)
+        self._left = audio
+
+    def blocks(self, size: int) -> Iterator[np.ndarray]:
+        return self._left.blocks(size)
+
+
+def _recorded(audio: Audio | RecordedAudio) -> RecordedAudio:
+    """``recorded(audio)``; audio left in its file read from the file a block at a time (``recorded``
+    would read all of it into memory, and keep it there)."""
+    if isinstance(audio, FileAudio) and not audio.held:
+        return _LeftInFile(audio)
+    return recorded(audio)
 
 
 def sum64(blocks: Iterable[np.ndarray]) -> float:
@@ -382,19 +450,28 @@ def mono_mean(audio: Audio | RecordedAudio) -> float:
 def _resampled(blocks: Iterable[np.ndarray], rate: int, frames: int) -> np.ndarray:
     """The float32 samples of ``blocks`` (``frames`` of them at ``rate`` Hz) at ``TARGET_RATE``, resampled
     as ``soxr.resample`` does it (libsoxr streams: the same samples, block by block)."""
-    import soxr
-
     if rate == TARGET_RATE:
         return gathered(blocks, np.empty(frames, np.float32))
-    stream = soxr.ResampleStream(rate, TARGET_RATE, 1, dtype="float32", quality="VHQ")
     y = np.empty(round(frames * TARGET_RATE / rate) + 16, np.float32)  # soxr gives the rounded length
     at = 0
-    for block in blocks:
-        y, at = _put(y, at, stream.resample_chunk(block, last=False))
-    y, at = _put(y, at, stream.resample_chunk(np.zeros(0, np.float32), last=True))
+    for part in _resampled_blocks(blocks, rate):
+        y, at = _put(y, at, part)
     if at < y.size:
         y.resize(at, refcheck=False)  # shrunk where it lies: no copy
     return y
+
+
+def _resampled_blocks(blocks: Iterable[np.ndarray], rate: int) -> Iterator[np.ndarray]:
+    """``_resampled``'s samples a block at a time, as libsoxr gives them."""
+    if rate == TARGET_RATE:
+        yield from blocks
+        return
+    import soxr
+
+    stream = soxr.ResampleStream(rate, TARGET_RATE, 1, dtype="float32", quality="VHQ")
+    for block in blocks:
+        yield stream.resample_chunk(block, last=False)
+    yield stream.resample_chunk(np.zeros(0, np.float32), last=True)
 
 
 def _put(y: np.ndarray, at: int, part: np.ndarray) -> tuple[np.ndarray, int]:
@@ -445,30 +522,10 @@ def to_16k_mono(
     an hour of audio can say how far it has come (and once with 0 done as it begins). ``audio`` may be
     a ``RecordedAudio`` reading the take's file: mono is then never whole in memory at its own rate, and
     several channels only while they are mixed."""
-    source = recorded(audio)
-    if source.channels == 1:  # mono: read block by block from the recorded samples, never whole as float32
-        frames, note = source.frames, None
-
-        def blocks() -> Iterator[np.ndarray]:
-            return source.mono_blocks(_CHUNK)
-    else:  # the channels measured, then mixed, block by block: never whole at their own rate
-        mix = _mix_of(source)
-        frames, note = source.frames, mix.note
-
-        def blocks() -> Iterator[np.ndarray]:
-            return mix_blocks(source, mix, _CHUNK)
-
-    if note is not None and notes is not None:
-        notes.append(note)
-    if source.sample_rate < 8000:
-        raise InputError(
-            f"audio sample rate {source.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
-        )
-    work = _Work(frames, source.sample_rate, on_block)
+    rate, frames, blocks = _mono_source(audio, path, notes)
+    work = _Work(frames, rate, on_block)
     dc = sum64(work.through(blocks())) / max(frames, 1)
-    # off before resampling: the resampler would ring on the step from 0 at the start
-    shifted = (b - np.float32(dc) for b in blocks()) if dc != 0.0 else blocks()
-    y = _resampled(work.through(shifted), source.sample_rate, frames)
+    y = _resampled(work.through(_off(blocks(), dc)), rate, frames)
     remove_rumble(y, out=y, tick=work.tick)
     work.finish()
     if notes is not None and abs(dc) >= DC_NOTE_LEVEL:
@@ -484,3 +541,49 @@ def to_16k_mono(
             }
         )
     return y
+
+
+def to_16k_passes(
+    audio: Audio | RecordedAudio, path: str | None = None
+) -> Callable[[], Iterator[np.ndarray]]:
+    """``to_16k_mono``'s samples without all of them in memory: a function that gives them in blocks, in
+    order, each call a new pass through the audio (read, mixed, resampled and filtered again a block at
+    a time: ``rumble_removed``), the same samples to float precision. Its DC offset is measured here,
+    in a pass of its own."""
+    rate, frames, blocks = _mono_source(audio, path, None)
+    dc = sum64(blocks()) / max(frames, 1)
+    return lambda: rumble_removed(_resampled_blocks(_off(blocks(), dc), rate))
+
+
+def _mono_source(
+    audio: Audio | RecordedAudio, path: str | None, notes: list[dict[str, Any]] | None
+) -> tuple[int, int, Callable[[], Iterator[np.ndarray]]]:
+    """The rate, the frame count and the mono float32 samples of ``audio`` (a pass through them, ``_CHUNK``
+    frames a block, each call), its channels mixed by ``mono_mix``'s rule, whose note is appended to
+    ``notes``; audio too slow for speech is an ``InputError``."""
+    source = _recorded(audio)
+    if source.channels == 1:  # mono: read block by block from the recorded samples, never whole as float32
+        note = None
+
+        def blocks() -> Iterator[np.ndarray]:
+            return source.mono_blocks(_CHUNK)
+    else:  # the channels measured, then mixed, block by block: never whole at their own rate
+        mix = _mix_of(source)
+        note = mix.note
+
+        def blocks() -> Iterator[np.ndarray]:
+            return mix_blocks(source, mix, _CHUNK)
+
+    if note is not None and notes is not None:
+        notes.append(note)
+    if source.sample_rate < 8000:
+        raise InputError(
+            f"audio sample rate {source.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
+        )
+    return source.sample_rate, source.frames, blocks
+
+
+def _off(blocks: Iterable[np.ndarray], dc: float) -> Iterable[np.ndarray]:
+    """``blocks`` with the DC offset ``dc`` taken off: before resampling, which would ring on the step
+    from 0 at the start."""
+    return (b - np.float32(dc) for b in blocks) if dc != 0.0 else blocks

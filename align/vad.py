@@ -78,35 +78,63 @@ def _sequence_model(silero_vad):
 DETECTOR_BLOCK = 512 * 512
 
 
-def detector_blocks(x: np.ndarray, gain: float = 1.0, size: int = DETECTOR_BLOCK) -> Iterator[np.ndarray]:
+# 16 kHz mono audio: all of it, or its samples in order given in blocks of any lengths, one pass through
+# them (``align.resample.to_16k_passes``: a long take never whole in memory)
+Samples = np.ndarray | Iterable[np.ndarray]
+
+
+def in_blocks(x: Samples, size: int) -> Iterator[np.ndarray]:
+    """The samples ``x`` in blocks of ``size`` (the last shorter): an array sliced, blocks given joined
+    and cut."""
+    if isinstance(x, np.ndarray):
+        for lo in range(0, x.size, size):
+            yield x[lo : lo + size]
+        return
+    held: list[np.ndarray] = []
+    count = 0
+    for block in x:
+        held.append(block)
+        count += block.size
+        if count >= size:
+            joined = np.concatenate(held)
+            whole = count // size * size
+            for lo in range(0, whole, size):
+                yield joined[lo : lo + size]
+            held, count = [joined[whole:]], count - whole
+    if count:
+        yield np.concatenate(held)
+
+
+def detector_blocks(x: Samples, gain: float = 1.0, size: int = DETECTOR_BLOCK) -> Iterator[np.ndarray]:
     """``x`` as float32 blocks of ``size`` samples (the last shorter), raised by ``gain`` and clipped to
     [-1, 1] when it is not 1: sample for sample the whole array raised and clipped, one block at a time."""
-    for lo in range(0, x.size, size):
-        block = x[lo : lo + size]
+    for block in in_blocks(x, size):
         if gain != 1.0:
             block = np.clip(block * np.float32(gain), -1.0, 1.0)
         yield np.ascontiguousarray(block, dtype=np.float32)
 
 
-def silero_segments(
-    x: np.ndarray, min_silence_s: float = 0.3, gain: float = 1.0
-) -> list[tuple[float, float]]:
+def silero_segments(x: Samples, min_silence_s: float = 0.3, gain: float = 1.0) -> list[tuple[float, float]]:
     """Speech segments (start_s, end_s) of 16 kHz mono float32 audio, raised by ``gain`` for the detector
     (``detector_blocks``), by silero-vad (32 ms windows). The model's state runs on from block to block:
     the probabilities, and so the segments, are those of the whole array in one call."""
     kind, model = _silero_model()  # first: it imports the package with the caller's torch threads kept
     from silero_vad import get_speech_timestamps_from_probs
 
-    if kind == "onnx":
-        probs = _sequence_probs(model, detector_blocks(x, gain))
-    else:
-        probs = _torch_probs(model, detector_blocks(x, gain))
+    seen = [0]  # samples given to the model
+
+    def counted() -> Iterator[np.ndarray]:
+        for block in detector_blocks(x, gain):
+            seen[0] += block.size
+            yield block
+
+    probs = _sequence_probs(model, counted()) if kind == "onnx" else _torch_probs(model, counted())
     stamps = get_speech_timestamps_from_probs(
         probs,
         sampling_rate=TARGET_RATE,
         min_silence_duration_ms=int(min_silence_s * 1000),
         speech_pad_ms=0,
-        audio_length_samples=x.size,
+        audio_length_samples=seen[0],
     )
     return [(s["start"] / TARGET_RATE, s["end"] / TARGET_RATE) for s in stamps]
 
@@ -156,7 +184,7 @@ WEBRTC_FRAME = TARGET_RATE * 30 // 1000  # 30 ms
 
 
 def webrtc_segments(
-    x: np.ndarray, aggressiveness: int = 2, min_silence_s: float = 0.3, gain: float = 1.0
+    x: Samples, aggressiveness: int = 2, min_silence_s: float = 0.3, gain: float = 1.0
 ) -> list[tuple[float, float]]:
     """Speech segments (start_s, end_s) of 16 kHz mono float32 audio, raised by ``gain`` for the detector
     (``detector_blocks``), by the WebRTC detector (30 ms frames), made 16-bit a block at a time (the
@@ -168,7 +196,8 @@ def webrtc_segments(
     vad = webrtcvad.Vad(aggressiveness)
     hop = WEBRTC_FRAME
     flags: list[bool] = []
-    for block in detector_blocks(x[: x.size // hop * hop], gain, DETECTOR_BLOCK // hop * hop):
+    for block in detector_blocks(x, gain, DETECTOR_BLOCK // hop * hop):
+        block = block[: block.size // hop * hop]  # the last: its whole frames
         pcm = np.clip(np.rint(block * 32768.0), -32768, 32767).astype("<i2")
         flags += [vad.is_speech(pcm[i : i + hop].tobytes(), TARGET_RATE) for i in range(0, pcm.size, hop)]
     return runs_to_segments(np.array(flags), 0.03, min_silence_s, min_speech_s=0.09)
@@ -190,22 +219,26 @@ def runs_to_segments(
     return [(a, b) for a, b in merged if b - a >= min_speech_s]
 
 
-def speech_level_dbfs(x: np.ndarray) -> float:
+def speech_level_dbfs(x: Samples) -> float:
     """Level (dBFS RMS) of the loud parts of 16 kHz mono audio: the ``LEVEL_PERCENTILE`` percentile of the
     RMS of its ``LEVEL_FRAME_S`` frames (a clap or a click a few frames long does not set it, nor do the
-    pauses between words). ``-inf`` for digital silence."""
+    pauses between words), measured a block at a time. ``-inf`` for digital silence."""
     hop = int(LEVEL_FRAME_S * TARGET_RATE)
-    n = x.size // hop
-    if n == 0:
-        rms = np.sqrt(np.mean(np.square(x, dtype=np.float64))) if x.size else 0.0
-        return 20.0 * float(np.log10(rms)) if rms > 0 else float("-inf")
-    frames = x[: n * hop].reshape(n, hop)
-    rms = np.sqrt(np.einsum("ij,ij->i", frames, frames, dtype=np.float64) / hop)
+    levels, rest = [np.zeros(0)], np.zeros(0, np.float32)
+    for block in in_blocks(x, DETECTOR_BLOCK):  # whole frames but the last
+        n = block.size // hop
+        frames = block[: n * hop].reshape(n, hop)
+        levels.append(np.sqrt(np.einsum("ij,ij->i", frames, frames, dtype=np.float64) / hop))
+        rest = block[n * hop :]
+    rms = np.concatenate(levels)
+    if rms.size == 0:  # shorter than a frame
+        whole = np.sqrt(np.mean(np.square(rest, dtype=np.float64))) if rest.size else 0.0
+        return 20.0 * float(np.log10(whole)) if whole > 0 else float("-inf")
     level = float(np.percentile(rms, LEVEL_PERCENTILE))
     return 20.0 * float(np.log10(level)) if level > 0 else float("-inf")
 
 
-def vad_gain(x: np.ndarray, level_dbfs: float | None = None) -> float:
+def vad_gain(x: Samples, level_dbfs: float | None = None) -> float:
     """Gain (linear, >= 1) that raises audio whose speech is quieter than ``VAD_LEVEL_DBFS`` to that
     level (at most ``MAX_VAD_GAIN_DB``); 1 for audio at an ordinary level. ``level_dbfs``: the speech
     level (``speech_level_dbfs``) when the caller has measured it already."""
@@ -215,15 +248,20 @@ def vad_gain(x: np.ndarray, level_dbfs: float | None = None) -> float:
     return float(10 ** (min(VAD_LEVEL_DBFS - level, MAX_VAD_GAIN_DB) / 20))
 
 
-def speech_segments(x: np.ndarray, method: str, gain: float | None = None) -> list[tuple[float, float]]:
+def speech_segments(x: Samples, method: str, gain: float | None = None) -> list[tuple[float, float]]:
     """Speech segments (start_s, end_s) of 16 kHz mono audio; ``method`` is silero, webrtc or none.
-    Quiet audio is raised for the detector by ``gain`` (default ``vad_gain(x)``) a block at a time
-    (``detector_blocks``); ``x`` itself is not changed, nor copied whole."""
+    Quiet audio is raised for the detector by ``gain`` (default ``vad_gain(x)``: give it for audio given
+    in blocks, a pass that is gone once read) a block at a time (``detector_blocks``); ``x`` itself is
+    not changed, nor copied whole."""
     if method == "none":
-        return [(0.0, x.size / TARGET_RATE)]
+        return [(0.0, _count(x) / TARGET_RATE)]
     gain = vad_gain(x) if gain is None else gain
     if method == "silero":
         return silero_segments(x, gain=gain)
     if method == "webrtc":
         return webrtc_segments(x, gain=gain)
-    return [(0.0, x.size / TARGET_RATE)]
+    return [(0.0, _count(x) / TARGET_RATE)]
+
+
+def _count(x: Samples) -> int:
+    return x.size if isinstance(x, np.ndarray) else sum(block.size for block in x)

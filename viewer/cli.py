@@ -466,6 +466,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
+    from capture.audio_io import audio_left_in_files
+
     from .plot import plot_curves
     from .render import distinct_labels, load_animation, place_on_parent_clock
 
@@ -479,10 +481,13 @@ def cmd_plot(args: argparse.Namespace) -> int:
     for i, path in enumerate(args.inputs):
         audio = args.audio if i == 0 else None
         label = labels[i] if labels else None
-        # The curves show the values as they are (no clamping); bad values are bridged like gaps.
-        anims.append(
-            load_animation(path, audio, label, one, clamp=False, audio_flag="--audio" if i == 0 else None)
-        )
+        # The curves show the values as they are (no clamping); bad values are bridged like gaps. Audio
+        # libsndfile reads is left in its file, read a block at a time as it is plotted (a 2 h take's
+        # samples held whole took 691 MB at 48 kHz).
+        with audio_left_in_files():
+            anims.append(
+                load_animation(path, audio, label, one, clamp=False, audio_flag="--audio" if i == 0 else None)
+            )
     for a, path in zip(anims[1:], args.inputs[1:]):
         a.offset_s = place_on_parent_clock(anims[0], a, path)
     if not labels:

@@ -132,11 +132,14 @@ def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[f
         return [(float(a), float(b)) for a, b in report["speech_segments"]], "speech (align report)"
     if method in ("auto", "silero", "webrtc"):
         try:
-            from align.resample import to_16k_mono
+            from align.resample import to_16k_passes
             from align.vad import speech_segments as vad_segments
+            from align.vad import vad_gain
 
-            x = to_16k_mono(anim.audio)
-            segs = vad_segments(x, "silero" if method == "auto" else method)
+            # align's 16 kHz audio, a block at a time: a pass for its level, another for the detector
+            passes = to_16k_passes(anim.audio)
+            gain = vad_gain(passes())
+            segs = vad_segments(passes(), "silero" if method == "auto" else method, gain)
             off = anim.audio_start_s
             return [
                 (a + off, b + off) for a, b in segs
