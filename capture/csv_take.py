@@ -111,7 +111,6 @@ from .timecode import (
     timecode_frames,
     timecode_rate_of,
     unwrap_midnight,
-    whole_seconds,
 )
 
 COUNT_NAMES = ("BlendShapeCount", "BlendshapeCount")
@@ -1689,8 +1688,9 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
     milliseconds of the second (NeuroSync Player's: ``millisecond_seconds``) are read so, at 60 (repair
     ``timecode_format``)."""
     t = rows.seconds_of_day
+    fields = timecode_frames(t)  # split once, judged and re-read from
     if rate in (None, CSV_TIMECODE_RATE) and not rows.drop_frame:
-        in_milliseconds = millisecond_seconds(t)
+        in_milliseconds = millisecond_seconds(fields)
         if in_milliseconds is not None:
             rows.seconds_of_day = in_milliseconds
             repair(
@@ -1703,10 +1703,10 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
                 "read as seconds and milliseconds",
             )
             return CSV_TIMECODE_RATE
-    top = float(timecode_frames(t)[1].max())
+    top = float(fields.frames.max())
     if rate is None:
-        rate = timecode_rate_of(t)
-        seen = f"FF never passes {top:.3f} over {whole_seconds(t)} whole seconds"
+        rate = timecode_rate_of(fields)
+        seen = f"FF never passes {top:.3f} over {fields.whole_seconds} whole seconds"
         if rate is None:
             repair(
                 rows.repairs,
@@ -1723,7 +1723,7 @@ def read_timecode_rate(rows: CsvRows, rate: float | None = None) -> float:
     else:
         seen = "as asked"
     if rate != CSV_TIMECODE_RATE:
-        rows.seconds_of_day = at_timecode_rate(t, rate)
+        rows.seconds_of_day = at_timecode_rate(fields, rate)
         message = f"timecode frames (FF) count at {rate:g} fps, not the app's {CSV_TIMECODE_RATE:g} ({seen})"
         repair(rows.repairs, None, "timecode_rate", f"{message}: times read as FF/{rate:g}")
     if rows.drop_frame and (real := drop_frame_seconds(rows.seconds_of_day, rate)) is not None:

@@ -2,11 +2,15 @@
 
 The phone listens for OSC on UDP (default port 8000) and answers to the address set with
 ``/OSCSetSendTarget <ip> <port>``. ``PhoneRemote`` binds one local UDP socket, tells the phone to
-answer there, and then sends commands from it and waits for the confirmations.
+answer there, and then sends commands from it and waits for the confirmations. Only datagrams from the
+phone's address count as replies: the app answers from a socket of its own (formats doc §6 names no port
+it answers from), so its host is matched, not its port; anyone else's are ignored and named when the
+reply does not come.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import socket
 import struct
@@ -159,6 +163,10 @@ class PhoneRemote:
         self.reply_port = self.sock.getsockname()[1]
         self._target_set = False
         self.ignored_datagrams = 0  # replies that were not OSC (warned about once)
+        # datagrams from hosts other than the phone's, ignored: how many, and their senders (HOST:PORT, in
+        # the order they came; one more than are shown tells that there were more)
+        self.stranger_datagrams = 0
+        self.strangers: dict[str, None] = {}
 
     def close(self) -> None:
         self.sock.close()
@@ -204,9 +212,37 @@ class PhoneRemote:
         """Send one OSC message (str, int and float arguments, see ``message``)."""
         self.send_datagram(self.message(address, *args))
 
+    def from_phone(self, sender: tuple) -> bool:
+        """Whether a datagram's sender address (``recvfrom``'s) is the phone's host, the one commands go
+        to (any port: the app answers from a socket of its own; an IPv6 scope is not compared)."""
+        try:
+            return ipaddress.ip_address(sender[0].split("%")[0]) == ipaddress.ip_address(
+                self.target[0].split("%")[0]
+            )
+        except ValueError:
+            return False
+
+    def _stranger(self, sender: tuple) -> None:
+        """Count a datagram from a host that is not the phone (``from_phone``): ignored."""
+        from .replay import format_destination
+
+        self.stranger_datagrams += 1
+        if len(self.strangers) <= MAX_SHOWN_OTHERS:
+            self.strangers[format_destination(str(sender[0]), int(sender[1]))] = None
+
+    def _strangers_note(self) -> str:
+        """What a timeout says of the datagrams from other hosts that were ignored ('' for none)."""
+        if not self.strangers:
+            return ""
+        shown = ", ".join(list(self.strangers)[:MAX_SHOWN_OTHERS])
+        more = " ..." if len(self.strangers) > MAX_SHOWN_OTHERS else ""
+        n = self.stranger_datagrams
+        return f"; {n} datagram(s) from {shown}{more}, not the phone's address, were ignored"
+
     def wait_for(self, address: str) -> list[Any]:
-        """Arguments of the next message with ``address``; ``InputError`` after the timeout, naming the
-        other messages that came meanwhile (a phone that answered, but not this)."""
+        """Arguments of the next message with ``address`` from the phone's host (``from_phone``);
+        ``InputError`` after the timeout, naming the other messages that came meanwhile (a phone that
+        answered, but not this) and the hosts whose datagrams were ignored."""
         deadline = time.monotonic() + self.timeout_s
         others: dict[str, None] = {}  # addresses of the other messages, in the order they came
         while True:
@@ -223,13 +259,17 @@ class PhoneRemote:
                     why = " (is Live Link Face running with OSC enabled on that port?)"
                 raise InputError(
                     f"no {address} from the phone at {self.shown()} within {self.timeout_s:g} s{why}{ignored}"
+                    + self._strangers_note()
                 )
             self.sock.settimeout(left)
             try:
-                data, _ = self.sock.recvfrom(65536)
+                data, sender = self.sock.recvfrom(65536)
             except TimeoutError:
                 continue
             except OSError:  # ICMP port unreachable comes back as a socket error: keep waiting
+                continue
+            if not self.from_phone(sender):
+                self._stranger(sender)
                 continue
             for msg in self._messages(data):
                 if msg.address == address:

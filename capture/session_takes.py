@@ -7,9 +7,11 @@ recorder logs a change of rate once it holds, see ``recorder.RATE_CHANGE_PACKETS
 within ``recorder.RATE_JITTER``, a sender declaring its measured rate, is one stretch read at its median
 rate: ``_rate_stretches``), its wraps at midnight undone, is read as the phone's frame clock by
 ``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
-there), the late packets that belong to them, and stray packets (a corrupt or spoofed frame number) that
-belong to none. Per recording, small steps back of the phone's clock are undone (``_undo_steps_back``:
-the frames after one are placed where they arrived), duplicates (copies of one datagram) are dropped
+there), the late packets that belong to them (at most ``MAX_LATENESS_S`` behind: a clock that stepped
+forward and then back, into the gap its step left, begins a recording of its own, which its first take's
+``clock_returned`` note says), and stray packets (a corrupt or spoofed frame number) that belong to
+none. Per recording, small steps back of the phone's clock are undone (``_undo_steps_back``: the frames
+after one are placed where they arrived), duplicates (copies of one datagram) are dropped
 keeping the first arrival, frames sharing a frame time with other values are spread over it or counted
 (``_time_ordered``), the rest are ordered by frame time, cut where the
 phone's clock stepped forward (``_clock_steps``) and split into segments wherever the phone's frame
@@ -450,14 +452,21 @@ def _late_frames_of(
     arrival_s: np.ndarray,
     tol: float,
     resumes: bool,
+    max_behind: float = MAX_LATENESS_S,
 ) -> bool:
     """Whether the frames ``idx`` (a stretch the clock jumped back to) are late frames of ``rec``: they lie
-    in its frame-time range (or next to it, when the clock then resumes where ``rec`` was) and mostly fill
-    its gaps: a frame on a slot ``rec`` already has (``_taken_slots``) is a frame of another recording at
-    the same time (a restart), not a late packet."""
+    in its frame-time range (or next to it, when the clock then resumes where ``rec`` was), at most
+    ``max_behind`` behind its latest frame, and mostly fill its gaps: a frame on a slot ``rec`` already
+    has (``_taken_slots``) is a frame of another recording at the same time (a restart), not a late
+    packet."""
     ft = frame_time[idx]
     if not ft.size:
         return True
+    # no network holds packets back longer than MAX_LATENESS_S: frames further behind the recording's
+    # latest frame are no late frames of it, even in a gap of it (the one its clock left by stepping
+    # forward and then back: a clock corrected twice, a timecode source switched and back)
+    if rec.hi - float(np.median(ft)) > max_behind:
+        return False
     near = (ft >= rec.lo - tol) & (ft <= rec.hi + tol)
     if 2 * np.count_nonzero(near) < ft.size:
         return False
@@ -506,19 +515,24 @@ def _place_off_clock(
     current: np.ndarray,
     recs: list[_Recording],
     level: np.ndarray,
+    clock: np.ndarray,
     tol: float,
     rows: np.ndarray,
     frame_time: np.ndarray,
     arrival_s: np.ndarray,
 ) -> np.ndarray:
     """The recording each packet ``off`` joins (-1: stray): the first of its candidates whose frame-time
-    range holds it on a free slot (``_taken_slots``); ``current`` is the recording current at its moment."""
+    range holds it on a free slot (``_taken_slots``), at most ``MAX_LATENESS_S`` behind it (its ``clock``
+    at the packet's moment, -inf where a burst of strays held the clock; an earlier recording's last
+    frame); ``current`` is the recording current at its moment."""
     ft = frame_time[off]
     order = np.where((ft <= level[off] + tol)[:, None], BEHIND_ORDER, AHEAD_ORDER) + current[:, None]
     fits = np.zeros(order.shape, bool)
     for c, rec in enumerate(recs):
         who, rank = np.nonzero(order == c)
         inside = (ft[who] >= rec.lo - tol) & (ft[who] <= rec.hi + tol)
+        behind = np.where(current[who] == c, clock[off[who]], np.where(current[who] > c, rec.hi, -np.inf))
+        inside &= behind - ft[who] <= MAX_LATENESS_S
         who, rank = who[inside], rank[inside]
         free = ~_taken_slots(off[who], rec.rows(), rows, frame_time, arrival_s)
         fits[who[free], rank[free]] = True
@@ -530,10 +544,19 @@ class _Clock:
     recordings (row indices, arrival order), the packets that fit none (``stray``), and ``problem`` when
     the frame times cannot place the frames."""
 
-    def __init__(self, recordings: list[np.ndarray], stray: np.ndarray, problem: str | None):
+    def __init__(
+        self,
+        recordings: list[np.ndarray],
+        stray: np.ndarray,
+        problem: str | None,
+        returned: dict[int, tuple[float, float]] | None = None,
+    ):
         self.recordings = recordings
         self.stray = stray
         self.problem = problem
+        # recordings (by index) that began where the clock stepped back into a gap the recording before
+        # left, too far behind for late frames: (seconds back, the phone's frame time there)
+        self.returned = returned or {}
 
 
 def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray) -> _Clock:
@@ -581,8 +604,10 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
     span = float(arrival_s[-1] - arrival_s[0])
     recs: list[_Recording] = []
     piece_current: list[int] = []
+    clock = level.copy()  # the clock of the recording current at each packet (``_place_off_clock``)
     current = -1
     restarts = 0
+    returned: dict[int, tuple[float, float]] = {}  # as ``_Clock.returned``, by index in ``recs``
     net = 0.0
     for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
         net += float(level[b - 1] - level[a])
@@ -592,6 +617,7 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
             # are placed one by one below, as the packets off the clock are.
             follows[idx] = False
             piece_current.append(current)
+            clock[a:b] = -np.inf  # no recording's clock here
             continue
         target = None
         # A jump back (not after a burst of strays that held the clock, back to where the recording was):
@@ -617,6 +643,11 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
                         f"the frame time jumps back {restarts} times or more in {span:.1f} s of arrivals"
                     )
                     return _Clock([], empty, problem)
+            if current >= 0 and _late_frames_of(
+                recs[current], idx, rows, frame_time, arrival_s, tol, resumes, max_behind=np.inf
+            ):  # back into the gap its step forward left (a clock corrected twice): not late frames
+                first = float(frame_time[idx[0]])
+                returned[len(recs)] = (recs[current].hi - first, first)
             recs.append(_Recording())
             current = target = len(recs) - 1
         elif target is None:
@@ -630,7 +661,7 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
     piece_of = np.repeat(np.arange(len(kinds)), np.diff(bounds))
     off = np.flatnonzero(~follows)
     choice = _place_off_clock(
-        off, np.asarray(piece_current)[piece_of[off]], recs, level, tol, rows, frame_time, arrival_s
+        off, np.asarray(piece_current)[piece_of[off]], recs, level, clock, tol, rows, frame_time, arrival_s
     )
     extra = [off[choice == c] for c in range(len(recs))]
     stray = off[choice < 0]
@@ -638,11 +669,14 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
         problem = f"the frame times of {stray.size} of {n} packets follow no steady clock"
         return _Clock([], empty, problem)
     recordings = []
-    for rec, more in zip(recs, extra):
+    kept_returned = {}
+    for k, (rec, more) in enumerate(zip(recs, extra)):
         idx = np.sort(np.concatenate([rec.rows(), more]))
         if idx.size:
+            if k in returned:
+                kept_returned[len(recordings)] = returned[k]
             recordings.append(idx)
-    return _Clock(recordings, stray, None)
+    return _Clock(recordings, stray, None, kept_returned)
 
 
 def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:
@@ -991,6 +1025,19 @@ def _step_back_note(step: tuple[float, float, float], frame_time: np.ndarray) ->
     )
 
 
+def _returned_note(step: float, phone: float) -> tuple[str, str]:
+    """A take's note of its start where the phone's clock stepped back into a gap its step forward left
+    (``follow_clock``'s ``returned``)."""
+    return (
+        "clock_returned",
+        f"the phone's clock stepped back {step:.1f} s at the start of the take (its timecode went to "
+        f"{Timecode.from_seconds(phone).format()}), into the gap an earlier step forward of it left, while "
+        "packets kept coming (a clock corrected twice, or a timecode source switched and back): no network "
+        "holds packets back that long, so its frames are no late frames of the take before but a recording "
+        "of their own (counted in restarts), placed where they arrived",
+    )
+
+
 def _fold(tally: np.ndarray, gone: np.ndarray, into: np.ndarray, count: str) -> None:
     """Add the tallies of the frames ``gone`` (dropped) to those of the frames ``into`` they are counted
     with, and one ``count`` for each."""
@@ -1124,8 +1171,9 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
     frame_time = (rows["frame_number"].astype(np.float64) + rows["sub_frame"].astype(np.float64)) * den / num
     arrival = log.seconds(rows["arrival_ns"])
     # Recordings: (row indices in arrival order, their frame times, why placed by arrival or None, the
-    # note of a jittering declared rate or None).
-    recordings: list[tuple[np.ndarray, np.ndarray, str | None, str | None]] = []
+    # note of a jittering declared rate or None, the note of its start when the clock stepped back into a
+    # gap of the recording before or None).
+    recordings: list[tuple[np.ndarray, np.ndarray, str | None, str | None, tuple[str, str] | None]] = []
     problem = None
     stray = []
     report["rate_changes"] = len(stretches) - 1
@@ -1138,9 +1186,18 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
         if clock.problem is not None:
             problem = clock.problem
             placed = arrival_clock(arrival[run], float(den[base] / num[base]))
-            recordings.append((np.arange(run.start, run.stop), placed, problem, note))
+            recordings.append((np.arange(run.start, run.stop), placed, problem, note, None))
             continue
-        recordings += [(base + idx, frame_time[base + idx], None, note) for idx in clock.recordings]
+        recordings += [
+            (
+                base + idx,
+                frame_time[base + idx],
+                None,
+                note,
+                _returned_note(*clock.returned[k]) if k in clock.returned else None,
+            )
+            for k, idx in enumerate(clock.recordings)
+        ]
         stray.append(base + clock.stray)
     if problem is not None:
         report["frame_clock"] = {"placed_by": "arrival", "reason": problem}
@@ -1155,7 +1212,7 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
     # steps back of the clock within it).
     segments: list[tuple[np.ndarray, np.ndarray, str | None, list[tuple[str, str]], np.ndarray, int]] = []
     face_lost = int(stray_rows.size) - stray_faces
-    for idx, ft, placed_by_arrival, rate_note in recordings:
+    for idx, ft, placed_by_arrival, rate_note, start_note in recordings:
         backs: list[tuple[float, float, float]] = []
         if placed_by_arrival is None:  # frames after a small step back of the clock: where they arrived
             ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx[:1]]))
@@ -1167,6 +1224,7 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
         idx, ft, t = _time_ordered(rows, idx, ft, tally[idx], report)
         steps = [] if placed_by_arrival is not None else _clock_steps(ft, arrival[idx])
         report["clock_steps"] += len(steps)
+        first_segment = len(segments)
         for part in np.split(np.arange(ft.size), steps):
             rp, fp, tp = idx[part], ft[part], t[part]
             face_rows = np.flatnonzero(rows["count"][rp] != 0)
@@ -1175,6 +1233,8 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
                 seg = slice(int(face_rows[s][0]), int(face_rows[s][-1]) + 1)
                 within = [back for back in backs if fp[seg][0] <= back[0] <= fp[seg][-1]]
                 notes = [("rate_jitter", rate_note)] if rate_note else []
+                if start_note and len(segments) == first_segment:  # where the clock stepped back to
+                    notes.append(start_note)
                 notes += [_step_back_note(back, fp[seg]) for back in within]
                 segments.append((rp[seg], fp[seg], placed_by_arrival, notes, tp[seg], len(within)))
     takes: list[StreamTake] = []

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -139,17 +140,40 @@ def unwrap_midnight(seconds_of_day: np.ndarray) -> np.ndarray:
     return t + wraps * DAY_S
 
 
-def timecode_frames(seconds_of_day: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Whole seconds and the FF.fff field of times of day read at the app's 60 fps timecode rate."""
+@dataclass(frozen=True, eq=False)
+class TimecodeFields:
+    """Times of day read at the app's 60 fps timecode rate, split into whole seconds and the FF.fff field
+    (``timecode_frames``): split once for one CSV read, and what its timecodes are judged (in
+    milliseconds? counted at which rate?) and re-read with."""
+
+    whole: np.ndarray
+    frames: np.ndarray
+
+    @cached_property
+    def whole_seconds(self) -> int:
+        """How many timecode seconds the rows cover from start to end: every second but the last, and the
+        first only when it starts at frame 0."""
+        covered = np.unique(self.whole).size - 1
+        return covered if self.frames.size and self.frames[0] < 1 else max(covered - 1, 0)
+
+
+Times = np.ndarray | TimecodeFields  # times of day (s), or their fields already split
+
+
+def timecode_frames(seconds_of_day: Times) -> TimecodeFields:
+    """Whole seconds and the FF.fff field of times of day read at the app's 60 fps timecode rate (fields
+    given are returned as they are)."""
+    if isinstance(seconds_of_day, TimecodeFields):
+        return seconds_of_day
     t = np.asarray(seconds_of_day, dtype=np.float64)
     whole = np.floor(t)
-    return whole, (t - whole) * CSV_TIMECODE_RATE
+    return TimecodeFields(whole, (t - whole) * CSV_TIMECODE_RATE)
 
 
-def at_timecode_rate(seconds_of_day: np.ndarray, rate: float) -> np.ndarray:
+def at_timecode_rate(seconds_of_day: Times, rate: float) -> np.ndarray:
     """Times of day read with FF at 60 fps, re-read with FF counted at ``rate`` frames per second."""
-    whole, frames = timecode_frames(seconds_of_day)
-    return whole + frames / rate
+    fields = timecode_frames(seconds_of_day)
+    return fields.whole + fields.frames / rate
 
 
 # Drop-frame counts (``HH:MM:SS;FF``): at these nominal rates the labels of the first frames of each minute
@@ -183,16 +207,16 @@ def drop_frame_seconds(label_seconds: np.ndarray, rate: float) -> np.ndarray | N
 MIN_MILLISECOND_ROWS = 10
 
 
-def millisecond_seconds(seconds_of_day: np.ndarray) -> np.ndarray | None:
+def millisecond_seconds(seconds_of_day: Times) -> np.ndarray | None:
     """Times of day of timecodes written ``HH:MM:SS:FF.mmm`` with ``.mmm`` the milliseconds of the second,
     not the sub-frame (NeuroSync Player's CSVs), from their times read as the app's (sorted); None unless
     at least ``MIN_MILLISECOND_ROWS`` rows all read so: three decimals, whose milliseconds put the row
     within a frame of its FF at 60 fps. (The app's sub-frame stays near one value while FF runs through the
     second, so that its rows agree with FF one in about 30, never ten in a row.)"""
-    t = np.asarray(seconds_of_day, dtype=np.float64)
-    if t.size < MIN_MILLISECOND_ROWS:
+    fields = timecode_frames(seconds_of_day)
+    whole, frames = fields.whole, fields.frames
+    if frames.size < MIN_MILLISECOND_ROWS:
         return None
-    whole, frames = timecode_frames(t)
     milli_frames = np.rint(frames * 1000)
     if np.abs(frames * 1000 - milli_frames).max() > 1e-3:
         return None  # not three decimals
@@ -202,15 +226,7 @@ def millisecond_seconds(seconds_of_day: np.ndarray) -> np.ndarray | None:
     return whole + milliseconds / 1000
 
 
-def whole_seconds(seconds_of_day: np.ndarray) -> int:
-    """How many timecode seconds the rows cover from start to end: every second but the last, and the
-    first only when it starts at frame 0."""
-    whole, frames = timecode_frames(seconds_of_day)
-    covered = np.unique(whole).size - 1
-    return covered if frames.size and frames[0] < 1 else max(covered - 1, 0)
-
-
-def timecode_rate_of(seconds_of_day: np.ndarray) -> float | None:
+def timecode_rate_of(seconds_of_day: Times) -> float | None:
     """The rate a CSV's FF field counts at, from its times of day read at 60 fps (sorted).
 
     60 when FF reaches what it must at 60 fps (within 1.5 row steps of 60), or when the rows cover
@@ -218,9 +234,10 @@ def timecode_rate_of(seconds_of_day: np.ndarray) -> float | None:
     Else the lowest of ``OTHER_TIMECODE_RATES`` that FF stays below and reaches (within 1.5 row steps
     of it, and the median second within 2.5, allowing for dropped rows); None when none fits.
     """
-    whole, frames = timecode_frames(seconds_of_day)
+    fields = timecode_frames(seconds_of_day)
+    whole, frames = fields.whole, fields.frames
     same_second = np.diff(whole) == 0
-    if whole_seconds(seconds_of_day) < MIN_WHOLE_SECONDS or not same_second.any():
+    if fields.whole_seconds < MIN_WHOLE_SECONDS or not same_second.any():
         return CSV_TIMECODE_RATE  # too short, or under a row a second: FF cannot tell
     step = float(np.median(np.diff(frames)[same_second]))
     top = float(frames.max())
