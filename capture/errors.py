@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import base64
 from pathlib import Path
+from typing import Any
 
 
 def printable(text: str) -> str:
@@ -12,6 +14,48 @@ def printable(text: str) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:  # a surrogate no file name's bytes give
         return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+# Names in JSON for strict readers (``strict_names``). Python holds the bytes of a file name that are not
+# UTF-8 as surrogate escapes, which ``json.dumps`` writes as ``"\udcff"``: a lone surrogate, which jq and
+# JavaScript turn into U+FFFD (the name lost) and an encoder to UTF-8 refuses. Every string is written as
+# messages show it (``printable``); a dict's string value that was not UTF-8 also keeps its bytes, in
+# base64, under the same key with ``_b64`` added (``"audio_b64"``), for a consumer needing the path itself:
+# ``os.fsdecode(base64.b64decode(record["csv_b64"]))``.
+RAW_BYTES = "_b64"  # added to the key of a name that is not UTF-8: its bytes, base64
+
+
+def strict_names(value: Any) -> Any:
+    """``value`` (dicts, lists and scalars nested) with every string ``printable`` and, beside each dict
+    value that is a name not UTF-8, its bytes (``RAW_BYTES``); other values as they are."""
+    if isinstance(value, str):
+        return printable(value)
+    if isinstance(value, (list, tuple)):
+        return [strict_names(v) for v in value]
+    if not isinstance(value, dict):
+        return value
+    out: dict[Any, Any] = {}
+    for key, v in value.items():
+        name = printable(key) if isinstance(key, str) else key
+        out[name] = strict_names(v)
+        raw = _raw_bytes(v) if isinstance(v, str) else None
+        if raw is not None:
+            out[f"{name}{RAW_BYTES}"] = base64.b64encode(raw).decode("ascii")
+    return out
+
+
+def _raw_bytes(text: str) -> bytes | None:
+    """The bytes of a name that is not UTF-8 (held as surrogate escapes); None for UTF-8 text, and for a
+    surrogate no file name's bytes give."""
+    try:
+        text.encode("utf-8")
+        return None
+    except UnicodeEncodeError:
+        pass
+    try:
+        return text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:
+        return None
 
 
 def first_few(names, most: int = 5) -> str:

@@ -216,6 +216,8 @@ def test_predict_says_every_step_of_each_file(tiny_run, tmp_path, monkeypatch):
     assert list(dict.fromkeys(steps)) == [
         "predict: speech.wav: reading the audio",
         "predict: speech.wav: 16 kHz mono audio",
+        "predict: speech.wav: checking the audio for clipping",
+        "predict: speech.wav: measuring the audio's bandwidth and level",
         "predict: speech.wav: features of 1 min of audio: spectra",
         "predict: speech.wav: features of 1 min of audio: pitch",
         "predict: speech.wav: writing speech.csv",

@@ -88,7 +88,7 @@ DEFAULTS: dict[str, Any] = {
 
 
 # what a run's config.json holds besides its config (fit writes them): ignored when it is read as a config
-RUN_RECORD_KEYS = ("data", "world_size", "inputs", "model_config")
+RUN_RECORD_KEYS = ("data", "data_b64", "world_size", "inputs", "model_config")
 
 
 def _hint(key: str) -> str:

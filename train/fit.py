@@ -27,7 +27,7 @@ import torch
 import torch.distributed as dist
 
 from capture.command import json_safe, progress, warn
-from capture.errors import InputError
+from capture.errors import InputError, strict_names
 from dataset.manifest import MANIFEST_FILE, dataset_folder
 from dataset.torch_dataset import check_shards
 
@@ -269,6 +269,12 @@ def _checksum(model) -> str:
     for p in model.parameters():
         h.update(p.detach().cpu().numpy().tobytes())
     return h.hexdigest()
+
+
+def dataset_record(ds: Path) -> dict[str, str]:
+    """config.json's ``data``: the dataset folder, as strict JSON readers take it (``strict_names``: a name
+    not UTF-8 as ``\\xff``, its bytes in ``data_b64``)."""
+    return strict_names({"data": str(ds)})
 
 
 def dataset_entry(ds: Path, watch: DatasetWatch, cfg: dict[str, Any]) -> dict[str, Any]:
@@ -582,7 +588,7 @@ def _fit_ensemble(
     run.mkdir(parents=True, exist_ok=True)
     claim()
     if rank == 0:
-        write_json(run / CONFIG, {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
+        write_json(run / CONFIG, {**dataset_record(ds), "world_size": world, "inputs": spec.to_json(), **cfg})
     t0 = time.perf_counter()
 
     def fit_member(folder: Path, member_cfg: dict[str, Any], member_resume: bool) -> dict[str, Any]:
@@ -881,7 +887,7 @@ def _fit(
         say(f"note: {spec.note}")
     if not spec.styles and cfg["style_dropout"] != DEFAULTS["style_dropout"]:
         say("note: style_dropout applies with speaker_style = true only: ignored")
-    config_record = {"data": str(ds), "world_size": world, "inputs": spec.to_json(), **cfg}
+    config_record = {**dataset_record(ds), "world_size": world, "inputs": spec.to_json(), **cfg}
     if cfg["model"] == "ridge":
         return _ridge_run(ds, run, cfg, spec, watch, state, config_record, say)
 

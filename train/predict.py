@@ -464,12 +464,15 @@ def _predict_one(
         raise InputError("audio holds only NaN or infinite samples (and zeros): nothing to animate", a)
     # without its DC offset, which is no sound; counted in blocks
     audio = to_16k_mono(raw, str(a), on_block=_counted(job, "16 kHz mono audio"))
-    dc = abs(mono_mean(raw))  # block by block: no float32 copy of the file's samples
-    clipped_audio = clipped_share(raw)  # on the recorded samples: resampling smears the flat tops
+    # each a pass over the whole audio (3 s of 20 min, more on a busy machine) that says nothing itself
+    with job.ticking("checking the audio for clipping"):
+        dc = abs(mono_mean(raw))  # block by block: no float32 copy of the file's samples
+        clipped_audio = clipped_share(raw)  # on the recorded samples: resampling smears the flat tops
     del raw  # the recorded samples (317 MB for an hour at 44.1 kHz) are not needed any more
-    narrow = is_narrowband(audio, TARGET_RATE)
-    peak = float(np.maximum(audio.max(initial=0.0), -audio.min(initial=0.0)))  # max |x|, no copy
-    level = speech_level(audio, TARGET_RATE)
+    with job.ticking("measuring the audio's bandwidth and level"):
+        narrow = is_narrowband(audio, TARGET_RATE)
+        peak = float(np.maximum(audio.max(initial=0.0), -audio.min(initial=0.0)))  # max |x|, no copy
+        level = speech_level(audio, TARGET_RATE)
     values = animate_16k(model, payload, audio, ppg, speaker, a, style, neutral, level, job)
     n, fps = values.shape[0], info["fps"]
     outside = values[:, blendshapes]
