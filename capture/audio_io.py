@@ -217,7 +217,9 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
     import), decoded a block at a time into a scratch file there (``_streamed``), the same samples and repairs
     as read whole. Its frames are found in the file read a block at a time (``_FileBytes``), not whole."""
     with _FileBytes.of(path) as data:  # not read whole: a 60 MB cover picture, an hour at 320 kbit/s
-        runs = mpeg_runs(data)
+        free = _free_format_start(data)
+        # free format: any frame the scan finds is a header's bytes inside its audio (it finds no real one)
+        runs = [] if free is not None else mpeg_runs(data)
         coded = sum(run.samples for run in runs)
         # damage, or bytes after its last frame (libsndfile's decoder gives up on 1 KB of zeros, said to be
         # cut short: FFmpeg is given its frames only)
@@ -228,7 +230,9 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
         if not (len(runs) > 1 or lost or counts_wrong or vbri or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
-            audio = _read_by_libsndfile(path, info, skipped, found, not runs and _untagged_free_format(data))
+            audio = _read_by_libsndfile(
+                path, info, skipped, found, free is not None and _untagged(data, free)
+            )
             if audio.frames + drops >= coded:
                 if repairs is not None and found:
                     repairs += found
@@ -259,8 +263,8 @@ def _read_by_libsndfile(
 ) -> Audio:
     """An .mp3 read by libsndfile: a block at a time into a scratch file within ``audio_left_in_files``
     given a scratch folder (``_mpeg_to_file``), else whole; the unrecorded encoder delay noted (also of
-    ``free_format`` audio without a Xing/Info frame, ``_untagged_free_format``, which FFmpeg cannot open
-    to tell)."""
+    ``free_format`` audio without a Xing/Info frame, ``_free_format_start`` and ``_untagged``, which FFmpeg
+    cannot open to tell)."""
     audio: Audio | None = None
     scratch = _scratch_folder()
     if scratch is not None:
@@ -280,11 +284,16 @@ def _read_by_libsndfile(
     return audio
 
 
-def _untagged_free_format(data: bytes | _FileBytes) -> bool:
-    """Whether an .mp3 (``data``, its tags first skipped) starts with a layer III frame in free format (bit
-    rate index 0: no header says its frames' size, ``mpeg_runs`` finds none, FFmpeg cannot open it) that
-    is no Xing/Info frame: no LAME tag records the encoder's delay, which libsndfile's decoder keeps
-    (LAME's output 1105 samples late)."""
+# Bytes past a free-format header its next is looked for in: a frame of 640 kbit/s at 8 kHz is 5760.
+_FREE_FORMAT_MAX = 8192
+
+
+def _free_format_start(data: bytes | _FileBytes) -> int | None:
+    """Where an .mp3 (``data``) in free format starts, its tags skipped: a layer III header of bit rate
+    index 0 (no header says its frames' size: ``mpeg_runs`` finds none, only a header's bytes inside
+    the audio by chance; FFmpeg cannot open it, libsndfile's mpg123 reads it), found again one frame on
+    and two frames on (a frame a byte longer with padding). None when the data starts otherwise (or
+    with damage that formed such a header: it is not found again)."""
     pos = 0
     while skip := _tag_bytes(data, pos):
         pos += skip
@@ -295,8 +304,28 @@ def _untagged_free_format(data: bytes | _FileBytes) -> bool:
         or head[1] >> 1 & 3 != 1
         or head[2] >> 4
         or head[1] >> 3 & 3 == 1
+        or head[2] >> 2 & 3 == 3
     ):
-        return False  # not layer III (bits 01), a bit rate in the header, or the reserved version
+        return None  # not layer III (bits 01), a bit rate in the header, a reserved version or rate
+
+    def same_stream(at: int) -> bool:  # the same header at ``at``, its padding bit aside
+        other = data[at : at + 3]
+        return len(other) == 3 and other[:2] == head[:2] and other[2] | 2 == head[2] | 2
+
+    at = pos + 4
+    while (at := data.find(head[:2], at, pos + _FREE_FORMAT_MAX)) >= 0:
+        size = at - pos  # a frame's size if a header starts there (padding: one byte more or less)
+        if same_stream(at) and any(same_stream(at + size + d) for d in (-1, 0, 1)):
+            return pos
+        at += 1
+    return None
+
+
+def _untagged(data: bytes | _FileBytes, pos: int) -> bool:
+    """Whether the layer III frame at ``pos`` (a free-format stream's first, ``_free_format_start``) is
+    no Xing/Info frame: no LAME tag records the encoder's delay, which libsndfile's decoder keeps (LAME's
+    output 1105 samples late)."""
+    head = data[pos : pos + 4]
     side = (32, 17) if head[1] >> 3 & 3 == 3 else (17, 9)  # MPEG-1, else MPEG-2 and 2.5: stereo, mono
     text_at = pos + 4 + (0 if head[1] & 1 else 2) + side[head[3] >> 6 == 3]
     return not data.startswith(_XING_TEXTS, text_at)
@@ -818,21 +847,25 @@ class FileAudio(Audio):
         """The samples, ``size`` frames at a time (the last block fewer), as ``read_audio`` checked them
         (NaN set to 0). The file changed since is told at its first changed block (``_checked_blocks``),
         after every sample before it is given (a block of fewer frames then), never one of the new."""
-        waiting = np.zeros((0, self._channels), self.dtype)  # checked, fewer than ``size`` frames
+        waiting: list[np.ndarray] = []  # checked, fewer than ``size`` frames in all: joined once
+        count = 0
         try:
             for block in self._checked_blocks():
-                if len(waiting):
-                    block = np.concatenate([waiting, block])
-                whole = len(block) - len(block) % size
+                waiting.append(block)
+                count += len(block)
+                if count < size:
+                    continue
+                joined = waiting[0] if len(waiting) == 1 else np.concatenate(waiting)
+                whole = count - count % size
                 for at in range(0, whole, size):
-                    yield block[at : at + size]
-                waiting = block[whole:]
+                    yield joined[at : at + size]
+                waiting, count = ([joined[whole:]], count - whole) if count > whole else ([], 0)
         except InputError:
-            if len(waiting):
-                yield waiting
+            if count:
+                yield np.concatenate(waiting)
             raise
-        if len(waiting):
-            yield waiting
+        if count:
+            yield np.concatenate(waiting)
 
     def _checked_blocks(self) -> Iterator[np.ndarray]:
         """The samples, ``CHECK_FRAMES`` frames at a time, each compared with the CRC-32 kept of it before
@@ -2196,13 +2229,16 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
 def _stray_first(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
     """Whether the header at ``pos``, where a file's first frame would be (after a tag, at the data's
     start), was formed by damage over that frame: no frame of its format follows it, the next that is
-    followed by one (``_resync``) is of another sample rate, and it is no file's header frame. Taken for a
-    file's first frame, it made the file one joined to a file at another rate: refused."""
+    followed by one (``_resync``) is of another format (version, layer, sample rate) or channel count, and
+    it is no file's header frame. Taken for a file's first frame, it made the file one joined to a file at
+    another rate (refused), or a mono file's sound mixed to the 2 channels of that header."""
     if _confirmed(data, pos, frame) or _begins_file(data, pos):
         return False
     found = _resync(data, pos + 1)
     after = None if found is None else _mpeg_frame(data, found)
-    return after is not None and after[2] != frame[2]
+    return after is not None and (
+        after[4] != frame[4] or _mpeg_channels(data, found) != _mpeg_channels(data, pos)
+    )
 
 
 def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:

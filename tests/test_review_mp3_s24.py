@@ -24,8 +24,8 @@ from capture.audio_io import mpeg_runs
 
 @pytest.mark.parametrize(
     ("rate", "bit_rate", "zeros", "lost"),
-    [(48000, 128000, 100, 1), (16000, 0, 300, 3), (44100, 0, 100, 1)],
-    ids=["one_frame_lost_48k", "three_lost_16k", "one_lost_44k"],
+    [(48000, 128000, 100, 2), (16000, 0, 300, 4), (44100, 0, 100, 2)],
+    ids=["two_frames_lost_48k", "four_lost_16k", "two_lost_44k"],
 )
 def test_damage_after_a_damaged_first_frame_is_counted_at_the_files_bytes_per_frame(
     tmp_path, rate, bit_rate, zeros, lost
@@ -34,7 +34,7 @@ def test_damage_after_a_damaged_first_frame_is_counted_at_the_files_bytes_per_fr
     not mono) and whose next frames' headers were zeroed. Old: ZeroDivisionError (48 kHz: the lost frame as
     long as the lone one), "-2 frame(s) lost" and the sound after it 2880 samples early (16 kHz), "audio
     could not be decoded" (44.1 kHz). Now the frames zeroed are put back as silence: the length and timing
-    of the undamaged file."""
+    of the undamaged file, its damaged first frame counted lost too (put back as silence), the file mono."""
     data = mp3_bytes(_speech_like(2.0, rate), rate, 1, bit_rate, write_xing="0", id3v2_version="0")
     (run,) = mpeg_runs(data)
     size = (run.end - run.start) // run.frames  # a frame's bytes (the first frame starts the data)
