@@ -214,13 +214,15 @@ class PhoneRemote:
 
     def from_phone(self, sender: tuple) -> bool:
         """Whether a datagram's sender address (``recvfrom``'s) is the phone's host, the one commands go
-        to (any port: the app answers from a socket of its own; an IPv6 scope is not compared)."""
+        to (any port: the app answers from a socket of its own; an IPv6 scope is not compared). Commands
+        sent to the unspecified address (``0.0.0.0``, ``::``) reach this machine, whose replies come from
+        a loopback address."""
         try:
-            return ipaddress.ip_address(sender[0].split("%")[0]) == ipaddress.ip_address(
-                self.target[0].split("%")[0]
-            )
+            came_from = ipaddress.ip_address(sender[0].split("%")[0])
+            phone = ipaddress.ip_address(self.target[0].split("%")[0])
         except ValueError:
             return False
+        return came_from == phone or (phone.is_unspecified and came_from.is_loopback)
 
     def _stranger(self, sender: tuple) -> None:
         """Count a datagram from a host that is not the phone (``from_phone``): ignored."""

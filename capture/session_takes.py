@@ -7,16 +7,16 @@ recorder logs a change of rate once it holds, see ``recorder.RATE_CHANGE_PACKETS
 within ``recorder.RATE_JITTER``, a sender declaring its measured rate, is one stretch read at its median
 rate: ``_rate_stretches``), its wraps at midnight undone, is read as the phone's frame clock by
 ``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
-there), the late packets that belong to them (at most ``MAX_LATENESS_S`` behind: a clock that stepped
-forward and then back, into the gap its step left, begins a recording of its own, which its first take's
-``clock_returned`` note says), and stray packets (a corrupt or spoofed frame number) that belong to
-none. Per recording, small steps back of the phone's clock are undone (``_undo_steps_back``: the frames
-after one are placed where they arrived), duplicates (copies of one datagram) are dropped
-keeping the first arrival, frames sharing a frame time with other values are spread over it or counted
-(``_time_ordered``), the rest are ordered by frame time, cut where the
-phone's clock stepped forward (``_clock_steps``) and split into segments wherever the phone's frame
-time between two frames with a face jumps by more than ``MAX_GAP_S`` (a long pause or a long time
-without a face).
+there), the late packets that belong to them (at most ``MAX_LATENESS_S`` behind, or in a gap of it no
+longer than that, ``_far_behind``: a clock that stepped forward and then back, into the gap its step
+left, begins a recording of its own, which its first take's ``clock_returned`` note says), and stray
+packets (a corrupt or spoofed frame number) that belong to none. Per recording, small steps back of the
+phone's clock are undone (``_undo_steps_back``: the frames after one are placed where they arrived),
+duplicates (copies of one datagram) are dropped keeping the first arrival, frames sharing a frame time
+with other values are spread over it or counted (``_time_ordered``), the rest are ordered by frame time,
+cut where the phone's clock stepped forward (``_clock_steps``) and split into segments wherever the
+phone's frame time between two frames with a face jumps by more than ``MAX_GAP_S`` (a long pause or a
+long time without a face).
 Each segment with at least ``MIN_TAKE_FRAMES`` frames with a face becomes a take, from its first to its
 last frame with a face; the no-face packets in between become FACE_LOST frames (NaN values, their own
 time and arrival, as the app's face-lost CSV rows), gaps in the frame times DROPPED frames
@@ -456,16 +456,15 @@ def _late_frames_of(
 ) -> bool:
     """Whether the frames ``idx`` (a stretch the clock jumped back to) are late frames of ``rec``: they lie
     in its frame-time range (or next to it, when the clock then resumes where ``rec`` was), at most
-    ``max_behind`` behind its latest frame, and mostly fill its gaps: a frame on a slot ``rec`` already
-    has (``_taken_slots``) is a frame of another recording at the same time (a restart), not a late
-    packet."""
+    ``max_behind`` behind its latest frame or in a gap of it no longer than that (``_far_behind``), and
+    mostly fill its gaps: a frame on a slot ``rec`` already has (``_taken_slots``) is a frame of another
+    recording at the same time (a restart), not a late packet."""
     ft = frame_time[idx]
     if not ft.size:
         return True
-    # no network holds packets back longer than MAX_LATENESS_S: frames further behind the recording's
-    # latest frame are no late frames of it, even in a gap of it (the one its clock left by stepping
-    # forward and then back: a clock corrected twice, a timecode source switched and back)
-    if rec.hi - float(np.median(ft)) > max_behind:
+    middle = np.median(ft, keepdims=True)
+    ends = rec.around(middle[0] - max_behind, middle[0] + max_behind)  # where a gap this long can end
+    if _far_behind(middle, rec.hi, frame_time[ends], max_behind)[0]:
         return False
     near = (ft >= rec.lo - tol) & (ft <= rec.hi + tol)
     if 2 * np.count_nonzero(near) < ft.size:
@@ -475,6 +474,19 @@ def _late_frames_of(
     have = rec.around(float(ft.min()) - tol, float(ft.max()) + tol)
     taken = _taken_slots(idx[near], have, rows, frame_time, arrival_s)
     return 2 * np.count_nonzero(taken) < ft.size
+
+
+def _far_behind(ft: np.ndarray, clock: np.ndarray | float, have: np.ndarray, limit: float) -> np.ndarray:
+    """Which frame times ``ft`` cannot be late frames of a recording whose frame times ``have`` are (any
+    order): more than ``limit`` behind its ``clock`` (its latest frame when they came) and in a gap of
+    ``have`` longer than ``limit``. A network may hold back a packet, or a burst of them, for longer than
+    ``limit``: the gap they left is then as long as the burst, and they fill it. A longer gap far behind
+    the clock is one the clock left by stepping forward; frames in it come from the clock stepping back
+    into it (a clock corrected twice, a timecode source switched and back), not from the network."""
+    times = np.concatenate([[-np.inf], np.sort(have), [np.inf]])
+    after = np.searchsorted(times, ft, "right")  # the first of ``have`` after each (ft is finite)
+    gap = times[after] - times[after - 1]
+    return (np.asarray(clock) - ft > limit) & (gap > limit)
 
 
 def _taken_slots(
@@ -522,19 +534,22 @@ def _place_off_clock(
     arrival_s: np.ndarray,
 ) -> np.ndarray:
     """The recording each packet ``off`` joins (-1: stray): the first of its candidates whose frame-time
-    range holds it on a free slot (``_taken_slots``), at most ``MAX_LATENESS_S`` behind it (its ``clock``
-    at the packet's moment, -inf where a burst of strays held the clock; an earlier recording's last
-    frame); ``current`` is the recording current at its moment."""
+    range holds it on a free slot (``_taken_slots``), not ``_far_behind`` it (behind its ``clock`` at the
+    packet's moment, -inf where a burst of strays held the clock; an earlier recording's last frame);
+    ``current`` is the recording current at its moment."""
     ft = frame_time[off]
     order = np.where((ft <= level[off] + tol)[:, None], BEHIND_ORDER, AHEAD_ORDER) + current[:, None]
     fits = np.zeros(order.shape, bool)
     for c, rec in enumerate(recs):
         who, rank = np.nonzero(order == c)
+        if not who.size:
+            continue
         inside = (ft[who] >= rec.lo - tol) & (ft[who] <= rec.hi + tol)
         behind = np.where(current[who] == c, clock[off[who]], np.where(current[who] > c, rec.hi, -np.inf))
-        inside &= behind - ft[who] <= MAX_LATENESS_S
+        have = rec.rows()
+        inside &= ~_far_behind(ft[who], behind, frame_time[have], MAX_LATENESS_S)
         who, rank = who[inside], rank[inside]
-        free = ~_taken_slots(off[who], rec.rows(), rows, frame_time, arrival_s)
+        free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s)
         fits[who[free], rank[free]] = True
     return np.where(fits.any(1), np.take_along_axis(order, fits.argmax(1)[:, None], 1)[:, 0], -1)
 
