@@ -4,7 +4,9 @@ Format (formats doc §2): header ``Timecode,BlendShapeCount,<61 names>`` (newer 
 column ``BlendshapeCount``), rows ``HH:MM:SS:FF.fff,61,<61 values with 10 decimals>``, face-lost rows
 ``<timecode>,0`` (or, from other writers, a count of 0 over values that are all 0). Columns are matched
 by name, case-insensitively; times come from the timecode, never from the row index. A spreadsheet's
-re-save is read too: quoted fields lose their quotes, and a comma ending every line is no column.
+re-save is read too: quoted fields lose their quotes, and a comma ending every line is no column; one with
+``;`` between the fields (a locale with decimal commas: Excel's and LibreOffice's CSV) is read by the careful
+parser, its numbers with the decimal mark they are written with (``_semicolon_lines``).
 
 Face-lost rows as pandas and spreadsheets re-save them (``<timecode>,0.0``, ``<timecode>,0,,,...``) are
 face-lost rows too, a count written ``61.0`` is 61, and rows of nothing but commas are blank lines.
@@ -30,6 +32,9 @@ Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``
 kind           what was done
 ============== ================================================================================
 bom            a UTF-8 byte-order mark before the header was ignored
+separator      ``;`` between the fields (a spreadsheet's re-save in a locale with decimal commas): read so,
+               numbers with ``,`` as the decimal point when they are written so (all of them), else ``.``;
+               a timecode's sub-frame after a comma (``44,643``) as after a point
 truncated_row  a last line cut short (no line end, too few fields) was dropped
 wrong_fields   a row with the wrong number of fields was dropped; its slot becomes a dropped frame
 bad_timecode   a row whose timecode does not parse was dropped; its slot becomes a dropped frame
@@ -69,10 +74,11 @@ Errors: missing, empty or binary file (a run of NUL bytes to its end, as a power
 binary: the row it cuts is a ``truncated_row``), or UTF-16 text, with or without its byte-order mark
 (``utf16_csv_error``); a Timecode column of plain numbers (another tool's seconds or frame numbers:
 import it as paired data); a header that is not a Live
-Link Face header (one separated by ``;`` or tabs says to export it with commas), or that names a column
-twice or leaves one empty (saying how to fix it); the header again further down (two files joined); no
-usable data rows (naming the first rejected row); values written with unquoted decimal commas (``0,1421``
-split in two fields) on most rows; a timecode going backwards (other than across midnight)
+Link Face header (one separated by tabs says to export it with commas), or that names a column
+twice or leaves one empty (saying how to fix it); a file re-saved with ``;`` between the fields whose
+numbers are written with both ``,`` and ``.`` as the decimal point; the header again further down (two
+files joined); no usable data rows (naming the first rejected row); values written with unquoted decimal
+commas (``0,1421`` split in two fields) on most rows; a timecode going backwards (other than across midnight)
 or jumping forward by more than ``MAX_GAP_S`` (a clock jump or two files joined: the app writes a row for
 every frame, so such a gap would become thousands of dropped frames). ``strict=True`` turns every repair
 into an error as well.
@@ -160,15 +166,63 @@ def text_lines(text: str) -> list[str]:
     return lines
 
 
-def _fields(line: str) -> list[str]:
+def _fields(line: str, sep: str = ",") -> list[str]:
     """A line's fields. A spreadsheet's re-save may quote them (``"Timecode","BlendshapeCount",...``):
     the quotes go, as the csv module reads them; the app itself never quotes."""
     if '"' not in line:
-        return line.split(",")
+        return line.split(sep)
     try:
-        return next(csv.reader([line]))
+        return next(csv.reader([line], delimiter=sep))
     except csv.Error:  # a damaged line (a huge quoted field): the row checks say what is wrong with it
-        return line.split(",")
+        return line.split(sep)
+
+
+def _decimal_mark(cell: str) -> str | None:
+    """``,`` or ``.``: the decimal mark of a cell holding a number written with one (``0,5``, ``-1.2E-05``),
+    else None (a whole number, a timecode, text)."""
+    for mark in ",.":
+        if mark in cell and plain_number(cell):
+            try:
+                float(cell.replace(mark, ".", 1))
+            except ValueError:
+                continue
+            return mark
+    return None
+
+
+# A timecode whose sub-frame a decimal-comma locale wrote after a comma (``14:58:02:44,643``).
+_COMMA_SUB_FRAME = re.compile(r"(\s*\d{1,2}:\d{1,2}:\d{1,2}[:;]\d{1,3}),(\d*\s*)", re.ASCII)
+
+
+def _semicolon_lines(lines: list[str], path: Path, repairs: list) -> None:
+    """The lines of a CSV a spreadsheet re-saved with ``;`` between the fields (in a locale with a decimal
+    comma) turned, in place, into the app's layout: ``,`` between the fields, ``.`` for the decimal point of
+    numbers written with ``,`` (``0,5``; those written with ``.`` stay), a timecode's sub-frame after a
+    point (``44,643``: a timecode's comma is no separator). Repair ``separator``; an ``InputError`` when
+    the numbers are written with both marks (which one a cell means is a guess)."""
+    first: dict[str, tuple[str, int]] = {}  # each decimal mark's first number, and its line
+    for i, line in enumerate(lines):
+        cells = []
+        for cell in _fields(line, ";"):
+            if (timecode := _COMMA_SUB_FRAME.fullmatch(cell)) is not None:
+                cell = f"{timecode[1]}.{timecode[2]}"
+            elif (mark := _decimal_mark(cell)) is not None and i:
+                first.setdefault(mark, (cell, i + 1))
+                cell = cell.replace(",", ".")
+            cells.append('"' + cell.replace('"', '""') + '"' if "," in cell or '"' in cell else cell)
+        if len(first) == 2:
+            (comma, at_comma), (point, at_point) = first[","], first["."]
+            raise InputError(
+                f"re-saved with ';' between the fields, its numbers written with both ',' ({_shown(comma)} "
+                f"on line {at_comma}) and '.' ({_shown(point)} on line {at_point}) as the decimal point: "
+                "export it with commas between the fields and '.' as the decimal point, as the app writes it",
+                path,
+                i + 1,
+            )
+        lines[i] = ",".join(cells)
+    mark = "," if "," in first else "."
+    message = f"re-saved with ';' between the fields and {mark!r} as the decimal point: read so"
+    repair(repairs, 1, "separator", message)
 
 
 # What pandas writes above the index column of a table it saves with one (``df.to_csv()``): nothing, or
@@ -266,14 +320,6 @@ def _parse_header(text: str, path: Path) -> CsvHeader:
                 path,
                 1,
             )
-        if sep is not None:
-            raise InputError(
-                f"a Live Link Face CSV re-saved with {sep!r} between the fields (a spreadsheet in a "
-                "decimal-comma locale?): export it with commas between the fields and '.' as the "
-                "decimal point, as the app writes it",
-                path,
-                1,
-            )
         shown = text[:60].encode("unicode_escape").decode("ascii")
         raise InputError(
             "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount "
@@ -353,6 +399,8 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
             text = "\ufffd"
         if "\ufffd" in text:  # as the careful parser decodes it: a header of replacement characters
             raise InputError("binary data, not a CSV text file", path, 1)
+        if app_header_separator(text) == ";":  # a spreadsheet's re-save: the careful parser reads it
+            return _read_careful(path, strict)
         header = _parse_header(text, path)
         rows = _read_fast(path, header, bom, len(first) + 1, strict)
         if rows is not None:
@@ -1024,6 +1072,8 @@ def _read_careful(path: Path, strict: bool, raw: bytes | None = None) -> CsvRows
     del text
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
+    if app_header_separator(lines[0]) == ";":
+        _semicolon_lines(lines, path, repairs)
     header = _parse_header(lines[0], path)
     reader = _RowReader(path, header, lines[0], len(lines) - 1, len(lines), ends_with_newline, repairs)
     for number in range(2, len(lines) + 1):
@@ -1234,7 +1284,7 @@ def _finish(
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
     if not times.size:
         _refuse_plain_number_times(seen.get("bad_timecode"), data_rows, path)
-        rejected = [r for r in repairs if r["kind"] != "bom"]
+        rejected = [r for r in repairs if r["kind"] not in ("bom", "separator")]
         if rejected:
             first = rejected[0]
             raise InputError(f"no usable data rows; the first: {first['message']}", path, first["line"])
