@@ -41,7 +41,15 @@ from .take import (
     safe_id,
     write_take,
 )
-from .take_archive import UNPACK_PREFIX, Unpacked, clear_unpacked, unpacked
+from .take_archive import (
+    UNPACK_PREFIX,
+    DriveDownload,
+    Unpacked,
+    clear_unpacked,
+    drive_downloads,
+    drive_part,
+    unpacked,
+)
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 from .transfer_litter import Litter, is_zip
 
@@ -284,13 +292,14 @@ def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: 
             raise InputError(
                 f"no Live Link Face CSV or take folder under {', '.join(map(str, args.sources))}"
             )
+        sources = drive_downloads(sources)  # the parts of a Google Drive download: one archive
         if args.audio is not None and len(sources) != 1:
             raise InputError(f"--audio pairs with one source, but {len(sources)} were found")
-        if args.audio is not None and is_zip(sources[0]):
+        if args.audio is not None and _is_archive(sources[0]):
             raise InputError("--audio pairs with a CSV or take folder, not a zip archive", sources[0])
         if args.take_id and len(sources) != 1:
             raise InputError("--id names one take, but several sources were found")
-        jobs = [("archive" if is_zip(s) else "source", s) for s in sources]
+        jobs = [("archive" if _is_archive(s) else "source", s) for s in sources]
     out = make_out_dir(args.out)
     if (out / "manifest.json").exists():  # the dataset stage's (which capture may not import)
         raise InputError(
@@ -316,6 +325,10 @@ def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: 
         return 1 if failures else 0
 
 
+def _is_archive(source: Path | DriveDownload) -> bool:
+    return isinstance(source, DriveDownload) or is_zip(source)
+
+
 class _Importer:
     """Imports jobs into ``args.out``, each source given a take id no other of the run has."""
 
@@ -335,12 +348,21 @@ class _Importer:
         if self.args.json:
             emit_json({"source": str(src), "error": shown})
 
-    def archive(self, archive: Path, outer: Unpacked | None = None) -> int:
-        """Import the takes a zip archive holds (and those of the archives in it, one level down: a
-        download of a folder of zipped takes), unpacked into the output folder meanwhile; the number
-        that failed (1 when the archive itself cannot be read). ``outer``: the archive it is in."""
+    def archive(self, archive: Path | DriveDownload, outer: Unpacked | None = None) -> int:
+        """Import the takes a zip archive (or the parts of a Google Drive download) holds (and those of
+        the archives in it, one level down: a download of a folder of zipped takes), unpacked into the
+        output folder meanwhile; the number that failed (1 when the archive itself cannot be read).
+        ``outer``: the archive it is in."""
         args = self.args
         name = outer.shown(archive) if outer else str(archive)
+        if isinstance(archive, DriveDownload) and (missing := archive.missing()):
+            some = len(missing) > 1
+            warn(
+                f"{name}: part{'s' if some else ''} {', '.join(missing)} of this Google Drive download "
+                f"{'are' if some else 'is'} not beside them: a take with files in {'them' if some else 'it'} "
+                f"is imported without those (download {'them' if some else 'it'} and import all the parts "
+                "again)"
+            )
         try:
             with unpacked(archive, args.out, self.litter, outer) as box:
                 sources = find_sources(
@@ -356,13 +378,15 @@ class _Importer:
                 if not sources:
                     ours = find_takes([box.folder])
                     why = " (it holds takes imported already: unzip it where you keep takes)" if ours else ""
+                    if not ours and isinstance(archive, Path) and drive_part(archive):
+                        why = " (one part of a Google Drive download: import it with its other parts)"
                     raise InputError(f"holds no Live Link Face CSV or take folder{why}", name)
                 if args.take_id and len(sources) != 1:
                     raise InputError(f"--id names one take, but the archive holds {len(sources)}", name)
                 progress(f"{name}: {len(sources)} source{'s' if len(sources) > 1 else ''} unpacked")
                 return sum(
-                    self.archive(src, box) if is_zip(src) else not self.one("source", src, box)
-                    for src in sources
+                    self.archive(src, box) if _is_archive(src) else not self.one("source", src, box)
+                    for src in drive_downloads(sources)
                 )
         except S2AError as exc:
             self._failed(name, exc)
@@ -505,11 +529,11 @@ def _occupant(folder: Path, take: Take) -> str | None:
     return f"the take imported from {before}" if before else "a take of unknown source"
 
 
-def _load_for_info(path: Path, litter: Litter, outer: Unpacked | None = None) -> list[Take]:
+def _load_for_info(path: Path | DriveDownload, litter: Litter, outer: Unpacked | None = None) -> list[Take]:
     """The takes ``path`` holds: a take of ours, a folder of them, recordings to import, zip archives of
-    any of these (and the archives in them, as import reads them); ``outer``: the archive ``path`` was
-    unpacked from."""
-    if not is_zip(path):
+    any of these (and the archives in them, as import reads them; the parts of a Google Drive download
+    as one); ``outer``: the archive ``path`` was unpacked from."""
+    if not _is_archive(path):
         return _takes_in(path, litter, outer)
     with unpacked(path, litter=litter, outer=outer) as box:
         try:
@@ -531,14 +555,19 @@ def _takes_in(path: Path, litter: Litter, box: Unpacked | None) -> list[Take]:
         archives=box is None or box.unpacks_archives,
         skipped=lambda p, why: warn_skipped(Path(box.shown(p) if box else p), why),
     )
-    return [t for s in sources for t in (_load_for_info(s, litter, box) if is_zip(s) else [import_source(s)])]
+    return [
+        t
+        for s in drive_downloads(sources)
+        for t in (_load_for_info(s, litter, box) if _is_archive(s) else [import_source(s)])
+    ]
 
 
 def cmd_info(args: argparse.Namespace) -> int:
     litter = Litter()  # what the folders held that is no take, said once at the end
     try:
-        for path in args.takes:
-            if path.is_dir() and path.name.endswith(SESSION_SUFFIX):  # ``info live/*`` meets the logs
+        for path in drive_downloads(args.takes):  # the parts of a Google Drive download: one archive
+            # ``info live/*`` meets the logs
+            if isinstance(path, Path) and path.is_dir() and path.name.endswith(SESSION_SUFFIX):
                 why = "is a listen session's log folder, not a take: its takes are written beside it"
                 if len(args.takes) == 1:
                     raise InputError(f"{why} (s2a-capture recover {path} rebuilds them)", path)

@@ -10,6 +10,12 @@ the disk for every member as its header declares it (the reader never writes mor
 (``__MACOSX``, ``._X``) is passed over. Names written without the archive's UTF-8 flag (Finder, Windows
 Explorer, most tools) are read as UTF-8 when they are that, else as the zip standard's code page 437.
 
+A download of a large folder from Google Drive comes in parts, ``F-20250101T101010Z-001.zip``,
+``-002.zip``, ... (each under 2 GB, each holding some of the folder's files under ``F/``; a take's CSV in
+one, its ``.mov`` in another): the parts of one download given or found together
+(``drive_downloads``) are unpacked into one folder as one archive, each file named after its part; no
+file may be in two parts.
+
 A reader that needs a few members only (``s2a-view`` showing one take of an archive of a day's takes,
 gigabytes of ``.mov``) picks them from the archive's list (``pick``): the checks of names (outside the
 folder, two of one name) still see the whole archive, those of a member's bytes (encryption, a method
@@ -26,13 +32,13 @@ import tempfile
 import zipfile
 import zlib
 from collections.abc import Callable, Collection, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from .errors import InputError
 from .take import Take
-from .transfer_litter import Litter
+from .transfer_litter import Litter, is_zip
 
 # Hidden folders an import unpacks archives into, inside its output folder; one left by a killed import
 # is removed by the next import into that folder (which holds the folder's import lock).
@@ -55,18 +61,71 @@ _METHODS = {
     99: "AES encryption (WinZip)",
 }
 _DRIVE = re.compile(r"[A-Za-z]:")
+# A part of a Google Drive download: the folder's name, the time of the download (UTC), the part's number.
+_DRIVE_PART = re.compile(r"(.+-\d{8}T\d{6}Z)-(\d{3,})\.zip", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class DriveDownload:
+    """Two or more parts of one Google Drive download (``F-20250101T101010Z-001.zip``, ``-002.zip``, ...)
+    in one folder, read as one archive by ``unpacked``: ``stem`` is ``F-20250101T101010Z``."""
+
+    stem: str
+    parts: tuple[Path, ...]  # in the order of their numbers
+
+    def __str__(self) -> str:
+        return " + ".join([str(self.parts[0]), *(p.name for p in self.parts[1:])])
+
+    def missing(self) -> list[str]:
+        """The numbers of the parts before the last one given that are not given (``002`` of 001 and 003;
+        parts after the last cannot be known)."""
+        given = {int(drive_part(p)[1]) for p in self.parts}
+        width = len(drive_part(self.parts[-1])[1])
+        return [f"{n:0{width}d}" for n in range(1, max(given)) if n not in given]
+
+
+def drive_part(path: Path) -> tuple[str, str] | None:
+    """The stem of the download and the part's number, for a part of a Google Drive download by its name."""
+    match = _DRIVE_PART.fullmatch(path.name)
+    return (match[1], match[2]) if match else None
+
+
+def drive_downloads(sources: list[Path]) -> list[Path | DriveDownload]:
+    """``sources`` with the parts of each Google Drive download among them (same folder, same
+    ``F-<time>Z`` stem) gathered into one ``DriveDownload``, in the place of its first part; a part
+    alone stays an archive of its own."""
+    groups: dict[tuple[Path, str], list[Path]] = {}
+    for src in sources:
+        if (part := drive_part(src)) is not None and is_zip(src):
+            groups.setdefault((src.parent, part[0].casefold()), []).append(src)
+    out: list[Path | DriveDownload] = []
+    done = set()
+    for src in sources:
+        part = drive_part(src) if is_zip(src) else None
+        key = (src.parent, part[0].casefold()) if part else None
+        parts = sorted(set(groups[key]), key=lambda p: int(drive_part(p)[1])) if key else []
+        if len(parts) < 2:
+            out.append(src)
+        elif key not in done:  # the parts of a download given twice are read once
+            done.add(key)
+            out.append(DriveDownload(drive_part(parts[0])[0], tuple(parts)))
+    return out
 
 
 @dataclass
 class Unpacked:
     """An archive unpacked: ``folder`` holds its members (named after the archive, ``takes.zip`` ->
-    ``.../takes``, so a take folder zipped without its folder keeps a name)."""
+    ``.../takes``, so a take folder zipped without its folder keeps a name). Of a ``DriveDownload``,
+    ``archive``, ``name`` and ``real`` are its first part's, and ``parts`` says which part each member
+    unpacked came from (relative path -> the part's name and real path; a folder: the first part
+    holding something in it)."""
 
     archive: Path
     folder: Path
     name: str  # what the archive is called in messages: as given, or a member of another archive's
     real: str  # and in the takes' records: its real path (symbolic links resolved), as a loose file's
     depth: int = 1  # 1 for an archive given or found in a folder, 2 for one in an archive
+    parts: dict[str, tuple[str, str]] = field(default_factory=dict)
 
     @property
     def unpacks_archives(self) -> bool:
@@ -76,14 +135,28 @@ class Unpacked:
     def shown(self, text: object) -> str:
         """``text`` (a path of a file unpacked, or a message naming one) with the archive's member in its
         place: ``takes.zip/T/T.csv``."""
-        return str(text).replace(str(self.folder), self.name)
+        return self._named(text, 0)
+
+    def recorded(self, text: object) -> str:
+        """``text`` (a path of a file unpacked) as the takes record it: the archive by its real path."""
+        return self._named(text, 1)
+
+    def _named(self, text: object, which: int) -> str:
+        pieces = str(text).split(str(self.folder))
+        if not self.parts:
+            return (self.name, self.real)[which].join(pieces)
+        named = [pieces[0]]
+        for rest in pieces[1:]:  # each path named after the part its longest known beginning is from
+            member = max((k for k in self.parts if rest.startswith(f"/{k}")), key=len, default="")
+            named.append(self.parts[member or ""][which] + rest)
+        return "".join(named)
 
     def rename_files(self, take: Take) -> None:
         """Record ``take``'s files as the archive's members (``/dl/takes.zip/T/T.csv``, the archive by its
         real path: a re-import through another spelling replaces them; the unpacked copies are gone after
         the import), in its sources and repair messages."""
         for source in take.meta.sources:
-            source.path = source.path.replace(str(self.folder), self.real)
+            source.path = self.recorded(source.path)
         for repair in take.meta.repairs:
             if isinstance(repair.get("message"), str):
                 repair["message"] = self.shown(repair["message"])
@@ -194,39 +267,68 @@ def _check_room(plan: Plan, into: Path, archive: Path) -> None:
         )
 
 
-@contextmanager
-def unpacked(
-    archive: Path,
-    into: Path | None = None,
-    litter: Litter | None = None,
-    outer: Unpacked | None = None,
-    prefix: str = UNPACK_PREFIX,
-    pick: Pick | None = None,
-) -> Iterator[Unpacked]:
-    """``archive`` unpacked into a hidden folder made in ``into`` (default: the system's temporary
-    folder), removed on leaving; ``outer``: the archive it was unpacked from, if any, to name it as a
-    member of; ``prefix``: how the hidden folder's name starts (one command's own, to find what a killed
-    run of it left); ``pick``: the members to unpack (default all). Litter passed over is counted in
-    ``litter``. An ``InputError`` (naming it) names what is wrong: not a zip archive (or cut short), a
-    member outside the folder, encrypted, compressed with a method not readable here, damaged (its
-    checksum), too large for the disk."""
-    tally = Litter() if litter is None else litter
-    name = outer.shown(archive) if outer else str(archive)
-    real = str(archive).replace(str(outer.folder), outer.real) if outer else str(Path(archive).resolve())
+def _parts_of(plans: list[Plan], names: list[str]) -> dict[str, int]:
+    """Which part of a download each member and folder to unpack comes from, by index (a folder: the
+    first part holding something in it; "": the folder unpacked into); an ``InputError`` naming both
+    parts for a file in two of them."""
+    owner, files = {"": 0}, {}
+    for i, plan in enumerate(plans):
+        for info, parts in plan:
+            key = "/".join(parts)
+            if not is_folder(info):
+                if key in files:
+                    raise InputError(
+                        f"holds {key}, as {names[files[key]]} does: parts of two downloads? Unzip them "
+                        "and keep the right one",
+                        names[i],
+                    )
+                files[key] = owner[key] = i
+            for j in range(1, len(parts)):
+                owner.setdefault("/".join(parts[:j]), i)
+            owner.setdefault(key, i)
+    return owner
+
+
+def _open(archive: Path, name: str) -> zipfile.ZipFile:
     try:
-        zf = zipfile.ZipFile(archive)
+        return zipfile.ZipFile(archive)
     except zipfile.BadZipFile as exc:
         raise InputError(
             f"not a readable zip archive ({exc}): a download or copy cut short? Copy it again", name
         ) from None
     except OSError as exc:
         raise InputError(f"cannot read it: {exc.strerror or exc}", name) from None
-    with zf:
-        plan = _plan(zf, Path(name), tally, readable=pick is None)
+
+
+@contextmanager
+def unpacked(
+    archive: Path | DriveDownload,
+    into: Path | None = None,
+    litter: Litter | None = None,
+    outer: Unpacked | None = None,
+    prefix: str = UNPACK_PREFIX,
+    pick: Pick | None = None,
+) -> Iterator[Unpacked]:
+    """``archive`` (or the parts of a Google Drive download, as one archive) unpacked into a hidden
+    folder made in ``into`` (default: the system's temporary folder), removed on leaving; ``outer``: the
+    archive it was unpacked from, if any, to name it as a member of; ``prefix``: how the hidden folder's
+    name starts (one command's own, to find what a killed run of it left); ``pick``: the members to
+    unpack (default all; of a download, of each part). Litter passed over is counted in ``litter``. An
+    ``InputError`` (naming it, or the part) names what is wrong: not a zip archive (or cut short), a
+    member outside the folder, encrypted, compressed with a method not readable here, damaged (its
+    checksum), too large for the disk, a file in two parts of a download."""
+    tally = Litter() if litter is None else litter
+    archives = archive.parts if isinstance(archive, DriveDownload) else (archive,)
+    names = [outer.shown(a) if outer else str(a) for a in archives]
+    reals = [outer.recorded(a) if outer else str(Path(a).resolve()) for a in archives]
+    with ExitStack() as zips:
+        opened = [zips.enter_context(_open(a, n)) for a, n in zip(archives, names)]
+        plans = [_plan(zf, Path(n), tally, readable=pick is None) for zf, n in zip(opened, names)]
         if pick is not None:
-            plan = _picked(plan, pick, Path(name))
+            plans = [_picked(plan, pick, Path(n)) for plan, n in zip(plans, names)]
+        owners = _parts_of(plans, names) if len(archives) > 1 else {}
         where = Path(tempfile.gettempdir() if into is None else into)
-        _check_room(plan, where, Path(name))
+        _check_room([m for plan in plans for m in plan], where, Path(names[0]))
         work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
         pid = os.getpid()
         try:
@@ -235,10 +337,12 @@ def unpacked(
             try:
                 folder.mkdir()
             except OSError as exc:
-                raise InputError(f"cannot unpack it into {where}: {exc.strerror or exc}", name) from None
-            for info, parts in plan:
-                _unpack_member(zf, info, folder.joinpath(*parts), name)
-            yield Unpacked(archive, folder, name, real, outer.depth + 1 if outer else 1)
+                raise InputError(f"cannot unpack it into {where}: {exc.strerror or exc}", names[0]) from None
+            for zf, plan, name in zip(opened, plans, names):
+                for info, parts in plan:
+                    _unpack_member(zf, info, folder.joinpath(*parts), name)
+            owned = {member: (names[i], reals[i]) for member, i in owners.items()}
+            yield Unpacked(archives[0], folder, names[0], reals[0], outer.depth + 1 if outer else 1, owned)
         finally:
             # a forked child that inherited this (its generator closed as the child ends) leaves it: the
             # files are the parent's, still being read
