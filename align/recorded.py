@@ -19,7 +19,7 @@ import numpy as np
 import soundfile as sf
 
 from capture import Audio, InputError, Take
-from capture.audio_io import libsndfile_name
+from capture.audio_io import FileAudio, libsndfile_name
 from capture.take import AudioInfo
 
 # The WAV sample formats read as read_audio reads them (PCM_24 widened to int32): the subtypes write_take
@@ -32,7 +32,8 @@ _CHECK_FRAMES = 1 << 16  # frames per block of the check for NaN in float sample
 
 class RecordedAudio:
     """Recorded samples (frames x channels, ``capture.Audio``'s format) given block by block, from an
-    ``Audio`` in memory (``of``) or from the take's WAV file (``from_take_file``)."""
+    ``Audio`` in memory (``of``), from the take's WAV file (``from_take_file``) or from audio left in its
+    file (``recorded``)."""
 
     def __init__(self, sample_rate: int, channels: int, frames: int, subtype: str, dtype: str):
         self.sample_rate, self.channels, self.frames = sample_rate, channels, frames
@@ -155,9 +156,26 @@ def _stamp(path: Path) -> tuple[int, int, int]:
     return st.st_ino, st.st_size, st.st_mtime_ns
 
 
+class _LeftInFile(RecordedAudio):
+    """A ``FileAudio`` (audio left in its file: ``capture.audio_io.audio_left_in_files``) as recorded
+    samples, its blocks read from the file (``FileAudio.blocks``: checked to be the samples read)."""
+
+    def __init__(self, audio: FileAudio):
+        super().__init__(audio.sample_rate, audio.channels, audio.frames, audio.subtype, audio.dtype.name)
+        self._left = audio
+
+    def blocks(self, size: int) -> Iterator[np.ndarray]:
+        return self._left.blocks(size)
+
+
 def recorded(audio: Audio | RecordedAudio) -> RecordedAudio:
-    """``audio`` as blocks: an ``Audio`` in memory is sliced, never copied."""
-    return audio if isinstance(audio, RecordedAudio) else RecordedAudio.of(audio)
+    """``audio`` as blocks: an ``Audio`` in memory is sliced, never copied; audio left in its file is read
+    from the file a block at a time (its ``samples`` would read all of it into memory, and keep it)."""
+    if isinstance(audio, RecordedAudio):
+        return audio
+    if isinstance(audio, FileAudio) and not audio.held:
+        return _LeftInFile(audio)
+    return RecordedAudio.of(audio)
 
 
 # The take being aligned and its audio file, for a take read without its audio (``reading_from_file``)

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from capture import Audio, InputError
-from capture.audio_io import FileAudio, full_scale
+from capture.audio_io import full_scale
 
 from .recorded import RecordedAudio, recorded
 
@@ -164,7 +164,7 @@ def mono_mix(audio: Audio | RecordedAudio) -> tuple[np.ndarray, dict[str, Any] |
 
     The channels are measured and mixed a block at a time (``mix_blocks``): the float32 copies of
     every channel of an hour at 48 kHz stereo took 1.4 GB."""
-    source = _recorded(audio)
+    source = recorded(audio)
     mix = _Mix(None, None) if source.channels < 2 else _mix_of(source)
     return gathered(mix_blocks(source, mix, _CHUNK), np.empty(source.frames, np.float32)), mix.note
 
@@ -408,27 +408,7 @@ def _backward(sos: np.ndarray, y: np.ndarray) -> np.ndarray:
 def mono_blocks(audio: Audio | RecordedAudio) -> Iterator[np.ndarray]:
     """``audio.mono_float()`` in blocks of ``_CHUNK`` frames: the same float32 samples (mono_float works
     frame by frame), without an hour of them at the file's rate in memory at once."""
-    return _recorded(audio).mono_blocks(_CHUNK)
-
-
-class _LeftInFile(RecordedAudio):
-    """A ``FileAudio`` (audio left in its file: ``capture.audio_io.audio_left_in_files``) as recorded
-    samples, its blocks read from the file (``FileAudio.blocks``: checked to be the samples read)."""
-
-    def __init__(self, audio: FileAudio):
-        super().__init__(audio.sample_rate, audio.channels, audio.frames, audio.subtype, audio.dtype.name)
-        self._left = audio
-
-    def blocks(self, size: int) -> Iterator[np.ndarray]:
-        return self._left.blocks(size)
-
-
-def _recorded(audio: Audio | RecordedAudio) -> RecordedAudio:
-    """``recorded(audio)``; audio left in its file read from the file a block at a time (``recorded``
-    would read all of it into memory, and keep it there)."""
-    if isinstance(audio, FileAudio) and not audio.held:
-        return _LeftInFile(audio)
-    return recorded(audio)
+    return recorded(audio).mono_blocks(_CHUNK)
 
 
 def sum64(blocks: Iterable[np.ndarray]) -> float:
@@ -561,7 +541,7 @@ def _mono_source(
     """The rate, the frame count and the mono float32 samples of ``audio`` (a pass through them, ``_CHUNK``
     frames a block, each call), its channels mixed by ``mono_mix``'s rule, whose note is appended to
     ``notes``; audio too slow for speech is an ``InputError``."""
-    source = _recorded(audio)
+    source = recorded(audio)
     if source.channels == 1:  # mono: read block by block from the recorded samples, never whole as float32
         note = None
 
@@ -576,11 +556,14 @@ def _mono_source(
 
     if note is not None and notes is not None:
         notes.append(note)
-    if source.sample_rate < 8000:
-        raise InputError(
-            f"audio sample rate {source.sample_rate} Hz is too low for speech (need ≥ 8 kHz)", path
-        )
+    check_speech_rate(source.sample_rate, path)
     return source.sample_rate, source.frames, blocks
+
+
+def check_speech_rate(rate: int, path: str | None = None) -> None:
+    """An ``InputError`` for audio at ``rate`` Hz: too low for speech below 8 kHz."""
+    if rate < 8000:
+        raise InputError(f"audio sample rate {rate} Hz is too low for speech (need ≥ 8 kHz)", path)
 
 
 def _off(blocks: Iterable[np.ndarray], dc: float) -> Iterable[np.ndarray]:

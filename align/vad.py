@@ -189,11 +189,7 @@ def webrtc_segments(
     """Speech segments (start_s, end_s) of 16 kHz mono float32 audio, raised by ``gain`` for the detector
     (``detector_blocks``), by the WebRTC detector (30 ms frames), made 16-bit a block at a time (the
     int16 copy of a 2 h take and its float temporaries took 870 MB)."""
-    try:
-        import webrtcvad
-    except ImportError:
-        raise InputError("--vad webrtc needs the package webrtcvad (pip install webrtcvad-wheels)") from None
-    vad = webrtcvad.Vad(aggressiveness)
+    vad = _webrtcvad().Vad(aggressiveness)
     hop = WEBRTC_FRAME
     flags: list[bool] = []
     for block in detector_blocks(x, gain, DETECTOR_BLOCK // hop * hop):
@@ -201,6 +197,24 @@ def webrtc_segments(
         pcm = np.clip(np.rint(block * 32768.0), -32768, 32767).astype("<i2")
         flags += [vad.is_speech(pcm[i : i + hop].tobytes(), TARGET_RATE) for i in range(0, pcm.size, hop)]
     return runs_to_segments(np.array(flags), 0.03, min_silence_s, min_speech_s=0.09)
+
+
+def _webrtcvad():
+    """The ``webrtcvad`` module; an ``InputError`` naming its package when it is not installed."""
+    try:
+        import webrtcvad
+    except ImportError:
+        raise InputError("--vad webrtc needs the package webrtcvad (pip install webrtcvad-wheels)") from None
+    return webrtcvad
+
+
+def check_detector(method: str) -> None:
+    """An ``InputError`` naming the package the detector ``method`` (silero or webrtc) needs when it is not
+    installed, before any audio is read for it (silero's model is loaded, once per process)."""
+    if method == "silero":
+        _silero_model()
+    elif method == "webrtc":
+        _webrtcvad()
 
 
 def runs_to_segments(

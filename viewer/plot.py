@@ -131,22 +131,25 @@ def speech_segments(anim: Animation, method: str = "auto") -> tuple[list[tuple[f
     if method == "auto" and report.get("speech_segments") is not None:
         return [(float(a), float(b)) for a, b in report["speech_segments"]], "speech (align report)"
     if method in ("auto", "silero", "webrtc"):
+        detector = "silero" if method == "auto" else method
         try:
-            from align.resample import to_16k_passes
+            from align.resample import check_speech_rate, to_16k_passes
+            from align.vad import check_detector, vad_gain
             from align.vad import speech_segments as vad_segments
-            from align.vad import vad_gain
 
-            # align's 16 kHz audio, a block at a time: a pass for its level, another for the detector
-            passes = to_16k_passes(anim.audio)
-            gain = vad_gain(passes())
-            segs = vad_segments(passes(), "silero" if method == "auto" else method, gain)
-            off = anim.audio_start_s
-            return [
-                (a + off, b + off) for a, b in segs
-            ], f"speech ({'silero' if method == 'auto' else method} VAD)"
-        except (ImportError, InputError) as exc:
+            check_speech_rate(anim.audio.sample_rate)
+            check_detector(detector)
+        except (ImportError, InputError) as exc:  # the detector cannot run: the energy threshold, or said
             if method != "auto":
                 raise InputError(f"--vad {method} is not available here: {exc}") from None
+        else:
+            # align's 16 kHz audio, a block at a time: a pass for its level, another for the detector (the
+            # audio unreadable, or its file rewritten since it was read, is an error of its own)
+            passes = to_16k_passes(anim.audio)
+            gain = vad_gain(passes())
+            segs = vad_segments(passes(), detector, gain)
+            off = anim.audio_start_s
+            return [(a + off, b + off) for a, b in segs], f"speech ({detector} VAD)"
     segs = energy_segments(anim.audio)
     off = anim.audio_start_s
     fallback = ", fallback: no VAD model" if method == "auto" else ""  # --vad energy: asked for
