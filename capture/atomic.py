@@ -22,6 +22,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import IO, Any
 
+from .command import stops_deferred
 from .errors import InputError
 from .file_lock import fcntl, try_lock
 
@@ -49,7 +50,8 @@ def atomic_write(
                 os.fsync(f.fileno())
             os.replace(tmp, path)
         except BaseException:
-            tmp.unlink(missing_ok=True)
+            with stops_deferred():  # a second Ctrl-C cuts no removal short
+                tmp.unlink(missing_ok=True)
             raise
 
 
@@ -125,10 +127,12 @@ def all_or_none() -> Iterator[None]:
 @contextmanager
 def _folder_in_place(target: Path) -> Iterator[Path]:
     clear_leftovers(target)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
-    lock = None
+    tmp = lock = None
     try:
-        lock = _hold(tmp)  # inside: a Ctrl-C while it locks removes the folder just made too
+        # Ctrl-C and SIGTERM wait until the folder is noted here, locked: met as it was made, a stop left it
+        with stops_deferred():
+            tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+            lock = _hold(tmp)
         yield tmp
         os.chmod(tmp, 0o755)
         if os.path.lexists(target) and _exchange(tmp, target):
@@ -149,7 +153,9 @@ def _folder_in_place(target: Path) -> Iterator[Path]:
         else:
             os.replace(tmp, target)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            with stops_deferred():  # a second Ctrl-C cuts no removal short
+                shutil.rmtree(tmp, ignore_errors=True)
         raise
     finally:
         _release(lock)

@@ -462,12 +462,29 @@ def stops_deferred(redeliver: bool = True) -> Iterator[None]:
     caught: list[int] = []
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     previous = {sig: h for sig, h in previous.items() if h is not None and h != signal.SIG_IGN}
-    for sig in previous:
-        signal.signal(sig, lambda signum, _frame: caught.append(signum))
+    held: dict[int, Any] = {}  # the handlers set aside so far (a SIGTERM met as SIGINT's is, raises here)
     try:
+        for sig, handler in previous.items():
+            signal.signal(sig, lambda signum, _frame: caught.append(signum))
+            held[sig] = handler
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        _set_back(held)
     for sig in dict.fromkeys(caught) if redeliver else ():
         signal.raise_signal(sig)
+
+
+def _set_back(handlers: dict[int, Any]) -> None:
+    """Set each signal's handler back, every one of them even when a stop raises as one is (a Ctrl-C met
+    once SIGINT's own handler is back raises as SIGTERM's is set); that stop is raised once all are back.
+    Left half set, the handler that only notes its signal stayed in place: that signal was lost from then
+    on."""
+    stop = None
+    for sig, handler in handlers.items():
+        try:
+            signal.signal(sig, handler)
+        except BaseException as exc:  # KeyboardInterrupt, Terminated
+            stop = stop or exc
+            signal.signal(sig, handler)
+    if stop is not None:
+        raise stop

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
+from .command import stops_deferred
 from .errors import InputError
 
 try:
@@ -100,21 +101,25 @@ def holding(
     file that cannot be opened or locked raises its ``OSError``, or with ``optional`` the block runs
     without a lock (a read-only folder, a file system without locks: the writes then fail themselves).
     The block is given whether it holds the lock."""
-    taken = _lock(path, refused, optional) if fcntl is not None else None
-    if taken is None:
-        yield False
-        return
-    fd, created = taken
-    with suppress(OSError):  # the pid is for the messages of others only: a full disk stops nothing
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    taken = None
     try:
-        yield True
+        # Ctrl-C and SIGTERM wait until the lock is noted here: met between its taking and the ``try``,
+        # or as the pid is written, a stop left the lock held and its file behind
+        with stops_deferred():
+            taken = _lock(path, refused, optional) if fcntl is not None else None
+            if taken is not None:
+                with suppress(OSError):  # the pid is for others' messages only: a full disk stops nothing
+                    os.ftruncate(taken[0], 0)
+                    os.pwrite(taken[0], f"{os.getpid()}\n".encode(), 0)
+        yield taken is not None
     finally:
-        if remove(created):
-            with suppress(OSError):
-                path.unlink()
-        os.close(fd)  # releases the lock
+        if taken is not None:
+            fd, created = taken
+            with stops_deferred():  # a second Ctrl-C cuts neither the file's removal nor the lock's release
+                if remove(created):
+                    with suppress(OSError):
+                        path.unlink()
+                os.close(fd)  # releases the lock
 
 
 def _lock(path: Path, refused: Callable[[str], Exception], optional: bool) -> tuple[int, bool] | None:

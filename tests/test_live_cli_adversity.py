@@ -158,7 +158,12 @@ def test_sighup_from_a_closed_terminal_stops_cleanly(tmp_path):
     master, slave = pty.openpty()
     cmd = [sys.executable, "-m", "capture", "listen", "-o", str(tmp_path / "out"), "--port", "0"]
     proc = subprocess.Popen(
-        [*cmd, "--duration", "60", "--json"], stdout=subprocess.PIPE, stderr=slave, text=True
+        [*cmd, "--duration", "60", "--json"],
+        stdout=subprocess.PIPE,
+        stderr=slave,
+        text=True,
+        # as from a terminal: a suite run under nohup would pass SIGHUP ignored, which listen keeps so
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL),
     )
     os.close(slave)
     try:
