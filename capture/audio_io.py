@@ -891,8 +891,8 @@ class FileAudio(Audio):
             raise InputError(f"audio file cannot be read again: {exc}", self.path) from None
         if not same or frames != self._frames:
             raise InputError(
-                "audio file changed since it was read: import it again (its samples differ from "
-                f"{frames / self.sample_rate:.1f} s on)",
+                "audio file changed since it was read (its samples differ from "
+                f"{frames / self.sample_rate:.1f} s on): run the command again",
                 self.path,
             )
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import codecs
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -38,7 +39,7 @@ AUDIO_PAIRINGS = ("first-row", "frame-index")
 AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".aif", ".aiff")
 # The keys of an Audio2Face blendshape export, looked for anywhere in a .json (their order is not fixed:
 # a writer that puts "facsNames" after the weights has it megabytes in).
-_A2F_MARKS = (b'"facsNames"', b'"weightMat"')
+_A2F_MARKS = ('"facsNames"', '"weightMat"')
 # What Audio2Face adds to an export's name (``line01_bsweight.json`` goes with ``line01.wav``).
 A2F_SUFFIX = "_bsweight"
 
@@ -160,13 +161,18 @@ def no_takes_found(paths: list[str | Path], stage: str) -> InputError:
 
 def is_a2f_export(path: Path) -> bool:
     """Whether a JSON file looks like an Audio2Face blendshape export: it holds the key ``"facsNames"``
-    or ``"weightMat"`` anywhere (reading it as an export then says what else is wrong with it)."""
+    or ``"weightMat"`` anywhere (reading it as an export then says what else is wrong with it). The file
+    is read a block at a time as UTF-8, or as UTF-16/UTF-32 when it starts with their byte-order mark
+    (Windows' "Unicode" text, as ``read_a2f_json`` reads it)."""
     keep = max(map(len, _A2F_MARKS)) - 1  # a key split across two reads
     try:
         with open(path, "rb") as f:
-            tail = b""
+            codec = bom_codec(f.read(4)) or "utf-8"
+            f.seek(0)
+            text = codecs.getincrementaldecoder(codec)(errors="replace")  # a character split across reads
+            tail = ""
             while chunk := f.read(1 << 20):
-                block = tail + chunk
+                block = tail + text.decode(chunk)
                 if any(mark in block for mark in _A2F_MARKS):
                     return True
                 tail = block[-keep:]

@@ -442,9 +442,10 @@ def incomplete_segment_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[st
 
 
 def aligned_twice_warnings(aligned: list[tuple[Path, TakeMeta]]) -> list[str]:
-    """A warning for each raw take that the aligned takes ``(folder, meta)`` hold from more than one
+    """A warning for each raw take that the aligned takes built ``(folder, meta)`` hold from more than one
     s2a-align run with other options (two fingerprints of align's record): both runs' segments are
-    built, so its speech counts twice. (Runs that cut it alike give takes of one id, refused as such.)"""
+    built, so its speech counts twice. (Runs that cut it alike give takes of one id, refused as such,
+    or skipped as duplicates.)"""
     runs: dict[str, dict[str, set[Path]]] = {}
     for folder, meta in aligned:
         run = _align_record(meta, folder).get("fingerprint")
@@ -583,7 +584,7 @@ def collect_takes(
             candidates.append(st)
     if unalignable:
         raise unalignable_takes(unalignable)
-    warnings += incomplete_segment_warnings(segments) + aligned_twice_warnings(segments)
+    warnings += incomplete_segment_warnings(segments)
     warnings += skipped.values()
     # duplicates in id order (the first id is kept), whatever the order of the inputs
     for st in sorted(candidates, key=lambda t: (t.id, t.source["path"])):
@@ -602,6 +603,9 @@ def collect_takes(
         by_id[st.id] = by_sha[st.content_sha256] = st
         takes.append(st)
         warnings += st.notes
+    # of the takes built: a duplicate skipped, or a take --skip-flagged left out, counts no speech
+    built = {t.folder for t in takes}
+    warnings += aligned_twice_warnings([(af, m) for af, m in segments if af in built])
     if not takes:
         raise InputError("no take is left to build from: " + "; ".join(warnings))
     takes.sort(key=lambda t: t.id)
