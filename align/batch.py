@@ -27,7 +27,7 @@ from typing import Any
 
 from capture import InputError, S2AError, Take, TakeMeta, find_takes, read_meta, read_take, write_take
 from capture.atomic import all_or_none, batch_of_writes
-from capture.command import json_safe
+from capture.command import json_safe, stops_deferred
 from capture.file_lock import another_writer, holding
 from capture.importer import no_takes_found
 from capture.numbers import is_count
@@ -467,12 +467,17 @@ def prune_orphans(out_dir: Path, found: list[tuple[Path, str]]) -> tuple[list, l
     _clear_pruned(out_dir)
     removed, failed = [], []
     for folder, source in found:
+        hidden = None
         try:
-            hidden = Path(tempfile.mkdtemp(prefix=f".{folder.name}.pruned-", dir=out_dir))
             try:
+                # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
+                with stops_deferred():
+                    hidden = Path(tempfile.mkdtemp(prefix=f".{folder.name}.pruned-", dir=out_dir))
                 os.replace(folder, hidden / "take")
             finally:
-                shutil.rmtree(hidden, ignore_errors=True)
+                if hidden is not None:
+                    with stops_deferred():  # a second Ctrl-C cuts no removal short
+                        shutil.rmtree(hidden, ignore_errors=True)
         except OSError as exc:
             failed.append((folder, source, exc.strerror or str(exc)))
             continue

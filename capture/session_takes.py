@@ -58,6 +58,7 @@ from . import livelink as ll
 from .atomic import write_json_atomic
 from .audio_capture import AudioLogChanged, SessionAudio, index_audio_log
 from .channels import ARKIT61
+from .command import stops_deferred
 from .csv_take import detect_fps, fill_dropped, missing_frames, repair
 from .errors import InputError, S2AError
 from .numbers import is_count
@@ -243,59 +244,65 @@ class SessionLog:
         self._spill_dir: Path | None = None
         first_stamp: int | None = None
         reader = LogReader(self.dir / FRAMES_LOG)
-        for payload in reader:
-            kind = payload[0]
-            size = len(payload)
-            if (kind == RecordType.FRAME and size == FRAME_PAYLOAD_BYTES) or (
-                kind == RecordType.NO_FACE and size == NO_FACE_PAYLOAD_BYTES
-            ):
-                (sid,) = _STREAM_ID.unpack_from(payload, 1)
-                if sid not in self.frame_counts:
-                    self.frame_counts[sid] = 0
-                    self._pending[sid] = bytearray()
-                    (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
-                    first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
-                self.frame_counts[sid] += 1
-                self._pending[sid] += payload[_FRAME_AT:]
-                if kind == RecordType.NO_FACE:
-                    self._pending[sid] += _NO_FACE_TAIL
-                self._pending_bytes += ROW_DTYPE.itemsize
-                if self._pending_bytes > SPILL_BYTES:
-                    self._spill()
-            elif kind == RecordType.SYNC and size >= SYNC_HEAD_BYTES:
-                self.sync.append(decode_sync_record(payload))
-            elif kind in _JSON_FIELDS:
-                data = json_fields(payload, *_JSON_FIELDS[kind])
-                if data is None or not _plausible_json(kind, data):
+        try:  # a stop (or an error) while the log is read removes the rows spilled so far
+            for payload in reader:
+                kind = payload[0]
+                size = len(payload)
+                if (kind == RecordType.FRAME and size == FRAME_PAYLOAD_BYTES) or (
+                    kind == RecordType.NO_FACE and size == NO_FACE_PAYLOAD_BYTES
+                ):
+                    (sid,) = _STREAM_ID.unpack_from(payload, 1)
+                    if sid not in self.frame_counts:
+                        self.frame_counts[sid] = 0
+                        self._pending[sid] = bytearray()
+                        (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
+                        first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
+                    self.frame_counts[sid] += 1
+                    self._pending[sid] += payload[_FRAME_AT:]
+                    if kind == RecordType.NO_FACE:
+                        self._pending[sid] += _NO_FACE_TAIL
+                    self._pending_bytes += ROW_DTYPE.itemsize
+                    if self._pending_bytes > SPILL_BYTES:
+                        self._spill()
+                elif kind == RecordType.SYNC and size >= SYNC_HEAD_BYTES:
+                    self.sync.append(decode_sync_record(payload))
+                elif kind in _JSON_FIELDS:
+                    data = json_fields(payload, *_JSON_FIELDS[kind])
+                    if data is None or not _plausible_json(kind, data):
+                        reader.reject(INVALID_RECORD)
+                    elif kind == RecordType.SESSION:
+                        self.session = data
+                    elif kind == RecordType.STREAM:
+                        self.streams[data["stream"]] = data
+                    elif kind == RecordType.REJECTS:
+                        self.rejected = {k: v for k, v in data.items() if v}
+                    elif kind == RecordType.END:
+                        self.end = data
+                    else:
+                        self.notes.append(data)
+                elif kind in (RecordType.FRAME, RecordType.NO_FACE, RecordType.SYNC):  # of another size
                     reader.reject(INVALID_RECORD)
-                elif kind == RecordType.SESSION:
-                    self.session = data
-                elif kind == RecordType.STREAM:
-                    self.streams[data["stream"]] = data
-                elif kind == RecordType.REJECTS:
-                    self.rejected = {k: v for k, v in data.items() if v}
-                elif kind == RecordType.END:
-                    self.end = data
-                else:
-                    self.notes.append(data)
-            elif kind in (RecordType.FRAME, RecordType.NO_FACE, RecordType.SYNC):  # of another size
-                reader.reject(INVALID_RECORD)
-        if self._spill_dir is not None:
-            self._spill()
-        self.torn_tail = reader.torn_tail
-        self.damage = reader.skipped
-        origin = self.session.get("clock", {}).get("origin_ns")
-        if origin is None:
-            # Killed before the session record reached the disk: use the first stamp as the origin.
-            origin = first_stamp or 0
-        self.origin_ns = int(origin)
+            if self._spill_dir is not None:
+                self._spill()
+            self.torn_tail = reader.torn_tail
+            self.damage = reader.skipped
+            origin = self.session.get("clock", {}).get("origin_ns")
+            if origin is None:
+                # Killed before the session record reached the disk: use the first stamp as the origin.
+                origin = first_stamp or 0
+            self.origin_ns = int(origin)
+        except BaseException:
+            self.close()
+            raise
 
     def _spill(self) -> None:
         if self._spill_dir is None:
-            try:
-                self._spill_dir = Path(tempfile.mkdtemp(prefix=".build-", dir=self.dir))
-            except OSError:  # a read-only session folder (recover -o elsewhere): the system's temp
-                self._spill_dir = Path(tempfile.mkdtemp(prefix="s2a-build-"))
+            # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
+            with stops_deferred():
+                try:
+                    self._spill_dir = Path(tempfile.mkdtemp(prefix=".build-", dir=self.dir))
+                except OSError:  # a read-only session folder (recover -o elsewhere): the system's temp
+                    self._spill_dir = Path(tempfile.mkdtemp(prefix="s2a-build-"))
         for sid, buf in self._pending.items():
             if buf:
                 with open(self._spill_dir / f"{sid}.rows", "ab") as f:
@@ -316,8 +323,9 @@ class SessionLog:
     def close(self) -> None:
         """Remove the spilled rows."""
         if self._spill_dir is not None:
-            shutil.rmtree(self._spill_dir, ignore_errors=True)
-            self._spill_dir = None
+            with stops_deferred():  # a second Ctrl-C cuts no removal short
+                shutil.rmtree(self._spill_dir, ignore_errors=True)
+                self._spill_dir = None
 
     def seconds(self, ns) -> Any:
         return (np.asarray(ns, dtype=np.int64) - self.origin_ns) / 1e9
@@ -1514,48 +1522,48 @@ def build_takes(
     """
     session_dir = Path(session_dir)
     log = SessionLog(session_dir)
-    audio, audio_report = index_audio_log(session_dir / AUDIO_LOG)
-    common: dict[str, Any] = {
-        "session": log.session.get("session", session_dir.name),
-        "rejected": dict(log.rejected),
-        "datagrams": (log.end or {}).get("datagrams"),
-        "accepted": (log.end or {}).get("accepted"),
-        "clean_end": log.end is not None,
-        "recovered": recovered,
-        "sync_events": len(log.sync),
-    }
-    drops = (log.end or {}).get("receive_queue_drops")
-    if is_count(drops) and drops:
-        # Datagrams the system dropped before the recorder read them: never logged, counted at its stop (a
-        # value of another type is ignored, not the END record: its counts still hold).
-        common["receive_queue_drops"] = drops
-    if log.end is None:
-        # Killed: count what reached the disk (rejections as of the last flushed snapshot).
-        common["accepted"] = int(sum(log.frame_counts.values()))
-        common["datagrams"] = common["accepted"] + sum(log.rejected.values())
-    if log.torn_tail is not None:
-        common["torn_tail"] = log.torn_tail.to_json()
-    if log.damage:
-        common["log_damage"] = [d.to_json() for d in log.damage]
-    if "torn_tail" in audio_report:
-        common["audio_torn_tail"] = audio_report["torn_tail"]
-    if "log_damage" in audio_report:
-        common["audio_log_damage"] = audio_report["log_damage"]
-    # (an audio source's failure is noted in both logs: said once)
-    errors = list(
-        dict.fromkeys(
-            n.get("message")
-            for n in audio_report.get("notes", []) + log.notes
-            if n.get("kind", "").endswith("error")
+    try:  # the rows it spilled are removed whatever stops the build
+        audio, audio_report = index_audio_log(session_dir / AUDIO_LOG)
+        common: dict[str, Any] = {
+            "session": log.session.get("session", session_dir.name),
+            "rejected": dict(log.rejected),
+            "datagrams": (log.end or {}).get("datagrams"),
+            "accepted": (log.end or {}).get("accepted"),
+            "clean_end": log.end is not None,
+            "recovered": recovered,
+            "sync_events": len(log.sync),
+        }
+        drops = (log.end or {}).get("receive_queue_drops")
+        if is_count(drops) and drops:
+            # Datagrams the system dropped before the recorder read them: never logged, counted at its stop (a
+            # value of another type is ignored, not the END record: its counts still hold).
+            common["receive_queue_drops"] = drops
+        if log.end is None:
+            # Killed: count what reached the disk (rejections as of the last flushed snapshot).
+            common["accepted"] = int(sum(log.frame_counts.values()))
+            common["datagrams"] = common["accepted"] + sum(log.rejected.values())
+        if log.torn_tail is not None:
+            common["torn_tail"] = log.torn_tail.to_json()
+        if log.damage:
+            common["log_damage"] = [d.to_json() for d in log.damage]
+        if "torn_tail" in audio_report:
+            common["audio_torn_tail"] = audio_report["torn_tail"]
+        if "log_damage" in audio_report:
+            common["audio_log_damage"] = audio_report["log_damage"]
+        # (an audio source's failure is noted in both logs: said once)
+        errors = list(
+            dict.fromkeys(
+                n.get("message")
+                for n in audio_report.get("notes", []) + log.notes
+                if n.get("kind", "").endswith("error")
+            )
         )
-    )
-    if errors:
-        common["errors"] = errors
-    summaries: list[dict[str, Any]] = []
-    failed: list[dict[str, Any]] = []
-    stray_streams = stray_frames = 0
-    used: set[str] = set()  # take folder names of this session, case-folded
-    try:
+        if errors:
+            common["errors"] = errors
+        summaries: list[dict[str, Any]] = []
+        failed: list[dict[str, Any]] = []
+        stray_streams = stray_frames = 0
+        used: set[str] = set()  # take folder names of this session, case-folded
         members, senders = _streams_by_sender(log)
         for sid, member in members.items():
             info = log.streams.get(sid, {})

@@ -36,6 +36,7 @@ from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
+from .command import stops_deferred
 from .errors import InputError
 from .take import Take
 from .transfer_litter import Litter, is_zip
@@ -329,9 +330,12 @@ def unpacked(
         owners = _parts_of(plans, names) if len(archives) > 1 else {}
         where = Path(tempfile.gettempdir() if into is None else into)
         _check_room([m for plan in plans for m in plan], where, Path(names[0]))
-        work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
+        work = None
         pid = os.getpid()
         try:
+            # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
+            with stops_deferred():
+                work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
             # named as the archive (a take folder zipped without its folder keeps a name), never "." or ".."
             folder = work / (archive.stem.strip(".") and archive.stem or "archive")
             try:
@@ -346,8 +350,9 @@ def unpacked(
         finally:
             # a forked child that inherited this (its generator closed as the child ends) leaves it: the
             # files are the parent's, still being read
-            if os.getpid() == pid:
-                shutil.rmtree(work, ignore_errors=True)
+            if work is not None and os.getpid() == pid:
+                with stops_deferred():  # a second Ctrl-C cuts no removal short
+                    shutil.rmtree(work, ignore_errors=True)
 
 
 def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, archive: str) -> None:

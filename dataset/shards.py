@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from capture.atomic import partial_path
+from capture.command import stops_deferred
 from capture.errors import InputError
 
 BLOCK = tarfile.BLOCKSIZE
@@ -108,9 +109,17 @@ class ShardWriter:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.tmp = partial_path(self.path)
-        self._file = open(self.tmp, "wb")
-        self._hash = _HashingFile(self._file)
-        self._tar = tarfile.open(fileobj=self._hash, mode="w", format=tarfile.PAX_FORMAT)
+        self._file = None
+        try:
+            # Ctrl-C and SIGTERM wait until the file is noted here: met as it was made, a stop left it
+            with stops_deferred():
+                self._file = open(self.tmp, "wb")
+            self._hash = _HashingFile(self._file)
+            self._tar = tarfile.open(fileobj=self._hash, mode="w", format=tarfile.PAX_FORMAT)
+        except BaseException:  # before ``with`` holds it: nobody else would remove the file
+            if self._file is not None:
+                self.abort()
+            raise
         self._keys: list[str] = []
 
     def add(self, key: str, members: dict[str, bytes]) -> None:
@@ -144,7 +153,8 @@ class ShardWriter:
         try:
             self._file.close()
         finally:
-            self.tmp.unlink(missing_ok=True)
+            with stops_deferred():  # a second Ctrl-C cuts no removal short
+                self.tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> ShardWriter:
         return self

@@ -25,6 +25,7 @@ from typing import Any
 import torch
 
 from capture.atomic import partial_path, write_json_atomic
+from capture.command import stops_deferred
 from capture.errors import InputError
 from capture.file_lock import held_elsewhere, holding
 from capture.numbers import is_count
@@ -89,10 +90,12 @@ def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") 
         os.replace(tmp, path)
     except (OSError, RuntimeError) as exc:
         error = write_error(exc, path, what)
-        tmp.unlink(missing_ok=True)
+        with stops_deferred():  # a Ctrl-C cuts no removal short
+            tmp.unlink(missing_ok=True)
         raise error from None
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        with stops_deferred():  # a second Ctrl-C cuts no removal short
+            tmp.unlink(missing_ok=True)
         raise
 
 
