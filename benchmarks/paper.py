@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from capture.atomic import write_json_atomic
+from capture.command import named
 from capture.take import read_meta
 from dataset.build import recording_of
 
@@ -260,7 +261,7 @@ def simulate_and_align(
         shutil.rmtree(d, ignore_errors=True)
     summaries = simulate(run, f"simulate-{name}", raw, speakers, plan.takes_per_speaker, plan, language, seed)
     keep_names = {speaker_id(i) for i in (keep or range(1, speakers + 1))}
-    folders = sorted(s["path"] for s in summaries if s["speaker"] in keep_names)
+    folders = sorted(named(s, "path") for s in summaries if s["speaker"] in keep_names)
     run(f"import-{name}", "capture", ["import", *folders, "-o", takes, "--json"])
     reports = run(f"align-{name}", "align", [takes, "-o", aligned, "--json"])
     audio_s = sum(s["duration_s"] for s in summaries if s["speaker"] in keep_names)

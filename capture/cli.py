@@ -12,7 +12,7 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .audio_io import audio_left_in_files
 from .channels import is_known
-from .command import StageParser, add_version, emit_json, progress, run, sigterm_stops, warn
+from .command import StageParser, add_version, emit_json, emit_line, progress, run, sigterm_stops, warn
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError
 from .file_lock import another_writer, holding
@@ -210,7 +210,7 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     for key, value in summary.items():
         if key != "id" and value is not None:
             lines.append(f"  {key:18s} {value}")
-    print("\n".join(lines))
+    emit_line("\n".join(lines))
 
 
 def _of_variant(sources: list[Path], variant: str, box: Unpacked | None = None) -> list[Path]:

@@ -4,6 +4,7 @@ progress on stderr. Usage errors exit with 2 (argparse)."""
 from __future__ import annotations
 
 import argparse
+import base64
 import importlib.metadata
 import json
 import math
@@ -14,10 +15,10 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any
 
-from .errors import S2AError, printable
+from .errors import RAW_BYTES, S2AError, printable, strict_names
 from .import_guard import COMMANDS, running_command
 
 
@@ -174,6 +175,8 @@ def json_safe(value: Any) -> Any:
     too)."""
     if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):
         value = value.tolist()
+    if isinstance(value, PurePath):  # a name, as the text ``strict_names`` then takes
+        return str(value)
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
@@ -185,9 +188,26 @@ def json_safe(value: Any) -> Any:
 
 def emit_json(obj: dict[str, Any]) -> None:
     """One JSON object on one line of stdout, strict: a NaN or infinite number anywhere in it is null
-    (JSON has none; ``allow_nan=False`` alone made one a traceback instead of a result)."""
-    sys.stdout.write(json.dumps(json_safe(obj), allow_nan=False, default=str) + "\n")
+    (JSON has none; ``allow_nan=False`` alone made one a traceback instead of a result), and a name whose
+    bytes are not UTF-8 is written as messages show it, its bytes in base64 beside it (``strict_names``:
+    ``"path_b64"``; it was a lone surrogate, ``"\\udcff"``, which jq and JavaScript mangle)."""
+    text = json.dumps(strict_names(json_safe(obj)), allow_nan=False, default=lambda v: printable(str(v)))
+    sys.stdout.write(text + "\n")
     sys.stdout.flush()
+
+
+def emit_line(text: str) -> None:
+    """A human-readable result line on stdout, a name's bytes that are not UTF-8 as ``\\xff`` (as on
+    stderr): a strict stdout (a UTF-8 locale's) refused their surrogate escapes with a traceback, after
+    the work was done."""
+    print(printable(text))
+
+
+def named(record: dict[str, Any], key: str) -> str:
+    """The name ``record[key]`` stands for in a JSON line ``emit_json`` wrote: its bytes from ``key_b64``
+    when they are not UTF-8 (``os.fsdecode``, as Python holds such a name), else the text itself."""
+    raw = record.get(f"{key}{RAW_BYTES}")
+    return os.fsdecode(base64.b64decode(raw)) if raw is not None else record[key]
 
 
 def progress(message: str) -> None:

@@ -18,7 +18,7 @@ import time
 from typing import Any
 
 from .command import warn
-from .errors import InputError
+from .errors import InputError, printable
 
 DEFAULT_OSC_PORT = 8000
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1  # OSC 'i' arguments are 32-bit (formats doc §6: <take:i>)
@@ -150,7 +150,7 @@ class PhoneRemote:
         try:
             found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
         except (socket.gaierror, UnicodeError) as exc:
-            raise InputError(f"cannot resolve the phone's address {host!r}: {exc}") from None
+            raise InputError(f"cannot resolve the phone's address '{printable(host)}': {exc}") from None
         # IPv4 when the name has both (as before IPv6 was supported), else the IPv6 address.
         family, _, _, _, self.target = min(found, key=lambda f: f[0] != socket.AF_INET)
         self.reply_host = reply_host or local_address_towards(self.target[0], family)

@@ -10,7 +10,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-from capture.command import StageParser, Terminated, add_version, emit_json, jobs_count, progress, run, warn
+from capture.command import (
+    StageParser,
+    Terminated,
+    add_version,
+    emit_json,
+    emit_line,
+    jobs_count,
+    progress,
+    run,
+    warn,
+)
 from capture.errors import InputError
 from capture.import_guard import imports_done
 
@@ -151,7 +161,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     if args.json:
         emit_json(summary)
     else:
-        print(
+        emit_line(
             f"{summary['dataset']}: {summary['takes']} takes, {summary['samples']} samples in "
             f"{summary['shards']} shards, {summary['hours'] * 60:.2f} min, {summary['channels']} channels, "
             f"splits {summary['splits']}"
@@ -234,10 +244,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
         emit_json(report.to_json())
     else:
         for p in report.problems:
-            print(f"{p.severity}: {p.location}: {p.message} [{p.code}]")
+            emit_line(f"{p.severity}: {p.location}: {p.message} [{p.code}]")
         verdict = "valid" if report.valid else "INVALID"
         errors = sum(p.severity == "error" for p in report.problems)
-        print(
+        emit_line(
             f"{report.dataset}: {verdict} ({report.shards} shards, {report.samples} samples, "
             f"{errors} error(s), {len(report.problems) - errors} warning(s){', deep' if report.deep else ''})"
         )
@@ -249,7 +259,7 @@ def cmd_stats(args: argparse.Namespace) -> int:
     if args.json:
         emit_json(s)
     else:
-        print(format_stats(s))
+        emit_line(format_stats(s))
     return 0
 
 

@@ -1,6 +1,7 @@
 """Odd file names through the command lines: a relative name with a colon ("take:1.mov", which FFmpeg read
 as a protocol), a name that is not UTF-8 (bytes ``x\\xff\\xfe``, held by Python as surrogate escapes, which
-C++ libraries refused or crashed on). JSON outputs show such a name as surrogate escapes (``\\udcff``)."""
+C++ libraries refused or crashed on). JSON outputs show such a name as messages do (``x\\xff\\xfe``), its
+bytes in base64 under ``<key>_b64`` (``capture.command.named`` reads them back)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ import pytest
 from conftest import ROOT, run_cli, run_here, run_python
 from dataset_helpers import write_aligned_set
 from test_train_pipeline import TINY
+
+from capture.command import named
 
 NOT_UTF8 = os.fsdecode(b"x\xff\xfe")
 
@@ -84,7 +87,7 @@ def test_align_reads_a_take_in_a_folder_named_not_utf8(sim_take, tmp_path):
     proc = run_cli("align", odd / "takes", "-o", odd / "aligned", "--vad", "none", "--json")
     assert proc.returncode == 0, proc.stderr  # was: internal error (UnicodeEncodeError: ... surrogates)
     report = json.loads(proc.stdout.splitlines()[0])
-    assert report["path"] == str(odd / "takes" / sim_take.name)  # the name as surrogate escapes: "\udcff"
+    assert named(report, "path") == str(odd / "takes" / sim_take.name)  # the bytes in base64: "path_b64"
     assert list((odd / "aligned").glob("*/meta.json"))
 
 
@@ -97,7 +100,7 @@ def test_export_writes_onnx_to_a_name_not_utf8(built, tmp_path):
     out = tmp_path / f"{NOT_UTF8}.onnx"
     proc = run_here("train", "export", run, "-o", out, "--json")
     assert proc.returncode == 0, proc.stderr  # was: a traceback, TypeError from torch's exporter
-    assert json.loads(proc.stdout)["onnx"] == str(out) and out.stat().st_size > 1000
+    assert named(json.loads(proc.stdout), "onnx") == str(out) and out.stat().st_size > 1000
 
 
 @pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")

@@ -9,9 +9,9 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-from capture.command import StageParser, add_version, emit_json, run, sigterm_stops
+from capture.command import StageParser, add_version, emit_json, emit_line, run, sigterm_stops
 from capture.csv_take import COUNT_NAMES
-from capture.errors import InputError, printable, strict_names
+from capture.errors import InputError
 from capture.import_guard import guard_imports, imports_done
 
 from .choices import PRECISIONS
@@ -26,17 +26,6 @@ RUN_HELP = (
     "run folder (its best.pt, else last.pt), or a checkpoint file: RUN/last.pt for the last step's weights "
     "rather than the best on validation"
 )
-
-
-def _emit_json(obj: dict) -> None:
-    """``emit_json`` of ``obj`` with its names as strict JSON readers take them (``strict_names``)."""
-    emit_json(strict_names(obj))
-
-
-def _print(text: str) -> None:
-    """A result line on stdout, a name's bytes that are not UTF-8 as ``\\xff`` (as on stderr): a strict
-    stdout (a UTF-8 locale's) refused their surrogate escapes with a traceback."""
-    print(printable(text))
 
 
 def _path(text: str) -> Path:
@@ -243,9 +232,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     summary = fit(args.data, args.out, cfg, resume=args.resume, given=_given(args, args.model))
     if summary.get("rank", 0) == 0:  # under torchrun, rank 0 reports for all
         if args.json:
-            _emit_json(summary)
+            emit_json(summary)
         else:
-            _print(
+            emit_line(
                 f"{summary['run']}: {summary['model']} {summary['steps']} steps, "
                 f"stopped: {summary['stopped']}, best val mse {summary['best_val']}"
             )
@@ -270,9 +259,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     result = evaluate(args.run, args.data, args.split, precision=args.precision, style=args.style)
     if args.json:
-        _emit_json(result)
+        emit_json(result)
     else:
-        _print(format_result(result))
+        emit_line(format_result(result))
     return 0
 
 
@@ -294,9 +283,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     failed = [r for r in results if "error" in r]
     for r in results:
         if args.json:
-            _emit_json(r)
+            emit_json(r)
         elif "error" not in r:
-            _print(f"{r['csv']}: {r['frames']} frames ({r['duration_s']:.2f} s)")
+            emit_line(f"{r['csv']}: {r['frames']} frames ({r['duration_s']:.2f} s)")
     if failed:
         raise InputError(
             f"{len(failed)} of {len(results)} audio files failed (the others were written); "
@@ -319,9 +308,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
     if args.json:
         for r in rows:
-            _emit_json(r)
+            emit_json(r)
     else:
-        _print(format_tables(rows))
+        emit_line(format_tables(rows))
     failed = [r for r in rows if "error" in r]
     if failed:
         raise InputError(
@@ -337,9 +326,9 @@ def cmd_agreement(args: argparse.Namespace) -> int:
 
     result = take_agreement(args.data, _config(args), tuple(args.splits))
     if args.json:
-        _emit_json(result)
+        emit_json(result)
     else:
-        _print(format_agreement(result))
+        emit_line(format_agreement(result))
     return 0
 
 
@@ -349,10 +338,10 @@ def cmd_ppg(args: argparse.Namespace) -> int:
 
     summary = train_ppg(args.data, args.out, steps=args.steps, seed=args.seed, labels=args.labels)
     if args.json:
-        _emit_json(summary)
+        emit_json(summary)
     else:
         acc = summary["val_accuracy"] if summary["val_accuracy"] is not None else summary["train_accuracy"]
-        _print(
+        emit_line(
             f"{summary['checkpoint']}: frame phone accuracy {acc:.3f} "
             f"(chance {summary['majority_accuracy']:.3f})"
         )
@@ -365,9 +354,9 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     summary = export_onnx(args.run, args.out)
     if args.json:
-        _emit_json(summary)
+        emit_json(summary)
     else:
-        _print(f"{summary['onnx']}: max |onnxruntime - torch| = {summary['max_abs_diff']:.2e}")
+        emit_line(f"{summary['onnx']}: max |onnxruntime - torch| = {summary['max_abs_diff']:.2e}")
     return 0
 
 

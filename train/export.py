@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from capture.atomic import partial_path
-from capture.command import progress
+from capture.command import progress, stops_deferred
 from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
 from dataset.bottleneck import ZIP_MAGIC
@@ -162,7 +162,8 @@ def export_onnx(
     except OSError as exc:
         raise write_error(exc, out, "the ONNX file") from None
     finally:
-        tmp.unlink(missing_ok=True)
+        with stops_deferred():  # a second Ctrl-C cuts no removal short
+            tmp.unlink(missing_ok=True)
     longest = f"; at most {limit} frames per call (max_frames)" if limit else ""
     say(f"{out}: exported {payload['system']}, onnxruntime matches PyTorch within {worst:.2e}{longest}")
     return {

@@ -580,7 +580,8 @@ def write_mp4(
             tmp.replace(path)
     except BaseException:
         if lock is not None:  # else another render's partial file, or none
-            tmp.unlink(missing_ok=True)
+            with stops_deferred():  # a second Ctrl-C cuts no removal short
+                tmp.unlink(missing_ok=True)
         raise
     finally:
         if lock is not None:

@@ -26,6 +26,7 @@ import numpy as np
 from capture import InputError, find_sources, find_takes, read_meta, read_take
 from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
+from capture.errors import printable
 from capture.take import FrameStatus
 
 from .output import writing
@@ -526,7 +527,7 @@ def write_report(
     """Write the report page of dataset (or take folder) ``path`` to ``out``; returns a summary."""
     data = gather(path, takes, limit)
     out = Path(out)
-    page = render_html(data)
+    page = printable(render_html(data))  # a name not UTF-8 as \xff: the page is UTF-8
     with writing(out, "report"), atomic_write(out, "w", encoding="utf-8") as f:
         f.write(page)
     return {
