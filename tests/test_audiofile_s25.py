@@ -127,7 +127,13 @@ def test_damage_over_the_first_frame_after_a_tag_is_damage_not_a_join(tmp_path, 
     at 0.000 s: noted, the frames lost put back as silence; the sound after it as late as the notes say
     it may be (the Info frame counted as a frame of sound, the delay its LAME tag recorded kept)."""
     rate = 44100
-    data = mp3_bytes(_speech_like(3.0, rate), rate, 1, 128000)
+    first_frame_damage_read(tmp_path, mp3_bytes(_speech_like(3.0, rate), rate, 1, 128000), rate, seed)
+
+
+def first_frame_damage_read(tmp_path, data: bytes, rate: int, seed: int) -> tuple[object, list]:
+    """The MP3 ``data`` read with its first frame damaged (``_first_frame_damaged``), checked: the damage
+    noted at 0.000 s and put back as silence, the sound after it as late as the notes say it may be (not
+    early); the audio and its repairs."""
     whole = read_audio(_write(tmp_path / "whole.mp3", data), []).mono_float()
     repairs: list = []
     audio = read_audio(_write(tmp_path / "damaged.mp3", _first_frame_damaged(data, seed)), repairs)
@@ -138,6 +144,7 @@ def test_damage_over_the_first_frame_after_a_tag_is_damage_not_a_join(tmp_path, 
     late_ms = float(delay.split("up to ~")[1].split(" ms")[0])
     late = _lag(whole, audio.mono_float(), len(whole) // 2, 2048, 6000)
     assert 0 <= late <= (shifted_ms + late_ms) * rate / 1000, (late, lost, delay)
+    return audio, repairs
 
 
 @pytest.mark.parametrize("counts", ["no frame count", "no counts"])
