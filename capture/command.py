@@ -203,11 +203,19 @@ def emit_line(text: str) -> None:
     print(printable(text))
 
 
-def named(record: dict[str, Any], key: str) -> str:
+def named(record: dict[str, Any], key: str) -> str | list[str]:
     """The name ``record[key]`` stands for in a JSON line ``emit_json`` wrote: its bytes from ``key_b64``
-    when they are not UTF-8 (``os.fsdecode``, as Python holds such a name), else the text itself."""
+    when they are not UTF-8 (``os.fsdecode``, as Python holds such a name), else the text itself; for a
+    list of names, each name so."""
     raw = record.get(f"{key}{RAW_BYTES}")
-    return os.fsdecode(base64.b64decode(raw)) if raw is not None else record[key]
+    if isinstance(raw, list):
+        return [_name(text, each) for text, each in zip(record[key], raw, strict=True)]
+    return _name(record[key], raw)
+
+
+def _name(text: str, raw: str | None) -> str:
+    """A name from its text in a JSON line and its bytes in base64 (None when the text is the name)."""
+    return os.fsdecode(base64.b64decode(raw)) if raw is not None else text
 
 
 def progress(message: str) -> None:

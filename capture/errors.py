@@ -21,13 +21,15 @@ def printable(text: str) -> str:
 # JavaScript turn into U+FFFD (the name lost) and an encoder to UTF-8 refuses. Every string is written as
 # messages show it (``printable``); a dict's string value that was not UTF-8 also keeps its bytes, in
 # base64, under the same key with ``_b64`` added (``"audio_b64"``), for a consumer needing the path itself:
-# ``os.fsdecode(base64.b64decode(record["csv_b64"]))``.
+# ``os.fsdecode(base64.b64decode(record["csv_b64"]))``. A list of names one of which is not UTF-8 keeps
+# them as a list beside it, null for each name that is UTF-8 (``"outputs_b64": [null, "Y2Fm6f8="]``).
 RAW_BYTES = "_b64"  # added to the key of a name that is not UTF-8: its bytes, base64
 
 
 def strict_names(value: Any) -> Any:
     """``value`` (dicts, lists and scalars nested) with every string ``printable`` and, beside each dict
-    value that is a name not UTF-8, its bytes (``RAW_BYTES``); other values as they are."""
+    value that is a name not UTF-8 or a list holding one, its bytes (``RAW_BYTES``); other values as
+    they are."""
     if isinstance(value, str):
         return printable(value)
     if isinstance(value, (list, tuple)):
@@ -38,10 +40,22 @@ def strict_names(value: Any) -> Any:
     for key, v in value.items():
         name = printable(key) if isinstance(key, str) else key
         out[name] = strict_names(v)
-        raw = _raw_bytes(v) if isinstance(v, str) else None
+        raw = _names_bytes(v)
         if raw is not None:
-            out[f"{name}{RAW_BYTES}"] = base64.b64encode(raw).decode("ascii")
+            out[f"{name}{RAW_BYTES}"] = raw
     return out
+
+
+def _names_bytes(value: Any) -> str | list[str | None] | None:
+    """What ``strict_names`` keeps beside a dict value: a name's bytes in base64 when it is not UTF-8; for
+    a list holding such a name, each name's (null for a name that is UTF-8); else None."""
+    if isinstance(value, str):
+        raw = _raw_bytes(value)
+        return None if raw is None else base64.b64encode(raw).decode("ascii")
+    if isinstance(value, (list, tuple)) and any(isinstance(v, str) for v in value):
+        each = [_names_bytes(v) if isinstance(v, str) else None for v in value]
+        return each if any(raw is not None for raw in each) else None
+    return None
 
 
 def _raw_bytes(text: str) -> bytes | None:
