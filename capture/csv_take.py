@@ -179,11 +179,13 @@ def _fields(line: str, sep: str = ",") -> list[str]:
 
 def _decimal_mark(cell: str) -> str | None:
     """``,`` or ``.``: the decimal mark of a cell holding a number written with one (``0,5``, ``-1.2E-05``),
-    else None (a whole number, a timecode, text)."""
+    else None (a whole number, a timecode, text). Spaces around it and a U+2212 minus sign count as
+    ``_cell_value`` reads them."""
+    number = cell.strip().replace("\u2212", "-")
     for mark in ",.":
-        if mark in cell and plain_number(cell):
+        if mark in number and plain_number(number):
             try:
-                float(cell.replace(mark, ".", 1))
+                float(number.replace(mark, ".", 1))
             except ValueError:
                 continue
             return mark
@@ -194,6 +196,27 @@ def _decimal_mark(cell: str) -> str | None:
 _COMMA_SUB_FRAME = re.compile(r"(\s*\d{1,2}:\d{1,2}:\d{1,2}[:;]\d{1,3}),(\d*\s*)", re.ASCII)
 
 
+def _numbers_with(mark: str) -> re.Pattern:
+    """A row's cells after its timecode (count and values) when each is empty, a whole number or one
+    written with ``mark`` as the decimal point (``61;0,5;-1,2E-05;;0``): what ``_decimal_mark`` reads so."""
+    cell = rf"[+-]?(?:\d+(?:{re.escape(mark)}\d*)?|{re.escape(mark)}\d+)(?:[Ee][+-]?\d+)?"
+    return re.compile(rf"(?:{cell})?(?:;(?:{cell})?)*", re.ASCII)
+
+
+_NUMBERS_WITH = {mark: _numbers_with(mark) for mark in ",."}
+
+
+def _semicolon_cell(cell: str, number: int, first: dict[str, tuple[str, int]]) -> str:
+    """A cell of line ``number`` of a re-saved CSV as the app writes it (``_semicolon_lines``), each decimal
+    mark's first number and its line noted in ``first``."""
+    if (timecode := _COMMA_SUB_FRAME.fullmatch(cell)) is not None:
+        cell = f"{timecode[1]}.{timecode[2]}"
+    elif (mark := _decimal_mark(cell)) is not None and number > 1:
+        first.setdefault(mark, (cell, number))
+        cell = cell.replace(",", ".")
+    return '"' + cell.replace('"', '""') + '"' if "," in cell or '"' in cell else cell
+
+
 def _semicolon_lines(lines: list[str], path: Path, repairs: list) -> None:
     """The lines of a CSV a spreadsheet re-saved with ``;`` between the fields (in a locale with a decimal
     comma) turned, in place, into the app's layout: ``,`` between the fields, ``.`` for the decimal point of
@@ -202,14 +225,16 @@ def _semicolon_lines(lines: list[str], path: Path, repairs: list) -> None:
     the numbers are written with both marks (which one a cell means is a guess)."""
     first: dict[str, tuple[str, int]] = {}  # each decimal mark's first number, and its line
     for i, line in enumerate(lines):
-        cells = []
-        for cell in _fields(line, ";"):
-            if (timecode := _COMMA_SUB_FRAME.fullmatch(cell)) is not None:
-                cell = f"{timecode[1]}.{timecode[2]}"
-            elif (mark := _decimal_mark(cell)) is not None and i:
-                first.setdefault(mark, (cell, i + 1))
-                cell = cell.replace(",", ".")
-            cells.append('"' + cell.replace('"', '""') + '"' if "," in cell or '"' in cell else cell)
+        head, sep, numbers = line.partition(";")
+        mark = "," if "," in numbers else "."
+        if i and sep and '"' not in line and _NUMBERS_WITH[mark].fullmatch(numbers):
+            # a row of numbers, as nearly all are: two replaces do what the cells one by one would (4x faster)
+            head = _semicolon_cell(head, i + 1, first)
+            if mark in numbers and mark not in first:
+                first[mark] = (next(cell for cell in numbers.split(";") if mark in cell), i + 1)
+            lines[i] = head + "," + numbers.replace(",", ".").replace(";", ",")
+        else:
+            lines[i] = ",".join(_semicolon_cell(cell, i + 1, first) for cell in _fields(line, ";"))
         if len(first) == 2:
             (comma, at_comma), (point, at_point) = first[","], first["."]
             raise InputError(
@@ -219,7 +244,6 @@ def _semicolon_lines(lines: list[str], path: Path, repairs: list) -> None:
                 path,
                 i + 1,
             )
-        lines[i] = ",".join(cells)
     mark = "," if "," in first else "."
     message = f"re-saved with ';' between the fields and {mark!r} as the decimal point: read so"
     repair(repairs, 1, "separator", message)
