@@ -329,6 +329,12 @@ def _is_archive(source: Path | DriveDownload) -> bool:
     return isinstance(source, DriveDownload) or is_zip(source)
 
 
+def _lone_part(source: Path | DriveDownload) -> str:
+    """Why an archive holds no take, if it is one part of a Google Drive download given alone."""
+    lone = isinstance(source, Path) and is_zip(source) and drive_part(source)
+    return " (one part of a Google Drive download: give it with its other parts)" if lone else ""
+
+
 class _Importer:
     """Imports jobs into ``args.out``, each source given a take id no other of the run has."""
 
@@ -356,7 +362,7 @@ class _Importer:
         args = self.args
         name = outer.shown(archive) if outer else str(archive)
         if isinstance(archive, DriveDownload) and (missing := archive.missing()):
-            some = len(missing) > 1
+            some = len(missing) > 1 or "-" in missing[0]
             warn(
                 f"{name}: part{'s' if some else ''} {', '.join(missing)} of this Google Drive download "
                 f"{'are' if some else 'is'} not beside them: a take with files in {'them' if some else 'it'} "
@@ -378,8 +384,7 @@ class _Importer:
                 if not sources:
                     ours = find_takes([box.folder])
                     why = " (it holds takes imported already: unzip it where you keep takes)" if ours else ""
-                    if not ours and isinstance(archive, Path) and drive_part(archive):
-                        why = " (one part of a Google Drive download: import it with its other parts)"
+                    why = why or _lone_part(archive)
                     raise InputError(f"holds no Live Link Face CSV or take folder{why}", name)
                 if args.take_id and len(sources) != 1:
                     raise InputError(f"--id names one take, but the archive holds {len(sources)}", name)
@@ -575,7 +580,7 @@ def cmd_info(args: argparse.Namespace) -> int:
                 continue
             takes = _load_for_info(path, litter)
             if not takes:
-                raise InputError("no takes found", path)
+                raise InputError(f"no takes found{_lone_part(path)}", path)
             for take in takes:
                 _print_summary(take.summary() | {"path": str(path)}, args.json)
     finally:

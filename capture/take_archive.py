@@ -32,7 +32,7 @@ import tempfile
 import zipfile
 import zlib
 from collections.abc import Callable, Collection, Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
@@ -75,14 +75,18 @@ class DriveDownload:
     parts: tuple[Path, ...]  # in the order of their numbers
 
     def __str__(self) -> str:
-        return " + ".join([str(self.parts[0]), *(p.name for p in self.parts[1:])])
+        first, *others = self.parts
+        if len(others) > 2:  # a thousand parts named each time would be a line of 30 000 characters
+            return f"{first} + ... + {others[-1].name} ({len(self.parts)} parts)"
+        return " + ".join([str(first), *(p.name for p in others)])
 
     def missing(self) -> list[str]:
-        """The numbers of the parts before the last one given that are not given (``002`` of 001 and 003;
-        parts after the last cannot be known)."""
-        given = {int(drive_part(p)[1]) for p in self.parts}
-        width = len(drive_part(self.parts[-1])[1])
-        return [f"{n:0{width}d}" for n in range(1, max(given)) if n not in given]
+        """The numbers of the parts before the last one given that are not given, a run of them as one
+        (``002`` of 001 and 003, ``002-004`` of 001 and 005: never one string per part, a part named
+        ``-999999999.zip`` is no list of a billion; parts after the last cannot be known)."""
+        given = sorted({int(drive_part(p)[1]) for p in self.parts})
+        gaps = [(before + 1, after - 1) for before, after in zip([0, *given], given) if after - before > 1]
+        return [f"{first:03d}" if first == last else f"{first:03d}-{last:03d}" for first, last in gaps]
 
 
 def drive_part(path: Path) -> tuple[str, str] | None:
@@ -322,37 +326,39 @@ def unpacked(
     archives = archive.parts if isinstance(archive, DriveDownload) else (archive,)
     names = [outer.shown(a) if outer else str(a) for a in archives]
     reals = [outer.recorded(a) if outer else str(Path(a).resolve()) for a in archives]
-    with ExitStack() as zips:
-        opened = [zips.enter_context(_open(a, n)) for a, n in zip(archives, names)]
-        plans = [_plan(zf, Path(n), tally, readable=pick is None) for zf, n in zip(opened, names)]
-        if pick is not None:
-            plans = [_picked(plan, pick, Path(n)) for plan, n in zip(plans, names)]
-        owners = _parts_of(plans, names) if len(archives) > 1 else {}
-        where = Path(tempfile.gettempdir() if into is None else into)
-        _check_room([m for plan in plans for m in plan], where, Path(names[0]))
-        work = None
-        pid = os.getpid()
+    plans = []
+    for part, name in zip(archives, names):  # one part open at a time: a download of a thousand parts
+        with _open(part, name) as zf:  # is past a system's limit of open files
+            plans.append(_plan(zf, Path(name), tally, readable=pick is None))
+    if pick is not None:
+        plans = [_picked(plan, pick, Path(n)) for plan, n in zip(plans, names)]
+    owners = _parts_of(plans, names) if len(archives) > 1 else {}
+    where = Path(tempfile.gettempdir() if into is None else into)
+    _check_room([m for plan in plans for m in plan], where, Path(names[0]))
+    work = None
+    pid = os.getpid()
+    try:
+        # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
+        with stops_deferred():
+            work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
+        # named as the archive (a take folder zipped without its folder keeps a name), never "." or ".."
+        folder = work / (archive.stem.strip(".") and archive.stem or "archive")
         try:
-            # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
-            with stops_deferred():
-                work = Path(tempfile.mkdtemp(prefix=prefix, dir=where)).resolve()  # as source paths are
-            # named as the archive (a take folder zipped without its folder keeps a name), never "." or ".."
-            folder = work / (archive.stem.strip(".") and archive.stem or "archive")
-            try:
-                folder.mkdir()
-            except OSError as exc:
-                raise InputError(f"cannot unpack it into {where}: {exc.strerror or exc}", names[0]) from None
-            for zf, plan, name in zip(opened, plans, names):
+            folder.mkdir()
+        except OSError as exc:
+            raise InputError(f"cannot unpack it into {where}: {exc.strerror or exc}", names[0]) from None
+        for part, plan, name in zip(archives, plans, names):
+            with _open(part, name) as zf:
                 for info, parts in plan:
                     _unpack_member(zf, info, folder.joinpath(*parts), name)
-            owned = {member: (names[i], reals[i]) for member, i in owners.items()}
-            yield Unpacked(archives[0], folder, names[0], reals[0], outer.depth + 1 if outer else 1, owned)
-        finally:
-            # a forked child that inherited this (its generator closed as the child ends) leaves it: the
-            # files are the parent's, still being read
-            if work is not None and os.getpid() == pid:
-                with stops_deferred():  # a second Ctrl-C cuts no removal short
-                    shutil.rmtree(work, ignore_errors=True)
+        owned = {member: (names[i], reals[i]) for member, i in owners.items()}
+        yield Unpacked(archives[0], folder, names[0], reals[0], outer.depth + 1 if outer else 1, owned)
+    finally:
+        # a forked child that inherited this (its generator closed as the child ends) leaves it: the
+        # files are the parent's, still being read
+        if work is not None and os.getpid() == pid:
+            with stops_deferred():  # a second Ctrl-C cuts no removal short
+                shutil.rmtree(work, ignore_errors=True)
 
 
 def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, archive: str) -> None:
