@@ -86,6 +86,44 @@ def wait_for_logged_frames(session_dir: Path, frames: int, timeout: float = 60.0
     raise AssertionError(f"{logged} of {frames} frames logged in {timeout} s")
 
 
+def listen_while_the_audio_file_changes(
+    tmp_path: Path, wav: Path, records: int, change
+) -> tuple[list[dict], str, int, Path]:
+    """``listen --audio-file wav`` on loopback: 60 frames of one phone; once the audio log holds ``records``
+    audio records (0.1 s each), ``change()`` (the file rewritten or cut short) and, once the audio log
+    notes it, 60 frames more; all 120 logged, the listener stopped: its JSON lines, stderr, exit code and
+    audio log."""
+    from capture.livelink import frame_block, header_bytes
+    from capture.recorder import AUDIO_LOG
+
+    listener = Listener(tmp_path / "out", "--audio-file", str(wav))
+    audio_log = listener.session_dir / AUDIO_LOG
+    header = header_bytes("PHONE-1", "Ann")
+    values = np.linspace(-0.5, 1.0, 61).astype(np.float32)
+
+    def logged(kind: RecordType) -> int:
+        return sum(p[0] == kind for p in LogReader(audio_log)) if audio_log.exists() else 0
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i in range(60):
+            s.sendto(header + frame_block(1000 + i, 0.0, 60, 1, values), ("127.0.0.1", listener.port))
+        wait_until(lambda: logged(RecordType.AUDIO) >= records, f"{records / 10} s of audio logged")
+        change()
+        wait_until(lambda: logged(RecordType.NOTE) >= 1, "the audio's failure noted")
+        for i in range(60, 120):
+            s.sendto(header + frame_block(1000 + i, 0.0, 60, 1, values), ("127.0.0.1", listener.port))
+    wait_for_logged_frames(listener.session_dir, 120)  # all of them in the take, however busy the machine
+    return (*listener.stop(), audio_log)
+
+
+def wait_until(condition, what: str, timeout: float = 60.0) -> None:
+    """Wait until ``condition()`` holds (an assertion naming ``what`` after ``timeout`` s)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
+        time.sleep(0.05)
+
+
 def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "capture", *args], capture_output=True, text=True, timeout=timeout

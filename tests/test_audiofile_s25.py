@@ -4,12 +4,9 @@ when the changed block comes, keeping every sample played before it; and the MPE
 
 from __future__ import annotations
 
-import socket
-import time
-
 import numpy as np
 import pytest
-from live_helpers import Listener, wait_for_logged_frames
+from live_helpers import listen_while_the_audio_file_changes
 from test_audio_mp3_later_parts import frame_starts, lag, mp3_bytes
 from test_import_mp3_damage import _lag, _speech_like, _write
 from test_mp3_s24 import _with_vbri
@@ -17,24 +14,9 @@ from test_mp3_s24 import _with_vbri
 from capture import Audio, InputError, read_audio
 from capture.audio_capture import index_audio_log
 from capture.audio_io import CHECK_FRAMES, _tag_bytes, audio_left_in_files, write_audio
-from capture.livelink import frame_block, header_bytes
-from capture.record_log import LogReader, RecordType
-from capture.recorder import AUDIO_LOG
 
 FPS = 60
 RATE = 48000
-
-
-def _wait_until(condition, what: str, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
-        time.sleep(0.05)
-
-
-def _logged(path, kind: RecordType) -> int:
-    """How many records of ``kind`` a log holds so far (0 before it exists)."""
-    return sum(p[0] == kind for p in LogReader(path)) if path.exists() else 0
 
 
 def _speech(frames: int, sign: int = 1) -> np.ndarray:
@@ -61,20 +43,9 @@ def test_an_audio_file_rewritten_while_it_plays_is_told_at_the_changed_block(tmp
     frames = 6 * RATE
     wav = tmp_path / "speech.wav"
     write_audio(wav, Audio(_speech(frames), RATE, "PCM_16"))
-    listener = Listener(tmp_path / "out", "--audio-file", str(wav))
-    audio_log = listener.session_dir / AUDIO_LOG
-    header = header_bytes("PHONE-1", "Ann")
-    values = np.linspace(-0.5, 1.0, 61).astype(np.float32)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i in range(60):
-            s.sendto(header + frame_block(1000 + i, 0.0, FPS, 1, values), ("127.0.0.1", listener.port))
-        _wait_until(lambda: _logged(audio_log, RecordType.AUDIO) >= 3, "0.3 s of audio logged")
-        _rewritten_from(wav, frames, 3 * CHECK_FRAMES, tmp_path)
-        _wait_until(lambda: _logged(audio_log, RecordType.NOTE) >= 1, "the change noted")
-        for i in range(60, 120):
-            s.sendto(header + frame_block(1000 + i, 0.0, FPS, 1, values), ("127.0.0.1", listener.port))
-    wait_for_logged_frames(listener.session_dir, 120)
-    (line,), err, code = listener.stop()
+    (line,), err, code, audio_log = listen_while_the_audio_file_changes(
+        tmp_path, wav, 3, lambda: _rewritten_from(wav, frames, 3 * CHECK_FRAMES, tmp_path)
+    )
     assert code == 1 and "Traceback" not in err, err
     last = err.splitlines()[-1]
     assert "the audio failed after 4.1 s of it (the takes hold those): " in last, err

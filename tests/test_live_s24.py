@@ -6,22 +6,18 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
-from live_helpers import Listener, run_cli, wait_for_logged_frames
+from live_helpers import listen_while_the_audio_file_changes, run_cli
 from test_live_leftovers_s22 import built_with_peak, take_span_kb
 from test_live_take_audio_span import FPS, write_session
 from test_osc_remote import FakePhone
 
 from capture import Audio, read_take, write_audio
 from capture.audio_capture import CHUNK_S, AudioLog
-from capture.livelink import frame_block, header_bytes
-from capture.record_log import LogReader, RecordType
 from capture.recorder import AUDIO_LOG, FRAMES_LOG
 
 RATE = 48000
@@ -141,18 +137,6 @@ def test_a_phone_that_answers_another_message_is_said_to_have_answered():
     assert error in r.stderr and "is Live Link Face running" not in error
 
 
-def _logged(path, kind: RecordType) -> int:
-    """How many records of ``kind`` a log holds so far (0 before it exists)."""
-    return sum(p[0] == kind for p in LogReader(path)) if path.exists() else 0
-
-
-def _wait_until(condition, what: str, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
-        time.sleep(0.05)
-
-
 def test_an_audio_file_cut_short_while_it_plays_keeps_what_played_and_says_so_once(tmp_path):
     """``listen --audio-file`` whose file is cut short (rewritten) after half a second of playing: the
     take keeps the audio played until then; but listen ended with ``no audio was recorded: ...`` and
@@ -160,21 +144,12 @@ def test_an_audio_file_cut_short_while_it_plays_keeps_what_played_and_says_so_on
     takes hold, once."""
     wav = tmp_path / "speech.wav"
     write_audio(wav, Audio((np.arange(16000 * 30) % 2000 - 1000).astype(np.int16), 16000, "PCM_16"))
-    listener = Listener(tmp_path / "out", "--audio-file", str(wav))
-    audio_log = listener.session_dir / AUDIO_LOG
-    header = header_bytes("PHONE-1", "Ann")
-    values = np.linspace(-0.5, 1.0, 61).astype(np.float32)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for i in range(60):
-            s.sendto(header + frame_block(1000 + i, 0.0, FPS, 1, values), ("127.0.0.1", listener.port))
-        _wait_until(lambda: _logged(audio_log, RecordType.AUDIO) >= 5, "0.5 s of audio logged")
+
+    def cut_short() -> None:
         with open(wav, "r+b") as f:
             f.truncate(1000)
-        _wait_until(lambda: _logged(audio_log, RecordType.NOTE) >= 1, "audio failure noted")
-        for i in range(60, 120):
-            s.sendto(header + frame_block(1000 + i, 0.0, FPS, 1, values), ("127.0.0.1", listener.port))
-    wait_for_logged_frames(listener.session_dir, 120)  # all of them in the take, however busy the machine
-    (line,), err, code = listener.stop()
+
+    (line,), err, code, _ = listen_while_the_audio_file_changes(tmp_path, wav, 5, cut_short)
     assert code == 1 and "Traceback" not in err, err
     assert line["frames"] == 120 and len(line["errors"]) == 1, line
     said = [x for x in err.splitlines() if x.startswith("s2a-capture: warning: ") and "changed since" in x]
