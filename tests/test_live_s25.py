@@ -79,6 +79,15 @@ def _packet(frame: int, marker: int) -> bytes:
     return header_bytes(DEVICE, "iPhone") + frame_block(frame, 0.0, 60, 1, values)
 
 
+def _forward_and_back(tmp_path, name: str, parts: list[int]) -> list[dict]:
+    """The take lines of a session sent at 60 fps in real time: ``parts[0]`` frames, ``parts[1]`` frames an
+    hour ahead, ``parts[2]`` frames back on the first clock (marker ``i`` in frame ``i``'s first value)."""
+    frames = [START + i + (HOUR if parts[0] <= i < parts[0] + parts[1] else 0) for i in range(sum(parts))]
+    rec = record_packets(tmp_path, name, [_packet(f, i) for i, f in enumerate(frames)], rate=60)
+    assert rec.accepted == len(frames)
+    return build_takes(rec.session_dir, tmp_path / "takes")
+
+
 def test_a_step_back_after_a_step_forward_lands_where_the_frames_arrived(tmp_path):
     # 1.5 s, the timecode jumps an hour forward for 0.5 s, then back an hour (a clock corrected twice, a
     # timecode source switched and back), 1.5 s more, sent at 60 fps in real time. Before, the frames after
@@ -86,10 +95,7 @@ def test_a_step_back_after_a_step_forward_lands_where_the_frames_arrived(tmp_pat
     # them): the hour-forward half second and the frames after it made one take with the last 60 frames
     # before the jump, cut from the rest where the clock did not jump.
     parts = [90, 30, 90]
-    frames = [START + i + (HOUR if parts[0] <= i < parts[0] + parts[1] else 0) for i in range(sum(parts))]
-    rec = record_packets(tmp_path, "twice", [_packet(f, i) for i, f in enumerate(frames)], rate=60)
-    assert rec.accepted == len(frames)
-    lines = build_takes(rec.session_dir, tmp_path / "takes")
+    lines = _forward_and_back(tmp_path, "twice", parts)
     first = np.cumsum([0, *parts])
     assert [_markers(x).tolist() for x in lines] == [list(range(a, b)) for a, b in zip(first[:-1], first[1:])]
     assert all(x["restarts"] == 1 and x["clock_steps"] == 1 and x["dropped_frames"] == 0 for x in lines)
@@ -107,11 +113,7 @@ def test_a_step_back_after_a_step_forward_lands_where_the_frames_arrived(tmp_pat
 def test_a_few_frames_after_a_step_back_after_a_step_forward_are_stray(tmp_path):
     # Too few frames for a take after the step back (5): before, they joined the first take as late frames,
     # which got 30 DROPPED frames (the hour-forward half second) and them after its end.
-    parts = [90, 30, 5]
-    frames = [START + i + (HOUR if parts[0] <= i < parts[0] + parts[1] else 0) for i in range(sum(parts))]
-    rec = record_packets(tmp_path, "few", [_packet(f, i) for i, f in enumerate(frames)], rate=60)
-    assert rec.accepted == len(frames)
-    lines = build_takes(rec.session_dir, tmp_path / "takes")
+    lines = _forward_and_back(tmp_path, "few", [90, 30, 5])
     assert [_markers(x).tolist() for x in lines] == [list(range(90)), list(range(90, 120))]
     assert all(x["stray_packets"] == 5 and x["dropped_frames"] == 0 for x in lines)
 

@@ -16,14 +16,16 @@ from capture import FrameStatus, read_take
 START = 10 * 3600 * FPS  # 10:00:00 at 60 fps
 
 
-def _recover(tmp_path, arrivals: np.ndarray) -> list[dict]:
-    """The take lines of a session of one phone sending frames ``START + i`` (marker ``i`` in the first
-    value) that arrived at ``arrivals[i]`` (s), logged in arrival order."""
+def _recover(tmp_path, arrivals: np.ndarray, frames: np.ndarray | None = None) -> list[dict]:
+    """The take lines of a session of one phone sending frames ``START + frames[i]`` (``frames``: ``i``
+    when not given; marker ``i`` in the first value) that arrived at ``arrivals[i]`` (s), logged in
+    arrival order."""
+    frames = np.arange(arrivals.size) if frames is None else frames
     packets = []
     for i in np.argsort(arrivals, kind="stable").tolist():
         values = np.full(61, 0.25, np.float32)
         values[0] = i
-        packets.append((START + i, float(arrivals[i]), values))
+        packets.append((START + int(frames[i]), float(arrivals[i]), values))
     session = tmp_path / "live-1.recording"
     write_frames_log(session, packets)
     r = run_cli("recover", str(session), "--json")
@@ -67,17 +69,7 @@ def test_a_step_forward_and_back_of_30_s_is_still_a_recording_of_its_own(tmp_pat
     # the step left, 30 s behind the clock: a recording of their own, as for the hour the change tested.
     frames = np.arange(2100)
     frames[900:1200] += 30 * FPS
-    arrivals = 1.0 + np.arange(frames.size) / FPS
-    packets = []
-    for i, f in enumerate(frames.tolist()):
-        values = np.full(61, 0.25, np.float32)
-        values[0] = i
-        packets.append((START + f, float(arrivals[i]), values))
-    session = tmp_path / "live-1.recording"
-    write_frames_log(session, packets)
-    r = run_cli("recover", str(session), "--json")
-    assert r.returncode == 0, r.stderr
-    lines = [json.loads(x) for x in r.stdout.splitlines()]
+    lines = _recover(tmp_path, 1.0 + np.arange(frames.size) / FPS, frames)
     assert [_markers(x) for x in lines] == [list(range(900)), list(range(900, 1200)), list(range(1200, 2100))]
     kinds = [{r["kind"] for r in read_take(x["path"]).meta.repairs} for x in lines]
     assert kinds == [set(), set(), {"clock_returned"}]
