@@ -405,6 +405,19 @@ def _backward(sos: np.ndarray, y: np.ndarray) -> np.ndarray:
     return part[::-1].astype(np.float32)
 
 
+def in_rows(blocks: Iterable[np.ndarray], size: int, tail: bool = False) -> Iterator[np.ndarray]:
+    """Samples given in ``blocks`` (1-D, any lengths) as rows of ``size``, in order, a block's rows at a
+    time: the last partial row left out (with ``tail``: last, as a row of its own length)."""
+    rest = np.zeros(0, np.float32)
+    for block in blocks:
+        x = np.concatenate([rest, block]) if rest.size else block  # a block in one piece: no copy
+        n = x.size // size
+        yield x[: n * size].reshape(n, size)
+        rest = x[n * size :]
+    if tail and rest.size:
+        yield rest.reshape(1, rest.size)
+
+
 def mono_blocks(audio: Audio | RecordedAudio) -> Iterator[np.ndarray]:
     """``audio.mono_float()`` in blocks of ``_CHUNK`` frames: the same float32 samples (mono_float works
     frame by frame), without an hour of them at the file's rate in memory at once."""

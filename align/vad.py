@@ -24,7 +24,7 @@ import numpy as np
 from capture import InputError
 from capture.runs import runs
 
-from .resample import TARGET_RATE
+from .resample import TARGET_RATE, in_rows
 from .torch_threads import torch_threads
 
 # Speech level (``speech_level_dbfs``) the detectors see at least: quieter audio is raised to it for
@@ -90,19 +90,8 @@ def in_blocks(x: Samples, size: int) -> Iterator[np.ndarray]:
         for lo in range(0, x.size, size):
             yield x[lo : lo + size]
         return
-    held: list[np.ndarray] = []
-    count = 0
-    for block in x:
-        held.append(block)
-        count += block.size
-        if count >= size:
-            joined = np.concatenate(held)
-            whole = count // size * size
-            for lo in range(0, whole, size):
-                yield joined[lo : lo + size]
-            held, count = [joined[whole:]], count - whole
-    if count:
-        yield np.concatenate(held)
+    for rows in in_rows(x, size, tail=True):
+        yield from rows
 
 
 def detector_blocks(x: Samples, gain: float = 1.0, size: int = DETECTOR_BLOCK) -> Iterator[np.ndarray]:

@@ -878,9 +878,12 @@ class FileAudio(Audio):
             for i, block in enumerate(_file_blocks(self._read_from, self.dtype.name, CHECK_FRAMES)):
                 if block.dtype.kind == "f":
                     block[~np.isfinite(block)] = 0.0
-                same = i < len(self._crcs) and block.shape[1] == self._channels
-                if not (same and zlib.crc32(block) == self._crcs[i]):
-                    same = False
+                same = (
+                    i < len(self._crcs)
+                    and block.shape[1] == self._channels
+                    and zlib.crc32(block) == self._crcs[i]
+                )
+                if not same:
                     break
                 self._mended(block, frames)
                 frames += len(block)

@@ -470,10 +470,11 @@ def _late_frames_of(
     ft = frame_time[idx]
     if not ft.size:
         return True
-    middle = np.median(ft, keepdims=True)
-    ends = rec.around(middle[0] - max_behind, middle[0] + max_behind)  # where a gap this long can end
-    if _far_behind(middle, rec.hi, frame_time[ends], max_behind)[0]:
-        return False
+    if max_behind < np.inf:  # no frame is more than infinitely far behind: no recording's rows gathered
+        middle = np.median(ft, keepdims=True)
+        ends = rec.around(middle[0] - max_behind, middle[0] + max_behind)  # where a gap this long can end
+        if _far_behind(middle, rec.hi, frame_time[ends], max_behind)[0]:
+            return False
     near = (ft >= rec.lo - tol) & (ft <= rec.hi + tol)
     if 2 * np.count_nonzero(near) < ft.size:
         return False

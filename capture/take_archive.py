@@ -99,22 +99,28 @@ def drive_downloads(sources: list[Path]) -> list[Path | DriveDownload]:
     """``sources`` with the parts of each Google Drive download among them (same folder, same
     ``F-<time>Z`` stem) gathered into one ``DriveDownload``, in the place of its first part; a part
     alone stays an archive of its own."""
+    keys = [_download_key(src) for src in sources]  # each name matched and each file looked at once
     groups: dict[tuple[Path, str], list[Path]] = {}
-    for src in sources:
-        if (part := drive_part(src)) is not None and is_zip(src):
-            groups.setdefault((src.parent, part[0].casefold()), []).append(src)
+    for src, key in zip(sources, keys):
+        if key is not None:
+            groups.setdefault(key, []).append(src)
+    downloads = {key: sorted(set(g), key=lambda p: int(drive_part(p)[1])) for key, g in groups.items()}
     out: list[Path | DriveDownload] = []
     done = set()
-    for src in sources:
-        part = drive_part(src) if is_zip(src) else None
-        key = (src.parent, part[0].casefold()) if part else None
-        parts = sorted(set(groups[key]), key=lambda p: int(drive_part(p)[1])) if key else []
+    for src, key in zip(sources, keys):
+        parts = downloads[key] if key is not None else []
         if len(parts) < 2:
             out.append(src)
         elif key not in done:  # the parts of a download given twice are read once
             done.add(key)
             out.append(DriveDownload(drive_part(parts[0])[0], tuple(parts)))
     return out
+
+
+def _download_key(src: Path) -> tuple[Path, str] | None:
+    """The download a part belongs to (its folder and case-folded stem), None for any other source."""
+    part = drive_part(src)
+    return (src.parent, part[0].casefold()) if part is not None and is_zip(src) else None
 
 
 @dataclass

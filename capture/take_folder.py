@@ -185,8 +185,13 @@ def _files_ending(folder: Path, suffix: str) -> list[Path]:
     )
 
 
+def _is_frame_log(name: str) -> bool:
+    """Whether ``name`` is the app's frame log (``frame_log.csv``), in any case or copy's name."""
+    return without_copy(name).lower() == "frame_log.csv"
+
+
 def _blendshape_csvs(folder: Path) -> list[Path]:
-    return [p for p in _files_ending(folder, ".csv") if without_copy(p.name).lower() != "frame_log.csv"]
+    return [p for p in _files_ending(folder, ".csv") if not _is_frame_log(p.name)]
 
 
 def _placeholders(folder: Path) -> dict[str, Path]:
@@ -198,9 +203,7 @@ def _placeholders(folder: Path) -> dict[str, Path]:
 def _waiting_ending(waiting: dict[str, Path], suffix: str) -> list[str]:
     """The names among ``waiting`` (``_placeholders``) with the suffix in any case (``frame_log.csv``
     left out)."""
-    return [
-        n for n in waiting if Path(n).suffix.lower() == suffix and without_copy(n).lower() != "frame_log.csv"
-    ]
+    return [n for n in waiting if Path(n).suffix.lower() == suffix and not _is_frame_log(n)]
 
 
 # The app's files a take is read from besides its CSVs and media (``read_take_folder``).

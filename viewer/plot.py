@@ -24,7 +24,7 @@ from capture.channels import CHANNEL_SETS, canonical, channel_set, is_known
 from capture.errors import InputError
 
 from .output import writing
-from .render import MOVING_MOUTH, Animation, holds_channel, in_rows, most_moving_mouth
+from .render import MOVING_MOUTH, Animation, holds_channel, most_moving_mouth
 
 VAD_METHODS = ("auto", "silero", "webrtc", "energy", "none")
 
@@ -104,7 +104,7 @@ def audio_frames(audio: Audio, size: int, tail: bool = False) -> Iterator[np.nda
     """The mono float32 samples of ``audio`` (``Audio.mono_float``) as rows of ``size``, in order, the last
     partial row left out (with ``tail``: last, as a row of its own length): a block of the file at a time
     (all of them as float, and copies, took 2.5 GB for two hours at 16 kHz)."""
-    from align.resample import mono_blocks
+    from align.resample import in_rows, mono_blocks
 
     return in_rows(mono_blocks(audio), size, tail)
 

@@ -383,19 +383,6 @@ def render_frame(
     return np.hstack(panels)
 
 
-def in_rows(blocks: Iterable[np.ndarray], size: int, tail: bool = False) -> Iterator[np.ndarray]:
-    """Samples given in ``blocks`` (1-D, any lengths) as rows of ``size``, in order, a block's rows at a
-    time: the last partial row left out (with ``tail``: last, as a row of its own length)."""
-    rest = np.zeros(0, np.float32)
-    for block in blocks:
-        x = np.concatenate([rest, block]) if rest.size else block  # a block in one piece: no copy
-        n = x.size // size
-        yield x[: n * size].reshape(n, size)
-        rest = x[n * size :]
-    if tail and rest.size:
-        yield rest.reshape(1, rest.size)
-
-
 @dataclass
 class Speech:
     """A video's sound: ``frames`` mono float32 samples at ``rate`` Hz, given a block at a time by
@@ -556,6 +543,8 @@ def write_mp4(
             if astream is not None:
                 sr, at = audio.rate, 0
                 job.step("audio", math.ceil(audio.frames / sr), "s")
+                from align.resample import in_rows  # align's imports only for a video with sound
+
                 for rows in in_rows(audio.blocks, AAC_FRAME, tail=True):
                     for row in rows:
                         raise_if_stopped()  # a Ctrl-C here stopped only after the whole audio (30 s an hour)
