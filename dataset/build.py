@@ -984,15 +984,20 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     finite_values = np.isfinite(values)
     finite = finite_values.all(axis=1)
     beyond = finite_values & (np.abs(values) > ANIM_LIMIT)  # per value: which channels, which sign
-    del finite_values
     in_range = ~beyond.any(axis=1)
     beyond_columns = np.flatnonzero(beyond.any(axis=0))
     out_of_range = int((finite & ~in_range).sum())
     wrong_scale = out_of_range > WRONG_SCALE_SHARE * n and on_another_scale(
         values, beyond_columns, finite & in_range
     )
-    mask = np.isin(take.frame_status, USABLE_STATUS) & finite & in_range & in_audio & (not wrong_scale)
-    anim = np.where(mask[:, None], values, 0.0).astype(np.float32)
+    # usable per value: a frame's status, audio and scale hold for all its channels, a glitch (NaN,
+    # beyond ±10) for its channel only; ``mask``: the frames usable in every channel
+    channel_mask = finite_values & ~beyond
+    channel_mask &= (np.isin(take.frame_status, USABLE_STATUS) & in_audio & (not wrong_scale))[:, None]
+    del finite_values
+    mask = channel_mask.all(axis=1)
+    partly = channel_mask.any(axis=1) & ~mask  # frames usable in some channels only
+    anim = np.where(channel_mask, values, 0.0).astype(np.float32)
     feats, phones = compute_features(
         padded[:span],
         n,
@@ -1070,6 +1075,8 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             "anim.npy": npy_bytes(anim[a:b]),
             "mask.npy": npy_bytes(mask[a:b]),
         }
+        if partly[a:b].any():  # else every channel's usable frames are the mask's: no member
+            members["channel_mask.npy"] = npy_bytes(channel_mask[a:b])
         for name, arr in feats.items():
             members[f"{name}.npy"] = npy_bytes(arr[a:b])
         if phones is not None:

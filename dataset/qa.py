@@ -94,6 +94,13 @@ CHECKS: tuple[Check, ...] = (
         "length_mismatch", "sample", False, "mask/features/metadata frame counts differ from the animation"
     ),
     Check("feature_dim", "sample", False, "a feature's dimension differs from the manifest"),
+    Check(
+        "channel_mask",
+        "sample",
+        False,
+        "the optional channel_mask.npy is not bool of shape (frames, channels), or the frames usable in "
+        "all its channels differ from mask.npy",
+    ),
     Check("nonfinite", "sample", False, "NaN or infinity in animation or features"),
     Check(
         "value_range",
@@ -419,7 +426,7 @@ def validate_sample(
     missing = sorted(expected - set(members))
     if missing:
         out.append(_p("sample_members", at, f"missing member(s) {', '.join(missing)}"))
-    extra = sorted(set(members) - expected - {"phones.npy"})
+    extra = sorted(set(members) - expected - set(OPTIONAL_MEMBERS))
     if extra:
         out.append(_p("sample_members", at, f"unexpected member(s) {', '.join(extra)}", "warning"))
     meta = None
@@ -466,6 +473,8 @@ def validate_sample(
             and anim.shape[1] == n_channels
         ):
             on_arrays(arrays, mask.astype(bool) & np.isfinite(anim).all(axis=1))
+        if "channel_mask" in arrays and frames is not None and mask.shape == (frames,):
+            out += _check_channel_mask(arrays["channel_mask"], mask, f"{at}.channel_mask.npy", n_channels)
     out += _check_features(arrays, at, manifest, frames)
     phones = arrays.get("phones")
     if phones is not None and frames is not None and phones.shape != (frames,):
@@ -481,6 +490,35 @@ def validate_sample(
     if "flac" in members:
         out += _check_audio(members["flac"], f"{at}.flac", meta, manifest, deep)
     return out, meta
+
+
+def _check_channel_mask(
+    channel_mask: np.ndarray, mask: np.ndarray, at: str, n_channels: int
+) -> list[Problem]:
+    """Problems of a sample's optional ``channel_mask`` (frames, channels): which channels are usable
+    in which frames, kept where that differs between channels; a frame usable in all of them is one
+    that ``mask`` marks usable, and no other."""
+    frames = mask.shape[0]
+    if channel_mask.dtype != np.bool_ or channel_mask.shape != (frames, n_channels):
+        return [
+            _p(
+                "channel_mask",
+                at,
+                f"channel_mask is {channel_mask.dtype} of shape {channel_mask.shape}, expected bool of "
+                f"shape ({frames}, {n_channels})",
+            )
+        ]
+    differ = np.flatnonzero(channel_mask.all(axis=1) != mask.astype(bool))
+    if differ.size:
+        return [
+            _p(
+                "channel_mask",
+                at,
+                f"{differ.size} frame(s) usable in every channel here but not in mask.npy, or the other "
+                f"way round (first at frame {int(differ[0])})",
+            )
+        ]
+    return []
 
 
 def _check_audio(
@@ -733,7 +771,8 @@ def _stats_problems(manifest: dict[str, Any]) -> list[Problem]:
 
 
 BASE_MEMBERS = ("json", "flac", "anim.npy", "mask.npy")
-OPTIONAL_MEMBERS = ("phones.npy",)  # with a phone-aware PPG
+# phones with a phone-aware PPG; channel_mask where some frame is usable in some channels only
+OPTIONAL_MEMBERS = ("phones.npy", "channel_mask.npy")
 
 
 def _feature_problems(manifest: dict[str, Any]) -> list[Problem]:

@@ -14,9 +14,11 @@ spawned worker, where ``torch.distributed`` is not initialised, still reads its 
 pass through a shuffle buffer (seeded by seed, epoch, rank and worker), are normalised with the
 manifest's statistics, and are cropped or padded to ``window`` frames. Two per-frame flags come along:
 ``mask``, the frames whose animation is a target (usable: False on padding and on the frames the build
-marked unusable, a lost face or bad values), for losses and metrics; and ``present``, the frames of the
-sample (False on padding only), for a model's input, whose audio features are real at unusable frames
-too (at inference every frame is real: a model fed ``mask`` would train on inputs it never sees).
+marked unusable, a lost face or bad values: with ``channels``, bad values in those channels only, where
+a sample's ``channel_mask.npy`` says which channels are usable in which frames), for losses and
+metrics; and ``present``, the frames of the sample (False on padding only), for a model's input, whose
+audio features are real at unusable frames too (at inference every frame is real: a model fed ``mask``
+would train on inputs it never sees).
 
 A shard read to its end is hashed as it streams by and compared with the manifest's sha256: one whose
 bytes changed (a flipped bit in a finite value) is an ``InputError`` naming it, after its last sample
@@ -26,9 +28,11 @@ first only. A reader that leaves a shard early (its end is another reader's) has
 changed sample is read before the shard's end: so each sample is also checked as it is decoded
 (cheaply: on the arrays already in memory): its members are there, its json is an object with a usable
 ``neutral`` and the manifest's ``speaker`` (whose statistics normalise its pitch), the animation is
-(frames, channels) float, the mask (frames,) bool and each feature (frames, dim) float, with the
-manifest's frames, channels and dims, and every value is finite (the build writes 0, never NaN, at
-masked frames). A damaged sample is an ``InputError`` naming the shard and the sample key.
+(frames, channels) float, the mask (frames,) bool (a channel_mask, where there is one, (frames,
+channels) bool whose frames usable in every channel are the mask's) and each feature (frames, dim)
+float, with the manifest's frames, channels and dims, and every value is finite (the build writes 0,
+never NaN, at masked frames and values). A damaged sample is an ``InputError`` naming the shard and
+the sample key.
 """
 
 from __future__ import annotations
@@ -53,6 +57,8 @@ from .manifest import _numbers, dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
 from .shards import ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
+
+CHANNEL_MASK = "channel_mask.npy"  # optional: which channels are usable in which frames (dataset.md)
 
 # The shards this process read to their end with the manifest's sha256, by path, sha256 and file identity
 # (device, inode, size, modification and change times): one read in every epoch is hashed in the first
@@ -106,6 +112,9 @@ class ShardDataset(IterableDataset):
     float32 tensor per feature (pitch: per-speaker z-scored log-F0 and voicing; others z-scored),
     optionally ``audio`` (samples,) float32 at 16 kHz, ``key`` and ``speaker`` (the sample's, "" if
     none). ``manifest``: the dataset's manifest as the caller read it (default: read here).
+    ``channels``: the names of the dataset's channels that a frame must be usable in for ``mask``
+    (default: all; a run scored on fewer channels than the dataset holds, from samples whose
+    ``channel_mask.npy`` keeps a glitch in one channel out of the others).
 
     ``shuffle_buffer``: samples mixed at a time (0 or 1: none); ``shuffle_shards``: read the shards in
     an order shuffled by ``seed`` and the epoch (default: when ``shuffle_buffer`` > 1). ``rank`` and
@@ -139,6 +148,7 @@ class ShardDataset(IterableDataset):
         world_size: int | None = None,
         even_ranks: bool = False,
         verify_sha256: bool = True,
+        channels: list[str] | None = None,
     ):
         super().__init__()
         self.ds = dataset_dir(ds)
@@ -203,6 +213,7 @@ class ShardDataset(IterableDataset):
         self.normalize = normalize
         self.audio = audio
         self.random_crop = (split == "train") if random_crop is None else random_crop
+        self.columns = scored_columns(self.manifest["channels"], channels, self.ds)
         norm = self.manifest["normalization"]
         self.normalizer = Normalizer.from_json(norm["animation"])
         self.feature_normalizer = FeatureNormalizer(norm)
@@ -232,7 +243,7 @@ class ShardDataset(IterableDataset):
         """The members of a sample this dataset decodes: the others are skipped unread (a shuffle buffer
         would otherwise hold every sample's audio, most of its bytes, also with ``audio=False``)."""
         members = ["json", "anim.npy", "mask.npy", *(f"{name}.npy" for name in self.features)]
-        return [*members, "flac"] if self.audio else members
+        return [*members, CHANNEL_MASK, *(["flac"] if self.audio else [])]
 
     def _read(self, name: str) -> Iterator[tuple[str, dict[str, bytes]]]:
         """The samples of shard ``name``; a key the manifest does not list for it, or a listed key it
@@ -363,7 +374,7 @@ class ShardDataset(IterableDataset):
         """(metadata, animation, mask, {feature: array}) of a sample, checked (see the module doc): a
         shard damaged without changing its size is an error here, never NaN losses, crashes deep in
         training or silently wrong scores."""
-        missing = [m for m in self.members_read() if m not in members]
+        missing = [m for m in self.members_read() if m not in members and m != CHANNEL_MASK]
         if missing:
             raise self.damaged(key, f"lacks the member(s) {', '.join(missing)}")
         try:
@@ -407,7 +418,26 @@ class ShardDataset(IterableDataset):
                 )
             arrays[name] = x
         anim, mask = arrays.pop("anim"), arrays.pop("mask")
+        if CHANNEL_MASK in members:
+            arrays["channel_mask"] = self._channel_mask(key, members, mask, (frames, n_channels))
+            mask = arrays["channel_mask"][:, self.columns].all(axis=1)
         return meta, anim, mask, arrays
+
+    def _channel_mask(
+        self, key: str, members: dict[str, bytes], mask: np.ndarray, shape: tuple[int, int]
+    ) -> np.ndarray:
+        """The sample's channel_mask.npy, checked: bool of ``shape``, its frames usable in every channel
+        those of ``mask``."""
+        usable = self._array(key, members, "channel_mask")
+        if usable.dtype != np.bool_ or usable.shape != shape:
+            raise self.damaged(
+                key,
+                f"channel_mask.npy is {usable.dtype} of shape {_shape(usable.shape)}, "
+                f"expected bool of shape {_shape(shape)}",
+            )
+        if not np.array_equal(usable.all(axis=1), mask):
+            raise self.damaged(key, "channel_mask.npy's frames usable in every channel are not mask.npy's")
+        return usable
 
     def _array(self, key: str, members: dict[str, bytes], name: str) -> np.ndarray:
         try:
@@ -417,9 +447,11 @@ class ShardDataset(IterableDataset):
 
     def _decode(self, key: str, members: dict[str, bytes], rng: random.Random) -> dict[str, Any]:
         meta, anim, mask, feats = self.check_sample(key, members)
+        channel_mask = feats.pop("channel_mask", None)
         if self.normalize:
             neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
-            anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * mask[:, None]
+            usable = mask[:, None] if channel_mask is None else mask[:, None] & channel_mask
+            anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * usable
         present = np.ones(mask.shape, bool)  # every frame of the sample; False only on padding below
         item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask, "present": present}
         item["speaker"] = str(meta.get("speaker") or "")
@@ -473,6 +505,19 @@ class ShardDataset(IterableDataset):
         rng.shuffle(buffer)
         for sample in buffer:
             yield self._decode(*sample, rng)
+
+
+def scored_columns(names: list[str], channels: list[str] | None, ds: Path) -> list[int] | slice:
+    """The columns of ``channels`` (channel names) among the dataset's ``names``: the channels whose
+    usable frames make an item's ``mask`` (None: all of them). An unknown name is an ``InputError``."""
+    if channels is None:
+        return slice(None)
+    if not isinstance(channels, (list, tuple)) or not all(isinstance(c, str) for c in channels):
+        raise InputError(f"channels must be a list of channel names, not {channels!r:.80}", ds)
+    unknown = [c for c in channels if c not in names]
+    if unknown:
+        raise InputError(f"channel(s) {', '.join(map(repr, unknown[:5]))} not in this dataset", ds)
+    return [names.index(c) for c in channels]
 
 
 def check_shard_files(ds: Path, manifest: dict[str, Any], names: list[str]) -> None:

@@ -4,9 +4,10 @@
 usable frames of an utterance (the dataset's raw samples, normalised and de-normalised with the RUN's
 statistics, so that a dataset built with other statistics gives the same numbers; the model reads
 every frame, unusable ones included, as ``s2a-train predict`` does, and only the usable ones are
-scored): ``entire`` over every channel of the run (picked by name from the dataset's), ``crucial`` over
-jawOpen and mouthClose (paper Table 1). Reported as
-mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
+scored; usable in the run's channels: a glitch in a channel of the dataset's that the run lacks, which
+its ``channel_mask.npy`` keeps apart, leaves a frame scored): ``entire`` over every channel of the run
+(picked by name from the dataset's), ``crucial`` over jawOpen and mouthClose (paper Table 1). Reported
+as mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
 floor predicts every frame as the training split's per-channel mean (from the manifest). ``rtf`` =
 seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
 of repeated runs).
@@ -279,18 +280,12 @@ def evaluate(
     run_norm = {"normalization": info["normalization"]}
     tally, floor = ErrorTally(channels), ErrorTally(channels)
     longest, own_style, seen = None, 0, 0
+    # a frame is scored when usable in the run's channels (a glitch in one the run lacks leaves it in)
+    read = {"window": None, "features": spec.features, "normalize": False, "channels": channels}
     if own_keys is None:
-        samples = RawSamples(ds, split, window=None, features=spec.features, normalize=False)
+        samples = RawSamples(ds, split, **read)
     else:
-        samples = RawTakeSubset(
-            ds,
-            ("train", "val"),
-            own_keys,
-            window=None,
-            features=spec.features,
-            normalize=False,
-            random_crop=False,
-        )
+        samples = RawTakeSubset(ds, ("train", "val"), own_keys, random_crop=False, **read)
     for item in samples:
         raw_feats = {f: item[f].numpy() for f in spec.features}
         feats = normalize_features(run_norm, raw_feats, item["speaker"])
