@@ -18,8 +18,8 @@ from contextlib import contextmanager
 from pathlib import Path, PurePath
 from typing import Any
 
-from .errors import RAW_BYTES, S2AError, printable, strict_names
-from .import_guard import COMMANDS, running_command
+from .errors import KEYS_RAW_BYTES, RAW_BYTES, S2AError, printable, strict_names
+from .import_guard import COMMANDS, running_command, sigterm_guard_done
 
 
 class _StageHelp(argparse.HelpFormatter):
@@ -81,7 +81,8 @@ class StageParser(argparse.ArgumentParser):
         return super().parse_known_args(args, namespace)
 
     def error(self, message: str):
-        super().error(message + _leading_dash_hint(self, message))
+        # a name not UTF-8 (the file taken for an option, a value refused) shows its bytes as \xff
+        super().error(printable(message + _leading_dash_hint(self, message)))
 
 
 def _leading_dash_hint(parser: argparse.ArgumentParser, message: str) -> str:
@@ -211,6 +212,13 @@ def named(record: dict[str, Any], key: str) -> str | list[str]:
     if isinstance(raw, list):
         return [_name(text, each) for text, each in zip(record[key], raw, strict=True)]
     return _name(record[key], raw)
+
+
+def named_keys(record: dict[str, Any], key: str) -> dict[str, Any]:
+    """The dict ``record[key]`` of a JSON line ``emit_json`` wrote, keyed by names (a speaker's hours),
+    each key the name it stands for: its bytes from ``key_keys_b64`` when they are not UTF-8."""
+    raw = record.get(f"{key}{KEYS_RAW_BYTES}") or {}
+    return {_name(text, raw.get(text)): value for text, value in record[key].items()}
 
 
 def _name(text: str, raw: str | None) -> str:
@@ -393,6 +401,8 @@ class Terminated(KeyboardInterrupt):
 def sigterm_stops() -> Iterator[None]:
     """Inside, SIGTERM raises ``Terminated`` in the main thread (once; a second SIGTERM ends the process
     at once), so that the command stops as on Ctrl-C: its ``finally`` blocks run, its partial files go.
+    In a stage command's own process it goes on doing so after the block, until ``run`` ends: what
+    follows it (a lock released, the result printed) ended the process by the signal, with no line.
     Left alone off the main thread and where the caller already handles SIGTERM."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -410,7 +420,25 @@ def sigterm_stops() -> Iterator[None]:
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if running_command() is None:  # a program's own SIGTERM back (the command's ends with ``run``)
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _command_ending(outer: str | None) -> None:
+    """As ``run`` ends in a stage command's own process: its work is over, so a SIGTERM from here (as it
+    prints its error, as Python exits) is let go, the exit code the command's own; a second one ends
+    the process at once. It ended the process by the signal, with no line, after the work was done."""
+    if (
+        outer is None
+        and running_command() is not None
+        and threading.current_thread() is threading.main_thread()
+    ):
+        signal.signal(signal.SIGTERM, _let_go)
+
+
+def _let_go(_signum: int, _frame: Any) -> None:
+    """A SIGTERM as a command that has done its work ends: let go, and the next one ends the process."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def out_of_memory(exc: BaseException) -> bool:
@@ -435,11 +463,18 @@ def run(
 ) -> int:
     """Build the parser, parse ``argv`` and run ``main``; the toolkit's own errors become one line and
     exit code 1. ``prog`` names the warnings ``warn`` prints meanwhile. The parser is built inside, so
-    that Ctrl-C while it is (reading the package's version from its metadata) is one line too."""
+    that Ctrl-C while it is (reading the package's version from its metadata) is one line too. In the
+    command's own process, SIGTERM stops it with its line until ``main`` begins (capture.import_guard),
+    is ``main``'s own inside, and is let go once ``main`` is over (``_command_ending``)."""
     global _program
     outer, _program = _program, prog
     try:
-        return main(build_parser().parse_args(argv))
+        args = build_parser().parse_args(argv)
+        sigterm_guard_done()  # nothing written so far: the guard's SIGTERM handler exits at once
+        try:
+            return main(args)
+        finally:
+            _command_ending(outer)
     except S2AError as exc:
         print(printable(f"{prog}: error: {exc}"), file=sys.stderr)
         return 1
@@ -459,7 +494,10 @@ def run(
         if not out_of_memory(exc):
             raise
         detail = str(exc).strip().splitlines()
-        print(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}", file=sys.stderr)
+        print(
+            printable(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}"),
+            file=sys.stderr,
+        )
         return 1
     finally:
         _program = outer  # a command run from another's process (a test's) leaves the name as it was

@@ -3,17 +3,24 @@
 from __future__ import annotations
 
 import base64
+import re
 from pathlib import Path
 from typing import Any
+
+# Such a byte as the ``repr`` of a name shows it (argparse's ``invalid float value: 'x\\udcff'``, a message's
+# ``{name!r}``): ``\\udc80`` to ``\\udcff``, written out.
+_REPR_OF_BYTE = re.compile(r"\\udc([89a-f][0-9a-f])")
 
 
 def printable(text: str) -> str:
     """``text`` as a message shows it: the bytes of a file name that are not UTF-8 (held by Python as
-    surrogate escapes, printed as ``\\udcff``) as ``\\xff``, as Python shows bytes (``caf\\xe9.mp3``)."""
+    surrogate escapes, printed as ``\\udcff``) as ``\\xff``, as Python shows bytes (``caf\\xe9.mp3``); in
+    a name's ``repr`` within the text too."""
     try:
-        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:  # a surrogate no file name's bytes give
-        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+        shown = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    return _REPR_OF_BYTE.sub(r"\\x\1", shown)
 
 
 # Names in JSON for strict readers (``strict_names``). Python holds the bytes of a file name that are not
@@ -22,14 +29,18 @@ def printable(text: str) -> str:
 # messages show it (``printable``); a dict's string value that was not UTF-8 also keeps its bytes, in
 # base64, under the same key with ``_b64`` added (``"audio_b64"``), for a consumer needing the path itself:
 # ``os.fsdecode(base64.b64decode(record["csv_b64"]))``. A list of names one of which is not UTF-8 keeps
-# them as a list beside it, null for each name that is UTF-8 (``"outputs_b64": [null, "Y2Fm6f8="]``).
+# them as a list beside it, null for each name that is UTF-8 (``"outputs_b64": [null, "Y2Fm6f8="]``). A dict
+# whose keys are names (a speaker's hours) keeps the bytes of each key not UTF-8 beside it, by the key as
+# shown: ``"hours_per_speaker_keys_b64": {"caf\\xe9": "Y2Fm6Q=="}``.
 RAW_BYTES = "_b64"  # added to the key of a name that is not UTF-8: its bytes, base64
+KEYS_RAW_BYTES = "_keys" + RAW_BYTES  # added to the key of a dict keyed by names: their bytes, base64
 
 
 def strict_names(value: Any) -> Any:
     """``value`` (dicts, lists and scalars nested) with every string ``printable`` and, beside each dict
-    value that is a name not UTF-8 or a list holding one, its bytes (``RAW_BYTES``); other values as
-    they are."""
+    value that is a name not UTF-8 or a list holding one, its bytes (``RAW_BYTES``), and beside each dict
+    value that is a dict keyed by such names, their bytes (``KEYS_RAW_BYTES``); other values as they
+    are."""
     if isinstance(value, str):
         return printable(value)
     if isinstance(value, (list, tuple)):
@@ -43,7 +54,17 @@ def strict_names(value: Any) -> Any:
         raw = _names_bytes(v)
         if raw is not None:
             out[f"{name}{RAW_BYTES}"] = raw
+        keys = _keys_bytes(v)
+        if keys:
+            out[f"{name}{KEYS_RAW_BYTES}"] = keys
     return out
+
+
+def _keys_bytes(value: Any) -> dict[str, str] | None:
+    """Of a dict, ``{key as shown: its bytes in base64}`` for each key that is a name not UTF-8; else None."""
+    if not isinstance(value, dict):
+        return None
+    return {printable(k): raw for k in value if isinstance(k, str) and (raw := _names_bytes(k)) is not None}
 
 
 def _names_bytes(value: Any) -> str | list[str | None] | None:

@@ -3,8 +3,10 @@ quietly, with exit code 130, instead of a KeyboardInterrupt traceback or the err
 library. ``capture`` imports this module first of all (it needs three standard modules that Python's
 start-up has mostly loaded: ``typing`` alone took 0.1 s on a loaded machine, an unguarded window), which
 installs the guard in a stage command; each stage's command module (``cli.py``, imported after its
-package) ends it once its imports are done (``imports_done``). A program that imports the packages keeps
-its own Ctrl-C."""
+package) ends it once its imports are done (``imports_done``). SIGTERM (``timeout``, ``kill``) likewise
+says ``s2a-X: terminated (SIGTERM)`` and exits with 143, from the guard's start until the command begins
+its work (``capture.command.run`` calls ``sigterm_guard_done``): it ended the process by the signal, with
+no line. A program that imports the packages keeps its own Ctrl-C and SIGTERM."""
 
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ COMMANDS = {
     "viewer": "s2a-view",
 }
 _guarding: str | None = None  # the stage whose command is importing under the guard
+_guarding_sigterm = False  # SIGTERM is the guard's: the command has not begun its work
 
 
 def running_command() -> str | None:
@@ -55,9 +58,13 @@ def _module_run(orig: list[str]) -> str | None:
     return None
 
 
-def _stop_quietly(_signum: int, _frame: object) -> None:
-    print(f"{COMMANDS.get(_guarding or '', 'command')}: interrupted", file=sys.stderr, flush=True)
-    os._exit(130)  # nothing has been written yet
+def _stop_quietly(signum: int, _frame: object) -> None:
+    prog = COMMANDS.get(_guarding or running_command() or "", "command")
+    if signum == signal.SIGTERM:
+        print(f"{prog}: terminated (SIGTERM)", file=sys.stderr, flush=True)
+        os._exit(143)  # nothing has been written yet
+    print(f"{prog}: interrupted", file=sys.stderr, flush=True)
+    os._exit(130)
 
 
 def guard_imports() -> None:
@@ -92,4 +99,30 @@ def imports_done(package: str) -> bool:
     return True
 
 
+def _guard_sigterm() -> None:
+    """SIGTERM stops a stage command quietly (``_stop_quietly``) from here until ``sigterm_guard_done``:
+    only in the command itself, on the main thread, where SIGTERM still ends the process by default."""
+    global _guarding_sigterm
+    if running_command() is None or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return
+    try:
+        signal.signal(signal.SIGTERM, _stop_quietly)
+    except ValueError:  # not the main thread
+        return
+    _guarding_sigterm = True
+
+
+def sigterm_guard_done() -> None:
+    """Called by ``capture.command.run`` as the command begins its work, which may write files: SIGTERM
+    is the command's own from here (its default, or the handler it sets to remove what it wrote)."""
+    global _guarding_sigterm
+    if _guarding_sigterm and signal.getsignal(signal.SIGTERM) is _stop_quietly:
+        try:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        except ValueError:  # a command run off the main thread: the guard stays for the main thread's
+            return
+    _guarding_sigterm = False
+
+
 guard_imports()  # on import: first thing in capture, so before numpy
+_guard_sigterm()

@@ -104,23 +104,30 @@ class ShardInfo:
 
 
 class ShardWriter:
-    """Writes one shard file from samples ``(key, {ext: bytes})`` given in key order."""
+    """Writes one shard file from samples ``(key, {ext: bytes})`` given in key order. Its partial file is
+    made as ``with`` takes the writer (or at the first ``add`` or ``close`` of a writer used without it),
+    not as the writer is made: a stop met between the two left it, with nobody to remove it."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.tmp = partial_path(self.path)
         self._file = None
-        try:
-            # Ctrl-C and SIGTERM wait until the file is noted here: met as it was made, a stop left it
-            with stops_deferred():
-                self._file = open(self.tmp, "wb")
-            self._hash = _HashingFile(self._file)
-            self._tar = tarfile.open(fileobj=self._hash, mode="w", format=tarfile.PAX_FORMAT)
-        except BaseException:  # before ``with`` holds it: nobody else would remove the file
-            if self._file is not None:
-                self.abort()
-            raise
+        self._tar: tarfile.TarFile | None = None
         self._keys: list[str] = []
+
+    def _opened(self) -> tarfile.TarFile:
+        """The tar being written into the partial file, both made on first need."""
+        if self._tar is None:
+            try:
+                # Ctrl-C and SIGTERM wait until the file is noted here: met as it was made, a stop left it
+                with stops_deferred():
+                    self._file = open(self.tmp, "wb")
+                self._hash = _HashingFile(self._file)
+                self._tar = tarfile.open(fileobj=self._hash, mode="w", format=tarfile.PAX_FORMAT)
+            except BaseException:  # before ``with`` holds it: nobody else would remove the file
+                self.abort()
+                raise
+        return self._tar
 
     def add(self, key: str, members: dict[str, bytes]) -> None:
         if "." in key or "/" in key or not key:
@@ -137,12 +144,12 @@ class ShardWriter:
             info.mode = 0o644
             info.uid = info.gid = 0
             info.uname = info.gname = ""
-            self._tar.addfile(info, io.BytesIO(data))
+            self._opened().addfile(info, io.BytesIO(data))
         self._keys.append(key)
 
     def close(self) -> ShardInfo:
         """Finish the tar, fsync and rename it into place."""
-        self._tar.close()
+        self._opened().close()
         self._file.flush()
         os.fsync(self._file.fileno())
         self._file.close()
@@ -150,6 +157,9 @@ class ShardWriter:
         return ShardInfo(self.path.name, self._hash.sha.hexdigest(), self._hash.bytes, list(self._keys))
 
     def abort(self) -> None:
+        """Remove the partial file this writer made (none yet: nothing to do)."""
+        if self._file is None:
+            return
         try:
             self._file.close()
         finally:
@@ -157,6 +167,11 @@ class ShardWriter:
                 self.tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> ShardWriter:
+        try:
+            self._opened()
+        except BaseException:  # a stop met as the call returned, outside its own clean-up
+            self.abort()
+            raise
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
