@@ -5,8 +5,10 @@ column ``BlendshapeCount``), rows ``HH:MM:SS:FF.fff,61,<61 values with 10 decima
 ``<timecode>,0`` (or, from other writers, a count of 0 over values that are all 0). Columns are matched
 by name, case-insensitively; times come from the timecode, never from the row index. A spreadsheet's
 re-save is read too: quoted fields lose their quotes, and a comma ending every line is no column; one with
-``;`` between the fields (a locale with decimal commas: Excel's and LibreOffice's CSV) is read by the careful
-parser, its numbers with the decimal mark they are written with (``_semicolon_lines``).
+``;`` between the fields (a locale with decimal commas: Excel's and LibreOffice's CSV), or tabs (their
+"Text (Tab delimited)", a TSV export), is converted once into the app's layout, its numbers read with the
+decimal mark they are written with (``_resaved_lines``), and read as the app's CSV is (``_read_resaved``);
+its messages quote its own cells.
 
 Face-lost rows as pandas and spreadsheets re-save them (``<timecode>,0.0``, ``<timecode>,0,,,...``) are
 face-lost rows too, a count written ``61.0`` is 61, and rows of nothing but commas are blank lines.
@@ -32,9 +34,9 @@ Repairs (each appears in ``TakeMeta.repairs`` as ``{"line", "kind", "message"}``
 kind           what was done
 ============== ================================================================================
 bom            a UTF-8 byte-order mark before the header was ignored
-separator      ``;`` between the fields (a spreadsheet's re-save in a locale with decimal commas): read so,
-               numbers with ``,`` as the decimal point when they are written so (all of them), else ``.``;
-               a timecode's sub-frame after a comma (``44,643``) as after a point
+separator      ``;`` (a spreadsheet's re-save in a locale with decimal commas) or tabs between the fields:
+               read so, numbers with ``,`` as the decimal point when they are written so (all of them),
+               else ``.``; a timecode's sub-frame after a comma (``44,643``) as after a point
 truncated_row  a last line cut short (no line end, too few fields) was dropped
 wrong_fields   a row with the wrong number of fields was dropped; its slot becomes a dropped frame
 bad_timecode   a row whose timecode does not parse was dropped; its slot becomes a dropped frame
@@ -73,9 +75,8 @@ left out, and no frame's damage; in a take of one row with values they are that 
 Errors: missing, empty or binary file (a run of NUL bytes to its end, as a power loss leaves, is no
 binary: the row it cuts is a ``truncated_row``), or UTF-16 text, with or without its byte-order mark
 (``utf16_csv_error``); a Timecode column of plain numbers (another tool's seconds or frame numbers:
-import it as paired data); a header that is not a Live
-Link Face header (one separated by tabs says to export it with commas), or that names a column
-twice or leaves one empty (saying how to fix it); a file re-saved with ``;`` between the fields whose
+import it as paired data); a header that is not a Live Link Face header, or that names a column twice or
+leaves one empty (saying how to fix it); a file re-saved with ``;`` or tabs between the fields whose
 numbers are written with both ``,`` and ``.`` as the decimal point; the header again further down (two
 files joined); no usable data rows (naming the first rejected row); values written with unquoted decimal
 commas (``0,1421`` split in two fields) on most rows; a timecode going backwards (other than across midnight)
@@ -154,13 +155,19 @@ def repair(repairs: list, line: int | None, kind: str, message: str) -> None:
 
 
 _LINE_END = re.compile(r"\r\n|\r|\n")
+UTF8_BOM = b"\xef\xbb\xbf"
 
 
 def text_lines(text: str) -> list[str]:
     """The lines of a text file, split at ``\\n``, ``\\r\\n`` or a lone ``\\r`` only: ``str.splitlines``
     also splits at form feeds, ``\\x1c``-``\\x1e``, ``\\x85`` and ``\\u2028``, which would shift every
     later line number and cut a row holding one in two."""
-    lines = _LINE_END.split(text)
+    if "\r" not in text:
+        lines = text.split("\n")  # the app's LF: str.split is 6x the regex's speed
+    else:
+        lines = text.split("\r\n")  # a spreadsheet's CRLF, unless a line holds a lone CR or LF
+        if any("\r" in line or "\n" in line for line in lines):
+            lines = _LINE_END.split(text)
     if lines[-1] == "":
         lines.pop()  # the line end closing the last line starts no line
     return lines
@@ -196,18 +203,13 @@ def _decimal_mark(cell: str) -> str | None:
 _COMMA_SUB_FRAME = re.compile(r"(\s*\d{1,2}:\d{1,2}:\d{1,2}[:;]\d{1,3}),(\d*\s*)", re.ASCII)
 
 
-def _numbers_with(mark: str) -> re.Pattern:
-    """A row's cells after its timecode (count and values) when each is empty, a whole number or one
-    written with ``mark`` as the decimal point (``61;0,5;-1,2E-05;;0``): what ``_decimal_mark`` reads so."""
-    cell = rf"[+-]?(?:\d+(?:{re.escape(mark)}\d*)?|{re.escape(mark)}\d+)(?:[Ee][+-]?\d+)?"
-    return re.compile(rf"(?:{cell})?(?:;(?:{cell})?)*", re.ASCII)
+# A spreadsheet's re-save with another separator than the app's comma: ``;`` (a locale with decimal
+# commas) or a tab ("Text (Tab delimited)", a TSV export), as a message names it.
+RESAVE_SEPARATORS = {";": "';'", "\t": "tabs"}
 
 
-_NUMBERS_WITH = {mark: _numbers_with(mark) for mark in ",."}
-
-
-def _semicolon_cell(cell: str, number: int, first: dict[str, tuple[str, int]]) -> str:
-    """A cell of line ``number`` of a re-saved CSV as the app writes it (``_semicolon_lines``), each decimal
+def _resaved_cell(cell: str, number: int, first: dict[str, tuple[str, int]]) -> str:
+    """A cell of line ``number`` of a re-saved CSV as the app writes it (``_resaved_lines``), each decimal
     mark's first number and its line noted in ``first``."""
     if (timecode := _COMMA_SUB_FRAME.fullmatch(cell)) is not None:
         cell = f"{timecode[1]}.{timecode[2]}"
@@ -217,36 +219,56 @@ def _semicolon_cell(cell: str, number: int, first: dict[str, tuple[str, int]]) -
     return '"' + cell.replace('"', '""') + '"' if "," in cell or '"' in cell else cell
 
 
-def _semicolon_lines(lines: list[str], path: Path, repairs: list) -> None:
-    """The lines of a CSV a spreadsheet re-saved with ``;`` between the fields (in a locale with a decimal
-    comma) turned, in place, into the app's layout: ``,`` between the fields, ``.`` for the decimal point of
-    numbers written with ``,`` (``0,5``; those written with ``.`` stay), a timecode's sub-frame after a
-    point (``44,643``: a timecode's comma is no separator). Repair ``separator``; an ``InputError`` when
-    the numbers are written with both marks (which one a cell means is a guess)."""
+def _resaved_lines(lines: list[str], sep: str, path: Path, repairs: list) -> None:
+    """The lines of a CSV a spreadsheet re-saved with ``sep`` between the fields (``;`` in a locale with a
+    decimal comma, or a tab: ``RESAVE_SEPARATORS``) turned, in place, into the app's layout: ``,`` between
+    the fields, ``.`` for the decimal point of numbers written with ``,`` (``0,5``; those written with
+    ``.`` stay), a timecode's sub-frame after a point (``44,643``: a timecode's comma is no separator).
+    Repair ``separator``; an ``InputError`` when the numbers are written with both marks (which one a cell
+    means is a guess)."""
     first: dict[str, tuple[str, int]] = {}  # each decimal mark's first number, and its line
+    between = RESAVE_SEPARATORS[sep]
     for i, line in enumerate(lines):
-        head, sep, numbers = line.partition(";")
-        mark = "," if "," in numbers else "."
-        if i and sep and '"' not in line and _NUMBERS_WITH[mark].fullmatch(numbers):
-            # a row of numbers, as nearly all are: two replaces do what the cells one by one would (4x faster)
-            head = _semicolon_cell(head, i + 1, first)
-            if mark in numbers and mark not in first:
-                first[mark] = (next(cell for cell in numbers.split(";") if mark in cell), i + 1)
-            lines[i] = head + "," + numbers.replace(",", ".").replace(";", ",")
+        head, found, numbers = line.partition(sep)
+        # a row as nearly all are: no quotes, the cells after its first (count, values) holding no decimal
+        # mark but that of the numbers met (read cell by cell, below): two replaces do what the cells one by
+        # one would (a cell no number, "0,5x", is none either way; messages quote the file's own cells)
+        if i and found and '"' not in line and all(mark in first for mark in ",." if mark in numbers):
+            lines[i] = _resaved_cell(head, i + 1, first) + "," + numbers.replace(",", ".").replace(sep, ",")
         else:
-            lines[i] = ",".join(_semicolon_cell(cell, i + 1, first) for cell in _fields(line, ";"))
+            lines[i] = ",".join(_resaved_cell(cell, i + 1, first) for cell in _fields(line, sep))
         if len(first) == 2:
             (comma, at_comma), (point, at_point) = first[","], first["."]
             raise InputError(
-                f"re-saved with ';' between the fields, its numbers written with both ',' ({_shown(comma)} "
-                f"on line {at_comma}) and '.' ({_shown(point)} on line {at_point}) as the decimal point: "
+                f"re-saved with {between} between the fields, its numbers written with both ',' "
+                f"({_shown(comma)} on line {at_comma}) and '.' ({_shown(point)} on line {at_point}) as the "
+                "decimal point: "
                 "export it with commas between the fields and '.' as the decimal point, as the app writes it",
                 path,
                 i + 1,
             )
     mark = "," if "," in first else "."
-    message = f"re-saved with ';' between the fields and {mark!r} as the decimal point: read so"
+    message = f"re-saved with {between} between the fields and {mark!r} as the decimal point: read so"
     repair(repairs, 1, "separator", message)
+
+
+class _WrittenLines:
+    """The lines of a re-save with another separator (``RESAVE_SEPARATORS``) as the file writes them, read
+    from the file when a message first quotes one of its cells (the reader reads them converted)."""
+
+    def __init__(self, path: Path, sep: str) -> None:
+        self.path, self.sep = path, sep
+        self.lines: list[str] | None = None
+
+    def cell(self, number: int, index: int, converted: str) -> str:
+        """Field ``index`` of line ``number`` as written, read as ``converted``."""
+        if self.lines is None:
+            raw = self.path.read_bytes()
+            self.lines = text_lines(
+                raw[3 if raw.startswith(UTF8_BOM) else 0 :].decode("utf-8", errors="replace")
+            )
+        fields = _fields(self.lines[number - 1], self.sep) if number <= len(self.lines) else []
+        return fields[index] if index < len(fields) else converted
 
 
 # What pandas writes above the index column of a table it saves with one (``df.to_csv()``): nothing, or
@@ -335,15 +357,6 @@ def _parse_header(text: str, path: Path) -> CsvHeader:
     ):
         index_column = names.pop(0)  # pandas' row index (df.to_csv()): dropped from every row
     if len(names) < 3 or names[0].lower() != "timecode" or names[1].lower() != "blendshapecount":
-        sep = app_header_separator(text)
-        if sep == "\t":
-            raise InputError(
-                "a Live Link Face CSV re-saved with tabs between the fields (a spreadsheet's \"Text (Tab "
-                "delimited)\"?): save it as CSV, with commas between the fields and '.' as the decimal "
-                "point, as the app writes it",
-                path,
-                1,
-            )
         shown = text[:60].encode("unicode_escape").decode("ascii")
         raise InputError(
             "not a Live Link Face CSV: the header must start with Timecode,BlendShapeCount "
@@ -412,7 +425,7 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     head = _read_head(path)
     if b"\x00" in head:  # NUL bytes from there to the end (_zero_tail): the text before, the run as one byte
         return _read_careful(path, strict, head[: head.index(b"\x00") + 1])
-    bom = head.startswith(b"\xef\xbb\xbf")
+    bom = head.startswith(UTF8_BOM)
     first, _, rest = head[3 if bom else 0 :].partition(b"\n")
     # pyarrow reading no rows can abort the process at exit (apache/arrow#38676): the careful parser
     # reports a file without data rows. A header line ending at a lone CR is the careful parser's too.
@@ -423,13 +436,47 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
             text = "\ufffd"
         if "\ufffd" in text:  # as the careful parser decodes it: a header of replacement characters
             raise InputError("binary data, not a CSV text file", path, 1)
-        if app_header_separator(text) == ";":  # a spreadsheet's re-save: the careful parser reads it
-            return _read_careful(path, strict)
+        sep = app_header_separator(text)
+        if sep in RESAVE_SEPARATORS:  # a spreadsheet's re-save: converted, then read as the app's CSV
+            rows = None if strict else _read_resaved(path, sep)
+            return rows if rows is not None else _read_careful(path, strict)
         header = _parse_header(text, path)
         rows = _read_fast(path, header, bom, len(first) + 1, strict)
         if rows is not None:
             return rows
     return _read_careful(path, strict)
+
+
+def _read_resaved(path: Path, sep: str) -> CsvRows | None:
+    """The rows of a spreadsheet's re-save with ``sep`` between the fields, its text converted once into
+    the app's layout (``_resaved_lines``) and read as the app's CSV is (``_read_fast``, its messages quoting
+    the file's own cells); ``None`` where that sends a file to the careful parser."""
+    raw = path.read_bytes()
+    repairs: list[dict[str, Any]] = []
+    if raw.startswith(UTF8_BOM):
+        raw = raw[3:]
+        repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
+    line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
+    text = raw.decode("utf-8", errors="replace")
+    del raw  # one copy of the file at a time: its bytes, its text, its lines, the converted text
+    ends_with_newline = text.endswith(("\n", "\r"))
+    lines = text_lines(text)
+    del text
+    if "\ufffd" in lines[0]:
+        return None
+    _resaved_lines(lines, sep, path, repairs)
+    header = _parse_header(lines[0], path)
+    body_start = len(lines[0]) + len(line_ending)
+    # encoded a block of lines at a time, each let go once encoded: never two copies of the whole text
+    converted = bytearray()
+    while lines:
+        block = lines[:4096]
+        del lines[:4096]
+        converted += (line_ending.join(block) + (line_ending if lines or ends_with_newline else "")).encode()
+    rows = _read_fast(path, header, False, body_start, False, converted, _WrittenLines(path, sep))
+    if rows is not None:
+        rows.repairs[:0] = repairs
+    return rows
 
 
 # A file whose lines with other bytes than a number's split it into more pieces than this is damaged all
@@ -445,13 +492,22 @@ MAX_MENDED_SHARE = 0.5
 MERGE_ROWS = 1 << 14  # pyarrow's rows copied at a time into the merged rows (a 4 MB block)
 
 
-def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict: bool) -> CsvRows | None:
+def _read_fast(
+    path: Path,
+    header: CsvHeader,
+    bom: bool,
+    body_start: int,
+    strict: bool,
+    converted: bytearray | None = None,
+    written_lines: _WrittenLines | None = None,
+) -> CsvRows | None:
     """pyarrow's parse, with the careful parser's per-row logic for the rows pyarrow cannot take, so that
     a long take with a damaged row costs what an intact one does (``_read_mended``). A whole file's re-save
     (a BOM, CRLF line ends, a comma ending every line, pandas' index column, cells in quotes, from the first
     line or further on) is read so too. ``None`` sends the whole file to the careful parser (one that
-    pyarrow cannot read even without its odd lines, or one with a line ending at a lone CR)."""
-    mapped = _MappedFile(path)
+    pyarrow cannot read even without its odd lines, or one with a line ending at a lone CR). A re-save's text
+    ``converted`` into the app's layout is read in place of the file's, its ``written_lines`` quoted."""
+    mapped = _MappedFile(path, converted)
     data = mapped.buffer  # no copy: numpy and pyarrow read the mapped file
     if bom:
         data = data.slice(3)  # line 1 starts after the byte-order mark, as for the careful parser
@@ -498,7 +554,7 @@ def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict
     if lines.has_cr:
         return None
     line_ending = "\r\n" if crlf else "\n"
-    mended = _read_mended(path, header, lines, screened, odd, rows, bom, line_ending, strict)
+    mended = _read_mended(path, header, lines, screened, odd, rows, bom, line_ending, strict, written_lines)
     if mended is None and quoted:
         # A quote pyarrow carried past its line's end (a stray one: damage, an edit) swallowed the lines
         # after it: again without the lines holding a quote, which the careful parser's per-row logic
@@ -510,7 +566,9 @@ def _read_fast(path: Path, header: CsvHeader, bom: bool, body_start: int, strict
         if read is not None:
             rows, odd, _ = read
             del read
-            mended = _read_mended(path, header, lines, screened, odd, rows, bom, line_ending, strict)
+            mended = _read_mended(
+                path, header, lines, screened, odd, rows, bom, line_ending, strict, written_lines
+            )
     return mended
 
 
@@ -554,18 +612,21 @@ class _MappedFile:
     the process's resident memory (an hour's 176 MB CSV would add its size to the peak of its parse),
     though the kernel's page cache keeps them; a page read again is mapped again from there."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, text: bytearray | None = None) -> None:
         import pyarrow as pa
 
-        with open(path, "rb") as f:
-            self.map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        if text is not None:  # a file's text converted in memory (``_read_resaved``): read as if mapped
+            self.map: mmap.mmap | bytearray = text
+        else:
+            with open(path, "rb") as f:
+                self.map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         self.buffer = pa.py_buffer(self.map)
         self.start = self.buffer.address
 
     def release(self, address: int, size: int) -> None:
         """Give back the pages of the ``size`` bytes at ``address`` (a part of the map, else nothing)."""
         start, stop = address - self.start, min(address - self.start + size, len(self.map))
-        if _DONTNEED is not None and 0 <= start < stop:
+        if _DONTNEED is not None and isinstance(self.map, mmap.mmap) and 0 <= start < stop:
             start -= start % mmap.PAGESIZE  # a page read again (the next part's first line) is mapped again
             self.map.madvise(_DONTNEED, start, stop - start)
 
@@ -960,6 +1021,7 @@ def _read_mended(
     bom: bool,
     line_ending: str,
     strict: bool,
+    written_lines: _WrittenLines | None = None,
 ) -> CsvRows | None:
     """The rows of pyarrow's table that need no repair, and the lines it could not take read by the careful
     parser's per-row logic (``_RowReader``), merged in file order: the careful parser's result at the cost
@@ -1001,7 +1063,7 @@ def _read_mended(
     reader = _RowReader(
         path, header, lines.text(1), again.size, lines.count, lines.ends_with_newline, repairs
     )
-    reader.index_start = index_start
+    reader.index_start, reader.written_lines = index_start, written_lines
     for number in again.tolist():
         if data_lines is not None:
             reader.data_rows = int(np.searchsorted(data_lines, number))  # data lines before this one
@@ -1085,7 +1147,7 @@ def _read_careful(path: Path, strict: bool, raw: bytes | None = None) -> CsvRows
     """The careful parser's rows of the file (of its bytes ``raw``, when given)."""
     raw = path.read_bytes() if raw is None else raw
     repairs: list[dict[str, Any]] = []
-    if raw.startswith(b"\xef\xbb\xbf"):
+    if raw.startswith(UTF8_BOM):
         raw = raw[3:]
         repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
     line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
@@ -1096,10 +1158,12 @@ def _read_careful(path: Path, strict: bool, raw: bytes | None = None) -> CsvRows
     del text
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
-    if app_header_separator(lines[0]) == ";":
-        _semicolon_lines(lines, path, repairs)
+    sep = app_header_separator(lines[0])
+    if sep in RESAVE_SEPARATORS:
+        _resaved_lines(lines, sep, path, repairs)
     header = _parse_header(lines[0], path)
     reader = _RowReader(path, header, lines[0], len(lines) - 1, len(lines), ends_with_newline, repairs)
+    reader.written_lines = _WrittenLines(path, sep) if sep in RESAVE_SEPARATORS else None
     for number in range(2, len(lines) + 1):
         reader.read(number, lines[number - 1])
     n = reader.n
@@ -1151,6 +1215,7 @@ class _RowReader:
         self.first_bad: dict[int, tuple[str, int]] = {}  # each channel's first cell no number, and its line
         # by line, a damaged row's first cell no number but written (column, text), when it has blank ones too
         self.first_written: dict[int, tuple[int, str]] = {}
+        self.written_lines: _WrittenLines | None = None  # a re-save's lines as the file writes them
 
     def read(self, number: int, line: str) -> None:
         """Read line ``number`` of the file (a row, a blank line, or a damaged one)."""
@@ -1213,28 +1278,29 @@ class _RowReader:
         row_status = FrameStatus.TRACKED
         if count not in self.counts:
             expected = " or ".join(map(str, sorted(self.counts)))
-            shown = fields[1].strip()
+            shown = self.as_written(number, 1, fields[1]).strip()
             message = f"{header.count_name} is {shown!r} but the row has {len(columns)} values"
             message += f" ({expected} expected)"
             repair(self.repairs, number, "bad_count", message)
-        bad = []
+        bad, texts = [], {}  # the channels of cells no number, and these cells as the file writes them
         for i, v in enumerate(vals):
             if not abs(v) <= _FLOAT32_MAX:
                 vals[i] = math.nan
+                text = texts[i] = self.as_written(number, i + 2, cells[i]) if cells[i].strip() else cells[i]
                 if self.is_channel[i]:
                     bad.append(i)
                     self.written[i] |= bool(cells[i].strip())
-                    self.first_bad.setdefault(i, (cells[i], number))
+                    self.first_bad.setdefault(i, (text, number))
                 elif cells[i].strip():  # another column's non-number is no channel's damage (_other_columns)
-                    seen.setdefault(f"text {columns[i]}", _Seen()).add(cells[i], number)
+                    seen.setdefault(f"text {columns[i]}", _Seen()).add(text, number)
         if bad:
             row_status = FrameStatus.BAD_VALUE
-            seen.setdefault("bad_value", _Seen()).add(cells[bad[0]], number, columns[bad[0]])
+            seen.setdefault("bad_value", _Seen()).add(texts[bad[0]], number, columns[bad[0]])
             written = [i for i in bad if cells[i].strip()]
             if written and len(written) < len(bad):  # blank ones may be a channel left out (_empty_channels)
-                self.first_written[number] = (written[0], cells[written[0]])
+                self.first_written[number] = (written[0], texts[written[0]])
             names = [columns[i] for i in bad]
-            repair(self.repairs, number, "bad_value", _bad_value_message(names, cells[bad[0]]))
+            repair(self.repairs, number, "bad_value", _bad_value_message(names, texts[bad[0]]))
         self._add(number, tod, vals, row_status)
 
     def time_of_day(self, number: int, cell: str) -> float | None:
@@ -1248,8 +1314,10 @@ class _RowReader:
             if (clock := clock_seconds(cell)) is not None:
                 seen.setdefault("clock_time", _Seen()).add(cell, number)
                 return clock
-            repair(self.repairs, number, "bad_timecode", f"{exc}: row dropped")
-            seen.setdefault("bad_timecode", _Seen()).add(cell, number)
+            written = self.as_written(number, 0, cell)
+            message = str(exc).replace(repr(cell), repr(written), 1)
+            repair(self.repairs, number, "bad_timecode", f"{message}: row dropped")
+            seen.setdefault("bad_timecode", _Seen()).add(written, number)
             return None
         if not Timecode.is_zero_padded(cell):
             seen.setdefault("unpadded", _Seen()).add(cell, number)
@@ -1258,6 +1326,13 @@ class _RowReader:
         if timecode.is_whole_second:
             seen.setdefault("whole_second", _Seen()).add(cell, number)
         return timecode.seconds_of_day
+
+    def as_written(self, number: int, index: int, cell: str) -> str:
+        """Field ``index`` (after pandas' index column) of line ``number``, read as ``cell``, as the file
+        writes it: a re-save's cells are read converted (``_resaved_lines``), its messages quote its own."""
+        if self.written_lines is None:
+            return cell
+        return self.written_lines.cell(number, index + (self.header.index_column is not None), cell)
 
     def _add(self, number: int, tod: float, vals: list[float] | None, status: int) -> None:
         i = self.n
@@ -1307,7 +1382,9 @@ def _finish(
         first = changed[0]
         raise InputError(f"{first['message']} (strict mode)", path, first["line"])
     if not times.size:
-        _refuse_plain_number_times(seen.get("bad_timecode"), data_rows, path)
+        _refuse_plain_number_times(
+            seen.get("bad_timecode"), data_rows, path, reader.written_lines is not None
+        )
         rejected = [r for r in repairs if r["kind"] not in ("bom", "separator")]
         if rejected:
             first = rejected[0]
@@ -1363,13 +1440,14 @@ def _finish(
     )
 
 
-def _refuse_plain_number_times(bad: _Seen | None, data_rows: int, path: Path) -> None:
+def _refuse_plain_number_times(bad: _Seen | None, data_rows: int, path: Path, resaved: bool = False) -> None:
     """The error for a file in the app's layout whose every row's Timecode is a plain number (seconds or
-    a frame number, as other tools write their times): it says how to import it as paired data."""
+    a frame number, as other tools write their times; ``resaved``: a re-save's, perhaps with a decimal
+    comma): it says how to import it as paired data."""
     if bad is None or bad.count != data_rows or not plain_number(bad.text):
         return
     try:
-        float(bad.text)
+        float(bad.text.replace(",", ".", 1) if resaved else bad.text)  # a re-save's own text: 1,5
     except ValueError:
         return
     raise InputError(

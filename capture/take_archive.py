@@ -14,7 +14,9 @@ A download of a large folder from Google Drive comes in parts, ``F-20250101T1010
 ``-002.zip``, ... (each under 2 GB, each holding some of the folder's files under ``F/``; a take's CSV in
 one, its ``.mov`` in another): the parts of one download given or found together
 (``drive_downloads``) are unpacked into one folder as one archive, each file named after its part; no
-file may be in two parts.
+file may be in two parts. A part cut short (a download that stopped: no zip directory at its end) is
+read as a part missing, with a warning naming it and the files its first bytes show it held (a take
+with files in it is read without those).
 
 A reader that needs a few members only (``s2a-view`` showing one take of an archive of a day's takes,
 gigabytes of ``.mov``) picks them from the archive's list (``pick``): the checks of names (outside the
@@ -24,6 +26,7 @@ not readable here, damage) and the room on the disk see what is unpacked.
 
 from __future__ import annotations
 
+import mmap
 import os
 import re
 import shutil
@@ -36,8 +39,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from .command import stops_deferred
-from .errors import InputError
+from .command import stops_deferred, warn
+from .errors import InputError, first_few
 from .take import Take
 from .transfer_litter import Litter, is_zip
 
@@ -258,9 +261,8 @@ def _check_readable(info: zipfile.ZipInfo, parts: tuple[str, ...], archive: Path
         )
 
 
-def _picked(plan: Plan, pick: Pick, archive: Path) -> Plan:
-    """The members of ``plan`` that ``pick`` wants, their bytes checked (``_check_readable``)."""
-    wanted = set(pick([Member(parts, is_folder(info)) for info, parts in plan]))
+def _picked(plan: Plan, wanted: set[tuple[str, ...]], archive: Path) -> Plan:
+    """The members of ``plan`` that are ``wanted``, their bytes checked (``_check_readable``)."""
     plan = [(info, parts) for info, parts in plan if parts in wanted]
     for info, parts in plan:
         _check_readable(info, parts, archive)
@@ -300,6 +302,34 @@ def _parts_of(plans: list[Plan], names: list[str]) -> dict[str, int]:
     return owner
 
 
+_LOCAL_HEADER = b"PK\x03\x04"
+
+
+def _held_before_cut(part: Path) -> list[str] | None:
+    """Of a zip cut short (a member's header first, no zip directory at its end: a download that stopped),
+    the files its members' headers before the cut name; None for any other file."""
+    try:
+        with open(part, "rb") as f:
+            if f.read(4) != _LOCAL_HEADER or zipfile.is_zipfile(f):
+                return None
+            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):
+        return None
+    held, at = [], 0
+    with data:
+        while 0 <= at and at + 30 <= len(data):  # a member's local header (APPNOTE 4.3.7), its name at 30
+            flags, size, length, extra = (
+                int.from_bytes(data[at + i : at + j], "little")
+                for i, j in ((6, 8), (18, 22), (26, 28), (28, 30))
+            )
+            name = data[at + 30 : at + 30 + length].decode("utf-8", "replace")
+            if name and not name.endswith("/"):
+                held.append(name)
+            # the next header past the member's bytes; sizes written after them (flag 3): the next found
+            at = data.find(_LOCAL_HEADER, at + 30 + length + extra + (0 if flags & 8 else size))
+    return held
+
+
 def _open(archive: Path, name: str) -> zipfile.ZipFile:
     try:
         return zipfile.ZipFile(archive)
@@ -331,13 +361,28 @@ def unpacked(
     tally = Litter() if litter is None else litter
     archives = archive.parts if isinstance(archive, DriveDownload) else (archive,)
     names = [outer.shown(a) if outer else str(a) for a in archives]
+    cut = [_held_before_cut(part) for part in archives] if len(archives) > 1 else [None]
+    if None in cut:  # a part cut short is read as a part missing when another part reads
+        for name, held in zip(names, cut):
+            if held is not None:
+                what = (
+                    f"{first_few(held)} and what followed were in it" if held else "what it held is unknown"
+                )
+                warn(
+                    f"{name}: cut short (not a whole zip: a download that stopped?), read as a part missing "
+                    f"({what}): a take with files in it is read without those (download it again "
+                    "and give all the parts)"
+                )
+        archives = tuple(part for part, held in zip(archives, cut) if held is None)
+        names = [name for name, held in zip(names, cut) if held is None]
     reals = [outer.recorded(a) if outer else str(Path(a).resolve()) for a in archives]
     plans = []
     for part, name in zip(archives, names):  # one part open at a time: a download of a thousand parts
         with _open(part, name) as zf:  # is past a system's limit of open files
             plans.append(_plan(zf, Path(name), tally, readable=pick is None))
-    if pick is not None:
-        plans = [_picked(plan, pick, Path(n)) for plan, n in zip(plans, names)]
+    if pick is not None:  # a download's members picked as one archive's
+        wanted = set(pick([Member(parts, is_folder(info)) for plan in plans for info, parts in plan]))
+        plans = [_picked(plan, wanted, Path(n)) for plan, n in zip(plans, names)]
     owners = _parts_of(plans, names) if len(archives) > 1 else {}
     where = Path(tempfile.gettempdir() if into is None else into)
     _check_room([m for plan in plans for m in plan], where, Path(names[0]))

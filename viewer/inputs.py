@@ -44,7 +44,16 @@ from capture.importer import AUDIO_SUFFIXES, audio_beside, audio_stem, is_liveli
 from capture.mov import probe_mov
 from capture.paired import NoFrameRate
 from capture.take import FrameStatus, is_take_dir
-from capture.take_archive import MAX_DEPTH, UNPACK_PREFIX, Member, Unpacked, unpacked
+from capture.take_archive import (
+    MAX_DEPTH,
+    UNPACK_PREFIX,
+    DriveDownload,
+    Member,
+    Unpacked,
+    drive_downloads,
+    drive_part,
+    unpacked,
+)
 from capture.take_folder import choose_csv, nfc, reads_as_take, takes_side_by_side
 from capture.transfer_litter import Litter, icloud_original, is_zip
 from capture.workers import process_runs
@@ -297,6 +306,7 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
     if found is None:
         return None
     archive, member = found
+    archive = download_of(archive)
     session, outer = _sessions[-1], None
     tally = Litter() if litter is None else litter
     while True:
@@ -330,6 +340,21 @@ def unpacked_input(path: str | Path, litter: Litter | None = None) -> tuple[Path
         for parts in read:
             later.folder.joinpath(*parts).replace(box.folder.joinpath(*parts))
     return target, box.shown(target)
+
+
+def download_of(archive: Path) -> Path | DriveDownload:
+    """A part of a Google Drive download (``F-<time>Z-001.zip``) with other parts of it beside it: the
+    download, read as one archive as ``s2a-capture import`` reads it (a take's CSV in one part, its
+    ``.mov`` in another); any other archive as it is."""
+    part = drive_part(archive)
+    if part is None:
+        return archive
+    try:
+        beside = [p for p in archive.parent.iterdir() if p != archive and drive_part(p)]
+    except OSError:
+        return archive
+    download = drive_downloads([archive, *sorted(beside)])[0]
+    return download if isinstance(download, DriveDownload) else archive
 
 
 class _Route:
