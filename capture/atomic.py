@@ -1,8 +1,9 @@
 """Writing files and folders so that a reader never sees half of one.
 
 Everything is assembled under a hidden name beside its target (``.NAME.partial`` for files,
-``.NAME.partial-XXXX`` for folders), flushed to disk, and renamed into place; on error the partial
-is removed. Every stage writes through these.
+``.NAME.partial-XXXX`` for folders), flushed to disk, and renamed into place (a device or a pipe,
+such as ``/dev/null``, is written into: ``put_in_place``); on error the partial is removed.
+Every stage writes through these.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -48,11 +50,27 @@ def atomic_write(
                 yield f
                 f.flush()
                 os.fsync(f.fileno())
-            os.replace(tmp, path)
+            put_in_place(tmp, path)
         except BaseException:
             with stops_deferred():  # a second Ctrl-C cuts no removal short
                 tmp.unlink(missing_ok=True)
             raise
+
+
+def put_in_place(tmp: Path, path: Path) -> None:
+    """Rename the finished ``tmp`` over ``path``; a ``path`` that is a device or a pipe (``/dev/null``,
+    ``/dev/full``, a FIFO) is written into instead and ``tmp`` removed: renaming replaced the device
+    itself with a file (root may), and a full ``/dev/full`` said nothing."""
+    try:
+        stream = not (stat.S_ISREG(mode := os.stat(path).st_mode) or stat.S_ISDIR(mode))
+    except OSError:
+        stream = False  # no such file yet, or one that cannot be looked at: the rename says what is wrong
+    if not stream:
+        os.replace(tmp, path)
+        return
+    with open(tmp, "rb") as finished, open(path, "wb") as into:
+        shutil.copyfileobj(finished, into)
+    tmp.unlink()
 
 
 def write_json_atomic(

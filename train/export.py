@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from capture.atomic import partial_path
+from capture.atomic import partial_path, put_in_place
 from capture.command import progress, stops_deferred
 from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
@@ -158,7 +158,7 @@ def export_onnx(
             raise ExportFailed(
                 f"{out}: onnxruntime differs from PyTorch by {worst:.3g} (> {tolerance:g}); nothing written"
             )
-        os.replace(tmp, out)
+        put_in_place(tmp, out)
     except OSError as exc:
         raise write_error(exc, out, "the ONNX file") from None
     finally:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from capture import ARKIT52, ARKIT61, Audio, InputError, Take
-from capture.atomic import atomic_write
+from capture.atomic import atomic_write, put_in_place
 from capture.audio_io import ffmpeg_name
 from capture.channels import canonical, is_known
 from capture.command import TimedProgress, stops_deferred
@@ -566,7 +566,7 @@ def write_mp4(
         # rename, so that a stopped render never leaves its output.
         raise_if_stopped()
         with writing(path, "video"):
-            tmp.replace(path)
+            put_in_place(tmp, path)
     except BaseException:
         if lock is not None:  # else another render's partial file, or none
             with stops_deferred():  # a second Ctrl-C cuts no removal short
