@@ -7,9 +7,10 @@ recorder logs a change of rate once it holds, see ``recorder.RATE_CHANGE_PACKETS
 within ``recorder.RATE_JITTER``, a sender declaring its measured rate, is one stretch read at its median
 rate: ``_rate_stretches``), its wraps at midnight undone, is read as the phone's frame clock by
 ``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
-there), the late packets that belong to them (at most ``MAX_LATENESS_S`` behind, or in a gap of it no
-longer than that, ``_far_behind``: a clock that stepped forward and then back, into the gap its step
-left, begins a recording of its own, which its first take's ``clock_returned`` note says), and stray
+there), the late packets that belong to them (at most ``MAX_LATENESS_S`` behind, in a gap of it no
+longer than that, ``_far_behind``, or going on from the current recording's frames without a gap,
+``_continuing``: a clock that stepped forward and then back, into the gap its step left, begins a
+recording of its own, which its first take's ``clock_returned`` note says), and stray
 packets (a corrupt or spoofed frame number) that belong to none. Per recording, small steps back of the
 phone's clock are undone (``_undo_steps_back``: the frames after one are placed where they arrived),
 duplicates (copies of one datagram) are dropped keeping the first arrival, frames sharing a frame time
@@ -124,6 +125,9 @@ LATENESS_WINDOW = 9
 LATENESS_QUANTILE = 0.75
 # A lateness above this is no network's: the frame times are not a clock (random frame numbers).
 MAX_LATENESS_S = 10.0
+# A late frame at most this many of a recording's frame steps from one of its frames (a packet or two lost
+# between) goes on from it: frames of one take form one run on the phone's clock (``_continuing``).
+RUN_STEPS = 3
 # A frame this close to one a recording already has (in frame steps) fills no gap of it: it is not a late
 # frame of that recording but a frame of another one at the same time.
 SLOT_FRACTION = 0.45
@@ -160,6 +164,9 @@ MIN_PACE_S = 0.1
 # Tentacle Sync re-sync), too small for a restart (RESTART_WINDOW_S), is undone: the frames after it are
 # placed where they arrived (``_undo_steps_back``).
 BACK_STEP_S = 0.1
+# Frames that came this many times as fast as their recording's (over a side) are a burst the network held
+# back, not a clock that stepped back.
+BURST_PACE = 4.0
 MAX_STEP_SIDE_PACKETS = 120  # a side of STEP_SIDE_S at most this many packets (a declared 1000 fps)
 # A jittering declared rate (``_rate_stretches``): two runs of nearby rates are a change of setting when
 # each has at least this many packets.
@@ -377,18 +384,22 @@ def _lateness(frame_time: np.ndarray) -> float:
 def _pieces(level: np.ndarray, tol: float) -> tuple[list[int], list[int]]:
     """Where the clock ``level`` (in arrival order) jumps: starts of the stretches between jumps and how
     each begins (0 the first, -1 a jump back of more than ``tol`` below the highest level of the stretch
-    before, +1 a jump forward of more than ``tol``)."""
+    before, +1 a jump forward of more than ``tol``, 0 after a jump back where the clock is back at the
+    level it had before it: it went on, past late packets it went back to or from where it restarted)."""
     starts, kinds = [0], [0]
     values = level.tolist()
     top = prev = values[0]
+    was = np.inf  # the highest level before the last jump back, until the clock is back there
     for i, v in enumerate(values):
         if v < top - tol:
             starts.append(i)
             kinds.append(-1)
+            was = min(was, top)
             top = v
-        elif v > prev + tol:
+        elif v > prev + tol or v >= was:
             starts.append(i)
-            kinds.append(1)
+            kinds.append(1 if v > prev + tol else 0)
+            was = np.inf
             top = v
         elif v > top:
             top = v
@@ -461,12 +472,14 @@ def _late_frames_of(
     tol: float,
     resumes: bool,
     max_behind: float = MAX_LATENESS_S,
+    on_clock: bool = False,
 ) -> bool:
     """Whether the frames ``idx`` (a stretch the clock jumped back to) are late frames of ``rec``: they lie
     in its frame-time range (or next to it, when the clock then resumes where ``rec`` was), at most
-    ``max_behind`` behind its latest frame or in a gap of it no longer than that (``_far_behind``), and
-    mostly fill its gaps: a frame on a slot ``rec`` already has (``_taken_slots``) is a frame of another
-    recording at the same time (a restart), not a late packet."""
+    ``max_behind`` behind its latest frame or in a gap of it no longer than that (``_far_behind``) or,
+    when ``rec`` is the recording the clock is on (``on_clock``), going on from its frames
+    (``_continuing``), and mostly fill its gaps: a frame on a slot ``rec`` already has (``_taken_slots``)
+    is a frame of another recording at the same time (a restart), not a late packet."""
     ft = frame_time[idx]
     if not ft.size:
         return True
@@ -474,7 +487,11 @@ def _late_frames_of(
         middle = np.median(ft, keepdims=True)
         ends = rec.around(middle[0] - max_behind, middle[0] + max_behind)  # where a gap this long can end
         if _far_behind(middle, rec.hi, frame_time[ends], max_behind)[0]:
-            return False
+            # unless they go on from its frames, all in one gap of them (none of theirs among them)
+            ours = frame_time[rec.around(float(ft.min()) - tol, float(ft.max()) + tol)]
+            among = np.any((ours > ft.min()) & (ours < ft.max()))
+            if not (on_clock and not among and _continuing(ft, ours, ft).all()):
+                return False
     near = (ft >= rec.lo - tol) & (ft <= rec.hi + tol)
     if 2 * np.count_nonzero(near) < ft.size:
         return False
@@ -491,11 +508,40 @@ def _far_behind(ft: np.ndarray, clock: np.ndarray | float, have: np.ndarray, lim
     ``have`` longer than ``limit``. A network may hold back a packet, or a burst of them, for longer than
     ``limit``: the gap they left is then as long as the burst, and they fill it. A longer gap far behind
     the clock is one the clock left by stepping forward; frames in it come from the clock stepping back
-    into it (a clock corrected twice, a timecode source switched and back), not from the network."""
+    into it (a clock corrected twice, a timecode source switched and back), not from the network (unless
+    they go on from the frames of the recording the clock is on, ``_continuing``: its callers ask)."""
     times = np.concatenate([[-np.inf], np.sort(have), [np.inf]])
     after = np.searchsorted(times, ft, "right")  # the first of ``have`` after each (ft is finite)
     gap = times[after] - times[after - 1]
     return (np.asarray(clock) - ft > limit) & (gap > limit)
+
+
+def _continuing(ft: np.ndarray, have: np.ndarray, along: np.ndarray) -> np.ndarray:
+    """Which frame times ``ft`` go on from a recording's frame times ``have`` (any order) without a gap:
+    in one run with them and the frames ``along`` (each at most ``RUN_STEPS`` of the recording's frame
+    steps from the next), as the frames of one take are on the phone's clock. The network may hold back
+    the last frames before a pause, or a take's first frames, until after the frames that follow them:
+    they go on from the recording's frames before or after them, however long the pause. A clock that
+    stepped back into a gap its step forward left lands as far from the frames before the gap as it was
+    ahead: it goes on from none."""
+    step = _frame_step(np.sort(have))
+    if step is None:
+        return np.zeros(ft.size, bool)
+    times = np.concatenate([have, ft, along])
+    order = np.argsort(times, kind="stable")
+    run = np.empty(times.size, np.int64)  # each frame's run
+    run[order] = np.concatenate([[0], np.cumsum(np.diff(times[order]) > RUN_STEPS * step)])
+    ours = np.zeros(int(run.max()) + 1, bool)
+    ours[run[: have.size]] = True
+    return ours[run[have.size : have.size + ft.size]]
+
+
+def _frame_step(times: np.ndarray) -> float | None:
+    """The frame step of frame times ``times`` (sorted): the median step between frames of different
+    times; None with fewer than two."""
+    steps = np.diff(times)
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else None
 
 
 def _taken_slots(
@@ -507,16 +553,15 @@ def _taken_slots(
     replay run twice does, restarted)."""
     have = have[np.argsort(frame_time[have], kind="stable")]
     times = frame_time[have]
-    steps = np.diff(times)
-    steps = steps[steps > 0]
-    if not steps.size:
+    step = _frame_step(times)
+    if step is None:
         return np.zeros(idx.size, bool)
     ft = frame_time[idx]
     right = np.clip(np.searchsorted(times, ft), 0, times.size - 1)
     left = np.clip(right - 1, 0, times.size - 1)
     nearest = np.where(np.abs(times[left] - ft) < np.abs(times[right] - ft), left, right)
     dist = np.abs(times[nearest] - ft)
-    taken = dist < SLOT_FRACTION * float(np.median(steps))
+    taken = dist < SLOT_FRACTION * step
     copy = dist == 0
     if copy.any():
         a, b = idx[copy], have[nearest[copy]]
@@ -556,7 +601,10 @@ def _place_off_clock(
         inside = (ft[who] >= rec.lo - tol) & (ft[who] <= rec.hi + tol)
         behind = np.where(current[who] == c, clock[off[who]], np.where(current[who] > c, rec.hi, -np.inf))
         have = rec.rows()
-        inside &= ~_far_behind(ft[who], behind, frame_time[have], MAX_LATENESS_S)
+        far = _far_behind(ft[who], behind, frame_time[have], MAX_LATENESS_S)
+        ours = current[who] == c  # the recording the clock was on: late frames going on from it are its
+        far[far & ours] = ~_continuing(ft[who][far & ours], frame_time[have], ft[who][ours])
+        inside &= ~far
         who, rank = who[inside], rank[inside]
         free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s)
         fits[who[free], rank[free]] = True
@@ -652,11 +700,14 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
         resumes = (
             back
             and k + 1 < len(kinds)
-            and kinds[k + 1] > 0
+            and kinds[k + 1] >= 0
             and level[bounds[k + 1]] >= recs[current].hi - tol
         )
         for c in range(first, max(current - 3, -1), -1) if kinds[k] else ():
-            if _late_frames_of(recs[c], idx, rows, frame_time, arrival_s, tol, resumes and c == current):
+            on_clock = c == current
+            if _late_frames_of(
+                recs[c], idx, rows, frame_time, arrival_s, tol, resumes and on_clock, on_clock=on_clock
+            ):
                 target = c
                 break
         if target is None and (current < 0 or back):
@@ -983,6 +1034,25 @@ def _floors(behind: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
     return least[: behind.size], least[width : width + behind.size]
 
 
+def _run_through(frame_time: np.ndarray) -> float:
+    """How much frame time packets (in any order) span, their first and last tenth left out (a late
+    or stray packet among them does not widen it)."""
+    return float(np.quantile(frame_time, 0.9) - np.quantile(frame_time, 0.1))
+
+
+def _typical_pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float:
+    """How fast a recording's frame time runs against its arrivals (in arrival order; 1: real time, a
+    replay at --speed k: k): the median over its ``STEP_SIDE_S`` stretches of arrivals (a burst the network
+    held back comes within one, however long, as a step of the clock falls in one)."""
+    cuts = np.searchsorted(arrival_s, np.arange(arrival_s[0], arrival_s[-1], STEP_SIDE_S))
+    paces = [
+        _run_through(frame_time[a:b]) / float(np.ptp(arrival_s[a:b]))
+        for a, b in zip(cuts, [*cuts[1:], arrival_s.size])
+        if b - a > 1 and arrival_s[b - 1] > arrival_s[a]
+    ]
+    return float(np.median(paces)) if paces else 1.0
+
+
 def _undo_steps_back(
     frame_time: np.ndarray, arrival_s: np.ndarray, period: float
 ) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
@@ -998,7 +1068,9 @@ def _undo_steps_back(
     before it: a sender that paused with its clock, a slow replay or the network holding packets back for
     a while moves the arrivals but not the frame times back; and where the fastest packet over the
     ``STEP_SIDE_S`` after those is still as late (when the recording goes on that long): a stall the
-    network flushed out of order moves both, but the arrivals for the flush only.
+    network flushed out of order moves both, but the arrivals for the flush only; and where the frames
+    after it came at the recording's pace, not ``BURST_PACE`` times as fast: a burst the network held back,
+    however long, came at once.
     Next to the step, a packet is of the clock after it when it arrived half the step later than the
     fastest before it (a packet of the clock before it as late as that is taken for one after it)."""
     n = frame_time.size
@@ -1012,6 +1084,7 @@ def _undo_steps_back(
     steps: list[tuple[float, float, float]] = []
     done = 0  # packets up to here are placed
     found = np.flatnonzero(rise > BACK_STEP_S)
+    pace = None  # the recording's (``_typical_pace``), when a step needs it
     for cluster in np.split(found, np.flatnonzero(np.diff(found) > 1) + 1) if found.size else []:
         step = float(rise[cluster].max())
         at = int(cluster[np.argmax(rise[cluster] > step / 2)])  # it rises there, it stays up a side long
@@ -1025,6 +1098,12 @@ def _undo_steps_back(
         # and the arrivals stay behind by the step a side further on (until the next step): a stall the
         # network flushed out of order rises for the flush only
         if at + 2 * width <= n and after[at + width] - before[at] < step / 2:
+            continue
+        # and the frames after it came at the recording's pace (a re-sync does not change it), not many
+        # times as fast: a burst the network held back comes all at once, however long it is
+        side = slice(at, at + width)
+        pace = _typical_pace(frame_time, arrival_s) if pace is None else pace
+        if _run_through(frame_time[side]) > BURST_PACE * pace * float(np.ptp(arrival_s[side])):
             continue
         zone = slice(max(at - width, done), at + width)
         later = np.zeros(n, bool)
