@@ -14,7 +14,7 @@ from .audio_io import audio_left_in_files
 from .channels import is_known
 from .command import StageParser, add_version, emit_json, emit_line, progress, run, sigterm_stops, warn
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
-from .errors import InputError, S2AError
+from .errors import InputError, S2AError, printable
 from .file_lock import another_writer, holding
 from .import_guard import imports_done
 from .importer import (
@@ -321,7 +321,7 @@ def _import_jobs(args: argparse.Namespace, timecode_rate: float | None, litter: 
         if failures > 1:  # a batch's errors, one per file, may be one mistake (no --fps for 200 CSVs)
             reason, count = importer.reasons.most_common(1)[0]
             common = f"; {count} of them: {reason}" if count > 1 else ""
-            print(f"{PROG}: {failures} sources failed{common}", file=sys.stderr)
+            print(printable(f"{PROG}: {failures} sources failed{common}"), file=sys.stderr)
         return 1 if failures else 0
 
 
@@ -349,7 +349,7 @@ class _Importer:
 
     def _failed(self, src: Path | str, exc: S2AError, box: Unpacked | None = None) -> None:
         shown = box.shown(exc) if box else str(exc)
-        print(f"{PROG}: error: {shown}", file=sys.stderr)
+        print(printable(f"{PROG}: error: {shown}"), file=sys.stderr)
         self.reasons[getattr(exc, "reason", None) or str(exc)] += 1
         if self.args.json:
             emit_json({"source": str(src), "error": shown})
@@ -631,8 +631,13 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     return 0
 
 
+def _handle(args: argparse.Namespace) -> int:
+    with sigterm_stops():  # SIGTERM stops every command as Ctrl-C does (exit 143): no partial file left
+        return args.handler(args)
+
+
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser, lambda a: a.handler(a), argv)
+    return run(PROG, build_parser, _handle, argv)
 
 
 if __name__ == "__main__":

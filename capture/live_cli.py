@@ -23,7 +23,7 @@ from typing import Any
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource, check_regular_file
 from .command import Terminated, emit_json, progress, sigterm_stops, warn
-from .errors import InputError, S2AError
+from .errors import InputError, S2AError, printable
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
 from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, check_record_start, check_subject, resolve_target
@@ -1054,7 +1054,7 @@ def _recover(args: argparse.Namespace) -> int:
             except (S2AError, OSError) as exc:  # one unreadable session must not stop the others
                 failures += 1
                 message = str(exc) if isinstance(exc, S2AError) else f"{session}: {exc.strerror or exc}"
-                print(f"s2a-capture: error: {message}", file=sys.stderr)
+                print(printable(f"s2a-capture: error: {message}"), file=sys.stderr)
                 if args.json:
                     emit_json({"session": str(session), "error": message})
                 continue
@@ -1066,7 +1066,10 @@ def _recover(args: argparse.Namespace) -> int:
         if failed:
             failures += 1
             out = args.out or session.parent
-            print(f"s2a-capture: error: {session}: {failed} take(s) not written to {out}", file=sys.stderr)
+            print(
+                printable(f"s2a-capture: error: {session}: {failed} take(s) not written to {out}"),
+                file=sys.stderr,
+            )
     return 1 if failures else 0
 
 

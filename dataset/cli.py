@@ -19,9 +19,10 @@ from capture.command import (
     jobs_count,
     progress,
     run,
+    sigterm_stops,
     warn,
 )
-from capture.errors import InputError
+from capture.errors import InputError, printable
 from capture.import_guard import imports_done
 
 from .build import BuildOptions, build_dataset
@@ -154,9 +155,9 @@ def cmd_build(args: argparse.Namespace) -> int:
         # what the build left in the folder, when it replaced a dataset (dataset.build.build_dataset)
         left = getattr(exc, "dataset_state", "")
         if isinstance(exc, Terminated):
-            print(f"{PROG}: terminated (SIGTERM); {left or RESUME}", file=sys.stderr)
+            print(printable(f"{PROG}: terminated (SIGTERM); {left or RESUME}"), file=sys.stderr)
             return 143
-        print(f"{PROG}: interrupted" + (f"; {left}" if left else ""), file=sys.stderr)
+        print(printable(f"{PROG}: interrupted" + (f"; {left}" if left else "")), file=sys.stderr)
         return 130
     if args.json:
         emit_json(summary)
@@ -263,8 +264,13 @@ def cmd_stats(args: argparse.Namespace) -> int:
     return 0
 
 
+def _handle(args: argparse.Namespace) -> int:
+    with sigterm_stops():  # SIGTERM stops every command as Ctrl-C does (exit 143)
+        return args.handler(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(PROG, build_parser, lambda a: a.handler(a), argv)
+    return run(PROG, build_parser, _handle, argv)
 
 
 if __name__ == "__main__":

@@ -287,9 +287,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
         elif "error" not in r:
             emit_line(f"{r['csv']}: {r['frames']} frames ({r['duration_s']:.2f} s)")
     if failed:
+        written = "none was written" if len(failed) == len(results) else "the others were written"
         raise InputError(
-            f"{len(failed)} of {len(results)} audio files failed (the others were written); "
-            f"first: {failed[0]['error']}"
+            f"{len(failed)} of {len(results)} audio files failed ({written}); first: {failed[0]['error']}"
         )
     return 0
 
@@ -313,8 +313,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         emit_line(format_tables(rows))
     failed = [r for r in rows if "error" in r]
     if failed:
+        held = "each one's error" if len(failed) == len(rows) else "the others' results"
         raise InputError(
-            f"{len(failed)} of {len(rows)} systems failed (compare.json holds the others' results); "
+            f"{len(failed)} of {len(rows)} systems failed (compare.json holds {held}); "
             f"first: {failed[0]['error']}"
         )
     return 0
