@@ -91,7 +91,7 @@ from .normalize import (
     usable_neutral,
     voiced_log_f0_sums,
 )
-from .qa import ANIM_LIMIT, BASE_MEMBERS
+from .qa import ANIM_LIMIT, BASE_MEMBERS, CHANNEL_MASK
 from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits, pinned_groups, speaker_key
 
@@ -1076,7 +1076,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
             "mask.npy": npy_bytes(mask[a:b]),
         }
         if partly[a:b].any():  # else every channel's usable frames are the mask's: no member
-            members["channel_mask.npy"] = npy_bytes(channel_mask[a:b])
+            members[CHANNEL_MASK] = npy_bytes(channel_mask[a:b])
         for name, arr in feats.items():
             members[f"{name}.npy"] = npy_bytes(arr[a:b])
         if phones is not None:

@@ -771,8 +771,9 @@ def _stats_problems(manifest: dict[str, Any]) -> list[Problem]:
 
 
 BASE_MEMBERS = ("json", "flac", "anim.npy", "mask.npy")
+CHANNEL_MASK = "channel_mask.npy"  # which channels are usable in which frames, where they differ
 # phones with a phone-aware PPG; channel_mask where some frame is usable in some channels only
-OPTIONAL_MEMBERS = ("phones.npy", "channel_mask.npy")
+OPTIONAL_MEMBERS = ("phones.npy", CHANNEL_MASK)
 
 
 def _feature_problems(manifest: dict[str, Any]) -> list[Problem]:

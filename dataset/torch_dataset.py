@@ -31,8 +31,8 @@ changed sample is read before the shard's end: so each sample is also checked as
 (frames, channels) float, the mask (frames,) bool (a channel_mask, where there is one, (frames,
 channels) bool whose frames usable in every channel are the mask's) and each feature (frames, dim)
 float, with the manifest's frames, channels and dims, and every value is finite (the build writes 0,
-never NaN, at masked frames and values). A damaged sample is an ``InputError`` naming the shard and
-the sample key.
+never NaN, at unusable values: those of a masked frame, but for the channels a channel_mask keeps
+usable in it). A damaged sample is an ``InputError`` naming the shard and the sample key.
 """
 
 from __future__ import annotations
@@ -55,10 +55,9 @@ from capture.numbers import is_count
 
 from .manifest import _numbers, dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
+from .qa import CHANNEL_MASK
 from .shards import ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
-
-CHANNEL_MASK = "channel_mask.npy"  # optional: which channels are usable in which frames (dataset.md)
 
 # The shards this process read to their end with the manifest's sha256, by path, sha256 and file identity
 # (device, inode, size, modification and change times): one read in every epoch is hashed in the first
@@ -509,11 +508,14 @@ class ShardDataset(IterableDataset):
 
 def scored_columns(names: list[str], channels: list[str] | None, ds: Path) -> list[int] | slice:
     """The columns of ``channels`` (channel names) among the dataset's ``names``: the channels whose
-    usable frames make an item's ``mask`` (None: all of them). An unknown name is an ``InputError``."""
+    usable frames make an item's ``mask`` (None: all of them). An unknown name, or none (every frame,
+    a lost face's too, would be a target), is an ``InputError``."""
     if channels is None:
         return slice(None)
     if not isinstance(channels, (list, tuple)) or not all(isinstance(c, str) for c in channels):
         raise InputError(f"channels must be a list of channel names, not {channels!r:.80}", ds)
+    if not channels:
+        raise InputError("channels must name at least one channel (None: all of them)", ds)
     unknown = [c for c in channels if c not in names]
     if unknown:
         raise InputError(f"channel(s) {', '.join(map(repr, unknown[:5]))} not in this dataset", ds)
