@@ -219,55 +219,96 @@ def _resaved_cell(cell: str, number: int, first: dict[str, tuple[str, int]]) -> 
     return '"' + cell.replace('"', '""') + '"' if "," in cell or '"' in cell else cell
 
 
-def _resaved_lines(lines: list[str], sep: str, path: Path, repairs: list) -> None:
-    """The lines of a CSV a spreadsheet re-saved with ``sep`` between the fields (``;`` in a locale with a
-    decimal comma, or a tab: ``RESAVE_SEPARATORS``) turned, in place, into the app's layout: ``,`` between
-    the fields, ``.`` for the decimal point of numbers written with ``,`` (``0,5``; those written with
-    ``.`` stay), a timecode's sub-frame after a point (``44,643``: a timecode's comma is no separator).
-    Repair ``separator``; an ``InputError`` when the numbers are written with both marks (which one a cell
-    means is a guess)."""
-    first: dict[str, tuple[str, int]] = {}  # each decimal mark's first number, and its line
-    between = RESAVE_SEPARATORS[sep]
+def _resaved_lines(
+    lines: list[str], sep: str, path: Path, first: dict[str, tuple[str, int]], start: int = 1
+) -> None:
+    """Lines ``start``, ``start + 1``, ... of a CSV a spreadsheet re-saved with ``sep`` between the fields
+    (``;`` in a locale with a decimal comma, or a tab: ``RESAVE_SEPARATORS``) turned, in place, into the
+    app's layout: ``,`` between the fields, ``.`` for the decimal point of numbers written with ``,``
+    (``0,5``; those written with ``.`` stay), a timecode's sub-frame after a point (``44,643``: a timecode's
+    comma is no separator). Each decimal mark's first number and its line are noted in ``first`` (kept
+    from one block of lines to the next); an ``InputError`` when the numbers are written with both marks
+    (which one a cell means is a guess)."""
     for i, line in enumerate(lines):
+        number = start + i
         head, found, numbers = line.partition(sep)
         # a row as nearly all are: no quotes, the cells after its first (count, values) holding no decimal
         # mark but that of the numbers met (read cell by cell, below): two replaces do what the cells one by
         # one would (a cell no number, "0,5x", is none either way; messages quote the file's own cells)
-        if i and found and '"' not in line and all(mark in first for mark in ",." if mark in numbers):
-            lines[i] = _resaved_cell(head, i + 1, first) + "," + numbers.replace(",", ".").replace(sep, ",")
+        if (
+            number > 1
+            and found
+            and '"' not in line
+            and all(mark in first for mark in ",." if mark in numbers)
+        ):
+            lines[i] = _resaved_cell(head, number, first) + "," + numbers.replace(",", ".").replace(sep, ",")
         else:
-            lines[i] = ",".join(_resaved_cell(cell, i + 1, first) for cell in _fields(line, sep))
+            lines[i] = ",".join(_resaved_cell(cell, number, first) for cell in _fields(line, sep))
         if len(first) == 2:
             (comma, at_comma), (point, at_point) = first[","], first["."]
             raise InputError(
-                f"re-saved with {between} between the fields, its numbers written with both ',' "
-                f"({_shown(comma)} on line {at_comma}) and '.' ({_shown(point)} on line {at_point}) as the "
-                "decimal point: "
+                f"re-saved with {RESAVE_SEPARATORS[sep]} between the fields, its numbers written with both "
+                f"',' ({_shown(comma)} on line {at_comma}) and '.' ({_shown(point)} on line {at_point}) as "
+                "the decimal point: "
                 "export it with commas between the fields and '.' as the decimal point, as the app writes it",
                 path,
-                i + 1,
+                number,
             )
+
+
+def _separator_note(sep: str, first: dict[str, tuple[str, int]], repairs: list) -> None:
+    """Repair ``separator`` of a re-save with ``sep`` between the fields, whose numbers' decimal marks
+    ``_resaved_lines`` noted in ``first``."""
     mark = "," if "," in first else "."
+    between = RESAVE_SEPARATORS[sep]
     message = f"re-saved with {between} between the fields and {mark!r} as the decimal point: read so"
     repair(repairs, 1, "separator", message)
 
 
+# A re-save's text is read, decoded and converted this many bytes at a time (whole lines): never held whole
+TEXT_BLOCK_BYTES = 1 << 22
+
+
+def _text_blocks(path: Path) -> Iterator[tuple[list[str], bool]]:
+    """The lines of a text file as ``text_lines`` splits them (a UTF-8 byte-order mark left out, bytes no
+    UTF-8 read as U+FFFD), a block of about ``TEXT_BLOCK_BYTES`` at a time, with whether the block's last
+    line has its line end (every block's but perhaps the file's last)."""
+    with open(path, "rb") as f:
+        rest = f.read(len(UTF8_BOM))
+        if rest == UTF8_BOM:
+            rest = b""
+        while True:
+            chunk = f.read(TEXT_BLOCK_BYTES)
+            data = rest + chunk
+            cut = data.rfind(b"\n") + 1 if chunk else len(data)  # a block ends after a line's \n
+            block, rest = data[:cut], data[cut:]
+            if block:
+                yield text_lines(block.decode("utf-8", errors="replace")), block.endswith((b"\n", b"\r"))
+            if not chunk:
+                return
+
+
 class _WrittenLines:
     """The lines of a re-save with another separator (``RESAVE_SEPARATORS``) as the file writes them, read
-    from the file when a message first quotes one of its cells (the reader reads them converted)."""
+    from the file a block at a time (``_text_blocks``) as messages quote their cells, in the order of
+    their lines (the reader reads them converted)."""
 
     def __init__(self, path: Path, sep: str) -> None:
         self.path, self.sep = path, sep
-        self.lines: list[str] | None = None
+        self.blocks: Iterator[tuple[list[str], bool]] = iter(())
+        self.block: list[str] = []  # the block of lines read last, its first line's number ``start``
+        self.start = 1
 
     def cell(self, number: int, index: int, converted: str) -> str:
         """Field ``index`` of line ``number`` as written, read as ``converted``."""
-        if self.lines is None:
-            raw = self.path.read_bytes()
-            self.lines = text_lines(
-                raw[3 if raw.startswith(UTF8_BOM) else 0 :].decode("utf-8", errors="replace")
-            )
-        fields = _fields(self.lines[number - 1], self.sep) if number <= len(self.lines) else []
+        if number < self.start or not self.block:  # an earlier line (the file read again): from its start
+            self.blocks, self.block, self.start = _text_blocks(self.path), [], 1
+        while number >= self.start + len(self.block):
+            lines, _ = next(self.blocks, ([], False))
+            if not lines:  # past the file's end
+                return converted
+            self.start, self.block = self.start + len(self.block), lines
+        fields = _fields(self.block[number - self.start], self.sep)
         return fields[index] if index < len(fields) else converted
 
 
@@ -438,7 +479,7 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
             raise InputError("binary data, not a CSV text file", path, 1)
         sep = app_header_separator(text)
         if sep in RESAVE_SEPARATORS:  # a spreadsheet's re-save: converted, then read as the app's CSV
-            rows = None if strict else _read_resaved(path, sep)
+            rows = None if strict else _read_resaved(path, sep, bom)
             return rows if rows is not None else _read_careful(path, strict)
         header = _parse_header(text, path)
         rows = _read_fast(path, header, bom, len(first) + 1, strict)
@@ -447,32 +488,32 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     return _read_careful(path, strict)
 
 
-def _read_resaved(path: Path, sep: str) -> CsvRows | None:
-    """The rows of a spreadsheet's re-save with ``sep`` between the fields, its text converted once into
-    the app's layout (``_resaved_lines``) and read as the app's CSV is (``_read_fast``, its messages quoting
-    the file's own cells); ``None`` where that sends a file to the careful parser."""
-    raw = path.read_bytes()
+def _read_resaved(path: Path, sep: str, bom: bool) -> CsvRows | None:
+    """The rows of a spreadsheet's re-save with ``sep`` between the fields, its text converted a block at a
+    time (``_text_blocks``, ``_resaved_lines``) into the app's layout and read as the app's CSV is
+    (``_read_fast``, its messages quoting the file's own cells); ``None`` where that sends a file to the
+    careful parser. Only the converted copy is held whole (the careful parser held the file's text and its
+    lines)."""
     repairs: list[dict[str, Any]] = []
-    if raw.startswith(UTF8_BOM):
-        raw = raw[3:]
+    if bom:
         repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
-    line_ending = "\r\n" if b"\r\n" in raw[:65536] else "\n"
-    text = raw.decode("utf-8", errors="replace")
-    del raw  # one copy of the file at a time: its bytes, its text, its lines, the converted text
-    ends_with_newline = text.endswith(("\n", "\r"))
-    lines = text_lines(text)
-    del text
-    if "\ufffd" in lines[0]:
-        return None
-    _resaved_lines(lines, sep, path, repairs)
-    header = _parse_header(lines[0], path)
-    body_start = len(lines[0]) + len(line_ending)
-    # encoded a block of lines at a time, each let go once encoded: never two copies of the whole text
-    converted = bytearray()
-    while lines:
-        block = lines[:4096]
-        del lines[:4096]
-        converted += (line_ending.join(block) + (line_ending if lines or ends_with_newline else "")).encode()
+    with open(path, "rb") as f:
+        f.seek(len(UTF8_BOM) if bom else 0)
+        line_ending = "\r\n" if b"\r\n" in f.read(65536) else "\n"
+    first: dict[str, tuple[str, int]] = {}
+    converted, header_line, start = bytearray(), "", 1
+    for lines, closed in _text_blocks(path):
+        if start == 1 and "\ufffd" in lines[0]:
+            return None
+        _resaved_lines(lines, sep, path, first, start)
+        if start == 1:
+            header_line = lines[0]
+            body_start = len(header_line.encode()) + len(line_ending)
+        start += len(lines)
+        converted += (line_ending.join(lines) + (line_ending if closed else "")).encode()
+        del lines
+    _separator_note(sep, first, repairs)
+    header = _parse_header(header_line, path)
     rows = _read_fast(path, header, False, body_start, False, converted, _WrittenLines(path, sep))
     if rows is not None:
         rows.repairs[:0] = repairs
@@ -1160,7 +1201,9 @@ def _read_careful(path: Path, strict: bool, raw: bytes | None = None) -> CsvRows
         raise InputError("binary data, not a CSV text file", path, 1)
     sep = app_header_separator(lines[0])
     if sep in RESAVE_SEPARATORS:
-        _resaved_lines(lines, sep, path, repairs)
+        first: dict[str, tuple[str, int]] = {}
+        _resaved_lines(lines, sep, path, first)
+        _separator_note(sep, first, repairs)
     header = _parse_header(lines[0], path)
     reader = _RowReader(path, header, lines[0], len(lines) - 1, len(lines), ends_with_newline, repairs)
     reader.written_lines = _WrittenLines(path, sep) if sep in RESAVE_SEPARATORS else None

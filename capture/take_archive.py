@@ -274,7 +274,8 @@ def _check_room(plan: Plan, into: Path, archive: Path) -> None:
     free = shutil.disk_usage(into).free
     if need + SPARE_BYTES > free:
         raise InputError(
-            f"unpacking it needs {need / 1e9:.2f} GB and {into} has {free / 1e9:.2f} GB free: free some "
+            f"no space left on the disk to unpack it: it needs {(need + SPARE_BYTES) / 1e6:.1f} MB "
+            f"({SPARE_BYTES >> 20} MB of it to spare) and {into} has {free / 1e6:.1f} MB free: free some "
             "space, or unzip it elsewhere and import the folder",
             archive,
         )
@@ -325,9 +326,28 @@ def _held_before_cut(part: Path) -> list[str] | None:
             name = data[at + 30 : at + 30 + length].decode("utf-8", "replace")
             if name and not name.endswith("/"):
                 held.append(name)
-            # the next header past the member's bytes; sizes written after them (flag 3): the next found
-            at = data.find(_LOCAL_HEADER, at + 30 + length + extra + (0 if flags & 8 else size))
+            start = at + 30 + length + extra  # the member's bytes
+            if not flags & 8:
+                at = data.find(_LOCAL_HEADER, start + size)
+                continue
+            # sizes written after the bytes (flag 3): the next header found just past a descriptor giving
+            # their size (the signature met in a member's bytes, a zip stored in this one, starts none)
+            at = data.find(_LOCAL_HEADER, start)
+            while at >= 0 and not _after_descriptor(data, start, at):
+                at = data.find(_LOCAL_HEADER, at + 1)
     return held
+
+
+def _after_descriptor(data: mmap.mmap, start: int, at: int) -> bool:
+    """Whether the bytes of a member from ``start`` end at ``at`` with its data descriptor (APPNOTE 4.3.9:
+    perhaps its signature, a CRC, the sizes in 4 bytes or, in a zip64, 8) saying how many they are."""
+    for signature, width in ((b"PK\x07\x08", 4), (b"PK\x07\x08", 8), (b"", 4), (b"", 8)):
+        descriptor = at - len(signature) - 4 - 2 * width
+        size = data[descriptor + len(signature) + 4 : descriptor + len(signature) + 4 + width]
+        if descriptor >= start and data[descriptor : descriptor + len(signature)] == signature:
+            if int.from_bytes(size, "little") == descriptor - start:
+                return True
+    return False
 
 
 def _open(archive: Path, name: str) -> zipfile.ZipFile:
