@@ -473,13 +473,15 @@ def _late_frames_of(
     resumes: bool,
     max_behind: float = MAX_LATENESS_S,
     on_clock: bool = False,
+    gap_only: bool = False,
 ) -> bool:
     """Whether the frames ``idx`` (a stretch the clock jumped back to) are late frames of ``rec``: they lie
     in its frame-time range (or next to it, when the clock then resumes where ``rec`` was), at most
     ``max_behind`` behind its latest frame or in a gap of it no longer than that (``_far_behind``) or,
     when ``rec`` is the recording the clock is on (``on_clock``), going on from its frames
-    (``_continuing``), and mostly fill its gaps: a frame on a slot ``rec`` already has (``_taken_slots``)
-    is a frame of another recording at the same time (a restart), not a late packet."""
+    (``_continuing``), and mostly fill its gaps (all of them, ``gap_only``): a frame on a slot ``rec``
+    already has (``_taken_slots``) is a frame of another recording at the same time (a restart), not a late
+    packet."""
     ft = frame_time[idx]
     if not ft.size:
         return True
@@ -499,7 +501,7 @@ def _late_frames_of(
         return False
     have = rec.around(float(ft.min()) - tol, float(ft.max()) + tol)
     taken = _taken_slots(idx[near], have, rows, frame_time, arrival_s)
-    return 2 * np.count_nonzero(taken) < ft.size
+    return not taken.any() if gap_only else 2 * np.count_nonzero(taken) < ft.size
 
 
 def _far_behind(ft: np.ndarray, clock: np.ndarray | float, have: np.ndarray, limit: float) -> np.ndarray:
@@ -703,10 +705,22 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
             and kinds[k + 1] >= 0
             and level[bounds[k + 1]] >= recs[current].hi - tol
         )
+        # cut where the clock came back up to where it was (``_pieces``): a burst the network held back
+        # fills the gap it left, none of its frames on a slot the recording has; a clock that stepped back
+        # (a Wi-Fi burst after the step cut short the stretch after it) gives frame times it gave before
+        gap_only = k + 1 < len(kinds) and kinds[k + 1] == 0
         for c in range(first, max(current - 3, -1), -1) if kinds[k] else ():
             on_clock = c == current
             if _late_frames_of(
-                recs[c], idx, rows, frame_time, arrival_s, tol, resumes and on_clock, on_clock=on_clock
+                recs[c],
+                idx,
+                rows,
+                frame_time,
+                arrival_s,
+                tol,
+                resumes and on_clock,
+                on_clock=on_clock,
+                gap_only=gap_only,
             ):
                 target = c
                 break
@@ -719,7 +733,15 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
                     )
                     return _Clock([], empty, problem)
             if current >= 0 and _late_frames_of(
-                recs[current], idx, rows, frame_time, arrival_s, tol, resumes, max_behind=np.inf
+                recs[current],
+                idx,
+                rows,
+                frame_time,
+                arrival_s,
+                tol,
+                resumes,
+                max_behind=np.inf,
+                gap_only=gap_only,
             ):  # back into the gap its step forward left (a clock corrected twice): not late frames
                 first = float(frame_time[idx[0]])
                 returned[len(recs)] = (recs[current].hi - first, first)
@@ -1044,7 +1066,10 @@ def _typical_pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float:
     """How fast a recording's frame time runs against its arrivals (in arrival order; 1: real time, a
     replay at --speed k: k): the median over its ``STEP_SIDE_S`` stretches of arrivals (a burst the network
     held back comes within one, however long, as a step of the clock falls in one)."""
-    cuts = np.searchsorted(arrival_s, np.arange(arrival_s[0], arrival_s[-1], STEP_SIDE_S))
+    # each packet's stretch, only those with packets (a grid over the span: one packet logged days late
+    # would make it huge)
+    stretch = np.floor((arrival_s - arrival_s[0]) / STEP_SIDE_S)
+    cuts = np.flatnonzero(np.diff(stretch, prepend=-1.0))
     paces = [
         _run_through(frame_time[a:b]) / float(np.ptp(arrival_s[a:b]))
         for a, b in zip(cuts, [*cuts[1:], arrival_s.size])
@@ -1070,7 +1095,8 @@ def _undo_steps_back(
     ``STEP_SIDE_S`` after those is still as late (when the recording goes on that long): a stall the
     network flushed out of order moves both, but the arrivals for the flush only; and where the frames
     after it came at the recording's pace, not ``BURST_PACE`` times as fast: a burst the network held back,
-    however long, came at once.
+    however long, came at once (unless the packets ``STEP_SIDE_S`` of arrivals later are still as late: a
+    Wi-Fi burst right after a step).
     Next to the step, a packet is of the clock after it when it arrived half the step later than the
     fastest before it (a packet of the clock before it as late as that is taken for one after it)."""
     n = frame_time.size
@@ -1100,11 +1126,18 @@ def _undo_steps_back(
         if at + 2 * width <= n and after[at + width] - before[at] < step / 2:
             continue
         # and the frames after it came at the recording's pace (a re-sync does not change it), not many
-        # times as fast: a burst the network held back comes all at once, however long it is
+        # times as fast, or the arrivals stay behind by the step once those have come: a burst the
+        # network held back comes all at once, however long it is (a Wi-Fi burst right after a step back
+        # comes as fast, and the packets after it are as late)
         side = slice(at, at + width)
         pace = _typical_pace(frame_time, arrival_s) if pace is None else pace
         if _run_through(frame_time[side]) > BURST_PACE * pace * float(np.ptp(arrival_s[side])):
-            continue
+            # a second of arrivals on, a side of packets coming in the second after (not after a pause)
+            on = int(np.searchsorted(arrival_s, arrival_s[at] + STEP_SIDE_S))
+            if on + width > n or arrival_s[on + width - 1] > arrival_s[at] + 3 * STEP_SIDE_S:
+                continue
+            if after[on] - before[at] < step / 2:
+                continue
         zone = slice(max(at - width, done), at + width)
         later = np.zeros(n, bool)
         later[zone] = behind[zone] - before[at] > step / 2
