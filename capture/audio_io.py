@@ -11,6 +11,7 @@ import bisect
 import io
 import math
 import os
+import re
 import shutil
 import struct
 import tempfile
@@ -225,7 +226,8 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         # cut short: FFmpeg is given its frames only)
         lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
         counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
-        vbri = bool(runs) and _begins_with_vbri(data, runs[0])
+        # its first frame no sound: a VBRI frame, or a Xing/Info frame destroyed by damage
+        vbri = bool(runs) and _no_sound_first(data, runs[0])
         skipped = _gapless_skip(data, runs[0]) if runs else 0
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
         if not (len(runs) > 1 or lost or counts_wrong or vbri or _estimated_short(info, coded, drops)):
@@ -233,6 +235,8 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
             audio = _read_by_libsndfile(
                 path, info, skipped, found, free is not None and _untagged(data, free)
             )
+            if found is not None and free is not None:
+                found += _free_format_damage(path, data, free)
             if audio.frames + drops >= coded:
                 if repairs is not None and found:
                     repairs += found
@@ -308,17 +312,65 @@ def _free_format_start(data: bytes | _FileBytes) -> int | None:
     ):
         return None  # not layer III (bits 01), a bit rate in the header, a reserved version or rate
 
-    def same_stream(at: int) -> bool:  # the same header at ``at``, its padding bit aside
-        other = data[at : at + 3]
-        return len(other) == 3 and other[:2] == head[:2] and other[2] | 2 == head[2] | 2
+    return pos if _free_frame_bytes(data, pos) else None
 
+
+def _same_free_header(data: bytes | _FileBytes, head: bytes, at: int) -> bool:
+    """Whether the free-format header ``head`` (its first 3 bytes) is at ``at`` too, its padding bit aside."""
+    other = data[at : at + 3]
+    return len(other) == 3 and other[:2] == head[:2] and other[2] | 2 == head[2] | 2
+
+
+def _free_frame_bytes(data: bytes | _FileBytes, pos: int) -> int:
+    """The bytes of a frame without padding of the free-format stream whose first header is at ``pos``:
+    where its header is found again, and again a frame on (a byte more or less: padding); 0 when nowhere
+    within ``_FREE_FORMAT_MAX``."""
+    head = data[pos : pos + 3]
     at = pos + 4
     while (at := data.find(head[:2], at, pos + _FREE_FORMAT_MAX)) >= 0:
         size = at - pos  # a frame's size if a header starts there (padding: one byte more or less)
-        if same_stream(at) and any(same_stream(at + size + d) for d in (-1, 0, 1)):
-            return pos
+        if _same_free_header(data, head, at) and any(
+            _same_free_header(data, head, at + size + d) for d in (-1, 0, 1)
+        ):
+            return size - (head[2] >> 1 & 1)
         at += 1
-    return None
+    return 0
+
+
+def _free_format_damage(path: Path, data: bytes | _FileBytes, pos: int) -> list[dict[str, Any]]:
+    """The repairs ``bad_audio`` of damage in the free-format stream whose first header is at ``pos``
+    (``_free_format_start``): where its frames stop following one another (each the unpadded size
+    ``_free_frame_bytes``, a byte more with padding) until a header of it that a frame follows, the frames
+    lost there counted from the bytes between. mpg123 resyncs there without them and FFmpeg cannot decode
+    free format to put them back as silence: the sound after it is early by them (600 bytes at 128 kbit/s
+    and 48 kHz: 2 frames, 48 ms), said."""
+    head, size, end = data[pos : pos + 3], _free_frame_bytes(data, pos), _end_tags_at(data)
+    samples = 1152 if head[1] >> 3 & 3 == 3 else 576
+    rate = _MPEG_RATES[head[1] >> 3 & 3][head[2] >> 2 & 3]
+    notes, at, frames = [], pos, 0
+    while at + 4 <= end:
+        if _same_free_header(data, head, at):
+            at, frames = at + size + (data[at + 2] >> 1 & 1), frames + 1
+            continue
+        found = data.find(head[:2], at + 1, end)
+        while found >= 0 and not (
+            _same_free_header(data, head, found)
+            and _same_free_header(data, head, found + size + (data[found + 2] >> 1 & 1))
+        ):
+            found = data.find(head[:2], found + 1, end)
+        if found < 0:  # to its end: no sound after it to be early
+            break
+        lost = round((found - at) / size)
+        if lost:
+            ms, seconds = 1000 * lost * samples / rate, frames * samples / rate
+            message = (
+                f"{shown_name(path)}: damaged MPEG audio at about {seconds:.3f} s: about {lost} frame(s) "
+                f"lost there ({ms:.0f} ms); free format, which FFmpeg cannot decode to put them back as "
+                "silence: the sound after it is that much early"
+            )
+            notes.append({"line": None, "kind": "bad_audio", "message": message})
+        at = found
+    return notes
 
 
 def _untagged(data: bytes | _FileBytes, pos: int) -> bool:
@@ -404,11 +456,39 @@ def _gapless_skip(data: bytes | _FileBytes, run: MpegRun, counted: bool = False)
 
 def _dropped_at_start(data: bytes | _FileBytes, run: MpegRun, counted: bool = False) -> int:
     """The samples of the file whose first run is ``run`` that FFmpeg does not decode as sound: its header
-    frame's and the encoder's delay (``_gapless_skip``); a VBRI frame's (its encoder's delay kept)."""
+    frame's and the encoder's delay (``_gapless_skip``); a VBRI frame's or a destroyed header frame's (the
+    encoder's delay kept: ``_no_sound_first``)."""
     skip = _gapless_skip(data, run, counted)
     if skip:
         return skip + run.frame_samples
-    return run.frame_samples if _begins_with_vbri(data, run) else 0
+    return run.frame_samples if _no_sound_first(data, run) else 0
+
+
+def _no_sound_first(data: bytes | _FileBytes, run: MpegRun) -> bool:
+    """Whether the file whose first run is ``run`` begins with a frame of no sound that ``_mended`` leaves
+    out of what FFmpeg is given: a VBRI frame (``_begins_with_vbri``) or a header frame destroyed by damage
+    (``_header_destroyed``)."""
+    return _begins_with_vbri(data, run) or _header_destroyed(data, run)
+
+
+def _header_destroyed(data: bytes | _FileBytes, run: MpegRun) -> bool:
+    """Whether the file whose first run is ``run`` begins with a layer III frame that is no Xing/Info nor
+    VBRI frame, yet no file's first frame of sound: all zeros after its header (no sound, nor the
+    ancillary bytes an encoder fills its frames with: LAME's "LAME3.100UUU...") or its sound begun in bytes
+    before it (``main_data_begin``: a file's first frame has none before it), and the frame after it begins
+    its sound in its own bytes as an encoder's first frame of sound does: the file's Xing/Info frame, its
+    text and LAME tag destroyed by damage. FFmpeg decoded it as a frame of sound and kept the encoder's
+    delay its LAME tag recorded: the sound a frame and the delay late (2257 samples at 44.1 kHz)."""
+    frame = _mpeg_frame(data, run.start)
+    if frame is None or frame[3] != 3 or _is_file_header(data, run.start, frame):
+        return False
+    after = run.start + frame[0]
+    first = _mpeg_frame(data, after) if after < run.end else None
+    return (
+        first is not None
+        and _starts_reservoir(data, after, first)
+        and (not any(data[run.start + 4 : after]) or not _starts_reservoir(data, run.start, frame))
+    )
 
 
 def _begins_with_vbri(data: bytes | _FileBytes, run: MpegRun) -> bool:
@@ -1817,13 +1897,31 @@ class _FileBytes:
         return self.block[i]
 
     def find(self, sub: bytes, start: int, end: int | None = None) -> int:
+        return self._search(lambda block, i, j: block.find(sub, i, j), start, end, len(sub))
+
+    def search(self, pattern: re.Pattern[bytes], start: int, span: int) -> int:
+        """Where ``pattern`` (matching ``span`` bytes) first matches from ``start`` on; -1 when nowhere."""
+
+        def first(block: bytes, i: int, j: int) -> int:
+            found = pattern.search(block, i, j)
+            return found.start() if found else -1
+
+        return self._search(first, start, None, span)
+
+    def _search(self, first: Callable[[bytes, int, int], int], start: int, end: int | None, span: int) -> int:
+        """Where ``first`` (given a block, where to start and end in it) finds ``span`` bytes between
+        ``start`` and ``end``; -1 when nowhere. Looked for in the block held from ``start`` on, then block
+        by block: a scan that looks again a few bytes on reads no block twice (a slice of 2 MB from each
+        place read it again each time: 5 MB of junk dense in 0xFF bytes took 32 s)."""
         end = self.size if end is None else min(end, self.size)
-        while start < end:
-            stop = min(start + _SCAN_BLOCK - len(sub) + 1, end)  # what it reads fits in a block
-            found = self._bytes(start, min(stop + len(sub) - 1, end)).find(sub)
+        while start <= end - span:
+            if not self.block_at <= start <= self.block_at + len(self.block) - span:
+                self._load(start)
+            stop = min(end, self.block_at + len(self.block)) - self.block_at
+            found = first(self.block, start - self.block_at, stop)
             if found != -1:
-                return start + found
-            start = stop
+                return self.block_at + found
+            start = self.block_at + len(self.block) - span + 1
         return -1
 
     def startswith(self, prefix: bytes | tuple[bytes, ...], start: int = 0) -> bool:
@@ -2041,10 +2139,30 @@ def _confirmed(data: bytes, pos: int, frame: _MpegFrame, end_confirms: bool = Tr
     )
 
 
+# A frame header's first three bytes as ``_mpeg_frame_table`` has them: its sync, a version and layer that
+# are not reserved, a bit rate in the header (not free format, not 15) and a sample rate not reserved
+_HEADER_START = re.compile(
+    rb"\xff[%s][%s]"
+    % (
+        re.escape(bytes(b for b in range(0xE0, 0x100) if b >> 3 & 3 != 1 and b >> 1 & 3)),
+        re.escape(bytes(b for b in range(0x100) if b >> 4 not in (0, 15) and b >> 2 & 3 != 3)),
+    )
+)
+
+
+def _next_header(data: bytes | _FileBytes, pos: int) -> int:
+    """Where the next bytes that start a frame header lie at or after ``pos`` (a C search: the bytes
+    between are never looked at one by one); -1 when none do."""
+    if isinstance(data, _FileBytes):
+        return data.search(_HEADER_START, pos, 3)
+    found = _HEADER_START.search(data, pos)
+    return found.start() if found else -1
+
+
 def _resync(data: bytes, pos: int) -> int | None:
     """The next confirmed frame or tag at or after ``pos`` (stray bytes skipped); None at the end."""
     while True:
-        sync = data.find(b"\xff", pos)
+        sync = _next_header(data, pos)
         tag = data.find(b"ID3", pos, len(data) if sync == -1 else sync + 2)  # only before that sync
         if tag != -1 and _tag_bytes(data, tag):
             return tag
@@ -2204,8 +2322,14 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
                 runs[-1].end, runs[-1].samples = end, coded
             runs.append(MpegRun(pos, pos + size, frame[2], 1 if mono else 2, frame[3], samples, new_file))
             run_format, end, coded = frame[4] | mono, pos + size, samples
-            if joined and lead is not None and _starts_sync(data, lead):
-                # its first frames' bytes damaged, their header's sync left: frames lost before its first
+            if (
+                joined
+                and lead is not None
+                and (_starts_sync(data, lead) or not _starts_reservoir(data, pos, frame))
+            ):
+                # its first frames' bytes damaged, their header's sync left, or this frame's sound begins in
+                # the bytes before it (a bit reservoir, which a file's first frame has none of): frames lost
+                # before its first
                 runs[-1].losses.append(MpegLoss(lead, pos, 0))
             lead = None
             if new_file:
@@ -2488,20 +2612,25 @@ def _mended(
     damaged bytes, by how much the sound after it may be shifted."""
     pieces: list[range | tuple[bytes, int]] = []
     pos = runs[0].start
-    vbri = _mpeg_frame(data, pos) if _begins_with_vbri(data, runs[0]) else None
+    vbri = _mpeg_frame(data, pos) if _no_sound_first(data, runs[0]) else None
     if vbri is not None:  # no sound: left out (FFmpeg decodes one declaring no count as silence)
         pos += vbri[0]
+        if repairs is not None and _header_destroyed(data, runs[0]):
+            repairs.append(_header_destroyed_note(path, at))
     coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's
     for run in runs:
         for loss in run.losses:
             if not (loss.frames or loss.unsure):
                 continue
             if repairs is not None:
-                repairs.append(_loss_note(path, at + (coded + loss.coded) / run.sample_rate, loss, run))
+                # (lost in the encoder's delay FFmpeg drops: said at the file's start)
+                start = max(at + (coded + loss.coded) / run.sample_rate, at)
+                repairs.append(_loss_note(path, start, loss, run))
             if loss.ends or not loss.frames:  # nothing after it to keep on time, or none known lost
                 continue
             # (damage before the file's first frame: the silence before it)
-            pieces += [range(pos, max(pos, loss.start)), (_silent_frame(data, run.start), loss.frames)]
+            silent = _silent_frame(data, run.start, loss.end)
+            pieces += [range(pos, max(pos, loss.start)), (silent, loss.frames)]
             pos = loss.end
             coded += loss.frames * run.frame_samples
         coded += run.samples
@@ -2624,10 +2753,31 @@ def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[s
     return {"line": None, "kind": "bad_audio", "message": message}
 
 
-def _silent_frame(data: bytes, pos: int) -> bytes:
+def _header_destroyed_note(path: Path, at: float) -> dict[str, Any]:
+    """The repair ``bad_audio`` of a file (``at`` seconds in) whose Xing/Info frame damage destroyed
+    (``_header_destroyed``)."""
+    return {
+        "line": None,
+        "kind": "bad_audio",
+        "message": f"{shown_name(path)}: the MP3 file at {at:.3f} s begins with a damaged frame that holds "
+        "no sound its next frame uses: its Xing/Info header frame (LAME's tag: the encoder's delay and "
+        "padding), destroyed: left out; the delay and padding it recorded are lost, so they are kept (the "
+        "sound late by the encoder's delay, the end longer by its padding)",
+    }
+
+
+def _silent_frame(data: bytes | _FileBytes, pos: int, after: int | None = None) -> bytes:
     """A frame of silence of the format of the frame at ``pos``: its header without CRC nor padding, the
-    rest zeros (no bits of sound: layer III side information of zeros, no layer I/II allocations)."""
-    head = bytes([0xFF, data[pos + 1] | 1, data[pos + 2] & ~2 & 0xFF, data[pos + 3]])
+    rest zeros (no bits of sound: layer III side information of zeros, no layer I/II allocations); its
+    channel mode and flags (the header's last byte) those of the frame at ``after`` when it is one of the
+    same format (the frame after the damage). FFmpeg opens an .mp3 at the first frame after its Xing/Info
+    frame whose header matches the next one's in those bits too: a silent frame there with the Info
+    frame's (LAME's: no mode extension, no "original" flag) was skipped, the sound after it a frame early."""
+    last = data[pos + 3]
+    own, other = _mpeg_frame(data, pos), None if after is None else _mpeg_frame(data, after)
+    if own and other and other[4] == own[4] and _mpeg_channels(data, after) == _mpeg_channels(data, pos):
+        last = data[after + 3]
+    head = bytes([0xFF, data[pos + 1] | 1, data[pos + 2] & ~2 & 0xFF, last])
     frame = _mpeg_frame(head, 0)
     assert frame is not None  # a confirmed frame's header, less CRC and padding
     return head + bytes(frame[0] - 4)
