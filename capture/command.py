@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path, PurePath
 from typing import Any
 
-from .errors import KEYS_RAW_BYTES, RAW_BYTES, S2AError, printable, strict_names
+from .errors import KEYS_RAW_BYTES, RAW_BYTES, S2AError, printable, printable_message, strict_names
 from .import_guard import COMMANDS, running_command, sigterm_guard_done
 
 
@@ -82,7 +82,7 @@ class StageParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         # a name not UTF-8 (the file taken for an option, a value refused) shows its bytes as \xff
-        super().error(printable(message + _leading_dash_hint(self, message)))
+        super().error(printable_message(message + _leading_dash_hint(self, message)))
 
 
 def _leading_dash_hint(parser: argparse.ArgumentParser, message: str) -> str:
@@ -228,7 +228,7 @@ def _name(text: str, raw: str | None) -> str:
 
 def progress(message: str) -> None:
     """Human-readable progress on stderr (a name's bytes that are not UTF-8 as ``\\xff``)."""
-    print(printable(message), file=sys.stderr, flush=True)
+    print(printable_message(message), file=sys.stderr, flush=True)
 
 
 # The program of the stage whose command line runs (``run`` sets it): what ``warn`` names. Outside
@@ -476,7 +476,7 @@ def run(
         finally:
             _command_ending(outer)
     except S2AError as exc:
-        print(printable(f"{prog}: error: {exc}"), file=sys.stderr)
+        print(printable_message(f"{prog}: error: {exc}"), file=sys.stderr)
         return 1
     except Terminated:
         print(f"{prog}: terminated (SIGTERM)", file=sys.stderr)
@@ -488,14 +488,14 @@ def run(
         return 0
     except OSError as exc:  # the file system refused (read-only, no permission, a file in the way, full)
         where = f"{exc.filename}: " if exc.filename else ""
-        print(printable(f"{prog}: error: {where}{exc.strerror or exc}"), file=sys.stderr)
+        print(printable_message(f"{prog}: error: {where}{exc.strerror or exc}"), file=sys.stderr)
         return 1
     except (MemoryError, RuntimeError) as exc:
         if not out_of_memory(exc):
             raise
         detail = str(exc).strip().splitlines()
         print(
-            printable(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}"),
+            printable_message(f"{prog}: error: out of memory{f' ({detail[-1][:200]})' if detail else ''}"),
             file=sys.stderr,
         )
         return 1

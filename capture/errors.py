@@ -8,19 +8,28 @@ from pathlib import Path
 from typing import Any
 
 # Such a byte as the ``repr`` of a name shows it (argparse's ``invalid float value: 'x\\udcff'``, a message's
-# ``{name!r}``): ``\\udc80`` to ``\\udcff``, written out.
-_REPR_OF_BYTE = re.compile(r"\\udc([89a-f][0-9a-f])")
+# ``{name!r}``): ``\\udc80`` to ``\\udcff`` written out, its backslash not itself escaped (``\\\\udcff``
+# in a repr is a backslash and ``udcff``) nor the second half of a pair (``\\ud83d\\udc80``, an emoji
+# escaped as JSON escapes it).
+_REPR_OF_BYTE = re.compile(r"(?<!\\)((?:\\\\)*)(?<!\\ud[89ab][0-9a-f]{2})\\udc([89a-f][0-9a-f])")
 
 
 def printable(text: str) -> str:
     """``text`` as a message shows it: the bytes of a file name that are not UTF-8 (held by Python as
-    surrogate escapes, printed as ``\\udcff``) as ``\\xff``, as Python shows bytes (``caf\\xe9.mp3``); in
-    a name's ``repr`` within the text too."""
+    surrogate escapes, printed as ``\\udcff``) as ``\\xff``, as Python shows bytes (``caf\\xe9.mp3``).
+    The text of a name written out (a JSON value, a result line, a page) is left as it is otherwise."""
     try:
-        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:  # a surrogate no file name's bytes give
-        shown = text.encode("utf-8", "backslashreplace").decode("utf-8")
-    return _REPR_OF_BYTE.sub(r"\\x\1", shown)
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def printable_message(text: str) -> str:
+    """``printable(text)`` for a message on stderr, which may hold a name's ``repr`` (a usage error's
+    value refused): such a byte in it (``'x\\udcff'``) shown as ``\\xff`` too. Not for a name's own text
+    (a JSON value, a result line, a page), which may hold a backslash and ``udcff`` as they are."""
+    shown = printable(text)
+    return _REPR_OF_BYTE.sub(r"\1\\x\2", shown) if "\\udc" in shown else shown  # a warning per row: cheap
 
 
 # Names in JSON for strict readers (``strict_names``). Python holds the bytes of a file name that are not
@@ -61,7 +70,8 @@ def strict_names(value: Any) -> Any:
 
 
 def _keys_bytes(value: Any) -> dict[str, str] | None:
-    """Of a dict, ``{key as shown: its bytes in base64}`` for each key that is a name not UTF-8; else None."""
+    """Of a dict, ``{key as shown: its bytes in base64}`` for each key that is a name not UTF-8 (empty when
+    none is); None for any other value."""
     if not isinstance(value, dict):
         return None
     return {printable(k): raw for k in value if isinstance(k, str) and (raw := _names_bytes(k)) is not None}
