@@ -18,7 +18,15 @@ from contextlib import contextmanager
 from pathlib import Path, PurePath
 from typing import Any
 
-from .errors import KEYS_RAW_BYTES, RAW_BYTES, S2AError, printable, printable_message, strict_names
+from .errors import (
+    KEYS_RAW_BYTES,
+    RAW_BYTES,
+    InputError,
+    S2AError,
+    printable,
+    printable_message,
+    strict_names,
+)
 from .import_guard import COMMANDS, running_command, sigterm_guard_done
 
 
@@ -193,15 +201,30 @@ def emit_json(obj: dict[str, Any]) -> None:
     bytes are not UTF-8 is written as messages show it, its bytes in base64 beside it (``strict_names``:
     ``"path_b64"``; it was a lone surrogate, ``"\\udcff"``, which jq and JavaScript mangle)."""
     text = json.dumps(strict_names(json_safe(obj)), allow_nan=False, default=lambda v: printable(str(v)))
-    sys.stdout.write(text + "\n")
-    sys.stdout.flush()
+    with writing_stdout():
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
 
 
 def emit_line(text: str) -> None:
     """A human-readable result line on stdout, a name's bytes that are not UTF-8 as ``\\xff`` (as on
     stderr): a strict stdout (a UTF-8 locale's) refused their surrogate escapes with a traceback, after
     the work was done."""
-    print(printable(text))
+    with writing_stdout():
+        print(printable(text), flush=True)
+
+
+@contextmanager
+def writing_stdout() -> Iterator[None]:
+    """A result written to stdout: a stdout that cannot take it (``> /dev/full``, a full disk) is a
+    one-line error saying so (it said only "No space left on device"); a closed pipe (``| head``)
+    is left to ``run``, which ends quietly."""
+    try:
+        yield
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise InputError(f"cannot write to standard output: {exc.strerror or exc}") from None
 
 
 def named(record: dict[str, Any], key: str) -> str | list[str]:
