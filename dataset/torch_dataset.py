@@ -113,7 +113,9 @@ class ShardDataset(IterableDataset):
     none). ``manifest``: the dataset's manifest as the caller read it (default: read here).
     ``channels``: the names of the dataset's channels that a frame must be usable in for ``mask``
     (default: all; a run scored on fewer channels than the dataset holds, from samples whose
-    ``channel_mask.npy`` keeps a glitch in one channel out of the others).
+    ``channel_mask.npy`` keeps a glitch in one channel out of the others). ``values``: each item also
+    has ``values`` (window, channels) bool, True on the usable values (a training loss's targets: the
+    sample's ``channel_mask.npy`` where it has one, else ``mask`` in every channel; False on padding).
 
     ``shuffle_buffer``: samples mixed at a time (0 or 1: none); ``shuffle_shards``: read the shards in
     an order shuffled by ``seed`` and the epoch (default: when ``shuffle_buffer`` > 1). ``rank`` and
@@ -148,6 +150,7 @@ class ShardDataset(IterableDataset):
         even_ranks: bool = False,
         verify_sha256: bool = True,
         channels: list[str] | None = None,
+        values: bool = False,
     ):
         super().__init__()
         self.ds = dataset_dir(ds)
@@ -213,6 +216,7 @@ class ShardDataset(IterableDataset):
         self.audio = audio
         self.random_crop = (split == "train") if random_crop is None else random_crop
         self.columns = scored_columns(self.manifest["channels"], channels, self.ds)
+        self.values = bool(values)
         norm = self.manifest["normalization"]
         self.normalizer = Normalizer.from_json(norm["animation"])
         self.feature_normalizer = FeatureNormalizer(norm)
@@ -449,10 +453,15 @@ class ShardDataset(IterableDataset):
         channel_mask = feats.pop("channel_mask", None)
         if self.normalize:
             neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
-            usable = mask[:, None] if channel_mask is None else mask[:, None] & channel_mask
+            # 0 at the unusable values only: a glitch in one channel leaves the frame's others (targets)
+            usable = mask[:, None] if channel_mask is None else channel_mask
             anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * usable
         present = np.ones(mask.shape, bool)  # every frame of the sample; False only on padding below
         item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask, "present": present}
+        if self.values:
+            item["values"] = (
+                np.broadcast_to(mask[:, None], anim.shape) if channel_mask is None else channel_mask
+            )
         item["speaker"] = str(meta.get("speaker") or "")
         for name in self.features:
             x = feats[name].astype(np.float32)
@@ -465,7 +474,7 @@ class ShardDataset(IterableDataset):
             w = self.window
             if n > w:
                 start = rng.randrange(n - w + 1) if self.random_crop else 0
-            for k in ("anim", "mask", "present", *self.features):
+            for k in ("anim", "mask", "present", *(["values"] if self.values else []), *self.features):
                 v = item[k][start : start + w]
                 if v.shape[0] < w:
                     pad = np.zeros((w - v.shape[0], *v.shape[1:]), v.dtype)

@@ -73,10 +73,10 @@ def augment_frames(
 ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Augmented (content, prosody, target, mask, present) of one training batch: content (B, T, C),
     prosody (B, T, P) or None, target (B, T, channels), ``mask`` (B, T) bool (usable frames: the
-    loss's), ``present`` (B, T) bool (the frames that are not padding: the model's). Inputs are not
-    modified in place."""
+    loss's) or (B, T, channels) bool (usable values), ``present`` (B, T) bool (the frames that are not
+    padding: the model's). Inputs are not modified in place."""
     b, t, c = content.shape
-    mask = mask & present  # a target frame is always an input frame
+    mask = mask & (present if mask.dim() == 2 else present.unsqueeze(-1))  # a target is always an input frame
     if cfg["aug_noise"] > 0:
         content = content + cfg["aug_noise"] * torch.randn(content.shape).to(content)
     if cfg["aug_time_masks"] and cfg["aug_time_mask_width"]:
@@ -97,6 +97,6 @@ def augment_frames(
         if prosody is not None:
             prosody = w.to(prosody) * prosody + (1 - w.to(prosody)) * prosody[perm]
         target = w.to(target) * target + (1 - w.to(target)) * target[perm]
-        mask = mask & mask[perm]
+        mask = mask & mask[perm]  # a mixed target value is usable in both windows
         present = present & present[perm]
     return content, prosody, target, mask, present

@@ -133,6 +133,14 @@ def present_frames(item: dict[str, Any]) -> torch.Tensor:
     return item["mask"] if present is None else present
 
 
+def target_values(item: dict[str, Any]) -> torch.Tensor:
+    """The targets a loss scores of a (batched) item: its ``values`` (B, T, channels), the usable values
+    (a reader's with ``values=True``: a glitch in one channel leaves the frame's others); an item
+    without them falls back to its ``mask`` (B, T), the frames usable in every channel."""
+    values = item.get("values")
+    return item["mask"] if values is None else values
+
+
 class TakeSubset(ShardDataset):
     """The samples of ``keys`` (sample keys) read from the shards of ``splits``; otherwise a
     ShardDataset (``random_crop`` as given, default: crop at random)."""
@@ -212,6 +220,7 @@ def train_dataset(
         seed=cfg["seed"],
         manifest=manifest,
         shuffle_shards=shuffle_shards,
+        values=True,  # the loss's targets: each usable value (a glitch in one channel leaves the others)
     )
     keys = split_keys(manifest, cfg)
     if keys is None:
@@ -259,23 +268,25 @@ def utterances(
     spec: InputSpec | None = None,
     cfg: dict[str, Any] | None = None,
     manifest: dict[str, Any] | None = None,
+    values: bool = False,
 ) -> Iterator[dict[str, Any]]:
     """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised). With a
     ``cfg`` that sets ``val_takes`` or ``drop_takes``, "train" and "val" mean its training and
     validation takes. ``manifest``: the dataset's as the caller read it (a run: the build it started
-    on, never a newer one read here); default: read here."""
+    on, never a newer one read here); default: read here. ``values``: as ``ShardDataset``'s (each
+    item's usable values, a loss's targets)."""
     manifest = read_manifest(ds) if manifest is None else manifest
     features = spec.features if spec is not None else None
     keys = split_keys(manifest, cfg) if cfg is not None and split in ("train", "val") else None
     if keys is not None:
         chosen = keys[0] if split == "train" else keys[1]
         reader: ShardDataset = TakeSubset(
-            ds, ("train", "val"), chosen, window=None, features=features, manifest=manifest
+            ds, ("train", "val"), chosen, window=None, features=features, manifest=manifest, values=values
         )
     elif split not in {s["split"] for s in manifest["shards"]}:
         raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
     else:
-        reader = ShardDataset(ds, split, window=None, features=features, manifest=manifest)
+        reader = ShardDataset(ds, split, window=None, features=features, manifest=manifest, values=values)
     for item in reader:
         yield {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
 

@@ -54,6 +54,7 @@ from .data import (
     present_frames,
     resolve_inputs,
     split_keys,
+    target_values,
     to_model_inputs,
     train_dataset,
     utterances,
@@ -133,22 +134,21 @@ def validation_loss(
     cfg: dict[str, Any] | None = None,
     manifest: dict[str, Any] | None = None,
 ) -> float:
-    """MSE over every usable frame and channel of the validation split (this rank's share, summed over
-    ranks), normalised units, channels weighted by ``weights`` when given. ``manifest``: the dataset's
-    as the run read it when it started (default: read here)."""
+    """MSE over every usable value (frame and channel) of the validation split (this rank's share,
+    summed over ranks), normalised units, channels weighted by ``weights`` when given. ``manifest``:
+    the dataset's as the run read it when it started (default: read here)."""
     model.eval()
     se, n = 0.0, 0.0
     error = None
     try:
-        for item in utterances(ds, "val", spec, cfg, manifest):
+        for item in utterances(ds, "val", spec, cfg, manifest, values=True):
             content, prosody = to_model_inputs(item, spec)
-            mask = item["mask"].to(device)  # the frames scored; the model sees every frame of the sample
+            m = item["values"].to(device).float()  # the values scored; the model sees every frame
             present = present_frames(item).to(device)
             pred = model(content.to(device), None if prosody is None else prosody.to(device), present)
-            m = mask.unsqueeze(-1).float()
             err = (pred.float() - item["anim"].to(device)) ** 2
             se += float(((err if weights is None else err * weights) * m).sum())
-            n += float(m.sum()) * pred.shape[-1]
+            n += float(m.sum())
     except (InputError, OSError) as exc:  # under DDP: decided with the other ranks below
         if not dist.is_initialized():
             raise
@@ -790,12 +790,13 @@ def _read_together(batches, world: int, device: torch.device):
 
 def _train_step(net, model, batch, spec, cfg, weights, device):
     """Forward and backward of one batch (augmented as configured), gradients clipped; (mse, aux loss,
-    gradient norm before clipping, usable-frame mask). The caller steps the optimizer once the norm is
-    finite. The model sees the batch's ``present`` frames, the loss scores its ``mask`` (usable ones)."""
+    gradient norm before clipping, usable values (B, T, channels)). The caller steps the optimizer once
+    the norm is finite. The model sees the batch's ``present`` frames, the loss scores its ``values``
+    (usable ones: a glitch in one channel leaves the frame's others)."""
     content, prosody = to_model_inputs(batch, spec, style_dropout=cfg["style_dropout"])
     content = content.to(device)
     prosody = None if prosody is None else prosody.to(device)
-    mask = batch["mask"].to(device)  # usable frames: the loss's
+    mask = target_values(batch).to(device)  # usable values: the loss's
     present = present_frames(batch).to(device)  # frames that are not padding: the model's input
     target = batch["anim"].to(device)
     if augmenting(cfg):
@@ -990,7 +991,8 @@ def _fit(
                 raise InputError(f"training diverged at step {step + 1}: {_diverged(cfg, last_saved)}", run)
             optimizer.step()
             step, batch_pos, session_steps = step + 1, i + 1, session_steps + 1
-            frames_since += mask.sum()  # a tensor: no device sync per step
+            # frames with a target; a tensor: no device sync per step
+            frames_since += (mask.any(dim=-1) if mask.dim() == 3 else mask).sum()
             if step % cfg["log_every"] == 0:
                 fr, ls = _all_sum([float(frames_since), mse.item()], device)
                 now = time.perf_counter()

@@ -300,13 +300,16 @@ def zero_empty_rows(out: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 def masked_mse(
     pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, weights: torch.Tensor | None = None
 ) -> torch.Tensor:
-    """Mean squared error over the target frames only (``mask`` (B, T) True on usable frames: the
-    reader's ``mask``, not the model's ``present``); ``weights``
-    (channels,) scales each channel's squared error (mean over channels of the weighted error). Whatever
-    the padding holds (even NaN, or a row without a real frame) is ignored."""
-    m = mask.unsqueeze(-1).to(pred.dtype)
+    """Mean squared error over the target values only: ``mask`` (B, T) True on usable frames (the
+    reader's ``mask``, not the model's ``present``), or (B, T, channels) True on usable values (the
+    reader's ``values``: a glitch in one channel leaves the frame's others); the mean is over the values
+    it marks (a (B, T) mask gives the same numbers as that mask repeated in every channel). ``weights``
+    (channels,) scales each channel's squared error. Whatever the padding holds (even NaN, or a row
+    without a real frame) is ignored."""
+    m = (mask.unsqueeze(-1) if mask.dim() == 2 else mask).to(pred.dtype)
     # padding zeroed before squaring: NaN there would otherwise reach the loss (NaN · 0) and the gradient
     se = torch.where(m != 0, pred - target, 0.0).square()
     if weights is not None:
         se = se * weights.to(se)
-    return (se * m).sum() / (m.sum() * pred.shape[-1]).clamp(min=1)
+    count = m.sum() * (pred.shape[-1] if mask.dim() == 2 else 1)
+    return (se * m).sum() / count.clamp(min=1)
