@@ -475,10 +475,13 @@ def _header_destroyed(data: bytes | _FileBytes, run: MpegRun) -> bool:
     """Whether the file whose first run is ``run`` begins with a layer III frame that is no Xing/Info nor
     VBRI frame, yet no file's first frame of sound: all zeros after its header (no sound, nor the
     ancillary bytes an encoder fills its frames with: LAME's "LAME3.100UUU...") or its sound begun in bytes
-    before it (``main_data_begin``: a file's first frame has none before it), and the frame after it begins
-    its sound in its own bytes as an encoder's first frame of sound does: the file's Xing/Info frame, its
-    text and LAME tag destroyed by damage. FFmpeg decoded it as a frame of sound and kept the encoder's
-    delay its LAME tag recorded: the sound a frame and the delay late (2257 samples at 44.1 kHz)."""
+    before it (``main_data_begin``: a file's first frame has none before it) with side information no frame
+    of sound has (``_holds_sound``: a file cut from a longer one may begin with a whole frame of sound whose
+    reservoir bytes were cut off, kept: left out, the sound after it would be a frame early), and the frame
+    after it begins its sound in its own bytes as an encoder's first frame of sound does: the file's
+    Xing/Info frame, its text and LAME tag destroyed by damage. FFmpeg decoded it as a frame of sound and
+    kept the encoder's delay its LAME tag recorded: the sound a frame and the delay late (2257 samples at
+    44.1 kHz)."""
     frame = _mpeg_frame(data, run.start)
     if frame is None or frame[3] != 3 or _is_file_header(data, run.start, frame):
         return False
@@ -487,8 +490,40 @@ def _header_destroyed(data: bytes | _FileBytes, run: MpegRun) -> bool:
     return (
         first is not None
         and _starts_reservoir(data, after, first)
-        and (not any(data[run.start + 4 : after]) or not _starts_reservoir(data, run.start, frame))
+        and (
+            not any(data[run.start + 4 : after])
+            or not (_starts_reservoir(data, run.start, frame) or _holds_sound(data, run.start, frame))
+        )
     )
+
+
+def _holds_sound(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the layer III frame at ``pos`` has side information a frame of sound has: each granule's
+    ``big_values`` at most 288 (pairs of its 576 lines), a block type when its window is switched, and its
+    bits of sound (``part2_3_length``) within the reservoir bytes before it (``main_data_begin``) and its own
+    bytes after it. A frame that begins a file cut from a longer one has (its reservoir bytes cut off, its
+    next frame's sound in the next frame's bytes); garbled bytes seldom do."""
+    mpeg1 = frame[1] == 1152
+    channels = _mpeg_channels(data, pos)
+    side = pos + frame[6]
+    size = _xing_at(data, pos, frame) - side  # the side information's bytes
+    if side + size > len(data):
+        return True
+    bits, total = int.from_bytes(data[side : side + size], "big"), 8 * size
+
+    def field(at: int, width: int) -> int:
+        return bits >> (total - at - width) & ((1 << width) - 1)
+
+    reservoir = field(0, 9 if mpeg1 else 8)
+    at = 9 + (5 if channels == 1 else 3) + 4 * channels if mpeg1 else 8 + channels  # after the private bits
+    coded = 0
+    for _ in range((2 if mpeg1 else 1) * channels):  # each granule's each channel
+        coded += field(at, 12)
+        switched = at + 33 if mpeg1 else at + 38  # after part2_3_length, big_values, gain, scalefac_compress
+        if field(at + 12, 9) > 288 or field(switched, 1) and not field(switched + 1, 2):
+            return False
+        at += 59 if mpeg1 else 63
+    return coded <= 8 * (reservoir + frame[0] - frame[6] - size)
 
 
 def _begins_with_vbri(data: bytes | _FileBytes, run: MpegRun) -> bool:
