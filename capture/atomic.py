@@ -15,16 +15,18 @@ import json
 import os
 import re
 import shutil
+import signal
 import stat
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager, nullcontext
 from contextvars import ContextVar
 from pathlib import Path
 from typing import IO, Any
 
-from .command import stops_deferred
+from .command import Terminated, _set_back, stops_deferred
 from .errors import InputError
 from .file_lock import fcntl, try_lock
 
@@ -60,17 +62,45 @@ def atomic_write(
 def put_in_place(tmp: Path, path: Path) -> None:
     """Rename the finished ``tmp`` over ``path``; a ``path`` that is a device or a pipe (``/dev/null``,
     ``/dev/full``, a FIFO) is written into instead and ``tmp`` removed: renaming replaced the device
-    itself with a file (root may), and a full ``/dev/full`` said nothing."""
+    itself with a file (root may), and a full ``/dev/full`` said nothing. A block device (a disk or a
+    partition) is refused: an output written over it would destroy what it holds."""
     try:
-        stream = not (stat.S_ISREG(mode := os.stat(path).st_mode) or stat.S_ISDIR(mode))
+        mode = os.stat(path).st_mode
     except OSError:
-        stream = False  # no such file yet, or one that cannot be looked at: the rename says what is wrong
-    if not stream:
+        mode = None  # no such file yet, or one that cannot be looked at: the rename says what is wrong
+    if mode is not None and stat.S_ISBLK(mode):
+        raise OSError(errno.EEXIST, "a disk or partition (a block device): not written over", str(path))
+    if mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode):
         os.replace(tmp, path)
         return
-    with open(tmp, "rb") as finished, open(path, "wb") as into:
+    with stops_at_once():  # a FIFO opens once a reader opens it: a stop a render only noted waited as long
+        into = open(path, "wb")
+    with open(tmp, "rb") as finished, into:
         shutil.copyfileobj(finished, into)
     tmp.unlink()
+
+
+@contextmanager
+def stops_at_once() -> Iterator[None]:
+    """Inside, Ctrl-C raises ``KeyboardInterrupt`` and SIGTERM ``Terminated`` at once, also where the
+    caller's handler only notes them (a render's, between frames): for a wait that only a stop ends.
+    Left alone off the main thread, and for handlers not set from Python or ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, _frame: Any) -> None:
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    held = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if callable(handler := signal.getsignal(sig)):
+                held[sig] = handler
+                signal.signal(sig, stop)
+        yield
+    finally:
+        _set_back(held)
 
 
 def write_json_atomic(

@@ -100,3 +100,25 @@ def test_an_output_that_is_a_pipe_gets_the_bytes_and_stays_a_pipe(sim_take, tmp_
         if reader.poll() is None:
             reader.kill()
             reader.communicate()
+
+
+def test_an_output_that_is_a_disk_is_refused_and_left_alone(sim_take, tmp_path):
+    """A block device named as the output (a slip of ``-o /dev/sdb``) is never written over, nor replaced by
+    a file. The node made here (loop device 7:250) is never opened."""
+    out = tmp_path / "face.png"
+    try:
+        os.mknod(out, stat.S_IFBLK | 0o600, os.makedev(7, 250))
+    except OSError:
+        pytest.skip("cannot make a block device node here (not root)")
+    proc = subprocess.run(
+        [sys.executable, "-m", "viewer", "render", str(sim_take), "--size", "64", "-o", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert proc.returncode == 1, proc.stderr
+    refused = "a disk or partition (a block device): not written over"
+    assert refused in proc.stderr.splitlines()[-1], proc.stderr
+    assert stat.S_ISBLK(os.lstat(out).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["face.png"]

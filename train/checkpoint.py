@@ -24,7 +24,7 @@ from typing import Any
 
 import torch
 
-from capture.atomic import partial_path, write_json_atomic
+from capture.atomic import partial_path, put_in_place, write_json_atomic
 from capture.command import stops_deferred
 from capture.errors import InputError
 from capture.file_lock import held_elsewhere, holding
@@ -76,9 +76,9 @@ def write_error(exc: BaseException, path: Path, what: str = "") -> InputError:
 
 
 def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") -> None:
-    """``write(tmp)`` a file beside ``path``, fsync it and rename it over ``path``: a reader (or a
-    full disk) never sees half a file, and an existing ``path`` stays as it was when writing fails.
-    Failures become one-line errors naming ``path``."""
+    """``write(tmp)`` a file beside ``path``, fsync it and rename it over ``path`` (a device or a pipe is
+    written into: ``put_in_place``): a reader (or a full disk) never sees half a file, and an existing
+    ``path`` stays as it was when writing fails. Failures become one-line errors naming ``path``."""
     tmp = partial_path(path)
     try:
         write(tmp)
@@ -87,7 +87,7 @@ def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") 
             os.fsync(fd)
         finally:
             os.close(fd)
-        os.replace(tmp, path)
+        put_in_place(tmp, path)
     except (OSError, RuntimeError) as exc:
         error = write_error(exc, path, what)
         with stops_deferred():  # a Ctrl-C cuts no removal short
