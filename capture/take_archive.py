@@ -269,13 +269,18 @@ def _picked(plan: Plan, wanted: set[tuple[str, ...]], archive: Path) -> Plan:
     return plan
 
 
+def _size(nbytes: int) -> str:
+    """A size as a message says it: GB from 1 GB up, else MB."""
+    return f"{nbytes / 1e9:.2f} GB" if nbytes >= 1e9 else f"{nbytes / 1e6:.1f} MB"
+
+
 def _check_room(plan: Plan, into: Path, archive: Path) -> None:
     need = sum(info.file_size for info, _ in plan if not is_folder(info))
     free = shutil.disk_usage(into).free
     if need + SPARE_BYTES > free:
         raise InputError(
-            f"no space left on the disk to unpack it: it needs {(need + SPARE_BYTES) / 1e6:.1f} MB "
-            f"({SPARE_BYTES >> 20} MB of it to spare) and {into} has {free / 1e6:.1f} MB free: free some "
+            f"no space left on the disk to unpack it: unpacking it needs {_size(need + SPARE_BYTES)} "
+            f"({SPARE_BYTES >> 20} MB of it to spare) and {into} has {_size(free)} free: free some "
             "space, or unzip it elsewhere and import the folder",
             archive,
         )

@@ -91,8 +91,8 @@ from .normalize import (
     usable_neutral,
     voiced_log_f0_sums,
 )
-from .qa import ANIM_LIMIT, BASE_MEMBERS, CHANNEL_MASK
-from .shards import ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
+from .qa import ANIM_LIMIT, BASE_MEMBERS
+from .shards import CHANNEL_MASK, ShardReader, ShardWriter, flac_bytes, json_bytes, npy_bytes, sample_size
 from .splits import SPLITS, SplitRule, assign_splits, pinned_groups, speaker_key
 
 # Part of every take's cache key and of the build's fingerprint: raised when what a take gives the dataset

@@ -50,7 +50,7 @@ from .normalize import (
     usable_neutral,
     voiced_log_f0_sums,
 )
-from .shards import ShardReader, decode_flac, decode_json_object, decode_npy
+from .shards import CHANNEL_MASK, ShardReader, decode_flac, decode_json_object, decode_npy
 from .splits import SPLITS
 
 MIDPOINT_EPS = 1e-9  # in octaves: a recomputed spread this near a midpoint may round either way
@@ -771,7 +771,6 @@ def _stats_problems(manifest: dict[str, Any]) -> list[Problem]:
 
 
 BASE_MEMBERS = ("json", "flac", "anim.npy", "mask.npy")
-CHANNEL_MASK = "channel_mask.npy"  # which channels are usable in which frames, where they differ
 # phones with a phone-aware PPG; channel_mask where some frame is usable in some channels only
 OPTIONAL_MEMBERS = ("phones.npy", CHANNEL_MASK)
 

@@ -30,6 +30,8 @@ from capture.errors import InputError
 
 BLOCK = tarfile.BLOCKSIZE
 RECORD = tarfile.RECORDSIZE
+# A sample's optional member: which channels are usable in which frames, where that differs (dataset.md)
+CHANNEL_MASK = "channel_mask.npy"
 
 
 def member_size(nbytes: int) -> int:

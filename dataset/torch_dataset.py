@@ -55,8 +55,7 @@ from capture.numbers import is_count
 
 from .manifest import _numbers, dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
-from .qa import CHANNEL_MASK
-from .shards import ShardReader, decode_flac, decode_npy, split_key
+from .shards import CHANNEL_MASK, ShardReader, decode_flac, decode_npy, split_key
 from .splits import SPLITS
 
 # The shards this process read to their end with the manifest's sha256, by path, sha256 and file identity
