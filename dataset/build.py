@@ -97,8 +97,9 @@ from .splits import SPLITS, SplitRule, assign_splits, pinned_groups, speaker_key
 
 # Part of every take's cache key and of the build's fingerprint: raised when what a take gives the dataset
 # changes for the same input, so that a rebuild into an existing folder processes its takes again rather
-# than keeping their earlier results (2: a take whose weights are on another scale gives none of its frames).
-DATASET_VERSION = "2"
+# than keeping their earlier results (2: a take whose weights are on another scale gives none of its frames;
+# 3: a glitch masks its channel only, kept apart in channel_mask.npy).
+DATASET_VERSION = "3"
 USABLE_STATUS = (0, 4)  # FrameStatus.TRACKED, FrameStatus.INTERPOLATED (align fills short gaps)
 MAX_INTERPOLATED_SHARE = 0.5  # of a take's usable frames; beyond it the targets are mostly not measured
 METRIC_CHANNELS = ("jawOpen", "mouthClose")  # the paper's "crucial" RMSE needs both

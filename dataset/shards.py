@@ -138,6 +138,7 @@ class ShardWriter:
             raise InputError(
                 f"sample keys must be written in increasing order ({key!r} after {self._keys[-1]!r})"
             )
+        tar = self._opened()
         for ext in sorted(members):
             data = members[ext]
             info = tarfile.TarInfo(f"{key}.{ext}")
@@ -146,7 +147,7 @@ class ShardWriter:
             info.mode = 0o644
             info.uid = info.gid = 0
             info.uname = info.gname = ""
-            self._opened().addfile(info, io.BytesIO(data))
+            tar.addfile(info, io.BytesIO(data))
         self._keys.append(key)
 
     def close(self) -> ShardInfo:
