@@ -479,7 +479,7 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
             raise InputError("binary data, not a CSV text file", path, 1)
         sep = app_header_separator(text)
         if sep in RESAVE_SEPARATORS:  # a spreadsheet's re-save: converted, then read as the app's CSV
-            rows = None if strict else _read_resaved(path, sep, bom)
+            rows = None if strict else _read_resaved(path, sep, bom, head)
             return rows if rows is not None else _read_careful(path, strict)
         header = _parse_header(text, path)
         rows = _read_fast(path, header, bom, len(first) + 1, strict)
@@ -488,7 +488,7 @@ def read_csv_rows(path: str | Path, strict: bool = False) -> CsvRows:
     return _read_careful(path, strict)
 
 
-def _read_resaved(path: Path, sep: str, bom: bool) -> CsvRows | None:
+def _read_resaved(path: Path, sep: str, bom: bool, head: bytes) -> CsvRows | None:
     """The rows of a spreadsheet's re-save with ``sep`` between the fields, its text converted a block at a
     time (``_text_blocks``, ``_resaved_lines``) into the app's layout and read as the app's CSV is
     (``_read_fast``, its messages quoting the file's own cells); ``None`` where that sends a file to the
@@ -497,14 +497,10 @@ def _read_resaved(path: Path, sep: str, bom: bool) -> CsvRows | None:
     repairs: list[dict[str, Any]] = []
     if bom:
         repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
-    with open(path, "rb") as f:
-        f.seek(len(UTF8_BOM) if bom else 0)
-        line_ending = "\r\n" if b"\r\n" in f.read(65536) else "\n"
+    line_ending = "\r\n" if b"\r\n" in head[len(UTF8_BOM) if bom else 0 :] else "\n"  # _read_head's bytes
     first: dict[str, tuple[str, int]] = {}
     converted, header_line, start = bytearray(), "", 1
-    for lines, closed in _text_blocks(path):
-        if start == 1 and "\ufffd" in lines[0]:
-            return None
+    for lines, closed in _text_blocks(path):  # (its header line read_csv_rows found no binary data in)
         _resaved_lines(lines, sep, path, first, start)
         if start == 1:
             header_line = lines[0]

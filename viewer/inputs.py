@@ -350,7 +350,11 @@ def download_of(archive: Path) -> Path | DriveDownload:
     if part is None:
         return archive
     try:
-        beside = [p for p in archive.parent.iterdir() if p != archive and drive_part(p)]
+        beside = [
+            p
+            for p in archive.parent.iterdir()
+            if p != archive and (other := drive_part(p)) and other[0].casefold() == part[0].casefold()
+        ]
     except OSError:
         return archive
     download = drive_downloads([archive, *sorted(beside)])[0]
