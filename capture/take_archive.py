@@ -280,7 +280,7 @@ def _check_room(plan: Plan, into: Path, archive: Path) -> None:
     if need + SPARE_BYTES > free:
         raise InputError(
             f"no space left on the disk to unpack it: unpacking it needs {_size(need + SPARE_BYTES)} "
-            f"({SPARE_BYTES >> 20} MB of it to spare) and {into} has {_size(free)} free: free some "
+            f"({_size(SPARE_BYTES)} of it to spare) and {into} has {_size(free)} free: free some "
             "space, or unzip it elsewhere and import the folder",
             archive,
         )
