@@ -18,7 +18,9 @@ marked unusable, a lost face or bad values: with ``channels``, bad values in tho
 a sample's ``channel_mask.npy`` says which channels are usable in which frames), for losses and
 metrics; and ``present``, the frames of the sample (False on padding only), for a model's input, whose
 audio features are real at unusable frames too (at inference every frame is real: a model fed ``mask``
-would train on inputs it never sees).
+would train on inputs it never sees). With ``values=True`` a per-value flag comes along too:
+``values`` (window, channels), the usable values (a training loss's targets: a glitch in one channel
+leaves the frame's others).
 
 A shard read to its end is hashed as it streams by and compared with the manifest's sha256: one whose
 bytes changed (a flipped bit in a finite value) is an ``InputError`` naming it, after its last sample

@@ -269,24 +269,27 @@ def utterances(
     cfg: dict[str, Any] | None = None,
     manifest: dict[str, Any] | None = None,
     values: bool = False,
+    whole: bool = False,
 ) -> Iterator[dict[str, Any]]:
     """Whole samples of a split, one at a time, with a batch dimension of 1 (normalised). With a
     ``cfg`` that sets ``val_takes`` or ``drop_takes``, "train" and "val" mean its training and
     validation takes. ``manifest``: the dataset's as the caller read it (a run: the build it started
     on, never a newer one read here); default: read here. ``values``: as ``ShardDataset``'s (each
-    item's usable values, a loss's targets)."""
+    item's usable values, a loss's targets). ``whole``: every sample of the split, on every rank
+    (default: this rank's share under DDP)."""
     manifest = read_manifest(ds) if manifest is None else manifest
     features = spec.features if spec is not None else None
+    read = {"window": None, "features": features, "manifest": manifest, "values": values}
+    if whole:
+        read.update(rank=0, world_size=1)
     keys = split_keys(manifest, cfg) if cfg is not None and split in ("train", "val") else None
     if keys is not None:
         chosen = keys[0] if split == "train" else keys[1]
-        reader: ShardDataset = TakeSubset(
-            ds, ("train", "val"), chosen, window=None, features=features, manifest=manifest, values=values
-        )
+        reader: ShardDataset = TakeSubset(ds, ("train", "val"), chosen, **read)
     elif split not in {s["split"] for s in manifest["shards"]}:
         raise InputError(f"dataset has no {split!r} split", Path(ds) / "manifest.json")
     else:
-        reader = ShardDataset(ds, split, window=None, features=features, manifest=manifest, values=values)
+        reader = ShardDataset(ds, split, **read)
     for item in reader:
         yield {k: (v.unsqueeze(0) if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
 

@@ -162,17 +162,25 @@ def validation_loss(
     return se / n if n else float("nan")
 
 
-def _no_validation(manifest: dict[str, Any], cfg: dict[str, Any]) -> str | None:
-    """Why the run cannot validate (no val split, or one whose frames are all unusable), else None."""
+def _no_validation(ds: Path, manifest: dict[str, Any], cfg: dict[str, Any]) -> str | None:
+    """Why the run cannot validate (no val split, or one without a usable value), else None."""
     keys = split_keys(manifest, cfg)
     val = [
         s for s in manifest["samples"] if (s["key"] in keys[1] if keys is not None else s["split"] == "val")
     ]
     if not val:
         return "the dataset has no val split"
-    if not any(s.get("usable_frames", s["frames"]) for s in val):
+    if not any(s.get("usable_frames", s["frames"]) for s in val) and not _val_has_values(ds, manifest, cfg):
         return "the val split has no usable frames (face lost throughout?)"
     return None
+
+
+def _val_has_values(ds: Path, manifest: dict[str, Any], cfg: dict[str, Any]) -> bool:
+    """Whether the val split holds a usable value, read from its samples: a channel NaN throughout a take
+    leaves no frame usable in every channel (the manifest's ``usable_frames`` 0), and its other channels
+    as targets (``values``). Every rank reads the split whole, so that the ranks decide alike."""
+    items = utterances(ds, "val", None, cfg, manifest, values=True, whole=True)
+    return any(bool(item["values"].any()) for item in items)
 
 
 def _fit_ridge(
@@ -188,7 +196,8 @@ def _fit_ridge(
             content, prosody = to_model_inputs(item, spec)
             eq.add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["mask"])
             frames += int(item["mask"].sum())
-    no_val = _no_validation(manifest, cfg)
+    with watch.reading():
+        no_val = _no_validation(ds, manifest, cfg)
     has_val = no_val is None
     weights = channel_weights(manifest, cfg)
     alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else [1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
@@ -925,7 +934,8 @@ def _fit(
     if state is not None and state.get("stopped") == "early_stopping":
         say(f"run stopped early at step {step}; nothing to resume")
     weights = channel_weights(manifest, cfg, device)
-    no_val = _no_validation(manifest, cfg)
+    with watch.reading():
+        no_val = _no_validation(ds, manifest, cfg)
     has_val = no_val is None
     if not has_val:
         say(f"note: {no_val}: no validation, no early stopping, no best.pt")

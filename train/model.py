@@ -13,9 +13,9 @@ defaults, the rest (widths, depths) are ours where the paper is silent. Model co
 Every model takes ``(content, prosody, mask)``; ``mask`` (B, T) is bool, True on real frames (0/1
 integer or floating masks are converted, other values refused). A batch row with no real frame gives
 zeros, and ``masked_mse`` ignores it. Real means the frame exists, not that its animation is a target:
-from the reader, the model takes ``present`` (False on padding only) and the loss takes ``mask``
-(usable frames), since the speech at a frame whose face was lost is real and at inference every frame
-is seen.
+from the reader, the model takes ``present`` (False on padding only) and the loss takes ``values``
+(usable values, (B, T, channels)) or ``mask`` (usable frames), since the speech at a frame whose face
+was lost is real and at inference every frame is seen.
 """
 
 from __future__ import annotations
