@@ -15,18 +15,16 @@ import json
 import os
 import re
 import shutil
-import signal
 import stat
 import sys
 import tempfile
-import threading
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager, nullcontext
 from contextvars import ContextVar
 from pathlib import Path
 from typing import IO, Any
 
-from .command import Terminated, _set_back, stops_deferred
+from .command import stops_at_once, stops_deferred
 from .errors import InputError
 from .file_lock import fcntl, try_lock
 
@@ -78,29 +76,6 @@ def put_in_place(tmp: Path, path: Path) -> None:
     with open(tmp, "rb") as finished, into:
         shutil.copyfileobj(finished, into)
     tmp.unlink()
-
-
-@contextmanager
-def stops_at_once() -> Iterator[None]:
-    """Inside, Ctrl-C raises ``KeyboardInterrupt`` and SIGTERM ``Terminated`` at once, also where the
-    caller's handler only notes them (a render's, between frames): for a wait that only a stop ends.
-    Left alone off the main thread, and for handlers not set from Python or ignored."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def stop(signum: int, _frame: Any) -> None:
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
-
-    held = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            if callable(handler := signal.getsignal(sig)):
-                held[sig] = handler
-                signal.signal(sig, stop)
-        yield
-    finally:
-        _set_back(held)
 
 
 def write_json_atomic(

@@ -12,7 +12,17 @@ from pathlib import Path
 from .atomic import batch_of_writes
 from .audio_io import audio_left_in_files
 from .channels import is_known
-from .command import StageParser, add_version, emit_json, emit_line, progress, run, sigterm_stops, warn
+from .command import (
+    StageParser,
+    add_version,
+    emit_json,
+    emit_line,
+    handle_stoppable,
+    progress,
+    run,
+    sigterm_stops,
+    warn,
+)
 from .csv_take import COUNT_NAMES, nonfinite_frames, split_variant, write_livelink_csv
 from .errors import InputError, S2AError, printable
 from .file_lock import another_writer, holding
@@ -631,13 +641,8 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     return 0
 
 
-def _handle(args: argparse.Namespace) -> int:
-    with sigterm_stops():  # SIGTERM stops every command as Ctrl-C does (exit 143): no partial file left
-        return args.handler(args)
-
-
 def main(argv: list[str] | None = None) -> int:
-    return run(PROG, build_parser, _handle, argv)
+    return run(PROG, build_parser, handle_stoppable, argv)
 
 
 if __name__ == "__main__":

@@ -447,6 +447,13 @@ def sigterm_stops() -> Iterator[None]:
             signal.signal(signal.SIGTERM, previous)
 
 
+def handle_stoppable(args: argparse.Namespace) -> int:
+    """Run the parsed command (``args.handler``), SIGTERM stopping it as Ctrl-C does (``sigterm_stops``,
+    exit 143): its partial files go, a fit keeps its last checkpoint. What a stage's ``main`` runs."""
+    with sigterm_stops():
+        return args.handler(args)
+
+
 def _command_ending(outer: str | None) -> None:
     """As ``run`` ends in a stage command's own process: its work is over, so a SIGTERM from here (as it
     prints its error, as Python exits) is let go, the exit code the command's own; a second one ends
@@ -577,3 +584,26 @@ def _set_back(handlers: dict[int, Any]) -> None:
             signal.signal(sig, handler)
     if stop is not None:
         raise stop
+
+
+@contextmanager
+def stops_at_once() -> Iterator[None]:
+    """Inside, Ctrl-C raises ``KeyboardInterrupt`` and SIGTERM ``Terminated`` at once, also where the
+    caller's handler only notes them (a render's, between frames): for a wait that only a stop ends.
+    Left alone off the main thread, and for handlers not set from Python or ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, _frame: Any) -> None:
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    held = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if callable(handler := signal.getsignal(sig)):
+                held[sig] = handler
+                signal.signal(sig, stop)
+        yield
+    finally:
+        _set_back(held)

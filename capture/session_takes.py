@@ -600,12 +600,15 @@ def _place_off_clock(
         who, rank = np.nonzero(order == c)
         if not who.size:
             continue
-        inside = (ft[who] >= rec.lo - tol) & (ft[who] <= rec.hi + tol)
-        behind = np.where(current[who] == c, clock[off[who]], np.where(current[who] > c, rec.hi, -np.inf))
-        have = rec.rows()
-        far = _far_behind(ft[who], behind, frame_time[have], MAX_LATENESS_S)
+        at = ft[who]
         ours = current[who] == c  # the recording the clock was on: late frames going on from it are its
-        far[far & ours] = ~_continuing(ft[who][far & ours], frame_time[have], ft[who][ours])
+        inside = (at >= rec.lo - tol) & (at <= rec.hi + tol)
+        behind = np.where(ours, clock[off[who]], np.where(current[who] > c, rec.hi, -np.inf))
+        have = rec.rows()
+        had = frame_time[have]
+        far = _far_behind(at, behind, had, MAX_LATENESS_S)
+        if (back := far & ours).any():
+            far[back] = ~_continuing(at[back], had, at[ours])
         inside &= ~far
         who, rank = who[inside], rank[inside]
         free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s)

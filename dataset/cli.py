@@ -16,10 +16,10 @@ from capture.command import (
     add_version,
     emit_json,
     emit_line,
+    handle_stoppable,
     jobs_count,
     progress,
     run,
-    sigterm_stops,
     warn,
 )
 from capture.errors import InputError, printable
@@ -264,13 +264,8 @@ def cmd_stats(args: argparse.Namespace) -> int:
     return 0
 
 
-def _handle(args: argparse.Namespace) -> int:
-    with sigterm_stops():  # SIGTERM stops every command as Ctrl-C does (exit 143)
-        return args.handler(args)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(PROG, build_parser, _handle, argv)
+    return run(PROG, build_parser, handle_stoppable, argv)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-from capture.command import StageParser, add_version, emit_json, emit_line, run, sigterm_stops
+from capture.command import StageParser, add_version, emit_json, emit_line, handle_stoppable, run
 from capture.csv_take import COUNT_NAMES
 from capture.errors import InputError
 from capture.import_guard import guard_imports, imports_done
@@ -361,14 +361,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _handle(args: argparse.Namespace) -> int:
-    """Run the command; SIGTERM stops it as Ctrl-C does (a fit keeps its last checkpoint), exit 143."""
-    with sigterm_stops():
-        return args.handler(args)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(PROG, build_parser, _handle, argv)
+    return run(PROG, build_parser, handle_stoppable, argv)
 
 
 if __name__ == "__main__":
