@@ -14,8 +14,7 @@ import sys
 
 import numpy as np
 import pytest
-from test_live_leftovers_s22 import write_frames_log
-from test_review_live_s25 import START, _markers, _recover
+from test_review_live_s25 import _markers, _recover, write_session
 
 from capture import read_take
 
@@ -72,14 +71,7 @@ def test_a_packet_logged_days_late_costs_no_memory_for_the_days_between(tmp_path
     arrivals = 1.0 + np.arange(n) / FPS
     arrivals[1200:1800] = arrivals[1799] + 2.0 + np.arange(600) * 1e-4
     arrivals[-1] = 9e9
-    frames = np.arange(n)
-    packets = []
-    for i in np.argsort(arrivals, kind="stable").tolist():
-        values = np.full(61, 0.25, np.float32)
-        values[0] = i
-        packets.append((START + int(frames[i]), float(arrivals[i]), values))
-    session = tmp_path / "live-1.recording"
-    write_frames_log(session, packets)
+    session = write_session(tmp_path, arrivals)
 
     def limit_memory():  # so that a machine with the memory to spare fails too
         resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))

@@ -16,10 +16,9 @@ from capture import FrameStatus, read_take
 START = 10 * 3600 * FPS  # 10:00:00 at 60 fps
 
 
-def _recover(tmp_path, arrivals: np.ndarray, frames: np.ndarray | None = None) -> list[dict]:
-    """The take lines of a session of one phone sending frames ``START + frames[i]`` (``frames``: ``i``
-    when not given; marker ``i`` in the first value) that arrived at ``arrivals[i]`` (s), logged in
-    arrival order."""
+def write_session(tmp_path, arrivals: np.ndarray, frames: np.ndarray | None = None):
+    """The session log of one phone sending frames ``START + frames[i]`` (``frames``: ``i`` when not
+    given; marker ``i`` in the first value) that arrived at ``arrivals[i]`` (s), logged in arrival order."""
     frames = np.arange(arrivals.size) if frames is None else frames
     packets = []
     for i in np.argsort(arrivals, kind="stable").tolist():
@@ -28,6 +27,12 @@ def _recover(tmp_path, arrivals: np.ndarray, frames: np.ndarray | None = None) -
         packets.append((START + int(frames[i]), float(arrivals[i]), values))
     session = tmp_path / "live-1.recording"
     write_frames_log(session, packets)
+    return session
+
+
+def _recover(tmp_path, arrivals: np.ndarray, frames: np.ndarray | None = None) -> list[dict]:
+    """The take lines ``recover`` gives for that session (``write_session``)."""
+    session = write_session(tmp_path, arrivals, frames)
     r = run_cli("recover", str(session), "--json")
     assert r.returncode == 0, r.stderr
     return [json.loads(x) for x in r.stdout.splitlines()]
