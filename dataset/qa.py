@@ -50,7 +50,14 @@ from .normalize import (
     usable_neutral,
     voiced_log_f0_sums,
 )
-from .shards import CHANNEL_MASK, ShardReader, decode_flac, decode_json_object, decode_npy
+from .shards import (
+    CHANNEL_MASK,
+    ShardReader,
+    channel_mask_problem,
+    decode_flac,
+    decode_json_object,
+    decode_npy,
+)
 from .splits import SPLITS
 
 MIDPOINT_EPS = 1e-9  # in octaves: a recomputed spread this near a midpoint may round either way
@@ -474,7 +481,9 @@ def validate_sample(
         ):
             on_arrays(arrays, mask.astype(bool) & np.isfinite(anim).all(axis=1))
         if "channel_mask" in arrays and frames is not None and mask.shape == (frames,):
-            out += _check_channel_mask(arrays["channel_mask"], mask, f"{at}.channel_mask.npy", n_channels)
+            problem = channel_mask_problem(arrays["channel_mask"], mask, n_channels)
+            if problem is not None:
+                out.append(_p("channel_mask", f"{at}.channel_mask.npy", problem))
     out += _check_features(arrays, at, manifest, frames)
     phones = arrays.get("phones")
     if phones is not None and frames is not None and phones.shape != (frames,):
@@ -490,35 +499,6 @@ def validate_sample(
     if "flac" in members:
         out += _check_audio(members["flac"], f"{at}.flac", meta, manifest, deep)
     return out, meta
-
-
-def _check_channel_mask(
-    channel_mask: np.ndarray, mask: np.ndarray, at: str, n_channels: int
-) -> list[Problem]:
-    """Problems of a sample's optional ``channel_mask`` (frames, channels): which channels are usable
-    in which frames, kept where that differs between channels; a frame usable in all of them is one
-    that ``mask`` marks usable, and no other."""
-    frames = mask.shape[0]
-    if channel_mask.dtype != np.bool_ or channel_mask.shape != (frames, n_channels):
-        return [
-            _p(
-                "channel_mask",
-                at,
-                f"channel_mask is {channel_mask.dtype} of shape {channel_mask.shape}, expected bool of "
-                f"shape ({frames}, {n_channels})",
-            )
-        ]
-    differ = np.flatnonzero(channel_mask.all(axis=1) != mask.astype(bool))
-    if differ.size:
-        return [
-            _p(
-                "channel_mask",
-                at,
-                f"{differ.size} frame(s) usable in every channel here but not in mask.npy, or the other "
-                f"way round (first at frame {int(differ[0])})",
-            )
-        ]
-    return []
 
 
 def _check_audio(

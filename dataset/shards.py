@@ -34,6 +34,24 @@ RECORD = tarfile.RECORDSIZE
 CHANNEL_MASK = "channel_mask.npy"
 
 
+def channel_mask_problem(
+    channel_mask: np.ndarray, mask: np.ndarray, n_channels: int, name: str = "channel_mask"
+) -> str | None:
+    """Why a sample's ``channel_mask`` (``name`` in the message) is not (frames, ``n_channels``) bool
+    whose frames usable in every channel are those ``mask`` (frames,) marks usable, and no other; None
+    if it is (the reader's and ``dataset validate``'s check)."""
+    shape = (mask.shape[0], n_channels)
+    if channel_mask.dtype != np.bool_ or channel_mask.shape != shape:
+        return f"{name} is {channel_mask.dtype} of shape {channel_mask.shape}, expected bool of shape {shape}"
+    differ = np.flatnonzero(channel_mask.all(axis=1) != mask.astype(bool, copy=False))
+    if differ.size:
+        return (
+            f"{name}: {differ.size} frame(s) usable in every channel here but not in mask.npy, or the "
+            f"other way round (first at frame {int(differ[0])})"
+        )
+    return None
+
+
 def member_size(nbytes: int) -> int:
     """Bytes a member of ``nbytes`` takes in a tar (header + data padded to 512)."""
     return BLOCK + (nbytes + BLOCK - 1) // BLOCK * BLOCK

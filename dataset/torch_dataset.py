@@ -57,7 +57,7 @@ from capture.numbers import is_count
 
 from .manifest import _numbers, dataset_dir, read_manifest, shards_of
 from .normalize import FeatureNormalizer, Normalizer
-from .shards import CHANNEL_MASK, ShardReader, decode_flac, decode_npy, split_key
+from .shards import CHANNEL_MASK, ShardReader, channel_mask_problem, decode_flac, decode_npy, split_key
 from .splits import SPLITS
 
 # The shards this process read to their end with the manifest's sha256, by path, sha256 and file identity
@@ -423,24 +423,16 @@ class ShardDataset(IterableDataset):
             arrays[name] = x
         anim, mask = arrays.pop("anim"), arrays.pop("mask")
         if CHANNEL_MASK in members:
-            arrays["channel_mask"] = self._channel_mask(key, members, mask, (frames, n_channels))
+            arrays["channel_mask"] = self._channel_mask(key, members, mask)
             mask = arrays["channel_mask"][:, self.columns].all(axis=1)
         return meta, anim, mask, arrays
 
-    def _channel_mask(
-        self, key: str, members: dict[str, bytes], mask: np.ndarray, shape: tuple[int, int]
-    ) -> np.ndarray:
-        """The sample's channel_mask.npy, checked: bool of ``shape``, its frames usable in every channel
-        those of ``mask``."""
+    def _channel_mask(self, key: str, members: dict[str, bytes], mask: np.ndarray) -> np.ndarray:
+        """The sample's channel_mask.npy, checked (``channel_mask_problem``) against its ``mask``."""
         usable = self._array(key, members, "channel_mask")
-        if usable.dtype != np.bool_ or usable.shape != shape:
-            raise self.damaged(
-                key,
-                f"channel_mask.npy is {usable.dtype} of shape {_shape(usable.shape)}, "
-                f"expected bool of shape {_shape(shape)}",
-            )
-        if not np.array_equal(usable.all(axis=1), mask):
-            raise self.damaged(key, "channel_mask.npy's frames usable in every channel are not mask.npy's")
+        problem = channel_mask_problem(usable, mask, len(self.manifest["channels"]), CHANNEL_MASK)
+        if problem is not None:
+            raise self.damaged(key, problem)
         return usable
 
     def _array(self, key: str, members: dict[str, bytes], name: str) -> np.ndarray:
@@ -452,17 +444,16 @@ class ShardDataset(IterableDataset):
     def _decode(self, key: str, members: dict[str, bytes], rng: random.Random) -> dict[str, Any]:
         meta, anim, mask, feats = self.check_sample(key, members)
         channel_mask = feats.pop("channel_mask", None)
+        # the usable values: a glitch in one channel leaves the frame's others (targets)
+        usable = mask[:, None] if channel_mask is None else channel_mask
         if self.normalize:
             neutral = np.asarray(meta["neutral"], np.float32) if meta.get("neutral") is not None else None
-            # 0 at the unusable values only: a glitch in one channel leaves the frame's others (targets)
-            usable = mask[:, None] if channel_mask is None else channel_mask
-            anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * usable
+            anim = self.normalizer.forward(anim, neutral, dtype=np.float32) * usable  # 0 at the unusable
         present = np.ones(mask.shape, bool)  # every frame of the sample; False only on padding below
         item: dict[str, Any] = {"key": key, "anim": anim.astype(np.float32), "mask": mask, "present": present}
         if self.values:
-            item["values"] = (
-                np.broadcast_to(mask[:, None], anim.shape) if channel_mask is None else channel_mask
-            )
+            # a broadcast view is read-only: a channel_mask is the sample's own (writable) array
+            item["values"] = usable if channel_mask is not None else np.broadcast_to(usable, anim.shape)
         item["speaker"] = str(meta.get("speaker") or "")
         for name in self.features:
             x = feats[name].astype(np.float32)

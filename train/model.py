@@ -306,10 +306,9 @@ def masked_mse(
     it marks (a (B, T) mask gives the same numbers as that mask repeated in every channel). ``weights``
     (channels,) scales each channel's squared error. Whatever the padding holds (even NaN, or a row
     without a real frame) is ignored."""
-    m = (mask.unsqueeze(-1) if mask.dim() == 2 else mask).to(pred.dtype)
+    m = (mask.unsqueeze(-1) if mask.dim() == 2 else mask).to(pred.dtype).expand_as(pred)
     # padding zeroed before squaring: NaN there would otherwise reach the loss (NaN · 0) and the gradient
     se = torch.where(m != 0, pred - target, 0.0).square()
     if weights is not None:
         se = se * weights.to(se)
-    count = m.sum() * (pred.shape[-1] if mask.dim() == 2 else 1)
-    return (se * m).sum() / count.clamp(min=1)
+    return (se * m).sum() / m.sum().clamp(min=1)
