@@ -469,18 +469,17 @@ def prune_orphans(out_dir: Path, found: list[tuple[Path, str]]) -> tuple[list, l
     for folder, source in found:
         hidden = None
         try:
-            try:
-                # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
-                with stops_deferred():
-                    hidden = Path(tempfile.mkdtemp(prefix=f".{folder.name}.pruned-", dir=out_dir))
-                os.replace(folder, hidden / "take")
-            finally:
-                if hidden is not None:
-                    with stops_deferred():  # a second Ctrl-C cuts no removal short
-                        shutil.rmtree(hidden, ignore_errors=True)
+            # Ctrl-C and SIGTERM wait until the folder is noted here: met as it was made, a stop left it
+            with stops_deferred():
+                hidden = Path(tempfile.mkdtemp(prefix=f".{folder.name}.pruned-", dir=out_dir))
+            os.replace(folder, hidden / "take")
         except OSError as exc:
             failed.append((folder, source, exc.strerror or str(exc)))
             continue
+        finally:
+            if hidden is not None:
+                with stops_deferred():  # a second Ctrl-C cuts no removal short
+                    shutil.rmtree(hidden, ignore_errors=True)
         removed.append((folder, source))
     return removed, failed
 

@@ -389,7 +389,7 @@ def rumble_removed(blocks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
     ahead = np.zeros(0, np.float32)  # filtered forward, not yet backward
     for block in itertools.chain([first], blocks):
         part, zi = sosfilt(sos, np.asarray(block, dtype=np.float64), zi=zi)
-        ahead = np.concatenate([ahead, part.astype(np.float32)])
+        ahead = np.concatenate([ahead, part], dtype=np.float32)  # cast as joined: one copy
         while ahead.size >= _CHUNK + RUMBLE_MARGIN:
             yield _backward(sos, ahead[: _CHUNK + RUMBLE_MARGIN])[:_CHUNK]
             ahead = ahead[_CHUNK:]

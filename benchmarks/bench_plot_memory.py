@@ -29,7 +29,7 @@ def _tiled(path: Path, minutes: int) -> None:
     with sf.SoundFile(path, "w", RATE, 1, "PCM_16") as f:
         n = minutes * 60 * RATE
         for lo in range(0, n, speech.size):
-            f.write(speech[: min(speech.size, n - lo)])
+            f.write(speech[: n - lo])
 
 
 def _plot_peak_mb(wav: Path, vad: str, tmp: Path) -> float:

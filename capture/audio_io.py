@@ -227,10 +227,10 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
         counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
         # its first frame no sound: a VBRI frame, or a Xing/Info frame destroyed by damage
-        vbri = bool(runs) and _no_sound_first(data, runs[0])
+        no_sound = bool(runs) and _no_sound_first(data, runs[0])
         skipped = _gapless_skip(data, runs[0]) if runs else 0
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
-        if not (len(runs) > 1 or lost or counts_wrong or vbri or _estimated_short(info, coded, drops)):
+        if not (len(runs) > 1 or lost or counts_wrong or no_sound or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
             audio = _read_by_libsndfile(
                 path, info, skipped, found, free is not None and _untagged(data, free)
@@ -347,15 +347,18 @@ def _free_format_damage(path: Path, data: bytes | _FileBytes, pos: int) -> list[
     head, size, end = data[pos : pos + 3], _free_frame_bytes(data, pos), _end_tags_at(data)
     samples = 1152 if head[1] >> 3 & 3 == 3 else 576
     rate = _MPEG_RATES[head[1] >> 3 & 3][head[2] >> 2 & 3]
+
+    def next_frame(i: int) -> int:  # where the frame after the one at ``i`` starts (a byte on: padding)
+        return i + size + (data[i + 2] >> 1 & 1)
+
     notes, at, frames = [], pos, 0
     while at + 4 <= end:
         if _same_free_header(data, head, at):
-            at, frames = at + size + (data[at + 2] >> 1 & 1), frames + 1
+            at, frames = next_frame(at), frames + 1
             continue
         found = data.find(head[:2], at + 1, end)
         while found >= 0 and not (
-            _same_free_header(data, head, found)
-            and _same_free_header(data, head, found + size + (data[found + 2] >> 1 & 1))
+            _same_free_header(data, head, found) and _same_free_header(data, head, next_frame(found))
         ):
             found = data.find(head[:2], found + 1, end)
         if found < 0:  # to its end: no sound after it to be early
@@ -379,7 +382,7 @@ def _untagged(data: bytes | _FileBytes, pos: int) -> bool:
     output 1105 samples late)."""
     head = data[pos : pos + 4]
     side = (32, 17) if head[1] >> 3 & 3 == 3 else (17, 9)  # MPEG-1, else MPEG-2 and 2.5: stereo, mono
-    text_at = pos + 4 + (0 if head[1] & 1 else 2) + side[head[3] >> 6 == 3]
+    text_at = pos + 4 + (0 if head[1] & 1 else 2) + side[_mpeg_channels(data, pos) == 1]
     return not data.startswith(_XING_TEXTS, text_at)
 
 
@@ -2647,9 +2650,9 @@ def _mended(
     damaged bytes, by how much the sound after it may be shifted."""
     pieces: list[range | tuple[bytes, int]] = []
     pos = runs[0].start
-    vbri = _mpeg_frame(data, pos) if _no_sound_first(data, runs[0]) else None
-    if vbri is not None:  # no sound: left out (FFmpeg decodes one declaring no count as silence)
-        pos += vbri[0]
+    first = _mpeg_frame(data, pos) if _no_sound_first(data, runs[0]) else None
+    if first is not None:  # no sound: left out (FFmpeg decodes a VBRI frame declaring no count as silence)
+        pos += first[0]
         if repairs is not None and _header_destroyed(data, runs[0]):
             repairs.append(_header_destroyed_note(path, at))
     coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's

@@ -497,7 +497,7 @@ def _read_resaved(path: Path, sep: str, bom: bool, head: bytes) -> CsvRows | Non
     repairs: list[dict[str, Any]] = []
     if bom:
         repair(repairs, 1, "bom", "UTF-8 byte-order mark before the header ignored")
-    line_ending = "\r\n" if b"\r\n" in head[len(UTF8_BOM) if bom else 0 :] else "\n"  # _read_head's bytes
+    line_ending = "\r\n" if b"\r\n" in head else "\n"  # _read_head's bytes
     first: dict[str, tuple[str, int]] = {}
     converted, header_line, start = bytearray(), "", 1
     for lines, closed in _text_blocks(path):  # (its header line read_csv_rows found no binary data in)
@@ -1196,13 +1196,15 @@ def _read_careful(path: Path, strict: bool, raw: bytes | None = None) -> CsvRows
     if not lines or "\ufffd" in lines[0]:
         raise InputError("binary data, not a CSV text file", path, 1)
     sep = app_header_separator(lines[0])
+    written_lines = None
     if sep in RESAVE_SEPARATORS:
         first: dict[str, tuple[str, int]] = {}
         _resaved_lines(lines, sep, path, first)
         _separator_note(sep, first, repairs)
+        written_lines = _WrittenLines(path, sep)
     header = _parse_header(lines[0], path)
     reader = _RowReader(path, header, lines[0], len(lines) - 1, len(lines), ends_with_newline, repairs)
-    reader.written_lines = _WrittenLines(path, sep) if sep in RESAVE_SEPARATORS else None
+    reader.written_lines = written_lines
     for number in range(2, len(lines) + 1):
         reader.read(number, lines[number - 1])
     n = reader.n

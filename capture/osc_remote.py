@@ -126,6 +126,14 @@ def check_subject(name: str) -> None:
         raise InputError("the subject name is empty")
 
 
+def _ip_of(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
+    """The IP address ``host`` (numeric, an IPv6 scope left out) names; None when it names none."""
+    try:
+        return ipaddress.ip_address(host.split("%")[0])
+    except ValueError:
+        return None
+
+
 class PhoneRemote:
     """OSC client for one phone. ``timeout_s`` bounds every wait for a reply (seconds)."""
 
@@ -167,6 +175,7 @@ class PhoneRemote:
         # the order they came; one more than are shown tells that there were more)
         self.stranger_datagrams = 0
         self.strangers: dict[str, None] = {}
+        self._phone_ip = _ip_of(self.target[0])  # what ``from_phone`` compares senders with, parsed once
 
     def close(self) -> None:
         self.sock.close()
@@ -217,10 +226,8 @@ class PhoneRemote:
         to (any port: the app answers from a socket of its own; an IPv6 scope is not compared). Commands
         sent to the unspecified address (``0.0.0.0``, ``::``) reach this machine, whose replies come from
         a loopback address."""
-        try:
-            came_from = ipaddress.ip_address(sender[0].split("%")[0])
-            phone = ipaddress.ip_address(self.target[0].split("%")[0])
-        except ValueError:
+        phone, came_from = self._phone_ip, _ip_of(sender[0])
+        if phone is None or came_from is None:
             return False
         return came_from == phone or (phone.is_unspecified and came_from.is_loopback)
 

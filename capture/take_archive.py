@@ -162,7 +162,7 @@ class Unpacked:
         named = [pieces[0]]
         for rest in pieces[1:]:  # each path named after the part its longest known beginning is from
             member = max((k for k in self.parts if rest.startswith(f"/{k}")), key=len, default="")
-            named.append(self.parts[member or ""][which] + rest)
+            named.append(self.parts[member][which] + rest)
         return "".join(named)
 
     def rename_files(self, take: Take) -> None:

@@ -424,7 +424,8 @@ class ShardDataset(IterableDataset):
         anim, mask = arrays.pop("anim"), arrays.pop("mask")
         if CHANNEL_MASK in members:
             arrays["channel_mask"] = self._channel_mask(key, members, mask)
-            mask = arrays["channel_mask"][:, self.columns].all(axis=1)
+            if not isinstance(self.columns, slice):  # all channels: the mask's frames, as just checked
+                mask = arrays["channel_mask"][:, self.columns].all(axis=1)
         return meta, anim, mask, arrays
 
     def _channel_mask(self, key: str, members: dict[str, bytes], mask: np.ndarray) -> np.ndarray:

@@ -21,6 +21,17 @@ from capture import read_take
 FPS = 60
 
 
+def _recover_step_back_with_burst(tmp_path, n, step_s, burst, held_s):
+    """Recover a session of ``n`` packets at ``FPS`` whose clock steps back ``step_s`` halfway through,
+    the first ``burst`` packets after the step held ``held_s`` and delivered together."""
+    at = n // 2
+    frames = np.arange(n)
+    frames[at:] -= round(step_s * FPS)
+    arrivals = 1.0 + np.arange(n) / FPS
+    arrivals[at : at + burst] = arrivals[at + burst - 1] + held_s + np.arange(burst) * 1e-4
+    return _recover(tmp_path, arrivals, frames)
+
+
 @pytest.mark.parametrize(("step_s", "burst"), [(1.0, 60), (0.5, 60)])
 def test_a_wifi_burst_right_after_a_clock_step_back_leaves_the_step_undone(tmp_path, step_s, burst):
     # 60 s at 60 fps; at 30 s the phone's clock steps back ``step_s`` (a re-sync) and Wi-Fi holds the
@@ -28,12 +39,8 @@ def test_a_wifi_burst_right_after_a_clock_step_back_leaves_the_step_undone(tmp_p
     # the burst are as late against their frame times as the step: a step back, undone (its note), every
     # frame kept. Read as a burst the network held back, the frames after the step were left on the slots
     # of the frames before it, and 30-59 of them were dropped as sharing their frame times.
-    n, at = 60 * FPS, 30 * FPS
-    frames = np.arange(n)
-    frames[at:] -= round(step_s * FPS)
-    arrivals = 1.0 + np.arange(n) / FPS
-    arrivals[at : at + burst] = arrivals[at + burst - 1] + 0.3 + np.arange(burst) * 1e-4
-    lines = _recover(tmp_path, arrivals, frames)
+    n = 60 * FPS
+    lines = _recover_step_back_with_burst(tmp_path, n, step_s, burst, held_s=0.3)
     assert len(lines) == 1
     markers = _markers(lines[0])
     assert len(markers) >= n - 1  # the one packet right at the step may be stray, as before the change
@@ -51,12 +58,8 @@ def test_a_burst_after_a_clock_step_back_that_ends_where_the_clock_was_keeps_eve
     # step: not a burst the network held back into the gap it left (those fill it) but a clock that gave
     # these frame times twice, kept apart as before the change (two takes, every frame in one). Taken for
     # late frames of the take, 17-59 of them were dropped as sharing their frame times.
-    n, at = 60 * FPS, 30 * FPS
-    frames = np.arange(n)
-    frames[at:] -= round(step_s * FPS)
-    arrivals = 1.0 + np.arange(n) / FPS
-    arrivals[at : at + burst] = arrivals[at + burst - 1] + 0.2 + np.arange(burst) * 1e-4
-    lines = _recover(tmp_path, arrivals, frames)
+    n = 60 * FPS
+    lines = _recover_step_back_with_burst(tmp_path, n, step_s, burst, held_s=0.2)
     kept = sorted(m for x in lines for m in _markers(x))
     assert kept == list(range(n))
     assert sum(x["stray_packets"] for x in lines) == 0

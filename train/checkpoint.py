@@ -88,15 +88,14 @@ def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") 
         finally:
             os.close(fd)
         put_in_place(tmp, path)
-    except (OSError, RuntimeError) as exc:
-        error = write_error(exc, path, what)
-        with stops_deferred():  # a Ctrl-C cuts no removal short
+    except BaseException as exc:
+        # named while the partial file still exists (``write_error``: a full disk is still seen as full)
+        error = write_error(exc, path, what) if isinstance(exc, (OSError, RuntimeError)) else None
+        with stops_deferred():  # a (second) Ctrl-C cuts no removal short
             tmp.unlink(missing_ok=True)
+        if error is None:
+            raise
         raise error from None
-    except BaseException:
-        with stops_deferred():  # a second Ctrl-C cuts no removal short
-            tmp.unlink(missing_ok=True)
-        raise
 
 
 def read_run_config(path: Path) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from capture.errors import InputError
+from capture.errors import RAW_BYTES, InputError
 from capture.numbers import is_finite_number
 from capture.paired import read_text
 
@@ -88,7 +88,7 @@ DEFAULTS: dict[str, Any] = {
 
 
 # what a run's config.json holds besides its config (fit writes them): ignored when it is read as a config
-RUN_RECORD_KEYS = ("data", "data_b64", "world_size", "inputs", "model_config")
+RUN_RECORD_KEYS = ("data", f"data{RAW_BYTES}", "world_size", "inputs", "model_config")
 
 
 def _hint(key: str) -> str:

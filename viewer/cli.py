@@ -478,13 +478,13 @@ def cmd_plot(args: argparse.Namespace) -> int:
         raise InputError(f"--labels names {len(labels)} inputs, but {len(args.inputs)} were given")
     one = "plot draws one take per input (name each take to compare several)"
     anims = []
-    for i, path in enumerate(args.inputs):
-        audio = args.audio if i == 0 else None
-        label = labels[i] if labels else None
-        # The curves show the values as they are (no clamping); bad values are bridged like gaps. Audio
-        # libsndfile reads is left in its file, read a block at a time as it is plotted (a 2 h take's
-        # samples held whole took 691 MB at 48 kHz).
-        with audio_left_in_files():
+    # Audio libsndfile reads is left in its file, read a block at a time as it is plotted (a 2 h take's
+    # samples held whole took 691 MB at 48 kHz).
+    with audio_left_in_files():
+        for i, path in enumerate(args.inputs):
+            audio = args.audio if i == 0 else None
+            label = labels[i] if labels else None
+            # The curves show the values as they are (no clamping); bad values are bridged like gaps.
             anims.append(
                 load_animation(path, audio, label, one, clamp=False, audio_flag="--audio" if i == 0 else None)
             )
