@@ -178,7 +178,12 @@ def build_parser() -> argparse.ArgumentParser:
         "also recognises other writers of the format counting at 24/25/30/48/50 fps (with a warning)",
     )
     p.add_argument("--swap-lr", action="store_true", help="exchange JawLeft/Right and MouthLeft/Right labels")
-    p.add_argument("--strict", action="store_true", help="refuse files that need any repair")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse files that need any repair (and archives read short: a Drive part missing or cut, "
+        "a zip whose directory is damaged)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON summary line per take")
     p.set_defaults(handler=cmd_import)
 
@@ -373,14 +378,19 @@ class _Importer:
         name = outer.shown(archive) if outer else str(archive)
         if isinstance(archive, DriveDownload) and (missing := archive.missing()):
             some = len(missing) > 1 or "-" in missing[0]
+            absent = (
+                f"part{'s' if some else ''} {', '.join(missing)} of this Google Drive download "
+                f"{'are' if some else 'is'} not beside them"
+            )
+            if args.strict:
+                self._failed(name, InputError(f"{absent}; --strict refuses an archive read short", name))
+                return 1
             warn(
-                f"{name}: part{'s' if some else ''} {', '.join(missing)} of this Google Drive download "
-                f"{'are' if some else 'is'} not beside them: a take with files in {'them' if some else 'it'} "
-                f"is imported without those (download {'them' if some else 'it'} and import all the parts "
-                "again)"
+                f"{name}: {absent}: a take with files in {'them' if some else 'it'} is imported without "
+                f"those (download {'them' if some else 'it'} and import all the parts again)"
             )
         try:
-            with unpacked(archive, args.out, self.litter, outer) as box:
+            with unpacked(archive, args.out, self.litter, outer, strict=args.strict) as box:
                 sources = find_sources(
                     [box.folder],
                     exports=args.pair_audio,

@@ -18,6 +18,13 @@ file may be in two parts. A part cut short (a download that stopped: no zip dire
 read as a part missing, with a warning naming it and the files its first bytes show it held (a take
 with files in it is read without those).
 
+A zip (a part or not) whose directory alone is cut or damaged, every member's bytes there and the
+directory begun after them (a download that stopped in its last kilobytes), is read from its members'
+own headers (``_by_headers``: sizes there, in a zip64 field, or in a descriptor after the bytes), each
+member checked by its CRC as zipfile checks it, with a warning. A zip stored last in a cut one, whose
+end zipfile would find and read as the cut one's, is not taken for it: none of its members starts at
+the cut zip's first byte.
+
 A reader that needs a few members only (``s2a-view`` showing one take of an archive of a day's takes,
 gigabytes of ``.mov``) picks them from the archive's list (``pick``): the checks of names (outside the
 folder, two of one name) still see the whole archive, those of a member's bytes (encryption, a method
@@ -309,54 +316,141 @@ def _parts_of(plans: list[Plan], names: list[str]) -> dict[str, int]:
 
 
 _LOCAL_HEADER = b"PK\x03\x04"
+# What follows a zip's last member: its directory's first record (a file's entry; a zip64 end; the end).
+_DIRECTORY = re.compile(b"PK\x01\x02|PK\x06\x06|PK\x05\x06")
+_NEXT_RECORD = re.compile(b"PK\x03\x04|PK\x01\x02|PK\x06\x06|PK\x05\x06")
+_ZIP64_EXTRA = 0x0001
 
 
-def _held_before_cut(part: Path) -> list[str] | None:
-    """Of a zip cut short (a member's header first, no zip directory at its end: a download that stopped),
-    the files its members' headers before the cut name; None for any other file."""
+@dataclass
+class _Headers:
+    """A zip as its members' local headers show it, read from its first byte: the members whose bytes end
+    before the file does, each with where its bytes start; the files all its headers name (a member cut
+    too); and whether the zip's directory begins after its last member (``whole``: every member there,
+    only the directory at its end cut or damaged)."""
+
+    members: list[tuple[zipfile.ZipInfo, int]]
+    names: list[str]
+    whole: bool
+
+
+def _by_headers(part: Path) -> _Headers | None:
+    """``part`` read from its members' local headers (APPNOTE 4.3.7) when zipfile cannot read its directory
+    (cut short, damaged) or finds a zip stored at its end instead (a cut part whose last bytes are a zip
+    it holds): no member of that one starts at the first byte, where this one's does; None for a file
+    zipfile reads, or one starting with no member's header (no zip: zipfile says why)."""
     try:
         with open(part, "rb") as f:
-            if f.read(4) != _LOCAL_HEADER or zipfile.is_zipfile(f):
+            if f.read(4) != _LOCAL_HEADER:
                 return None
+            try:
+                with zipfile.ZipFile(f) as zf:
+                    if any(info.header_offset == 0 for info in zf.infolist()):
+                        return None
+            except zipfile.BadZipFile:
+                pass
             data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
     except (OSError, ValueError):
         return None
-    held, at = [], 0
     with data:
-        while 0 <= at and at + 30 <= len(data):  # a member's local header (APPNOTE 4.3.7), its name at 30
-            flags, size, length, extra = (
-                int.from_bytes(data[at + i : at + j], "little")
-                for i, j in ((6, 8), (18, 22), (26, 28), (28, 30))
-            )
-            name = data[at + 30 : at + 30 + length].decode("utf-8", "replace")
-            if name and not name.endswith("/"):
-                held.append(name)
-            start = at + 30 + length + extra  # the member's bytes
-            if not flags & 8:
-                at = data.find(_LOCAL_HEADER, start + size)
-                continue
-            # sizes written after the bytes (flag 3): the next header found just past a descriptor giving
+        return _read_headers(data)
+
+
+def _read_headers(data: mmap.mmap) -> _Headers:
+    """The members of the zip ``data`` as their local headers, from the first, show them (``_Headers``)."""
+    members, names, at = [], [], 0
+    while data[at : at + 4] == _LOCAL_HEADER and at + 30 <= len(data):
+        flags, method, crc, size, file_size, length, extra = (
+            _number(data, at + i, width)
+            for i, width in ((6, 2), (8, 2), (14, 4), (18, 4), (22, 4), (26, 2), (28, 2))
+        )
+        raw = data[at + 30 : at + 30 + length]  # decoded as zipfile decodes a name
+        info = zipfile.ZipInfo(raw.decode("utf-8" if flags & _UTF8_FLAG else "cp437", "replace"))
+        info.flag_bits, info.compress_type, info.header_offset = flags, method, at
+        if raw and not is_folder(info) and at + 30 + length <= len(data):  # a name cut short: no file's
+            names.append(member_name(info))
+        start = at + 30 + length + extra  # the member's bytes
+        if 0xFFFFFFFF in (size, file_size):  # a zip64's sizes, in its extra field: the size, then packed
+            file_size, size = _zip64_sizes(data[at + 30 + length : start], file_size, size)
+        if flags & 8:  # sizes written after the bytes: the next record is the one past a descriptor giving
             # their size (the signature met in a member's bytes, a zip stored in this one, starts none)
-            at = data.find(_LOCAL_HEADER, start)
-            while at >= 0 and not _after_descriptor(data, start, at):
-                at = data.find(_LOCAL_HEADER, at + 1)
-    return held
+            found = (
+                d for m in _NEXT_RECORD.finditer(data, start) if (d := _descriptor(data, start, m.start()))
+            )
+            crc, size, file_size, end = next(found, (crc, size, file_size, len(data) + 1))
+        else:
+            end = start + size
+        if start > len(data) or end > len(data):
+            break  # cut in it
+        info.CRC, info.compress_size, info.file_size = crc, size, file_size
+        members.append((info, start))
+        at = end
+    return _Headers(members, names, bool(_DIRECTORY.match(data, at)))
 
 
-def _after_descriptor(data: mmap.mmap, start: int, at: int) -> bool:
-    """Whether the bytes of a member from ``start`` end at ``at`` with its data descriptor (APPNOTE 4.3.9:
-    perhaps its signature, a CRC, the sizes in 4 bytes or, in a zip64, 8) saying how many they are."""
+def _zip64_sizes(extra: bytes, file_size: int, size: int) -> tuple[int, int]:
+    """The sizes a zip64 local header's extra field gives (APPNOTE 4.5.3: the size, then the packed size)."""
+    at = 0
+    while at + 4 <= len(extra):  # blocks of a kind and a length
+        kind, length = _number(extra, at, 2), _number(extra, at + 2, 2)
+        if kind == _ZIP64_EXTRA and length >= 16:
+            return _number(extra, at + 4, 8), _number(extra, at + 12, 8)
+        at += 4 + length
+    return file_size, size
+
+
+def _number(data: bytes | mmap.mmap, at: int, width: int) -> int:
+    """The number of ``width`` bytes at ``at`` (a zip's numbers are little-endian)."""
+    return int.from_bytes(data[at : at + width], "little")
+
+
+def _descriptor(data: mmap.mmap, start: int, at: int) -> tuple[int, int, int, int] | None:
+    """The CRC and sizes of a member whose bytes from ``start`` end at ``at`` with its data descriptor
+    (APPNOTE 4.3.9: perhaps its signature, a CRC, the sizes in 4 bytes or, in a zip64, 8) saying how many
+    they are, and ``at``; None when no descriptor before ``at`` says so."""
     for signature, width in ((b"PK\x07\x08", 4), (b"PK\x07\x08", 8), (b"", 4), (b"", 8)):
         descriptor = at - len(signature) - 4 - 2 * width
-        size = data[descriptor + len(signature) + 4 : descriptor + len(signature) + 4 + width]
-        if descriptor >= start and data[descriptor : descriptor + len(signature)] == signature:
-            if int.from_bytes(size, "little") == descriptor - start:
-                return True
-    return False
+        fields = descriptor + len(signature)
+        crc, size, file_size = (
+            _number(data, fields, 4),
+            *(_number(data, fields + 4 + i * width, width) for i in (0, 1)),
+        )
+        if descriptor >= start and data[descriptor:fields] == signature and size == descriptor - start:
+            return crc, size, file_size, at
+    return None
 
 
-def _open(archive: Path, name: str) -> zipfile.ZipFile:
+class _FromHeaders:
+    """A zip whose directory is cut or damaged, every member whole, read as zipfile reads one (its
+    members' CRCs checked) from what their local headers say (``_Headers``)."""
+
+    def __init__(self, archive: Path, headers: _Headers) -> None:
+        self.file = open(archive, "rb")
+        self.members = headers.members
+        self.starts = {info.header_offset: start for info, start in headers.members}
+
+    def __enter__(self) -> _FromHeaders:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.file.close()
+
+    def infolist(self) -> list[zipfile.ZipInfo]:
+        return [info for info, _ in self.members]
+
+    def open(self, info: zipfile.ZipInfo) -> zipfile.ZipExtFile:
+        self.file.seek(self.starts[info.header_offset])
+        return zipfile.ZipExtFile(self.file, "r", info)
+
+
+def _open(archive: Path, name: str, headers: _Headers | None = None) -> zipfile.ZipFile | _FromHeaders:
+    """``archive`` opened; by its members' ``headers`` when those are all there (its directory cut or
+    damaged)."""
     try:
+        if headers is not None and headers.whole:
+            return _FromHeaders(archive, headers)
+        if headers is not None:  # zipfile would read a zip stored in it as it
+            raise zipfile.BadZipFile("File is not a zip file")
         return zipfile.ZipFile(archive)
     except zipfile.BadZipFile as exc:
         raise InputError(
@@ -374,6 +468,7 @@ def unpacked(
     outer: Unpacked | None = None,
     prefix: str = UNPACK_PREFIX,
     pick: Pick | None = None,
+    strict: bool = False,
 ) -> Iterator[Unpacked]:
     """``archive`` (or the parts of a Google Drive download, as one archive) unpacked into a hidden
     folder made in ``into`` (default: the system's temporary folder), removed on leaving; ``outer``: the
@@ -382,28 +477,28 @@ def unpacked(
     unpack (default all; of a download, of each part). Litter passed over is counted in ``litter``. An
     ``InputError`` (naming it, or the part) names what is wrong: not a zip archive (or cut short), a
     member outside the folder, encrypted, compressed with a method not readable here, damaged (its
-    checksum), too large for the disk, a file in two parts of a download."""
+    checksum), too large for the disk, a file in two parts of a download; with ``strict``, also a part
+    cut short or a directory damaged, which are otherwise warnings (a part read as missing; the members
+    read from their own headers)."""
     tally = Litter() if litter is None else litter
     archives = archive.parts if isinstance(archive, DriveDownload) else (archive,)
     names = [outer.shown(a) if outer else str(a) for a in archives]
-    cut = [_held_before_cut(part) for part in archives] if len(archives) > 1 else [None]
-    if None in cut:  # a part cut short is read as a part missing when another part reads
-        for name, held in zip(names, cut):
-            if held is not None:
-                what = (
-                    f"{first_few(held)} and what followed were in it" if held else "what it held is unknown"
-                )
-                warn(
-                    f"{name}: cut short (not a whole zip: a download that stopped?), read as a part missing "
-                    f"({what}): a take with files in it is read without those (download it again "
-                    "and give all the parts)"
-                )
-        archives = tuple(part for part, held in zip(archives, cut) if held is None)
-        names = [name for name, held in zip(names, cut) if held is None]
+    headers = [_by_headers(part) for part in archives]
+    said = []  # (a part, how it was read short or repaired)
+    if len(archives) > 1 and any(h is None or h.whole for h in headers):
+        # a part cut short is read as a part missing when another part reads
+        said += [(n, _read_as_missing(h)) for n, h in zip(names, headers) if h is not None and not h.whole]
+        kept = [i for i, held in enumerate(headers) if held is None or held.whole]
+        archives, names, headers = ([seq[i] for i in kept] for seq in (archives, names, headers))
+    said += [(n, _read_by_headers(h)) for n, h in zip(names, headers) if h is not None and h.whole]
+    if strict and said:
+        raise InputError(f"{said[0][1]}; --strict refuses an archive read short or repaired", said[0][0])
+    for name, what in said:
+        warn(f"{name}: {what}")
     reals = [outer.recorded(a) if outer else str(Path(a).resolve()) for a in archives]
     plans = []
-    for part, name in zip(archives, names):  # one part open at a time: a download of a thousand parts
-        with _open(part, name) as zf:  # is past a system's limit of open files
+    for part, name, held in zip(archives, names, headers):  # one part open at a time: a download of a
+        with _open(part, name, held) as zf:  # thousand parts is past a system's limit of open files
             plans.append(_plan(zf, Path(name), tally, readable=pick is None))
     if pick is not None:  # a download's members picked as one archive's
         wanted = set(pick([Member(parts, is_folder(info)) for plan in plans for info, parts in plan]))
@@ -423,8 +518,8 @@ def unpacked(
             folder.mkdir()
         except OSError as exc:
             raise InputError(f"cannot unpack it into {where}: {exc.strerror or exc}", names[0]) from None
-        for part, plan, name in zip(archives, plans, names):
-            with _open(part, name) as zf:
+        for part, plan, name, held in zip(archives, plans, names, headers):
+            with _open(part, name, held) as zf:
                 for info, parts in plan:
                     _unpack_member(zf, info, folder.joinpath(*parts), name)
         owned = {member: (names[i], reals[i]) for member, i in owners.items()}
@@ -435,6 +530,24 @@ def unpacked(
         if work is not None and os.getpid() == pid:
             with stops_deferred():  # a second Ctrl-C cuts no removal short
                 shutil.rmtree(work, ignore_errors=True)
+
+
+def _read_as_missing(held: _Headers) -> str:
+    what = (
+        f"{first_few(held.names)} and what followed were in it" if held.names else "what it held is unknown"
+    )
+    return (
+        f"cut short (not a whole zip: a download that stopped?), read as a part missing ({what}): a take "
+        "with files in it is read without those (download it again and give all the parts)"
+    )
+
+
+def _read_by_headers(held: _Headers) -> str:
+    return (
+        "its zip directory (the list of its files, at its end) is cut or damaged: read from its members' "
+        f"own headers ({len(held.members)} found whole, each checked by its CRC; copy it again if it was "
+        "cut short)"
+    )
 
 
 def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, archive: str) -> None:
