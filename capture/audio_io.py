@@ -131,26 +131,30 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     ``truncated_audio``) and one whose header declares none although samples follow is read to its end
     (repair ``unfinished_audio``); without it, non-finite samples and unfinished WAVs are an
     ``InputError``. AAC or MP3 whose file does not record the encoder's delay (raw ADTS ``.aac``, an MP3
-    without a LAME tag) keeps it at its start: noted as repair ``encoder_delay_unknown``. An .mp3 of several
-    files joined end to end (``cat a.mp3 b.mp3``) is read whole, each file without its own encoder delay
-    and padding, the later ones mixed to the first one's channel count (repair ``channels_changed``); one
-    whose sample rate changes is an ``InputError`` saying where. A later file without a LAME tag loses
-    LAME's delay when it is LAME's output, else keeps its priming (noted: ``encoder_delay_unknown``), and
-    its padding (noted when a file follows it: the sound after it may be up to a frame late). Frames lost
-    at damage inside an .mp3 are put back as silence of their length, so the sound after it keeps its time
-    (repair ``bad_audio``: where, how much, and, when their number is estimated, the most the sound after
-    it may be shifted); damage running to its end (its last frames, into its end tags) leaves it short,
-    noted (repair ``bad_audio``: by how much); damage running to a file joined on is put back as inside
-    (counted by the file's Info frame, or estimated when its bytes start as a frame does), else noted with
-    the frames it could hold. An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile
-    would stop at the count), or none though its LAME tag records the encoder's delay (libsndfile would
-    keep the delay), is read whole, its count corrected (``MpegRun.count_low``), and one without a frame
-    count whose length libsndfile estimates short (VBR without a Xing header) as joined files are. A file
-    starting with an ID3v2 tag over ``_BIG_TAG`` (a cover picture) is read from after it, by libsndfile
-    and FFmpeg alike. Within ``audio_left_in_files`` (an import), audio libsndfile reads
-    cleanly is a ``FileAudio``: checked a block at a time, left in its file; given a scratch folder there,
-    audio FFmpeg decodes, and any .mp3, is a ``FileAudio`` of the scratch file it was decoded into, the
-    same samples and repairs as read whole (``_read_mpeg``)."""
+    without a LAME tag) keeps it at its start: noted as repair ``encoder_delay_unknown``. An .mp3 of
+    several files joined end to end (``cat a.mp3 b.mp3``) is read whole, each file without its own encoder
+    delay and padding, the later ones mixed to the first one's channel count (repair
+    ``channels_changed``); one whose sample rate changes is an ``InputError`` saying where. A later file
+    without a LAME tag loses LAME's delay when it is LAME's output, else keeps its priming (noted:
+    ``encoder_delay_unknown``), and its padding (noted when a file follows it: the sound after it may be
+    up to a frame late). Frames lost at damage inside an .mp3 are put back as silence of their length, so
+    the sound after it keeps its time (repair ``bad_audio``: where, how much, and, when their number is
+    estimated, the most the sound after it may be shifted); damage running to its end (its last frames,
+    into its end tags) leaves it short, noted (repair ``bad_audio``: by how much), and bytes after it in
+    which frame headers of another sample rate chain by chance (junk, a picture written after it: no run
+    of them ``_REAL_RUN_S`` long, nor after a tag or at an Info frame) are left out, said
+    (``_junk_after``); damage running to a file joined on is put back as inside (counted by the file's
+    Info frame, or estimated when its bytes start as a frame does), else noted with the frames it could
+    hold. An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the
+    count), or none though its LAME tag records the encoder's delay (libsndfile would keep the delay), is
+    read whole, its count corrected (``MpegRun.count_low``), and one without a frame count whose length
+    libsndfile estimates short (VBR without a Xing header) as joined files are; one libsndfile cannot open
+    whose frames need mending too (``_read_mpeg_unopened``). A file starting with an ID3v2 tag over
+    ``_BIG_TAG`` (a cover picture) is read from after it, by libsndfile and FFmpeg alike. Within
+    ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a ``FileAudio``: checked a
+    block at a time, left in its file; given a scratch folder there, audio FFmpeg decodes, and any .mp3,
+    is a ``FileAudio`` of the scratch file it was decoded into, the same samples and repairs as read whole
+    (``_read_mpeg``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -187,6 +191,9 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
                 }
             )
         return audio
+    audio = _read_mpeg_unopened(path, repairs)
+    if audio is not None:
+        return audio
     return check_samples(decode_with_pyav(path, repairs=repairs), path, repairs)
 
 
@@ -222,15 +229,10 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         # free format: any frame the scan finds is a header's bytes inside its audio (it finds no real one)
         runs = [] if free is not None else mpeg_runs(data)
         coded = sum(run.samples for run in runs)
-        # damage, or bytes after its last frame (libsndfile's decoder gives up on 1 KB of zeros, said to be
-        # cut short: FFmpeg is given its frames only)
-        lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
-        counts_wrong = any(run.count_low for run in runs) or bool(runs) and info.frames > 2 * coded
-        # its first frame no sound: a VBRI frame, or a Xing/Info frame destroyed by damage
-        no_sound = bool(runs) and _no_sound_first(data, runs[0])
+        counts_wrong = bool(runs) and info.frames > 2 * coded
         skipped = _gapless_skip(data, runs[0]) if runs else 0
         drops = _MPG123_DROPS if skipped else 1152  # no frame count: mpg123 drops no delay nor padding
-        if not (len(runs) > 1 or lost or counts_wrong or no_sound or _estimated_short(info, coded, drops)):
+        if not (_mending_needed(data, runs) or counts_wrong or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
             audio = _read_by_libsndfile(
                 path, info, skipped, found, free is not None and _untagged(data, free)
@@ -245,6 +247,45 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
                 audio.discard()
             del audio  # its decoder stopped at damage (4655 of 129600 samples): FFmpeg's reads on
         return _read_joined_mpeg_checked(path, data, runs, repairs)
+
+
+def _mending_needed(data: bytes | _FileBytes, runs: list[MpegRun]) -> bool:
+    """Whether the .mp3 whose runs are ``runs`` is to be decoded as joined files are (``_read_joined_mpeg``),
+    its frames mended, not read as it is: several files joined, or a change of channels or layer; damage,
+    or bytes after its last frame (libsndfile's decoder gives up on 1 KB of zeros, said to be cut short:
+    FFmpeg is given its frames only); a frame count too low; its first frame no sound (a VBRI frame, or a
+    Xing/Info frame destroyed by damage)."""
+    if not runs:
+        return False
+    lost = any(loss.frames or loss.ends for run in runs for loss in run.losses)
+    return len(runs) > 1 or lost or any(run.count_low for run in runs) or _no_sound_first(data, runs[0])
+
+
+def _read_mpeg_unopened(path: Path, repairs: list[dict[str, Any]] | None) -> Audio | None:
+    """An .mp3 that libsndfile cannot open (its first frame of sound damaged after an Info frame, at 8 to
+    24 kHz) and FFmpeg opens as MPEG audio, decoded as joined files are when its frames need mending
+    (``_mending_needed``: frames lost at damage put back as silence, the sound after it on time), with
+    the same repairs as one libsndfile opens; None when none do (or it is no MPEG audio, or in free
+    format): ``decode_with_pyav`` decodes it, as any file libsndfile cannot open."""
+    if _ffmpeg_format(path) != "mp3":
+        return None
+    with _FileBytes.of(path) as data:
+        runs = [] if _free_format_start(data) is not None else mpeg_runs(data)
+        if _mending_needed(data, runs):
+            return _read_joined_mpeg_checked(path, data, runs, repairs)
+    return None
+
+
+def _ffmpeg_format(path: Path) -> str | None:
+    """The name of the container format FFmpeg finds ``path`` to be ("mp3": MPEG audio of any layer);
+    None when it cannot open it."""
+    import av
+
+    try:
+        with av.open(_ffmpeg_source(path)) as container:
+            return container.format.name
+    except (av.FFmpegError, OSError, ValueError):
+        return None
 
 
 def _read_joined_mpeg_checked(
@@ -2249,7 +2290,8 @@ class MpegRun:
 
     @property
     def frame_samples(self) -> int:
-        return 384 if self.layer == 1 else 1152 if self.sample_rate >= 32000 else 576
+        # 576 in layer III below 32 kHz only (MPEG-2 and 2.5: one granule); layer II has 1152 at any rate
+        return 384 if self.layer == 1 else 1152 if self.layer == 2 or self.sample_rate >= 32000 else 576
 
     @property
     def frames(self) -> int:
@@ -2277,6 +2319,9 @@ class MpegLoss:
     # (damage, or a tag not known here; not a Lyrics3 tag nor an APE tag without a header, ``_lone_tag``):
     # the frames they could hold, said, none put back
     unsure: int = 0
+    # it runs to the end from the last frames of sound: bytes after them in which frames of another sample
+    # rate chained by chance (``_junk_after``): no frames lost, left out, said
+    junk: bool = False
 
     @property
     def last(self) -> bool:
@@ -2296,6 +2341,7 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
     last_frame, counted = _NO_COUNT, 0  # the frames its file's Xing/Info header declares, and those seen
     file_ends: tuple[int, ...] = ()  # where the bytes its header declares end (see _count_low)
     file_run = 0  # the run its header begins
+    tagged: set[int] = set()  # where runs after a tag start (files joined on: no junk, ``_junk_after``)
     lead: int | None = None  # where stray bytes before a file's first frame start (after a tag, the data's)
     while pos < n - 6:  # a header and its CRC: no frame of sound ends within the last bytes
         frame = table.get(data[pos + 1] << 8 | data[pos + 2]) if data[pos] == 0xFF else None
@@ -2360,14 +2406,20 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
                 runs[-1].end, runs[-1].samples = end, coded
             runs.append(MpegRun(pos, pos + size, frame[2], 1 if mono else 2, frame[3], samples, new_file))
             run_format, end, coded = frame[4] | mono, pos + size, samples
+            if after_tag:
+                tagged.add(pos)
             if (
                 joined
                 and lead is not None
-                and (_starts_sync(data, lead) or not _starts_reservoir(data, pos, frame))
+                and (
+                    _starts_sync(data, lead)
+                    or not _starts_reservoir(data, pos, frame)
+                    or _frames_apart(data, lead, pos, frame)
+                )
             ):
                 # its first frames' bytes damaged, their header's sync left, or this frame's sound begins in
-                # the bytes before it (a bit reservoir, which a file's first frame has none of): frames lost
-                # before its first
+                # the bytes before it (a bit reservoir, which a file's first frame has none of), or they are
+                # as long as frames of its format: frames lost before its first
                 runs[-1].losses.append(MpegLoss(lead, pos, 0))
             lead = None
             if new_file:
@@ -2387,8 +2439,45 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
         pos, after_tag = pos + size, False
     if runs:
         runs[-1].end, runs[-1].samples = min(end, n), coded
+    _junk_after(data, runs, tagged)
     _count_lost(data, runs)
     return runs
+
+
+# Consecutive frames of one format, no damage between them, that only sound holds (s): junk dense in 0xFF
+# bytes (a picture written after the audio) chains a few frame headers by chance (each header's next one
+# found where its size says, in that format: 1 in thousands), never a run this long
+_REAL_RUN_S = 0.5
+
+
+def _clean_seconds(run: MpegRun) -> float:
+    """The longest stretch of ``run``'s frames that follow one another without damage between them (s)."""
+    marks = [0, *(loss.coded for loss in run.losses), run.samples]
+    return max(b - a for a, b in zip(marks, marks[1:])) / run.sample_rate
+
+
+def _junk_after(data: bytes | _FileBytes, runs: list[MpegRun], tagged: set[int]) -> None:
+    """Takes the runs after an .mp3's last real one out of ``runs`` when one of them is at another sample
+    rate than it: frame headers that bytes after its audio formed by chance (junk appended, a cover picture
+    written after it), not a file joined on at that rate (refused). A real run is the first, one after a
+    tag (``tagged``: where runs after one start) or at a Xing/Info/VBRI frame (``_begins_file``), or one
+    of ``_REAL_RUN_S`` of frames without damage (``_clean_seconds``). Their bytes are the last real run's
+    damage at its end, junk (``MpegLoss.junk``): no frames lost, left out, said."""
+    if all(run.sample_rate == runs[0].sample_rate for run in runs):
+        return  # (no look at the runs' bytes: a block of the file read again each)
+    real = max(
+        i
+        for i, run in enumerate(runs)
+        if not i or _clean_seconds(run) >= _REAL_RUN_S or run.start in tagged or _begins_file(data, run.start)
+    )
+    last = runs[real]
+    if all(run.sample_rate == last.sample_rate for run in runs[real + 1 :]):
+        return
+    del runs[real + 1 :]
+    if not (last.losses and last.losses[-1].start == last.end):
+        last.losses.append(MpegLoss(last.end, last.end, last.samples))
+    loss = last.losses[-1]
+    loss.end, loss.ends, loss.before_join, loss.junk = max(_end_tags_at(data), last.end), True, False, True
 
 
 def _stray_first(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
@@ -2404,6 +2493,24 @@ def _stray_first(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
     return after is not None and (
         after[4] != frame[4] or _mpeg_channels(data, found) != _mpeg_channels(data, pos)
     )
+
+
+def _frames_apart(data: bytes | _FileBytes, lead: int, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the stray bytes from ``lead`` (where a file's first frame would start: the data's start, a
+    tag's end) to its first frame found, at ``pos``, are as long as a whole number of frames at its bit
+    rate (their mean size, to the padding slot: 4 bytes in layer I, else 1): its first frames, their
+    headers destroyed by damage (at a constant bit rate). What else lies there (a tag not known here, a
+    writer's zeros) is seldom that long to the byte. Layer I and II frames, and a layer III frame after
+    silence (no bit reservoir used), begin their sound in their own bytes as a file's first frame does:
+    only their length tells them lost (read a frame early, unsaid). A Xing/Info frame whose header's sync
+    was wiped (its text left) is no sound lost."""
+    version, index = data[pos + 1] >> 3 & 3, data[pos + 2] >> 4
+    kbps = (_MPEG1_KBPS if version == 3 else _MPEG2_KBPS)[frame[3]][index - 1]
+    mean = frame[1] * kbps * 125 / frame[2]  # bytes: samples / 8 * bits per second / rate
+    frames = round((pos - lead) / mean)
+    if any(data.startswith(_XING_TEXTS, lead + at) for at in frame[5]) or data.startswith(b"VBRI", lead + 36):
+        return False
+    return frames > 0 and abs(pos - lead - frames * mean) <= (4 if frame[3] == 1 else 1)
 
 
 def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:
@@ -2429,7 +2536,12 @@ def _begins_file(data: bytes | _FileBytes, pos: int) -> bool:
     information zeros, no sound. ``mpeg_runs`` makes the same test inline, its frame at hand (once per frame:
     no call, no second parse of the header)."""
     frame = _mpeg_frame(data, pos)
-    return frame is not None and not data[pos + frame[6]] and _is_file_header(data, pos, frame)
+    return (
+        frame is not None
+        and pos + frame[6] < len(data)  # a header at the data's end: no side information
+        and not data[pos + frame[6]]
+        and _is_file_header(data, pos, frame)
+    )
 
 
 def _end_tags_at(data: bytes | _FileBytes) -> int:
@@ -2462,7 +2574,7 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
     damaged once or the estimates add up to it; damage at its end, to what the count misses."""
     starts = [i for i, run in enumerate(runs) if run.new_file] + [len(runs)]
     for a, b in zip(starts, starts[1:]):
-        losses = [loss for run in runs[a:b] for loss in run.losses]
+        losses = [loss for run in runs[a:b] for loss in run.losses if not loss.junk]
         if not losses:
             continue
         overwritten = _overwritten(data, runs[a], max(runs[b - 1].end, losses[-1].end))
@@ -2478,6 +2590,8 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         per_frame = frame_bytes / sum(max(run.frames, 1) for run in runs[a:b])
         for run in runs[a:b]:
             for loss in run.losses:
+                if loss.junk:
+                    continue
                 # at a file's end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no
                 # frames; before a file joined on, said as what they could hold
                 estimate = round((loss.end - loss.start) / per_frame)
@@ -2658,7 +2772,7 @@ def _mended(
     coded = -_dropped_at_start(data, runs[0], runs[0].count_low)  # samples (per channel) before the run's
     for run in runs:
         for loss in run.losses:
-            if not (loss.frames or loss.unsure):
+            if not (loss.frames or loss.unsure or loss.junk):
                 continue
             if repairs is not None:
                 # (lost in the encoder's delay FFmpeg drops: said at the file's start)
@@ -2760,6 +2874,14 @@ def _move_bytes_declared(part: _MendedPart, data: bytes | _FileBytes, start: int
 def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[str, Any]:
     """The repair ``bad_audio`` of the frames of ``run`` lost at ``loss``, ``start`` seconds in."""
     lost = loss.frames * run.frame_samples
+    if loss.junk:
+        message = (
+            f"{shown_name(path)}: {loss.end - loss.start} bytes after the MPEG audio's last frames (at about "
+            f"{start:.3f} s) are no audio: headers of frames at other sample rates that their bytes form by "
+            "chance, no run of them as long as sound (junk appended, a picture written after the audio?): "
+            "left out"
+        )
+        return {"line": None, "kind": "bad_audio", "message": message}
     if loss.unsure:
         most = loss.unsure * run.frame_samples
         message = (
