@@ -4,7 +4,6 @@ progress on stderr. Usage errors exit with 2 (argparse)."""
 from __future__ import annotations
 
 import argparse
-import base64
 import importlib.metadata
 import json
 import math
@@ -23,6 +22,7 @@ from .errors import (
     RAW_BYTES,
     InputError,
     S2AError,
+    name_of,
     printable,
     printable_message,
     strict_names,
@@ -233,20 +233,15 @@ def named(record: dict[str, Any], key: str) -> str | list[str]:
     list of names, each name so."""
     raw = record.get(f"{key}{RAW_BYTES}")
     if isinstance(raw, list):
-        return [_name(text, each) for text, each in zip(record[key], raw, strict=True)]
-    return _name(record[key], raw)
+        return [name_of(text, each) for text, each in zip(record[key], raw, strict=True)]
+    return name_of(record[key], raw)
 
 
 def named_keys(record: dict[str, Any], key: str) -> dict[str, Any]:
     """The dict ``record[key]`` of a JSON line ``emit_json`` wrote, keyed by names (a speaker's hours),
     each key the name it stands for: its bytes from ``key_keys_b64`` when they are not UTF-8."""
     raw = record.get(f"{key}{KEYS_RAW_BYTES}") or {}
-    return {_name(text, raw.get(text)): value for text, value in record[key].items()}
-
-
-def _name(text: str, raw: str | None) -> str:
-    """A name from its text in a JSON line and its bytes in base64 (None when the text is the name)."""
-    return os.fsdecode(base64.b64decode(raw)) if raw is not None else text
+    return {name_of(text, raw.get(text)): value for text, value in record[key].items()}
 
 
 def progress(message: str) -> None:
@@ -436,7 +431,9 @@ def sigterm_stops() -> Iterator[None]:
         return
 
     def handler(signum: int, frame: Any) -> None:
+        global _sigterm_met
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        _sigterm_met = True
         raise Terminated()
 
     signal.signal(signal.SIGTERM, handler)
@@ -454,21 +451,40 @@ def handle_stoppable(args: argparse.Namespace) -> int:
         return args.handler(args)
 
 
+# Whether a SIGTERM has stopped the command (``sigterm_stops``, ``stops_at_once``): one more ends it at once.
+_sigterm_met = False
+# The line a SIGTERM that ends a command whose work is over says (``_end_now``); "" once ``run`` said it.
+_ending_line = ""
+
+
 def _command_ending(outer: str | None) -> None:
     """As ``run`` ends in a stage command's own process: its work is over, so a SIGTERM from here (as it
     prints its error, as Python exits) is let go, the exit code the command's own; a second one ends
-    the process at once. It ended the process by the signal, with no line, after the work was done."""
+    the process at once (``_end_now``), and so does the first after a SIGTERM that stopped the command.
+    It ended the process by the signal, with no line, after the work was done; after a stop, the second
+    SIGTERM was let go as if it were the first."""
+    global _ending_line
     if (
         outer is None
         and running_command() is not None
         and threading.current_thread() is threading.main_thread()
     ):
-        signal.signal(signal.SIGTERM, _let_go)
+        _ending_line = f"{_program}: terminated (SIGTERM)\n"
+        signal.signal(signal.SIGTERM, _end_now if _sigterm_met else _let_go)
 
 
 def _let_go(_signum: int, _frame: Any) -> None:
     """A SIGTERM as a command that has done its work ends: let go, and the next one ends the process."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, _end_now)
+
+
+def _end_now(_signum: int, _frame: Any) -> None:
+    """A SIGTERM that ends a command whose work is over at once: with the line a stopped command says
+    (unless ``run`` said it already) and its exit code, 143. Written to the file descriptor itself: the
+    handler may run while ``sys.stderr`` is printing the command's error."""
+    if _ending_line:
+        os.write(2, _ending_line.encode("utf-8", "backslashreplace"))
+    os._exit(143)
 
 
 def out_of_memory(exc: BaseException) -> bool:
@@ -496,7 +512,7 @@ def run(
     that Ctrl-C while it is (reading the package's version from its metadata) is one line too. In the
     command's own process, SIGTERM stops it with its line until ``main`` begins (capture.import_guard),
     is ``main``'s own inside, and is let go once ``main`` is over (``_command_ending``)."""
-    global _program
+    global _program, _ending_line
     outer, _program = _program, prog
     try:
         args = build_parser().parse_args(argv)
@@ -509,7 +525,8 @@ def run(
         print(printable_message(f"{prog}: error: {exc}"), file=sys.stderr)
         return 1
     except Terminated:
-        print(f"{prog}: terminated (SIGTERM)", file=sys.stderr)
+        _ending_line = ""  # said below: a SIGTERM from here ends the process without a second line
+        print(f"{prog}: terminated (SIGTERM)", file=sys.stderr, flush=True)
         return 143
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
@@ -596,7 +613,11 @@ def stops_at_once() -> Iterator[None]:
         return
 
     def stop(signum: int, _frame: Any) -> None:
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+        global _sigterm_met
+        if signum == signal.SIGTERM:
+            _sigterm_met = True
+            raise Terminated()
+        raise KeyboardInterrupt()
 
     held = {}
     try:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import base64
+import json
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -48,45 +50,122 @@ KEYS_RAW_BYTES = "_keys" + RAW_BYTES  # added to the key of a dict keyed by name
 def strict_names(value: Any) -> Any:
     """``value`` (dicts, lists and scalars nested) with every string ``printable`` and, beside each dict
     value that is a name not UTF-8 or a list holding one, its bytes (``RAW_BYTES``), and beside each dict
-    value that is a dict keyed by such names, their bytes (``KEYS_RAW_BYTES``); other values as they
-    are."""
+    value that is a dict keyed by such names (or a list of such dicts), their bytes (``KEYS_RAW_BYTES``);
+    other values as they are. A key not UTF-8 shown as another key of its dict is (``a\\xff``, the
+    byte, beside the text ``a\\xff``) is shown with `` (2)`` added, so that neither is lost."""
+    return _strict(value)[0]
+
+
+def _strict(value: Any) -> tuple[Any, Any, Any]:
+    """(``value`` as ``strict_names`` shows it, the bytes kept beside it in a dict under ``RAW_BYTES``,
+    those under ``KEYS_RAW_BYTES``; None for each of the two it needs none): one walk of ``value``.
+    Bytes beside a list are a list, null for each item that needs none; a dict's are its keys'."""
     if isinstance(value, str):
-        return printable(value)
+        if value.isascii():  # most text: nothing to show otherwise, no bytes to keep
+            return value, None, None
+        raw = _raw_bytes(value)
+        return printable(value), None if raw is None else base64.b64encode(raw).decode("ascii"), None
     if isinstance(value, (list, tuple)):
-        return [strict_names(v) for v in value]
+        items = [_strict(v) for v in value]
+        raw = [r for _, r, _ in items]
+        keys = [k or None for _, _, k in items]
+        shown = [v for v, _, _ in items]
+        return shown, raw if any(r is not None for r in raw) else None, keys if any(keys) else None
     if not isinstance(value, dict):
-        return value
+        return value, None, None
     out: dict[Any, Any] = {}
+    shown_keys = _shown_keys(value)
     for key, v in value.items():
-        name = printable(key) if isinstance(key, str) else key
-        out[name] = strict_names(v)
-        raw = _names_bytes(v)
+        name = shown_keys.get(key, key)
+        out[name], raw, keys = _strict(v)
         if raw is not None:
             out[f"{name}{RAW_BYTES}"] = raw
-        keys = _keys_bytes(v)
         if keys:
             out[f"{name}{KEYS_RAW_BYTES}"] = keys
+    keys_raw = {
+        shown_keys[k]: base64.b64encode(raw).decode("ascii")
+        for k in value
+        if isinstance(k, str) and not k.isascii() and (raw := _raw_bytes(k)) is not None
+    }
+    return out, None, keys_raw or None
+
+
+def _shown_keys(value: dict) -> dict[str, str]:
+    """``{key: as strict_names shows it}`` for each text key of ``value``: ``printable``, a key not UTF-8
+    whose display another key already has then `` (2)``, `` (3)``... added (a UTF-8 key keeps its text)."""
+    shown = {k: k if k.isascii() else printable(k) for k in value if isinstance(k, str)}
+    odd = {k: None for k in shown if not k.isascii() and _raw_bytes(k) is not None}  # in order
+    if not odd:
+        return shown
+    taken = {text for k, text in shown.items() if k not in odd}
+    for key in odd:
+        base = text = shown[key]
+        n = 1
+        while text in taken:
+            n += 1
+            text = f"{base} ({n})"
+        shown[key] = text
+        taken.add(text)
+    return shown
+
+
+def loads_names(text: str | bytes) -> Any:
+    """``json.loads(text)``, each name not UTF-8 as Python holds it (``names_restored``; walked only when
+    the text holds ``RAW_BYTES``: most does not). Errors as ``json.loads``'s."""
+    value = json.loads(text)
+    return names_restored(value) if (RAW_BYTES if isinstance(text, str) else b"_b64") in text else value
+
+
+def names_restored(value: Any) -> Any:
+    """What ``strict_names`` made of ``value``, read back from JSON: each name not UTF-8 as Python holds it
+    (surrogate escapes, from its bytes beside it), the keys holding those bytes gone. JSON written before
+    (a lone surrogate, ``"\\udcff"``, which Python reads back as the name) is returned as it is."""
+    if isinstance(value, list):
+        return [names_restored(v) for v in value]
+    if not isinstance(value, dict):
+        return value
+    if not any(isinstance(key, str) and key.endswith(RAW_BYTES) for key in value):
+        return {key: names_restored(v) for key, v in value.items()}
+    out: dict[Any, Any] = {}
+    for key, v in value.items():
+        if isinstance(key, str) and _beside_a_key(key, value):
+            continue
+        v = _bytes_named(names_restored(v), value.get(f"{key}{RAW_BYTES}"))
+        out[key] = _keys_named(v, value.get(f"{key}{KEYS_RAW_BYTES}"))
     return out
 
 
-def _keys_bytes(value: Any) -> dict[str, str] | None:
-    """Of a dict, ``{key as shown: its bytes in base64}`` for each key that is a name not UTF-8 (empty when
-    none is); None for any other value."""
-    if not isinstance(value, dict):
-        return None
-    return {printable(k): raw for k in value if isinstance(k, str) and (raw := _names_bytes(k)) is not None}
+def _beside_a_key(key: str, value: dict) -> bool:
+    """Whether ``key`` of ``value`` holds the bytes of another key's names (``KEY_b64``, ``KEY_keys_b64``)."""
+    return any(key.endswith(end) and key[: -len(end)] in value for end in (KEYS_RAW_BYTES, RAW_BYTES))
 
 
-def _names_bytes(value: Any) -> str | list[str | None] | None:
-    """What ``strict_names`` keeps beside a dict value: a name's bytes in base64 when it is not UTF-8; for
-    a list holding such a name, each name's (null for a name that is UTF-8); else None."""
-    if isinstance(value, str):
-        raw = _raw_bytes(value)
-        return None if raw is None else base64.b64encode(raw).decode("ascii")
-    if isinstance(value, (list, tuple)) and any(isinstance(v, str) for v in value):
-        each = [_names_bytes(v) if isinstance(v, str) else None for v in value]
-        return each if any(raw is not None for raw in each) else None
-    return None
+def _bytes_named(value: Any, raw: Any) -> Any:
+    """A name (or list of names) from its text and its bytes as ``_strict`` kept them."""
+    if isinstance(value, list) and isinstance(raw, list) and len(raw) == len(value):
+        return [_bytes_named(v, r) for v, r in zip(value, raw)]
+    return name_of(value, raw) if isinstance(value, str) and isinstance(raw, str) else value
+
+
+def _keys_named(value: Any, raw: Any) -> Any:
+    """A dict (or list of dicts) keyed by names from its keys' text and their bytes as ``_strict`` kept
+    them."""
+    if isinstance(value, list) and isinstance(raw, list) and len(raw) == len(value):
+        return [_keys_named(v, r) for v, r in zip(value, raw)]
+    if not isinstance(value, dict) or not isinstance(raw, dict):
+        return value
+    return {name_of(k, raw.get(k)) if isinstance(k, str) else k: v for k, v in value.items()}
+
+
+def name_of(text: str, raw: Any) -> str:
+    """A name from its text in JSON and its bytes in base64 (None when the text is the name): as Python
+    holds it, ``os.fsdecode``. Bytes that are no base64 (a hand-edited file) leave the text."""
+    if not isinstance(raw, str):
+        return text
+    try:
+        return os.fsdecode(base64.b64decode(raw, validate=True))
+    except ValueError:  # binascii.Error
+        return text
 
 
 def _raw_bytes(text: str) -> bytes | None:

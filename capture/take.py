@@ -31,7 +31,7 @@ import numpy as np
 
 from .atomic import folder_in_place, write_json_atomic
 from .audio_io import Audio, FileAudio, read_audio, write_audio
-from .errors import InputError
+from .errors import InputError, loads_names, strict_names
 from .npz import NPZ_ERRORS, npz_array, npz_headers, open_npz
 from .numbers import is_finite_number, number_array
 from .transfer_litter import litter_kind
@@ -519,7 +519,7 @@ def _write_take_folder(take: Take, target: Path) -> None:
         else:
             meta.audio = None
         try:
-            write_json_atomic(tmp / META_FILE, meta.to_json())
+            write_json_atomic(tmp / META_FILE, strict_names(meta.to_json()))
         except ValueError as exc:  # NaN or infinity, which JSON cannot hold
             raise InputError(f"take {meta.id}: metadata cannot be written: {exc}", target) from None
 
@@ -532,7 +532,7 @@ def read_meta(folder: str | Path) -> TakeMeta:
     """Only the metadata of a take folder (cheap)."""
     path = Path(folder) / META_FILE
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = loads_names(path.read_text(encoding="utf-8"))
     except (FileNotFoundError, NotADirectoryError):
         raise InputError("not a take folder (no meta.json)", folder) from None
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:

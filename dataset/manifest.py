@@ -6,7 +6,10 @@ backend and library versions); ``normalization`` (animation offset/scale, featur
 log-F0); ``splits`` (rule, takes and speakers per split); ``shards`` (name, split, sha256, bytes,
 samples, frames, duration); ``samples`` (key, take, speaker, split, shard, frames, duration);
 ``sources`` (every source take with its sha256); ``stats``; ``warnings``; ``build`` (fingerprint).
-It is written last and atomically, so a manifest always describes finished shards.
+It is written last and atomically, so a manifest always describes finished shards. A name whose bytes
+are not UTF-8 (a speaker) is written as messages show it, its bytes in base64 beside it
+(``capture.errors.strict_names``): strict JSON, which jq reads; one written before as a lone surrogate
+(``"\\udce9"``) reads back as the same name.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from capture.atomic import write_json_atomic
-from capture.errors import InputError
+from capture.errors import InputError, loads_names, strict_names
 from capture.file_lock import held_elsewhere, lock_holder
 from capture.numbers import is_count as _count
 from capture.numbers import is_finite_number
@@ -314,7 +317,7 @@ def load_manifest(ds: str | Path) -> dict[str, Any]:
     version checked but not its fields (``read_manifest`` checks those)."""
     path = manifest_path(ds)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = loads_names(path.read_text(encoding="utf-8"))
     except (FileNotFoundError, NotADirectoryError, IsADirectoryError):
         raise InputError("not a dataset (no manifest.json)", path.parent) from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -347,7 +350,7 @@ def read_manifest(ds: str | Path) -> dict[str, Any]:
 
 def write_manifest(ds: str | Path, data: dict[str, Any]) -> Path:
     path = manifest_path(ds)
-    write_json_atomic(path, {"format": FORMAT, "schema_version": SCHEMA_VERSION} | data)
+    write_json_atomic(path, strict_names({"format": FORMAT, "schema_version": SCHEMA_VERSION} | data))
     os.chmod(path, 0o644)  # readable like the shards (the atomic writer creates 0600 files)
     return path
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from capture.atomic import partial_path
 from capture.command import stops_deferred
-from capture.errors import InputError
+from capture.errors import InputError, loads_names, strict_names
 
 BLOCK = tarfile.BLOCKSIZE
 RECORD = tarfile.RECORDSIZE
@@ -78,7 +78,10 @@ def npy_bytes(array: np.ndarray) -> bytes:
 
 
 def json_bytes(data: Any) -> bytes:
-    return (json.dumps(data, sort_keys=True, allow_nan=False, separators=(",", ":")) + "\n").encode()
+    """A sample's JSON member: compact, keys sorted, a name not UTF-8 as messages show it with its bytes
+    beside it (``strict_names``: strict JSON, which ``decode_json_object`` reads back as the name)."""
+    text = json.dumps(strict_names(data), sort_keys=True, allow_nan=False, separators=(",", ":"))
+    return (text + "\n").encode()
 
 
 class _HashingFile(io.RawIOBase):
@@ -305,10 +308,11 @@ def decode_npy(data: bytes, what: str = "array") -> np.ndarray:
 
 
 def decode_json_object(data: bytes, what: str = "metadata") -> dict[str, Any]:
-    """A JSON object from bytes; anything else (not UTF-8, not JSON, nested past Python's limits, not
-    an object) is an ``InputError`` naming ``what``."""
+    """A JSON object from bytes, each name not UTF-8 as Python holds it (``loads_names``); anything
+    else (not UTF-8, not JSON, nested past Python's limits, not an object) is an ``InputError`` naming
+    ``what``."""
     try:
-        value = json.loads(data)
+        value = loads_names(data)
     except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
         reason = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
         raise InputError(f"{what} is not a JSON object ({reason})") from None

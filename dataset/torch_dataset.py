@@ -39,7 +39,6 @@ usable in it). A damaged sample is an ``InputError`` naming the shard and the sa
 
 from __future__ import annotations
 
-import json
 import operator
 import random
 import tarfile
@@ -52,7 +51,7 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from capture.errors import InputError
+from capture.errors import InputError, loads_names
 from capture.numbers import is_count
 
 from .manifest import _numbers, dataset_dir, read_manifest, shards_of
@@ -382,7 +381,7 @@ class ShardDataset(IterableDataset):
         if missing:
             raise self.damaged(key, f"lacks the member(s) {', '.join(missing)}")
         try:
-            meta = json.loads(members["json"])
+            meta = loads_names(members["json"])
         except (ValueError, RecursionError):  # JSONDecodeError and UnicodeDecodeError are ValueErrors
             raise self.damaged(key, "its json member is not valid JSON") from None
         if not isinstance(meta, dict):

@@ -26,7 +26,7 @@ import torch
 
 from capture.atomic import partial_path, put_in_place, write_json_atomic
 from capture.command import stops_deferred
-from capture.errors import InputError
+from capture.errors import InputError, loads_names, strict_names
 from capture.file_lock import held_elsewhere, holding
 from capture.numbers import is_count
 from capture.take import MAX_FPS
@@ -101,7 +101,7 @@ def write_atomically(path: Path, write: Callable[[Path], None], what: str = "") 
 def read_run_config(path: Path) -> dict[str, Any]:
     """A run's (or an ensemble's) config.json as a dict."""
     try:
-        saved = json.loads(path.read_text())
+        saved = loads_names(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"unreadable run config ({type(exc).__name__})", path) from None
     if not isinstance(saved, dict):
@@ -412,6 +412,6 @@ def check_inputs(inputs: dict[str, Any], dims: dict[str, int], path: Path) -> No
 
 def write_json(path: Path, obj: Any) -> None:
     try:
-        write_json_atomic(path, obj, allow_nan=True)
+        write_json_atomic(path, strict_names(obj), allow_nan=True)
     except OSError as exc:
         raise write_error(exc, path) from None

@@ -9,12 +9,11 @@ are optimizer updates, ``window`` is animation frames, ``max_minutes`` wall-cloc
 from __future__ import annotations
 
 import copy
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
-from capture.errors import RAW_BYTES, InputError
+from capture.errors import RAW_BYTES, InputError, loads_names
 from capture.numbers import is_finite_number
 from capture.paired import read_text
 
@@ -172,7 +171,7 @@ def read_config_file(path: Path) -> dict[str, Any]:
         raise InputError(f"cannot read config file: {exc.strerror}", path) from None
     if path.suffix.lower() == ".json":
         try:
-            data = json.loads(text)
+            data = loads_names(text)
         except (ValueError, RecursionError) as exc:  # JSONDecodeError, or numbers/nesting past limits
             raise InputError(f"not valid JSON: {exc}", path) from None
         if not isinstance(data, dict):

@@ -15,7 +15,6 @@ of repeated runs).
 
 from __future__ import annotations
 
-import json
 import platform
 import time
 from collections.abc import Callable
@@ -26,7 +25,7 @@ import numpy as np
 import torch
 
 from capture.command import progress, warn
-from capture.errors import InputError, first_few
+from capture.errors import InputError, first_few, loads_names
 from dataset.manifest import dataset_folder, read_manifest
 from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
@@ -132,7 +131,7 @@ class RawSamples(ShardDataset):
 
     def _decode(self, key: str, members: dict[str, bytes], rng) -> dict[str, Any]:
         item = super()._decode(key, members, rng)
-        meta = json.loads(members["json"])  # an object with a usable neutral: ShardDataset checked it
+        meta = loads_names(members["json"])  # an object with a usable neutral: ShardDataset checked it
         neutral = meta.get("neutral")
         item["speaker"] = meta.get("speaker")
         item["neutral"] = None if neutral is None else np.asarray(neutral, np.float32)

@@ -6,7 +6,6 @@ takes changed restarts best_val; evaluation names the takes the run trained on (
 from __future__ import annotations
 
 import hashlib
-import json
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -16,7 +15,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
-from capture.errors import InputError, first_few
+from capture.errors import InputError, first_few, loads_names
 from capture.take import sha256_file
 from dataset.manifest import FORMAT, SCHEMA_VERSION, manifest_path, manifest_problems, read_manifest
 
@@ -47,7 +46,7 @@ def read_manifest_sha(ds: str | Path) -> tuple[dict[str, Any], str]:
     for _ in range(5):
         try:
             raw = path.read_bytes()
-            data = json.loads(raw.decode("utf-8"))
+            data = loads_names(raw.decode("utf-8"))
         except (OSError, ValueError, RecursionError):  # JSON and UTF-8 errors are ValueErrors
             data = raw = None
         usable = (

@@ -16,7 +16,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,7 @@ import numpy as np
 from capture import InputError, find_sources, find_takes, read_meta, read_take
 from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
-from capture.errors import printable
+from capture.errors import loads_names, printable
 from capture.take import FrameStatus
 
 from .output import writing
@@ -192,7 +191,7 @@ def _dataset_curves(
     chunks: dict[str, list[tuple[str, dict[str, np.ndarray]]]] = {}
     for shard in manifest["shards"]:
         for key, members in ShardReader(ds / shard["name"], ("json", "anim.npy", "mask.npy")):  # no audio
-            info = json.loads(members["json"])
+            info = loads_names(members["json"])
             anim = np.load(io.BytesIO(members["anim.npy"]), allow_pickle=False)
             mask = np.load(io.BytesIO(members["mask.npy"]), allow_pickle=False).astype(bool)
             # only the thumbnail channels are kept, so a large dataset's report stays small
