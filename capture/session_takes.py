@@ -9,8 +9,9 @@ rate: ``_rate_stretches``), its wraps at midnight undone, is read as the phone's
 ``follow_clock``: its recordings (a new one where the clock restarted: it went back and went on from
 there), the late packets that belong to them (at most ``MAX_LATENESS_S`` behind, in a gap of it no
 longer than that, ``_far_behind``, or going on from the current recording's frames without a gap,
-``_continuing``: a clock that stepped forward and then back, into the gap its step left, begins a
-recording of its own, which its first take's ``clock_returned`` note says), and stray
+``_continuing``, or filling a gap of an earlier one from end to end, ``_bridging``: a clock that stepped
+forward and then back, into the gap its step left, begins a recording of its own, which its first take's
+``clock_returned`` note says), and stray
 packets (a corrupt or spoofed frame number) that belong to none. Per recording, small steps back of the
 phone's clock are undone (``_undo_steps_back``: the frames after one are placed where they arrived),
 duplicates (copies of one datagram) are dropped keeping the first arrival, frames sharing a frame time
@@ -489,10 +490,12 @@ def _late_frames_of(
         middle = np.median(ft, keepdims=True)
         ends = rec.around(middle[0] - max_behind, middle[0] + max_behind)  # where a gap this long can end
         if _far_behind(middle, rec.hi, frame_time[ends], max_behind)[0]:
-            # unless they go on from its frames, all in one gap of them (none of theirs among them)
+            # unless they go on from its frames, all in one gap of them (none of theirs among them), and
+            # fill it from end to end when the clock has gone on to another recording (a burst held back
+            # over a restart)
             ours = frame_time[rec.around(float(ft.min()) - tol, float(ft.max()) + tol)]
             among = np.any((ours > ft.min()) & (ours < ft.max()))
-            if not (on_clock and not among and _continuing(ft, ours, ft).all()):
+            if among or not _continuing(ft, ours, ft).all() or not (on_clock or _bridging(ft, ours)):
                 return False
     near = (ft >= rec.lo - tol) & (ft <= rec.hi + tol)
     if 2 * np.count_nonzero(near) < ft.size:
@@ -536,6 +539,18 @@ def _continuing(ft: np.ndarray, have: np.ndarray, along: np.ndarray) -> np.ndarr
     ours = np.zeros(int(run.max()) + 1, bool)
     ours[run[: have.size]] = True
     return ours[run[have.size : have.size + ft.size]]
+
+
+def _bridging(ft: np.ndarray, have: np.ndarray) -> bool:
+    """Whether frame times ``ft`` reach a recording's frame times ``have`` (any order) on both sides, each
+    end within ``RUN_STEPS`` of its frame steps of one of them: they fill a gap of it from end to end."""
+    step = _frame_step(np.sort(have))
+    if step is None:
+        return False
+    reach = RUN_STEPS * step
+    below = (have < ft.min()) & (have >= ft.min() - reach)
+    above = (have > ft.max()) & (have <= ft.max() + reach)
+    return bool(below.any() and above.any())
 
 
 def _frame_step(times: np.ndarray) -> float | None:
@@ -980,17 +995,27 @@ def _unwrap_midnight(frame_time: np.ndarray, rate: float) -> np.ndarray:
     falls back by one day (24 h of frames, or at an NTSC rate 24 h of timecode frames at its nominal
     rate; less the length of packets lost across midnight) it goes on from the next day: each packet is
     put on the day nearest the clock at its moment, so a late packet from before midnight stays on its
-    day. Any other jump back stays a restart."""
+    day. Any other jump back stays a restart. A burst of packets from before midnight the network held
+    back until after it (at most ``MAX_LATENESS_S`` late) takes the clock back to the day before for as
+    long as it lasts: its packets stay on their day, and the clock comes back to the next day after it."""
     if frame_time.size < 2 or np.ptp(frame_time) < DAY_S / 2:  # nowhere near both ends of a day
         return frame_time
     level = _running_median(frame_time, CLOCK_HALF_WINDOW)
-    fall = -np.diff(level)
-    days = np.array([DAY_S, DAY_S * round(rate) / rate])
-    # packets lost across midnight shorten the fall by as long as they lasted (up to a gap that splits
-    # the take anyway)
-    behind = days - fall[:, None]
-    match = (behind >= -RESTART_WINDOW_S) & (behind <= MAX_GAP_S + RESTART_WINDOW_S)
-    day = np.where(match.any(axis=1), days[match.argmax(axis=1)], 0.0)
+    days = (DAY_S, DAY_S * round(rate) / rate)
+    day = np.zeros(level.size - 1)
+    on = back = 0  # midnights the clock went on past, and back to the day before of those (a held burst)
+    for j in np.flatnonzero(np.abs(np.diff(level)) > DAY_S / 2).tolist():
+        fall = float(level[j] - level[j + 1])
+        # packets lost across midnight shorten the fall by as long as they lasted (up to a gap that splits
+        # the take anyway); a held burst is as much less than a day back and forth as it is late
+        within = (MAX_GAP_S if fall > 0 and not back else MAX_LATENESS_S) + RESTART_WINDOW_S
+        length = next((d for d in days if -RESTART_WINDOW_S <= d - abs(fall) <= within), None)
+        if length is not None and fall > 0:
+            day[j] = length
+            on, back = (on, back - 1) if back else (on + 1, 0)
+        elif length is not None and on > back:
+            day[j] = -length
+            back += 1
     if not day.any():
         return frame_time
     clock = level + np.concatenate([[0.0], np.cumsum(day)])
@@ -1081,6 +1106,12 @@ def _typical_pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float:
     return float(np.median(paces)) if paces else 1.0
 
 
+def _burst(frame_time: np.ndarray, arrival_s: np.ndarray, pace: float) -> bool:
+    """Whether packets came ``BURST_PACE`` times as fast as their recording's ``pace`` or more (a burst
+    the network held back)."""
+    return _run_through(frame_time) > BURST_PACE * pace * float(np.ptp(arrival_s))
+
+
 def _undo_steps_back(
     frame_time: np.ndarray, arrival_s: np.ndarray, period: float
 ) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
@@ -1098,10 +1129,13 @@ def _undo_steps_back(
     ``STEP_SIDE_S`` after those is still as late (when the recording goes on that long): a stall the
     network flushed out of order moves both, but the arrivals for the flush only; and where the frames
     after it came at the recording's pace, not ``BURST_PACE`` times as fast: a burst the network held back,
-    however long, came at once (unless the packets ``STEP_SIDE_S`` of arrivals later are still as late: a
-    Wi-Fi burst right after a step).
-    Next to the step, a packet is of the clock after it when it arrived half the step later than the
-    fastest before it (a packet of the clock before it as late as that is taken for one after it)."""
+    however long, came at once (unless the packets ``STEP_SIDE_S`` of arrivals later are still as late and
+    come at the recording's pace: a Wi-Fi burst right after a step; a second burst held back tells nothing).
+    A packet is of the clock after the step when it arrived after it (next to it: half the step later than
+    the fastest before it; a packet of the clock before it as late as that is taken for one after it),
+    unless its frame time lies below where the clock after the step resumed (the start of the run of frame
+    times its fastest packet is in): a frame of the clock before it that the network held back over the
+    step keeps its frame time."""
     n = frame_time.size
     width = min(max(2 * MIN_TAKE_FRAMES, int(STEP_SIDE_S / period)), MAX_STEP_SIDE_PACKETS)
     if n < 2 * width:
@@ -1134,17 +1168,29 @@ def _undo_steps_back(
         # comes as fast, and the packets after it are as late)
         side = slice(at, at + width)
         pace = _typical_pace(frame_time, arrival_s) if pace is None else pace
-        if _run_through(frame_time[side]) > BURST_PACE * pace * float(np.ptp(arrival_s[side])):
-            # a second of arrivals on, a side of packets coming in the second after (not after a pause)
+        if _burst(frame_time[side], arrival_s[side], pace):
+            # a second of arrivals on, a side of packets coming in the second after (not after a pause), at
+            # the recording's pace (not another burst the network held back)
             on = int(np.searchsorted(arrival_s, arrival_s[at] + STEP_SIDE_S))
             if on + width > n or arrival_s[on + width - 1] > arrival_s[at] + 3 * STEP_SIDE_S:
                 continue
-            if after[on] - before[at] < step / 2:
+            still_late = after[on] - before[at] >= step / 2
+            if not still_late or _burst(frame_time[on : on + width], arrival_s[on : on + width], pace):
                 continue
         zone = slice(max(at - width, done), at + width)
         later = np.zeros(n, bool)
         later[zone] = behind[zone] - before[at] > step / 2
         later[zone.stop :] = True
+        # the clock after the step runs on from where it resumed, the start of the run of frame times (at
+        # most RUN_STEPS frame steps apart) of the frames placed after it that holds its fastest packet: a
+        # frame below that is a late frame of the clock before it, however late the network delivered it
+        # (a burst held back over the step)
+        times = np.sort(frame_time[later])
+        fastest = np.searchsorted(times, frame_time[at + int(np.argmin(behind[side]))])
+        reach = RUN_STEPS * (_frame_step(times) or period)
+        breaks = np.flatnonzero(np.diff(times[: fastest + 1]) > reach)
+        resumed = times[breaks[-1] + 1 if breaks.size else 0]
+        later &= frame_time >= resumed - period / 2
         shift = round(step / period) * period
         moved[later] += shift
         first = zone.start + int(np.argmax(later[zone]))
