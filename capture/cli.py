@@ -135,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--matrix",
         metavar="FILE",
         type=Path,
-        help="generic import: frames x channels weights (.npy, .npz, .csv, or an Audio2Face .json export)",
+        help="generic import: frames x channels weights (.npy, .npz, .csv, or an Audio2Face or BEAT .json)",
     )
     p.add_argument(
         "--names",

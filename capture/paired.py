@@ -5,10 +5,11 @@ Channel names are kept as given (a rig's own controls, e.g. FACEGOOD's 116); nam
 channels in any spelling are mapped to the toolkit's canonical ARKit names, also when every name carries
 one prefix or suffix around them (``A2F_jawOpen``, ``jawOpen_bs``: repair ``channel_affix``).
 
-The matrix is a ``.npy`` array, a CSV (optional header row of names; comma, semicolon or tab separated)
-or the blendshape JSON that NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``,
+The matrix is a ``.npy`` array, a CSV (optional header row of names; comma, semicolon or tab separated),
+the blendshape JSON that NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``,
 ``facsNames``, ``weightMat``; its joint tracks are not face weights and are left out), which carries its
-own names and rate.
+own names and rate, or a BEAT face JSON (``names``, ``frames`` of ``time`` and ``weights``), which carries
+its names and frame times.
 """
 
 from __future__ import annotations
@@ -240,38 +241,97 @@ def exact_rate(fps: float | None) -> float | None:
     return fps
 
 
-def read_a2f_json(path: Path) -> tuple[np.ndarray, list[str], float]:
-    """Weights, pose names and frame rate of an Audio2Face blendshape export (JSON)."""
+def read_json_matrix(path: Path) -> tuple[np.ndarray, list[str], float | None]:
+    """Weights, names and frame rate (None: the file gives none) of a JSON matrix: an Audio2Face
+    blendshape export, or a BEAT face JSON (its frame times come first, as a ``time`` column)."""
     data = _json_of(lambda: read_text(path), path)  # Windows tools save "Unicode" (UTF-16) text too
+    if (
+        isinstance(data, dict)
+        and not {"weightMat", "facsNames"} & data.keys()
+        and {"names", "frames"} <= data.keys()
+    ):
+        return _beat_face(data, path)
     if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
-        raise InputError("not an Audio2Face blendshape export (no weightMat and facsNames)", path)
+        raise InputError(
+            "not an Audio2Face blendshape export (no weightMat and facsNames), nor a BEAT face JSON "
+            "(no names and frames)",
+            path,
+        )
+    return _a2f_export(data, path)
+
+
+def _a2f_export(data: dict, path: Path) -> tuple[np.ndarray, list[str], float | None]:
+    """Weights, pose names and frame rate of an Audio2Face blendshape export."""
     names, rows, fps = data["facsNames"], data["weightMat"], data.get("exportFps")
-    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n.strip() for n in names):
-        raise InputError("facsNames must be a non-empty list of names", path)
+    _check_json_names(names, "facsNames", path)
     if not isinstance(rows, list) or not rows:
         raise InputError("weightMat must be a non-empty list of frames", path)
-    for i, row in enumerate(rows):
-        if not isinstance(row, list) or len(row) != len(names):
-            got = f"{len(row)} values" if isinstance(row, list) else type(row).__name__
-            raise InputError(f"weightMat[{i}] holds {got}, facsNames {len(names)} names", path)
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row):
-            raise InputError(f"weightMat[{i}] holds a value that is not a number", path)
+    matrix = _json_rows(rows, lambda i: f"weightMat[{i}]", f"facsNames {len(names)} names", len(names), path)
     for key, want in (("numFrames", len(rows)), ("numPoses", len(names))):
         got = data.get(key)
         if got is not None and (isinstance(got, bool) or got != want):
             raise InputError(f"{key} is {_show(got)} but the file holds {want}", path)
     if fps is not None:
-        if isinstance(fps, bool) or not isinstance(fps, (int, float)):
+        if not _json_number(fps):
             raise InputError(f"exportFps must be a number, not {_show(fps)}", path)
         try:
             fps = exact_rate(float(fps))
         except OverflowError:
             raise InputError(f"exportFps must be a frame rate, not {_show(fps)}", path) from None
-    try:
-        matrix = np.array(rows, dtype=np.float64)
-    except OverflowError:
-        raise InputError("weightMat holds a number too large for a float", path) from None
     return matrix, [n.strip() for n in names], fps
+
+
+# The key of a BEAT face JSON's frame time (seconds), and the name its column gets.
+BEAT_TIME = "time"
+
+
+def _beat_face(data: dict, path: Path) -> tuple[np.ndarray, list[str], None]:
+    """Times and weights of a BEAT face JSON, the layout of the BEAT dataset's ARKit weights and of
+    generators trained on it (``{"names": [...], "frames": [{"time": s, "weights": [...]}, ...]}``):
+    a ``time`` column (when every frame has a time) and one per name. A frame's ``rotation`` (the
+    head's) is not a face weight and is left out."""
+    names, frames = data["names"], data["frames"]
+    _check_json_names(names, "names", path)
+    if not isinstance(frames, list) or not frames or not all(isinstance(f, dict) for f in frames):
+        raise InputError('frames must be a non-empty list of frames ({"time": ..., "weights": [...]})', path)
+    rows = [f.get("weights") for f in frames]
+    matrix = _json_rows(rows, lambda i: f"frames[{i}].weights", f"names {len(names)} names", len(names), path)
+    names = [n.strip() for n in names]
+    timed = [BEAT_TIME in f for f in frames]
+    if not any(timed):
+        return matrix, names, None
+    if not all(timed):
+        raise InputError(f"frames[{timed.index(False)}] has no time, frames[{timed.index(True)}] has", path)
+    times = _json_rows([[f[BEAT_TIME]] for f in frames], lambda i: f"frames[{i}].time", "a time", 1, path)
+    return np.column_stack([times, matrix]), [BEAT_TIME, *names], None
+
+
+def _check_json_names(names: object, key: str, path: Path) -> None:
+    """Refuse a JSON matrix's ``key`` that is not a non-empty list of names."""
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n.strip() for n in names):
+        raise InputError(f"{key} must be a non-empty list of names", path)
+
+
+def _json_number(value: object) -> bool:
+    """Whether a JSON value is a number (not true or false, which Python counts as 1 and 0)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _json_rows(rows: list, where: Callable[[int], str], want: str, width: int, path: Path) -> np.ndarray:
+    """The frames x ``width`` matrix of a JSON file's rows of numbers; ``where(i)`` names row ``i`` in a
+    one-line error, ``want`` what gives the width (``facsNames 52 names``)."""
+    matrix = np.empty((len(rows), width), dtype=np.float64)
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != width:
+            got = f"{len(row)} values" if isinstance(row, list) else type(row).__name__
+            raise InputError(f"{where(i)} holds {got}, {want}", path)
+        if not all(map(_json_number, row)):
+            raise InputError(f"{where(i)} holds a value that is not a number", path)
+        try:
+            matrix[i] = row
+        except OverflowError:
+            raise InputError(f"{where(i)} holds a number too large for a float", path) from None
+    return matrix
 
 
 def _rate(fps: float) -> str:
@@ -437,7 +497,7 @@ def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None
     elif path.suffix.lower() == ".npz":
         m, header, fps = _read_npz(path)
     elif path.suffix.lower() == ".json":
-        m, header, fps = read_a2f_json(path)
+        m, header, fps = read_json_matrix(path)
     else:
         m, header, numbered = _read_csv(path)
     if m.dtype.kind not in "fiu" or m.ndim != 2:
@@ -495,7 +555,7 @@ def _read_npz(path: Path) -> tuple[np.ndarray, list[str] | None, float | None]:
 def read_matrix(path: str | Path) -> tuple[np.ndarray, list[str] | None, float | None]:
     """Frames x channels weights from ``.npy`` or ``.npz`` (never unpickled), ``.csv`` (optional header
     row; comma, semicolon or tab separated, a decimal comma with the last two; empty cells are NaN) or an
-    Audio2Face ``.json`` export; with the names and frame rate the file gives (else None)."""
+    Audio2Face or BEAT ``.json``; with the names and frame rate the file gives (else None)."""
     m, header, fps, _ = _read_matrix(Path(path))
     return m, header, fps
 
