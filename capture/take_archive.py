@@ -33,6 +33,7 @@ not readable here, damage) and the room on the disk see what is unpacked.
 
 from __future__ import annotations
 
+import lzma
 import mmap
 import os
 import re
@@ -336,24 +337,35 @@ class _Headers:
 
 def _by_headers(part: Path) -> _Headers | None:
     """``part`` read from its members' local headers (APPNOTE 4.3.7) when zipfile cannot read its directory
-    (cut short, damaged) or finds a zip stored at its end instead (a cut part whose last bytes are a zip
-    it holds): no member of that one starts at the first byte, where this one's does; None for a file
-    zipfile reads, or one starting with no member's header (no zip: zipfile says why)."""
+    (cut short, damaged) or finds a zip stored in one of its members instead (a cut part whose last bytes
+    are a zip it holds): no member of that one starts at the first byte, where this one's does; None for a
+    file zipfile reads (also one whose zip begins past this one's members: two zips joined, a copy resumed
+    over a cut one, which zipfile reads as the last), or one starting with no member's header (no zip:
+    zipfile says why)."""
+    inner = None  # where the first member of a zip zipfile finds, not at the first byte, starts
     try:
         with open(part, "rb") as f:
             if f.read(4) != _LOCAL_HEADER:
                 return None
             try:
                 with zipfile.ZipFile(f) as zf:
-                    if any(info.header_offset == 0 for info in zf.infolist()):
-                        return None
-            except zipfile.BadZipFile:
+                    starts = [info.header_offset for info in zf.infolist()]
+                if 0 in starts:
+                    return None
+                inner = min(starts, default=None)
+            except (zipfile.BadZipFile, NotImplementedError):  # e.g. a version no zip has: damaged
                 pass
             data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
     except (OSError, ValueError):
         return None
     with data:
-        return _read_headers(data)
+        headers = _read_headers(data)
+    if inner is not None and not any(
+        info.compress_type == zipfile.ZIP_STORED and start <= inner < start + info.compress_size
+        for info, start in headers.members
+    ):
+        return None
+    return headers
 
 
 def _read_headers(data: mmap.mmap) -> _Headers:
@@ -449,10 +461,10 @@ def _open(archive: Path, name: str, headers: _Headers | None = None) -> zipfile.
     try:
         if headers is not None and headers.whole:
             return _FromHeaders(archive, headers)
-        if headers is not None:  # zipfile would read a zip stored in it as it
+        if headers is not None:  # cut in its members (zipfile fails, or reads a zip stored in it as it)
             raise zipfile.BadZipFile("File is not a zip file")
         return zipfile.ZipFile(archive)
-    except zipfile.BadZipFile as exc:
+    except (zipfile.BadZipFile, NotImplementedError) as exc:
         raise InputError(
             f"not a readable zip archive ({exc}): a download or copy cut short? Copy it again", name
         ) from None
@@ -559,7 +571,8 @@ def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, arc
         target.parent.mkdir(parents=True, exist_ok=True)
         with zf.open(info) as src, open(target, "xb") as dst:
             shutil.copyfileobj(src, dst, 1 << 20)
-    except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+    # NotImplementedError: a flag no writer sets (5, patched data), as damage sets it
+    except (zipfile.BadZipFile, zlib.error, lzma.LZMAError, EOFError, NotImplementedError) as exc:
         raise InputError(f"member {name} is damaged ({exc}): copy the archive again", archive) from None
     except FileExistsError:  # a file and a folder of one name (``T`` and ``T/x``), or names equal here
         raise InputError(f"member {name} clashes with another member of that name", archive) from None
