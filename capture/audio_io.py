@@ -141,8 +141,8 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     the sound after it keeps its time (repair ``bad_audio``: where, how much, and, when their number is
     estimated, the most the sound after it may be shifted); damage running to its end (its last frames,
     into its end tags) leaves it short, noted (repair ``bad_audio``: by how much), and bytes after it in
-    which frame headers of another sample rate chain by chance (junk, a picture written after it: no run
-    of them ``_REAL_RUN_S`` long, nor after a tag or at an Info frame) are left out, said
+    which frame headers of another format (rate, layer, channels) chain by chance (junk, a picture: no run
+    of them ``_REAL_RUN_FRAMES`` frames long, nor after a tag or at an Info frame) are left out, said
     (``_junk_after``); damage running to a file joined on is put back as inside (counted by the file's
     Info frame, or estimated when its bytes start as a frame does), else noted with the frames it could
     hold. An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the
@@ -2414,12 +2414,13 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
                 and (
                     _starts_sync(data, lead)
                     or not _starts_reservoir(data, pos, frame)
-                    or _frames_apart(data, lead, pos, frame)
+                    or (not header and _frames_apart(data, lead, pos, frame))
                 )
             ):
                 # its first frames' bytes damaged, their header's sync left, or this frame's sound begins in
                 # the bytes before it (a bit reservoir, which a file's first frame has none of), or they are
-                # as long as frames of its format: frames lost before its first
+                # as long as frames of its format (unless it is a Xing/Info frame, which a file begins with):
+                # frames lost before its first
                 runs[-1].losses.append(MpegLoss(lead, pos, 0))
             lead = None
             if new_file:
@@ -2444,34 +2445,46 @@ def mpeg_runs(data: bytes | _FileBytes) -> list[MpegRun]:
     return runs
 
 
-# Consecutive frames of one format, no damage between them, that only sound holds (s): junk dense in 0xFF
+# Consecutive frames of one format, no damage between them, that only sound holds: junk dense in 0xFF
 # bytes (a picture written after the audio) chains a few frame headers by chance (each header's next one
-# found where its size says, in that format: 1 in thousands), never a run this long
+# found where its size says, in that format: each frame more about 1 in 45 as likely; 5 at most in 600 MB
+# of it), never a run of 8 frames (a 0.3 s clip joined on at 16 kHz or more holds as many) nor one half a
+# second long (fewer, longer frames: layer III at 8 to 12 kHz)
+_REAL_RUN_FRAMES = 8
 _REAL_RUN_S = 0.5
 
 
-def _clean_seconds(run: MpegRun) -> float:
-    """The longest stretch of ``run``'s frames that follow one another without damage between them (s)."""
+def _clean_frames(run: MpegRun) -> int:
+    """The longest stretch of ``run``'s frames that follow one another without damage between them."""
     marks = [0, *(loss.coded for loss in run.losses), run.samples]
-    return max(b - a for a, b in zip(marks, marks[1:])) / run.sample_rate
+    return max(b - a for a, b in zip(marks, marks[1:])) // run.frame_samples
 
 
 def _junk_after(data: bytes | _FileBytes, runs: list[MpegRun], tagged: set[int]) -> None:
-    """Takes the runs after an .mp3's last real one out of ``runs`` when one of them is at another sample
-    rate than it: frame headers that bytes after its audio formed by chance (junk appended, a cover picture
-    written after it), not a file joined on at that rate (refused). A real run is the first, one after a
+    """Takes the runs after an .mp3's last real one out of ``runs`` when one of them is of another format
+    than it (sample rate, layer or channels): frame headers that bytes after its audio formed by chance
+    (junk appended, a cover picture written after it), not a file joined on at that rate (refused), of that
+    layer or channel count (decoded, mixed to its channels). A real run is the first, one after a
     tag (``tagged``: where runs after one start) or at a Xing/Info/VBRI frame (``_begins_file``), or one
-    of ``_REAL_RUN_S`` of frames without damage (``_clean_seconds``). Their bytes are the last real run's
-    damage at its end, junk (``MpegLoss.junk``): no frames lost, left out, said."""
-    if all(run.sample_rate == runs[0].sample_rate for run in runs):
+    of ``_REAL_RUN_FRAMES`` frames, or ``_REAL_RUN_S`` of them, without damage (``_clean_frames``). Their
+    bytes are the last real run's damage at its end, junk (``MpegLoss.junk``): no frames lost, left out,
+    said."""
+
+    def form(run: MpegRun) -> tuple[int, int, int]:
+        return run.sample_rate, run.layer, run.channels
+
+    if all(form(run) == form(runs[0]) for run in runs):
         return  # (no look at the runs' bytes: a block of the file read again each)
     real = max(
         i
         for i, run in enumerate(runs)
-        if not i or _clean_seconds(run) >= _REAL_RUN_S or run.start in tagged or _begins_file(data, run.start)
+        if not i
+        or _clean_frames(run) >= min(_REAL_RUN_FRAMES, _REAL_RUN_S * run.sample_rate / run.frame_samples)
+        or run.start in tagged
+        or _begins_file(data, run.start)
     )
     last = runs[real]
-    if all(run.sample_rate == last.sample_rate for run in runs[real + 1 :]):
+    if all(form(run) == form(last) for run in runs[real + 1 :]):
         return
     del runs[real + 1 :]
     if not (last.losses and last.losses[-1].start == last.end):
@@ -2495,22 +2508,34 @@ def _stray_first(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
     )
 
 
+# frames the damage at a file's start may have destroyed that ``_frames_apart`` tells by their length: a
+# wiped first frame or a few; more is a header not known here (stray bytes of some length match whole frames
+# about 1 in 200 times: a fill of seconds where nothing was lost)
+_FIRST_FRAMES_LOST_MAX = 4
+
+
 def _frames_apart(data: bytes | _FileBytes, lead: int, pos: int, frame: _MpegFrame) -> bool:
     """Whether the stray bytes from ``lead`` (where a file's first frame would start: the data's start, a
     tag's end) to its first frame found, at ``pos``, are as long as a whole number of frames at its bit
-    rate (their mean size, to the padding slot: 4 bytes in layer I, else 1): its first frames, their
-    headers destroyed by damage (at a constant bit rate). What else lies there (a tag not known here, a
-    writer's zeros) is seldom that long to the byte. Layer I and II frames, and a layer III frame after
-    silence (no bit reservoir used), begin their sound in their own bytes as a file's first frame does:
-    only their length tells them lost (read a frame early, unsaid). A Xing/Info frame whose header's sync
-    was wiped (its text left) is no sound lost."""
+    rate (their mean size, to the padding slot: 4 bytes in layer I, else 1), at most
+    ``_FIRST_FRAMES_LOST_MAX``: its first frames, their headers destroyed by damage (at a constant bit
+    rate). What else lies there (a tag not known here, a writer's zeros) is seldom that long to the byte;
+    zeros alone are no frames (a tagger's padding written past the size its ID3v2 tag declares). Layer I
+    and II frames, and a layer III frame after silence (no bit reservoir used), begin their sound in their
+    own bytes as a file's first frame does: only their length tells them lost (read a frame early,
+    unsaid). A Xing/Info frame whose header's sync was wiped (its text left) is no sound lost."""
     version, index = data[pos + 1] >> 3 & 3, data[pos + 2] >> 4
     kbps = (_MPEG1_KBPS if version == 3 else _MPEG2_KBPS)[frame[3]][index - 1]
     mean = frame[1] * kbps * 125 / frame[2]  # bytes: samples / 8 * bits per second / rate
     frames = round((pos - lead) / mean)
     if any(data.startswith(_XING_TEXTS, lead + at) for at in frame[5]) or data.startswith(b"VBRI", lead + 36):
         return False
-    return frames > 0 and abs(pos - lead - frames * mean) <= (4 if frame[3] == 1 else 1)
+    if not (
+        0 < frames <= _FIRST_FRAMES_LOST_MAX
+        and abs(pos - lead - frames * mean) <= (4 if frame[3] == 1 else 1)
+    ):
+        return False
+    return data[lead:pos].count(0) < pos - lead
 
 
 def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:
@@ -2519,7 +2544,10 @@ def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | 
     that end it, ``_end_tags_at``) or to tags that end it: damage at its end (``MpegLoss.ends``); up to a
     tag or a Xing/Info frame a file joined on begins with (the damage may have wiped its tag's header):
     damage at its file's end, the sound after it kept on time (``MpegLoss.before_join``). A lone header of
-    another format at ``found`` resyncs on from it: the same damage, running on."""
+    another format at ``found`` resyncs on from it: the same damage, running on. A header in the data's
+    last bytes (junk's, its frame past the data's end), where ``mpeg_runs`` reads no frame, is its end."""
+    if found is not None and found >= len(data) - 6:
+        found = None
     tag = found is not None and bool(_tag_bytes(data, found))
     ends = found is None or tag and _ends_stream(data, found)
     joined = not ends and found is not None and (tag or _begins_file(data, found))
@@ -2877,7 +2905,7 @@ def _loss_note(path: Path, start: float, loss: MpegLoss, run: MpegRun) -> dict[s
     if loss.junk:
         message = (
             f"{shown_name(path)}: {loss.end - loss.start} bytes after the MPEG audio's last frames (at about "
-            f"{start:.3f} s) are no audio: headers of frames at other sample rates that their bytes form by "
+            f"{start:.3f} s) are no audio: headers of frames of other formats that their bytes form by "
             "chance, no run of them as long as sound (junk appended, a picture written after the audio?): "
             "left out"
         )
