@@ -1092,6 +1092,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
                 "frames": b - a,
                 "duration_s": (b - a) / fps,
                 "usable_frames": int(mask[a:b].sum()),
+                "usable_values": int(channel_mask[a:b].sum()),  # a glitch in one channel leaves the others
                 "sha256": written.sha256,  # of the one-sample tar: checked before it is reused
             }
         )
@@ -1965,6 +1966,8 @@ def _build(
                     "shard": shard["name"],
                     "frames": s["frames"],
                     "usable_frames": s["usable_frames"],
+                    # a take record of a build before it has none: readers fall back to the samples
+                    **({"usable_values": s["usable_values"]} if "usable_values" in s else {}),
                     "duration_s": s["duration_s"],
                 }
             )

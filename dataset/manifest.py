@@ -112,7 +112,7 @@ SECONDS = (lambda v: is_finite_number(v) and v >= 0, "a non-negative number")
 SHARD = {"name": STR, "split": STR, "sha256": STR, "bytes": COUNT, "samples": COUNT, "frames": COUNT}
 SHARD |= {"duration_s": SECONDS}
 SAMPLE = {"key": STR, "take": STR, "speaker": STR, "split": STR, "shard": STR, "frames": COUNT}
-SAMPLE |= {"usable_frames": COUNT, "duration_s": SECONDS}
+SAMPLE |= {"usable_frames": COUNT, "usable_values": COUNT, "duration_s": SECONDS}
 SPLIT_STATS = {"takes": COUNT, "samples": COUNT, "hours": SECONDS, "usable_frames": COUNT}
 SPLIT_STATS |= {
     "hours_per_speaker": (
@@ -288,7 +288,7 @@ def manifest_problems(data: dict[str, Any]) -> list[tuple[str, str]]:
         name = s.get("name") if isinstance(s, dict) else None
         if isinstance(name, str) and ("/" in name or "\\" in name or name.startswith(".")):
             out.append((f"shards[{i}].name", f"shard name {name!r} is not a plain file name"))
-    out += _objects(data["samples"], "samples", SAMPLE, optional=("usable_frames",))
+    out += _objects(data["samples"], "samples", SAMPLE, optional=("usable_frames", "usable_values"))
     out += _repeated_keys(data["samples"])
     stats = data.get("stats", {})
     if not isinstance(stats, dict):

@@ -326,6 +326,18 @@ def _check_anim(anim: np.ndarray, at: str, n_channels: int) -> tuple[list[Proble
     return out, frames
 
 
+def usable_values(arrays: dict[str, np.ndarray], n_channels: int) -> int | None:
+    """How many values of a decoded sample are usable (a training loss's targets, the reader's
+    ``values``): its channel_mask's where it has one, else its mask's frames in every channel; None
+    when its channel_mask is damaged (``channel_mask_problem``)."""
+    mask, channel_mask = arrays["mask"], arrays.get("channel_mask")
+    if channel_mask is None:
+        return int(np.count_nonzero(mask)) * n_channels
+    if channel_mask_problem(channel_mask, mask, n_channels) is not None:
+        return None
+    return int(np.count_nonzero(channel_mask))
+
+
 def _check_features(
     arrays: dict[str, np.ndarray], at: str, manifest: dict[str, Any], frames: int | None
 ) -> list[Problem]:
@@ -849,10 +861,11 @@ def manifest_consistency(manifest: dict[str, Any]) -> list[Problem]:
 
 
 def _entry_mismatch(entry: dict[str, Any], found: dict[str, Any], fps: Any) -> list[Problem]:
-    """A manifest sample entry against the sample found in a shard: its split (the shard's), and the
-    take, speaker, frames, usable frames and duration (within a frame) its metadata gives."""
+    """A manifest sample entry against the sample found in a shard: its split (the shard's), its usable
+    values (its members'), and the take, speaker, frames, usable frames and duration (within a frame)
+    its metadata gives."""
     meta = found.get("meta") or {}
-    held = {"split": found["split"]} | {
+    held = {"split": found["split"], "usable_values": found.get("values")} | {
         k: meta.get(k) for k in ("take", "speaker", "frames", "usable_frames")
     }
     out = []
@@ -1240,14 +1253,17 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
                 metadata=metadata,
             )
             problems.extend(found)
-            sums = None
+            sums = values = None
             if decoded:
                 arrays, usable = decoded[0]
                 anim = arrays["anim"][usable]  # the usable frames, masked once
                 sums = moments(anim)
+                values = usable_values(arrays, anim.shape[1])
                 if recomputed is not None and not any(p.severity == "error" for p in found):
                     recomputed.add(split, meta, arrays, anim)
-            seen.append({"key": key, "shard": name, "split": split, "meta": meta, "moments": sums})
+            seen.append(
+                {"key": key, "shard": name, "split": split, "meta": meta, "moments": sums, "values": values}
+            )
 
         problems.extend(VALIDATORS["shard"](entry, ds, manifest, deep=deep, on_sample=on_sample))
         if progress:

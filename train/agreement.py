@@ -9,10 +9,10 @@ model. The ridge regression of the model table (train/ridge.py, closed form, sec
   every take (the diagonal is the take's fit to itself, an optimistic bound).
 
 Scores are RMSE of de-normalised coefficients × 100 (the paper's scale, pooled over the take's usable
-frames and every channel) and their ratio to the floor of the same fit (its training takes' mean):
-near 1, the other takes tell nothing about this one. The normal equations of each take are summed
-once; leaving a take out subtracts its sums from the total. Only the train and val splits by default:
-scoring the test takes too is for studying a dataset, not for choosing a model.
+values: a glitch in one channel leaves the frame's others) and their ratio to the floor of the same fit
+(its training takes' mean): near 1, the other takes tell nothing about this one. The normal equations
+of each take are summed once; leaving a take out subtracts its sums from the total. Only the train and
+val splits by default: scoring the test takes too is for studying a dataset, not for choosing a model.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ DEFAULT_ALPHA = 0.1  # ridge_alpha 0 means "choose on val" in fit; here there is
 
 def _items(ds: Path, splits: tuple[str, ...], spec, take_of: dict[str, str]) -> Iterator[tuple[str, dict]]:
     for split in splits:
-        for item in utterances(ds, split, spec):
+        for item in utterances(ds, split, spec, values=True):
             yield take_of[item["key"]], item
 
 
@@ -78,7 +78,7 @@ def take_agreement(
     for take, item in _items(ds, splits, spec, take_of):
         content, prosody = to_model_inputs(item, spec)
         sums.setdefault(take, NormalEquations(n_in, spec.out_dim)).add(
-            model.inputs(content, prosody, present_frames(item)), item["anim"], item["mask"]
+            model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"]
         )
     takes = sorted(t for t, eq in sums.items() if eq.n > 0)
     if len(takes) < 2:
@@ -89,34 +89,38 @@ def take_agreement(
     def fitted(eq: NormalEquations) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(weight, bias, training mean) of the ridge solved on ``eq``."""
         eq.solve(model, alpha)
-        mean = (eq.sy / max(eq.n, 1)).float()
+        mean = eq.means().float()
         return model.linear.weight.detach().clone(), model.linear.bias.detach().clone(), mean
 
     loto = {t: fitted(total.minus(sums[t])) for t in takes}
     single = {t: fitted(sums[t]) for t in takes} if len(takes) <= MATRIX_TAKES else {}
     scale = torch.as_tensor(np.asarray(manifest["normalization"]["animation"]["scale"], np.float32))
-    # squared errors (coefficient units) per (fit, scored take), of the fit and of its floor
+    # squared errors (coefficient units) per (fit, scored take), of the fit and of its floor, over the
+    # usable values of the frames usable in some channel
     se: dict[tuple[str, str], list[float]] = {}
     frames: dict[str, int] = {}
+    values: dict[str, int] = {}
     for take, item in _items(ds, splits, spec, take_of):
         if take not in loto:
             continue
         content, prosody = to_model_inputs(item, spec)
-        mask = item["mask"][0]
-        x = model.inputs(content, prosody, present_frames(item))[0][mask]
-        y = item["anim"][0][mask]
-        frames[take] = frames.get(take, 0) + int(mask.sum())
+        usable = item["values"][0]
+        rows = usable.any(dim=1)
+        x = model.inputs(content, prosody, present_frames(item))[0][rows]
+        y, usable = item["anim"][0][rows], usable[rows].float()
+        frames[take] = frames.get(take, 0) + int(rows.sum())
+        values[take] = values.get(take, 0) + int(usable.sum())
         fits = {("loo", take): loto[take], **{("single", t): f for t, f in single.items()}}
         for (kind, source), (w, b, mean) in fits.items():
-            err = float((((x @ w.T + b) - y) * scale).square().sum())
-            floor = float(((mean - y) * scale).square().sum())
+            err = float(((((x @ w.T + b) - y) * scale).square() * usable).sum())
+            floor = float((((mean - y) * scale).square() * usable).sum())
             acc = se.setdefault((f"{kind}:{source}", take), [0.0, 0.0])
             acc[0] += err
             acc[1] += floor
 
     def score(key: str, take: str) -> dict[str, float]:
         err, floor = se[(key, take)]
-        n = max(frames[take] * spec.out_dim, 1)
+        n = max(values[take], 1)
         rmse, floor_rmse = 100.0 * (err / n) ** 0.5, 100.0 * (floor / n) ** 0.5
         return {"rmse": rmse, "floor": floor_rmse, "ratio": rmse / floor_rmse if floor_rmse else float("nan")}
 

@@ -170,15 +170,20 @@ def _no_validation(ds: Path, manifest: dict[str, Any], cfg: dict[str, Any]) -> s
     ]
     if not val:
         return "the dataset has no val split"
-    if not any(s.get("usable_frames", s["frames"]) for s in val) and not _val_has_values(ds, manifest, cfg):
-        return "the val split has no usable frames (face lost throughout?)"
-    return None
+    if any(s.get("usable_frames", s["frames"]) for s in val) or _val_has_values(ds, manifest, cfg, val):
+        return None
+    return "the val split has no usable frames (face lost throughout?)"
 
 
-def _val_has_values(ds: Path, manifest: dict[str, Any], cfg: dict[str, Any]) -> bool:
-    """Whether the val split holds a usable value, read from its samples: a channel NaN throughout a take
-    leaves no frame usable in every channel (the manifest's ``usable_frames`` 0), and its other channels
-    as targets (``values``). Every rank reads the split whole, so that the ranks decide alike."""
+def _val_has_values(
+    ds: Path, manifest: dict[str, Any], cfg: dict[str, Any], val: list[dict[str, Any]]
+) -> bool:
+    """Whether the val split (its manifest entries ``val``) holds a usable value: a channel NaN
+    throughout a take leaves no frame usable in every channel (``usable_frames`` 0), and its other
+    channels as targets (``values``). Told by the entries' ``usable_values``; a manifest without them
+    (a build before it) has the samples read, whole on every rank, so that the ranks decide alike."""
+    if all("usable_values" in s for s in val):
+        return any(s["usable_values"] for s in val)
     items = utterances(ds, "val", None, cfg, manifest, values=True, whole=True)
     return any(bool(item["values"].any()) for item in items)
 
@@ -190,12 +195,13 @@ def _fit_ridge(
     manifest = watch.manifest
     model, model_config = build_model("ridge", spec, cfg)
     eq = NormalEquations(model.linear.in_features, spec.out_dim)
-    t0, frames = time.perf_counter(), 0
+    t0 = time.perf_counter()
     with watch.reading():
-        for item in utterances(ds, "train", spec, cfg, manifest):
+        # each usable value: a glitch in one channel leaves the frame's others (their own solution)
+        for item in utterances(ds, "train", spec, cfg, manifest, values=True):
             content, prosody = to_model_inputs(item, spec)
-            eq.add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["mask"])
-            frames += int(item["mask"].sum())
+            eq.add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"])
+    frames = eq.n  # usable in some channel
     with watch.reading():
         no_val = _no_validation(ds, manifest, cfg)
     has_val = no_val is None

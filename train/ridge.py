@@ -2,7 +2,8 @@
 
 Each output frame is a linear function of the inputs (content + prosody) of the ``context`` frames on
 either side (zero outside the utterance). Fitted in one pass over the training split by accumulating
-the normal equations on standardised inputs; ``alpha`` is the L2 penalty
+the normal equations of its usable values on standardised inputs (a channel glitched in some frames
+is solved alone, without them); ``alpha`` is the L2 penalty
 (per frame, on the correlation scale), chosen on the validation split from a grid when 0.
 """
 
@@ -38,8 +39,10 @@ class Ridge(nn.Module):
 
 
 class NormalEquations:
-    """Running sums Σx, Σxxᵀ, Σxyᵀ, Σy over the frames of ``add``'s mask (usable frames: the reader's
-    ``mask``), float64."""
+    """Running sums Σx, Σxxᵀ, Σxyᵀ, Σy over the usable values of ``add``, float64: over the frames usable
+    in some channel (``rows``), and, for each channel unusable in some of those frames (a glitch in it
+    alone), the same sums over those frames (``gaps``: that channel's, y its column), which its own
+    solution leaves out. Memory: one Σxxᵀ, plus one per glitched channel."""
 
     def __init__(self, n_in: int, n_out: int):
         self.n = 0
@@ -47,11 +50,25 @@ class NormalEquations:
         self.sy = torch.zeros(n_out, dtype=torch.float64)
         self.xx = torch.zeros(n_in, n_in, dtype=torch.float64)
         self.xy = torch.zeros(n_in, n_out, dtype=torch.float64)
+        self.gaps: dict[int, NormalEquations] = {}
 
-    def add(self, x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> None:
-        m = mask.reshape(-1)
+    def add(self, x: torch.Tensor, y: torch.Tensor, usable: torch.Tensor) -> None:
+        """Add the inputs ``x`` (..., n_in) and targets ``y`` (..., n_out) of the ``usable`` values: a
+        frame mask (...) (usable in every channel) or a value mask (..., n_out) (the reader's
+        ``values``)."""
+        values = usable.reshape(-1, usable.shape[-1]) if usable.dim() == y.dim() else None
+        m = usable.reshape(-1) if values is None else values.any(dim=1)
         x = x.reshape(-1, x.shape[-1])[m].double()
         y = y.reshape(-1, y.shape[-1])[m].double()
+        self._add_rows(x, y)
+        if values is None:
+            return
+        unusable = ~values[m]
+        for c in unusable.any(dim=0).nonzero().flatten().tolist():
+            gap = self.gaps.setdefault(c, NormalEquations(x.shape[1], 1))
+            gap._add_rows(x[unusable[:, c]], y[unusable[:, c], c : c + 1])
+
+    def _add_rows(self, x: torch.Tensor, y: torch.Tensor) -> None:
         self.n += x.shape[0]
         self.sx += x.sum(0)
         self.sy += y.sum(0)
@@ -67,6 +84,8 @@ class NormalEquations:
         for part in parts:
             for name in cls.FIELDS:
                 setattr(out, name, getattr(out, name) + getattr(part, name))
+        for c in sorted({c for part in parts for c in part.gaps}):
+            out.gaps[c] = cls.total([part.gaps[c] for part in parts if c in part.gaps])
         return out
 
     def minus(self, part: NormalEquations) -> NormalEquations:
@@ -74,11 +93,32 @@ class NormalEquations:
         out = NormalEquations(self.sx.numel(), self.sy.numel())
         for name in self.FIELDS:
             setattr(out, name, getattr(self, name) - getattr(part, name))
+        for c, gap in self.gaps.items():
+            left = gap.minus(part.gaps[c]) if c in part.gaps else gap
+            if left.n:  # a glitch in the frames left out only: none left
+                out.gaps[c] = left
         return out
 
-    def solve(self, model: Ridge, alpha: float) -> None:
-        """Set ``model.linear`` to the ridge solution on standardised inputs, intercept not penalised:
-        ``(C + alpha·I) w = c_xy`` with C the inputs' correlation matrix (alpha is per frame)."""
+    def channel(self, c: int) -> NormalEquations:
+        """The sums of channel ``c``'s usable values alone (its glitched frames taken out)."""
+        out = NormalEquations(self.sx.numel(), 1)
+        out.n, out.sx, out.xx = self.n, self.sx, self.xx
+        out.sy, out.xy = self.sy[c : c + 1], self.xy[:, c : c + 1]
+        gap = self.gaps.get(c)
+        return out if gap is None else out.minus(gap)
+
+    def means(self) -> torch.Tensor:
+        """Each channel's mean over its usable values (0 for a channel without any)."""
+        mean = self.sy / max(self.n, 1)
+        for c in self.gaps:
+            eq = self.channel(c)
+            mean[c] = eq.sy[0] / eq.n if eq.n else 0.0
+        return mean
+
+    def solution(self, alpha: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """(weight (n_in, n_out), bias (n_out,)), float64, of the ridge on standardised inputs, intercept
+        not penalised: ``(C + alpha·I) w = c_xy`` with C the inputs' correlation matrix (alpha is per
+        frame); a glitched channel solved alone on its usable values (none: weight and bias 0)."""
         n = max(self.n, 1)
         mx, my = self.sx / n, self.sy / n
         cov = self.xx / n - torch.outer(mx, mx)
@@ -88,6 +128,15 @@ class NormalEquations:
         eye = torch.eye(len(std), dtype=torch.float64)
         w_std = torch.linalg.solve(corr + alpha * eye, cxy / std[:, None])
         w = w_std / std[:, None]
+        bias = my - mx @ w
+        for c in self.gaps:
+            eq = self.channel(c)
+            w[:, c : c + 1], bias[c : c + 1] = eq.solution(alpha) if eq.n else (0.0, 0.0)
+        return w, bias
+
+    def solve(self, model: Ridge, alpha: float) -> None:
+        """Set ``model.linear`` to ``solution(alpha)``."""
+        w, bias = self.solution(alpha)
         with torch.no_grad():
             model.linear.weight.copy_(w.T.float())
-            model.linear.bias.copy_((my - mx @ w).float())
+            model.linear.bias.copy_(bias.float())
