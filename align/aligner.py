@@ -265,7 +265,8 @@ def _check_range(
         else ""
     )
     if outside is not None:
-        credible = content_ev.detail.get("outside_confidence", 0.0) >= opts.min_confidence
+        strength = content_ev.detail.get("outside_confidence", 0.0)
+        credible = strength >= opts.min_confidence
         if chosen.confidence < opts.min_confidence:
             if "no_evidence" in flags:  # something was measured: a peak where the offset was not looked for
                 flags.remove("no_evidence")
@@ -283,10 +284,16 @@ def _check_range(
             )
         else:
             return False
+        wider = f"align again with --max-offset-ms {_suggest_ms(outside)}"
+        advice = (
+            f"; if the audio really started that far apart from the face, {wider}"
+            if credible  # a match this weak is more likely another take's audio than an offset that far
+            else f", and that match is weak (confidence {strength:.2f}): check that the audio is this "
+            f"take's, or {wider}"
+        )
         warnings.append(
             f"take {tid}: the speech matches the face best at an offset of {outside:+.3f} s, outside the "
-            f"{span} searched{lengths}: the speech could not confirm the offset; if the audio really started "
-            f"that far apart from the face, align again with --max-offset-ms {_suggest_ms(outside)}"
+            f"{span} searched{lengths}: the speech could not confirm the offset{advice}"
         )
         return True
     if lengths and chosen.confidence < opts.min_confidence:

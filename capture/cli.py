@@ -159,7 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--variant",
         choices=("cal", "raw", "plain"),
-        help="which CSV of a calibrated take folder to import (default: cal, else plain, else raw)",
+        help="which CSV of a calibrated take (its folder, or its loose CSVs) to import (default: cal, else "
+        "plain, else raw)",
     )
     p.add_argument(
         "--audio-pairing",

@@ -8,11 +8,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from .command import warn
-from .csv_take import app_header_separator, read_livelink_csv, utf16_csv_error
+from .csv_take import app_header_separator, read_livelink_csv, split_variant, utf16_csv_error
 from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
-from .take import Take, is_take_dir, leads_back
+from .take import Take, is_take_dir, leads_back, source_file
 from .take_folder import (
+    _PREFERENCE,
+    _neutral_named_as,
+    _neutral_pose,
     is_take_folder,
     nfc,
     read_csv_with_audio,
@@ -66,14 +69,17 @@ def find_sources(
     archives found are sources (``capture.take_archive``). Operating-system and
     transfer litter (``capture.transfer_litter``: ``._*``, ``__MACOSX``, ``$RECYCLE.BIN``, ...) is passed
     over and counted in ``litter``; without one, a warning line per kind is printed here. An iCloud
-    placeholder of a CSV (``.X.csv.icloud``) is a source: importing it says to download it."""
+    placeholder of a CSV (``.X.csv.icloud``) is a source: importing it says to download it. The loose
+    CSVs of one calibrated take are one source (``one_per_take``)."""
     tally = Litter() if litter is None else litter
     found: list[Path] = []
+    named: set[Path] = set()
     for p in map(Path, paths):
         if tally.skips(p):
             continue
         if p.is_file():
             found.append(p)
+            named.add(p)
         elif p.is_dir():
             found.extend(_walk(p, exports, archives, skipped, tally, p.resolve(), variant))
         else:
@@ -81,7 +87,62 @@ def find_sources(
     if litter is None:
         for line in tally.lines():
             warn(line)
-    return found
+    return one_per_take(found, named, variant, skipped)
+
+
+def _loose_csv(source: Path) -> tuple[str, str | None] | None:
+    """The take name (its prefix, in NFC) and variant (cal, raw, neutral or None: plain) of a source that
+    is a loose Live Link Face CSV (or its iCloud placeholder), by its name; None for any other source."""
+    name = icloud_original(source) or source.name
+    if source.is_dir() or Path(name).suffix.lower() != ".csv":
+        return None
+    prefix, variant = split_variant(Path(name).stem)
+    return nfc(prefix), variant
+
+
+def one_per_take(
+    sources: list[Path],
+    named: set[Path],
+    variant: str | None = None,
+    skipped: Callable[[Path, str], None] = warn_skipped,
+) -> list[Path]:
+    """``sources`` with the loose Live Link Face CSVs of one calibrated take (``X_cal.csv``, ``X_raw.csv``,
+    ``X_neutral.csv`` in one folder) read as their take folder reads them: one of them, ``variant``'s
+    when the take has it, else cal, plain, raw; the others reported to ``skipped``. ``X_neutral.csv`` is
+    no take of its own but the pose ``import_source`` keeps as the take's ``neutral``; a lone one is
+    skipped too, unless ``named`` (given by name: the user asked for it, and it is read as a take). A take
+    with two CSVs of one variant (a copy, one name spelled two ways) and CSVs of other writers (generic
+    paired data) are left as they are."""
+    takes: dict[tuple[Path, str], dict[str | None, list[Path]]] = {}
+    for p in sources:
+        if (csv := _loose_csv(p)) is not None:
+            takes.setdefault((p.parent.resolve(), csv[0]), {}).setdefault(csv[1], []).append(p)
+    wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
+    dropped: set[Path] = set()
+    for files in takes.values():
+        if (len(files) == 1 and "neutral" not in files) or any(len(ps) > 1 for ps in files.values()):
+            continue  # one CSV, or a take whose CSVs no name tells apart: as they were
+        of_take = {v: p for v, (p,) in files.items() if icloud_original(p) is not None or is_livelink_csv(p)}
+        neutral = of_take.pop("neutral", None)
+        chosen = next((of_take[k] for k in (*wanted, *_PREFERENCE) if k in of_take), None)
+        if neutral is not None and chosen is None and neutral not in named:
+            skipped(
+                neutral,
+                "the neutral pose of a calibrated take (a still face) with no other CSV of its take beside "
+                "it, not a take of its own (name it to import it as one)",
+            )
+        if neutral is not None and (chosen is not None or neutral not in named):
+            dropped.add(neutral)
+        for own, p in of_take.items():
+            if p != chosen:
+                dropped.add(p)
+                why = (
+                    f"not --variant {variant}"
+                    if variant
+                    else f"{icloud_original(chosen) or chosen.name} read instead"
+                )
+                skipped(p, f"the {own or 'plain'} CSV of its take, {why}")
+    return [p for p in sources if p not in dropped]
 
 
 def _walk(
@@ -357,9 +418,23 @@ def import_source(
             audio, source, fps, None, source.stem, False, first_frame, value_scale, first_frame_strict
         )
     if audio is not None:
-        return read_csv_with_audio(
+        take = read_csv_with_audio(
             source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate
         )
-    if reads_as_take(source):  # named alone, as its take folder reads it: with the audio of its .mov
+    elif reads_as_take(source):  # named alone, as its take folder reads it: with the audio of its .mov
         return read_take_folder(source.parent, None, None, strict, swap_lr, timecode_rate, csv=source)
-    return read_livelink_csv(source, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
+    else:
+        take = read_livelink_csv(source, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
+    return with_neutral_beside(take, source)
+
+
+def with_neutral_beside(take: Take, csv: Path) -> Take:
+    """The take of a loose Live Link Face CSV with the calibrated rest pose of its take (``neutral``), as
+    its take folder keeps it: the ``_neutral.csv`` named as its take beside it, if any (one iCloud has not
+    downloaded is an error). A ``_neutral.csv`` read as a take has none."""
+    prefix, variant = split_variant(csv.stem)
+    neutral = None if variant == "neutral" else _neutral_named_as(csv.parent, prefix)
+    if neutral is not None:
+        take.neutral = _neutral_pose(neutral, take)
+        take.meta.sources.append(source_file(neutral, "neutral_csv"))
+    return take

@@ -327,7 +327,7 @@ def gather(path: str | Path, takes: list[Path] | None = None, limit: int = 500) 
         # A --takes folder inside FOLDER (or FOLDER itself) is one take, listed once.
         folders = list({f.resolve(): f for f in [*find_takes([path]), *named]}.values())
         if not folders:
-            if find_sources([path]):
+            if find_sources([path], skipped=lambda _path, _why: None):  # no notes before the error
                 raise InputError(
                     "holds Live Link Face recordings, not take folders: import them first "
                     f"(s2a-capture import {path} -o TAKES) and report on TAKES",
