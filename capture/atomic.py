@@ -1,13 +1,16 @@
 """Writing files and folders so that a reader never sees half of one.
 
 Everything is assembled under a hidden name beside its target (``.NAME.partial`` for files,
-``.NAME.partial-XXXX`` for folders), flushed to disk, and renamed into place (a device or a pipe,
-such as ``/dev/null``, is written into: ``put_in_place``); on error the partial is removed.
-Every stage writes through these.
+``.NAME.partial-XXXX`` for folders), flushed to disk, and renamed into place; on error the partial is
+removed. A device or a pipe, such as ``/dev/null``, is written into, not replaced (``written_into``):
+``atomic_write`` writes straight into it, and a file that must be finished first (an ONNX file checked
+before it is given, a checkpoint) is assembled in a private temporary folder, not beside it (``/dev``
+takes no new files from a normal user). Every stage writes through these.
 """
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import errno
 import functools
@@ -29,10 +32,32 @@ from .errors import InputError
 from .file_lock import fcntl, try_lock
 
 
-def partial_path(path: Path) -> Path:
+def partial_path(path: Path, suffix: str = "") -> Path:
     """The hidden name a file is assembled under beside ``path`` before it is renamed into place
-    (``.NAME.partial``: readers and ``find_takes`` skip hidden files)."""
-    return path.with_name(f".{path.name}.partial")
+    (``.NAME.partial``, then ``suffix``: readers and ``find_takes`` skip hidden files). For a ``path``
+    that is written into (``written_into``: ``/dev/null``, a FIFO), the same name in this process's
+    private temporary folder: the device's folder need not take new files."""
+    name = f".{path.name}.partial{suffix}"
+    return _private_folder() / name if written_into(path) else path.with_name(name)
+
+
+def written_into(path: Path) -> bool:
+    """Whether ``path`` is a character device or a FIFO (``/dev/null``, ``/dev/stdout`` to a pipe): an
+    output written into, never replaced by a renamed file (root may replace a device; another user
+    cannot even make a partial file beside it)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
+
+
+@functools.cache
+def _private_folder() -> Path:
+    """A temporary folder of this process's own (mode 700), removed when it exits."""
+    folder = tempfile.mkdtemp(prefix="s2a-partial-")
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return Path(folder)
 
 
 @contextmanager
@@ -40,11 +65,18 @@ def atomic_write(
     path: str | Path, mode: str = "wb", *, name_failures: bool = False, **open_kwargs: Any
 ) -> Iterator[IO]:
     """Open ``.NAME.partial`` beside ``path`` for writing; on success fsync it and rename it over
-    ``path``. ``name_failures``: a failure to write is an ``InputError`` naming ``path``
-    (``naming_failures``), not an ``OSError``."""
+    ``path``. A ``path`` that is a device or a pipe (``written_into``) is opened and written straight
+    into: there is nothing to replace. ``name_failures``: a failure to write is an ``InputError`` naming
+    ``path`` (``naming_failures``), not an ``OSError``."""
     path = Path(path)
-    tmp = partial_path(path)
     with naming_failures(path) if name_failures else nullcontext():
+        if written_into(path):
+            with stops_at_once():  # a FIFO opens once a reader opens it: a stop a render only noted waited
+                into = open(path, mode, **open_kwargs)
+            with into:
+                yield into
+            return
+        tmp = partial_path(path)
         try:
             with open(tmp, mode, **open_kwargs) as f:
                 yield f
@@ -59,9 +91,10 @@ def atomic_write(
 
 def put_in_place(tmp: Path, path: Path) -> None:
     """Rename the finished ``tmp`` over ``path``; a ``path`` that is a device or a pipe (``/dev/null``,
-    ``/dev/full``, a FIFO) is written into instead and ``tmp`` removed: renaming replaced the device
-    itself with a file (root may), and a full ``/dev/full`` said nothing. A block device (a disk or a
-    partition) is refused: an output written over it would destroy what it holds."""
+    ``/dev/full``, a FIFO) is written into instead and ``tmp`` (``partial_path``'s, in a private folder)
+    removed: renaming replaced the device itself with a file (root may), and a full ``/dev/full`` said
+    nothing. A block device (a disk or a partition) is refused: an output written over it would destroy
+    what it holds."""
     try:
         mode = os.stat(path).st_mode
     except OSError:
@@ -101,7 +134,7 @@ def naming_failures(path: str | Path) -> Iterator[Path]:
     try:
         yield path
     except OSError as exc:
-        if exc.filename not in (None, str(partial_path(path))):
+        if exc.filename not in (None, str(path), str(partial_path(path))):
             raise
         raise InputError(f"cannot be written: {exc.strerror or exc}", path) from None
 

@@ -438,6 +438,12 @@ def make_out_dir(out_dir: str | Path) -> Path:
     """The output folder ``out_dir``, created with its parents if missing; an ``InputError`` when it
     is a file or cannot be created."""
     out_dir = Path(out_dir)
+    if out_dir.is_symlink() and not out_dir.exists():
+        raise InputError(
+            f"cannot create the output's folder: a symbolic link to {os.readlink(out_dir)}, which does not "
+            "exist, is in the way",
+            out_dir,
+        )
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(
             "cannot create the output's folder: the output folder is a file, not a folder", out_dir

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from capture.atomic import partial_path, put_in_place
+from capture.atomic import partial_path, put_in_place, written_into
 from capture.command import progress, stops_deferred
 from capture.errors import InputError, S2AError
 from capture.take import make_out_dir
@@ -240,7 +240,7 @@ def check_out(run: str | Path, out: Path) -> None:
     the run or of a dataset that is not an ONNX model (``_toolkit_folder``)."""
     if out.is_dir():
         raise InputError("output path is a folder: give the ONNX file to write", out)
-    if not out.exists():
+    if not out.exists() or written_into(out):  # a pipe opened to read its first bytes waits for a writer
         return
     source = checkpoint_path(run)
     try:

@@ -27,7 +27,7 @@ import torch
 from align.clipping import CLIPPED_AUDIO_SHARE, clipped_share
 from align.resample import TARGET_RATE, mono_mean, to_16k_mono
 from capture import FrameStatus, Take, TakeMeta, read_audio, read_livelink_csv, read_take, write_livelink_csv
-from capture.atomic import atomic_write
+from capture.atomic import atomic_write, written_into
 from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
 from capture.command import TimedProgress, duration_words, progress, warn
@@ -288,12 +288,14 @@ def predict(
     neutral: str | Path | None = None,
     count_name: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv, else a
-    folder receiving ``<audio stem>.csv``. Returns one summary per file; of several files, one that
-    fails gets ``{"audio", "error"}`` and the others are still written (a single file's failure is
-    raised). ``precision``: fp32 or bf16 (train/precision.py); ``style``: see ``animate``; ``neutral``:
-    the speaker's neutral pose (``read_neutral``) for a run normalised to each take's neutral;
-    ``count_name``: the CSV's second column, one of ``COUNT_NAMES`` (None: ``BlendShapeCount``).
+    """Write one CSV per audio file: ``out`` is the CSV itself for one file ending in .csv (or a device
+    or a pipe, such as ``/dev/stdout``: ``written_into``), else a folder receiving ``<audio stem>.csv``
+    (one file and a new ``out`` named otherwise: a folder all the same, said in a note). Returns one
+    summary per file; of several files, one that fails gets ``{"audio", "error"}`` and the others are
+    still written (a single file's failure is raised). ``precision``: fp32 or bf16
+    (train/precision.py); ``style``: see ``animate``; ``neutral``: the speaker's neutral pose
+    (``read_neutral``) for a run normalised to each take's neutral; ``count_name``: the CSV's second
+    column, one of ``COUNT_NAMES`` (None: ``BlendShapeCount``).
     ``audios``: a list of audio files, or one file (a ``str`` or ``Path``). Progress and notes go to
     ``say``, warnings to stderr through ``warn`` (named by the running command)."""
     if count_name is not None and count_name not in COUNT_NAMES:
@@ -337,10 +339,13 @@ def predict(
             f"unknown speaker {speaker!r} (the run's dataset has: {', '.join(known) or 'none'})", "--speaker"
         )
     out = Path(out)
-    single = len(audios) == 1 and out.suffix.lower() == ".csv" and not out.is_dir()
+    single = len(audios) == 1 and (out.suffix.lower() == ".csv" or written_into(out)) and not out.is_dir()
     folder = out.parent if single else out
+    made_for_one = len(audios) == 1 and not single and not os.path.lexists(out)
     make_out_dir(folder)
     paths = csv_paths(audios, out, single)
+    if made_for_one:  # "-o out" for one file: a folder, as for several, said (the CSV's name ends in .csv)
+        say(f"note: {out} is a folder, made for {paths[0].name}: give -o X.csv to write the CSV itself")
     _refuse_replacing(audios, paths)
     results = []
     for a, path in zip(map(Path, audios), paths):

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from capture import ARKIT52, ARKIT61, Audio, InputError, Take
-from capture.atomic import atomic_write, put_in_place
+from capture.atomic import atomic_write, partial_path, put_in_place
 from capture.audio_io import ffmpeg_name
 from capture.channels import canonical, is_known
 from capture.command import TimedProgress, stops_deferred
@@ -498,7 +498,7 @@ def write_mp4(
     import av
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial.mp4")
+    tmp = partial_path(path, ".mp4")  # beside it; for a device or pipe, in a folder of our own
     render_s = encode_s = 0.0
     rate = _fps_fraction(fps)
     # Held until the file is renamed into place: a second render to the same name at once (a batch run
