@@ -43,6 +43,9 @@ AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".aif", ".aif
 # The keys of an Audio2Face blendshape export, looked for anywhere in a .json (their order is not fixed:
 # a writer that puts "facsNames" after the weights has it megabytes in).
 _A2F_MARKS = ('"facsNames"', '"weightMat"')
+# The keys of BEAT's face JSON (``{"names": [...], "frames": [{"time": .., "weights": [...]}]}``), all
+# of which it holds (each alone is too common a key to tell a file by).
+_BEAT_MARKS = ('"names"', '"frames"', '"weights"')
 # What Audio2Face adds to an export's name (``line01_bsweight.json`` goes with ``line01.wav``).
 A2F_SUFFIX = "_bsweight"
 
@@ -188,10 +191,14 @@ def _walk(
             else:
                 skipped(p, emotions)
         elif exports and p.suffix.lower() == ".json":
-            if is_a2f_export(p):
+            if is_weights_json(p):
                 yield p
             else:
-                skipped(p, 'not an Audio2Face blendshape export (no "facsNames" or "weightMat" key)')
+                skipped(
+                    p,
+                    'not an Audio2Face blendshape export or BEAT face JSON (no "facsNames"/"weightMat", '
+                    'nor "names" and "frames")',
+                )
         elif is_zip(p):
             if archives:
                 yield p
@@ -220,12 +227,14 @@ def no_takes_found(paths: list[str | Path], stage: str) -> InputError:
     )
 
 
-def is_a2f_export(path: Path) -> bool:
-    """Whether a JSON file looks like an Audio2Face blendshape export: it holds the key ``"facsNames"``
-    or ``"weightMat"`` anywhere (reading it as an export then says what else is wrong with it). The file
-    is read a block at a time as UTF-8, or as UTF-16/UTF-32 when it starts with their byte-order mark
-    (Windows' "Unicode" text, as ``read_a2f_json`` reads it)."""
-    keep = max(map(len, _A2F_MARKS)) - 1  # a key split across two reads
+def is_weights_json(path: Path) -> bool:
+    """Whether a JSON file looks like blendshape weights ``read_json_matrix`` reads: an Audio2Face
+    export (the key ``"facsNames"`` or ``"weightMat"`` anywhere) or BEAT's face JSON (``"names"``,
+    ``"frames"`` and ``"weights"``); reading it then says what else is wrong with it. The file is read a
+    block at a time as UTF-8, or as UTF-16/UTF-32 when it starts with their byte-order mark (Windows'
+    "Unicode" text, as ``read_json_matrix`` reads it)."""
+    keep = max(map(len, _A2F_MARKS + _BEAT_MARKS)) - 1  # a key split across two reads
+    beat = set()  # BEAT's keys met so far
     try:
         with open(path, "rb") as f:
             codec = bom_codec(f.read(4)) or "utf-8"
@@ -234,7 +243,8 @@ def is_a2f_export(path: Path) -> bool:
             tail = ""
             while chunk := f.read(1 << 20):
                 block = tail + text.decode(chunk)
-                if any(mark in block for mark in _A2F_MARKS):
+                beat.update(mark for mark in _BEAT_MARKS if mark in block)
+                if any(mark in block for mark in _A2F_MARKS) or len(beat) == len(_BEAT_MARKS):
                     return True
                 tail = block[-keep:]
     except OSError:
@@ -378,8 +388,8 @@ def import_source(
         return read_paired(
             audio, source, None, None, source.stem, False, first_frame, value_scale, first_frame_strict
         )
-    if source.suffix.lower() == ".json" and is_a2f_export(source):
-        raise InputError("an Audio2Face export needs its audio (--audio, or --pair-audio)", source)
+    if source.suffix.lower() == ".json" and is_weights_json(source):
+        raise InputError("blendshape weights in JSON need their audio (--audio, or --pair-audio)", source)
     head = _head(source)
     # named directly, a file of another suffix is read when its header is the app's (a .tsv, or Excel's
     # "Unicode Text" .txt: the reader then says what is wrong with it, as for a .csv)

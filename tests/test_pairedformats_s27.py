@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
+from conftest import run_cli, run_here
 
 from capture import read_take
 from capture.channels import ARKIT52
-from tests.conftest import run_cli, run_here
 
 # The 51 names of a BEAT face JSON, in its order (ARKit's 52 without tongueOut, sorted by name).
 BEAT_NAMES = sorted(n for n in ARKIT52 if n != "tongueOut")
