@@ -1086,7 +1086,7 @@ def _floors(behind: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _run_through(frame_time: np.ndarray) -> float:
     """How much frame time packets (in any order) span, their first and last tenth left out (a late
-    or stray packet among them does not widen it)."""
+    or stray packet among them does not widen it); of their arrivals, how long they took to come."""
     return float(np.quantile(frame_time, 0.9) - np.quantile(frame_time, 0.1))
 
 
@@ -1108,8 +1108,9 @@ def _typical_pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float:
 
 def _burst(frame_time: np.ndarray, arrival_s: np.ndarray, pace: float) -> bool:
     """Whether packets came ``BURST_PACE`` times as fast as their recording's ``pace`` or more (a burst
-    the network held back)."""
-    return _run_through(frame_time) > BURST_PACE * pace * float(np.ptp(arrival_s))
+    the network held back). Their arrivals' span, as their frame times', leaves out the first and last
+    tenth: a packet held back less than the burst, delivered just before it, does not widen it."""
+    return _run_through(frame_time) > BURST_PACE * pace * _run_through(arrival_s)
 
 
 def _undo_steps_back(
@@ -1184,11 +1185,12 @@ def _undo_steps_back(
         # the clock after the step runs on from where it resumed, the start of the run of frame times (at
         # most RUN_STEPS frame steps apart) of the frames placed after it that holds its fastest packet: a
         # frame below that is a late frame of the clock before it, however late the network delivered it
-        # (a burst held back over the step)
-        times = np.sort(frame_time[later])
-        fastest = np.searchsorted(times, frame_time[at + int(np.argmin(behind[side]))])
-        reach = RUN_STEPS * (_frame_step(times) or period)
-        breaks = np.flatnonzero(np.diff(times[: fastest + 1]) > reach)
+        # (a burst held back over the step). Those above its fastest packet tell nothing: not sorted (a
+        # long recording's every step would sort the rest of it).
+        fastest = frame_time[at + int(np.argmin(behind[side]))]
+        times = np.sort(frame_time[later & (frame_time <= fastest)])
+        reach = RUN_STEPS * (_frame_step(np.sort(frame_time[zone])) or period)
+        breaks = np.flatnonzero(np.diff(times) > reach)
         resumed = times[breaks[-1] + 1 if breaks.size else 0]
         later &= frame_time >= resumed - period / 2
         shift = round(step / period) * period
