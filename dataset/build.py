@@ -558,7 +558,10 @@ def collect_takes(
                 # aligned here, not by the user: what align warned about the take (with its first segment)
                 if record.get("segment", 1) == 1 and isinstance(record.get("warnings"), list):
                     notes += [w for w in record["warnings"] if isinstance(w, str)]
-            elif isinstance(clipped, float) and "clipped_audio" in all_flags:
+            elif (
+                record.get("segment", 1) == 1 and isinstance(clipped, float) and "clipped_audio" in all_flags
+            ):
+                # the recording's audio: said with its first segment, as align's warnings are
                 notes.append(
                     f"take {m.id}: align found {clipped:.2%} of its audio samples clipped at full scale "
                     "(its loudest sounds are distorted)"
