@@ -285,6 +285,11 @@ def _a2f_export(data: dict, path: Path) -> tuple[np.ndarray, list[str], float | 
 BEAT_TIME = "time"
 
 
+class _FrameTimes(str):
+    """The name of the column of frame times ``_beat_face`` puts before a BEAT face JSON's weights: no
+    channel of the file, so names given for its channels (``--names``) leave it in place."""
+
+
 def _beat_face(data: dict, path: Path) -> tuple[np.ndarray, list[str], None]:
     """Times and weights of a BEAT face JSON, the layout of the BEAT dataset's ARKit weights and of
     generators trained on it (``{"names": [...], "frames": [{"time": s, "weights": [...]}, ...]}``):
@@ -294,7 +299,10 @@ def _beat_face(data: dict, path: Path) -> tuple[np.ndarray, list[str], None]:
     _check_json_names(names, "names", path)
     if not isinstance(frames, list) or not frames or not all(isinstance(f, dict) for f in frames):
         raise InputError('frames must be a non-empty list of frames ({"time": ..., "weights": [...]})', path)
-    rows = [f.get("weights") for f in frames]
+    unweighted = next((i for i, f in enumerate(frames) if "weights" not in f), None)
+    if unweighted is not None:
+        raise InputError(f"frames[{unweighted}] has no weights", path)
+    rows = [f["weights"] for f in frames]
     matrix = _json_rows(rows, lambda i: f"frames[{i}].weights", f"names {len(names)} names", len(names), path)
     names = [n.strip() for n in names]
     timed = [BEAT_TIME in f for f in frames]
@@ -303,7 +311,7 @@ def _beat_face(data: dict, path: Path) -> tuple[np.ndarray, list[str], None]:
     if not all(timed):
         raise InputError(f"frames[{timed.index(False)}] has no time, frames[{timed.index(True)}] has", path)
     times = _json_rows([[f[BEAT_TIME]] for f in frames], lambda i: f"frames[{i}].time", "a time", 1, path)
-    return np.column_stack([times, matrix]), [BEAT_TIME, *names], None
+    return np.column_stack([times, matrix]), [_FrameTimes(BEAT_TIME), *names], None
 
 
 def _check_json_names(names: object, key: str, path: Path) -> None:
@@ -317,13 +325,21 @@ def _json_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _json_kind(value: object) -> str:
+    """What a JSON value is, in JSON's words (for a message): null, true, false, a string, an object, a
+    number."""
+    if value is None or isinstance(value, bool):
+        return json.dumps(value)
+    return "a string" if isinstance(value, str) else "an object" if isinstance(value, dict) else "a number"
+
+
 def _json_rows(rows: list, where: Callable[[int], str], want: str, width: int, path: Path) -> np.ndarray:
     """The frames x ``width`` matrix of a JSON file's rows of numbers; ``where(i)`` names row ``i`` in a
     one-line error, ``want`` what gives the width (``facsNames 52 names``)."""
     matrix = np.empty((len(rows), width), dtype=np.float64)
     for i, row in enumerate(rows):
         if not isinstance(row, list) or len(row) != width:
-            got = f"{len(row)} values" if isinstance(row, list) else type(row).__name__
+            got = f"{len(row)} values" if isinstance(row, list) else _json_kind(row)
             raise InputError(f"{where(i)} holds {got}, {want}", path)
         if not all(map(_json_number, row)):
             raise InputError(f"{where(i)} holds a value that is not a number", path)
@@ -862,8 +878,11 @@ def read_paired(
         )
     if names_path is not None:
         names = read_names(names_path)
-        if len(names) != matrix.shape[1]:
-            raise InputError(_names_mismatch(names, matrix.shape[1], matrix_path), names_path)
+        times = header[:1] if header and isinstance(header[0], _FrameTimes) else []
+        columns = matrix.shape[1] - len(times)
+        if len(names) != columns:
+            raise InputError(_names_mismatch(names, columns, matrix_path), names_path)
+        names = [*times, *names]
     elif header is not None:
         names = header
     else:
