@@ -386,7 +386,7 @@ def import_source(
         return read_take_folder(source, variant, audio, strict, swap_lr, timecode_rate)
     if source.suffix.lower() == ".json" and audio is not None:  # the export reader names a non-export
         return read_paired(
-            audio, source, None, None, source.stem, False, first_frame, value_scale, first_frame_strict
+            audio, source, fps, None, source.stem, False, first_frame, value_scale, first_frame_strict
         )
     if source.suffix.lower() == ".json" and is_weights_json(source):
         raise InputError("blendshape weights in JSON need their audio (--audio, or --pair-audio)", source)

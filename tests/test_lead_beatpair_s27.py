@@ -32,3 +32,16 @@ def test_a_folder_of_beat_face_jsons_pairs_with_their_audio(tmp_path):
     assert "skipped" in said and "BEAT face JSON" in said, said
     proc = run_here("capture", "import", clips / "2_scott_0_1_1.json", "-o", tmp_path / "alone")
     assert proc.returncode == 1 and "need their audio (--audio, or --pair-audio)" in proc.stderr, proc.stderr
+
+
+def test_a_beat_face_json_named_with_its_audio_takes_its_rate_from_fps(tmp_path):
+    """A face JSON without times named with ``--audio`` and ``--fps`` (was: "no frame rate: give --fps"
+    though it was given: ``--matrix`` took it)."""
+    face = beat_face_json(tmp_path / "clip.json", np.full((30, 51), 0.25), None)
+    proc = run_here(
+        "capture", "import", face, "--audio", write_audio(tmp_path / "clip.wav", 2), "--fps", 15,
+        "-o", tmp_path / "takes", "--json",
+    )  # fmt: skip
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    take = read_take(json.loads(proc.stdout.splitlines()[-1])["path"])
+    assert take.meta.fps == 15 and len(take.time) == 30
