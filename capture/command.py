@@ -453,7 +453,8 @@ def handle_stoppable(args: argparse.Namespace) -> int:
 
 # Whether a SIGTERM has stopped the command (``sigterm_stops``, ``stops_at_once``): one more ends it at once.
 _sigterm_met = False
-# The line a SIGTERM that ends a command whose work is over says (``_end_now``); "" once ``run`` said it.
+# The line a SIGTERM that ends a command whose work is over says (``_end_now``); "" once the command said
+# it (``run``, or the command itself: ``dataset build``'s line says what it kept).
 _ending_line = ""
 
 
@@ -469,7 +470,8 @@ def _command_ending(outer: str | None) -> None:
         and running_command() is not None
         and threading.current_thread() is threading.main_thread()
     ):
-        _ending_line = f"{_program}: terminated (SIGTERM)\n"
+        # a command a SIGTERM stopped has said so (``run``, ``dataset build``): the next one adds no line
+        _ending_line = "" if _sigterm_met else f"{_program}: terminated (SIGTERM)\n"
         signal.signal(signal.SIGTERM, _end_now if _sigterm_met else _let_go)
 
 

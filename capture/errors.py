@@ -113,48 +113,76 @@ def loads_names(text: str | bytes) -> Any:
     """``json.loads(text)``, each name not UTF-8 as Python holds it (``names_restored``; walked only when
     the text holds ``RAW_BYTES``: most does not). Errors as ``json.loads``'s."""
     value = json.loads(text)
-    return names_restored(value) if (RAW_BYTES if isinstance(text, str) else b"_b64") in text else value
+    marker = RAW_BYTES if isinstance(text, str) else RAW_BYTES.encode()
+    return names_restored(value) if marker in text else value
 
 
 def names_restored(value: Any) -> Any:
     """What ``strict_names`` made of ``value``, read back from JSON: each name not UTF-8 as Python holds it
-    (surrogate escapes, from its bytes beside it), the keys holding those bytes gone. JSON written before
-    (a lone surrogate, ``"\\udcff"``, which Python reads back as the name) is returned as it is."""
+    (surrogate escapes, from its bytes beside it), the keys holding those bytes gone. A key ending in
+    ``_b64`` whose value is not the bytes of the name beside it as ``strict_names`` keeps them (a speaker
+    named ``anna_b64`` beside ``anna``, another tool's field, a hand-edited one) is a key of its own, kept
+    as it is. JSON written before (a lone surrogate, ``"\\udcff"``, which Python reads back as the name)
+    is returned as it is."""
     if isinstance(value, list):
         return [names_restored(v) for v in value]
     if not isinstance(value, dict):
         return value
+    out = {key: names_restored(v) for key, v in value.items()}
     if not any(isinstance(key, str) and key.endswith(RAW_BYTES) for key in value):
-        return {key: names_restored(v) for key, v in value.items()}
-    out: dict[Any, Any] = {}
-    for key, v in value.items():
-        if isinstance(key, str) and _beside_a_key(key, value):
-            continue
-        v = _bytes_named(names_restored(v), value.get(f"{key}{RAW_BYTES}"))
-        out[key] = _keys_named(v, value.get(f"{key}{KEYS_RAW_BYTES}"))
-    return out
-
-
-def _beside_a_key(key: str, value: dict) -> bool:
-    """Whether ``key`` of ``value`` holds the bytes of another key's names (``KEY_b64``, ``KEY_keys_b64``)."""
-    return any(key.endswith(end) and key[: -len(end)] in value for end in (KEYS_RAW_BYTES, RAW_BYTES))
+        return out
+    spent = set()  # the keys that held a name's bytes
+    for key in value:
+        for end, restore in ((RAW_BYTES, _bytes_named), (KEYS_RAW_BYTES, _keys_named)):
+            beside = f"{key}{end}" if isinstance(key, str) else None
+            if beside in value and (named := restore(out[key], value[beside])) is not None:
+                out[key] = named
+                spent.add(beside)
+    return {key: v for key, v in out.items() if key not in spent}
 
 
 def _bytes_named(value: Any, raw: Any) -> Any:
-    """A name (or list of names) from its text and its bytes as ``_strict`` kept them."""
+    """A name (or list of names) from its text and its bytes as ``_strict`` kept them; None when ``raw``
+    is not such bytes of ``value``."""
+    if isinstance(value, str):
+        return _name_shown_as(value, raw)
     if isinstance(value, list) and isinstance(raw, list) and len(raw) == len(value):
-        return [_bytes_named(v, r) for v, r in zip(value, raw)]
-    return name_of(value, raw) if isinstance(value, str) and isinstance(raw, str) else value
+        return _each_named(value, raw, _bytes_named)
+    return None
 
 
 def _keys_named(value: Any, raw: Any) -> Any:
     """A dict (or list of dicts) keyed by names from its keys' text and their bytes as ``_strict`` kept
-    them."""
+    them (a key shown with `` (2)`` added too); None when ``raw`` is not such bytes of its keys."""
     if isinstance(value, list) and isinstance(raw, list) and len(raw) == len(value):
-        return [_keys_named(v, r) for v, r in zip(value, raw)]
-    if not isinstance(value, dict) or not isinstance(raw, dict):
-        return value
-    return {name_of(k, raw.get(k)) if isinstance(k, str) else k: v for k, v in value.items()}
+        return _each_named(value, raw, _keys_named)
+    if not isinstance(value, dict) or not isinstance(raw, dict) or not raw:
+        return None
+    names = {}
+    for shown, each in raw.items():
+        name = _name_shown_as(shown, each, _COUNT_ADDED.sub("", shown)) if shown in value else None
+        if name is None:
+            return None
+        names[shown] = name
+    return {names.get(key, key): v for key, v in value.items()}
+
+
+_COUNT_ADDED = re.compile(r" \([0-9]+\)$")  # `` (2)``: added to a key shown as another key is
+
+
+def _each_named(values: list, raws: list, restore) -> list | None:
+    """``values`` each restored by its item of ``raws`` (null: as it is); None when one is not restored,
+    or none has bytes."""
+    named = [v if r is None else restore(v, r) for v, r in zip(values, raws)]
+    ok = any(r is not None for r in raws) and all(n is not None for n, r in zip(named, raws) if r is not None)
+    return named if ok else None
+
+
+def _name_shown_as(text: str, raw: Any, or_shown: str | None = None) -> str | None:
+    """The name not UTF-8 whose bytes are ``raw`` in base64, if ``text`` (or ``or_shown``) is that name as
+    ``printable`` shows it; else None."""
+    name = name_of(text, raw)
+    return name if name != text and printable(name) in (text, or_shown) else None
 
 
 def name_of(text: str, raw: Any) -> str:

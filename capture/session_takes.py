@@ -62,7 +62,7 @@ from .audio_capture import AudioLogChanged, SessionAudio, index_audio_log
 from .channels import ARKIT61
 from .command import stops_deferred
 from .csv_take import detect_fps, fill_dropped, missing_frames, repair
-from .errors import InputError, S2AError
+from .errors import InputError, S2AError, strict_names
 from .numbers import is_count
 from .record_log import INVALID_RECORD, LogReader, RecordType, json_fields
 from .recorder import (
@@ -1812,7 +1812,7 @@ def build_takes(
         try:
             write_json_atomic(
                 session_dir / COMPLETE_FILE,
-                {"takes": [s.get("path") for s in summaries], "recovered": recovered},
+                strict_names({"takes": [s.get("path") for s in summaries], "recovered": recovered}),
             )
         except OSError as exc:
             message = f"{session_dir}: cannot mark the session complete: {exc.strerror or exc}"

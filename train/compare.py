@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from capture.command import progress
-from capture.errors import InputError, strict_names
+from capture.errors import InputError
 from dataset.manifest import dataset_folder, read_manifest
 from dataset.torch_dataset import check_shards
 
@@ -93,7 +93,7 @@ def compare(
         if "error" not in r:
             r["speedup_vs_blstm"] = blstm / r["rtf"] if blstm and r["rtf"] else None
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "compare.json", strict_names(rows))
+    write_json(out / "compare.json", rows)  # names not UTF-8 kept by write_json
     return rows
 
 

@@ -15,7 +15,6 @@ any other; the cross-validation score (``cv_score``) is the mean of the members'
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Collection
 from dataclasses import replace
 from pathlib import Path
@@ -24,7 +23,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from capture.errors import InputError
+from capture.errors import InputError, loads_names
 from dataset.manifest import take_recordings
 
 from .checkpoint import CONFIG, LAST, read_run_config, refuse_other_world, write_json
@@ -172,7 +171,7 @@ def load_ensemble(run: Path, load_member: Callable[[Path], tuple[nn.Module, dict
     """(Ensemble in eval mode, payload of the first member with ``ensemble`` added) of a finished
     ensemble run folder."""
     try:
-        record = json.loads((run / ENSEMBLE).read_text())
+        record = loads_names((run / ENSEMBLE).read_text())
         folders = [run / m["folder"] for m in record["members"]]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"unreadable ensemble record ({type(exc).__name__})", run / ENSEMBLE) from None
