@@ -996,20 +996,26 @@ def _unwrap_midnight(frame_time: np.ndarray, rate: float) -> np.ndarray:
     rate; less the length of packets lost across midnight) it goes on from the next day: each packet is
     put on the day nearest the clock at its moment, so a late packet from before midnight stays on its
     day. Any other jump back stays a restart. A burst of packets from before midnight the network held
-    back until after it (at most ``MAX_LATENESS_S`` late) takes the clock back to the day before for as
-    long as it lasts: its packets stay on their day, and the clock comes back to the next day after it."""
+    back until after it (its last frames at most ``MAX_LATENESS_S`` late, its first later by its length)
+    takes the clock back to the day before for as long as it lasts: its packets stay on their day, and the
+    clock comes back to the next day after it."""
     if frame_time.size < 2 or np.ptp(frame_time) < DAY_S / 2:  # nowhere near both ends of a day
         return frame_time
     level = _running_median(frame_time, CLOCK_HALF_WINDOW)
     days = (DAY_S, DAY_S * round(rate) / rate)
     day = np.zeros(level.size - 1)
     on = back = 0  # midnights the clock went on past, and back to the day before of those (a held burst)
-    for j in np.flatnonzero(np.abs(np.diff(level)) > DAY_S / 2).tolist():
-        fall = float(level[j] - level[j + 1])
+    jumps = np.flatnonzero(np.abs(np.diff(level)) > DAY_S / 2).tolist()
+    falls = [float(level[j] - level[j + 1]) for j in jumps]
+    for k, (j, fall) in enumerate(zip(jumps, falls)):
         # packets lost across midnight shorten the fall by as long as they lasted (up to a gap that splits
-        # the take anyway); a held burst is as much less than a day back and forth as it is late
+        # the take anyway); a held burst is as much less than a day back and forth as it is late, judged
+        # by its last frames, with which the clock returns to the next day (its first are later by its
+        # length)
         within = (MAX_GAP_S if fall > 0 and not back else MAX_LATENESS_S) + RESTART_WINDOW_S
-        length = next((d for d in days if -RESTART_WINDOW_S <= d - abs(fall) <= within), None)
+        returns = fall < 0 and k + 1 < len(falls) and falls[k + 1] > 0
+        measured = abs(falls[k + 1] if returns else fall)
+        length = next((d for d in days if -RESTART_WINDOW_S <= d - measured <= within), None)
         if length is not None and fall > 0:
             day[j] = length
             on, back = (on, back - 1) if back else (on + 1, 0)
@@ -1117,7 +1123,9 @@ def _undo_steps_back(
     frame_time: np.ndarray, arrival_s: np.ndarray, period: float
 ) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
     """A recording's frame times (arrival order) with the phone's clock's steps back undone: where it
-    stepped back by less than a restart (an NTP or Tentacle Sync re-sync while the app keeps sending) the
+    stepped back by less than a restart (an NTP or Tentacle Sync re-sync while the app keeps sending; never
+    more than ``MAX_LATENESS_S``, past which the clock's jump back is a restart: a larger one within a
+    recording is a burst the network held back long, or over midnight) the
     frames after the step are moved to where they arrived, by the step in whole frame periods, so that none
     overlaps a frame before it and the audio stays in sync. Returns the new frame times and per step (new
     frame time of the first frame after it, seconds moved, the phone's frame time there).
@@ -1151,6 +1159,10 @@ def _undo_steps_back(
     pace = None  # the recording's (``_typical_pace``), when a step needs it
     for cluster in np.split(found, np.flatnonzero(np.diff(found) > 1) + 1) if found.size else []:
         step = float(rise[cluster].max())
+        # the clock jumping back further than late frames lie behind it is a restart (``follow_clock``):
+        # so large a step within a recording is a burst the network held back long, or over midnight
+        if step > MAX_LATENESS_S:
+            continue
         at = int(cluster[np.argmax(rise[cluster] > step / 2)])  # it rises there, it stays up a side long
         if at < width or at + width > n:  # a side the recording's ends cut short tells too little
             continue
