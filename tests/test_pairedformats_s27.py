@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import run_cli, run_here
+from test_paired_probe_fixes import EMOTIONS
 
 from capture import read_take
 from capture.channels import ARKIT52
@@ -131,21 +132,9 @@ def test_audio2face_3d_sample_client_output_folder(tmp_path):
     lines = [",timeCode," + ",".join(f"blendShapes.{n}" for n in A2F3D_NAMES)]
     lines += [f"{i},{i / 30!r}," + ",".join(map(repr, row.tolist())) for i, row in enumerate(weights)]
     (folder / "animation_frames.csv").write_text("\n".join(lines) + "\n")
-    emotions = [
-        "amazement",
-        "anger",
-        "cheekiness",
-        "disgust",
-        "fear",
-        "grief",
-        "joy",
-        "outofbreath",
-        "pain",
-        "sadness",
-    ]
     (folder / "a2f_smoothed_emotion_output.csv").write_text(
         ",time_code,"
-        + ",".join(f"emotion_values.{e}" for e in emotions)
+        + ",".join(f"emotion_values.{e}" for e in EMOTIONS)
         + "\n0,0.0,"
         + ",".join(["0.1"] * 10)
         + "\n"

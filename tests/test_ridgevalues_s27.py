@@ -14,6 +14,7 @@ import pytest
 import torch
 from conftest import run_cli
 from dataset_helpers import build_take_split, make_aligned_take
+from test_review_valuemask_s26 import _dataset
 from test_train_pipeline import TINY
 
 from capture import ARKIT61, write_take
@@ -158,22 +159,9 @@ def test_the_manifest_counts_each_samples_usable_values(glitched, tmp_path):
     assert problems[0]["location"].endswith(f"samples[{manifest['samples'][0]['key']}].usable_values")
 
 
-def _nan_yaw_val(tmp_path, lost):
-    """``build_take_split``'s five ARKit61 takes; take03 (val) has headYaw NaN in every frame (no frame
-    usable in every channel), and lost the face throughout as well when ``lost``."""
-    for i in range(5):
-        take = make_aligned_take(f"take{i:02d}", 2.0, subject=f"spk{i % 2}", seed=i, channels=ARKIT61)
-        if i == 3:
-            take.values[:, YAW] = float("nan")
-            if lost:
-                take.frame_status[:] = 1
-        write_take(take, tmp_path / "takes")
-    return build_take_split(tmp_path / "takes", tmp_path / "ds", channels="all")
-
-
 @pytest.mark.parametrize("lost", [False, True])
 def test_fit_tells_from_the_manifest_whether_val_has_a_usable_value(tmp_path, lost):
-    ds = _nan_yaw_val(tmp_path, lost)
+    ds = _dataset(tmp_path, lost)
     manifest = read_manifest(ds)
     val = [s for s in manifest["samples"] if s["split"] == "val"]
     assert val and all(s["usable_frames"] == 0 for s in val)
