@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import codecs
 import os
+import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -11,13 +12,13 @@ from .command import warn
 from .csv_take import app_header_separator, read_livelink_csv, split_variant, utf16_csv_error
 from .errors import InputError, S2AError
 from .paired import bom_codec, emotion_weights, header_names, read_paired
-from .take import Take, is_take_dir, leads_back, source_file
+from .take import Take, is_take_dir, leads_back
 from .take_folder import (
-    _PREFERENCE,
-    _neutral_named_as,
-    _neutral_pose,
+    attach_neutral,
     is_take_folder,
+    neutral_named_as,
     nfc,
+    preferred_csv,
     read_csv_with_audio,
     read_take_folder,
     reads_as_take,
@@ -43,9 +44,13 @@ AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".aif", ".aif
 # The keys of an Audio2Face blendshape export, looked for anywhere in a .json (their order is not fixed:
 # a writer that puts "facsNames" after the weights has it megabytes in).
 _A2F_MARKS = ('"facsNames"', '"weightMat"')
-# The keys of BEAT's face JSON (``{"names": [...], "frames": [{"time": .., "weights": [...]}]}``), all
-# of which it holds (each alone is too common a key to tell a file by).
-_BEAT_MARKS = ('"names"', '"frames"', '"weights"')
+# BEAT's face JSON (``{"names": [...], "frames": [{"time": .., "weights": [...]}]}``): its "names" key,
+# and a "frames" list whose first frame holds a "weights" list (each key alone, or the three anywhere in a
+# file, is too common to tell a file by: a settings file of "names", "frames" and some "weights").
+_BEAT_NAMES = '"names"'
+_BEAT_FRAME = re.compile(r'"frames"\s*:\s*\[\s*\{[^{}]*?"weights"\s*:\s*\[')
+# Characters of a block kept for the next one: a key, or BEAT's first frame, split across two reads.
+_MARK_SPAN = 1 << 12
 # What Audio2Face adds to an export's name (``line01_bsweight.json`` goes with ``line01.wav``).
 A2F_SUFFIX = "_bsweight"
 
@@ -120,14 +125,15 @@ def one_per_take(
     for p in sources:
         if (csv := _loose_csv(p)) is not None:
             takes.setdefault((p.parent.resolve(), csv[0]), {}).setdefault(csv[1], []).append(p)
-    wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
     dropped: set[Path] = set()
     for files in takes.values():
         if (len(files) == 1 and "neutral" not in files) or any(len(ps) > 1 for ps in files.values()):
             continue  # one CSV, or a take whose CSVs no name tells apart: as they were
         of_take = {v: p for v, (p,) in files.items() if icloud_original(p) is not None or is_livelink_csv(p)}
         neutral = of_take.pop("neutral", None)
-        chosen = next((of_take[k] for k in (*wanted, *_PREFERENCE) if k in of_take), None)
+        chosen = preferred_csv(of_take, variant)
+        if chosen is not None:  # a damaged one too: importing its take says what is wrong with it, once
+            neutral = files.get("neutral", [None])[0]
         if neutral is not None and chosen is None and neutral not in named:
             skipped(
                 neutral,
@@ -197,7 +203,7 @@ def _walk(
                 skipped(
                     p,
                     'not an Audio2Face blendshape export or BEAT face JSON (no "facsNames"/"weightMat", '
-                    'nor "names" and "frames")',
+                    'nor "names" and "frames" of "weights")',
                 )
         elif is_zip(p):
             if archives:
@@ -229,12 +235,11 @@ def no_takes_found(paths: list[str | Path], stage: str) -> InputError:
 
 def is_weights_json(path: Path) -> bool:
     """Whether a JSON file looks like blendshape weights ``read_json_matrix`` reads: an Audio2Face
-    export (the key ``"facsNames"`` or ``"weightMat"`` anywhere) or BEAT's face JSON (``"names"``,
-    ``"frames"`` and ``"weights"``); reading it then says what else is wrong with it. The file is read a
-    block at a time as UTF-8, or as UTF-16/UTF-32 when it starts with their byte-order mark (Windows'
-    "Unicode" text, as ``read_json_matrix`` reads it)."""
-    keep = max(map(len, _A2F_MARKS + _BEAT_MARKS)) - 1  # a key split across two reads
-    beat = set()  # BEAT's keys met so far
+    export (the key ``"facsNames"`` or ``"weightMat"`` anywhere) or BEAT's face JSON (``"names"``, and
+    ``"frames"`` whose first frame holds a list of ``"weights"``); reading it then says what else is
+    wrong with it. The file is read a block at a time as UTF-8, or as UTF-16/UTF-32 when it starts with
+    their byte-order mark (Windows' "Unicode" text, as ``read_json_matrix`` reads it)."""
+    names = frame = False  # BEAT's marks met so far
     try:
         with open(path, "rb") as f:
             codec = bom_codec(f.read(4)) or "utf-8"
@@ -243,10 +248,11 @@ def is_weights_json(path: Path) -> bool:
             tail = ""
             while chunk := f.read(1 << 20):
                 block = tail + text.decode(chunk)
-                beat.update(mark for mark in _BEAT_MARKS if mark in block)
-                if any(mark in block for mark in _A2F_MARKS) or len(beat) == len(_BEAT_MARKS):
+                names = names or _BEAT_NAMES in block
+                frame = frame or _BEAT_FRAME.search(block) is not None
+                if any(mark in block for mark in _A2F_MARKS) or (names and frame):
                     return True
-                tail = block[-keep:]
+                tail = block[-_MARK_SPAN:]
     except OSError:
         return False
     return False
@@ -443,8 +449,7 @@ def with_neutral_beside(take: Take, csv: Path) -> Take:
     its take folder keeps it: the ``_neutral.csv`` named as its take beside it, if any (one iCloud has not
     downloaded is an error). A ``_neutral.csv`` read as a take has none."""
     prefix, variant = split_variant(csv.stem)
-    neutral = None if variant == "neutral" else _neutral_named_as(csv.parent, prefix)
+    neutral = None if variant == "neutral" else neutral_named_as(csv.parent, prefix)
     if neutral is not None:
-        take.neutral = _neutral_pose(neutral, take)
-        take.meta.sources.append(source_file(neutral, "neutral_csv"))
+        attach_neutral(take, neutral)
     return take

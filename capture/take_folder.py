@@ -540,17 +540,23 @@ def takes_side_by_side(folder: str | Path, variant: str | None = None) -> list[P
         return []
     if len({(f.prefix, f.variant) for f in files}) < len(files):  # one CSV spelled two ways (``nfc``)
         return []  # read as one take folder, whose ``choose_csv`` names them
-    wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
     chosen = []
     for prefix in dict.fromkeys(f.prefix for f in files):
-        of_take = {f.variant: f.path for f in files if f.prefix == prefix}
-        key = next((k for k in (*wanted, *_PREFERENCE) if k in of_take), None)
-        if key is not None or None in of_take:
-            chosen.append(of_take[key])
+        csv = preferred_csv({f.variant: f.path for f in files if f.prefix == prefix}, variant)
+        if csv is not None:
+            chosen.append(csv)
     return chosen
 
 
-def _neutral_named_as(folder: Path, prefix: str) -> Path | None:
+def preferred_csv(of_take: dict[str | None, Path], variant: str | None = None) -> Path | None:
+    """Of the CSVs of one take by variant (cal, raw, None: plain; a ``neutral`` one is never chosen),
+    the one its take folder reads: ``variant``'s (cal, raw, plain) when the take has it, else cal, plain,
+    raw; None when it has none of them."""
+    wanted = ((None if variant == "plain" else variant),) if variant is not None else ()
+    return next((of_take[k] for k in (*wanted, *_PREFERENCE) if k in of_take), None)
+
+
+def neutral_named_as(folder: Path, prefix: str) -> Path | None:
     """The ``_neutral.csv`` of the take ``prefix`` in a folder of several takes, or None; one iCloud
     has not downloaded is an error."""
     found = [
@@ -600,7 +606,7 @@ def read_take_folder(
         csv_path, neutral_path = choose_csv(folder, own_variant)
     prefix = split_variant(csv_path.stem)[0]
     if not own:
-        neutral_path = _neutral_named_as(folder, prefix)
+        neutral_path = neutral_named_as(folder, prefix)
     # of several, the .mov (or .wav) named as the CSV is the take's (in a folder of several takes, only it)
     mov, info, wav = _media(folder, prefix, audio_given=audio_file is not None, exact=not own)
     take = read_livelink_csv(csv_path, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
@@ -636,8 +642,7 @@ def read_take_folder(
         if (path := app_file(name)) is not None:
             meta.sources.append(source_file(path, name))
     if neutral_path is not None:
-        take.neutral = _neutral_pose(neutral_path, take)
-        meta.sources.append(source_file(neutral_path, "neutral_csv"))
+        attach_neutral(take, neutral_path)
 
     # frame_log.csv's timecodes count at the video's rate: an app version that writes no
     # video_metadata.json still states it in the .mov
@@ -745,6 +750,13 @@ def _probe(mov: Path | None) -> MovInfo | None:
         return None
 
 
+def attach_neutral(take: Take, path: Path) -> None:
+    """Keep the ``_neutral.csv`` at ``path`` as the take's calibrated rest pose (``take.neutral``) and
+    name it among its sources."""
+    take.neutral = _neutral_pose(path, take)
+    take.meta.sources.append(source_file(path, "neutral_csv"))
+
+
 def _neutral_pose(path: Path, take: Take) -> np.ndarray:
     """The calibrated rest pose: mean of the tracked rows of ``_neutral.csv``, in the take's channels."""
     neutral = read_livelink_csv(path, swap_lr=bool(take.meta.csv.get("swapped_left_right")))
@@ -782,8 +794,11 @@ def read_csv_with_audio(
 
 __all__ = [
     "FrameLog",
+    "attach_neutral",
     "choose_csv",
     "is_take_folder",
+    "neutral_named_as",
+    "preferred_csv",
     "read_csv_rows",
     "read_csv_with_audio",
     "read_frame_log",
