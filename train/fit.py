@@ -217,6 +217,12 @@ def _fit_ridge(
             cpu = torch.device("cpu")
             score = validation_loss(model, ds, spec, cpu, weights, cfg, manifest) if has_val else math.nan
             scores.append(score)
+    if len(alphas) > 1 and all(math.isnan(s) for s in scores):  # counted usable values it does not hold
+        say(
+            "note: the val split has no usable value (its manifest's usable_values say otherwise: see "
+            "s2a-dataset validate): ridge uses alpha 1"
+        )
+        alphas, scores = [1.0], [math.nan]
     best = min(range(len(alphas)), key=lambda i: scores[i])
     cfg = {**cfg, "ridge_alpha": alphas[best]}
     eq.solve(model, alphas[best])

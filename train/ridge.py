@@ -12,6 +12,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+# A subtraction of sums leaves an input constant over the frames left with a variance of rounding (float64
+# sums of every frame subtracted from) in place of 0: below this share of its mean square over those
+# frames it counts as constant, and gets no weight, as when its sums were taken over the frames left.
+ROUNDING = 1e-10
+
 
 def stack_frames(x: torch.Tensor, context: int) -> torch.Tensor:
     """(B, T, D) → (B, T, (2·context + 1)·D): frames t-context .. t+context side by side."""
@@ -51,6 +56,7 @@ class NormalEquations:
         self.xx = torch.zeros(n_in, n_in, dtype=torch.float64)
         self.xy = torch.zeros(n_in, n_out, dtype=torch.float64)
         self.gaps: dict[int, NormalEquations] = {}
+        self.subtracted_from: torch.Tensor | None = None  # Σx² (n_in,) of the sums ``minus`` took these from
 
     def add(self, x: torch.Tensor, y: torch.Tensor, usable: torch.Tensor) -> None:
         """Add the inputs ``x`` (..., n_in) and targets ``y`` (..., n_out) of the ``usable`` values: a
@@ -93,6 +99,9 @@ class NormalEquations:
         out = NormalEquations(self.sx.numel(), self.sy.numel())
         for name in self.FIELDS:
             setattr(out, name, getattr(self, name) - getattr(part, name))
+        out.subtracted_from = (
+            self.xx.diagonal().clone() if self.subtracted_from is None else self.subtracted_from
+        )
         for c, gap in self.gaps.items():
             left = gap.minus(part.gaps[c]) if c in part.gaps else gap
             if left.n:  # a glitch in the frames left out only: none left
@@ -104,6 +113,7 @@ class NormalEquations:
         out = NormalEquations(self.sx.numel(), 1)
         out.n, out.sx, out.xx = self.n, self.sx, self.xx
         out.sy, out.xy = self.sy[c : c + 1], self.xy[:, c : c + 1]
+        out.subtracted_from = self.subtracted_from
         gap = self.gaps.get(c)
         return out if gap is None else out.minus(gap)
 
@@ -123,6 +133,9 @@ class NormalEquations:
         mx, my = self.sx / n, self.sy / n
         cov = self.xx / n - torch.outer(mx, mx)
         cxy = self.xy / n - torch.outer(mx, my)
+        if self.subtracted_from is not None:
+            constant = cov.diagonal() <= ROUNDING * self.subtracted_from / n
+            cov[constant], cov[:, constant], cxy[constant] = 0.0, 0.0, 0.0
         std = cov.diagonal().clamp(min=1e-12).sqrt()
         corr = cov / torch.outer(std, std)
         eye = torch.eye(len(std), dtype=torch.float64)
