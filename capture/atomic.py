@@ -5,7 +5,8 @@ Everything is assembled under a hidden name beside its target (``.NAME.partial``
 removed. A device or a pipe, such as ``/dev/null``, is written into, not replaced (``written_into``):
 ``atomic_write`` writes straight into it, and a file that must be finished first (an ONNX file checked
 before it is given, a checkpoint) is assembled in a private temporary folder, not beside it (``/dev``
-takes no new files from a normal user). Every stage writes through these.
+takes no new files from a normal user). So is the process's own standard output, even a file
+(``-o /dev/stdout > out.csv``). Every stage writes through these.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import IO, Any
 
-from .command import stops_at_once, stops_deferred
+from .command import output_on_stdout, stops_at_once, stops_deferred
 from .errors import InputError
 from .file_lock import fcntl, try_lock
 
@@ -42,22 +43,70 @@ def partial_path(path: Path, suffix: str = "") -> Path:
 
 
 def written_into(path: Path) -> bool:
-    """Whether ``path`` is a character device or a FIFO (``/dev/null``, ``/dev/stdout`` to a pipe): an
-    output written into, never replaced by a renamed file (root may replace a device; another user
-    cannot even make a partial file beside it)."""
+    """Whether ``path`` is a character device or a FIFO (``/dev/null``, ``/dev/stdout`` to a pipe), or
+    this process's standard output or error whatever it is (``/dev/stdout`` to a file): an output
+    written into, never replaced by a renamed file (root may replace a device, or the link
+    ``/dev/stdout`` itself; another user cannot even make a partial file beside it)."""
     try:
-        mode = os.stat(path).st_mode
+        found = os.stat(path)
     except OSError:
         return False
-    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
+    return stat.S_ISCHR(found.st_mode) or stat.S_ISFIFO(found.st_mode) or _standard_stream(found) is not None
+
+
+def _standard_stream(found: os.stat_result) -> int | None:
+    """The descriptor, 1 or 2, of this process's standard output or error that is the file ``found``
+    (``os.stat``), or None."""
+    for fd in (1, 2):
+        try:
+            stream = os.fstat(fd)
+        except OSError:
+            continue
+        if (stream.st_dev, stream.st_ino) == (found.st_dev, found.st_ino):
+            return fd
+    return None
+
+
+def _opened_into(path: Path, mode: str, **open_kwargs: Any) -> IO:
+    """``path``, written into (``written_into``), opened for writing. This process's standard output or
+    error is written through a copy of its descriptor: opened again by name, a file was written from
+    its start, over what the process prints there, and a socket cannot be opened by name at all."""
+    fd = _standard_stream(os.stat(path))
+    if fd is None:
+        with stops_at_once():  # a FIFO opens once a reader opens it: a stop a render only noted waited
+            return open(path, mode, **open_kwargs)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if fd == 1:
+        output_on_stdout()
+    return open(os.dup(fd), mode, **open_kwargs)
+
+
+_PRIVATE_PREFIX = "s2a-partial-"
 
 
 @functools.cache
 def _private_folder() -> Path:
-    """A temporary folder of this process's own (mode 700), removed when it exits."""
-    folder = tempfile.mkdtemp(prefix="s2a-partial-")
-    atexit.register(shutil.rmtree, folder, ignore_errors=True)
-    return Path(folder)
+    """A temporary folder of this process's own (mode 700), removed when it exits. It is held locked
+    (``flock``) while the process lives: the folders of processes killed outright (SIGKILL, which runs
+    no exit handler) are the unlocked ones, removed here by the next process making one."""
+    temp = Path(tempfile.gettempdir())
+    for leftover in temp.glob(f"{_PRIVATE_PREFIX}*") if fcntl is not None else []:
+        lock = _hold(leftover)  # None: a live process's, another user's, or gone already
+        if lock is not None:
+            shutil.rmtree(leftover, ignore_errors=True)
+            _release(lock)
+    while True:
+        folder = Path(tempfile.mkdtemp(prefix=_PRIVATE_PREFIX, dir=temp))
+        held = os.open(folder, os.O_RDONLY)  # left open, so locked, until the process exits
+        try:
+            mine = try_lock(held)
+        except OSError:
+            mine = True  # a file system without locks: nothing is cleared there either
+        if mine:
+            atexit.register(shutil.rmtree, folder, ignore_errors=True)
+            return folder
+        os.close(held)  # locked first by another process clearing leftovers, which removes it
 
 
 @contextmanager
@@ -71,9 +120,7 @@ def atomic_write(
     path = Path(path)
     with naming_failures(path) if name_failures else nullcontext():
         if written_into(path):
-            with stops_at_once():  # a FIFO opens once a reader opens it: a stop a render only noted waited
-                into = open(path, mode, **open_kwargs)
-            with into:
+            with _opened_into(path, mode, **open_kwargs) as into:
                 yield into
             return
         tmp = partial_path(path)
@@ -101,12 +148,10 @@ def put_in_place(tmp: Path, path: Path) -> None:
         mode = None  # no such file yet, or one that cannot be looked at: the rename says what is wrong
     if mode is not None and stat.S_ISBLK(mode):
         raise OSError(errno.EEXIST, "a disk or partition (a block device): not written over", str(path))
-    if mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+    if (mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode)) and not written_into(path):
         os.replace(tmp, path)
         return
-    with stops_at_once():  # a FIFO opens once a reader opens it: a stop a render only noted waited as long
-        into = open(path, "wb")
-    with open(tmp, "rb") as finished, into:
+    with open(tmp, "rb") as finished, _opened_into(path, "wb") as into:
         shutil.copyfileobj(finished, into)
     tmp.unlink()
 

@@ -616,8 +616,11 @@ def cmd_export_csv(args: argparse.Namespace) -> int:
     take = read_take(args.take, audio=False)
     if args.out.is_dir():
         raise InputError("is a folder: give the name of the CSV file to write", args.out)
-    if args.out.is_file() and args.take.resolve() in args.out.resolve().parents:
-        raise InputError(f"is a file of the take {args.take} being exported: give -o outside it", args.out)
+    into = (
+        next((p for p in args.out.resolve().parents if is_take_dir(p)), None) if args.out.is_file() else None
+    )
+    if into is not None:  # its audio (or frames) replaced by the CSV
+        raise InputError(f"is a file of the take {into}: give -o outside any take", args.out)
     others = [c for c in take.meta.channels if not is_known(c)]
     shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
     if len(others) == len(take.meta.channels):

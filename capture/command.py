@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path, PurePath
-from typing import Any
+from typing import Any, TextIO
 
 from .errors import (
     KEYS_RAW_BYTES,
@@ -202,8 +202,8 @@ def emit_json(obj: dict[str, Any]) -> None:
     ``"path_b64"``; it was a lone surrogate, ``"\\udcff"``, which jq and JavaScript mangle)."""
     text = json.dumps(strict_names(json_safe(obj)), allow_nan=False, default=lambda v: printable(str(v)))
     with writing_stdout():
-        sys.stdout.write(text + "\n")
-        sys.stdout.flush()
+        _results().write(text + "\n")
+        _results().flush()
 
 
 def emit_line(text: str) -> None:
@@ -211,7 +211,21 @@ def emit_line(text: str) -> None:
     stderr): a strict stdout (a UTF-8 locale's) refused their surrogate escapes with a traceback, after
     the work was done."""
     with writing_stdout():
-        print(printable(text), flush=True)
+        print(printable(text), file=_results(), flush=True)
+
+
+_output_on_stdout = False  # the command's output file went to its standard output (``-o /dev/stdout``)
+
+
+def output_on_stdout() -> None:
+    """Said by a writer that wrote the command's output into its standard output: the result lines go to
+    stderr from then on (after a CSV or an ONNX model on stdout, a summary line corrupted it)."""
+    global _output_on_stdout
+    _output_on_stdout = True
+
+
+def _results() -> TextIO:
+    return sys.stderr if _output_on_stdout else sys.stdout
 
 
 @contextmanager

@@ -15,7 +15,12 @@ def test_export_csv_never_writes_over_a_file_of_its_take(sim_take, tmp_path):
     before = audio.read_bytes()
     proc = run_here("capture", "export-csv", take, "-o", audio)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
-    assert "is a file of the take" in proc.stderr and "give -o outside it" in proc.stderr, proc.stderr
+    assert "is a file of the take" in proc.stderr and "give -o outside any take" in proc.stderr, proc.stderr
+    assert audio.read_bytes() == before
+    run_here("capture", "import", sim_take, "-o", tmp_path / "other", check=True)
+    (other,) = [p for p in (tmp_path / "other").iterdir() if (p / "meta.json").is_file()]
+    proc = run_here("capture", "export-csv", other, "-o", audio)  # another take's file
+    assert proc.returncode == 1 and "give -o outside any take" in proc.stderr, proc.stderr
     assert audio.read_bytes() == before
 
 

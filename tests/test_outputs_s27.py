@@ -29,7 +29,8 @@ def as_a_normal_user(home: Path, module: str, *args) -> subprocess.CompletedProc
     drop = []
     if os.geteuid() == 0:
         drop = ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"]
-        if shutil.which("setpriv") is None or subprocess.run([*drop, sys.executable, "-c", ""]).returncode:
+        probe = [*drop, sys.executable, "-c", "import capture"]  # the interpreter and the project readable
+        if shutil.which("setpriv") is None or subprocess.run(probe, cwd=ROOT, capture_output=True).returncode:
             pytest.skip("cannot run a command as a normal user here (no setpriv, or it cannot drop root)")
     return subprocess.run(
         [*drop, sys.executable, "-m", module, *map(str, args)],
@@ -131,6 +132,9 @@ def test_predict_to_dev_stdout_gives_the_csv_on_standard_output(readable):
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("Timecode,BlendShapeCount,"), proc.stdout[:200]
     assert proc.stdout.count("\n") > 100
+    # the CSV alone: the result line after it (``/dev/stdout: 120 frames``) goes to stderr
+    assert all(line[:2].isdigit() for line in proc.stdout.splitlines()[1:]), proc.stdout[-300:]
+    assert "/dev/stdout: " in proc.stderr, proc.stderr
 
 
 def test_one_audio_file_and_a_name_without_csv_makes_a_folder_and_says_so(readable, tmp_path):
