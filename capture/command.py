@@ -528,8 +528,9 @@ def run(
     that Ctrl-C while it is (reading the package's version from its metadata) is one line too. In the
     command's own process, SIGTERM stops it with its line until ``main`` begins (capture.import_guard),
     is ``main``'s own inside, and is let go once ``main`` is over (``_command_ending``)."""
-    global _program, _ending_line
+    global _program, _ending_line, _output_on_stdout
     outer, _program = _program, prog
+    _output_on_stdout = False  # this command's own (a process may run several: tests, a batch script)
     try:
         args = build_parser().parse_args(argv)
         sigterm_guard_done()  # nothing written so far: the guard's SIGTERM handler exits at once
