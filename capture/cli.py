@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import functools
 import sys
 from pathlib import Path
 
@@ -31,7 +30,6 @@ from .importer import (
     AUDIO_PAIRINGS,
     audio_beside,
     find_sources,
-    folder_files,
     import_source,
     is_livelink_csv,
     warn_skipped,
@@ -60,6 +58,7 @@ from .take_archive import (
     drive_part,
     unpacked,
 )
+from .take_folder import listed_once
 from .timecode import CSV_TIMECODE_RATE, OTHER_TIMECODE_RATES
 from .transfer_litter import Litter, is_zip
 
@@ -261,7 +260,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     try:
         # SIGTERM stops it as Ctrl-C does (exit 143): the audio decoded into the output folder, what was
         # unpacked there and the folder's lock go with it, not left until the next import
-        with sigterm_stops():
+        with sigterm_stops(), listed_once():  # each folder listed once for the run
             return _import_jobs(args, timecode_rate, litter)
     finally:
         for line in litter.lines():
@@ -359,8 +358,6 @@ class _Importer:
     ) -> None:
         self.args, self.generic, self.timecode_rate, self.litter = args, generic, timecode_rate, litter
         self.written: dict[str, Path] = {}  # folder name (case-folded) -> source, for this run
-        # --pair-audio: each folder listed once, however many sources
-        self.listing = functools.cache(folder_files)
         self.reasons: collections.Counter[str] = collections.Counter()  # of the sources that failed
 
     def _failed(self, src: Path | str, exc: S2AError, box: Unpacked | None = None) -> None:
@@ -421,7 +418,7 @@ class _Importer:
     def one(self, kind: str, src: Path, box: Unpacked | None = None) -> bool:
         """Import one job (a source, or the matrix of a generic import); whether it was written. ``box``:
         the archive ``src`` was unpacked from, to name it and its files by."""
-        args, generic, timecode_rate, listing = self.args, self.generic, self.timecode_rate, self.listing
+        args, generic, timecode_rate = self.args, self.generic, self.timecode_rate
         shown = box.shown(src) if box else src
         try:
             # recorded audio that libsndfile reads cleanly stays in its file until write_take copies it;
@@ -442,7 +439,7 @@ class _Importer:
                 else:
                     audio, pairing = args.audio, args.audio_pairing
                     if args.pair_audio:  # loose files get the audio beside them; take folders have their own
-                        audio, why = audio_beside(src, listing(src.parent)) if src.is_file() else (None, None)
+                        audio, why = audio_beside(src) if src.is_file() else (None, None)
                         pairing = args.audio_pairing if audio is not None else "first-row"
                         if why:
                             warn(f"{shown}: {why}: imported without audio")
@@ -462,7 +459,7 @@ class _Importer:
                     for flag, why in generic.items() if take.meta.source_kind != "paired_matrix" else ():
                         warn(f"{shown}: {flag} ignored: a Live Link Face take {why}")
                     if not args.pair_audio and audio is None and take.audio is None and src.is_file():
-                        _say_audio_not_paired(src, shown, listing(src.parent))
+                        _say_audio_not_paired(src, shown)
                     if args.take_id:
                         take.meta.id = args.take_id
                 if box:
@@ -489,11 +486,11 @@ class _Importer:
         return True
 
 
-def _say_audio_not_paired(src: Path, shown: Path | str, files: list[Path]) -> None:
+def _say_audio_not_paired(src: Path, shown: Path | str) -> None:
     """Warn that a CSV imported without audio has an audio file beside it that ``--pair-audio`` would
     pair with it (``audio_beside``): a take without audio cannot be aligned, and nothing said why."""
     try:
-        beside, _ = audio_beside(src, files)
+        beside, _ = audio_beside(src)
     except S2AError:  # an iCloud placeholder of it: --pair-audio says so
         return
     if beside is not None:

@@ -16,8 +16,12 @@ from .take import Take, is_take_dir, leads_back
 from .take_folder import (
     attach_neutral,
     is_take_folder,
+    listed_entries,
+    listed_files,
+    listed_once,
     neutral_named_as,
     nfc,
+    once_per_listing,
     preferred_csv,
     read_csv_with_audio,
     read_take_folder,
@@ -82,16 +86,17 @@ def find_sources(
     tally = Litter() if litter is None else litter
     found: list[Path] = []
     named: set[Path] = set()
-    for p in map(Path, paths):
-        if tally.skips(p):
-            continue
-        if p.is_file():
-            found.append(p)
-            named.add(p)
-        elif p.is_dir():
-            found.extend(_walk(p, exports, archives, skipped, tally, p.resolve(), variant))
-        else:
-            raise InputError("no such file or folder", p)
+    with listed_once():  # a take folder, or one of several takes, looked at for each file in it
+        for p in map(Path, paths):
+            if tally.skips(p):
+                continue
+            if p.is_file():
+                found.append(p)
+                named.add(p)
+            elif p.is_dir():
+                found.extend(_walk(p, exports, archives, skipped, tally, p.resolve(), variant))
+            else:
+                raise InputError("no such file or folder", p)
     if litter is None:
         for line in tally.lines():
             warn(line)
@@ -170,14 +175,14 @@ def _walk(
         return
     seen.add(real)
     if is_take_folder(folder):
-        for p in folder.iterdir():  # counted: what the take folder reader passes over in it
+        for p in listed_entries(folder):  # counted: what the take folder reader passes over in it
             litter.skips(p)
         # several takes' CSVs and .movs gathered into one folder: each CSV is read as its take
         yield from takes_side_by_side(folder, variant) or [folder]
         return
     if is_take_dir(folder) or folder.name.startswith("."):
         return  # an imported take of ours, or a hidden/temporary folder
-    for p in sorted(folder.iterdir()):
+    for p in sorted(listed_entries(folder)):
         if litter.skips(p):
             continue
         if p.is_symlink():
@@ -261,7 +266,7 @@ def is_weights_json(path: Path) -> bool:
 def folder_files(folder: Path) -> list[Path]:
     """The files of a folder, sorted (what ``audio_beside`` looks among), operating-system and transfer
     litter left out (a ``._X.wav`` is no audio), iCloud placeholders (``.X.wav.icloud``) kept."""
-    return sorted(p for p in folder.iterdir() if not is_litter(p) and p.is_file())
+    return sorted(p for p in listed_files(folder) if not is_litter(p))
 
 
 def audio_stem(source: Path) -> str:
@@ -270,26 +275,39 @@ def audio_stem(source: Path) -> str:
     return source.stem.removesuffix(A2F_SUFFIX) if source.suffix.lower() == ".json" else source.stem
 
 
-def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
-    """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
-    without ``_bsweight``; stems compared in Unicode NFC), else the only audio file in its folder
-    (``files``: ``folder_files`` of it, when the caller lists each folder once; litter such as ``._X.wav``
-    is never audio). Returns (path or None, why none was taken when that is worth a warning). An
-    iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is never imported
-    without its audio. A placeholder counts as the file it stands for: the one of the same stem, the
-    only audio beside the source, or, when all the audio beside it is placeholders, any of them is that
-    error."""
-    files = without_litter(folder_files(source.parent) if files is None else files)
-    stems = {nfc(source.stem), nfc(audio_stem(source))}
-    waiting = {}  # audio iCloud has not downloaded: placeholder -> the name of the file it stands for
+def _audio_among(files: list[Path]) -> tuple[list[Path], dict[Path, str], list[Path]]:
+    """(``files`` less litter, the placeholders of audio iCloud has not downloaded among them -> the name of
+    the file each stands for, the audio files among them)."""
+    files = without_litter(files)
+    waiting = {}
     for p in files:
         original = not_downloaded(p)
         if original is not None and Path(original).suffix.lower() in AUDIO_SUFFIXES:
             waiting[p] = original
+    audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES and icloud_original(p) is None]
+    return files, waiting, audio
+
+
+@once_per_listing
+def _audio_in(folder: Path) -> tuple[list[Path], dict[Path, str], list[Path]]:
+    """``_audio_among`` the files of ``folder``, found once within ``listed_once``."""
+    return _audio_among(folder_files(folder))
+
+
+def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
+    """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
+    without ``_bsweight``; stems compared in Unicode NFC), else the only audio file in its folder
+    (``files``: ``folder_files`` of it; by default listed once within ``listed_once``; litter such as
+    ``._X.wav`` is never audio). Returns (path or None, why none was taken when that is worth a warning). An
+    iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is never imported
+    without its audio. A placeholder counts as the file it stands for: the one of the same stem, the
+    only audio beside the source, or, when all the audio beside it is placeholders, any of them is that
+    error."""
+    files, waiting, audio = _audio_in(source.parent) if files is None else _audio_among(files)
+    stems = {nfc(source.stem), nfc(audio_stem(source))}
     for p, original in waiting.items():
         if nfc(Path(original).stem) in stems:
             raise icloud_error(p, source)
-    audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES and icloud_original(p) is None]
     same = [p for p in audio if nfc(p.stem) in stems]
     if len(same) > 1:
         names = [p.name for p in same]
@@ -433,15 +451,16 @@ def import_source(
         return read_paired(
             audio, source, fps, None, source.stem, False, first_frame, value_scale, first_frame_strict
         )
-    if audio is not None:
-        take = read_csv_with_audio(
-            source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate
-        )
-    elif reads_as_take(source):  # named alone, as its take folder reads it: with the audio of its .mov
-        return read_take_folder(source.parent, None, None, strict, swap_lr, timecode_rate, csv=source)
-    else:
-        take = read_livelink_csv(source, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
-    return with_neutral_beside(take, source)
+    with listed_once():  # its folder, looked at for its take's .mov and neutral pose, listed once
+        if audio is not None:
+            take = read_csv_with_audio(
+                source, audio, strict, swap_lr, audio_pairing == "frame-index", timecode_rate
+            )
+        elif reads_as_take(source):  # named alone, as its take folder reads it: with the audio of its .mov
+            return read_take_folder(source.parent, None, None, strict, swap_lr, timecode_rate, csv=source)
+        else:
+            take = read_livelink_csv(source, strict=strict, swap_lr=swap_lr, timecode_rate=timecode_rate)
+        return with_neutral_beside(take, source)
 
 
 def with_neutral_beside(take: Take, csv: Path) -> Take:

@@ -19,11 +19,14 @@ one taken in silence; names equal only in NFKC (``ﬁ`` and ``fi``) are two name
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import re
 import unicodedata
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -141,6 +144,78 @@ def read_frame_log(path: str | Path, repairs: list[dict[str, Any]]) -> FrameLog:
     return FrameLog(kinds, np.asarray(idx), np.asarray(times), tcs, np.asarray(dropped, bool))
 
 
+class Listing:
+    """What was found in folders while ``listed_once`` holds it: (what, folder, its arguments) -> result."""
+
+    def __init__(self) -> None:
+        self.found: dict[tuple[Any, ...], Any] = {}
+
+    @property
+    def folders(self) -> list[Path]:
+        """The folders listed, each once."""
+        return [key[1] for key in self.found if key[0] == "_listed"]
+
+
+_listing: Listing | None = None  # while ``listed_once`` holds
+
+
+@contextmanager
+def listed_once() -> Iterator[Listing]:
+    """Within it each folder is listed once (``listed_entries``, ``listed_files``), and what is found in
+    it (its CSVs, ``.mov`` files, app files, placeholders) found once, however many sources in it look at
+    it: for one import, which writes no file in the folders it reads (files added to them meanwhile go
+    unseen). Nested: the outer one's listing."""
+    global _listing
+    if _listing is not None:
+        yield _listing
+        return
+    _listing = Listing()
+    try:
+        yield _listing
+    finally:
+        _listing = None
+
+
+def once_per_listing(find: Callable[..., Any]) -> Callable[..., Any]:
+    """``find(folder, *args)``, called once per listing within ``listed_once`` (its result only read)."""
+
+    @functools.wraps(find)
+    def found(folder: Path, *args: Any) -> Any:
+        if _listing is None:
+            return find(folder, *args)
+        key = (find.__name__, folder, *args)
+        if key not in _listing.found:
+            _listing.found[key] = find(folder, *args)
+        return _listing.found[key]
+
+    return found
+
+
+def _is_file(entry: os.DirEntry) -> bool:
+    try:
+        return entry.is_file()
+    except OSError:  # as ``Path.is_file``: not a file it can tell is one
+        return False
+
+
+@once_per_listing
+def _listed(folder: Path) -> tuple[list[Path], list[Path]]:
+    """(the entries of ``folder``, in ``iterdir``'s order, those of them that are files)."""
+    with os.scandir(folder) as scan:
+        found = [(folder / entry.name, _is_file(entry)) for entry in scan]
+    return [p for p, _ in found], [p for p, is_file in found if is_file]
+
+
+def listed_entries(folder: Path) -> list[Path]:
+    """``folder.iterdir()``, listed once within ``listed_once``."""
+    return _listed(folder)[0]
+
+
+def listed_files(folder: Path) -> list[Path]:
+    """The entries of ``folder`` that are files (``Path.is_file``), listed once within ``listed_once``."""
+    return _listed(folder)[1]
+
+
 def is_take_folder(folder: str | Path) -> bool:
     """A Live Link Face take folder: has take.json or frame_log.csv, or a .mov beside a CSV (any of them
     perhaps an iCloud placeholder: reading the take then says to download it)."""
@@ -155,6 +230,7 @@ def is_take_folder(folder: str | Path) -> bool:
     )
 
 
+@once_per_listing
 def app_file_in(folder: Path, name: str) -> Path | None:
     """The app's file ``name`` (lower case, as the app writes it) in ``folder``, spelled in any case
     (``TAKE.JSON``, ``Frame_Log.csv`` from a copy that changed the case, as the take's ``.CSV`` and ``.MOV``
@@ -162,10 +238,10 @@ def app_file_in(folder: Path, name: str) -> Path | None:
     app's own wins; several others are none of them."""
     if (folder / name).is_file():
         return folder / name
-    files = [p for p in folder.iterdir() if not is_litter(p) and p.is_file()]
-    alike = [p for p in files if p.name.lower() == name]
+    found = [p for p in listed_files(folder) if not is_litter(p)]
+    alike = [p for p in found if p.name.lower() == name]
     if not alike:  # a take folder whose every file a transfer renamed (``take (1).json``)
-        alike = [p for p in files if without_copy(p.name).lower() == name]
+        alike = [p for p in found if without_copy(p.name).lower() == name]
     return alike[0] if len(alike) == 1 else None
 
 
@@ -177,12 +253,11 @@ def without_copy(name: str) -> str:
     return m.group("stem") + path.suffix if m else name
 
 
+@once_per_listing
 def _files_ending(folder: Path, suffix: str) -> list[Path]:
     """Files of ``folder`` with the suffix in any case (``X.MOV`` as well as ``X.mov``), sorted;
     operating-system and transfer litter (``._X.mov``, ``~$X.csv``) left out."""
-    return sorted(
-        p for p in folder.iterdir() if p.suffix.lower() == suffix and not is_litter(p) and p.is_file()
-    )
+    return sorted(p for p in listed_files(folder) if p.suffix.lower() == suffix and not is_litter(p))
 
 
 def _is_frame_log(name: str) -> bool:
@@ -194,10 +269,11 @@ def _blendshape_csvs(folder: Path) -> list[Path]:
     return [p for p in _files_ending(folder, ".csv") if not _is_frame_log(p.name)]
 
 
+@once_per_listing
 def _placeholders(folder: Path) -> dict[str, Path]:
     """The files of ``folder`` iCloud has not downloaded: their names -> their placeholders
     (``.X.mov.icloud``)."""
-    return {original: p for p in folder.iterdir() if (original := not_downloaded(p)) is not None}
+    return {original: p for p in listed_entries(folder) if (original := not_downloaded(p)) is not None}
 
 
 def _waiting_ending(waiting: dict[str, Path], suffix: str) -> list[str]:
@@ -404,6 +480,7 @@ class _CsvFile:
     copy: str  # what a copy added to the name (``" (1)"``, ``" copy"``), or ""
 
 
+@once_per_listing
 def _csv_files(folder: Path) -> list[_CsvFile]:
     found = [(p, p.name) for p in _blendshape_csvs(folder)]
     waiting = _placeholders(folder)

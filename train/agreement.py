@@ -30,7 +30,7 @@ from capture.errors import InputError
 from dataset.manifest import dataset_folder, read_manifest, take_recordings
 
 from .data import present_frames, resolve_inputs, to_model_inputs, utterances
-from .ridge import NormalEquations, Ridge
+from .ridge import Memory, NormalEquations, Ridge
 
 MATRIX_TAKES = 30  # the take-by-take table is takes² scores: skipped above this many takes
 DEFAULT_ALPHA = 0.1  # ridge_alpha 0 means "choose on val" in fit; here there is no val to choose on
@@ -47,9 +47,12 @@ def take_agreement(
     cfg: dict[str, Any],
     splits: tuple[str, ...] = ("train", "val"),
     say: Callable[[str], None] = progress,
+    memory: Memory | None = None,
 ) -> dict[str, Any]:
     """Leave-one-take-out and take-by-take ridge scores of ``ds`` (see module doc); ``cfg`` gives the
-    inputs (``input``, ``prosody``) and the ridge's ``ridge_context`` and ``ridge_alpha``."""
+    inputs (``input``, ``prosody``) and the ridge's ``ridge_context`` and ``ridge_alpha``. The sums of
+    every take are held at once, in ``memory`` (default: the machine's): past it, an ``InputError``
+    before reading (a set per take, their total and a take left out) or on finding a glitched channel."""
     ds = dataset_folder(ds)
     manifest = read_manifest(ds)
     where = ds / "manifest.json"
@@ -73,17 +76,25 @@ def take_agreement(
     alpha = float(cfg["ridge_alpha"]) or DEFAULT_ALPHA
     model = Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, cfg["ridge_context"])
     n_in = model.linear.in_features
+    memory = Memory() if memory is None else memory
+    read = {take_of[s["key"]] for s in manifest["samples"] if s["split"] in splits}
+    what = (
+        "agreement's sums of {} takes ({} channels glitched in some frames), their total and a take left out"
+    )
+    memory.check(n_in, len(read) + 2, what.format(len(read), 0))
 
     sums: dict[str, NormalEquations] = {}
     for take, item in _items(ds, splits, spec, take_of):
         content, prosody = to_model_inputs(item, spec)
-        sums.setdefault(take, NormalEquations(n_in, spec.out_dim)).add(
-            model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"]
-        )
+        if take not in sums:
+            sums[take] = NormalEquations(n_in, spec.out_dim, memory)
+        sums[take].add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"])
     takes = sorted(t for t, eq in sums.items() if eq.n > 0)
     if len(takes) < 2:
         raise InputError(f"agreement needs at least 2 takes with usable frames in {', '.join(splits)}", where)
     say(f"agreement: {len(takes)} takes, {sum(sums[t].n for t in takes)} frames")
+    glitched = len({c for t in takes for c in sums[t].gaps})
+    memory.check(n_in, 2 * (1 + glitched), what.format(len(sums), glitched))
     total = NormalEquations.total([sums[t] for t in takes])
 
     def fitted(eq: NormalEquations) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -9,13 +9,72 @@ is solved alone, without them); ``alpha`` is the L2 penalty
 
 from __future__ import annotations
 
+import os
+
 import torch
 from torch import nn
+
+from capture.errors import InputError
 
 # A subtraction of sums leaves an input constant over the frames left with a variance of rounding (float64
 # sums of every frame subtracted from) in place of 0: below this share of its mean square over those
 # frames it counts as constant, and gets no weight, as when its sums were taken over the frames left.
 ROUNDING = 1e-10
+
+# The sums' memory: input-by-input float64 matrices (Σxxᵀ), one per set of sums, besides which a solution
+# works in up to SOLVING more (a channel's sums taken by subtraction, covariance, correlation, identity,
+# system, its factors). The budget: MEMORY_SHARE of the memory available when the sums start.
+SOLVING = 7
+MEMORY_SHARE = 0.8
+ADVICE = "use a smaller ridge_context, fewer channels (s2a-dataset build --channels), or more memory"
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available: /proc/meminfo's MemAvailable (Linux), else the physical memory
+    (os.sysconf); None where neither tells."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _gb(size: float) -> str:
+    return f"{size / 1e9:.2f} GB"
+
+
+class Memory:
+    """The memory sets of sums may hold together (those of a fit; agreement's takes): ``budget`` bytes
+    (default MEMORY_SHARE of ``available_memory()``; None: no limit), counted in input-by-input matrices."""
+
+    def __init__(self, budget: int | None = None):
+        if budget is None and (available := available_memory()) is not None:
+            budget = int(MEMORY_SHARE * available)
+        self.budget = budget
+        self.held = 0  # matrices
+
+    def check(self, n_in: int, matrices: int, what: str) -> None:
+        """An ``InputError`` if ``matrices`` more, beside those held and a solution's, pass the budget."""
+        count = self.held + matrices + SOLVING
+        need = count * 8 * n_in * n_in
+        if self.budget is not None and need > self.budget:
+            raise InputError(
+                f"{what} need {_gb(need)} of memory ({count} matrices of {n_in:,} x {n_in:,} inputs, "
+                f"{_gb(8 * n_in * n_in)} each, counting {SOLVING} to solve) but {_gb(self.budget)} is there "
+                f"({MEMORY_SHARE:.0%} of the memory available): {ADVICE}",
+                "config:ridge_context",
+            )
+
+    def hold(self, n_in: int, matrices: int, what: str) -> None:
+        """``check``, then count them held."""
+        self.check(n_in, matrices, what)
+        self.held += matrices
 
 
 def stack_frames(x: torch.Tensor, context: int) -> torch.Tensor:
@@ -47,9 +106,24 @@ class NormalEquations:
     """Running sums Σx, Σxxᵀ, Σxyᵀ, Σy over the usable values of ``add``, float64: over the frames usable
     in some channel (``rows``), and, for each channel unusable in some of those frames (a glitch in it
     alone), the same sums over those frames (``gaps``: that channel's, y its column), which its own
-    solution leaves out. Memory: one Σxxᵀ, plus one per glitched channel."""
+    solution leaves out. Memory: one Σxxᵀ, plus one per glitched channel, held in ``memory`` (default: the
+    machine's): past it, an ``InputError`` before allocating."""
 
-    def __init__(self, n_in: int, n_out: int):
+    def __init__(self, n_in: int, n_out: int, memory: Memory | None = None):
+        self.memory = Memory() if memory is None else memory
+        self.memory.hold(n_in, 1, "the ridge's sums")
+        self._zeros(n_in, n_out)
+
+    @classmethod
+    def _like(cls, other: NormalEquations, n_out: int) -> NormalEquations:
+        """Empty sums in ``other``'s memory, not held there: a solution's own or a total's (counted by
+        SOLVING, or by the caller)."""
+        out = cls.__new__(cls)
+        out.memory = other.memory
+        out._zeros(other.sx.numel(), n_out)
+        return out
+
+    def _zeros(self, n_in: int, n_out: int) -> None:
         self.n = 0
         self.sx = torch.zeros(n_in, dtype=torch.float64)
         self.sy = torch.zeros(n_out, dtype=torch.float64)
@@ -71,7 +145,11 @@ class NormalEquations:
             return
         unusable = ~values[m]
         for c in unusable.any(dim=0).nonzero().flatten().tolist():
-            gap = self.gaps.setdefault(c, NormalEquations(x.shape[1], 1))
+            if c not in self.gaps:
+                glitched = f"{len(self.gaps) + 1} channels glitched in some frames (each solved alone)"
+                self.memory.hold(x.shape[1], 1, f"the ridge's sums and those of {glitched}")
+                self.gaps[c] = self._like(self, 1)
+            gap = self.gaps[c]
             gap._add_rows(x[unusable[:, c]], y[unusable[:, c], c : c + 1])
 
     def _add_rows(self, x: torch.Tensor, y: torch.Tensor) -> None:
@@ -86,7 +164,7 @@ class NormalEquations:
     @classmethod
     def total(cls, parts: list[NormalEquations]) -> NormalEquations:
         """The sums of several sets of frames (e.g. takes) together."""
-        out = cls(parts[0].sx.numel(), parts[0].sy.numel())
+        out = cls._like(parts[0], parts[0].sy.numel())
         for part in parts:
             for name in cls.FIELDS:
                 setattr(out, name, getattr(out, name) + getattr(part, name))
@@ -96,7 +174,7 @@ class NormalEquations:
 
     def minus(self, part: NormalEquations) -> NormalEquations:
         """These sums without the frames of ``part`` (a subset of them)."""
-        out = NormalEquations(self.sx.numel(), self.sy.numel())
+        out = self._like(self, self.sy.numel())
         for name in self.FIELDS:
             setattr(out, name, getattr(self, name) - getattr(part, name))
         out.subtracted_from = (
@@ -110,7 +188,7 @@ class NormalEquations:
 
     def channel(self, c: int) -> NormalEquations:
         """The sums of channel ``c``'s usable values alone (its glitched frames taken out)."""
-        out = NormalEquations(self.sx.numel(), 1)
+        out = self._like(self, 1)
         out.n, out.sx, out.xx = self.n, self.sx, self.xx
         out.sy, out.xy = self.sy[c : c + 1], self.xy[:, c : c + 1]
         out.subtracted_from = self.subtracted_from
@@ -128,7 +206,16 @@ class NormalEquations:
     def solution(self, alpha: float) -> tuple[torch.Tensor, torch.Tensor]:
         """(weight (n_in, n_out), bias (n_out,)), float64, of the ridge on standardised inputs, intercept
         not penalised: ``(C + alpha·I) w = c_xy`` with C the inputs' correlation matrix (alpha is per
-        frame); a glitched channel solved alone on its usable values (none: weight and bias 0)."""
+        frame); a glitched channel solved alone on its usable values (none: weight and bias 0), after the
+        others' matrices are let go."""
+        w, bias = self._solved_together(alpha)
+        for c in self.gaps:
+            eq = self.channel(c)
+            w[:, c : c + 1], bias[c : c + 1] = eq.solution(alpha) if eq.n else (0.0, 0.0)
+        return w, bias
+
+    def _solved_together(self, alpha: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """``solution`` of every channel on the frames usable in some channel (``rows``)."""
         n = max(self.n, 1)
         mx, my = self.sx / n, self.sy / n
         cov = self.xx / n - torch.outer(mx, mx)
@@ -141,11 +228,7 @@ class NormalEquations:
         eye = torch.eye(len(std), dtype=torch.float64)
         w_std = torch.linalg.solve(corr + alpha * eye, cxy / std[:, None])
         w = w_std / std[:, None]
-        bias = my - mx @ w
-        for c in self.gaps:
-            eq = self.channel(c)
-            w[:, c : c + 1], bias[c : c + 1] = eq.solution(alpha) if eq.n else (0.0, 0.0)
-        return w, bias
+        return w, my - mx @ w
 
     def solve(self, model: Ridge, alpha: float) -> None:
         """Set ``model.linear`` to ``solution(alpha)``."""
