@@ -143,12 +143,15 @@ def put_in_place(tmp: Path, path: Path) -> None:
     nothing. A block device (a disk or a partition) is refused: an output written over it would destroy
     what it holds."""
     try:
-        mode = os.stat(path).st_mode
+        found = os.stat(path)
     except OSError:
-        mode = None  # no such file yet, or one that cannot be looked at: the rename says what is wrong
-    if mode is not None and stat.S_ISBLK(mode):
+        found = None  # no such file yet, or one that cannot be looked at: the rename says what is wrong
+    if found is not None and stat.S_ISBLK(found.st_mode):
         raise OSError(errno.EEXIST, "a disk or partition (a block device): not written over", str(path))
-    if (mode is None or stat.S_ISREG(mode) or stat.S_ISDIR(mode)) and not written_into(path):
+    # a file or folder is replaced, unless it is this process's standard output or error (``written_into``)
+    if found is None or (
+        (stat.S_ISREG(found.st_mode) or stat.S_ISDIR(found.st_mode)) and _standard_stream(found) is None
+    ):
         os.replace(tmp, path)
         return
     with open(tmp, "rb") as finished, _opened_into(path, "wb") as into:

@@ -2616,17 +2616,14 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         )
         frame_bytes = sum(run.end - run.start for run in runs[a:b]) - within
         per_frame = frame_bytes / sum(max(run.frames, 1) for run in runs[a:b])
-        for run in runs[a:b]:
-            for loss in run.losses:
-                if loss.junk:
-                    continue
-                # at a file's end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no
-                # frames; before a file joined on, said as what they could hold
-                estimate = round((loss.end - loss.start) / per_frame)
-                seen = not loss.last or overwritten or _starts_sync(data, loss.start)
-                loss.frames = estimate if seen else 0
-                unknown = not (seen or _lone_tag(data, loss.start, loss.end))
-                loss.unsure = estimate if loss.before_join and unknown else 0
+        for loss in losses:
+            # at a file's end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no
+            # frames; before a file joined on, said as what they could hold
+            estimate = round((loss.end - loss.start) / per_frame)
+            seen = not loss.last or overwritten or _starts_sync(data, loss.start)
+            loss.frames = estimate if seen else 0
+            unknown = not (seen or _lone_tag(data, loss.start, loss.end))
+            loss.unsure = estimate if loss.before_join and unknown else 0
         frame = _mpeg_frame(data, runs[a].start)
         if frame is None or runs[a].count_low or not _is_file_header(data, runs[a].start, frame):
             continue

@@ -202,8 +202,9 @@ def emit_json(obj: dict[str, Any]) -> None:
     ``"path_b64"``; it was a lone surrogate, ``"\\udcff"``, which jq and JavaScript mangle)."""
     text = json.dumps(strict_names(json_safe(obj)), allow_nan=False, default=lambda v: printable(str(v)))
     with writing_stdout():
-        _results().write(text + "\n")
-        _results().flush()
+        out = _results()
+        out.write(text + "\n")
+        out.flush()
 
 
 def emit_line(text: str) -> None:

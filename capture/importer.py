@@ -37,7 +37,6 @@ from .transfer_litter import (
     is_litter,
     is_zip,
     not_downloaded,
-    without_litter,
     zip_error,
 )
 
@@ -107,7 +106,7 @@ def _loose_csv(source: Path) -> tuple[str, str | None] | None:
     """The take name (its prefix, in NFC) and variant (cal, raw, neutral or None: plain) of a source that
     is a loose Live Link Face CSV (or its iCloud placeholder), by its name; None for any other source."""
     name = icloud_original(source) or source.name
-    if source.is_dir() or Path(name).suffix.lower() != ".csv":
+    if Path(name).suffix.lower() != ".csv" or source.is_dir():
         return None
     prefix, variant = split_variant(Path(name).stem)
     return nfc(prefix), variant
@@ -275,10 +274,11 @@ def audio_stem(source: Path) -> str:
     return source.stem.removesuffix(A2F_SUFFIX) if source.suffix.lower() == ".json" else source.stem
 
 
-def _audio_among(files: list[Path]) -> tuple[list[Path], dict[Path, str], list[Path]]:
-    """(``files`` less litter, the placeholders of audio iCloud has not downloaded among them -> the name of
-    the file each stands for, the audio files among them)."""
-    files = without_litter(files)
+@once_per_listing
+def _audio_in(folder: Path) -> tuple[list[Path], dict[Path, str], list[Path]]:
+    """(``folder_files`` of ``folder``, the placeholders of audio iCloud has not downloaded among them ->
+    the name of the file each stands for, the audio files among them), found once within ``listed_once``."""
+    files = folder_files(folder)
     waiting = {}
     for p in files:
         original = not_downloaded(p)
@@ -288,22 +288,16 @@ def _audio_among(files: list[Path]) -> tuple[list[Path], dict[Path, str], list[P
     return files, waiting, audio
 
 
-@once_per_listing
-def _audio_in(folder: Path) -> tuple[list[Path], dict[Path, str], list[Path]]:
-    """``_audio_among`` the files of ``folder``, found once within ``listed_once``."""
-    return _audio_among(folder_files(folder))
-
-
-def audio_beside(source: Path, files: list[Path] | None = None) -> tuple[Path | None, str | None]:
+def audio_beside(source: Path) -> tuple[Path | None, str | None]:
     """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
     without ``_bsweight``; stems compared in Unicode NFC), else the only audio file in its folder
-    (``files``: ``folder_files`` of it; by default listed once within ``listed_once``; litter such as
-    ``._X.wav`` is never audio). Returns (path or None, why none was taken when that is worth a warning). An
+    (``folder_files`` of it, listed once within ``listed_once``; litter such as ``._X.wav`` is never
+    audio). Returns (path or None, why none was taken when that is worth a warning). An
     iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is never imported
     without its audio. A placeholder counts as the file it stands for: the one of the same stem, the
     only audio beside the source, or, when all the audio beside it is placeholders, any of them is that
     error."""
-    files, waiting, audio = _audio_in(source.parent) if files is None else _audio_among(files)
+    files, waiting, audio = _audio_in(source.parent)
     stems = {nfc(source.stem), nfc(audio_stem(source))}
     for p, original in waiting.items():
         if nfc(Path(original).stem) in stems:

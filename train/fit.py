@@ -201,9 +201,8 @@ def _fit_ridge(
         for item in utterances(ds, "train", spec, cfg, manifest, values=True):
             content, prosody = to_model_inputs(item, spec)
             eq.add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"])
-    frames = eq.n  # usable in some channel
-    with watch.reading():
         no_val = _no_validation(ds, manifest, cfg)
+    frames = eq.n  # usable in some channel
     has_val = no_val is None
     weights = channel_weights(manifest, cfg)
     alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else [1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]

@@ -9,6 +9,7 @@ is solved alone, without them); ``alpha`` is the L2 penalty
 
 from __future__ import annotations
 
+import copy
 import os
 
 import torch
@@ -188,19 +189,17 @@ class NormalEquations:
 
     def channel(self, c: int) -> NormalEquations:
         """The sums of channel ``c``'s usable values alone (its glitched frames taken out)."""
-        out = self._like(self, 1)
-        out.n, out.sx, out.xx = self.n, self.sx, self.xx
-        out.sy, out.xy = self.sy[c : c + 1], self.xy[:, c : c + 1]
-        out.subtracted_from = self.subtracted_from
+        out = copy.copy(self)  # shares n, sx, xx and subtracted_from: no input-by-input matrix of its own
+        out.sy, out.xy, out.gaps = self.sy[c : c + 1], self.xy[:, c : c + 1], {}
         gap = self.gaps.get(c)
         return out if gap is None else out.minus(gap)
 
     def means(self) -> torch.Tensor:
         """Each channel's mean over its usable values (0 for a channel without any)."""
         mean = self.sy / max(self.n, 1)
-        for c in self.gaps:
-            eq = self.channel(c)
-            mean[c] = eq.sy[0] / eq.n if eq.n else 0.0
+        for c, gap in self.gaps.items():  # ``channel(c)``'s n and sy, without its input-by-input sums
+            n = self.n - gap.n
+            mean[c] = (self.sy[c] - gap.sy[0]) / n if n else 0.0
         return mean
 
     def solution(self, alpha: float) -> tuple[torch.Tensor, torch.Tensor]:

@@ -346,18 +346,13 @@ def download_of(archive: Path) -> Path | DriveDownload:
     """A part of a Google Drive download (``F-<time>Z-001.zip``) with other parts of it beside it: the
     download, read as one archive as ``s2a-capture import`` reads it (a take's CSV in one part, its
     ``.mov`` in another); any other archive as it is."""
-    part = drive_part(archive)
-    if part is None:
+    if drive_part(archive) is None:
         return archive
-    try:
-        beside = [
-            p
-            for p in archive.parent.iterdir()
-            if p != archive and (other := drive_part(p)) and other[0].casefold() == part[0].casefold()
-        ]
+    try:  # drive_downloads gathers the parts of the archive's download, in its place (the first)
+        beside = sorted(p for p in archive.parent.iterdir() if p != archive and drive_part(p))
     except OSError:
         return archive
-    download = drive_downloads([archive, *sorted(beside)])[0]
+    download = drive_downloads([archive, *beside])[0]
     return download if isinstance(download, DriveDownload) else archive
 
 
