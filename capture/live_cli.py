@@ -23,12 +23,21 @@ from typing import Any
 
 from .audio_capture import AudioLog, DeviceAudioSource, FileAudioSource, check_regular_file
 from .command import Terminated, emit_json, progress, sigterm_stops, warn
+from .cps_control import PhoneStream
 from .errors import InputError, S2AError, printable
 from .file_lock import fcntl, try_lock
 from .importer import find_sources, import_source
 from .osc_remote import DEFAULT_OSC_PORT, PhoneRemote, check_record_start, check_subject, resolve_target
 from .record_log import MAGIC, RECORD_HEADER, LogReader, LogWriter, RecordType
-from .recorder import AUDIO_LOG, DEFAULT_PORT, FRAMES_LOG, MAX_FLUSH_INTERVAL_S, MAX_STREAMS, LiveRecorder
+from .recorder import (
+    AUDIO_LOG,
+    DEFAULT_PORT,
+    FRAMES_LOG,
+    MAX_FLUSH_INTERVAL_S,
+    MAX_STREAMS,
+    LiveRecorder,
+    parse_allow_list,
+)
 from .replay import Impairment, format_destination, parse_destination, replay_take
 from .serial_sync import SerialSync, open_serial
 from .session_takes import TAKE_COUNTS, build_takes, find_sessions
@@ -98,14 +107,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for the takes and the session log")
     p.add_argument(
-        "--port", type=int, default=DEFAULT_PORT, help="UDP port (default: 11111; 0 = any free port)"
+        "--port",
+        type=int,
+        help="UDP port (default: 11111, with --phone any free port; 0 = any free port)",
     )
     p.add_argument(
         "--bind",
         metavar="ADDR",
         type=_bind_address,
-        default="127.0.0.1",
-        help="address to listen on (a LAN address for a phone on Wi-Fi; 0.0.0.0 or :: for all)",
+        help="address to listen on (default: 127.0.0.1, with --phone 0.0.0.0; a LAN address for a "
+        "phone on Wi-Fi; 0.0.0.0 or :: for all)",
+    )
+    p.add_argument(
+        "--phone",
+        metavar="HOST:PORT",
+        help="record Live Link Face's realtime stream (the app's Unreal Engine 5.6+ mode): connect to the "
+        "phone's control port as the app shows it and ask it to stream an ARKit subject here",
     )
     p.add_argument(
         "--allow", nargs="+", metavar="ADDR", help="accept packets only from these source addresses"
@@ -174,7 +191,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "UDP packets in real time, optionally with seeded loss, reordering, duplication and jitter.",
     )
     p.add_argument("take", type=Path, help="a take folder (ours or the app's) or a Live Link Face CSV")
-    p.add_argument("--to", required=True, metavar="HOST:PORT", help="where the listener is")
+    p.add_argument(
+        "--to",
+        required=True,
+        metavar="HOST:PORT",
+        help="where the listener is (with --protocol realtime: where the phone's control server listens)",
+    )
+    p.add_argument(
+        "--protocol",
+        choices=("classic", "realtime"),
+        default="classic",
+        help="classic: Live Link UDP packets to --to; realtime: be the phone of Live Link Face's realtime "
+        "stream, serving its control session on --to for listen --phone (default: classic)",
+    )
     p.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = real time)")
     p.add_argument("--loss", type=float, default=0.0, help="probability a packet is lost")
     p.add_argument("--reorder", type=float, default=0.0, help="probability a packet is held back")
@@ -264,6 +293,18 @@ REJECT_HINTS = {
     "that pads its packets to a fixed buffer size; send only the packet's bytes",
     "short": "datagrams that end before the packet does (a sender that cuts its packets to a fixed "
     "buffer size, or another protocol)",
+    # the relay of --phone (``cps_control.PhoneStream``): realtime packets it did not pass on
+    "realtime_not_allowed": "realtime packets from an address other than the phone's (and not in --allow)",
+    "realtime_oversized": "realtime datagrams over 8192 bytes: no Live Link Face realtime packet",
+    "realtime_short": "realtime datagrams that end before the packet does (another protocol on that port)",
+    "realtime_size_mismatch": "realtime datagrams longer than the packet they hold",
+    "realtime_bad_text": "realtime packets whose subject id is not UTF-8 text",
+    "realtime_not_streaming": "realtime packets that came while the phone streamed no subject to this "
+    "listen (before its control session began, or between two)",
+    "realtime_unknown_subject": "realtime packets of a subject the phone does not stream to this listen "
+    "(another receiver's, or one from before the phone restarted its stream)",
+    "realtime_control_count": "realtime packets whose control count is not the subject's: the phone "
+    "changed its subject; listen restarts the control session, as Unreal does",
 }
 
 
@@ -849,14 +890,16 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
         raise InputError(f"--duration must be a positive number of seconds, not {args.duration}")
     if args.audio_file is not None:
         _check_audio_file(args.audio_file, args.audio_start == "first-packet")
+    phone = parse_destination(args.phone) if args.phone else None
+    phone_allow = parse_allow_list(args.allow) if phone else None
     serial_port = open_serial(args.serial, args.baud) if args.serial else None
     out_is_new = not Path(args.out).exists()
     try:
-        recorder = LiveRecorder(
+        recorder = LiveRecorder(  # with --phone, the relay of the phone's packets sends to it on loopback
             args.out,
-            bind=args.bind,
-            port=args.port,
-            allow=args.allow,
+            bind="127.0.0.1" if phone else args.bind or "127.0.0.1",
+            port=0 if phone else DEFAULT_PORT if args.port is None else args.port,
+            allow=["127.0.0.1"] if phone else args.allow,
             flush_interval_s=args.flush_interval,
             max_streams=args.max_streams,
         )
@@ -866,12 +909,14 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
         raise
     lock: int | None = None
     made = False  # whether this listen made the session folder (only then may a failed start remove it)
-    source = audio_log = serial_sync = None
+    source = audio_log = serial_sync = stream = None
 
     def discard() -> None:
         """A start that failed or was stopped: nothing was received yet, so leave no half-made session
         behind (``_remove_unstarted_session``)."""
         nonlocal lock
+        if stream is not None:
+            stream.stop()
         if audio_log is not None:
             audio_log.close()
         recorder.close()
@@ -906,6 +951,9 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
                         f"cannot write the session log: {exc.strerror or exc}", recorder.session_dir
                     ) from None
                 host, port = recorder.open()
+                if phone is not None:
+                    stream = _phone_stream(args, phone, phone_allow, recorder, (host, port))
+                    host, port = stream.open()
                 if args.audio_device is not None or args.audio_file is not None:
                     try:
                         audio_log = AudioLog(recorder.session_dir / AUDIO_LOG)
@@ -925,15 +973,20 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
             raise _stopped_before_recording(setup.caught[0] if setup.caught else signal.SIGINT)
         if serial_port is not None:
             serial_sync = SerialSync(serial_port, recorder.clock, recorder.add_sync)
-        progress(f"listening on udp://{format_destination(host, port)} -> {recorder.session_dir}")
+        via = f"Live Link Face realtime from phone {args.phone} " if phone else ""
+        progress(f"listening {via}on udp://{format_destination(host, port)} -> {recorder.session_dir}")
         warnings = _Warnings(recorder, audio_log, source, serial_sync)
         try:
+            if stream is not None:
+                stream.start()
             if source is not None:
                 source.start()
             if serial_sync is not None:
                 serial_sync.start()
             recorder.run(args.duration, status=_status_line, on_flush=lambda: _flushed(warnings, setup))
         finally:
+            if stream is not None:
+                stream.stop()  # ends the phone's session; the packets relayed before are in the log
             if serial_sync is not None:
                 serial_sync.stop()
             if source is not None:
@@ -969,6 +1022,23 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
     if problems:
         raise InputError("; ".join(problems), recorder.session_dir)
     return 0
+
+
+def _phone_stream(args: argparse.Namespace, phone, allow, recorder: LiveRecorder, to) -> PhoneStream:
+    """The control session to ``--phone`` and the relay of its realtime packets to ``recorder`` at ``to``
+    (``cps_control.PhoneStream``), on ``--bind`` (default all interfaces, as Unreal binds) and ``--port``
+    (default any free port: the phone is told which)."""
+    return PhoneStream(
+        phone[0],
+        phone[1],
+        to,
+        say=lambda line: _say(_printable(line)),
+        rejected=recorder.rejected,
+        note=recorder.note,
+        bind=args.bind or "0.0.0.0",
+        stream_port=args.port or 0,
+        allow=allow,
+    )
 
 
 def _flushed(warnings: _Warnings, setup: _SetUp) -> None:
@@ -1085,6 +1155,8 @@ def _load_take(path: Path) -> Take:
 def cmd_replay(args: argparse.Namespace) -> int:
     host, port = parse_destination(args.to)
     take = _load_take(args.take)
+    if args.protocol == "realtime":
+        return _replay_realtime(args, take, host, port)
     imp = Impairment(args.loss, args.reorder, args.duplicate, args.jitter_ms / 1000.0, args.seed)
     report = replay_take(take, host, port, args.speed, imp, args.device, args.subject, args.audio_out)
     summary = {"take": take.meta.id, "to": format_destination(host, port)} | report.to_json()
@@ -1100,6 +1172,47 @@ def cmd_replay(args: argparse.Namespace) -> int:
         )
     if report.bad_values:
         warn(f"{report.bad_values} frames with NaN/inf values sent as no-face packets")
+    return 0
+
+
+def _replay_realtime(args: argparse.Namespace, take: Take, host: str, port: int) -> int:
+    """``replay --protocol realtime``: the simulated phone of the realtime stream (``cps_phone``) serves its
+    control session on ``host:port`` and streams the take to the ``listen --phone`` that asks for it, until
+    every frame is sent (or Ctrl-C)."""
+    from .replay import check_speed, default_device
+    from .simulate.cps_phone import RealtimeFrames, SimulatedPhone
+
+    classic_only = {"--loss": args.loss, "--reorder": args.reorder, "--duplicate": args.duplicate}
+    classic_only |= {"--jitter-ms": args.jitter_ms, "--audio-out": args.audio_out}
+    given = [option for option, value in classic_only.items() if value]
+    if given:
+        raise InputError(f"{', '.join(given)}: for the classic stream only (--protocol classic)")
+    check_speed(args.speed)
+    frames = RealtimeFrames.of_take(take)
+    if not frames.frame_number.size:
+        raise InputError(f"take {take.meta.id} has no tracked frames to send")
+    subject = args.subject or take.meta.subject or "iPhone"
+    phone = SimulatedPhone(frames, host=host, port=port, speed=args.speed, subject=subject)
+    phone.device = args.device or default_device(take)
+    try:
+        phone.start()
+    except OSError as exc:
+        raise InputError(f"cannot serve the control session on {args.to}: {exc.strerror or exc}") from None
+    try:
+        progress(f"phone control server on {format_destination(host, port)}: waiting for listen --phone")
+        while not phone.finished():
+            time.sleep(0.1)
+    finally:
+        phone.stop()
+    summary = {"take": take.meta.id, "phone": format_destination(host, port), "protocol": "realtime"}
+    summary |= {"frames": int(frames.frame_number.size), "packets_sent": phone.sent}
+    summary["control_sessions"] = phone.connections
+    if args.json:
+        emit_json(summary)
+    else:
+        progress(
+            f"{take.meta.id} -> listen --phone {format_destination(host, port)}: {phone.sent} frames sent"
+        )
     return 0
 
 

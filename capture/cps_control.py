@@ -1,0 +1,456 @@
+"""The control session of Live Link Face's newer stream: Capture Manager's Capture Protocol Stack ("CPS")
+over TCP, as the Unreal Engine 5.6+ "Live Link Face" source speaks it (formats doc §5.6).
+
+The receiver connects to the phone (its address and port as the app shows them) and sends requests; the
+phone answers each. A message travels in a frame::
+
+    "CPSCONTROL\\0" (11 bytes) | u16 protocol version = 1 | u32 payload length | payload (UTF-8 JSON)
+
+(lengths in the sender's byte order, little-endian on every platform Unreal runs on). The JSON object
+holds ``sessionId`` ("handshake" until the phone gives one), ``addressPath``, ``transactionId``,
+``timestamp`` (ms since 1970), ``type`` ("request", "response" or "update") and, optionally, ``body``
+and ``error`` ({``name``, ``description``}). A response repeats its request's transaction id, address
+path and session id; one that does not come within ``RESPONSE_WAIT_S`` is a failure.
+
+A session, as Unreal runs it: /session/start (body ``sessionId``), /information (``id``, ``name``,
+``model``, ``platformName``, ``platformVersion``, ``softwareName``, ``softwareVersion``, ``exportPort``),
+/stream/subjects (``subjects``: ``id``, ``name``, ``animationMetadata``: ``type`` "arkit" or "mha",
+``version``, ``controls``), /stream/start (``streamPort``: our UDP port, ``subjects``: [{``id``,
+``name``}]); then /session/keep-alive every ``KEEP_ALIVE_S`` (the connection is dropped after
+``KEEP_ALIVE_FAILURES`` failures in a row); at the end /stream/stop and /session/stop. A session that
+fails is tried again ``RETRY_S`` later. Sources: Unreal Engine 5.8 ``LiveLinkFaceControl.cpp``
+(MetaHumanLiveLink) and the CaptureProtocolStack's ``ControlMessenger``, ``ControlPacket``,
+``ControlMessage``, ``ControlRequest``, ``ControlResponse`` and ``Constants``.
+
+``PhoneStream`` runs that session in a thread and relays the phone's realtime packets
+(``realtime_packet``) of an ARKit subject, as classic version-6 packets, to a ``LiveRecorder``'s socket
+on this computer: the recording, its log, its takes and ``recover`` are those of the classic stream.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import select
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import InputError
+from .realtime_packet import (
+    MAX_REALTIME_PACKET_BYTES,
+    REALTIME_REJECT_REASONS,
+    ArkitMapping,
+    decode_realtime_packet,
+)
+
+FRAME_MAGIC = b"CPSCONTROL\0"
+FRAME_HEAD = struct.Struct("<HI")  # protocol version, payload length
+CPS_VERSION = 1
+HANDSHAKE_SESSION = "handshake"
+RESPONSE_WAIT_S = 3.0  # Unreal's ResponseWaitTime
+KEEP_ALIVE_S = 5.0  # Unreal's KeepAliveInterval
+KEEP_ALIVE_FAILURES = 3  # keep-alives unanswered in a row before the connection is dropped
+RETRY_S = 5.0  # Unreal retries a failed session every five seconds
+CONNECT_TIMEOUT_S = 3.0
+STOP_WAIT_S = 1.0  # what the stop requests at the end of a session wait for their answers
+# The longest payload read: a subject list with a few hundred control names is a few KB; a length past
+# this is no control message (another service on that port, or a broken phone).
+MAX_CONTROL_PAYLOAD = 1 << 20
+
+START_SESSION = "/session/start"
+STOP_SESSION = "/session/stop"
+KEEP_ALIVE = "/session/keep-alive"
+SERVER_INFORMATION = "/information"
+STREAMING_SUBJECTS = "/stream/subjects"
+START_STREAMING = "/stream/start"
+STOP_STREAMING = "/stream/stop"
+ANIMATION_TYPES = ("arkit", "mha")
+# The relay's rejection counts go into the recorder's under this prefix (``realtime_short``): the recorder
+# checks the classic packets relayed to it with its own reasons.
+REJECT_PREFIX = "realtime_"
+
+
+class ControlError(Exception):
+    """A control session failed: what failed, in one line (a refusal, a disconnect, a silence)."""
+
+
+def encode_frame(message: dict[str, Any]) -> bytes:
+    """A control message in its frame."""
+    payload = json.dumps(message, separators=(",", ":")).encode("utf-8")
+    return FRAME_MAGIC + FRAME_HEAD.pack(CPS_VERSION, len(payload)) + payload
+
+
+def _read_exactly(sock: socket.socket, size: int, deadline: float) -> bytes:
+    data = bytearray()
+    while len(data) < size:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError
+        sock.settimeout(left)
+        try:
+            chunk = sock.recv(size - len(data))
+        except TimeoutError:
+            raise
+        except OSError as exc:
+            raise ControlError(f"the connection failed ({exc.strerror or exc})") from None
+        if not chunk:
+            raise ControlError("the phone closed the connection")
+        data += chunk
+    return bytes(data)
+
+
+def read_frame(sock: socket.socket, deadline: float) -> dict[str, Any]:
+    """The next control message on ``sock``; ``TimeoutError`` past ``deadline`` (monotonic seconds),
+    ``ControlError`` for anything that is not a control message (the connection is then unusable)."""
+    magic = _read_exactly(sock, len(FRAME_MAGIC), deadline)
+    if magic != FRAME_MAGIC:
+        raise ControlError(f"not a Capture Protocol Stack control stream (it began {magic!r})")
+    version, size = FRAME_HEAD.unpack(_read_exactly(sock, FRAME_HEAD.size, deadline))
+    if size > MAX_CONTROL_PAYLOAD:
+        raise ControlError(f"a control message of {size} bytes (at most {MAX_CONTROL_PAYLOAD} are read)")
+    payload = _read_exactly(sock, size, deadline)
+    if version != CPS_VERSION:
+        raise ControlError(f"control protocol version {version} (this listen speaks {CPS_VERSION})")
+    try:
+        message = json.loads(payload.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        raise ControlError("a control message that is not JSON") from None
+    if not isinstance(message, dict):
+        raise ControlError("a control message that is not a JSON object")
+    return message
+
+
+@dataclass
+class RemoteSubject:
+    """A subject the phone can stream: its id (in the packets), name, animation type and controls."""
+
+    id: str
+    name: str
+    kind: str  # "arkit" or "mha"
+    version: int
+    controls: list[str]
+
+
+def parse_subjects(body: dict[str, Any]) -> tuple[list[RemoteSubject], list[str]]:
+    """The valid subjects of a /stream/subjects response, and why each other one was skipped."""
+    subjects, skipped = [], []
+    items = body.get("subjects")
+    if not isinstance(items, list):
+        raise ControlError("the phone's subject list has no 'subjects' array")
+    for item in items:
+        meta = item.get("animationMetadata") if isinstance(item, dict) else None
+        if not isinstance(meta, dict) or not isinstance(item.get("id"), str) or not item["id"]:
+            skipped.append("a subject without an id or animation metadata")
+            continue
+        controls = meta.get("controls")
+        kind = meta.get("type")
+        if kind not in ANIMATION_TYPES:
+            skipped.append(f"subject {item['id']!r} of unknown animation type {kind!r}")
+            continue
+        if not isinstance(controls, list) or not all(isinstance(c, str) for c in controls):
+            skipped.append(f"subject {item['id']!r} without a list of control names")
+            continue
+        version = meta.get("version")
+        name = item.get("name")
+        subjects.append(
+            RemoteSubject(
+                item["id"],
+                name if isinstance(name, str) and name else item["id"],
+                kind,
+                version if isinstance(version, int) else 0,
+                controls,
+            )
+        )
+    return subjects, skipped
+
+
+class ControlClient:
+    """One control connection to the phone; requests are answered in turn (``request``)."""
+
+    def __init__(self, host: str, port: int, wait_s: float = RESPONSE_WAIT_S):
+        self.wait_s = wait_s
+        self.session_id = HANDSHAKE_SESSION
+        self._transaction = 0
+        try:
+            self.sock = socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S)
+        except OSError as exc:
+            raise ControlError(f"cannot connect ({exc.strerror or exc})") from None
+
+    @property
+    def peer(self) -> str:
+        """The phone's address as the connection sees it (where its realtime packets come from)."""
+        return self.sock.getpeername()[0]
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def request(self, path: str, body: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Send a request and return the body of its response ({} when it has none); ``ControlError``
+        for a refusal, a wrong answer, a closed connection or no answer within ``wait_s``."""
+        self._transaction = (self._transaction + 1) & 0xFFFFFFFF
+        message = {
+            "sessionId": self.session_id,
+            "addressPath": path,
+            "transactionId": self._transaction,
+            "timestamp": int(time.time() * 1000),
+            "type": "request",
+        }
+        if body is not None:
+            message["body"] = body
+        try:
+            self.sock.sendall(encode_frame(message))
+        except OSError as exc:
+            raise ControlError(f"cannot send {path} ({exc.strerror or exc})") from None
+        deadline = time.monotonic() + self.wait_s
+        while True:
+            try:
+                answer = read_frame(self.sock, deadline)
+            except TimeoutError:
+                raise ControlError(f"the phone did not answer {path} within {self.wait_s:g} s") from None
+            if answer.get("type") != "response" or answer.get("transactionId") != self._transaction:
+                continue  # an update, or the late answer of an earlier request
+            if answer.get("addressPath") != path or answer.get("sessionId") != self.session_id:
+                raise ControlError(f"the phone answered {path} for another request or session")
+            error = answer.get("error")
+            if isinstance(error, dict) and error.get("name"):
+                raise ControlError(
+                    f"the phone refused {path}: {error.get('name')}: {error.get('description')}"
+                )
+            answered = answer.get("body")
+            return answered if isinstance(answered, dict) else {}
+
+    def idle(self, seconds: float) -> None:
+        """Wait ``seconds`` for nothing but updates (read and dropped); ``ControlError`` when the phone
+        closes the connection or sends what is no control message meanwhile."""
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            readable, _, _ = select.select([self.sock], [], [], left)
+            if readable:
+                try:
+                    read_frame(self.sock, time.monotonic() + self.wait_s)
+                except TimeoutError:
+                    raise ControlError("the phone sent part of a message and stopped") from None
+
+    def start_session(self) -> None:
+        session = self.request(START_SESSION).get("sessionId")
+        if not isinstance(session, str) or not session:
+            raise ControlError("the phone started a session without a session id")
+        self.session_id = session
+
+
+def choose_subject(subjects: list[RemoteSubject], skipped: list[str]) -> RemoteSubject:
+    """The first ARKit subject; ``ControlError`` saying why there is none."""
+    for subject in subjects:
+        if subject.kind == "arkit":
+            return subject
+    if subjects:
+        names = ", ".join(f"{s.name} ({s.kind}, {len(s.controls)} controls)" for s in subjects)
+        raise ControlError(
+            f"the phone streams only MetaHuman Animator subjects ({names}), which listen does not record: "
+            "set Live Link Face's realtime stream to ARKit"
+        )
+    why = f" ({'; '.join(skipped)})" if skipped else ""
+    raise ControlError(f"the phone lists no subject to stream{why}")
+
+
+@dataclass
+class _Streaming:
+    """The subject being streamed and what its packets become."""
+
+    subject: RemoteSubject
+    device: str
+    mapping: ArkitMapping
+    phone: str  # the phone's address: realtime packets from elsewhere are not recorded
+
+
+@dataclass
+class PhoneStream:
+    """A control session to the phone at ``host:port`` (kept up, retried every ``RETRY_S``) and the relay
+    of its realtime packets, received on ``bind:port``, to ``recorder_address`` as classic packets.
+
+    ``say`` prints a line (each distinct failure once in a row); ``rejected`` is the recorder's rejection
+    counts, which the relay adds to; ``note`` logs an event in the session log; ``allow`` (an
+    ``AllowList``) accepts realtime packets from more addresses than the phone's."""
+
+    host: str
+    port: int
+    recorder_address: tuple[str, int]
+    say: Callable[[str], None]
+    rejected: dict[str, int]
+    note: Callable[[dict[str, Any]], None]
+    bind: str = "0.0.0.0"
+    stream_port: int = 0
+    allow: Any = None
+    retry_s: float = RETRY_S
+    keep_alive_s: float = KEEP_ALIVE_S
+    relayed: int = 0
+    udp: socket.socket | None = None  # where the phone streams to (``open``)
+    out: socket.socket | None = None  # to the recorder
+    _streaming: _Streaming | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _restart: threading.Event = field(default_factory=threading.Event)
+    _threads: list[threading.Thread] = field(default_factory=list)
+    _last_said: str = ""
+
+    def open(self) -> tuple[str, int]:
+        """Bind the UDP socket the phone is told to stream to; its (address, port)."""
+        family = socket.AF_INET6 if ":" in self.bind else socket.AF_INET
+        udp = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            udp.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+            if family == socket.AF_INET6:  # ``::`` takes a phone's IPv4 packets too (as ::ffff:a.b.c.d)
+                with contextlib.suppress(OSError, AttributeError):
+                    udp.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+            udp.bind((self.bind, self.stream_port))
+        except (OSError, OverflowError) as exc:
+            udp.close()
+            raise InputError(f"cannot listen on UDP {self.bind}:{self.stream_port}: {exc}") from None
+        udp.settimeout(0.1)
+        self.udp = udp
+        for (
+            reason
+        ) in REALTIME_REJECT_REASONS:  # beside the recorder's own, which it checks on what is relayed
+            self.rejected.setdefault(REJECT_PREFIX + reason, 0)
+        self.out = socket.socket(
+            socket.AF_INET6 if ":" in self.recorder_address[0] else socket.AF_INET, socket.SOCK_DGRAM
+        )
+        return self.udp.getsockname()[:2]
+
+    def start(self) -> None:
+        for target, name in ((self._control, "phone-control"), (self._relay, "phone-relay")):
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    def stop(self) -> None:
+        """End the session (stop streaming, stop the session) and the relay; closes the sockets."""
+        self._stop.set()
+        for thread in self._threads:
+            thread.join()
+        for sock in (self.udp, self.out):
+            if sock is not None:
+                sock.close()
+
+    def _tell(self, line: str, note: dict[str, Any] | None = None) -> None:
+        """Say ``line`` (and log ``note``) unless it was the last line said: a phone that fails the same
+        way at every retry is told of once."""
+        if line != self._last_said:
+            self._last_said = line
+            with contextlib.suppress(OSError):
+                self.say(line)
+            if note is not None:
+                self.note(note)
+
+    # -- the control session ------------------------------------------------------------------
+    def _control(self) -> None:
+        restarted = -self.retry_s
+        while not self._stop.is_set():
+            self._restart.clear()
+            try:
+                self._session()
+            except ControlError as exc:
+                line = f"phone {self.host}:{self.port}: {exc}; trying again every {self.retry_s:g} s"
+                self._tell(line, {"kind": "phone_session", "message": str(exc)})
+                self._stop.wait(self.retry_s)
+                continue
+            if self._restart.is_set():  # at once, as Unreal does; twice within RETRY_S: after RETRY_S
+                self._tell(f"phone {self.host}:{self.port}: the subject's control count changed; restarting")
+                if time.monotonic() - restarted < self.retry_s:
+                    self._stop.wait(self.retry_s)
+                restarted = time.monotonic()
+
+    def _session(self) -> None:
+        client = ControlClient(self.host, self.port)
+        try:
+            client.start_session()
+            try:
+                self._stream(client)
+            finally:  # as Unreal does at the end: both asked, each failure only noted (sooner)
+                client.wait_s = min(client.wait_s, STOP_WAIT_S)
+                for path, body in ((STOP_STREAMING, {}), (STOP_SESSION, None)):
+                    with contextlib.suppress(ControlError):
+                        client.request(path, body)
+        finally:
+            client.close()
+
+    def _stream(self, client: ControlClient) -> None:
+        info = client.request(SERVER_INFORMATION)
+        subjects, skipped = parse_subjects(client.request(STREAMING_SUBJECTS))
+        subject = choose_subject(subjects, skipped)
+        device = info.get("id") if isinstance(info.get("id"), str) and info.get("id") else client.peer
+        mapping = ArkitMapping(subject.controls)
+        self._streaming = _Streaming(subject, device, mapping, client.peer)
+        client.request(
+            START_STREAMING,
+            {"streamPort": self.udp.getsockname()[1], "subjects": [{"id": subject.id, "name": subject.name}]},
+        )
+        phone = info.get("name") if isinstance(info.get("name"), str) else client.peer
+        self._tell(
+            f"phone {self.host}:{self.port} ({phone}) streams subject {subject.name} "
+            f"({len(subject.controls)} ARKit controls) to udp port {self.udp.getsockname()[1]}"
+        )
+        self.note(
+            {
+                "kind": "phone_streaming",
+                "message": f"subject {subject.name} of {phone}",
+                "subject_id": subject.id,
+                "controls": subject.controls,
+                "unmatched_controls": mapping.unmatched,
+                "missing_channels": mapping.missing,
+                "information": info,
+            }
+        )
+        failures = 0
+        last_keep_alive = time.monotonic()
+        while not (self._stop.is_set() or self._restart.is_set()):
+            client.idle(0.1)
+            if time.monotonic() - last_keep_alive < self.keep_alive_s:
+                continue
+            last_keep_alive = time.monotonic()
+            try:
+                client.request(KEEP_ALIVE)
+                failures = 0
+            except ControlError:
+                failures += 1
+                if failures >= KEEP_ALIVE_FAILURES:
+                    raise ControlError(f"{failures} keep-alives in a row unanswered") from None
+
+    # -- the relay ----------------------------------------------------------------------------
+    def _relay(self) -> None:
+        buf = bytearray(MAX_REALTIME_PACKET_BYTES + 1)
+        while not self._stop.is_set():
+            try:
+                n, addr = self.udp.recvfrom_into(buf)
+            except TimeoutError:
+                continue
+            except OSError:
+                continue
+            reason = self._forward(memoryview(buf)[:n], addr)
+            if reason is not None:  # a key ``open`` made: the recorder's thread copies the dict meanwhile
+                self.rejected[REJECT_PREFIX + reason] += 1
+
+    def _forward(self, data: memoryview, addr: Any) -> str | None:
+        streaming = self._streaming
+        if streaming is None:
+            return "not_streaming"
+        source = addr[0].removeprefix("::ffff:")  # an IPv4 phone on a dual-stack socket
+        if source != streaming.phone and (self.allow is None or addr[0] not in self.allow):
+            return "not_allowed"
+        packet = decode_realtime_packet(data)
+        if isinstance(packet, str):
+            return packet
+        if packet.subject_id != streaming.subject.id:
+            return "unknown_subject"
+        if packet.controls.size != streaming.mapping.count:
+            self._restart.set()  # Unreal restarts the session: the phone's subject changed
+            return "control_count"
+        classic = streaming.mapping.classic_packet(streaming.device, streaming.subject.name, packet)
+        with contextlib.suppress(OSError):
+            self.out.sendto(classic, self.recorder_address)
+            self.relayed += 1
+        return None

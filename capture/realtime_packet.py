@@ -1,0 +1,157 @@
+"""The realtime packet of Live Link Face's newer stream (the Unreal Engine 5.6+ "Live Link Face" source,
+formats doc §5.6), and how an ARKit subject's packet becomes the classic version-6 packet.
+
+Layout, read field by field with Unreal's ``FArrayReader`` (no byte swapping: little-endian)::
+
+    u16 version | u16 n + n bytes UTF-8 subject id | i32 frame number | f32 sub-frame |
+    i32 rate numerator | i32 rate denominator | u16 count | count x u16 control value |
+    6 x f32 head pose (roll, pitch, yaw, x, y, z)
+
+A control value is ``u16 / 65535``; the control names and their order are the subject's, told by the
+phone over the control session (``cps_control``), not by the packet. Sources: Unreal Engine 5.8
+``MetaHumanLiveLink/Source/LiveLinkFaceSource/Private/LiveLinkFacePacket.cpp`` (the reader) and
+``LiveLinkFaceSource.cpp`` (scaling, head pose order).
+
+Decoding never raises for bad input: ``decode_realtime_packet`` returns a ``RealtimePacket`` or a
+rejection reason (one of ``REALTIME_REJECT_REASONS``).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import livelink as ll
+from .channels import LIVELINK_ORDER, is_known, udp_index
+
+# The largest datagram accepted. Unreal's receiver says "in reality the packets are between 1KB and 2KB";
+# a subject of 4,000 controls (MetaHuman Animator's are a few hundred) still fits.
+MAX_REALTIME_PACKET_BYTES = 8192
+CONTROL_SCALE = 65535.0  # a control value is u16 / 65535
+HEAD_POSE = ("roll", "pitch", "yaw", "x", "y", "z")
+
+_ID_LEN = struct.Struct("<HH")  # version, subject id length
+_FRAME_TIME = struct.Struct("<ifii")  # frame number, sub-frame, rate numerator, rate denominator
+_COUNT = struct.Struct("<H")
+_HEAD_POSE = struct.Struct("<6f")
+
+# Why a realtime datagram was not recorded (beside the classic packet's checks the recorder makes).
+REALTIME_REJECT_REASONS: tuple[str, ...] = (
+    "not_allowed",  # not from the phone of the control session (nor from an --allow address)
+    "oversized",  # longer than MAX_REALTIME_PACKET_BYTES
+    "short",  # ends before the field being read
+    "size_mismatch",  # longer than the packet it holds
+    "bad_text",  # the subject id is not UTF-8
+    "not_streaming",  # came while no subject was streaming (before the control session, between two)
+    "unknown_subject",  # a subject id the phone is not streaming to us
+    "control_count",  # a count other than the subject's number of controls
+)
+
+
+@dataclass
+class RealtimePacket:
+    """One decoded realtime packet; ``controls`` are 0..1 (u16 / 65535), in the subject's control order."""
+
+    version: int
+    subject_id: str
+    frame_number: int
+    sub_frame: float
+    rate_numerator: int
+    rate_denominator: int
+    controls: np.ndarray  # float32 (count,)
+    head_pose: np.ndarray  # float32 (6,): roll, pitch, yaw, x, y, z
+
+
+def encode_realtime_packet(
+    subject_id: str,
+    frame_number: int,
+    sub_frame: float,
+    rate_numerator: int,
+    rate_denominator: int,
+    controls,
+    head_pose=(0.0,) * 6,
+    version: int = 1,
+) -> bytes:
+    """The realtime packet (as the phone sends it); ``controls`` 0..1 are rounded to u16, clipped."""
+    sid = subject_id.encode("utf-8")
+    raw = np.rint(np.clip(np.asarray(controls, dtype=np.float64), 0.0, 1.0) * CONTROL_SCALE)
+    return (
+        _ID_LEN.pack(version, len(sid))
+        + sid
+        + _FRAME_TIME.pack(frame_number, sub_frame, rate_numerator, rate_denominator)
+        + _COUNT.pack(raw.size)
+        + raw.astype("<u2").tobytes()
+        + _HEAD_POSE.pack(*head_pose)
+    )
+
+
+def decode_realtime_packet(data: bytes | bytearray | memoryview) -> RealtimePacket | str:
+    """A ``RealtimePacket``, or the rejection reason (a ``REALTIME_REJECT_REASONS`` string). Never raises."""
+    n = len(data)
+    if n > MAX_REALTIME_PACKET_BYTES:
+        return "oversized"
+    if n < _ID_LEN.size:
+        return "short"
+    version, id_len = _ID_LEN.unpack_from(data, 0)
+    at = _ID_LEN.size + id_len
+    if at + _FRAME_TIME.size + _COUNT.size > n:
+        return "short"
+    try:
+        subject_id = bytes(data[_ID_LEN.size : at]).decode("utf-8")
+    except UnicodeDecodeError:
+        return "bad_text"
+    frame_number, sub_frame, num, den = _FRAME_TIME.unpack_from(data, at)
+    at += _FRAME_TIME.size
+    (count,) = _COUNT.unpack_from(data, at)
+    at += _COUNT.size
+    end = at + 2 * count + _HEAD_POSE.size
+    if end > n:
+        return "short"
+    if end < n:
+        return "size_mismatch"
+    controls = np.frombuffer(bytes(data[at : at + 2 * count]), dtype="<u2").astype(np.float32) / CONTROL_SCALE
+    head = np.array(_HEAD_POSE.unpack_from(data, at + 2 * count), dtype=np.float32)
+    return RealtimePacket(version, subject_id, frame_number, sub_frame, num, den, controls, head)
+
+
+class ArkitMapping:
+    """Where an ARKit subject's controls and head pose go among the classic packet's 61 values.
+
+    Controls are matched by name in any spelling ``capture.channels`` accepts (``EyeBlinkLeft``,
+    ``eyeBlinkLeft``); the head pose's roll, pitch and yaw fill HeadRoll, HeadPitch and HeadYaw unless the
+    subject has controls of those names. Channels the subject does not carry (the eyes' rotations, as a
+    rule) are 0, as the app sends a channel it does not track; ``unmatched`` lists the subject's controls
+    that are no Live Link channel, ``missing`` the channels it lacks."""
+
+    def __init__(self, controls: list[str] | tuple[str, ...]):
+        self.count = len(controls)
+        slots = [udp_index(c) if is_known(c) else -1 for c in controls]
+        self.unmatched = [c for c, s in zip(controls, slots, strict=True) if s < 0]
+        keep = np.array([s >= 0 for s in slots], dtype=bool)
+        self._from = np.flatnonzero(keep)
+        self._to = np.array([s for s in slots if s >= 0], dtype=np.intp)
+        taken = set(self._to.tolist())
+        pose = {"HeadRoll": 0, "HeadPitch": 1, "HeadYaw": 2}
+        self._pose = [(udp_index(name), k) for name, k in pose.items() if udp_index(name) not in taken]
+        taken |= {slot for slot, _ in self._pose}
+        self.missing = [name for i, name in enumerate(LIVELINK_ORDER) if i not in taken]
+
+    def values(self, packet: RealtimePacket) -> np.ndarray:
+        """The 61 values (``LIVELINK_ORDER``) of ``packet``, a packet of this subject."""
+        out = np.zeros(ll.BLENDSHAPE_COUNT, dtype=np.float32)
+        out[self._to] = packet.controls[self._from]
+        for slot, k in self._pose:
+            out[slot] = packet.head_pose[k]
+        return out
+
+    def classic_packet(self, device: str, subject: str, packet: RealtimePacket) -> bytes:
+        """The version-6 packet of ``packet`` from ``device`` / ``subject``: what the classic stream sends."""
+        return ll.header_bytes(device, subject) + ll.frame_block(
+            packet.frame_number,
+            packet.sub_frame,
+            packet.rate_numerator,
+            packet.rate_denominator,
+            self.values(packet),
+        )
