@@ -142,19 +142,20 @@ def read_audio(path: str | Path, repairs: list[dict[str, Any]] | None = None) ->
     estimated, the most the sound after it may be shifted); damage running to its end (its last frames,
     into its end tags) leaves it short, noted (repair ``bad_audio``: by how much), and bytes after it in
     which frame headers of another format (rate, layer, channels) chain by chance (junk, a picture: no run
-    of them ``_REAL_RUN_FRAMES`` frames long, nor after a tag or at an Info frame) are left out, said
-    (``_junk_after``); damage running to a file joined on is put back as inside (counted by the file's
-    Info frame, or estimated when its bytes start as a frame does), else noted with the frames it could
-    hold. An .mp3 whose Xing/Info frame counts fewer frames than it holds (libsndfile would stop at the
-    count), or none though its LAME tag records the encoder's delay (libsndfile would keep the delay), is
-    read whole, its count corrected (``MpegRun.count_low``), and one without a frame count whose length
-    libsndfile estimates short (VBR without a Xing header) as joined files are; one libsndfile cannot open
-    whose frames need mending too (``_read_mpeg_unopened``). A file starting with an ID3v2 tag over
-    ``_BIG_TAG`` (a cover picture) is read from after it, by libsndfile and FFmpeg alike. Within
-    ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a ``FileAudio``: checked a
-    block at a time, left in its file; given a scratch folder there, audio FFmpeg decodes, and any .mp3,
-    is a ``FileAudio`` of the scratch file it was decoded into, the same samples and repairs as read whole
-    (``_read_mpeg``)."""
+    of them ``_REAL_RUN_FRAMES`` frames long, nor after a tag or at an Info frame, nor beginning as an
+    encoder's output does: ``_real_run``) are left out, said (``_junk_after``), and a file of such bytes
+    alone is an ``InputError`` (``_refuse_no_mpeg_audio``); damage running to a file joined on is put back
+    as inside (counted by the file's Info frame, or estimated when its bytes start as a frame does), else
+    noted with the frames it could hold. An .mp3 whose Xing/Info frame counts fewer frames than it holds
+    (libsndfile would stop at the count), or none though its LAME tag records the encoder's delay
+    (libsndfile would keep the delay), is read whole, its count corrected (``MpegRun.count_low``), and one
+    without a frame count whose length libsndfile estimates short (VBR without a Xing header) as joined
+    files are; one libsndfile cannot open whose frames need mending too (``_read_mpeg_unopened``). A file
+    starting with an ID3v2 tag over ``_BIG_TAG`` (a cover picture) is read from after it, by libsndfile and
+    FFmpeg alike. Within ``audio_left_in_files`` (an import), audio libsndfile reads cleanly is a
+    ``FileAudio``: checked a block at a time, left in its file; given a scratch folder there, audio FFmpeg
+    decodes, and any .mp3, is a ``FileAudio`` of the scratch file it was decoded into, the same samples and
+    repairs as read whole (``_read_mpeg``)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder, not an audio file", path)
@@ -228,6 +229,8 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         free = _free_format_start(data)
         # free format: any frame the scan finds is a header's bytes inside its audio (it finds no real one)
         runs = [] if free is not None else mpeg_runs(data)
+        if free is None:
+            _refuse_no_mpeg_audio(path, data, runs)
         coded = sum(run.samples for run in runs)
         counts_wrong = bool(runs) and info.frames > 2 * coded
         skipped = _gapless_skip(data, runs[0]) if runs else 0
@@ -235,7 +238,12 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
         if not (_mending_needed(data, runs) or counts_wrong or _estimated_short(info, coded, drops)):
             found: list[dict[str, Any]] | None = None if repairs is None else []
             audio = _read_by_libsndfile(
-                path, info, skipped, found, free is not None and _untagged(data, free)
+                path,
+                info,
+                skipped,
+                found,
+                free is not None and _untagged(data, free),
+                _delay_dropped(data, runs),
             )
             if found is not None and free is not None:
                 found += _free_format_damage(path, data, free)
@@ -270,7 +278,10 @@ def _read_mpeg_unopened(path: Path, repairs: list[dict[str, Any]] | None) -> Aud
     if _ffmpeg_format(path) != "mp3":
         return None
     with _FileBytes.of(path) as data:
-        runs = [] if _free_format_start(data) is not None else mpeg_runs(data)
+        free = _free_format_start(data) is not None
+        runs = [] if free else mpeg_runs(data)
+        if not free:
+            _refuse_no_mpeg_audio(path, data, runs)
         if _mending_needed(data, runs):
             return _read_joined_mpeg_checked(path, data, runs, repairs)
     return None
@@ -304,12 +315,18 @@ def _read_joined_mpeg_checked(
 
 
 def _read_by_libsndfile(
-    path: Path, info: Any, skipped: int, repairs: list[dict[str, Any]] | None, free_format: bool = False
+    path: Path,
+    info: Any,
+    skipped: int,
+    repairs: list[dict[str, Any]] | None,
+    free_format: bool = False,
+    delay_dropped: bool = False,
 ) -> Audio:
     """An .mp3 read by libsndfile: a block at a time into a scratch file within ``audio_left_in_files``
     given a scratch folder (``_mpeg_to_file``), else whole; the unrecorded encoder delay noted (also of
     ``free_format`` audio without a Xing/Info frame, ``_free_format_start`` and ``_untagged``, which FFmpeg
-    cannot open to tell)."""
+    cannot open to tell), unless its decoder dropped the delay a LAME tag records (``delay_dropped``,
+    ``_delay_dropped``)."""
     audio: Audio | None = None
     scratch = _scratch_folder()
     if scratch is not None:
@@ -324,7 +341,7 @@ def _read_by_libsndfile(
         audio = check_samples(audio, path, repairs)
     if repairs is not None and free_format:
         repairs.append(_unknown_delay_note(path, "mp3", info.samplerate))
-    elif repairs is not None:  # mpg123 drops a recorded delay
+    elif repairs is not None and not delay_dropped:  # mpg123 drops a recorded delay
         note_unknown_delay(path, repairs)
     return audio
 
@@ -593,14 +610,31 @@ def _lame_tag_at(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> int:
     return 0 if lame + 24 > min(pos + frame[0], len(data)) or not data[lame] else lame
 
 
+def _gapless_tag(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
+    """Whether the Xing/Info frame at ``pos`` holds a LAME tag recording the encoder's delay and padding that
+    FFmpeg drops (its encoder one of ``_GAPLESS_ENCODERS``)."""
+    lame = _lame_tag_at(data, pos, frame)
+    return bool(lame) and data.startswith(_GAPLESS_ENCODERS, lame)
+
+
 def _uncounted_gapless(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> bool:
     """Whether the Xing/Info frame at ``pos`` declares no frame count (0, or no field for it), though the
     LAME tag after it records the encoder's delay and padding: without a count, libsndfile's decoder keeps
     both (the sound 1105 samples late, 25 ms at 44.1 kHz, unnoted: FFmpeg finds the delay recorded)."""
     if data.startswith(b"VBRI", pos + 36) or _file_header_frames(data, pos, frame):
         return False
-    lame = _lame_tag_at(data, pos, frame)
-    return bool(lame) and data.startswith(_GAPLESS_ENCODERS, lame)
+    return _gapless_tag(data, pos, frame)
+
+
+def _delay_dropped(data: bytes | _FileBytes, runs: list[MpegRun]) -> bool:
+    """Whether libsndfile's decoder drops the encoder's delay of the .mp3 whose runs are ``runs``: its
+    Xing/Info frame declares its frame count (``_gapless_skip``) and its LAME tag records the delay. FFmpeg,
+    asked by ``note_unknown_delay``, finds the tag only where the audio starts: after zeros a tagger padded
+    its ID3v2 tag with (past the size the tag declares) it said the delay unknown, though it was dropped."""
+    frame = _mpeg_frame(data, runs[0].start) if runs else None
+    return (
+        frame is not None and bool(_gapless_skip(data, runs[0])) and _gapless_tag(data, runs[0].start, frame)
+    )
 
 
 def _read_cut_short(path: Path, info: Any, exc: Exception, repairs: list[dict[str, Any]] | None) -> Audio:
@@ -2257,13 +2291,17 @@ def _starts_reservoir(data: bytes, pos: int, frame: _MpegFrame) -> bool:
     """Whether the frame at ``pos`` could be a file's first: not layer III, or its sound starts in its own
     bytes (``main_data_begin`` 0: a layer III frame may begin its sound in the bytes of the frames before
     it, the bit reservoir, which a file's first frame has none of)."""
-    if frame[3] != 3:
-        return True
+    return not _reservoir_bytes(data, pos, frame)
+
+
+def _reservoir_bytes(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> int:
+    """How many bytes before the frame at ``pos`` its sound begins (``main_data_begin``: the side
+    information's first 9 bits in MPEG-1, 8 in MPEG-2 and 2.5); 0 in layers I and II, and at the data's
+    end."""
     side = pos + frame[6]
-    if side + 2 > len(data):
-        return True
-    # main_data_begin: the side information's first 9 bits (MPEG-1), 8 bits (MPEG-2 and 2.5)
-    return not (data[side] if frame[1] == 576 else data[side] << 1 | data[side + 1] >> 7)
+    if frame[3] != 3 or side + 2 > len(data):
+        return 0
+    return data[side] if frame[1] == 576 else data[side] << 1 | data[side + 1] >> 7
 
 
 _NO_COUNT = 1 << 62  # a file whose header declares no frame count: never past it
@@ -2460,13 +2498,48 @@ def _clean_frames(run: MpegRun) -> int:
     return max(b - a for a, b in zip(marks, marks[1:])) // run.frame_samples
 
 
+def _real_run(data: bytes | _FileBytes, run: MpegRun, tagged: set[int]) -> bool:
+    """Whether ``run`` is sound, not frame headers that junk formed by chance: it begins after a tag
+    (``tagged``: where runs after one start) or at a Xing/Info/VBRI frame (``_begins_file``), or holds
+    ``_REAL_RUN_FRAMES`` frames, or ``_REAL_RUN_S`` of them, without damage (``_clean_frames``), or begins as
+    an encoder's output does (``_begins_sound``)."""
+    clean = _clean_frames(run)
+    return (
+        clean >= min(_REAL_RUN_FRAMES, _REAL_RUN_S * run.sample_rate / run.frame_samples)
+        or run.start in tagged
+        or _begins_file(data, run.start)
+        or clean == run.frames
+        and _begins_sound(data, run)
+    )
+
+
+def _begins_sound(data: bytes | _FileBytes, run: MpegRun) -> bool:
+    """Whether the layer III frames of ``run`` (2 or more, without damage) begin as an encoder's output does:
+    the first one's sound in its own bytes (``_starts_reservoir``), each one's side information a frame of
+    sound's (``_holds_sound``). A clip of under 8 frames joined on bare does (0.1 s at 44.1 kHz: 4 frames);
+    frames that junk chains by chance seldom: 1 in 3000 of random bytes' first frames, 1 in 8 of each next
+    one, none of 100,000 of bytes 90 % 0xFF."""
+    if run.layer != 3 or run.frames < 2:
+        return False
+    pos = run.start
+    for _ in range(run.frames):
+        frame = _mpeg_frame(data, pos)
+        if (
+            frame is None
+            or not _holds_sound(data, pos, frame)
+            or pos == run.start
+            and not _starts_reservoir(data, pos, frame)
+        ):
+            return False
+        pos += frame[0]
+    return True
+
+
 def _junk_after(data: bytes | _FileBytes, runs: list[MpegRun], tagged: set[int]) -> None:
     """Takes the runs after an .mp3's last real one out of ``runs`` when one of them is of another format
     than it (sample rate, layer or channels): frame headers that bytes after its audio formed by chance
     (junk appended, a cover picture written after it), not a file joined on at that rate (refused), of that
-    layer or channel count (decoded, mixed to its channels). A real run is the first, one after a
-    tag (``tagged``: where runs after one start) or at a Xing/Info/VBRI frame (``_begins_file``), or one
-    of ``_REAL_RUN_FRAMES`` frames, or ``_REAL_RUN_S`` of them, without damage (``_clean_frames``). Their
+    layer or channel count (decoded, mixed to its channels). A real run is the first, or ``_real_run``. Their
     bytes are the last real run's damage at its end, junk (``MpegLoss.junk``): no frames lost, left out,
     said."""
 
@@ -2475,14 +2548,7 @@ def _junk_after(data: bytes | _FileBytes, runs: list[MpegRun], tagged: set[int])
 
     if all(form(run) == form(runs[0]) for run in runs):
         return  # (no look at the runs' bytes: a block of the file read again each)
-    real = max(
-        i
-        for i, run in enumerate(runs)
-        if not i
-        or _clean_frames(run) >= min(_REAL_RUN_FRAMES, _REAL_RUN_S * run.sample_rate / run.frame_samples)
-        or run.start in tagged
-        or _begins_file(data, run.start)
-    )
+    real = max(i for i, run in enumerate(runs) if not i or _real_run(data, run, tagged))
     last = runs[real]
     if all(form(run) == form(last) for run in runs[real + 1 :]):
         return
@@ -2524,9 +2590,7 @@ def _frames_apart(data: bytes | _FileBytes, lead: int, pos: int, frame: _MpegFra
     and II frames, and a layer III frame after silence (no bit reservoir used), begin their sound in their
     own bytes as a file's first frame does: only their length tells them lost (read a frame early,
     unsaid). A Xing/Info frame whose header's sync was wiped (its text left) is no sound lost."""
-    version, index = data[pos + 1] >> 3 & 3, data[pos + 2] >> 4
-    kbps = (_MPEG1_KBPS if version == 3 else _MPEG2_KBPS)[frame[3]][index - 1]
-    mean = frame[1] * kbps * 125 / frame[2]  # bytes: samples / 8 * bits per second / rate
+    mean = _mean_frame_bytes(data, pos, frame)
     frames = round((pos - lead) / mean)
     if any(data.startswith(_XING_TEXTS, lead + at) for at in frame[5]) or data.startswith(b"VBRI", lead + 36):
         return False
@@ -2536,6 +2600,13 @@ def _frames_apart(data: bytes | _FileBytes, lead: int, pos: int, frame: _MpegFra
     ):
         return False
     return data[lead:pos].count(0) < pos - lead
+
+
+def _mean_frame_bytes(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) -> float:
+    """The mean bytes of frames at the bit rate of the frame at ``pos``, their padding slots counted."""
+    version, index = data[pos + 1] >> 3 & 3, data[pos + 2] >> 4
+    kbps = (_MPEG1_KBPS if version == 3 else _MPEG2_KBPS)[frame[3]][index - 1]
+    return frame[1] * kbps * 125 / frame[2]  # bytes: samples / 8 * bits per second / rate
 
 
 def _note_damage(data: bytes | _FileBytes, run: MpegRun, end: int, found: int | None, coded: int) -> None:
@@ -2608,18 +2679,13 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         overwritten = _overwritten(data, runs[a], max(runs[b - 1].end, losses[-1].end))
         # the file's mean bytes per frame (a run may be one frame: a lone header damage left of another
         # format); damage between a run's frames is within its bytes, at its end (before the next run) not
-        within = sum(
-            loss.end - loss.start
-            for run in runs[a:b]
-            for loss in run.losses
-            if run.start <= loss.start and loss.end <= run.end
-        )
-        frame_bytes = sum(run.end - run.start for run in runs[a:b]) - within
-        per_frame = frame_bytes / sum(max(run.frames, 1) for run in runs[a:b])
+        per_frame = _frame_bytes(runs[a:b]) / sum(max(run.frames, 1) for run in runs[a:b])
         for loss in losses:
             # at a file's end, bytes that start as no frame does (zeros, junk, a Lyrics3 tag) are no
             # frames; before a file joined on, said as what they could hold
             estimate = round((loss.end - loss.start) / per_frame)
+            if loss.end == runs[a].start:  # before its first frame
+                estimate = _frames_before_first(data, loss, per_frame, estimate)
             seen = not loss.last or overwritten or _starts_sync(data, loss.start)
             loss.frames = estimate if seen else 0
             unknown = not (seen or _lone_tag(data, loss.start, loss.end))
@@ -2647,6 +2713,66 @@ def _count_lost(data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
         largest.frames = max(0, largest.frames + lost - estimated)
         for loss in losses:
             loss.exact = len(losses) == 1 or estimated == lost
+
+
+def _frame_bytes(runs: list[MpegRun]) -> int:
+    """The bytes of the frames of ``runs``: damage between a run's frames is within its bytes, at its end
+    (before the next run) not."""
+    within = sum(
+        loss.end - loss.start
+        for run in runs
+        for loss in run.losses
+        if run.start <= loss.start and loss.end <= run.end
+    )
+    return sum(run.end - run.start for run in runs) - within
+
+
+def _refuse_no_mpeg_audio(path: Path, data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
+    """An ``InputError`` when the .mp3 ``data`` (its runs ``runs``) holds no MPEG audio: no frame starts
+    where its audio would (after its leading tags), no run of its frames is sound (``_real_run``) and its
+    frames are under half its bytes (a short file damaged at its start is mostly frames): only frame
+    headers that its bytes form by chance (junk, a picture named .mp3; decoded, 100 KB of it gave 768
+    samples of noise, 1 MB of random bytes 168 s of silence put back for the "damage" between them). The
+    bytes of a file mostly frames are not read again (its first block, for its tags: 2 MB more read)."""
+    frames = _frame_bytes(runs)
+    if 2 * frames >= len(data):
+        return
+    start = 0
+    while skip := _tag_bytes(data, start):
+        start += skip
+    span = _end_tags_at(data) - start
+    if span <= 0 or runs and (runs[0].start == start or 2 * frames >= span):
+        return
+    if any(_real_run(data, run, set()) for run in runs):
+        return
+    most = max((_clean_frames(run) for run in runs), default=0)
+    raise InputError(
+        f"no MPEG audio found in its {len(data)} bytes: only frame headers its bytes form by chance (at "
+        f"most {most} frame(s) in a row; sound has {_REAL_RUN_FRAMES} or more): junk, or not an .mp3?",
+        path,
+    )
+
+
+def _frames_before_first(data: bytes | _FileBytes, loss: MpegLoss, per_frame: float, estimate: int) -> int:
+    """The frames lost at ``loss``, before a file's first frame found (at its end), when the file's bit rate
+    varies (its mean frame ``per_frame`` bytes, not its first frame's bit rate's, to the padding slot) and
+    their bytes are not as long as ``estimate`` frames of that mean but as one frame of its format at some
+    bit rate (with or without padding), whose bytes hold all the bit reservoir the first frame found begins
+    its sound in (else bytes before them were lost: a file cut mid-frame): one. A VBR file's first frame,
+    its header destroyed (LAME's first is its largest, at 44.1 kHz 835 bytes, or after silence its
+    smallest, 104, the file's mean 460: 2 and 0 frames were estimated, the sound a frame late or early)."""
+    length, pos = loss.end - loss.start, loss.end
+    frame = _mpeg_frame(data, pos)
+    slot = 4 if frame is not None and frame[3] == 1 else 1
+    if (
+        frame is None
+        or estimate
+        and abs(length - estimate * per_frame) <= slot
+        or abs(per_frame - _mean_frame_bytes(data, pos, frame)) <= slot  # a constant bit rate: its mean tells
+        or _reservoir_bytes(data, pos, frame) > length - (_xing_at(data, pos, frame) - pos)  # past them
+    ):
+        return estimate
+    return 1 if any(f[4] == frame[4] and f[0] == length for f in _MPEG_FRAMES.values()) else estimate
 
 
 def _lone_tag(data: bytes | _FileBytes, start: int, end: int) -> bool:
