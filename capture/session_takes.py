@@ -562,12 +562,17 @@ def _frame_step(times: np.ndarray) -> float | None:
 
 
 def _taken_slots(
-    idx: np.ndarray, have: np.ndarray, rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
+    idx: np.ndarray,
+    have: np.ndarray,
+    rows: np.ndarray,
+    frame_time: np.ndarray,
+    arrival_s: np.ndarray,
+    apart: np.ndarray | float = 0.0,
 ) -> np.ndarray:
     """Which frames ``idx`` land closer than ``SLOT_FRACTION`` of a frame step (the median step of the
     frames ``have``) to one of the frames ``have``, and are not a copy of it that the network delivered
     twice (byte for byte, within ``MAX_GAP_S``; a sender that sends the same frames again later, as a
-    replay run twice does, restarted)."""
+    replay run twice does, restarted), nor one that arrived less than ``apart`` (s, per frame) from it."""
     have = have[np.argsort(frame_time[have], kind="stable")]
     times = frame_time[have]
     step = _frame_step(times)
@@ -583,6 +588,7 @@ def _taken_slots(
     if copy.any():
         a, b = idx[copy], have[nearest[copy]]
         copy[copy] = _identical(rows, a, b) & (np.abs(arrival_s[a] - arrival_s[b]) <= MAX_GAP_S)
+    taken &= np.abs(arrival_s[have[nearest]] - arrival_s[idx]) >= apart
     return taken & ~copy
 
 
@@ -626,7 +632,11 @@ def _place_off_clock(
             far[back] = ~_continuing(at[back], had, at[ours])
         inside &= ~far
         who, rank = who[inside], rank[inside]
-        free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s)
+        # a frame of the recording the clock was on that came less than ``tol`` from the one on its slot:
+        # the same clock, which stepped back a little between them (undone by ``_undo_steps_back``), not
+        # another recording (a restart's clock went back further)
+        apart = np.where(current[who] == c, tol, 0.0)
+        free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s, apart)
         fits[who[free], rank[free]] = True
     return np.where(fits.any(1), np.take_along_axis(order, fits.argmax(1)[:, None], 1)[:, 0], -1)
 
@@ -1133,8 +1143,11 @@ def _undo_steps_back(
     A step is where ``arrival - frame time`` of the fastest packet over ``STEP_SIDE_S`` of frames after a
     packet exceeds that before it by more than ``BACK_STEP_S`` (late packets, Wi-Fi bursts do not move
     the fastest packet), and where the frame times after it start at least half as much below the latest
-    before it: a sender that paused with its clock, a slow replay or the network holding packets back for
-    a while moves the arrivals but not the frame times back; and where the fastest packet over the
+    before it, or (a step of a few frames) they land on slots of those before it (``_short_step``), or
+    the network held back the frames on both sides of the step and released them together, those after
+    it going back over the frame times of those before it (``_held_over_step``): a sender that paused
+    with its clock, a slow replay or the network holding packets back for a while moves the arrivals but
+    not the frame times back; and where the fastest packet over the
     ``STEP_SIDE_S`` after those is still as late (when the recording goes on that long): a stall the
     network flushed out of order moves both, but the arrivals for the flush only; and where the frames
     after it came at the recording's pace, not ``BURST_PACE`` times as fast: a burst the network held back,
@@ -1143,8 +1156,8 @@ def _undo_steps_back(
     A packet is of the clock after the step when it arrived after it (next to it: half the step later than
     the fastest before it; a packet of the clock before it as late as that is taken for one after it),
     unless its frame time lies below where the clock after the step resumed (the start of the run of frame
-    times its fastest packet is in): a frame of the clock before it that the network held back over the
-    step keeps its frame time."""
+    times its fastest packet is in), or it came in a burst with the frames after the step, before them:
+    a frame of the clock before it that the network held back over the step keeps its frame time."""
     n = frame_time.size
     width = min(max(2 * MIN_TAKE_FRAMES, int(STEP_SIDE_S / period)), MAX_STEP_SIDE_PACKETS)
     if n < 2 * width:
@@ -1167,10 +1180,18 @@ def _undo_steps_back(
         if at < width or at + width > n:  # a side the recording's ends cut short tells too little
             continue
         # the clock went back: the frame times after the step start below the latest before it (the
-        # third latest and earliest, which a stray frame number cannot give)
+        # third latest and earliest, which a stray frame number cannot give), or, a step too short for
+        # that, they go back over the slots of those before it (``_short_step``)
         latest = np.partition(frame_time[at - width : at], width - 3)[width - 3]
-        if latest - np.partition(frame_time[at : at + width], 2)[2] < step / 2:
-            continue
+        held = None  # the frames before the step that the network held back with those after it
+        sides = frame_time[at - width : at], frame_time[at : at + width]
+        if latest - np.partition(sides[1], 2)[2] < step / 2 and not _short_step(*sides, step, period):
+            # unless the network held back the frames on both sides of the step and released them
+            # together, in the order sent: the frames after it then go back over the frame times of
+            # those before it (``_held_over_step``)
+            held = _held_over_step(frame_time, arrival_s, max(at - width, done), at, step, period)
+            if held is None:
+                continue
         # and the arrivals stay behind by the step a side further on (until the next step): a stall the
         # network flushed out of order rises for the flush only
         if at + 2 * width <= n and after[at + width] - before[at] < step / 2:
@@ -1194,6 +1215,8 @@ def _undo_steps_back(
         later = np.zeros(n, bool)
         later[zone] = behind[zone] - before[at] > step / 2
         later[zone.stop :] = True
+        if held is not None:
+            later[held] = False
         # the clock after the step runs on from where it resumed, the start of the run of frame times (at
         # most RUN_STEPS frame steps apart) of the frames placed after it that holds its fastest packet: a
         # frame below that is a late frame of the clock before it, however late the network delivered it
@@ -1211,6 +1234,92 @@ def _undo_steps_back(
         steps.append((float(moved[first]), shift, float(frame_time[first])))
         done = zone.stop
     return moved, steps
+
+
+def _on_slots(times: np.ndarray, had: np.ndarray, period: float) -> int:
+    """How many of frame times ``times`` land on the slot of one of frame times ``had`` (sorted, at least
+    two): closer to it than ``SLOT_FRACTION`` of a frame ``period``."""
+    right = np.clip(np.searchsorted(had, times), 1, had.size - 1)
+    dist = np.minimum(np.abs(had[right] - times), np.abs(had[right - 1] - times))
+    return int(np.count_nonzero(dist < SLOT_FRACTION * period))
+
+
+def _short_step(before: np.ndarray, after: np.ndarray, step: float, period: float) -> bool:
+    """Whether the frames of a side after a rise of the fastest packet's lateness by ``step`` (frame times
+    ``after``, arrival order) went back over the slots of those of the side before it (``before``): at
+    least 3 of them, and half the step's frames, and at least half of those not above the latest frame
+    before, land on slots of those frames, as only a clock that stepped back gives (late or reordered
+    frames fill free slots, a stray frame number or two are too few). A step too short for the sides'
+    third frames to tell (``_undo_steps_back``)."""
+    over = after[after <= before.max() + period / 2]
+    if before.size < 2 or not over.size:
+        return False
+    taken = _on_slots(over, np.sort(before), period)
+    return taken >= max(3, round(step / period) / 2) and 2 * taken >= over.size
+
+
+def _held_over_step(
+    frame_time: np.ndarray, arrival_s: np.ndarray, lo: int, at: int, step: float, period: float
+) -> np.ndarray | None:
+    """Where the network held back the frames on both sides of a step back of the phone's clock (of
+    ``step`` s, the fastest packet's lateness rising at packet ``at``) and released them together: the
+    frames before the step that came with those after it (packets, arrival order), or None when no
+    packet from ``lo`` to ``MAX_LATENESS_S`` of arrivals after ``at`` shows the step. A burst keeps the
+    order its packets were sent in (``_sent_run``): where its frame times go back, the frames after that
+    land on slots frames that came before have (closer than ``SLOT_FRACTION`` of a frame period), at least
+    half of those of the step's length, as only a clock that stepped back gives (late or reordered frames
+    fill free slots). The frames before the step are those of the burst that run up to a frame period
+    below where the frames after it went back from."""
+    hi = int(np.searchsorted(arrival_s, arrival_s[at] + MAX_LATENESS_S, "right"))
+    ft = frame_time[lo:hi]
+    reach = RUN_STEPS * period
+    overlap = max(1, round(step / period))  # frames after the step on slots of frames before it
+    for j in (lo + 1 + np.flatnonzero(ft[1:] < ft[:-1] - BACK_STEP_S)).tolist():
+        t = frame_time[j]
+        run = _sent_run(frame_time, arrival_s, j, hi, (t + period / 2, t + reach), period, overlap - 1)
+        after = frame_time[[j, *run]]
+        if after.size < min(overlap, MIN_TAKE_FRAMES):
+            continue
+        # the frames before the step that came with them: from a frame period below where they went back
+        top = t + step - period
+        run = _sent_run(frame_time, arrival_s, j, lo - 1, (top - reach, top + reach), period, hi)
+        held = np.array(run, np.int64)
+        # and the frames that came before the step (frames before it held back alone fill free slots)
+        earlier = int(np.searchsorted(arrival_s, arrival_s[at] - MAX_LATENESS_S))
+        had = np.sort(np.concatenate([frame_time[earlier:at], frame_time[held]]))
+        if had.size >= 2 and 2 * _on_slots(after, had, period) >= after.size:
+            return held
+    return None
+
+
+def _sent_run(
+    frame_time: np.ndarray,
+    arrival_s: np.ndarray,
+    anchor: int,
+    stop: int,
+    want: tuple[float, float],
+    period: float,
+    most: int,
+) -> list[int]:
+    """The packets of a burst the network released together in the order they were sent, next to packet
+    ``anchor`` towards ``stop`` (arrival order, either way): each less than a frame period over
+    ``BURST_PACE`` from the one before (the anchor first), the first with a frame time within ``want``,
+    each next a frame step or up to ``RUN_STEPS`` on from the one before (later in arrival order: up;
+    earlier: down), past packets on time that came among them; at most ``most``."""
+    way = 1 if stop > anchor else -1
+    reach = RUN_STEPS * period
+    run: list[int] = []
+    for k in range(anchor + way, stop, way):
+        if (
+            len(run) >= most
+            or abs(arrival_s[k] - arrival_s[run[-1] if run else anchor]) >= period / BURST_PACE
+        ):
+            break
+        if want[0] <= frame_time[k] <= want[1]:
+            run.append(k)
+            t = frame_time[k]
+            want = (t + period / 2, t + reach) if way > 0 else (t - reach, t - period / 2)
+    return run
 
 
 def _step_back_note(step: tuple[float, float, float], frame_time: np.ndarray) -> tuple[str, str]:
