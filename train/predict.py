@@ -276,6 +276,49 @@ def read_neutral(path: str | Path, channels: list[str]) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def load_for_animation(
+    run: str | Path,
+    ppg_model: str | Path | None = None,
+    precision: str = "fp32",
+    style: str | None = None,
+    say: Callable[[str], None] = progress,
+) -> tuple[Any, dict[str, Any], Any]:
+    """(model ready for inference, checkpoint payload, PPG extractor or None) of ``run``: what
+    ``animate_16k`` needs. A run's note (``training_note``) goes to ``say``; a style the run lacks, or a
+    PPG run without the PPG model its dataset was built with, is an ``InputError``."""
+    model, payload = load_system(run)
+    note = training_note(run, payload)
+    if note is not None:
+        say(f"note: {note}")
+    model = for_inference(model, precision)
+    spec = InputSpec.from_json(payload["inputs"])
+    check_style(spec.styles, style)
+    info = payload["dataset"]
+    ppg = None
+    if spec.content == "ppg":
+        recorded = info["features"].get("ppg") or {}
+        ppg = make_extractor(recorded.get("backend", "none"), ppg_model)
+        want = recorded.get("model_sha256")
+        if ppg_model is not None and want and sha256_file(ppg_model) != want:
+            raise InputError(
+                f"PPG model differs from the one the dataset was built with ({recorded.get('model')}, "
+                f"sha256 {want[:12]}...): features would not match training",
+                ppg_model,
+            )
+    if ppg is None and ppg_model is not None:
+        say(f"note: the run reads {spec.content}, not a PPG: --ppg-model ignored")
+    return model, payload, ppg
+
+
+def check_speaker(info: dict[str, Any], speaker: str | None) -> None:
+    """``speaker`` (``--speaker``) must be one of the run's dataset's speakers (``payload["dataset"]``)."""
+    known = sorted(info["normalization"].get("pitch", {}).get("speakers", {}))
+    if speaker is not None and speaker not in known:
+        raise InputError(
+            f"unknown speaker {speaker!r} (the run's dataset has: {', '.join(known) or 'none'})", "--speaker"
+        )
+
+
 def predict(
     run: str | Path,
     audios: str | Path | list[str | Path],
@@ -303,27 +346,9 @@ def predict(
     if isinstance(audios, (str, os.PathLike)):
         audios = [audios]  # one file, never the characters of its name
     audios = list(audios)
-    model, payload = load_system(run)
-    note = training_note(run, payload)
-    if note is not None:
-        say(f"note: {note}")
-    model = for_inference(model, precision)
+    model, payload, ppg = load_for_animation(run, ppg_model, precision, style, say)
     spec = InputSpec.from_json(payload["inputs"])
-    check_style(spec.styles, style)
     info = payload["dataset"]
-    ppg = None
-    if spec.content == "ppg":
-        recorded = info["features"].get("ppg") or {}
-        ppg = make_extractor(recorded.get("backend", "none"), ppg_model)
-        want = recorded.get("model_sha256")
-        if ppg_model is not None and want and sha256_file(ppg_model) != want:
-            raise InputError(
-                f"PPG model differs from the one the dataset was built with ({recorded.get('model')}, "
-                f"sha256 {want[:12]}...): features would not match training",
-                ppg_model,
-            )
-    if ppg is None and ppg_model is not None:
-        say(f"note: the run reads {spec.content}, not a PPG: --ppg-model ignored")
     channels = list(info["channels"])
     arkit = [c for c in channels if is_known(c)]
     blendshapes = [i for i, c in enumerate(channels) if c.lower() in BLENDSHAPES_LOWER]
@@ -333,11 +358,7 @@ def predict(
     pose = _neutral_pose(info, neutral, say)
     if count_name is not None and not arkit:
         say("note: the run writes rig CSVs (a time column, no BlendShapeCount): --count-name ignored")
-    known = sorted(info["normalization"].get("pitch", {}).get("speakers", {}))
-    if speaker is not None and speaker not in known:
-        raise InputError(
-            f"unknown speaker {speaker!r} (the run's dataset has: {', '.join(known) or 'none'})", "--speaker"
-        )
+    check_speaker(info, speaker)
     out = Path(out)
     single = len(audios) == 1 and (out.suffix.lower() == ".csv" or written_into(out)) and not out.is_dir()
     folder = out.parent if single else out

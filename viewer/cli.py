@@ -55,6 +55,14 @@ FRAME = _number(int, 0, math.inf, "a frame index, 0 or more")
 TIME = _number(float, 0.0, math.inf, "seconds after the input's first frame, 0 or more")
 SPEED = _number(float, 0.01, 1000.0, "in 0.01..1000")
 LIMIT = _number(int, 0, math.inf, "0 or more (0: no curve thumbnails)")
+LATENCY = _number(float, 0.0, 10.0, "in 0..10 seconds")
+CONTEXT = _number(float, 0.5, 30.0, "in 0.5..30 seconds")
+HOP = _number(float, 0.01, 1.0, "in 0.01..1 seconds")
+# speak's defaults, chosen on measurements (the module's report): see docs/viewer.md
+DEFAULT_LATENCY_S = 0.3
+DEFAULT_CONTEXT_S = 4.0
+DEFAULT_HOP_S = 0.25
+THREADS = _number(int, 1, 256, "in 1..256")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -176,6 +184,65 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_stream)
+
+    p = sub.add_parser(
+        "speak",
+        help="speech to Unreal live: a trained run animates a microphone or an audio file as it is spoken",
+        description="Animate speech with a run of s2a-train while it is spoken and send the face to Unreal "
+        "as Live Link packets at the run's fps, a known time behind the speech: --latency (the speech the "
+        "model hears after each frame) plus two hops.",
+    )
+    p.add_argument("run", type=Path, help="run folder of s2a-train fit (or a checkpoint file)")
+    p.add_argument("--to", required=True, metavar="HOST:PORT", help="where Unreal listens (port 11111)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument(
+        "--mic",
+        nargs="?",
+        const="",
+        metavar="DEVICE",
+        help="speech from a microphone: the default input, or this PortAudio device (index or name)",
+    )
+    source.add_argument("--audio", type=Path, metavar="FILE", help="an audio file, spoken as if live")
+    p.add_argument("--play", action="store_true", help="play --audio's speech here, delayed as the face is")
+    p.add_argument(
+        "--latency",
+        type=LATENCY,
+        default=DEFAULT_LATENCY_S,
+        metavar="S",
+        help="seconds of speech the model hears after a frame before it is sent "
+        f"(default: {DEFAULT_LATENCY_S})",
+    )
+    p.add_argument(
+        "--context",
+        type=CONTEXT,
+        default=DEFAULT_CONTEXT_S,
+        metavar="S",
+        help=f"seconds of speech the model hears at each hop (default: {DEFAULT_CONTEXT_S})",
+    )
+    p.add_argument(
+        "--hop",
+        type=HOP,
+        default=DEFAULT_HOP_S,
+        metavar="S",
+        help=f"seconds between two runs of the model (default: {DEFAULT_HOP_S})",
+    )
+    p.add_argument("--speed", type=SPEED, default=1.0, help="--audio's pace (1 = real time; more: tests)")
+    p.add_argument(
+        "--threads",
+        type=THREADS,
+        default=1,
+        metavar="N",
+        help="CPU threads the model runs on (default: 1, steady beside Unreal's own)",
+    )
+    p.add_argument("--speaker", help="dataset speaker whose pitch statistics to use")
+    p.add_argument("--style", help="speaker style of a run trained with styles (default: the mean style)")
+    p.add_argument(
+        "--ppg-model", metavar="FILE", type=Path, help="PPG model file when the run's dataset used one"
+    )
+    p.add_argument("--subject", help="Live Link subject name (default: iPhone)")
+    p.add_argument("--device", help="device id in the packets (default: derived from the run's name)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=cmd_speak)
 
     p = sub.add_parser("report", help="one self-contained HTML page for a dataset or a folder of takes")
     p.add_argument(
@@ -549,6 +616,74 @@ def cmd_stream(args: argparse.Namespace) -> int:
         warn(
             f"{summary['bad_values']} frames with NaN/inf values sent as no-face packets "
             f"(values beyond ±{ABSURD:g} count as such)"
+        )
+    return 0
+
+
+def _live_run(args: argparse.Namespace):
+    """speak's run (``LiveAnimator``) and where its frames go (``LiveLinkOut``)."""
+    from train.predict import check_speaker, load_for_animation
+    from train.streaming import LiveAnimator
+
+    from .speak import LiveLinkOut, live_channels
+
+    model, payload, ppg = load_for_animation(args.run, args.ppg_model, style=args.style)
+    info = payload["dataset"]
+    check_speaker(info, args.speaker)
+    channels = list(info["channels"])
+    for w in live_channels(channels, args.run):
+        warn(w)
+    animator = LiveAnimator(model, payload, args.context, args.latency, ppg, args.speaker, args.style)
+    name = f"{Path(args.run).resolve().name}-live"
+    return animator, LiveLinkOut(args.to, channels, animator.fps, name, args.subject, args.device)
+
+
+def cmd_speak(args: argparse.Namespace) -> int:
+    from capture.replay import parse_destination
+
+    from .speak import FileSpeech, MicSpeech, delayed_player, speak
+
+    parse_destination(args.to)  # a malformed destination is said before anything is read
+    if args.mic is not None and (args.play or args.speed != 1.0):
+        raise InputError("--play and --speed are for --audio FILE: a microphone speaks in real time")
+    if args.play and args.speed != 1.0:
+        raise InputError("--play plays the speech in real time: use it with --speed 1")
+    # the speech and the sound card first: a missing microphone is said before the run is loaded
+    speech = FileSpeech(args.audio) if args.audio is not None else MicSpeech(args.mic or None)
+    player = delayed_player(speech, args.latency + 2 * args.hop) if args.play else None
+
+    try:
+        animator, out = _live_run(args)
+    except BaseException:
+        speech.close()  # the microphone's stream, opened
+        raise
+    if not args.json:
+        what = args.audio if args.audio is not None else "the microphone"
+        progress(f"speaking {what} to {args.to} ({args.latency + 2 * args.hop:.2f} s behind; Ctrl-C stops)")
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads)  # one: 5-10x faster than two beside other busy processes
+    try:
+        summary = speak(animator, speech, out, args.hop, args.speed, player)
+    finally:
+        torch.set_num_threads(threads)
+    summary |= {"run": str(args.run), "to": args.to, "audio_file": str(args.audio) if args.audio else None}
+    summary |= {"mic": args.mic is not None, "played": args.play}
+    if args.json:
+        emit_json(summary)
+    else:
+        c, lag = summary["compute_ms_per_hop"], summary["achieved_latency_s"]
+        progress(
+            f"sent {summary['frames']} frames at {summary['fps']:g} fps; compute per hop {c['mean']:.0f} ms "
+            f"(max {c['max']:.0f}); latency {lag['mean']:.3f} s (max {lag['max']:.3f}); "
+            f"{summary['late_frames']} late"
+            + (f" (stopped by {summary['stopped_by']})" if summary["stopped_by"] else "")
+        )
+    if summary["late_frames"]:
+        warn(
+            f"{summary['late_frames']} frame(s) were sent late: the model took longer than a hop "
+            f"({args.hop:g} s); give a larger --hop or a shorter --context"
         )
     return 0
 

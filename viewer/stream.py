@@ -41,6 +41,9 @@ class AudioPlayer:
     def wait(self) -> None:
         self.sd.wait()
 
+    def stop(self) -> None:
+        self.sd.stop()
+
 
 def speech_player(take: Take, speed: float) -> AudioPlayer:
     """A player of ``take``'s speech from its first frame on, its output device checked: asked for

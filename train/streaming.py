@@ -1,0 +1,129 @@
+"""Speech to animation while it is spoken: a run's model over a bounded context of the latest audio.
+
+A Transformer is not causal: each frame depends on the audio after it as well. ``LiveAnimator`` holds
+the last ``context_s`` seconds of 16 kHz audio (``model_audio``'s: mono, DC offset and rumble removed)
+and, every hop, recomputes the run's features over that context and runs the model on it
+(``predict.animate_16k``, as ``s2a-train predict`` does over a whole file); it hands out each frame
+once ``latency_s`` seconds of audio after the frame's time have arrived, and the frames still missing
+when the speech ends (``finish``). The context starts on a frame's boundary, so frame ``k`` of the
+stream is frame ``k`` of ``predict`` on the same audio: they differ by what the model did not hear
+(the audio before the context, and after ``latency_s``) and by the speech level, measured over the
+context rather than over the whole file.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from align.resample import TARGET_RATE
+from capture.errors import InputError
+
+from .predict import BLENDSHAPES_LOWER, animate_16k
+
+
+class LiveAnimator:
+    """Audio in (``add``), animation frames out (``hop``, ``finish``) of the run ``model``/``payload``
+    (``predict.load_for_animation``). Frames are the run's channels de-normalised, ARKit blendshape
+    weights clipped to 0..1 as ``predict`` writes them."""
+
+    def __init__(
+        self,
+        model,
+        payload: dict[str, Any],
+        context_s: float,
+        latency_s: float,
+        ppg=None,
+        speaker: str | None = None,
+        style: str | None = None,
+    ):
+        info = payload["dataset"]
+        self.model, self.payload, self.ppg = model, payload, ppg
+        self.speaker, self.style = speaker, style
+        self.fps = float(info["fps"])
+        self.rate = TARGET_RATE
+        self.channels = list(info["channels"])
+        self.blendshapes = [i for i, c in enumerate(self.channels) if c.lower() in BLENDSHAPES_LOWER]
+        if not latency_s >= 0:
+            raise InputError(f"latency must be 0 s or more, not {latency_s}")
+        if not context_s >= latency_s + 2 / self.fps:
+            raise InputError(
+                f"context of {context_s:g} s is too short for a latency of {latency_s:g} s: give at least "
+                f"{latency_s + 2 / self.fps:.3f} s"
+            )
+        self.context_s, self.latency_s = context_s, latency_s
+        self.context = int(round(context_s * self.rate))
+        self.audio = np.zeros(0, np.float32)  # the latest samples; audio[0] is sample ``start``
+        self.start = 0
+        self.received = 0  # samples added so far
+        self.emitted = 0  # frames handed out so far
+        self.compute_s: list[float] = []  # seconds each model run took
+
+    def add(self, samples: np.ndarray) -> None:
+        """Append 16 kHz mono float32 ``samples``; what lies before both the context and the first frame
+        not handed out yet is let go."""
+        self.audio = np.concatenate([self.audio, np.asarray(samples, np.float32)])
+        self.received += len(samples)
+        # a context starts on a frame's boundary: up to a frame before the last context_s
+        keep_from = min(self.received - self.context - self._sample_of(2), self._sample_of(self.emitted))
+        if keep_from > self.start:
+            self.audio = self.audio[keep_from - self.start :]
+            self.start = keep_from
+
+    def _sample_of(self, frame: int) -> int:
+        """The first sample of ``frame`` (as the dataset pairs frames with audio)."""
+        return int(round(frame * self.rate / self.fps))
+
+    def _frames_of(self, samples: int) -> int:
+        """Whole frames whose time lies in the first ``samples`` samples."""
+        return int(math.floor(samples / self.rate * self.fps + 1e-9))
+
+    def hop(self) -> tuple[int, np.ndarray]:
+        """(first frame index, frames) newly ready: each frame whose time is ``latency_s`` or more
+        before the end of the audio added; none when none is."""
+        latency = int(round(self.latency_s * self.rate))
+        ready = self._frames_of(self.received - latency) + 1 if self.received >= latency else 0
+        ready = min(ready, self._frames_of(self.received))
+        if ready <= self.emitted:
+            return self.emitted, np.zeros((0, len(self.channels)), np.float32)
+        return self._run(ready, self._frames_of(self.received))
+
+    def finish(self) -> tuple[int, np.ndarray]:
+        """(first frame index, frames) left when the audio has ended: up to ``predict``'s frame count
+        (the audio's length in frames, rounded)."""
+        total = int(round(self.received / self.rate * self.fps))
+        if total <= self.emitted:
+            return self.emitted, np.zeros((0, len(self.channels)), np.float32)
+        return self._run(total, total)
+
+    def _run(self, ready: int, covered: int) -> tuple[int, np.ndarray]:
+        """Frames ``emitted..ready`` of the model over contexts ending at frame ``covered``: one context
+        when the frames are due (the last ``context_s``), more when the stream fell behind by more than
+        a context (each of them ``context_s`` long, the frames ``latency_s`` before its end taken)."""
+        first, parts = self.emitted, []
+        span = int(math.floor(self.context_s * self.fps))
+        ahead = int(math.ceil(self.latency_s * self.fps))
+        while self.emitted < ready:
+            end = min(covered, self.emitted + span)
+            upto = ready if end == covered else max(self.emitted + 1, end - ahead)
+            parts.append(self._model(max(0, end - span), end, upto))
+            self.emitted += parts[-1].shape[0]
+        return first, np.concatenate(parts)
+
+    def _model(self, k0: int, end: int, upto: int) -> np.ndarray:
+        """The model over frames ``k0..end`` of the audio (padded past its end, as predict pads it);
+        frames ``emitted..upto``, blendshape weights clipped as predict writes them."""
+        s0 = self._sample_of(k0)
+        audio = self.audio[s0 - self.start : self._sample_of(end) - self.start]
+        span = int(round((end - k0) * self.rate / self.fps))
+        if audio.size < span:
+            audio = np.pad(audio, (0, span - audio.size))
+        t = time.perf_counter()
+        values = animate_16k(self.model, self.payload, audio, self.ppg, self.speaker, None, self.style)
+        self.compute_s.append(time.perf_counter() - t)
+        values = values[self.emitted - k0 : upto - k0].astype(np.float32)
+        values[:, self.blendshapes] = np.clip(values[:, self.blendshapes], 0.0, 1.0)
+        return values

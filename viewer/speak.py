@@ -1,0 +1,289 @@
+"""Live in, live out: speech (a microphone, or an audio file spoken as if live) animates a face in Unreal
+over Live Link while it is spoken, a known time behind it.
+
+Every hop the speech heard so far is given to ``train.streaming.LiveAnimator`` (the run's features and
+model over the last ``context_s`` seconds); a frame is ready once ``latency_s`` seconds of speech after
+it have arrived, so with hops of ``hop_s`` it is sent ``latency_s + 2 hop_s`` after its time (one hop to
+arrive, one to compute): the send delay, the same for every frame. Frames go out at the run's fps as
+Live Link packets version 6 (capture's encoder, ``capture.livelink``; frame numbers on the time of day
+at the start, as the phone's timecode), each at its time plus the send delay on this process's
+monotonic clock; one computed later than that is sent at once and counted late. ``--play`` plays the
+file's speech delayed by the send delay, so lips and sound line up.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import socket
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from align.resample import TARGET_RATE
+from capture import Take, TakeMeta, read_audio
+from capture import livelink as ll
+from capture.channels import is_known
+from capture.command import Terminated, warn
+from capture.errors import InputError
+from capture.replay import (
+    _rate_of,
+    _values_in_engine_order,
+    format_destination,
+    packet_names,
+    parse_destination,
+)
+
+from .stream import AudioPlayer
+
+
+class FileSpeech:
+    """An audio file spoken as if live: its 16 kHz samples arrive as the monotonic clock reaches them
+    (``speed`` times real time)."""
+
+    live = False
+
+    def __init__(self, path: Path):
+        from train.predict import model_audio
+
+        if path.is_dir():
+            raise InputError("is a folder, not an audio file", path)
+        repairs: list[dict[str, Any]] = []
+        self.raw = read_audio(path, repairs)  # unreadable, empty: one line naming the file
+        for r in repairs:
+            warn(f"{path}: {r['message']} ({r['kind']}, as s2a-capture import repairs it)")
+        self.samples = model_audio(self.raw, where=path)
+        self.given = 0
+
+    def start(self) -> None:
+        pass
+
+    def arrived(self, audio_s: float) -> tuple[np.ndarray, bool]:
+        """The samples newly arrived by ``audio_s`` seconds into the speech, and whether it has ended."""
+        upto = min(self.samples.size, int(round(audio_s * TARGET_RATE)))
+        out, self.given = self.samples[self.given : upto], max(self.given, upto)
+        return out, self.given >= self.samples.size
+
+    def close(self) -> None:
+        pass
+
+
+class MicSpeech:
+    """A sounddevice input stream at 16 kHz mono (``device``: PortAudio's index or name, None: the
+    default input); the callback queues the blocks, ``arrived`` takes them."""
+
+    live = True
+
+    def __init__(self, device: str | None):
+        try:
+            import sounddevice as sd
+        except (ImportError, OSError) as exc:
+            raise InputError(f"--mic needs sounddevice and PortAudio (libportaudio2): {exc}") from None
+        dev = int(device) if device is not None and device.isdigit() else device
+        try:
+            sd.check_input_settings(device=dev, samplerate=TARGET_RATE, channels=1, dtype="float32")
+        except Exception as exc:  # PortAudio reports a missing device in several exception types
+            raise InputError(f"--mic: no usable audio input device ({exc})") from None
+        self.blocks: queue.Queue[np.ndarray] = queue.Queue()
+        self.stream = sd.InputStream(  # opened, started by ``start``
+            device=dev,
+            samplerate=TARGET_RATE,
+            channels=1,
+            dtype="float32",
+            callback=lambda data, frames, when, status: self.blocks.put(data[:, 0].copy()),
+        )
+
+    def start(self) -> None:
+        self.stream.start()
+
+    def arrived(self, audio_s: float) -> tuple[np.ndarray, bool]:
+        parts = []
+        while not self.blocks.empty():
+            parts.append(self.blocks.get_nowait())
+        return (np.concatenate(parts) if parts else np.zeros(0, np.float32)), False
+
+    def close(self) -> None:
+        self.stream.close()  # stopped first, when started
+
+
+class LiveLinkOut:
+    """Frames of the run's channels as Live Link packets to ``destination``, frame numbers on the time of
+    day at ``start`` at the run's rate."""
+
+    def __init__(self, destination: str, channels: list[str], fps: float, name: str, subject, device):
+        host, port = parse_destination(destination)
+        self.meta = TakeMeta(id=name, source_kind="predicted", fps=fps, channels=channels)
+        blank = Take(self.meta, np.zeros(0), np.zeros((0, len(channels)), np.float32), np.zeros(0, np.uint8))
+        self.device, self.subject = packet_names(blank, device, subject)
+        self.header = ll.header_bytes(self.device, self.subject)
+        self.num, self.den = _rate_of(fps)
+        self.fps = fps
+        self.where = format_destination(host, port)
+        try:
+            family = socket.AF_INET6 if ":" in host else socket.AF_INET
+            infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
+        except (OSError, UnicodeError) as exc:
+            raise InputError(f"cannot resolve {host!r}: {exc}") from None
+        self.target, self.family = infos[0][4], infos[0][0]
+        self.sock: socket.socket | None = None
+        self.day_s = 0.0
+
+    def begin(self) -> None:
+        self.sock = socket.socket(self.family, socket.SOCK_DGRAM)
+        now = datetime.now()
+        self.day_s = now.hour * 3600 + now.minute * 60 + now.second + now.microsecond / 1e6
+
+    def engine_order(self, first: int, values: np.ndarray) -> np.ndarray:
+        """(frames, 61) float32 in Live Link order; channels the run lacks are 0."""
+        n = values.shape[0]
+        take = Take(self.meta, (first + np.arange(n)) / self.fps, values, np.zeros(n, np.uint8))
+        return _values_in_engine_order(take)
+
+    def send(self, frame: int, values61: np.ndarray) -> None:
+        x = (self.day_s + frame / self.fps) * self.num / self.den
+        number = math.floor(x)
+        packet = self.header + ll.frame_block(number, float(x - number), self.num, self.den, values61)
+        try:
+            self.sock.sendto(packet, self.target)
+        except OSError as exc:
+            raise InputError(f"cannot send to {self.where}: {exc}") from None
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+
+
+class Pacer(threading.Thread):
+    """Sends each frame queued (frame, values, due on the monotonic clock) at its due time, while the
+    model computes the next hop in the main thread; counts what it sent, the late frames (sent more than
+    ``late_after`` seconds past due) and each frame's lag (sent - ``zero`` - frame time, times ``speed``:
+    seconds of speech)."""
+
+    def __init__(self, out: LiveLinkOut, zero: float, speed: float, late_after: float):
+        super().__init__(daemon=True)
+        self.out, self.zero, self.speed, self.late_after = out, zero, speed, late_after
+        self.frames: queue.Queue[tuple[int, np.ndarray, float] | None] = queue.Queue()
+        self.stopping = threading.Event()
+        self.sent = self.late = 0
+        self.lag_s: list[float] = []
+        self.error: InputError | None = None
+
+    def run(self) -> None:
+        while (item := self.frames.get()) is not None:
+            frame, values, due = item
+            if self.stopping.wait(max(0.0, due - time.monotonic())):
+                return
+            try:
+                self.out.send(frame, values)
+            except InputError as exc:
+                self.error = exc
+                return
+            sent = time.monotonic()
+            self.sent += 1
+            self.late += sent - due > self.late_after
+            self.lag_s.append((sent - self.zero) * self.speed - frame / self.out.fps)
+
+
+def speak(
+    animator,
+    speech: FileSpeech | MicSpeech,
+    out: LiveLinkOut,
+    hop_s: float,
+    speed: float = 1.0,
+    player: AudioPlayer | None = None,
+) -> dict[str, Any]:
+    """Animate ``speech`` with ``animator`` (``train.streaming.LiveAnimator``) and send each frame to
+    ``out`` at its time plus the send delay, until the speech ends, Ctrl-C or SIGTERM. Returns the
+    summary: frames sent, the model's compute per hop, the latency achieved, frames late."""
+    fps = animator.fps
+    delay = animator.latency_s + 2 * hop_s  # speech seconds: one hop to arrive, one to compute
+    out.begin()
+    speech.start()
+    start = time.monotonic()
+    # later than a frame's period past its due time is late
+    pacer = Pacer(out, start, speed, 1.0 / fps / speed)
+    pacer.start()
+    if player is not None:
+        player.start()
+    hops, ended, stopped_by = 0, False, None
+    try:
+        while not ended:
+            hop = math.floor((time.monotonic() - start) * speed / hop_s + 1e-9) + 1  # the next hop's end
+            time.sleep(max(0.0, start + hop * hop_s / speed - time.monotonic()))
+            samples, ended = speech.arrived(hop * hop_s)
+            animator.add(samples)
+            first, values = animator.finish() if ended else animator.hop()
+            hops += 1
+            rows = out.engine_order(first, values)
+            for i in range(rows.shape[0]):
+                pacer.frames.put((first + i, rows[i], start + ((first + i) / fps + delay) / speed))
+            if pacer.error is not None:
+                raise pacer.error
+        pacer.frames.put(None)
+        while pacer.is_alive():  # in steps: a signal reaches this thread meanwhile
+            pacer.join(0.1)
+        if pacer.error is not None:
+            raise pacer.error
+    except Terminated:  # a KeyboardInterrupt of SIGTERM's
+        stopped_by = "SIGTERM"
+    except KeyboardInterrupt:
+        stopped_by = "SIGINT"
+    finally:
+        pacer.stopping.set()
+        pacer.frames.put(None)
+        pacer.join()
+        speech.close()
+        out.close()
+        if player is not None:
+            player.stop()
+    compute = np.array(animator.compute_s or [0.0]) * 1000
+    lag = np.array(pacer.lag_s or [0.0])
+    return {
+        "frames": pacer.sent,
+        "fps": fps,
+        "duration_s": round(pacer.sent / fps, 3),
+        "hops": hops,
+        "latency_s": animator.latency_s,
+        "context_s": animator.context_s,
+        "hop_s": hop_s,
+        "send_delay_s": round(delay, 4),
+        "achieved_latency_s": {"mean": round(float(lag.mean()), 4), "max": round(float(lag.max()), 4)},
+        "compute_ms_per_hop": {
+            "mean": round(float(compute.mean()), 2),
+            "max": round(float(compute.max()), 2),
+        },
+        "late_frames": pacer.late,
+        "frames_not_sent": animator.emitted - pacer.sent,
+        "stopped_by": stopped_by,
+        "device": out.device,
+        "subject": out.subject,
+    }
+
+
+def live_channels(channels: list[str], run: Path) -> list[str]:
+    """Warnings for a run's channels Live Link does not carry; an ``InputError`` when it carries none
+    (a rig's own controls: ``s2a-train predict`` writes them as a rig CSV)."""
+    arkit = [c for c in channels if is_known(c)]
+    if not arkit:
+        raise InputError(
+            f"the run animates {len(channels)} rig controls, none of them a Live Link Face channel: nothing "
+            "to send to Unreal (s2a-train predict writes them as a rig CSV)",
+            run,
+        )
+    others = [c for c in channels if not is_known(c)]
+    return (
+        [f"{len(others)} channel(s) of the run are no ARKit name and are not sent: {others[:5]}"]
+        if others
+        else []
+    )
+
+
+def delayed_player(speech: FileSpeech, delay_s: float) -> AudioPlayer:
+    """A player of the file's speech from ``delay_s`` seconds of silence on: the face's send delay."""
+    raw = speech.raw
+    lead = np.zeros(int(round(delay_s * raw.sample_rate)), np.float32)
+    return AudioPlayer(np.concatenate([lead, raw.mono_float()]), raw.sample_rate)
