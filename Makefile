@@ -22,7 +22,7 @@ deb:
 	@missing=""; for p in $(DEB_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
-	  else echo "missing Debian packages:$$missing (install them as root)"; fi; \
+	  else echo "missing Debian packages:$$missing (install them as root: sudo apt-get install$$missing)"; fi; \
 	fi
 
 test: $(STAMP) deb
@@ -116,5 +116,7 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
 
+# build/ is where `pip install .` and `pip wheel .` stage the modules: a module since removed stays there and
+# would be packed into the next wheel
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache
+	rm -rf $(VENV) demo-out .pytest_cache build

@@ -727,6 +727,11 @@ class MetricsLog:
             self.tb = SummaryWriter(str(self.events), purge_step=purge)
         except ImportError:  # installed without its dependencies: metrics.jsonl only
             self.tb = None
+        except UnicodeEncodeError:  # TensorBoard writes its file's name as UTF-8: a folder's bytes may not be
+            warn(
+                f"{self.events}: TensorBoard cannot write in a folder whose name is not UTF-8: {METRICS} only"
+            )
+            self.tb = None
         except OSError as exc:
             self.close()
             raise write_error(exc, self.events, "TensorBoard events") from None
