@@ -17,6 +17,7 @@ import numpy as np
 
 from capture import Audio, FrameStatus, InputError, Take, TakeMeta
 from capture.audio_io import SILENT_PEAK
+from capture.errors import shown_against
 from capture.paired import LENGTH_MISMATCH_S, paired_excess_s
 from capture.runs import runs
 from capture.timecode import Timecode
@@ -72,7 +73,9 @@ def _check_audio(take: Take, x: np.ndarray) -> float:
     tid = take.meta.id
     dur = x.size / TARGET_RATE
     if dur < MIN_TAKE_S:
-        raise InputError(f"take {tid}: audio is {dur:.3f} s long, shorter than {MIN_TAKE_S:g} s")
+        raise InputError(
+            f"take {tid}: audio is {shown_against(dur, MIN_TAKE_S, 3)} s long, shorter than {MIN_TAKE_S:g} s"
+        )
     # the largest magnitude without an absolute copy of the audio (230 MB an hour)
     peak = float(np.maximum(x.max(), -x.min())) if x.size else 0.0
     if peak < SILENT_PEAK:
@@ -288,8 +291,8 @@ def _check_range(
         advice = (
             f"; if the audio really started that far apart from the face, {wider}"
             if credible  # a match this weak is more likely another take's audio than an offset that far
-            else f", and that match is weak (confidence {strength:.2f}): check that the audio is this "
-            f"take's, or {wider}"
+            else f", and that match is weak (confidence {shown_against(strength, opts.min_confidence)}): "
+            f"check that the audio is this take's, or {wider}"
         )
         warnings.append(
             f"take {tid}: the speech matches the face best at an offset of {outside:+.3f} s, outside the "
@@ -331,8 +334,8 @@ def _name_best_guess(tid: str, decision: Decision, opts: AlignOptions, warnings:
     warnings.append(
         f"take {tid}: no evidence reached confidence {opts.min_confidence:g}, so the audio stays where it "
         f"was placed; the best, {best.source}, puts the offset at {ms:+.0f} ms (confidence "
-        f"{best.confidence:.2f}): check the take (s2a-view render), and if that offset is right, align it "
-        f"again with --offset-ms {ms:.0f}"
+        f"{shown_against(best.confidence, opts.min_confidence)}): check the take (s2a-view render), and if "
+        f"that offset is right, align it again with --offset-ms {ms:.0f}"
     )
 
 
@@ -409,13 +412,14 @@ def align_with_report(take: Take, options: AlignOptions | None = None) -> tuple[
     face_dur = float(ft[-1] - ft[0]) + period
     if face_dur < MIN_TAKE_S:
         raise InputError(
-            f"take {tid}: the face is tracked for {face_dur:.3f} s, shorter than {MIN_TAKE_S:g} s"
+            f"take {tid}: the face is tracked for {shown_against(face_dur, MIN_TAKE_S, 3)} s, shorter than "
+            f"{MIN_TAKE_S:g} s"
         )
     overlap = min(s0 + audio_dur, ft[-1] + period) - max(s0, ft[0])
     if overlap < MIN_TAKE_S:
         raise InputError(
             f"take {tid}: audio ({s0:.3f}..{s0 + audio_dur:.3f} s) and face ({ft[0]:.3f}..{ft[-1]:.3f} s) "
-            f"overlap by {max(overlap, 0):.3f} s, less than {MIN_TAKE_S:g} s"
+            f"overlap by {shown_against(max(overlap, 0), MIN_TAKE_S, 3)} s, less than {MIN_TAKE_S:g} s"
         )
     flags: list[str] = []
     # Channels that cancel are a fault of the recording; idle or timecode channels left out are not.

@@ -46,6 +46,7 @@ from typing import Any
 
 from capture.atomic import write_json_atomic
 from capture.command import named
+from capture.errors import loads_names
 from capture.take import read_meta
 from dataset.build import recording_of
 
@@ -162,7 +163,7 @@ class Runner:
             raise RuntimeError(
                 f"{name}: {stage} {args[0]} failed ({proc.returncode}):\n  " + "\n  ".join(tail)
             )
-        return [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+        return [loads_names(line) for line in proc.stdout.splitlines() if line.startswith("{")]
 
 
 @dataclass
@@ -295,7 +296,7 @@ def takes_of(aligned: str, speakers: list[str] | None = None) -> list[str]:
     """Aligned take folders (segments included) of the given speakers, from their meta.json."""
     found = []
     for meta in sorted(Path(aligned).rglob("meta.json")):
-        subject = json.loads(meta.read_text()).get("subject")
+        subject = loads_names(meta.read_text(encoding="utf-8")).get("subject")
         if speakers is None or subject in speakers:
             found.append(str(meta.parent))
     if not found:
@@ -307,7 +308,7 @@ def build(run: Runner, out: Path, name: str, inputs: list[str], options: list[st
     ds = out / "ds" / name
     shutil.rmtree(ds, ignore_errors=True)
     run(f"build-{name}", "dataset", ["build", *inputs, "-o", ds, *options, "--json"])
-    m = json.loads((ds / "manifest.json").read_text())
+    m = loads_names((ds / "manifest.json").read_text(encoding="utf-8"))
     splits = {}
     for split in ("train", "val", "test"):
         st = m["stats"].get(split)
@@ -391,8 +392,8 @@ def import_facegood(run: Runner, out: Path, samples: Path) -> dict[str, Any]:
 
 def same_training_normalization(a: str, b: str) -> bool:
     """True when two datasets normalise animation and features identically (same training split)."""
-    ma = json.loads((Path(a) / "manifest.json").read_text())["normalization"]
-    mb = json.loads((Path(b) / "manifest.json").read_text())["normalization"]
+    ma = loads_names((Path(a) / "manifest.json").read_text(encoding="utf-8"))["normalization"]
+    mb = loads_names((Path(b) / "manifest.json").read_text(encoding="utf-8"))["normalization"]
     keys = ("animation", "features")
     return all(ma.get(k) == mb.get(k) for k in keys)
 
@@ -438,7 +439,7 @@ def train_one(
     t0 = time.perf_counter()
     summary = run(name, "train", fit_args(system, ds, run_dir, config, steps, minutes, extra_sets or []))[0]
     fit_s = time.perf_counter() - t0
-    cfg = json.loads((run_dir / "config.json").read_text())
+    cfg = loads_names((run_dir / "config.json").read_text(encoding="utf-8"))
     result = {
         "system": system,
         "run": str(run_dir),

@@ -4,6 +4,7 @@ progress on stderr. Usage errors exit with 2 (argparse)."""
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib.metadata
 import json
 import math
@@ -502,6 +503,19 @@ def _end_now(_signum: int, _frame: Any) -> None:
     if _ending_line:
         os.write(2, _ending_line.encode("utf-8", "backslashreplace"))
     os._exit(143)
+
+
+def _sigterm_ignored_as_python_exits() -> None:
+    """The last of Python's exit a handler can see (``atexit``; registered as this module is imported, so
+    run after those registered later): a SIGTERM from here on, after a stage command's work, is ignored
+    and the process exits with the code it was exiting with. Python resets its handlers to the default as
+    it tears its modules down (seconds after the command's last line, with PyTorch): such a SIGTERM
+    ended the process by the signal (-15) instead, even the first one, which ``_let_go`` lets go."""
+    if signal.getsignal(signal.SIGTERM) in (_let_go, _end_now):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+atexit.register(_sigterm_ignored_as_python_exits)
 
 
 def out_of_memory(exc: BaseException) -> bool:

@@ -6,6 +6,7 @@ import base64
 import json
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,9 @@ def printable_message(text: str) -> str:
 # ``os.fsdecode(base64.b64decode(record["csv_b64"]))``. A list of names one of which is not UTF-8 keeps
 # them as a list beside it, null for each name that is UTF-8 (``"outputs_b64": [null, "Y2Fm6f8="]``). A dict
 # whose keys are names (a speaker's hours) keeps the bytes of each key not UTF-8 beside it, by the key as
-# shown: ``"hours_per_speaker_keys_b64": {"caf\\xe9": "Y2Fm6Q=="}``.
+# shown: ``"hours_per_speaker_keys_b64": {"caf\\xe9": "Y2Fm6Q=="}``. In a dict holding a key of its own
+# of that name (another tool's ``audio_b64``), the bytes are kept under it with a count added
+# (``"audio_b64 (2)"``), one more than any of its own there (``_places``).
 RAW_BYTES = "_b64"  # added to the key of a name that is not UTF-8: its bytes, base64
 KEYS_RAW_BYTES = "_keys" + RAW_BYTES  # added to the key of a dict keyed by names: their bytes, base64
 
@@ -75,13 +78,17 @@ def _strict(value: Any) -> tuple[Any, Any, Any]:
         return value, None, None
     out: dict[Any, Any] = {}
     shown_keys = _shown_keys(value)
+    places = None  # the places beside a key taken: by the dict's own keys ending in _b64, by bytes kept
     for key, v in value.items():
         name = shown_keys.get(key, key)
         out[name], raw, keys = _strict(v)
-        if raw is not None:
-            out[f"{name}{RAW_BYTES}"] = raw
-        if keys:
-            out[f"{name}{KEYS_RAW_BYTES}"] = keys
+        for end, kept in ((RAW_BYTES, raw), (KEYS_RAW_BYTES, keys or None)):
+            if kept is not None:
+                places = _places(shown_keys.get(k, k) for k in value) if places is None else places
+                place = f"{name}{end}"
+                n = max(places.get(place, [(0, "")]))[0] + 1
+                out[place if n == 1 else f"{place} ({n})"] = kept
+                places.setdefault(place, []).append((n, ""))
     keys_raw = {
         shown_keys[k]: base64.b64encode(raw).decode("ascii")
         for k in value
@@ -122,23 +129,40 @@ def names_restored(value: Any) -> Any:
     (surrogate escapes, from its bytes beside it), the keys holding those bytes gone. A key ending in
     ``_b64`` whose value is not the bytes of the name beside it as ``strict_names`` keeps them (a speaker
     named ``anna_b64`` beside ``anna``, another tool's field, a hand-edited one) is a key of its own, kept
-    as it is. JSON written before (a lone surrogate, ``"\\udcff"``, which Python reads back as the name)
-    is returned as it is."""
+    as it is (the bytes then kept at a count, ``audio_b64 (2)``: ``_places``). JSON written before (a
+    lone surrogate, ``"\\udcff"``, which Python reads back as the name) is returned as it is."""
     if isinstance(value, list):
         return [names_restored(v) for v in value]
     if not isinstance(value, dict):
         return value
     out = {key: names_restored(v) for key, v in value.items()}
-    if not any(isinstance(key, str) and key.endswith(RAW_BYTES) for key in value):
+    if not any(isinstance(key, str) and RAW_BYTES in key for key in value):
         return out
+    places = _places(value)
     spent = set()  # the keys that held a name's bytes
     for key in value:
         for end, restore in ((RAW_BYTES, _bytes_named), (KEYS_RAW_BYTES, _keys_named)):
-            beside = f"{key}{end}" if isinstance(key, str) else None
-            if beside in value and (named := restore(out[key], value[beside])) is not None:
-                out[key] = named
-                spent.add(beside)
+            for _, beside in sorted(places.get(f"{key}{end}", ()), reverse=True):  # the last kept first
+                if beside not in spent and (named := restore(out[key], value[beside])) is not None:
+                    out[key] = named
+                    spent.add(beside)
+                    break
     return {key: v for key, v in out.items() if key not in spent}
+
+
+def _places(keys: Iterable[Any]) -> dict[str, list[tuple[int, str]]]:
+    """The keys of a dict that may hold bytes kept beside another (``_b64`` in them), by the place beside
+    that key they take (``audio_b64``) and their count there: ``audio_b64`` is the first,
+    ``audio_b64 (3)`` the third. ``strict_names`` keeps the bytes at the first place, or, when the dict
+    has keys of its own there (another tool's ``audio_b64``), at a count one more than theirs, so that a
+    reader tries them first."""
+    places: dict[str, list[tuple[int, str]]] = {}
+    for key in keys:
+        if isinstance(key, str) and RAW_BYTES in key:
+            count = _COUNT_ADDED.search(key)
+            place, n = (key[: count.start()], int(count.group(1))) if count else (key, 1)
+            places.setdefault(place, []).append((n, key))
+    return places
 
 
 def _bytes_named(value: Any, raw: Any) -> Any:
@@ -167,7 +191,7 @@ def _keys_named(value: Any, raw: Any) -> Any:
     return {names.get(key, key): v for key, v in value.items()}
 
 
-_COUNT_ADDED = re.compile(r" \([0-9]+\)$")  # `` (2)``: added to a key shown as another key is
+_COUNT_ADDED = re.compile(r" \(([0-9]+)\)$")  # `` (2)``: added to a key shown as another key is
 
 
 def _each_named(values: list, raws: list, restore) -> list | None:
@@ -208,6 +232,17 @@ def _raw_bytes(text: str) -> bytes | None:
         return text.encode("utf-8", "surrogateescape")
     except UnicodeEncodeError:
         return None
+
+
+def shown_against(value: float, bound: float, places: int = 2) -> str:
+    """``value`` with ``places`` decimals, or as many more as it takes to read on its side of ``bound``: a
+    confidence of 0.295 under a bound of 0.3 as ``0.295``, not ``0.30``; audio 0.9996 s long under 1 s as
+    ``0.9996``. For a message naming a figure beside the bound it missed."""
+    for digits in range(places, 17):
+        shown = f"{value:.{digits}f}"
+        if value == bound or (float(shown) - bound) * (value - bound) > 0:  # strictly on its side
+            return shown
+    return repr(value)
 
 
 def first_few(names, most: int = 5) -> str:

@@ -571,13 +571,15 @@ def _unpack_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, arc
         target.parent.mkdir(parents=True, exist_ok=True)
         with zf.open(info) as src, open(target, "xb") as dst:
             shutil.copyfileobj(src, dst, 1 << 20)
-    # NotImplementedError: a flag no writer sets (5, patched data), as damage sets it
-    except (zipfile.BadZipFile, zlib.error, lzma.LZMAError, EOFError, NotImplementedError) as exc:
-        raise InputError(f"member {name} is damaged ({exc}): copy the archive again", archive) from None
     except FileExistsError:  # a file and a folder of one name (``T`` and ``T/x``), or names equal here
         raise InputError(f"member {name} clashes with another member of that name", archive) from None
-    except OSError as exc:
-        raise InputError(f"cannot unpack member {name}: {exc.strerror or exc}", archive) from None
+    # NotImplementedError: a flag no writer sets (5, patched data), as damage sets it
+    except (zipfile.BadZipFile, zlib.error, lzma.LZMAError, EOFError, NotImplementedError, OSError) as exc:
+        # bz2 refuses bytes it cannot decode with an OSError of no errno ("Invalid data stream"); the disk's
+        # errors carry one
+        if isinstance(exc, OSError) and (exc.errno is not None or info.compress_type != zipfile.ZIP_BZIP2):
+            raise InputError(f"cannot unpack member {name}: {exc.strerror or exc}", archive) from None
+        raise InputError(f"member {name} is damaged ({exc}): copy the archive again", archive) from None
 
 
 def clear_unpacked(folder: Path) -> None:
