@@ -211,9 +211,14 @@ def emit_json(obj: dict[str, Any]) -> None:
 def emit_line(text: str) -> None:
     """A human-readable result line on stdout, a name's bytes that are not UTF-8 as ``\\xff`` (as on
     stderr): a strict stdout (a UTF-8 locale's) refused their surrogate escapes with a traceback, after
-    the work was done."""
+    the work was done; a stdout of a locale not UTF-8 (``LC_ALL=C`` with ``PYTHONUTF8=0``) gets what it
+    cannot take as ``\xe9`` too (it was a UnicodeEncodeError traceback)."""
+    out = _results()
+    shown = printable(text)
+    if out.encoding:
+        shown = shown.encode(out.encoding, "backslashreplace").decode(out.encoding)
     with writing_stdout():
-        print(printable(text), file=_results(), flush=True)
+        print(shown, file=out, flush=True)
 
 
 _output_on_stdout = False  # the command's output file went to its standard output (``-o /dev/stdout``)

@@ -174,9 +174,6 @@ def test_make_clean_removes_the_staged_build(tmp_path):
     assert not (tmp_path / "build").exists()
 
 
-# The two fixes these tests wait for are in files of another job's (capture/command.py, train/fit.py): each
-# test is strict xfail until its fix is in, then the marker goes.
-@pytest.mark.xfail(strict=True, reason="capture/command.py emit_line: a stdout that cannot take the text")
 def test_result_lines_on_an_ascii_stdout(sim_take, tmp_path):
     """``PYTHONUTF8=0 LC_ALL=C`` (Python's ASCII locale; ``PYTHONIOENCODING=ascii`` alike): a result line
     naming a folder with an accent was a UnicodeEncodeError traceback after the work was done (s2a-capture
