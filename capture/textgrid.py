@@ -1,5 +1,7 @@
 """Praat TextGrid files: the phone and word alignments forced aligners (MFA, Gentle via converters,
-WebMAUS) write, and the simulated speaker writes as ground truth.
+WebMAUS) write, and the simulated speaker writes as ground truth. MFA names the tiers ``words`` and
+``phones``, or ``<speaker> - words`` and ``<speaker> - phones`` for each speaker of a file with several
+(``TextGrid.speaker_tiers``).
 
 Writing produces Praat's long text format (UTF-8). Reading accepts the long and the short text format
 in UTF-8 or UTF-16 (Praat's choice for non-ASCII text), with interval tiers and point ("TextTier")
@@ -69,6 +71,13 @@ class TextGrid:
             if t.name == name:
                 return t
         raise InputError(f"TextGrid has no tier {name!r} (tiers: {[t.name for t in self.tiers]})", self.path)
+
+    def speaker_tiers(self, name: str) -> list[Tier]:
+        """The tier called ``name``, or else every tier called ``<speaker> - name``: the tiers Montreal
+        Forced Aligner writes for each speaker of a file with several (``A - phones``, ``B - phones``)."""
+        if any(t.name == name for t in self.tiers):
+            return [self.tier(name)]
+        return [t for t in self.tiers if t.name.endswith(f" - {name}")] or [self.tier(name)]  # or its error
 
 
 def interval_tier(name: str, intervals: list[tuple[float, float, str]], xmin: float, xmax: float) -> Tier:

@@ -1,16 +1,35 @@
 """The phone set of the toolkit's PPG: the 39 CMU/ARPAbet phones (as pocketsphinx's en-us model and
-CMUdict use them) with silence first, and how labels of other ARPAbet dialects map onto it.
+CMUdict use them) with silence first, and how the labels aligners write map onto it.
 
 Aligners and corpora write ARPAbet in several dialects: stress digits (``AH0``), lower case, and the
 TIMIT phones that the 39-phone set folds away (Lee and Hon 1989, as in the usual TIMIT 61 -> 39
 mapping): ``ax`` and ``ax-h`` are ``AH``, ``axr`` is ``ER``, ``ix`` is ``IH``, ``ux`` is ``UW``, the
 syllabic ``el em en eng`` are ``L M N NG``, ``nx`` is ``N``, ``hv`` is ``HH``, the flap ``dx`` is ``T``
 (its commonest source in American English, as in "water"), and closures, pauses and the glottal stop
-(``bcl dcl gcl pcl tcl kcl h# pau epi q``) are silence."""
+(``bcl dcl gcl pcl tcl kcl h# pau epi q``) are silence. Kaldi-based aligners (Gentle, Kaldi's own
+word-position-dependent phones) end each phone with its place in the word: ``dh_B`` (begin), ``ah_I``
+(inside), ``t_E`` (end), ``ah_S`` (a word of one phone); the suffix is dropped.
+
+Montreal Forced Aligner's English IPA models (``english_mfa``, ``english_us_mfa``, ``english_uk_mfa``)
+write an IPA phone set ("MFA IPA phone set", mfa-models docs/source/mfa_phone_set.md): aspirated
+stops ``pʰ tʰ kʰ cʰ``, palatalised allophones before front vowels and /j/ (``c ɟ ç ʎ ɲ`` for k g h l n),
+labialised ``tʷ kʷ ɡʷ``, the flap ``ɾ``, glottal ``ʔ``, dark and syllabic ``ɫ ɫ̩ m̩ n̩``, length
+marks, fronted ``ʉ``, central ``ɐ`` for STRUT and glides in diphthongs (``aj aw ej ow ɔj``). ``IPA``
+maps each onto the ARPAbet phone of the same articulation, as MFA's own benchmark maps them onto TIMIT
+(mfa-models scripts/alignment_benchmarks/mapping_files/mfa_timit_mapping.yaml), folded as above:
+allophones of a phoneme (aspirated, palatalised, labialised, unreleased, long, dental-marked
+``n̪``) are that phoneme; ``ɾ`` is T and ``ʔ`` silence, as TIMIT's ``dx`` and ``q``; ``ɾ̃`` (nasal flap,
+TIMIT ``nx``) is N; the dental stops ``t̪ d̪`` MFA writes for TH and DH pronounced as stops (its "dental
+stopping" variants) are TH and DH, as its TIMIT mapping has them (a tongue at the teeth, for a face).
+Vowels by quality: ``i iː`` IY, ``ɪ ɨ`` IH, ``e ej eɪ`` EY, ``ɛ ɛː`` EH, ``æ a`` AE, ``ɑ ɑː ɒ ɒː`` AA (LOT,
+as CMUdict writes it), ``ɔ ɔː`` AO, ``ʌ ɐ ə`` AH, ``ɚ ɝ ɜ ɜː`` ER, ``ʊ`` UH, ``u uː ʉ ʉː`` UW, ``o ow oʊ
+əʊ`` OW, ``aj aɪ`` AY, ``aw aʊ`` AW, ``ɔj ɔɪ`` OY. ARPAbet is tried first, so a label that reads as
+both (``b``, ``aw``, ``y``) keeps its ARPAbet meaning."""
 
 from __future__ import annotations
 
 import re
+import unicodedata
 
 ARPABET = (
     "SIL AA AE AH AO AW AY B CH D DH EH ER EY F G HH IH IY JH K L M N NG OW OY P R S SH T TH UH UW V W Y Z ZH"
@@ -32,10 +51,81 @@ FOLDED = {
     **dict.fromkeys("BCL DCL GCL PCL TCL KCL H# PAU EPI Q".split(), "SIL"),
 }
 
+# IPA phone (diacritics below removed, except where the table names them) -> ARPAbet phone
+IPA = {
+    **dict.fromkeys("i iː".split(), "IY"),
+    **dict.fromkeys("ɪ ɨ".split(), "IH"),
+    **dict.fromkeys("e ej eɪ".split(), "EY"),
+    "ɛ": "EH",
+    **dict.fromkeys("æ a".split(), "AE"),
+    **dict.fromkeys("ɑ ɒ".split(), "AA"),
+    "ɔ": "AO",
+    **dict.fromkeys("ʌ ɐ ə".split(), "AH"),
+    **dict.fromkeys("ɚ ɝ ɜ".split(), "ER"),
+    "ʊ": "UH",
+    **dict.fromkeys("u ʉ".split(), "UW"),
+    **dict.fromkeys("o ow oʊ əʊ".split(), "OW"),
+    **dict.fromkeys("aj aɪ".split(), "AY"),
+    **dict.fromkeys("aw aʊ".split(), "AW"),
+    **dict.fromkeys("ɔj ɔɪ".split(), "OY"),
+    "p": "P",
+    "b": "B",
+    "t": "T",
+    "d": "D",
+    **dict.fromkeys("k c".split(), "K"),
+    **dict.fromkeys("ɡ g ɟ".split(), "G"),
+    "ɾ": "T",
+    "ɾ̃": "N",
+    "ʔ": "SIL",
+    **dict.fromkeys("tʃ t͡ʃ".split(), "CH"),
+    **dict.fromkeys("dʒ d͡ʒ".split(), "JH"),
+    "f": "F",
+    "v": "V",
+    **dict.fromkeys("θ t̪".split(), "TH"),
+    **dict.fromkeys("ð d̪".split(), "DH"),
+    "s": "S",
+    "z": "Z",
+    "ʃ": "SH",
+    "ʒ": "ZH",
+    **dict.fromkeys("h ɦ ç".split(), "HH"),
+    **dict.fromkeys("m ɱ".split(), "M"),
+    **dict.fromkeys("n ɲ".split(), "N"),
+    "ŋ": "NG",
+    **dict.fromkeys("l ɫ ʎ".split(), "L"),
+    **dict.fromkeys("ɹ r ɻ".split(), "R"),
+    "j": "Y",
+    **dict.fromkeys("w ʍ".split(), "W"),
+}
+
+# marks that make an allophone of the phone they follow: aspirated, labialised, palatalised, long,
+# half-long, syllabic (below and above), unreleased, dental, non-syllabic, ejective, voiceless, raised,
+# lowered, nasalised vowel
+_ALLOPHONE_MARKS = re.compile("[ʰʷʲːˑ\u0329\u030d\u031a\u032a\u032fʼ\u0325\u030a\u031d\u031e\u0303]")
+_WORD_POSITION = re.compile(r"_[BIES]$", re.IGNORECASE)
+
+
+def without_word_position(label: str) -> str:
+    """``label`` stripped, less a Kaldi word-position suffix (``dh_B`` -> ``dh``, ``oov_S`` -> ``oov``)."""
+    return _WORD_POSITION.sub("", label.strip())
+
+
+def _ipa(label: str) -> str | None:
+    """The ARPAbet phone of an IPA phone label, or None."""
+    label = unicodedata.normalize("NFC", label)
+    if label in IPA:  # the few the table names with their diacritic (t̪ d̪ ɾ̃)
+        return IPA[label]
+    return IPA.get(
+        unicodedata.normalize("NFC", _ALLOPHONE_MARKS.sub("", unicodedata.normalize("NFD", label)))
+    )
+
 
 def phone_index(label: str) -> int | None:
-    """Index in ``ARPABET`` of an aligner's phone label (any case, stress digits dropped, TIMIT phones
-    folded); None for a label that is no ARPAbet phone."""
-    p = re.sub(r"\d", "", label.strip()).upper()
+    """Index in ``ARPABET`` of an aligner's phone label (ARPAbet in any case, stress digits and word
+    position dropped, TIMIT phones folded; else an IPA phone of MFA's English models); None for a label
+    that is neither."""
+    label = without_word_position(label)
+    p = re.sub(r"\d", "", label).upper()
     p = FOLDED.get(p, p)
-    return ARPABET.index(p) if p in ARPABET else None
+    if p not in ARPABET:
+        p = _ipa(label)
+    return ARPABET.index(p) if p is not None else None

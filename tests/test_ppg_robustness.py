@@ -165,7 +165,7 @@ def _point_tier(folder: Path) -> Path:
     "make",
     [
         lambda d: _grid(d, "utt", [(0.0, 0.6, ""), (0.6, 1.2, "")]),  # all labels silence
-        lambda d: _grid(d, "utt", [(0.0, 0.6, "ɑː"), (0.6, 1.2, "ʃ")]),  # IPA: unknown, counts as SIL
+        lambda d: _grid(d, "utt", [(0.0, 0.6, "ʘ"), (0.6, 1.2, "ǀ")]),  # clicks: not English, count as SIL
         lambda d: _grid(d, "utt", [(5.0, 6.0, "AA")]),  # past the audio's end
         lambda d: write_textgrid(
             TextGrid(0.0, 1.2, [Tier("phones", 0.0, 1.2)]), _wav(d / "utt.wav").with_suffix(".TextGrid")
@@ -185,7 +185,7 @@ def test_utterance_without_phones_is_skipped_with_a_warning(tmp_path):
     _grid(tmp_path / "d", "good")
     _grid(tmp_path / "d", "empty", [(0.0, 1.2, "")])
     _point_tier(tmp_path / "d" / "points")
-    _grid(tmp_path / "d", "ipa", [(0.0, 0.6, "ɑː"), (0.6, 1.2, "S")])
+    _grid(tmp_path / "d", "ipa", [(0.0, 0.6, "ʘ"), (0.6, 1.2, "S")])
     proc = run_here(
         "train", "ppg", "--data", tmp_path / "d", "-o", tmp_path / "p.pt", "--steps", "1", "--json"
     )
@@ -196,7 +196,7 @@ def test_utterance_without_phones_is_skipped_with_a_warning(tmp_path):
     assert f"{tmp_path / 'd' / 'empty.wav'}: no phone frames" in warnings
     assert f"{tmp_path / 'd' / 'points' / 'utt.TextGrid'}: tier 'phones' is a point tier" in warnings
     assert "1 phone segments have labels outside ARPAbet and count as silence" in warnings
-    assert "'ɑː'" in warnings
+    assert "'ʘ'" in warnings
     assert all(f"warning: {w}" in proc.stderr for w in summary["warnings"])
 
 

@@ -2,10 +2,14 @@
 phone alignments, written with ``save_bottleneck`` for ``s2a-dataset build --ppg bottleneck``.
 
 Alignments come as Praat TextGrids beside their audio (same stem; the simulator writes them beside its
-takes; tier ``phones``, empty label = silence) or as a JSON file mapping audio stems to
-``{"words": [{"phones": [{"phone", "start", "end"}]}]}`` (the LibriVox sample). Phone labels are
-ARPAbet in any case, stress digits dropped, TIMIT phones folded (dataset/phones.py); labels outside
-ARPAbet count as SIL (with a warning).
+takes; tier ``phones``, or MFA's ``<speaker> - phones`` tiers of a file with several speakers, empty
+label = silence), as a JSON file mapping audio stems to ``{"words": [{"phones": [{"phone", "start",
+"end"}]}]}`` (the LibriVox sample), or as Gentle's JSON beside its audio (``{"transcript", "words":
+[{"case", "start", "end", "phones": [{"phone", "duration"}]}]}``: each word's phones follow each other
+from its start; words Gentle did not find in the audio have no time and are skipped, said). Phone
+labels are ARPAbet in any case, stress digits and Kaldi word-position suffixes (``dh_B``) dropped,
+TIMIT phones folded, or the IPA phones of MFA's English models (dataset/phones.py); labels outside
+these count as SIL (with a warning).
 Features are the dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre
 ``k · 20 ms``) takes the phone spanning that instant.
 
@@ -41,7 +45,7 @@ from capture.textgrid import read_textgrid
 from capture.transfer_litter import Litter
 from dataset.bottleneck import CHECKPOINT_FORMAT, BottleneckConfig, BottleneckPPG, load_plain, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
-from dataset.phones import phone_index
+from dataset.phones import phone_index, without_word_position
 from dataset.ppg import PocketsphinxExtractor
 
 from .checkpoint import write_atomically
@@ -58,9 +62,10 @@ def _phone_id(label: str) -> int:
 
 
 def _is_silence(label: str) -> bool:
-    """Labels aligners write for silence and noise: empty, SIL, SP, SPN, or fillers like +NSN+ and <sil>."""
-    p = label.strip().upper()
-    return p in ("", "SIL", "SP", "SPN") or p.startswith(("+", "<"))
+    """Labels aligners write for silence and noise: empty, SIL, SP, SPN (MFA's spoken noise or unknown
+    word), OOV (Gentle's unknown word, ``oov_S``), or fillers like +NSN+ and <sil>."""
+    p = without_word_position(label).upper()
+    return p in ("", "SIL", "SP", "SPN", "OOV") or p.startswith(("+", "<"))
 
 
 def _utterance_audio(alignment: Path, stem: str) -> Path:
@@ -165,6 +170,38 @@ def _json_segments(words: object, stem: str, path: Path) -> tuple[Segments, list
     return segs, names
 
 
+def _gentle_segments(words: list, path: Path) -> tuple[Segments, list[str], int]:
+    """Phone segments of a Gentle alignment (``words`` of its JSON), where each comes from, and how many
+    words have no time (Gentle's ``"not-found-in-audio"``: skipped)."""
+    segs: Segments = []
+    names: list[str] = []
+    untimed = 0
+    for i, word in enumerate(words):
+        where = f"word {i}"
+        if not isinstance(word, dict):
+            raise InputError(
+                f"{where}: expected an object with case, start, phones, found {_show(word)}", path
+            )
+        if word.get("case") == "not-found-in-audio" or "start" not in word:
+            untimed += 1
+            continue
+        phones = word.get("phones")
+        if not isinstance(phones, list):
+            raise InputError(f"{where}: 'phones' must be a list, found {_show(phones)}", path)
+        t = _seconds(word["start"], f"{where}: 'start'", path)
+        for k, ph in enumerate(phones):
+            at = f"{where} phone {k}"
+            if not (isinstance(ph, dict) and isinstance(ph.get("phone"), str) and "duration" in ph):
+                raise InputError(f"{at}: expected an object with phone and duration, found {_show(ph)}", path)
+            # to the microsecond: a sum of decimal durations is off by float error at the phone boundaries
+            # (Gentle's fall on 10 ms, where every other 20 ms frame centre lies)
+            end = round(t + _seconds(ph["duration"], f"{at}: 'duration'", path), 6)
+            segs.append((t, end, ph["phone"]))
+            names.append(at)
+            t = end
+    return segs, names, untimed
+
+
 def _check_segments(segs: Segments, names: list[str], path: Path) -> None:
     """Refuse negative times, segments ending before they start, and overlapping segments."""
     reached, previous = 0.0, ""
@@ -220,11 +257,19 @@ def find_alignments(
                 continue
             seen_files.add(f.resolve())
             if kind == ".textgrid":
-                tier = read_textgrid(f).tier("phones")
-                if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
-                    warnings.append(f"{f}: tier 'phones' is a point tier ({tier.kind}), not intervals")
-                segs = [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]
-                _check_segments(segs, [f"tier 'phones' interval {k + 1}" for k in range(len(segs))], f)
+                tiers = read_textgrid(f).speaker_tiers("phones")
+                segs, names = [], []
+                for tier in tiers:
+                    if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
+                        warnings.append(
+                            f"{f}: tier {tier.name!r} is a point tier ({tier.kind}), not intervals"
+                        )
+                    for k, iv in enumerate(tier.intervals):
+                        # one speaker's silence spans the others' speech: their phones alone are kept
+                        if len(tiers) == 1 or not _is_silence(iv.text):
+                            segs.append((iv.xmin, iv.xmax, iv.text))
+                            names.append(f"tier {tier.name!r} interval {k + 1}")
+                _check_segments(segs, names, f)
                 add(_audio_beside(f), segs, f)
                 continue
             data, problem = _read_json(f)
@@ -232,6 +277,16 @@ def find_alignments(
                 warnings.append(f"{f}: {problem}: skipped")
                 continue
             if not isinstance(data, dict):
+                continue
+            if isinstance(data.get("words"), list):  # Gentle's output for the audio beside it
+                segs, names, untimed = _gentle_segments(data["words"], f)
+                _check_segments(segs, names, f)
+                if untimed:
+                    warnings.append(
+                        f"{f}: {untimed} of {len(data['words'])} words have no time (Gentle did not find "
+                        "them in the audio): skipped, their stretch of audio counts as silence"
+                    )
+                add(_audio_beside(f), segs, f)
                 continue
             for stem, utt in data.items():
                 if not (isinstance(utt, dict) and "words" in utt):
