@@ -25,7 +25,7 @@ import numpy as np
 from capture import InputError, find_sources, find_takes, read_meta, read_take
 from capture.atomic import atomic_write
 from capture.channels import canonical, is_known
-from capture.errors import loads_names, printable
+from capture.errors import loads_names, printable, shown_against
 from capture.take import FrameStatus
 
 from .output import writing
@@ -254,7 +254,8 @@ def _outliers(entries: list[dict[str, Any]]) -> None:
         a = e.get("align") or {}
         conf = a.get("offset_confidence")
         if conf is not None and conf < MIN_CONFIDENCE:
-            e["reasons"].append(f"offset confidence {conf:.2f} < {MIN_CONFIDENCE}")
+            shown = shown_against(conf, MIN_CONFIDENCE)
+            e["reasons"].append(f"offset confidence {shown} < {MIN_CONFIDENCE:g}")
         off = a.get("offset_s")
         if off is not None and abs(off) > MAX_OFFSET_S:
             e["reasons"].append(f"offset {off * 1000:.0f} ms")
