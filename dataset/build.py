@@ -46,7 +46,7 @@ from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.audio_io import Audio
 from capture.channels import CHANNEL_SETS, ROTATIONS, canonical, channel_set, is_known
 from capture.command import TimedProgress, sigterm_stops, stops_deferred
-from capture.errors import InputError, S2AError
+from capture.errors import InputError, S2AError, loads_names, strict_names
 from capture.file_lock import holding
 from capture.importer import no_takes_found
 from capture.npz import open_npz
@@ -352,7 +352,7 @@ def _aligned_folders(
     out = work / "aligned" / sha[:24]
     done = out / "done.json"
     if done.is_file():
-        names = json.loads(done.read_text())["takes"]
+        names = _read_work_json(done)["takes"]
         return [out / n for n in names]
     say(f"aligning {meta.id}")
     results = align.align_take(read_take(folder), align.AlignOptions())
@@ -360,7 +360,7 @@ def _aligned_folders(
         raise InputError("align produced no usable take (no speech or no tracked frames?)", folder)
     out.mkdir(parents=True, exist_ok=True)
     names = [write_take(t, out).name for t in results]
-    write_json_atomic(done, {"source": str(folder), "sha256": sha, "takes": names}, name_failures=True)
+    _write_work_json(done, {"source": str(folder), "sha256": sha, "takes": names})
     return [out / n for n in names]
 
 
@@ -866,11 +866,23 @@ def split_share_warnings(
     return out
 
 
+def _write_work_json(path: Path, data: Any, compact: bool = False) -> None:
+    """A record in ``.work`` written as the dataset's JSON is: a name not UTF-8 (a take, a speaker, a
+    folder) as messages show it, its bytes beside it (``strict_names``); ``_read_work_json`` reads it."""
+    write_json_atomic(path, strict_names(data), compact=compact, name_failures=True)
+
+
+def _read_work_json(path: Path) -> Any:
+    """A record ``_write_work_json`` wrote, each name as Python holds it (one written before, a lone
+    surrogate, too). Errors: ``OSError``, ``ValueError`` (not UTF-8, not JSON)."""
+    return loads_names(path.read_text(encoding="utf-8"))
+
+
 def _record_of(job: TakeJob) -> dict[str, Any] | None:
     """The take's record when it is of this take as this build would process it (its samples unchecked)."""
     try:
-        rec = json.loads(job.record.read_text())
-    except (OSError, json.JSONDecodeError):
+        rec = _read_work_json(job.record)
+    except (OSError, ValueError):
         return None
     if (
         not isinstance(rec, dict)
@@ -1129,7 +1141,7 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     # compressed, as most of their bins are empty
     with atomic_write(job.stats, name_failures=True) as f:
         np.savez_compressed(f, **chan.to_arrays())
-    write_json_atomic(job.record, rec, compact=True, name_failures=True)
+    _write_work_json(job.record, rec, compact=True)
     return rec | {"cached": False}
 
 
@@ -1243,13 +1255,13 @@ def _write_shard(
     target = out / shard["name"]
     staged = work / STAGED / shard["name"]
     try:
-        done = json.loads(record.read_text())
+        done = _read_work_json(record)
         if done["keys"] == keys and done["fingerprint"] == fingerprint:
             if _holds(target, done):
                 return done | {"staged": False}
             if stage and _holds(staged, done):
                 return done | {"staged": True}
-    except (FileNotFoundError, json.JSONDecodeError, KeyError, TypeError):
+    except (FileNotFoundError, ValueError, KeyError, TypeError):
         pass
     _invalidate(record)
     dest = staged if stage else target
@@ -1268,7 +1280,7 @@ def _write_shard(
         "fingerprint": fingerprint,
     }
     record.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(record, done, name_failures=True)
+    _write_work_json(record, done)
     if stage and _holds(target, done):  # the dataset holds this shard already: nothing to swap in
         staged.unlink()
         return done | {"staged": False}
@@ -1382,7 +1394,7 @@ def _previous_splits(old: dict[str, Any] | None, work: Path) -> dict[str, str]:
     if old is not None:
         return {t: s for s in SPLITS for t in old["splits"][s]["takes"]}
     try:
-        saved = json.loads((work / PREVIOUS_SPLITS).read_text())
+        saved = _read_work_json(work / PREVIOUS_SPLITS)
     except (OSError, ValueError):
         return {}
     ok = isinstance(saved, dict) and all(isinstance(v, str) for v in saved.values())
@@ -1923,7 +1935,7 @@ def _build(
     if old is not None:
         # what the old manifest said of the splits outlives it (a rebuild stopped while swapping the
         # new dataset in still reports moved takes when rerun)
-        write_json_atomic(work / PREVIOUS_SPLITS, previous, name_failures=True)
+        _write_work_json(work / PREVIOUS_SPLITS, previous)
     # The old manifest and its shards stay as they are until the new dataset is complete: new shards
     # are written into .work/staged and swapped in at the end (_swap_in), so a rebuild that fails or is
     # stopped leaves the previous dataset readable.
