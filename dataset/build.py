@@ -294,7 +294,7 @@ def _distinct_keys(takes: list[SourceTake]) -> list[str]:
     warnings = []
     for clash in (group for group in by_key.values() if len(group) > 1):
         for t in clash:
-            t.key = f"{t.key}-{hashlib.sha256(t.id.encode()).hexdigest()[:8]}"
+            t.key = f"{t.key}-{hashlib.sha256(os.fsencode(t.id)).hexdigest()[:8]}"
         warnings.append(
             "take ids " + ", ".join(repr(t.id) for t in clash) + " give one sample key: their samples are "
             "keyed " + ", ".join(t.key for t in clash)

@@ -51,7 +51,8 @@ class SplitRule:
 
 
 def _order(seed: int, name: str) -> str:
-    return hashlib.sha256(f"{seed}:{name}".encode()).hexdigest()
+    """A name's place in the seeded shuffle: the sha256 of its bytes (a name not UTF-8 by its own bytes)."""
+    return hashlib.sha256(f"{seed}:{name}".encode("utf-8", "surrogateescape")).hexdigest()
 
 
 def speaker_key(name: str) -> str:
