@@ -2728,12 +2728,15 @@ def _frame_bytes(runs: list[MpegRun]) -> int:
 
 
 def _refuse_no_mpeg_audio(path: Path, data: bytes | _FileBytes, runs: list[MpegRun]) -> None:
-    """An ``InputError`` when the .mp3 ``data`` (its runs ``runs``) holds no MPEG audio: no frame starts
-    where its audio would (after its leading tags), no run of its frames is sound (``_real_run``) and its
-    frames are under half its bytes (a short file damaged at its start is mostly frames): only frame
-    headers that its bytes form by chance (junk, a picture named .mp3; decoded, 100 KB of it gave 768
-    samples of noise, 1 MB of random bytes 168 s of silence put back for the "damage" between them). The
-    bytes of a file mostly frames are not read again (its first block, for its tags: 2 MB more read)."""
+    """An ``InputError`` when the .mp3 ``data`` (its runs ``runs``) holds no MPEG audio: no run of 2 or more
+    frames without damage starts where its audio would (after its leading tags; 0xFF-dense junk chains a
+    frame or damaged frames there by chance, in 1 to 3 % of 100 KB of it), no run of its frames is sound
+    (``_real_run``), fewer than ``_REAL_RUN_FRAMES`` of its frames may be sound (``_sound_frames``: a file
+    wrecked by garbage over half its bytes, no 8 frames in a row left, has dozens) and its frames are under
+    half its bytes (a short file damaged at its start is mostly frames): only frame headers that its bytes
+    form by chance (junk, a picture named .mp3; decoded, 100 KB of it gave 768 samples of noise, 1 MB of
+    random bytes 168 s of silence put back for the "damage" between them). The bytes of a file mostly
+    frames are not read again (its first block, for its tags: 2 MB more read)."""
     frames = _frame_bytes(runs)
     if 2 * frames >= len(data):
         return
@@ -2741,9 +2744,13 @@ def _refuse_no_mpeg_audio(path: Path, data: bytes | _FileBytes, runs: list[MpegR
     while skip := _tag_bytes(data, start):
         start += skip
     span = _end_tags_at(data) - start
-    if span <= 0 or runs and (runs[0].start == start or 2 * frames >= span):
+    first = runs[0] if runs else None
+    at_start = first is not None and first.start == start and _clean_frames(first) == first.frames > 1
+    if span <= 0 or 2 * frames >= span or at_start:
         return
     if any(_real_run(data, run, set()) for run in runs):
+        return
+    if sum(_sound_frames(data, run) for run in runs) >= _REAL_RUN_FRAMES:
         return
     most = max((_clean_frames(run) for run in runs), default=0)
     raise InputError(
@@ -2751,6 +2758,22 @@ def _refuse_no_mpeg_audio(path: Path, data: bytes | _FileBytes, runs: list[MpegR
         f"most {most} frame(s) in a row; sound has {_REAL_RUN_FRAMES} or more): junk, or not an .mp3?",
         path,
     )
+
+
+def _sound_frames(data: bytes | _FileBytes, run: MpegRun) -> int:
+    """How many frames of ``run`` may be sound, walked from frame to frame over the stretches between its
+    damage: layer III frames whose side information a frame of sound has (``_holds_sound``), any layer II
+    frame (none to tell by), no layer I frame (the headers 0xFF-dense junk chains by chance are of layer
+    I: ``0xFFFx``)."""
+    if run.layer == 1:
+        return 0
+    count, pos = 0, run.start
+    for stop, resume in [*((loss.start, loss.end) for loss in run.losses), (run.end, run.end)]:
+        while pos < stop and (frame := _mpeg_frame(data, pos)) is not None:
+            count += run.layer == 2 or _holds_sound(data, pos, frame)
+            pos += frame[0]
+        pos = max(pos, resume)
+    return count
 
 
 def _frames_before_first(data: bytes | _FileBytes, loss: MpegLoss, per_frame: float, estimate: int) -> int:
