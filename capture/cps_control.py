@@ -18,9 +18,10 @@ A session, as Unreal runs it: /session/start (body ``sessionId``), /information 
 ``version``, ``controls``), /stream/start (``streamPort``: our UDP port, ``subjects``: [{``id``,
 ``name``}]); then /session/keep-alive every ``KEEP_ALIVE_S`` (the connection is dropped after
 ``KEEP_ALIVE_FAILURES`` failures in a row); at the end /stream/stop and /session/stop. A session that
-fails is tried again ``RETRY_S`` later. Sources: Unreal Engine 5.8 ``LiveLinkFaceControl.cpp``
-(MetaHumanLiveLink) and the CaptureProtocolStack's ``ControlMessenger``, ``ControlPacket``,
-``ControlMessage``, ``ControlRequest``, ``ControlResponse`` and ``Constants``.
+does not start is tried again ``RETRY_S`` later; one that streamed and ended is started again at once.
+Sources: Unreal Engine 5.8 ``LiveLinkFaceControl.cpp`` (MetaHumanLiveLink) and the CaptureProtocolStack's
+``ControlMessenger``, ``ControlPacket``, ``ControlMessage``, ``ControlRequest``, ``ControlResponse`` and
+``Constants``.
 
 ``PhoneStream`` runs that session in a thread and relays the phone's realtime packets
 (``realtime_packet``) of an ARKit subject, as classic version-6 packets, to a ``LiveRecorder``'s socket
@@ -47,6 +48,7 @@ from .realtime_packet import (
     ArkitMapping,
     decode_realtime_packet,
 )
+from .replay import format_destination
 
 FRAME_MAGIC = b"CPSCONTROL\0"
 FRAME_HEAD = struct.Struct("<HI")  # protocol version, payload length
@@ -55,7 +57,7 @@ HANDSHAKE_SESSION = "handshake"
 RESPONSE_WAIT_S = 3.0  # Unreal's ResponseWaitTime
 KEEP_ALIVE_S = 5.0  # Unreal's KeepAliveInterval
 KEEP_ALIVE_FAILURES = 3  # keep-alives unanswered in a row before the connection is dropped
-RETRY_S = 5.0  # Unreal retries a failed session every five seconds
+RETRY_S = 5.0  # Unreal tries a session that did not start again five seconds later
 CONNECT_TIMEOUT_S = 3.0
 STOP_WAIT_S = 1.0  # what the stop requests at the end of a session wait for their answers
 # The longest payload read: a subject list with a few hundred control names is a few KB; a length past
@@ -118,7 +120,7 @@ def read_frame(sock: socket.socket, deadline: float) -> dict[str, Any]:
         raise ControlError(f"control protocol version {version} (this listen speaks {CPS_VERSION})")
     try:
         message = json.loads(payload.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError):
+    except (ValueError, RecursionError):  # RecursionError: arrays or objects nested thousands deep
         raise ControlError("a control message that is not JSON") from None
     if not isinstance(message, dict):
         raise ControlError("a control message that is not a JSON object")
@@ -296,6 +298,7 @@ class PhoneStream:
     _restart: threading.Event = field(default_factory=threading.Event)
     _threads: list[threading.Thread] = field(default_factory=list)
     _last_said: str = ""
+    _streamed: bool = False  # whether the current session got as far as streaming
 
     def open(self) -> tuple[str, int]:
         """Bind the UDP socket the phone is told to stream to; its (address, port)."""
@@ -312,9 +315,8 @@ class PhoneStream:
             raise InputError(f"cannot listen on UDP {self.bind}:{self.stream_port}: {exc}") from None
         udp.settimeout(0.1)
         self.udp = udp
-        for (
-            reason
-        ) in REALTIME_REJECT_REASONS:  # beside the recorder's own, which it checks on what is relayed
+        # the relay's reasons, beside the recorder's own (which it checks on what is relayed)
+        for reason in REALTIME_REJECT_REASONS:
             self.rejected.setdefault(REJECT_PREFIX + reason, 0)
         self.out = socket.socket(
             socket.AF_INET6 if ":" in self.recorder_address[0] else socket.AF_INET, socket.SOCK_DGRAM
@@ -336,6 +338,11 @@ class PhoneStream:
             if sock is not None:
                 sock.close()
 
+    @property
+    def _phone(self) -> str:
+        """The phone's control address as ``--phone`` takes it (``[::1]:14785``)."""
+        return format_destination(self.host, self.port)
+
     def _tell(self, line: str, note: dict[str, Any] | None = None) -> None:
         """Say ``line`` (and log ``note``) unless it was the last line said: a phone that fails the same
         way at every retry is told of once."""
@@ -348,21 +355,31 @@ class PhoneStream:
 
     # -- the control session ------------------------------------------------------------------
     def _control(self) -> None:
-        restarted = -self.retry_s
+        """Sessions, one after another, as Unreal's control thread runs them: one that does not start is
+        tried again ``retry_s`` later; one that streamed and ended (the phone went away, keep-alives
+        unanswered, the subject's control count changed) is started again at once, and after
+        ``retry_s`` when it ended twice within ``retry_s`` (a phone that drops every session)."""
+        again_at_once = -self.retry_s  # when a session was last started again at once
         while not self._stop.is_set():
             self._restart.clear()
+            self._streamed = False
             try:
                 self._session()
+                why = "the subject's control count changed"
             except ControlError as exc:
-                line = f"phone {self.host}:{self.port}: {exc}; trying again every {self.retry_s:g} s"
-                self._tell(line, {"kind": "phone_session", "message": str(exc)})
-                self._stop.wait(self.retry_s)
-                continue
-            if self._restart.is_set():  # at once, as Unreal does; twice within RETRY_S: after RETRY_S
-                self._tell(f"phone {self.host}:{self.port}: the subject's control count changed; restarting")
-                if time.monotonic() - restarted < self.retry_s:
+                if not self._streamed:
+                    line = f"phone {self._phone}: {exc}; trying again every {self.retry_s:g} s"
+                    self._tell(line, {"kind": "phone_session", "message": str(exc)})
                     self._stop.wait(self.retry_s)
-                restarted = time.monotonic()
+                    continue
+                why = str(exc)
+            if self._stop.is_set():
+                break
+            line = f"phone {self._phone}: {why}; starting the session again"
+            self._tell(line, {"kind": "phone_session", "message": why})
+            if time.monotonic() - again_at_once < self.retry_s:
+                self._stop.wait(self.retry_s)
+            again_at_once = time.monotonic()
 
     def _session(self) -> None:
         client = ControlClient(self.host, self.port)
@@ -389,9 +406,10 @@ class PhoneStream:
             START_STREAMING,
             {"streamPort": self.udp.getsockname()[1], "subjects": [{"id": subject.id, "name": subject.name}]},
         )
+        self._streamed = True
         phone = info.get("name") if isinstance(info.get("name"), str) else client.peer
         self._tell(
-            f"phone {self.host}:{self.port} ({phone}) streams subject {subject.name} "
+            f"phone {self._phone} ({phone}) streams subject {subject.name} "
             f"({len(subject.controls)} ARKit controls) to udp port {self.udp.getsockname()[1]}"
         )
         self.note(

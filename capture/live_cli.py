@@ -297,7 +297,6 @@ REJECT_HINTS = {
     "realtime_not_allowed": "realtime packets from an address other than the phone's (and not in --allow)",
     "realtime_oversized": "realtime datagrams over 8192 bytes: no Live Link Face realtime packet",
     "realtime_short": "realtime datagrams that end before the packet does (another protocol on that port)",
-    "realtime_size_mismatch": "realtime datagrams longer than the packet they hold",
     "realtime_bad_text": "realtime packets whose subject id is not UTF-8 text",
     "realtime_not_streaming": "realtime packets that came while the phone streamed no subject to this "
     "listen (before its control session began, or between two)",
@@ -1026,8 +1025,9 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
 
 def _phone_stream(args: argparse.Namespace, phone, allow, recorder: LiveRecorder, to) -> PhoneStream:
     """The control session to ``--phone`` and the relay of its realtime packets to ``recorder`` at ``to``
-    (``cps_control.PhoneStream``), on ``--bind`` (default all interfaces, as Unreal binds) and ``--port``
-    (default any free port: the phone is told which)."""
+    (``cps_control.PhoneStream``), on ``--bind`` (default all interfaces, as Unreal binds: IPv4 ones, and
+    IPv6 ones too for a phone given by its IPv6 address, which streams to this computer's IPv6 address)
+    and ``--port`` (default any free port: the phone is told which)."""
     return PhoneStream(
         phone[0],
         phone[1],
@@ -1035,7 +1035,7 @@ def _phone_stream(args: argparse.Namespace, phone, allow, recorder: LiveRecorder
         say=lambda line: _say(_printable(line)),
         rejected=recorder.rejected,
         note=recorder.note,
-        bind=args.bind or "0.0.0.0",
+        bind=args.bind or ("::" if ":" in phone[0] else "0.0.0.0"),
         stream_port=args.port or 0,
         allow=allow,
     )

@@ -7,8 +7,9 @@ Layout, read field by field with Unreal's ``FArrayReader`` (no byte swapping: li
     i32 rate numerator | i32 rate denominator | u16 count | count x u16 control value |
     6 x f32 head pose (roll, pitch, yaw, x, y, z)
 
-A control value is ``u16 / 65535``; the control names and their order are the subject's, told by the
-phone over the control session (``cps_control``), not by the packet. Sources: Unreal Engine 5.8
+Bytes after the head pose are read past, as Unreal's reader reads past them. A control value is
+``u16 / 65535``; the control names and their order are the subject's, told by the phone over the control
+session (``cps_control``), not by the packet. Sources: Unreal Engine 5.8
 ``MetaHumanLiveLink/Source/LiveLinkFaceSource/Private/LiveLinkFacePacket.cpp`` (the reader) and
 ``LiveLinkFaceSource.cpp`` (scaling, head pose order).
 
@@ -42,7 +43,6 @@ REALTIME_REJECT_REASONS: tuple[str, ...] = (
     "not_allowed",  # not from the phone of the control session (nor from an --allow address)
     "oversized",  # longer than MAX_REALTIME_PACKET_BYTES
     "short",  # ends before the field being read
-    "size_mismatch",  # longer than the packet it holds
     "bad_text",  # the subject id is not UTF-8
     "not_streaming",  # came while no subject was streaming (before the control session, between two)
     "unknown_subject",  # a subject id the phone is not streaming to us
@@ -106,11 +106,9 @@ def decode_realtime_packet(data: bytes | bytearray | memoryview) -> RealtimePack
     at += _FRAME_TIME.size
     (count,) = _COUNT.unpack_from(data, at)
     at += _COUNT.size
-    end = at + 2 * count + _HEAD_POSE.size
-    if end > n:
+    if at + 2 * count + _HEAD_POSE.size > n:
         return "short"
-    if end < n:
-        return "size_mismatch"
+    # bytes after the head pose are read past, as Unreal's reader does (a later packet version's fields)
     controls = np.frombuffer(bytes(data[at : at + 2 * count]), dtype="<u2").astype(np.float32) / CONTROL_SCALE
     head = np.array(_HEAD_POSE.unpack_from(data, at + 2 * count), dtype=np.float32)
     return RealtimePacket(version, subject_id, frame_number, sub_frame, num, den, controls, head)
