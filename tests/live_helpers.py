@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import socket
@@ -41,6 +42,19 @@ def synthetic_take(n: int = 600, fps: float = 60.0, seed: int = 0, audio: bool =
     return take
 
 
+def _raw_line(fd: int) -> str:
+    """One line of a pipe, read byte by byte from its descriptor: ``readline`` on the text stream read
+    ahead into its buffer, which ``communicate`` (reading the descriptor itself) never returned, so a
+    line said a moment after the address line was lost."""
+    line = bytearray()
+    while not line.endswith(b"\n"):
+        byte = os.read(fd, 1)
+        if not byte:
+            break
+        line += byte
+    return line.decode("utf-8", "replace")
+
+
 class Listener:
     """``s2a-capture listen`` in a subprocess on 127.0.0.1, any free port; always bounded in time."""
 
@@ -51,7 +65,7 @@ class Listener:
         m = None
         line = ""
         for _ in range(50):  # the address line comes first, after any warnings Python prints
-            line = self.proc.stderr.readline()
+            line = _raw_line(self.proc.stderr.fileno())
             m = re.search(r"udp://([0-9.]+):(\d+) -> (.*)$", line.strip())
             if m or not line:
                 break
