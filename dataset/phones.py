@@ -21,10 +21,13 @@ allophones of a phoneme (aspirated, palatalised, labialised, unreleased, long, d
 ``n̪``) are that phoneme; ``ɾ`` is T and ``ʔ`` silence, as TIMIT's ``dx`` and ``q``; ``ɾ̃`` (nasal flap,
 TIMIT ``nx``) is N; the dental stops ``t̪ d̪`` MFA writes for TH and DH pronounced as stops (its "dental
 stopping" variants) are TH and DH, as its TIMIT mapping has them (a tongue at the teeth, for a face).
+The Indian and Nigerian phones of ``english_mfa`` (and of ``english_india_mfa``, ``english_nigeria_mfa``)
+by the same rule: retroflex ``ʈ ɖ`` are T and D (Indian English's /t d/), ``ʋ`` V (Indian English's /v/,
+lips to teeth), the labial-velar stops ``kp ɡb`` P and B (lips closed, as a face shows them).
 Vowels by quality: ``i iː`` IY, ``ɪ ɨ`` IH, ``e ej eɪ`` EY, ``ɛ ɛː`` EH, ``æ a`` AE, ``ɑ ɑː ɒ ɒː`` AA (LOT,
 as CMUdict writes it), ``ɔ ɔː`` AO, ``ʌ ɐ ə`` AH, ``ɚ ɝ ɜ ɜː`` ER, ``ʊ`` UH, ``u uː ʉ ʉː`` UW, ``o ow oʊ
-əʊ`` OW, ``aj aɪ`` AY, ``aw aʊ`` AW, ``ɔj ɔɪ`` OY. ARPAbet is tried first, so a label that reads as
-both (``b``, ``aw``, ``y``) keeps its ARPAbet meaning."""
+əw əʊ`` OW (``əw`` is British GOAT), ``aj aɪ`` AY, ``aw aʊ`` AW, ``ɔj ɔɪ`` OY. ARPAbet is tried first,
+so a label that reads as both (``b``, ``aw``, ``y``) keeps its ARPAbet meaning."""
 
 from __future__ import annotations
 
@@ -64,14 +67,14 @@ IPA = {
     **dict.fromkeys("ɚ ɝ ɜ".split(), "ER"),
     "ʊ": "UH",
     **dict.fromkeys("u ʉ".split(), "UW"),
-    **dict.fromkeys("o ow oʊ əʊ".split(), "OW"),
+    **dict.fromkeys("o ow oʊ əw əʊ".split(), "OW"),
     **dict.fromkeys("aj aɪ".split(), "AY"),
     **dict.fromkeys("aw aʊ".split(), "AW"),
     **dict.fromkeys("ɔj ɔɪ".split(), "OY"),
-    "p": "P",
-    "b": "B",
-    "t": "T",
-    "d": "D",
+    **dict.fromkeys("p kp".split(), "P"),
+    **dict.fromkeys("b ɡb gb".split(), "B"),
+    **dict.fromkeys("t ʈ".split(), "T"),
+    **dict.fromkeys("d ɖ".split(), "D"),
     **dict.fromkeys("k c".split(), "K"),
     **dict.fromkeys("ɡ g ɟ".split(), "G"),
     "ɾ": "T",
@@ -80,7 +83,7 @@ IPA = {
     **dict.fromkeys("tʃ t͡ʃ".split(), "CH"),
     **dict.fromkeys("dʒ d͡ʒ".split(), "JH"),
     "f": "F",
-    "v": "V",
+    **dict.fromkeys("v ʋ".split(), "V"),
     **dict.fromkeys("θ t̪".split(), "TH"),
     **dict.fromkeys("ð d̪".split(), "DH"),
     "s": "S",

@@ -153,14 +153,8 @@ def test_mfa_speaker_tiers_of_a_conversation_are_read_together(tmp_path):
     ]  # fmt: skip
     proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "2")
     assert proc.returncode == 0, proc.stderr
-    # two speakers talking at once cannot both label a frame: refused in one line, naming both
-    tiers[3] = interval_tier("ben - phones", [(0.5, 0.7, "n")], 0.0, 2.0)
-    write_textgrid(TextGrid(0.0, 2.0, tiers), tmp_path / "talk.TextGrid")
-    proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "2")
-    assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
-    assert (
-        "tier 'ben - phones' interval 2" in proc.stderr and "tier 'anna - phones' interval 3" in proc.stderr
-    )
+    # two speakers talking at once cannot both label a frame: those phones are left out, said
+    # (tests/test_review_aligners_s28.py)
 
 
 def test_a_single_mfa_speaker_tier_reads_as_phones(tmp_path):

@@ -2,14 +2,15 @@
 phone alignments, written with ``save_bottleneck`` for ``s2a-dataset build --ppg bottleneck``.
 
 Alignments come as Praat TextGrids beside their audio (same stem; the simulator writes them beside its
-takes; tier ``phones``, or MFA's ``<speaker> - phones`` tiers of a file with several speakers, empty
-label = silence), as a JSON file mapping audio stems to ``{"words": [{"phones": [{"phone", "start",
-"end"}]}]}`` (the LibriVox sample), or as Gentle's JSON beside its audio (``{"transcript", "words":
-[{"case", "start", "end", "phones": [{"phone", "duration"}]}]}``: each word's phones follow each other
-from its start; words Gentle did not find in the audio have no time and are skipped, said). Phone
-labels are ARPAbet in any case, stress digits and Kaldi word-position suffixes (``dh_B``) dropped,
-TIMIT phones folded, or the IPA phones of MFA's English models (dataset/phones.py); labels outside
-these count as SIL (with a warning).
+takes; tier ``phones``, or MFA's ``<speaker> - phones`` tiers of a file with several speakers, whose
+phones spoken over another speaker's are left out, said; empty label = silence), as a JSON file
+mapping audio stems to ``{"words": [{"phones": [{"phone", "start", "end"}]}]}`` (the LibriVox
+sample), or as Gentle's JSON beside its audio (``{"transcript", "words": [{"case", "start", "end",
+"phones": [{"phone", "duration"}]}]}``: each word's phones follow each other from its start; words Gentle
+did not find in the audio have no time and are skipped, said; JSON whose words have no ``case`` is not
+Gentle's and is passed over). Phone labels are ARPAbet in any case, stress digits and Kaldi
+word-position suffixes (``dh_B``) dropped, TIMIT phones folded, or the IPA phones of MFA's English models
+(dataset/phones.py); labels outside these count as SIL (with a warning).
 Features are the dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre
 ``k · 20 ms``) takes the phone spanning that instant.
 
@@ -170,6 +171,14 @@ def _json_segments(words: object, stem: str, path: Path) -> tuple[Segments, list
     return segs, names
 
 
+def _is_gentle(data: dict) -> bool:
+    """Whether a JSON document is Gentle's: a ``words`` list whose words say their ``case`` (every word
+    Gentle writes does). Other JSON with a ``words`` list (a speech-to-text service's transcript beside
+    its audio) is no alignment, passed over as before."""
+    words = data.get("words")
+    return isinstance(words, list) and any(isinstance(w, dict) and "case" in w for w in words)
+
+
 def _gentle_segments(words: list, path: Path) -> tuple[Segments, list[str], int]:
     """Phone segments of a Gentle alignment (``words`` of its JSON), where each comes from, and how many
     words have no time (Gentle's ``"not-found-in-audio"``: skipped)."""
@@ -220,6 +229,20 @@ def _check_segments(segs: Segments, names: list[str], path: Path) -> None:
             reached, previous = end, names[k]
 
 
+def _spoken_over(segs: Segments, speakers: list[str]) -> set[int]:
+    """Indices of the segments that overlap a segment of another speaker (crosstalk: no one phone
+    labels those frames)."""
+    over: set[int] = set()
+    active: list[int] = []
+    for k in sorted(range(len(segs)), key=lambda k: segs[k][0]):
+        active = [j for j in active if segs[j][1] > segs[k][0] + 1e-6]
+        for j in active:
+            if speakers[j] != speakers[k]:
+                over |= {j, k}
+        active.append(k)
+    return over
+
+
 def find_alignments(
     paths: list[str | Path], warnings: list[str] | None = None
 ) -> list[tuple[Path, Segments]]:
@@ -258,18 +281,29 @@ def find_alignments(
             seen_files.add(f.resolve())
             if kind == ".textgrid":
                 tiers = read_textgrid(f).speaker_tiers("phones")
-                segs, names = [], []
+                segs, names, speakers = [], [], []
                 for tier in tiers:
                     if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
                         warnings.append(
                             f"{f}: tier {tier.name!r} is a point tier ({tier.kind}), not intervals"
                         )
-                    for k, iv in enumerate(tier.intervals):
+                    tier_segs = [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]
+                    tier_names = [f"tier {tier.name!r} interval {k + 1}" for k in range(len(tier_segs))]
+                    _check_segments(tier_segs, tier_names, f)
+                    for seg, name in zip(tier_segs, tier_names):
                         # one speaker's silence spans the others' speech: their phones alone are kept
-                        if len(tiers) == 1 or not _is_silence(iv.text):
-                            segs.append((iv.xmin, iv.xmax, iv.text))
-                            names.append(f"tier {tier.name!r} interval {k + 1}")
-                _check_segments(segs, names, f)
+                        if len(tiers) == 1 or not _is_silence(seg[2]):
+                            segs.append(seg)
+                            names.append(name)
+                            speakers.append(tier.name)
+                crosstalk = _spoken_over(segs, speakers)
+                if crosstalk:
+                    first = names[min(crosstalk, key=lambda k: segs[k][0])]
+                    warnings.append(
+                        f"{f}: {len(crosstalk)} phones overlap another speaker's (the first: {first}): left "
+                        "out, their stretch of audio counts as silence"
+                    )
+                    segs = [seg for k, seg in enumerate(segs) if k not in crosstalk]
                 add(_audio_beside(f), segs, f)
                 continue
             data, problem = _read_json(f)
@@ -278,7 +312,7 @@ def find_alignments(
                 continue
             if not isinstance(data, dict):
                 continue
-            if isinstance(data.get("words"), list):  # Gentle's output for the audio beside it
+            if _is_gentle(data):  # Gentle's output for the audio beside it
                 segs, names, untimed = _gentle_segments(data["words"], f)
                 _check_segments(segs, names, f)
                 if untimed:
