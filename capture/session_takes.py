@@ -1057,6 +1057,20 @@ def _rank_in_time(frame_time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(n) - np.repeat(starts, sizes), np.repeat(sizes, sizes)
 
 
+def _first_copies(rows: np.ndarray, idx: np.ndarray, ft: np.ndarray) -> np.ndarray:
+    """For frames ``rows[idx]`` with frame times ``ft``: the place of the first of them (in the order
+    given) that carries the same frame block byte for byte, a datagram the network delivered more than
+    once (its own place when it is no copy)."""
+    order = np.argsort(ft, kind="stable")
+    _, size = _rank_in_time(ft[order])
+    shared = order[size > 1]
+    first_of = np.arange(ft.size)
+    if shared.size:
+        _, first, group = np.unique(_frame_blocks(rows[idx[shared]]), return_index=True, return_inverse=True)
+        first_of[shared] = shared[first[group]]
+    return first_of
+
+
 def _pace(frame_time: np.ndarray, arrival_s: np.ndarray) -> float | None:
     """How fast frames' frame time ran against their arrivals (1: real time), None when they arrived
     within ``MIN_PACE_S`` (sent all at once)."""
@@ -1130,7 +1144,7 @@ def _burst(frame_time: np.ndarray, arrival_s: np.ndarray, pace: float) -> bool:
 
 
 def _undo_steps_back(
-    frame_time: np.ndarray, arrival_s: np.ndarray, period: float
+    frame_time: np.ndarray, arrival_s: np.ndarray, period: float, copy: np.ndarray | None = None
 ) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
     """A recording's frame times (arrival order) with the phone's clock's steps back undone: where it
     stepped back by less than a restart (an NTP or Tentacle Sync re-sync while the app keeps sending; never
@@ -1138,7 +1152,9 @@ def _undo_steps_back(
     recording is a burst the network held back long, or over midnight) the
     frames after the step are moved to where they arrived, by the step in whole frame periods, so that none
     overlaps a frame before it and the audio stays in sync. Returns the new frame times and per step (new
-    frame time of the first frame after it, seconds moved, the phone's frame time there).
+    frame time of the first frame after it, seconds moved, the phone's frame time there). ``copy``: which
+    packets are copies of one that came before (``_first_copies``), on its slot with its values: no sign
+    of a step of a few frames.
 
     A step is where ``arrival - frame time`` of the fastest packet over ``STEP_SIDE_S`` of frames after a
     packet exceeds that before it by more than ``BACK_STEP_S`` (late packets, Wi-Fi bursts do not move
@@ -1162,6 +1178,7 @@ def _undo_steps_back(
     width = min(max(2 * MIN_TAKE_FRAMES, int(STEP_SIDE_S / period)), MAX_STEP_SIDE_PACKETS)
     if n < 2 * width:
         return frame_time, []
+    copy = np.zeros(n, bool) if copy is None else copy
     behind = arrival_s - frame_time
     before, after = _floors(behind, width)
     rise = after - before
@@ -1185,11 +1202,14 @@ def _undo_steps_back(
         latest = np.partition(frame_time[at - width : at], width - 3)[width - 3]
         held = None  # the frames before the step that the network held back with those after it
         sides = frame_time[at - width : at], frame_time[at : at + width]
-        if latest - np.partition(sides[1], 2)[2] < step / 2 and not _short_step(*sides, step, period):
+        # a copy of a packet is on its slot with its values: no frame of a clock that went back
+        sent_once = sides[1][~copy[at : at + width]]
+        earliest = np.partition(sent_once, 2)[2] if sent_once.size > 2 else np.inf
+        if latest - earliest < step / 2 and not _short_step(sides[0], sent_once, step, period):
             # unless the network held back the frames on both sides of the step and released them
             # together, in the order sent: the frames after it then go back over the frame times of
             # those before it (``_held_over_step``)
-            held = _held_over_step(frame_time, arrival_s, max(at - width, done), at, step, period)
+            held = _held_over_step(frame_time, arrival_s, max(at - width, done), at, step, period, copy)
             if held is None:
                 continue
         # and the arrivals stay behind by the step a side further on (until the next step): a stall the
@@ -1259,7 +1279,13 @@ def _short_step(before: np.ndarray, after: np.ndarray, step: float, period: floa
 
 
 def _held_over_step(
-    frame_time: np.ndarray, arrival_s: np.ndarray, lo: int, at: int, step: float, period: float
+    frame_time: np.ndarray,
+    arrival_s: np.ndarray,
+    lo: int,
+    at: int,
+    step: float,
+    period: float,
+    copy: np.ndarray,
 ) -> np.ndarray | None:
     """Where the network held back the frames on both sides of a step back of the phone's clock (of
     ``step`` s, the fastest packet's lateness rising at packet ``at``) and released them together: the
@@ -1269,24 +1295,27 @@ def _held_over_step(
     land on slots frames that came before have (closer than ``SLOT_FRACTION`` of a frame period), at least
     half of those of the step's length, as only a clock that stepped back gives (late or reordered frames
     fill free slots). The frames before the step are those of the burst that run up to a frame period
-    below where the frames after it went back from."""
+    below where the frames after it went back from. Packets ``copy`` (copies of one that came before, on
+    its slot) count as none of the frames after the step."""
     hi = int(np.searchsorted(arrival_s, arrival_s[at] + MAX_LATENESS_S, "right"))
     ft = frame_time[lo:hi]
     reach = RUN_STEPS * period
     overlap = max(1, round(step / period))  # frames after the step on slots of frames before it
     for j in (lo + 1 + np.flatnonzero(ft[1:] < ft[:-1] - BACK_STEP_S)).tolist():
         t = frame_time[j]
-        run = _sent_run(frame_time, arrival_s, j, hi, (t + period / 2, t + reach), period, overlap - 1)
-        after = frame_time[[j, *run]]
+        went = [j, *_sent_run(frame_time, arrival_s, j, hi, (t + period / 2, t + reach), period, overlap - 1)]
+        after = frame_time[[k for k in went if not copy[k]]]  # copies of frames on their slots tell nothing
         if after.size < min(overlap, MIN_TAKE_FRAMES):
             continue
         # the frames before the step that came with them: from a frame period below where they went back
         top = t + step - period
         run = _sent_run(frame_time, arrival_s, j, lo - 1, (top - reach, top + reach), period, hi)
         held = np.array(run, np.int64)
-        # and the frames that came before the step (frames before it held back alone fill free slots)
+        # and the frames that came before the step (frames before it held back alone fill free slots) and
+        # before those that went back: not they themselves, nor those sent with them (a Wi-Fi burst that
+        # came just before a rise of the arrivals, a sender ticking faster than its frame clock)
         earlier = int(np.searchsorted(arrival_s, arrival_s[at] - MAX_LATENESS_S))
-        had = np.sort(np.concatenate([frame_time[earlier:at], frame_time[held]]))
+        had = np.sort(np.concatenate([frame_time[earlier : min(at, j)], frame_time[held]]))
         if had.size >= 2 and 2 * _on_slots(after, had, period) >= after.size:
             return held
     return None
@@ -1369,15 +1398,12 @@ def _time_ordered(
     rank, size = _rank_in_time(ft)
     if not rank.any():
         return idx, ft, tally
-    shared = np.flatnonzero(size > 1)
-    # equal blocks: equal frame times
-    _, first, group = np.unique(_frame_blocks(rows[idx[shared]]), return_index=True, return_inverse=True)
-    kept = shared[first[group]]  # the frame kept for each shared one (itself when it is no copy)
-    copy = kept != shared
-    _fold(tally, shared[copy], kept[copy], "duplicates")
-    report["duplicates"] += int(np.count_nonzero(copy))
+    kept = _first_copies(rows, idx, ft)  # the frame kept for each (itself when it is no copy)
+    copy = np.flatnonzero(kept != np.arange(ft.size))
+    _fold(tally, copy, kept[copy], "duplicates")
+    report["duplicates"] += copy.size
     keep = np.ones(ft.size, bool)
-    keep[shared[copy]] = False
+    keep[copy] = False
     idx, ft, tally = idx[keep], ft[keep], tally[keep]
     rank, size = _rank_in_time(ft)
     same = np.flatnonzero(rank)
@@ -1523,7 +1549,8 @@ def stream_takes(log: SessionLog, sid: int, rows: np.ndarray | None = None) -> t
     for idx, ft, placed_by_arrival, rate_note, start_note in recordings:
         backs: list[tuple[float, float, float]] = []
         if placed_by_arrival is None:  # frames after a small step back of the clock: where they arrived
-            ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx[:1]]))
+            copy = _first_copies(rows, idx, ft) != np.arange(idx.size)
+            ft, backs = _undo_steps_back(ft, arrival[idx], _declared_period(rows[idx[:1]]), copy)
             report["clock_steps_back"] += len(backs)
         prior_max = np.maximum.accumulate(ft)
         late = idx[1:][ft[1:] < prior_max[:-1]]
