@@ -482,7 +482,8 @@ _ending_line = ""
 def _command_ending(outer: str | None) -> None:
     """As ``run`` ends in a stage command's own process: its work is over, so a SIGTERM from here (as it
     prints its error, as Python exits) is let go, the exit code the command's own; a second one ends
-    the process at once (``_end_now``), and so does the first after a SIGTERM that stopped the command.
+    the process at once (``_end_now``), and so does the first after a SIGTERM that stopped the command,
+    until Python's last exit handler (``_sigterm_ignored_as_python_exits``) ignores every one after.
     It ended the process by the signal, with no line, after the work was done; after a stop, the second
     SIGTERM was let go as if it were the first."""
     global _ending_line
@@ -515,7 +516,8 @@ def _sigterm_ignored_as_python_exits() -> None:
     run after those registered later): a SIGTERM from here on, after a stage command's work, is ignored
     and the process exits with the code it was exiting with. Python resets its handlers to the default as
     it tears its modules down (seconds after the command's last line, with PyTorch): such a SIGTERM
-    ended the process by the signal (-15) instead, even the first one, which ``_let_go`` lets go."""
+    ended the process by the signal (-15) instead, even the first one, which ``_let_go`` lets go. A second
+    SIGTERM is ignored too: a teardown that hangs (a library's finalizer) is ended by SIGKILL only."""
     if signal.getsignal(signal.SIGTERM) in (_let_go, _end_now):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
 

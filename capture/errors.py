@@ -191,7 +191,9 @@ def _keys_named(value: Any, raw: Any) -> Any:
     return {names.get(key, key): v for key, v in value.items()}
 
 
-_COUNT_ADDED = re.compile(r" \(([0-9]+)\)$")  # `` (2)``: added to a key shown as another key is
+# `` (2)``: added to a key shown as another key is, and to bytes kept at a place taken (``_places``); only
+# the counts written (2 on, no leading zero): a key of its own ``audio_b64 (1)`` or ``(02)`` is no count
+_COUNT_ADDED = re.compile(r" \(([2-9]|[1-9][0-9]+)\)$")
 
 
 def _each_named(values: list, raws: list, restore) -> list | None:
@@ -236,7 +238,7 @@ def _raw_bytes(text: str) -> bytes | None:
 
 def shown_against(value: float, bound: float, places: int = 2) -> str:
     """``value`` with ``places`` decimals, or as many more as it takes to read on its side of ``bound``: a
-    confidence of 0.295 under a bound of 0.3 as ``0.295``, not ``0.30``; audio 0.9996 s long under 1 s as
+    confidence of 0.2951 under a bound of 0.3 as ``0.295``, not ``0.30``; audio 0.9996 s long under 1 s as
     ``0.9996``. For a message naming a figure beside the bound it missed."""
     for digits in range(places, 17):
         shown = f"{value:.{digits}f}"
