@@ -67,8 +67,16 @@ class Receiver:
                 pass
 
     def frames(self) -> list[ll.LiveLinkFrame]:
+        """Every datagram that arrived, also those still in the socket's buffer when the thread stops
+        (a busy machine: the sender may be done long before the thread has read its last packets)."""
         self.open = False
         self.thread.join()
+        self.sock.setblocking(False)
+        while True:
+            try:
+                self.packets.append(self.sock.recv(4096))
+            except BlockingIOError:
+                break
         self.sock.close()
         return [ll.decode_packet(p) for p in self.packets]
 

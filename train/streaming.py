@@ -8,7 +8,8 @@ once ``latency_s`` seconds of audio after the frame's time have arrived, and the
 when the speech ends (``finish``). The context starts on a frame's boundary, so frame ``k`` of the
 stream is frame ``k`` of ``predict`` on the same audio: they differ by what the model did not hear
 (the audio before the context, and after ``latency_s``) and by the speech level, measured over the
-context rather than over the whole file.
+context rather than over the whole file (in a pause longer than the context: the loudest speech's
+before it, ``_speech_level``).
 """
 
 from __future__ import annotations
@@ -21,8 +22,27 @@ import numpy as np
 
 from align.resample import TARGET_RATE
 from capture.errors import InputError
+from dataset.features import LEVEL_MARGIN_DB, speech_level
 
 from .predict import BLENDSHAPES_LOWER, animate_16k
+
+
+class RunningStats:
+    """Count, mean and maximum of a series of numbers in constant memory: a stream of any length (a
+    microphone left on for a day) keeps none of them."""
+
+    def __init__(self) -> None:
+        self.count, self.total, self.max = 0, 0.0, 0.0
+
+    def add(self, x: float) -> None:
+        self.max = x if self.count == 0 else max(self.max, x)
+        self.count += 1
+        self.total += x
+
+    def summary(self, digits: int) -> dict[str, float]:
+        """{"mean", "max"} rounded to ``digits``; 0 for an empty series."""
+        mean = self.total / self.count if self.count else 0.0
+        return {"mean": round(mean, digits), "max": round(self.max, digits)}
 
 
 class LiveAnimator:
@@ -60,7 +80,8 @@ class LiveAnimator:
         self.start = 0
         self.received = 0  # samples added so far
         self.emitted = 0  # frames handed out so far
-        self.compute_s: list[float] = []  # seconds each model run took
+        self.level: float | None = None  # the loudest context's active speech level so far (dBFS)
+        self.compute_ms = RunningStats()  # milliseconds each model run took
 
     def add(self, samples: np.ndarray) -> None:
         """Append 16 kHz mono float32 ``samples``; what lies before both the context and the first frame
@@ -93,8 +114,10 @@ class LiveAnimator:
 
     def finish(self) -> tuple[int, np.ndarray]:
         """(first frame index, frames) left when the audio has ended: up to ``predict``'s frame count
-        (the audio's length in frames, rounded)."""
+        (the audio's length in frames, rounded); audio shorter than half a frame is an ``InputError``."""
         total = int(round(self.received / self.rate * self.fps))
+        if total < 1:  # no frame to send: as predict says of such a file
+            raise InputError("audio is shorter than half an animation frame")
         if total <= self.emitted:
             return self.emitted, np.zeros((0, len(self.channels)), np.float32)
         return self._run(total, total)
@@ -122,8 +145,23 @@ class LiveAnimator:
         if audio.size < span:
             audio = np.pad(audio, (0, span - audio.size))
         t = time.perf_counter()
-        values = animate_16k(self.model, self.payload, audio, self.ppg, self.speaker, None, self.style)
-        self.compute_s.append(time.perf_counter() - t)
+        level = self._speech_level(audio)
+        values = animate_16k(
+            self.model, self.payload, audio, self.ppg, self.speaker, None, self.style, level=level
+        )
+        self.compute_ms.add((time.perf_counter() - t) * 1000)
         values = values[self.emitted - k0 : upto - k0].astype(np.float32)
         values[:, self.blendshapes] = np.clip(values[:, self.blendshapes], 0.0, 1.0)
         return values
+
+    def _speech_level(self, audio: np.ndarray) -> float | None:
+        """The speech level the features are scaled from (``speech_level``): the context's own, or, when
+        the context holds no speech (silent, or more than P.56's margin under the loudest speech heard so
+        far: a pause longer than the context), that speech's. Else a pause's noise would be raised to the
+        level of speech and move the face, where ``predict`` measures one level over the whole file."""
+        level = speech_level(audio, self.rate)
+        if level is not None and (self.level is None or level > self.level):
+            self.level = level
+        if self.level is not None and (level is None or level < self.level - LEVEL_MARGIN_DB):
+            return self.level
+        return level

@@ -164,12 +164,14 @@ class Pacer(threading.Thread):
     seconds of speech)."""
 
     def __init__(self, out: LiveLinkOut, zero: float, speed: float, late_after: float):
+        from train.streaming import RunningStats
+
         super().__init__(daemon=True)
         self.out, self.zero, self.speed, self.late_after = out, zero, speed, late_after
         self.frames: queue.Queue[tuple[int, np.ndarray, float] | None] = queue.Queue()
         self.stopping = threading.Event()
         self.sent = self.late = 0
-        self.lag_s: list[float] = []
+        self.lag_s = RunningStats()
         self.error: InputError | None = None
 
     def run(self) -> None:
@@ -185,7 +187,7 @@ class Pacer(threading.Thread):
             sent = time.monotonic()
             self.sent += 1
             self.late += sent - due > self.late_after
-            self.lag_s.append((sent - self.zero) * self.speed - frame / self.out.fps)
+            self.lag_s.add((sent - self.zero) * self.speed - frame / self.out.fps)
 
 
 def speak(
@@ -240,8 +242,6 @@ def speak(
         out.close()
         if player is not None:
             player.stop()
-    compute = np.array(animator.compute_s or [0.0]) * 1000
-    lag = np.array(pacer.lag_s or [0.0])
     return {
         "frames": pacer.sent,
         "fps": fps,
@@ -251,11 +251,8 @@ def speak(
         "context_s": animator.context_s,
         "hop_s": hop_s,
         "send_delay_s": round(delay, 4),
-        "achieved_latency_s": {"mean": round(float(lag.mean()), 4), "max": round(float(lag.max()), 4)},
-        "compute_ms_per_hop": {
-            "mean": round(float(compute.mean()), 2),
-            "max": round(float(compute.max()), 2),
-        },
+        "achieved_latency_s": pacer.lag_s.summary(4),
+        "compute_ms_per_hop": animator.compute_ms.summary(2),
         "late_frames": pacer.late,
         "frames_not_sent": animator.emitted - pacer.sent,
         "stopped_by": stopped_by,
