@@ -641,7 +641,7 @@ def _live_run(args: argparse.Namespace):
 def cmd_speak(args: argparse.Namespace) -> int:
     from capture.replay import parse_destination
 
-    from .speak import FileSpeech, MicSpeech, delayed_player, speak
+    from .speak import FileSpeech, MicSpeech, delayed_player, send_delay, speak
 
     parse_destination(args.to)  # a malformed destination is said before anything is read
     if args.mic is not None and (args.play or args.speed != 1.0):
@@ -650,7 +650,8 @@ def cmd_speak(args: argparse.Namespace) -> int:
         raise InputError("--play plays the speech in real time: use it with --speed 1")
     # the speech and the sound card first: a missing microphone is said before the run is loaded
     speech = FileSpeech(args.audio) if args.audio is not None else MicSpeech(args.mic or None)
-    player = delayed_player(speech, args.latency + 2 * args.hop) if args.play else None
+    behind = send_delay(args.latency, args.hop)
+    player = delayed_player(speech, behind) if args.play else None
 
     try:
         animator, out = _live_run(args)
@@ -659,7 +660,7 @@ def cmd_speak(args: argparse.Namespace) -> int:
         raise
     if not args.json:
         what = args.audio if args.audio is not None else "the microphone"
-        progress(f"speaking {what} to {args.to} ({args.latency + 2 * args.hop:.2f} s behind; Ctrl-C stops)")
+        progress(f"speaking {what} to {args.to} ({behind:.2f} s behind; Ctrl-C stops)")
     import torch
 
     threads = torch.get_num_threads()
@@ -682,8 +683,9 @@ def cmd_speak(args: argparse.Namespace) -> int:
         )
     if summary["late_frames"]:
         warn(
-            f"{summary['late_frames']} frame(s) were sent late: the model took longer than a hop "
-            f"({args.hop:g} s); give a larger --hop or a shorter --context"
+            f"{summary['late_frames']} frame(s) were sent late: a hop's compute took longer than its "
+            f"{args.hop / args.speed:g} s (--hop {args.hop:g} at --speed {args.speed:g}); give a larger "
+            "--hop or a shorter --context"
         )
     return 0
 

@@ -190,6 +190,12 @@ class Pacer(threading.Thread):
             self.lag_s.add((sent - self.zero) * self.speed - frame / self.out.fps)
 
 
+def send_delay(latency_s: float, hop_s: float) -> float:
+    """Seconds of speech between a frame's time and its packet: the latency, one hop for the speech to
+    arrive and one for the model to compute it."""
+    return latency_s + 2 * hop_s
+
+
 def speak(
     animator,
     speech: FileSpeech | MicSpeech,
@@ -202,7 +208,7 @@ def speak(
     ``out`` at its time plus the send delay, until the speech ends, Ctrl-C or SIGTERM. Returns the
     summary: frames sent, the model's compute per hop, the latency achieved, frames late."""
     fps = animator.fps
-    delay = animator.latency_s + 2 * hop_s  # speech seconds: one hop to arrive, one to compute
+    delay = send_delay(animator.latency_s, hop_s)
     out.begin()
     speech.start()
     start = time.monotonic()
