@@ -25,7 +25,9 @@ Sources: Unreal Engine 5.8 ``LiveLinkFaceControl.cpp`` (MetaHumanLiveLink) and t
 
 ``PhoneStream`` runs that session in a thread and relays the phone's realtime packets
 (``realtime_packet``) of an ARKit subject, as classic version-6 packets, to a ``LiveRecorder``'s socket
-on this computer: the recording, its log, its takes and ``recover`` are those of the classic stream.
+on this computer: the recording, its log, its takes and ``recover`` are those of the classic stream. A
+MetaHuman Animator subject (controls of its own, any number) is logged directly in the recorder's frames
+log, a CONTROLS record a packet after a STREAM record naming its controls: its takes' channels are those.
 """
 
 from __future__ import annotations
@@ -46,8 +48,10 @@ from .realtime_packet import (
     MAX_REALTIME_PACKET_BYTES,
     REALTIME_REJECT_REASONS,
     ArkitMapping,
+    controls_record,
     decode_realtime_packet,
 )
+from .record_log import RecordType, json_record
 from .replay import format_destination
 
 FRAME_MAGIC = b"CPSCONTROL\0"
@@ -75,6 +79,8 @@ ANIMATION_TYPES = ("arkit", "mha")
 # The relay's rejection counts go into the recorder's under this prefix (``realtime_short``): the recorder
 # checks the classic packets relayed to it with its own reasons.
 REJECT_PREFIX = "realtime_"
+REALTIME_SOURCE_KIND = "livelink_realtime"  # the takes of a subject logged with its own controls
+LOG_EVERY_S = 0.1  # the relay hands its CONTROLS records to the log at least this often
 
 
 class ControlError(Exception):
@@ -245,17 +251,28 @@ class ControlClient:
         self.session_id = session
 
 
+def _own_controls_problem(subject: RemoteSubject) -> str | None:
+    """Why a subject cannot be recorded with its own controls as a take's channels (None: it can)."""
+    if not subject.controls or not all(subject.controls):
+        return f"subject {subject.id!r} has an empty control list or an empty control name"
+    folded = [c.lower() for c in subject.controls]
+    twice = sorted({c for c in subject.controls if folded.count(c.lower()) > 1})
+    if twice:  # a take's channels are looked up case-insensitively
+        return f"subject {subject.id!r} names a control twice ({', '.join(twice[:5])}; case is ignored)"
+    return None
+
+
 def choose_subject(subjects: list[RemoteSubject], skipped: list[str]) -> RemoteSubject:
-    """The first ARKit subject; ``ControlError`` saying why there is none."""
+    """The first ARKit subject, else the first MetaHuman Animator one whose controls can be a take's
+    channels; ``ControlError`` saying why there is none."""
     for subject in subjects:
         if subject.kind == "arkit":
             return subject
-    if subjects:
-        names = ", ".join(f"{s.name} ({s.kind}, {len(s.controls)} controls)" for s in subjects)
-        raise ControlError(
-            f"the phone streams only MetaHuman Animator subjects ({names}), which listen does not record: "
-            "set Live Link Face's realtime stream to ARKit"
-        )
+    for subject in subjects:
+        problem = _own_controls_problem(subject)
+        if problem is None:
+            return subject
+        skipped = [*skipped, problem]
     why = f" ({'; '.join(skipped)})" if skipped else ""
     raise ControlError(f"the phone lists no subject to stream{why}")
 
@@ -266,8 +283,10 @@ class _Streaming:
 
     subject: RemoteSubject
     device: str
-    mapping: ArkitMapping
+    mapping: ArkitMapping | None  # None: a subject logged with its own controls (``stream``)
     phone: str  # the phone's address: realtime packets from elsewhere are not recorded
+    stream: int = -1  # the CONTROLS records' stream id of a subject logged with its own controls
+    stream_record: dict[str, Any] | None = None  # its STREAM record (the relay logs it before its frames)
 
 
 @dataclass
@@ -277,7 +296,10 @@ class PhoneStream:
 
     ``say`` prints a line (each distinct failure once in a row); ``rejected`` is the recorder's rejection
     counts, which the relay adds to; ``note`` logs an event in the session log; ``allow`` (an
-    ``AllowList``) accepts realtime packets from more addresses than the phone's."""
+    ``AllowList``) accepts realtime packets from more addresses than the phone's; ``record`` hands
+    complete records to the session log (``LogWriter.put``): a MetaHuman Animator subject is recorded
+    only with it, as CONTROLS records (``logged`` counts them), one stream per device, subject and
+    control list (a session started again with the same ones goes on in the same stream)."""
 
     host: str
     port: int
@@ -291,6 +313,8 @@ class PhoneStream:
     retry_s: float = RETRY_S
     keep_alive_s: float = KEEP_ALIVE_S
     relayed: int = 0
+    record: Callable[[bytes], None] | None = None
+    logged: int = 0
     udp: socket.socket | None = None  # where the phone streams to (``open``)
     out: socket.socket | None = None  # to the recorder
     _streaming: _Streaming | None = None
@@ -299,6 +323,9 @@ class PhoneStream:
     _threads: list[threading.Thread] = field(default_factory=list)
     _last_said: str = ""
     _streamed: bool = False  # whether the current session got as far as streaming
+    _stream_ids: dict[tuple[str, str, tuple[str, ...]], int] = field(default_factory=dict)
+    _unlogged: bytearray = field(default_factory=bytearray)  # the relay's records not handed over yet
+    _logged_streams: set[int] = field(default_factory=set)  # those whose STREAM record the relay logged
 
     def open(self) -> tuple[str, int]:
         """Bind the UDP socket the phone is told to stream to; its (address, port)."""
@@ -399,18 +426,29 @@ class PhoneStream:
         info = client.request(SERVER_INFORMATION)
         subjects, skipped = parse_subjects(client.request(STREAMING_SUBJECTS))
         subject = choose_subject(subjects, skipped)
+        if subject.kind != "arkit" and self.record is None:
+            raise ControlError(f"subject {subject.name} is a MetaHuman Animator one: no log to record it in")
         device = info.get("id") if isinstance(info.get("id"), str) and info.get("id") else client.peer
-        mapping = ArkitMapping(subject.controls)
-        self._streaming = _Streaming(subject, device, mapping, client.peer)
+        if subject.kind == "arkit":
+            self._streaming = _Streaming(subject, device, ArkitMapping(subject.controls), client.peer)
+        else:
+            self._streaming = self._own_stream(subject, device, client.peer)
         client.request(
             START_STREAMING,
             {"streamPort": self.udp.getsockname()[1], "subjects": [{"id": subject.id, "name": subject.name}]},
         )
         self._streamed = True
         phone = info.get("name") if isinstance(info.get("name"), str) else client.peer
+        kind = "ARKit" if subject.kind == "arkit" else "MetaHuman Animator"
         self._tell(
             f"phone {self._phone} ({phone}) streams subject {subject.name} "
-            f"({len(subject.controls)} ARKit controls) to udp port {self.udp.getsockname()[1]}"
+            f"({len(subject.controls)} {kind} controls) to udp port {self.udp.getsockname()[1]}"
+        )
+        mapping = self._streaming.mapping
+        matched = (
+            {"unmatched_controls": mapping.unmatched, "missing_channels": mapping.missing}
+            if mapping is not None
+            else {"stream": self._streaming.stream}
         )
         self.note(
             {
@@ -418,10 +456,9 @@ class PhoneStream:
                 "message": f"subject {subject.name} of {phone}",
                 "subject_id": subject.id,
                 "controls": subject.controls,
-                "unmatched_controls": mapping.unmatched,
-                "missing_channels": mapping.missing,
-                "information": info,
             }
+            | matched
+            | {"information": info}
         )
         failures = 0
         last_keep_alive = time.monotonic()
@@ -438,10 +475,30 @@ class PhoneStream:
                 if failures >= KEEP_ALIVE_FAILURES:
                     raise ControlError(f"{failures} keep-alives in a row unanswered") from None
 
+    def _own_stream(self, subject: RemoteSubject, device: str, phone: str) -> _Streaming:
+        """The streaming of a subject logged with its own controls: its stream id (a new one, whose
+        STREAM record names its controls, unless a session before streamed the same subject)."""
+        stream = self._stream_ids.setdefault(
+            (device, subject.name, tuple(subject.controls)), len(self._stream_ids)
+        )
+        record = {
+            "stream": stream,
+            "device": device,
+            "subject": subject.name,
+            "source": phone,
+            "source_kind": REALTIME_SOURCE_KIND,
+            "controls": subject.controls,
+        }
+        return _Streaming(subject, device, None, phone, stream, record)
+
     # -- the relay ----------------------------------------------------------------------------
     def _relay(self) -> None:
         buf = bytearray(MAX_REALTIME_PACKET_BYTES + 1)
+        handed = time.monotonic()
         while not self._stop.is_set():
+            if self._unlogged and time.monotonic() - handed >= LOG_EVERY_S:
+                handed = time.monotonic()
+                self._hand_over()
             try:
                 n, addr = self.udp.recvfrom_into(buf)
             except TimeoutError:
@@ -451,6 +508,13 @@ class PhoneStream:
             reason = self._forward(memoryview(buf)[:n], addr)
             if reason is not None:  # a key ``open`` made: the recorder's thread copies the dict meanwhile
                 self.rejected[REJECT_PREFIX + reason] += 1
+        self._hand_over()
+
+    def _hand_over(self) -> None:
+        """Hand the CONTROLS records (and their STREAM records) received so far to the log."""
+        if self._unlogged and self.record is not None:
+            self.record(bytes(self._unlogged))
+            self._unlogged.clear()
 
     def _forward(self, data: memoryview, addr: Any) -> str | None:
         streaming = self._streaming
@@ -464,9 +528,17 @@ class PhoneStream:
             return packet
         if packet.subject_id != streaming.subject.id:
             return "unknown_subject"
-        if packet.controls.size != streaming.mapping.count:
+        if packet.controls.size != len(streaming.subject.controls):
             self._restart.set()  # Unreal restarts the session: the phone's subject changed
             return "control_count"
+        if streaming.mapping is None:
+            if streaming.stream not in self._logged_streams:  # its first packet: the rate it declares
+                self._logged_streams.add(streaming.stream)
+                rate = {"rate_numerator": packet.rate_numerator, "rate_denominator": packet.rate_denominator}
+                self._unlogged += json_record(RecordType.STREAM, streaming.stream_record | rate)
+            self._unlogged += controls_record(streaming.stream, time.monotonic_ns(), packet)
+            self.logged += 1
+            return None
         classic = streaming.mapping.classic_packet(streaming.device, streaming.subject.name, packet)
         with contextlib.suppress(OSError):
             self.out.sendto(classic, self.recorder_address)

@@ -1035,6 +1035,7 @@ def _phone_stream(args: argparse.Namespace, phone, allow, recorder: LiveRecorder
         say=lambda line: _say(_printable(line)),
         rejected=recorder.rejected,
         note=recorder.note,
+        record=recorder.log.put,  # a MetaHuman Animator subject's frames, logged with their own controls
         bind=args.bind or ("::" if ":" in phone[0] else "0.0.0.0"),
         stream_port=args.port or 0,
         allow=allow,

@@ -1,5 +1,6 @@
 """The realtime packet of Live Link Face's newer stream (the Unreal Engine 5.6+ "Live Link Face" source,
-formats doc §5.6), and how an ARKit subject's packet becomes the classic version-6 packet.
+formats doc §5.6), how an ARKit subject's packet becomes the classic version-6 packet, and how another
+subject's (MetaHuman Animator's) becomes a CONTROLS record of the session log (``controls_record``).
 
 Layout, read field by field with Unreal's ``FArrayReader`` (no byte swapping: little-endian)::
 
@@ -26,6 +27,7 @@ import numpy as np
 
 from . import livelink as ll
 from .channels import LIVELINK_ORDER, is_known, udp_index
+from .record_log import RecordType, encode_record
 
 # The largest datagram accepted. Unreal's receiver says "in reality the packets are between 1KB and 2KB";
 # a subject of 4,000 controls (MetaHuman Animator's are a few hundred) still fits.
@@ -37,6 +39,7 @@ _ID_LEN = struct.Struct("<HH")  # version, subject id length
 _FRAME_TIME = struct.Struct("<ifii")  # frame number, sub-frame, rate numerator, rate denominator
 _COUNT = struct.Struct("<H")
 _HEAD_POSE = struct.Struct("<6f")
+_CONTROLS_PREFIX = struct.Struct("<BHq")  # record type, stream id, arrival ns (as a FRAME record's)
 
 # Why a realtime datagram was not recorded (beside the classic packet's checks the recorder makes).
 REALTIME_REJECT_REASONS: tuple[str, ...] = (
@@ -153,3 +156,15 @@ class ArkitMapping:
             packet.rate_denominator,
             self.values(packet),
         )
+
+
+def controls_record(stream: int, arrival_ns: int, packet: RealtimePacket) -> bytes:
+    """The frames-log record (``RecordType.CONTROLS``) of a packet of a subject recorded with its own
+    controls: stream id, arrival, the frame time as a classic packet's and the control values."""
+    return encode_record(
+        _CONTROLS_PREFIX.pack(RecordType.CONTROLS, stream, arrival_ns)
+        + ll._FRAME_TIME.pack(
+            packet.frame_number, packet.sub_frame, packet.rate_numerator, packet.rate_denominator
+        )
+        + packet.controls.astype(">f4").tobytes()
+    )

@@ -72,6 +72,10 @@ class RecordType(IntEnum):
     END = 8  # JSON: the recorder stopped cleanly (totals)
     NOTE = 9  # JSON: an event worth keeping (audio overflow, serial error, ...)
     NO_FACE = 10  # u16 stream id, i64 arrival ns, 16-byte frame time of a no-face packet (face lost)
+    # u16 stream id, i64 arrival ns, 16-byte frame time (big-endian, as FRAME's), N big-endian f32 values:
+    # a frame of a subject with its own controls (the newer app's MetaHuman Animator stream), their
+    # names in the ``controls`` of its STREAM record (stream ids of their own, apart from FRAME's)
+    CONTROLS = 11
 
 
 def encode_record(payload: bytes) -> bytes:

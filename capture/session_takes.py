@@ -34,6 +34,11 @@ frame numbers are milliseconds counted as frames, or is no clock at all) is plac
 instead (``arrival_clock``): packets in arrival order on the declared rate's grid, gaps as DROPPED
 frames; the take's ``meta.extra.frame_clock`` and a ``frame_clock`` repair say so.
 
+A stream of CONTROLS records (a MetaHuman Animator subject of the newer app's realtime stream, logged by
+``cps_control.PhoneStream``) is read the same way; its takes' channels are the controls its STREAM record
+names (``control_0``, ... with a ``controls_unnamed`` repair when the log lost that record) and their
+``source_kind`` is ``livelink_realtime``.
+
 Clocks: take time 0 is the segment's first phone frame time. The phone clock is put on the session
 clock with ``offset = min(arrival_s - frame_time_s)`` over the segment (the packet that travelled
 fastest), so recorder time ``m`` is take time ``m - offset - frame_time_0``. The audio's first sample,
@@ -179,20 +184,31 @@ SPILL_BYTES = 64 << 20
 # A take's frames whose frame numbers step by k > 1 (their median step) at least this often (losses make
 # multiples of k) come from a sender that sends every k-th frame of its declared rate: a take at rate / k.
 STEADY_STRIDE_FRACTION = 0.95
-# One logged frame: arrival ns (little-endian, ours) + the packet's frame block (big-endian, the app's).
-ROW_DTYPE = np.dtype(
-    [
-        ("arrival_ns", "<i8"),
-        ("frame_number", ">i4"),
-        ("sub_frame", ">f4"),
-        ("rate_numerator", ">i4"),
-        ("rate_denominator", ">i4"),
-        ("count", "u1"),
-        ("values", ">f4", (ll.BLENDSHAPE_COUNT,)),
-    ]
-)
+
+
+def row_dtype(values: int) -> np.dtype:
+    """One logged frame of ``values`` values: arrival ns (little-endian, ours) + the packet's frame block
+    (big-endian, the app's)."""
+    return np.dtype(
+        [
+            ("arrival_ns", "<i8"),
+            ("frame_number", ">i4"),
+            ("sub_frame", ">f4"),
+            ("rate_numerator", ">i4"),
+            ("rate_denominator", ">i4"),
+            ("count", "u1"),
+            ("values", ">f4", (values,)),
+        ]
+    )
+
+
+ROW_DTYPE = row_dtype(ll.BLENDSHAPE_COUNT)
 _STREAM_ID = struct.Struct("<H")
 _FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
+# A CONTROLS record (a subject logged with its own controls): its values after the arrival and frame time.
+_CONTROLS_AT = _FRAME_AT + 8 + ll.FRAME_TIME_BYTES
+# The streams of CONTROLS records have ids of their own: a SessionLog keeps them as this plus their id.
+CONTROLS_STREAMS = 0x10000
 # What a no-face record's row gets after its frame time: count 0 and NaN values (big-endian like the rest).
 _NO_FACE_TAIL = bytes([0]) + np.full(ll.BLENDSHAPE_COUNT, np.nan, dtype=">f4").tobytes()
 
@@ -212,6 +228,8 @@ _JSON_FIELDS: dict[int, tuple[dict[str, tuple[type, ...]], tuple[str, ...]]] = {
             "source": (str, type(None)),
             "port": (int, type(None)),
             "alongside": _INT,
+            "source_kind": _TEXT,
+            "controls": (list,),
         },
         ("stream",),
     ),
@@ -224,7 +242,9 @@ _JSON_FIELDS: dict[int, tuple[dict[str, tuple[type, ...]], tuple[str, ...]]] = {
 def _plausible_json(kind: int, data: dict[str, Any]) -> bool:
     """What ``json_fields`` does not check: a 16-bit stream id, a clock origin in ns, counts."""
     if kind == RecordType.STREAM:
-        return 0 <= data["stream"] <= 0xFFFF
+        controls = data.get("controls")  # the names of a CONTROLS stream's values
+        named = controls is None or bool(controls) and all(isinstance(c, str) and c for c in controls)
+        return 0 <= data["stream"] <= 0xFFFF and named
     if kind == RecordType.SESSION:
         origin = data.get("clock", {}).get("origin_ns")
         return origin is None or type(origin) is int and -(2**63) <= origin < 2**63  # an int64 of ns
@@ -245,6 +265,7 @@ class SessionLog:
         self.notes: list[dict[str, Any]] = []
         self.end: dict[str, Any] | None = None
         self.frame_counts: dict[int, int] = {}
+        self._row_dtypes: dict[int, np.dtype] = {}  # of the streams of CONTROLS records (ROW_DTYPE else)
         # Rows wait in memory per stream; past SPILL_BYTES in all they go to files, so that building
         # the takes of many long streams needs one stream's rows in memory at a time.
         self._pending: dict[int, bytearray] = {}
@@ -272,6 +293,25 @@ class SessionLog:
                     self._pending_bytes += ROW_DTYPE.itemsize
                     if self._pending_bytes > SPILL_BYTES:
                         self._spill()
+                elif kind == RecordType.CONTROLS and size > _CONTROLS_AT and (size - _CONTROLS_AT) % 4 == 0:
+                    (sid,) = _STREAM_ID.unpack_from(payload, 1)
+                    sid += CONTROLS_STREAMS
+                    dtype = self._row_dtypes.setdefault(sid, row_dtype((size - _CONTROLS_AT) // 4))
+                    if dtype["values"].shape[0] != (size - _CONTROLS_AT) // 4:
+                        reader.reject(INVALID_RECORD)  # a control count its stream's frames do not have
+                        continue
+                    if sid not in self.frame_counts:
+                        self.frame_counts[sid] = 0
+                        self._pending[sid] = bytearray()
+                        (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
+                        first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
+                    self.frame_counts[sid] += 1
+                    self._pending[sid] += payload[_FRAME_AT:_CONTROLS_AT]
+                    self._pending[sid].append(1)  # a face (no-face packets are not logged so)
+                    self._pending[sid] += payload[_CONTROLS_AT:]
+                    self._pending_bytes += dtype.itemsize
+                    if self._pending_bytes > SPILL_BYTES:
+                        self._spill()
                 elif kind == RecordType.SYNC and size >= SYNC_HEAD_BYTES:
                     self.sync.append(decode_sync_record(payload))
                 elif kind in _JSON_FIELDS:
@@ -281,17 +321,23 @@ class SessionLog:
                     elif kind == RecordType.SESSION:
                         self.session = data
                     elif kind == RecordType.STREAM:
-                        self.streams[data["stream"]] = data
+                        own = "controls" in data  # a stream of CONTROLS records
+                        self.streams[data["stream"] + CONTROLS_STREAMS * own] = data
                     elif kind == RecordType.REJECTS:
                         self.rejected = {k: v for k, v in data.items() if v}
                     elif kind == RecordType.END:
                         self.end = data
                     else:
                         self.notes.append(data)
-                elif kind in (RecordType.FRAME, RecordType.NO_FACE, RecordType.SYNC):  # of another size
+                elif kind in (RecordType.FRAME, RecordType.NO_FACE, RecordType.SYNC, RecordType.CONTROLS):
                     reader.reject(INVALID_RECORD)
             if self._spill_dir is not None:
                 self._spill()
+            for sid, dtype in self._row_dtypes.items():  # control names of each CONTROLS stream
+                info = self.streams.setdefault(sid, {"stream": sid - CONTROLS_STREAMS})
+                if len(info.get("controls", ())) != dtype["values"].shape[0]:  # its STREAM record lost
+                    info["controls"] = [f"control_{i}" for i in range(dtype["values"].shape[0])]
+                    info["controls_unnamed"] = True
             self.torn_tail = reader.torn_tail
             self.damage = reader.skipped
             origin = self.session.get("clock", {}).get("origin_ns")
@@ -323,10 +369,12 @@ class SessionLog:
 
     def stream_rows(self, sid: int) -> np.ndarray:
         """The logged frames of one stream, in log (= arrival) order, as ``ROW_DTYPE`` records (no-face
-        packets with ``count`` 0 and NaN values)."""
+        packets with ``count`` 0 and NaN values); a stream of CONTROLS records as ``row_dtype`` records
+        of its control count (``count`` 1)."""
+        dtype = self._row_dtypes.get(sid, ROW_DTYPE)
         if self._spill_dir is None:
-            return np.frombuffer(self._pending[sid], dtype=ROW_DTYPE)
-        return np.fromfile(self._spill_dir / f"{sid}.rows", dtype=ROW_DTYPE)
+            return np.frombuffer(self._pending[sid], dtype=dtype)
+        return np.fromfile(self._spill_dir / f"{sid}.rows", dtype=dtype)
 
     def close(self) -> None:
         """Remove the spilled rows."""
@@ -1667,17 +1715,28 @@ def _segment_take(
                 "message": f"{int((~finite).sum())} frames held NaN/inf values",
             }
         )
+    controls = info.get("controls")  # a stream of CONTROLS records: its subject's own controls
+    if info.get("controls_unnamed"):
+        repairs.append(
+            {
+                "line": None,
+                "kind": "controls_unnamed",
+                "message": f"the log lost the names of the stream's {len(controls)} controls: "
+                "named control_0, control_1, ...",
+            }
+        )
     meta = TakeMeta(
         id=safe_id(take_id),
-        source_kind="livelink_udp",
+        source_kind="livelink_udp" if controls is None else info.get("source_kind", "livelink_realtime"),
         fps=fps,
-        channels=list(ARKIT61),
+        channels=list(ARKIT61) if controls is None else list(controls),
         subject=info.get("subject"),
         device=info.get("device"),
         start_timecode=Timecode.from_seconds(ft[0]).format(),
         timecode_rate=rate_num / rate_den,
         repairs=repairs,
-        csv={"count_name": "BlendShapeCount", "start_seconds_of_day": float(ft[0] % 86400.0)},
+        csv=({"count_name": "BlendShapeCount"} if controls is None else {})
+        | {"start_seconds_of_day": float(ft[0] % 86400.0)},
     )
     sync = [(ev.to_json(), float(log.seconds(ev.arrival_ns))) for ev in log.sync]
     events = [j | {"arrival_s": a, "t": a - offset - float(ft[0])} for j, a in sync]

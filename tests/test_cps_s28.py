@@ -159,11 +159,6 @@ def test_listen_phone_records_an_arkit_subject_as_the_classic_stream_does(tmp_pa
         ("refuse", "the phone refused /session/start: requestFailed: the app is recording"),
         ("silent", "the phone did not answer /session/start within 3 s"),
         ("no_subjects", "the phone lists no subject to stream"),
-        (
-            "mha",
-            "the phone streams only MetaHuman Animator subjects (iPhone (mha, 8 controls)), which listen "
-            "does not record: set Live Link Face's realtime stream to ARKit",
-        ),
         ("garbage", "not a Capture Protocol Stack control stream (it began b'HTTP/1.1 40')"),
     ],
 )

@@ -3,7 +3,8 @@ Capture Protocol Stack (TCP, ``capture.cps_control``) and, once a receiver asks 
 a take's frames as realtime packets (``capture.realtime_packet``) of an ARKit subject.
 
 ``behaviour`` makes it a phone that misbehaves: ``refuse`` answers every request with an error,
-``silent`` never answers, ``no_subjects`` lists none, ``mha`` lists only a MetaHuman Animator subject,
+``silent`` never answers, ``no_subjects`` lists none, ``mha`` lists only a MetaHuman Animator subject
+(``MHA_CONTROLS``: the first eight of the take's values, streamed under those names),
 ``garbage`` answers with bytes that are no control message, ``drop_once`` closes the first control
 connection after ``drop_after`` frames (and goes on streaming on the next one). ``extra_datagrams`` are
 sent to the receiver's UDP port before the frames (bad input for its relay).
@@ -29,6 +30,7 @@ from capture.take import FrameStatus, Take
 
 BEHAVIOURS = ("normal", "refuse", "silent", "no_subjects", "mha", "garbage", "drop_once")
 ARKIT_CONTROLS = list(LIVELINK_ORDER[:52])  # the 52 blendshapes; the head pose travels apart
+MHA_CONTROLS = [f"CTRL_expressions_{i}" for i in range(8)]
 SUBJECT_ID = "00000000-5EA1-71DE-0000-00000000A1C1"
 DEVICE_ID = "5E1F0000-0000-4000-8000-0000CAFEF00D"
 
@@ -55,7 +57,8 @@ class RealtimeFrames:
         head[:, :3] = values[:, [54, 53, 52]]  # HeadRoll, HeadPitch, HeadYaw
         return cls(fn, (x - fn).astype(np.float32), (num, den), values[:, :52], head)
 
-    def packet(self, k: int, subject_id: str = SUBJECT_ID) -> bytes:
+    def packet(self, k: int, subject_id: str = SUBJECT_ID, controls: int | None = None) -> bytes:
+        """Frame ``k``'s packet; ``controls``: only the first this many of its controls."""
         num, den = self.rate
         return encode_realtime_packet(
             subject_id,
@@ -63,7 +66,7 @@ class RealtimeFrames:
             float(min(self.sub_frame[k], np.nextafter(np.float32(1), np.float32(0)))),
             num,
             den,
-            self.controls[k],
+            self.controls[k, :controls],
             self.head_pose[k],
         )
 
@@ -130,7 +133,7 @@ class SimulatedPhone:
         if self.behaviour == "no_subjects":
             return {"subjects": []}
         kind, controls = (
-            ("mha", [f"CTRL_expressions_{i}" for i in range(8)])
+            ("mha", MHA_CONTROLS)
             if self.behaviour == "mha"
             else (
                 "arkit",
@@ -211,7 +214,10 @@ class SimulatedPhone:
                 wait = began + (k - first) * period - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
-                udp.sendto(self.frames.packet(k), to)
+                packet = self.frames.packet(
+                    k, controls=len(MHA_CONTROLS) if self.behaviour == "mha" else None
+                )
+                udp.sendto(packet, to)
                 self.sent += 1
                 if self.behaviour == "drop_once" and number == 1 and k + 1 >= self.drop_after:
                     conn.shutdown(socket.SHUT_RDWR)  # the phone goes away mid-stream
