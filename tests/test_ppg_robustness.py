@@ -195,7 +195,7 @@ def test_utterance_without_phones_is_skipped_with_a_warning(tmp_path):
     warnings = "\n".join(summary["warnings"])
     assert f"{tmp_path / 'd' / 'empty.wav'}: no phone frames" in warnings
     assert f"{tmp_path / 'd' / 'points' / 'utt.TextGrid'}: tier 'phones' is a point tier" in warnings
-    assert "1 phone segments have labels outside ARPAbet and count as silence" in warnings
+    assert "1 phone segments have labels outside ARPAbet: unknown, left out of training" in warnings
     assert "'ʘ'" in warnings
     assert all(f"warning: {w}" in proc.stderr for w in summary["warnings"])
 

@@ -17,7 +17,7 @@ from dataset_helpers import speech_like
 
 from capture.textgrid import Interval, TextGrid, Tier, interval_tier, write_textgrid
 from dataset.phones import ARPABET, phone_index
-from train.ppg_train import find_alignments, frame_labels
+from train.ppg_train import UNKNOWN, find_alignments, frame_labels
 
 # the phones each dictionary's meta.json lists (mfa-models, dictionary/english/*/v3.1.0/meta.json)
 MFA_V3_PHONES = {
@@ -69,8 +69,9 @@ def test_british_mfa_textgrid_trains_without_labels_outside_the_phone_set(tmp_pa
 
 def test_speakers_talking_over_each_other_leave_out_those_phones(tmp_path):
     """MFA aligns each speaker of a conversation alone: crosstalk gives overlapping phones on two
-    speaker tiers. Those frames have no one phone; the rest of the conversation (and the corpus)
-    trains, said in one warning naming the file and the first overlapping phone."""
+    speaker tiers. Those frames have no one phone: unknown, left out of training (not silence); the
+    rest of the conversation (and the corpus) trains, said in one warning naming the file and the first
+    overlapping phone."""
     _wav(tmp_path / "talk.wav")
     tiers = [
         interval_tier("anna - phones", [(0.2, 0.4, "h"), (0.4, 0.6, "aj"), (0.6, 0.8, "n")], 0.0, 2.0),
@@ -81,11 +82,11 @@ def test_speakers_talking_over_each_other_leave_out_those_phones(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert (
         f"{tmp_path / 'talk.TextGrid'}: 2 phones overlap another speaker's (the first: tier 'anna - phones' "
-        "interval 4): left out, their stretch of audio counts as silence"
+        "interval 4): their stretch of audio is unknown, left out of training"
     ) in summary["warnings"]
     [(_, segs)] = find_alignments([tmp_path])
-    labels = [ARPABET[x] for x in frame_labels(segs, 100, 0.02)]
-    assert [labels[k] for k in (15, 25, 35, 40, 45, 60, 70)] == ["HH", "AY", "SIL", "SIL", "SIL", "EH", "S"]
+    labels = ["?" if x == UNKNOWN else ARPABET[x] for x in frame_labels(segs, 100, 0.02)]
+    assert [labels[k] for k in (15, 25, 35, 40, 45, 60, 70)] == ["HH", "AY", "?", "?", "SIL", "EH", "S"]
 
 
 def test_an_overlap_inside_one_speakers_tier_is_still_refused(tmp_path):

@@ -18,7 +18,7 @@ from dataset import BuildOptions, build_dataset, make_extractor
 from dataset.bottleneck import ARPABET
 from dataset.features import FeatureSettings, spectral_features
 from train.evaluate import evaluate
-from train.ppg_train import find_alignments, frame_labels
+from train.ppg_train import UNKNOWN, find_alignments, frame_labels
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def _utterance(folder, phones: list[str], seed: int = 0, frames: int = 101) -> n
 def test_textgrid_alignments_beside_audio(tmp_path):
     labels = _utterance(tmp_path, ["", "aa1", "s", "xx"])
     assert labels[10] == 0 and labels[30] == ARPABET.index("AA") and labels[60] == ARPABET.index("S")
-    assert labels[90] == 0 and labels[100] == 0  # unknown label and after the end: SIL
+    assert labels[90] == UNKNOWN and labels[100] == 0  # unknown label: left out; after the end: SIL
     proc = run_here("train", "ppg", "--data", tmp_path, "-o", tmp_path / "p.pt", "--steps", "3", "--json")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["utterances"] == 1

@@ -3,14 +3,23 @@ phone alignments, written with ``save_bottleneck`` for ``s2a-dataset build --ppg
 
 Alignments come as Praat TextGrids beside their audio (same stem; the simulator writes them beside its
 takes; tier ``phones``, or MFA's ``<speaker> - phones`` tiers of a file with several speakers, whose
-phones spoken over another speaker's are left out, said; empty label = silence), as a JSON file
+phones spoken over another speaker's are unknown, said; empty label = silence), as a JSON file
 mapping audio stems to ``{"words": [{"phones": [{"phone", "start", "end"}]}]}`` (the LibriVox
 sample), or as Gentle's JSON beside its audio (``{"transcript", "words": [{"case", "start", "end",
 "phones": [{"phone", "duration"}]}]}``: each word's phones follow each other from its start; words Gentle
-did not find in the audio have no time and are skipped, said; JSON whose words have no ``case`` is not
-Gentle's and is passed over). Phone labels are ARPAbet in any case, stress digits and Kaldi
-word-position suffixes (``dh_B``) dropped, TIMIT phones folded, or the IPA phones of MFA's English models
-(dataset/phones.py); labels outside these count as SIL (with a warning).
+did not find in the audio have no time: the stretch between the found words around them is unknown,
+said; JSON whose words have no ``case`` is not Gentle's and is passed over). Phone labels are ARPAbet in
+any case, stress digits and Kaldi word-position suffixes (``dh_B``) dropped, TIMIT phones folded, or the
+IPA phones of MFA's English models (dataset/phones.py); labels outside these are unknown (with a warning).
+
+Frames are labelled with a phone, silence (SIL), or UNKNOWN: speech no phone can be given to. The
+cross-entropy, the held-out accuracy and the chance level leave UNKNOWN frames out (``ignore_index``), so
+the PPG is never taught to call speech silence. Silence is what the formats write for no speech: an
+empty interval or a stretch no segment covers (pauses between words), ``sil``, ``sp`` (MFA's and Kaldi's
+short pause), ``<sil>`` and the recogniser's fillers (``+NSN+``). UNKNOWN is speech: MFA's ``spn``
+(spoken noise: a word outside the dictionary or speech it could not transcribe, aligned as one unit),
+Gentle's ``oov`` (a word it found in the audio but has no pronunciation for), the stretch of words Gentle
+did not find in the audio, phones two speakers say at once, and labels outside the phone set.
 Features are the dataset's own log-mel filter banks on its 20 ms grid; frame ``k`` (centre
 ``k · 20 ms``) takes the phone spanning that instant.
 
@@ -56,17 +65,28 @@ Segments = list[tuple[float, float, str]]
 MISMATCH_S = 0.5  # alignment and audio lengths may differ by this much without a warning
 LABELS = ("alignments", "pocketsphinx")
 PIECE_S = 10.0  # decoded speech is cut into pieces of about this length (at silences) for the held-out split
+UNKNOWN = -100  # frame label of speech without a phone: left out of the loss and the accuracies
+UNPLACED = "spn"  # segment label of speech the aligner did not place (spoken noise, as MFA writes it)
 
 
 def _phone_id(label: str) -> int:
-    return phone_index(label) or 0
+    """The frame label of a segment label: its phone, 0 for silence, UNKNOWN for any other."""
+    if _is_silence(label):
+        return 0
+    index = phone_index(label)
+    return UNKNOWN if index is None else index
 
 
 def _is_silence(label: str) -> bool:
-    """Labels aligners write for silence and noise: empty, SIL, SP, SPN (MFA's spoken noise or unknown
-    word), OOV (Gentle's unknown word, ``oov_S``), or fillers like +NSN+ and <sil>."""
+    """Labels aligners write for no speech: empty, SIL, SP, or fillers like +NSN+ and <sil>."""
     p = without_word_position(label).upper()
-    return p in ("", "SIL", "SP", "SPN", "OOV") or p.startswith(("+", "<"))
+    return p in ("", "SIL", "SP") or p.startswith(("+", "<"))
+
+
+def _is_spoken_noise(label: str) -> bool:
+    """Labels aligners write for speech without phones: SPN (MFA's spoken noise or unknown word), OOV
+    (Gentle's unknown word, ``oov_S``)."""
+    return without_word_position(label).upper() in ("SPN", "OOV")
 
 
 def _utterance_audio(alignment: Path, stem: str) -> Path:
@@ -181,10 +201,14 @@ def _is_gentle(data: dict) -> bool:
 
 def _gentle_segments(words: list, path: Path) -> tuple[Segments, list[str], int]:
     """Phone segments of a Gentle alignment (``words`` of its JSON), where each comes from, and how many
-    words have no time (Gentle's ``"not-found-in-audio"``: skipped)."""
+    words have no time (Gentle's ``"not-found-in-audio"``): they were said between the found words around
+    them, so that stretch (from the start or to the end of the audio for words first or last) is one
+    UNPLACED segment."""
     segs: Segments = []
     names: list[str] = []
     untimed = 0
+    unplaced_from: float | None = None  # end of the found word before words not found (0: none before)
+    reached = 0.0
     for i, word in enumerate(words):
         where = f"word {i}"
         if not isinstance(word, dict):
@@ -193,11 +217,17 @@ def _gentle_segments(words: list, path: Path) -> tuple[Segments, list[str], int]
             )
         if word.get("case") == "not-found-in-audio" or "start" not in word:
             untimed += 1
+            if unplaced_from is None:
+                unplaced_from = reached
             continue
         phones = word.get("phones")
         if not isinstance(phones, list):
             raise InputError(f"{where}: 'phones' must be a list, found {_show(phones)}", path)
         t = _seconds(word["start"], f"{where}: 'start'", path)
+        if unplaced_from is not None and unplaced_from < t:
+            segs.append((unplaced_from, t, UNPLACED))
+            names.append(f"the words not found before {where}")
+        unplaced_from = None
         for k, ph in enumerate(phones):
             at = f"{where} phone {k}"
             if not (isinstance(ph, dict) and isinstance(ph.get("phone"), str) and "duration" in ph):
@@ -208,6 +238,10 @@ def _gentle_segments(words: list, path: Path) -> tuple[Segments, list[str], int]
             segs.append((t, end, ph["phone"]))
             names.append(at)
             t = end
+        reached = max(reached, t)
+    if unplaced_from is not None:
+        segs.append((unplaced_from, math.inf, UNPLACED))
+        names.append("words not found at the end")
     return segs, names, untimed
 
 
@@ -300,10 +334,12 @@ def find_alignments(
                 if crosstalk:
                     first = names[min(crosstalk, key=lambda k: segs[k][0])]
                     warnings.append(
-                        f"{f}: {len(crosstalk)} phones overlap another speaker's (the first: {first}): left "
-                        "out, their stretch of audio counts as silence"
+                        f"{f}: {len(crosstalk)} phones overlap another speaker's (the first: {first}): their "
+                        "stretch of audio is unknown, left out of training"
                     )
-                    segs = [seg for k, seg in enumerate(segs) if k not in crosstalk]
+                    segs = [
+                        (a, b, UNPLACED) if k in crosstalk else (a, b, x) for k, (a, b, x) in enumerate(segs)
+                    ]
                 add(_audio_beside(f), segs, f)
                 continue
             data, problem = _read_json(f)
@@ -318,7 +354,7 @@ def find_alignments(
                 if untimed:
                     warnings.append(
                         f"{f}: {untimed} of {len(data['words'])} words have no time (Gentle did not find "
-                        "them in the audio): skipped, their stretch of audio counts as silence"
+                        "them in the audio): their stretch of audio is unknown, left out of training"
                     )
                 add(_audio_beside(f), segs, f)
                 continue
@@ -415,7 +451,8 @@ def decoded_utterances(paths: list[str | Path], warnings: list[str], say: Callab
 
 
 def frame_labels(segments: Segments, n_frames: int, hop_s: float) -> np.ndarray:
-    """Phone id per analysis frame (centre ``k · hop_s`` s); SIL outside every segment."""
+    """Phone id per analysis frame (centre ``k · hop_s`` s): SIL outside every segment, UNKNOWN in
+    speech without a phone."""
     labels = np.zeros(n_frames, np.int64)
     t = np.arange(n_frames) * hop_s
     for start, end, label in segments:
@@ -461,25 +498,25 @@ def train_ppg(
         label.strip()
         for segs in all_segments
         for *_, label in segs
-        if not _is_silence(label) and phone_index(label) is None
+        if not (_is_silence(label) or _is_spoken_noise(label)) and phone_index(label) is None
     )
     if unknown:
         examples = ", ".join(repr(u) for u, _ in unknown.most_common(5))
         warnings.append(
-            f"{sum(unknown.values())} phone segments have labels outside ARPAbet and count as silence "
-            f"({len(unknown)} different, e.g. {examples})"
+            f"{sum(unknown.values())} phone segments have labels outside ARPAbet: unknown, left out of "
+            f"training ({len(unknown)} different, e.g. {examples})"
         )
     utts = []
     for audio_path, audio, segs in sources:
         fbank = spectral_features(audio, settings)["fbank"]
         ids = frame_labels(segs, len(fbank), settings.hop_s)
-        if not ids.any():
+        if not (ids > 0).any():
             warnings.append(
                 f"{audio_path}: no phone frames (labels all silence or outside ARPAbet, or no segment "
                 "inside the audio): skipped"
             )
             continue
-        seconds, end = len(audio) / 16000, max(b for _, b, _ in segs)
+        seconds, end = len(audio) / 16000, max(b for _, b, _ in segs if b < math.inf)
         if abs(end - seconds) > MISMATCH_S:
             warnings.append(
                 f"{audio_path}: the alignment ends at {end:.2f} s but the audio is {seconds:.2f} s long "
@@ -517,8 +554,12 @@ def train_ppg(
             s = int(rng.integers(0, len(y) - length + 1))
             xs.append(x[s : s + length])
             ys.append(y[s : s + length])
+        if all(bool((y == UNKNOWN).all()) for y in ys):  # no frame to learn from (a loss of 0 / 0)
+            continue
         _, logits = model(torch.stack(xs))
-        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), torch.stack(ys).reshape(-1))
+        loss = F.cross_entropy(
+            logits.reshape(-1, logits.shape[-1]), torch.stack(ys).reshape(-1), ignore_index=UNKNOWN
+        )
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -567,16 +608,21 @@ def _check_writable(out: Path) -> None:
 
 @torch.no_grad()
 def _accuracy(model: BottleneckPPG, utts) -> float:
+    """Frame accuracy over the frames with a label (UNKNOWN frames left out)."""
     hit = n = 0
     for x, y in utts:
         _, logits = model(x.unsqueeze(0))
-        hit += int((logits[0].argmax(-1) == y).sum())
-        n += len(y)
+        known = y != UNKNOWN
+        hit += int((logits[0].argmax(-1) == y)[known].sum())
+        n += int(known.sum())
     return hit / max(n, 1)
 
 
 def _majority(train, evaluate) -> float:
-    """Frame accuracy of always answering the most frequent training phone (the chance level)."""
-    top = int(torch.cat([y for _, y in train]).bincount().argmax())
+    """Frame accuracy of always answering the most frequent training phone (the chance level), over the
+    frames with a label."""
+    ys = torch.cat([y for _, y in train])
+    top = int(ys[ys != UNKNOWN].bincount().argmax())
     ys = torch.cat([y for _, y in evaluate])
-    return float((ys == top).float().mean())
+    ys = ys[ys != UNKNOWN]
+    return float((ys == top).float().mean()) if len(ys) else 0.0
