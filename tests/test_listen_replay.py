@@ -209,12 +209,12 @@ def test_allow_list_and_bad_arguments(tmp_path):
         (["replay", str(tmp_path), "--to", "nowhere"], "HOST:PORT"),
         (["recover", str(tmp_path / "empty")], "no such folder"),
         # Without PortAudio: the libportaudio2 hint; with it but no sound card: the device error.
-        (["listen", "-o", str(tmp_path), "--audio-device", "0", "--duration", "1"], "audio"),
+        (["listen", "-o", str(tmp_path), "--port", "0", "--audio-device", "0", "--duration", "1"], "audio"),
     ]:
         r = run_cli(*args)
         assert r.returncode == 1, (args, r.stderr)
         assert text in r.stderr and "Traceback" not in r.stderr and len(r.stderr.splitlines()) == 1
     # a start that fails leaves no output folder behind (one that existed stays)
     new = tmp_path / "never-made"
-    r = run_cli("listen", "-o", str(new), "--audio-device", "0", "--duration", "1")
+    r = run_cli("listen", "-o", str(new), "--port", "0", "--audio-device", "0", "--duration", "1")
     assert r.returncode == 1 and not new.exists(), r.stderr

@@ -213,7 +213,7 @@ def test_no_sound_card_says_how_to_list_the_devices(tmp_path):
     if inputs:
         pytest.skip("this machine has a sound input device")
     for device in ("0", "default"):
-        r = run_cli("listen", "-o", str(tmp_path), "--audio-device", device, "--duration", "1")
+        r = run_cli("listen", "-o", str(tmp_path), "--port", "0", "--audio-device", device, "--duration", "1")
         if "libportaudio2" in r.stderr:
             pytest.skip("PortAudio is not installed here")
         assert r.returncode == 1 and len(r.stderr.splitlines()) == 1, r.stderr
