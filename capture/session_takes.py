@@ -620,7 +620,8 @@ def _taken_slots(
     """Which frames ``idx`` land closer than ``SLOT_FRACTION`` of a frame step (the median step of the
     frames ``have``) to one of the frames ``have``, and are not a copy of it that the network delivered
     twice (byte for byte, within ``MAX_GAP_S``; a sender that sends the same frames again later, as a
-    replay run twice does, restarted), nor one that arrived less than ``apart`` (s, per frame) from it."""
+    replay run twice does, restarted), nor one that arrived after the frame, by less than ``apart`` (s,
+    per frame)."""
     have = have[np.argsort(frame_time[have], kind="stable")]
     times = frame_time[have]
     step = _frame_step(times)
@@ -636,7 +637,9 @@ def _taken_slots(
     if copy.any():
         a, b = idx[copy], have[nearest[copy]]
         copy[copy] = _identical(rows, a, b) & (np.abs(arrival_s[a] - arrival_s[b]) <= MAX_GAP_S)
-    taken &= np.abs(arrival_s[have[nearest]] - arrival_s[idx]) >= apart
+    # the frame came first: the one on its slot, later by less than ``apart``, is what took it from it
+    after = arrival_s[have[nearest]] - arrival_s[idx]
+    taken &= (after <= 0) | (after >= apart)
     return taken & ~copy
 
 
@@ -680,9 +683,10 @@ def _place_off_clock(
             far[back] = ~_continuing(at[back], had, at[ours])
         inside &= ~far
         who, rank = who[inside], rank[inside]
-        # a frame of the recording the clock was on that came less than ``tol`` from the one on its slot:
+        # a frame of the recording the clock was on that came less than ``tol`` before the one on its slot:
         # the same clock, which stepped back a little between them (undone by ``_undo_steps_back``), not
-        # another recording (a restart's clock went back further)
+        # another recording (a restart's clock went back further); one that came after the frame on its
+        # slot is not freed, as a restart's frames amid late packets of the recording before it would be
         apart = np.where(current[who] == c, tol, 0.0)
         free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s, apart)
         fits[who[free], rank[free]] = True

@@ -79,3 +79,20 @@ def test_a_wifi_burst_from_a_sender_ticking_twice_a_frame_before_a_slower_route_
     lines = [json.loads(x) for x in r.stdout.splitlines()]
     assert [(x["frames"], x["dropped_frames"], x["clock_steps_back"]) for x in lines] == [(2 * n, 0, 0)]
     assert _markers(lines[0]) == list(range(2 * n))
+
+
+def test_a_restart_logged_faster_than_real_time_keeps_its_frames_out_of_the_take_before(tmp_path):
+    # 10 s at 60 fps, then the clock goes back 1.5 s (an NTP correction: a new recording) for 10 s; Wi-Fi
+    # jitter of up to 0.5 s mixes the two in arrival order, and the sender (a replay as fast as it could)
+    # logged every packet within microseconds. The new recording's frames amid the late ones of the first
+    # land on the first's slots, whose frames came before them: taken. Before, any frame on a slot
+    # whose frame came less than the clock's tolerance apart counted as free: frames of the new
+    # recording were placed into the first take (602 frames).
+    rng = np.random.default_rng(5)
+    frames = np.concatenate([np.arange(600), 510 + np.arange(600)])
+    order = np.argsort(np.arange(1200) / FPS + rng.uniform(0, 0.5, 1200), kind="stable")
+    arrivals = np.empty(1200)
+    arrivals[order] = 1.0 + np.arange(1200) * 1e-5
+    lines = _recover(tmp_path, arrivals, frames)
+    assert [(x["frames"], x["dropped_frames"]) for x in lines] == [(600, 0), (600, 0)]
+    assert [_markers(x) for x in lines] == [list(range(600)), list(range(600, 1200))]
