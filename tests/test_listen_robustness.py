@@ -195,7 +195,13 @@ def test_unwritable_output_folder_is_one_line(tmp_path):
 # -- 5. the audio file ---------------------------------------------------------------------------------------
 def test_missing_audio_file_is_never_silent(tmp_path):
     r = run_cli(
-        "listen", "-o", str(tmp_path), "--audio-file", "/nonexistent/x.wav", "--audio-start", "first-packet"
+        "listen",
+        "-o",
+        str(tmp_path),
+        "--audio-file",
+        str(tmp_path / "no-such-folder" / "x.wav"),
+        "--audio-start",
+        "first-packet",
     )
     assert r.returncode == 1 and "not found" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
     assert not list(tmp_path.iterdir())
