@@ -104,14 +104,14 @@ def parse_destination(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _rate_of(fps: float) -> tuple[int, int]:
+def rate_of(fps: float) -> tuple[int, int]:
     if abs(fps - round(fps)) < 1e-6:
         return int(round(fps)), 1
     f = Fraction(fps).limit_denominator(1001)
     return f.numerator, f.denominator
 
 
-def _values_in_engine_order(take: Take) -> np.ndarray:
+def values_in_engine_order(take: Take) -> np.ndarray:
     """frames x 61 float32 in Live Link order; channels the take lacks are 0."""
     out = np.zeros((take.time.size, ll.BLENDSHAPE_COUNT), dtype=np.float32)
     index = {canonical(c): j for j, c in enumerate(take.meta.channels) if is_known(c)}
@@ -206,7 +206,7 @@ def replay_take(
     if audio_out is not None and speed != 1.0:
         raise InputError("--audio-out re-enacts a session in real time: use it with --speed 1")
     device, subject = packet_names(take, device, subject)
-    num, den = _rate_of(take.meta.fps)
+    num, den = rate_of(take.meta.fps)
     t0 = start_seconds_of_day(take)
     status = take.frame_status
     send = status != FrameStatus.DROPPED
@@ -222,7 +222,7 @@ def replay_take(
     idx, fn, sf = idx[unique], fn[unique], sf[unique]
     if idx.size == 0:
         raise InputError(f"take {take.meta.id} has no frames to send")
-    values = _values_in_engine_order(take)
+    values = values_in_engine_order(take)
     header = ll.header_bytes(device, subject)
     rng = np.random.default_rng(imp.seed)
     n = idx.size

@@ -31,11 +31,11 @@ from capture.channels import is_known
 from capture.command import Terminated, warn
 from capture.errors import InputError
 from capture.replay import (
-    _rate_of,
-    _values_in_engine_order,
     format_destination,
     packet_names,
     parse_destination,
+    rate_of,
+    values_in_engine_order,
 )
 
 from .stream import AudioPlayer
@@ -120,7 +120,7 @@ class LiveLinkOut:
         blank = Take(self.meta, np.zeros(0), np.zeros((0, len(channels)), np.float32), np.zeros(0, np.uint8))
         self.device, self.subject = packet_names(blank, device, subject)
         self.header = ll.header_bytes(self.device, self.subject)
-        self.num, self.den = _rate_of(fps)
+        self.num, self.den = rate_of(fps)
         self.fps = fps
         self.where = format_destination(host, port)
         try:
@@ -141,7 +141,7 @@ class LiveLinkOut:
         """(frames, 61) float32 in Live Link order; channels the run lacks are 0."""
         n = values.shape[0]
         take = Take(self.meta, (first + np.arange(n)) / self.fps, values, np.zeros(n, np.uint8))
-        return _values_in_engine_order(take)
+        return values_in_engine_order(take)
 
     def send(self, frame: int, values61: np.ndarray) -> None:
         x = (self.day_s + frame / self.fps) * self.num / self.den

@@ -25,7 +25,7 @@ from capture import cps_control as cps
 from capture.channels import LIVELINK_ORDER
 from capture.csv_take import start_seconds_of_day
 from capture.realtime_packet import encode_realtime_packet
-from capture.replay import _rate_of, _values_in_engine_order
+from capture.replay import rate_of, values_in_engine_order
 from capture.take import FrameStatus, Take
 
 BEHAVIOURS = ("normal", "refuse", "silent", "no_subjects", "mha", "garbage", "drop_once")
@@ -48,11 +48,11 @@ class RealtimeFrames:
     @classmethod
     def of_take(cls, take: Take) -> RealtimeFrames:
         """The take's TRACKED frames (the others are not sent) at its rate from its start timecode."""
-        num, den = _rate_of(take.meta.fps)
+        num, den = rate_of(take.meta.fps)
         keep = take.frame_status == FrameStatus.TRACKED
         x = (start_seconds_of_day(take) + take.time[keep]) * num / den
         fn = np.floor(x).astype(np.int64)
-        values = _values_in_engine_order(take)[keep]
+        values = values_in_engine_order(take)[keep]
         head = np.zeros((fn.size, 6), dtype=np.float32)
         head[:, :3] = values[:, [54, 53, 52]]  # HeadRoll, HeadPitch, HeadYaw
         return cls(fn, (x - fn).astype(np.float32), (num, den), values[:, :52], head)
