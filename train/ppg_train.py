@@ -340,6 +340,9 @@ def find_alignments(
                     segs = [
                         (a, b, UNPLACED) if k in crosstalk else (a, b, x) for k, (a, b, x) in enumerate(segs)
                     ]
+                last, end = max((b for _, b, _ in segs), default=0.0), max(t.xmax for t in tiers)
+                if end > last:  # the tiers' silence after the last phone, left out above: where they end
+                    segs.append((last, end, ""))
                 add(_audio_beside(f), segs, f)
                 continue
             data, problem = _read_json(f)
