@@ -43,7 +43,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from .errors import InputError
 from .realtime_packet import (
     MAX_REALTIME_PACKET_BYTES,
     REALTIME_REJECT_REASONS,
@@ -52,6 +51,7 @@ from .realtime_packet import (
     decode_realtime_packet,
 )
 from .record_log import RecordType, json_record
+from .recorder import bound_udp_socket
 from .replay import format_destination
 
 FRAME_MAGIC = b"CPSCONTROL\0"
@@ -329,19 +329,7 @@ class PhoneStream:
 
     def open(self) -> tuple[str, int]:
         """Bind the UDP socket the phone is told to stream to; its (address, port)."""
-        family = socket.AF_INET6 if ":" in self.bind else socket.AF_INET
-        udp = socket.socket(family, socket.SOCK_DGRAM)
-        try:
-            udp.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
-            if family == socket.AF_INET6:  # ``::`` takes a phone's IPv4 packets too (as ::ffff:a.b.c.d)
-                with contextlib.suppress(OSError, AttributeError):
-                    udp.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
-            udp.bind((self.bind, self.stream_port))
-        except (OSError, OverflowError) as exc:
-            udp.close()
-            raise InputError(f"cannot listen on UDP {self.bind}:{self.stream_port}: {exc}") from None
-        udp.settimeout(0.1)
-        self.udp = udp
+        self.udp = bound_udp_socket(self.bind, self.stream_port, 0.1)
         # the relay's reasons, beside the recorder's own (which it checks on what is relayed)
         for reason in REALTIME_REJECT_REASONS:
             self.rejected.setdefault(REJECT_PREFIX + reason, 0)

@@ -197,6 +197,32 @@ def _frame_seconds(frame: float, num: int, den: int) -> float:
     return frame * ll.rate_denominator(den) / num
 
 
+def bound_udp_socket(bind: str, port: int, wake_s: float) -> socket.socket:
+    """A UDP socket bound to ``bind``:``port`` that wakes every ``wake_s`` s, with a deep receive queue
+    (it rides out disk hiccups and bursts; capped by net.core.rmem_max), ``::`` taking IPv4 senders too;
+    an ``InputError`` naming the address when it cannot be had."""
+    try:
+        family = socket.AF_INET6 if ":" in bind else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+    except OSError as exc:
+        raise InputError(f"cannot create a UDP socket: {exc}") from None
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+        if family == socket.AF_INET6 and _unspecified(bind):
+            # ``::`` takes IPv4 senders too (as ::ffff:a.b.c.d), whatever the system's default.
+            with contextlib.suppress(OSError, AttributeError):
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+        sock.bind((bind, port))
+    except (OSError, OverflowError) as exc:
+        sock.close()
+        raise InputError(f"cannot listen on UDP {bind}:{port}: {exc}") from None
+    except BaseException:  # a stop signal (listen's set-up): the socket is not kept yet
+        sock.close()
+        raise
+    sock.settimeout(wake_s)
+    return sock
+
+
 class LiveRecorder:
     """Receives Live Link packets on a UDP socket and logs them; see the module docstring.
 
@@ -264,26 +290,7 @@ class LiveRecorder:
     # -- set-up -------------------------------------------------------------------------------
     def open(self) -> tuple[str, int]:
         """Create the session folder and log, bind the socket; returns the bound (address, port)."""
-        try:
-            family = socket.AF_INET6 if ":" in self.bind else socket.AF_INET
-            sock = socket.socket(family, socket.SOCK_DGRAM)
-        except OSError as exc:
-            raise InputError(f"cannot create a UDP socket: {exc}") from None
-        try:
-            # A deep receive queue rides out disk hiccups and bursts (capped by net.core.rmem_max).
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
-            if family == socket.AF_INET6 and _unspecified(self.bind):
-                # ``::`` takes IPv4 senders too (as ::ffff:a.b.c.d), whatever the system's default.
-                with contextlib.suppress(OSError, AttributeError):
-                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
-            sock.bind((self.bind, self.port))
-        except (OSError, OverflowError) as exc:
-            sock.close()
-            raise InputError(f"cannot listen on UDP {self.bind}:{self.port}: {exc}") from None
-        except BaseException:  # a stop signal (listen's set-up): the socket is not kept yet
-            sock.close()
-            raise
-        sock.settimeout(SOCKET_WAKE_S)
+        sock = bound_udp_socket(self.bind, self.port, SOCKET_WAKE_S)
         try:
             self.session_dir.mkdir(parents=True, exist_ok=True)
             self.log = LogWriter(self.session_dir / FRAMES_LOG, fsync=self.fsync)

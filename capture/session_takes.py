@@ -281,12 +281,7 @@ class SessionLog:
                     kind == RecordType.NO_FACE and size == NO_FACE_PAYLOAD_BYTES
                 ):
                     (sid,) = _STREAM_ID.unpack_from(payload, 1)
-                    if sid not in self.frame_counts:
-                        self.frame_counts[sid] = 0
-                        self._pending[sid] = bytearray()
-                        (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
-                        first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
-                    self.frame_counts[sid] += 1
+                    first_stamp = self._counted(sid, payload, first_stamp)
                     self._pending[sid] += payload[_FRAME_AT:]
                     if kind == RecordType.NO_FACE:
                         self._pending[sid] += _NO_FACE_TAIL
@@ -300,12 +295,7 @@ class SessionLog:
                     if dtype["values"].shape[0] != (size - _CONTROLS_AT) // 4:
                         reader.reject(INVALID_RECORD)  # a control count its stream's frames do not have
                         continue
-                    if sid not in self.frame_counts:
-                        self.frame_counts[sid] = 0
-                        self._pending[sid] = bytearray()
-                        (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
-                        first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
-                    self.frame_counts[sid] += 1
+                    first_stamp = self._counted(sid, payload, first_stamp)
                     self._pending[sid] += payload[_FRAME_AT:_CONTROLS_AT]
                     self._pending[sid].append(1)  # a face (no-face packets are not logged so)
                     self._pending[sid] += payload[_CONTROLS_AT:]
@@ -348,6 +338,17 @@ class SessionLog:
         except BaseException:
             self.close()
             raise
+
+    def _counted(self, sid: int, payload, first_stamp: int | None) -> int | None:
+        """Count a frame record of stream ``sid`` (its rows begun at its first); ``first_stamp`` lowered
+        to the arrival of a stream's first frame."""
+        if sid not in self.frame_counts:
+            self.frame_counts[sid] = 0
+            self._pending[sid] = bytearray()
+            (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
+            first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
+        self.frame_counts[sid] += 1
+        return first_stamp
 
     def _spill(self) -> None:
         if self._spill_dir is None:

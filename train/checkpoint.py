@@ -235,6 +235,23 @@ def load_system(run: str | Path):
         raise _last_instead(exc, Path(run)) from None
 
 
+def load_for_inference(run: str | Path, precision: str, style: str | None, say: Callable[[str], None]):
+    """(model ready for inference at ``precision``, checkpoint payload, its ``InputSpec``) of ``run``,
+    as eval, predict and speak load it: the run's note (``training_note``) goes to ``say``; a style the
+    run lacks is an ``InputError``."""
+    from .data import InputSpec
+    from .precision import for_inference
+    from .style import check_style
+
+    model, payload = load_system(run)
+    note = training_note(run, payload)
+    if note is not None:
+        say(f"note: {note}")
+    spec = InputSpec.from_json(payload["inputs"])
+    check_style(spec.styles, style)
+    return for_inference(model, precision), payload, spec
+
+
 def _last_instead(exc: InputError, run: Path) -> InputError:
     """``exc``, about the best.pt a run folder loads, with how to load its last.pt instead: never done
     unasked, as it is another model (the last step's weights, not the best on validation)."""

@@ -30,11 +30,11 @@ from dataset.manifest import dataset_folder, read_manifest
 from dataset.normalize import Normalizer
 from dataset.torch_dataset import ShardDataset
 
-from .checkpoint import NOT_FINITE, checkpoint_path, load_system, training_note
+from .checkpoint import NOT_FINITE, checkpoint_path, load_for_inference
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
-from .precision import for_inference, infer
+from .precision import infer
 from .run_dataset import leaked_takes, recorded_takes
-from .style import MEAN, check_style
+from .style import MEAN
 from .systems import check_sample_frames, max_frames
 
 CRUCIAL = ("jawopen", "mouthclose")
@@ -243,13 +243,7 @@ def evaluate(
     (the mean style for a speaker it did not train on), or every utterance in ``style`` (a speaker of
     the run or ``"mean"``). Notes go to ``say``; a leak (``leaked_takes``) is also a warning on stderr
     (``warn``)."""
-    model, payload = load_system(run)
-    note = training_note(run, payload)
-    if note is not None:
-        say(f"note: {note}")
-    model = for_inference(model, precision)
-    spec = InputSpec.from_json(payload["inputs"])
-    check_style(spec.styles, style)
+    model, payload, spec = load_for_inference(run, precision, style, say)
     info = payload["dataset"]
     ds = dataset_folder(ds)  # the folder or its manifest.json; another file is named, not taken for it
     manifest = read_manifest(ds)

@@ -39,10 +39,9 @@ from dataset.features import FeatureSettings, compute_features, gain_for_level, 
 from dataset.normalize import Normalizer
 from dataset.ppg import make_extractor
 
-from .checkpoint import NOT_FINITE, load_system, training_note
+from .checkpoint import NOT_FINITE, load_for_inference
 from .data import InputSpec, normalize_features, to_model_inputs
-from .precision import for_inference
-from .style import MEAN, check_style
+from .style import MEAN
 from .systems import max_frames
 from .windowed import PREDICT_WINDOW_S, infer_windowed
 
@@ -286,13 +285,7 @@ def load_for_animation(
     """(model ready for inference, checkpoint payload, PPG extractor or None) of ``run``: what
     ``animate_16k`` needs. A run's note (``training_note``) goes to ``say``; a style the run lacks, or a
     PPG run without the PPG model its dataset was built with, is an ``InputError``."""
-    model, payload = load_system(run)
-    note = training_note(run, payload)
-    if note is not None:
-        say(f"note: {note}")
-    model = for_inference(model, precision)
-    spec = InputSpec.from_json(payload["inputs"])
-    check_style(spec.styles, style)
+    model, payload, spec = load_for_inference(run, precision, style, say)
     info = payload["dataset"]
     ppg = None
     if spec.content == "ppg":
