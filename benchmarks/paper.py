@@ -292,11 +292,16 @@ def simulate_ppg_corpus(run: Runner, out: Path, plan: Plan, seed: int) -> dict[s
     return summary
 
 
+def _json_file(path: Path) -> Any:
+    """A JSON file a stage wrote, its names not UTF-8 as Python holds them (``loads_names``)."""
+    return loads_names(path.read_text(encoding="utf-8"))
+
+
 def takes_of(aligned: str, speakers: list[str] | None = None) -> list[str]:
     """Aligned take folders (segments included) of the given speakers, from their meta.json."""
     found = []
     for meta in sorted(Path(aligned).rglob("meta.json")):
-        subject = loads_names(meta.read_text(encoding="utf-8")).get("subject")
+        subject = _json_file(meta).get("subject")
         if speakers is None or subject in speakers:
             found.append(str(meta.parent))
     if not found:
@@ -308,7 +313,7 @@ def build(run: Runner, out: Path, name: str, inputs: list[str], options: list[st
     ds = out / "ds" / name
     shutil.rmtree(ds, ignore_errors=True)
     run(f"build-{name}", "dataset", ["build", *inputs, "-o", ds, *options, "--json"])
-    m = loads_names((ds / "manifest.json").read_text(encoding="utf-8"))
+    m = _json_file(ds / "manifest.json")
     splits = {}
     for split in ("train", "val", "test"):
         st = m["stats"].get(split)
@@ -392,8 +397,8 @@ def import_facegood(run: Runner, out: Path, samples: Path) -> dict[str, Any]:
 
 def same_training_normalization(a: str, b: str) -> bool:
     """True when two datasets normalise animation and features identically (same training split)."""
-    ma = loads_names((Path(a) / "manifest.json").read_text(encoding="utf-8"))["normalization"]
-    mb = loads_names((Path(b) / "manifest.json").read_text(encoding="utf-8"))["normalization"]
+    ma = _json_file(Path(a) / "manifest.json")["normalization"]
+    mb = _json_file(Path(b) / "manifest.json")["normalization"]
     keys = ("animation", "features")
     return all(ma.get(k) == mb.get(k) for k in keys)
 
@@ -439,7 +444,7 @@ def train_one(
     t0 = time.perf_counter()
     summary = run(name, "train", fit_args(system, ds, run_dir, config, steps, minutes, extra_sets or []))[0]
     fit_s = time.perf_counter() - t0
-    cfg = loads_names((run_dir / "config.json").read_text(encoding="utf-8"))
+    cfg = _json_file(run_dir / "config.json")
     result = {
         "system": system,
         "run": str(run_dir),

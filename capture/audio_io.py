@@ -243,7 +243,7 @@ def _read_mpeg(path: Path, info: Any, repairs: list[dict[str, Any]] | None) -> A
                 skipped,
                 found,
                 free is not None and _untagged(data, free),
-                _delay_dropped(data, runs),
+                _delay_dropped(data, runs, skipped),
             )
             if found is not None and free is not None:
                 found += _free_format_damage(path, data, free)
@@ -626,15 +626,16 @@ def _uncounted_gapless(data: bytes | _FileBytes, pos: int, frame: _MpegFrame) ->
     return _gapless_tag(data, pos, frame)
 
 
-def _delay_dropped(data: bytes | _FileBytes, runs: list[MpegRun]) -> bool:
+def _delay_dropped(data: bytes | _FileBytes, runs: list[MpegRun], skipped: int) -> bool:
     """Whether libsndfile's decoder drops the encoder's delay of the .mp3 whose runs are ``runs``: its
-    Xing/Info frame declares its frame count (``_gapless_skip``) and its LAME tag records the delay. FFmpeg,
-    asked by ``note_unknown_delay``, finds the tag only where the audio starts: after zeros a tagger padded
-    its ID3v2 tag with (past the size the tag declares) it said the delay unknown, though it was dropped."""
-    frame = _mpeg_frame(data, runs[0].start) if runs else None
-    return (
-        frame is not None and bool(_gapless_skip(data, runs[0])) and _gapless_tag(data, runs[0].start, frame)
-    )
+    Xing/Info frame declares its frame count (``skipped``, what ``_gapless_skip`` found it drops, not 0) and
+    its LAME tag records the delay. FFmpeg, asked by ``note_unknown_delay``, finds the tag only where the
+    audio starts: after zeros a tagger padded its ID3v2 tag with (past the size the tag declares) it said
+    the delay unknown, though it was dropped."""
+    if not skipped:  # also no runs, or no frame at the first's start
+        return False
+    frame = _mpeg_frame(data, runs[0].start)
+    return frame is not None and _gapless_tag(data, runs[0].start, frame)
 
 
 def _read_cut_short(path: Path, info: Any, exc: Exception, repairs: list[dict[str, Any]] | None) -> Audio:

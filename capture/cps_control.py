@@ -421,16 +421,16 @@ class PhoneStream:
             self._streaming = _Streaming(subject, device, ArkitMapping(subject.controls), client.peer)
         else:
             self._streaming = self._own_stream(subject, device, client.peer)
+        udp_port = self.udp.getsockname()[1]
         client.request(
-            START_STREAMING,
-            {"streamPort": self.udp.getsockname()[1], "subjects": [{"id": subject.id, "name": subject.name}]},
+            START_STREAMING, {"streamPort": udp_port, "subjects": [{"id": subject.id, "name": subject.name}]}
         )
         self._streamed = True
         phone = info.get("name") if isinstance(info.get("name"), str) else client.peer
         kind = "ARKit" if subject.kind == "arkit" else "MetaHuman Animator"
         self._tell(
             f"phone {self._phone} ({phone}) streams subject {subject.name} "
-            f"({len(subject.controls)} {kind} controls) to udp port {self.udp.getsockname()[1]}"
+            f"({len(subject.controls)} {kind} controls) to udp port {udp_port}"
         )
         mapping = self._streaming.mapping
         matched = (
@@ -489,9 +489,7 @@ class PhoneStream:
                 self._hand_over()
             try:
                 n, addr = self.udp.recvfrom_into(buf)
-            except TimeoutError:
-                continue
-            except OSError:
+            except OSError:  # a timeout (``TimeoutError``) included
                 continue
             reason = self._forward(memoryview(buf)[:n], addr)
             if reason is not None:  # a key ``open`` made: the recorder's thread copies the dict meanwhile

@@ -71,7 +71,7 @@ def _strict(value: Any) -> tuple[Any, Any, Any]:
     if isinstance(value, (list, tuple)):
         items = [_strict(v) for v in value]
         raw = [r for _, r, _ in items]
-        keys = [k or None for _, _, k in items]
+        keys = [k for _, _, k in items]
         shown = [v for v, _, _ in items]
         return shown, raw if any(r is not None for r in raw) else None, keys if any(keys) else None
     if not isinstance(value, dict):

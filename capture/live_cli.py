@@ -1193,8 +1193,8 @@ def _replay_realtime(args: argparse.Namespace, take: Take, host: str, port: int)
     if not frames.frame_number.size:
         raise InputError(f"take {take.meta.id} has no tracked frames to send")
     subject = args.subject or take.meta.subject or "iPhone"
-    phone = SimulatedPhone(frames, host=host, port=port, speed=args.speed, subject=subject)
-    phone.device = args.device or default_device(take)
+    device = args.device or default_device(take)
+    phone = SimulatedPhone(frames, host=host, port=port, speed=args.speed, subject=subject, device=device)
     try:
         phone.start()
     except OSError as exc:

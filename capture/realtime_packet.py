@@ -112,7 +112,7 @@ def decode_realtime_packet(data: bytes | bytearray | memoryview) -> RealtimePack
     if at + 2 * count + _HEAD_POSE.size > n:
         return "short"
     # bytes after the head pose are read past, as Unreal's reader does (a later packet version's fields)
-    controls = np.frombuffer(bytes(data[at : at + 2 * count]), dtype="<u2").astype(np.float32) / CONTROL_SCALE
+    controls = np.frombuffer(data, dtype="<u2", count=count, offset=at).astype(np.float32) / CONTROL_SCALE
     head = np.array(_HEAD_POSE.unpack_from(data, at + 2 * count), dtype=np.float32)
     return RealtimePacket(version, subject_id, frame_number, sub_frame, num, den, controls, head)
 
@@ -135,16 +135,17 @@ class ArkitMapping:
         self._to = np.array([s for s in slots if s >= 0], dtype=np.intp)
         taken = set(self._to.tolist())
         pose = {"HeadRoll": 0, "HeadPitch": 1, "HeadYaw": 2}
-        self._pose = [(udp_index(name), k) for name, k in pose.items() if udp_index(name) not in taken]
-        taken |= {slot for slot, _ in self._pose}
+        pose_slots = [(udp_index(name), k) for name, k in pose.items() if udp_index(name) not in taken]
+        self._pose_to = np.array([slot for slot, _ in pose_slots], dtype=np.intp)
+        self._pose_from = np.array([k for _, k in pose_slots], dtype=np.intp)
+        taken |= set(self._pose_to.tolist())
         self.missing = [name for i, name in enumerate(LIVELINK_ORDER) if i not in taken]
 
     def values(self, packet: RealtimePacket) -> np.ndarray:
         """The 61 values (``LIVELINK_ORDER``) of ``packet``, a packet of this subject."""
         out = np.zeros(ll.BLENDSHAPE_COUNT, dtype=np.float32)
         out[self._to] = packet.controls[self._from]
-        for slot, k in self._pose:
-            out[slot] = packet.head_pose[k]
+        out[self._pose_to] = packet.head_pose[self._pose_from]
         return out
 
     def classic_packet(self, device: str, subject: str, packet: RealtimePacket) -> bytes:

@@ -277,6 +277,38 @@ def _spoken_over(segs: Segments, speakers: list[str]) -> set[int]:
     return over
 
 
+def _textgrid_segments(path: Path, warnings: list[str]) -> Segments:
+    """Phone segments of a TextGrid's ``phones`` tier, or of its speakers' (MFA's ``<speaker> - phones``):
+    each speaker's silence left out, phones spoken over another speaker's made UNPLACED, and the tiers'
+    silence after the last phone kept. Point tiers and crosstalk are added to ``warnings``."""
+    tiers = read_textgrid(path).speaker_tiers("phones")
+    segs, names, speakers = [], [], []
+    for tier in tiers:
+        if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
+            warnings.append(f"{path}: tier {tier.name!r} is a point tier ({tier.kind}), not intervals")
+        tier_segs = [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]
+        tier_names = [f"tier {tier.name!r} interval {k + 1}" for k in range(len(tier_segs))]
+        _check_segments(tier_segs, tier_names, path)
+        for seg, name in zip(tier_segs, tier_names):
+            # one speaker's silence spans the others' speech: their phones alone are kept
+            if len(tiers) == 1 or not _is_silence(seg[2]):
+                segs.append(seg)
+                names.append(name)
+                speakers.append(tier.name)
+    crosstalk = _spoken_over(segs, speakers)
+    if crosstalk:
+        first = names[min(crosstalk, key=lambda k: segs[k][0])]
+        warnings.append(
+            f"{path}: {len(crosstalk)} phones overlap another speaker's (the first: {first}): their "
+            "stretch of audio is unknown, left out of training"
+        )
+        segs = [(a, b, UNPLACED) if k in crosstalk else (a, b, x) for k, (a, b, x) in enumerate(segs)]
+    last, end = max((b for _, b, _ in segs), default=0.0), max(t.xmax for t in tiers)
+    if end > last:  # the tiers' silence after the last phone, left out above: where they end
+        segs.append((last, end, ""))
+    return segs
+
+
 def find_alignments(
     paths: list[str | Path], warnings: list[str] | None = None
 ) -> list[tuple[Path, Segments]]:
@@ -314,36 +346,7 @@ def find_alignments(
                 continue
             seen_files.add(f.resolve())
             if kind == ".textgrid":
-                tiers = read_textgrid(f).speaker_tiers("phones")
-                segs, names, speakers = [], [], []
-                for tier in tiers:
-                    if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
-                        warnings.append(
-                            f"{f}: tier {tier.name!r} is a point tier ({tier.kind}), not intervals"
-                        )
-                    tier_segs = [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]
-                    tier_names = [f"tier {tier.name!r} interval {k + 1}" for k in range(len(tier_segs))]
-                    _check_segments(tier_segs, tier_names, f)
-                    for seg, name in zip(tier_segs, tier_names):
-                        # one speaker's silence spans the others' speech: their phones alone are kept
-                        if len(tiers) == 1 or not _is_silence(seg[2]):
-                            segs.append(seg)
-                            names.append(name)
-                            speakers.append(tier.name)
-                crosstalk = _spoken_over(segs, speakers)
-                if crosstalk:
-                    first = names[min(crosstalk, key=lambda k: segs[k][0])]
-                    warnings.append(
-                        f"{f}: {len(crosstalk)} phones overlap another speaker's (the first: {first}): their "
-                        "stretch of audio is unknown, left out of training"
-                    )
-                    segs = [
-                        (a, b, UNPLACED) if k in crosstalk else (a, b, x) for k, (a, b, x) in enumerate(segs)
-                    ]
-                last, end = max((b for _, b, _ in segs), default=0.0), max(t.xmax for t in tiers)
-                if end > last:  # the tiers' silence after the last phone, left out above: where they end
-                    segs.append((last, end, ""))
-                add(_audio_beside(f), segs, f)
+                add(_audio_beside(f), _textgrid_segments(f, warnings), f)
                 continue
             data, problem = _read_json(f)
             if problem is not None:  # an alignment or not, a file the user gave is never dropped silently

@@ -107,10 +107,11 @@ class LiveAnimator:
         before the end of the audio added; none when none is."""
         latency = int(round(self.latency_s * self.rate))
         ready = self._frames_of(self.received - latency) + 1 if self.received >= latency else 0
-        ready = min(ready, self._frames_of(self.received))
+        covered = self._frames_of(self.received)
+        ready = min(ready, covered)
         if ready <= self.emitted:
             return self.emitted, np.zeros((0, len(self.channels)), np.float32)
-        return self._run(ready, self._frames_of(self.received))
+        return self._run(ready, covered)
 
     def finish(self) -> tuple[int, np.ndarray]:
         """(first frame index, frames) left when the audio has ended: up to ``predict``'s frame count

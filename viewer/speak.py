@@ -270,14 +270,13 @@ def speak(
 def live_channels(channels: list[str], run: Path) -> list[str]:
     """Warnings for a run's channels Live Link does not carry; an ``InputError`` when it carries none
     (a rig's own controls: ``s2a-train predict`` writes them as a rig CSV)."""
-    arkit = [c for c in channels if is_known(c)]
-    if not arkit:
+    others = [c for c in channels if not is_known(c)]
+    if len(others) == len(channels):
         raise InputError(
             f"the run animates {len(channels)} rig controls, none of them a Live Link Face channel: nothing "
             "to send to Unreal (s2a-train predict writes them as a rig CSV)",
             run,
         )
-    others = [c for c in channels if not is_known(c)]
     return (
         [f"{len(others)} channel(s) of the run are no ARKit name and are not sent: {others[:5]}"]
         if others

@@ -132,14 +132,7 @@ class SimulatedPhone:
     def _subjects(self) -> dict[str, Any]:
         if self.behaviour == "no_subjects":
             return {"subjects": []}
-        kind, controls = (
-            ("mha", MHA_CONTROLS)
-            if self.behaviour == "mha"
-            else (
-                "arkit",
-                ARKIT_CONTROLS,
-            )
-        )
+        kind, controls = ("mha", MHA_CONTROLS) if self.behaviour == "mha" else ("arkit", ARKIT_CONTROLS)
         meta = {"type": kind, "version": 1, "controls": controls}
         return {"subjects": [{"id": SUBJECT_ID, "name": self.subject, "animationMetadata": meta}]}
 
