@@ -104,6 +104,31 @@ def parse_destination(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
+def udp_target(host: str, port: int) -> tuple[tuple, socket.AddressFamily]:
+    """The socket address to send ``host:port`` datagrams to and its family (an IPv6 address when
+    ``host`` holds a colon); ``InputError`` when the name does not resolve."""
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
+    except (OSError, UnicodeError) as exc:  # socket.gaierror; a name that is no text (non-UTF-8 argv)
+        raise InputError(f"cannot resolve {host!r}: {exc}") from None
+    return infos[0][4], infos[0][0]
+
+
+def frame_times(seconds_of_day: np.ndarray, num: int, den: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame numbers (int64) and sub-frames (float32, in [0, 1)) of times in seconds of the day at the
+    rate ``num``/``den``: a sub-frame within float32's rounding under 1 (a time a hair before a frame's
+    boundary, as float64 sums of the day's seconds and a frame's time land) is 1.0 as float32 and is
+    carried into the next frame number, so that consecutive frames never share a number."""
+    x = np.asarray(seconds_of_day, np.float64) * num / den
+    number = np.floor(x).astype(np.int64)
+    sub = (x - number).astype(np.float32)
+    carry = sub >= 1.0
+    number[carry] += 1
+    sub[carry] = 0.0
+    return number, sub
+
+
 def rate_of(fps: float) -> tuple[int, int]:
     if abs(fps - round(fps)) < 1e-6:
         return int(round(fps)), 1
@@ -211,12 +236,7 @@ def replay_take(
     status = take.frame_status
     send = status != FrameStatus.DROPPED
     idx = np.flatnonzero(send)
-    x = (t0 + take.time[idx]) * num / den
-    fn = np.floor(x).astype(np.int64)
-    sf = (x - fn).astype(np.float32)
-    carry = sf >= 1.0
-    fn[carry] += 1
-    sf[carry] = 0.0
+    fn, sf = frame_times(t0 + take.time[idx], num, den)
     unique = np.concatenate([[True], np.diff(fn) > 0]) if fn.size else np.zeros(0, bool)
     report = ReplayReport(device=device, subject=subject, rate=(num, den), skipped=int((~unique).sum()))
     idx, fn, sf = idx[unique], fn[unique], sf[unique]
@@ -255,12 +275,7 @@ def replay_take(
             packets.append(ll.no_face_packet(device, subject, int(fn[k]), float(sf[k]), num, den))
         else:
             packets.append(header + ll.frame_block(int(fn[k]), float(sf[k]), num, den, values[i]))
-    try:  # before --audio-out is written: a destination that does not resolve writes nothing
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
-    except (OSError, UnicodeError) as exc:  # socket.gaierror; a name that is no text (non-UTF-8 argv)
-        raise InputError(f"cannot resolve {host!r}: {exc}") from None
-    target = infos[0][4]
+    target, family = udp_target(host, port)  # before --audio-out: an unknown name writes nothing
     if audio_out is not None:
         audio = rebased_audio(take)
         if audio is None:
@@ -268,7 +283,7 @@ def replay_take(
         write_audio_out(audio_out, audio)
     sent_frames: set[int] = set()
     max_fn = -1
-    with socket.socket(infos[0][0], socket.SOCK_DGRAM) as sock:
+    with socket.socket(family, socket.SOCK_DGRAM) as sock:
         start = time.monotonic()
         for (when, _, k), packet in zip(schedule, packets):
             wait = start + when - time.monotonic()

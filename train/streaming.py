@@ -83,6 +83,20 @@ class LiveAnimator:
         self.level: float | None = None  # the loudest context's active speech level so far (dBFS)
         self.compute_ms = RunningStats()  # milliseconds each model run took
 
+    def warm_up(self) -> None:
+        """One run of the features and the model over a context of silence, its frames let go and
+        nothing of the stream changed: the first run of a process (PyTorch's and the features' set-up)
+        costs several times a later one, and would make the first hop late."""
+        animate_16k(
+            self.model,
+            self.payload,
+            np.zeros(self.context, np.float32),
+            self.ppg,
+            self.speaker,
+            None,
+            self.style,
+        )
+
     def add(self, samples: np.ndarray) -> None:
         """Append 16 kHz mono float32 ``samples``; what lies before both the context and the first frame
         not handed out yet is let go."""

@@ -687,6 +687,11 @@ def cmd_speak(args: argparse.Namespace) -> int:
             f"{args.hop / args.speed:g} s (--hop {args.hop:g} at --speed {args.speed:g}); give a larger "
             "--hop or a shorter --context"
         )
+    if summary["input_overflows"]:
+        warn(
+            f"the sound card lost samples {summary['input_overflows']} time(s) (input overflow: this "
+            "process took the microphone's blocks too late); the face went on over the gaps"
+        )
     return 0
 
 

@@ -32,9 +32,11 @@ from capture.command import Terminated, warn
 from capture.errors import InputError
 from capture.replay import (
     format_destination,
+    frame_times,
     packet_names,
     parse_destination,
     rate_of,
+    udp_target,
     values_in_engine_order,
 )
 
@@ -46,6 +48,7 @@ class FileSpeech:
     (``speed`` times real time)."""
 
     live = False
+    overflows = 0  # a file loses no samples
 
     def __init__(self, path: Path):
         from train.predict import model_audio
@@ -72,9 +75,42 @@ class FileSpeech:
         pass
 
 
+class MicBlocks:
+    """A microphone's blocks at its own ``rate`` as speak takes them at 16 kHz: ``heard`` (the input
+    stream's callback, in PortAudio's thread) queues each block and counts the input overflows (samples
+    the sound card lost: the stream goes on); ``taken`` resamples what has arrived with libsoxr's stream
+    (align's resampler, ``align/resample.py`` says why), whose filter keeps its state from block to
+    block: the joins are seamless, the samples ``soxr.resample``'s of the whole, the last 25-50 ms held
+    back for the next block (the filter's delay at 44.1 and 48 kHz)."""
+
+    def __init__(self, rate: int):
+        import soxr
+
+        self.rate = rate
+        self.blocks: queue.Queue[np.ndarray] = queue.Queue()
+        self.overflows = 0
+        self.stream = (
+            None
+            if rate == TARGET_RATE
+            else soxr.ResampleStream(rate, TARGET_RATE, 1, dtype="float32", quality="VHQ")
+        )
+
+    def heard(self, data: np.ndarray, frames: int, when, status) -> None:
+        self.blocks.put(data[:, 0].copy())
+        self.overflows += bool(status.input_overflow)
+
+    def taken(self) -> np.ndarray:
+        """The 16 kHz samples of the blocks heard since the last call."""
+        parts = []
+        while not self.blocks.empty():
+            parts.append(self.blocks.get_nowait())
+        block = np.concatenate(parts) if parts else np.zeros(0, np.float32)
+        return block if self.stream is None else self.stream.resample_chunk(block)
+
+
 class MicSpeech:
-    """A sounddevice input stream at 16 kHz mono (``device``: PortAudio's index or name, None: the
-    default input); the callback queues the blocks, ``arrived`` takes them."""
+    """A sounddevice input stream, mono, at the device's own rate (``device``: PortAudio's index or
+    name, None: the default input; most cards take no 16 kHz), taken at 16 kHz (``MicBlocks``)."""
 
     live = True
 
@@ -85,26 +121,24 @@ class MicSpeech:
             raise InputError(f"--mic needs sounddevice and PortAudio (libportaudio2): {exc}") from None
         dev = int(device) if device is not None and device.isdigit() else device
         try:
-            sd.check_input_settings(device=dev, samplerate=TARGET_RATE, channels=1, dtype="float32")
+            rate = int(round(sd.query_devices(dev, "input")["default_samplerate"]))
+            sd.check_input_settings(device=dev, samplerate=rate, channels=1, dtype="float32")
         except Exception as exc:  # PortAudio reports a missing device in several exception types
             raise InputError(f"--mic: no usable audio input device ({exc})") from None
-        self.blocks: queue.Queue[np.ndarray] = queue.Queue()
+        self.blocks = MicBlocks(rate)
         self.stream = sd.InputStream(  # opened, started by ``start``
-            device=dev,
-            samplerate=TARGET_RATE,
-            channels=1,
-            dtype="float32",
-            callback=lambda data, frames, when, status: self.blocks.put(data[:, 0].copy()),
+            device=dev, samplerate=rate, channels=1, dtype="float32", callback=self.blocks.heard
         )
+
+    @property
+    def overflows(self) -> int:
+        return self.blocks.overflows
 
     def start(self) -> None:
         self.stream.start()
 
     def arrived(self, audio_s: float) -> tuple[np.ndarray, bool]:
-        parts = []
-        while not self.blocks.empty():
-            parts.append(self.blocks.get_nowait())
-        return (np.concatenate(parts) if parts else np.zeros(0, np.float32)), False
+        return self.blocks.taken(), False
 
     def close(self) -> None:
         self.stream.close()  # stopped first, when started
@@ -123,12 +157,7 @@ class LiveLinkOut:
         self.num, self.den = rate_of(fps)
         self.fps = fps
         self.where = format_destination(host, port)
-        try:
-            family = socket.AF_INET6 if ":" in host else socket.AF_INET
-            infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
-        except (OSError, UnicodeError) as exc:
-            raise InputError(f"cannot resolve {host!r}: {exc}") from None
-        self.target, self.family = infos[0][4], infos[0][0]
+        self.target, self.family = udp_target(host, port)
         self.sock: socket.socket | None = None
         self.day_s = 0.0
 
@@ -144,9 +173,8 @@ class LiveLinkOut:
         return values_in_engine_order(take)
 
     def send(self, frame: int, values61: np.ndarray) -> None:
-        x = (self.day_s + frame / self.fps) * self.num / self.den
-        number = math.floor(x)
-        packet = self.header + ll.frame_block(number, float(x - number), self.num, self.den, values61)
+        number, sub = frame_times(np.array([self.day_s + frame / self.fps]), self.num, self.den)
+        packet = self.header + ll.frame_block(int(number[0]), float(sub[0]), self.num, self.den, values61)
         try:
             self.sock.sendto(packet, self.target)
         except OSError as exc:
@@ -209,6 +237,7 @@ def speak(
     summary: frames sent, the model's compute per hop, the latency achieved, frames late."""
     fps = animator.fps
     delay = send_delay(animator.latency_s, hop_s)
+    animator.warm_up()  # before the speech is taken: a first model run costs several later ones
     out.begin()
     speech.start()
     start = time.monotonic()
@@ -260,6 +289,7 @@ def speak(
         "achieved_latency_s": pacer.lag_s.summary(4),
         "compute_ms_per_hop": animator.compute_ms.summary(2),
         "late_frames": pacer.late,
+        "input_overflows": speech.overflows,
         "frames_not_sent": animator.emitted - pacer.sent,
         "stopped_by": stopped_by,
         "device": out.device,
