@@ -205,6 +205,43 @@ def meant_channel(name: str, missing: list[str] | tuple[str, ...]) -> str | None
     return folded[close[0]] if close else None
 
 
+# Columns other tools write beside the ARKit channels that are no face channel: MediaPipe FaceLandmarker's
+# score of a neutral face (its category 0, ``_neutral``), and the emotion weights of emotion-driven
+# generators (Audio2Face-3D's 10 in a2e_emotion_output.csv, NeuroSync's 7 after its 61 channels), compared
+# in lower case, letters and digits only, of a name's last dotted part (``emotion_values.joy``).
+NEUTRAL_SCORE = "_neutral"
+EMOTION_NAMES = (
+    "amazement", "anger", "cheekiness", "disgust", "fear", "grief", "joy", "outofbreath", "pain", "sadness",
+    "angry", "disgusted", "fearful", "happy", "neutral", "sad", "surprised",
+)  # fmt: skip
+
+
+def side_score(name: str) -> str | None:
+    """What a column beside the face channels holds when it is no face channel (``_neutral``: "MediaPipe's
+    neutral-face score"; ``Happy``: "emotion weights"), or None."""
+    if name.strip() == NEUTRAL_SCORE:
+        return "MediaPipe's neutral-face score"
+    if re.sub(r"[^0-9a-z]", "", re.split(r"[.:/]", name)[-1].lower()) in EMOTION_NAMES:
+        return "emotion weights"
+    return None
+
+
+def side_scores(names: list[str] | tuple[str, ...]) -> tuple[list[int], str | None]:
+    """The columns of ``names`` that ``side_score`` says are no face channel, when the layout is ARKit's
+    (Live Link channels outnumber the other names beside them: a rig's own control named ``happy`` is
+    kept), and the note saying they were left out (None when none is)."""
+    found = [(j, n, side_score(n)) for j, n in enumerate(names)]
+    found = [f for f in found if f[2] is not None]
+    known = sum(map(is_known, names))
+    if not found or known <= len(names) - len(found) - known:
+        return [], None
+    kinds: dict[str, list[str]] = {}
+    for _, n, what in found:
+        kinds.setdefault(what, []).append(repr(n))
+    said = "; ".join(f"{', '.join(shown)} ({what})" for what, shown in kinds.items())
+    return [j for j, _, _ in found], f"columns left out, no face channels: {said}"
+
+
 def channel_set(spec: str) -> tuple[str, ...]:
     """Channels named by a set name (``arkit52``, ``arkit61``, ``pronunciation32``) or a comma list."""
     key = spec.strip().lower()

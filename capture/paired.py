@@ -8,8 +8,10 @@ one prefix or suffix around them (``A2F_jawOpen``, ``jawOpen_bs``: repair ``chan
 The matrix is a ``.npy`` array, a CSV (optional header row of names; comma, semicolon or tab separated),
 the blendshape JSON that NVIDIA Audio2Face exports (``exportFps``, ``numFrames``, ``numPoses``,
 ``facsNames``, ``weightMat``; its joint tracks are not face weights and are left out), which carries its
-own names and rate, or a BEAT face JSON (``names``, ``frames`` of ``time`` and ``weights``), which carries
-its names and frame times.
+own names and rate, a BEAT face JSON (``names``, ``frames`` of ``time`` and ``weights``), which carries
+its names and frame times, or Face Cap's text export (``bs`` line of names, ``k`` lines of a time in
+milliseconds, the head and eye pose, which is left out, and the weights). Columns beside ARKit channels
+that are no face channel (MediaPipe's ``_neutral``, a generator's emotion weights) are left out.
 """
 
 from __future__ import annotations
@@ -252,9 +254,14 @@ def read_json_matrix(path: Path) -> tuple[np.ndarray, list[str], float | None]:
     ):
         return _beat_face(data, path)
     if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
+        if isinstance(data, dict):
+            keys = ", ".join(map(repr, list(data)[:4])) + (", ..." if len(data) > 4 else "")
+            held = f"an object of {keys}" if data else "an empty object"
+        else:
+            held = f"a list of {len(data)} items" if isinstance(data, list) else _json_kind(data)
         raise InputError(
-            "not an Audio2Face blendshape export (no weightMat and facsNames), nor a BEAT face JSON "
-            "(no names and frames)",
+            f"holds {held}: not an Audio2Face blendshape export (no weightMat and facsNames), nor a BEAT "
+            "face JSON (no names and frames)",
             path,
         )
     return _a2f_export(data, path)
@@ -365,6 +372,11 @@ def _show(value: object, limit: int = 40) -> str:
 # with a decimal comma (0,5).
 _SMPTE = re.compile(r"\d{1,2}:\d{2}:\d{2}[:;.]\d{2}(\.\d+)?")
 _DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+([eE][+-]?\d+)?")
+# A cell of digits grouped with '_' (``1_000``), which Python's float() alone would read.
+_GROUPED_DIGITS = re.compile(r"[+-]?[0-9_]*[0-9][0-9_]*(\.[0-9_]*)?([eE][+-]?[0-9_]+)?")
+# iFacialMocap's stream text, a frame a line: ``mouthSmile_R-0|eyeLookOut_L-12|...|=head#...|`` (its
+# blendshapes on 0..100, then head and eye angles), as a script saving what the app sends writes it.
+_IFACIALMOCAP = re.compile(r"\s*[A-Za-z_]+-\d+(\.\d+)?\|")
 
 
 def _delimiter(first: list[str]) -> str:
@@ -421,8 +433,9 @@ def _counting(start: int, count: int) -> list[str]:
     return [str(i) for i in range(start, start + count)]
 
 
-def _non_numeric(cell: str, column: int, header: list[str] | None, sep: str) -> str:
-    """The one-line error for a cell that is not a number: the cell, its column and what it looks like."""
+def _non_numeric(cell: str, column: int, header: list[str] | None, sep: str, width: int) -> str:
+    """The one-line error for a cell that is not a number: the cell, its column (of ``width``) and what
+    it looks like."""
     where = f"column {header[column]!r}" if header else f"column {column + 1}"
     hint = ""
     if _SMPTE.fullmatch(cell):
@@ -434,18 +447,43 @@ def _non_numeric(cell: str, column: int, header: list[str] | None, sep: str) -> 
         hint = " (a decimal comma? write numbers with a point, or separate the cells with ';')"
     elif sep == "," and (";" in cell or "\t" in cell):
         hint = f" (separated by {'semicolons' if ';' in cell else 'tabs'} below a comma-separated header?)"
-    elif "_" in cell:
+    elif width > 1 and (ch.is_known(cell) or ch.side_score(cell)):  # not a names file read as a matrix
+        hint = (
+            ": a blendshape's name, in a column of names (one row per blendshape and frame, as MediaPipe "
+            "scripts write its categories): write one row per frame with a column per blendshape (pandas: "
+            "df.pivot(index=<time column>, columns=<name column>, values=<score column>))"
+        )
+    elif _GROUPED_DIGITS.fullmatch(cell):
         hint = " (digits grouped with '_' are not read)"
     return f"non-numeric value in the matrix: {_show(cell)} in {where}{hint}"
 
 
-def _read_csv(path: Path) -> tuple[np.ndarray, list[str] | None, int]:
+def _read_csv(path: Path, notes: list[dict]) -> tuple[np.ndarray, list[str] | None, int]:
     """Values, header names (None without a header row) and, for a header of column numbers
-    (0..N-1, pandas' default), N (else 0) of a CSV matrix. See ``read_matrix``."""
+    (0..N-1, pandas' default), N (else 0) of a CSV matrix, or of a Face Cap text export. See
+    ``read_matrix``; what is left out is said in ``notes``."""
     text = read_text(path)
     lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not lines:
         raise InputError("matrix has no frames", path)
+    if _IFACIALMOCAP.match(lines[0][1]):
+        raise InputError(
+            "iFacialMocap's stream text (blendshape-value|... on a 0..100 scale, then =head#...), not a "
+            "table of weights, which is not read: save the weights as a CSV of a row per frame under a "
+            "header of names (and a time column)",
+            path,
+            lines[0][0],
+        )
+    if lines[0][1].startswith("%YAML"):
+        raise InputError(
+            "a YAML file (a Unity animation clip, as Unity's Face Capture records a take), not a table of "
+            "weights, which is not read: save the weights as a CSV of a row per frame under a header of "
+            "names (and a time column)",
+            path,
+            lines[0][0],
+        )
+    if is_face_cap("\n".join(line for _, line in lines[:3])):
+        return _face_cap(lines, path, notes)
     sep = _delimiter([line for _, line in lines[:2]])
     decimal_comma = sep != ","
     rows = []  # (line number, cells): quotes as a CSV has them (R quotes every name)
@@ -496,13 +534,78 @@ def _read_csv(path: Path) -> tuple[np.ndarray, list[str] | None, int]:
         except ValueError:
             j = next(j for j, c in enumerate(cells) if not _is_number(c, decimal_comma))
             raise InputError(
-                _non_numeric(cells[j], j, None if numbered else header, sep), path, number
+                _non_numeric(cells[j], j, None if numbered else header, sep, width), path, number
             ) from None
     return values, None if numbered else header, numbered
 
 
-def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None, int]:
-    """``read_matrix``, and for a CSV whose header row numbers its columns the number of them (else 0)."""
+# The lines of Face Cap's text export (Bannaflak's iOS app): ``info,...``; ``bs,`` and its blendshapes'
+# names (ARKit's, sides as ``_L``/``_R``); a ``k,`` line per frame: the time in milliseconds from the
+# recording's start, the head's position (3) and rotation (3, degrees), the left and right eye's rotation
+# (2 each, degrees), and the blendshapes' weights (0..1) in the ``bs`` line's order.
+FACE_CAP_NAMES, FACE_CAP_FRAME = "bs,", "k,"
+FACE_CAP_POSE = 10
+
+
+def is_face_cap(start: str) -> bool:
+    """Whether a text file starting with ``start`` (its first lines) is a Face Cap text export: a ``bs``
+    line among its first three."""
+    return any(line.startswith(FACE_CAP_NAMES) for line in start.splitlines()[:3])
+
+
+def _face_cap(
+    lines: list[tuple[int, str]], path: Path, notes: list[dict]
+) -> tuple[np.ndarray, list[str], int]:
+    """Times (a ``time_ms`` column) and weights of a Face Cap text export; the head and eye pose of each
+    frame is left out (noted), as are ``info`` lines."""
+    names: list[str] | None = None
+    rows = []
+    for number, line in lines:
+        cells = [c.strip() for c in line.split(",")]
+        if cells[0] == "info":
+            continue
+        if cells[0] == FACE_CAP_NAMES.rstrip(","):
+            if names is not None:
+                raise InputError("a second bs line (blendshape names)", path, number)
+            names = cells[1:]
+            if not all(names):
+                raise InputError("the bs line leaves a blendshape without a name", path, number)
+            continue
+        if cells[0] != FACE_CAP_FRAME.rstrip(","):
+            raise InputError(f"not a Face Cap line (info, bs or k): {_show(line)}", path, number)
+        if names is None:
+            raise InputError("a k line (frame) before the bs line naming the blendshapes", path, number)
+        if len(cells) != 2 + FACE_CAP_POSE + len(names):
+            raise InputError(
+                f"k line holds {len(cells) - 2 - FACE_CAP_POSE} weights after the time and {FACE_CAP_POSE} "
+                f"head and eye values, the bs line names {len(names)} blendshapes",
+                path,
+                number,
+            )
+        values = [cells[1], *cells[2 + FACE_CAP_POSE :]]
+        bad = next((c for c in values if not _is_number(c, False) or not c), None)
+        if bad is not None:
+            raise InputError(f"non-numeric value in a k line: {_show(bad)}", path, number)
+        rows.append([float(c) for c in values])
+    if names is None or not rows:
+        raise InputError(
+            "a Face Cap export without " + ("a bs line" if names is None else "k lines (frames)"), path
+        )
+    repair(
+        notes,
+        None,
+        "pose_left_out",
+        f"Face Cap's head position and rotation and eye rotations ({FACE_CAP_POSE} values a frame) left out: "
+        "not blendshape weights",
+    )
+    return np.array(rows, dtype=np.float64), [_FrameTimes("time_ms"), *names], 0
+
+
+def _read_matrix(
+    path: Path, notes: list[dict] | None = None
+) -> tuple[np.ndarray, list[str] | None, float | None, int]:
+    """``read_matrix``, and for a CSV whose header row numbers its columns the number of them (else 0);
+    what a reader leaves out of the file is said in ``notes``."""
     path = Path(path)
     if not path.is_file():
         raise InputError("matrix file not found", path)
@@ -515,7 +618,7 @@ def _read_matrix(path: Path) -> tuple[np.ndarray, list[str] | None, float | None
     elif path.suffix.lower() == ".json":
         m, header, fps = read_json_matrix(path)
     else:
-        m, header, numbered = _read_csv(path)
+        m, header, numbered = _read_csv(path, [] if notes is None else notes)
     if m.dtype.kind not in "fiu" or m.ndim != 2:
         raise InputError(f"expected a 2-D numeric frames x channels matrix, got {m.dtype} {m.shape}", path)
     if m.shape[0] == 0:
@@ -701,22 +804,16 @@ def channel_name(name: str) -> str:
     return ch.canonical(name) if ch.is_known(name) else name
 
 
-# The weights of emotions that emotion-driven generators write beside a face take (Audio2Face-3D's
-# a2e_emotion_output.csv, NeuroSync's 7 emotion columns), compared by ``_column_key`` of a name's last
-# dotted part (`emotion_values.joy`): a file of nothing else is not a face take.
-EMOTION_NAMES = (
-    "amazement", "anger", "cheekiness", "disgust", "fear", "grief", "joy", "outofbreath", "pain", "sadness",
-    "angry", "disgusted", "fearful", "happy", "neutral", "sad", "surprised",
-)  # fmt: skip
 # The header pandas gives a first column without a name when it reads a CSV written with its index.
 PANDAS_INDEX = "Unnamed: 0"
 
 
 def emotion_weights(names: list[str]) -> str | None:
-    """Why a header whose channels (time and index columns aside) are all emotion names is not a face
-    take, or None when it has another channel."""
+    """Why a header whose channels (time and index columns aside) are all emotion names
+    (``channels.EMOTION_NAMES``: Audio2Face-3D's a2e_emotion_output.csv, NeuroSync's 7 emotions) is not a
+    face take, or None when it has another channel."""
     rest = [n for n in names if n.strip() and n != PANDAS_INDEX and _clock_kind(n) is None]
-    if not rest or not all(_column_key(re.split(r"[.:/]", n)[-1]) in EMOTION_NAMES for n in rest):
+    if not rest or not all(ch.side_score(n) for n in rest):
         return None
     shown = ", ".join(rest[:3]) + (", ..." if len(rest) > 3 else "")
     return f"holds emotion weights ({shown}), not face channels: not a face take"
@@ -868,7 +965,8 @@ def read_paired(
         raise InputError(f"--fps must be a positive frame rate, not {fps}")
     if value_scale is not None and not 0 < value_scale < math.inf:
         raise InputError(f"--value-scale must be a positive number, not {value_scale}")
-    matrix, header, file_fps, numbered = _read_matrix(Path(matrix_path))
+    read_notes: list[dict] = []
+    matrix, header, file_fps, numbered = _read_matrix(Path(matrix_path), read_notes)
     if file_fps is not None:  # checked before a time column's unit is found from it
         _check_rate(file_fps, matrix_path, " (the rate the file gives)")
     fps, file_fps = exact_rate(fps), exact_rate(file_fps)
@@ -912,6 +1010,12 @@ def read_paired(
     kind, clock, columns, clock_name, notes = _frame_clock(
         names, matrix, fps if fps is not None else file_fps, matrix_path
     )
+    notes[:0] = read_notes
+    scores, scored = ch.side_scores([n for j, n in enumerate(names) if j not in columns])
+    if scores:  # MediaPipe's _neutral, a generator's emotions: no face channels
+        kept = [j for j in range(len(names)) if j not in columns]
+        columns = sorted({*columns, *(kept[j] for j in scores)})
+        repair(notes, None, "side_scores", scored)
     counts = [j for j, n in enumerate(names) if n.strip().lower() == COUNT_NAMES[0].lower()]
     if counts:  # a Live Link Face CSV's layout read as paired data: its count column is no channel
         columns = sorted({*columns, *counts})
