@@ -27,13 +27,17 @@ Sources: Unreal Engine 5.8 ``LiveLinkFaceControl.cpp`` (MetaHumanLiveLink) and t
 (``realtime_packet``) of an ARKit subject, as classic version-6 packets, to a ``LiveRecorder``'s socket
 on this computer: the recording, its log, its takes and ``recover`` are those of the classic stream. A
 MetaHuman Animator subject (controls of its own, any number) is logged directly in the recorder's frames
-log, a CONTROLS record a packet after a STREAM record naming its controls: its takes' channels are those.
+log, a CONTROLS record a packet after a STREAM record naming its controls and the head rotation's channels
+(HeadYaw, HeadPitch, HeadRoll, as the classic stream's takes have them): its takes' channels are those.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import ipaddress
 import json
+import os
 import select
 import socket
 import struct
@@ -43,12 +47,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from .errors import InputError
 from .realtime_packet import (
+    CLASSIC_NAME_BYTES,
     MAX_REALTIME_PACKET_BYTES,
     REALTIME_REJECT_REASONS,
     ArkitMapping,
+    classic_names,
     controls_record,
     decode_realtime_packet,
+    head_channels,
 )
 from .record_log import RecordType, json_record
 from .recorder import bound_udp_socket
@@ -64,6 +72,7 @@ KEEP_ALIVE_FAILURES = 3  # keep-alives unanswered in a row before the connection
 RETRY_S = 5.0  # Unreal tries a session that did not start again five seconds later
 CONNECT_TIMEOUT_S = 3.0
 STOP_WAIT_S = 1.0  # what the stop requests at the end of a session wait for their answers
+CANCEL_CHECK_S = 0.05  # how often a request waiting for its answer looks whether listen stopped
 # The longest payload read: a subject list with a few hundred control names is a few KB; a length past
 # this is no control message (another service on that port, or a broken phone).
 MAX_CONTROL_PAYLOAD = 1 << 20
@@ -81,10 +90,56 @@ ANIMATION_TYPES = ("arkit", "mha")
 REJECT_PREFIX = "realtime_"
 REALTIME_SOURCE_KIND = "livelink_realtime"  # the takes of a subject logged with its own controls
 LOG_EVERY_S = 0.1  # the relay hands its CONTROLS records to the log at least this often
+RELAY_WAKE_S = 0.1  # the relay's socket wakes this often to see whether listen stopped
 
 
 class ControlError(Exception):
     """A control session failed: what failed, in one line (a refusal, a disconnect, a silence)."""
+
+
+def unmapped(address: str) -> str:
+    """``address`` as the relay compares it: an IPv4 one on a dual-stack socket (``::ffff:a.b.c.d``) as
+    ``a.b.c.d``, so that a phone and its packets match whichever family each was seen in."""
+    return address.removeprefix("::ffff:")
+
+
+def relay_socket(host: str, port: int) -> socket.socket:
+    """The relay's UDP socket without ``--bind``. The phone streams to this computer's address as the
+    control connection sees it: for a phone given by its IPv4 address, an IPv4 one (0.0.0.0, as Unreal
+    binds); otherwise (an IPv6 address, or a name, which may resolve to either family and is connected to
+    by the first address that answers) ``::``, which takes IPv4 senders too. A name on a system without
+    dual-stack sockets gets 0.0.0.0."""
+    try:
+        ipaddress.IPv4Address(host)
+        return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)
+    except ValueError:
+        pass
+    try:
+        sock = bound_udp_socket("::", port, RELAY_WAKE_S)
+    except InputError:
+        if ":" in host:
+            raise
+        return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)  # no IPv6 here: a name is an IPv4 phone
+    if ":" not in host and sock.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY):
+        sock.close()
+        return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)
+    return sock
+
+
+def _wait_for(
+    sock: socket.socket, deadline: float, cancel: threading.Event | None, write: bool = False
+) -> None:
+    """Wait until ``sock`` has bytes to read (or, ``write``, is connected): ``TimeoutError`` past
+    ``deadline``, ``ControlError`` as soon as ``cancel`` is set (``listen`` stopped)."""
+    while True:
+        if cancel is not None and cancel.is_set():
+            raise ControlError("stopped")
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("timed out")
+        waits = ([], [sock]) if write else ([sock], [])
+        if any(select.select(*waits, [], min(left, CANCEL_CHECK_S))[:2]):
+            return
 
 
 def encode_frame(message: dict[str, Any]) -> bytes:
@@ -178,16 +233,53 @@ def parse_subjects(body: dict[str, Any]) -> tuple[list[RemoteSubject], list[str]
 
 
 class ControlClient:
-    """One control connection to the phone; requests are answered in turn (``request``)."""
+    """One control connection to the phone; requests are answered in turn (``request``). Once ``cancel``
+    is set, the connecting or a request waiting for its answer fails at once (``listen`` stopped while
+    the phone is silent); ``answering`` says whether the phone answered the last request."""
 
-    def __init__(self, host: str, port: int, wait_s: float = RESPONSE_WAIT_S):
+    def __init__(
+        self, host: str, port: int, wait_s: float = RESPONSE_WAIT_S, cancel: threading.Event | None = None
+    ):
         self.wait_s = wait_s
+        self.cancel = cancel
+        self.answering = True
         self.session_id = HANDSHAKE_SESSION
         self._transaction = 0
+        self.sock = self._connect(host, port)
+
+    def _connect(self, host: str, port: int) -> socket.socket:
+        """A connection to the first of ``host``'s addresses that answers, each given
+        ``CONNECT_TIMEOUT_S`` (as ``socket.create_connection`` tries them), given up as soon as ``cancel``
+        is set; ``ControlError`` saying why none did."""
         try:
-            self.sock = socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S)
+            addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
         except OSError as exc:
             raise ControlError(f"cannot connect ({exc.strerror or exc})") from None
+        failure: OSError = OSError("no address")
+        for family, kind, proto, _, address in addresses:
+            try:
+                sock = socket.socket(family, kind, proto)
+            except OSError as exc:  # a family this system makes no sockets of
+                failure = exc
+                continue
+            try:
+                sock.setblocking(False)
+                code = sock.connect_ex(address)
+                if code == errno.EINPROGRESS:
+                    _wait_for(sock, time.monotonic() + CONNECT_TIMEOUT_S, self.cancel, write=True)
+                    code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+                if code:
+                    raise OSError(code, os.strerror(code))
+            except OSError as exc:  # refused, unreachable, no answer: the next address
+                sock.close()
+                failure = exc
+                continue
+            except BaseException:  # a stop (ControlError)
+                sock.close()
+                raise
+            sock.settimeout(CONNECT_TIMEOUT_S)
+            return sock
+        raise ControlError(f"cannot connect ({failure.strerror or failure})")
 
     @property
     def peer(self) -> str:
@@ -215,8 +307,10 @@ class ControlClient:
         except OSError as exc:
             raise ControlError(f"cannot send {path} ({exc.strerror or exc})") from None
         deadline = time.monotonic() + self.wait_s
+        self.answering = False
         while True:
             try:
+                _wait_for(self.sock, deadline, self.cancel)
                 answer = read_frame(self.sock, deadline)
             except TimeoutError:
                 raise ControlError(f"the phone did not answer {path} within {self.wait_s:g} s") from None
@@ -229,6 +323,7 @@ class ControlClient:
                 raise ControlError(
                     f"the phone refused {path}: {error.get('name')}: {error.get('description')}"
                 )
+            self.answering = True
             answered = answer.get("body")
             return answered if isinstance(answered, dict) else {}
 
@@ -282,17 +377,20 @@ class _Streaming:
     """The subject being streamed and what its packets become."""
 
     subject: RemoteSubject
-    device: str
+    device: str  # the classic packets' device id and subject name (``classic_names``) for an ARKit subject
+    name: str
     mapping: ArkitMapping | None  # None: a subject logged with its own controls (``stream``)
-    phone: str  # the phone's address: realtime packets from elsewhere are not recorded
+    phone: str  # the phone's address (``unmapped``): realtime packets from elsewhere are not recorded
     stream: int = -1  # the CONTROLS records' stream id of a subject logged with its own controls
     stream_record: dict[str, Any] | None = None  # its STREAM record (the relay logs it before its frames)
+    head_from: Any = None  # where its head channels' values are in the head pose (``head_channels``)
 
 
 @dataclass
 class PhoneStream:
     """A control session to the phone at ``host:port`` (kept up, retried every ``RETRY_S``) and the relay
-    of its realtime packets, received on ``bind:port``, to ``recorder_address`` as classic packets.
+    of its realtime packets, received on ``bind:port`` (``bind`` None: ``relay_socket``), to
+    ``recorder_address`` as classic packets.
 
     ``say`` prints a line (each distinct failure once in a row); ``rejected`` is the recorder's rejection
     counts, which the relay adds to; ``note`` logs an event in the session log; ``allow`` (an
@@ -307,7 +405,7 @@ class PhoneStream:
     say: Callable[[str], None]
     rejected: dict[str, int]
     note: Callable[[dict[str, Any]], None]
-    bind: str = "0.0.0.0"
+    bind: str | None = None
     stream_port: int = 0
     allow: Any = None
     retry_s: float = RETRY_S
@@ -329,7 +427,10 @@ class PhoneStream:
 
     def open(self) -> tuple[str, int]:
         """Bind the UDP socket the phone is told to stream to; its (address, port)."""
-        self.udp = bound_udp_socket(self.bind, self.stream_port, 0.1)
+        if self.bind is None:
+            self.udp = relay_socket(self.host, self.stream_port)
+        else:
+            self.udp = bound_udp_socket(self.bind, self.stream_port, RELAY_WAKE_S)
         # the relay's reasons, beside the recorder's own (which it checks on what is relayed)
         for reason in REALTIME_REJECT_REASONS:
             self.rejected.setdefault(REJECT_PREFIX + reason, 0)
@@ -352,6 +453,11 @@ class PhoneStream:
         for sock in (self.udp, self.out):
             if sock is not None:
                 sock.close()
+
+    @property
+    def logged_streams(self) -> int:
+        """The streams of CONTROLS records the relay logged (each subject logged with its own controls)."""
+        return len(self._logged_streams)
 
     @property
     def _phone(self) -> str:
@@ -382,6 +488,8 @@ class PhoneStream:
                 self._session()
                 why = "the subject's control count changed"
             except ControlError as exc:
+                if self._stop.is_set():  # listen stopped (a request it cut short among them): no line
+                    break
                 if not self._streamed:
                     line = f"phone {self._phone}: {exc}; trying again every {self.retry_s:g} s"
                     self._tell(line, {"kind": "phone_session", "message": str(exc)})
@@ -397,13 +505,15 @@ class PhoneStream:
             again_at_once = time.monotonic()
 
     def _session(self) -> None:
-        client = ControlClient(self.host, self.port)
+        client = ControlClient(self.host, self.port, cancel=self._stop)
         try:
             client.start_session()
             try:
                 self._stream(client)
-            finally:  # as Unreal does at the end: both asked, each failure only noted (sooner)
-                client.wait_s = min(client.wait_s, STOP_WAIT_S)
+            finally:  # as Unreal does at the end: both asked, each failure only noted (sooner), and
+                # not waited for when the phone left the last request unanswered (a silent phone)
+                client.cancel = None
+                client.wait_s = min(client.wait_s, STOP_WAIT_S) if client.answering else 0.0
                 for path, body in ((STOP_STREAMING, {}), (STOP_SESSION, None)):
                     with contextlib.suppress(ControlError):
                         client.request(path, body)
@@ -417,10 +527,21 @@ class PhoneStream:
         if subject.kind != "arkit" and self.record is None:
             raise ControlError(f"subject {subject.name} is a MetaHuman Animator one: no log to record it in")
         device = info.get("id") if isinstance(info.get("id"), str) and info.get("id") else client.peer
+        phone_address = unmapped(client.peer)
         if subject.kind == "arkit":
-            self._streaming = _Streaming(subject, device, ArkitMapping(subject.controls), client.peer)
+            classic_device, classic_subject = classic_names(device, subject.name)
+            if (classic_device, classic_subject) != (device, subject.name):
+                size = len(device.encode("utf-8")) + len(subject.name.encode("utf-8"))
+                why = (
+                    f"device id and subject name take {size} bytes, more than the {CLASSIC_NAME_BYTES} a "
+                    "classic packet holds: the takes name them cut to fit, each ended by '~' and 8 hex "
+                    "digits of its SHA-1"
+                )
+                self._tell(f"phone {self._phone}: {why}", {"kind": "phone_names_shortened", "message": why})
+            mapping = ArkitMapping(subject.controls)
+            self._streaming = _Streaming(subject, classic_device, classic_subject, mapping, phone_address)
         else:
-            self._streaming = self._own_stream(subject, device, client.peer)
+            self._streaming = self._own_stream(subject, device, phone_address)
         udp_port = self.udp.getsockname()[1]
         client.request(
             START_STREAMING, {"streamPort": udp_port, "subjects": [{"id": subject.id, "name": subject.name}]}
@@ -465,7 +586,9 @@ class PhoneStream:
 
     def _own_stream(self, subject: RemoteSubject, device: str, phone: str) -> _Streaming:
         """The streaming of a subject logged with its own controls: its stream id (a new one, whose
-        STREAM record names its controls, unless a session before streamed the same subject)."""
+        STREAM record names its controls and head channels, unless a session before streamed the same
+        subject)."""
+        head, head_from = head_channels(subject.controls)
         stream = self._stream_ids.setdefault(
             (device, subject.name, tuple(subject.controls)), len(self._stream_ids)
         )
@@ -475,9 +598,9 @@ class PhoneStream:
             "subject": subject.name,
             "source": phone,
             "source_kind": REALTIME_SOURCE_KIND,
-            "controls": subject.controls,
+            "controls": subject.controls + head,
         }
-        return _Streaming(subject, device, None, phone, stream, record)
+        return _Streaming(subject, device, subject.name, None, phone, stream, record, head_from)
 
     # -- the relay ----------------------------------------------------------------------------
     def _relay(self) -> None:
@@ -506,8 +629,8 @@ class PhoneStream:
         streaming = self._streaming
         if streaming is None:
             return "not_streaming"
-        source = addr[0].removeprefix("::ffff:")  # an IPv4 phone on a dual-stack socket
-        if source != streaming.phone and (self.allow is None or addr[0] not in self.allow):
+        source = unmapped(addr[0])  # an IPv4 phone on a dual-stack socket
+        if source != streaming.phone and (self.allow is None or source not in self.allow):
             return "not_allowed"
         packet = decode_realtime_packet(data)
         if isinstance(packet, str):
@@ -522,10 +645,12 @@ class PhoneStream:
                 self._logged_streams.add(streaming.stream)
                 rate = {"rate_numerator": packet.rate_numerator, "rate_denominator": packet.rate_denominator}
                 self._unlogged += json_record(RecordType.STREAM, streaming.stream_record | rate)
-            self._unlogged += controls_record(streaming.stream, time.monotonic_ns(), packet)
+            self._unlogged += controls_record(
+                streaming.stream, time.monotonic_ns(), packet, streaming.head_from
+            )
             self.logged += 1
             return None
-        classic = streaming.mapping.classic_packet(streaming.device, streaming.subject.name, packet)
+        classic = streaming.mapping.classic_packet(streaming.device, streaming.name, packet)
         with contextlib.suppress(OSError):
             self.out.sendto(classic, self.recorder_address)
             self.relayed += 1

@@ -115,8 +115,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--bind",
         metavar="ADDR",
         type=_bind_address,
-        help="address to listen on (default: 127.0.0.1, with --phone 0.0.0.0; a LAN address for a "
-        "phone on Wi-Fi; 0.0.0.0 or :: for all)",
+        help="address to listen on (default: 127.0.0.1; with --phone 0.0.0.0 for a phone given by its IPv4 "
+        "address, else ::; a LAN address for a phone on Wi-Fi; 0.0.0.0 or :: for all)",
     )
     p.add_argument(
         "--phone",
@@ -454,7 +454,14 @@ def _say(message: str, say: Callable[[str], None] = progress) -> None:
         say(message)
 
 
-def _status_line(counts: dict) -> None:
+def _status_line(counts: dict, stream: PhoneStream | None = None) -> None:
+    """The status line of ``counts`` (``LiveRecorder.run``'s); with ``stream``, its subject logged with its
+    own controls (CONTROLS records, which the recorder does not see) counts as the relayed ones do."""
+    if stream is not None:
+        counts = counts | {
+            "accepted": counts["accepted"] + stream.logged,
+            "streams": counts["streams"] + stream.logged_streams,
+        }
     failed = f", {counts['failed_writes']} failed log writes" if counts.get("failed_writes") else ""
     if counts.get("receive_queue_drops"):
         failed += f", {counts['receive_queue_drops']} dropped in a full receive queue"
@@ -982,7 +989,11 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
                 source.start()
             if serial_sync is not None:
                 serial_sync.start()
-            recorder.run(args.duration, status=_status_line, on_flush=lambda: _flushed(warnings, setup))
+            recorder.run(
+                args.duration,
+                status=lambda counts: _status_line(counts, stream),
+                on_flush=lambda: _flushed(warnings, setup),
+            )
         finally:
             if stream is not None:
                 stream.stop()  # ends the phone's session; the packets relayed before are in the log
@@ -1025,9 +1036,8 @@ def cmd_listen(args: argparse.Namespace, stop: threading.Event | None = None) ->
 
 def _phone_stream(args: argparse.Namespace, phone, allow, recorder: LiveRecorder, to) -> PhoneStream:
     """The control session to ``--phone`` and the relay of its realtime packets to ``recorder`` at ``to``
-    (``cps_control.PhoneStream``), on ``--bind`` (default all interfaces, as Unreal binds: IPv4 ones, and
-    IPv6 ones too for a phone given by its IPv6 address, which streams to this computer's IPv6 address)
-    and ``--port`` (default any free port: the phone is told which)."""
+    (``cps_control.PhoneStream``), on ``--bind`` (default all interfaces of the family the phone streams to,
+    ``cps_control.relay_socket``) and ``--port`` (default any free port: the phone is told which)."""
     return PhoneStream(
         phone[0],
         phone[1],
@@ -1036,7 +1046,7 @@ def _phone_stream(args: argparse.Namespace, phone, allow, recorder: LiveRecorder
         rejected=recorder.rejected,
         note=recorder.note,
         record=recorder.log.put,  # a MetaHuman Animator subject's frames, logged with their own controls
-        bind=args.bind or ("::" if ":" in phone[0] else "0.0.0.0"),
+        bind=args.bind,
         stream_port=args.port or 0,
         allow=allow,
     )

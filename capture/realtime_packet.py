@@ -20,6 +20,7 @@ rejection reason (one of ``REALTIME_REJECT_REASONS``).
 
 from __future__ import annotations
 
+import hashlib
 import struct
 from dataclasses import dataclass
 
@@ -34,6 +35,14 @@ from .record_log import RecordType, encode_record
 MAX_REALTIME_PACKET_BYTES = 8192
 CONTROL_SCALE = 65535.0  # a control value is u16 / 65535
 HEAD_POSE = ("roll", "pitch", "yaw", "x", "y", "z")
+# The head rotation as a take's channels, in the classic stream's order (LIVELINK_ORDER), and where each is
+# in the packet's head pose. Unreal passes the pose on as HeadRoll, HeadPitch, HeadYaw (and
+# HeadTranslationX/Y/Z) unchanged: its units and signs are not stated in its source.
+HEAD_CHANNELS = {"HeadYaw": 2, "HeadPitch": 1, "HeadRoll": 0}
+# The most bytes of UTF-8 a classic packet's device id and subject name may take together: the rest of a
+# version-6 packet (version, two lengths, frame block) and they stay within livelink.MAX_PACKET_BYTES.
+CLASSIC_NAME_BYTES = ll.MAX_PACKET_BYTES - len(ll.header_bytes("", "")) - ll.FRAME_BLOCK_BYTES
+_HASH_MARK = "~"  # a shortened name ends in this and 8 hex digits of its whole text's SHA-1
 
 _ID_LEN = struct.Struct("<HH")  # version, subject id length
 _FRAME_TIME = struct.Struct("<ifii")  # frame number, sub-frame, rate numerator, rate denominator
@@ -117,6 +126,30 @@ def decode_realtime_packet(data: bytes | bytearray | memoryview) -> RealtimePack
     return RealtimePacket(version, subject_id, frame_number, sub_frame, num, den, controls, head)
 
 
+def _shortened(text: str, limit: int) -> str:
+    """``text`` in at most ``limit`` bytes of UTF-8: itself when it fits, else cut at a character boundary
+    and ended by ``~`` and 8 hex digits of its whole text's SHA-1 (long names that differ only past the
+    cut stay apart)."""
+    raw = text.encode("utf-8")
+    if len(raw) <= limit:
+        return text
+    mark = _HASH_MARK + hashlib.sha1(raw).hexdigest()[:8]
+    return raw[: limit - len(mark)].decode("utf-8", "ignore") + mark
+
+
+def classic_names(device: str, subject: str) -> tuple[str, str]:
+    """The device id and subject name a classic packet can carry (``CLASSIC_NAME_BYTES`` together): the
+    same when they fit, else each longer than its share (half, and what the other leaves) shortened
+    (``_shortened``), the same every time for the same names."""
+    device_bytes, subject_bytes = len(device.encode("utf-8")), len(subject.encode("utf-8"))
+    if device_bytes + subject_bytes <= CLASSIC_NAME_BYTES:
+        return device, subject
+    half = CLASSIC_NAME_BYTES // 2
+    device_share = max(half, CLASSIC_NAME_BYTES - subject_bytes)
+    device = _shortened(device, device_share)
+    return device, _shortened(subject, CLASSIC_NAME_BYTES - len(device.encode("utf-8")))
+
+
 class ArkitMapping:
     """Where an ARKit subject's controls and head pose go among the classic packet's 61 values.
 
@@ -159,13 +192,26 @@ class ArkitMapping:
         )
 
 
-def controls_record(stream: int, arrival_ns: int, packet: RealtimePacket) -> bytes:
+def head_channels(controls: list[str]) -> tuple[list[str], np.ndarray]:
+    """The head rotation's channels a subject with ``controls`` is recorded with beside them (those of
+    ``HEAD_CHANNELS`` it has no control of, case ignored) and where their values are in the head pose."""
+    named = {c.lower() for c in controls}
+    kept = [name for name in HEAD_CHANNELS if name.lower() not in named]
+    return kept, np.array([HEAD_CHANNELS[name] for name in kept], dtype=np.intp)
+
+
+def controls_record(
+    stream: int, arrival_ns: int, packet: RealtimePacket, head_from: np.ndarray | None = None
+) -> bytes:
     """The frames-log record (``RecordType.CONTROLS``) of a packet of a subject recorded with its own
-    controls: stream id, arrival, the frame time as a classic packet's and the control values."""
+    controls: stream id, arrival, the frame time as a classic packet's, the control values and then the
+    head pose's values at ``head_from`` (``head_channels``)."""
+    head = b"" if head_from is None else packet.head_pose[head_from].astype(">f4").tobytes()
     return encode_record(
         _CONTROLS_PREFIX.pack(RecordType.CONTROLS, stream, arrival_ns)
         + ll._FRAME_TIME.pack(
             packet.frame_number, packet.sub_frame, packet.rate_numerator, packet.rate_denominator
         )
         + packet.controls.astype(">f4").tobytes()
+        + head
     )

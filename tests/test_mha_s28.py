@@ -11,7 +11,7 @@ import pytest
 from live_helpers import Listener, run_cli, synthetic_take, wait_until
 
 from capture import cps_control as cps
-from capture.realtime_packet import controls_record, decode_realtime_packet
+from capture.realtime_packet import HEAD_CHANNELS, controls_record, decode_realtime_packet
 from capture.record_log import LogReader, LogWriter, RecordType, json_record
 from capture.simulate.cps_phone import DEVICE_ID, MHA_CONTROLS, RealtimeFrames, SimulatedPhone
 from capture.take import read_take
@@ -48,20 +48,25 @@ def test_listen_phone_records_an_mha_subject_as_takes_of_its_own_controls(tmp_pa
     assert "Traceback" not in err
     assert "streams subject iPhone (8 MetaHuman Animator controls)" in err
     (stream,) = [json.loads(p[1:]) for p in _logged(listener.session_dir, RecordType.STREAM)]
-    assert stream["controls"] == MHA_CONTROLS and stream["source_kind"] == "livelink_realtime"
+    assert (
+        stream["controls"] == [*MHA_CONTROLS, *HEAD_CHANNELS] and stream["source_kind"] == "livelink_realtime"
+    )
     (take_summary,) = summaries
     assert take_summary["device"] == DEVICE_ID and take_summary["subject"] == "iPhone"
     assert take_summary["valid_frames"] == 180 and take_summary["dropped_frames"] == 0
     take = read_take(take_summary["path"])
-    assert take.meta.channels == MHA_CONTROLS and take.meta.source_kind == "livelink_realtime"
+    assert (
+        take.meta.channels == [*MHA_CONTROLS, *HEAD_CHANNELS] and take.meta.source_kind == "livelink_realtime"
+    )
     assert take.meta.fps == 60
-    np.testing.assert_array_equal(take.values, _quantized(frames, 8))
+    np.testing.assert_array_equal(take.values[:, :8], _quantized(frames, 8))
+    np.testing.assert_array_equal(take.values[:, 8:], frames.head_pose[:, [2, 1, 0]])
     # recover rebuilds the same take from the session log
     rebuilt = run_cli("recover", str(listener.session_dir.parent), "--all", "-o", str(tmp_path / "again"))
     assert rebuilt.returncode == 0, rebuilt.stderr
     (again,) = (tmp_path / "again").iterdir()
     again_take = read_take(again)
-    assert again_take.meta.channels == MHA_CONTROLS
+    assert again_take.meta.channels == [*MHA_CONTROLS, *HEAD_CHANNELS]
     np.testing.assert_array_equal(again_take.values, take.values)
 
 
@@ -78,9 +83,9 @@ def test_recover_after_a_kill_keeps_the_mha_frames_logged(tmp_path):
     assert rebuilt.returncode == 0, rebuilt.stderr
     (again,) = (tmp_path / "again").iterdir()
     take = read_take(again)
-    assert take.meta.channels == MHA_CONTROLS
-    assert take.values.shape == (logged, 8)
-    np.testing.assert_array_equal(take.values, _quantized(frames, 8)[:logged])
+    assert take.meta.channels == [*MHA_CONTROLS, *HEAD_CHANNELS]
+    assert take.values.shape == (logged, 11)
+    np.testing.assert_array_equal(take.values[:, :8], _quantized(frames, 8)[:logged])
 
 
 def test_a_stream_whose_control_names_the_log_lost_keeps_its_frames(tmp_path):

@@ -6,7 +6,8 @@ a take's frames as realtime packets (``capture.realtime_packet``) of an ARKit su
 ``silent`` never answers, ``no_subjects`` lists none, ``mha`` lists only a MetaHuman Animator subject
 (``MHA_CONTROLS``: the first eight of the take's values, streamed under those names),
 ``garbage`` answers with bytes that are no control message, ``drop_once`` closes the first control
-connection after ``drop_after`` frames (and goes on streaming on the next one). ``extra_datagrams`` are
+connection after ``drop_after`` frames (and goes on streaming on the next one), ``drop_then_silent`` too but
+never answers on the next ones (a phone that went away mid-stream). ``extra_datagrams`` are
 sent to the receiver's UDP port before the frames (bad input for its relay).
 """
 
@@ -28,7 +29,8 @@ from capture.realtime_packet import encode_realtime_packet
 from capture.replay import rate_of, values_in_engine_order
 from capture.take import FrameStatus, Take
 
-BEHAVIOURS = ("normal", "refuse", "silent", "no_subjects", "mha", "garbage", "drop_once")
+BEHAVIOURS = ("normal", "refuse", "silent", "no_subjects", "mha", "garbage", "drop_once", "drop_then_silent")
+DROPPING = ("drop_once", "drop_then_silent")
 ARKIT_CONTROLS = list(LIVELINK_ORDER[:52])  # the 52 blendshapes; the head pose travels apart
 MHA_CONTROLS = [f"CTRL_expressions_{i}" for i in range(8)]
 SUBJECT_ID = "00000000-5EA1-71DE-0000-00000000A1C1"
@@ -149,7 +151,7 @@ class SimulatedPhone:
                     break
                 path = message.get("addressPath")
                 self.requests.append(path)
-                if self.behaviour == "silent":
+                if self.behaviour == "silent" or (self.behaviour == "drop_then_silent" and number > 1):
                     continue
                 if self.behaviour == "garbage":
                     conn.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n")
@@ -212,7 +214,7 @@ class SimulatedPhone:
                 )
                 udp.sendto(packet, to)
                 self.sent += 1
-                if self.behaviour == "drop_once" and number == 1 and k + 1 >= self.drop_after:
+                if self.behaviour in DROPPING and number == 1 and k + 1 >= self.drop_after:
                     conn.shutdown(socket.SHUT_RDWR)  # the phone goes away mid-stream
                     return
 
