@@ -61,16 +61,33 @@ def fingerprint(folder: Path, options: AlignOptions) -> str:
     return h.hexdigest()
 
 
-def _outputs_of(out_dir: Path, take_id: str) -> list[tuple[Path, TakeMeta]]:
-    """Aligned take folders in ``out_dir`` made from the raw take ``take_id``, with their metadata."""
-    base = safe_id(take_id)
-    segment = re.compile(re.escape(base) + SEGMENT_SUFFIX)
+_SEGMENT_OF = re.compile(r"(.+)" + SEGMENT_SUFFIX)  # group 1: the raw take's ``safe_id``
+
+
+def _segments_listed(out_dir: Path) -> dict[str, list[str]] | None:
+    """The names in ``out_dir`` of aligned segments (``<id>.segNN``) by the ``safe_id`` of the raw take
+    they would be cut from, from one listing of the folder; None when it cannot be listed."""
     try:
-        names = [n for n in os.listdir(out_dir) if segment.fullmatch(n)]
+        names = os.listdir(out_dir)
     except OSError:
-        names = []
+        return None
+    by_take: dict[str, list[str]] = {}
+    for n in names:
+        if (m := _SEGMENT_OF.fullmatch(n)) is not None:
+            by_take.setdefault(m.group(1), []).append(n)
+    return by_take
+
+
+def _outputs_of(
+    out_dir: Path, take_id: str, segments: list[str] | None = None
+) -> list[tuple[Path, TakeMeta]]:
+    """Aligned take folders in ``out_dir`` made from the raw take ``take_id``, with their metadata.
+    ``segments``: the names of its segments in ``out_dir`` (``_segments_listed``); None: listed here."""
+    base = safe_id(take_id)
+    if segments is None:
+        segments = (_segments_listed(out_dir) or {}).get(base, [])
     found = []
-    for p in [out_dir / base, *(out_dir / n for n in sorted(names, key=_segment_number))]:
+    for p in [out_dir / base, *(out_dir / n for n in sorted(segments, key=_segment_number))]:
         if (p / META_FILE).is_file():
             try:
                 m = read_meta(p)
@@ -83,11 +100,11 @@ def _outputs_of(out_dir: Path, take_id: str) -> list[tuple[Path, TakeMeta]]:
     return found
 
 
-def _previous(out_dir: Path, take_id: str, fp: str, source: str) -> dict[str, Any] | None:
-    """The stored report of the outputs of ``take_id`` when they are complete, made with the fingerprint
-    ``fp`` and from the raw take folder at ``source`` (a take folder moved or renamed since is aligned
-    again once, so that its outputs record where it is: ``orphans`` goes by it); None otherwise."""
-    outs = _outputs_of(out_dir, take_id)
+def _previous(outs: list[tuple[Path, TakeMeta]], fp: str, source: str) -> dict[str, Any] | None:
+    """The stored report of the outputs ``outs`` of a raw take (``_outputs_of``) when they are complete,
+    made with the fingerprint ``fp`` and from the raw take folder at ``source`` (a take folder moved or
+    renamed since is aligned again once, so that its outputs record where it is: ``orphans`` goes by
+    it); None otherwise."""
     if not outs:
         return None
     reports = [m.extra["align"] for _, m in outs]
@@ -133,22 +150,26 @@ def align_folder(
     options: AlignOptions,
     force: bool = False,
     skip_without_audio: bool = False,
+    listed: dict[str, list[str]] | None = None,
 ) -> dict:
     """Align one raw take folder into ``out_dir``; returns its report (``skipped`` True when unchanged
     or, with ``skip_without_audio``, when the take has no audio; ``error`` set when the take could not
-    be aligned)."""
+    be aligned). ``listed``: ``_segments_listed`` of ``out_dir`` as a batch listed it once for all its
+    takes (no take's segments are written by another), holding at least this take's; its id not in
+    it, or None: listed here."""
     folder, out_dir = Path(folder), Path(out_dir)
     try:
         meta = read_meta(folder)
         fp = fingerprint(folder, options)
+        outs = _outputs_of(out_dir, meta.id, (listed or {}).get(safe_id(meta.id)))
         if not force:
-            prev = _previous(out_dir, meta.id, fp, str(folder.resolve()))
+            prev = _previous(outs, fp, str(folder.resolve()))
             if prev is not None:
                 return json_safe({"id": meta.id, "path": str(folder), "skipped": True} | prev)
         if meta.audio is None and skip_without_audio:
             return {"id": meta.id, "path": str(folder), "skipped": True, "reason": "no audio"}
         segments, report = _align_read(folder, meta, options)
-        stale = [p for p, _ in _outputs_of(out_dir, meta.id)]
+        stale = [p for p, _ in outs]
         for seg in segments:
             seg.meta.extra["align"]["fingerprint"] = fp
             seg.meta.extra["align"]["parent"]["path"] = str(folder.resolve())
@@ -202,16 +223,23 @@ def _error(folder: Path, message: str) -> dict[str, Any]:
     return {"id": folder.name, "path": str(folder), "error": " ".join(message.split())}
 
 
-def _id_clashes(folders: list[Path]) -> dict[Path, str]:
-    """Takes whose id an earlier take of the run already has (their aligned takes would overwrite each
-    other in the output folder), with the error to report for each."""
-    seen: dict[str, Path] = {}
-    clashes = {}
+def _take_ids(folders: list[Path]) -> dict[Path, str]:
+    """The id of each take folder whose metadata can be read (``align_folder`` reports the others)."""
+    ids = {}
     for f in folders:
         try:
-            take_id = read_meta(f).id
+            ids[f] = read_meta(f).id
         except S2AError:
-            continue  # align_folder reports it
+            pass
+    return ids
+
+
+def _id_clashes(ids: dict[Path, str]) -> dict[Path, str]:
+    """Takes (of ``_take_ids``) whose id an earlier take of the run already has (their aligned takes
+    would overwrite each other in the output folder), with the error to report for each."""
+    seen: dict[str, Path] = {}
+    clashes = {}
+    for f, take_id in ids.items():
         key = safe_id(take_id).casefold()
         if key in seen:
             clashes[f] = (
@@ -318,19 +346,29 @@ def _align_all(
     on_report,
     skip_without_audio: bool,
 ) -> list[dict[str, Any]]:
-    clashes = _id_clashes(folders)
+    ids = _take_ids(folders)
+    clashes = _id_clashes(ids)
+    # the output folder listed once, not once per take; each take is given its own segments
+    listed = _segments_listed(out_dir)
+
+    def own(f: Path) -> dict[str, list[str]] | None:
+        if listed is None or f not in ids:
+            return None
+        base = safe_id(ids[f])
+        return {base: listed.get(base, [])}
+
     reports: list[dict[str, Any]] = []
     if jobs <= 1 or len(folders) == 1:
         for f in folders:
             r = {"id": f.name, "path": str(f), "error": clashes[f]} if f in clashes else None
-            r = r or align_folder(f, out_dir, opts, force, skip_without_audio)
+            r = r or align_folder(f, out_dir, opts, force, skip_without_audio, own(f))
             reports.append(r)
             if on_report:
                 on_report(r)
         return reports
     todo = [f for f in folders if f not in clashes]
     with worker_pool(min(jobs, len(todo)), _worker_context(opts)) as pool:  # no idle workers
-        calls = [(f, out_dir, opts, force, skip_without_audio) for f in todo]
+        calls = [(f, out_dir, opts, force, skip_without_audio, own(f)) for f in todo]
         futures = dict(zip(todo, submit_all(pool, align_folder, calls)))
         for f in folders:
             if f in futures:

@@ -136,16 +136,15 @@ def one_per_take(
         of_take = {v: p for v, (p,) in files.items() if icloud_original(p) is not None or is_livelink_csv(p)}
         neutral = of_take.pop("neutral", None)
         chosen = preferred_csv(of_take, variant)
-        if chosen is not None:  # a damaged one too: importing its take says what is wrong with it, once
-            neutral = files.get("neutral", [None])[0]
-        if neutral is not None and chosen is None and neutral not in named:
+        if chosen is not None:  # its import reads the neutral pose beside it (a damaged one too: said once)
+            dropped.update(files.get("neutral", []))
+        elif neutral is not None and neutral not in named:
+            dropped.add(neutral)
             skipped(
                 neutral,
                 "the neutral pose of a calibrated take (a still face) with no other CSV of its take beside "
                 "it, not a take of its own (name it to import it as one)",
             )
-        if neutral is not None and (chosen is not None or neutral not in named):
-            dropped.add(neutral)
         for own, p in of_take.items():
             if p != chosen:
                 dropped.add(p)
@@ -275,9 +274,10 @@ def audio_stem(source: Path) -> str:
 
 
 @once_per_listing
-def _audio_in(folder: Path) -> tuple[list[Path], dict[Path, str], list[Path]]:
+def _audio_in(folder: Path) -> tuple[list[Path], dict[Path, str], list[Path], list[Path]]:
     """(``folder_files`` of ``folder``, the placeholders of audio iCloud has not downloaded among them ->
-    the name of the file each stands for, the audio files among them), found once within ``listed_once``."""
+    the name of the file each stands for, the audio files among them, the entries named as audio that
+    are no file: a symbolic link to nothing, a folder), found once within ``listed_once``."""
     files = folder_files(folder)
     waiting = {}
     for p in files:
@@ -285,43 +285,67 @@ def _audio_in(folder: Path) -> tuple[list[Path], dict[Path, str], list[Path]]:
         if original is not None and Path(original).suffix.lower() in AUDIO_SUFFIXES:
             waiting[p] = original
     audio = [p for p in files if p.suffix.lower() in AUDIO_SUFFIXES and icloud_original(p) is None]
-    return files, waiting, audio
+    listed = set(files)
+    no_file = [
+        p
+        for p in listed_entries(folder)
+        if p.suffix.lower() in AUDIO_SUFFIXES and p not in listed and not is_litter(p)
+    ]
+    return files, waiting, audio, no_file
+
+
+def _stem(name: str) -> str:
+    """The stem of a file name, in NFC (``nfc``): as the names of a source and its audio are compared."""
+    return nfc(Path(name).stem)
 
 
 def audio_beside(source: Path) -> tuple[Path | None, str | None]:
     """The audio file that goes with a CSV or export: the one of the same stem (an Audio2Face export's
-    without ``_bsweight``; stems compared in Unicode NFC), else the only audio file in its folder
-    (``folder_files`` of it, listed once within ``listed_once``; litter such as ``._X.wav`` is never
-    audio). Returns (path or None, why none was taken when that is worth a warning). An
-    iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is never imported
-    without its audio. A placeholder counts as the file it stands for: the one of the same stem, the
-    only audio beside the source, or, when all the audio beside it is placeholders, any of them is that
-    error."""
-    files, waiting, audio = _audio_in(source.parent)
+    without ``_bsweight``; stems compared in Unicode NFC, and in another case when none is alike: a copy
+    that changed it), else the only audio file in its folder (``folder_files`` of it, listed once within
+    ``listed_once``; litter such as ``._X.wav`` is never audio). An audio file named for another CSV or
+    export beside it (in any case) is not this one's, nor is a hidden one (``.X.wav``, a program's
+    temporary file) the only one; an entry of its stem that is no file (a symbolic link to nothing) is
+    not passed over for another. Returns (path or None, why none was taken when that is worth a
+    warning). An iCloud placeholder of the audio (``.X.wav.icloud``) is an ``InputError``: the pair is
+    never imported without its audio. A placeholder counts as the file it stands for: the one of the
+    same stem, the only audio beside the source, or, when all the audio beside it is placeholders, any
+    of them is that error."""
+    files, waiting, audio, no_file = _audio_in(source.parent)
+    candidates = {p: p.name for p in audio} | waiting  # each with the name of the file it is
     stems = {nfc(source.stem), nfc(audio_stem(source))}
-    for p, original in waiting.items():
-        if nfc(Path(original).stem) in stems:
+    folded = {s.lower() for s in stems}  # lower(), as the take folder reader: not casefold() (see _the_one)
+    others = [p for p in files if p.suffix.lower() in (".csv", ".json") and p.name != source.name]
+
+    def owner(name: str) -> Path | None:
+        """The other CSV or export beside the source that an audio file of this name is named for (in
+        another case when none is named so exactly)."""
+        stem = _stem(name)
+        named = [p for p in others if nfc(audio_stem(p)).lower() == stem.lower()]
+        exact = [p for p in named if nfc(audio_stem(p)) == stem]
+        return (exact or named or [None])[0]
+
+    same = [p for p, name in candidates.items() if _stem(name) in stems]
+    if not same:  # named so in another case (a copy that changed it), and for no other file beside it
+        same = [p for p, name in candidates.items() if _stem(name).lower() in folded and owner(name) is None]
+    for p in same:
+        if p in waiting:
             raise icloud_error(p, source)
-    same = [p for p in audio if nfc(p.stem) in stems]
     if len(same) > 1:
         names = [p.name for p in same]
         listed = spellings(names) if len({nfc(n) for n in names}) == 1 else ", ".join(names)
         return None, f"several audio files named {source.stem}.*: {listed}"
     if same:
         return same[0], None
-    candidates = {p: p.name for p in audio} | waiting  # each with the name of the file it is
-
-    def owner(name: str) -> Path | None:
-        """The CSV or export beside the source that an audio file of this name is named for."""
-        stem = nfc(Path(name).stem)
-        return next(
-            (p for p in files if nfc(audio_stem(p)) == stem and p.suffix.lower() in (".csv", ".json")), None
-        )
-
+    unreadable = [p for p in no_file if _stem(p.name).lower() in folded]
+    if unreadable:
+        return None, f"{unreadable[0].name} beside it is no file (a symbolic link to nothing, or a folder)"
     if len(candidates) == 1:
         ((only, name),) = candidates.items()
         if (other := owner(name)) is not None:
             return None, f"the only audio file beside it, {name}, is named for {other.name}"
+        if name.startswith("."):
+            return None, f"the only audio file beside it, {name}, is hidden (a program's temporary file?)"
         if only in waiting:
             raise icloud_error(only, source)
         return only, None

@@ -46,7 +46,7 @@ from capture.atomic import atomic_write, naming_failures, write_json_atomic
 from capture.audio_io import Audio
 from capture.channels import CHANNEL_SETS, ROTATIONS, canonical, channel_set, is_known
 from capture.command import TimedProgress, sigterm_stops, stops_deferred
-from capture.errors import InputError, S2AError, loads_names, strict_names
+from capture.errors import InputError, S2AError, loads_names, shown_against, strict_names
 from capture.file_lock import holding
 from capture.importer import no_takes_found
 from capture.npz import open_npz
@@ -984,8 +984,9 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     peak = max(float(audio.max(initial=0.0)), -float(audio.min(initial=0.0)))
     if peak > MAX_AUDIO_PEAK:  # no recording chain gets there: damaged samples, not a loud take
         at = int(np.argmax(np.abs(audio))) / job.settings.sample_rate
+        shown = shown_against(peak, MAX_AUDIO_PEAK, 0) if peak < 1e6 else f"{peak:.3g}"  # 1000.4: no 1e+03
         raise InputError(
-            f"audio holds a sample of {peak:.3g} at {at:.3f} s, over {MAX_AUDIO_PEAK:g} times full scale "
+            f"audio holds a sample of {shown} at {at:.3f} s, over {MAX_AUDIO_PEAK:g} times full scale "
             "(damaged samples?): repair or re-export the audio (s2a-capture import repairs isolated ones)",
             job.folder,
         )

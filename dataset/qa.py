@@ -326,15 +326,13 @@ def _check_anim(anim: np.ndarray, at: str, n_channels: int) -> tuple[list[Proble
     return out, frames
 
 
-def usable_values(arrays: dict[str, np.ndarray], n_channels: int) -> int | None:
+def usable_values(arrays: dict[str, np.ndarray], n_channels: int) -> int:
     """How many values of a decoded sample are usable (a training loss's targets, the reader's
-    ``values``): its channel_mask's where it has one, else its mask's frames in every channel; None
-    when its channel_mask is damaged (``channel_mask_problem``)."""
+    ``values``): its channel_mask's where it has one, else its mask's frames in every channel. Of a
+    sample whose channel_mask ``validate_sample`` found sound (a damaged one counts nothing)."""
     mask, channel_mask = arrays["mask"], arrays.get("channel_mask")
     if channel_mask is None:
         return int(np.count_nonzero(mask)) * n_channels
-    if channel_mask_problem(channel_mask, mask, n_channels) is not None:
-        return None
     return int(np.count_nonzero(channel_mask))
 
 
@@ -1258,7 +1256,8 @@ def validate(ds: str | Path, deep: bool = False, progress: Callable[[str], None]
                 arrays, usable = decoded[0]
                 anim = arrays["anim"][usable]  # the usable frames, masked once
                 sums = moments(anim)
-                values = usable_values(arrays, anim.shape[1])
+                if not any(p.code == "channel_mask" for p in found):  # checked there, not again here
+                    values = usable_values(arrays, anim.shape[1])
                 if recomputed is not None and not any(p.severity == "error" for p in found):
                     recomputed.add(split, meta, arrays, anim)
             seen.append(

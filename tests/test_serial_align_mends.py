@@ -23,7 +23,7 @@ from capture.take import write_take
 # -- align --------------------------------------------------------------------------------------------
 
 
-def _stub_align_folder(folder, out_dir, opts, force, skip_without_audio):
+def _stub_align_folder(folder, out_dir, opts, force, skip_without_audio, listed=None):
     return {"id": folder.name, "path": str(folder)}
 
 

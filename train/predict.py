@@ -32,7 +32,7 @@ from capture.audio_io import SILENT_PEAK, Audio, whole_sample_rate
 from capture.channels import ARKIT52, is_known
 from capture.command import TimedProgress, duration_words, progress, warn
 from capture.csv_take import COUNT_NAMES
-from capture.errors import InputError
+from capture.errors import InputError, shown_against
 from capture.take import make_out_dir, sha256_file
 from dataset.build import NARROWBAND_HZ, is_narrowband
 from dataset.features import FeatureSettings, compute_features, gain_for_level, speech_level
@@ -397,17 +397,26 @@ def predict(
     return results
 
 
+SILENT_DBFS = 20 * math.log10(SILENT_PEAK)  # -70
+
+
+def _dbfs(amplitude: float) -> float | None:
+    """An amplitude in dBFS to 0.1 dB, or to as many more decimals as it takes to stay on its side of
+    -70 dBFS (``shown_against``: -70.04 is no -70.0, which is not under it); None for 0."""
+    return float(shown_against(20 * math.log10(amplitude), SILENT_DBFS, 1)) if amplitude > 0 else None
+
+
 def _silence_words(peak_dbfs: float | None, dc_dbfs: float | None) -> str:
     """How silent audio is silent: quiet, a constant offset (DC) and nothing else, or all zero. An offset
     itself under -70 dBFS (float samples of 1e-40, say) is no offset worth naming: the audio is as quiet
-    as its offset."""
+    as its offset. The levels as ``_dbfs`` gives them."""
     if peak_dbfs is not None:
-        return f" (peak {peak_dbfs:.1f} dBFS, under -70 dBFS)"
+        return f" (peak {shown_against(peak_dbfs, SILENT_DBFS, 1)} dBFS, under -70 dBFS)"
     if dc_dbfs is None:
         return " (all zero)"
-    if dc_dbfs < 20 * math.log10(SILENT_PEAK):
-        return f" (peak {dc_dbfs:.1f} dBFS, under -70 dBFS)"
-    return f" once its constant offset of {dc_dbfs:.1f} dBFS is removed"
+    if dc_dbfs < SILENT_DBFS:
+        return f" (peak {shown_against(dc_dbfs, SILENT_DBFS, 1)} dBFS, under -70 dBFS)"
+    return f" once its constant offset of {shown_against(dc_dbfs, SILENT_DBFS, 1)} dBFS is removed"
 
 
 def _refuse_replacing(audios: list[str | Path], paths: list[Path]) -> None:
@@ -517,8 +526,8 @@ def _predict_one(
         "clipped_values": clipped,
         "narrowband": narrow,
         "silent": peak < SILENT_PEAK,
-        "peak_dbfs": round(20 * math.log10(peak), 1) if peak > 0 else None,
-        "dc_offset_dbfs": round(20 * math.log10(dc), 1) if dc > 0 else None,
+        "peak_dbfs": _dbfs(peak),
+        "dc_offset_dbfs": _dbfs(dc),
         "speech_level_dbfs": None if level is None else round(level, 1),
         "clipped_audio": round(clipped_audio, 6),  # share of samples held flat at full scale
         "repairs": [{"kind": r["kind"], "message": r["message"]} for r in repairs],

@@ -535,11 +535,11 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
     same = [n for n in audio if PurePosixPath(n).stem == stem]
     wanted = {named, *(same or audio)}
     if not same:
-        owners = {PurePosixPath(n).stem for n in audio}  # by_name's names are NFC already
+        owners = {PurePosixPath(n).stem.lower() for n in audio}  # by_name's names are NFC already
         wanted |= {
             n
             for n in by_name
-            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and audio_stem(Path(n)) in owners
+            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and audio_stem(Path(n)).lower() in owners
         }
     return {b for n in wanted for b in by_name.get(n, ())}
 
