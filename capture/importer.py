@@ -11,7 +11,7 @@ from pathlib import Path
 from .command import warn
 from .csv_take import app_header_separator, read_livelink_csv, split_variant, utf16_csv_error
 from .errors import InputError, S2AError
-from .paired import bom_codec, emotion_weights, header_names, read_paired
+from .paired import bom_codec, emotion_weights, header_names, is_face_cap, read_paired
 from .take import Take, is_take_dir, leads_back
 from .take_folder import (
     attach_neutral,
@@ -199,6 +199,8 @@ def _walk(
                 yield p
             else:
                 skipped(p, emotions)
+        elif exports and p.suffix.lower() == ".txt" and is_face_cap(_text_start(_head(p))):
+            yield p  # Face Cap's text export
         elif exports and p.suffix.lower() == ".json":
             if is_weights_json(p):
                 yield p
@@ -369,11 +371,14 @@ def is_livelink_csv(path: Path, head: bytes | None = None) -> bool:
     return app_header_separator(_first_line(raw)) is not None
 
 
+def _text_start(raw: bytes | None) -> str:
+    """A text file's first bytes (``_head``) as text, in UTF-8 or the codec its byte-order mark says."""
+    return (raw or b"").decode(bom_codec(raw or b"") or "utf-8-sig", "replace")
+
+
 def _first_line(raw: bytes | None) -> str:
-    """The first non-blank line of a text file's first bytes (``_head``), as UTF-8 or the byte-order
-    mark's codec says ("" for none)."""
-    text = (raw or b"").decode(bom_codec(raw or b"") or "utf-8-sig", "replace")
-    return next((line for line in text.splitlines() if line.strip()), "")
+    """The first non-blank line of a text file's first bytes (``_head``) ("" for none)."""
+    return next((line for line in _text_start(raw).splitlines() if line.strip()), "")
 
 
 def emotion_header(head: bytes | None) -> str | None:
@@ -433,6 +438,12 @@ def import_source(
     if source.suffix.lower() == ".json" and is_weights_json(source):
         raise InputError("blendshape weights in JSON need their audio (--audio, or --pair-audio)", source)
     head = _head(source)
+    if source.suffix.lower() == ".txt" and is_face_cap(_text_start(head)):  # Face Cap's text export
+        if audio is None:
+            raise InputError("a Face Cap text export needs its audio (--audio, or --pair-audio)", source)
+        return read_paired(
+            audio, source, fps, None, source.stem, False, first_frame, value_scale, first_frame_strict
+        )
     # named directly, a file of another suffix is read when its header is the app's (a .tsv, or Excel's
     # "Unicode Text" .txt: the reader then says what is wrong with it, as for a .csv)
     if source.suffix.lower() != ".csv" and (head is None or not is_livelink_csv(source, head)):
