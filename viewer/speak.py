@@ -80,8 +80,8 @@ class MicBlocks:
     stream's callback, in PortAudio's thread) queues each block and counts the input overflows (samples
     the sound card lost: the stream goes on); ``taken`` resamples what has arrived with libsoxr's stream
     (align's resampler, ``align/resample.py`` says why), whose filter keeps its state from block to
-    block: the joins are seamless, the samples ``soxr.resample``'s of the whole, the last 25-50 ms held
-    back for the next block (the filter's delay at 44.1 and 48 kHz)."""
+    block: the joins are seamless, the samples ``soxr.resample``'s of the whole, the latest 9-85 ms held
+    back for the next call (the filter's delay and its block at 44.1 and 48 kHz: a median of 45 ms)."""
 
     def __init__(self, rate: int):
         import soxr
@@ -108,9 +108,21 @@ class MicBlocks:
         return block if self.stream is None else self.stream.resample_chunk(block)
 
 
+def _input_rate(sd, dev) -> int:
+    """16 kHz when the input device takes it (nothing then held back by a resampler), else its default
+    rate (most cards take only 44.1 or 48 kHz)."""
+    try:
+        sd.check_input_settings(device=dev, samplerate=TARGET_RATE, channels=1, dtype="float32")
+        return TARGET_RATE
+    except Exception:  # PortAudio's refusals come in several exception types
+        rate = int(round(sd.query_devices(dev, "input")["default_samplerate"]))
+        sd.check_input_settings(device=dev, samplerate=rate, channels=1, dtype="float32")
+        return rate
+
+
 class MicSpeech:
-    """A sounddevice input stream, mono, at the device's own rate (``device``: PortAudio's index or
-    name, None: the default input; most cards take no 16 kHz), taken at 16 kHz (``MicBlocks``)."""
+    """A sounddevice input stream, mono, at 16 kHz or else the device's own rate (``device``:
+    PortAudio's index or name, None: the default input), taken at 16 kHz (``MicBlocks``)."""
 
     live = True
 
@@ -121,8 +133,7 @@ class MicSpeech:
             raise InputError(f"--mic needs sounddevice and PortAudio (libportaudio2): {exc}") from None
         dev = int(device) if device is not None and device.isdigit() else device
         try:
-            rate = int(round(sd.query_devices(dev, "input")["default_samplerate"]))
-            sd.check_input_settings(device=dev, samplerate=rate, channels=1, dtype="float32")
+            rate = _input_rate(sd, dev)
         except Exception as exc:  # PortAudio reports a missing device in several exception types
             raise InputError(f"--mic: no usable audio input device ({exc})") from None
         self.blocks = MicBlocks(rate)
