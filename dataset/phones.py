@@ -27,7 +27,24 @@ lips to teeth), the labial-velar stops ``kp ɡb`` P and B (lips closed, as a fac
 Vowels by quality: ``i iː`` IY, ``ɪ ɨ`` IH, ``e ej eɪ`` EY, ``ɛ ɛː`` EH, ``æ a`` AE, ``ɑ ɑː ɒ ɒː`` AA (LOT,
 as CMUdict writes it), ``ɔ ɔː`` AO, ``ʌ ɐ ə`` AH, ``ɚ ɝ ɜ ɜː`` ER, ``ʊ`` UH, ``u uː ʉ ʉː`` UW, ``o ow oʊ
 əw əʊ`` OW (``əw`` is British GOAT), ``aj aɪ`` AY, ``aw aʊ`` AW, ``ɔj ɔɪ`` OY. ARPAbet is tried first,
-so a label that reads as both (``b``, ``aw``, ``y``) keeps its ARPAbet meaning."""
+so a label that reads as both (``b``, ``aw``, ``y``) keeps its ARPAbet meaning.
+
+Centring diphthongs (British NEAR, CURE, SQUARE: ``ɪə ʊə eə ɛə``, WebMAUS's ``I@ U@ e@``) have no phone of
+their own in the 39; each is the phone of its first element, IH UH EH: that vowel is what the lips and jaw
+hold, and the glide to ``ə`` is the mouth relaxing towards rest (CMUdict writes these words with the same
+vowel before R: ``IH R``, ``UH R``, ``EH R``; the R is not said in non-rhotic speech and not added here).
+
+The tap ``ɾ`` is T whichever dialect writes it: in American English it is the flap of /t d/ ("water"), in
+Indian English (``english_india_mfa``) the usual /r/. By articulation they are one sound: the tongue tip
+strikes the alveolar ridge once, with unrounded lips; T is the 39's phone of that place (TIMIT's flap
+``dx`` folds there too), while R (``ɹ``, the approximant, tongue bunched and lips often rounded) looks
+different on a face.
+
+WebMAUS (BAS) writes its ``MAU`` tier in SAMPA / X-SAMPA: ``sampa_to_ipa`` rewrites a label in IPA
+(``{`` æ, ``Q`` ɒ, ``V`` ʌ, ``T D S Z N`` θ ð ʃ ʒ ŋ, ``tS dZ`` tʃ dʒ, ``r\\`` ɹ, ``4`` ɾ, ``5`` ɫ,
+``@`` ə, r-coloured @` 3` ɚ ɝ, ``:`` length, ``=`` syllabic, ``eI aI OI @U aU I@ e@ U@`` diphthongs),
+which the table above then maps. SAMPA must be converted before ``phone_index``: read as ARPAbet, its
+``T D S Z N V`` would be other phones."""
 
 from __future__ import annotations
 
@@ -68,6 +85,9 @@ IPA = {
     "ʊ": "UH",
     **dict.fromkeys("u ʉ".split(), "UW"),
     **dict.fromkeys("o ow oʊ əw əʊ".split(), "OW"),
+    "ɪə": "IH",
+    "ʊə": "UH",
+    **dict.fromkeys("eə ɛə".split(), "EH"),
     **dict.fromkeys("aj aɪ".split(), "AY"),
     **dict.fromkeys("aw aʊ".split(), "AW"),
     **dict.fromkeys("ɔj ɔɪ".split(), "OY"),
@@ -99,6 +119,26 @@ IPA = {
     "j": "Y",
     **dict.fromkeys("w ʍ".split(), "W"),
 }
+
+# X-SAMPA (a superset of SAMPA) -> IPA: every symbol of WebMAUS's English sets and the ASCII capitals, so no
+# SAMPA label is left to read as an ARPAbet phone; the longest symbol is taken first
+_XSAMPA = {
+    **dict(zip("ABCDEFGHIJKLMNOPQRSTUVWXYZ", "ɑβçðɛɱɣɥɪɲɬʎɯŋɔʋɒʁʃθʊʌʍχʏʒ")),
+    **dict(zip("@{}123456789&?", "əæʉɨøɜɾɫɐɤɵœɶʔ")),
+    "@`": "ɚ", "3`": "ɝ", "t`": "ʈ", "d`": "ɖ", "n`": "ɳ", "s`": "ʂ", "z`": "ʐ", "r`": "ɽ",
+    "r\\": "ɹ", "R\\": "ʀ", "?\\": "ʕ", "tS": "tʃ", "dZ": "dʒ", ":": "ː", ":\\": "ˑ", "=": "\u0329",
+    "_h": "ʰ", "_w": "ʷ", "_j": "ʲ", "'": "ʲ", "_0": "\u0325", "~": "\u0303", "`": "\u02de",
+}  # fmt: skip
+_XSAMPA_SYMBOL = re.compile("|".join(map(re.escape, sorted(_XSAMPA, key=len, reverse=True))))
+
+
+def sampa_to_ipa(label: str) -> str:
+    """An (X-)SAMPA phone label (WebMAUS's ``MAU`` tier) in IPA: ``tS`` -> ``tʃ``, ``{`` -> ``æ``, ``I@`` ->
+    ``ɪə``. Pauses and markers in angle brackets (``<p:>``) and lower-case letters are kept."""
+    if label.strip().startswith("<"):
+        return label
+    return _XSAMPA_SYMBOL.sub(lambda m: _XSAMPA[m.group()], label)
+
 
 # marks that make an allophone of the phone they follow: aspirated, labialised, palatalised, long,
 # half-long, syllabic (below and above), unreleased, dental, non-syllabic, ejective, voiceless, raised,

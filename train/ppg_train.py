@@ -8,7 +8,13 @@ mapping audio stems to ``{"words": [{"phones": [{"phone", "start", "end"}]}]}`` 
 sample), or as Gentle's JSON beside its audio (``{"transcript", "words": [{"case", "start", "end",
 "phones": [{"phone", "duration"}]}]}``: each word's phones follow each other from its start; words Gentle
 did not find in the audio have no time: the stretch between the found words around them is unknown,
-said; JSON whose words have no ``case`` is not Gentle's and is passed over). Phone labels are ARPAbet in
+said; JSON whose words have no ``case`` is not Gentle's and is passed over). Also read: MFA 3's JSON and
+CSV exports beside their audio (``--output_format json``: ``{"tiers": {"phones": {"entries": [[start, end,
+label]]}}}``; ``csv``: ``Begin,End,Label,Type,Speaker`` rows, other CSV passed over), read as its
+TextGrids; Kaldi CTM phone alignments (capture/ctm.py: one file for many utterances, each the audio file of
+its id in the CTM's folder or below; integer ids named by the ``phones.txt`` beside it); WebMAUS's
+TextGrid ``MAU`` tier and BAS Partitur ``.par`` (capture/partitur.py), in SAMPA, rewritten in IPA. TIMIT
+``.phn`` and ELAN ``.eaf`` files are said not to be read. Phone labels are ARPAbet in
 any case, stress digits and Kaldi word-position suffixes (``dh_B``) dropped, TIMIT phones folded, or the
 IPA phones of MFA's English models (dataset/phones.py); labels outside these are unknown (with a warning).
 
@@ -32,6 +38,7 @@ on the dataset's own voices and recording conditions, in any language (its label
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -48,14 +55,16 @@ import torch.nn.functional as F
 from align.resample import to_16k_mono
 from capture import find_takes, read_audio, read_take
 from capture.command import progress, warn
+from capture.ctm import has_integer_phones, read_ctm, read_symbol_table
 from capture.errors import InputError
 from capture.importer import AUDIO_SUFFIXES as SPEECH_SUFFIXES
 from capture.paired import read_text
-from capture.textgrid import read_textgrid
+from capture.partitur import read_maus_phones
+from capture.textgrid import TextGrid, Tier, interval_tier, read_textgrid
 from capture.transfer_litter import Litter
 from dataset.bottleneck import CHECKPOINT_FORMAT, BottleneckConfig, BottleneckPPG, load_plain, save_bottleneck
 from dataset.features import FeatureSettings, spectral_features
-from dataset.phones import phone_index, without_word_position
+from dataset.phones import phone_index, sampa_to_ipa, without_word_position
 from dataset.ppg import PocketsphinxExtractor
 
 from .checkpoint import write_atomically
@@ -67,6 +76,13 @@ LABELS = ("alignments", "pocketsphinx")
 PIECE_S = 10.0  # decoded speech is cut into pieces of about this length (at silences) for the held-out split
 UNKNOWN = -100  # frame label of speech without a phone: left out of the loss and the accuracies
 UNPLACED = "spn"  # segment label of speech the aligner did not place (spoken noise, as MFA writes it)
+MAUS_TIER = "MAU"  # WebMAUS's phone tier (SAMPA), read when a TextGrid has no phones tier
+MFA_CSV_HEADER = ["begin", "end", "label", "type", "speaker"]  # mfa align --output_format csv
+NOT_READ = {".phn": "TIMIT .phn", ".eaf": "ELAN .eaf"}  # alignments of formats not read: skipped, said
+FORMATS_READ = (
+    "read: Praat TextGrids with a 'phones', MFA '<speaker> - phones' or WebMAUS 'MAU' tier; the toolkit's, "
+    "Gentle's and MFA's JSON; MFA's CSV; Kaldi CTM; BAS Partitur .par"
+)
 
 
 def _phone_id(label: str) -> int:
@@ -277,16 +293,28 @@ def _spoken_over(segs: Segments, speakers: list[str]) -> set[int]:
     return over
 
 
-def _textgrid_segments(path: Path, warnings: list[str]) -> Segments:
-    """Phone segments of a TextGrid's ``phones`` tier, or of its speakers' (MFA's ``<speaker> - phones``):
-    each speaker's silence left out, phones spoken over another speaker's made UNPLACED, and the tiers'
-    silence after the last phone kept. Point tiers and crosstalk are added to ``warnings``."""
-    tiers = read_textgrid(path).speaker_tiers("phones")
+def _phone_tiers(grid: TextGrid) -> tuple[list[Tier], bool]:
+    """A grid's phone tiers (``phones``, MFA's ``<speaker> - phones``, else WebMAUS's ``MAU``) and whether
+    their labels are SAMPA (the ``MAU`` tier's)."""
+    try:
+        return grid.speaker_tiers("phones"), False
+    except InputError:
+        if any(t.name == MAUS_TIER for t in grid.tiers):
+            return [grid.tier(MAUS_TIER)], True
+        raise
+
+
+def _grid_segments(grid: TextGrid, path: Path, warnings: list[str]) -> Segments:
+    """Phone segments of a grid's phone tier, or of its speakers' (MFA's ``<speaker> - phones``): each
+    speaker's silence left out, phones spoken over another speaker's made UNPLACED, and the tiers'
+    silence after the last phone kept; SAMPA labels in IPA. Point tiers and crosstalk are added to
+    ``warnings``."""
+    tiers, sampa = _phone_tiers(grid)
     segs, names, speakers = [], [], []
     for tier in tiers:
         if tier.kind != "IntervalTier":  # no phones: reported as such in train_ppg
             warnings.append(f"{path}: tier {tier.name!r} is a point tier ({tier.kind}), not intervals")
-        tier_segs = [(iv.xmin, iv.xmax, iv.text) for iv in tier.intervals]
+        tier_segs = [(iv.xmin, iv.xmax, sampa_to_ipa(iv.text) if sampa else iv.text) for iv in tier.intervals]
         tier_names = [f"tier {tier.name!r} interval {k + 1}" for k in range(len(tier_segs))]
         _check_segments(tier_segs, tier_names, path)
         for seg, name in zip(tier_segs, tier_names):
@@ -307,6 +335,128 @@ def _textgrid_segments(path: Path, warnings: list[str]) -> Segments:
     if end > last:  # the tiers' silence after the last phone, left out above: where they end
         segs.append((last, end, ""))
     return segs
+
+
+def _grid_of(tiers: dict[str, Segments], start: float, end: float | None, path: Path) -> TextGrid:
+    """A grid of interval tiers from ``(start, end, label)`` segments (gaps silent), over ``start`` to
+    ``end`` (None: the last segment's end), read from ``path``."""
+    end = max([b for segs in tiers.values() for _, b, _ in segs], default=start) if end is None else end
+    grid = TextGrid(
+        start, end, [interval_tier(name, sorted(segs), start, end) for name, segs in tiers.items()]
+    )
+    grid.path = str(path)
+    return grid
+
+
+def _mfa_json_grid(data: dict, path: Path) -> TextGrid:
+    """The grid of MFA's JSON (``mfa align --output_format json``): ``{"start", "end", "tiers": {name:
+    {"type": "interval", "entries": [[start, end, label], ...]}}}``, tiers named as in its TextGrids."""
+    tiers: dict[str, Segments] = {}
+    for name, tier in data["tiers"].items():
+        entries = tier.get("entries") if isinstance(tier, dict) else None
+        if not isinstance(entries, list):
+            raise InputError(
+                f"tier {name!r}: expected an object with an 'entries' list, found {_show(tier)}", path
+            )
+        tiers[name] = []
+        for k, entry in enumerate(entries):
+            where = f"tier {name!r} entry {k}"
+            if not (isinstance(entry, list) and len(entry) == 3 and isinstance(entry[2], str)):
+                raise InputError(f"{where}: expected [start, end, label], found {_show(entry)}", path)
+            a, b = _seconds(entry[0], f"{where}: start", path), _seconds(entry[1], f"{where}: end", path)
+            tiers[name].append((a, b, entry[2]))
+    start = _seconds(data.get("start", 0), "'start'", path)
+    return _grid_of(tiers, start, _seconds(data["end"], "'end'", path) if "end" in data else None, path)
+
+
+def _is_mfa_csv(path: Path) -> bool:
+    """Whether a CSV file starts with the header of MFA's (``Begin,End,Label,Type,Speaker``); other CSV
+    (a Live Link Face take's) is no alignment."""
+    with open(path, "rb") as f:
+        head = f.read(200).decode("utf-8-sig", errors="replace").splitlines()
+    return bool(head) and [c.strip().lower() for c in head[0].split(",")] == MFA_CSV_HEADER
+
+
+def _mfa_csv_grid(path: Path) -> TextGrid:
+    """The grid of MFA's CSV (``mfa align --output_format csv``: a row per word and phone, ``Type``
+    ``words`` or ``phones``): a ``phones`` tier, or ``<speaker> - phones`` for each of several speakers."""
+    by_speaker: dict[str, Segments] = {}
+    rows = csv.reader(read_text(path).splitlines())
+    next(rows)
+    for number, row in enumerate(rows, start=2):
+        if not row:
+            continue
+        if len(row) != 5:
+            raise InputError(f"expected Begin,End,Label,Type,Speaker, found {len(row)} fields", path, number)
+        if row[3].strip().lower() != "phones":
+            continue
+        a, b = (
+            _seconds(_number_or_text(v), f"line {number}: {k}", path) for v, k in zip(row, ("Begin", "End"))
+        )
+        by_speaker.setdefault(row[4], []).append((a, b, row[2]))
+    several = len(by_speaker) > 1
+    return _grid_of(
+        {f"{s} - phones" if several else "phones": segs for s, segs in by_speaker.items()}, 0.0, None, path
+    )
+
+
+def _number_or_text(text: str) -> object:
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segments]]:
+    """(audio, phone segments) of each utterance of a Kaldi CTM: its audio is the file named by the
+    utterance id in the CTM's folder or below (for a CTM of one utterance, also the audio of the CTM's own
+    name beside it). Integer phone ids are named by the ``phones.txt`` beside it. Utterances without
+    one audio file are left out, said in ``warnings``."""
+    utterances = read_ctm(path)
+    if has_integer_phones(utterances):
+        table_path = path.parent / "phones.txt"
+        if not table_path.is_file():
+            warnings.append(
+                f"{path}: the phones are Kaldi's integer ids and no phones.txt lies beside it (copy the "
+                "lang folder's phones.txt there, or name them with utils/int2sym.pl -f 5 phones.txt): skipped"
+            )
+            return []
+        table = read_symbol_table(table_path)
+        utterances = {u: [(a, b, table.get(x, x)) for a, b, x in segs] for u, segs in utterances.items()}
+    below: dict[str, list[Path]] | None = None  # audio files in and below the CTM's folder, by stem
+    found, missing, several = [], [], []
+    for utt, segs in utterances.items():
+        _check_segments(segs, [f"utterance {utt!r} phone {k}" for k in range(len(segs))], path)
+        plain = Path(utt).name == utt and utt not in ("..", ".")  # no folder in it: the audio beside the CTM
+        matches = [p for p in (path.parent / (utt + s) for s in AUDIO_SUFFIXES) if plain and p.is_file()][:1]
+        if not matches:
+            if below is None:
+                below = {}
+                for f in _files_under(path.parent, Litter()):
+                    if f.suffix in AUDIO_SUFFIXES:
+                        below.setdefault(f.stem, []).append(f)
+            matches = below.get(utt, [])
+        if not matches and len(utterances) == 1:
+            matches = [p for p in map(path.with_suffix, AUDIO_SUFFIXES) if p.is_file()][:1]
+        if len(matches) == 1:
+            found.append((matches[0], segs))
+        else:
+            (several if matches else missing).append(utt)
+    for utts, why in (
+        (missing, "have no audio file (.wav, .flac) of that name"),
+        (several, "match audio files in several folders"),
+    ):
+        if utts:
+            warnings.append(
+                f"{path}: {len(utts)} of {len(utterances)} utterances {why} in {path.parent} or below "
+                f"(e.g. {', '.join(map(repr, utts[:3]))}): left out"
+            )
+    return found
+
+
+def _textgrid_segments(path: Path, warnings: list[str]) -> Segments:
+    """Phone segments of a TextGrid file (``_grid_segments``)."""
+    return _grid_segments(read_textgrid(path), path, warnings)
 
 
 def find_alignments(
@@ -339,7 +489,12 @@ def find_alignments(
         files = _files_under(p, litter) if p.is_dir() else [p]
         for f in files:
             kind = f.suffix.lower()
-            if kind not in (".textgrid", ".json"):
+            if kind in NOT_READ:
+                warnings.append(f"{f}: {NOT_READ[kind]} alignments are not read ({FORMATS_READ}): skipped")
+                continue
+            if kind not in (".textgrid", ".json", ".ctm", ".par", ".csv") or (
+                kind == ".csv" and not _is_mfa_csv(f)
+            ):
                 continue
             if f.resolve() in seen_files:
                 repeated += 1
@@ -348,11 +503,29 @@ def find_alignments(
             if kind == ".textgrid":
                 add(_audio_beside(f), _textgrid_segments(f, warnings), f)
                 continue
+            if kind == ".csv":
+                add(_audio_beside(f), _grid_segments(_mfa_csv_grid(f), f, warnings), f)
+                continue
+            if kind == ".ctm":
+                for audio, segs in _ctm_utterances(f, warnings):
+                    add(audio, segs, f)
+                continue
+            if kind == ".par":
+                segs = [(a, b, sampa_to_ipa(x)) for a, b, x in read_maus_phones(f)]
+                if not segs:
+                    warnings.append(f"{f}: BAS Partitur without a MAU tier (phone segmentation): skipped")
+                    continue
+                _check_segments(segs, [f"MAU segment {k + 1}" for k in range(len(segs))], f)
+                add(_audio_beside(f), segs, f)
+                continue
             data, problem = _read_json(f)
             if problem is not None:  # an alignment or not, a file the user gave is never dropped silently
                 warnings.append(f"{f}: {problem}: skipped")
                 continue
             if not isinstance(data, dict):
+                continue
+            if isinstance(data.get("tiers"), dict):  # MFA's JSON for the audio beside it
+                add(_audio_beside(f), _grid_segments(_mfa_json_grid(data, f), f, warnings), f)
                 continue
             if _is_gentle(data):  # Gentle's output for the audio beside it
                 segs, names, untimed = _gentle_segments(data["words"], f)
@@ -377,9 +550,7 @@ def find_alignments(
     warnings += litter.lines()
     if not found:
         skipped = f"; {warnings[-1]}" if warnings else ""  # why the one file given gave nothing
-        raise InputError(
-            f"no phone alignments found (TextGrid with a 'phones' tier, or alignment JSON){skipped}", paths[0]
-        )
+        raise InputError(f"no phone alignments found ({FORMATS_READ}){skipped}", paths[0])
     return found
 
 
