@@ -8,7 +8,10 @@ scored; usable in the run's channels: a glitch in a channel of the dataset's tha
 its ``channel_mask.npy`` keeps apart, leaves a frame scored): ``entire`` over every channel of the run
 (picked by name from the dataset's), ``crucial`` over jawOpen and mouthClose (paper Table 1). Reported
 as mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
-floor predicts every frame as the training split's per-channel mean (from the manifest). ``rtf`` =
+floor predicts every frame as the training split's per-channel mean (from the manifest). On a dataset
+that stores frame phones (built with a PPG), ``per_phone_class`` gives the model's and the floor's RMSE
+pooled over the frames of each articulatory class of phone, and ``bilabial_closure`` the share of the
+recorded lip closures on bilabials that each keeps (train/lipsync.py). ``rtf`` =
 seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
 of repeated runs).
 """
@@ -32,12 +35,15 @@ from dataset.torch_dataset import ShardDataset
 
 from .checkpoint import NOT_FINITE, checkpoint_path, load_for_inference
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
+from .lipsync import JAW, LipSyncTally
 from .precision import infer
 from .run_dataset import leaked_takes, recorded_takes
 from .style import MEAN
 from .systems import check_sample_frames, max_frames
 
-CRUCIAL = ("jawopen", "mouthclose")
+CRUCIAL = JAW  # jawOpen and mouthClose (paper Table 1), as the lip aperture reads them
+PHONES = "phones.npy"
+NO_PHONES = "the dataset stores no frame phones (build it with --ppg pocketsphinx or bottleneck)"
 
 
 def crucial_columns(channels: list[str]) -> list[int] | None:
@@ -127,7 +133,11 @@ def real_time_factor(
 
 
 class RawSamples(ShardDataset):
-    """Un-normalised samples with their sample json's ``speaker`` and calibrated ``neutral`` (or None)."""
+    """Un-normalised samples with their sample json's ``speaker`` and calibrated ``neutral`` (or None),
+    and their frame ``phones`` (ids into ``manifest_phones``) when the dataset stores them (else None)."""
+
+    def members_read(self) -> list[str]:
+        return [*super().members_read(), *([PHONES] if manifest_phones(self.manifest) else [])]
 
     def _decode(self, key: str, members: dict[str, bytes], rng) -> dict[str, Any]:
         item = super()._decode(key, members, rng)
@@ -135,7 +145,31 @@ class RawSamples(ShardDataset):
         neutral = meta.get("neutral")
         item["speaker"] = meta.get("speaker")
         item["neutral"] = None if neutral is None else np.asarray(neutral, np.float32)
+        item["phones"] = self._phones(key, members, item["mask"].shape[0]) if PHONES in members else None
         return item
+
+    def _phones(self, key: str, members: dict[str, bytes], frames: int) -> np.ndarray:
+        phones = self._array(key, members, "phones")
+        known = len(manifest_phones(self.manifest))
+        if phones.dtype.kind not in "iu" or phones.shape != (frames,):
+            raise self.damaged(
+                key, f"phones.npy is {phones.dtype} of shape {phones.shape}, expected {frames} ids"
+            )
+        if phones.size and not (-1 <= phones.min() and phones.max() < known):
+            raise self.damaged(key, f"phones.npy holds ids outside -1..{known - 1} (the manifest's phones)")
+        return phones
+
+
+def manifest_phones(manifest: dict[str, Any]) -> list[str] | None:
+    """The phone names a dataset's ``phones.npy`` ids index (its PPG's: pocketsphinx's, or the
+    bottleneck model's config), or None when its samples store no phones."""
+    if PHONES not in (manifest.get("members") or []):
+        return None
+    ppg = manifest["features"].get("ppg")
+    ppg = ppg if isinstance(ppg, dict) else {}
+    config = ppg.get("config") if isinstance(ppg.get("config"), dict) else {}
+    phones = ppg.get("phones", config.get("phones"))
+    return phones if isinstance(phones, list) and phones and all(isinstance(p, str) for p in phones) else None
 
 
 class RawTakeSubset(TakeSubset, RawSamples):
@@ -237,12 +271,14 @@ def evaluate(
     say: Callable[[str], None] = progress,
     precision: str = "fp32",
     style: str | None = None,
+    altered: Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """Metrics of a run on a dataset split (see module doc), computed at ``precision``
     (train/precision.py). A run with speaker styles animates each utterance in its own speaker's style
     (the mean style for a speaker it did not train on), or every utterance in ``style`` (a speaker of
     the run or ``"mean"``). Notes go to ``say``; a leak (``leaked_takes``) is also a warning on stderr
-    (``warn``)."""
+    (``warn``). ``altered`` (for checking what the metrics tell apart): each utterance's de-normalised
+    prediction and frame phone ids (None without) -> the prediction scored instead."""
     model, payload, spec = load_for_inference(run, precision, style, say)
     info = payload["dataset"]
     ds = dataset_folder(ds)  # the folder or its manifest.json; another file is named, not taken for it
@@ -272,6 +308,8 @@ def evaluate(
     animation = Normalizer.from_json(info["normalization"]["animation"])
     run_norm = {"normalization": info["normalization"]}
     tally, floor = ErrorTally(channels), ErrorTally(channels)
+    phones = manifest_phones(manifest)
+    lipsync = None if phones is None else LipSyncTally(channels, phones, info["fps"])
     longest, own_style, seen = None, 0, 0
     # a frame is scored when usable in the run's channels (a glitch in one the run lacks leaves it in)
     read = {"window": None, "features": spec.features, "normalize": False, "channels": channels}
@@ -299,8 +337,13 @@ def evaluate(
             true = true[:, picked]
             neutral = None if neutral is None else neutral[picked]
         pred = animation.inverse(pred_norm, neutral)
+        if altered is not None:
+            pred = altered(pred, item["phones"])
         tally.add(pred, true, mask)
         floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
+        if lipsync is not None:  # a sample without phones: its frames unclassified
+            ids = item["phones"] if item["phones"] is not None else np.full(mask.shape, -1)
+            lipsync.add(ids, pred, np.broadcast_to(train_mean, true.shape), true, mask)
         if longest is None or mask.shape[0] > longest["mask"].shape[1]:
             longest = batch
     if not tally.frames:
@@ -340,6 +383,12 @@ def evaluate(
     result["floor"] = {k: fl[k] for k in ("rmse_entire", "rmse_crucial", "rmse_pooled", "per_channel")}
     if tally.crucial is None:
         result["note"] = "the run's channels lack jawOpen or mouthClose: no crucial RMSE"
+    result["per_phone_class"] = None if lipsync is None else lipsync.per_phone_class()
+    result["bilabial_closure"] = None if lipsync is None else lipsync.bilabial_closure()
+    if lipsync is None:
+        result["per_phone_class_note"] = result["bilabial_closure_note"] = NO_PHONES
+    elif result["bilabial_closure"] is None:
+        result["bilabial_closure_note"] = "the run's channels lack jawOpen or mouthClose: no lip aperture"
     if spec.styles:
         result["style"] = {
             "styles": list(spec.styles),
@@ -396,6 +445,7 @@ def format_result(r: dict[str, Any]) -> str:
         f"  rmse entire  {_fmt(r['rmse_entire'])}   floor (train mean) {_fmt(r['floor']['rmse_entire'])}",
         f"  rmse crucial {_fmt(r['rmse_crucial'])}   floor (train mean) {_fmt(r['floor']['rmse_crucial'])}",
     ]
+    lines += _lipsync_lines(r)
     if "split_note" in r:
         lines.append(f"  {r['split_note']}: {', '.join(r['split_takes'])}")
     if r.get("leaked_takes"):
@@ -408,3 +458,30 @@ def format_result(r: dict[str, Any]) -> str:
     worst = sorted(r["per_channel"].items(), key=lambda kv: -kv[1])[:5]
     lines.append("  worst channels: " + ", ".join(f"{k} {v:.2f}" for k, v in worst))
     return "\n".join(lines)
+
+
+def _lipsync_lines(r: dict[str, Any]) -> list[str]:
+    """``format_result``'s lines on errors by phone class and bilabial closures (absent from a result of
+    an older eval)."""
+    if "per_phone_class" not in r:
+        return []
+    if r["per_phone_class"] is None:
+        return [f"  by phone class: n/a ({r['per_phone_class_note']})"]
+    shown = [
+        f"{name} {c['rmse']:.2f}/{c['floor']:.2f} ({c['frames']})"
+        for name, c in r["per_phone_class"]["classes"].items()
+        if c["frames"]
+    ]
+    lines = ["  by phone class, rmse/floor (frames): " + ", ".join(shown)]
+    closure = r["bilabial_closure"]
+    if closure is None:
+        lines.append(f"  bilabial closures: n/a ({r['bilabial_closure_note']})")
+    elif not closure["recorded_closures"]:
+        lines.append(f"  bilabial closures: none recorded in {closure['segments']} bilabial segments")
+    else:
+        model, floor, n = closure["model"], closure["floor"], closure["recorded_closures"]
+        lines.append(
+            f"  bilabial closures kept: {model['hits']}/{n} ({model['hit_rate']:.0%}), floor "
+            f"{floor['hits']}/{n} ({floor['hit_rate']:.0%}); {closure['segments']} bilabial segments"
+        )
+    return lines
