@@ -42,6 +42,18 @@ def _items(ds: Path, splits: tuple[str, ...], spec, take_of: dict[str, str]) -> 
             yield take_of[item["key"]], item
 
 
+def _take_of_samples(manifest: dict[str, Any]) -> dict[str, str]:
+    """``{sample key: the take it counts in}``: the segments align cut from one recording count as one
+    take, left out together and named by the recording (a recording of one sampled take keeps the
+    take's name)."""
+    recording_of = take_recordings(manifest)
+    parts: dict[str, set[str]] = {}
+    for sample in manifest["samples"]:
+        parts.setdefault(recording_of.get(sample["take"], sample["take"]), set()).add(sample["take"])
+    name = {rec: next(iter(takes)) if len(takes) == 1 else rec for rec, takes in parts.items()}
+    return {s["key"]: name[recording_of.get(s["take"], s["take"])] for s in manifest["samples"]}
+
+
 def take_agreement(
     ds: str | Path,
     cfg: dict[str, Any],
@@ -60,19 +72,12 @@ def take_agreement(
     unknown = [s for s in splits if s not in ("train", "val", "test")]
     if unknown:
         raise InputError(f"unknown split(s) {', '.join(unknown)}: choose from train, val, test", where)
-    splits = tuple(s for s in splits if s in present)
+    asked, splits = splits, tuple(s for s in splits if s in present)
     # a take left out is a speaker the fit never saw: style columns would only add unfitted weights
     if cfg.get("speaker_style"):
         say("note: agreement ignores speaker_style (a take left out is a speaker its fit never saw)")
     spec = resolve_inputs(manifest, {**cfg, "speaker_style": False}, str(where))
-    # the segments align cut from one recording count as one take: left out together, named by the
-    # recording (a recording of one take keeps the take's name)
-    recording_of = take_recordings(manifest)
-    parts: dict[str, set[str]] = {}
-    for sample in manifest["samples"]:
-        parts.setdefault(recording_of.get(sample["take"], sample["take"]), set()).add(sample["take"])
-    name = {rec: next(iter(takes)) if len(takes) == 1 else rec for rec, takes in parts.items()}
-    take_of = {s["key"]: name[recording_of.get(s["take"], s["take"])] for s in manifest["samples"]}
+    take_of = _take_of_samples(manifest)
     alpha = float(cfg["ridge_alpha"]) or DEFAULT_ALPHA
     model = Ridge(spec.content_dim, spec.prosody_dim, spec.out_dim, cfg["ridge_context"])
     n_in = model.linear.in_features
@@ -91,7 +96,11 @@ def take_agreement(
         sums[take].add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"])
     takes = sorted(t for t, eq in sums.items() if eq.n > 0)
     if len(takes) < 2:
-        raise InputError(f"agreement needs at least 2 takes with usable frames in {', '.join(splits)}", where)
+        lacking = [s for s in asked if s not in present]
+        lacks = f" (the dataset has no {' or '.join(lacking)} split)" if lacking else ""
+        raise InputError(
+            f"agreement needs at least 2 takes with usable frames in {', '.join(asked)}{lacks}", where
+        )
     say(f"agreement: {len(takes)} takes, {sum(sums[t].n for t in takes)} frames")
     glitched = len({c for t in takes for c in sums[t].gaps})
     memory.check(n_in, 2 * (1 + glitched), what.format(len(sums), glitched))

@@ -61,7 +61,7 @@ from .data import (
 )
 from .ensemble import check_ensemble_run, fit_ensemble, refuse_beside_ensemble
 from .model import masked_mse
-from .ridge import NormalEquations
+from .ridge import ALPHAS, NormalEquations
 from .run_dataset import (
     DIFFERS,
     RUN_DATASET,
@@ -193,6 +193,7 @@ def _fit_ridge(
 ) -> tuple[dict[str, Any], torch.nn.Module]:
     """Solve the ridge regression; (summary entries, the fitted model)."""
     manifest = watch.manifest
+    torch.manual_seed(cfg["seed"])  # the random state its checkpoint keeps: the same run, the same bytes
     model, model_config = build_model("ridge", spec, cfg)
     eq = NormalEquations(model.linear.in_features, spec.out_dim)
     t0 = time.perf_counter()
@@ -203,29 +204,9 @@ def _fit_ridge(
             eq.add(model.inputs(content, prosody, present_frames(item)), item["anim"], item["values"])
         no_val = _no_validation(ds, manifest, cfg)
     frames = eq.n  # usable in some channel
-    has_val = no_val is None
-    weights = channel_weights(manifest, cfg)
-    alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else [1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
-    if not has_val and len(alphas) > 1:
-        say(f"note: {no_val}: ridge uses alpha 1")
-        alphas = [1.0]
-    scores = []
-    with watch.reading():
-        for alpha in alphas:
-            eq.solve(model, alpha)
-            cpu = torch.device("cpu")
-            score = validation_loss(model, ds, spec, cpu, weights, cfg, manifest) if has_val else math.nan
-            scores.append(score)
-    if len(alphas) > 1 and all(math.isnan(s) for s in scores):  # counted usable values it does not hold
-        say(
-            "note: the val split has no usable value (its manifest's usable_values say otherwise: see "
-            "s2a-dataset validate): ridge uses alpha 1"
-        )
-        alphas, scores = [1.0], [math.nan]
-    best = min(range(len(alphas)), key=lambda i: scores[i])
-    cfg = {**cfg, "ridge_alpha": alphas[best]}
-    eq.solve(model, alphas[best])
-    val = scores[best]
+    alpha, val = _choose_alpha(eq, model, ds, spec, watch, cfg, no_val, say)
+    cfg = {**cfg, "ridge_alpha": alpha}
+    eq.solve(model, alpha)
     best_val = None if math.isnan(val) else val
     dataset = dataset_entry(ds, watch, cfg)
     payload = _payload(model, None, cfg, spec, model_config, dataset, step=0, epoch=0, batch=0)
@@ -234,7 +215,7 @@ def _fit_ridge(
     save_checkpoint(payload, run / LAST)
     elapsed = time.perf_counter() - t0
     scored = "" if best_val is None else f", val mse {best_val:.4f}"
-    say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alphas[best]:g}{scored}")
+    say(f"ridge: solved on {frames} frames in {elapsed:.1f} s, alpha {alpha:g}{scored}")
     try:  # a new file: the run is solved once (a resumed ridge run is not solved again)
         with open(run / METRICS, "w") as f:
             f.write(json.dumps({"step": 0, "val_mse": best_val, "train_frames": frames}) + "\n")
@@ -246,6 +227,34 @@ def _fit_ridge(
         "stopped": "closed_form",
         "train_frames_per_s": frames / elapsed,
     }, model
+
+
+def _choose_alpha(
+    eq: NormalEquations, model, ds: Path, spec, watch: DatasetWatch, cfg, no_val: str | None, say
+) -> tuple[float, float]:
+    """(alpha, its validation loss) of the ridge: ``ridge_alpha``, or with 0 the one of ``ALPHAS`` val
+    scores best. Without a val split to score on (``no_val``: why), ``ridge_alpha`` or else 1, loss NaN."""
+    if no_val is not None:  # nothing to score on
+        if cfg["ridge_alpha"] > 0:
+            return cfg["ridge_alpha"], math.nan
+        say(f"note: {no_val}: ridge uses alpha 1")
+        return 1.0, math.nan
+    alphas = [cfg["ridge_alpha"]] if cfg["ridge_alpha"] > 0 else ALPHAS
+    weights = channel_weights(watch.manifest, cfg)
+    cpu = torch.device("cpu")
+    scores = []
+    with watch.reading():
+        for alpha in alphas:
+            eq.solve(model, alpha)
+            scores.append(validation_loss(model, ds, spec, cpu, weights, cfg, watch.manifest))
+    if len(alphas) > 1 and all(math.isnan(s) for s in scores):  # counted usable values it does not hold
+        say(
+            "note: the val split has no usable value (its manifest's usable_values say otherwise: see "
+            "s2a-dataset validate): ridge uses alpha 1"
+        )
+        return 1.0, math.nan
+    best = min(range(len(alphas)), key=lambda i: scores[i])
+    return alphas[best], scores[best]
 
 
 def _summary(
@@ -643,6 +652,38 @@ def _start_afresh(run: Path) -> None:
         events.unlink(missing_ok=True)
 
 
+def _begin_run_files(run: Path, config_record: dict[str, Any], resumed_at: int | None) -> None:
+    """Write the run's config.json; a new run (``resumed_at`` None) starts without what an attempt
+    before it left (``_start_afresh``), a resumed one drops the metrics lines logged after its
+    checkpoint's step ``resumed_at``."""
+    write_json(run / CONFIG, config_record)
+    if resumed_at is None:
+        _start_afresh(run)
+    elif (run / METRICS).exists():
+        _trim_metrics(run / METRICS, resumed_at)
+
+
+def _after_take_changes(
+    train_changed: list[str], val_changed: list[str], best_val: float, bad_evals: int, warning
+) -> tuple[float, int]:
+    """Warn of the takes that train or validate a resumed run changed since its checkpoint (in words:
+    ``_takes_since``); (best validation loss, bad evaluations) to go on with: restarted when the val
+    takes changed, as scores of two validation sets do not compare."""
+    if train_changed:
+        warning(
+            f"the dataset's takes that train this run changed since {LAST} "
+            f"({'; '.join(train_changed)}): training goes on with them as they are now"
+        )
+    if not val_changed:
+        return best_val, bad_evals
+    warning(
+        f"the takes that validate this run changed since {LAST} "
+        f"({'; '.join(val_changed)}): best_val restarts (was {_show(best_val)}), and the next "
+        f"validation writes {BEST}; patience counts afresh"
+    )
+    return math.inf, 0
+
+
 def _load_resume_state(
     run: Path,
     manifest: dict[str, Any],
@@ -660,6 +701,9 @@ def _load_resume_state(
     if not isinstance(state.get("config"), dict):
         raise InputError("checkpoint lacks its config", run / LAST)
     _same_dataset(state, manifest, ds, run / LAST)
+    if state["config"].get("model") == "ridge" and (given or {}).get("ridge_alpha") == 0:
+        # 0 asks for the alpha val chooses: the checkpoint's config holds the one chosen (config.json the 0)
+        given = {k: v for k, v in given.items() if k != "ridge_alpha"}
     _refuse_changes(given, state["config"], run / LAST)
     cfg = _resumed_config(state["config"], cfg, given)
     check_config(cfg)
@@ -840,8 +884,7 @@ def _ridge_run(ds: Path, run: Path, cfg, spec, watch, state, config_record, say)
     """A ridge run: solved in closed form; resumed, solved already (nothing to train, nor to append)."""
     t0 = time.perf_counter()
     if state is None:
-        write_json(run / CONFIG, config_record)
-        _start_afresh(run)
+        _begin_run_files(run, config_record, None)
         solved, ridge = _fit_ridge(ds, run, cfg, spec, watch, say)
     else:
         ridge, _ = build_model("ridge", spec, cfg)
@@ -929,24 +972,9 @@ def _fit(
         step, epoch, batch_pos, best_val, bad_evals = _restore(
             state, model, optimizer, rank, world, run / LAST
         )
-        if train_changed:
-            warning(
-                f"the dataset's takes that train this run changed since {LAST} "
-                f"({'; '.join(train_changed)}): training goes on with them as they are now"
-            )
-        if val_changed:  # scores of two validation sets do not compare: the best so far starts again
-            warning(
-                f"the takes that validate this run changed since {LAST} "
-                f"({'; '.join(val_changed)}): best_val restarts (was {_show(best_val)}), and the next "
-                f"validation writes {BEST}; patience counts afresh"
-            )
-            best_val, bad_evals = math.inf, 0
+        best_val, bad_evals = _after_take_changes(train_changed, val_changed, best_val, bad_evals, warning)
     if main:  # written only now that every check has passed
-        write_json(run / CONFIG, config_record)
-        if state is None:
-            _start_afresh(run)
-        elif (run / METRICS).exists():  # drop lines logged after the checkpoint
-            _trim_metrics(run / METRICS, step)
+        _begin_run_files(run, config_record, None if state is None else step)
     if state is not None and state.get("stopped") == "early_stopping":
         say(f"run stopped early at step {step}; nothing to resume")
     weights = channel_weights(manifest, cfg, device)

@@ -17,9 +17,10 @@ from torch import nn
 
 from capture.errors import InputError
 
-# A subtraction of sums leaves an input constant over the frames left with a variance of rounding (float64
-# sums of every frame subtracted from) in place of 0: below this share of its mean square over those
-# frames it counts as constant, and gets no weight, as when its sums were taken over the frames left.
+# An input constant over the frames summed is left with a variance of rounding in place of 0: that of its
+# float64 sums over those frames (Σx²/n less the squared mean), or of every frame's when the sums were
+# taken by subtraction. Below this share of its mean square over the frames summed (over every frame
+# subtracted from), it counts as constant and gets no weight.
 ROUNDING = 1e-10
 
 # The sums' memory: input-by-input float64 matrices (Σxxᵀ), one per set of sums, besides which a solution
@@ -28,6 +29,8 @@ ROUNDING = 1e-10
 SOLVING = 7
 MEMORY_SHARE = 0.8
 ADVICE = "use a smaller ridge_context, fewer channels (s2a-dataset build --channels), or more memory"
+
+ALPHAS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)  # ridge_alpha 0: the grid val chooses from
 
 
 def available_memory() -> int | None:
@@ -160,15 +163,16 @@ class NormalEquations:
         self.xx += x.T @ x
         self.xy += x.T @ y
 
-    FIELDS = ("n", "sx", "sy", "xx", "xy")
+    SUMS = ("sx", "sy", "xx", "xy")  # besides the count n
 
     @classmethod
     def total(cls, parts: list[NormalEquations]) -> NormalEquations:
         """The sums of several sets of frames (e.g. takes) together."""
         out = cls._like(parts[0], parts[0].sy.numel())
-        for part in parts:
-            for name in cls.FIELDS:
-                setattr(out, name, getattr(out, name) + getattr(part, name))
+        for part in parts:  # in place: no second input-by-input matrix while adding
+            out.n += part.n
+            for name in cls.SUMS:
+                getattr(out, name).add_(getattr(part, name))
         for c in sorted({c for part in parts for c in part.gaps}):
             out.gaps[c] = cls.total([part.gaps[c] for part in parts if c in part.gaps])
         return out
@@ -176,8 +180,9 @@ class NormalEquations:
     def minus(self, part: NormalEquations) -> NormalEquations:
         """These sums without the frames of ``part`` (a subset of them)."""
         out = self._like(self, self.sy.numel())
-        for name in self.FIELDS:
-            setattr(out, name, getattr(self, name) - getattr(part, name))
+        out.n = self.n - part.n
+        for name in self.SUMS:  # into out's zeros: no second input-by-input matrix
+            torch.sub(getattr(self, name), getattr(part, name), out=getattr(out, name))
         out.subtracted_from = (
             self.xx.diagonal().clone() if self.subtracted_from is None else self.subtracted_from
         )
@@ -219,9 +224,9 @@ class NormalEquations:
         mx, my = self.sx / n, self.sy / n
         cov = self.xx / n - torch.outer(mx, mx)
         cxy = self.xy / n - torch.outer(mx, my)
-        if self.subtracted_from is not None:
-            constant = cov.diagonal() <= ROUNDING * self.subtracted_from / n
-            cov[constant], cov[:, constant], cxy[constant] = 0.0, 0.0, 0.0
+        summed = self.xx.diagonal() if self.subtracted_from is None else self.subtracted_from
+        constant = cov.diagonal() <= ROUNDING * summed / n
+        cov[constant], cov[:, constant], cxy[constant] = 0.0, 0.0, 0.0
         std = cov.diagonal().clamp(min=1e-12).sqrt()
         corr = cov / torch.outer(std, std)
         eye = torch.eye(len(std), dtype=torch.float64)
