@@ -204,6 +204,7 @@ def row_dtype(values: int) -> np.dtype:
 
 ROW_DTYPE = row_dtype(ll.BLENDSHAPE_COUNT)
 _STREAM_ID = struct.Struct("<H")
+_ARRIVAL_NS = struct.Struct("<q")
 _FRAME_AT = 1 + 2  # payload offset of arrival ns (after type and stream id)
 # A CONTROLS record (a subject logged with its own controls): its values after the arrival and frame time.
 _CONTROLS_AT = _FRAME_AT + 8 + ll.FRAME_TIME_BYTES
@@ -345,7 +346,7 @@ class SessionLog:
         if sid not in self.frame_counts:
             self.frame_counts[sid] = 0
             self._pending[sid] = bytearray()
-            (stamp,) = struct.unpack_from("<q", payload, _FRAME_AT)
+            (stamp,) = _ARRIVAL_NS.unpack_from(payload, _FRAME_AT)
             first_stamp = stamp if first_stamp is None else min(first_stamp, stamp)
         self.frame_counts[sid] += 1
         return first_stamp
@@ -552,8 +553,26 @@ def _late_frames_of(
     if not resumes and 2 * np.count_nonzero((ft >= rec.lo) & (ft <= rec.hi)) < ft.size:
         return False
     have = rec.around(float(ft.min()) - tol, float(ft.max()) + tol)
+    if on_clock:  # a burst held back just after a step back of the clock: on slots of the clock after it
+        have = _since_step_back(ft, have, frame_time, arrival_s)
     taken = _taken_slots(idx[near], have, rows, frame_time, arrival_s)
     return not taken.any() if gap_only else 2 * np.count_nonzero(taken) < ft.size
+
+
+def _since_step_back(
+    ft: np.ndarray, have: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
+) -> np.ndarray:
+    """Of the frames ``have`` of the recording the clock is on, those whose slots frames ``ft`` (a stretch
+    the clock jumped back to) can take: all of them, unless the frames that came after the last of them in
+    ``ft``'s range fill no part of it and reach it on both sides (``_bridging``): the phone's clock stepped
+    back a little, and ``ft`` is a burst of its frames after the step that the network held back, on slots
+    of the frames before it (undone by ``_undo_steps_back``) but in a gap of those after it; only those
+    count. A restart's frames come on slots the frames that came after them still hold."""
+    inside = have[(frame_time[have] >= ft.min()) & (frame_time[have] <= ft.max())]
+    if not inside.size:
+        return have
+    since = have[arrival_s[have] > arrival_s[inside].max()]
+    return since if _bridging(ft, frame_time[since]) else have
 
 
 def _far_behind(ft: np.ndarray, clock: np.ndarray | float, have: np.ndarray, limit: float) -> np.ndarray:
@@ -690,6 +709,13 @@ def _place_off_clock(
         # slot is not freed, as a restart's frames amid late packets of the recording before it would be
         apart = np.where(current[who] == c, tol, 0.0)
         free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s, apart)
+        # nor is the slot of a frame from before a small step back of its clock, in a gap of the frames
+        # after it (the first frame of a burst the network held back after the step, ``_since_step_back``)
+        for k in np.flatnonzero(~free & (current[who] == c)).tolist():
+            near = rec.around(float(ft[who[k]]) - tol, float(ft[who[k]]) + tol)
+            since = _since_step_back(ft[who[k : k + 1]], near, frame_time, arrival_s)
+            if since is not near:
+                free[k] = not _taken_slots(off[who[k : k + 1]], since, rows, frame_time, arrival_s)[0]
         fits[who[free], rank[free]] = True
     return np.where(fits.any(1), np.take_along_axis(order, fits.argmax(1)[:, None], 1)[:, 0], -1)
 
@@ -854,7 +880,57 @@ def follow_clock(rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
             if k in returned:
                 kept_returned[len(recordings)] = returned[k]
             recordings.append(idx)
+    _restarts_unmixed(recordings, rows, frame_time, arrival_s, tol)
     return _Clock(recordings, stray, None, kept_returned)
+
+
+def _restarts_unmixed(
+    recordings: list[np.ndarray], rows: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray, tol: float
+) -> None:
+    """Sort out the packets of a restart and of the recording before it that jitter mixed: a restart's
+    first packets that came among the late ones of the recording before follow its clock, and late packets
+    of that recording that came among the restart's first follow the restart's, each on the slot of a frame
+    of the other clock with other values (one of the two would be dropped as a frame repeating a frame
+    time). Such a packet that came within ``tol`` of the restart's first packet and whose frame time has a
+    free slot in the other recording (in its range) goes to it: the later of the two on a slot of the
+    recording before, the earlier on a slot of the restart. Not for a sender ticking faster than its frame
+    clock (frames sharing a frame time a quarter of a recording's or more: spread over it)."""
+    for k in range(len(recordings) - 1):
+        ours, theirs = recordings[k], recordings[k + 1]
+        begin = arrival_s[theirs[0]]
+        back = _sharing_a_slot(rows, ours, frame_time, later=True)
+        back = back[arrival_s[back] >= begin - tol]
+        late = _sharing_a_slot(rows, theirs, frame_time, later=False)
+        late = late[arrival_s[late] <= begin + tol]
+        back = back[_free_in(frame_time[back], frame_time[theirs])]
+        late = late[_free_in(frame_time[late], frame_time[ours])]
+        if back.size or late.size:
+            recordings[k] = np.union1d(np.setdiff1d(ours, back), late)
+            recordings[k + 1] = np.union1d(np.setdiff1d(theirs, late), back)
+
+
+def _sharing_a_slot(rows: np.ndarray, idx: np.ndarray, frame_time: np.ndarray, later: bool) -> np.ndarray:
+    """Of rows ``idx`` (arrival order), those sharing their frame time with another of them with other
+    values: each that came after the first of its frame time (``later``), else each first; none when they
+    are a quarter of them or more (a sender ticking faster than its frame clock)."""
+    ft = frame_time[idx]
+    order = np.argsort(ft, kind="stable")  # arrival order within a frame time
+    rank, _ = _rank_in_time(ft[order])
+    again = np.flatnonzero(rank)
+    if not again.size or again.size >= SHARED_TIME_FRACTION * idx.size:
+        return np.zeros(0, np.int64)
+    again = again[~_identical(rows, idx[order[again]], idx[order[again - rank[again]]])]
+    return idx[order[again if later else again - rank[again]]]
+
+
+def _free_in(ft: np.ndarray, have: np.ndarray) -> np.ndarray:
+    """Which frame times ``ft`` lie in the range of frame times ``have`` (or up to ``RUN_STEPS`` of their
+    frame steps before or after it: a restart's first frame) on a slot none of them has."""
+    step = _frame_step(np.sort(have))
+    if step is None:
+        return np.zeros(ft.size, bool)
+    reach = RUN_STEPS * step
+    return (ft >= have.min() - reach) & (ft <= have.max() + reach) & ~np.isin(ft, have)
 
 
 def arrival_clock(arrival_s: np.ndarray, period: float) -> np.ndarray:
@@ -1167,6 +1243,51 @@ def _floors(behind: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
     return least[: behind.size], least[width : width + behind.size]
 
 
+def _side_floors(
+    behind: np.ndarray, arrival_s: np.ndarray, at: np.ndarray, width: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """As ``_floors`` at packets ``at`` (arrival order), each side ``width`` packets or ``STEP_SIDE_S`` of
+    arrivals, whichever holds more: a burst the network held back comes within a moment, however many
+    packets it holds, so the side of arrivals reaches the packets that came on time after it."""
+    n = behind.size
+    first = np.minimum(at - width, np.searchsorted(arrival_s, arrival_s[at] - STEP_SIDE_S))
+    last = np.maximum(at + width, np.searchsorted(arrival_s, arrival_s[at] + STEP_SIDE_S, "right"))
+    first, last = np.maximum(first, 0), np.minimum(last, n)
+    low = np.array([behind[a:k].min() if k > a else np.inf for a, k in zip(first.tolist(), at.tolist())])
+    high = np.array([behind[k:b].min() for k, b in zip(at.tolist(), last.tolist())])
+    return low, high
+
+
+STEP_SIZE_SIDES = 5  # a step's size is measured over up to this many sides of arrivals each way
+# from the packet of each side at this fraction of its packets from the fastest, at least the third (a few
+# strays, stragglers or packets swapped on the way, early by a frame, are not it)
+STEP_SIZE_RANK = 2
+STEP_SIZE_FRACTION = 0.02
+
+
+def _step_size(behind: np.ndarray, arrival_s: np.ndarray, marks: tuple[int, int, int, int]) -> float | None:
+    """How far the phone's clock stepped back, from ``behind`` (arrival - frame time, arrival order) of the
+    packets on each side of it (None when there are none after it): ``marks`` (the first packet it may use
+    before, where it rose, where the side after may begin, the first packet of the next rise) bound up to
+    ``STEP_SIZE_SIDES`` of ``STEP_SIDE_S`` of arrivals each way; the side after begins where it rose most,
+    at least a side on (packets of the clock before the step that came late, less late than the step, are
+    behind it). The lower envelope of each side, as many packets each, by its ``STEP_SIZE_RANK``-th fastest
+    packet: over several sides the jitter moves it a fraction of what it moves the fastest packet of one,
+    and the rise's most is where the jitter raised it most."""
+    first, at, begin, stop = marks
+    if begin >= stop:
+        return None
+    reach = STEP_SIZE_SIDES * STEP_SIDE_S
+    before = behind[max(first, int(np.searchsorted(arrival_s, arrival_s[at] - reach))) : at]
+    after = behind[begin : min(stop, int(np.searchsorted(arrival_s, arrival_s[begin] + reach, "right")))]
+    size = min(before.size, after.size)
+    if not size:
+        return None
+    rank = min(max(STEP_SIZE_RANK, int(STEP_SIZE_FRACTION * size)), size - 1)
+    low = np.partition(before[before.size - size :], rank)[rank]
+    return float(np.partition(after[:size], rank)[rank] - low)
+
+
 def _run_through(frame_time: np.ndarray) -> float:
     """How much frame time packets (in any order) span, their first and last tenth left out (a late
     or stray packet among them does not widen it); of their arrivals, how long they took to come."""
@@ -1240,11 +1361,16 @@ def _undo_steps_back(
     done = 0  # packets up to here are placed
     found = np.flatnonzero(rise > BACK_STEP_S)
     pace = None  # the recording's (``_typical_pace``), when a step needs it
-    for cluster in np.split(found, np.flatnonzero(np.diff(found) > 1) + 1) if found.size else []:
+    clusters = np.split(found, np.flatnonzero(np.diff(found) > 1) + 1) if found.size else []
+    for c, cluster in enumerate(clusters):
+        # where it rose, each side also over STEP_SIDE_S of arrivals: a side of packets that a burst the
+        # network held back fills (just after a step) says how late the burst came, not the clock
+        low, high = _side_floors(behind, arrival_s, cluster, width)
+        rise[cluster] = high - low
         step = float(rise[cluster].max())
         # the clock jumping back further than late frames lie behind it is a restart (``follow_clock``):
         # so large a step within a recording is a burst the network held back long, or over midnight
-        if step > MAX_LATENESS_S:
+        if not BACK_STEP_S < step <= MAX_LATENESS_S:  # (no rise left: a burst's lateness alone)
             continue
         at = int(cluster[np.argmax(rise[cluster] > step / 2)])  # it rises there, it stays up a side long
         if at < width or at + width > n:  # a side the recording's ends cut short tells too little
@@ -1297,11 +1423,17 @@ def _undo_steps_back(
         # long recording's every step would sort the rest of it).
         fastest = frame_time[at + int(np.argmin(behind[side]))]
         times = np.sort(frame_time[later & (frame_time <= fastest)])
+        if not times.size:  # its fastest packet was held back with the frames before it: no step to place
+            continue
         reach = RUN_STEPS * (_frame_step(np.sort(frame_time[zone])) or period)
         breaks = np.flatnonzero(np.diff(times) > reach)
         resumed = times[breaks[-1] + 1 if breaks.size else 0]
         later &= frame_time >= resumed - period / 2
-        shift = round(step / period) * period
+        top = int(cluster[np.argmax(rise[cluster])])
+        # the next rise, not one a side from this one (heavy jitter dips a rise below BACK_STEP_S a moment)
+        ahead = next((int(x[0]) for x in clusters[c + 1 :] if x[0] > cluster[-1] + width), n)
+        size = _step_size(behind, arrival_s, (done, at, max(top, at + width), ahead))
+        shift = round((step if size is None else size) / period) * period
         moved[later] += shift
         first = zone.start + int(np.argmax(later[zone]))
         steps.append((float(moved[first]), shift, float(frame_time[first])))
