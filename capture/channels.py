@@ -207,31 +207,44 @@ def meant_channel(name: str, missing: list[str] | tuple[str, ...]) -> str | None
 
 # Columns other tools write beside the ARKit channels that are no face channel: MediaPipe FaceLandmarker's
 # score of a neutral face (its category 0, ``_neutral``), and the emotion weights of emotion-driven
-# generators (Audio2Face-3D's 10 in a2e_emotion_output.csv, NeuroSync's 7 after its 61 channels), compared
-# in lower case, letters and digits only, of a name's last dotted part (``emotion_values.joy``).
+# generators, each writing its whole set of emotions (Audio2Face-3D's 10 in a2e_emotion_output.csv,
+# NeuroSync's 7 after its 61 channels), compared in lower case, letters and digits only, of a name's last
+# dotted part (``emotion_values.joy``).
 NEUTRAL_SCORE = "_neutral"
-EMOTION_NAMES = (
+AUDIO2FACE_EMOTIONS = (
     "amazement", "anger", "cheekiness", "disgust", "fear", "grief", "joy", "outofbreath", "pain", "sadness",
-    "angry", "disgusted", "fearful", "happy", "neutral", "sad", "surprised",
 )  # fmt: skip
+NEUROSYNC_EMOTIONS = ("angry", "disgusted", "fearful", "happy", "neutral", "sad", "surprised")
+EMOTION_NAMES = AUDIO2FACE_EMOTIONS + NEUROSYNC_EMOTIONS
+NEUTRAL_FACE, EMOTION_WEIGHTS = "MediaPipe's neutral-face score", "emotion weights"
+
+
+def _emotion(name: str) -> str:
+    """A column name as emotion names are compared: its last dotted part, lower case, letters and digits."""
+    return re.sub(r"[^0-9a-z]", "", re.split(r"[.:/]", name)[-1].lower())
 
 
 def side_score(name: str) -> str | None:
     """What a column beside the face channels holds when it is no face channel (``_neutral``: "MediaPipe's
     neutral-face score"; ``Happy``: "emotion weights"), or None."""
     if name.strip() == NEUTRAL_SCORE:
-        return "MediaPipe's neutral-face score"
-    if re.sub(r"[^0-9a-z]", "", re.split(r"[.:/]", name)[-1].lower()) in EMOTION_NAMES:
-        return "emotion weights"
+        return NEUTRAL_FACE
+    if _emotion(name) in EMOTION_NAMES:
+        return EMOTION_WEIGHTS
     return None
 
 
 def side_scores(names: list[str] | tuple[str, ...]) -> tuple[list[int], str | None]:
     """The columns of ``names`` that ``side_score`` says are no face channel, when the layout is ARKit's
     (Live Link channels outnumber the other names beside them: a rig's own control named ``happy`` is
-    kept), and the note saying they were left out (None when none is)."""
+    kept), and the note saying they were left out (None when none is). Emotion names are left out only
+    when they hold a generator's whole set: a few of them beside ARKit's are an avatar's own expressions
+    (VRM's ``Joy``, ``Angry``, ``Sorrow``, ``Fun``), kept."""
     found = [(j, n, side_score(n)) for j, n in enumerate(names)]
     found = [f for f in found if f[2] is not None]
+    emotions = {_emotion(n) for _, n, what in found if what == EMOTION_WEIGHTS}
+    if not any(emotions.issuperset(whole) for whole in (AUDIO2FACE_EMOTIONS, NEUROSYNC_EMOTIONS)):
+        found = [f for f in found if f[2] != EMOTION_WEIGHTS]
     known = sum(map(is_known, names))
     if not found or known <= len(names) - len(found) - known:
         return [], None

@@ -255,7 +255,7 @@ def read_json_matrix(path: Path) -> tuple[np.ndarray, list[str], float | None]:
         return _beat_face(data, path)
     if not isinstance(data, dict) or "weightMat" not in data or "facsNames" not in data:
         if isinstance(data, dict):
-            keys = ", ".join(map(repr, list(data)[:4])) + (", ..." if len(data) > 4 else "")
+            keys = ", ".join(_show(key, 80) for key in list(data)[:4]) + (", ..." if len(data) > 4 else "")
             held = f"an object of {keys}" if data else "an empty object"
         else:
             held = f"a list of {len(data)} items" if isinstance(data, list) else _json_kind(data)
@@ -372,11 +372,15 @@ def _show(value: object, limit: int = 40) -> str:
 # with a decimal comma (0,5).
 _SMPTE = re.compile(r"\d{1,2}:\d{2}:\d{2}[:;.]\d{2}(\.\d+)?")
 _DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+([eE][+-]?\d+)?")
-# A cell of digits grouped with '_' (``1_000``), which Python's float() alone would read.
-_GROUPED_DIGITS = re.compile(r"[+-]?[0-9_]*[0-9][0-9_]*(\.[0-9_]*)?([eE][+-]?[0-9_]+)?")
+# A cell of digits grouped with '_' (``1_000``, ``0.000_5``), which Python's float() alone would read;
+# each '_' between two digits, so that no two parts of the pattern match the same text (a long cell of
+# digits is matched in one pass, not tried at every split).
+_DIGITS = r"[0-9]+(_[0-9]+)*"
+_GROUPED_DIGITS = re.compile(rf"[+-]?({_DIGITS}(\.({_DIGITS})?)?|\.{_DIGITS})([eE][+-]?{_DIGITS})?")
 # iFacialMocap's stream text, a frame a line: ``mouthSmile_R-0|eyeLookOut_L-12|...|=head#...|`` (its
-# blendshapes on 0..100, then head and eye angles), as a script saving what the app sends writes it.
-_IFACIALMOCAP = re.compile(r"\s*[A-Za-z_]+-\d+(\.\d+)?\|")
+# blendshapes on 0..100, then head and eye angles), as a script saving what the app sends writes it;
+# ``mouthSmile_R&0|...`` (values perhaps negative) when the app sends version 2 (``sendDataVersion=v2``).
+_IFACIALMOCAP = re.compile(r"\s*[A-Za-z_]+(-|&-?)\d+(\.\d+)?\|")
 
 
 def _delimiter(first: list[str]) -> str:
@@ -385,7 +389,10 @@ def _delimiter(first: list[str]) -> str:
     the most; a comma when none does."""
 
     def cells(line: str, sep: str) -> int:
-        row = next(csv.reader([line], delimiter=sep), [])
+        try:
+            row = next(csv.reader([line], delimiter=sep), [])
+        except csv.Error:  # a cell past the csv module's limit: refused when the rows are read
+            return 0
         return len([c for c in row if c.strip()] if sep == "\t" else row)  # a stray tab ending a line
 
     counts = {sep: {cells(line, sep) for line in first} for sep in (",", ";", "\t")}
@@ -433,9 +440,10 @@ def _counting(start: int, count: int) -> list[str]:
     return [str(i) for i in range(start, start + count)]
 
 
-def _non_numeric(cell: str, column: int, header: list[str] | None, sep: str, width: int) -> str:
-    """The one-line error for a cell that is not a number: the cell, its column (of ``width``) and what
+def _non_numeric(cells: list[str], column: int, header: list[str] | None, sep: str) -> str:
+    """The one-line error for a row whose cell ``column`` is not a number: the cell, its column and what
     it looks like."""
+    cell = cells[column]
     where = f"column {header[column]!r}" if header else f"column {column + 1}"
     hint = ""
     if _SMPTE.fullmatch(cell):
@@ -447,7 +455,9 @@ def _non_numeric(cell: str, column: int, header: list[str] | None, sep: str, wid
         hint = " (a decimal comma? write numbers with a point, or separate the cells with ';')"
     elif sep == "," and (";" in cell or "\t" in cell):
         hint = f" (separated by {'semicolons' if ';' in cell else 'tabs'} below a comma-separated header?)"
-    elif width > 1 and (ch.is_known(cell) or ch.side_score(cell)):  # not a names file read as a matrix
+    elif cells == header:
+        hint = " (the header row again: files joined one after another? import each file alone)"
+    elif len(cells) > 1 and (ch.is_known(cell) or cell == ch.NEUTRAL_SCORE):  # not a names file as a matrix
         hint = (
             ": a blendshape's name, in a column of names (one row per blendshape and frame, as MediaPipe "
             "scripts write its categories): write one row per frame with a column per blendshape (pandas: "
@@ -468,9 +478,9 @@ def _read_csv(path: Path, notes: list[dict]) -> tuple[np.ndarray, list[str] | No
         raise InputError("matrix has no frames", path)
     if _IFACIALMOCAP.match(lines[0][1]):
         raise InputError(
-            "iFacialMocap's stream text (blendshape-value|... on a 0..100 scale, then =head#...), not a "
-            "table of weights, which is not read: save the weights as a CSV of a row per frame under a "
-            "header of names (and a time column)",
+            "iFacialMocap's stream text (blendshape-value|... or blendshape&value|... on a 0..100 scale, "
+            "then =head#...), not a table of weights, which is not read: save the weights as a CSV of a row "
+            "per frame under a header of names (and a time column)",
             path,
             lines[0][0],
         )
@@ -534,7 +544,7 @@ def _read_csv(path: Path, notes: list[dict]) -> tuple[np.ndarray, list[str] | No
         except ValueError:
             j = next(j for j, c in enumerate(cells) if not _is_number(c, decimal_comma))
             raise InputError(
-                _non_numeric(cells[j], j, None if numbered else header, sep, width), path, number
+                _non_numeric(cells, j, None if numbered else header, sep), path, number
             ) from None
     return values, None if numbered else header, numbered
 
@@ -575,18 +585,24 @@ def _face_cap(
             raise InputError(f"not a Face Cap line (info, bs or k): {_show(line)}", path, number)
         if names is None:
             raise InputError("a k line (frame) before the bs line naming the blendshapes", path, number)
-        if len(cells) != 2 + FACE_CAP_POSE + len(names):
+        weights = len(cells) - 2 - FACE_CAP_POSE
+        if weights != len(names):
+            held = f"{weights} weights after the time and {FACE_CAP_POSE} head and eye values"
+            if weights < 0:  # a line cut short
+                held = f"{len(cells) - 1} values, fewer than the time and {FACE_CAP_POSE} head and eye values"
             raise InputError(
-                f"k line holds {len(cells) - 2 - FACE_CAP_POSE} weights after the time and {FACE_CAP_POSE} "
-                f"head and eye values, the bs line names {len(names)} blendshapes",
+                f"k line holds {held}, the bs line names {len(names)} blendshapes",
                 path,
                 number,
             )
         values = [cells[1], *cells[2 + FACE_CAP_POSE :]]
-        bad = next((c for c in values if not _is_number(c, False) or not c), None)
-        if bad is not None:
-            raise InputError(f"non-numeric value in a k line: {_show(bad)}", path, number)
-        rows.append([float(c) for c in values])
+        try:
+            if not all(values):  # the app writes every value: an empty cell is no NaN
+                raise ValueError
+            rows.append(_numbers(values, False))
+        except ValueError:
+            bad = next(c for c in values if not c or not _is_number(c, False))
+            raise InputError(f"non-numeric value in a k line: {_show(bad)}", path, number) from None
     if names is None or not rows:
         raise InputError(
             "a Face Cap export without " + ("a bs line" if names is None else "k lines (frames)"), path
@@ -1011,11 +1027,11 @@ def read_paired(
         names, matrix, fps if fps is not None else file_fps, matrix_path
     )
     notes[:0] = read_notes
-    scores, scored = ch.side_scores([n for j, n in enumerate(names) if j not in columns])
-    if scores:  # MediaPipe's _neutral, a generator's emotions: no face channels
-        kept = [j for j in range(len(names)) if j not in columns]
-        columns = sorted({*columns, *(kept[j] for j in scores)})
-        repair(notes, None, "side_scores", scored)
+    kept = [j for j in range(len(names)) if j not in columns]
+    side, said = ch.side_scores([names[j] for j in kept])
+    if side:  # MediaPipe's _neutral, a generator's emotions: no face channels
+        columns = sorted({*columns, *(kept[j] for j in side)})
+        repair(notes, None, "side_scores", said)
     counts = [j for j, n in enumerate(names) if n.strip().lower() == COUNT_NAMES[0].lower()]
     if counts:  # a Live Link Face CSV's layout read as paired data: its count column is no channel
         columns = sorted({*columns, *counts})
