@@ -47,7 +47,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from .errors import InputError
+from .errors import InputError, printable
 from .realtime_packet import (
     CLASSIC_NAME_BYTES,
     MAX_REALTIME_PACKET_BYTES,
@@ -126,6 +126,10 @@ def relay_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
+# what a non-blocking connect says while it goes on: EINPROGRESS on POSIX, WSAEWOULDBLOCK on Windows
+CONNECT_PENDING = {errno.EINPROGRESS, errno.EWOULDBLOCK, getattr(errno, "WSAEWOULDBLOCK", errno.EINPROGRESS)}
+
+
 def _wait_for(
     sock: socket.socket, deadline: float, cancel: threading.Event | None, write: bool = False
 ) -> None:
@@ -138,7 +142,8 @@ def _wait_for(
         if left <= 0:
             raise TimeoutError("timed out")
         waits = ([], [sock]) if write else ([sock], [])
-        if any(select.select(*waits, [], min(left, CANCEL_CHECK_S))[:2]):
+        # a connect refused shows in the exceptional list on Windows, in the writable one elsewhere
+        if any(select.select(*waits, [sock] if write else [], min(left, CANCEL_CHECK_S))):
             return
 
 
@@ -265,7 +270,7 @@ class ControlClient:
             try:
                 sock.setblocking(False)
                 code = sock.connect_ex(address)
-                if code == errno.EINPROGRESS:
+                if code in CONNECT_PENDING:
                     _wait_for(sock, time.monotonic() + CONNECT_TIMEOUT_S, self.cancel, write=True)
                     code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
                 if code:
@@ -529,15 +534,7 @@ class PhoneStream:
         device = info.get("id") if isinstance(info.get("id"), str) and info.get("id") else client.peer
         phone_address = unmapped(client.peer)
         if subject.kind == "arkit":
-            classic_device, classic_subject = classic_names(device, subject.name)
-            if (classic_device, classic_subject) != (device, subject.name):
-                size = len(device.encode("utf-8")) + len(subject.name.encode("utf-8"))
-                why = (
-                    f"device id and subject name take {size} bytes, more than the {CLASSIC_NAME_BYTES} a "
-                    "classic packet holds: the takes name them cut to fit, each ended by '~' and 8 hex "
-                    "digits of its SHA-1"
-                )
-                self._tell(f"phone {self._phone}: {why}", {"kind": "phone_names_shortened", "message": why})
+            classic_device, classic_subject = self._classic_names(device, subject.name)
             mapping = ArkitMapping(subject.controls)
             self._streaming = _Streaming(subject, classic_device, classic_subject, mapping, phone_address)
         else:
@@ -583,6 +580,24 @@ class PhoneStream:
                 failures += 1
                 if failures >= KEEP_ALIVE_FAILURES:
                     raise ControlError(f"{failures} keep-alives in a row unanswered") from None
+
+    def _classic_names(self, device: str, subject: str) -> tuple[str, str]:
+        """The device id and subject name of an ARKit subject's classic packets (``classic_names``): UTF-8
+        text (a lone surrogate, which JSON's ``"\\ud800"`` gives, as its escape, as the takes of a subject
+        logged with its own controls name it), and those a classic packet cannot hold cut to fit, which is
+        told and noted."""
+        names = printable(device), printable(subject)
+        short = classic_names(*names)
+        cut = [what for what, name, kept in zip(("device id", "subject name"), names, short) if kept != name]
+        if cut:
+            size = sum(len(name.encode("utf-8")) for name in names)
+            why = (
+                f"device id and subject name take {size} bytes, more than the {CLASSIC_NAME_BYTES} a classic "
+                f"packet holds: the takes name the {' and the '.join(cut)} cut to fit, "
+                f"{'each ' if len(cut) > 1 else ''}ended by '~' and 8 hex digits of its SHA-1"
+            )
+            self._tell(f"phone {self._phone}: {why}", {"kind": "phone_names_shortened", "message": why})
+        return short
 
     def _own_stream(self, subject: RemoteSubject, device: str, phone: str) -> _Streaming:
         """The streaming of a subject logged with its own controls: its stream id (a new one, whose

@@ -135,7 +135,7 @@ def test_ctrl_c_while_the_phone_never_answers_ends_listen_at_once_and_keeps_the_
             took, summaries, err = _seconds_to_stop(listener)
     # about 0.2 s on an idle machine (the relay and the control thread wake every 0.1 s); old: 3 s
     print(f"listen took {took:.2f} s to stop")
-    assert took < 2.0, f"listen took {took:.1f} s to stop"
+    assert took < 2.5, f"listen took {took:.1f} s to stop"  # old: 3.0-3.2 s
     assert "stopped;" not in err  # the request cut short is no failure to tell of
     assert [s["valid_frames"] for s in summaries] == [60]
 
@@ -163,7 +163,7 @@ def test_ctrl_c_while_the_phones_control_port_never_accepts_ends_listen_at_once(
         for sock in (*queued, server):
             sock.close()
     print(f"listen took {took:.2f} s to stop")
-    assert took < 2.0, f"listen took {took:.1f} s to stop"  # about 0.2 s; old: about 3 s
+    assert took < 2.5, f"listen took {took:.1f} s to stop"  # about 0.2 s (1.4 s under load); old: 3.0-3.2 s
     assert "stopped" not in err and summaries[0]["path"] is None
 
 
