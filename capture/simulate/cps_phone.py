@@ -26,7 +26,7 @@ from capture import cps_control as cps
 from capture.channels import LIVELINK_ORDER
 from capture.csv_take import start_seconds_of_day
 from capture.realtime_packet import encode_realtime_packet
-from capture.replay import rate_of, values_in_engine_order
+from capture.replay import frame_times, rate_of, values_in_engine_order
 from capture.take import FrameStatus, Take
 
 BEHAVIOURS = ("normal", "refuse", "silent", "no_subjects", "mha", "garbage", "drop_once", "drop_then_silent")
@@ -52,12 +52,11 @@ class RealtimeFrames:
         """The take's TRACKED frames (the others are not sent) at its rate from its start timecode."""
         num, den = rate_of(take.meta.fps)
         keep = take.frame_status == FrameStatus.TRACKED
-        x = (start_seconds_of_day(take) + take.time[keep]) * num / den
-        fn = np.floor(x).astype(np.int64)
+        fn, sub = frame_times(start_seconds_of_day(take) + take.time[keep], num, den)
         values = values_in_engine_order(take)[keep]
         head = np.zeros((fn.size, 6), dtype=np.float32)
         head[:, :3] = values[:, [54, 53, 52]]  # HeadRoll, HeadPitch, HeadYaw
-        return cls(fn, (x - fn).astype(np.float32), (num, den), values[:, :52], head)
+        return cls(fn, sub, (num, den), values[:, :52], head)
 
     def packet(self, k: int, subject_id: str = SUBJECT_ID, controls: int | None = None) -> bytes:
         """Frame ``k``'s packet; ``controls``: only the first this many of its controls."""
@@ -65,7 +64,7 @@ class RealtimeFrames:
         return encode_realtime_packet(
             subject_id,
             int(self.frame_number[k]),
-            float(min(self.sub_frame[k], np.nextafter(np.float32(1), np.float32(0)))),
+            float(self.sub_frame[k]),
             num,
             den,
             self.controls[k, :controls],
