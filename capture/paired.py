@@ -559,8 +559,14 @@ FACE_CAP_POSE = 10
 
 def is_face_cap(start: str) -> bool:
     """Whether a text file starting with ``start`` (its first lines) is a Face Cap text export: a ``bs``
-    line among its first three."""
-    return any(line.startswith(FACE_CAP_NAMES) for line in start.splitlines()[:3])
+    line among its first three, after an ``info`` line or followed by a ``k`` line (a note or a list of
+    names that merely starts with ``bs,`` is none)."""
+    lines = [line for line in start.splitlines() if line.strip()]
+    names = next((i for i, line in enumerate(lines[:3]) if line.startswith(FACE_CAP_NAMES)), None)
+    if names is None:
+        return False
+    after = lines[names + 1 : names + 3]
+    return lines[0].startswith("info,") or any(line.startswith(FACE_CAP_FRAME) for line in after)
 
 
 def _face_cap(

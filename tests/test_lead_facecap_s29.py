@@ -35,3 +35,18 @@ def test_face_cap_text_in_a_folder_is_paired_with_its_audio(tmp_path):
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     paths = [json.loads(line)["path"] for line in proc.stdout.splitlines() if line.startswith("{")]
     assert len(paths) == 1 and read_take(paths[0]).values.shape == (60, 52)
+
+
+def test_a_note_starting_with_bs_is_no_face_cap_export(tmp_path):
+    """A notes file whose second line starts with ``bs,`` (and a list of names starting so) beside a take:
+    passed over as before (was: read as a Face Cap export, and the run failed)."""
+    src = tmp_path / "src"
+    src.mkdir()
+    face_cap_txt(src / "line01.txt", 1)
+    silence(src / "line01.wav", 1)
+    (src / "notes.txt").write_text("session notes\nbs, not really\n")
+    (src / "names.txt").write_text("bs,eyeBlinkLeft,jawOpen\n")
+    proc = run_cli("capture", "import", src, "--pair-audio", "-o", tmp_path / "takes", "--json")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    paths = [json.loads(line)["path"] for line in proc.stdout.splitlines() if line.startswith("{")]
+    assert len(paths) == 1

@@ -515,13 +515,18 @@ def _maybe_a_copy(stem: str) -> bool:
     return stem.endswith(")") or " copy" in stem.casefold()
 
 
+# What an audio file beside a CSV read alone may be named for instead (``audio_beside``): a CSV, a JSON
+# export, a Face Cap text export (a .txt: unpacked, ``audio_beside`` reads whether it is one)
+_NAMED_FOR = (".csv", ".json", ".txt")
+
+
 def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[str, ...]]:
     """What ``audio_beside`` looks at for the CSV ``named`` read alone (``beside``: its folder's files):
-    the audio files of its stem, else every audio file beside it with the CSVs and JSON exports they may
-    be named for (an only one, or an iCloud placeholder, named for another is not this CSV's); each
-    with the iCloud placeholder standing for it, or standing beside it (a placeholder without the file
-    it stands for counts as not downloaded). No .mov, nor the app's files: the folder unpacked is then
-    no take folder, and the CSV is read alone there too."""
+    the audio files of its stem, else every audio file beside it with the CSVs and exports they may be
+    named for (``_NAMED_FOR``; an only one, or an iCloud placeholder, named for another is not this
+    CSV's); each with the iCloud placeholder standing for it, or standing beside it (a placeholder
+    without the file it stands for counts as not downloaded). No .mov, nor the app's files: the folder
+    unpacked is then no take folder, and the CSV is read alone there too."""
     by_name: dict[str, set[tuple[str, ...]]] = {}  # a file's name, in NFC -> it and its placeholder
     for b in beside:
         by_name.setdefault(nfc(_original_name(b[-1])), set()).add(b)
@@ -539,7 +544,7 @@ def _read_alone_needs(beside: list[tuple[str, ...]], named: str) -> set[tuple[st
         wanted |= {
             n
             for n in by_name
-            if PurePosixPath(n).suffix.lower() in (".csv", ".json") and audio_stem(Path(n)).lower() in owners
+            if PurePosixPath(n).suffix.lower() in _NAMED_FOR and audio_stem(Path(n)).lower() in owners
         }
     return {b for n in wanted for b in by_name.get(n, ())}
 
