@@ -6,10 +6,10 @@ for a pause, phones in (X-)SAMPA with ``<p:>`` for a pause."""
 
 from __future__ import annotations
 
+import codecs
 from pathlib import Path
 
 from .errors import InputError
-from .paired import read_text
 
 
 def read_maus_phones(path: str | Path) -> list[tuple[float, float, str]]:
@@ -18,15 +18,24 @@ def read_maus_phones(path: str | Path) -> list[tuple[float, float, str]]:
     path = Path(path)
     rate: float | None = None
     segments: list[tuple[int, int, str]] = []
-    for number, line in enumerate(read_text(path).splitlines(), start=1):
-        key, _, rest = line.partition(":")
-        fields = rest.split()
-        if key == "SAM":
-            if len(fields) != 1 or not fields[0].isdigit() or int(fields[0]) == 0:
-                raise InputError(f"SAM: must be a sampling rate in Hz, found {rest.strip()!r}", path, number)
+    # only the SAM and MAU lines are decoded: the rest may be the Latin-1 of older BAS corpora (their ORT
+    # words), and a file of another kind named .par (a Parchive volume) has neither
+    for number, line in enumerate(path.read_bytes().removeprefix(codecs.BOM_UTF8).splitlines(), start=1):
+        key, _, rest = line.partition(b":")
+        if key not in (b"SAM", b"MAU"):
+            continue
+        try:
+            fields = rest.decode("utf-8").split()
+        except UnicodeDecodeError:
+            raise InputError(f"a {key.decode()}: line that is not UTF-8 text", path, number) from None
+        if key == b"SAM":
+            if len(fields) != 1 or not fields[0].isdecimal() or int(fields[0]) == 0:
+                raise InputError(
+                    f"SAM: must be a sampling rate in Hz, found {' '.join(fields)!r}", path, number
+                )
             rate = float(fields[0])
-        elif key == "MAU":
-            if len(fields) < 4 or not (fields[0].isdigit() and fields[1].isdigit()):
+        else:
+            if len(fields) < 4 or not (fields[0].isdecimal() and fields[1].isdecimal()):
                 raise InputError(
                     "expected 'MAU: <begin sample> <duration in samples> <word> <phone>'", path, number
                 )

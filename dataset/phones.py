@@ -41,10 +41,10 @@ strikes the alveolar ridge once, with unrounded lips; T is the 39's phone of tha
 different on a face.
 
 WebMAUS (BAS) writes its ``MAU`` tier in SAMPA / X-SAMPA: ``sampa_to_ipa`` rewrites a label in IPA
-(``{`` æ, ``Q`` ɒ, ``V`` ʌ, ``T D S Z N`` θ ð ʃ ʒ ŋ, ``tS dZ`` tʃ dʒ, ``r\\`` ɹ, ``4`` ɾ, ``5`` ɫ,
-``@`` ə, r-coloured @` 3` ɚ ɝ, ``:`` length, ``=`` syllabic, ``eI aI OI @U aU I@ e@ U@`` diphthongs),
-which the table above then maps. SAMPA must be converted before ``phone_index``: read as ARPAbet, its
-``T D S Z N V`` would be other phones."""
+(``{`` æ, ``e`` ɛ (English SAMPA's DRESS), ``Q`` ɒ, ``V`` ʌ, ``T D S Z N`` θ ð ʃ ʒ ŋ, ``tS dZ`` tʃ dʒ,
+``r\\`` ɹ, ``4`` ɾ, ``5`` ɫ, ``@`` ə, r-coloured @` 3` ɚ ɝ, ``:`` length, ``=`` syllabic, ``eI aI OI @U aU
+I@ e@ U@`` diphthongs), which the table above then maps. SAMPA must be converted before ``phone_index``:
+read as ARPAbet, its ``T D S Z N V`` would be other phones."""
 
 from __future__ import annotations
 
@@ -128,13 +128,17 @@ _XSAMPA = {
     "@`": "ɚ", "3`": "ɝ", "t`": "ʈ", "d`": "ɖ", "n`": "ɳ", "s`": "ʂ", "z`": "ʐ", "r`": "ɽ",
     "r\\": "ɹ", "R\\": "ʀ", "?\\": "ʕ", "tS": "tʃ", "dZ": "dʒ", ":": "ː", ":\\": "ˑ", "=": "\u0329",
     "_h": "ʰ", "_w": "ʷ", "_j": "ʲ", "'": "ʲ", "_0": "\u0325", "~": "\u0303", "`": "\u02de",
+    # English SAMPA (Wells; WebMAUS eng-GB, eng-AU) writes DRESS "e" ("bed" b e d), as IPA writes RP's: the
+    # vowel of EH, not of FACE (eI, EY)
+    "e": "ɛ", "eI": "eɪ",
 }  # fmt: skip
 _XSAMPA_SYMBOL = re.compile("|".join(map(re.escape, sorted(_XSAMPA, key=len, reverse=True))))
 
 
 def sampa_to_ipa(label: str) -> str:
     """An (X-)SAMPA phone label (WebMAUS's ``MAU`` tier) in IPA: ``tS`` -> ``tʃ``, ``{`` -> ``æ``, ``I@`` ->
-    ``ɪə``. Pauses and markers in angle brackets (``<p:>``) and lower-case letters are kept."""
+    ``ɪə``, English DRESS ``e`` -> ``ɛ``. Pauses and markers in angle brackets (``<p:>``) and the other
+    lower-case letters are kept."""
     if label.strip().startswith("<"):
         return label
     return _XSAMPA_SYMBOL.sub(lambda m: _XSAMPA[m.group()], label)

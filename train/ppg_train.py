@@ -348,6 +348,17 @@ def _grid_of(tiers: dict[str, Segments], start: float, end: float | None, path: 
     return grid
 
 
+def _is_mfa_json(data: dict) -> bool:
+    """Whether JSON is MFA's (``tiers``: an object of tiers, each an object with ``entries``); other JSON
+    with a ``tiers`` field (a settings file) is no alignment."""
+    tiers = data.get("tiers")
+    return (
+        isinstance(tiers, dict)
+        and bool(tiers)
+        and all(isinstance(t, dict) and "entries" in t for t in tiers.values())
+    )
+
+
 def _mfa_json_grid(data: dict, path: Path) -> TextGrid:
     """The grid of MFA's JSON (``mfa align --output_format json``): ``{"start", "end", "tiers": {name:
     {"type": "interval", "entries": [[start, end, label], ...]}}}``, tiers named as in its TextGrids."""
@@ -365,6 +376,8 @@ def _mfa_json_grid(data: dict, path: Path) -> TextGrid:
                 raise InputError(f"{where}: expected [start, end, label], found {_show(entry)}", path)
             a, b = _seconds(entry[0], f"{where}: start", path), _seconds(entry[1], f"{where}: end", path)
             tiers[name].append((a, b, entry[2]))
+        if name == "phones" or name.endswith(" - phones"):  # the tiers read (words' times are not checked)
+            _check_segments(tiers[name], [f"tier {name!r} entry {k}" for k in range(len(entries))], path)
     start = _seconds(data.get("start", 0), "'start'", path)
     return _grid_of(tiers, start, _seconds(data["end"], "'end'", path) if "end" in data else None, path)
 
@@ -381,6 +394,7 @@ def _mfa_csv_grid(path: Path) -> TextGrid:
     """The grid of MFA's CSV (``mfa align --output_format csv``: a row per word and phone, ``Type``
     ``words`` or ``phones``): a ``phones`` tier, or ``<speaker> - phones`` for each of several speakers."""
     by_speaker: dict[str, Segments] = {}
+    lines: dict[str, list[str]] = {}  # each speaker's phones' line numbers, to name them in messages
     rows = csv.reader(read_text(path).splitlines())
     next(rows)
     for number, row in enumerate(rows, start=2):
@@ -394,6 +408,9 @@ def _mfa_csv_grid(path: Path) -> TextGrid:
             _seconds(_number_or_text(v), f"line {number}: {k}", path) for v, k in zip(row, ("Begin", "End"))
         )
         by_speaker.setdefault(row[4], []).append((a, b, row[2]))
+        lines.setdefault(row[4], []).append(f"line {number}")
+    for speaker, segs in by_speaker.items():
+        _check_segments(segs, lines[speaker], path)
     several = len(by_speaker) > 1
     return _grid_of(
         {f"{s} - phones" if several else "phones": segs for s, segs in by_speaker.items()}, 0.0, None, path
@@ -411,7 +428,8 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
     """(audio, phone segments) of each utterance of a Kaldi CTM: its audio is the file named by the
     utterance id in the CTM's folder or below (for a CTM of one utterance, also the audio of the CTM's own
     name beside it). Integer phone ids are named by the ``phones.txt`` beside it. Utterances without
-    one audio file are left out, said in ``warnings``."""
+    one audio file are left out, and a CTM whose labels are mostly not phones (words) is skipped: said in
+    ``warnings``."""
     utterances = read_ctm(path)
     if has_integer_phones(utterances):
         table_path = path.parent / "phones.txt"
@@ -423,6 +441,14 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
             return []
         table = read_symbol_table(table_path)
         utterances = {u: [(a, b, table.get(x, x)) for a, b, x in segs] for u, segs in utterances.items()}
+    spoken = [
+        x for segs in utterances.values() for *_, x in segs if not (_is_silence(x) or _is_spoken_noise(x))
+    ]
+    not_phones = [x for x in spoken if phone_index(x) is None]
+    if 2 * len(not_phones) > len(spoken):  # a CTM of words (an ASR's output), not of phones
+        examples = ", ".join(map(repr, list(dict.fromkeys(not_phones))[:3]))
+        warnings.append(f"{path}: most labels are not phones (e.g. {examples}): a CTM of words? skipped")
+        return []
     below: dict[str, list[Path]] | None = None  # audio files in and below the CTM's folder, by stem
     found, missing, several = [], [], []
     for utt, segs in utterances.items():
@@ -470,6 +496,7 @@ def find_alignments(
     seen_audio: dict[Path, Path] = {}
     repeated = 0
     litter = Litter()
+    not_read: dict[str, list[Path]] = {}  # files of a format not read, by suffix: one line per format
 
     def add(audio: Path, segs: Segments, source: Path) -> None:
         key = audio.resolve()
@@ -490,7 +517,7 @@ def find_alignments(
         for f in files:
             kind = f.suffix.lower()
             if kind in NOT_READ:
-                warnings.append(f"{f}: {NOT_READ[kind]} alignments are not read ({FORMATS_READ}): skipped")
+                not_read.setdefault(kind, []).append(f)
                 continue
             if kind not in (".textgrid", ".json", ".ctm", ".par", ".csv") or (
                 kind == ".csv" and not _is_mfa_csv(f)
@@ -513,7 +540,7 @@ def find_alignments(
             if kind == ".par":
                 segs = [(a, b, sampa_to_ipa(x)) for a, b, x in read_maus_phones(f)]
                 if not segs:
-                    warnings.append(f"{f}: BAS Partitur without a MAU tier (phone segmentation): skipped")
+                    warnings.append(f"{f}: no MAU tier (a BAS Partitur's phone segmentation): skipped")
                     continue
                 _check_segments(segs, [f"MAU segment {k + 1}" for k in range(len(segs))], f)
                 add(_audio_beside(f), segs, f)
@@ -524,7 +551,7 @@ def find_alignments(
                 continue
             if not isinstance(data, dict):
                 continue
-            if isinstance(data.get("tiers"), dict):  # MFA's JSON for the audio beside it
+            if _is_mfa_json(data):  # MFA's JSON for the audio beside it
                 add(_audio_beside(f), _grid_segments(_mfa_json_grid(data, f), f, warnings), f)
                 continue
             if _is_gentle(data):  # Gentle's output for the audio beside it
@@ -543,6 +570,11 @@ def find_alignments(
                 segs, names = _json_segments(utt["words"], stem, f)
                 _check_segments(segs, names, f)
                 add(_utterance_audio(f, stem), segs, f)
+    for kind, files in not_read.items():
+        more = f" and {len(files) - 1} more" if len(files) > 1 else ""
+        warnings.append(
+            f"{files[0]}{more}: {NOT_READ[kind]} alignments are not read ({FORMATS_READ}): skipped"
+        )
     if repeated:
         warnings.append(
             f"--data names {repeated} file(s) more than once (also through their folder): each is read once"
