@@ -30,6 +30,7 @@ from .take_folder import (
     spellings,
     takes_side_by_side,
 )
+from .trainer_data import a2f_root, a2f_shots, is_a2f_dataset, neurosync_features, read_a2f_shot
 from .transfer_litter import (
     Litter,
     icloud_error,
@@ -181,6 +182,9 @@ def _walk(
         return
     if is_take_dir(folder) or folder.name.startswith("."):
         return  # an imported take of ours, or a hidden/temporary folder
+    if is_a2f_dataset(folder):  # an actor's Audio2Face-3D training data: a take per shot of cache/skin
+        yield from a2f_shots(folder)
+        return
     for p in sorted(listed_entries(folder)):
         if litter.skips(p):
             continue
@@ -195,11 +199,11 @@ def _walk(
         if p.is_dir():
             yield from _walk(p, exports, archives, skipped, litter, root, variant, seen)
         elif p.suffix.lower() == ".csv":
-            emotions = emotion_header(_head(p))
-            if emotions is None:
+            why = not_a_face_take(p.name, _head(p))
+            if why is None:
                 yield p
             else:
-                skipped(p, emotions)
+                skipped(p, why)
         elif exports and is_face_cap_text(p):
             yield p  # Face Cap's text export
         elif exports and p.suffix.lower() == ".json":
@@ -413,6 +417,12 @@ def emotion_header(head: bytes | None) -> str | None:
     return emotion_weights(header_names(_first_line(head)))
 
 
+def not_a_face_take(name: str, head: bytes | None) -> str | None:
+    """Why a CSV named ``name`` whose first bytes (``_head``) are ``head`` is no face take (emotion
+    weights, NeuroSync's audio features), or None."""
+    return emotion_header(head) or neurosync_features(name, header_names(_first_line(head)))
+
+
 def _head(path: Path, size: int = 1 << 16) -> bytes | None:
     """The first ``size`` bytes of a file, or None when it cannot be read."""
     try:
@@ -449,6 +459,8 @@ def import_source(
         raise InputError(f"unknown audio pairing {audio_pairing!r} (known: {', '.join(AUDIO_PAIRINGS)})")
     if is_zip(source):
         raise zip_error(source)
+    if a2f_root(source) is not None:  # a shot of an Audio2Face-3D training dataset, with the dataset's audio
+        return read_a2f_shot(source, fps, audio)
     if icloud_original(source) is not None:
         raise icloud_error(source)
     if source.is_dir():
@@ -494,9 +506,9 @@ def import_source(
     if not livelink:
         if head is not None and not head.strip():
             raise InputError("file is empty", source)
-        emotions = emotion_header(head)
-        if emotions is not None:
-            raise InputError(emotions, source)
+        why = not_a_face_take(source.name, head)
+        if why is not None:
+            raise InputError(why, source)
         if audio is None:
             raise InputError(
                 "not a Live Link Face CSV (its header does not start with Timecode,BlendShapeCount), and "
