@@ -17,7 +17,6 @@ from capture import read_csv_with_audio, write_take
 from dataset.phones import ARPABET
 from train.evaluate import RawSamples, evaluate, manifest_phones
 from train.lipsync import (
-    BILABIAL,
     CLASS_NAMES,
     CLOSED,
     PHONE_CLASSES,
@@ -87,32 +86,6 @@ def test_eval_reports_errors_by_phone_class_and_bilabial_closures(sim):
     assert f"bilabial closures kept: {closure['model']['hits']}/{n}" in proc.stdout
 
 
-def test_closure_hit_rate_tells_a_model_that_keeps_the_lips_open(sim):
-    """The run's own predictions against the same predictions with jawOpen raised on the bilabial frames
-    (and the frames the metric looks at beside them), through eval's code path."""
-    manifest = json.loads((sim / "ds" / "manifest.json").read_text())
-    bilabial = phone_classes(manifest_phones(manifest)) == BILABIAL
-    jaw = manifest["channels"].index("jawOpen")
-
-    def open_on_bilabials(pred, phones):
-        on = (phones >= 0) & bilabial[phones]
-        widened = np.convolve(on.astype(float), np.ones(3), "same") > 0  # ± 1 frame at 60 fps
-        pred = pred.copy()
-        pred[widened, jaw] += 0.3
-        return pred
-
-    said = lambda _m: None  # noqa: E731
-    closes = evaluate(sim / "run", sim / "ds", say=said)
-    opens = evaluate(sim / "run", sim / "ds", say=said, altered=open_on_bilabials)
-    kept, lost = closes["bilabial_closure"], opens["bilabial_closure"]
-    assert kept["recorded_closures"] == lost["recorded_closures"] >= 5
-    assert kept["model"]["hit_rate"] >= 0.6 and lost["model"]["hit_rate"] <= 0.2, (kept, lost)
-    assert lost["floor"] == kept["floor"]
-    # and the error on bilabial frames grows, while silence far from them does not change much
-    before, after = closes["per_phone_class"]["classes"], opens["per_phone_class"]["classes"]
-    assert after["bilabial"]["rmse"] > 1.5 * before["bilabial"]["rmse"]
-
-
 def test_dataset_without_phones_says_so(sim):
     r = evaluate(sim / "run", sim / "plain", say=lambda _m: None)
     assert r["per_phone_class"] is None and r["bilabial_closure"] is None
@@ -149,6 +122,9 @@ def test_recorded_take_closes_its_lips_on_bilabials(samples, sim, tmp_path):
     assert np.mean(closed["bilabial"]) >= 0.75 and np.mean(closed["open_vowel"]) <= 0.4, closed
     r = evaluate(sim / "run", ds, "train", say=lambda _m: None)
     assert r["bilabial_closure"]["recorded_closures"] == sum(closed["bilabial"])
+    # the counterpart: the open vowels the take opens on (17 of 20 reach OPENED)
+    opened = r["open_vowel_opening"]
+    assert opened["segments"] == len(closed["open_vowel"]) and opened["recorded_openings"] >= 12, opened
     assert r["per_phone_class"]["classes"]["bilabial"]["frames"] > 0
 
 

@@ -10,8 +10,9 @@ its ``channel_mask.npy`` keeps apart, leaves a frame scored): ``entire`` over ev
 as mean ± std over utterances, plus per-channel RMSE pooled over all usable frames of the split. The
 floor predicts every frame as the training split's per-channel mean (from the manifest). On a dataset
 that stores frame phones (built with a PPG), ``per_phone_class`` gives the model's and the floor's RMSE
-pooled over the frames of each articulatory class of phone, and ``bilabial_closure`` the share of the
-recorded lip closures on bilabials that each keeps (train/lipsync.py). ``rtf`` =
+pooled over the frames of each articulatory class of phone, ``bilabial_closure`` the share of the
+recorded lip closures on bilabials that each keeps and ``open_vowel_opening`` the share of the recorded
+openings on open vowels (train/lipsync.py). ``rtf`` =
 seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
 of repeated runs).
 """
@@ -43,7 +44,11 @@ from .systems import check_sample_frames, max_frames
 
 CRUCIAL = JAW  # jawOpen and mouthClose (paper Table 1), as the lip aperture reads them
 PHONES = "phones.npy"
-NO_PHONES = "the dataset stores no frame phones (build it with --ppg pocketsphinx or bottleneck)"
+LIP_FIGURES = ("per_phone_class", "bilabial_closure", "open_vowel_opening")  # by phone (train/lipsync.py)
+NO_PHONES = (
+    "the dataset stores no frame phones (built without a phone-aware PPG, or before frame phones were "
+    "stored: build it with --ppg pocketsphinx or bottleneck)"
+)
 
 
 def crucial_columns(channels: list[str]) -> list[int] | None:
@@ -271,14 +276,12 @@ def evaluate(
     say: Callable[[str], None] = progress,
     precision: str = "fp32",
     style: str | None = None,
-    altered: Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """Metrics of a run on a dataset split (see module doc), computed at ``precision``
     (train/precision.py). A run with speaker styles animates each utterance in its own speaker's style
     (the mean style for a speaker it did not train on), or every utterance in ``style`` (a speaker of
     the run or ``"mean"``). Notes go to ``say``; a leak (``leaked_takes``) is also a warning on stderr
-    (``warn``). ``altered`` (for checking what the metrics tell apart): each utterance's de-normalised
-    prediction and frame phone ids (None without) -> the prediction scored instead."""
+    (``warn``)."""
     model, payload, spec = load_for_inference(run, precision, style, say)
     info = payload["dataset"]
     ds = dataset_folder(ds)  # the folder or its manifest.json; another file is named, not taken for it
@@ -337,13 +340,10 @@ def evaluate(
             true = true[:, picked]
             neutral = None if neutral is None else neutral[picked]
         pred = animation.inverse(pred_norm, neutral)
-        if altered is not None:
-            pred = altered(pred, item["phones"])
         tally.add(pred, true, mask)
         floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
-        if lipsync is not None:  # a sample without phones: its frames unclassified
-            ids = item["phones"] if item["phones"] is not None else np.full(mask.shape, -1)
-            lipsync.add(ids, pred, np.broadcast_to(train_mean, true.shape), true, mask)
+        if lipsync is not None:  # every sample has its phones (RawSamples reads them)
+            lipsync.add(item["phones"], pred, np.broadcast_to(train_mean, true.shape), true, mask)
         if longest is None or mask.shape[0] > longest["mask"].shape[1]:
             longest = batch
     if not tally.frames:
@@ -385,10 +385,12 @@ def evaluate(
         result["note"] = "the run's channels lack jawOpen or mouthClose: no crucial RMSE"
     result["per_phone_class"] = None if lipsync is None else lipsync.per_phone_class()
     result["bilabial_closure"] = None if lipsync is None else lipsync.bilabial_closure()
-    if lipsync is None:
-        result["per_phone_class_note"] = result["bilabial_closure_note"] = NO_PHONES
-    elif result["bilabial_closure"] is None:
-        result["bilabial_closure_note"] = "the run's channels lack jawOpen or mouthClose: no lip aperture"
+    result["open_vowel_opening"] = None if lipsync is None else lipsync.open_vowel_opening()
+    for key in LIP_FIGURES:
+        if lipsync is None:
+            result[f"{key}_note"] = NO_PHONES
+        elif key != "per_phone_class" and result[key] is None:
+            result[f"{key}_note"] = "the run's channels lack jawOpen or mouthClose: no lip aperture"
     if spec.styles:
         result["style"] = {
             "styles": list(spec.styles),
@@ -461,8 +463,8 @@ def format_result(r: dict[str, Any]) -> str:
 
 
 def _lipsync_lines(r: dict[str, Any]) -> list[str]:
-    """``format_result``'s lines on errors by phone class and bilabial closures (absent from a result of
-    an older eval)."""
+    """``format_result``'s lines on errors by phone class, bilabial closures and open-vowel openings
+    (absent from a result of an older eval)."""
     if "per_phone_class" not in r:
         return []
     if r["per_phone_class"] is None:
@@ -473,15 +475,19 @@ def _lipsync_lines(r: dict[str, Any]) -> list[str]:
         if c["frames"]
     ]
     lines = ["  by phone class, rmse/floor (frames): " + ", ".join(shown)]
-    closure = r["bilabial_closure"]
-    if closure is None:
-        lines.append(f"  bilabial closures: n/a ({r['bilabial_closure_note']})")
-    elif not closure["recorded_closures"]:
-        lines.append(f"  bilabial closures: none recorded in {closure['segments']} bilabial segments")
-    else:
-        model, floor, n = closure["model"], closure["floor"], closure["recorded_closures"]
-        lines.append(
-            f"  bilabial closures kept: {model['hits']}/{n} ({model['hit_rate']:.0%}), floor "
-            f"{floor['hits']}/{n} ({floor['hit_rate']:.0%}); {closure['segments']} bilabial segments"
-        )
+    for key, label, done, segments, recorded in (
+        ("bilabial_closure", "bilabial closures", "kept", "bilabial", "recorded_closures"),
+        ("open_vowel_opening", "open-vowel openings", "made", "open-vowel", "recorded_openings"),
+    ):
+        figure = r[key]
+        if figure is None:
+            lines.append(f"  {label}: n/a ({r[f'{key}_note']})")
+        elif not figure[recorded]:
+            lines.append(f"  {label}: none recorded in {figure['segments']} {segments} segments")
+        else:
+            model, floor, n = figure["model"], figure["floor"], figure[recorded]
+            lines.append(
+                f"  {label} {done}: {model['hits']}/{n} ({model['hit_rate']:.0%}), floor "
+                f"{floor['hits']}/{n} ({floor['hit_rate']:.0%}); {figure['segments']} {segments} segments"
+            )
     return lines
