@@ -1363,14 +1363,16 @@ def _undo_steps_back(
     pace = None  # the recording's (``_typical_pace``), when a step needs it
     clusters = np.split(found, np.flatnonzero(np.diff(found) > 1) + 1) if found.size else []
     for c, cluster in enumerate(clusters):
+        # the clock jumping back further than late frames lie behind it is a restart (``follow_clock``):
+        # so large a rise within a recording is a burst the network held back long, or over midnight
+        if rise[cluster].max() > MAX_LATENESS_S:
+            continue
         # where it rose, each side also over STEP_SIDE_S of arrivals: a side of packets that a burst the
         # network held back fills (just after a step) says how late the burst came, not the clock
         low, high = _side_floors(behind, arrival_s, cluster, width)
         rise[cluster] = high - low
         step = float(rise[cluster].max())
-        # the clock jumping back further than late frames lie behind it is a restart (``follow_clock``):
-        # so large a step within a recording is a burst the network held back long, or over midnight
-        if not BACK_STEP_S < step <= MAX_LATENESS_S:  # (no rise left: a burst's lateness alone)
+        if step <= BACK_STEP_S:  # no rise left: a burst's lateness alone
             continue
         at = int(cluster[np.argmax(rise[cluster] > step / 2)])  # it rises there, it stays up a side long
         if at < width or at + width > n:  # a side the recording's ends cut short tells too little
@@ -1430,9 +1432,14 @@ def _undo_steps_back(
         resumed = times[breaks[-1] + 1 if breaks.size else 0]
         later &= frame_time >= resumed - period / 2
         top = int(cluster[np.argmax(rise[cluster])])
-        # the next rise, not one a side from this one (heavy jitter dips a rise below BACK_STEP_S a moment)
+        # from the end of the rise before to the next rise (a slower route, a burst, another step: their
+        # lateness is not this step's), not one a side from this one (heavy jitter dips a rise below
+        # BACK_STEP_S a moment)
+        since = next(
+            (int(clusters[j][-1]) for j in range(c - 1, -1, -1) if clusters[j][-1] < cluster[0] - width), 0
+        )
         ahead = next((int(x[0]) for x in clusters[c + 1 :] if x[0] > cluster[-1] + width), n)
-        size = _step_size(behind, arrival_s, (done, at, max(top, at + width), ahead))
+        size = _step_size(behind, arrival_s, (max(done, since), at, max(top, at + width), ahead))
         shift = round((step if size is None else size) / period) * period
         moved[later] += shift
         first = zone.start + int(np.argmax(later[zone]))
