@@ -1253,9 +1253,27 @@ def _side_floors(
     first = np.minimum(at - width, np.searchsorted(arrival_s, arrival_s[at] - STEP_SIDE_S))
     last = np.maximum(at + width, np.searchsorted(arrival_s, arrival_s[at] + STEP_SIDE_S, "right"))
     first, last = np.maximum(first, 0), np.minimum(last, n)
-    low = np.array([behind[a:k].min() if k > a else np.inf for a, k in zip(first.tolist(), at.tolist())])
-    high = np.array([behind[k:b].min() for k, b in zip(at.tolist(), last.tolist())])
-    return low, high
+    return _range_min(behind, first, at), _range_min(behind, at, last)
+
+
+def _range_min(values: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """The least of ``values[a:b]`` for each ``a, b`` of ``starts, stops`` (inf where empty), from a table of
+    the least of each run of 2**k values (each range the least of two runs that cover it): the time of a
+    few passes over ``values``, however long and many the ranges (packets that all came at one moment
+    make every side the whole session)."""
+    out = np.full(starts.size, np.inf)
+    length = stops - starts
+    some = np.flatnonzero(length > 0)
+    if not some.size:
+        return out
+    level = np.floor(np.log2(length[some])).astype(np.int64)
+    runs = np.asarray(values, np.float64)
+    for k in range(int(level.max()) + 1):
+        if k:
+            runs = np.minimum(runs[: -(1 << (k - 1))], runs[1 << (k - 1) :])  # runs of 2**k values
+        mine = some[level == k]
+        out[mine] = np.minimum(runs[starts[mine]], runs[stops[mine] - (1 << k)])
+    return out
 
 
 STEP_SIZE_SIDES = 5  # a step's size is measured over up to this many sides of arrivals each way
