@@ -142,10 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
         type=_path,
         nargs="+",
         required=True,
-        help="Praat TextGrids with a 'phones' tier beside same-named audio (as s2a-capture simulate writes "
-        "its take folders, or a forced aligner's output), or folders of WAV + JSON alignments; "
-        "folders are searched recursively (imported take folders carry no alignments). With --labels "
-        "pocketsphinx: take folders and audio files",
+        help="phone alignments beside same-named audio (as s2a-capture simulate writes its take folders, "
+        "or a forced aligner's output: Praat TextGrids, the toolkit's, Gentle's or MFA's JSON, MFA's CSV, "
+        "Kaldi CTM, BAS Partitur), or folders of them; folders are searched recursively (imported take "
+        "folders carry no alignments). With --labels pocketsphinx: take folders and audio files",
     )
     p.add_argument(
         "--labels",
