@@ -72,7 +72,8 @@ def take_agreement(
     unknown = [s for s in splits if s not in ("train", "val", "test")]
     if unknown:
         raise InputError(f"unknown split(s) {', '.join(unknown)}: choose from train, val, test", where)
-    asked, splits = splits, tuple(s for s in splits if s in present)
+    asked = tuple(dict.fromkeys(splits))  # a split named twice is read once (its takes counted once)
+    splits = tuple(s for s in asked if s in present)
     # a take left out is a speaker the fit never saw: style columns would only add unfitted weights
     if cfg.get("speaker_style"):
         say("note: agreement ignores speaker_style (a take left out is a speaker its fit never saw)")

@@ -684,6 +684,17 @@ def _after_take_changes(
     return math.inf, 0
 
 
+def _ridge_chose_alpha(run: Path, state: dict[str, Any]) -> bool:
+    """Whether ``run`` is a ridge that chose its alpha on val: its config.json asked for ``ridge_alpha``
+    0 (a run given an alpha keeps that one; an unreadable config.json tells nothing)."""
+    if state["config"].get("model") != "ridge" or not (run / CONFIG).is_file():
+        return False
+    try:
+        return read_run_config(run / CONFIG).get("ridge_alpha") == 0
+    except InputError:
+        return False
+
+
 def _load_resume_state(
     run: Path,
     manifest: dict[str, Any],
@@ -701,7 +712,7 @@ def _load_resume_state(
     if not isinstance(state.get("config"), dict):
         raise InputError("checkpoint lacks its config", run / LAST)
     _same_dataset(state, manifest, ds, run / LAST)
-    if state["config"].get("model") == "ridge" and (given or {}).get("ridge_alpha") == 0:
+    if (given or {}).get("ridge_alpha") == 0 and _ridge_chose_alpha(run, state):
         # 0 asks for the alpha val chooses: the checkpoint's config holds the one chosen (config.json the 0)
         given = {k: v for k, v in given.items() if k != "ridge_alpha"}
     _refuse_changes(given, state["config"], run / LAST)

@@ -19,8 +19,10 @@ from capture.errors import InputError
 
 # An input constant over the frames summed is left with a variance of rounding in place of 0: that of its
 # float64 sums over those frames (Σx²/n less the squared mean), or of every frame's when the sums were
-# taken by subtraction. Below this share of its mean square over the frames summed (over every frame
-# subtracted from), it counts as constant and gets no weight.
+# taken by subtraction. A variance below this share of its Σx² (over every frame subtracted from, if so)
+# per frame summed counts as constant, and the input gets no weight: rounding is ~1e-13 of it over 2
+# million frames; an input varying by less than ~1e-5 of its root mean square (5 ± 5e-5) counts as
+# constant too (the toolkit's inputs are z-scored over the training split: a mean square of about 1).
 ROUNDING = 1e-10
 
 # The sums' memory: input-by-input float64 matrices (Σxxᵀ), one per set of sums, besides which a solution
