@@ -30,7 +30,14 @@ from .take_folder import (
     spellings,
     takes_side_by_side,
 )
-from .trainer_data import a2f_root, a2f_shots, is_a2f_dataset, neurosync_features, read_a2f_shot
+from .trainer_data import (
+    A2F_PARTS,
+    a2f_root,
+    a2f_shots,
+    is_a2f_dataset,
+    neurosync_features,
+    read_a2f_shot,
+)
 from .transfer_litter import (
     Litter,
     icloud_error,
@@ -182,11 +189,12 @@ def _walk(
         return
     if is_take_dir(folder) or folder.name.startswith("."):
         return  # an imported take of ours, or a hidden/temporary folder
+    dataset_parts: tuple[str, ...] = ()
     if is_a2f_dataset(folder):  # an actor's Audio2Face-3D training data: a take per shot of cache/skin
         yield from a2f_shots(folder)
-        return
+        dataset_parts = A2F_PARTS
     for p in sorted(listed_entries(folder)):
-        if litter.skips(p):
+        if p.name in dataset_parts or litter.skips(p):
             continue
         if p.is_symlink():
             if not p.exists():  # dangling (or a loop of links)

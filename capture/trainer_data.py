@@ -38,6 +38,11 @@ A2F_AUDIO = "audio"
 A2F_SKIN = ("cache", "skin")
 A2F_SETUP = ("bs_data", "bs_skin.npz")
 A2F_CONFIG = "config_dataset.py"
+# The files of a shot's skin cache the framework reads (a Maya cache's ``.xml`` names its ``.mc``).
+SKIN_CACHE_SUFFIXES = (".npy", ".pc2", ".xml")
+# The folders of an actor's dataset the framework names (its docs' "Files Organization"): what else the
+# actor's folder holds is searched as any folder is.
+A2F_PARTS = (A2F_AUDIO, A2F_SKIN[0], A2F_SETUP[0], "geom", "xform")
 # Folders above the actor's looked in for ``A2F_CONFIG`` (``<dataset>/data/<actor>``: two).
 CONFIG_LEVELS = 2
 # The emotions of the Claire dataset, a shot's emotion when no config names others.
@@ -74,20 +79,24 @@ def is_a2f_dataset(folder: Path) -> bool:
 
 
 def a2f_shots(folder: Path) -> list[Path]:
-    """The shots of an Audio2Face-3D training dataset: each entry of ``cache/skin`` (a ``.npy`` or
-    ``.pc2`` file, a Maya cache's folder or ``.xml``), litter left out."""
+    """The shots of an Audio2Face-3D training dataset: each entry of ``cache/skin`` that is a cache (a
+    ``.npy`` or ``.pc2`` file, a Maya cache's folder or ``.xml``), litter and other files left out."""
     skin = folder.joinpath(*A2F_SKIN)
     return sorted(
         p
         for p in skin.iterdir()
-        if not is_litter(p) and not p.name.startswith(".") and p.suffix.lower() != ".mc"  # the .xml's data
+        if not is_litter(p)
+        and not p.name.startswith(".")
+        and (p.is_dir() or p.suffix.lower() in SKIN_CACHE_SUFFIXES)
     )
 
 
 def a2f_root(source: Path) -> Path | None:
-    """The dataset an entry of its ``cache/skin`` belongs to, or None for any other source."""
-    root = source.parent.parent.parent
-    if (source.parent.name, source.parent.parent.name) != A2F_SKIN[::-1] or not is_a2f_dataset(root):
+    """The dataset an entry of its ``cache/skin`` belongs to (absolute: its name is the actor's, its
+    parents hold the config), or None for any other source."""
+    skin = source.absolute().parent
+    root = skin.parent.parent
+    if skin != root.joinpath(*A2F_SKIN) or not is_a2f_dataset(root):
         return None
     return root
 
@@ -183,9 +192,19 @@ def _skin_setup(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarr
                 raise InputError(f"pose deltas hold {deltas.shape[1:]}, the neutral {neutral.shape}", path)
             rows = np.arange(neutral.shape[0])
             if "frontalmask" in arrays:
-                rows = np.unique(npz_array(npz, arrays["frontalmask"], path).astype(np.int64).ravel())
+                mask = npz_array(npz, arrays["frontalmask"], path).ravel()
+                if mask.dtype == bool:  # a flag per vertex, not the framework's vertex indices
+                    if mask.size != neutral.shape[0]:
+                        raise InputError(
+                            f"frontalMask flags {mask.size} vertices, the neutral {neutral.shape[0]}", path
+                        )
+                    rows = np.flatnonzero(mask)
+                else:
+                    rows = np.unique(mask.astype(np.int64))
                 if rows.size == 0 or rows[0] < 0 or rows[-1] >= neutral.shape[0]:
                     raise InputError("frontalMask holds indices outside the neutral mesh", path)
+            if not (np.isfinite(neutral[rows]).all() and np.isfinite(deltas[:, rows]).all()):
+                raise InputError("the neutral or a pose's deltas hold NaN/inf", path)
     except NPZ_ERRORS as exc:
         raise InputError(f"not a readable .npz ({exc})", path) from None
     return names, neutral, deltas, rows
@@ -224,14 +243,16 @@ def solve_weights(
         target = (np.asarray(frames[start : start + 256][:, rows], np.float64) - neutral[rows]).reshape(
             -1, basis.shape[0]
         )
-        rhs = basis.T @ target.T
-        block = cho_solve((lower, True), rhs).T
-        for i in np.flatnonzero(((block < 0) | (block > 1)).any(axis=1)):  # outside [0, 1]: bounded
-            reduced = solve_triangular(lower, rhs[:, i], lower=True)
+        with np.errstate(invalid="ignore"):  # a frame holding NaN/inf: marked by the caller
+            rhs = basis.T @ target.T
+        block = cho_solve((lower, True), rhs, check_finite=False).T
+        finite = np.isfinite(block).all(axis=1)  # else a used vertex holds NaN/inf: the frame's weights too
+        for i in np.flatnonzero(finite & ((block < 0) | (block > 1)).any(axis=1)):  # outside [0, 1]: bounded
+            reduced = solve_triangular(lower, rhs[:, i], lower=True, check_finite=False)
             block[i] = lsq_linear(lower.T, reduced, bounds=(0, 1), method="bvls").x
         weights[start : start + block.shape[0]] = block
-        moved += float((target**2).sum())
-        left += float(((block @ basis.T - target) ** 2).sum())
+        moved += float((target[finite] ** 2).sum())
+        left += float(((block[finite] @ basis.T - target[finite]) ** 2).sum())
     return weights, math.sqrt(left / moved) if moved > 0 else 0.0
 
 
@@ -242,10 +263,12 @@ def _config(root: Path) -> dict:
         path = folder / A2F_CONFIG
         if not path.is_file():
             continue
-        try:
-            tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-        except (SyntaxError, UnicodeDecodeError, ValueError) as exc:
+        try:  # bytes: Python's own reading of a source file (UTF-8, or the encoding its first lines declare)
+            tree = ast.parse(path.read_bytes(), str(path))
+        except (SyntaxError, UnicodeDecodeError, ValueError, OSError) as exc:
             raise InputError(f"not a readable Python config ({exc})", path) from None
+        except (RecursionError, MemoryError):  # an expression nested deeper than Python's parser goes
+            raise InputError("not a readable Python config (nested too deeply to parse)", path) from None
         settings = {}
         for node in tree.body:
             if (
