@@ -32,6 +32,7 @@ from .npz import NPZ_ERRORS, npz_array, npz_headers, open_npz
 from .paired import NoFrameRate, channel_name, exact_rate, note_length_mismatch, string_names
 from .take import MAX_FPS, FrameStatus, Take, TakeMeta, safe_id, source_file
 from .transfer_litter import is_litter
+from .vertex_cache import read_vertex_cache
 
 # The parts of an Audio2Face-3D training dataset (one actor's folder).
 A2F_AUDIO = "audio"
@@ -105,19 +106,13 @@ def read_a2f_shot(source: Path, fps: float | None = None, audio: str | Path | No
     """One shot of an Audio2Face-3D training dataset (``source``: its skin cache) as a take: blendshape
     weights solved from its vertex positions against the actor's ``bs_data/bs_skin.npz``, with
     ``audio/<shot>.wav`` (or ``audio``) from its start, frame ``i`` at ``i / fps`` (``fps``: else the
-    config's ``CACHE_FPS``, else the standard rate the frames fill the audio at). Maya and ``.pc2``
-    caches, and a dataset without a blendshape setup, are one-line errors saying what is missing."""
+    config's ``CACHE_FPS``, else the standard rate the frames fill the audio at). The cache is a ``.npy``,
+    a ``.pc2`` or a Maya cache (its ``.xml``, or the shot's folder holding it); a dataset without a
+    blendshape setup is a one-line error saying what is missing."""
     root = a2f_root(source)
     if root is None:
         raise InputError("not in the cache/skin folder of an Audio2Face-3D training dataset", source)
     shot = source.stem if source.is_file() else source.name
-    if source.suffix.lower() != ".npy":
-        kind = "a .pc2 point cache" if source.suffix.lower() == ".pc2" else "a Maya cache (.xml + .mc)"
-        raise InputError(
-            f"an Audio2Face-3D training shot as {kind} of vertex positions, which is not read: export its "
-            "skin cache as .npy (frames x vertices x 3)",
-            source,
-        )
     setup = root.joinpath(*A2F_SETUP)
     if not setup.is_file():
         raise InputError(
@@ -129,7 +124,7 @@ def read_a2f_shot(source: Path, fps: float | None = None, audio: str | Path | No
     if not audio_path.is_file():
         raise InputError(f"no {A2F_AUDIO}/{shot}.wav for this shot in its dataset", source)
     names, neutral, deltas, rows = _skin_setup(setup)
-    frames = _skin_cache(source, neutral.shape[0], setup)
+    frames, cache_files = _skin_cache(source, neutral.shape[0], setup)
     weights, residual = solve_weights(frames, neutral, deltas, rows)
     config = _config(root)
     notes: list[dict] = []
@@ -139,7 +134,7 @@ def read_a2f_shot(source: Path, fps: float | None = None, audio: str | Path | No
         source_kind="paired_matrix",
         fps=rate,
         channels=[channel_name(n) for n in names],
-        sources=[source_file(source, "matrix"), source_file(setup, "blendshape_setup")],
+        sources=[*(source_file(p, "matrix") for p in cache_files), source_file(setup, "blendshape_setup")],
     )
     emotions = config.get("SHOT_EMOTION_NAMES")
     emotions = emotions if isinstance(emotions, (list, tuple)) else CLAIRE_EMOTIONS
@@ -210,19 +205,24 @@ def _skin_setup(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarr
     return names, neutral, deltas, rows
 
 
-def _skin_cache(path: Path, vertices: int, setup: Path) -> np.ndarray:
-    """A shot's vertex positions (frames x vertices x 3, mapped from the file, not read whole)."""
-    try:
-        frames = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"not a numeric .npy array ({exc})", path) from None
+def _skin_cache(path: Path, vertices: int, setup: Path) -> tuple[np.ndarray, list[Path]]:
+    """A shot's vertex positions (frames x vertices x 3; a ``.npy`` mapped from the file, not read whole)
+    and the files they were read from (a Maya cache: its ``.xml`` and one-file data)."""
+    if path.is_dir() or path.suffix.lower() != ".npy":  # a Maya cache (.xml + .mc/.mcx) or a .pc2
+        cache = read_vertex_cache(path, vertices)
+        frames, files = cache.frames, [cache.path, *([cache.data] if cache.data else [])]
+    else:
+        try:
+            frames, files = np.load(path, mmap_mode="r", allow_pickle=False), [path]
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"not a numeric .npy array ({exc})", path) from None
     if frames.ndim != 3 or frames.shape[2] != 3 or frames.dtype.kind not in "fiu" or not frames.shape[0]:
         raise InputError(f"holds {frames.shape} {frames.dtype}, not frames x vertices x 3", path)
     if frames.shape[1] != vertices:
         raise InputError(
             f"{frames.shape[1]} vertices, the blendshape setup ({setup.name}) {vertices}: another mesh", path
         )
-    return frames
+    return frames, files
 
 
 def solve_weights(

@@ -126,7 +126,7 @@ def test_an_audio2face_3d_training_dataset_imports_aligns_and_builds(samples, tm
 
 
 def test_vertex_caches_without_a_blendshape_setup_say_what_is_missing(samples, tmp_path):
-    """Shots with no blendshape setup to solve weights from, and a Maya cache, are each one line saying
+    """Shots with no blendshape setup to solve weights from, a Maya cache's too, are each one line saying
     what is missing (old: "no Live Link Face CSV or take folder" for the whole folder)."""
     actor, _ = make_a2f_dataset(tmp_path / "a2f", setup=False)
     maya = actor / "cache" / "skin" / "cp50_fear"
@@ -139,7 +139,7 @@ def test_vertex_caches_without_a_blendshape_setup_say_what_is_missing(samples, t
     assert len(errors) == len(SHOTS) + 1
     assert all("no blendshape setup (bs_data/bs_skin.npz)" in line for line in errors if ".npy:" in line)
     (maya_error,) = [line for line in errors if "cp50_fear:" in line]
-    assert "Maya cache (.xml + .mc)" in maya_error and "export its skin cache as .npy" in maya_error
+    assert "no blendshape setup (bs_data/bs_skin.npz)" in maya_error
     assert not any((tmp_path / "takes").iterdir())
 
 
@@ -211,3 +211,33 @@ def test_neurosync_audio_features_named_alone_is_a_one_line_error(samples, tmp_p
     assert proc.stderr.strip().endswith(
         "NeuroSync's audio features (69 a frame, its trainer's cache of the audio), not face weights"
     )
+
+
+def test_maya_and_pc2_skin_caches_import_as_the_npy_ones(samples, tmp_path):
+    """The Claire dataset's layout (``cache/skin/<shot>/<shot>.xml`` + ``.mc``), a Maya cache of a file a
+    frame in doubles (``.mcx``), and a ``.pc2``: the same weights as the ``.npy`` they were made from (was:
+    one line saying to export ``.npy``); a cut ``.mc`` is one line naming it."""
+    from test_mayacache_s29 import write_maya_cache, write_pc2
+
+    actor, made = make_a2f_dataset(tmp_path / "a2f")
+    skin = actor / "cache" / "skin"
+    layouts = {SHOTS[0]: (False, False, False), SHOTS[2]: (True, True, True)}
+    for shot, (wide, double, per_frame) in layouts.items():
+        frames = np.load(skin / f"{shot}.npy")
+        (skin / f"{shot}.npy").unlink()
+        write_maya_cache(skin / shot, shot, frames, wide=wide, double=double, per_frame=per_frame)
+    write_pc2(skin / f"{SHOTS[3]}.pc2", np.load(skin / f"{SHOTS[3]}.npy"))
+    (skin / f"{SHOTS[3]}.npy").unlink()
+    proc = run_cli("capture", "import", actor, "-o", tmp_path / "takes")
+    assert proc.returncode == 0, proc.stderr
+    for shot in (SHOTS[0], SHOTS[2], SHOTS[3]):
+        take = read_take(tmp_path / "takes" / shot)
+        assert take.meta.fps == FPS and np.abs(take.values - made[shot]).max() < 1e-3
+    names = [Path(f["path"]).name for f in _meta(tmp_path / "takes" / SHOTS[0])["sources"]]
+    assert f"{SHOTS[0]}.xml" in names and f"{SHOTS[0]}.mc" in names
+    data = skin / SHOTS[0] / f"{SHOTS[0]}.mc"
+    data.write_bytes(data.read_bytes()[:-100])
+    proc = run_cli("capture", "import", actor, "-o", tmp_path / "again")
+    errors = [line for line in proc.stderr.splitlines() if ": error: " in line]
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert len(errors) == 1 and f"{SHOTS[0]}.mc" in errors[0], errors
