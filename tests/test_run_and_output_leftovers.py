@@ -237,7 +237,7 @@ def test_a_raw_take_that_fails_after_the_build_aligned_it_is_named_as_the_user_g
     assert proc.returncode == 1
     line = proc.stderr.strip().splitlines()[-1]
     given = (tmp_path / "takes" / "t0").resolve()
-    assert line.startswith(f"s2a-dataset: error: {given}: audio holds a sample of 4.98e+03 at 0.500 s"), line
+    assert line.startswith(f"s2a-dataset: error: {given}: audio holds a sample of 4983 at 0.500 s"), line
     assert ".work" not in line
 
 
