@@ -87,6 +87,31 @@ class Listener:
         self.proc.communicate(timeout=30)
 
 
+def ipv6_loopback() -> bool:
+    """Whether this machine can bind ::1 (some CI containers have no IPv6)."""
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as s:
+            s.bind(("::1", 0))
+        return True
+    except OSError:
+        return False
+
+
+def record_phone(out: Path, frames, **phone) -> tuple[list[dict], str, int, Path]:
+    """``listen --phone`` into ``out`` of a simulated realtime phone (``SimulatedPhone(frames, **phone)``)
+    until every frame it sent is logged: the listener's summaries, stderr, exit code and session folder."""
+    from capture.simulate.cps_phone import SimulatedPhone
+
+    with SimulatedPhone(frames, **phone) as sim:
+        listener = Listener(out, "--phone", "{}:{}".format(*sim.start()))
+        try:
+            wait_until(sim.finished, "all frames sent")
+            wait_for_logged_frames(listener.session_dir, frames.frame_number.size)
+        finally:
+            summaries, err, code = listener.stop()
+    return summaries, err, code, listener.session_dir
+
+
 def wait_for_logged_frames(session_dir: Path, frames: int, timeout: float = 60.0) -> None:
     """Wait until the frames log of a recording session holds ``frames`` frame records (a listener
     writes them a moment after they arrive: on a loaded machine, longer)."""

@@ -17,7 +17,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_helpers import Listener, _raw_line, synthetic_take, wait_for_logged_frames, wait_until
+from live_helpers import (
+    Listener,
+    _raw_line,
+    ipv6_loopback,
+    record_phone,
+    synthetic_take,
+    wait_for_logged_frames,
+    wait_until,
+)
 
 from capture.livelink import FRAME_BLOCK_BYTES, MAX_PACKET_BYTES, header_bytes
 from capture.realtime_packet import CLASSIC_NAME_BYTES, classic_names, head_channels
@@ -61,15 +69,6 @@ def _seconds_to_stop(listener: Listener) -> tuple[float, list[dict], str]:
     return time.monotonic() - began, summaries, err
 
 
-def _ipv6_loopback() -> bool:
-    try:
-        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as s:
-            s.bind(("::1", 0))
-        return True
-    except OSError:
-        return False
-
-
 def _own_hosts_file(tmp_path: Path, line: str) -> list[str] | None:
     """A command prefix that runs a command with ``line`` as its /etc/hosts (a mount namespace of its own:
     the machine's file is not touched); None where that is not allowed (not root, no unshare)."""
@@ -86,7 +85,7 @@ def _own_hosts_file(tmp_path: Path, line: str) -> list[str] | None:
 def test_a_phone_named_by_a_name_that_resolves_to_ipv6_only_is_recorded(tmp_path):
     # Old: the relay bound 0.0.0.0 unless --phone had a colon in it; a name whose address is IPv6 made a
     # control session over IPv6, the phone streamed to ::1, and nothing was recorded (no take).
-    if not _ipv6_loopback():
+    if not ipv6_loopback():
         pytest.skip("no IPv6 loopback here")
     wrap = _own_hosts_file(tmp_path, "::1 phone-v6-only")
     if wrap is None:
@@ -107,7 +106,7 @@ def test_a_phone_given_by_an_ipv4_mapped_address_is_recorded_on_a_dual_stack_soc
     # --phone [::ffff:127.0.0.1]:PORT: the control session's peer is "::ffff:127.0.0.1", the packets come
     # to the dual-stack socket (--bind ::) from the phone's IPv4 address, also "::ffff:127.0.0.1", which the
     # relay compared as "127.0.0.1". Old: every packet realtime_not_allowed, no take.
-    if not _ipv6_loopback():
+    if not ipv6_loopback():
         pytest.skip("no IPv6 here")
     with SimulatedPhone(RealtimeFrames.of_take(synthetic_take(60))) as phone:
         _, port = phone.start()
@@ -191,19 +190,13 @@ def test_a_device_id_and_subject_too_long_for_a_classic_packet_are_shortened_wit
     # the 1024 bytes a classic packet may be. Old: all rejected as oversized, no take.
     device, subject = "D" * 900 + "-phone-1", "Subject " * 12
     frames = RealtimeFrames.of_take(synthetic_take(60))
-    with SimulatedPhone(frames, device=device, subject=subject) as phone:
-        listener = Listener(tmp_path / "out", "--phone", "{}:{}".format(*phone.start()))
-        try:
-            wait_until(phone.finished, "all frames sent")
-            wait_for_logged_frames(listener.session_dir, 60)
-        finally:
-            summaries, err, code = listener.stop()
+    summaries, err, code, session = record_phone(tmp_path / "out", frames, device=device, subject=subject)
     assert code == 0 and "Traceback" not in err, err
     short_device, short_subject = classic_names(device, subject)
     (summary,) = summaries
     assert summary["valid_frames"] == 60 and summary["rejected"] == {}
     assert (summary["device"], summary["subject"]) == (short_device, short_subject)
-    records = LogReader(listener.session_dir / "frames.log")
+    records = LogReader(session / "frames.log")
     notes = [json.loads(bytes(p[1:])) for p in records if p[0] == RecordType.NOTE]
     (note,) = [n for n in notes if n.get("kind") == "phone_names_shortened"]
     assert note["message"] in err and err.count("a classic packet holds") == 1

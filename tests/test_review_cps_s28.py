@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 import pytest
-from live_helpers import Listener, synthetic_take, wait_for_logged_frames, wait_until
+from live_helpers import Listener, ipv6_loopback, synthetic_take, wait_for_logged_frames, wait_until
 
 from capture import cps_control as cps
 from capture.realtime_packet import decode_realtime_packet, encode_realtime_packet
@@ -182,16 +182,7 @@ def test_updates_and_answers_to_other_transactions_before_the_answer_are_passed_
     assert client.session_id == "S1"
 
 
-def _ipv6_loopback() -> bool:
-    try:
-        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as s:
-            s.bind(("::1", 0))
-        return True
-    except OSError:
-        return False
-
-
-@pytest.mark.skipif(not _ipv6_loopback(), reason="no IPv6 loopback here")
+@pytest.mark.skipif(not ipv6_loopback(), reason="no IPv6 loopback here")
 def test_a_phone_given_by_its_ipv6_address_is_recorded_without_bind(tmp_path):
     # The phone streams to this computer's address as its control connection sees it: for a phone given by
     # an IPv6 address, an IPv6 one. Old: --bind defaulted to 0.0.0.0 (IPv4 only), so none of its packets

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from live_helpers import Listener, _raw_line, synthetic_take, wait_for_logged_frames, wait_until
+from live_helpers import _raw_line, record_phone, synthetic_take, wait_for_logged_frames, wait_until
 
 from capture import cps_control as cps
 from capture.record_log import LogReader, RecordType
@@ -26,13 +26,9 @@ def test_a_device_id_and_subject_with_a_lone_surrogate_are_recorded_under_their_
     # The phone's JSON may hold "\ud800", which reads as a lone surrogate: no UTF-8 text, so no classic
     # packet's name. Old: a traceback in the relay thread at the first packet, no take.
     frames = RealtimeFrames.of_take(synthetic_take(60))
-    with SimulatedPhone(frames, device="\ud800-phone", subject="Ann\udfff") as phone:
-        listener = Listener(tmp_path / "out", "--phone", "{}:{}".format(*phone.start()))
-        try:
-            wait_until(phone.finished, "all frames sent")
-            wait_for_logged_frames(listener.session_dir, 60)
-        finally:
-            summaries, err, code = listener.stop()
+    summaries, err, code, session = record_phone(
+        tmp_path / "out", frames, device="\ud800-phone", subject="Ann\udfff"
+    )
     assert code == 0 and "Traceback" not in err, err
     (summary,) = summaries
     # as the takes of a MetaHuman Animator subject, logged with its own controls, name them
@@ -97,19 +93,13 @@ def test_only_the_name_too_long_for_a_classic_packet_is_cut_and_the_line_says_wh
     # then the line said both were cut ("name them cut to fit, each ended by").
     subject = "Sprecherin " * 80
     frames = RealtimeFrames.of_take(synthetic_take(60))
-    with SimulatedPhone(frames, device="phone-1", subject=subject) as phone:
-        listener = Listener(tmp_path / "out", "--phone", "{}:{}".format(*phone.start()))
-        try:
-            wait_until(phone.finished, "all frames sent")
-            wait_for_logged_frames(listener.session_dir, 60)
-        finally:
-            summaries, err, code = listener.stop()
+    summaries, err, code, session = record_phone(tmp_path / "out", frames, device="phone-1", subject=subject)
     assert code == 0 and "Traceback" not in err, err
     (summary,) = summaries
     assert summary["valid_frames"] == 60 and summary["device"] == "phone-1"
     assert summary["subject"].endswith("~" + hashlib.sha1(subject.encode()).hexdigest()[:8])
     assert subject.startswith(summary["subject"][:-9])
-    records = LogReader(listener.session_dir / "frames.log")
+    records = LogReader(session / "frames.log")
     notes = [json.loads(bytes(p[1:])) for p in records if p[0] == RecordType.NOTE]
     (note,) = [n for n in notes if n.get("kind") == "phone_names_shortened"]
     assert "the takes name the subject name cut to fit, ended by '~'" in note["message"]
