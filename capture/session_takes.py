@@ -1335,6 +1335,14 @@ def _burst(frame_time: np.ndarray, arrival_s: np.ndarray, pace: float) -> bool:
     return _run_through(frame_time) > BURST_PACE * pace * _run_through(arrival_s)
 
 
+def _sent_in_order(frame_time: np.ndarray, arrival_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The frame times and arrivals of packets (arrival order) but those behind a frame that came before
+    them: a burst the network held back comes after frames sent after it, and its own packets, coming at
+    once, would make the packets around it look a burst too."""
+    keep = frame_time >= np.maximum.accumulate(frame_time)
+    return frame_time[keep], arrival_s[keep]
+
+
 def _undo_steps_back(
     frame_time: np.ndarray, arrival_s: np.ndarray, period: float, copy: np.ndarray | None = None
 ) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
@@ -1360,7 +1368,8 @@ def _undo_steps_back(
     network flushed out of order moves both, but the arrivals for the flush only; and where the frames
     after it came at the recording's pace, not ``BURST_PACE`` times as fast: a burst the network held back,
     however long, came at once (unless the packets ``STEP_SIDE_S`` of arrivals later are still as late and
-    come at the recording's pace: a Wi-Fi burst right after a step; a second burst held back tells nothing).
+    come at the recording's pace, the burst's own packets among them left out (``_sent_in_order``): a Wi-Fi
+    burst right after a step; a second burst held back tells nothing).
     A packet is of the clock after the step when it arrived after it (next to it: half the step later than
     the fastest before it; a packet of the clock before it as late as that is taken for one after it),
     unless its frame time lies below where the clock after the step resumed (the start of the run of frame
@@ -1428,7 +1437,8 @@ def _undo_steps_back(
             if on + width > n or arrival_s[on + width - 1] > arrival_s[at] + 3 * STEP_SIDE_S:
                 continue
             still_late = after[on] - before[at] >= step / 2
-            if not still_late or _burst(frame_time[on : on + width], arrival_s[on : on + width], pace):
+            next_side = slice(on, on + width)
+            if not still_late or _burst(*_sent_in_order(frame_time[next_side], arrival_s[next_side]), pace):
                 continue
         zone = slice(max(at - width, done), at + width)
         later = np.zeros(n, bool)
