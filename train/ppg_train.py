@@ -42,6 +42,7 @@ import csv
 import json
 import math
 import os
+import stat
 import tempfile
 from collections import Counter
 from collections.abc import Callable
@@ -79,6 +80,19 @@ UNPLACED = "spn"  # segment label of speech the aligner did not place (spoken no
 MAUS_TIER = "MAU"  # WebMAUS's phone tier (SAMPA), read when a TextGrid has no phones tier
 MFA_CSV_HEADER = ["begin", "end", "label", "type", "speaker"]  # mfa align --output_format csv
 NOT_READ = {".phn": "TIMIT .phn", ".eaf": "ELAN .eaf"}  # alignments of formats not read: skipped, said
+# An utterance aligned in several formats (MFA's TextGrids and its JSON export of the same run) is read from
+# the first of these (suffixes in any case); its other alignments are passed over, said in one line per pair
+# of formats. Within one format, the first file in sorted path order wins.
+FORMAT_PREFERENCE = (
+    "TextGrid",
+    "MFA JSON",
+    "MFA CSV",
+    "BAS Partitur",
+    "Gentle JSON",
+    "the toolkit's JSON",
+    "Kaldi CTM",
+)
+MFA_SNAP_S = 0.02  # MFA's JSON/CSV writers move every end within 2 frames (of 10 ms) of the file's end to it
 FORMATS_READ = (
     "read: Praat TextGrids with a 'phones', MFA '<speaker> - phones' or WebMAUS 'MAU' tier; the toolkit's, "
     "Gentle's and MFA's JSON; MFA's CSV; Kaldi CTM; BAS Partitur .par"
@@ -359,9 +373,10 @@ def _is_mfa_json(data: dict) -> bool:
     )
 
 
-def _mfa_json_grid(data: dict, path: Path) -> TextGrid:
+def _mfa_json_grid(data: dict, path: Path) -> tuple[TextGrid, int]:
     """The grid of MFA's JSON (``mfa align --output_format json``): ``{"start", "end", "tiers": {name:
-    {"type": "interval", "entries": [[start, end, label], ...]}}}``, tiers named as in its TextGrids."""
+    {"type": "interval", "entries": [[start, end, label], ...]}}}``, tiers named as in its
+    TextGrids; and how many phones were mended (``_unsnapped``)."""
     tiers: dict[str, Segments] = {}
     for name, tier in data["tiers"].items():
         entries = tier.get("entries") if isinstance(tier, dict) else None
@@ -376,23 +391,56 @@ def _mfa_json_grid(data: dict, path: Path) -> TextGrid:
                 raise InputError(f"{where}: expected [start, end, label], found {_show(entry)}", path)
             a, b = _seconds(entry[0], f"{where}: start", path), _seconds(entry[1], f"{where}: end", path)
             tiers[name].append((a, b, entry[2]))
-        if name == "phones" or name.endswith(" - phones"):  # the tiers read (words' times are not checked)
-            _check_segments(tiers[name], [f"tier {name!r} entry {k}" for k in range(len(entries))], path)
     start = _seconds(data.get("start", 0), "'start'", path)
-    return _grid_of(tiers, start, _seconds(data["end"], "'end'", path) if "end" in data else None, path)
+    end = _seconds(data["end"], "'end'", path) if "end" in data else None
+    unsnapped = 0
+    for name in tiers:
+        if name == "phones" or name.endswith(" - phones"):  # the tiers read (words' times are not checked)
+            tiers[name], n = _unsnapped(tiers[name], end)
+            unsnapped += n
+            _check_segments(tiers[name], [f"tier {name!r} entry {k}" for k in range(len(tiers[name]))], path)
+    return _grid_of(tiers, start, end, path), unsnapped
 
 
-def _is_mfa_csv(path: Path) -> bool:
+def _unsnapped(segs: Segments, end: float | None) -> tuple[Segments, int]:
+    """MFA's phones as its TextGrid writer leaves them, and how many were mended: its JSON and CSV writers
+    move the end of every interval within ``MFA_SNAP_S`` of the file's end (``end``; None: the last end) to
+    that end, its TextGrid writer only the last interval's, so a phone before a last phone shorter than
+    that overlaps it. Such a phone ends again where the next begins."""
+    end = max((b for _, b, _ in segs), default=0.0) if end is None else end
+    segs, mended = list(segs), 0
+    order = sorted(range(len(segs)), key=lambda k: segs[k][0])
+    for k, j in zip(order, order[1:]):
+        a, b, label = segs[k]
+        begin = segs[j][0]
+        if abs(b - end) < 1e-6 and a < begin < b and end - begin < MFA_SNAP_S + 1e-6:
+            segs[k] = (a, begin, label)
+            mended += 1
+    return segs, mended
+
+
+def _is_mfa_csv(path: Path) -> bool | str:
     """Whether a CSV file starts with the header of MFA's (``Begin,End,Label,Type,Speaker``); other CSV
-    (a Live Link Face take's) is no alignment."""
-    with open(path, "rb") as f:
-        head = f.read(200).decode("utf-8-sig", errors="replace").splitlines()
+    (a Live Link Face take's) is no alignment. A CSV that cannot be read (no permission, a dangling link,
+    a folder or a FIFO of that name: opened without waiting for a writer) is why, as text."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    with open(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return "not a regular file"
+        try:
+            head = f.read(200).decode("utf-8-sig", errors="replace").splitlines()
+        except OSError as exc:
+            return exc.strerror or str(exc)
     return bool(head) and [c.strip().lower() for c in head[0].split(",")] == MFA_CSV_HEADER
 
 
-def _mfa_csv_grid(path: Path) -> TextGrid:
+def _mfa_csv_grid(path: Path) -> tuple[TextGrid, int]:
     """The grid of MFA's CSV (``mfa align --output_format csv``: a row per word and phone, ``Type``
-    ``words`` or ``phones``): a ``phones`` tier, or ``<speaker> - phones`` for each of several speakers."""
+    ``words`` or ``phones``): a ``phones`` tier, or ``<speaker> - phones`` for each of several speakers; and
+    how many phones were mended (``_unsnapped``)."""
     by_speaker: dict[str, Segments] = {}
     lines: dict[str, list[str]] = {}  # each speaker's phones' line numbers, to name them in messages
     rows = csv.reader(read_text(path).splitlines())
@@ -409,12 +457,14 @@ def _mfa_csv_grid(path: Path) -> TextGrid:
         )
         by_speaker.setdefault(row[4], []).append((a, b, row[2]))
         lines.setdefault(row[4], []).append(f"line {number}")
+    end, unsnapped = max((b for segs in by_speaker.values() for _, b, _ in segs), default=0.0), 0
     for speaker, segs in by_speaker.items():
-        _check_segments(segs, lines[speaker], path)
+        by_speaker[speaker], n = _unsnapped(segs, end)
+        unsnapped += n
+        _check_segments(by_speaker[speaker], lines[speaker], path)
     several = len(by_speaker) > 1
-    return _grid_of(
-        {f"{s} - phones" if several else "phones": segs for s, segs in by_speaker.items()}, 0.0, None, path
-    )
+    tiers = {f"{s} - phones" if several else "phones": segs for s, segs in by_speaker.items()}
+    return _grid_of(tiers, 0.0, None, path), unsnapped
 
 
 def _number_or_text(text: str) -> object:
@@ -488,25 +538,35 @@ def _textgrid_segments(path: Path, warnings: list[str]) -> Segments:
 def find_alignments(
     paths: list[str | Path], warnings: list[str] | None = None
 ) -> list[tuple[Path, Segments]]:
-    """(audio file, phone segments in seconds) for every aligned utterance under ``paths``. Files given
-    twice (also through a folder and a file in it) are read once; ``warnings`` collects what is skipped."""
+    """(audio file, phone segments in seconds) for every aligned utterance under ``paths``, in the order
+    first found. Files given twice (also through a folder and a file in it) are read once; an utterance
+    aligned twice is read from the alignment of the first format in ``FORMAT_PREFERENCE``; ``warnings``
+    collects what is skipped or mended."""
     warnings = [] if warnings is None else warnings
-    found: list[tuple[Path, Segments]] = []
+    found: dict[Path, tuple[Path, Segments, Path, str]] = {}  # by audio: (audio, segments, source, format)
     seen_files: set[Path] = set()
-    seen_audio: dict[Path, Path] = {}
     repeated = 0
     litter = Litter()
     not_read: dict[str, list[Path]] = {}  # files of a format not read, by suffix: one line per format
+    passed: dict[Path, list[tuple[Path, str]]] = {}  # by audio: (source, format) of alignments passed over
+    unsnapped: list[tuple[Path, int]] = []  # MFA JSON/CSV files with phones mended, and how many
 
-    def add(audio: Path, segs: Segments, source: Path) -> None:
-        key = audio.resolve()
-        if key in seen_audio:
-            warnings.append(
-                f"{audio}: already aligned by {seen_audio[key]}; the alignment in {source} is skipped"
-            )
+    def add(audio: Path, segs: Segments, source: Path, form: str) -> None:
+        key, new = audio.resolve(), (audio, segs, source, form)
+        if key not in found:
+            found[key] = new
             return
-        seen_audio[key] = source
-        found.append((audio, segs))
+        kept, over = found[key], new  # ties: the first found (in sorted path order) is kept
+        if FORMAT_PREFERENCE.index(form) < FORMAT_PREFERENCE.index(kept[3]):
+            kept, over = over, kept
+        found[key] = kept  # in the place of the first found: the held-out utterances stay where they were
+        passed.setdefault(key, []).append((over[2], over[3]))
+
+    def mfa(grid_and_mended: tuple[TextGrid, int], f: Path, form: str) -> None:
+        grid, mended = grid_and_mended
+        if mended:
+            unsnapped.append((f, mended))
+        add(_audio_beside(f), _grid_segments(grid, f, warnings), f, form)
 
     for p in map(Path, paths):
         if not p.exists():
@@ -519,23 +579,29 @@ def find_alignments(
             if kind in NOT_READ:
                 not_read.setdefault(kind, []).append(f)
                 continue
-            if kind not in (".textgrid", ".json", ".ctm", ".par", ".csv") or (
-                kind == ".csv" and not _is_mfa_csv(f)
-            ):
+            if kind not in (".textgrid", ".json", ".ctm", ".par", ".csv"):
                 continue
+            if kind == ".csv":
+                mfa_csv = _is_mfa_csv(f)
+                if isinstance(mfa_csv, str):  # a take's CSV, say, that cannot be read: never the run's end
+                    warnings.append(
+                        f"{f}: cannot be read ({mfa_csv}) to tell whether it is MFA's CSV: passed over"
+                    )
+                if mfa_csv is not True:
+                    continue
             if f.resolve() in seen_files:
                 repeated += 1
                 continue
             seen_files.add(f.resolve())
             if kind == ".textgrid":
-                add(_audio_beside(f), _textgrid_segments(f, warnings), f)
+                add(_audio_beside(f), _textgrid_segments(f, warnings), f, "TextGrid")
                 continue
             if kind == ".csv":
-                add(_audio_beside(f), _grid_segments(_mfa_csv_grid(f), f, warnings), f)
+                mfa(_mfa_csv_grid(f), f, "MFA CSV")
                 continue
             if kind == ".ctm":
                 for audio, segs in _ctm_utterances(f, warnings):
-                    add(audio, segs, f)
+                    add(audio, segs, f, "Kaldi CTM")
                 continue
             if kind == ".par":
                 segs = [(a, b, sampa_to_ipa(x)) for a, b, x in read_maus_phones(f)]
@@ -543,7 +609,7 @@ def find_alignments(
                     warnings.append(f"{f}: no MAU tier (a BAS Partitur's phone segmentation): skipped")
                     continue
                 _check_segments(segs, [f"MAU segment {k + 1}" for k in range(len(segs))], f)
-                add(_audio_beside(f), segs, f)
+                add(_audio_beside(f), segs, f, "BAS Partitur")
                 continue
             data, problem = _read_json(f)
             if problem is not None:  # an alignment or not, a file the user gave is never dropped silently
@@ -552,7 +618,7 @@ def find_alignments(
             if not isinstance(data, dict):
                 continue
             if _is_mfa_json(data):  # MFA's JSON for the audio beside it
-                add(_audio_beside(f), _grid_segments(_mfa_json_grid(data, f), f, warnings), f)
+                mfa(_mfa_json_grid(data, f), f, "MFA JSON")
                 continue
             if _is_gentle(data):  # Gentle's output for the audio beside it
                 segs, names, untimed = _gentle_segments(data["words"], f)
@@ -562,14 +628,14 @@ def find_alignments(
                         f"{f}: {untimed} of {len(data['words'])} words have no time (Gentle did not find "
                         "them in the audio): their stretch of audio is unknown, left out of training"
                     )
-                add(_audio_beside(f), segs, f)
+                add(_audio_beside(f), segs, f, "Gentle JSON")
                 continue
             for stem, utt in data.items():
                 if not (isinstance(utt, dict) and "words" in utt):
                     continue
                 segs, names = _json_segments(utt["words"], stem, f)
                 _check_segments(segs, names, f)
-                add(_utterance_audio(f, stem), segs, f)
+                add(_utterance_audio(f, stem), segs, f, "the toolkit's JSON")
     for kind, files in not_read.items():
         more = f" and {len(files) - 1} more" if len(files) > 1 else ""
         warnings.append(
@@ -579,11 +645,33 @@ def find_alignments(
         warnings.append(
             f"--data names {repeated} file(s) more than once (also through their folder): each is read once"
         )
+    twice: dict[tuple[str, str], list[Path]] = {}  # (format used, format passed over): sources passed over
+    for key, others in passed.items():
+        for source, form in others:
+            twice.setdefault((found[key][3], form), []).append(source)
+    for (used, over), sources in twice.items():
+        n = f"{len(sources):,} utterance{'s have' if len(sources) > 1 else ' has'}"
+        if used == over:
+            how = f"two {used} alignments: the first in path order used, the other"
+        else:
+            how = f"alignments in two formats: {used} used, {over}"
+        warnings.append(f"{n} {how} passed over (e.g. {sources[0]})")
+    if unsnapped:
+        more = (
+            f" and {len(unsnapped) - 1} more file{'s' if len(unsnapped) > 2 else ''}"
+            if len(unsnapped) > 1
+            else ""
+        )
+        warnings.append(
+            f"{unsnapped[0][0]}{more}: {sum(n for _, n in unsnapped)} phones end at the file's end over the "
+            f"last phone (MFA's JSON and CSV export moves every end within {MFA_SNAP_S * 1000:.0f} ms of the "
+            "end to it): they end where the next phone begins, as in MFA's TextGrids"
+        )
     warnings += litter.lines()
     if not found:
         skipped = f"; {warnings[-1]}" if warnings else ""  # why the one file given gave nothing
         raise InputError(f"no phone alignments found ({FORMATS_READ}){skipped}", paths[0])
-    return found
+    return [(audio, segs) for audio, segs, *_ in found.values()]
 
 
 def find_speech(paths: list[str | Path], warnings: list[str] | None = None) -> list[Path]:
