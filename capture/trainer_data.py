@@ -56,6 +56,8 @@ CLAIRE_EMOTIONS = (
 RIDGE = 1e-9
 # A solve that leaves more of the motion than this (relative rms) unexplained is said in its note.
 RESIDUAL_WARN = 0.05
+# Frames solved at a time: a block of a large mesh's frames is read from the cache, not all of them.
+SOLVE_BLOCK = 256
 
 # NeuroSync's trainer writes its audio features beside each take's CSV under this name.
 NEUROSYNC_FEATURES = "audio_features.csv"
@@ -216,6 +218,9 @@ def _skin_cache(path: Path, vertices: int, setup: Path) -> tuple[np.ndarray, lis
             frames, files = np.load(path, mmap_mode="r", allow_pickle=False), [path]
         except (ValueError, OSError, EOFError) as exc:
             raise InputError(f"not a numeric .npy array ({exc})", path) from None
+        if isinstance(frames, np.lib.npyio.NpzFile):  # a .npz archive under a .npy name
+            frames.close()
+            raise InputError("a .npz archive, not a .npy array", path)
     if frames.ndim != 3 or frames.shape[2] != 3 or frames.dtype.kind not in "fiu" or not frames.shape[0]:
         raise InputError(f"holds {frames.shape} {frames.dtype}, not frames x vertices x 3", path)
     if frames.shape[1] != vertices:
@@ -239,10 +244,9 @@ def solve_weights(
     lower = np.linalg.cholesky(gram)  # the bounded solve of a frame works on the poses x poses factor
     weights = np.empty((frames.shape[0], deltas.shape[0]))
     moved = left = 0.0
-    for start in range(0, frames.shape[0], 256):  # a block of frames at a time: a mesh is large
-        target = (np.asarray(frames[start : start + 256][:, rows], np.float64) - neutral[rows]).reshape(
-            -1, basis.shape[0]
-        )
+    for start in range(0, frames.shape[0], SOLVE_BLOCK):
+        used = frames[start : start + SOLVE_BLOCK][:, rows]  # the used vertices of a block of frames
+        target = (np.asarray(used, np.float64) - neutral[rows]).reshape(-1, basis.shape[0])
         with np.errstate(invalid="ignore"):  # a frame holding NaN/inf: marked by the caller
             rhs = basis.T @ target.T
         block = cho_solve((lower, True), rhs, check_finite=False).T
