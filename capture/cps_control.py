@@ -240,7 +240,8 @@ def parse_subjects(body: dict[str, Any]) -> tuple[list[RemoteSubject], list[str]
 class ControlClient:
     """One control connection to the phone; requests are answered in turn (``request``). Once ``cancel``
     is set, the connecting or a request waiting for its answer fails at once (``listen`` stopped while
-    the phone is silent); ``answering`` says whether the phone answered the last request."""
+    the phone is silent); ``answering`` says whether the last request got its answer (not when the phone
+    refused it, or answered for another request or session)."""
 
     def __init__(
         self, host: str, port: int, wait_s: float = RESPONSE_WAIT_S, cancel: threading.Event | None = None
@@ -382,8 +383,8 @@ class _Streaming:
     """The subject being streamed and what its packets become."""
 
     subject: RemoteSubject
-    device: str  # the classic packets' device id and subject name (``classic_names``) for an ARKit subject
-    name: str
+    device: str  # the device id (an ARKit subject's as its classic packets carry it: ``classic_names``)
+    name: str  # the subject's name (likewise)
     mapping: ArkitMapping | None  # None: a subject logged with its own controls (``stream``)
     phone: str  # the phone's address (``unmapped``): realtime packets from elsewhere are not recorded
     stream: int = -1  # the CONTROLS records' stream id of a subject logged with its own controls

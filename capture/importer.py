@@ -301,8 +301,9 @@ class _AudioIn(NamedTuple):
     waiting: dict[Path, str]  # the placeholders of audio iCloud has not downloaded -> the file each is
     stems: dict[Path, str]  # each of these two -> the stem (``_stem``) of the file it is
     alike: dict[str, list[Path]]  # ``stems``' paths by their stem in lower case, in the folder's order
-    sources: dict[str, list[Path]]  # the CSVs and exports, by the ``audio_stem`` of each in lower case
-    no_file: dict[str, list[Path]]  # entries named as audio that are no file (a link to nothing), so
+    sources: dict[str, list[Path]]  # the CSVs and exports, by the ``audio_stem`` of each (NFC) in lower case
+    no_file: dict[str, list[Path]]  # entries named as audio that are no file (a link to nothing, a folder),
+    # by their stem (``_stem``) in lower case
 
 
 @once_per_listing
@@ -419,16 +420,11 @@ def _first_line(raw: bytes | None) -> str:
     return next((line for line in _text_start(raw).splitlines() if line.strip()), "")
 
 
-def emotion_header(head: bytes | None) -> str | None:
-    """Why a CSV whose first bytes (``_head``) are ``head`` holds emotion weights, not a face take (see
-    ``emotion_weights``), or None."""
-    return emotion_weights(header_names(_first_line(head)))
-
-
 def not_a_face_take(name: str, head: bytes | None) -> str | None:
     """Why a CSV named ``name`` whose first bytes (``_head``) are ``head`` is no face take (emotion
-    weights, NeuroSync's audio features), or None."""
-    return emotion_header(head) or neurosync_features(name, header_names(_first_line(head)))
+    weights: ``emotion_weights``; NeuroSync's audio features: ``neurosync_features``), or None."""
+    header = header_names(_first_line(head))
+    return emotion_weights(header) or neurosync_features(name, header)
 
 
 def _head(path: Path, size: int = 1 << 16) -> bytes | None:

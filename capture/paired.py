@@ -468,6 +468,19 @@ def _non_numeric(cells: list[str], column: int, header: list[str] | None, sep: s
     return f"non-numeric value in the matrix: {_show(cell)} in {where}{hint}"
 
 
+def _other_text(line: str) -> str | None:
+    """What a text file whose first non-blank line is ``line`` holds when it is another program's text,
+    not a table of weights (iFacialMocap's stream text, a Unity YAML clip), or None."""
+    if _IFACIALMOCAP.match(line):
+        return (
+            "iFacialMocap's stream text (blendshape-value|... or blendshape&value|... on a 0..100 scale, "
+            "then =head#...)"
+        )
+    if line.startswith("%YAML"):
+        return "a YAML file (a Unity animation clip, as Unity's Face Capture records a take)"
+    return None
+
+
 def _read_csv(path: Path, notes: list[dict]) -> tuple[np.ndarray, list[str] | None, int]:
     """Values, header names (None without a header row) and, for a header of column numbers
     (0..N-1, pandas' default), N (else 0) of a CSV matrix, or of a Face Cap text export. See
@@ -476,23 +489,14 @@ def _read_csv(path: Path, notes: list[dict]) -> tuple[np.ndarray, list[str] | No
     lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not lines:
         raise InputError("matrix has no frames", path)
-    if _IFACIALMOCAP.match(lines[0][1]):
+    if (other := _other_text(lines[0][1])) is not None:
         raise InputError(
-            "iFacialMocap's stream text (blendshape-value|... or blendshape&value|... on a 0..100 scale, "
-            "then =head#...), not a table of weights, which is not read: save the weights as a CSV of a row "
-            "per frame under a header of names (and a time column)",
+            f"{other}, not a table of weights, which is not read: save the weights as a CSV of a row per "
+            "frame under a header of names (and a time column)",
             path,
             lines[0][0],
         )
-    if lines[0][1].startswith("%YAML"):
-        raise InputError(
-            "a YAML file (a Unity animation clip, as Unity's Face Capture records a take), not a table of "
-            "weights, which is not read: save the weights as a CSV of a row per frame under a header of "
-            "names (and a time column)",
-            path,
-            lines[0][0],
-        )
-    if is_face_cap("\n".join(line for _, line in lines[:3])):
+    if is_face_cap("\n".join(line for _, line in lines[:5])):  # as far as is_face_cap looks
         return _face_cap(lines, path, notes)
     sep = _delimiter([line for _, line in lines[:2]])
     decimal_comma = sep != ","

@@ -167,8 +167,9 @@ class ArkitMapping:
         self._from = np.flatnonzero(keep)
         self._to = np.array([s for s in slots if s >= 0], dtype=np.intp)
         taken = set(self._to.tolist())
-        pose = {"HeadRoll": 0, "HeadPitch": 1, "HeadYaw": 2}
-        pose_slots = [(udp_index(name), k) for name, k in pose.items() if udp_index(name) not in taken]
+        pose_slots = [
+            (udp_index(name), k) for name, k in HEAD_CHANNELS.items() if udp_index(name) not in taken
+        ]
         self._pose_to = np.array([slot for slot, _ in pose_slots], dtype=np.intp)
         self._pose_from = np.array([k for _, k in pose_slots], dtype=np.intp)
         taken |= set(self._pose_to.tolist())
