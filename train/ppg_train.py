@@ -504,7 +504,9 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
     for utt, segs in utterances.items():
         _check_segments(segs, [f"utterance {utt!r} phone {k}" for k in range(len(segs))], path)
         plain = Path(utt).name == utt and utt not in ("..", ".")  # no folder in it: the audio beside the CTM
-        matches = [p for p in (path.parent / (utt + s) for s in AUDIO_SUFFIXES) if plain and p.is_file()][:1]
+        matches = (
+            [p for p in (path.parent / (utt + s) for s in AUDIO_SUFFIXES) if p.is_file()][:1] if plain else []
+        )
         if not matches:
             if below is None:
                 below = {}
@@ -530,11 +532,6 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
     return found
 
 
-def _textgrid_segments(path: Path, warnings: list[str]) -> Segments:
-    """Phone segments of a TextGrid file (``_grid_segments``)."""
-    return _grid_segments(read_textgrid(path), path, warnings)
-
-
 def find_alignments(
     paths: list[str | Path], warnings: list[str] | None = None
 ) -> list[tuple[Path, Segments]]:
@@ -547,7 +544,8 @@ def find_alignments(
     seen_files: set[Path] = set()
     repeated = 0
     litter = Litter()
-    not_read: dict[str, list[Path]] = {}  # files of a format not read, by suffix: one line per format
+    # files of a format not read, by suffix (each file once, however often named): one line per format
+    not_read: dict[str, dict[Path, Path]] = {}
     passed: dict[Path, list[tuple[Path, str]]] = {}  # by audio: (source, format) of alignments passed over
     unsnapped: list[tuple[Path, int]] = []  # MFA JSON/CSV files with phones mended, and how many
 
@@ -577,7 +575,7 @@ def find_alignments(
         for f in files:
             kind = f.suffix.lower()
             if kind in NOT_READ:
-                not_read.setdefault(kind, []).append(f)
+                not_read.setdefault(kind, {}).setdefault(f.resolve(), f)
                 continue
             if kind not in (".textgrid", ".json", ".ctm", ".par", ".csv"):
                 continue
@@ -594,7 +592,7 @@ def find_alignments(
                 continue
             seen_files.add(f.resolve())
             if kind == ".textgrid":
-                add(_audio_beside(f), _textgrid_segments(f, warnings), f, "TextGrid")
+                add(_audio_beside(f), _grid_segments(read_textgrid(f), f, warnings), f, "TextGrid")
                 continue
             if kind == ".csv":
                 mfa(_mfa_csv_grid(f), f, "MFA CSV")
@@ -639,7 +637,8 @@ def find_alignments(
     for kind, files in not_read.items():
         more = f" and {len(files) - 1} more" if len(files) > 1 else ""
         warnings.append(
-            f"{files[0]}{more}: {NOT_READ[kind]} alignments are not read ({FORMATS_READ}): skipped"
+            f"{next(iter(files.values()))}{more}: {NOT_READ[kind]} alignments are not read ({FORMATS_READ}): "
+            "skipped"
         )
     if repeated:
         warnings.append(
