@@ -531,8 +531,9 @@ def _late_frames_of(
     ``max_behind`` behind its latest frame or in a gap of it no longer than that (``_far_behind``) or,
     when ``rec`` is the recording the clock is on (``on_clock``), going on from its frames
     (``_continuing``), and mostly fill its gaps (all of them, ``gap_only``): a frame on a slot ``rec``
-    already has (``_taken_slots``) is a frame of another recording at the same time (a restart), not a late
-    packet."""
+    already has (``_taken_slots``; with ``on_clock``, only of its frames after a small step back of its
+    clock when ``idx`` lies in a gap of them, ``_since_step_back``) is a frame of another recording at
+    the same time (a restart), not a late packet."""
     ft = frame_time[idx]
     if not ft.size:
         return True
@@ -562,12 +563,13 @@ def _late_frames_of(
 def _since_step_back(
     ft: np.ndarray, have: np.ndarray, frame_time: np.ndarray, arrival_s: np.ndarray
 ) -> np.ndarray:
-    """Of the frames ``have`` of the recording the clock is on, those whose slots frames ``ft`` (a stretch
-    the clock jumped back to) can take: all of them, unless the frames that came after the last of them in
-    ``ft``'s range fill no part of it and reach it on both sides (``_bridging``): the phone's clock stepped
-    back a little, and ``ft`` is a burst of its frames after the step that the network held back, on slots
-    of the frames before it (undone by ``_undo_steps_back``) but in a gap of those after it; only those
-    count. A restart's frames come on slots the frames that came after them still hold."""
+    """Of the frames ``have`` of the recording the clock is on, those that hold their slots against frames
+    ``ft`` (a stretch the clock jumped back to): all of them, unless the frames that came after the last
+    of them in ``ft``'s range fill no part of it and reach it on both sides (``_bridging``): the phone's
+    clock stepped back a little, and ``ft`` is a burst of its frames after the step that the network held
+    back, on slots of the frames before it (undone by ``_undo_steps_back``) but in a gap of those after
+    it; only those after it count. A restart's frames come on slots the frames that came after them still
+    hold."""
     inside = have[(frame_time[have] >= ft.min()) & (frame_time[have] <= ft.max())]
     if not inside.size:
         return have
@@ -707,11 +709,13 @@ def _place_off_clock(
         # the same clock, which stepped back a little between them (undone by ``_undo_steps_back``), not
         # another recording (a restart's clock went back further); one that came after the frame on its
         # slot is not freed, as a restart's frames amid late packets of the recording before it would be
-        apart = np.where(current[who] == c, tol, 0.0)
+        mine = current[who] == c
+        apart = np.where(mine, tol, 0.0)
         free = ~_taken_slots(off[who], have, rows, frame_time, arrival_s, apart)
-        # nor is the slot of a frame from before a small step back of its clock, in a gap of the frames
-        # after it (the first frame of a burst the network held back after the step, ``_since_step_back``)
-        for k in np.flatnonzero(~free & (current[who] == c)).tolist():
+        # and a frame of that recording is free when only frames from before a small step back of its clock
+        # hold its slot and it lies in a gap of the frames after the step (the first frame of a burst the
+        # network held back after the step, ``_since_step_back``)
+        for k in np.flatnonzero(~free & mine).tolist():
             near = rec.around(float(ft[who[k]]) - tol, float(ft[who[k]]) + tol)
             since = _since_step_back(ft[who[k : k + 1]], near, frame_time, arrival_s)
             if since is not near:
@@ -891,9 +895,10 @@ def _restarts_unmixed(
     first packets that came among the late ones of the recording before follow its clock, and late packets
     of that recording that came among the restart's first follow the restart's, each on the slot of a frame
     of the other clock with other values (one of the two would be dropped as a frame repeating a frame
-    time). Such a packet that came within ``tol`` of the restart's first packet and whose frame time has a
-    free slot in the other recording (in its range) goes to it: the later of the two on a slot of the
-    recording before, the earlier on a slot of the restart. Not for a sender ticking faster than its frame
+    time). Such a packet whose frame time has a free slot in the other recording (in its range,
+    ``_free_in``) goes to it: the later of the two on a slot of the recording before, if it came after the
+    restart's first packet or less than ``tol`` before it; the earlier on a slot of the restart, if it came
+    before that packet or less than ``tol`` after it. Not for a sender ticking faster than its frame
     clock (frames sharing a frame time a quarter of a recording's or more: spread over it)."""
     for k in range(len(recordings) - 1):
         ours, theirs = recordings[k], recordings[k + 1]
@@ -1370,6 +1375,10 @@ def _undo_steps_back(
     however long, came at once (unless the packets ``STEP_SIDE_S`` of arrivals later are still as late and
     come at the recording's pace, the burst's own packets among them left out (``_sent_in_order``): a Wi-Fi
     burst right after a step; a second burst held back tells nothing).
+    Each side of a rise is also measured over ``STEP_SIDE_S`` of arrivals (``_side_floors``): a burst the
+    network held back right after a step fills a side of packets. How far the clock stepped back is measured
+    over several sides each way, from the rise before to the next (``_step_size``; the rise itself when
+    a side has no packets).
     A packet is of the clock after the step when it arrived after it (next to it: half the step later than
     the fastest before it; a packet of the clock before it as late as that is taken for one after it),
     unless its frame time lies below where the clock after the step resumed (the start of the run of frame
@@ -1460,13 +1469,7 @@ def _undo_steps_back(
         resumed = times[breaks[-1] + 1 if breaks.size else 0]
         later &= frame_time >= resumed - period / 2
         top = int(cluster[np.argmax(rise[cluster])])
-        # from the end of the rise before to the next rise (a slower route, a burst, another step: their
-        # lateness is not this step's), not one a side from this one (heavy jitter dips a rise below
-        # BACK_STEP_S a moment)
-        since = next(
-            (int(clusters[j][-1]) for j in range(c - 1, -1, -1) if clusters[j][-1] < cluster[0] - width), 0
-        )
-        ahead = next((int(x[0]) for x in clusters[c + 1 :] if x[0] > cluster[-1] + width), n)
+        since, ahead = _between_rises(clusters, c, width, n)
         size = _step_size(behind, arrival_s, (max(done, since), at, max(top, at + width), ahead))
         shift = round((step if size is None else size) / period) * period
         moved[later] += shift
@@ -1474,6 +1477,19 @@ def _undo_steps_back(
         steps.append((float(moved[first]), shift, float(frame_time[first])))
         done = zone.stop
     return moved, steps
+
+
+def _between_rises(clusters: list[np.ndarray], c: int, width: int, n: int) -> tuple[int, int]:
+    """Where the packets around rise ``c`` of ``clusters`` (packet indices, of ``n``) that tell its step's
+    size begin and end: from the end of the rise before to the start of the next (a slower route, a
+    burst, another step: their lateness is not this step's), passing over one within ``width`` packets of
+    it (heavy jitter dips a rise below ``BACK_STEP_S`` a moment); 0 and ``n`` where there is none."""
+    cluster = clusters[c]
+    since = next(
+        (int(clusters[j][-1]) for j in range(c - 1, -1, -1) if clusters[j][-1] < cluster[0] - width), 0
+    )
+    ahead = next((int(x[0]) for x in clusters[c + 1 :] if x[0] > cluster[-1] + width), n)
+    return since, ahead
 
 
 def _on_slots(times: np.ndarray, had: np.ndarray, period: float) -> int:
