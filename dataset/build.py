@@ -983,8 +983,8 @@ def process_take(job: TakeJob) -> dict[str, Any]:
     narrow = is_narrowband(audio, sr)
     peak = max(float(audio.max(initial=0.0)), -float(audio.min(initial=0.0)))
     if peak > MAX_AUDIO_PEAK:  # no recording chain gets there: damaged samples, not a loud take
-        at = int(np.argmax(np.abs(audio))) / job.settings.sample_rate
-        shown = shown_against(peak, MAX_AUDIO_PEAK, 0) if peak < 1e6 else f"{peak:.3g}"  # 1000.4: no 1e+03
+        at = int(np.argmax(np.abs(audio))) / sr
+        shown = shown_against(peak, MAX_AUDIO_PEAK, 0) if peak < 1e6 else f"{peak:.3g}"  # 1000.4, not 1e+03
         raise InputError(
             f"audio holds a sample of {shown} at {at:.3f} s, over {MAX_AUDIO_PEAK:g} times full scale "
             "(damaged samples?): repair or re-export the audio (s2a-capture import repairs isolated ones)",

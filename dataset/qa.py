@@ -328,8 +328,8 @@ def _check_anim(anim: np.ndarray, at: str, n_channels: int) -> tuple[list[Proble
 
 def usable_values(arrays: dict[str, np.ndarray], n_channels: int) -> int:
     """How many values of a decoded sample are usable (a training loss's targets, the reader's
-    ``values``): its channel_mask's where it has one, else its mask's frames in every channel. Of a
-    sample whose channel_mask ``validate_sample`` found sound (a damaged one counts nothing)."""
+    ``values``): its channel_mask's where it has one, else its mask's frames in every channel. Only for
+    a sample whose channel_mask ``validate_sample`` found sound: ``validate`` counts none of a damaged one."""
     mask, channel_mask = arrays["mask"], arrays.get("channel_mask")
     if channel_mask is None:
         return int(np.count_nonzero(mask)) * n_channels
