@@ -12,9 +12,8 @@ floor predicts every frame as the training split's per-channel mean (from the ma
 that stores frame phones (built with a PPG), ``per_phone_class`` gives the model's and the floor's RMSE
 pooled over the frames of each articulatory class of phone, ``bilabial_closure`` the share of the
 recorded lip closures on bilabials that each keeps and ``open_vowel_opening`` the share of the recorded
-openings on open vowels (train/lipsync.py). ``rtf`` =
-seconds of model compute per second of animation, on a ~12 s utterance, batch 1, no gradient (median
-of repeated runs).
+openings on open vowels (train/lipsync.py). ``rtf`` = seconds of model compute per second of animation,
+on a ~12 s utterance, batch 1, no gradient (median of repeated runs).
 """
 
 from __future__ import annotations
@@ -36,13 +35,12 @@ from dataset.torch_dataset import ShardDataset
 
 from .checkpoint import NOT_FINITE, checkpoint_path, load_for_inference
 from .data import InputSpec, TakeSubset, normalize_features, split_keys, to_model_inputs
-from .lipsync import JAW, LipSyncTally
+from .lipsync import LipSyncTally, aperture_columns
 from .precision import infer
 from .run_dataset import leaked_takes, recorded_takes
 from .style import MEAN
 from .systems import check_sample_frames, max_frames
 
-CRUCIAL = JAW  # jawOpen and mouthClose (paper Table 1), as the lip aperture reads them
 PHONES = "phones.npy"
 LIP_FIGURES = ("per_phone_class", "bilabial_closure", "open_vowel_opening")  # by phone (train/lipsync.py)
 NO_PHONES = (
@@ -52,10 +50,10 @@ NO_PHONES = (
 
 
 def crucial_columns(channels: list[str]) -> list[int] | None:
-    """Columns of jawOpen and mouthClose, or None when the rig lacks either."""
-    lowered = [c.lower() for c in channels]
-    cols = [lowered.index(c) for c in CRUCIAL if c in lowered]
-    return cols if len(cols) == len(CRUCIAL) else None
+    """Columns of jawOpen and mouthClose (paper Table 1; the lip aperture's ``JAW``), or None when the
+    rig lacks either."""
+    columns = aperture_columns(channels)
+    return None if columns is None else columns[0]
 
 
 class ErrorTally:
@@ -341,9 +339,10 @@ def evaluate(
             neutral = None if neutral is None else neutral[picked]
         pred = animation.inverse(pred_norm, neutral)
         tally.add(pred, true, mask)
-        floor.add(np.broadcast_to(train_mean, true.shape), true, mask)
+        floor_pred = np.broadcast_to(train_mean, true.shape)
+        floor.add(floor_pred, true, mask)
         if lipsync is not None:  # every sample has its phones (RawSamples reads them)
-            lipsync.add(item["phones"], pred, np.broadcast_to(train_mean, true.shape), true, mask)
+            lipsync.add(item["phones"], pred, floor_pred, true, mask)
         if longest is None or mask.shape[0] > longest["mask"].shape[1]:
             longest = batch
     if not tally.frames:

@@ -14,9 +14,9 @@ the lower lip apart with the jaw still. Aperture = max(0, jawOpen - mouthClose) 
 mean mouthLowerDown), the lip term when the rig has all four lip channels, each weight clipped to 0..1
 first (as a rig shows a model's); 0 is closed lips. On the real Live Link Face take with its audio
 (NeuroSync test set, phones by pocketsphinx phone recognition), 12 of its 13 bilabial segments reach an
-aperture under 0.05 on the take's own frames (10 of 12 through a dataset's 60 fps frames and eval), against
-34 % of its other speech segments; the lip term matters there: jawOpen -
-mouthClose alone is under 0.05 in 72 % of the other segments (that speaker barely opens the jaw).
+aperture under 0.05 on the take's own frames (10 of 12 through a dataset's 60 fps frames and eval),
+against 34 % of its other speech segments; the lip term matters there: jawOpen - mouthClose alone is
+under 0.05 in 72 % of the other segments (that speaker barely opens the jaw).
 
 Bilabial closure: a segment is a run of consecutive frames whose phone is bilabial, widened by
 ``MARGIN_S`` on each side (the PPG's 20 ms grid: closure and acoustic boundary need not meet on one
@@ -161,10 +161,11 @@ class LipSyncTally:
         cls = np.full(ids.shape, -1, np.int64)
         cls[known] = self.class_of[ids[known]]
         true = np.asarray(true, np.float64)
+        classified = mask & (cls >= 0)  # the usable frames of a phone in some class
         for who, x in (("model", pred), ("floor", floor)):
             se = (((np.asarray(x, np.float64) - true) * 100.0) ** 2).sum(1)
-            self.se[who] += np.bincount(cls[mask & (cls >= 0)], se[mask & (cls >= 0)], len(PHONE_CLASSES))
-        self.frames += np.bincount(cls[mask & (cls >= 0)], minlength=len(PHONE_CLASSES))
+            self.se[who] += np.bincount(cls[classified], se[classified], len(PHONE_CLASSES))
+        self.frames += np.bincount(cls[classified], minlength=len(PHONE_CLASSES))
         self.unclassified += int((mask & (cls < 0)).sum())
         if self.columns is not None:
             self._segments(cls, pred, floor, true, mask)
@@ -217,7 +218,8 @@ class LipSyncTally:
             "unclassified_frames": self.unclassified,
         }
 
-    def _aperture(self) -> str:
+    def _aperture_formula(self) -> str:
+        """``APERTURE`` as this rig reads it: without the lip term when it lacks a lip channel."""
         return APERTURE if self.columns[1] else APERTURE.split(" + ")[0]
 
     def bilabial_closure(self) -> dict[str, Any] | None:
@@ -226,7 +228,7 @@ class LipSyncTally:
             return None
         return {
             **self.closure.summary("recorded_closures"),
-            "aperture": self._aperture(),
+            "aperture": self._aperture_formula(),
             "closed_at_most": CLOSED,
             "tolerance": TOLERANCE,
             "margin_frames": self.margin,
@@ -239,7 +241,7 @@ class LipSyncTally:
             return None
         return {
             **self.opening.summary("recorded_openings"),
-            "aperture": self._aperture(),
+            "aperture": self._aperture_formula(),
             "opened_at_least": OPENED,
             "margin_frames": self.margin,
         }
