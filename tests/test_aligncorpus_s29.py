@@ -87,7 +87,7 @@ def test_a_csv_fifo_is_passed_over_with_a_line_not_waited_on(tmp_path):
     _grid(tmp_path / "a.TextGrid")
     os.mkfifo(tmp_path / "pipe.csv")
     code = (
-        "import sys; from train.ppg_train import find_alignments; w = []; "
+        "import sys; from train.alignments import find_alignments; w = []; "
         "print(len(find_alignments(sys.argv[1:], w))); print(*w, sep='\\n')"
     )
     proc = subprocess.run(

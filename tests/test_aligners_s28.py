@@ -19,7 +19,7 @@ from dataset_helpers import speech_like
 from capture.errors import InputError
 from capture.textgrid import TextGrid, Tier, format_textgrid, interval_tier, read_textgrid, write_textgrid
 from dataset.phones import ARPABET, FOLDED, phone_index
-from train.ppg_train import UNKNOWN, find_alignments, frame_labels
+from train.alignments import UNKNOWN, find_alignments, frame_labels
 
 LIBRIVOX = "speech/pocketsphinx-testdata-librivox"
 

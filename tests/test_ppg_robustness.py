@@ -18,7 +18,8 @@ from dataset_helpers import speech_like
 
 from capture.errors import InputError
 from capture.textgrid import Point, TextGrid, Tier, interval_tier, write_textgrid
-from train.ppg_train import find_alignments, train_ppg
+from train.alignments import find_alignments
+from train.ppg_train import train_ppg
 
 PHONES = [(0.0, 0.3, ""), (0.3, 0.6, "AA1"), (0.6, 0.9, "S"), (0.9, 1.2, "")]
 

@@ -16,7 +16,7 @@ from dataset_helpers import speech_like
 
 from capture.textgrid import TextGrid, interval_tier, write_textgrid
 from dataset.phones import ARPABET
-from train.ppg_train import UNKNOWN, find_alignments, frame_labels
+from train.alignments import UNKNOWN, find_alignments, frame_labels
 
 LIBRIVOX = "speech/pocketsphinx-testdata-librivox"
 

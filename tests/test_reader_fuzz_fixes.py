@@ -25,10 +25,10 @@ from capture.errors import InputError
 from dataset import read_manifest
 from dataset.qa import validate
 from dataset.shards import decode_npy
+from train.alignments import find_alignments
 from train.checkpoint import load_system
 from train.config import resolve_config
 from train.fit import fit
-from train.ppg_train import find_alignments
 
 
 @pytest.fixture(scope="module")

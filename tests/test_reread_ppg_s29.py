@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from capture.errors import InputError
-from train.ppg_train import find_alignments
+from train.alignments import find_alignments
 
 
 def test_a_phn_named_twice_is_said_as_one_file(tmp_path):

@@ -17,7 +17,7 @@ from dataset_helpers import speech_like
 
 from capture.textgrid import Interval, TextGrid, Tier, interval_tier, write_textgrid
 from dataset.phones import ARPABET, phone_index
-from train.ppg_train import UNKNOWN, find_alignments, frame_labels
+from train.alignments import UNKNOWN, find_alignments, frame_labels
 
 # the phones each dictionary's meta.json lists (mfa-models, dictionary/english/*/v3.1.0/meta.json)
 MFA_V3_PHONES = {

@@ -17,8 +17,8 @@ from capture.textgrid import TextGrid, interval_tier, write_textgrid
 from dataset import BuildOptions, build_dataset, make_extractor
 from dataset.bottleneck import ARPABET
 from dataset.features import FeatureSettings, spectral_features
+from train.alignments import UNKNOWN, find_alignments, frame_labels
 from train.evaluate import evaluate
-from train.ppg_train import UNKNOWN, find_alignments, frame_labels
 
 
 @pytest.fixture(scope="module")
