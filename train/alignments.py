@@ -54,19 +54,19 @@ FORMATS_READ = (
 
 def _phone_id(label: str) -> int:
     """The frame label of a segment label: its phone, 0 for silence, UNKNOWN for any other."""
-    if _is_silence(label):
+    if is_silence(label):
         return 0
     index = phone_index(label)
     return UNKNOWN if index is None else index
 
 
-def _is_silence(label: str) -> bool:
+def is_silence(label: str) -> bool:
     """Labels aligners write for no speech: empty, SIL, SP, or fillers like +NSN+ and <sil>."""
     p = without_word_position(label).upper()
     return p in ("", "SIL", "SP") or p.startswith(("+", "<"))
 
 
-def _is_spoken_noise(label: str) -> bool:
+def is_spoken_noise(label: str) -> bool:
     """Labels aligners write for speech without phones: SPN (MFA's spoken noise or unknown word), OOV
     (Gentle's unknown word, ``oov_S``)."""
     return without_word_position(label).upper() in ("SPN", "OOV")
@@ -85,7 +85,7 @@ def _utterance_audio(alignment: Path, stem: str) -> Path:
     return _audio_beside(alignment.parent / rel)
 
 
-def _files_under(folder: Path, litter: Litter) -> list[Path]:
+def files_under(folder: Path, litter: Litter) -> list[Path]:
     """The files in and below ``folder``, sorted, less operating-system and transfer litter (``._X.wav``,
     anything under ``__MACOSX`` or ``$RECYCLE.BIN``), which is counted in ``litter``."""
     files = []
@@ -286,7 +286,7 @@ def _grid_segments(grid: TextGrid, path: Path, warnings: list[str]) -> Segments:
         _check_segments(tier_segs, tier_names, path)
         for seg, name in zip(tier_segs, tier_names):
             # one speaker's silence spans the others' speech: their phones alone are kept
-            if len(tiers) == 1 or not _is_silence(seg[2]):
+            if len(tiers) == 1 or not is_silence(seg[2]):
                 segs.append(seg)
                 names.append(name)
                 speakers.append(tier.name)
@@ -445,7 +445,7 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
         table = read_symbol_table(table_path)
         utterances = {u: [(a, b, table.get(x, x)) for a, b, x in segs] for u, segs in utterances.items()}
     spoken = [
-        x for segs in utterances.values() for *_, x in segs if not (_is_silence(x) or _is_spoken_noise(x))
+        x for segs in utterances.values() for *_, x in segs if not (is_silence(x) or is_spoken_noise(x))
     ]
     not_phones = [x for x in spoken if phone_index(x) is None]
     if 2 * len(not_phones) > len(spoken):  # a CTM of words (an ASR's output), not of phones
@@ -463,7 +463,7 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
         if not matches:
             if below is None:
                 below = {}
-                for f in _files_under(path.parent, Litter()):
+                for f in files_under(path.parent, Litter()):
                     if f.suffix in AUDIO_SUFFIXES:
                         below.setdefault(f.stem, []).append(f)
             matches = below.get(utt, [])
@@ -524,7 +524,7 @@ def find_alignments(
             raise InputError("not found", p)
         if litter.skips(p):
             continue
-        files = _files_under(p, litter) if p.is_dir() else [p]
+        files = files_under(p, litter) if p.is_dir() else [p]
         for f in files:
             kind = f.suffix.lower()
             if kind in NOT_READ:

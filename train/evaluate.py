@@ -473,7 +473,7 @@ def _lipsync_lines(r: dict[str, Any]) -> list[str]:
         for name, c in r["per_phone_class"]["classes"].items()
         if c["frames"]
     ]
-    lines = ["  by phone class, rmse/floor (frames): " + ", ".join(shown)]
+    lines = ["  by phone class, rmse/floor (frames): " + (", ".join(shown) or "no frame's phone in a class")]
     for key, label, done, segments, recorded in (
         ("bilabial_closure", "bilabial closures", "kept", "bilabial", "recorded_closures"),
         ("open_vowel_opening", "open-vowel openings", "made", "open-vowel", "recorded_openings"),

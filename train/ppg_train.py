@@ -64,11 +64,11 @@ from dataset.ppg import PocketsphinxExtractor
 from .alignments import (
     UNKNOWN,
     Segments,
-    _files_under,
-    _is_silence,
-    _is_spoken_noise,
+    files_under,
     find_alignments,
     frame_labels,
+    is_silence,
+    is_spoken_noise,
 )
 from .checkpoint import write_atomically
 
@@ -95,7 +95,7 @@ def find_speech(paths: list[str | Path], warnings: list[str] | None = None) -> l
         inside = {t.resolve() for t in takes}
         loose = [
             f
-            for f in _files_under(p, litter)
+            for f in files_under(p, litter)
             if f.suffix.lower() in SPEECH_SUFFIXES  # the audio files s2a-capture import --pair-audio pairs
             and not inside.intersection(f.resolve().parents)
         ]
@@ -121,7 +121,7 @@ def pieces_at_silences(
 ) -> list[tuple[float, float]]:
     """(start, end) s of consecutive pieces covering ``duration``, about ``piece_s`` long each, cut in
     the middle of the silence nearest each multiple (at the multiple itself when none is near)."""
-    middles = [(a + b) / 2 for a, b, label in segments if _is_silence(label)]
+    middles = [(a + b) / 2 for a, b, label in segments if is_silence(label)]
     cuts = [0.0]
     while duration - cuts[-1] > 1.5 * piece_s:
         target = cuts[-1] + piece_s
@@ -188,7 +188,7 @@ def train_ppg(
         label.strip()
         for segs in all_segments
         for *_, label in segs
-        if not (_is_silence(label) or _is_spoken_noise(label)) and phone_index(label) is None
+        if not (is_silence(label) or is_spoken_noise(label)) and phone_index(label) is None
     )
     if unknown:
         examples = ", ".join(repr(u) for u, _ in unknown.most_common(5))
