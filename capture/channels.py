@@ -219,9 +219,14 @@ EMOTION_NAMES = AUDIO2FACE_EMOTIONS + NEUROSYNC_EMOTIONS
 NEUTRAL_FACE, EMOTION_WEIGHTS = "MediaPipe's neutral-face score", "emotion weights"
 
 
+def column_key(name: str) -> str:
+    """A header name as time, frame and emotion columns are looked up: lower case, letters and digits only."""
+    return re.sub(r"[^0-9a-z]", "", name.lower())
+
+
 def _emotion(name: str) -> str:
-    """A column name as emotion names are compared: its last dotted part, lower case, letters and digits."""
-    return re.sub(r"[^0-9a-z]", "", re.split(r"[.:/]", name)[-1].lower())
+    """A column name as emotion names are compared: ``column_key`` of its last dotted part."""
+    return column_key(re.split(r"[.:/]", name)[-1])
 
 
 def side_score(name: str) -> str | None:

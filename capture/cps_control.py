@@ -111,19 +111,21 @@ def relay_socket(host: str, port: int) -> socket.socket:
     dual-stack sockets gets 0.0.0.0."""
     try:
         ipaddress.IPv4Address(host)
-        return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)
+        ipv4 = True
     except ValueError:
-        pass
-    try:
-        sock = bound_udp_socket("::", port, RELAY_WAKE_S)
-    except InputError:
-        if ":" in host:
-            raise
-        return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)  # no IPv6 here: a name is an IPv4 phone
-    if ":" not in host and sock.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY):
-        sock.close()
-        return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)
-    return sock
+        ipv4 = False
+    if not ipv4:
+        try:
+            sock = bound_udp_socket("::", port, RELAY_WAKE_S)
+        except InputError:
+            if ":" in host:
+                raise
+            # no IPv6 here: a name is an IPv4 phone
+        else:
+            if ":" in host or not sock.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY):
+                return sock
+            sock.close()
+    return bound_udp_socket("0.0.0.0", port, RELAY_WAKE_S)
 
 
 # what a non-blocking connect says while it goes on: EINPROGRESS on POSIX, WSAEWOULDBLOCK on Windows

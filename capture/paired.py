@@ -749,9 +749,7 @@ CLOCK_ROWS = 10
 CLOCK_END = 2.0
 
 
-def _column_key(name: str) -> str:
-    """A header name as time and frame columns are looked up: lower case, letters and digits only."""
-    return re.sub(r"[^0-9a-z]", "", name.lower())
+_column_key = ch.column_key  # lower case, letters and digits only
 
 
 def _clock_kind(name: str) -> tuple[str, int | None] | None:

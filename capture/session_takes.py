@@ -470,12 +470,19 @@ def _identical(rows: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _repeated_times(rows: np.ndarray, frame_time: np.ndarray) -> int:
     """Packets whose frame time an earlier packet already had, with another frame (copies of a datagram
     are duplicates, not a frozen clock)."""
+    order, again, first = _time_repeats(frame_time)
+    if not again.size:
+        return 0
+    return int(np.count_nonzero(~_identical(rows, order[again], order[first])))
+
+
+def _time_repeats(frame_time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Packets (arrival order) in frame-time order ``order`` (arrival order within a frame time): the places
+    in it of those whose frame time an earlier packet already had, and of that earlier packet each."""
     order = np.argsort(frame_time, kind="stable")
     rank, _ = _rank_in_time(frame_time[order])
-    repeat = np.flatnonzero(rank)
-    if not repeat.size:
-        return 0
-    return int(np.count_nonzero(~_identical(rows, order[repeat], order[repeat - rank[repeat]])))
+    again = np.flatnonzero(rank)
+    return order, again, again - rank[again]
 
 
 class _Recording:
@@ -716,10 +723,11 @@ def _place_off_clock(
         # hold its slot and it lies in a gap of the frames after the step (the first frame of a burst the
         # network held back after the step, ``_since_step_back``)
         for k in np.flatnonzero(~free & mine).tolist():
-            near = rec.around(float(ft[who[k]]) - tol, float(ft[who[k]]) + tol)
-            since = _since_step_back(ft[who[k : k + 1]], near, frame_time, arrival_s)
-            if since is not near:
-                free[k] = not _taken_slots(off[who[k : k + 1]], since, rows, frame_time, arrival_s)[0]
+            one = who[k : k + 1]
+            near = rec.around(float(ft[one[0]]) - tol, float(ft[one[0]]) + tol)
+            since = _since_step_back(ft[one], near, frame_time, arrival_s)
+            if since.size < near.size:  # only the frames after a step back hold their slots against it
+                free[k] = not _taken_slots(off[one], since, rows, frame_time, arrival_s)[0]
         fits[who[free], rank[free]] = True
     return np.where(fits.any(1), np.take_along_axis(order, fits.argmax(1)[:, None], 1)[:, 0], -1)
 
@@ -918,14 +926,11 @@ def _sharing_a_slot(rows: np.ndarray, idx: np.ndarray, frame_time: np.ndarray, l
     """Of rows ``idx`` (arrival order), those sharing their frame time with another of them with other
     values: each that came after the first of its frame time (``later``), else each first; none when they
     are a quarter of them or more (a sender ticking faster than its frame clock)."""
-    ft = frame_time[idx]
-    order = np.argsort(ft, kind="stable")  # arrival order within a frame time
-    rank, _ = _rank_in_time(ft[order])
-    again = np.flatnonzero(rank)
+    order, again, first = _time_repeats(frame_time[idx])
     if not again.size or again.size >= SHARED_TIME_FRACTION * idx.size:
         return np.zeros(0, np.int64)
-    again = again[~_identical(rows, idx[order[again]], idx[order[again - rank[again]]])]
-    return idx[order[again if later else again - rank[again]]]
+    other = ~_identical(rows, idx[order[again]], idx[order[first]])
+    return idx[order[(again if later else first)[other]]]
 
 
 def _free_in(ft: np.ndarray, have: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ hold it."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import struct
@@ -125,11 +126,14 @@ def read_maya_cache(xml: str | Path, vertices: int | None = None) -> VertexCache
         if s.count != count:
             raise InputError(f"a frame of {s.count} vertices after frames of {count}", s.path)
     out = np.empty((len(samples), count, 3), np.float32)
-    for i, s in enumerate(samples):
-        dtype = np.dtype(VECTOR_ARRAYS[s.tag][1])
-        with _open(s.path) as f:
-            f.seek(s.offset)
-            out[i] = np.frombuffer(f.read(count * 3 * dtype.itemsize), dtype).reshape(count, 3)
+    i = 0
+    for file, group in itertools.groupby(samples, lambda s: s.path):  # a one-file cache: opened once
+        with _open(file) as f:
+            for s in group:
+                dtype = np.dtype(VECTOR_ARRAYS[s.tag][1])
+                f.seek(s.offset)
+                out[i] = np.frombuffer(f.read(count * 3 * dtype.itemsize), dtype).reshape(count, 3)
+                i += 1
     return VertexCache(out, TICKS_PER_SECOND / step, xml, name, data)
 
 
@@ -370,6 +374,7 @@ def _per_frame_samples(xml: Path, desc: dict, suffix: str) -> list[dict]:
         found, stim = _frames_in(xml.parent / name)
         if len(found) != 1:
             raise InputError(f"a frame's file holding {len(found)} frames, not 1", xml.parent / name)
-        found[0][""] = found[0][""] if found[0][""] is not None else stim
+        if found[0][""] is None:
+            found[0][""] = stim
         frames.append(found[0])
     return frames

@@ -101,10 +101,14 @@ def files_under(folder: Path, litter: Litter) -> list[Path]:
     return files
 
 
+def _audio_of(path: Path) -> list[Path]:
+    """The audio file named as ``path`` (the first of ``AUDIO_SUFFIXES``) in a list; [] for none."""
+    return [p for p in map(path.with_suffix, AUDIO_SUFFIXES) if p.is_file()][:1]
+
+
 def _audio_beside(path: Path) -> Path:
-    for suffix in AUDIO_SUFFIXES:
-        if path.with_suffix(suffix).is_file():
-            return path.with_suffix(suffix)
+    if audio := _audio_of(path):
+        return audio[0]
     raise InputError("no audio file (.wav, .flac) with the same name", path)
 
 
@@ -468,7 +472,7 @@ def _ctm_utterances(path: Path, warnings: list[str]) -> list[tuple[Path, Segment
                         below.setdefault(f.stem, []).append(f)
             matches = below.get(utt, [])
         if not matches and len(utterances) == 1:
-            matches = [p for p in map(path.with_suffix, AUDIO_SUFFIXES) if p.is_file()][:1]
+            matches = _audio_of(path)
         if len(matches) == 1:
             found.append((matches[0], segs))
         else:

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from capture.runs import runs
 from dataset.phones import ARPABET, phone_index
 
 # (class, ARPAbet phones, why it matters for the face); every ARPAbet phone is in exactly one class
@@ -107,12 +108,6 @@ def lip_aperture(x: np.ndarray, columns: tuple[list[int], list[int]]) -> np.ndar
     if lips:
         aperture = aperture + 0.5 * (x[:, 2:4].mean(1) + x[:, 4:6].mean(1))
     return aperture
-
-
-def runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """(start, end) of each run of True in ``flags`` (end exclusive)."""
-    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
 
 
 class SegmentHits:

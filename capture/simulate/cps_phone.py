@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 
 from capture import cps_control as cps
-from capture.channels import LIVELINK_ORDER
+from capture.channels import LIVELINK_ORDER, udp_index
 from capture.csv_take import start_seconds_of_day
-from capture.realtime_packet import encode_realtime_packet
+from capture.realtime_packet import HEAD_CHANNELS, encode_realtime_packet
 from capture.replay import frame_times, rate_of, values_in_engine_order
 from capture.take import FrameStatus, Take
 
@@ -55,7 +55,8 @@ class RealtimeFrames:
         fn, sub = frame_times(start_seconds_of_day(take) + take.time[keep], num, den)
         values = values_in_engine_order(take)[keep]
         head = np.zeros((fn.size, 6), dtype=np.float32)
-        head[:, :3] = values[:, [54, 53, 52]]  # HeadRoll, HeadPitch, HeadYaw
+        for name, k in HEAD_CHANNELS.items():  # the pose's roll, pitch, yaw
+            head[:, k] = values[:, udp_index(name)]
         return cls(fn, sub, (num, den), values[:, :52], head)
 
     def packet(self, k: int, subject_id: str = SUBJECT_ID, controls: int | None = None) -> bytes:
